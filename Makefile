@@ -1,0 +1,27 @@
+# One command each: `make test` and `make demo` create/refresh .venv and install what they need.
+PYTHON ?= python3.11
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: test demo venv bench clean
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[build,sitl,test,systemd]'
+	@touch $(STAMP)
+
+venv: $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+demo: $(STAMP)
+	$(VENV)/bin/contract-guard demo
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_lookup.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,90 @@
+"""Contour error (the paper's Figure 11): the shortest distance from the vehicle to the commanded path.
+
+Exact per segment (foot-point search over the segments of a window of the path), for polylines and
+sampled trajectories in any dimension. One implementation, shared by the controller-contract builder
+(offline, whole flights) and the on-board `E_tr` estimator (`ContourWindow`).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+
+def distance_to_polyline(p, pts) -> float:
+    """Shortest distance from point `p` (d,) to the polyline through `pts` (n, d), n ≥ 1."""
+    pts = np.asarray(pts, dtype=float)
+    p = np.asarray(p, dtype=float)
+    if len(pts) == 1:
+        return float(np.linalg.norm(p - pts[0]))
+    a, ab = pts[:-1], np.diff(pts, axis=0)
+    ap = p - a
+    den = np.einsum("ij,ij->i", ab, ab)
+    s = np.divide(np.einsum("ij,ij->i", ap, ab), den, out=np.zeros_like(den), where=den > 0)
+    s = np.clip(s, 0.0, 1.0)
+    d = ap - s[:, None] * ab
+    return float(np.sqrt(np.min(np.einsum("ij,ij->i", d, d))))
+
+
+def contour_errors(positions, times, path_times, path_points, window_s: float) -> np.ndarray:
+    """Contour error of each flown sample against the commanded path near its own time.
+
+    Sample i at `times[i]` is measured against the path samples with times in
+    [times[i] − window_s, times[i] + window_s] (plus the segment entering that window), so a path
+    that crosses itself later does not hide an error now.
+    """
+    positions = np.asarray(positions, dtype=float)
+    path_times = np.asarray(path_times, dtype=float)
+    path_points = np.asarray(path_points, dtype=float)
+    lo = np.searchsorted(path_times, np.asarray(times) - window_s, side="left")
+    hi = np.searchsorted(path_times, np.asarray(times) + window_s, side="right")
+    out = np.empty(len(positions))
+    for i, p in enumerate(positions):
+        a, b = max(lo[i] - 1, 0), max(hi[i], lo[i] + 1)
+        out[i] = distance_to_polyline(p, path_points[a : min(b + 1, len(path_points))])
+    return out
+
+
+class ContourWindow:
+    """On-board sliding window: the worst contour error over the last `window_s` seconds.
+
+    Feed commanded path samples with `command(t, p)` (they may lie ahead of the current time) and
+    measured positions with `measure(t, p)`; `worst` is the largest error in the window.
+    """
+
+    def __init__(self, window_s: float = 2.0, path_span_s: float = 2.0):
+        self.window_s = window_s
+        self.path_span_s = path_span_s
+        self._path: deque[tuple[float, np.ndarray]] = deque()
+        self._errors: deque[tuple[float, float]] = deque()  # decreasing in error (monotonic max queue)
+
+    def command(self, t: float, p) -> None:
+        if self._path and t < self._path[-1][0]:
+            self._path.clear()  # a new plan replaces the old one from here on
+        self._path.append((t, np.asarray(p, dtype=float)))
+
+    def measure(self, t: float, p) -> float | None:
+        """Contour error of position `p` at time `t` (None if no commanded path is known yet)."""
+        while len(self._path) > 1 and self._path[1][0] < t - self.path_span_s:
+            self._path.popleft()
+        if not self._path:
+            return None
+        pts = np.array([q for s, q in self._path if s <= t + self.path_span_s])
+        if len(pts) == 0:
+            pts = self._path[0][1][None, :]
+        e = distance_to_polyline(p, pts)
+        while self._errors and self._errors[-1][1] <= e:
+            self._errors.pop()
+        self._errors.append((t, e))
+        while self._errors[0][0] < t - self.window_s:
+            self._errors.popleft()
+        return e
+
+    @property
+    def worst(self) -> float:
+        return self._errors[0][1] if self._errors else 0.0
+
+    def reset(self) -> None:
+        self._path.clear()
+        self._errors.clear()
