@@ -30,38 +30,88 @@ def hurts_index(grid: np.ndarray, x: float) -> int:
     return i if i < len(grid) else NONE
 
 
-def react_fixed_point(c0, r_k, rho, f, t_r, g=G):
-    """Largest V with V ≤ √(g·c(V))·F_cons(r_k/c(V)), c(V) = c0 − V·t_r, exactly for the step
-    function F_cons of the conservative lookup on the ρ grid (`rho` ascending, `f` on it).
+class ReactLookup:
+    """V ≤ √(g·c(V))·F_cons(r_k/c(V)), c(V) = c0 − V·t_r: the reaction-time fixed point, solved
+    exactly for the step function F_cons of the conservative lookup on the ρ grid.
 
-    Broadcasting: `rho`/`f` carry the grid on their last axis; `c0`, `r_k`, `t_r` broadcast against
-    the rest. For grid cell j the admissible V satisfy ρ(V) ≤ ρ_j, i.e. V ≤ (c0 − r_k/ρ_j)/t_r, and
-    V² + g F_j² t_r V − g F_j² c0 ≤ 0; the answer is the best cell. Returns 0 where no V > 0 is safe.
+    Built once per table column set: `rho` (n,) ascending, `f` (k, n) — k columns of F (one per
+    tilt), non-increasing along n — and `t_r` (k,) the reaction time of each column.
+
+    Grid cell j admits the V with ρ(V) ≤ ρ_j, i.e. V ≤ Vlim_j = (c0 − r_k/ρ_j)/t_r, and bounds them
+    by Vquad_j, the root of V² + g F_j² t_r V − g F_j² c0 = 0 (independent of r_k). Vquad_j falls
+    and Vlim_j rises with j, so the best cell sits where they cross: Vlim_j ≥ Vquad_j ⟺
+    r_k ≤ R_j = ρ_j (c0 − t_r Vquad_j), R_j increasing. Then V = max(Vquad_{j*}, Vlim_{j*−1}).
     """
-    c0 = np.asarray(c0, dtype=float)[..., None]
-    r_k = np.asarray(r_k, dtype=float)[..., None]
-    t_r = np.asarray(t_r, dtype=float)[..., None]
-    gf2 = g * np.asarray(f, dtype=float) ** 2
-    b = gf2 * t_r
-    v_quad = 0.5 * (-b + np.sqrt(b * b + 4.0 * gf2 * np.maximum(c0, 0.0)))
-    slack = c0 - r_k / rho  # ≥ 0 iff the cell admits V = 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v_lim = np.where(t_r > 0.0, slack / t_r, np.where(slack >= 0.0, np.inf, -np.inf))
-    v = np.minimum(v_quad, v_lim)
-    best = np.max(v, axis=-1, initial=0.0)
-    return np.maximum(best, 0.0) * (1.0 - 1e-9)  # round-off never optimistic
+
+    def __init__(self, rho, f, t_r, g=G):
+        self.rho = np.asarray(rho, dtype=float)
+        f = np.atleast_2d(np.asarray(f, dtype=float))
+        self.k, self.n = f.shape
+        self.t_r = np.asarray(t_r, dtype=float).reshape(self.k, 1)
+        if np.any(self.t_r <= 0):
+            raise ValueError("reaction time must be positive")  # the folded tilt time makes it so
+        gf2 = g * f * f
+        self._b = gf2 * self.t_r
+        self._b2 = self._b * self._b
+        self._4gf2 = 4.0 * gf2
+        self._row = np.arange(self.k, dtype=float)[:, None]
+        self._row_start = (np.arange(self.k) * self.n)[:, None]
+        self._rho_prev = np.concatenate([[np.inf], self.rho])  # ρ_{j−1}, shifted by one
+
+    def __call__(self, c0: float, r_k, lo: int = 0, hi: int | None = None) -> np.ndarray:
+        """Speeds for keep-out radii `r_k` (k, m) ≥ 0, over columns lo … hi−1 (all by default)."""
+        c0 = max(float(c0), 0.0)
+        sl = slice(lo, hi)
+        t_r = self.t_r[sl]
+        v_quad = 0.5 * (np.sqrt(self._b2[sl] + self._4gf2[sl] * c0) - self._b[sl])  # (k, n)
+        k = v_quad.shape[0]
+        lift = self._row[:k] * (c0 + 1.0)  # one searchsorted for all rows: lift row i by i·(c0+1)
+        big_r = self.rho * (c0 - t_r * v_quad) + lift  # increasing along rows and across them
+        r_k = np.minimum(r_k, c0 + 0.5)  # R < c0 < c0 + 0.5: a clipped query still lands past the row
+        j = np.searchsorted(big_r.ravel(), (r_k + lift).ravel()).reshape(r_k.shape) - self._row_start[:k]
+        # the best cell: Vquad_{j*} (none when j* = n) or Vlim_{j*−1} (none when j* = 0)
+        n = self.n
+        vq = np.where(j < n, v_quad.ravel()[np.minimum(j, n - 1) + self._row_start[:k]], 0.0)
+        vl = np.where(j > 0, (c0 - r_k / self._rho_prev[j]) / t_r, 0.0)
+        return np.maximum(np.maximum(vq, vl), 0.0) * (1.0 - 1e-9)  # round-off never optimistic
 
 
-def step_fixed_point(v_grid, v_of_e_on_grid):
-    """Largest V with V ≤ V_safe(E_cons(V)), E_cons the conservative (step) lookup on `v_grid`.
+def step_fixed_point(v_grid, limit_on_grid):
+    """Largest V with V ≤ limit(E_cons(V)), E_cons the conservative (step) lookup on `v_grid`.
 
-    `v_of_e_on_grid[..., j]` is the speed limit using the error of grid speed v_j (already the
-    worse of measured and predicted). Candidate j is min(v_j, limit_j); every candidate is feasible
-    and the sup is among them. Speeds above the grid's top have no error bound (no answer).
+    `limit_on_grid[..., j]` is the speed limit using the error of grid speed v_j (already the worse
+    of measured and predicted); it does not increase with j. Candidate j is min(v_j, limit_j); every
+    candidate is feasible and the sup is among them. Speeds above the grid's top have no error bound.
+    Returns (best speed, its index j) along the last axis.
     """
-    cand = np.minimum(v_grid, v_of_e_on_grid)
-    j = np.argmax(cand, axis=-1)
-    return np.take_along_axis(cand, j[..., None], axis=-1)[..., 0], j
+    cand = np.minimum(v_grid, limit_on_grid)
+    j = cand.argmax(axis=-1)
+    return cand.max(axis=-1), j
+
+
+def crossing_fixed_point(v_grid, limit_of_j) -> tuple[float, int]:
+    """`step_fixed_point` for one column by bisection, calling the scalar `limit_of_j(j)` O(log n) times:
+    min(v_j, limit_j) rises then falls, and the sup sits where v_j first reaches limit_j."""
+    lo, hi = 0, len(v_grid)  # find the first j with v_j ≥ limit_j
+    cache = {}
+
+    def lim(j):
+        if j not in cache:
+            cache[j] = limit_of_j(j)
+        return cache[j]
+
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if v_grid[mid] >= lim(mid):
+            hi = mid
+        else:
+            lo = mid + 1
+    best, arg = 0.0, 0
+    if lo < len(v_grid) and lim(lo) > best:
+        best, arg = lim(lo), lo
+    if lo > 0 and v_grid[lo - 1] > best:
+        best, arg = float(v_grid[lo - 1]), lo - 1
+    return float(best), arg
 
 
 def repair_monotone(values: np.ndarray, directions: tuple[int, ...], safe: str) -> tuple[np.ndarray, int]:

@@ -25,7 +25,15 @@ import numpy as np
 
 from . import __version__
 from .errors import ContractError
-from .lookup import NONE, helps_index, hurts_index, is_monotone, react_fixed_point, step_fixed_point
+from .lookup import (
+    NONE,
+    ReactLookup,
+    crossing_fixed_point,
+    helps_index,
+    hurts_index,
+    is_monotone,
+    step_fixed_point,
+)
 from .stop import braking_decel, stop_dead_time, stop_speed
 from .vehicle import G, Vehicle, vehicle_from_dict
 
@@ -240,10 +248,17 @@ class ContractTable:
         v = vehicle
         self._r_body = v.r_body_m
         self._tr_lo, self._tr_hi = v.thrust_ratio_range
+        self._t_dead = stop_dead_time(v)
         if avoid is not None:
             self._rho, self._tilts, self._trs = avoid.axes
             self._f = avoid.values
-            self._t_r = np.array([v.reaction_time(t) for t in self._tilts])  # folded reaction per grid tilt
+            t_r = np.array([v.reaction_time(t) for t in self._tilts])  # folded reaction per grid tilt
+            # one exact reaction-time solver per thrust column, over all tilts (precomputed)
+            self._react = [ReactLookup(self._rho, self._f[:, :, k].T, t_r) for k in range(len(self._trs))]
+        if e_tr_pred is not None:
+            self._ev, self._et, self._er = e_tr_pred.axes
+            if avoid is not None:  # the E_tr tilt cell that answers for each avoid grid tilt
+                self._e_tilt_of = np.array([hurts_index(self._et, t) for t in self._tilts])
 
     # ---- shape of the table
     @property
@@ -262,42 +277,60 @@ class ContractTable:
         """E_tr_pred at the worst grid corner (inf where the grid has no answer; 0 if no slot)."""
         if self.e_pred is None:
             return 0.0
-        vg, tg, rg = self.e_pred.axes
-        i, j, k = hurts_index(vg, v), hurts_index(tg, tilt), helps_index(rg, thrust_ratio)
+        i, j, k = hurts_index(self._ev, v), hurts_index(self._et, tilt), helps_index(self._er, thrust_ratio)
         return math.inf if NONE in (i, j, k) else float(self.e_pred.values[i, j, k])
 
     # ---- contract speeds
     def _bad_inputs(self, d_od, r_obst, e_tr, thrust_ratio, tilt=0.0) -> str | None:
-        vals = (d_od, r_obst, e_tr, thrust_ratio, tilt)
-        if not all(isinstance(x, (int, float, np.floating, np.integer)) and math.isfinite(x) for x in vals):
-            return "non-finite input"
+        try:
+            if not all(math.isfinite(x) for x in (d_od, r_obst, e_tr, thrust_ratio, tilt)):
+                return "non-finite input"
+        except TypeError:
+            return "non-numeric input"
         if d_od < 0 or r_obst < 0 or e_tr < 0 or tilt < 0:
             return "negative input"
         if thrust_ratio < self._tr_lo:
             return f"thrust_ratio {thrust_ratio:.3g} below the vehicle's range (no safe speed)"
         return None
 
+    def _avoid_cells(self, tilt, thrust_ratio, fixed: bool):
+        """Grid tilt indices to consider (the worst corner of `tilt`, or all up to it: always a
+        contiguous range) and the thrust index."""
+        k = helps_index(self._trs, thrust_ratio)
+        top = helps_index(self._tilts, min(tilt, self.vehicle.tilt_max))
+        if NONE in (k, top):
+            return [], k
+        return ([top] if fixed else list(range(top + 1))), k
+
     def v_safe(self, d_od, r_obst, e_tr, tilt, thrust_ratio) -> float:
         """Avoid-contract speed with the reaction-time fixed point V ≤ V_safe(d_od − V·t_react)."""
+        if self.avoid is None:
+            raise ContractError("this table carries no avoid contract")
         if self._bad_inputs(d_od, r_obst, e_tr, thrust_ratio, tilt):
             return 0.0
-        j, k = helps_index(self._tilts, min(tilt, self.vehicle.tilt_max)), helps_index(self._trs, thrust_ratio)
-        if NONE in (j, k):
+        js, k = self._avoid_cells(tilt, thrust_ratio, fixed=True)
+        if not js:
             return 0.0
-        r_k = r_obst + e_tr + self._r_body
-        return float(react_fixed_point(d_od + r_obst, r_k, self._rho, self._f[:, j, k], self._t_r[j]))
+        return float(self._react[k](d_od + r_obst, np.array([[r_obst + e_tr + self._r_body]]), js[0], js[0] + 1)[0, 0])
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
-        """Stop-contract speed (closed form, contracts/stop.py)."""
+        """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
         tilt = self.vehicle.tilt_max if tilt is None else tilt
         if self._bad_inputs(d_od, r_obst, e_tr, thrust_ratio, tilt):
             return 0.0
-        return float(self._stop(d_od, np.asarray(e_tr, dtype=float), min(thrust_ratio, self._tr_hi), tilt))
+        return self._stop(d_od, e_tr, braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt))
 
-    def _stop(self, d_od, e_tr, thrust_ratio, tilt):
-        v = self.vehicle
-        a = braking_decel(v, thrust_ratio, tilt)
-        return stop_speed(d_od - e_tr - self._r_body, a, v.braking.jerk_max_m_s3, stop_dead_time(v))
+    def _stop(self, d_od: float, e_tr: float, a: float) -> float:
+        return stop_speed(d_od - e_tr - self._r_body, a, self.vehicle.braking.jerk_max_m_s3, self._t_dead)
+
+    def _e_column(self, e_tilt_idx, thrust_ratio, e_meas):
+        """max(measured, E_tr_pred) on the speed grid for E-tilt cells `e_tilt_idx` → (len, n_v)."""
+        kk = helps_index(self._er, thrust_ratio)
+        idx = np.asarray(e_tilt_idx)
+        if kk == NONE:
+            return np.full((len(idx), len(self._ev)), np.inf)
+        e = self.e_pred.values[:, np.maximum(idx, 0), kk].T
+        return np.maximum(np.where((idx == NONE)[:, None], np.inf, e), e_meas)
 
     # ---- operating point Ω
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None) -> Omega:
@@ -306,59 +339,49 @@ class ContractTable:
         `tilt` fixes the tilt; otherwise the avoid contract picks the best tilt of its grid up to the
         vehicle's limit and the stop contract uses the autopilot's limit. Safe-first: any doubt → 0.
         """
-        t_fix = tilt
+        fixed = tilt is not None
         tilt = self.vehicle.tilt_max if tilt is None else tilt
         bad = self._bad_inputs(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
-        if contract == "avoid" and self.avoid is None:
-            bad = bad or "no avoid contract in this table"
+        if not bad and contract == "avoid" and self.avoid is None:
+            bad = "no avoid contract in this table"
         if bad:
-            return Omega(contract, 0.0, 0.0 if not math.isfinite(tilt) else tilt, e_tr_meas, 0.0, 0.0, bad)
-        # candidate tilts and their speed-limit function of e_tr (vectorised over an array of e)
+            return Omega(contract, 0.0, tilt if math.isfinite(tilt) else 0.0, e_tr_meas, 0.0, 0.0, bad)
         if contract == "avoid":
-            k = helps_index(self._trs, thrust_ratio)
-            top = min(tilt, self.vehicle.tilt_max)
-            js = [helps_index(self._tilts, top)] if t_fix is not None else list(
-                range(helps_index(self._tilts, top) + 1)
-            )
-            js = [j for j in js if j != NONE]
-            if k == NONE or not js:
-                return Omega(contract, 0.0, tilt, e_tr_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
-            tilts = self._tilts[js]
+            return self._omega_avoid(d_od, r_obst, e_tr_meas, thrust_ratio, tilt, fixed)
+        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt)
 
-            def limit(e, idx):  # e: (len(idx), n) errors → (len(idx), n) speeds
-                j = np.asarray(js)[idx]
-                f = self._f[:, j, k].T[:, None, :]  # (len(idx), 1, n_rho)
-                return react_fixed_point(d_od + r_obst, r_obst + e + self._r_body, self._rho, f, self._t_r[j][:, None])
-        else:
-            tilts = np.array([min(tilt, self.vehicle.tilt_max)])
-            tr = min(thrust_ratio, self._tr_hi)
-
-            def limit(e, idx):
-                return self._stop(d_od, e, tr, tilts[0])
-
-        idx = np.arange(len(tilts))
+    def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt, fixed) -> Omega:
+        js, k = self._avoid_cells(tilt, thrust_ratio, fixed)
+        if not js:
+            return Omega("avoid", 0.0, tilt, e_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
+        react, c0, r0 = self._react[k], d_od + r_obst, r_obst + self._r_body
         if self.e_pred is None:
-            e_used = np.full((len(tilts), 1), float(e_tr_meas))
-            v_cand = limit(e_used, idx)[:, 0]
+            lim = react(c0, np.full((len(js), 1), r0 + e_meas), js[0], js[-1] + 1)[:, 0]
+            best = int(np.argmax(lim))  # ties → the smaller tilt
+            v_max, e_b, v_s = float(lim[best]), e_meas, float(lim[best])
         else:
-            vg, tg, rg = self.e_pred.axes
-            kk = helps_index(rg, thrust_ratio)
-            jj = np.array([hurts_index(tg, t) for t in tilts])
-            if kk == NONE:
-                e_grid = np.full((len(tilts), len(vg)), np.inf)
-            else:
-                e_grid = np.where(jj[:, None] == NONE, np.inf, self.e_pred.values[:, jj, kk].T)
-            e_used = np.maximum(e_grid, e_tr_meas)  # (n_tilt, n_v)
-            finite = np.isfinite(e_used)
-            lim = np.where(finite, limit(np.where(finite, e_used, 0.0), idx), 0.0)
-            v_cand, jv = step_fixed_point(vg, lim)
-            e_used = np.take_along_axis(e_used, jv[:, None], axis=1)
-        best = int(np.argmax(v_cand))  # ties → the smaller tilt (first)
-        v_max = float(v_cand[best])
-        e_b = float(e_used[best, 0])
-        v_safe = float(limit(np.array([[e_b]]), np.array([best]))[0, 0]) if math.isfinite(e_b) else 0.0
+            e = self._e_column(self._e_tilt_of[js], thrust_ratio, e_meas)  # (n_tilt, n_v)
+            finite = np.isfinite(e)
+            lim = np.where(finite, react(c0, r0 + np.where(finite, e, 0.0), js[0], js[-1] + 1), 0.0)
+            v_cand, jv = step_fixed_point(self._ev, lim)
+            best = int(np.argmax(v_cand))
+            v_max, e_b, v_s = float(v_cand[best]), float(e[best, jv[best]]), float(lim[best, jv[best]])
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, R_obst, E_tr"
-        return Omega(contract, v_max, float(tilts[best]), e_b, v_safe, v_max - v_safe, reason)
+        return Omega("avoid", v_max, float(self._tilts[js[best]]), e_b, v_s, v_max - v_s, reason)
+
+    def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
+        tilt = min(tilt, self.vehicle.tilt_max)
+        a = braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt)
+        if self.e_pred is None:
+            v = self._stop(d_od, e_meas, a)
+            v_max, e_b, v_s = v, e_meas, v
+        else:
+            e = self._e_column([hurts_index(self._et, tilt)], thrust_ratio, e_meas)[0]
+            lim = lambda j: self._stop(d_od, e[j], a) if math.isfinite(e[j]) else 0.0  # noqa: E731
+            v_max, j = crossing_fixed_point(self._ev, lim)
+            e_b, v_s = float(e[j]), lim(j)
+        reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
+        return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)
 
     def gamma(self, v_max, d_od, r_obst, e_tr_meas, thrust_ratio, tilt=None, contract="avoid") -> float:
         """Γ = V_max − V_safe at a proposed V_max (e_tr = max(measured, E_tr_pred(V_max)))."""
@@ -366,7 +389,6 @@ class ContractTable:
         e = max(e_tr_meas, self.e_tr_pred(v_max, tilt, thrust_ratio))
         if not math.isfinite(e):
             return math.inf
-        vs = self.v_safe(d_od, r_obst, e, tilt, thrust_ratio) if contract == "avoid" else self.v_stop(
-            d_od, r_obst, e, thrust_ratio, tilt
-        )
-        return float(v_max - vs)
+        if contract == "avoid":
+            return float(v_max - self.v_safe(d_od, r_obst, e, tilt, thrust_ratio))
+        return float(v_max - self.v_stop(d_od, r_obst, e, thrust_ratio, tilt))

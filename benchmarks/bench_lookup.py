@@ -1,0 +1,71 @@
+"""Lookup and Ω-selection time per call (one JSON object on stdout).
+
+Goal (issue 2): median ≤ 50 µs, p99 ≤ 1 ms. Uses the shipped table if it carries the avoid contract,
+otherwise a synthetic avoid + E_tr_pred table of the shipped tables' size on the same vehicle.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from contracts.lookup import repair_monotone  # noqa: E402
+from contracts.table import SLOTS, Slot, verify, write_table  # noqa: E402
+from contracts.vehicle import DATA_DIR, load_vehicle  # noqa: E402
+
+
+def synthetic(vehicle, path):
+    rng = np.random.default_rng(0)
+    rho = np.linspace(0.02, 0.95, 40)
+    tilt = np.radians(np.arange(3.0, 25.01, 2.0))
+    tr = np.linspace(*vehicle.thrust_ratio_range, 5)
+    f, _ = repair_monotone(rng.uniform(0, 1.5, (40, len(tilt), 5)), SLOTS["avoid"][2], "down")
+    vg = np.linspace(0.5, 12.0, 16)
+    e, _ = repair_monotone(rng.uniform(0, 1.0, (16, len(tilt), 5)), SLOTS["e_tr_pred"][2], "up")
+    write_table(path, vehicle, avoid=Slot((rho, tilt, tr), f), e_tr_pred=Slot((vg, tilt, tr), e))
+    return verify(path, vehicle)
+
+
+def timed(fn, queries):
+    out = []
+    for q in queries:
+        t0 = time.perf_counter_ns()
+        fn(*q)
+        out.append((time.perf_counter_ns() - t0) / 1e3)
+    a = np.array(out)
+    return {"median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)), "calls": len(a)}
+
+
+def main():
+    vehicle = load_vehicle("mambo")
+    t = verify(DATA_DIR / "mambo.npz", vehicle)
+    source = "shipped"
+    if t.avoid is None or t.e_pred is None:
+        t = synthetic(vehicle, Path(tempfile.mkdtemp()) / "synthetic.npz")
+        source = "synthetic (shipped table lacks avoid or e_tr_pred)"
+    rng = np.random.default_rng(1)
+    n = 20000
+    qs = np.column_stack([rng.uniform(0, 16, n), rng.uniform(0.1, 2, n), rng.uniform(0, 1.5, n),
+                          rng.uniform(*vehicle.thrust_ratio_range, n)]).tolist()
+    for q in qs[:200]:  # warm-up
+        t.omega(*q)
+    res = {
+        "benchmark": "lookup",
+        "table": source,
+        "v_safe": timed(lambda d, r, e, k: t.v_safe(d, r, e, 0.2, k), qs),
+        "omega_avoid": timed(lambda d, r, e, k: t.omega(d, r, e, k, "avoid"), qs),
+        "omega_stop": timed(lambda d, r, e, k: t.omega(d, r, e, k, "stop"), qs),
+        "goal": {"median_us": 50, "p99_us": 1000},
+    }
+    print(json.dumps(res))
+
+
+if __name__ == "__main__":
+    main()

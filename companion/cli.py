@@ -1,0 +1,215 @@
+"""`contract-guard`: the one entry point (DESIGN.md §7).
+
+Every command that prints results has `--json` (one JSON object on stdout). Errors a person can cause
+end with one line on stderr and a non-zero exit status, never a traceback. This module wires the
+subcommands; the work lives in `contracts/`, `companion/` and `sitl_harness/`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+from contracts.errors import ContractError
+
+EXIT_USER_ERROR = 2
+
+# The paper's demonstration scenarios (Figures 14–16): Mambo, thrust ratio, D_od, R_obst, E_tr, tilt.
+PAPER_SCENARIOS = [
+    {"figure": 14, "thrust_ratio": 0.6, "d_od": 6.0, "r_obst": 1.0, "e_tr": 0.85, "tilt_deg": 7.03, "paper_v_max": 4.09},
+    {"figure": 15, "thrust_ratio": 0.8, "d_od": 6.0, "r_obst": 0.3, "e_tr": 0.75, "tilt_deg": 9.0, "paper_v_max": 5.29},
+    {"figure": 16, "thrust_ratio": 1.0, "d_od": 3.0, "r_obst": 0.6, "e_tr": 0.24, "tilt_deg": 9.0, "paper_v_max": 2.93},
+]
+
+
+def _emit(obj: dict, as_json: bool, text: str) -> None:
+    print(json.dumps(obj, sort_keys=True) if as_json else text)
+
+
+def _load_table(path, vehicle_path=None):
+    from contracts.table import verify
+    from contracts.vehicle import load_vehicle
+
+    vehicle = load_vehicle(vehicle_path) if vehicle_path else None
+    return verify(path, vehicle)
+
+
+def shipped_table(name: str) -> Path:
+    from contracts.vehicle import DATA_DIR
+
+    return DATA_DIR / f"{name}.npz"
+
+
+# ----------------------------------------------------------------------------- table
+
+
+def cmd_table_show(args) -> int:
+    t = _load_table(args.file)
+    m = t.meta
+    lines = [
+        f"table {args.file}: vehicle {m['vehicle']['name']}, tilt model {m['tilt_model']}, "
+        f"contracts {', '.join(t.available)}",
+        f"  schema {m['schema']} v{m['schema_version']}, package {m['package_version']}, created {m['created_utc']}",
+    ]
+    if m.get("note"):
+        lines.append(f"  note: {m['note']}")
+    for slot_name, slot in (("avoid", t.avoid), ("e_tr_pred", t.e_pred)):
+        if slot is not None:
+            for info, ax in zip(m["axes"][slot_name], slot.axes):
+                lines.append(f"  {slot_name}.{info['name']}: {len(ax)} points {ax[0]:.4g} … {ax[-1]:.4g} {info['unit']}")
+    _emit(m, args.json, "\n".join(lines))
+    return 0
+
+
+def cmd_table_verify(args) -> int:
+    t = _load_table(args.file, args.vehicle)
+    _emit(
+        {"ok": True, "file": str(args.file), "available": t.available, "vehicle": t.vehicle.name},
+        args.json,
+        f"ok: {args.file} verifies (vehicle {t.vehicle.name}; contracts {', '.join(t.available)})",
+    )
+    return 0
+
+
+def query_table(t, d_od, r_obst, e_tr, thrust_ratio, tilt_deg=None, v_max=None, contract=None) -> dict:
+    """The answer of `table query` as a dict (SI units; degrees where the name says so)."""
+    contract = contract or ("avoid" if t.avoid is not None else "stop")
+    tilt = None if tilt_deg is None else math.radians(tilt_deg)
+    om = t.omega(d_od, r_obst, e_tr, thrust_ratio, contract=contract, tilt=tilt)
+    out = {
+        "contract": contract,
+        "available": t.available,
+        "d_od": d_od,
+        "r_obst": r_obst,
+        "e_tr_measured": e_tr,
+        "thrust_ratio": thrust_ratio,
+        "v_max": om.v_max,
+        "tilt_deg": math.degrees(om.tilt),
+        "e_tr": om.e_tr,
+        "v_safe": om.v_safe,
+        "gamma": om.gamma,
+        "v_stop": t.v_stop(d_od, r_obst, om.e_tr if math.isfinite(om.e_tr) else e_tr, thrust_ratio, tilt),
+        "reason": om.reason,
+    }
+    if v_max is not None:  # Γ at a proposed speed instead of the chosen one
+        out["v_max"] = v_max
+        out["gamma"] = t.gamma(v_max, d_od, r_obst, e_tr, thrust_ratio, om.tilt, contract)
+        out["v_safe"] = v_max - out["gamma"]
+    return out
+
+
+def cmd_table_query(args) -> int:
+    t = _load_table(args.file, args.vehicle)
+    if args.contract == "avoid" and t.avoid is None:
+        raise ContractError(f"table {args.file} carries no avoid contract (stop contract only)")
+    q = query_table(t, args.d_od, args.r_obst, args.e_tr, args.thrust_ratio, args.tilt_deg, args.v_max, args.contract)
+    text = (
+        f"{q['contract']} contract: V_max {q['v_max']:.3f} m/s at tilt {q['tilt_deg']:.2f}°, "
+        f"E_tr {q['e_tr']:.3f} m, V_safe {q['v_safe']:.3f} m/s, Γ {q['gamma']:+.3f}; "
+        f"stop-contract speed {q['v_stop']:.3f} m/s ({q['reason']})"
+    )
+    _emit(q, args.json, text)
+    return 0
+
+
+def cmd_table_build(args) -> int:
+    from contracts.table import write_table
+    from contracts.vehicle import load_vehicle
+
+    vehicle = load_vehicle(args.vehicle)
+    if not args.stop_only:
+        raise ContractError("the avoid sweep is not part of this build yet; use --stop-only")
+    meta = write_table(args.out, vehicle, tilt_model=args.tilt_model)
+    _emit({"ok": True, "out": str(args.out), "available": meta["available"]}, args.json, f"wrote {args.out} ({meta['note']})")
+    return 0
+
+
+# ----------------------------------------------------------------------------- demo
+
+
+def cmd_demo(args) -> int:
+    """Until the daemon and SITL land: query the shipped tables for the paper's scenarios."""
+    t = _load_table(args.table or shipped_table("mambo"))
+    rows = []
+    for sc in PAPER_SCENARIOS:
+        q = query_table(t, sc["d_od"], sc["r_obst"], sc["e_tr"], sc["thrust_ratio"], sc["tilt_deg"])
+        rows.append({**sc, **{k: q[k] for k in ("contract", "v_max", "v_safe", "v_stop", "gamma", "reason")}})
+    if args.json:
+        print(json.dumps({"vehicle": t.vehicle.name, "available": t.available, "scenarios": rows}))
+        return 0
+    print(f"contract-guard demo — vehicle {t.vehicle.name}, table contracts: {', '.join(t.available)}")
+    print("paper scenarios (Figures 14–16): obstacle revealed at D_od, head-on")
+    print(f"{'fig':>3} {'thrust':>6} {'D_od':>5} {'R_obst':>6} {'E_tr':>5} {'tilt°':>6}  {'paper V':>7}  {'contract':>8} {'V_max':>6} {'V_stop':>6}")
+    for r in rows:
+        print(
+            f"{r['figure']:>3} {r['thrust_ratio']:>6.2f} {r['d_od']:>5.1f} {r['r_obst']:>6.2f} {r['e_tr']:>5.2f} "
+            f"{r['tilt_deg']:>6.2f}  {r['paper_v_max']:>7.2f}  {r['contract']:>8} {r['v_max']:>6.2f} {r['v_stop']:>6.2f}"
+        )
+    return 0
+
+
+# ----------------------------------------------------------------------------- parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="contract-guard", description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="command", required=True)
+
+    d = sub.add_parser("demo", help="fly (for now: query) the paper's scenarios and print a summary")
+    d.add_argument("--table", type=Path, help="table file (default: the shipped Mambo table)")
+    d.add_argument("--json", action="store_true")
+    d.set_defaults(func=cmd_demo)
+
+    t = sub.add_parser("table", help="build, inspect, query and verify Γ tables")
+    tsub = t.add_subparsers(dest="table_command", required=True)
+
+    s = tsub.add_parser("show", help="print a table's metadata")
+    s.add_argument("file", type=Path)
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_table_show)
+
+    v = tsub.add_parser("verify", help="check a table (schema, hash, monotonicity, vehicle)")
+    v.add_argument("file", type=Path)
+    v.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
+    v.add_argument("--json", action="store_true")
+    v.set_defaults(func=cmd_table_verify)
+
+    q = tsub.add_parser("query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed")
+    q.add_argument("file", type=Path)
+    q.add_argument("--d-od", type=float, required=True, help="obstacle detection range [m]")
+    q.add_argument("--r-obst", type=float, required=True, help="expected obstacle radius [m]")
+    q.add_argument("--e-tr", type=float, required=True, help="measured tracking (contour) error [m]")
+    q.add_argument("--thrust-ratio", type=float, required=True, help="T_max / T_nom")
+    q.add_argument("--tilt-deg", type=float, help="fix the tilt limit [deg] (default: the contract chooses)")
+    q.add_argument("--v-max", type=float, help="evaluate Γ at this speed [m/s] instead of the chosen one")
+    q.add_argument("--contract", choices=["avoid", "stop"], help="default: avoid if the table has it")
+    q.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_table_query)
+
+    b = tsub.add_parser("build", help="build a Γ table for a vehicle")
+    b.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
+    b.add_argument("--out", type=Path, required=True)
+    b.add_argument("--stop-only", action="store_true", help="carry the stop contract only")
+    b.add_argument("--tilt-model", choices=["cone", "box"], default=None)
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(func=cmd_table_build)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except ContractError as err:
+        print(f"contract-guard: error: {err}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""The command line as a user runs it: a real process, its exit status, stdout and stderr."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MAMBO_TABLE = ROOT / "contracts" / "data" / "mambo.npz"
+
+
+def cg(*args):
+    return subprocess.run(
+        [sys.executable, "-m", "companion.cli", *map(str, args)], capture_output=True, text=True, cwd=ROOT
+    )
+
+
+def test_table_show_json_has_the_documented_keys():
+    r = cg("table", "show", MAMBO_TABLE, "--json")
+    assert r.returncode == 0, r.stderr
+    m = json.loads(r.stdout)
+    for k in ("mass_kg", "t_nom_n", "r_body_m", "t_react_s"):
+        assert k in m["vehicle"]
+    assert m["tilt_model"] in ("cone", "box") and "axes" in m
+    assert m["vehicle"]["mass_kg"] == 0.063
+
+
+def test_table_query_json_keys_and_values():
+    r = cg("table", "query", MAMBO_TABLE, "--d-od", 6, "--r-obst", 1, "--e-tr", 0.3, "--thrust-ratio", 0.8,
+           "--contract", "stop", "--json")
+    assert r.returncode == 0, r.stderr
+    q = json.loads(r.stdout)
+    for k in ("v_safe", "v_max", "tilt_deg", "e_tr", "gamma", "v_stop"):
+        assert isinstance(q[k], float), k
+    assert q["gamma"] <= 1e-9 and q["v_max"] == pytest.approx(q["v_stop"])
+    # Γ at a proposed speed: positive when faster than the contract allows
+    r2 = cg("table", "query", MAMBO_TABLE, "--d-od", 6, "--r-obst", 1, "--e-tr", 0.3, "--thrust-ratio", 0.8,
+            "--contract", "stop", "--v-max", q["v_max"] + 1, "--json")
+    assert json.loads(r2.stdout)["gamma"] == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (("table", "show", "/nonexistent/t.npz"), "no such file"),
+        (("table", "verify", MAMBO_TABLE, "--vehicle", "x500"), "another vehicle"),
+        (("table", "query", MAMBO_TABLE, "--d-od", 6, "--r-obst", 1, "--e-tr", 0.3, "--thrust-ratio", 0.8,
+          "--contract", "avoid"), "no avoid contract"),
+        (("table", "build", "--vehicle", "/nonexistent/v.yaml", "--out", "/tmp/x.npz", "--stop-only"), "cannot read"),
+    ],
+)
+def test_user_errors_are_one_line_and_non_zero(args, needle):
+    r = cg(*args)
+    assert r.returncode != 0
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and needle in lines[0]
+
+
+def test_demo_runs_on_the_shipped_table():
+    r = cg("demo", "--json")
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert len(out["scenarios"]) == 3 and all(s["v_max"] > 0 for s in out["scenarios"])

@@ -1,0 +1,68 @@
+import numpy as np
+import pytest
+
+from contracts.contour import ContourWindow, contour_errors, distance_to_polyline
+
+
+def test_point_to_segment_closed_forms():
+    seg = [[0.0, 0.0], [4.0, 0.0]]
+    assert distance_to_polyline([2.0, 3.0], seg) == pytest.approx(3.0)  # foot inside
+    assert distance_to_polyline([-3.0, 4.0], seg) == pytest.approx(5.0)  # beyond the start
+    assert distance_to_polyline([7.0, -4.0], seg) == pytest.approx(5.0)  # beyond the end
+    assert distance_to_polyline([1.0, 1.0, 1.0], [[0, 0, 0], [2, 0, 0]]) == pytest.approx(np.sqrt(2))
+
+
+def test_polyline_corner_uses_the_vertex():
+    # an L: (0,0)→(2,0)→(2,2); the point (3,-1) is nearest the corner
+    path = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0]]
+    assert distance_to_polyline([3.0, -1.0], path) == pytest.approx(np.sqrt(2))
+    # inside the corner: nearest is one of the legs, not the vertex
+    assert distance_to_polyline([1.5, 0.5], path) == pytest.approx(0.5)
+
+
+def test_degenerate_segments_and_single_points():
+    assert distance_to_polyline([3.0, 4.0], [[0.0, 0.0]]) == pytest.approx(5.0)
+    assert distance_to_polyline([3.0, 4.0], [[0.0, 0.0], [0.0, 0.0]]) == pytest.approx(5.0)
+
+
+@pytest.mark.parametrize("n", [200, 2000])
+def test_finely_sampled_circle(n):
+    r, delta = 5.0, 0.3
+    th = np.linspace(0, 2 * np.pi, n + 1)
+    circle = np.column_stack([r * np.cos(th), r * np.sin(th)])
+    sag = r * (1 - np.cos(np.pi / n))  # chord sagitta: the polyline's largest inward deviation
+    rng = np.random.default_rng(1)
+    for a in rng.uniform(0, 2 * np.pi, 20):
+        p = (r + delta) * np.array([np.cos(a), np.sin(a)])
+        e = distance_to_polyline(p, circle)
+        assert delta - 1e-12 <= e <= delta + sag + 1e-12
+        q = (r - delta) * np.array([np.cos(a), np.sin(a)])
+        assert delta - sag - 1e-12 <= distance_to_polyline(q, circle) <= delta + 1e-12
+
+
+def test_window_keeps_a_self_crossing_path_from_hiding_the_error():
+    # out along x and back 1 m to the side: a sample at t=1 off by 1 m is 0 m from the return leg
+    t_path = np.linspace(0, 10, 101)
+    x = np.where(t_path <= 5, t_path, 10 - t_path)
+    y = np.where(t_path <= 5, 0.0, 1.0)
+    path = np.column_stack([x, y])
+    e = contour_errors([[1.0, 1.0]], [1.0], t_path, path, window_s=1.0)
+    assert e[0] == pytest.approx(1.0)
+    e_all = contour_errors([[1.0, 1.0]], [1.0], t_path, path, window_s=100.0)
+    assert e_all[0] == pytest.approx(0.0)
+
+
+def test_contour_window_tracks_the_worst_over_its_window():
+    w = ContourWindow(window_s=1.0, path_span_s=2.0)
+    assert w.measure(0.0, [0.0, 0.0]) is None
+    for k in range(0, 60):
+        t = 0.1 * k
+        w.command(t, [t, 0.0])
+    w.measure(1.0, [1.0, 0.5])
+    assert w.worst == pytest.approx(0.5)
+    w.measure(1.5, [1.5, 0.1])
+    assert w.worst == pytest.approx(0.5)  # still inside the window
+    w.measure(2.6, [2.6, 0.2])
+    assert w.worst == pytest.approx(0.2)  # the 0.5 sample has left the window
+    w.reset()
+    assert w.worst == 0.0
