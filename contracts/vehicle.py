@@ -153,7 +153,7 @@ class Vehicle(_Strict):
         return hashlib.sha256(blob.encode()).hexdigest()
 
 
-def _one_line(err: ValidationError) -> str:
+def one_line(err: ValidationError) -> str:
     e = err.errors()[0]
     where = ".".join(str(p) for p in e["loc"]) or "(top level)"
     msg = e["msg"].removeprefix("Value error, ")
@@ -168,7 +168,7 @@ def vehicle_from_dict(data: object, source: str = "vehicle") -> Vehicle:
     try:
         return Vehicle.model_validate(data)
     except ValidationError as err:
-        raise ContractError(f"{source}: {_one_line(err)}") from None
+        raise ContractError(f"{source}: {one_line(err)}") from None
 
 
 def resolve_vehicle_path(name_or_path: str | Path) -> Path:

@@ -1,0 +1,64 @@
+"""What differs between autopilots, behind one interface (one module per autopilot: px4.py, ardupilot.py).
+
+Normalised mode names used across the daemon: takeoff, mission, hold, rtl, land, offboard (PX4
+OFFBOARD / ArduPilot GUIDED), position, altitude, manual, other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+MAV_CMD_DO_SET_MODE = 176
+MAV_CMD_DO_CHANGE_SPEED = 178
+MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+
+
+@dataclass(frozen=True)
+class ParamCheck:
+    """An autopilot parameter the contract depends on: its name, how to turn its value into SI, and
+    what the vehicle file assumes."""
+
+    name: str
+    scale: float  # SI = raw · scale
+    what: str  # vehicle-file quantity it must agree with
+
+
+class Adapter:
+    name = "generic"
+    autopilot_id = 0  # HEARTBEAT.autopilot
+
+    def mode_name(self, base_mode: int, custom_mode: int) -> str:
+        raise NotImplementedError
+
+    def limit_applies(self, mode: str) -> bool:
+        """Whether DO_CHANGE_SPEED is in force in this mode."""
+        raise NotImplementedError
+
+    def set_mode_params(self, mode: str, armed: bool) -> tuple[float, ...]:
+        """COMMAND_LONG params 1–7 of MAV_CMD_DO_SET_MODE for a normalised mode name."""
+        raise NotImplementedError
+
+    def hold_mode(self) -> str:
+        """The mode the daemon uses to stop (PX4 Hold, ArduPilot Brake)."""
+        return "hold"
+
+    def speed_params(self, v: float) -> tuple[float, ...]:
+        """MAV_CMD_DO_CHANGE_SPEED: ground speed v (> 0 always), throttle unchanged."""
+        if not v > 0:
+            raise ValueError("a speed command must be positive")
+        return (1.0, float(v), -1.0, 0.0, 0.0, 0.0, 0.0)
+
+    def reserved(self) -> float:
+        """What unused COMMAND_LONG params carry (MAVSDK: NaN for PX4, 0 for ArduPilot)."""
+        return 0.0
+
+    param_checks: tuple[ParamCheck, ...] = ()
+
+
+def adapter_for(name: str) -> Adapter:
+    """The adapter of an autopilot by config name (`px4`, `ardupilot`)."""
+    from .ardupilot import ArduPilot
+    from .px4 import PX4
+
+    return {"px4": PX4, "ardupilot": ArduPilot}[name]()

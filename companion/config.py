@@ -1,0 +1,109 @@
+"""The daemon's configuration: one YAML file, validated on load (an unknown key or a bad value is one
+error line naming it). Degrees only where a key says `_deg`; everything else SI."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from contracts.errors import ContractError
+from contracts.vehicle import one_line
+
+Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SensorConfig(_Strict):
+    """One obstacle sensor as mounted: which messages are its, where it looks, how wide."""
+
+    kind: Literal["distance_sensor", "obstacle_distance"] = "distance_sensor"
+    id: int | None = None  # DISTANCE_SENSOR.id to match (None: any id with this orientation)
+    orientation_deg: float = 0.0  # sensor axis yaw in the body frame, clockwise from forward
+    h_fov_deg: Annotated[float, Field(gt=0, le=360)]
+    min_quality: Annotated[int, Field(ge=0, le=100)] = 50  # signal_quality below this: not trusted
+
+
+class LinkConfig(_Strict):
+    connect: str = "udpin:0.0.0.0:14540"  # pymavlink URL: udpin:/udpout:/tcp:/serial path
+    baud: int = 921600
+    autopilot: Literal["px4", "ardupilot"] = "px4"
+    target_system: int = 1
+    target_component: int = 1
+    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    signing_key_file: Path | None = None  # 32-byte key (raw or 64 hex chars), readable only by us
+    signing_timestamp_file: Path | None = None  # persisted across restarts (no RTC on many boards)
+
+
+class ContractConfig(_Strict):
+    r_obst_m: NonNeg = 1.0  # expected obstacle radius (also the R_OBST parameter)
+    e_tr_floor_m: NonNeg = 0.1  # smallest tracking error ever assumed
+    e_tr_window_s: Pos = 2.0  # E_tr is the worst contour error over this window
+    dwell_s: NonNeg = 2.0  # a higher limit takes effect only after holding this long
+    late_detection_hold_s: NonNeg = 10.0  # how long a late first detection lowers D_od
+    late_detection_tolerance_m: NonNeg = 0.3
+
+
+class ThrustConfig(_Strict):
+    source: Literal["hover", "configured"] = "hover"
+    value: Annotated[float, Field(gt=0, le=1)] | None = None  # configured thrust ratio (default: range bottom)
+    hover_throttle_nominal: Annotated[float, Field(gt=0, lt=1)] | None = None  # default: the vehicle file's
+    tau_s: Pos = 2.0  # low-pass time constant of the hover-throttle estimate
+
+
+class Timeouts(_Strict):
+    heartbeat_s: Pos = 1.5
+    telemetry_s: Pos = 0.5
+    obstacle_s: Pos = 0.5  # PX4 collision prevention drops range data older than 0.5 s
+    nav_s: Pos = 2.0
+
+
+class LogConfig(_Strict):
+    dir: Path = Path("/var/log/contract-guard")
+    max_bytes: int = 50_000_000
+    keep: int = 10
+    tlog: bool = False
+    state_hz: Pos = 10.0
+
+
+class Config(_Strict):
+    vehicle: str = "mambo"  # shipped name or path to a vehicle file
+    table: Path | None = None  # default: the shipped table of the vehicle
+    mode: Literal["shadow", "governor", "offboard"] = "shadow"
+    engage: bool = False  # engage only when asked (also the CG_ENGAGE parameter)
+    loop_hz: Pos = 50.0
+    speed_margin_m_s: NonNeg = 0.2  # ground speed this far above the limit counts as "not in force"
+    link: LinkConfig = LinkConfig()
+    sensors: list[SensorConfig] = [SensorConfig(h_fov_deg=30.0)]
+    contract: ContractConfig = ContractConfig()
+    thrust: ThrustConfig = ThrustConfig()
+    timeouts: Timeouts = Timeouts()
+    log: LogConfig = LogConfig()
+
+
+def config_from_dict(data: object, source: str = "config") -> Config:
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ContractError(f"{source}: expected a mapping")
+    try:
+        return Config.model_validate(data)
+    except ValidationError as err:
+        raise ContractError(f"{source}: {one_line(err)}") from None
+
+
+def load_config(path: str | Path) -> Config:
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise ContractError(f"config {path}: cannot read ({err.strerror or err})") from None
+    except yaml.YAMLError:
+        raise ContractError(f"config {path}: not valid YAML") from None
+    return config_from_dict(data, f"config {path.name}")

@@ -1,0 +1,400 @@
+"""The on-board daemon: one loop (default 50 Hz) over one MAVLink connection (DESIGN.md §5).
+
+    MAVLink in → telemetry → estimators (E_tr, D_od, thrust_ratio, nav health) → supervisor (Γ, Ω)
+              → commands (speed limit, Hold) → MAVLink out; every step → event log
+
+`Daemon.poll()` drains the link, `Daemon.step()` runs one cycle at the injected clock's time. The
+real-time runner (`run`) calls both at `loop_hz`; lock-step tests call them between simulator steps.
+Nothing here raises on bad input: a malformed message is counted and dropped, a failed log write is
+the log's problem, a missing stream leads to the supervisor's safe action.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from contracts.table import ContractTable
+
+from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE, adapter_for
+from .config import Config
+from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from .link import mavlink
+from .supervisor import Decision, Inputs, Supervisor
+from .telemetry import Telemetry
+
+UINT16_MAX = 65535
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_STANDBY, MAV_STATE_ACTIVE, MAV_STATE_CRITICAL = 3, 4, 5
+MAV_PARAM_TYPE_REAL32 = 9
+
+# message id → interval [µs] the daemon asks for (SET_MESSAGE_INTERVAL)
+STREAMS = {
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 20_000,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 20_000,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 50_000,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 100_000,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 500_000,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 200_000,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 500_000,
+    mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: 50_000,
+    mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE: 50_000,
+}
+PARAMS = ("CG_ENGAGE", "CG_MODE", "CG_R_OBST")
+MODES = ("shadow", "governor", "offboard")
+
+
+def sensor_orientation(yaw_deg_clockwise: float) -> int:
+    """MAV_SENSOR_ORIENTATION of a horizontal sensor. The spec's yaw rotations turn to the left
+    (left-facing = ROTATION_YAW_90, right-facing = ROTATION_YAW_270), our yaw turns clockwise."""
+    return round((-yaw_deg_clockwise % 360) / 45) % 8
+
+
+class VehicleClock:
+    """Daemon time follows the vehicle's: the last `time_boot_ms` plus local time since, scaled by the
+    vehicle's observed rate (so a sped-up SITL and a real aircraft look the same)."""
+
+    def __init__(self, local=time.monotonic):
+        self.local = local
+        self._ref: tuple[float, float] | None = None  # (vehicle s, local s)
+        self.rate = 1.0
+
+    def observe(self, time_boot_ms: int) -> None:
+        tv, tl = time_boot_ms / 1000.0, self.local()
+        if self._ref is not None and tl - self._ref[1] > 0.2 and tv > self._ref[0]:
+            r = (tv - self._ref[0]) / (tl - self._ref[1])
+            self.rate += 0.2 * (min(max(r, 0.01), 1000.0) - self.rate)
+        if self._ref is None or tl - self._ref[1] > 0.2 or tv < self._ref[0]:
+            self._ref = (tv, tl)
+
+    def __call__(self) -> float:
+        if self._ref is None:
+            return 0.0
+        return self._ref[0] + (self.local() - self._ref[1]) * self.rate
+
+
+@dataclass
+class Counters:
+    messages: int = 0
+    bad_packets: int = 0
+    commands_sent: int = 0
+    log_errors: int = 0
+
+
+class Daemon:
+    def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time):
+        self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
+        self.vclock = VehicleClock() if clock is None else None
+        self.clock = clock or self.vclock
+        self.adapter = adapter_for(cfg.link.autopilot)
+        self.tel = Telemetry()
+        veh = table.vehicle
+        self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s)
+        self.etr = EtrEstimator(cfg.contract)
+        hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
+        self.thrust = ThrustEstimator(cfg.thrust, hover, veh.thrust_ratio_range[0], veh.thrust_ratio_range[1])
+        self.nav = NavHealth(cfg.timeouts.nav_s)
+        self.sup = Supervisor(table, cfg.mode, cfg.contract.dwell_s, cfg.speed_margin_m_s, 1.0 / cfg.loop_hz)
+        self.params = {"CG_ENGAGE": float(cfg.engage), "CG_MODE": float(MODES.index(cfg.mode)),
+                       "CG_R_OBST": cfg.contract.r_obst_m}
+        self.counters = Counters()
+        self.startup_ok: bool | None = None
+        self._first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
+        self._commanded_mode: str | None = None
+        self._link_up = False
+        self._t_hb_out = -math.inf
+        self._t_state_log = -math.inf
+        self._t_nvf = -math.inf
+        self.last: Decision | None = None
+        self._sensor_of = self._sensor_index()
+        self.checks = StartupChecks(self.adapter, table.vehicle, cfg)
+        self._t_checks: float | None = None
+
+    # ------------------------------------------------------------------ input
+    def _sensor_index(self):
+        """(message kind, id, orientation) → configured sensor index."""
+        out = {}
+        for i, s in enumerate(self.cfg.sensors):
+            out[(s.kind, s.id)] = i
+        return out
+
+    def poll(self) -> int:
+        """Drain the link; returns the number of messages taken."""
+        n = 0
+        while True:
+            try:
+                msg = self.conn.recv_msg()
+            except Exception:  # a transport hiccup (e.g. serial unplugged): try again next cycle
+                break
+            if msg is None:
+                break
+            n += 1
+            self._dispatch(msg)
+        return n
+
+    def _dispatch(self, msg) -> None:
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.counters.bad_packets += 1
+            return
+        self.counters.messages += 1
+        src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
+        if src_sys != self.cfg.link.target_system:
+            return
+        if kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
+            self._param_protocol(msg)
+            return
+        if src_comp != self.cfg.link.target_component and kind not in ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"):
+            return
+        tb = getattr(msg, "time_boot_ms", None)
+        if self.vclock is not None and tb:
+            self.vclock.observe(tb)
+        t = self.clock()
+        try:
+            self._take(t, kind, msg)
+        except (ValueError, TypeError, OverflowError):
+            self.counters.bad_packets += 1  # decoded but nonsensical: drop it
+
+    def _take(self, t: float, kind: str, msg) -> None:
+        used = self.tel.update(t, msg)
+        if kind == "LOCAL_POSITION_NED":
+            self.etr.measure(t, msg.x, msg.y)
+        elif kind == "ATTITUDE":
+            self.dod.add_heading(t, msg.yaw)
+        elif kind == "POSITION_TARGET_LOCAL_NED" and self.tel.target is not None and self.tel.t_target == t:
+            self.etr.command(t, *self.tel.target)
+        elif kind == "VFR_HUD" and math.isfinite(self.tel.vz):
+            self.thrust.add(t, self.tel.throttle, self.tel.roll, self.tel.pitch, self.tel.vz, self.tel.in_air)
+        elif kind in ("ESTIMATOR_STATUS", "EKF_STATUS_REPORT"):
+            self.nav.update(t, kind, msg.flags)
+        elif kind == "DISTANCE_SENSOR":
+            i = self._sensor_of.get(("distance_sensor", msg.id), self._sensor_of.get(("distance_sensor", None)))
+            if i is not None and msg.orientation == sensor_orientation(self.cfg.sensors[i].orientation_deg):
+                self.dod.add_range(i, t, msg.current_distance / 100, msg.min_distance / 100,
+                                   msg.max_distance / 100, getattr(msg, "signal_quality", 0))
+        elif kind == "OBSTACLE_DISTANCE":
+            i = self._sensor_of.get(("obstacle_distance", None))
+            if i is not None:
+                self._take_bins(i, t, msg)
+        elif kind == "COMMAND_ACK":
+            if msg.command in (MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE):
+                self._event(t, "command_ack", command=msg.command, result=msg.result)
+        elif kind == "PARAM_VALUE":
+            self._autopilot_param(t, msg)
+        elif used is None:
+            return
+
+    def _take_bins(self, i: int, t: float, msg) -> None:
+        inc = msg.increment_f if getattr(msg, "increment_f", 0) else float(msg.increment)
+        if inc <= 0:
+            return  # PX4 ignores increment 0 too
+        d = np.asarray(msg.distances, dtype=float)
+        used = d != UINT16_MAX
+        # body bearing of bin k: angle_offset + k·increment (clockwise); MAV_FRAME_GLOBAL is north-aligned
+        ang = np.radians(getattr(msg, "angle_offset", 0.0) + inc * np.arange(len(d)))
+        if getattr(msg, "frame", 12) != 12:  # not MAV_FRAME_BODY_FRD: rotate into the body frame
+            ang = ang - self.tel.yaw
+        rng = np.where(d > msg.max_distance, np.inf, d / 100.0)
+        self.dod.add_bins(i, t, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc))
+
+    # ------------------------------------------------------------------ our parameters
+    def _param_protocol(self, msg) -> None:
+        if getattr(msg, "target_component", None) not in (self.cfg.link.component_id, 0):
+            return
+        kind = msg.get_type()
+        if kind == "PARAM_REQUEST_LIST":
+            for name in PARAMS:
+                self._send_param(name)
+        elif kind == "PARAM_REQUEST_READ":
+            name = msg.param_id if msg.param_index < 0 else PARAMS[msg.param_index] if msg.param_index < len(PARAMS) else None
+            if name in self.params:
+                self._send_param(name)
+        elif kind == "PARAM_SET" and msg.param_id in self.params:
+            v = float(msg.param_value)
+            if msg.param_id == "CG_MODE" and v not in (0.0, 1.0, 2.0) or not math.isfinite(v) or v < 0:
+                self._send_param(msg.param_id)  # refused: echo the current value
+                return
+            old = self.params[msg.param_id]
+            self.params[msg.param_id] = v
+            if msg.param_id == "CG_ENGAGE" and v >= 0.5 and old < 0.5:
+                self._first_seen_in_air = False  # asked anew: a restart in flight may engage now
+            self._event(self.clock(), "param_set", name=msg.param_id, old=old, new=v)
+            self._send_param(msg.param_id)
+
+    def _send_param(self, name: str) -> None:
+        self._send(self.conn.mav.param_value_encode(name.encode(), self.params[name], MAV_PARAM_TYPE_REAL32,
+                                                    len(PARAMS), PARAMS.index(name)))
+
+    def _autopilot_param(self, t: float, msg) -> None:
+        name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
+        if self.checks.take(name, float(msg.param_value)):
+            self._finish_checks(t)
+
+    def _finish_checks(self, t: float) -> None:
+        ok, reason = self.checks.verdict()
+        self.startup_ok = ok
+        self._event(t, "startup_check", ok=ok, reason=reason)
+        if not ok:
+            self._statustext(3, f"CG: refusing to engage: {reason}"[:50])
+
+    # ------------------------------------------------------------------ output
+    def _send(self, msg) -> None:
+        try:
+            self.conn.mav.send(msg)
+        except Exception:
+            pass  # the link is down; the supervisor sees the heartbeat time out
+
+    def _command(self, t: float, cmd: int, params: tuple[float, ...], what: str) -> None:
+        self.counters.commands_sent += 1
+        self._send(self.conn.mav.command_long_encode(self.cfg.link.target_system, self.cfg.link.target_component,
+                                                     cmd, 0, *params))
+        self._event(t, "command", name=what, params=[p if math.isfinite(p) else None for p in params])
+
+    def _event(self, t: float, name: str, **fields) -> None:
+        try:
+            self.log.event(t, name, **fields)
+        except Exception:
+            self.counters.log_errors += 1
+
+    def _statustext(self, severity: int, text: str) -> None:
+        self._send(self.conn.mav.statustext_encode(severity, text.encode()[:50]))
+
+    # ------------------------------------------------------------------ the cycle
+    def inputs(self, t: float) -> Inputs:
+        tel, to = self.tel, self.cfg.timeouts
+        link_ok = t - tel.t_heartbeat <= to.heartbeat_s
+        telemetry_ok = t - tel.t_local <= to.telemetry_s
+        speed = tel.ground_speed if telemetry_ok else math.nan
+        beta = math.atan2(tel.vy, tel.vx) - tel.yaw if telemetry_ok and speed > 0.3 else 0.0
+        r_obst = self.params["CG_R_OBST"]
+        e_tr = self.etr.value
+        corridor = 2 * r_obst + e_tr + self.table.vehicle.r_body_m
+        dod = self.dod.estimate(t, beta, corridor)
+        thrust_ratio, _ = self.thrust.value(t)
+        mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
+        if self._commanded_mode is not None and mode != self._commanded_mode:
+            self._commanded_mode = None  # someone else changed it since
+        if self._first_seen_in_air is None and tel.landed_state:
+            self._first_seen_in_air = tel.in_air
+        engaged = (self.params["CG_ENGAGE"] >= 0.5 and self.startup_ok is not False
+                   and self._first_seen_in_air is False)
+        return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
+                      in_air=tel.in_air, mode=mode, limit_applies=self.adapter.limit_applies(mode),
+                      mode_by_daemon=self._commanded_mode == mode, ground_speed=speed, dod=dod, e_tr=e_tr,
+                      thrust_ratio=thrust_ratio, r_obst=r_obst, engaged=engaged)
+
+    def step(self) -> Decision:
+        t = self.clock()
+        i = self.inputs(t)
+        d = self.sup.step(i)
+        self.last = d
+        self._link_events(t, i)
+        if d.hold and self.sup.mode != "shadow":
+            self._commanded_mode = self.adapter.hold_mode()
+            self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(self._commanded_mode, True), "hold")
+        if d.send_speed is not None and self.sup.mode == "governor":
+            self._command(t, MAV_CMD_DO_CHANGE_SPEED, self.adapter.speed_params(d.send_speed), "change_speed")
+        for name, fields in d.events:
+            self._event(t, name, **fields)
+        for sev, text in d.statustext:
+            self._statustext(sev, text)
+        self._periodic(t, i, d)
+        return d
+
+    def _link_events(self, t: float, i: Inputs) -> None:
+        if i.link_ok != self._link_up:
+            self._link_up = i.link_ok
+            self._event(t, "link", status="up" if i.link_ok else "down")
+            if i.link_ok:
+                self._t_checks = t if self.startup_ok is None else self._t_checks
+                for name in self.checks.wanted():
+                    self._send(self.conn.mav.param_request_read_encode(
+                        self.cfg.link.target_system, self.cfg.link.target_component, name.encode(), -1))
+                for msg_id, interval in STREAMS.items():
+                    self._command(t, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), float(interval), 0, 0, 0, 0, 0),
+                                  "set_message_interval")
+
+    def _periodic(self, t: float, i: Inputs, d: Decision) -> None:
+        if self.startup_ok is None and self._t_checks is not None and t - self._t_checks > 5.0:
+            self._finish_checks(t)  # what did not answer in 5 s counts as missing
+        if t - self._t_hb_out >= 1.0 or t < self._t_hb_out:
+            self._t_hb_out = t
+            status = {"holding": MAV_STATE_CRITICAL, "failsafe": MAV_STATE_CRITICAL, "active": MAV_STATE_ACTIVE}
+            self._send(self.conn.mav.heartbeat_encode(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0,
+                                                      status.get(d.state, MAV_STATE_STANDBY)))
+        if t - self._t_nvf >= 0.5 or t < self._t_nvf:
+            self._t_nvf = t
+            tb = int(t * 1000) & 0xFFFFFFFF
+            for name, v in (("CG_VMAX", d.omega.v_max), ("CG_GAMMA", d.omega.gamma), ("CG_DOD", i.dod.d_od),
+                            ("CG_ETR", d.omega.e_tr)):
+                self._send(self.conn.mav.named_value_float_encode(tb, name.encode(), v if math.isfinite(v) else -1.0))
+        if t - self._t_state_log >= 1.0 / self.cfg.log.state_hz or t < self._t_state_log:
+            self._t_state_log = t
+            tel = self.tel
+            try:
+                self.log.state(
+                    t, state=d.state, mode=i.mode, contract=self.sup.contract, engaged=i.engaged,
+                    x=tel.x, y=tel.y, z=tel.z, vx=tel.vx, vy=tel.vy, vz=tel.vz, ground_speed=i.ground_speed,
+                    d_od=i.dod.d_od, e_tr=d.omega.e_tr, e_tr_measured=i.e_tr, r_obst=i.r_obst,
+                    thrust_ratio=i.thrust_ratio, v_max=d.omega.v_max, tilt_deg=math.degrees(d.omega.tilt),
+                    v_safe=d.omega.v_safe, gamma=d.omega.gamma, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m,
+                )
+            except Exception:
+                self.counters.log_errors += 1
+
+    # ------------------------------------------------------------------ real time
+    def run(self, should_stop, notifier=None) -> None:
+        """Poll and step at `loop_hz` until `should_stop()`; feed the watchdog only while healthy."""
+        period = 1.0 / self.cfg.loop_hz
+        next_t = time.monotonic()
+        while not should_stop():
+            self.poll()
+            d = self.step()
+            if notifier is not None and d.state != "failsafe":
+                notifier.watchdog()
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_t = time.monotonic()
+
+
+class StartupChecks:
+    """DESIGN.md §5 start-up checks: the autopilot's tilt limit and braking limits must be at least what
+    the contract assumes (else its braking or swerving is weaker than the table's), a companion-only
+    offboard flight needs Land or Hold as offboard-loss action, and the configured sensors must cover
+    the direction of flight. Any mismatch refuses to engage (shadow mode still runs)."""
+
+    def __init__(self, adapter, vehicle, cfg: Config):
+        self.adapter, self.vehicle, self.cfg = adapter, vehicle, cfg
+        self.values: dict[str, float] = {}
+
+    def wanted(self) -> list[str]:
+        return [c.name for c in self.adapter.param_checks]
+
+    def take(self, name: str, value: float) -> bool:
+        """Record one parameter; True when all wanted ones are in."""
+        if name in self.wanted():
+            self.values[name] = value
+        return set(self.values) >= set(self.wanted())
+
+    def verdict(self) -> tuple[bool, str]:
+        v = self.vehicle
+        if not any(abs(((s.orientation_deg + 180) % 360) - 180) <= s.h_fov_deg / 2 for s in self.cfg.sensors):
+            return False, "no configured sensor looks forward"
+        needs = {"tilt_max_deg": v.tilt_max_deg, "braking.accel_max_m_s2": v.braking.accel_max_m_s2,
+                 "braking.jerk_max_m_s3": v.braking.jerk_max_m_s3}
+        for c in self.adapter.param_checks:
+            if c.name not in self.values:
+                return False, f"autopilot did not report {c.name}"
+            got = self.values[c.name] * c.scale
+            if c.what in needs and got < needs[c.what] * 0.999:
+                return False, f"{c.name} = {got:g} below the vehicle file's {c.what} = {needs[c.what]:g}"
+            if c.name == "COM_OBL_RC_ACT" and self.cfg.mode == "offboard" and int(got) not in (4, 5):
+                return False, f"COM_OBL_RC_ACT = {int(got)}: a companion-only aircraft needs 4 (Land) or 5 (Hold)"
+        return True, "ok"

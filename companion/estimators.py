@@ -1,0 +1,250 @@
+"""Estimators of the subsystems' guarantees, fed only with timestamped MAVLink-derived samples.
+
+Pure classes, no I/O and no simulator truth (a test checks the import graph):
+- `DodEstimator`: the navigation guarantee `D_od` along the direction of travel (DESIGN.md §1);
+- `EtrEstimator`: the controller guarantee `E_tr`, the worst contour error over a window (Figure 11);
+- `ThrustEstimator`: the actuators' `thrust_ratio` from hover throttle;
+- `NavHealth`: the autopilot's estimator flags.
+Angles in radians; body yaw angles clockwise from forward (FRD), as MAVLink.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contracts.contour import ContourWindow
+from contracts.vehicle import G
+
+from .config import ContractConfig, SensorConfig, ThrustConfig
+
+
+def wrap(a: float) -> float:
+    """Angle to (−π, π]."""
+    return math.atan2(math.sin(a), math.cos(a))
+
+
+# ============================================================================ D_od
+
+
+@dataclass
+class _SensorState:
+    cfg: SensorConfig
+    t: float = -math.inf  # time of the last sample
+    max_m: float = 0.0  # reported maximum range (lowered by honest degradation)
+    trusted: bool = False  # signal quality acceptable
+    hits: list[tuple[float, float]] = field(default_factory=list)  # (body bearing, range) seen now
+    bins_fov: tuple[float, float] | None = None  # body bearings of the first and last used bin
+    increment: float = 0.0
+
+
+@dataclass(frozen=True)
+class LateDetection:
+    """A navigation guarantee broken: an obstacle first seen inside the assumed D_od, within the FOV."""
+
+    t: float
+    sensor: int
+    bearing: float  # body frame
+    range_m: float  # where it first appeared
+    assumed_d_od: float  # what the estimate promised just before
+
+
+@dataclass(frozen=True)
+class DodEstimate:
+    d_od: float  # guaranteed detection range along the direction of travel [m]
+    covered_by: tuple[int, ...]  # sensors covering that direction, fresh and trusted
+    obstacle_m: float  # nearest obstacle hit near the path [m] (inf: none)
+    late: LateDetection | None  # a late first detection in this update, if any
+    reason: str  # why d_od is what it is
+
+
+class DodEstimator:
+    """`D_od` along the direction of travel from the sensors' configured mounting and field of view,
+    their reported range limits and signal quality, staleness (stale ⇒ 0), coverage (no sensor ⇒ 0) and
+    late first detections (which lower the estimate for a hold time)."""
+
+    def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float):
+        self.sensors = [_SensorState(c) for c in sensors]
+        self.contract = contract
+        self.stale_s = stale_s
+        self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
+        self._last_d_od = 0.0
+        self._pending: list[LateDetection] = []
+        self._yaw_hist: deque[tuple[float, float]] = deque()
+
+    # ---- inputs
+    def add_heading(self, t: float, yaw: float) -> None:
+        self._yaw_hist.append((t, yaw))
+        while len(self._yaw_hist) > 2 and self._yaw_hist[0][0] < t - 2.0:
+            self._yaw_hist.popleft()
+
+    def add_range(self, i: int, t: float, current_m: float, min_m: float, max_m: float, quality: int) -> None:
+        """A DISTANCE_SENSOR sample (PX4 convention: current ≥ max means nothing within range)."""
+        s = self.sensors[i]
+        seen = [(math.radians(s.cfg.orientation_deg), current_m)] if min_m < current_m < max_m - 0.01 else []
+        self._update(i, t, max_m, quality, seen)
+
+    def add_bins(self, i: int, t: float, bearings: np.ndarray, ranges_m: np.ndarray, max_m: float,
+                 increment: float) -> None:
+        """An OBSTACLE_DISTANCE sample: body bearings of the used bins and their ranges
+        (inf: nothing within max; nan: bins not used are left out by the caller)."""
+        s = self.sensors[i]
+        s.bins_fov = (float(bearings[0]), float(bearings[-1])) if len(bearings) else None
+        s.increment = increment
+        seen = [(float(b), float(r)) for b, r in zip(bearings, ranges_m) if r < max_m]
+        self._update(i, t, max_m, 0, seen)
+
+    def _update(self, i, t, max_m, quality, seen) -> None:
+        s = self.sensors[i]
+        fresh = t - s.t <= self.stale_s
+        before = s.hits if fresh else []
+        s.t, s.max_m = t, max(max_m, 0.0)
+        s.trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
+        for bearing, r in seen:
+            if any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
+                continue  # the same obstacle as before
+            if r < self._last_d_od - self.contract.late_detection_tolerance_m and not self._side_entry(i, t, bearing):
+                self._pending.append(LateDetection(t, i, bearing, r, self._last_d_od))
+                cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])
+                self._penalty = (t + self.contract.late_detection_hold_s, cap)
+        s.hits = seen
+
+    def _side_entry(self, i: int, t: float, bearing: float) -> bool:
+        """Whether a new hit may have come in from the side of the field of view rather than out of range."""
+        s = self.sensors[i]
+        if s.bins_fov is not None:  # bins: an edge bin is a side entry
+            lo, hi = s.bins_fov
+            return min(abs(wrap(bearing - lo)), abs(wrap(bearing - hi))) <= s.increment * 1.01
+        # single beam: only a turn of more than half the field of view in the last second can bring one in
+        half = math.radians(s.cfg.h_fov_deg) / 2
+        past = [y for (ty, y) in self._yaw_hist if ty >= t - 1.0]
+        return len(past) > 1 and max(abs(wrap(y - past[-1])) for y in past) > half
+
+    # ---- output
+    def estimate(self, t: float, beta: float, corridor_m: float = math.inf) -> DodEstimate:
+        """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
+        deciding which hits are on it (single-beam hits are always taken as on it)."""
+        covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
+        obstacle = math.inf
+        for i, s in enumerate(self.sensors):
+            if t - s.t > self.stale_s:
+                continue
+            if s.bins_fov is not None:
+                lo, hi = s.bins_fov
+                half = abs(wrap(hi - lo)) / 2 + s.increment / 2
+                axis = wrap(lo + abs(wrap(hi - lo)) / 2)
+            else:
+                half, axis = math.radians(s.cfg.h_fov_deg) / 2, math.radians(s.cfg.orientation_deg)
+            for b, r in s.hits:
+                if s.bins_fov is None or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
+                    obstacle = min(obstacle, r)
+            if not s.trusted or abs(wrap(beta - axis)) > half + 1e-9:
+                continue
+            covered.append(i)
+            if s.max_m > d:
+                d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
+        if self._penalty is not None:
+            if t <= self._penalty[0]:
+                if self._penalty[1] < d:
+                    d, reason = self._penalty[1], "lowered after a late first detection"
+            else:
+                self._penalty = None
+        self._last_d_od = d
+        late = self._pending[0] if self._pending else None
+        self._pending.clear()
+        return DodEstimate(d, tuple(covered), obstacle, late, reason)
+
+
+# ============================================================================ E_tr
+
+
+class EtrEstimator:
+    """Worst horizontal contour error over a window, never below the configured floor."""
+
+    def __init__(self, contract: ContractConfig):
+        self.floor = contract.e_tr_floor_m
+        self.window = ContourWindow(window_s=contract.e_tr_window_s, path_span_s=contract.e_tr_window_s)
+        self.last: float | None = None
+
+    def command(self, t: float, x: float, y: float) -> None:
+        if math.isfinite(x) and math.isfinite(y):
+            self.window.command(t, (x, y))
+
+    def measure(self, t: float, x: float, y: float) -> None:
+        if math.isfinite(x) and math.isfinite(y):
+            self.last = self.window.measure(t, (x, y))
+
+    @property
+    def value(self) -> float:
+        return max(self.floor, self.window.worst)
+
+    def reset(self) -> None:
+        self.window.reset()
+
+
+# ============================================================================ thrust_ratio
+
+
+class ThrustEstimator:
+    """thrust_ratio = nominal hover throttle / measured hover throttle, the latter from the collective
+    throttle corrected for tilt and vertical acceleration: h = throttle·cosφ·cosθ·g/(g + a_up),
+    low-passed. Falls back to the configured value (default: the vehicle's lowest) when unknown."""
+
+    def __init__(self, cfg: ThrustConfig, hover_nominal: float, fallback: float, top: float = 1.0):
+        self.cfg, self.h_nom, self.fallback, self.top = cfg, hover_nominal, fallback, top
+        self._h: float | None = None
+        self._t = None
+        self._vz = None  # (t, vz down)
+        self._a_up = 0.0
+
+    def add(self, t: float, throttle: float, roll: float, pitch: float, vz_down: float, in_air: bool) -> None:
+        if self._vz is not None and t > self._vz[0]:
+            a = -(vz_down - self._vz[1]) / (t - self._vz[0])
+            k = min(1.0, (t - self._vz[0]) / 0.2)
+            self._a_up += k * (a - self._a_up)
+        self._vz = (t, vz_down)
+        tilt_cos = math.cos(roll) * math.cos(pitch)
+        if not (in_air and 0.05 < throttle <= 1.0 and tilt_cos > math.cos(math.radians(35))):
+            return
+        h = throttle * tilt_cos * G / max(G + self._a_up, 0.5 * G)
+        if self._h is None:
+            self._h = h
+        else:
+            self._h += min(1.0, (t - self._t) / self.cfg.tau_s) * (h - self._h)
+        self._t = t
+
+    def value(self, t: float) -> tuple[float, str]:
+        if self.cfg.source == "configured":
+            return (self.cfg.value or self.fallback), "configured"
+        if self._h is None or t - self._t > 2.0:
+            return self.fallback, "no hover throttle in flight: vehicle's lowest thrust ratio"
+        return min(self.top, self.h_nom / self._h), f"hover throttle {self._h:.3f} vs nominal {self.h_nom:.3f}"
+
+
+# ============================================================================ navigation health
+
+# ESTIMATOR_STATUS.flags (ESTIMATOR_STATUS_FLAGS, common.xml) and EKF_STATUS_REPORT.flags (ardupilotmega.xml)
+_NEED = 1 | 2 | 8  # attitude, horizontal velocity, relative horizontal position
+_BAD = {"ESTIMATOR_STATUS": 128 | 1024 | 2048, "EKF_STATUS_REPORT": 128 | 1024 | 32768}
+
+
+class NavHealth:
+    """Healthy when the autopilot's estimator reports attitude, horizontal velocity and relative
+    position, and no constant-position mode, glitch or accelerometer error; stale ⇒ unhealthy."""
+
+    def __init__(self, stale_s: float):
+        self.stale_s = stale_s
+        self._t = -math.inf
+        self._ok = False
+        self.reason = "no estimator status yet"
+
+    def update(self, t: float, msg_type: str, flags: int) -> None:
+        self._t = t
+        self._ok = (flags & _NEED) == _NEED and not flags & _BAD.get(msg_type, 0)
+        self.reason = "ok" if self._ok else f"{msg_type} flags 0x{flags:x}"
+
+    def healthy(self, t: float) -> bool:
+        return self._ok and t - self._t <= self.stale_s

@@ -1,0 +1,263 @@
+"""The contract supervisor: each cycle, evaluate Γ, choose Ω, and decide what to tell the autopilot.
+
+Pure: `Supervisor.step(Inputs) -> Decision`, no I/O. The daemon turns decisions into MAVLink and
+event-log records. States (an explicit machine):
+
+    standby   not engaged, not flying, or shadow mode (shadow still computes and logs everything)
+    active    the speed limit is commanded and checked
+    holding   the daemon commanded Hold (obstacle inside the stop distance, limit not in force,
+              no safe speed, failsafe); it stays there until someone else changes the mode
+    failsafe  the link to the autopilot is lost: nothing can be commanded
+
+Authority (DESIGN.md §5): the pilot and the ground station outrank the daemon. It engages only when
+asked, never fights a mode change it did not make — after someone else leaves its Hold it logs it and
+stands down from that cause (a trigger must clear and fire anew before it holds again).
+Limits move one way fast: a lower limit takes effect at once, a higher one after `dwell_s`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+from contracts.stop import braking_decel, stop_dead_time, stopping_distance
+from contracts.table import ContractTable, Omega
+
+from .estimators import DodEstimate
+
+MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
+
+
+@dataclass(frozen=True)
+class Inputs:
+    """Everything the supervisor may look at, all derived from MAVLink samples."""
+
+    t: float
+    link_ok: bool  # autopilot heartbeat fresh
+    telemetry_ok: bool  # position and velocity fresh
+    nav_ok: bool  # the autopilot's estimator is healthy
+    armed: bool
+    in_air: bool
+    mode: str  # adapter's name: mission, hold, takeoff, land, rtl, position, offboard, manual, other
+    limit_applies: bool  # the autopilot applies DO_CHANGE_SPEED in this mode
+    mode_by_daemon: bool  # the current mode is one the daemon commanded
+    ground_speed: float
+    dod: DodEstimate
+    e_tr: float  # measured (with its floor)
+    thrust_ratio: float
+    r_obst: float
+    engaged: bool
+
+
+@dataclass
+class Decision:
+    state: str
+    omega: Omega
+    v_cmd: float | None  # the limit in force (after hysteresis), None when nothing is commanded
+    send_speed: float | None = None  # send DO_CHANGE_SPEED with this now
+    hold: bool = False  # command Hold/Brake now
+    events: list[tuple[str, dict]] = field(default_factory=list)
+    statustext: list[tuple[int, str]] = field(default_factory=list)  # (MAV_SEVERITY, text)
+
+
+class OneSidedLimit:
+    """A limit that drops at once and rises only after the higher value has held for `dwell_s`:
+    value = min(now, max(current, min of the candidates over the last dwell))."""
+
+    def __init__(self, dwell_s: float):
+        self.dwell_s = dwell_s
+        self.reset()
+
+    def reset(self) -> None:
+        self.value: float | None = None
+        self._t0: float | None = None
+        self._win: deque[tuple[float, float]] = deque()  # increasing candidates (monotonic min queue)
+
+    def update(self, t: float, candidate: float) -> float:
+        if self._t0 is None:
+            self._t0 = t
+        while self._win and self._win[-1][1] >= candidate:
+            self._win.pop()
+        self._win.append((t, candidate))
+        while self._win[0][0] < t - self.dwell_s:
+            self._win.popleft()
+        if self.value is None or candidate < self.value:
+            self.value = candidate
+        elif t - self._t0 >= self.dwell_s and self._win[0][1] > self.value:
+            self.value = self._win[0][1]  # every candidate of the last dwell was at least this
+        return self.value
+
+
+class Supervisor:
+    """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
+
+    def __init__(self, table: ContractTable, mode: str, dwell_s: float, speed_margin: float, loop_dt: float):
+        self.table = table
+        self.mode = mode
+        self.contract = "avoid" if mode == "offboard" else "stop"
+        self.limit = OneSidedLimit(dwell_s)
+        self.margin = speed_margin
+        self.loop_dt = loop_dt
+        self.state = "standby"
+        self._last_sent: float | None = None
+        self._last_sent_t = -math.inf
+        self._last_mode: str | None = None
+        self._last_in_air = False
+        self._over_since: float | None = None
+        self._suppressed: set[str] = set()  # hold causes stood down from after an override
+        self._violations: dict[str, dict] = {}
+        self._no_limit_mode_warned: str | None = None
+        self._held_for: list[str] = []  # the causes of the daemon's current Hold
+        self._t_hold = -math.inf
+        self._would: tuple[str, ...] = ()
+
+    # ------------------------------------------------------------------ helpers
+    def _set_state(self, d: Decision, new: str, reason: str) -> None:
+        if new != self.state:
+            d.events.append(("state_change", {"from": self.state, "to": new, "reason": reason}))
+            d.statustext.append((5 if new != "holding" else 2, f"CG: {new} ({reason})"[:50]))
+            self.state = new
+        d.state = new
+
+    def _violation(self, d: Decision, key: str, on: bool, **info) -> None:
+        """Track one guarantee: emit violation_start/end on transitions."""
+        if on and key not in self._violations:
+            self._violations[key] = info
+            d.events.append(("violation_start", info))
+            d.statustext.append((3, f"CG: {info['subsystem']} violation"[:50]))
+        elif not on and key in self._violations:
+            info0 = self._violations.pop(key)
+            d.events.append(("violation_end", {k: info0[k] for k in ("subsystem", "guarantee")}))
+
+    def _stop_distance(self, v: float, thrust_ratio: float) -> float:
+        veh = self.table.vehicle
+        a = braking_decel(veh, min(thrust_ratio, veh.thrust_ratio_range[1]))
+        return stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
+
+    # ------------------------------------------------------------------ the cycle
+    def step(self, i: Inputs) -> Decision:
+        om = self.table.omega(i.dod.d_od, i.r_obst, i.e_tr, i.thrust_ratio, contract=self.contract)
+        d = Decision(self.state, om, self.limit.value)
+        veh = self.table.vehicle
+
+        # mode bookkeeping: who changed it, and authority
+        if i.mode != self._last_mode:
+            if self._last_mode is not None:
+                by = "daemon" if i.mode_by_daemon else "other"
+                d.events.append(("mode_change", {"from": self._last_mode, "to": i.mode, "by": by}))
+                if self.state == "holding" and by == "other":
+                    self._suppressed |= set(self._held_for)
+                    self._set_state(d, "active", f"{i.mode} set by someone else: standing down")
+                self._last_sent = None  # re-send the limit after any mode change
+            self._last_mode = i.mode
+        if i.in_air and not self._last_in_air:
+            self._last_sent = None  # and after take-off
+        self._last_in_air = i.in_air
+
+        # guarantees (logged in every mode, shadow included)
+        lo = veh.thrust_ratio_range[0]
+        self._violation(d, "actuators", i.thrust_ratio < lo, subsystem="actuators",
+                        guarantee=f"thrust_ratio >= {lo}", assumed=lo, observed=i.thrust_ratio,
+                        action="no safe speed: hold")
+        late = i.dod.late
+        self._violation(d, "navigation", i.dod.reason.startswith("lowered"), subsystem="navigation",
+                        guarantee="every obstacle within D_od is detected",
+                        assumed=late.assumed_d_od if late else None, observed=late.range_m if late else None,
+                        action=f"D_od lowered to {i.dod.d_od:.2f} m")
+        if self.table.e_pred is not None and d.v_cmd:
+            e_pred = self.table.e_tr_pred(d.v_cmd, om.tilt, i.thrust_ratio)
+            self._violation(d, "controller", i.e_tr > e_pred + 0.05, subsystem="controller",
+                            guarantee="contour error <= E_tr_pred(V_max)", assumed=e_pred, observed=i.e_tr,
+                            action="E_tr raised to the measured value")
+
+        # failsafes, in order of what can still be done
+        if not i.link_ok:
+            self._set_state(d, "failsafe", "autopilot heartbeat lost")
+            return d
+        if self.state == "failsafe":
+            self._last_sent = None
+            self._set_state(d, "standby", "link restored")
+        flying = i.armed and i.in_air
+        if not (i.engaged and flying) or self.mode == "shadow":
+            self.limit.reset()
+            self._over_since = None
+            self._set_state(d, "standby", "shadow mode" if self.mode == "shadow" else
+                            ("not engaged" if not i.engaged else "not flying"))
+            d.v_cmd = None
+            return self._shadow(d, i) if self.mode == "shadow" else d
+
+        causes = self._causes(i, om)
+        # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
+        causes_now = {c for c, on in causes.items() if on}
+        self._suppressed = {c for c in self._suppressed if c in causes_now or
+                            (c == OBSTACLE and math.isfinite(i.dod.obstacle_m))}
+        fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
+
+        v_limit = self.limit.update(i.t, om.v_max)
+        d.v_cmd = v_limit
+        if fresh:
+            unanswered = self.state == "holding" and i.mode != "hold" and i.t - self._t_hold > 1.0
+            if self.state != "holding" or unanswered:  # (re)send Hold: new, or not taken after 1 s
+                d.hold = True
+                self._t_hold = i.t
+                self._held_for = list(fresh)
+                for c in fresh:
+                    d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger",
+                                     {"cause": c, "action": "hold"}))
+            self._set_state(d, "holding", fresh[0])
+            return d
+        if self.state == "holding" and i.mode == "hold" and i.mode_by_daemon:
+            return d  # stay stopped until someone else decides (authority)
+        self._set_state(d, "active", "limit in force")
+
+        # the limit: send it when it changed, after mode changes/take-off, and every 5 s
+        if i.limit_applies:
+            self._no_limit_mode_warned = None
+            changed = self._last_sent is None or abs(v_limit - self._last_sent) > max(0.05, 0.02 * v_limit)
+            if changed or i.t - self._last_sent_t > 5.0:
+                d.send_speed = max(v_limit, MIN_SPEED_CMD)
+                if changed:
+                    d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason}))
+                self._last_sent, self._last_sent_t = v_limit, i.t
+        elif self._no_limit_mode_warned != i.mode:
+            self._no_limit_mode_warned = i.mode
+            d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))
+            d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"[:50]))
+        return d
+
+    def _causes(self, i: Inputs, om: Omega) -> dict[str, bool]:
+        """Every reason to stop now (each edge-triggered after an override)."""
+        numbers = (i.ground_speed, i.e_tr, i.thrust_ratio, i.r_obst, i.dod.d_od)
+        finite = all(math.isfinite(x) for x in numbers)
+        over = finite and self.limit.value is not None and i.ground_speed > self.limit.value + self.margin
+        if over and i.limit_applies:
+            self._over_since = i.t if self._over_since is None else self._over_since
+        else:
+            self._over_since = None
+        settle = 0.0
+        if self._over_since is not None:  # time a compliant autopilot needs to slow to the limit
+            a = braking_decel(self.table.vehicle, min(i.thrust_ratio, 1.0)) if finite else 1.0
+            settle = (i.ground_speed - self.limit.value) / max(a, 0.1) + stop_dead_time(self.table.vehicle) + 1.0
+        margin_m = i.e_tr + self.table.vehicle.r_body_m + i.ground_speed * self.loop_dt
+        obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+        return {
+            "non-finite telemetry": not finite,
+            "stale telemetry": not i.telemetry_ok,
+            "bad navigation estimate": not i.nav_ok,
+            "no safe speed": om.v_max < MIN_SPEED_CMD,
+            OBSTACLE: obstacle,
+            "speed limit not in force": self._over_since is not None and i.t - self._over_since > settle,
+        }
+
+    def _shadow(self, d: Decision, i: Inputs) -> Decision:
+        """Shadow mode: what the governor would do, logged, nothing commanded."""
+        causes = tuple(c for c, on in self._causes(i, d.omega).items() if on) if i.armed and i.in_air else ()
+        if causes != self._would:
+            d.events.append(("would_hold", {"causes": list(causes)}))
+            self._would = causes
+        return d
+
+
+OBSTACLE = "obstacle inside the stop distance"
+FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed"}

@@ -1,0 +1,154 @@
+import math
+
+import numpy as np
+import pytest
+
+from companion.config import ContractConfig, SensorConfig, ThrustConfig
+from companion.estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from contracts.vehicle import G
+
+FWD = SensorConfig(h_fov_deg=30.0)
+RIGHT = SensorConfig(h_fov_deg=30.0, orientation_deg=90.0, id=2)
+CC = ContractConfig()
+
+
+def dod(*sensors):
+    return DodEstimator(list(sensors) or [FWD], CC, stale_s=0.5)
+
+
+def test_dod_is_the_reported_range_along_a_covered_direction():
+    e = dod()
+    e.add_range(0, 0.0, current_m=10.0, min_m=0.1, max_m=10.0, quality=100)
+    assert e.estimate(0.1, beta=0.0).d_od == 10.0
+    assert e.estimate(0.1, beta=math.radians(14)).d_od == 10.0
+    assert e.estimate(0.1, beta=math.radians(20)).d_od == 0.0  # outside the 30° field of view
+    assert e.estimate(0.1, beta=0.0).obstacle_m == math.inf  # current ≥ max: nothing seen
+
+
+def test_dod_stale_untrusted_and_honest_fog():
+    e = dod()
+    e.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
+    assert e.estimate(0.6, 0.0).d_od == 0.0  # stale ⇒ 0
+    e.add_range(0, 1.0, 10.0, 0.1, 10.0, 1)  # quality 1 = invalid
+    assert e.estimate(1.0, 0.0).d_od == 0.0
+    e.add_range(0, 1.1, 3.0, 0.1, 3.0, 80)  # honest fog: the sensor reports a shorter range
+    assert e.estimate(1.1, 0.0).d_od == 3.0
+    e.add_range(0, 1.2, 10.0, 0.1, 10.0, 0)  # 0 = quality unknown: accepted
+    assert e.estimate(1.2, 0.0).d_od == 10.0
+
+
+def test_dod_follows_the_direction_of_travel_across_sensors():
+    e = dod(FWD, RIGHT)
+    e.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
+    e.add_range(1, 0.0, 4.0, 0.1, 4.0, 100)
+    assert e.estimate(0.0, 0.0).d_od == 10.0
+    assert e.estimate(0.0, math.radians(90)).d_od == 4.0  # flying sideways to the right
+    assert e.estimate(0.0, math.radians(-90)).d_od == 0.0  # to the left nothing looks
+
+
+def test_late_first_detection_lowers_dod_and_is_reported():
+    e = dod()
+    t = 0.0
+    for _ in range(10):
+        e.add_range(0, t, 10.0, 0.1, 10.0, 100)
+        e.add_heading(t, 0.0)
+        assert e.estimate(t, 0.0).late is None
+        t += 0.05
+    e.add_range(0, t, 3.0, 0.1, 10.0, 100)  # hidden fog: first seen at 3 m although 10 m were promised
+    est = e.estimate(t, 0.0)
+    assert est.late is not None and est.late.range_m == 3.0 and est.late.assumed_d_od == 10.0
+    assert est.d_od == 3.0 and est.obstacle_m == 3.0
+    # the same obstacle getting closer is not a new late detection
+    e.add_range(0, t + 0.05, 2.8, 0.1, 10.0, 100)
+    assert e.estimate(t + 0.05, 0.0).late is None
+    # after the hold time the sensor's own range is believed again
+    e.add_range(0, t + 11.0, 10.0, 0.1, 10.0, 100)
+    assert e.estimate(t + 11.0, 0.0).d_od == 10.0
+
+
+def test_a_detection_at_the_range_edge_or_after_a_turn_is_not_late():
+    e = dod()
+    e.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
+    e.estimate(0.0, 0.0)
+    e.add_range(0, 0.05, 9.9, 0.1, 10.0, 100)  # at the edge of the range: on time
+    assert e.estimate(0.05, 0.0).late is None
+    e2 = dod()
+    e2.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
+    e2.estimate(0.0, 0.0)
+    e2.add_heading(0.0, 0.0)
+    e2.add_heading(0.5, math.radians(40))  # turned more than half the field of view
+    e2.add_range(0, 0.5, 3.0, 0.1, 10.0, 100)
+    assert e2.estimate(0.5, 0.0).late is None
+
+
+def test_bins_side_entry_is_not_a_violation_but_interior_is():
+    cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=60.0)
+    e = DodEstimator([cfg], CC, stale_s=0.5)
+    bearings = np.radians(np.arange(-30, 31, 5.0))
+    inc = math.radians(5)
+    far = np.full(len(bearings), np.inf)
+    e.add_bins(0, 0.0, bearings, far, 10.0, inc)
+    assert e.estimate(0.0, 0.0).d_od == 10.0
+    edge = far.copy()
+    edge[0] = 4.0  # appears in the outermost bin: came in from the side
+    e.add_bins(0, 0.05, bearings, edge, 10.0, inc)
+    assert e.estimate(0.05, 0.0).late is None
+    mid = edge.copy()
+    mid[6] = 4.0  # appears dead ahead, well inside the promised 10 m
+    e.add_bins(0, 0.1, bearings, mid, 10.0, inc)
+    est = e.estimate(0.1, 0.0)
+    assert est.late is not None and abs(est.late.bearing) < 1e-9 and est.d_od == 4.0
+
+
+def test_etr_is_the_worst_contour_error_with_a_floor():
+    e = EtrEstimator(ContractConfig(e_tr_floor_m=0.05, e_tr_window_s=1.0))
+    for k in range(50):
+        e.command(0.02 * k, 0.1 * k, 0.0)
+    assert e.value == 0.05
+    e.measure(0.5, 2.5, 0.3)
+    assert e.value == pytest.approx(0.3)
+    e.measure(0.6, 3.0, 0.01)
+    assert e.value == pytest.approx(0.3)
+    e.measure(1.7, 4.0, 0.01)
+    assert e.value == 0.05
+
+
+def test_thrust_ratio_from_hover_throttle_with_tilt_and_climb_corrections():
+    est = ThrustEstimator(ThrustConfig(tau_s=0.5), hover_nominal=0.47, fallback=0.6)
+    assert est.value(0.0)[0] == 0.6  # nothing known: the vehicle's lowest
+    t = 0.0
+    # level hover at throttle 0.47/0.8: a motor lost 20 % of its thrust
+    for _ in range(200):
+        est.add(t, 0.47 / 0.8, 0.0, 0.0, 0.0, True)
+        t += 0.02
+    assert est.value(t)[0] == pytest.approx(0.8, rel=1e-3)
+    # 20° bank at the same vertical thrust needs throttle/cos(20°): still 0.8
+    for _ in range(200):
+        est.add(t, 0.47 / 0.8 / math.cos(math.radians(20)), math.radians(20), 0.0, 0.0, True)
+        t += 0.02
+    assert est.value(t)[0] == pytest.approx(0.8, rel=1e-3)
+    # on the ground nothing is learnt
+    est2 = ThrustEstimator(ThrustConfig(), 0.47, 0.6)
+    est2.add(0.0, 0.2, 0, 0, 0, False)
+    assert est2.value(0.0)[0] == 0.6
+    # climbing at 1 m/s² needs (g+1)/g more throttle: corrected
+    est3 = ThrustEstimator(ThrustConfig(tau_s=0.2), 0.47, 0.6)
+    vz, t = 0.0, 0.0
+    for _ in range(300):
+        est3.add(t, 0.47 * (G + 1.0) / G, 0.0, 0.0, vz, True)
+        vz -= 1.0 * 0.02
+        t += 0.02
+    assert est3.value(t)[0] == pytest.approx(1.0, rel=1e-2)
+
+
+def test_nav_health_flags_and_staleness():
+    n = NavHealth(stale_s=1.0)
+    assert not n.healthy(0.0)
+    n.update(0.0, "ESTIMATOR_STATUS", 1 | 2 | 4 | 8 | 16 | 32)
+    assert n.healthy(0.5) and not n.healthy(1.5)
+    n.update(2.0, "ESTIMATOR_STATUS", 1 | 2 | 8 | 1024)  # GPS glitch
+    assert not n.healthy(2.0)
+    n.update(3.0, "EKF_STATUS_REPORT", 1 | 2 | 8 | 16)
+    assert n.healthy(3.0)
+    n.update(4.0, "EKF_STATUS_REPORT", 1 | 2 | 8 | 32768)  # ArduPilot's GPS glitch bit
+    assert not n.healthy(4.0)

@@ -1,0 +1,157 @@
+import math
+from dataclasses import replace
+
+import pytest
+
+from companion.estimators import DodEstimate
+from companion.supervisor import Inputs, OneSidedLimit, Supervisor
+from contracts.table import verify
+from contracts.vehicle import DATA_DIR, load_vehicle
+
+TABLE = verify(DATA_DIR / "mambo.npz", load_vehicle("mambo"))
+
+
+def dod(d=8.0, obstacle=math.inf, reason="sensor 0 reports range"):
+    return DodEstimate(d, (0,), obstacle, None, reason)
+
+
+BASE = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, in_air=True, mode="mission",
+              limit_applies=True, mode_by_daemon=False, ground_speed=2.0, dod=dod(), e_tr=0.2, thrust_ratio=1.0,
+              r_obst=1.0, engaged=True)
+
+
+def sup(mode="governor", dwell=2.0):
+    return Supervisor(TABLE, mode, dwell_s=dwell, speed_margin=0.2, loop_dt=0.02)
+
+
+def run(s, inputs, t0, t1, dt=0.02, **changes):
+    out = []
+    t = t0
+    while t < t1 - 1e-9:
+        out.append(s.step(replace(inputs, t=t, **changes)))
+        t += dt
+    return out
+
+
+def test_one_sided_limit_drops_at_once_and_rises_after_the_dwell():
+    lim = OneSidedLimit(2.0)
+    assert lim.update(0.0, 5.0) == 5.0
+    assert lim.update(0.1, 3.0) == 3.0  # at once
+    assert lim.update(1.0, 6.0) == 3.0
+    assert lim.update(2.05, 6.0) == 3.0  # the 3.0 at t=0.1 is still inside the window
+    assert lim.update(3.05, 6.0) == 6.0  # 6 has held for the whole dwell
+    assert lim.update(3.1, 4.0) == 4.0
+
+
+def test_standby_commands_nothing():
+    s = sup()
+    for changes in ({"engaged": False}, {"in_air": False}, {"armed": False}):
+        d = s.step(replace(BASE, **changes))
+        assert d.state == "standby" and d.send_speed is None and not d.hold
+
+
+def test_governor_sends_the_stop_contract_speed_and_follows_dod():
+    s = sup()
+    d = s.step(BASE)
+    want = TABLE.v_stop(8.0, 1.0, 0.2, 1.0)
+    assert d.state == "active" and d.send_speed == pytest.approx(want) and d.v_cmd == pytest.approx(want)
+    assert ("limit_change", {"v_max": pytest.approx(want), "reason": "ok"}) in d.events
+    # fog: D_od drops, the limit drops in the same cycle
+    d2 = s.step(replace(BASE, t=0.02, dod=dod(4.0)))
+    low = TABLE.v_stop(4.0, 1.0, 0.2, 1.0)
+    assert d2.send_speed == pytest.approx(low) and low < want
+    # fog clears: the limit rises only after the dwell
+    ds = run(s, BASE, 0.04, 2.0)
+    assert all(x.v_cmd == pytest.approx(low) for x in ds)
+    ds = run(s, BASE, 2.0, 2.2)
+    assert ds[-1].v_cmd == pytest.approx(want)
+
+
+def test_obstacle_inside_the_stop_distance_holds_and_authority_is_respected():
+    s = sup()
+    s.step(BASE)
+    d = s.step(replace(BASE, t=0.02, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
+    assert d.hold and d.state == "holding"
+    assert any(n == "hold_trigger" and f["cause"] == "obstacle inside the stop distance" for n, f in d.events)
+    # not taken within 1 s: sent again
+    d = s.step(replace(BASE, t=1.1, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
+    assert d.hold and d.state == "holding"
+    # while in the daemon's Hold nothing more is commanded
+    d = s.step(replace(BASE, t=1.14, mode="hold", mode_by_daemon=True, ground_speed=0.5, dod=dod(8.0, obstacle=2.0)))
+    assert not d.hold and d.state == "holding"
+    # the pilot resumes the mission: the daemon stands down from that cause
+    d = s.step(replace(BASE, t=1.16, mode="mission", ground_speed=0.5, dod=dod(8.0, obstacle=2.0)))
+    assert d.state == "active" and not d.hold
+    assert ("mode_change", {"from": "hold", "to": "mission", "by": "other"}) in d.events
+    d = s.step(replace(BASE, t=1.18, ground_speed=2.5, dod=dod(8.0, obstacle=1.5)))
+    assert not d.hold  # same cause, not cleared: no fight
+    s.step(replace(BASE, t=1.20, dod=dod(8.0)))  # clears
+    d = s.step(replace(BASE, t=1.22, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
+    assert d.hold  # a new obstacle: hold again
+
+
+def test_far_obstacle_does_not_hold():
+    s = sup()
+    d = s.step(replace(BASE, ground_speed=2.0, dod=dod(8.0, obstacle=7.5)))
+    assert not d.hold
+
+
+@pytest.mark.parametrize(
+    "changes, cause",
+    [
+        ({"telemetry_ok": False}, "stale telemetry"),
+        ({"nav_ok": False}, "bad navigation estimate"),
+        ({"ground_speed": math.nan}, "non-finite telemetry"),
+        ({"dod": dod(0.0, reason="no fresh, trusted sensor covers the direction of travel")}, "no safe speed"),
+        ({"thrust_ratio": 0.4}, "no safe speed"),
+    ],
+)
+def test_failsafes_hold(changes, cause):
+    s = sup()
+    s.step(BASE)
+    d = s.step(replace(BASE, t=0.02, **changes))
+    assert d.hold and d.state == "holding"
+    assert any(n == "failsafe" and f["cause"] == cause for n, f in d.events)
+
+
+def test_link_loss_is_a_failsafe_without_commands_and_restores():
+    s = sup()
+    s.step(BASE)
+    d = s.step(replace(BASE, t=0.02, link_ok=False))
+    assert d.state == "failsafe" and not d.hold and d.send_speed is None
+    d = s.step(replace(BASE, t=0.04))
+    assert d.state == "active" and d.send_speed is not None  # limit re-sent after the link comes back
+
+
+def test_mode_without_speed_limit_is_reported_once():
+    s = sup()
+    ds = run(s, BASE, 0.0, 0.1, mode="position", limit_applies=False)
+    events = [n for d in ds for n, _ in d.events]
+    assert events.count("limit_not_applicable") == 1
+    assert all(d.send_speed is None for d in ds)
+
+
+def test_speed_limit_not_in_force_holds_after_the_settle_time():
+    s = sup()
+    v = TABLE.v_stop(8.0, 1.0, 0.2, 1.0)
+    ds = run(s, BASE, 0.0, 1.0, ground_speed=v + 1.0)
+    assert not any(d.hold for d in ds)  # a compliant autopilot would still be slowing
+    ds = run(s, BASE, 1.0, 4.0, ground_speed=v + 1.0)
+    assert any(d.hold for d in ds)
+
+
+def test_shadow_mode_commands_nothing_but_logs_what_it_would_do():
+    s = sup("shadow")
+    d = s.step(replace(BASE, dod=dod(8.0, obstacle=1.0), ground_speed=3.0))
+    assert not d.hold and d.send_speed is None and d.state == "standby"
+    assert any(n == "would_hold" and "obstacle inside the stop distance" in f["causes"] for n, f in d.events)
+    assert d.omega.v_max > 0  # Ω is still computed
+
+
+def test_violations_start_and_end():
+    s = sup()
+    d = s.step(replace(BASE, thrust_ratio=0.5))
+    assert any(n == "violation_start" and f["subsystem"] == "actuators" for n, f in d.events)
+    d = s.step(replace(BASE, t=0.02, dod=dod(3.0, reason="lowered after a late first detection")))
+    assert any(n == "violation_start" and f["subsystem"] == "navigation" for n, f in d.events)
+    assert any(n == "violation_end" and f["subsystem"] == "actuators" for n, f in d.events)
