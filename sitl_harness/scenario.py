@@ -1,0 +1,194 @@
+"""Scenario files: world, start, route, wind, sensor, autopilot parameters and a fault timeline.
+
+YAML validated with pydantic; an unknown key or a bad value ends with one `ScenarioError` line
+naming the field. Lengths in metres, angles in degrees where the key says `_deg`, times in
+seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
+
+    name: column_ahead
+    vehicle: mambo
+    seed: 1
+    start: {x_m: 0, y_m: 0, yaw_deg: 0}
+    world:
+      columns: [{x_m: 12, y_m: 0, radius_m: 0.5}]
+      boxes: [{x_m: 20, y_m: 5, length_m: 2, width_m: 1, yaw_deg: 30}]
+    sensor: {fov_deg: 60, max_range_m: 8}
+    wind: {mean_m_s: 1.0, from_deg: 90, gust_m_s: 0.3}
+    route: {altitude_m: 2, cruise_speed_m_s: 2, waypoints: [[0, 0], [25, 0]]}
+    params: {MPC_XY_CRUISE: 2.0}
+    faults:
+      - {at_s: 10, thrust_ratio: 0.7}
+      - {at_s: 12, fog: {visibility_m: 3, report: hidden}}
+      - {at_s: 20, fog: clear}
+      - {at_s: 15, sensor_dropout_s: 1.0}
+      - {at_s: 25, link_dropout_s: 2.0}
+      - {at_s: 30, gust: {peak_m_s: 3, duration_s: 2, from_deg: 0}}
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Num = Annotated[float, Field(allow_inf_nan=False)]
+SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
+
+
+class ScenarioError(Exception):
+    """A one-line, user-facing error about a scenario file."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Start(_Strict):
+    x_m: Num = 0.0
+    y_m: Num = 0.0
+    yaw_deg: Num = 0.0
+
+
+class Home(_Strict):
+    lat_deg: Annotated[float, Field(ge=-90, le=90)] = 47.397742  # PX4 SITL's default home
+    lon_deg: Annotated[float, Field(ge=-180, le=180)] = 8.545594
+    alt_m: Num = 488.0
+
+
+class ColumnSpec(_Strict):
+    x_m: Num
+    y_m: Num
+    radius_m: Pos
+    height_m: Pos | None = None
+    name: str = ""
+
+
+class BoxSpec(_Strict):
+    x_m: Num
+    y_m: Num
+    length_m: Pos
+    width_m: Pos
+    yaw_deg: Num = 0.0
+    height_m: Pos | None = None
+    name: str = ""
+
+
+class WorldSpec(_Strict):
+    columns: list[ColumnSpec] = []
+    boxes: list[BoxSpec] = []
+
+
+class SensorSpec(_Strict):
+    fov_deg: Annotated[float, Field(gt=0, le=360)] = 60.0
+    increment_deg: Annotated[float, Field(gt=0, le=90)] = 5.0
+    min_range_m: NonNeg = 0.1
+    max_range_m: Pos = 10.0
+    noise_sd_m: NonNeg = 0.02
+    rate_hz: Annotated[float, Field(gt=0, le=100)] = 20.0
+
+
+class WindSpec(_Strict):
+    mean_m_s: NonNeg | None = None  # default: the vehicle file's design wind
+    from_deg: Num = 0.0
+    gust_m_s: NonNeg | None = None
+    length_m: Pos = 20.0
+
+
+class Route(_Strict):
+    altitude_m: Pos = 2.0
+    cruise_speed_m_s: Pos | None = None
+    waypoints: list[tuple[Num, Num]] = []
+
+
+class Fog(_Strict):
+    visibility_m: Pos
+    report: Literal["honest", "hidden"] = "honest"
+
+
+class Gust(_Strict):
+    peak_m_s: Num
+    duration_s: Pos
+    from_deg: Num = 0.0
+
+
+class Fault(_Strict):
+    """One timeline event: exactly one of the optional fields."""
+
+    at_s: NonNeg
+    thrust_ratio: Annotated[float, Field(gt=0, le=1.5)] | None = None
+    fog: Fog | Literal["clear"] | None = None
+    sensor_dropout_s: Pos | None = None
+    link_dropout_s: Pos | None = None
+    gust: Gust | None = None
+
+    @model_validator(mode="after")
+    def _one(self) -> "Fault":
+        set_ = [k for k in ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "gust")
+                if getattr(self, k) is not None]
+        if len(set_) != 1:
+            raise ValueError(f"a fault needs exactly one of thrust_ratio, fog, sensor_dropout_s, "
+                             f"link_dropout_s, gust (got {', '.join(set_) or 'none'})")
+        return self
+
+
+class Scenario(_Strict):
+    name: str = "empty"
+    description: str = ""
+    vehicle: str = "mambo"
+    seed: int = 0
+    physics_hz: Annotated[float, Field(ge=500, le=10000)] = 1000.0
+    home: Home = Home()
+    start: Start = Start()
+    world: WorldSpec = WorldSpec()
+    sensor: SensorSpec = SensorSpec()
+    wind: WindSpec = WindSpec()
+    route: Route = Route()
+    params: dict[str, Num] = {}
+    faults: list[Fault] = []
+
+
+def _one_line(err: ValidationError) -> str:
+    e = err.errors()[0]
+    where = ".".join(str(p) for p in e["loc"]) or "(top level)"
+    msg = e["msg"].removeprefix("Value error, ")
+    if e["type"] == "extra_forbidden":
+        msg = "unknown key"
+    more = f" [+{len(err.errors()) - 1} more]" if len(err.errors()) > 1 else ""
+    return f"{where}: {msg}{more}"
+
+
+def scenario_from_dict(data: object, source: str = "scenario") -> Scenario:
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{source}: expected a mapping")
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as err:
+        raise ScenarioError(f"{source}: {_one_line(err)}") from None
+
+
+def resolve_scenario_path(name_or_path: str | Path) -> Path:
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    return SCENARIO_DIR / f"{p.name}.yaml"
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """A scenario file by path, or a shipped one by name (`column_ahead`)."""
+    path = resolve_scenario_path(name_or_path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise ScenarioError(f"scenario file {path}: cannot read ({err.strerror or err})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" line {mark.line + 1}" if mark else ""
+        raise ScenarioError(f"scenario file {path}:{where} is not valid YAML") from None
+    return scenario_from_dict(data, f"scenario file {path.name}")

@@ -1,0 +1,149 @@
+"""The true world: vertical circular columns and (rotated) boxes standing on the ground. Pure maths.
+
+Horizontal geometry in local NED (x north, y east). Each obstacle rises from the ground to
+`height_m` (infinite by default); a vehicle at altitude h = −z sees/hits it only while h ≤ height.
+Truth stays inside the harness: clients learn about it only through the simulated sensor's MAVLink.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Column:
+    x: float
+    y: float
+    radius: float
+    height: float = math.inf
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Box:
+    x: float  # centre
+    y: float
+    length: float  # extent along the box's own x axis (north when yaw = 0)
+    width: float
+    yaw: float = 0.0  # rad, rotation of the box's x axis from north toward east
+    height: float = math.inf
+    name: str = ""
+
+
+@dataclass
+class World:
+    columns: list[Column] = field(default_factory=list)
+    boxes: list[Box] = field(default_factory=list)
+
+    @property
+    def obstacles(self) -> list:
+        return [*self.columns, *self.boxes]
+
+    def ray_cast(self, px: float, py: float, alt: float, angles: np.ndarray,
+                 max_range: float) -> np.ndarray:
+        """Distance along horizontal rays from (px, py) at compass `angles` (rad) to the first
+        obstacle surface, `inf` if none within `max_range`. A ray starting inside an obstacle: 0."""
+        dx = np.cos(angles)
+        dy = np.sin(angles)
+        best = np.full(angles.shape, np.inf)
+        for c in self.columns:
+            if alt > c.height:
+                continue
+            ox, oy = px - c.x, py - c.y
+            b = dx * ox + dy * oy
+            cc = ox * ox + oy * oy - c.radius * c.radius
+            disc = b * b - cc
+            with np.errstate(invalid="ignore"):
+                t = np.where(cc <= 0.0, 0.0, -b - np.sqrt(np.maximum(disc, 0.0)))
+            hit = (disc >= 0.0) & (t >= 0.0)
+            best = np.where(hit & (t < best), t, best)
+        for bx in self.boxes:
+            if alt > bx.height:
+                continue
+            cy, sy = math.cos(bx.yaw), math.sin(bx.yaw)
+            ox, oy = px - bx.x, py - bx.y
+            lx, ly = cy * ox + sy * oy, -sy * ox + cy * oy  # origin in the box frame
+            ux, uy = cy * dx + sy * dy, -sy * dx + cy * dy  # directions in the box frame
+            hx, hy = 0.5 * bx.length, 0.5 * bx.width
+            tmin = np.zeros(angles.shape)
+            tmax = np.full(angles.shape, np.inf)
+            ok = np.ones(angles.shape, dtype=bool)
+            for o, u, h in ((lx, ux, hx), (ly, uy, hy)):
+                par = np.abs(u) < 1e-12
+                ok &= ~(par & (abs(o) > h))
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    t1 = (-h - o) / u
+                    t2 = (h - o) / u
+                lo = np.where(par, -np.inf, np.minimum(t1, t2))
+                hi = np.where(par, np.inf, np.maximum(t1, t2))
+                tmin = np.maximum(tmin, lo)
+                tmax = np.minimum(tmax, hi)
+            hit = ok & (tmin <= tmax)
+            best = np.where(hit & (tmin < best), tmin, best)
+        return np.where(best <= max_range, best, np.inf)
+
+    def clearance(self, px: float, py: float, alt: float) -> tuple[float, int]:
+        """Horizontal distance from a point to the nearest obstacle surface (negative inside) and
+        that obstacle's index in `obstacles` (−1 if none)."""
+        best, idx = math.inf, -1
+        for i, o in enumerate(self.obstacles):
+            if alt > o.height:
+                continue
+            if isinstance(o, Column):
+                d = math.hypot(px - o.x, py - o.y) - o.radius
+            else:
+                cy, sy = math.cos(o.yaw), math.sin(o.yaw)
+                ox, oy = px - o.x, py - o.y
+                lx, ly = abs(cy * ox + sy * oy) - 0.5 * o.length, abs(-sy * ox + cy * oy) - 0.5 * o.width
+                d = math.hypot(max(lx, 0.0), max(ly, 0.0)) if (lx > 0 or ly > 0) else max(lx, ly)
+            if d < best:
+                best, idx = d, i
+        return best, idx
+
+
+@dataclass(frozen=True)
+class Collision:
+    """The body disc (radius r_body) touched an obstacle: when, where (NED) and which."""
+
+    time_s: float
+    position: tuple[float, float, float]
+    obstacle: int
+    obstacle_name: str
+    clearance_m: float  # surface distance of the vehicle centre at detection
+
+
+class CollisionMonitor:
+    """Swept check of the body disc against the true geometry; one record per contact."""
+
+    def __init__(self, world: World, r_body: float):
+        self.world = world
+        self.r_body = r_body
+        self.collisions: list[Collision] = []
+        self.min_clearance = math.inf  # smallest surface distance minus r_body seen so far
+        self._touching = False
+        self._prev: np.ndarray | None = None
+
+    def update(self, t: float, pos: np.ndarray) -> Collision | None:
+        if not self.world.obstacles:
+            return None
+        prev = pos if self._prev is None else self._prev
+        self._prev = np.array(pos, dtype=float)
+        n = max(1, math.ceil(float(np.linalg.norm(pos[:2] - prev[:2])) / (0.25 * self.r_body)))
+        worst, widx, wpos = math.inf, -1, pos
+        for k in range(1, n + 1):
+            p = prev + (pos - prev) * (k / n)
+            d, i = self.world.clearance(float(p[0]), float(p[1]), float(-p[2]))
+            if d < worst:
+                worst, widx, wpos = d, i, p
+        self.min_clearance = min(self.min_clearance, worst - self.r_body)
+        touching = worst < self.r_body
+        new = None
+        if touching and not self._touching:
+            o = self.world.obstacles[widx]
+            new = Collision(t, tuple(float(v) for v in wpos), widx, o.name or f"#{widx}", worst)
+            self.collisions.append(new)
+        self._touching = touching
+        return new
