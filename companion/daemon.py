@@ -104,7 +104,7 @@ class Daemon:
         self.counters = Counters()
         self.startup_ok: bool | None = None
         self._first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
-        self._commanded_mode: str | None = None
+        self._commanded_mode: tuple[str, float, bool] | None = None
         self._link_up = False
         self._t_hb_out = -math.inf
         self._t_state_log = -math.inf
@@ -222,7 +222,7 @@ class Daemon:
             self.params[msg.param_id] = v
             if msg.param_id == "CG_ENGAGE" and v >= 0.5 and old < 0.5:
                 self._first_seen_in_air = False  # asked anew: a restart in flight may engage now
-            self._event(self.clock(), "param_set", name=msg.param_id, old=old, new=v)
+            self._event(self.clock(), "param_set", param=msg.param_id, old=old, new=v)
             self._send_param(msg.param_id)
 
     def _send_param(self, name: str) -> None:
@@ -252,7 +252,7 @@ class Daemon:
         self.counters.commands_sent += 1
         self._send(self.conn.mav.command_long_encode(self.cfg.link.target_system, self.cfg.link.target_component,
                                                      cmd, 0, *params))
-        self._event(t, "command", name=what, params=[p if math.isfinite(p) else None for p in params])
+        self._event(t, "command", cmd=what, params=[p if math.isfinite(p) else None for p in params])
 
     def _event(self, t: float, name: str, **fields) -> None:
         try:
@@ -276,15 +276,20 @@ class Daemon:
         dod = self.dod.estimate(t, beta, corridor)
         thrust_ratio, _ = self.thrust.value(t)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
-        if self._commanded_mode is not None and mode != self._commanded_mode:
-            self._commanded_mode = None  # someone else changed it since
+        by_daemon = False
+        if self._commanded_mode is not None:  # (mode, when commanded, seen in a heartbeat yet)
+            want, t_cmd, seen = self._commanded_mode
+            if mode == want:
+                self._commanded_mode, by_daemon = (want, t_cmd, True), True
+            elif seen or t - t_cmd > 3.0:  # left it since, or never took it (heartbeats are 1 Hz)
+                self._commanded_mode = None
         if self._first_seen_in_air is None and tel.landed_state:
             self._first_seen_in_air = tel.in_air
         engaged = (self.params["CG_ENGAGE"] >= 0.5 and self.startup_ok is not False
                    and self._first_seen_in_air is False)
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
                       in_air=tel.in_air, mode=mode, limit_applies=self.adapter.limit_applies(mode),
-                      mode_by_daemon=self._commanded_mode == mode, ground_speed=speed, dod=dod, e_tr=e_tr,
+                      mode_by_daemon=by_daemon, ground_speed=speed, dod=dod, e_tr=e_tr,
                       thrust_ratio=thrust_ratio, r_obst=r_obst, engaged=engaged)
 
     def step(self) -> Decision:
@@ -294,8 +299,8 @@ class Daemon:
         self.last = d
         self._link_events(t, i)
         if d.hold and self.sup.mode != "shadow":
-            self._commanded_mode = self.adapter.hold_mode()
-            self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(self._commanded_mode, True), "hold")
+            self._commanded_mode = (self.adapter.hold_mode(), t, False)
+            self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(self.adapter.hold_mode(), True), "hold")
         if d.send_speed is not None and self.sup.mode == "governor":
             self._command(t, MAV_CMD_DO_CHANGE_SPEED, self.adapter.speed_params(d.send_speed), "change_speed")
         for name, fields in d.events:

@@ -1,0 +1,141 @@
+"""The daemon against the SITL in lock-step, governor mode: real MAVLink bytes, real physics."""
+
+import math
+
+import pytest
+
+from tests.lockstep import Rig
+
+D_SENSOR = 6.0
+
+
+def column_scenario(seed=1, x_col=28.0, cruise=8.0, wind=None, faults=(), vehicle="mambo"):
+    return {
+        "name": "governor_column", "vehicle": vehicle, "seed": seed,
+        "world": {"columns": [{"x_m": x_col, "y_m": 0.0, "radius_m": 0.5, "name": "column"}]},
+        "sensor": {"fov_deg": 30, "max_range_m": D_SENSOR, "noise_sd_m": 0.02, "rate_hz": 20},
+        "route": {"altitude_m": 2.0, "cruise_speed_m_s": cruise, "waypoints": [[0, 0], [x_col + 20, 0]]},
+        **({"wind": wind} if wind else {}),
+        "faults": list(faults),
+    }
+
+
+def fly(rig, seconds=20.0):
+    rig.run(1.0)
+    rig.arm()
+    rig.run(0.5)
+    rig.start_mission()
+    rig.run(seconds)
+
+
+class Scaled:
+    """The same table with every contract speed raised by a factor (a negative control only)."""
+
+    def __init__(self, table, k):
+        self._t, self._k = table, k
+
+    def __getattr__(self, name):
+        return getattr(self._t, name)
+
+    def omega(self, *a, **kw):
+        from dataclasses import replace
+
+        om = self._t.omega(*a, **kw)
+        return replace(om, v_max=om.v_max * self._k, v_safe=om.v_safe * self._k)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_governor_stops_short_of_a_column_revealed_at_sensor_range(personality, seed):
+    rig = Rig(column_scenario(seed, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}), personality)
+    fly(rig, 25.0)
+    truth = rig.truth
+    assert not truth["collisions"], truth["collisions"]
+    holds = [e for e in rig.log.named("hold_trigger")]
+    assert holds and holds[0]["cause"] == "obstacle inside the stop distance"
+    # it really cruised at the contract's limit before the obstacle appeared
+    v_lim = rig.daemon.table.v_stop(D_SENSOR, 1.0, rig.daemon.cfg.contract.e_tr_floor_m, 1.0)
+    fast = max(s["ground_speed"] for s in rig.log.states if s["t"] < holds[0]["t"])
+    assert fast > 0.85 * v_lim
+    assert fast <= max(s["v_cmd"] or 0 for s in rig.log.states) + 0.3
+
+
+def test_negative_control_limit_raised_15_percent_collides():
+    rig = Rig(column_scenario(1), "px4", table_wrapper=lambda t: Scaled(t, 1.15))
+    fly(rig, 25.0)
+    assert rig.truth["collisions"], "the same flight faster than the contract must hit the column"
+
+
+def test_negative_control_without_the_daemon_collides():
+    rig = Rig(column_scenario(1, cruise=4.0), "px4")
+    rig.daemon_on = False
+    fly(rig, 25.0)
+    assert rig.truth["collisions"]
+
+
+def cruise_limits(rig):
+    return [(s["t"], s["v_cmd"], s["ground_speed"]) for s in rig.log.states if s["v_cmd"] is not None]
+
+
+def settles_below(rig, t0, v_new, within_s):
+    """Ground speed at or below the new limit + 0.2 m/s from t0 + within_s on."""
+    late = [(t, gs) for t, _, gs in cruise_limits(rig) if t >= t0 + within_s]
+    return late and all(gs <= v_new + 0.2 for _, gs in late)
+
+
+SETTLE_S = 3.0  # stated: a compliant autopilot slows to a new limit within 3 s of simulated time
+
+
+def test_honest_fog_lowers_the_limit_and_the_vehicle_slows_in_time():
+    sc = column_scenario(1, x_col=200.0, faults=[{"at_s": 10.0, "fog": {"visibility_m": 3.0, "report": "honest"}}])
+    rig = Rig(sc, "px4")
+    fly(rig, 16.0)
+    before = [v for t, v, _ in cruise_limits(rig) if 8.0 < t < 10.0]
+    after = [v for t, v, _ in cruise_limits(rig) if t > 10.3]
+    assert before and after and max(after) < 0.8 * min(before)
+    t_drop = next(t for t, v, _ in cruise_limits(rig) if t > 10.0 and v < 0.9 * min(before))
+    assert t_drop < 10.0 + 0.2  # a lower limit takes effect at once
+    assert settles_below(rig, t_drop, max(after), SETTLE_S)
+    assert not rig.truth["collisions"]
+
+
+def test_hidden_fog_is_a_navigation_violation_that_lowers_dod():
+    sc = column_scenario(1, x_col=40.0, faults=[{"at_s": 5.0, "fog": {"visibility_m": 3.0, "report": "hidden"}}])
+    rig = Rig(sc, "px4")
+    fly(rig, 20.0)
+    v = [e for e in rig.log.named("violation_start") if e["subsystem"] == "navigation"]
+    assert v, "a late first detection must be logged as a broken navigation guarantee"
+    assert v[0]["assumed"] == pytest.approx(D_SENSOR, abs=0.05) and v[0]["observed"] < 3.2
+    assert rig.log.named("hold_trigger")  # and it still brakes
+    dods = [s["d_od"] for s in rig.log.states if s["t"] > v[0]["t"] + 0.1][:20]
+    assert max(dods) < 3.2
+
+
+def test_thrust_below_the_vehicle_range_is_an_actuator_violation_and_holds():
+    sc = column_scenario(1, x_col=300.0, faults=[{"at_s": 10.0, "thrust_ratio": 0.5}])
+    rig = Rig(sc, "px4", config={"thrust": {"tau_s": 0.5}})
+    fly(rig, 16.0)
+    v = [e for e in rig.log.named("violation_start") if e["subsystem"] == "actuators"]
+    assert v and v[0]["observed"] < 0.6 and v[0]["t"] > 10.0
+    fs = [e for e in rig.log.named("failsafe") if e["cause"] == "no safe speed"]
+    assert fs and fs[0]["t"] < v[0]["t"] + 0.1
+
+
+def test_a_mode_where_the_limit_cannot_apply_is_detected():
+    rig = Rig(column_scenario(1, x_col=300.0), "px4")
+    fly(rig, 6.0)
+    rig.command(176, 1 | 128, 3, 0)  # the pilot switches to POSCTL
+    rig.run(3.0)
+    na = rig.log.named("limit_not_applicable")
+    assert na and na[-1]["mode"] == "position"
+
+
+def test_link_loss_and_restore():
+    rig = Rig(column_scenario(1, x_col=300.0, faults=[{"at_s": 8.0, "link_dropout_s": 3.0}]), "px4")
+    fly(rig, 14.0)
+    links = [e["status"] for e in rig.log.named("link")]
+    assert links[:3] == ["up", "down", "up"]
+    down = rig.log.named("link")[1]["t"]
+    assert 8.0 + 1.4 <= down <= 8.0 + 1.6  # heartbeat time-out 1.5 s
+    after = [e for e in rig.log.named("command") if e["cmd"] == "change_speed" and e["t"] > 11.0]
+    assert after, "the limit is sent again when the link comes back"
