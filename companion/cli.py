@@ -127,6 +127,64 @@ def cmd_table_build(args) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- run
+
+
+def cmd_run(args) -> int:
+    """The daemon (what systemd starts)."""
+    import signal
+
+    from contracts.vehicle import load_vehicle
+
+    from .config import load_config
+    from .daemon import Daemon
+    from .eventlog import EventLog
+    from .link import SigningClock, load_signing_key, open_connection, setup_signing
+    from .service import Notifier
+
+    cfg = load_config(args.config)
+    upd = {}
+    if args.mode:
+        upd["mode"] = args.mode
+    if args.connect:
+        upd["link"] = cfg.link.model_copy(update={"connect": args.connect})
+    if args.log_dir:
+        upd["log"] = cfg.log.model_copy(update={"dir": Path(args.log_dir)})
+    cfg = cfg.model_copy(update=upd)
+    vehicle = load_vehicle(cfg.vehicle)
+    table = _load_table(cfg.table or shipped_table(vehicle.name), None)
+    if table.vehicle.fingerprint() != vehicle.fingerprint():
+        raise ContractError(f"table {table.path} was built for another vehicle than {cfg.vehicle}")
+    if cfg.mode == "offboard" and table.avoid is None:
+        raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
+    signing_clock = None
+    key = load_signing_key(cfg.link.signing_key_file) if cfg.link.signing_key_file else None
+    conn = open_connection(cfg.link.connect, cfg.link.baud, cfg.link.target_system, cfg.link.component_id)
+    if key is not None:
+        signing_clock = SigningClock(cfg.link.signing_timestamp_file)
+        setup_signing(conn, key, signing_clock)
+    log = EventLog(cfg.log.dir, max_bytes=cfg.log.max_bytes, keep=cfg.log.keep, tlog=cfg.log.tlog)
+    stop = {"now": False}
+
+    def _stop(signum, frame):
+        stop["now"] = True
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    daemon = Daemon(cfg, table, conn, log, signing_clock=signing_clock)
+    notifier = Notifier()
+    log.event(None, "start", mode=cfg.mode, vehicle=vehicle.name, table=str(table.path), connect=cfg.link.connect)
+    notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
+    try:
+        daemon.run(lambda: stop["now"], notifier)
+    finally:
+        notifier.stopping()
+        daemon.shutdown()
+        log.event(None, "stop", counters=daemon.counters.__dict__)
+        log.close()
+    return 0
+
+
 # ----------------------------------------------------------------------------- demo
 
 
@@ -162,6 +220,13 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--table", type=Path, help="table file (default: the shipped Mambo table)")
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_demo)
+
+    r = sub.add_parser("run", help="the on-board daemon (what systemd starts)")
+    r.add_argument("--config", required=True, type=Path)
+    r.add_argument("--connect", help="override link.connect (pymavlink URL)")
+    r.add_argument("--log-dir", help="override log.dir")
+    r.add_argument("--mode", choices=["shadow", "governor", "offboard"], help="override mode")
+    r.set_defaults(func=cmd_run)
 
     t = sub.add_parser("table", help="build, inspect, query and verify Γ tables")
     tsub = t.add_subparsers(dest="table_command", required=True)

@@ -86,8 +86,10 @@ class Counters:
 
 
 class Daemon:
-    def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time):
+    def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None):
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
+        self.signing_clock = signing_clock
+        self._t_signing_saved = -math.inf
         self.vclock = VehicleClock() if clock is None else None
         self.clock = clock or self.vclock
         self.adapter = adapter_for(cfg.link.autopilot)
@@ -138,6 +140,8 @@ class Daemon:
 
     def _dispatch(self, msg) -> None:
         kind = msg.get_type()
+        if self.cfg.log.tlog and kind != "BAD_DATA":
+            self.log.raw(int(self.wall() * 1e6), msg.get_msgbuf())
         if kind == "BAD_DATA":
             self.counters.bad_packets += 1
             return
@@ -324,6 +328,9 @@ class Daemon:
                                   "set_message_interval")
 
     def _periodic(self, t: float, i: Inputs, d: Decision) -> None:
+        if self.signing_clock is not None and abs(t - self._t_signing_saved) >= 10.0:
+            self._t_signing_saved = t
+            self.signing_clock.save(self.conn.mav.signing.timestamp)
         if self.startup_ok is None and self._t_checks is not None and t - self._t_checks > 5.0:
             self._finish_checks(t)  # what did not answer in 5 s counts as missing
         if t - self._t_hb_out >= 1.0 or t < self._t_hb_out:
@@ -350,6 +357,12 @@ class Daemon:
                 )
             except Exception:
                 self.counters.log_errors += 1
+
+    def shutdown(self) -> None:
+        """Leave cleanly: persist the signing timestamp, say so to the ground station."""
+        if self.signing_clock is not None:
+            self.signing_clock.save(self.conn.mav.signing.timestamp)
+        self._statustext(5, "CG: contract-guard stopping")
 
     # ------------------------------------------------------------------ real time
     def run(self, should_stop, notifier=None) -> None:
