@@ -68,6 +68,7 @@ class VehicleModel:
         self.env[E_TR] = 1.0
         self._scratch = np.zeros((6, X_N))
         self.resting = True
+        self.step(0)  # compile / load the cached kernel now, not in the first real-time tick
 
     # ----- inputs
     @property
@@ -84,7 +85,8 @@ class VehicleModel:
     def step(self, n: int) -> None:
         rest = advance(self.x, self.s, self.prm, self.cp, self.sp, self.env, int(n), self.dt,
                        float(self.decim), self._scratch)
-        self.resting = rest > 0 and self.x[2] >= 0.0
+        if n > 0:
+            self.resting = rest > 0 and self.x[2] >= 0.0
 
     # ----- outputs
     @property

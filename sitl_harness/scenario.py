@@ -87,6 +87,7 @@ class SensorSpec(_Strict):
     min_range_m: NonNeg = 0.1
     max_range_m: Pos = 10.0
     noise_sd_m: NonNeg = 0.02
+    noise_rel: NonNeg = 0.01
     rate_hz: Annotated[float, Field(gt=0, le=100)] = 20.0
 
 

@@ -32,7 +32,8 @@ class RangeSensorConfig:
     increment_deg: float = 5.0
     min_range_m: float = 0.1
     max_range_m: float = 10.0  # nominal range
-    noise_sd_m: float = 0.02  # plus 1 % of the distance
+    noise_sd_m: float = 0.02  # constant part of the noise (1 σ)
+    noise_rel: float = 0.01  # part proportional to the distance (1 σ per metre)
     rate_hz: float = 20.0
 
 
@@ -76,7 +77,7 @@ class RangeSensor:
         d = self.true_ranges(world, pos, yaw)
         finite = np.isfinite(d)
         noisy = d.copy()
-        noisy[finite] += self.rng.standard_normal(int(finite.sum())) * (cfg.noise_sd_m + 0.01 * d[finite])
+        noisy[finite] += self.rng.standard_normal(int(finite.sum())) * (cfg.noise_sd_m + cfg.noise_rel * d[finite])
         eff = self.effective_range()
         if self.honest:
             max_m = eff

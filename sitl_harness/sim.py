@@ -63,7 +63,7 @@ class Sim:
              for b in sc.world.boxes])
         s = sc.sensor
         self.sensor = RangeSensor(RangeSensorConfig(s.fov_deg, s.increment_deg, s.min_range_m, s.max_range_m,
-                                                    s.noise_sd_m, s.rate_hz), seed=self.seed)
+                                                    s.noise_sd_m, s.noise_rel, s.rate_hz), seed=self.seed)
         w = sc.wind
         self.wind = Wind(v.wind.mean_m_s if w.mean_m_s is None else w.mean_m_s, w.from_deg,
                          v.wind.gust_m_s if w.gust_m_s is None else w.gust_m_s, w.length_m, seed=self.seed)

@@ -75,11 +75,12 @@ class AutoTrajectory:
         # settle exactly on a reached target (removes the √ law's last-centimetre creep)
         for sl in (slice(0, 2), slice(2, 3)):
             if np.all(np.isfinite(tgt[sl])):
-                if np.linalg.norm(tgt[sl] - self.p[sl]) < 2e-3 and np.linalg.norm(self.v[sl]) < 0.02:
+                if (np.linalg.norm(tgt[sl] - self.p[sl]) < 2e-3 and np.linalg.norm(self.v[sl]) < 0.02
+                        and np.linalg.norm(self.a[sl]) <= self.jerk * dt):
                     self.p[sl] = tgt[sl]
                     self.v[sl] = 0.0
                     self.a[sl] = 0.0
-            elif np.linalg.norm(self.v[sl]) < 0.01 and np.linalg.norm(self.a[sl]) < 0.05:
+            elif np.linalg.norm(self.v[sl]) < 0.01 and np.linalg.norm(self.a[sl]) <= self.jerk * dt:
                 self.v[sl] = 0.0
                 self.a[sl] = 0.0
 

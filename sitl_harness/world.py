@@ -132,18 +132,21 @@ class CollisionMonitor:
         prev = pos if self._prev is None else self._prev
         self._prev = np.array(pos, dtype=float)
         n = max(1, math.ceil(float(np.linalg.norm(pos[:2] - prev[:2])) / (0.25 * self.r_body)))
-        worst, widx, wpos = math.inf, -1, pos
+        worst = math.inf
+        first = None  # first sample along the step where the body disc touches
         for k in range(1, n + 1):
             p = prev + (pos - prev) * (k / n)
             d, i = self.world.clearance(float(p[0]), float(p[1]), float(-p[2]))
-            if d < worst:
-                worst, widx, wpos = d, i, p
+            worst = min(worst, d)
+            if first is None and d < self.r_body:
+                first = (d, i, p)
         self.min_clearance = min(self.min_clearance, worst - self.r_body)
-        touching = worst < self.r_body
+        touching = first is not None
         new = None
         if touching and not self._touching:
+            d, widx, wpos = first
             o = self.world.obstacles[widx]
-            new = Collision(t, tuple(float(v) for v in wpos), widx, o.name or f"#{widx}", worst)
+            new = Collision(t, tuple(float(v) for v in wpos), widx, o.name or f"#{widx}", d)
             self.collisions.append(new)
         self._touching = touching
         return new

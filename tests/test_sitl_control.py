@@ -1,0 +1,124 @@
+"""The PX4-like cascade: step responses, limits, thrust priority, auto-mode braking, circle tracking."""
+
+import math
+
+import numpy as np
+import pytest
+
+from contracts.vehicle import G, load_vehicle
+from sitl_harness.control import M_POS, S_THR, SP_ACC, SP_MODE, SP_POS, SP_VEL
+from sitl_harness.maneuvers import fly_circle, hovering, step_response
+from sitl_harness.physics import euler_from_quat
+from sitl_harness.trajectory import AutoTrajectory, stop_speed
+
+
+@pytest.fixture(scope="module", params=["mambo", "x500"])
+def vehicle(request):
+    return load_vehicle(request.param).model_copy(update={"drag_coeff_n_s2_m2": 0.0})
+
+
+# Stated step-response bounds of the SITL cascade with the shipped (PX4-default) gains. The
+# horizontal overshoot comes from the velocity integrator (MPC_XY_VEL_I_ACC 0.4) as in PX4.
+BOUNDS = {("pos", 0, 1.0): (0.15, 2.0), ("pos", 1, 1.0): (0.15, 2.0), ("pos", 2, -1.0): (0.02, 2.0),
+          ("vel", 0, 2.0): (0.12, 1.2)}
+
+
+@pytest.mark.parametrize("kind,axis,size", list(BOUNDS))
+def test_step_response_within_stated_overshoot(vehicle, kind, axis, size):
+    r = step_response(vehicle, axis, size, kind=kind)
+    max_os, max_rise = BOUNDS[(kind, axis, size)]
+    assert r["overshoot"] <= max_os
+    assert r["rise_90_s"] <= max_rise
+    assert abs(r["final_error"]) < 0.04 * abs(size)
+
+
+def test_total_tilt_limit_holds(vehicle):
+    """A huge horizontal acceleration request never tilts the thrust axis past the limit."""
+    m = hovering(vehicle)
+    m.sp[SP_POS:SP_POS + 2] = math.nan
+    m.sp[SP_ACC] = 30.0
+    m.sp[SP_ACC + 1] = 30.0
+    worst = 0.0
+    for _ in range(200):
+        m.step(5)
+        r, p, _ = euler_from_quat(m.quat)
+        worst = max(worst, math.acos(math.cos(r) * math.cos(p)))
+    assert worst <= vehicle.tilt_max * 1.03
+    assert worst >= vehicle.tilt_max * 0.9
+
+
+def test_thrust_priority_keeps_altitude_and_gives_horizontal_the_rest():
+    """Thrust short (Mambo at thrust_ratio 0.6, tilt limit raised to 60°): altitude holds and the
+    horizontal acceleration is what √(T_max² − T_z²) leaves (PX4 vertical-first priority)."""
+    v = load_vehicle("mambo").model_copy(update={"drag_coeff_n_s2_m2": 0.0})
+    tr = 0.6
+    m = hovering(v, tr, tilt_max=math.radians(60))
+    m.sp[SP_POS:SP_POS + 2] = math.nan
+    m.sp[SP_ACC] = 20.0
+    m.step(1500)
+    v0 = m.vel[0]
+    m.step(1000)
+    a = m.vel[0] - v0
+    u_max = v.collective_max_fraction
+    hover = v.mass_kg * G / (tr * v.t_nom_n)
+    expected = math.sqrt(u_max ** 2 - hover ** 2) / hover * G
+    assert a == pytest.approx(expected, rel=0.03)
+    assert abs(m.pos[2] + 5.0) < 0.1
+    assert m.s[S_THR] == pytest.approx(u_max, rel=0.01)
+
+
+def test_auto_brake_follows_accel_and_jerk_limits():
+    """Hold-mode braking reference from 3 m/s: |a| ≤ accel_max, |jerk| ≤ jerk_max, stop distance
+    = v²/(2a) + v·a/(2j) within 10 %."""
+    tj = AutoTrajectory(3.0, 4.0)
+    v0 = 3.0
+    tj.reset((0, 0, -2), (v0, 0, 0))
+    acc = []
+    for _ in range(600):
+        tj.step(0.01, None, 5.0, 3.0, 1.5)
+        acc.append(tj.a[0])
+    acc = np.array(acc)
+    assert np.all(np.abs(acc) <= 3.0 + 1e-9)
+    jumps = np.abs(np.diff(acc))
+    assert np.sum(jumps > 4.0 * 0.01 + 1e-9) <= 1  # the final settle may drop a remainder < j·Δt
+    assert np.all(jumps <= 2 * 4.0 * 0.01 + 1e-9)
+    assert tj.speed_xy == 0.0
+    assert tj.p[0] == pytest.approx(v0 ** 2 / 6.0 + v0 * 3.0 / 8.0, rel=0.1)
+
+
+def test_goto_target_stops_on_it_without_overshoot():
+    tj = AutoTrajectory(3.0, 4.0)
+    tj.reset((0, 0, -2), (0, 0, 0))
+    xs = []
+    for _ in range(2000):
+        tj.step(0.01, (20.0, 0.0, -2.0), 5.0, 3.0, 1.5)
+        xs.append(tj.p[0])
+    assert max(xs) <= 20.0 + 1e-6 and xs[-1] == 20.0
+    assert stop_speed(0.0, 3.0, 4.0) == 0.0
+
+
+def test_hover_thrust_estimate_recovers_altitude_after_thrust_drop():
+    v = load_vehicle("mambo").model_copy(update={"drag_coeff_n_s2_m2": 0.0})
+    m = hovering(v, 1.0)
+    m.step(1000)
+    m.thrust_ratio = 0.6
+    zs = []
+    for _ in range(1000):
+        m.step(10)
+        zs.append(m.pos[2])
+    assert max(zs) - (-5.0) < 0.8  # sag bounded (a sudden 40 % thrust loss sags ≈ 0.6 m)
+    assert abs(zs[-1] + 5.0) < 0.05  # recovered
+    assert m.hover_thrust == pytest.approx(v.mass_kg * G / (0.6 * v.t_nom_n), rel=0.03)
+
+
+def test_circle_tracking_error_grows_as_thrust_drops():
+    """Mambo, R = 2 m at 7 m/s² lateral (3.74 m/s), tilt limit 45°: thrust_ratio 0.6 is the binding
+    limit there (√(T²−W²)/m = 5.9 m/s² < 7), 0.7 is not (9.1 m/s²). The contour error grows
+    as thrust drops and jumps where thrust binds."""
+    v = load_vehicle("mambo")
+    res = [fly_circle(v, tr, 2.0, 7.0, math.radians(45.0), laps=1.5) for tr in (1.0, 0.9, 0.8, 0.7, 0.6)]
+    e = [r.contour_max_m for r in res]
+    print("circle R=2 m a=7 m/s^2 contour max [m] at thrust_ratio 1.0..0.6:", [round(x, 3) for x in e])
+    assert all(b >= a - 0.005 for a, b in zip(e, e[1:]))
+    assert e[-1] > 2.0 * e[0]
+    assert e[0] < 0.25
