@@ -221,6 +221,10 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_demo)
 
+    # `sitl` hands its arguments to the harness's own parser (see main)
+    sub.add_parser("sitl", help="the SITL vehicle alone, for any MAVLink client: --scenario FILE "
+                   "--personality px4|ardupilot --listen udp:127.0.0.1:PORT [--speedup K]", add_help=False)
+
     r = sub.add_parser("run", help="the on-board daemon (what systemd starts)")
     r.add_argument("--config", required=True, type=Path)
     r.add_argument("--connect", help="override link.connect (pymavlink URL)")
@@ -266,6 +270,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["sitl"]:
+        from sitl_harness.__main__ import main as sitl_main
+
+        return sitl_main(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

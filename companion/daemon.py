@@ -55,26 +55,30 @@ def sensor_orientation(yaw_deg_clockwise: float) -> int:
 
 
 class VehicleClock:
-    """Daemon time follows the vehicle's: the last `time_boot_ms` plus local time since, scaled by the
-    vehicle's observed rate (so a sped-up SITL and a real aircraft look the same)."""
+    """Daemon time runs at the vehicle's rate: its own monotonic clock, scaled by how fast the vehicle's
+    `time_boot_ms` advances against it (1 for a real aircraft, K for a SITL sped up K times). Never
+    jumps and never runs backwards, with or without a vehicle (a reboot of the autopilot only resets
+    the rate estimate)."""
 
     def __init__(self, local=time.monotonic):
         self.local = local
-        self._ref: tuple[float, float] | None = None  # (vehicle s, local s)
         self.rate = 1.0
+        self._anchor = (0.0, local())  # (daemon s, local s) where the current rate began
+        self._ref: tuple[float, float] | None = None  # (vehicle s, local s) of the rate window's start
 
     def observe(self, time_boot_ms: int) -> None:
         tv, tl = time_boot_ms / 1000.0, self.local()
-        if self._ref is not None and tl - self._ref[1] > 0.2 and tv > self._ref[0]:
-            r = (tv - self._ref[0]) / (tl - self._ref[1])
-            self.rate += 0.2 * (min(max(r, 0.01), 1000.0) - self.rate)
-        if self._ref is None or tl - self._ref[1] > 0.2 or tv < self._ref[0]:
+        if self._ref is None or tv < self._ref[0]:
+            self._ref = (tv, tl)
+            return
+        if tl - self._ref[1] >= 1.0:
+            r = min(max((tv - self._ref[0]) / (tl - self._ref[1]), 0.01), 1000.0)
+            self._anchor = (self(), tl)
+            self.rate += 0.5 * (r - self.rate) if abs(r / self.rate - 1) < 0.5 else (r - self.rate)
             self._ref = (tv, tl)
 
     def __call__(self) -> float:
-        if self._ref is None:
-            return 0.0
-        return self._ref[0] + (self.local() - self._ref[1]) * self.rate
+        return self._anchor[0] + (self.local() - self._anchor[1]) * self.rate
 
 
 @dataclass
