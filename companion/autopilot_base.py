@@ -6,12 +6,23 @@ OFFBOARD / ArduPilot GUIDED), position, altitude, manual, other.
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
 
 MAV_CMD_DO_SET_MODE = 176
 MAV_CMD_DO_CHANGE_SPEED = 178
 MAV_MODE_FLAG_CUSTOM_MODE_ENABLED = 1
 MAV_MODE_FLAG_SAFETY_ARMED = 128
+INT_PARAM_TYPES = {1: "<B", 2: "<b", 3: "<H", 4: "<h", 5: "<I", 6: "<i"}  # MAV_PARAM_TYPE → struct
+
+
+def bytewise(value: float, param_type: int) -> float:
+    """PX4's bytewise parameter encoding: an integer's bytes travel inside the float."""
+    fmt = INT_PARAM_TYPES.get(param_type)
+    if fmt is None:
+        return float(value)
+    raw = struct.pack("<f", value)
+    return float(struct.unpack(fmt, raw[: struct.calcsize(fmt)])[0])
 
 
 @dataclass(frozen=True)
@@ -52,6 +63,10 @@ class Adapter:
     def reserved(self) -> float:
         """What unused COMMAND_LONG params carry (MAVSDK: NaN for PX4, 0 for ArduPilot)."""
         return 0.0
+
+    def decode_param(self, value: float, param_type: int) -> float:
+        """PARAM_VALUE.param_value as a number: ArduPilot casts integers to float (the default)."""
+        return float(value)
 
     param_checks: tuple[ParamCheck, ...] = ()
 

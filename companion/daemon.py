@@ -85,6 +85,7 @@ class VehicleClock:
 class Counters:
     messages: int = 0
     bad_packets: int = 0
+    rejected_signature: int = 0
     commands_sent: int = 0
     log_errors: int = 0
 
@@ -148,13 +149,15 @@ class Daemon:
             self.log.raw(int(self.wall() * 1e6), msg.get_msgbuf())
         if kind == "BAD_DATA":
             self.counters.bad_packets += 1
+            if "signature" in str(getattr(msg, "reason", "")).lower():
+                self.counters.rejected_signature += 1  # unsigned or wrongly signed
             return
         self.counters.messages += 1
+        if kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
+            self._param_protocol(msg)  # from any ground station, if addressed to us
+            return
         src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
         if src_sys != self.cfg.link.target_system:
-            return
-        if kind in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
-            self._param_protocol(msg)
             return
         if src_comp != self.cfg.link.target_component and kind not in ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE"):
             return
@@ -211,7 +214,8 @@ class Daemon:
 
     # ------------------------------------------------------------------ our parameters
     def _param_protocol(self, msg) -> None:
-        if getattr(msg, "target_component", None) not in (self.cfg.link.component_id, 0):
+        if msg.target_system not in (self.cfg.link.target_system, 0) or \
+                msg.target_component not in (self.cfg.link.component_id, 0):
             return
         kind = msg.get_type()
         if kind == "PARAM_REQUEST_LIST":
@@ -239,7 +243,7 @@ class Daemon:
 
     def _autopilot_param(self, t: float, msg) -> None:
         name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
-        if self.checks.take(name, float(msg.param_value)):
+        if self.checks.take(name, self.adapter.decode_param(msg.param_value, msg.param_type)):
             self._finish_checks(t)
 
     def _finish_checks(self, t: float) -> None:
@@ -298,7 +302,7 @@ class Daemon:
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
                       in_air=tel.in_air, mode=mode, limit_applies=self.adapter.limit_applies(mode),
                       mode_by_daemon=by_daemon, ground_speed=speed, dod=dod, e_tr=e_tr,
-                      thrust_ratio=thrust_ratio, r_obst=r_obst, engaged=engaged)
+                      thrust_ratio=thrust_ratio, r_obst=r_obst, engaged=engaged, mission_seq=tel.mission_seq)
 
     def step(self) -> Decision:
         t = self.clock()

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import math
 
-from .autopilot_base import MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, MAV_MODE_FLAG_SAFETY_ARMED, Adapter, ParamCheck
+from .autopilot_base import (
+    MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+    MAV_MODE_FLAG_SAFETY_ARMED,
+    Adapter,
+    ParamCheck,
+    bytewise,
+)
 
 # custom_mode = main << 16 | sub << 24
 MAIN = {1: "manual", 2: "altitude", 3: "position", 5: "manual", 6: "offboard", 7: "manual", 8: "manual"}
@@ -34,6 +40,9 @@ class PX4(Adapter):
 
     def reserved(self) -> float:
         return math.nan
+
+    def decode_param(self, value: float, param_type: int) -> float:
+        return bytewise(value, param_type)  # PX4 encodes integer parameters bytewise
 
     param_checks = (
         ParamCheck("MPC_TILTMAX_AIR", 1.0, "tilt_max_deg"),

@@ -48,6 +48,7 @@ class Inputs:
     thrust_ratio: float
     r_obst: float
     engaged: bool
+    mission_seq: int = -1  # the autopilot's current mission item (a speed item may reset the limit)
 
 
 @dataclass
@@ -104,6 +105,7 @@ class Supervisor:
         self._last_sent_t = -math.inf
         self._last_mode: str | None = None
         self._last_in_air = False
+        self._last_seq = -1
         self._over_since: float | None = None
         self._suppressed: set[str] = set()  # hold causes stood down from after an override
         self._violations: dict[str, dict] = {}
@@ -151,8 +153,9 @@ class Supervisor:
                     self._set_state(d, "active", f"{i.mode} set by someone else: standing down")
                 self._last_sent = None  # re-send the limit after any mode change
             self._last_mode = i.mode
-        if i.in_air and not self._last_in_air:
-            self._last_sent = None  # and after take-off
+        if i.in_air and not self._last_in_air or i.mission_seq != self._last_seq:
+            self._last_sent = None  # and after take-off and at every new mission item
+        self._last_seq = i.mission_seq
         self._last_in_air = i.in_air
 
         # guarantees (logged in every mode, shadow included)

@@ -42,9 +42,9 @@ class Recorder:
 
 class Rig:
     def __init__(self, scenario: dict, personality: str = "px4", config: dict | None = None, log=None,
-                 table_wrapper=None, seed: int | None = None):
+                 table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None):
         sc = scenario_from_dict(scenario)
-        self.sim = Sim(sc, personality, seed=seed)
+        self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
         self.link = LockstepLink(self.sim)
         self._queues: list[deque] = []
         vehicle = load_vehicle(sc.vehicle)
@@ -58,7 +58,20 @@ class Rig:
             cfg[k] = {**cfg[k], **v} if isinstance(v, dict) and isinstance(cfg.get(k), dict) else v
         self.cfg = config_from_dict(cfg)
         read, write = self._endpoint()
-        self.conn = MemoryMavfile(read, write, source_system=1, source_component=self.cfg.link.component_id)
+        self.daemon_out: list[bytes] = []  # every datagram the daemon sent (what a router would forward)
+        self._daemon_in: deque = deque()  # datagrams for the daemon only (a ground station via a router)
+
+        def daemon_read():
+            extra = b"".join(self._daemon_in)
+            self._daemon_in.clear()
+            return extra + read()
+
+        def daemon_write(data):
+            self.daemon_out.append(data)
+            write(data)
+
+        self.conn = MemoryMavfile(daemon_read, daemon_write, source_system=1,
+                                  source_component=self.cfg.link.component_id)
         self.log = log if log is not None else Recorder()
         self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s)
         gread, gwrite = self._endpoint()
@@ -98,6 +111,15 @@ class Rig:
                 return
 
     # ---- ground station
+    def to_daemon(self, msg, mav_obj=None) -> None:
+        """A ground-station message routed to the daemon (as mavlink-router would)."""
+        self._daemon_in.append(msg.pack(mav_obj or self.gcs))
+
+    def daemon_messages(self):
+        parser = mav.MAVLink(None)
+        parser.robust_parsing = True
+        return [m for d in self.daemon_out for m in (parser.parse_buffer(d) or [])]
+
     def command(self, cmd, *params):
         p = list(params) + [0.0] * (7 - len(params))
         self.gcs.send(self.gcs.command_long_encode(1, 1, cmd, 0, *p))

@@ -139,3 +139,79 @@ def test_link_loss_and_restore():
     assert 8.0 + 1.4 <= down <= 8.0 + 1.6  # heartbeat time-out 1.5 s
     after = [e for e in rig.log.named("command") if e["cmd"] == "change_speed" and e["t"] > 11.0]
     assert after, "the limit is sent again when the link comes back"
+
+
+# ----------------------------------------------------------------------------- the daemon as a component
+
+from pymavlink.dialects.v20 import ardupilotmega as mavd  # noqa: E402
+
+
+def test_the_daemon_is_a_component_a_ground_station_can_see():
+    rig = Rig(column_scenario(1, x_col=300.0), "px4")
+    fly(rig, 6.0)
+    msgs = rig.daemon_messages()
+    hb = [m for m in msgs if m.get_type() == "HEARTBEAT"]
+    assert len(hb) >= 6 and all(m.get_srcComponent() == 191 and m.type == 18 for m in hb)  # ~1 Hz
+    names = {m.name for m in msgs if m.get_type() == "NAMED_VALUE_FLOAT"}
+    assert {"CG_VMAX", "CG_GAMMA", "CG_DOD", "CG_ETR"} <= names
+    assert any(m.get_type() == "STATUSTEXT" and "active" in m.text for m in msgs)
+    asked = {int(m.param1) for m in msgs if m.get_type() == "COMMAND_LONG" and m.command == 511}
+    assert mavd.MAVLINK_MSG_ID_DISTANCE_SENSOR in asked and mavd.MAVLINK_MSG_ID_LOCAL_POSITION_NED in asked
+
+
+def test_parameters_engage_and_change_the_expected_obstacle_radius():
+    rig = Rig(column_scenario(1, x_col=300.0), "px4", config={"engage": False, "contract": {"dwell_s": 0.5}})
+    fly(rig, 5.0)
+    assert not rig.log.named("limit_change")  # not engaged: nothing commanded
+    rig.to_daemon(rig.gcs.param_request_list_encode(1, 191))
+    rig.run(0.1)
+    values = {m.param_id: m.param_value for m in rig.daemon_messages() if m.get_type() == "PARAM_VALUE"}
+    assert values == {"CG_ENGAGE": 0.0, "CG_MODE": 1.0, "CG_R_OBST": 1.0}
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
+    rig.run(1.0)
+    first = rig.log.named("limit_change")
+    assert first, "engaged from the ground station"
+    v0 = first[-1]["v_max"]
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_R_OBST", 0.2, 9))
+    rig.run(1.0)
+    assert rig.log.named("limit_change")[-1]["v_max"] == pytest.approx(v0)  # the stop law: near edge only
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_MODE", 7.0, 9))  # refused, echoed unchanged
+    rig.run(0.1)
+    assert [m.param_value for m in rig.daemon_messages() if m.get_type() == "PARAM_VALUE"
+            and m.param_id == "CG_MODE"][-1] == 1.0
+
+
+def test_signed_link_rejects_unsigned_commands_to_the_daemon():
+    key = bytes(range(32))
+    rig = Rig(column_scenario(1, x_col=300.0), "px4", config={"engage": False}, sim_kwargs={"signing_key": key})
+    rig.conn.setup_signing(key, sign_outgoing=True, initial_timestamp=10**12)
+    fly(rig, 5.0)
+    assert rig.daemon.startup_ok  # the signed vehicle answered the signed daemon's parameter requests
+    unsigned = mavd.MAVLink(None, srcSystem=255, srcComponent=190)
+    rig.to_daemon(unsigned.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9), unsigned)
+    rig.run(0.5)
+    assert rig.daemon.params["CG_ENGAGE"] == 0.0
+    assert rig.daemon.counters.rejected_signature == 1
+    wrong = mavd.MAVLink(None, srcSystem=255, srcComponent=190)
+    wrong.signing.secret_key, wrong.signing.sign_outgoing, wrong.signing.timestamp = bytes(32), True, 10**13
+    rig.to_daemon(wrong.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9), wrong)
+    rig.run(0.5)
+    assert rig.daemon.params["CG_ENGAGE"] == 0.0 and rig.daemon.counters.rejected_signature == 2
+
+
+def test_a_startup_mismatch_refuses_to_engage_but_shadow_runs():
+    sc = column_scenario(1, x_col=300.0)
+    sc["params"] = {"MPC_ACC_HOR": 2.0}  # weaker braking than the vehicle file's 3 m/s²
+    rig = Rig(sc, "px4")
+    fly(rig, 5.0)
+    chk = rig.log.named("startup_check")
+    assert chk and not chk[0]["ok"] and "MPC_ACC_HOR" in chk[0]["reason"]
+    assert not rig.log.named("limit_change")
+    assert all(s["v_max"] > 0 for s in rig.log.states[-10:])  # still computing everything
+
+
+def test_stale_obstacle_data_holds():
+    rig = Rig(column_scenario(1, x_col=300.0, faults=[{"at_s": 8.0, "sensor_dropout_s": 2.0}]), "px4")
+    fly(rig, 9.0)
+    fs = [e for e in rig.log.named("failsafe") if e["cause"] == "no safe speed"]
+    assert fs and 8.0 + 0.4 <= fs[0]["t"] <= 8.0 + 0.7  # obstacle data older than 0.5 s: D_od = 0
