@@ -80,8 +80,9 @@ def _default(obj):
     return str(obj)
 
 
-def _finite_copy(obj, path: str, bad: list[str], depth: int = 0):
+def finite_copy(obj, path: str = "", bad: list[str] | None = None, depth: int = 0):
     """A copy of `obj` with non-finite floats replaced by None (their dotted paths appended to `bad`)."""
+    bad = [] if bad is None else bad
     if depth > 32:
         return str(obj)
     if isinstance(obj, float):
@@ -92,13 +93,13 @@ def _finite_copy(obj, path: str, bad: list[str], depth: int = 0):
     if isinstance(obj, (str, int, bool)) or obj is None:
         return obj
     if isinstance(obj, dict):
-        return {str(k): _finite_copy(v, f"{path}.{k}" if path else str(k), bad, depth + 1) for k, v in obj.items()}
+        return {str(k): finite_copy(v, f"{path}.{k}" if path else str(k), bad, depth + 1) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_finite_copy(v, f"{path}[{i}]", bad, depth + 1) for i, v in enumerate(obj)]
+        return [finite_copy(v, f"{path}[{i}]", bad, depth + 1) for i, v in enumerate(obj)]
     converted = _default(obj)
     if converted is obj or isinstance(converted, str):
         return converted
-    return _finite_copy(converted, path, bad, depth + 1)
+    return finite_copy(converted, path, bad, depth + 1)
 
 
 def encode_record(rec: dict) -> str:
@@ -113,7 +114,7 @@ def encode_record(rec: dict) -> str:
         pass
     try:
         bad: list[str] = []
-        clean = _finite_copy(rec, "", bad)
+        clean = finite_copy(rec, "", bad)
         if bad:
             clean["nonfinite"] = bad
         return json.dumps(clean, allow_nan=False, separators=_SEP, default=str) + "\n"
