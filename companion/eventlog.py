@@ -41,7 +41,8 @@ back to its last whole line (`ftruncate`), so a disk-full episode leaves no brok
 `healthy` is False from a failure until a later write succeeds. The calls are synchronous: a disk that
 *hangs* (rather than fails) stalls the caller; the daemon's watchdog covers that case.
 
-Not thread-safe: one writer (the control loop). One process per directory.
+Thread-safe (one lock; `raw()` may come from the link-reader thread while the loop calls `state()`).
+One process per directory: two writers would interleave their rotations.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ import json
 import math
 import os
 import struct
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -379,6 +381,7 @@ class EventLog:
         self._first_error: str | None = None
         self._dropped_at_failure = 0
         self._healthy = True
+        self._lock = threading.RLock()
         self._file = _AppendFile(self.directory, LOG_NAME, LOG_SUFFIX, max_bytes, keep, fresh=False)
         self._tlog = _AppendFile(self.directory, TLOG_NAME, TLOG_SUFFIX, max_bytes, keep, fresh=True) if tlog else None
         self._tlog_buf: list[bytes] = []
@@ -409,53 +412,57 @@ class EventLog:
 
     def state(self, t, /, **fields) -> None:
         """Buffer one state sample (cheap: encode and append; written at least every `flush_s`)."""
-        try:
-            self.seq += 1
-            line = encode_record(_record("state", t, self.clock(), self.seq, self.boot, None, fields))
-            self._pending.append((line, False))
-            self._pending_size += len(line)
-            if self.monotonic() - self._last_flush >= self.flush_s or (
-                self._pending_size >= self.buffer_bytes and self._healthy
-            ):
-                self._flush(sync=False)
-        except Exception as err:  # noqa: BLE001 — never into the control loop
-            self._fail(err)
+        with self._lock:
+            try:
+                self.seq += 1
+                line = encode_record(_record("state", t, self.clock(), self.seq, self.boot, None, fields))
+                self._pending.append((line, False))
+                self._pending_size += len(line)
+                if self.monotonic() - self._last_flush >= self.flush_s or (
+                    self._pending_size >= self.buffer_bytes and self._healthy
+                ):
+                    self._flush(sync=False)
+            except Exception as err:  # noqa: BLE001 — never into the control loop
+                self._fail(err)
 
     def event(self, t, name: str, /, **fields) -> bool:
         """Write one event now (with the buffered samples before it) and fsync; True when durable."""
-        try:
-            self.seq += 1
-            line = encode_record(_record("event", t, self.clock(), self.seq, self.boot, str(name), fields))
-            self._pending.append((line, True))
-            self._pending_size += len(line)
-            return self._flush(sync=self.fsync_events)
-        except Exception as err:  # noqa: BLE001
-            self._fail(err)
-            return False
+        with self._lock:
+            try:
+                self.seq += 1
+                line = encode_record(_record("event", t, self.clock(), self.seq, self.boot, str(name), fields))
+                self._pending.append((line, True))
+                self._pending_size += len(line)
+                return self._flush(sync=self.fsync_events)
+            except Exception as err:  # noqa: BLE001
+                self._fail(err)
+                return False
 
     def raw(self, t_usec: int, msgbuf: bytes) -> None:
-        """Buffer one raw MAVLink packet for the `.tlog` (8-byte big-endian µs timestamp + bytes)."""
+        """Buffer one raw MAVLink packet for the `.tlog`: 8-byte big-endian UNIX time [µs] + the bytes."""
         if self._tlog is None:
             return
-        try:
-            chunk = struct.pack(">Q", int(t_usec) & 0xFFFFFFFFFFFFFFFF) + bytes(msgbuf)
-            if self._tlog_size + len(chunk) > self.pending_bytes:
-                self.tlog_dropped += 1
-                return
-            self._tlog_buf.append(chunk)
-            self._tlog_size += len(chunk)
-            if self._tlog_size >= self.buffer_bytes:
-                self._flush_tlog()
-        except Exception:  # noqa: BLE001
-            self.tlog_errors += 1
+        with self._lock:
+            try:
+                chunk = struct.pack(">Q", int(t_usec) & 0xFFFFFFFFFFFFFFFF) + bytes(msgbuf)
+                if self.closed or self._tlog_size + len(chunk) > self.pending_bytes:
+                    self.tlog_dropped += 1
+                    return
+                self._tlog_buf.append(chunk)
+                self._tlog_size += len(chunk)
+                if self._tlog_size >= self.buffer_bytes:
+                    self._flush_tlog()
+            except Exception:  # noqa: BLE001
+                self.tlog_errors += 1
 
     def flush(self, sync: bool = False) -> bool:
         """Write everything pending now (fsync with `sync`); True when nothing is left pending."""
-        try:
-            return self._flush(sync=sync)
-        except Exception as err:  # noqa: BLE001
-            self._fail(err)
-            return False
+        with self._lock:
+            try:
+                return self._flush(sync=sync)
+            except Exception as err:  # noqa: BLE001
+                self._fail(err)
+                return False
 
     def tick(self) -> None:
         """Call from the loop when no sample was logged: honours the `flush_s` deadline."""
@@ -464,16 +471,17 @@ class EventLog:
 
     def close(self) -> None:
         """Flush, fsync and close both files (idempotent; never raises)."""
-        if self.closed:
-            return
-        self.flush(sync=True)
-        for f in (self._file, self._tlog):
-            if f is not None:
-                try:
-                    f.close(sync=True)
-                except Exception:  # noqa: BLE001
-                    self.write_errors += 1
-        self.closed = True
+        with self._lock:
+            if self.closed:
+                return
+            self.flush(sync=True)
+            for f in (self._file, self._tlog):
+                if f is not None:
+                    try:
+                        f.close(sync=True)
+                    except Exception:  # noqa: BLE001
+                        self.write_errors += 1
+            self.closed = True
 
     def stats(self) -> dict:
         """Counters for the daemon's status report."""
