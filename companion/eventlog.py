@@ -28,7 +28,7 @@ was cut, which is then ended with a newline so the new run starts on a fresh lin
 (after a write failure: how many records were dropped and the first error).
 
 Durability: `event()` writes and fsyncs at once (with any buffered state samples before it) and returns
-True only when the record is on disk. `state()` only encodes and buffers; the buffer goes to the OS at
+True only when the record is on disk (with `fsync_events=False`: handed to the OS). `state()` only encodes and buffers; the buffer goes to the OS at
 least every `flush_s` (default 1 s, checked on each call), on the next event, or when it holds
 `buffer_bytes`. After `kill -9` everything handed to the OS survives; after a power cut, everything up
 to the last fsync (the last event, or the last rotation/close).
@@ -170,10 +170,10 @@ def file_set(directory: str | Path, stem: str = LOG_NAME, suffix: str = LOG_SUFF
 
 
 class _AppendFile:
-    """One size-rotated, append-only file that reports failures instead of raising them.
+    """One size-rotated, append-only file.
 
-    `write(data, sync)` returns the number of bytes of `data` that are now in the file (whole lines for
-    the JSON log, because a partial write is cut back); the caller keeps the rest pending.
+    `write()` raises `WriteFailed` carrying how many bytes of the batch are in the file (whole lines for
+    the JSON log, because a partial write is cut back), so the caller re-sends only the rest.
     """
 
     def __init__(self, directory: Path, stem: str, suffix: str, max_bytes: int, keep: int, fresh: bool):
