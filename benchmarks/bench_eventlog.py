@@ -11,6 +11,7 @@ import argparse
 import json
 import math
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -67,6 +68,35 @@ def bench(directory: Path, n_states: int, n_events: int) -> dict:
     return out
 
 
+def bench_full_disk(directory: Path, seconds: float = 20.0) -> dict:
+    """A 50 Hz loop (simulated time) logging into a 64 KiB tmpfs: cost per call while the disk is full."""
+    mnt = directory / "full"
+    mnt.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True, text=True)
+    if r.returncode != 0:
+        return {"skipped": f"cannot mount a tmpfs: {r.stderr.strip() or 'not root'}"}
+    try:
+        mono = [0.0]
+        log = EventLog(mnt, monotonic=lambda: mono[0])
+        st, ev, acked, n_ev = [], [], 0, 0
+        for i in range(int(seconds * 50)):
+            mono[0] += 0.02
+            t0 = time.perf_counter_ns()
+            log.state(i * 0.02, **SAMPLE)
+            st.append(time.perf_counter_ns() - t0)
+            if i % 50 == 0:
+                t0 = time.perf_counter_ns()
+                acked += log.event(i * 0.02, "limit_change", v_max=3.0, reason="bench")
+                ev.append(time.perf_counter_ns() - t0)
+                n_ev += 1
+        out = {"simulated_s": seconds, "state_while_full": stats_us(st), "event_while_full": stats_us(ev),
+               "events_acknowledged": acked, "events_attempted": n_ev, **log.stats()}
+        log.close()
+        return out
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--dir", type=Path, help="where to write (default: a temporary directory)")
@@ -75,6 +105,7 @@ def main():
     a = p.parse_args()
     with tempfile.TemporaryDirectory(dir=a.dir) as d:
         out = bench(Path(d), a.states, a.events)
+        out["full_disk"] = bench_full_disk(Path(d))
     out.update(benchmark="eventlog", python=platform.python_version(), machine=platform.machine())
     print(json.dumps(out))
 
