@@ -52,6 +52,8 @@ STATE_FIELDS = (
     "state", "mode", "contract", "engaged", "x", "y", "z", "vx", "vy", "vz", "ground_speed", "d_od", "e_tr",
     "e_tr_measured", "r_obst", "thrust_ratio", "v_max", "tilt_deg", "v_safe", "gamma", "v_cmd",
 )
+CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
+COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "d_od", "e_tr", "e_tr_measured",
                 "thrust_ratio", "r_obst", "tilt_deg")
 OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
@@ -420,12 +422,12 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
     """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON."""
     files = _log_files(paths)
     reader = read_events(files)
-    samples: list[dict] | None = [] if out_dir is not None else None
+    samples: list[tuple] | None = [] if out_dir is not None else None
 
     def records():
         for rec in reader:
             if samples is not None and isinstance(rec, dict) and rec.get("kind") == "state":
-                samples.append(rec)
+                samples.append(tuple(rec.get(k) for k in CSV_COLUMNS))  # a row, not the dict: 1 h at 50 Hz fits
             yield rec
 
     try:
@@ -444,16 +446,16 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
     return rep
 
 
-def write_outputs(rep: dict, samples: list[dict], out_dir: Path) -> dict:
+def write_outputs(rep: dict, samples: list[tuple], out_dir: Path) -> dict:
     """`samples.csv`, `review.json` and `review.png` in `out_dir`; returns their paths."""
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         csv_path = out_dir / "samples.csv"
         with open(csv_path, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(("boot", "seq", "t", "wall", *STATE_FIELDS))
-            for s in samples:
-                w.writerow([_cell(s.get(k)) for k in ("boot", "seq", "t", "wall", *STATE_FIELDS)])
+            w.writerow(CSV_COLUMNS)
+            for row in samples:
+                w.writerow([_cell(v) for v in row])
         png_path = out_dir / "review.png"
         plot(rep, samples, png_path)
         json_path = out_dir / "review.json"
@@ -478,7 +480,7 @@ SUBSYSTEM_COLOURS = {"navigation": "tab:blue", "controller": "tab:orange", "envi
                      "actuators": "tab:red", "guidance": "tab:purple"}
 
 
-def plot(rep: dict, samples: list[dict], path: Path) -> None:
+def plot(rep: dict, samples: list[tuple], path: Path) -> None:
     """One PNG, panels sharing the time axis; violation spans shaded by subsystem, failsafes as red lines."""
     try:
         import matplotlib
@@ -490,16 +492,17 @@ def plot(rep: dict, samples: list[dict], path: Path) -> None:
 
     def series(key):
         # NaN breaks the line between daemon runs (t may jump) and where a value is missing
+        col = CSV_COLUMNS.index(key)
         xs, ys, last_boot = [], [], None
-        for s in samples:
-            t = _num(s.get("t"))
+        for row in samples:
+            t, boot = _num(row[COL_T]), row[COL_BOOT]
             if t is None:
                 continue
-            if last_boot is not None and s.get("boot") != last_boot:
+            if last_boot is not None and boot != last_boot:
                 xs.append(math.nan)
                 ys.append(math.nan)
-            last_boot = s.get("boot")
-            v = _num(s.get(key))
+            last_boot = boot
+            v = _num(row[col])
             xs.append(t)
             ys.append(math.nan if v is None else v)
         return xs, ys
@@ -531,12 +534,21 @@ def plot(rep: dict, samples: list[dict], path: Path) -> None:
                 if fs["t"] is not None:
                     ax.axvline(fs["t"], color="red", lw=0.8)
         axes[1].axhline(0.0, color="black", lw=0.8)
+        from matplotlib.lines import Line2D
+        from matplotlib.patches import Patch
+
+        subs = sorted({str(v["subsystem"]) for v in rep["violations"]})
+        keys = [Patch(color=SUBSYSTEM_COLOURS.get(sub, "grey"), alpha=0.3, label=f"violation: {sub}") for sub in subs]
+        if rep["failsafes"]:
+            keys.append(Line2D([], [], color="red", lw=0.8, label="failsafe"))
+        if keys:
+            fig.legend(handles=keys, loc="lower center", ncol=len(keys), fontsize="small")
         axes[-1].set_xlabel("t [s] (vehicle time)")
         title = f"contract-guard review — {rep['state_samples']} samples, {len(rep['violations'])} violation(s)"
         if rep["span"]["utc_first"]:
             title += f", from {rep['span']['utc_first']}"
         axes[0].set_title(title)
-        fig.tight_layout()
+        fig.tight_layout(rect=(0, 0.03 if keys else 0, 1, 1))
         fig.savefig(path, dpi=100)
     finally:
         plt.close(fig)
