@@ -120,7 +120,8 @@ class _Summary:
         self.excess = None  # worst ground_speed − limit: dict
         self.excess_vmax = None
         self.open_viol: dict[tuple, dict] = {}
-        self.violations: list[dict] = []
+        self.violations: list[dict] = []  # the first MAX_LISTED; counted in full in by_sub
+        self.by_sub: dict[str, dict] = {}
         self.open_fs: list[dict] = []
         self.failsafes: list[dict] = []
         self.lists = {k: [] for k in ("mode_changes", "state_changes", "link", "startup_checks", "commands_failed",
@@ -220,7 +221,7 @@ class _Summary:
                      "observed": None, "action": None, "start_t": None, "start_wall": None, "boot": self.boot}
             v.update(end_t=t, observed_end=g("observed"), action_end=g("action"), ended_by="violation_end")
             v["duration_s"] = None if v["start_t"] is None or t is None else max(t - v["start_t"], 0.0)
-            self._keep(self.violations, v)
+            self._close_violation(v)
         elif name == "failsafe":
             self.counts["failsafes"] += 1
             fs = {"t": t, "cause": g("cause"), "action": g("action"), "cleared_t": None, "boot": self.boot}
@@ -264,6 +265,12 @@ class _Summary:
         elif name != "log_open":
             self.other_events[name] = self.other_events.get(name, 0) + 1
 
+    def _close_violation(self, v: dict) -> None:
+        s = self.by_sub.setdefault(str(v["subsystem"]), {"count": 0, "total_s": 0.0})
+        s["count"] += 1
+        s["total_s"] += v["duration_s"] or 0.0
+        self._keep(self.violations, v)
+
     def _keep(self, lst: list, item: dict) -> None:
         if len(lst) < MAX_LISTED:
             lst.append(item)
@@ -276,7 +283,7 @@ class _Summary:
             v.update(end_t=self.last_t_of_boot, ended_by=why)
             st = v["start_t"]
             v["duration_s"] = None if st is None or self.last_t_of_boot is None else max(self.last_t_of_boot - st, 0.0)
-            self._keep(self.violations, v)
+            self._close_violation(v)
         self.open_viol = {}
         self.open_fs = []
         if self.link_down_at is not None and self.last_t_of_boot is not None:
@@ -289,11 +296,6 @@ class _Summary:
     def result(self) -> dict:
         self._end_boot("end of log")
         self.violations.sort(key=lambda v: (v["start_t"] is None, v["start_t"] if v["start_t"] is not None else 0.0))
-        by_sub: dict[str, dict] = {}
-        for v in self.violations:
-            s = by_sub.setdefault(str(v["subsystem"]), {"count": 0, "total_s": 0.0})
-            s["count"] += 1
-            s["total_s"] += v["duration_s"] or 0.0
         boots = []
         for b in self.boots.values():
             b = {k: v for k, v in b.items() if not k.startswith("_")}
@@ -323,7 +325,8 @@ class _Summary:
             },
             "ranges": {k: r.out() for k, r in self.ranges.items()},
             "violations": self.violations,
-            "violations_by_subsystem": by_sub,
+            "violation_count": sum(v["count"] for v in self.by_sub.values()),
+            "violations_by_subsystem": self.by_sub,
             "unknown_subsystems": self.unknown_subsystems,
             "failsafes": self.failsafes,
             "failsafe_count": self.counts["failsafes"],
@@ -356,9 +359,9 @@ def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: flo
 def findings(rep: dict) -> list[str]:
     """One line per thing a safety reviewer must look at; empty when the flight kept its contract."""
     out = []
-    if rep["violations"]:
+    if rep["violation_count"]:
         parts = ", ".join(f"{k} ×{v['count']} ({v['total_s']:.1f} s)" for k, v in sorted(rep["violations_by_subsystem"].items()))
-        out.append(f"{len(rep['violations'])} contract violation(s): {parts}")
+        out.append(f"{rep['violation_count']} contract violation(s): {parts}")
     if rep["gamma_positive_s"] > 0:
         out.append(f"Γ > 0 for {rep['gamma_positive_s']:.2f} s (speed limit above the safe speed)")
     if rep["gamma_unknown_s"] > 0:
@@ -544,7 +547,7 @@ def plot(rep: dict, samples: list[tuple], path: Path) -> None:
         if keys:
             fig.legend(handles=keys, loc="lower center", ncol=len(keys), fontsize="small")
         axes[-1].set_xlabel("t [s] (vehicle time)")
-        title = f"contract-guard review — {rep['state_samples']} samples, {len(rep['violations'])} violation(s)"
+        title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
         if rep["span"]["utc_first"]:
             title += f", from {rep['span']['utc_first']}"
         axes[0].set_title(title)
@@ -590,7 +593,8 @@ def format_report(rep: dict) -> str:
         r = rep["ranges"][k]
         miss = f"  ({r['missing']} null)" if r["missing"] else ""
         lines.append(f"    {k:<13} {_fmt(r['min'])} … {_fmt(r['max'])}{miss}")
-    lines.append(f"  violations: {len(rep['violations'])}")
+    lines.append(f"  violations: {rep['violation_count']}" + (f" (first {len(rep['violations'])} listed)"
+                 if rep["violation_count"] > len(rep["violations"]) else ""))
     for v in rep["violations"]:
         end = _fmt_t(v["end_t"]) + ("" if v["ended_by"] == "violation_end" else f" ({v['ended_by']})")
         lines.append(f"    {_fmt_t(v['start_t'])} … {end}  {_fmt(v['duration_s'], ' s')}  {v['subsystem']}: "

@@ -107,6 +107,7 @@ def test_the_report_matches_the_scripted_flight(flight):
     assert rep["sampled_s"] == pytest.approx(599 * DT + 99 * DT)  # the 5 s between runs is not sampled time
     assert rep["sample_gaps"] == 0  # a restart is not a gap inside a run
 
+    assert rep["violation_count"] == 2
     nav, act = rep["violations"]
     assert (nav["subsystem"], nav["start_t"], nav["end_t"], nav["ended_by"]) == ("navigation", 5.0, 7.0, "violation_end")
     assert nav["duration_s"] == pytest.approx(2.0)
@@ -246,3 +247,15 @@ def test_summarise_never_raises_on_odd_records(recs):
     rep = summarise(recs)
     assert isinstance(rep["findings"], list)
     format_report(rep)
+
+
+def test_a_flapping_guarantee_is_counted_in_full_but_listed_in_part():
+    recs = []
+    for i in range(1200):
+        for name, t in (("violation_start", i * 1.0), ("violation_end", i * 1.0 + 0.5)):
+            recs.append({"kind": "event", "t": t, "seq": len(recs), "boot": "a", "event": name,
+                         "subsystem": "controller", "guarantee": "e_tr ≤ E_tr", "assumed": 0.3, "observed": 0.5})
+    rep = summarise(recs)
+    assert rep["violation_count"] == 1200 and len(rep["violations"]) == 1000
+    assert rep["violations_by_subsystem"]["controller"]["total_s"] == pytest.approx(600.0)
+    assert rep["findings"][0].startswith("1200 contract violation(s): controller ×1200 (600.0 s)")
