@@ -5,6 +5,7 @@ import json
 import math
 import os
 import random
+import shutil
 import signal
 import struct
 import subprocess
@@ -252,6 +253,49 @@ def kill_restart_scenario(tmp_path, seed, max_bytes):
 def test_kill_9_loses_no_acknowledged_event_and_restart_keeps_the_log(tmp_path, seed):
     max_bytes = [4_000, 50_000_000, 10_000, 50_000_000][seed]  # with and without rotations during the run
     kill_restart_scenario(tmp_path, seed, max_bytes)
+
+
+BIG_WRITER = textwrap.dedent(
+    """
+    import sys
+    from companion.eventlog import EventLog
+    log = EventLog(sys.argv[1], buffer_bytes=16_000_000, pending_bytes=64_000_000)
+    print("ready", flush=True)
+    i = 0
+    while True:
+        i += 1
+        log.state(i * 0.02, i=i, pad="p" * 20_000)
+    """
+)
+
+
+def test_a_real_torn_write_from_kill_9_is_repaired_on_restart(tmp_path):
+    """Multi-megabyte writes can be cut by SIGKILL; the next run must start on a fresh line."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for attempt in range(10):
+        d = tmp_path / f"a{attempt}"
+        child = subprocess.Popen([sys.executable, "-c", BIG_WRITER, str(d)], stdout=subprocess.PIPE, text=True,
+                                 env=env, cwd=ROOT)
+        assert child.stdout.readline().strip() == "ready"
+        time.sleep(random.Random(attempt).uniform(0.3, 0.9))
+        child.kill()
+        child.wait(timeout=10)
+        r = read_events(d)
+        n_before = sum(1 for _ in r)
+        if r.bad_lines:
+            break
+        shutil.rmtree(d)
+    else:
+        pytest.skip("no write was cut by SIGKILL in 10 attempts (the synthetic torn-tail test covers the repair)")
+    assert [k for _, _, k in r.bad_lines] == ["tail"]
+    log = EventLog(d)
+    log.event(99.0, "start")
+    log.close()
+    r2 = read_events(d)
+    recs = list(r2)
+    assert len(recs) == n_before + 2 and recs[-2]["event"] == "log_open" and recs[-2]["torn_tail"] is True
+    assert [k for _, _, k in r2.bad_lines] == ["torn"]
+    shutil.rmtree(d)  # tens of MB: do not leave them in pytest's kept temp dirs
 
 
 # ============================================================================ failures never raise
