@@ -3,7 +3,6 @@ script did (not against what the reviewer prints)."""
 
 import csv
 import json
-import math
 import struct
 
 import pytest
@@ -199,8 +198,7 @@ def test_bad_input_is_one_contract_error(tmp_path):
     (tmp_path / "zero.jsonl").write_text("")
     assert "not a contract-guard event log" in one_line_error(review, tmp_path / "zero.jsonl")
     (tmp_path / "blocker").write_text("a file where the output directory should go")
-    assert "cannot write" in one_line_error(review, tmp_path / "other.jsonl" if False else _tiny_log(tmp_path),
-                                            tmp_path / "blocker" / "out")
+    assert "cannot write" in one_line_error(review, _tiny_log(tmp_path), tmp_path / "blocker" / "out")
 
 
 def _tiny_log(tmp_path):
