@@ -28,7 +28,7 @@ was cut, which is then ended with a newline so the new run starts on a fresh lin
 (after a write failure: how many records were dropped and the first error).
 
 Durability: `event()` writes and fsyncs at once (with any buffered state samples before it) and returns
-True only when the record is on disk. `state()` only encodes and buffers; the buffer goes to the OS at
+True only when the record is on disk (with `fsync_events=False`: handed to the OS). `state()` only encodes and buffers; the buffer goes to the OS at
 least every `flush_s` (default 1 s, checked on each call), on the next event, or when it holds
 `buffer_bytes`. After `kill -9` everything handed to the OS survives; after a power cut, everything up
 to the last fsync (the last event, or the last rotation/close).
@@ -41,7 +41,8 @@ back to its last whole line (`ftruncate`), so a disk-full episode leaves no brok
 `healthy` is False from a failure until a later write succeeds. The calls are synchronous: a disk that
 *hangs* (rather than fails) stalls the caller; the daemon's watchdog covers that case.
 
-Not thread-safe: one writer (the control loop). One process per directory.
+Thread-safe (one lock; `raw()` may come from the link-reader thread while the loop calls `state()`).
+One process per directory: two writers would interleave their rotations.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ import json
 import math
 import os
 import struct
+import threading
 import time
 import uuid
 from pathlib import Path
@@ -80,8 +82,9 @@ def _default(obj):
     return str(obj)
 
 
-def _finite_copy(obj, path: str, bad: list[str], depth: int = 0):
+def finite_copy(obj, path: str = "", bad: list[str] | None = None, depth: int = 0):
     """A copy of `obj` with non-finite floats replaced by None (their dotted paths appended to `bad`)."""
+    bad = [] if bad is None else bad
     if depth > 32:
         return str(obj)
     if isinstance(obj, float):
@@ -92,13 +95,13 @@ def _finite_copy(obj, path: str, bad: list[str], depth: int = 0):
     if isinstance(obj, (str, int, bool)) or obj is None:
         return obj
     if isinstance(obj, dict):
-        return {str(k): _finite_copy(v, f"{path}.{k}" if path else str(k), bad, depth + 1) for k, v in obj.items()}
+        return {str(k): finite_copy(v, f"{path}.{k}" if path else str(k), bad, depth + 1) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_finite_copy(v, f"{path}[{i}]", bad, depth + 1) for i, v in enumerate(obj)]
+        return [finite_copy(v, f"{path}[{i}]", bad, depth + 1) for i, v in enumerate(obj)]
     converted = _default(obj)
     if converted is obj or isinstance(converted, str):
         return converted
-    return _finite_copy(converted, path, bad, depth + 1)
+    return finite_copy(converted, path, bad, depth + 1)
 
 
 def encode_record(rec: dict) -> str:
@@ -113,7 +116,7 @@ def encode_record(rec: dict) -> str:
         pass
     try:
         bad: list[str] = []
-        clean = _finite_copy(rec, "", bad)
+        clean = finite_copy(rec, "", bad)
         if bad:
             clean["nonfinite"] = bad
         return json.dumps(clean, allow_nan=False, separators=_SEP, default=str) + "\n"
@@ -167,10 +170,10 @@ def file_set(directory: str | Path, stem: str = LOG_NAME, suffix: str = LOG_SUFF
 
 
 class _AppendFile:
-    """One size-rotated, append-only file that reports failures instead of raising them.
+    """One size-rotated, append-only file.
 
-    `write(data, sync)` returns the number of bytes of `data` that are now in the file (whole lines for
-    the JSON log, because a partial write is cut back); the caller keeps the rest pending.
+    `write()` raises `WriteFailed` carrying how many bytes of the batch are in the file (whole lines for
+    the JSON log, because a partial write is cut back), so the caller re-sends only the rest.
     """
 
     def __init__(self, directory: Path, stem: str, suffix: str, max_bytes: int, keep: int, fresh: bool):
@@ -378,6 +381,7 @@ class EventLog:
         self._first_error: str | None = None
         self._dropped_at_failure = 0
         self._healthy = True
+        self._lock = threading.RLock()
         self._file = _AppendFile(self.directory, LOG_NAME, LOG_SUFFIX, max_bytes, keep, fresh=False)
         self._tlog = _AppendFile(self.directory, TLOG_NAME, TLOG_SUFFIX, max_bytes, keep, fresh=True) if tlog else None
         self._tlog_buf: list[bytes] = []
@@ -408,53 +412,57 @@ class EventLog:
 
     def state(self, t, /, **fields) -> None:
         """Buffer one state sample (cheap: encode and append; written at least every `flush_s`)."""
-        try:
-            self.seq += 1
-            line = encode_record(_record("state", t, self.clock(), self.seq, self.boot, None, fields))
-            self._pending.append((line, False))
-            self._pending_size += len(line)
-            if self.monotonic() - self._last_flush >= self.flush_s or (
-                self._pending_size >= self.buffer_bytes and self._healthy
-            ):
-                self._flush(sync=False)
-        except Exception as err:  # noqa: BLE001 — never into the control loop
-            self._fail(err)
+        with self._lock:
+            try:
+                self.seq += 1
+                line = encode_record(_record("state", t, self.clock(), self.seq, self.boot, None, fields))
+                self._pending.append((line, False))
+                self._pending_size += len(line)
+                if self.monotonic() - self._last_flush >= self.flush_s or (
+                    self._pending_size >= self.buffer_bytes and self._healthy
+                ):
+                    self._flush(sync=False)
+            except Exception as err:  # noqa: BLE001 — never into the control loop
+                self._fail(err)
 
     def event(self, t, name: str, /, **fields) -> bool:
         """Write one event now (with the buffered samples before it) and fsync; True when durable."""
-        try:
-            self.seq += 1
-            line = encode_record(_record("event", t, self.clock(), self.seq, self.boot, str(name), fields))
-            self._pending.append((line, True))
-            self._pending_size += len(line)
-            return self._flush(sync=self.fsync_events)
-        except Exception as err:  # noqa: BLE001
-            self._fail(err)
-            return False
+        with self._lock:
+            try:
+                self.seq += 1
+                line = encode_record(_record("event", t, self.clock(), self.seq, self.boot, str(name), fields))
+                self._pending.append((line, True))
+                self._pending_size += len(line)
+                return self._flush(sync=self.fsync_events)
+            except Exception as err:  # noqa: BLE001
+                self._fail(err)
+                return False
 
     def raw(self, t_usec: int, msgbuf: bytes) -> None:
-        """Buffer one raw MAVLink packet for the `.tlog` (8-byte big-endian µs timestamp + bytes)."""
+        """Buffer one raw MAVLink packet for the `.tlog`: 8-byte big-endian UNIX time [µs] + the bytes."""
         if self._tlog is None:
             return
-        try:
-            chunk = struct.pack(">Q", int(t_usec) & 0xFFFFFFFFFFFFFFFF) + bytes(msgbuf)
-            if self._tlog_size + len(chunk) > self.pending_bytes:
-                self.tlog_dropped += 1
-                return
-            self._tlog_buf.append(chunk)
-            self._tlog_size += len(chunk)
-            if self._tlog_size >= self.buffer_bytes:
-                self._flush_tlog()
-        except Exception:  # noqa: BLE001
-            self.tlog_errors += 1
+        with self._lock:
+            try:
+                chunk = struct.pack(">Q", int(t_usec) & 0xFFFFFFFFFFFFFFFF) + bytes(msgbuf)
+                if self.closed or self._tlog_size + len(chunk) > self.pending_bytes:
+                    self.tlog_dropped += 1
+                    return
+                self._tlog_buf.append(chunk)
+                self._tlog_size += len(chunk)
+                if self._tlog_size >= self.buffer_bytes:
+                    self._flush_tlog()
+            except Exception:  # noqa: BLE001
+                self.tlog_errors += 1
 
     def flush(self, sync: bool = False) -> bool:
         """Write everything pending now (fsync with `sync`); True when nothing is left pending."""
-        try:
-            return self._flush(sync=sync)
-        except Exception as err:  # noqa: BLE001
-            self._fail(err)
-            return False
+        with self._lock:
+            try:
+                return self._flush(sync=sync)
+            except Exception as err:  # noqa: BLE001
+                self._fail(err)
+                return False
 
     def tick(self) -> None:
         """Call from the loop when no sample was logged: honours the `flush_s` deadline."""
@@ -463,16 +471,17 @@ class EventLog:
 
     def close(self) -> None:
         """Flush, fsync and close both files (idempotent; never raises)."""
-        if self.closed:
-            return
-        self.flush(sync=True)
-        for f in (self._file, self._tlog):
-            if f is not None:
-                try:
-                    f.close(sync=True)
-                except Exception:  # noqa: BLE001
-                    self.write_errors += 1
-        self.closed = True
+        with self._lock:
+            if self.closed:
+                return
+            self.flush(sync=True)
+            for f in (self._file, self._tlog):
+                if f is not None:
+                    try:
+                        f.close(sync=True)
+                    except Exception:  # noqa: BLE001
+                        self.write_errors += 1
+            self.closed = True
 
     def stats(self) -> dict:
         """Counters for the daemon's status report."""

@@ -7,8 +7,8 @@ raises: a failed send is counted in `Notifier.errors` and returns False.
 
 The daemon's duty (issue 5, item 8): call `ready()` once it is running (table loaded, loop started;
 the autopilot link may still be connecting), then `watchdog()` from the loop **only while the loop is
-healthy** — at least every `watchdog_interval_s()` — so that systemd restarts a daemon whose loop hangs
-or keeps failing (`WatchdogSec=` in the unit). `status(text)` shows a one-line state in
+healthy** — at least every `watchdog_interval_s()` (`WatchdogFeeder` does the rate limiting) — so that
+systemd restarts a daemon whose loop hangs or keeps failing (`WatchdogSec=` in the unit). `status(text)` shows a one-line state in
 `systemctl status`; `stopping()` before a clean exit.
 """
 
@@ -109,3 +109,27 @@ class Notifier:
                 sock.close()
             except OSError:
                 pass
+
+
+class WatchdogFeeder:
+    """Rate-limits `WATCHDOG=1` from a 50 Hz loop: `tick(healthy)` pings at most every `period_s` and never
+    while unhealthy, so systemd's watchdog fires once the loop has been unhealthy (or hung) for `WatchdogSec`.
+
+    "Healthy" is the daemon's call (the loop ran on time and its inputs were processed). A failing event
+    log is *not* a reason to starve the watchdog: a restart would not free the disk (DESIGN.md §5).
+    """
+
+    def __init__(self, notifier: Notifier, clock, period_s: float | None = None):
+        self.notifier, self.clock = notifier, clock
+        self.period_s = period_s if period_s is not None else notifier.watchdog_interval_s()
+        self._last: float | None = None
+
+    def tick(self, healthy: bool) -> bool:
+        """True when a ping was sent now."""
+        if not healthy or self.period_s is None:
+            return False
+        now = self.clock()
+        if self._last is not None and now - self._last < self.period_s:
+            return False
+        self._last = now
+        return self.notifier.watchdog()

@@ -5,6 +5,7 @@ import json
 import math
 import os
 import random
+import shutil
 import signal
 import struct
 import subprocess
@@ -124,20 +125,6 @@ def test_events_are_on_disk_at_once_and_states_within_the_flush_interval(tmp_pat
     log.state(3.0)  # after close: no raise, counted as dropped
     log.event(3.0, "stop")
     assert log.dropped_records == 2
-
-
-def test_state_is_cheap_enough_for_a_50_hz_loop(tmp_path):
-    """A loose sanity bound (the measured figure is in benchmarks/bench_eventlog.py)."""
-    log = EventLog(tmp_path)
-    fields = dict(state="cruise", mode="AUTO.MISSION", contract="stop", engaged=True, x=1.0, y=2.0, z=-10.0,
-                  vx=3.0, vy=0.1, vz=0.0, ground_speed=3.0, d_od=6.0, e_tr=0.3, e_tr_measured=0.2, r_obst=0.5,
-                  thrust_ratio=0.9, v_max=4.0, tilt_deg=20.0, v_safe=4.1, gamma=-0.1, v_cmd=4.0)
-    t0 = time.perf_counter()
-    for i in range(2000):
-        log.state(i * 0.02, **fields)
-    per_call = (time.perf_counter() - t0) / 2000
-    log.close()
-    assert per_call < 2e-3  # 10 % of a 50 Hz period even on a loaded machine
 
 
 # ============================================================================ rotation and reader
@@ -268,6 +255,49 @@ def test_kill_9_loses_no_acknowledged_event_and_restart_keeps_the_log(tmp_path, 
     kill_restart_scenario(tmp_path, seed, max_bytes)
 
 
+BIG_WRITER = textwrap.dedent(
+    """
+    import sys
+    from companion.eventlog import EventLog
+    log = EventLog(sys.argv[1], buffer_bytes=16_000_000, pending_bytes=64_000_000)
+    print("ready", flush=True)
+    i = 0
+    while True:
+        i += 1
+        log.state(i * 0.02, i=i, pad="p" * 20_000)
+    """
+)
+
+
+def test_a_real_torn_write_from_kill_9_is_repaired_on_restart(tmp_path):
+    """Multi-megabyte writes can be cut by SIGKILL; the next run must start on a fresh line."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    for attempt in range(10):
+        d = tmp_path / f"a{attempt}"
+        child = subprocess.Popen([sys.executable, "-c", BIG_WRITER, str(d)], stdout=subprocess.PIPE, text=True,
+                                 env=env, cwd=ROOT)
+        assert child.stdout.readline().strip() == "ready"
+        time.sleep(random.Random(attempt).uniform(0.3, 0.9))
+        child.kill()
+        child.wait(timeout=10)
+        r = read_events(d)
+        n_before = sum(1 for _ in r)
+        if r.bad_lines:
+            break
+        shutil.rmtree(d)
+    else:
+        pytest.skip("no write was cut by SIGKILL in 10 attempts (the synthetic torn-tail test covers the repair)")
+    assert [k for _, _, k in r.bad_lines] == ["tail"]
+    log = EventLog(d)
+    log.event(99.0, "start")
+    log.close()
+    r2 = read_events(d)
+    recs = list(r2)
+    assert len(recs) == n_before + 2 and recs[-2]["event"] == "log_open" and recs[-2]["torn_tail"] is True
+    assert [k for _, _, k in r2.bad_lines] == ["torn"]
+    shutil.rmtree(d)  # tens of MB: do not leave them in pytest's kept temp dirs
+
+
 # ============================================================================ failures never raise
 
 
@@ -292,7 +322,7 @@ def test_full_disk_is_counted_never_raised_and_recovers(tmp_path, enospc):
     log = EventLog(tmp_path, monotonic=mono, pending_bytes=3_000)
     enospc["full"] = True
     assert log.event(1.0, "failsafe", cause="x", action="hold") is False
-    assert not log.healthy and log.write_errors == 1 and "ENOSPC" not in (log.last_error or "") or True
+    assert not log.healthy and log.write_errors == 1 and "No space left" in log.last_error
     for i in range(200):
         mono.t += 0.1
         log.state(1 + i * 0.1, pad="s" * 30)
@@ -445,3 +475,31 @@ def test_tlog_is_readable_by_pymavlink(tmp_path):
     log2.raw(t0, heartbeat_bytes(0))
     log2.close()
     assert (tmp_path / "raw.1.tlog").read_bytes() == raw and (tmp_path / "raw.tlog").stat().st_size == len(raw) // 20
+
+
+def test_raw_from_the_link_thread_while_the_loop_logs(tmp_path):
+    import threading
+
+    from pymavlink import mavutil
+
+    log = EventLog(tmp_path, tlog=True, buffer_bytes=2_000)  # small buffer: many flushes race with raw()
+    packets = [heartbeat_bytes(i % 256) for i in range(3000)]
+
+    def link():
+        for i, p in enumerate(packets):
+            log.raw(1_700_000_000_000_000 + i, p)
+
+    th = threading.Thread(target=link)
+    th.start()
+    for i in range(3000):
+        log.state(i * 0.02, v_max=1.0)
+        if i % 100 == 0:
+            log.event(i * 0.02, "limit_change", v_max=1.0, reason="t")
+    th.join()
+    log.close()
+    conn = mavutil.mavlink_connection(str(tmp_path / "raw.tlog"))
+    n = 0
+    while conn.recv_match(blocking=False) is not None:
+        n += 1
+    assert n == 3000 and log.tlog_errors == 0 and log.tlog_dropped == 0
+    assert [r["seq"] for r in read_events(tmp_path)] == list(range(log.seq + 1))

@@ -184,3 +184,19 @@ def test_sandboxing_exposure_stays_low(tmp_path, fake_exe):
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr
     m = re.search(r"Overall exposure level for contract-guard.service: (\d+\.\d+)", r.stdout + r.stderr)
     assert m and float(m.group(1)) <= 2.5, (r.stdout + r.stderr)[-500:]
+
+
+def test_watchdog_feeder_pings_at_half_the_period_and_only_while_healthy(notify_socket):
+    from companion.service import WatchdogFeeder
+
+    path, sock = notify_socket
+    clock = {"t": 0.0}
+    feeder = WatchdogFeeder(Notifier(environ={"NOTIFY_SOCKET": path, "WATCHDOG_USEC": "2000000"}), lambda: clock["t"])
+    sent = []
+    for i in range(250):  # 5 s of a 50 Hz loop; unhealthy from 2.0 s to 4.0 s
+        clock["t"] = i * 0.02
+        if feeder.tick(healthy=not (2.0 <= clock["t"] < 4.0)):
+            sent.append(round(clock["t"], 2))
+    assert sent == [0.0, 1.0, 4.0]
+    assert [recv(sock) for _ in sent] == ["WATCHDOG=1"] * 3
+    assert WatchdogFeeder(Notifier(environ={}), lambda: 0.0).tick(True) is False  # no watchdog configured

@@ -1,0 +1,620 @@
+"""`contract-guard review LOG`: a contract-violation report for one flight, from the daemon's event log.
+
+`review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several),
+`summarise(records)` (pure) builds the report, `format_report(report)` renders it for a person. With
+`out_dir`: `review.png` (speed limit and ground speed, Γ, `d_od`, `e_tr`, `thrust_ratio`, `r_obst` over
+time, violation spans shaded, failsafes marked), `samples.csv` and `review.json`. Bad or missing input
+ends in one `ContractError` line.
+
+The record schema (JSON Lines, written by `companion.eventlog.EventLog`; every record also carries
+`kind` ("state" | "event"), `t` vehicle time [s], `wall` UNIX time [s], `seq`, `boot`, and `nonfinite`
+naming fields whose NaN/inf was written as null):
+
+State samples (`kind: "state"`, ≥ 10 Hz):
+    t, state, mode, contract ("stop" | "avoid"), engaged (bool), x, y, z [m, local NED],
+    vx, vy, vz, ground_speed [m/s], d_od, e_tr, e_tr_measured, r_obst [m], thrust_ratio [1],
+    v_max [m/s], tilt_deg [deg], v_safe [m/s], gamma [m/s] (Γ = v_max − v_safe),
+    v_cmd [m/s] (the limit actually commanded; null in shadow mode)
+
+Events (`kind: "event"`, field `event`):
+    violation_start / violation_end  subsystem ∈ {navigation, controller, environment, actuators, guidance},
+                                     guarantee (text), assumed, observed, action
+    failsafe (cause, action)         failsafe_clear (cause, optional: clears that cause, else all)
+    mode_change (from, to, by ∈ {daemon, other})     state_change (from, to, reason)
+    limit_change (v_max, reason)     command (name, params, result)     link (status ∈ {up, down, reconnect})
+    startup_check (ok, reason)       start, stop
+    log_open, log_recovered          written by the event log itself (restarts; records lost to write failures)
+
+Report semantics: time integrals hold each sample's value until the next sample of the same daemon run
+(`boot`), and do not bridge gaps longer than `gap_s` (default 1 s) or backwards steps of `t` (those are
+counted as `sample_gaps`). "The limit" is `v_cmd` where the daemon commanded one, else `v_max`. A
+violation still open when its daemon run ends is closed at that run's last record and marked
+`ended_by: "restart"` or `"end of log"`.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+from typing import Iterable
+
+from contracts.errors import ContractError
+
+from .eventlog import LOG_NAME, LOG_SUFFIX, file_set, finite_copy, read_events
+
+SCHEMA = "contract-guard/review"
+SCHEMA_VERSION = 1
+SUBSYSTEMS = ("navigation", "controller", "environment", "actuators", "guidance")
+STATE_FIELDS = (
+    "state", "mode", "contract", "engaged", "x", "y", "z", "vx", "vy", "vz", "ground_speed", "d_od", "e_tr",
+    "e_tr_measured", "r_obst", "thrust_ratio", "v_max", "tilt_deg", "v_safe", "gamma", "v_cmd",
+)
+CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
+COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
+RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "d_od", "e_tr", "e_tr_measured",
+                "thrust_ratio", "r_obst", "tilt_deg")
+OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
+MAX_LISTED = 1000  # longest list kept per kind of event in the report (the rest are counted)
+
+
+def _num(x) -> float | None:
+    """A finite float, or None (null, NaN written as null, text, bool)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return None
+    return float(x) if math.isfinite(x) else None
+
+
+def _hashable(v):
+    return v if isinstance(v, (str, int, float, bool, type(None))) else repr(v)
+
+
+def _utc(wall) -> str | None:
+    w = _num(wall)
+    if w is None:
+        return None
+    try:
+        return _dt.datetime.fromtimestamp(w, _dt.timezone.utc).isoformat(timespec="seconds")
+    except (OverflowError, OSError, ValueError):
+        return None
+
+
+class _Range:
+    __slots__ = ("lo", "hi", "missing")
+
+    def __init__(self):
+        self.lo, self.hi, self.missing = math.inf, -math.inf, 0
+
+    def add(self, v) -> None:
+        v = _num(v)
+        if v is None:
+            self.missing += 1
+        else:
+            self.lo, self.hi = min(self.lo, v), max(self.hi, v)
+
+    def out(self) -> dict:
+        ok = self.lo <= self.hi
+        return {"min": self.lo if ok else None, "max": self.hi if ok else None, "missing": self.missing}
+
+
+# ============================================================================ the pure part
+
+
+class _Summary:
+    """One pass over the records; `result()` is the report dict."""
+
+    def __init__(self, gap_s: float, tolerance_m_s: float):
+        self.gap_s, self.tol = gap_s, tolerance_m_s
+        self.records = 0
+        self.not_records = 0
+        self.t_first = self.t_last = self.wall_first = self.wall_last = None
+        self.boots: dict[str, dict] = {}
+        self.boot = None
+        self.states = 0
+        self.sampled_s = self.gamma_pos_s = self.gamma_unknown_s = self.over_s = 0.0
+        self.sample_gaps = 0
+        self.prev = None  # previous state sample of this boot: (t, gamma, over, limit known)
+        self.ranges = {k: _Range() for k in RANGE_FIELDS}
+        self.excess = None  # worst ground_speed − limit: dict
+        self.excess_vmax = None
+        self.open_viol: dict[tuple, dict] = {}
+        self.violations: list[dict] = []  # the first MAX_LISTED; counted in full in by_sub
+        self.by_sub: dict[str, dict] = {}
+        self.open_fs: list[dict] = []
+        self.failsafes: list[dict] = []
+        self.lists = {k: [] for k in ("mode_changes", "state_changes", "link", "startup_checks", "commands_failed",
+                                      "log_gaps", "starts", "stops")}
+        self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0}
+        self.link_down_at = None
+        self.link_down_s = 0.0
+        self.other_events: dict[str, int] = {}
+        self.unknown_subsystems = 0
+        self.last_t_of_boot = None
+
+    # ---------------------------------------------------------------- feeding
+
+    def add(self, rec) -> None:
+        if not isinstance(rec, dict) or rec.get("kind") not in ("state", "event"):
+            self.not_records += 1
+            return
+        self.records += 1
+        boot = rec.get("boot")
+        boot = boot if isinstance(boot, str) else str(boot)
+        t, wall = _num(rec.get("t")), _num(rec.get("wall"))
+        if boot != self.boot:
+            self._end_boot("restart")
+            self.boot, self.prev = boot, None
+        b = self.boots.setdefault(boot, {"boot": boot, "records": 0, "t_first": None, "t_last": None,
+                                         "wall_first": wall, "clean_stop": False, "seq_missing": 0, "_seq": None})
+        b["records"] += 1
+        seq = rec.get("seq")
+        if isinstance(seq, int) and not isinstance(seq, bool):
+            if b["_seq"] is not None and seq > b["_seq"] + 1:
+                b["seq_missing"] += seq - b["_seq"] - 1
+            b["_seq"] = seq
+        if t is not None:
+            if self.t_first is None:
+                self.t_first = t
+            self.t_last = t
+            b["t_first"] = t if b["t_first"] is None else b["t_first"]
+            b["t_last"] = t
+            self.last_t_of_boot = t
+        if wall is not None:
+            self.wall_first = wall if self.wall_first is None else self.wall_first
+            self.wall_last = wall
+        if rec["kind"] == "state":
+            self._state(rec, t)
+        else:
+            self._event(rec, t, b)
+
+    def _state(self, rec, t) -> None:
+        self.states += 1
+        for k, r in self.ranges.items():
+            r.add(rec.get(k))
+        gs, v_max, v_cmd, gamma = (_num(rec.get(k)) for k in ("ground_speed", "v_max", "v_cmd", "gamma"))
+        limit, source = (v_cmd, "v_cmd") if v_cmd is not None else (v_max, "v_max")
+        over = None
+        if gs is not None and limit is not None:
+            over = gs - limit
+            if self.excess is None or over > self.excess["excess_m_s"]:
+                self.excess = {"excess_m_s": over, "t": t, "ground_speed": gs, "limit": limit, "limit_source": source}
+        if gs is not None and v_max is not None and (self.excess_vmax is None or gs - v_max > self.excess_vmax["excess_m_s"]):
+            self.excess_vmax = {"excess_m_s": gs - v_max, "t": t, "ground_speed": gs, "v_max": v_max}
+        if self.prev is not None and t is not None:
+            pt, pgamma, pover = self.prev
+            dt = t - pt
+            if 0 < dt <= self.gap_s:
+                self.sampled_s += dt
+                if pgamma is None:
+                    self.gamma_unknown_s += dt
+                elif pgamma > 0:
+                    self.gamma_pos_s += dt
+                if pover is not None and pover > self.tol:
+                    self.over_s += dt
+            elif dt != 0:
+                self.sample_gaps += 1
+        if t is not None:
+            self.prev = (t, gamma, over)
+
+    def _event(self, rec, t, b) -> None:
+        name = rec.get("event")
+        name = name if isinstance(name, str) else str(name)
+        g = rec.get
+        if name == "violation_start":
+            key = (self.boot, _hashable(g("subsystem")), _hashable(g("guarantee")))
+            if key not in self.open_viol:
+                if g("subsystem") not in SUBSYSTEMS:
+                    self.unknown_subsystems += 1
+                self.open_viol[key] = {
+                    "subsystem": g("subsystem"), "guarantee": g("guarantee"), "assumed": g("assumed"),
+                    "observed": g("observed"), "action": g("action"), "start_t": t, "start_wall": _num(g("wall")),
+                    "end_t": None, "duration_s": None, "observed_end": None, "action_end": None, "ended_by": None,
+                    "boot": self.boot,
+                }
+        elif name == "violation_end":
+            key = (self.boot, _hashable(g("subsystem")), _hashable(g("guarantee")))
+            v = self.open_viol.pop(key, None)
+            if v is None:  # an end without a start (the start was rotated out or lost)
+                v = {"subsystem": g("subsystem"), "guarantee": g("guarantee"), "assumed": g("assumed"),
+                     "observed": None, "action": None, "start_t": None, "start_wall": None, "boot": self.boot}
+            v.update(end_t=t, observed_end=g("observed"), action_end=g("action"), ended_by="violation_end")
+            v["duration_s"] = None if v["start_t"] is None or t is None else max(t - v["start_t"], 0.0)
+            self._close_violation(v)
+        elif name == "failsafe":
+            self.counts["failsafes"] += 1
+            fs = {"t": t, "cause": g("cause"), "action": g("action"), "cleared_t": None, "boot": self.boot}
+            self.open_fs.append(fs)
+            self._keep(self.failsafes, fs)
+        elif name == "failsafe_clear":
+            cause = g("cause")
+            for fs in [f for f in self.open_fs if cause is None or f["cause"] == cause]:
+                fs["cleared_t"] = t
+                self.open_fs.remove(fs)
+        elif name == "mode_change":
+            self._keep(self.lists["mode_changes"], {"t": t, "from": g("from"), "to": g("to"), "by": g("by")})
+        elif name == "state_change":
+            self._keep(self.lists["state_changes"], {"t": t, "from": g("from"), "to": g("to"), "reason": g("reason")})
+        elif name == "limit_change":
+            self.counts["limit_changes"] += 1
+        elif name == "command":
+            self.counts["commands"] += 1
+            if str(g("result")).strip().lower() not in OK_RESULTS:
+                self._keep(self.lists["commands_failed"],
+                           {"t": t, "name": g("name"), "params": g("params"), "result": g("result")})
+        elif name == "link":
+            status = g("status")
+            self._keep(self.lists["link"], {"t": t, "status": status})
+            if status == "down" and self.link_down_at is None:
+                self.link_down_at = t
+            elif status in ("up", "reconnect") and self.link_down_at is not None:
+                if t is not None:
+                    self.link_down_s += max(t - self.link_down_at, 0.0)
+                self.link_down_at = None
+        elif name == "startup_check":
+            self._keep(self.lists["startup_checks"], {"t": t, "ok": g("ok"), "reason": g("reason")})
+        elif name == "start":
+            self._keep(self.lists["starts"], {"t": t, "wall": _num(g("wall")), "boot": self.boot})
+        elif name == "stop":
+            b["clean_stop"] = True
+            self._keep(self.lists["stops"], {"t": t, "wall": _num(g("wall")), "boot": self.boot})
+        elif name == "log_recovered":
+            self._keep(self.lists["log_gaps"], {"t": t, "wall": _num(g("wall")), "since_wall": g("since_wall"),
+                                                "dropped_records": g("dropped_records"), "error": g("error")})
+        elif name != "log_open":
+            self.other_events[name] = self.other_events.get(name, 0) + 1
+
+    def _close_violation(self, v: dict) -> None:
+        s = self.by_sub.setdefault(str(v["subsystem"]), {"count": 0, "total_s": 0.0})
+        s["count"] += 1
+        s["total_s"] += v["duration_s"] or 0.0
+        self._keep(self.violations, v)
+
+    def _keep(self, lst: list, item: dict) -> None:
+        if len(lst) < MAX_LISTED:
+            lst.append(item)
+        else:
+            self.other_events["(not listed: over the list limit)"] = self.other_events.get("(not listed: over the list limit)", 0) + 1
+
+    def _end_boot(self, why: str) -> None:
+        """Close what the ending daemon run left open."""
+        for v in self.open_viol.values():
+            v.update(end_t=self.last_t_of_boot, ended_by=why)
+            st = v["start_t"]
+            v["duration_s"] = None if st is None or self.last_t_of_boot is None else max(self.last_t_of_boot - st, 0.0)
+            self._close_violation(v)
+        self.open_viol = {}
+        self.open_fs = []
+        if self.link_down_at is not None and self.last_t_of_boot is not None:
+            self.link_down_s += max(self.last_t_of_boot - self.link_down_at, 0.0)
+        self.link_down_at = None
+        self.last_t_of_boot = None
+
+    # ---------------------------------------------------------------- result
+
+    def result(self) -> dict:
+        self._end_boot("end of log")
+        self.violations.sort(key=lambda v: (v["start_t"] is None, v["start_t"] if v["start_t"] is not None else 0.0))
+        boots = []
+        for b in self.boots.values():
+            b = {k: v for k, v in b.items() if not k.startswith("_")}
+            boots.append(b)
+        duration = None if self.t_first is None else self.t_last - self.t_first
+        rep = {
+            "schema": SCHEMA,
+            "schema_version": SCHEMA_VERSION,
+            "records": self.records,
+            "not_records": self.not_records,
+            "span": {
+                "t_first": self.t_first, "t_last": self.t_last, "duration_s": duration,
+                "wall_first": self.wall_first, "wall_last": self.wall_last,
+                "utc_first": _utc(self.wall_first), "utc_last": _utc(self.wall_last),
+            },
+            "boots": boots,
+            "state_samples": self.states,
+            "sampled_s": self.sampled_s,
+            "sample_gaps": self.sample_gaps,
+            "gamma_positive_s": self.gamma_pos_s,
+            "gamma_unknown_s": self.gamma_unknown_s,
+            "over_limit": {
+                "tolerance_m_s": self.tol,
+                "time_over_limit_s": self.over_s,
+                "worst": self.excess,
+                "worst_vs_v_max": self.excess_vmax,
+            },
+            "ranges": {k: r.out() for k, r in self.ranges.items()},
+            "violations": self.violations,
+            "violation_count": sum(v["count"] for v in self.by_sub.values()),
+            "violations_by_subsystem": self.by_sub,
+            "unknown_subsystems": self.unknown_subsystems,
+            "failsafes": self.failsafes,
+            "failsafe_count": self.counts["failsafes"],
+            "mode_changes": self.lists["mode_changes"],
+            "state_changes": self.lists["state_changes"],
+            "link": {"events": self.lists["link"], "down_s": self.link_down_s},
+            "limit_changes": self.counts["limit_changes"],
+            "commands": {"count": self.counts["commands"], "failed": self.lists["commands_failed"]},
+            "startup_checks": self.lists["startup_checks"],
+            "log_gaps": self.lists["log_gaps"],
+            "other_events": self.other_events,
+        }
+        rep["findings"] = findings(rep)
+        rep["ok"] = not rep["findings"]
+        return rep
+
+
+def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2) -> dict:
+    """The report for a sequence of records (oldest first). Pure: no I/O; never raises on odd records.
+
+    `tolerance_m_s`: ground speed above the limit by no more than this is not a finding (issue 5 accepts
+    limit + 0.2 m/s after a limit drop).
+    """
+    s = _Summary(gap_s, tolerance_m_s)
+    for rec in records:
+        s.add(rec)
+    return s.result()
+
+
+def findings(rep: dict) -> list[str]:
+    """One line per thing a safety reviewer must look at; empty when the flight kept its contract."""
+    out = []
+    if rep["violation_count"]:
+        parts = ", ".join(f"{k} ×{v['count']} ({v['total_s']:.1f} s)" for k, v in sorted(rep["violations_by_subsystem"].items()))
+        out.append(f"{rep['violation_count']} contract violation(s): {parts}")
+    if rep["gamma_positive_s"] > 0:
+        out.append(f"Γ > 0 for {rep['gamma_positive_s']:.2f} s (speed limit above the safe speed)")
+    if rep["gamma_unknown_s"] > 0:
+        out.append(f"Γ unknown (null/NaN) for {rep['gamma_unknown_s']:.2f} s")
+    w = rep["over_limit"]["worst"]
+    if w and w["excess_m_s"] > rep["over_limit"]["tolerance_m_s"]:
+        out.append(f"ground speed above the limit ({w['limit_source']}) by up to {w['excess_m_s']:.2f} m/s "
+                   f"at t = {_fmt_t(w['t'])}; {rep['over_limit']['time_over_limit_s']:.2f} s above limit + "
+                   f"{rep['over_limit']['tolerance_m_s']:.2f} m/s")
+    if rep["failsafe_count"]:
+        out.append(f"{rep['failsafe_count']} failsafe(s)")
+    if rep["link"]["down_s"] > 0 or any(e["status"] == "down" for e in rep["link"]["events"]):
+        out.append(f"autopilot link down for {rep['link']['down_s']:.1f} s")
+    bad_checks = [c for c in rep["startup_checks"] if c["ok"] is not True]
+    if bad_checks:
+        out.append(f"{len(bad_checks)} failed start-up check(s): {bad_checks[0]['reason']}")
+    if rep["commands"]["failed"]:
+        out.append(f"{len(rep['commands']['failed'])} command(s) not accepted")
+    unclean = [b for b in rep["boots"][:-1] if not b["clean_stop"]]
+    if unclean:
+        out.append(f"daemon restarted {len(unclean)}× without a clean stop (crash, kill or power loss)")
+    missing = sum(b["seq_missing"] for b in rep["boots"])
+    dropped = sum(g["dropped_records"] or 0 for g in rep["log_gaps"] if isinstance(g["dropped_records"], int))
+    if missing or dropped or rep["log_gaps"]:
+        out.append(f"log incomplete: {missing} record(s) missing by seq, {dropped} reported dropped "
+                   f"by the logger ({len(rep['log_gaps'])} write-failure episode(s))")
+    if rep["sample_gaps"]:
+        out.append(f"{rep['sample_gaps']} gap(s) in the state samples longer than the gap limit")
+    bad = [b for b in rep.get("bad_lines", []) if b["kind"] != "tail"]
+    if bad:
+        out.append(f"{len(bad)} unparsable line(s) inside the log ({', '.join(sorted({b['kind'] for b in bad}))})")
+    return out
+
+
+# ============================================================================ I/O
+
+
+def _log_files(paths) -> list[Path]:
+    if isinstance(paths, (str, Path)):
+        paths = [paths]
+    files: list[Path] = []
+    for p in map(Path, paths):
+        if not p.exists():
+            raise ContractError(f"no such file or directory: {p}")
+        if p.is_dir():
+            found = file_set(p)
+            if not found:
+                raise ContractError(f"{p} holds no event log ({LOG_NAME}{LOG_SUFFIX})")
+            files.extend(found)
+        elif p.suffix == ".tlog":
+            raise ContractError(f"{p} is a raw MAVLink .tlog; review reads the event log ({LOG_NAME}{LOG_SUFFIX}) "
+                                "beside it (replaying a .tlog through a table is not supported yet)")
+        else:
+            files.append(p)
+    if not files:
+        raise ContractError("no event log given")
+    return files
+
+
+def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = 0.2) -> dict:
+    """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON."""
+    files = _log_files(paths)
+    reader = read_events(files)
+    samples: list[tuple] | None = [] if out_dir is not None else None
+
+    def records():
+        for rec in reader:
+            if samples is not None and isinstance(rec, dict) and rec.get("kind") == "state":
+                samples.append(tuple(rec.get(k) for k in CSV_COLUMNS))  # a row, not the dict: 1 h at 50 Hz fits
+            yield rec
+
+    try:
+        rep = summarise(records(), gap_s=gap_s, tolerance_m_s=tolerance_m_s)
+    except OSError as err:
+        raise ContractError(f"cannot read {err.filename or files[0]}: {err.strerror or err}") from err
+    rep["files"] = [str(f) for f in files]
+    rep["bad_lines"] = [{"file": f, "line": n, "kind": k} for f, n, k in reader.bad_lines]
+    if rep["records"] == 0:
+        raise ContractError(f"{files[0]} is not a contract-guard event log (no records)")
+    rep["findings"] = findings(rep)
+    rep["ok"] = not rep["findings"]
+    rep = finite_copy(rep)  # a foreign log's NaN/Infinity tokens: the report stays strict JSON
+    if out_dir is not None:
+        rep["outputs"] = write_outputs(rep, samples, Path(out_dir))
+    return rep
+
+
+def write_outputs(rep: dict, samples: list[tuple], out_dir: Path) -> dict:
+    """`samples.csv`, `review.json` and `review.png` in `out_dir`; returns their paths."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        csv_path = out_dir / "samples.csv"
+        with open(csv_path, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(CSV_COLUMNS)
+            for row in samples:
+                w.writerow([_cell(v) for v in row])
+        png_path = out_dir / "review.png"
+        plot(rep, samples, png_path)
+        json_path = out_dir / "review.json"
+        outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path)}
+        json_path.write_text(json.dumps({**rep, "outputs": outputs}, indent=1, default=str, allow_nan=False))
+    except OSError as err:
+        raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
+    return outputs
+
+
+def _cell(v):
+    if v is None:
+        return ""
+    if isinstance(v, bool):
+        return int(v)
+    if isinstance(v, (dict, list)):
+        return json.dumps(v)
+    return v
+
+
+SUBSYSTEM_COLOURS = {"navigation": "tab:blue", "controller": "tab:orange", "environment": "tab:green",
+                     "actuators": "tab:red", "guidance": "tab:purple"}
+
+
+def plot(rep: dict, samples: list[tuple], path: Path) -> None:
+    """One PNG, panels sharing the time axis; violation spans shaded by subsystem, failsafes as red lines."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg", force=True)
+        import matplotlib.pyplot as plt
+    except ImportError as err:
+        raise ContractError("plots need matplotlib (pip install 'contract-guard[plot]')") from err
+
+    def series(key):
+        # NaN breaks the line between daemon runs (t may jump) and where a value is missing
+        col = CSV_COLUMNS.index(key)
+        xs, ys, last_boot = [], [], None
+        for row in samples:
+            t, boot = _num(row[COL_T]), row[COL_BOOT]
+            if t is None:
+                continue
+            if last_boot is not None and boot != last_boot:
+                xs.append(math.nan)
+                ys.append(math.nan)
+            last_boot = boot
+            v = _num(row[col])
+            xs.append(t)
+            ys.append(math.nan if v is None else v)
+        return xs, ys
+
+    panels = [
+        ("speed [m/s]", [("ground_speed", "ground speed"), ("v_max", "V_max"), ("v_cmd", "commanded"), ("v_safe", "V_safe")]),
+        ("Γ [m/s]", [("gamma", "Γ = V_max − V_safe")]),
+        ("d_od [m]", [("d_od", "D_od")]),
+        ("e_tr [m]", [("e_tr", "E_tr (used)"), ("e_tr_measured", "E_tr measured")]),
+        ("thrust ratio", [("thrust_ratio", "T_max / T_nom")]),
+        ("r_obst [m]", [("r_obst", "R_obst")]),
+    ]
+    fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(11, 2.0 * len(panels) + 1))
+    try:
+        for ax, (label, keys) in zip(axes, panels):
+            for key, name in keys:
+                xs, ys = series(key)
+                if any(not math.isnan(y) for y in ys):
+                    ax.plot(xs, ys, label=name, lw=1.0, ls="--" if key in ("v_cmd", "v_safe") else "-")
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+            if len(keys) > 1:
+                ax.legend(loc="upper right", fontsize="small")
+            for v in rep["violations"]:
+                if v["start_t"] is not None and v["end_t"] is not None:
+                    ax.axvspan(v["start_t"], v["end_t"], alpha=0.2, lw=0,
+                               color=SUBSYSTEM_COLOURS.get(str(v["subsystem"]), "grey"))
+            for fs in rep["failsafes"]:
+                if fs["t"] is not None:
+                    ax.axvline(fs["t"], color="red", lw=0.8)
+        axes[1].axhline(0.0, color="black", lw=0.8)
+        from matplotlib.lines import Line2D
+        from matplotlib.patches import Patch
+
+        subs = sorted({str(v["subsystem"]) for v in rep["violations"]})
+        keys = [Patch(color=SUBSYSTEM_COLOURS.get(sub, "grey"), alpha=0.3, label=f"violation: {sub}") for sub in subs]
+        if rep["failsafes"]:
+            keys.append(Line2D([], [], color="red", lw=0.8, label="failsafe"))
+        if keys:
+            fig.legend(handles=keys, loc="lower center", ncol=len(keys), fontsize="small")
+        axes[-1].set_xlabel("t [s] (vehicle time)")
+        title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
+        if rep["span"]["utc_first"]:
+            title += f", from {rep['span']['utc_first']}"
+        axes[0].set_title(title)
+        fig.tight_layout(rect=(0, 0.03 if keys else 0, 1, 1))
+        fig.savefig(path, dpi=100)
+    finally:
+        plt.close(fig)
+
+
+# ============================================================================ text
+
+
+def _fmt_t(t) -> str:
+    return "?" if t is None else f"{t:.2f} s"
+
+
+def _fmt(v, unit="") -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, float):
+        return f"{v:.3g}{unit}"
+    return f"{v}{unit}"
+
+
+def format_report(rep: dict) -> str:
+    """The report as text for a person (the CLI prints it; `--json` prints the dict instead)."""
+    sp = rep["span"]
+    lines = [f"contract-guard review: {', '.join(rep.get('files', [])) or '(records)'}"]
+    lines.append(f"  span: t {_fmt_t(sp['t_first'])} … {_fmt_t(sp['t_last'])} ({_fmt(sp['duration_s'], ' s')})"
+                 + (f", {sp['utc_first']} … {sp['utc_last']}" if sp["utc_first"] else ""))
+    lines.append(f"  {rep['records']} records, {rep['state_samples']} state samples covering {rep['sampled_s']:.1f} s, "
+                 f"{len(rep['boots'])} daemon run(s)")
+    lines.append("  verdict: " + ("contract kept (no findings)" if rep["ok"] else "REVIEW NEEDED"))
+    for f in rep["findings"]:
+        lines.append(f"    - {f}")
+    lines.append(f"  Γ > 0 for {rep['gamma_positive_s']:.2f} s")
+    w = rep["over_limit"]["worst"]
+    if w:
+        lines.append(f"  ground speed − limit: max {w['excess_m_s']:+.2f} m/s at t = {_fmt_t(w['t'])} "
+                     f"({w['ground_speed']:.2f} m/s vs {w['limit_source']} {w['limit']:.2f} m/s)")
+    lines.append("  ranges (min … max):")
+    for k in ("v_max", "v_cmd", "ground_speed", "gamma", "d_od", "e_tr", "thrust_ratio", "r_obst"):
+        r = rep["ranges"][k]
+        miss = f"  ({r['missing']} null)" if r["missing"] else ""
+        lines.append(f"    {k:<13} {_fmt(r['min'])} … {_fmt(r['max'])}{miss}")
+    lines.append(f"  violations: {rep['violation_count']}" + (f" (first {len(rep['violations'])} listed)"
+                 if rep["violation_count"] > len(rep["violations"]) else ""))
+    for v in rep["violations"]:
+        end = _fmt_t(v["end_t"]) + ("" if v["ended_by"] == "violation_end" else f" ({v['ended_by']})")
+        lines.append(f"    {_fmt_t(v['start_t'])} … {end}  {_fmt(v['duration_s'], ' s')}  {v['subsystem']}: "
+                     f"{v['guarantee']}; assumed {_fmt(v['assumed'])}, observed {_fmt(v['observed'])}; "
+                     f"action {_fmt(v['action'])}")
+    lines.append(f"  failsafes: {rep['failsafe_count']}")
+    for fs in rep["failsafes"]:
+        cleared = f", cleared at {_fmt_t(fs['cleared_t'])}" if fs["cleared_t"] is not None else ", not cleared"
+        lines.append(f"    {_fmt_t(fs['t'])}  {fs['cause']} → {fs['action']}{cleared}")
+    lines.append(f"  mode changes: {len(rep['mode_changes'])}")
+    for m in rep["mode_changes"]:
+        lines.append(f"    {_fmt_t(m['t'])}  {m['from']} → {m['to']} (by {m['by']})")
+    lines.append(f"  link events: {len(rep['link']['events'])}, down {rep['link']['down_s']:.1f} s")
+    for e in rep["link"]["events"]:
+        lines.append(f"    {_fmt_t(e['t'])}  {e['status']}")
+    lines.append(f"  state changes: {len(rep['state_changes'])}, limit changes: {rep['limit_changes']}, "
+                 f"commands: {rep['commands']['count']} ({len(rep['commands']['failed'])} not accepted)")
+    if rep.get("bad_lines"):
+        lines.append(f"  unparsable lines skipped: {len(rep['bad_lines'])} "
+                     f"({', '.join(b['kind'] for b in rep['bad_lines'][:5])})")
+    for k, v in rep.get("outputs", {}).items():
+        lines.append(f"  wrote {k}: {v}")
+    return "\n".join(lines)
