@@ -142,6 +142,9 @@ def cmd_run(args) -> int:
     from .link import SigningClock, load_signing_key, open_connection, setup_signing
     from .service import Notifier
 
+    import faulthandler
+
+    faulthandler.enable()  # a watchdog abort prints the stack to the journal
     cfg = load_config(args.config)
     upd = {}
     if args.mode:
@@ -183,6 +186,17 @@ def cmd_run(args) -> int:
         log.event(None, "stop", counters=daemon.counters.__dict__)
         log.close()
     return 0
+
+
+# ----------------------------------------------------------------------------- review
+
+
+def cmd_review(args) -> int:
+    from .review import format_report, review
+
+    rep = review(args.log, out_dir=args.out)
+    _emit(rep, args.json, format_report(rep))
+    return 0 if rep["ok"] or not args.strict else 1
 
 
 # ----------------------------------------------------------------------------- demo
@@ -231,6 +245,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--log-dir", help="override log.dir")
     r.add_argument("--mode", choices=["shadow", "governor", "offboard"], help="override mode")
     r.set_defaults(func=cmd_run)
+
+    rv = sub.add_parser("review", help="contract-violation report for a flight's event log")
+    rv.add_argument("log", nargs="+", type=Path, help="log directory (its rotated set) or events*.jsonl files")
+    rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here")
+    rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")
+    rv.add_argument("--json", action="store_true")
+    rv.set_defaults(func=cmd_review)
 
     t = sub.add_parser("table", help="build, inspect, query and verify Γ tables")
     tsub = t.add_subparsers(dest="table_command", required=True)

@@ -88,6 +88,7 @@ class Counters:
     rejected_signature: int = 0
     commands_sent: int = 0
     log_errors: int = 0
+    loop_errors: int = 0
 
 
 class Daemon:
@@ -361,7 +362,8 @@ class Daemon:
                     x=tel.x, y=tel.y, z=tel.z, vx=tel.vx, vy=tel.vy, vz=tel.vz, ground_speed=i.ground_speed,
                     d_od=i.dod.d_od, e_tr=d.omega.e_tr, e_tr_measured=i.e_tr, r_obst=i.r_obst,
                     thrust_ratio=i.thrust_ratio, v_max=d.omega.v_max, tilt_deg=math.degrees(d.omega.tilt),
-                    v_safe=d.omega.v_safe, gamma=d.omega.gamma, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m,
+                    v_safe=d.omega.v_safe, gamma=(d.v_cmd if d.v_cmd is not None else d.omega.v_max) - d.omega.v_safe,
+                    gamma_flown=i.ground_speed - d.omega.v_safe, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m,
                 )
             except Exception:
                 self.counters.log_errors += 1
@@ -374,14 +376,30 @@ class Daemon:
 
     # ------------------------------------------------------------------ real time
     def run(self, should_stop, notifier=None) -> None:
-        """Poll and step at `loop_hz` until `should_stop()`; feed the watchdog only while healthy."""
+        """Poll and step at `loop_hz` until `should_stop()`. An exception inside a cycle is logged and
+        counted, never fatal; the systemd watchdog is fed only while cycles complete on time."""
+        from .service import WatchdogFeeder
+
+        feeder = WatchdogFeeder(notifier, time.monotonic) if notifier is not None else None
         period = 1.0 / self.cfg.loop_hz
         next_t = time.monotonic()
+        bad_cycles = 0
         while not should_stop():
-            self.poll()
-            d = self.step()
-            if notifier is not None and d.state != "failsafe":
-                notifier.watchdog()
+            started = time.monotonic()
+            try:
+                self.poll()
+                self.step()
+                bad_cycles = 0
+            except Exception as err:  # a bug must not take the loop down: log it, the next cycle retries
+                bad_cycles += 1
+                self.counters.loop_errors += 1
+                if bad_cycles in (1, 10, 100) or bad_cycles % 1000 == 0:
+                    self._event(self.clock(), "loop_error", error=f"{type(err).__name__}: {err}"[:200],
+                                consecutive=bad_cycles)
+            if feeder is not None:
+                feeder.tick(bad_cycles < 10 and time.monotonic() - started < 5 * period)
+            if hasattr(self.log, "tick"):
+                self.log.tick()
             next_t += period
             delay = next_t - time.monotonic()
             if delay > 0:

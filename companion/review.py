@@ -13,7 +13,8 @@ naming fields whose NaN/inf was written as null):
 State samples (`kind: "state"`, ≥ 10 Hz):
     t, state, mode, contract ("stop" | "avoid"), engaged (bool), x, y, z [m, local NED],
     vx, vy, vz, ground_speed [m/s], d_od, e_tr, e_tr_measured, r_obst [m], thrust_ratio [1],
-    v_max [m/s], tilt_deg [deg], v_safe [m/s], gamma [m/s] (Γ = v_max − v_safe),
+    v_max [m/s], tilt_deg [deg], v_safe [m/s], gamma [m/s] (Γ = limit in force − v_safe),
+    gamma_flown [m/s] (ground speed − v_safe: the contract evaluated on the flight itself),
     v_cmd [m/s] (the limit actually commanded; null in shadow mode)
 
 Events (`kind: "event"`, field `event`):
@@ -50,11 +51,12 @@ SCHEMA_VERSION = 1
 SUBSYSTEMS = ("navigation", "controller", "environment", "actuators", "guidance")
 STATE_FIELDS = (
     "state", "mode", "contract", "engaged", "x", "y", "z", "vx", "vy", "vz", "ground_speed", "d_od", "e_tr",
-    "e_tr_measured", "r_obst", "thrust_ratio", "v_max", "tilt_deg", "v_safe", "gamma", "v_cmd",
+    "e_tr_measured", "r_obst", "thrust_ratio", "v_max", "tilt_deg", "v_safe", "gamma", "gamma_flown", "v_cmd",
+    "obstacle_m",
 )
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
 COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
-RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "d_od", "e_tr", "e_tr_measured",
+RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "e_tr", "e_tr_measured",
                 "thrust_ratio", "r_obst", "tilt_deg")
 OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
 MAX_LISTED = 1000  # longest list kept per kind of event in the report (the rest are counted)
@@ -238,11 +240,14 @@ class _Summary:
             self._keep(self.lists["state_changes"], {"t": t, "from": g("from"), "to": g("to"), "reason": g("reason")})
         elif name == "limit_change":
             self.counts["limit_changes"] += 1
-        elif name == "command":
+        elif name == "command":  # sent; its result, if any, comes with it or in a later command_ack
             self.counts["commands"] += 1
-            if str(g("result")).strip().lower() not in OK_RESULTS:
+            if g("result") is not None and str(g("result")).strip().lower() not in OK_RESULTS:
                 self._keep(self.lists["commands_failed"],
-                           {"t": t, "name": g("name"), "params": g("params"), "result": g("result")})
+                           {"t": t, "name": g("cmd") or g("name"), "params": g("params"), "result": g("result")})
+        elif name == "command_ack":
+            if str(g("result")).strip().lower() not in OK_RESULTS:
+                self._keep(self.lists["commands_failed"], {"t": t, "name": g("command"), "result": g("result")})
         elif name == "link":
             status = g("status")
             self._keep(self.lists["link"], {"t": t, "status": status})
@@ -512,7 +517,7 @@ def plot(rep: dict, samples: list[tuple], path: Path) -> None:
 
     panels = [
         ("speed [m/s]", [("ground_speed", "ground speed"), ("v_max", "V_max"), ("v_cmd", "commanded"), ("v_safe", "V_safe")]),
-        ("Γ [m/s]", [("gamma", "Γ = V_max − V_safe")]),
+        ("Γ [m/s]", [("gamma", "Γ = V_max − V_safe"), ("gamma_flown", "ground speed − V_safe")]),
         ("d_od [m]", [("d_od", "D_od")]),
         ("e_tr [m]", [("e_tr", "E_tr (used)"), ("e_tr_measured", "E_tr measured")]),
         ("thrust ratio", [("thrust_ratio", "T_max / T_nom")]),
