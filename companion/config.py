@@ -6,11 +6,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from contracts.errors import ContractError
-from contracts.vehicle import one_line
+from contracts.yamlfile import load_model, model_from_dict
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -88,22 +86,8 @@ class Config(_Strict):
 
 
 def config_from_dict(data: object, source: str = "config") -> Config:
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise ContractError(f"{source}: expected a mapping")
-    try:
-        return Config.model_validate(data)
-    except ValidationError as err:
-        raise ContractError(f"{source}: {one_line(err)}") from None
+    return model_from_dict(Config, data, source, empty_ok=True)
 
 
 def load_config(path: str | Path) -> Config:
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as err:
-        raise ContractError(f"config {path}: cannot read ({err.strerror or err})") from None
-    except yaml.YAMLError:
-        raise ContractError(f"config {path}: not valid YAML") from None
-    return config_from_dict(data, f"config {path.name}")
+    return load_model(Config, path, "config", empty_ok=True)

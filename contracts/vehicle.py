@@ -13,10 +13,9 @@ import math
 from pathlib import Path
 from typing import Annotated, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .errors import ContractError
+from .yamlfile import load_model, model_from_dict
 
 G = 9.80665  # standard gravity [m/s²]
 DATA_DIR = Path(__file__).resolve().parent / "data"
@@ -153,22 +152,8 @@ class Vehicle(_Strict):
         return hashlib.sha256(blob.encode()).hexdigest()
 
 
-def one_line(err: ValidationError) -> str:
-    e = err.errors()[0]
-    where = ".".join(str(p) for p in e["loc"]) or "(top level)"
-    msg = e["msg"].removeprefix("Value error, ")
-    got = "" if e["type"] in ("missing", "value_error") else f" (got {e.get('input')!r})"
-    more = f" [+{len(err.errors()) - 1} more]" if len(err.errors()) > 1 else ""
-    return f"{where}: {msg}{got}{more}"
-
-
 def vehicle_from_dict(data: object, source: str = "vehicle") -> Vehicle:
-    if not isinstance(data, dict):
-        raise ContractError(f"{source}: expected a mapping of vehicle parameters")
-    try:
-        return Vehicle.model_validate(data)
-    except ValidationError as err:
-        raise ContractError(f"{source}: {one_line(err)}") from None
+    return model_from_dict(Vehicle, data, source)
 
 
 def resolve_vehicle_path(name_or_path: str | Path) -> Path:
@@ -180,15 +165,4 @@ def resolve_vehicle_path(name_or_path: str | Path) -> Path:
 
 
 def load_vehicle(name_or_path: str | Path) -> Vehicle:
-    path = resolve_vehicle_path(name_or_path)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise ContractError(f"vehicle file {path}: cannot read ({err.strerror or err})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark else ""
-        raise ContractError(f"vehicle file {path}:{where} is not valid YAML") from None
-    return vehicle_from_dict(data, f"vehicle file {path.name}")
+    return load_model(Vehicle, resolve_vehicle_path(name_or_path), "vehicle file")
