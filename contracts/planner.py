@@ -138,6 +138,7 @@ class PlanProblem:
     t_f_max: float = 60.0
     free_speed: bool = False  # max-speed form: q0's Ẋ and V_max become one decision variable V
     v_bounds: tuple[float, float] = (0.0, 1e3)
+    lead_time: float = 0.0  # max-speed form only: X(0) = V·lead_time (coast during the reaction time)
 
 
 @dataclass
@@ -223,10 +224,17 @@ def circle_min_distance(qn, w, ts, cx, cy):
     return out
 
 
-def polygon_distance_lb(points, poly: Polygon):
-    """Lower bound on the Euclidean distance from points to a convex polygon (0 inside)."""
+def polygon_distance(points, poly: Polygon):
+    """Euclidean distance from points (M, 2) to a convex polygon (0 inside)."""
+    v = np.asarray(poly.vertices, dtype=float)
     a, b = poly.halfplanes()
-    return np.maximum(np.max(points @ a.T - b, axis=1), 0.0)
+    e0, e1 = v, np.roll(v, -1, axis=0)
+    d = e1 - e0
+    t = np.clip(np.einsum("mke,ke->mk", points[:, None, :] - e0[None], d) / np.einsum("ke,ke->k", d, d), 0.0, 1.0)
+    foot = e0[None] + t[..., None] * d[None]
+    dist = np.min(np.linalg.norm(points[:, None, :] - foot, axis=-1), axis=1)
+    inside = np.all(points @ a.T - b <= 0.0, axis=1)
+    return np.where(inside, 0.0, dist)
 
 
 def ray_clear_of_circle(p, v, c: Circle) -> float:
@@ -284,10 +292,12 @@ def check_trajectory(problem: PlanProblem, w, ts, sub: int = 20, tol: float = 1e
             m[f"keep_out_{i}"] = float(np.min(d) - ob.r) + tol
             if problem.terminal == "coast":
                 m[f"coast_{i}"] = ray_clear_of_circle(qn[-1, [0, 2]], qn[-1, [1, 3]], ob) + tol
-        else:  # dense samples with a Lipschitz bound for what lies between them
-            d = polygon_distance_lb(q[:, [0, 2]], ob)
+        else:  # samples dense enough that the Lipschitz bound |ḋ| ≤ |v| costs at most tol/2 between them
             vmax = float(np.max(np.hypot(q[:, 1], q[:, 3])))
-            m[f"keep_out_{i}"] = float(np.min(d) - ob.r - 0.5 * vmax * ts / sub) + tol
+            sp = max(sub, int(math.ceil(vmax * ts / max(tol, 1e-6))))
+            _, qp, _ = dense_states(problem.q0, w, ts, sp)
+            d = polygon_distance(qp[:, [0, 2]], ob)
+            m[f"keep_out_{i}"] = float(np.min(d) - ob.r - 0.5 * vmax * ts / sp) + tol
     if problem.terminal == "box":
         lo = np.asarray(problem.qf_lb, float)
         hi = np.asarray(problem.qf_ub, float)
@@ -346,7 +356,7 @@ def _build(struct, ipopt_opts):
     nax = 2 if planar else 4
     b = _Builder()
     # parameters
-    P = {k: ca.SX.sym(k) for k in ("g", "tan_a", "tan_b", "tmax2", "tmin2", "vmax2", "rate", "z0", "psi0")}
+    P = {k: ca.SX.sym(k) for k in ("g", "tan_a", "tan_b", "tmax2", "tmin2", "vmax2", "rate", "z0", "psi0", "lead", "zmin", "zmax")}
     w0p = ca.SX.sym("w0", 4)
     obs_p = []
     for o in obs:
@@ -359,6 +369,7 @@ def _build(struct, ipopt_opts):
     if free_speed:  # max-speed form: V = Ẋ(0) = V_max is a decision variable, cost −V
         vfree = ca.SX.sym("v")  # appended last to the variables
         b.con(Q[0][1] - vfree, 0.0, 0.0)
+        b.con(Q[0][0] - P["lead"] * vfree, 0.0, 0.0)  # coasted V·t_lead before the manoeuvre
         vmax2 = vfree**2
     else:
         vmax2 = P["vmax2"]
@@ -388,13 +399,23 @@ def _build(struct, ipopt_opts):
             b.con(gz, 1e-3, ca.inf)
         if tilt_model == "cone":
             b.con(h2 - P["tan_a"] ** 2 * gz**2, -ca.inf, 0.0)
-        else:  # box: |θ| ≤ θ_max and |φ| ≤ φ_max through eq. (8)
-            b.con(a_fwd**2 - P["tan_b"] ** 2 * gz**2, -ca.inf, 0.0)
-            b.con(a_lat**2 - P["tan_a"] ** 2 * (gz**2 + a_fwd**2), -ca.inf, 0.0)
+        else:  # box: |θ| ≤ θ_max and |φ| ≤ φ_max through eq. (8), at 0, ½, 1 of the interval's yaw
+            fracs = (0.0,) if planar else (0.0, 0.5, 1.0)
+            for fr in fracs:
+                tau = fr * ts
+                ps = psi if planar else Q[k][6] + Q[k][7] * tau + 0.5 * W[k][3] * tau**2
+                af = ax * ca.cos(ps) + ay * ca.sin(ps)
+                al = -ax * ca.sin(ps) + ay * ca.cos(ps)
+                b.con(af**2 - P["tan_b"] ** 2 * gz**2, -ca.inf, 0.0)
+                b.con(al**2 - P["tan_a"] ** 2 * (gz**2 + af**2), -ca.inf, 0.0)
         b.con(h2 + gz**2 - P["tmax2"], -ca.inf, 0.0)
         b.con(h2 + gz**2 - P["tmin2"], 0.0, ca.inf)
         if rates:
             att.append((ca.atan(a_lat / ca.sqrt(gz**2 + a_fwd**2)), -ca.atan(a_fwd / gz)))
+    if not planar:  # altitude band between samples: the Bézier middle control point of Z (nodes: bounds)
+        for k in range(n):
+            b.con(Q[k][4] + 0.5 * ts * Q[k][5] - P["zmin"], 0.0, ca.inf)
+            b.con(P["zmax"] - Q[k][4] - 0.5 * ts * Q[k][5], 0.0, ca.inf)
     # speed norm at the nodes (|v|² is convex along a ZOH interval, so the nodes bound it)
     for k in range(1, n + 1):
         b.con(Q[k][1] ** 2 + Q[k][3] ** 2 - vmax2 * (1 - SHRINK) ** 2, -ca.inf, 0.0)
@@ -479,7 +500,8 @@ def _params(problem: PlanProblem) -> np.ndarray:
     vmax2 = lim.v_max**2 if math.isfinite(lim.v_max) else 1e12
     rate = (lim.rate_max or 0.0) * s
     w0 = np.zeros(4) if problem.w0 is None else np.asarray(problem.w0, float)
-    vals = [lim.g, tan_a, tan_b, tmax2, tmin2, vmax2, rate, problem.q0[4], problem.q0[6], *w0]
+    zb = [max(lim.z_min, -1e9), min(lim.z_max, 1e9)]
+    vals = [lim.g, tan_a, tan_b, tmax2, tmin2, vmax2, rate, problem.q0[4], problem.q0[6], problem.lead_time, *zb, *w0]
     for o in problem.obstacles:
         if isinstance(o, Circle):
             vals += [o.cx, o.cy, o.r * (1 + SHRINK)]
@@ -505,6 +527,7 @@ def _x_bounds(problem: PlanProblem, layout) -> tuple[np.ndarray, np.ndarray]:
         lbx[wi], ubx[wi] = -psi_dd, psi_dd
         lbx[zi[0]] = ubx[zi[0]] = q0[4]
     if problem.free_speed:
+        lbx[1], ubx[1] = -np.inf, np.inf
         lbx[2], ubx[2] = problem.v_bounds
         lbx[-1], ubx[-1] = problem.v_bounds
     if problem.terminal == "box":
@@ -544,6 +567,8 @@ def initial_guess(problem: PlanProblem, w: np.ndarray, ts: float) -> np.ndarray:
     w = np.asarray(w, float)
     qn = propagate(np.asarray(problem.q0, float), w, ts)
     ns = 2 * nax
+    if problem.free_speed:
+        qn[:, 0] += problem.q0[1] * problem.lead_time - problem.q0[0]
     x = [ts] + list(qn[:, :ns].ravel()) + list(w[:, :nax].ravel())
     x += _obstacle_normals_guess(problem, qn, ts)
     if problem.free_speed:
@@ -552,7 +577,8 @@ def initial_guess(problem: PlanProblem, w: np.ndarray, ts: float) -> np.ndarray:
 
 
 def default_guess(problem: PlanProblem) -> tuple[np.ndarray, float]:
-    """Coast at the initial velocity for a time that covers the farthest obstacle (or 2 s)."""
+    """A gentle swerve to +y (half the level-flight acceleration bound) for the time to coast past
+    the farthest obstacle (or 2 s): keeps the separating lines of the start well defined."""
     q0 = np.asarray(problem.q0, float)
     v = math.hypot(q0[1], q0[3])
     far = 0.0
@@ -560,7 +586,9 @@ def default_guess(problem: PlanProblem) -> tuple[np.ndarray, float]:
         c = (o.cx, o.cy) if isinstance(o, Circle) else np.asarray(o.vertices, float).mean(axis=0)
         far = max(far, math.hypot(c[0] - q0[0], c[1] - q0[2]) + 2 * getattr(o, "r", 0.0))
     t_f = far / v if v > 0 and far > 0 else 2.0
-    return np.zeros((problem.n, 4)), min(t_f, problem.t_f_max) / problem.n
+    w = np.zeros((problem.n, 4))
+    w[:, 1] = 0.5 * problem.limits.accel_bound()
+    return w, min(t_f, problem.t_f_max) / problem.n
 
 
 def plan(problem: PlanProblem, guess: tuple[np.ndarray, float] | None = None, *, x0: np.ndarray | None = None,
@@ -591,8 +619,9 @@ def plan(problem: PlanProblem, guess: tuple[np.ndarray, float] | None = None, *,
     if problem.free_speed:  # verify the answer as the fixed-speed problem it certifies
         v = float(x[-1])
         q0 = list(problem.q0)
-        q0[1] = v
-        problem = replace(problem, q0=tuple(q0), limits=replace(problem.limits, v_max=v), free_speed=False)
+        q0[0], q0[1] = v * problem.lead_time, v
+        problem = replace(problem, q0=tuple(q0), limits=replace(problem.limits, v_max=v), free_speed=False,
+                          lead_time=0.0)
     qn = propagate(np.asarray(problem.q0, float), w, ts)
     if np.all(np.isfinite(w)) and np.isfinite(ts) and ts > 0:
         check = check_trajectory(problem, w, ts, sub=sub, tol=verify_tol)
