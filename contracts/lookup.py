@@ -48,6 +48,17 @@ def react_fixed_point(c0, r_k, rho, f, t_r, g=G):
     with np.errstate(divide="ignore", invalid="ignore"):
         v_lim = np.where(t_r > 0.0, slack / t_r, np.where(slack >= 0.0, np.inf, -np.inf))
     v = np.minimum(v_quad, v_lim)
+    # Enclosing discs: a disc of radius r_k + δ centred at c0 + δ contains the keep-out disc (same near
+    # point, gap s = c0 − r_k), so any speed safe for it is safe here. Along that family the cell's two
+    # bounds cross (v_lim falls, v_quad rises with δ) at V*: V² + h·t_r·V − h·s = 0, h = g F²/(1 − ρ_j),
+    # reached at radius u* = (s − V*·t_r)·ρ_j/(1 − ρ_j). Where u* ≥ r_k that crossing is the cell's best
+    # answer; this keeps the lookup non-increasing in r_obst (and never less tight).
+    s = np.maximum(c0 - r_k, 0.0)
+    h = gf2 / (1.0 - rho)
+    ht = h * t_r
+    v_star = 0.5 * (-ht + np.sqrt(ht * ht + 4.0 * h * s))
+    u_star = (s - v_star * t_r) * rho / (1.0 - rho)
+    v = np.where(u_star >= r_k, np.maximum(v, v_star), v)
     best = np.max(v, axis=-1, initial=0.0)
     return np.maximum(best, 0.0) * (1.0 - 1e-9)  # round-off never optimistic
 

@@ -36,6 +36,7 @@ from .vehicle import G, Vehicle
 
 SHRINK = 1e-6  # relative tightening of every limit inside the NLP
 OK_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+STOPPED = 1e-6  # [m/s] a final speed below this is a stop (the vehicle holds position)
 
 
 # ============================================================================ problem description
@@ -238,10 +239,11 @@ def polygon_distance(points, poly: Polygon):
 
 
 def ray_clear_of_circle(p, v, c: Circle) -> float:
-    """Minimum distance from the ray p + s·v (s ≥ 0) to the centre of `c`, minus its radius."""
+    """Minimum distance from the ray p + s·v (s ≥ 0) to the centre of `c`, minus its radius.
+    A speed below STOPPED [m/s] counts as stopped (position hold), not as a creep along the ray."""
     d = np.asarray(p, float) - np.array([c.cx, c.cy])
     vv = float(np.dot(v, v))
-    s = 0.0 if vv == 0.0 else max(0.0, -float(np.dot(d, v)) / vv)
+    s = 0.0 if vv <= STOPPED**2 else max(0.0, -float(np.dot(d, v)) / vv)
     return float(np.linalg.norm(d + s * np.asarray(v, float))) - c.r
 
 
@@ -418,7 +420,7 @@ def _build(struct, ipopt_opts):
             b.con(P["zmax"] - Q[k][4] - 0.5 * ts * Q[k][5], 0.0, ca.inf)
     # speed norm at the nodes (|v|² is convex along a ZOH interval, so the nodes bound it)
     for k in range(1, n + 1):
-        b.con(Q[k][1] ** 2 + Q[k][3] ** 2 - vmax2 * (1 - SHRINK) ** 2, -ca.inf, 0.0)
+        b.con(Q[k][1] ** 2 + Q[k][3] ** 2 - vmax2, -ca.inf, 0.0)  # V_max itself: a cruise at V_max is allowed
     if has_w0:  # eq. (18) w(1) = w_0
         b.con(W[0] - w0p[:nax], 0.0, 0.0)
     if rates:

@@ -285,7 +285,10 @@ class ContractTable:
         if NONE in (j, k):
             return 0.0
         r_k = r_obst + e_tr + self._r_body
-        return float(react_fixed_point(d_od + r_obst, r_k, self._rho, self._f[:, j, k], self._t_r[j]))
+        # A tilt limit also allows every smaller tilt, whose folded reaction time is shorter: the
+        # answer is the best grid tilt up to the limit (keeps V_safe non-decreasing in tilt).
+        f = self._f[:, : j + 1, k].T  # (j+1, n_rho)
+        return float(np.max(react_fixed_point(d_od + r_obst, r_k, self._rho, f, self._t_r[: j + 1])))
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py)."""
