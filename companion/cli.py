@@ -120,10 +120,24 @@ def cmd_table_build(args) -> int:
     from contracts.vehicle import load_vehicle
 
     vehicle = load_vehicle(args.vehicle)
-    if not args.stop_only:
-        raise ContractError("the avoid sweep is not part of this build yet; use --stop-only")
-    meta = write_table(args.out, vehicle, tilt_model=args.tilt_model)
-    _emit({"ok": True, "out": str(args.out), "available": meta["available"]}, args.json, f"wrote {args.out} ({meta['note']})")
+    if args.stop_only:
+        meta = write_table(args.out, vehicle, tilt_model=args.tilt_model)
+        _emit({"ok": True, "out": str(args.out), "available": meta["available"]}, args.json,
+              f"wrote {args.out} ({meta['note']})")
+        return 0
+    from contracts.sweep import build_avoid_table  # offline only: imports CasADi
+
+    summary = build_avoid_table(vehicle, args.out, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
+                                tilt_model=args.tilt_model or vehicle.tilt_model, progress=not args.json)
+    _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {summary}")
+    return 0
+
+
+def cmd_table_plot(args) -> int:
+    from contracts.avoid_plot import plot_table
+
+    files = plot_table(args.file, args.out)
+    _emit({"ok": True, "files": [str(f) for f in files]}, args.json, "\n".join(f"wrote {f}" for f in files))
     return 0
 
 
@@ -283,10 +297,19 @@ def build_parser() -> argparse.ArgumentParser:
     b = tsub.add_parser("build", help="build a Γ table for a vehicle")
     b.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
     b.add_argument("--out", type=Path, required=True)
-    b.add_argument("--stop-only", action="store_true", help="carry the stop contract only")
+    b.add_argument("--stop-only", action="store_true", help="carry the stop contract only (no sweep)")
+    b.add_argument("--grid", type=Path, help="grid YAML (default: the vehicle's shipped grid)")
+    b.add_argument("--workers", type=int, default=2, help="local process pool size")
+    b.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     b.add_argument("--tilt-model", choices=["cone", "box"], default=None)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_table_build)
+
+    pl = tsub.add_parser("plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
+    pl.add_argument("file", type=Path)
+    pl.add_argument("--out", type=Path, required=True)
+    pl.add_argument("--json", action="store_true")
+    pl.set_defaults(func=cmd_table_plot)
     return p
 
 

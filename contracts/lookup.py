@@ -41,6 +41,12 @@ class ReactLookup:
     by Vquad_j, the root of V² + g F_j² t_r V − g F_j² c0 = 0 (independent of r_k). Vquad_j falls
     and Vlim_j rises with j, so the best cell sits where they cross: Vlim_j ≥ Vquad_j ⟺
     r_k ≤ R_j = ρ_j (c0 − t_r Vquad_j), R_j increasing. Then V = max(Vquad_{j*}, Vlim_{j*−1}).
+
+    Enclosing discs: the disc of radius r_k + δ centred at c0 + δ contains the keep-out disc and has
+    the same near point (gap s = c0 − r_k), so a speed safe for it is safe here. Along that family a
+    cell's bounds cross (Vlim falls, Vquad rises with δ) at V*_j, the root of V² + h t_r V − h s = 0
+    with h = g F_j²/(1 − ρ_j), reached at radius u*_j = (s − V*_j t_r) ρ_j/(1 − ρ_j); where u*_j ≥ r_k
+    (δ ≥ 0) V*_j is admissible too. This keeps the answer non-increasing in r_obst, never less tight.
     """
 
     def __init__(self, rho, f, t_r, g=G):
@@ -57,6 +63,10 @@ class ReactLookup:
         self._row = np.arange(self.k, dtype=float)[:, None]
         self._row_start = (np.arange(self.k) * self.n)[:, None]
         self._rho_prev = np.concatenate([[np.inf], self.rho])  # ρ_{j−1}, shifted by one
+        self._h = gf2 / (1.0 - self.rho)  # enclosing-disc family, per cell
+        self._ht = self._h * self.t_r
+        self._ht2 = self._ht * self._ht
+        self._u = self.rho / (1.0 - self.rho)
 
     def __call__(self, c0: float, r_k, lo: int = 0, hi: int | None = None) -> np.ndarray:
         """Speeds for keep-out radii `r_k` (k, m) ≥ 0, over columns lo … hi−1 (all by default)."""
@@ -73,7 +83,13 @@ class ReactLookup:
         n = self.n
         vq = np.where(j < n, v_quad.ravel()[np.minimum(j, n - 1) + self._row_start[:k]], 0.0)
         vl = np.where(j > 0, (c0 - r_k / self._rho_prev[j]) / t_r, 0.0)
-        return np.maximum(np.maximum(vq, vl), 0.0) * (1.0 - 1e-9)  # round-off never optimistic
+        # enclosing discs (k, m, n): V*_j where its disc is at least the keep-out disc
+        gap = np.maximum(c0 - r_k, 0.0)[..., None]
+        h, ht = self._h[sl][:, None, :], self._ht[sl][:, None, :]
+        v_star = 0.5 * (np.sqrt(self._ht2[sl][:, None, :] + 4.0 * h * gap) - ht)
+        ok = (gap - v_star * t_r[..., None]) * self._u >= r_k[..., None]
+        ve = np.max(np.where(ok, v_star, 0.0), axis=-1)
+        return np.maximum(np.maximum(np.maximum(vq, vl), ve), 0.0) * (1.0 - 1e-9)  # round-off never optimistic
 
 
 def step_fixed_point(v_grid, limit_on_grid):

@@ -293,14 +293,14 @@ class ContractTable:
             return f"thrust_ratio {thrust_ratio:.3g} below the vehicle's range (no safe speed)"
         return None
 
-    def _avoid_cells(self, tilt, thrust_ratio, fixed: bool):
-        """Grid tilt indices to consider (the worst corner of `tilt`, or all up to it: always a
-        contiguous range) and the thrust index."""
+    def _avoid_cells(self, tilt, thrust_ratio):
+        """Grid tilt indices up to the worst corner of `tilt` (a tilt limit also allows every smaller
+        tilt, whose folded reaction time is shorter) and the thrust index."""
         k = helps_index(self._trs, thrust_ratio)
         top = helps_index(self._tilts, min(tilt, self.vehicle.tilt_max))
         if NONE in (k, top):
             return [], k
-        return ([top] if fixed else list(range(top + 1))), k
+        return list(range(top + 1)), k
 
     def v_safe(self, d_od, r_obst, e_tr, tilt, thrust_ratio) -> float:
         """Avoid-contract speed with the reaction-time fixed point V ≤ V_safe(d_od − V·t_react)."""
@@ -308,10 +308,11 @@ class ContractTable:
             raise ContractError("this table carries no avoid contract")
         if self._bad_inputs(d_od, r_obst, e_tr, thrust_ratio, tilt):
             return 0.0
-        js, k = self._avoid_cells(tilt, thrust_ratio, fixed=True)
+        js, k = self._avoid_cells(tilt, thrust_ratio)
         if not js:
             return 0.0
-        return float(self._react[k](d_od + r_obst, np.array([[r_obst + e_tr + self._r_body]]), js[0], js[0] + 1)[0, 0])
+        r_k = np.full((len(js), 1), r_obst + e_tr + self._r_body)
+        return float(np.max(self._react[k](d_od + r_obst, r_k, js[0], js[-1] + 1)))
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
@@ -336,10 +337,9 @@ class ContractTable:
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None) -> Omega:
         """Ω = (V_max, tilt) maximising V_max subject to Γ ≤ 0, with e_tr = max(measured, E_tr_pred(V_max)).
 
-        `tilt` fixes the tilt; otherwise the avoid contract picks the best tilt of its grid up to the
-        vehicle's limit and the stop contract uses the autopilot's limit. Safe-first: any doubt → 0.
+        `tilt` caps the tilt (default: the vehicle's limit); the avoid contract picks the best grid tilt
+        up to it, the stop contract brakes at it. Safe-first: any doubt → 0.
         """
-        fixed = tilt is not None
         tilt = self.vehicle.tilt_max if tilt is None else tilt
         bad = self._bad_inputs(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
         if not bad and contract == "avoid" and self.avoid is None:
@@ -347,11 +347,11 @@ class ContractTable:
         if bad:
             return Omega(contract, 0.0, tilt if math.isfinite(tilt) else 0.0, e_tr_meas, 0.0, 0.0, bad)
         if contract == "avoid":
-            return self._omega_avoid(d_od, r_obst, e_tr_meas, thrust_ratio, tilt, fixed)
+            return self._omega_avoid(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
         return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt)
 
-    def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt, fixed) -> Omega:
-        js, k = self._avoid_cells(tilt, thrust_ratio, fixed)
+    def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt) -> Omega:
+        js, k = self._avoid_cells(tilt, thrust_ratio)
         if not js:
             return Omega("avoid", 0.0, tilt, e_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
         react, c0, r0 = self._react[k], d_od + r_obst, r_obst + self._r_body

@@ -46,8 +46,6 @@ def test_table_query_json_keys_and_values():
     [
         (("table", "show", "/nonexistent/t.npz"), "no such file"),
         (("table", "verify", MAMBO_TABLE, "--vehicle", "x500"), "another vehicle"),
-        (("table", "query", MAMBO_TABLE, "--d-od", 6, "--r-obst", 1, "--e-tr", 0.3, "--thrust-ratio", 0.8,
-          "--contract", "avoid"), "no avoid contract"),
         (("table", "build", "--vehicle", "/nonexistent/v.yaml", "--out", "/tmp/x.npz", "--stop-only"), "cannot read"),
     ],
 )
@@ -64,3 +62,16 @@ def test_demo_runs_on_the_shipped_table():
     assert r.returncode == 0, r.stderr
     out = json.loads(r.stdout)
     assert len(out["scenarios"]) == 3 and all(s["v_max"] > 0 for s in out["scenarios"])
+
+
+def test_a_stop_only_table_says_so(tmp_path):
+    out = tmp_path / "stop.npz"
+    r = cg("table", "build", "--vehicle", "mambo", "--out", out, "--stop-only")
+    assert r.returncode == 0, r.stderr
+    shown = json.loads(cg("table", "show", out, "--json").stdout)
+    assert shown["available"] == ["stop"] and "stop contract only" in shown["note"]
+    r = cg("table", "query", out, "--d-od", 6, "--r-obst", 1, "--e-tr", 0.3, "--thrust-ratio", 0.8, "--contract", "avoid")
+    assert r.returncode != 0 and "no avoid contract" in r.stderr and "Traceback" not in r.stderr
+    q = json.loads(cg("table", "query", out, "--d-od", 6, "--r-obst", 1, "--e-tr", 0.3, "--thrust-ratio", 0.8,
+                      "--json").stdout)
+    assert q["contract"] == "stop"

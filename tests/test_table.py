@@ -92,21 +92,32 @@ def test_reaction_fixed_point_is_never_optimistic_and_tight(tmp_path, slot, d_od
     t = make(tmp_path, avoid=slot)
     v = t.v_safe(d_od, r_obst, e_tr, tilt, tr)
     assert v >= 0.0
-    tg = slot.axes[1]
+    rg, tg = slot.axes[0], slot.axes[1]
     if tilt < tg[0] or tr < slot.axes[2][0]:
         assert v == 0.0
         return
-    t_grid = tg[np.searchsorted(tg, min(tilt, TILT_TOP), side="right") - 1]
-    t_r = MAMBO.reaction_time(t_grid)
     r_k = r_obst + e_tr + MAMBO.r_body_m
+    c0 = d_od + r_obst
+    tilts = [x for x in tg if x <= min(tilt, TILT_TOP)]  # a tilt limit allows every smaller tilt
 
-    def ok(speed):  # independent check with the raw conservative lookup: V ≤ √(g c(V)) F(r_k/c(V))
-        c = d_od + r_obst - speed * t_r
-        return c > r_k and speed <= math.sqrt(G * c) * t.f_lookup(r_k / c, tilt, tr) + 1e-12
+    def ok(speed):
+        """Independent check, by speed: is there a disc that holds the keep-out disc, touches its near
+        point, and lets the vehicle pass or stop after covering speed·t_r at this speed? (raw lookups)"""
+        for tau in tilts:
+            t_r = MAMBO.reaction_time(tau)
+            for rho_j in rg:
+                # the largest enclosing disc (radius r_k + δ, centre c0 + δ) whose ρ stays in cell j
+                delta = (rho_j * (c0 - speed * t_r) - r_k) / (1 - rho_j)
+                if delta < 0:
+                    continue
+                c = c0 + delta - speed * t_r
+                if speed * speed <= G * c * t.f_lookup(rho_j, tau, tr) ** 2 * (1 + 1e-9):
+                    return True
+        return False
 
     if v > 0:
         assert ok(v)
-    speeds = np.linspace(0.0, 40.0, 8001)
+    speeds = np.linspace(0.0, 40.0, 4001)
     feasible = [s for s in speeds[1:] if ok(s)]
     assert max(feasible, default=0.0) <= v + (speeds[1] - speeds[0]) + 1e-9
 
@@ -177,16 +188,20 @@ def test_reduced_form_and_the_reaction_fixed_point_on_a_worked_column():
     rho = np.array([0.1, 0.2, 0.4, 0.8])
     f = np.array([[0.9, 0.7, 0.5, 0.2]])
     c0, r_k = 10.0, 4.0  # ρ(0) = 0.4 exactly on a grid point
-    # (almost) no reaction time: the bare reduced form √(g c)·F(ρ), just inside the ρ ≤ 0.4 cell …
+    # (almost) no reaction time, just inside the ρ ≤ 0.4 cell: the best disc holding the keep-out disc
+    # with the same near point (gap s = c0 − r_k) has ρ = 0.4: V = √(g·F²·s/(1 − ρ)), above √(g·c0)·F
     tiny = ReactLookup(rho, f, [1e-9])
-    assert tiny(c0, np.array([[r_k - 1e-3]]))[0, 0] == pytest.approx(math.sqrt(G * c0) * 0.5, rel=1e-6)
-    # … and on its edge any V > 0 moves ρ past 0.4 (the step function is exact): the next cell answers
-    assert tiny(c0, np.array([[r_k]]))[0, 0] == pytest.approx(math.sqrt(G * c0) * 0.2, rel=1e-6)
-    assert tiny(c0, np.array([[r_k + 1e-6]]))[0, 0] == pytest.approx(math.sqrt(G * c0) * 0.2, rel=1e-6)
-    # with t_r = 0.5: cell ρ ≤ 0.8 caps V at √(g(c0 − 0.5V))·0.2; cell ρ ≤ 0.4 needs c0 − 0.5V ≥ 10
+    s = c0 - (r_k - 1e-3)
+    assert tiny(c0, np.array([[r_k - 1e-3]]))[0, 0] == pytest.approx(math.sqrt(G * 0.25 * s / 0.6), rel=1e-6)
+    assert math.sqrt(G * 0.25 * s / 0.6) > math.sqrt(G * c0) * 0.5
+    # with t_r = 0.5: cell ρ ≤ 0.8 caps V at √(g(c0 − 0.5V))·0.2 directly; enclosing discs of cell 0.8
+    # give V² + h t_r V − h s = 0 with h = g·0.04/0.2; the answer is the better of the two
     v = ReactLookup(rho, f, [0.5])(c0, np.array([[r_k]]))[0, 0]
-    want = (-G * 0.04 * 0.5 + math.sqrt((G * 0.04 * 0.5) ** 2 + 4 * G * 0.04 * c0)) / 2
-    assert v == pytest.approx(want, rel=1e-8)
+    b = G * 0.04 * 0.5
+    direct = (-b + math.sqrt(b * b + 4 * G * 0.04 * c0)) / 2
+    h = G * 0.04 / 0.2
+    star = (-h * 0.5 + math.sqrt((h * 0.5) ** 2 + 4 * h * (c0 - r_k))) / 2
+    assert v == pytest.approx(max(direct, star), rel=1e-8)
     assert v < math.sqrt(G * c0) * 0.5
 
 

@@ -91,7 +91,7 @@ def test_daemon_governs_the_sitl_over_udp_and_stops_cleanly(world):
     d = cg("run", "--config", config())
     try:
         gcs = gcs_fly(port)
-        deadline = time.time() + 25
+        deadline = time.time() + 60
         acked = False
         while time.time() < deadline and not acked:
             gcs.recv_match(blocking=True, timeout=1)
