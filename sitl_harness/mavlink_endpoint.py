@@ -248,7 +248,7 @@ class MavlinkEndpoint:
 
     def _on_timesync(self, m) -> None:
         if m.tc1 == 0:  # a request: answer with our clock (ns)
-            self.tx.timesync_send(max(1, int(self.t * 1e9)), m.ts1)
+            self.tx.timesync_send(max(1, round(self.t * 1e9)), m.ts1)
 
     def _on_ping(self, m) -> None:
         if m.target_system == 0:
@@ -516,7 +516,7 @@ class MavlinkEndpoint:
         self.tx.system_time_send(int((self.unix_epoch_s + self.t) * 1e6), self.boot_ms())
 
     def _timesync(self) -> None:
-        self.tx.timesync_send(0, max(1, int(self.t * 1e9)))
+        self.tx.timesync_send(0, max(1, round(self.t * 1e9)))
 
     def _mission_current(self) -> None:
         ap = self.ap

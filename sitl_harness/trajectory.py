@@ -28,7 +28,11 @@ def stop_speed(dist: float, acc: float, jerk: float) -> float:
     return -k + math.sqrt(k * k + 2.0 * acc * max(dist, 0.0))
 
 
-def _track(a: np.ndarray, e: np.ndarray, acc_max: float, jerk: float, dt: float) -> np.ndarray:
+def _track(a: np.ndarray, v: np.ndarray, vd: np.ndarray, acc_max: float, jerk: float, dt: float) -> np.ndarray:
+    """Jerk-limited velocity tracking: the error is taken against the velocity the reference will
+    reach once its present acceleration is ramped out (v + a·|a|/(2j)), so it never overshoots."""
+    na = float(np.linalg.norm(a))
+    e = vd - (v + a * na / (2.0 * jerk))
     n = float(np.linalg.norm(e))
     target = np.zeros_like(e) if n < 1e-9 else e / n * min(acc_max, math.sqrt(2.0 * jerk * n))
     da = target - a
@@ -59,17 +63,20 @@ class AutoTrajectory:
         tgt = np.full(3, np.nan) if target is None else np.array(target, dtype=float)
         # horizontal desired velocity
         vd = np.zeros(3)
+        pp = self._predicted_position()
         if np.all(np.isfinite(tgt[:2])):
             e = tgt[:2] - self.p[:2]
             d = float(np.linalg.norm(e))
             if d > 1e-6:
-                vd[:2] = e / d * min(speed_xy, stop_speed(d, self.acc_hor, self.jerk))
+                dp = float(np.dot(tgt[:2] - pp[:2], e / d))  # remaining after ramping out a
+                vd[:2] = e / d * min(speed_xy, stop_speed(dp, self.acc_hor, self.jerk))
         if np.isfinite(tgt[2]):
             e = tgt[2] - self.p[2]
             lim = speed_down if e > 0 else speed_up
-            vd[2] = math.copysign(min(lim, stop_speed(abs(e), self.acc_z, self.jerk)), e)
-        self.a[:2] = _track(self.a[:2], vd[:2] - self.v[:2], self.acc_hor, self.jerk, dt)
-        self.a[2:] = _track(self.a[2:], vd[2:] - self.v[2:], self.acc_z, self.jerk, dt)
+            dp = (tgt[2] - pp[2]) * math.copysign(1.0, e)
+            vd[2] = math.copysign(min(lim, stop_speed(dp, self.acc_z, self.jerk)), e)
+        self.a[:2] = _track(self.a[:2], self.v[:2], vd[:2], self.acc_hor, self.jerk, dt)
+        self.a[2:] = _track(self.a[2:], self.v[2:], vd[2:], self.acc_z, self.jerk, dt)
         self.p += self.v * dt + 0.5 * self.a * dt * dt
         self.v += self.a * dt
         # settle exactly on a reached target (removes the √ law's last-centimetre creep)
@@ -83,6 +90,16 @@ class AutoTrajectory:
             elif np.linalg.norm(self.v[sl]) < 0.01 and np.linalg.norm(self.a[sl]) <= self.jerk * dt:
                 self.v[sl] = 0.0
                 self.a[sl] = 0.0
+
+    def _predicted_position(self) -> np.ndarray:
+        """Where the reference is once its acceleration has been ramped to zero at the jerk limit."""
+        p = self.p.copy()
+        for sl in (slice(0, 2), slice(2, 3)):
+            na = float(np.linalg.norm(self.a[sl]))
+            t = na / self.jerk
+            # ∫ v + a·τ − ĵ·τ²/2 dτ over [0, t], ĵ = j along −a
+            p[sl] += self.v[sl] * t + self.a[sl] * (t * t / 2.0 - t * t / 6.0)
+        return p
 
     @property
     def speed_xy(self) -> float:
