@@ -10,7 +10,8 @@ glued to the next datagram); packets with a bad CRC, a bad prefix or (when a sig
 missing or wrong signature are dropped and counted in `stats`; an exception in a handler (e.g. a
 NaN where an integer is needed) drops that message, is counted, and the vehicle keeps flying.
 
-Telemetry (default rates, Hz, changeable with MAV_CMD_SET_MESSAGE_INTERVAL): HEARTBEAT 1,
+Telemetry (default rates, Hz, changeable with MAV_CMD_SET_MESSAGE_INTERVAL): HEARTBEAT 1 (and at
+once after an arming or mode change),
 SYS_STATUS 2, EXTENDED_SYS_STATE 1, ATTITUDE 50, ATTITUDE_QUATERNION 10, LOCAL_POSITION_NED 30,
 GLOBAL_POSITION_INT 10, GPS_RAW_INT 5, HOME_POSITION 0.5, VFR_HUD 10, POSITION_TARGET_LOCAL_NED
 10, ESTIMATOR_STATUS (PX4) / EKF_STATUS_REPORT (ArduPilot) 2, BATTERY_STATUS 1, SYSTEM_TIME 1,
@@ -131,6 +132,7 @@ class MavlinkEndpoint:
         self._upload: dict | None = None
         self._param_specs = {p.name: p for p in self.ap.pers.params}
         self._sensor_seq_sent = {k: -1 for k in SENSOR_MSGS}
+        self._hb_state = (self.ap.armed, self.ap.custom)
 
     # ------------------------------------------------------------------ time
     @property
@@ -374,6 +376,10 @@ class MavlinkEndpoint:
                 self._upload = None
             else:
                 self._request_item()
+        state = (ap.armed, ap.custom)
+        if state != self._hb_state:  # announce arming and mode changes at once (clients wait on them)
+            self._hb_state = state
+            self.next_due[mav.MAVLINK_MSG_ID_HEARTBEAT] = t
         while self.once:
             self._senders[self.once.pop(0)]()
         for mid, iv in self.intervals.items():

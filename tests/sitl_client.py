@@ -37,6 +37,7 @@ class Client:
         self.last: dict[str, object] = {}
         self.log: list = []
         self.texts: list[str] = []
+        self.vehicle_ms = 0
 
     def write(self, b) -> None:  # encoder sink
         self.tr.send(bytes(b))
@@ -46,13 +47,17 @@ class Client:
         msgs = [m for m in (self.rx.parse_buffer(data) or []) if m.get_type() != "BAD_DATA"]
         for m in msgs:
             self.last[m.get_type()] = m
+            if hasattr(m, "time_boot_ms"):
+                self.vehicle_ms = m.time_boot_ms
             if m.get_type() == "STATUSTEXT":
                 self.texts.append(m.text)
         self.log.extend(msgs)
         return msgs
 
     def now(self) -> float:
-        return self.tr.time()
+        """Simulated time: the lock-step clock, or over UDP the vehicle's time_boot_ms."""
+        t = self.tr.time()
+        return self.vehicle_ms / 1000.0 if t is None else t
 
     def wait(self, pred, timeout: float, dt: float = 0.05) -> bool:
         end = self.now() + timeout
@@ -140,6 +145,42 @@ class LockstepTransport:
 
     def time(self) -> float:
         return self.sim.time_s
+
+
+class UdpTransport:
+    """Real loopback UDP to a SITL process (`python -m sitl_harness --listen udp:HOST:PORT`)."""
+
+    def __init__(self, port: int, speedup: float = 1.0, host: str = "127.0.0.1"):
+        import socket
+
+        self.addr = (host, port)
+        self.speedup = speedup
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind((host, 0))
+        self.sock.settimeout(0.005)
+
+    def send(self, data: bytes) -> None:
+        self.sock.sendto(data, self.addr)
+
+    def pump(self, dt: float) -> bytes:
+        """Collect what arrives during `dt` simulated seconds (dt / speedup of wall time)."""
+        import socket
+
+        end = time.monotonic() + dt / self.speedup
+        chunks = []
+        while True:
+            try:
+                chunks.append(self.sock.recv(65535))
+            except socket.timeout:
+                pass
+            if time.monotonic() >= end:
+                return b"".join(chunks)
+
+    def time(self):
+        return None
+
+    def close(self) -> None:
+        self.sock.close()
 
 
 def lockstep_client(sim, **kw) -> Client:
