@@ -185,7 +185,7 @@ class Sim:
         """Electrical current [A]: hover power ∝ thrust^1.5 (momentum theory), scaled to the airframe."""
         if not self.autopilot.armed:
             return 0.2
-        t = float(np.sum(self.vehicle.rotor.k_thrust * self.model.rotor_speeds ** 2) * self.model.thrust_ratio)
+        t = self.vehicle.rotor.k_thrust * self.model.thrust_ratio * sum(float(w) * float(w) for w in self.model.rotor_speeds)
         r = self.vehicle.rotor.radius_m
         p_ideal = t ** 1.5 / math.sqrt(2 * 1.225 * 4 * math.pi * r * r)
         return 0.5 + p_ideal / 0.6 / max(self.battery_voltage(), 1.0)
