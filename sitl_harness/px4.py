@@ -15,10 +15,11 @@ from __future__ import annotations
 import math
 import struct
 
+import numpy as np
+
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from .autopilot import (ACCEPTED, DENIED, TEMP_REJECTED, ParamSpec, Personality, Settings, _finite, _masked,
-                        _rot)
+from .autopilot import ACCEPTED, DENIED, TEMP_REJECTED, ParamSpec, Personality, Settings, _finite, _masked
 
 MAIN = {"manual": 3, "hold": 4, "takeoff": 4, "land": 4, "mission": 4, "rtl": 4, "offboard": 6}
 SUB = {"hold": 3, "takeoff": 2, "land": 6, "mission": 4, "rtl": 5}
@@ -29,6 +30,14 @@ I32 = mav.MAV_PARAM_TYPE_INT32
 
 # COM_OBL_RC_ACT: 0 Position, 1 Altitude, 2 Stabilized, 3 Return, 4 Land, 5 Hold, 6 Terminate, 7 Disarm
 OBL_ACTIONS = {3: "rtl", 4: "land", 5: "hold"}
+
+
+def _dcm(q) -> np.ndarray:
+    """Rotation matrix body → NED of quaternion q = (w, x, y, z)."""
+    w, x, y, z = (float(c) for c in q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def custom_mode_of(main: int, sub: int = 0) -> int:
@@ -169,13 +178,29 @@ class Px4(Personality):
             ap.set_mode("hold", reason="Failsafe: offboard lost, no RC for Position: Hold")
 
     def parse_position_target(self, ap, frame, mask, pos, vel, acc, yaw, yaw_rate):
-        if frame not in (mav.MAV_FRAME_LOCAL_NED, mav.MAV_FRAME_BODY_NED):
+        """As PX4's mavlink_receiver: LOCAL_NED per axis (ignored → NaN); BODY_NED rotates velocity
+        and acceleration by the attitude (ignored axes of a used group → 0) and ignores position;
+        FORCE_SET with an acceleration, another frame, or nothing valid → refused with a message."""
+        if frame == mav.MAV_FRAME_LOCAL_NED:
+            p, v, a = _masked(mask, pos, vel, acc)
+        elif frame == mav.MAV_FRAME_BODY_NED:
+            r = _dcm(ap.model.quat)
+            p = np.full(3, math.nan)
+            v, a = np.full(3, math.nan), np.full(3, math.nan)
+            if not mask & 0o070 == 0o070:
+                v = r @ np.where([(mask >> (3 + i)) & 1 for i in range(3)], 0.0, vel)
+            if not mask & 0o700 == 0o700:
+                a = r @ np.where([(mask >> (6 + i)) & 1 for i in range(3)], 0.0, acc)
+        else:
+            ap.text(mav.MAV_SEVERITY_CRITICAL, f"SET_POSITION_TARGET_LOCAL_NED coordinate frame {frame} unsupported")
             return None
-        p, v, a = _masked(mask, pos, vel, acc)
-        if frame == mav.MAV_FRAME_BODY_NED:  # vel/acc in the heading frame, pos as heading offset
-            c, s = math.cos(ap.yaw), math.sin(ap.yaw)
-            v, a = _rot(v, c, s), _rot(a, c, s)
-            p = _rot(p, c, s) + ap.pos
+        has_acc = bool(np.any(np.isfinite(a)))
+        if has_acc and mask & mav.POSITION_TARGET_TYPEMASK_FORCE_SET:
+            ap.text(mav.MAV_SEVERITY_CRITICAL, "SET_POSITION_TARGET_LOCAL_NED force not supported")
+            return None
+        if not (np.any(np.isfinite(p)) or np.any(np.isfinite(v)) or has_acc):
+            ap.text(mav.MAV_SEVERITY_CRITICAL, "SET_POSITION_TARGET_LOCAL_NED invalid")
+            return None
         yw = yaw if not mask & mav.POSITION_TARGET_TYPEMASK_YAW_IGNORE else math.nan
         yr = yaw_rate if not mask & mav.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE else math.nan
         return p, v, a, yw, yr

@@ -509,3 +509,56 @@ def test_scenario_errors_are_one_line(data, needle):
 def test_unknown_parameter_in_scenario_is_one_line():
     with pytest.raises(ScenarioError, match="params.NOPE"):
         Sim(Scenario(params={"NOPE": 1.0}), "px4")
+
+
+def test_px4_refuses_invalid_targets_like_px4():
+    """Nothing valid, FORCE_SET accelerations and unsupported frames are refused (and are no
+    proof of life for OFFBOARD)."""
+    sim, c = px4_airborne()
+    stats = sim.endpoint.stats
+    for mask in (0x0DFF, 0x0E3F):  # all ignored (yaw only); acceleration as force
+        for _ in range(10):
+            c.position_target(mask, acc=(1.0, 0.0, 0.0))
+            c.pump(0.05)
+    for _ in range(10):
+        c.position_target(VEL_MASK_PX4, vel=(1.0, 0, 0), frame=mav.MAV_FRAME_LOCAL_OFFSET_NED)
+        c.pump(0.05)
+    assert stats["rx_refused_targets"] == 30
+    assert c.set_mode(6) == TEMP
+    assert any("invalid" in t for t in c.texts) and any("force not supported" in t for t in c.texts)
+    # BODY_NED velocity is rotated by the attitude: heading east, body-forward is east
+    for _ in range(20):
+        c.position_target(POS_MASK_PX4 & ~0x400, pos=(0.0, 0.0, -3.0), yaw=math.pi / 2)
+        c.pump(0.05)
+    assert c.set_mode(6) == ACC
+    for _ in range(40):
+        c.position_target(POS_MASK_PX4 & ~0x400, pos=(0.0, 0.0, -3.0), yaw=math.pi / 2)
+        c.pump(0.05)
+    for _ in range(60):
+        c.position_target(0x0DC7, vel=(1.0, 0.0, 0.0), frame=mav.MAV_FRAME_BODY_NED)
+        c.pump(0.05)
+    lp = c.last["LOCAL_POSITION_NED"]
+    assert lp.vy == pytest.approx(1.0, abs=0.1) and abs(lp.vx) < 0.15
+
+
+@pytest.mark.parametrize("pers", ["px4", "ardupilot"])
+def test_hold_brakes_with_the_vehicle_files_limits(pers):
+    """Mission at 3 m/s, then Hold (PX4 AUTO.LOITER / ArduPilot BRAKE): the vehicle stops within the
+    jerk-limited distance v²/(2a) + v·a/(2j) of the braking limits (MPC_ACC_HOR / WPNAV_ACCEL,
+    MPC_JERK_AUTO / WPNAV_JERK), plus a small tracking margin."""
+    if pers == "px4":
+        sim, c = px4_airborne(alt=2.0, params={"MPC_XY_CRUISE": 3.0})
+    else:
+        sim, c = ap_airborne(alt=2.0, params={"WPNAV_SPEED": 300.0})
+    route_mission(c, length=60.0, ap=pers == "ardupilot")
+    assert c.set_mode(*((4, 4) if pers == "px4" else (3,))) == ACC
+    assert c.wait(lambda c: c.speed_xy > 2.95, 15.0)
+    c.pump(1.0)
+    v0, x0 = c.speed_xy, c.pos[0]
+    assert c.set_mode(*((4, 3) if pers == "px4" else (17,))) == ACC
+    c.pump(4.0)
+    a, j = sim.vehicle.braking.accel_max_m_s2, sim.vehicle.braking.jerk_max_m_s3
+    expected = v0 ** 2 / (2 * a) + v0 * a / (2 * j)
+    dist = c.pos[0] - x0
+    assert c.speed_xy < 0.05
+    assert expected * 0.9 <= dist <= expected * 1.1 + 0.1

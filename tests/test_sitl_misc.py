@@ -1,0 +1,98 @@
+"""House rules and small pieces: import direction, wind statistics, scenario faults, attitude offboard."""
+
+import ast
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from sitl_client import PX4_HOLD, PX4_OFFBOARD, lockstep_client
+from sitl_harness import Sim
+from sitl_harness.physics import euler_from_quat, quat_from_euler
+from sitl_harness.scenario import scenario_from_dict
+from sitl_harness.wind import Wind
+
+PKG = Path(__file__).resolve().parents[1] / "sitl_harness"
+
+
+def test_sitl_harness_never_imports_companion():
+    for f in PKG.glob("*.py"):
+        tree = ast.parse(f.read_text())
+        for node in ast.walk(tree):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0:
+                names = [node.module or ""]
+            assert not any(n == "companion" or n.startswith("companion.") for n in names), f.name
+
+
+def test_dryden_wind_statistics_and_seed():
+    w = Wind(mean_m_s=2.0, from_deg=90.0, gust_m_s=0.8, length_m=20.0, seed=4)
+    xs = np.array([w.step(0.01) for _ in range(60000)])
+    assert xs[:, 1].mean() == pytest.approx(-2.0, abs=0.25)  # from the east: blows toward −y
+    assert xs[:, 0].std() == pytest.approx(0.8, rel=0.2)
+    assert xs[:, 2].std() == pytest.approx(0.4, rel=0.2)
+    # correlation time L/V = 10 s: lag-1 s autocorrelation ≈ e^(−0.1)
+    u = xs[:, 0] - xs[:, 0].mean()
+    r = np.dot(u[:-100], u[100:]) / np.dot(u, u)
+    assert r == pytest.approx(math.exp(-0.1), abs=0.1)
+    w2 = Wind(mean_m_s=2.0, from_deg=90.0, gust_m_s=0.8, seed=4)
+    assert np.allclose([w2.step(0.01) for _ in range(100)], xs[:100])
+
+
+def test_discrete_gust_is_one_minus_cosine():
+    w = Wind(seed=1)
+    w.add_gust(1.0, 2.0, 3.0, from_deg=0.0)
+    vals = [w.step(0.01)[0] for _ in range(400)]
+    assert min(vals) == pytest.approx(-3.0, abs=1e-3) and vals[50] == 0.0 and vals[-1] == 0.0
+
+
+def test_scenario_thrust_drop_is_felt_and_adapted():
+    sim = Sim(scenario_from_dict({"wind": {"mean_m_s": 0, "gust_m_s": 0},
+                                  "faults": [{"at_s": 12.0, "thrust_ratio": 0.7}]}), "px4")
+    c = lockstep_client(sim)
+    c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    c.command(mav.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 6, 488.0 + 3.0)
+    c.pump(11.0 - sim.time_s)
+    thr_before = c.last["VFR_HUD"].throttle
+    c.pump(8.0)
+    assert sim.model.thrust_ratio == 0.7
+    assert thr_before == pytest.approx(47, abs=2)
+    assert c.last["VFR_HUD"].throttle == pytest.approx(47 / 0.7, abs=2)  # the daemon's thrust_ratio signal
+    assert c.pos[2] == pytest.approx(-3.0, abs=0.1)
+
+
+def test_px4_offboard_attitude_target():
+    sim = Sim(scenario_from_dict({"wind": {"mean_m_s": 0, "gust_m_s": 0}}), "px4")
+    c = lockstep_client(sim)
+    c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    c.command(mav.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 6, 488.0 + 5.0)
+    assert c.wait(lambda c: c.custom_mode == PX4_HOLD and abs(c.pos[2] + 5) < 0.2, 20.0)
+    q = quat_from_euler(0.1, 0.0, 0.0)
+    hover = sim.model.hover_thrust
+    for _ in range(40):
+        c.mav.set_attitude_target_send(0, 1, 1, 0b00000111, list(q), 0, 0, 0, hover / math.cos(0.1))
+        c.pump(0.05)
+        if c.custom_mode != PX4_OFFBOARD:
+            c.set_mode(6)
+    r, p, _ = euler_from_quat(sim.model.quat)
+    assert c.custom_mode == PX4_OFFBOARD
+    assert r == pytest.approx(0.1, abs=0.01) and abs(p) < 0.01
+    assert c.last["LOCAL_POSITION_NED"].vy > 0.5  # rolled right: accelerates east
+
+
+def test_mission_item_reached_and_mission_current():
+    sim = Sim(scenario_from_dict({"wind": {"mean_m_s": 0, "gust_m_s": 0},
+                                  "route": {"altitude_m": 2, "cruise_speed_m_s": 2, "waypoints": [[0, 0], [6, 0]]},
+                                  "params": {"NAV_ACC_RAD": 0.3}}), "px4")
+    c = lockstep_client(sim)
+    c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+    assert c.command(mav.MAV_CMD_MISSION_START, 0, 1) == mav.MAV_RESULT_ACCEPTED  # from the ground
+    assert c.wait(lambda c: c.custom_mode == PX4_HOLD and sim.autopilot.mission_seq == 2, 30.0)
+    reached = [m.seq for m in c.log if m.get_type() == "MISSION_ITEM_REACHED"]
+    assert reached == [0, 1]
+    assert c.pos[0] == pytest.approx(6.0, abs=0.3)
+    assert c.last["MISSION_CURRENT"].total == 2
