@@ -89,6 +89,8 @@ class ArduPilot(Personality):
         return float(round(value)) if ptype in (I16, I8, mav.MAV_PARAM_TYPE_INT32) else float(value)
 
     def decode_param(self, wire: float, ptype: int) -> float:
+        if not math.isfinite(wire):
+            return math.nan
         return float(round(wire)) if ptype in (I16, I8, mav.MAV_PARAM_TYPE_INT32) else float(wire)
 
     def on_mode_change(self, ap, old: str, new: str) -> None:

@@ -264,9 +264,13 @@ class Autopilot:
         if mode == "mission" and not self.mission:
             self.text(mav.MAV_SEVERITY_WARNING, "Mission rejected: no mission")
             return DENIED
-        if mode in ("land", "rtl", "takeoff") and not self.in_air and mode != "takeoff":
-            self.set_mode(mode, custom)
-            return ACCEPTED
+        if mode == "takeoff":  # selecting the take-off mode: climb MIS_TAKEOFF_ALT above here
+            if not self.armed:
+                return DENIED
+            if self.in_air:
+                self.set_mode("hold")
+                return ACCEPTED
+            return self.takeoff_to(-self.pos[2] + self.settings.takeoff_alt)
         self.set_mode(mode, custom)
         return ACCEPTED
 

@@ -133,6 +133,7 @@ class MavlinkEndpoint:
         self._param_specs = {p.name: p for p in self.ap.pers.params}
         self._sensor_seq_sent = {k: -1 for k in SENSOR_MSGS}
         self._hb_state = (self.ap.armed, self.ap.custom)
+        self.last_handler_error = ""
 
     # ------------------------------------------------------------------ time
     @property
@@ -171,8 +172,9 @@ class MavlinkEndpoint:
                 continue
             try:
                 self._handle(m)
-            except Exception:
+            except Exception as err:  # never let one message stop the vehicle
                 self.stats["rx_handler_errors"] += 1
+                self.last_handler_error = f"{m.get_type()}: {type(err).__name__}: {err}"
 
     def _handle(self, m) -> None:
         kind = m.get_type()

@@ -562,3 +562,56 @@ def test_hold_brakes_with_the_vehicle_files_limits(pers):
     dist = c.pos[0] - x0
     assert c.speed_xy < 0.05
     assert expected * 0.9 <= dist <= expected * 1.1 + 0.1
+
+
+def test_px4_every_mode_request_is_safe():
+    """Every PX4 main/sub mode, armed on the ground and in the air: answered, never a crash."""
+    for airborne in (False, True):
+        if airborne:
+            sim, c = px4_airborne()
+        else:
+            sim = sim_of("px4")
+            c = lockstep_client(sim)
+            c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        for main in range(0, 10):
+            for sub in range(0, 10):
+                r = c.set_mode(main, sub)
+                assert r in (ACC, DEN, UNSUP, TEMP)
+                c.pump(0.05)
+        assert sim.endpoint.stats["rx_handler_errors"] == 0
+        c.pump(2.0)
+
+
+def test_ardupilot_every_mode_request_is_safe():
+    sim, c = ap_airborne()
+    for custom in list(range(0, 30)) + [255, 1 << 20]:
+        assert c.set_mode(custom) in (ACC, DEN, UNSUP, FAIL)
+        c.pump(0.05)
+    assert sim.endpoint.stats["rx_handler_errors"] == 0
+
+
+@pytest.mark.parametrize("pers", ["px4", "ardupilot"])
+def test_hostile_command_parameters_are_handled(pers):
+    """NaN, ±inf and absurd values in every handled command: answered, no handler exception."""
+    sim = sim_of(pers)
+    c = lockstep_client(sim)
+    rng = np.random.default_rng(2)
+    cmds = [mav.MAV_CMD_COMPONENT_ARM_DISARM, mav.MAV_CMD_NAV_TAKEOFF, mav.MAV_CMD_NAV_LAND,
+            mav.MAV_CMD_NAV_RETURN_TO_LAUNCH, mav.MAV_CMD_DO_SET_MODE, mav.MAV_CMD_DO_CHANGE_SPEED,
+            mav.MAV_CMD_MISSION_START, mav.MAV_CMD_DO_SET_MISSION_CURRENT, mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+            mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_NAV_LOITER_UNLIM, mav.MAV_CMD_GET_HOME_POSITION]
+    values = [math.nan, math.inf, -math.inf, 0.0, 1.0, -1.0, 1e9, -1e9, 21196.0, 4.0, 6.0, 3.0]
+    for _ in range(400):
+        cmd = int(rng.choice(cmds))
+        params = [float(rng.choice(values)) if rng.random() < 0.7 else float(rng.normal() * 100) for _ in range(7)]
+        c.mav.command_long_send(1, 1, cmd, 0, *params)
+        c.pump(0.02)
+    for name in ("MPC_TILTMAX_AIR", "ANGLE_MAX", "COM_OF_LOSS_T", "GUID_TIMEOUT"):
+        for v in (math.nan, math.inf, -5.0):
+            c.mav.param_set_send(1, 1, name.encode(), v, mav.MAV_PARAM_TYPE_REAL32)
+            c.pump(0.02)
+    c.pump(3.0)
+    assert sim.endpoint.stats["rx_handler_errors"] == 0
+    acks = [m for m in c.log if m.get_type() == "COMMAND_ACK"]
+    assert len(acks) >= 380
+    assert np.all(np.isfinite(sim.model.x))
