@@ -26,7 +26,7 @@ import time
 
 os.environ["MAVLINK20"] = "1"
 
-import numpy as np  # noqa: E402
+
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
 from contracts.vehicle import load_vehicle  # noqa: E402

@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from .control import M_ATT, M_IDLE, M_OFF, M_POS, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_Q, SP_THRUST, SP_VEL, SP_YAW, SP_YAWRATE
+from .control import (C_TILT_MAX, C_VEL_DN_MAX, C_VEL_UP_MAX, C_VEL_XY_MAX, M_ATT, M_IDLE, M_OFF, M_POS, S_ACCF,
+                      S_HOVER, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_Q, SP_THRUST, SP_VEL, SP_YAW, SP_YAWRATE)
 from .kernel import VehicleModel
-from .control import C_TILT_MAX, C_VEL_DN_MAX, C_VEL_UP_MAX, C_VEL_XY_MAX, S_ACCF, S_HOVER
 from .physics import euler_from_quat
 from .trajectory import AutoTrajectory
 
@@ -152,6 +152,7 @@ class Autopilot:
         self.mission: list[MissionItem] = []
         self.mission_seq = 0
         self.mission_phase = ""
+        self.last_nav_target: np.ndarray | None = None
         self.loiter_until = 0.0
         self.landed_since: float | None = 0.0
         self.armed_since = 0.0
@@ -498,13 +499,17 @@ class Autopilot:
         for it in items:
             it.local = self.frame_to_local(it.frame, it.x, it.y, it.z)
         self.mission = items
+        self.last_nav_target = None
         self.mission_seq = 1 if (self.pers.mission_skips_home and len(items) > 1) else 0
         self.mission_phase = ""
 
     def _mission(self, dt: float) -> None:
         if self.mission_seq >= len(self.mission):
+            end = self.last_nav_target
             self.pers.mission_end(self)
-            if self.mode == "mission":  # still in the mission mode: hover at the end
+            if self.mode in ("mission", "hold") and end is not None and self.target is None:
+                self.target = end  # loiter at the last waypoint itself, not where it was accepted
+            if self.mode == "mission":
                 self._fly_traj(dt, self.target)
             return
         it = self.mission[self.mission_seq]
@@ -551,6 +556,7 @@ class Autopilot:
             else:
                 done = float(np.linalg.norm(here - tgt)) < rad
             if done:
+                self.last_nav_target = tgt.copy()
                 if c == mav.MAV_CMD_NAV_LOITER_TIME:
                     self.mission_phase = "loiter"
                     self.loiter_until = self.time + (it.params[0] if _finite(it.params[0]) else 0.0)

@@ -32,7 +32,6 @@ from .autopilot import ACCEPTED, DENIED, UNSUPPORTED, MissionItem, _finite  # no
 from .control import S_ACCSP, S_THR, S_VSP, SP_POS, SP_YAW  # noqa: E402
 from .physics import euler_from_quat  # noqa: E402
 
-ID = mav
 SENSORS = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL | mav.MAV_SYS_STATUS_SENSOR_3D_MAG
            | mav.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | mav.MAV_SYS_STATUS_SENSOR_GPS
            | mav.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL | mav.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.vehicle import G, load_vehicle
-from sitl_harness.control import M_POS, S_THR, SP_ACC, SP_MODE, SP_POS, SP_VEL
+from sitl_harness.control import S_THR, SP_ACC, SP_POS
 from sitl_harness.maneuvers import fly_circle, hovering, step_response
 from sitl_harness.physics import euler_from_quat
 from sitl_harness.trajectory import AutoTrajectory, stop_speed

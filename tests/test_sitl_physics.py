@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.vehicle import G, load_vehicle
-from sitl_harness.control import M_OFF, M_POS, S_THR, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_VEL, SP_YAW
+from sitl_harness.control import M_OFF, M_POS, S_THR, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_YAW
 from sitl_harness.kernel import VehicleModel
 from sitl_harness.physics import E_N, E_TR, X_N, X_Q, X_R, deriv, euler_from_quat, initial_state, plant_params, quat_from_euler
 from sitl_harness.sensors import RangeSensor, RangeSensorConfig
