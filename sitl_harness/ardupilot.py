@@ -47,7 +47,6 @@ class ArduPilot(Personality):
         ParamSpec("LAND_SPEED", "land_speed", CM, I16),
         ParamSpec("WPNAV_RADIUS", "acc_rad", CM),
         ParamSpec("GUID_TIMEOUT", "guid_timeout"),
-        ParamSpec("DISARM_DELAY", "disarm_land_s", 1.0, I8),
         ParamSpec("MOT_THST_HOVER", "hover_thrust"),  # reads the live (learned) hover thrust
         ParamSpec("SYSID_THISMAV", "sysid", 1.0, I16, read_only=True),
     )
@@ -56,7 +55,7 @@ class ArduPilot(Personality):
         s.land_speed = 0.5  # LAND_SPEED 50 cm/s
         s.vel_up = 2.5  # WPNAV_SPEED_UP 250 cm/s
         s.takeoff_speed = 2.5
-        s.disarm_land_s = 1.0  # LAND disarms shortly after touchdown
+        s.disarm_land_s = 1.0  # LAND disarms shortly after touchdown (not DISARM_DELAY's 10 s rule)
 
     # ----- modes
     def default_custom(self, mode: str) -> int:

@@ -551,5 +551,6 @@ class MavlinkEndpoint:
 
     def _obstacle_distance(self) -> None:
         r = self.sim.reading
-        self.tx.obstacle_distance_send(self.usec(), mav.MAV_DISTANCE_SENSOR_LASER, r.distances_cm, 0, r.min_cm,
+        inc = max(1, min(255, round(r.increment_deg)))  # uint8 degrees too, for readers that ignore increment_f
+        self.tx.obstacle_distance_send(self.usec(), mav.MAV_DISTANCE_SENSOR_LASER, r.distances_cm, inc, r.min_cm,
                                        r.max_cm, r.increment_deg, r.angle_offset_deg, mav.MAV_FRAME_BODY_FRD)

@@ -121,3 +121,45 @@ def test_malformed_udp_burst_leaves_vehicle_flying():
             assert c.wait(lambda c: not c.armed, 30.0)
         finally:
             c.tr.close()
+
+
+def test_serve_udpout_pushes_to_a_listening_client_and_reports():
+    """`serve(..., listen='udpout:HOST:PORT')` pushes telemetry to a client that only listens
+    (MAVSDK `udpin://`), sped up 10×; the summary reports ticks and pacing jitter."""
+    import socket
+    import threading
+
+    from sitl_harness.serve import serve
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(5.0)
+    port = rx.getsockname()[1]
+    out = {}
+    th = threading.Thread(target=lambda: out.update(serve("empty", "ardupilot", f"udpout:127.0.0.1:{port}", 10.0,
+                                                          duration_s=5.0)))
+    th.start()
+    parser = mav.MAVLink(None)
+    seen = []
+    try:
+        while len(seen) < 200:
+            seen += [m for m in parser.parse_buffer(rx.recv(65535)) or [] if m.get_type() != "BAD_DATA"]
+    finally:
+        th.join(30)
+        rx.close()
+    hb = next(m for m in seen if m.get_type() == "HEARTBEAT")
+    assert hb.autopilot == mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+    assert out["ticks"] == 500 and out["sim_time_s"] == pytest.approx(5.0)
+    assert 0.2 < out["wall_time_s"] < 5.0 and "jitter_ms_p99" in out
+
+
+def test_cli_errors_are_one_line():
+    import subprocess
+    import sys
+
+    from sitl_process import ROOT
+
+    r = subprocess.run([sys.executable, "-m", "sitl_harness", "--scenario", "no_such_scenario"], cwd=ROOT,
+                       capture_output=True, text=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no_such_scenario" in r.stderr
+    assert "Traceback" not in r.stderr
