@@ -96,3 +96,49 @@ def test_mission_item_reached_and_mission_current():
     assert reached == [0, 1]
     assert c.pos[0] == pytest.approx(6.0, abs=0.3)
     assert c.last["MISSION_CURRENT"].total == 2
+
+
+@pytest.mark.parametrize("pers", ["px4", "ardupilot"])
+def test_inflight_degradation_scenario_timeline_over_mavlink(pers):
+    """The shipped in-flight scenario, flown as its preloaded mission: every fault of the timeline is
+    visible to a MAVLink client when it should be, and the columns on the route are hit (the
+    autopilot alone does not avoid them) and recorded with time and position."""
+    sim = Sim("inflight_degradation", pers)
+    c = lockstep_client(sim)
+    if pers == "ardupilot":
+        c.set_mode(4)
+        c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        c.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 2.0)
+        c.pump(4.0)
+        assert c.set_mode(3) == mav.MAV_RESULT_ACCEPTED
+    else:
+        c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        assert c.command(mav.MAV_CMD_MISSION_START, 0, 0) == mav.MAV_RESULT_ACCEPTED
+    samples = {}
+    gaps = []
+    last_rx = sim.time_s
+    while sim.time_s < 55.0:
+        msgs = c.pump(0.05)
+        if msgs:
+            if sim.time_s - last_rx > 0.5:
+                gaps.append((round(last_rx, 2), round(sim.time_s, 2)))
+            last_rx = sim.time_s
+        for t_probe in (9.0, 14.0, 20.0, 35.0, 42.5):
+            if t_probe <= sim.time_s < t_probe + 0.05:
+                samples[t_probe] = (c.last["DISTANCE_SENSOR"], c.last["VFR_HUD"], c.last["SYS_STATUS"])
+    ds9, hud9, _ = samples[9.0]
+    ds14, hud14, _ = samples[14.0]
+    assert ds9.max_distance == 800 and ds9.signal_quality == 100
+    assert hud14.throttle == pytest.approx(hud9.throttle / 0.7, abs=4)  # thrust_ratio 0.7 from 10 s
+    ds20 = samples[20.0][0]
+    assert ds20.max_distance == 400 and ds20.signal_quality == 50  # honest fog
+    ds35 = samples[35.0][0]
+    assert ds35.max_distance == 800 and ds35.signal_quality == 100  # hidden fog: looks healthy
+    ss = samples[42.5][2]
+    assert not ss.onboard_control_sensors_health & mav.MAV_SYS_STATUS_SENSOR_PROXIMITY  # drop-out
+    assert any(44.9 <= a <= 45.1 and 46.9 <= b <= 47.2 for a, b in gaps), gaps  # link drop-out 45–47 s
+    names = [h.obstacle_name for h in sim.collisions]
+    assert "c1" in names and "c2" in names
+    hit = sim.collisions[0]
+    assert hit.obstacle_name == "c1" and 14.0 < hit.position[0] < 14.8 and hit.time_s > 5.0
+    assert any(t.startswith("COLLISION c1") for t in c.texts)
