@@ -122,6 +122,7 @@ class Personality:
     def on_new_target(self, ap: "Autopilot") -> None: ...
     def on_mode_change(self, ap: "Autopilot", old: str, new: str) -> None: ...
     def mission_end(self, ap: "Autopilot") -> None: raise NotImplementedError
+    def extra_command(self, ap: "Autopilot", cmd: int, p: tuple, frame) -> int | None: return None
 
 
 class Autopilot:
@@ -347,7 +348,8 @@ class Autopilot:
                 self.mission_phase = ""
                 return ACCEPTED
             return DENIED
-        return UNSUPPORTED
+        res = self.pers.extra_command(self, cmd, p, frame)
+        return UNSUPPORTED if res is None else res
 
     def takeoff_to(self, alt_rel: float) -> int:
         """Common take-off: climb vertically to `alt_rel` m above home (personality checks first)."""

@@ -148,6 +148,27 @@ class Px4(Personality):
     def takeoff_done(self, ap) -> None:
         ap.set_mode("hold")
 
+    def extra_command(self, ap, cmd: int, p: tuple, frame) -> int | None:
+        """MAV_CMD_DO_REPOSITION (192): Hold at a location (param1 ground speed > 0 sets the cruising
+        speed, param5/6 lat/lon — degrees, or 1e7·degrees from COMMAND_INT — param7 altitude AMSL;
+        NaN keeps the current value)."""
+        if cmd != mav.MAV_CMD_DO_REPOSITION:
+            return None
+        if not ap.in_air:
+            return DENIED
+        lat, lon, alt = p[4], p[5], p[6]
+        if frame is not None and _finite(lat) and _finite(lon):  # COMMAND_INT: degE7
+            lat, lon = lat * 1e-7, lon * 1e-7
+        here = ap.geo_from_local(ap.pos)
+        lat = lat if _finite(lat) else here[0]
+        lon = lon if _finite(lon) else here[1]
+        alt = alt if _finite(alt) else here[2]
+        ap.set_mode("hold")
+        if _finite(p[0]) and p[0] > 0:
+            ap.cruise = float(p[0])
+        ap.target = ap.local_from_geo(lat, lon, alt)
+        return ACCEPTED
+
     # ----- offboard
     def can_enter_offboard(self, ap) -> int:
         if ap.time - ap.ob.time < ap.settings.of_loss_t:

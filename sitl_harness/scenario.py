@@ -30,6 +30,8 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import yaml
+
+from contracts.errors import ContractError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -38,8 +40,9 @@ Num = Annotated[float, Field(allow_inf_nan=False)]
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 
 
-class ScenarioError(Exception):
-    """A one-line, user-facing error about a scenario file."""
+class ScenarioError(ContractError):
+    """A one-line, user-facing error about a scenario file, personality or address (a
+    `ContractError`, so one `except ContractError` in the CLI covers vehicle files too)."""
 
 
 class _Strict(BaseModel):

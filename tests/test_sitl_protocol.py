@@ -615,3 +615,17 @@ def test_hostile_command_parameters_are_handled(pers):
     acks = [m for m in c.log if m.get_type() == "COMMAND_ACK"]
     assert len(acks) >= 380
     assert np.all(np.isfinite(sim.model.x))
+
+
+def test_px4_do_reposition_goes_there_in_hold():
+    sim, c = px4_airborne(alt=3.0)
+    home = c.wait_msg("HOME_POSITION", 3.0)
+    lat = home.latitude + int(round(math.degrees(5.0 / 6378137.0) * 1e7))
+    c.mav.command_int_send(1, 1, mav.MAV_FRAME_GLOBAL_INT, mav.MAV_CMD_DO_REPOSITION, 0, 0, 1.0, 1, 0, math.nan,
+                           lat, home.longitude, HOME_ALT + 3.0)
+    ack = c.wait_msg("COMMAND_ACK", 1.0, lambda m: m.command == mav.MAV_CMD_DO_REPOSITION)
+    assert ack.result == ACC
+    c.pump(3.0)
+    assert c.custom_mode == PX4_HOLD and c.speed_xy == pytest.approx(1.0, abs=0.1)
+    c.pump(6.0)
+    assert math.dist(c.pos, (5.0, 0.0, -3.0)) < 0.15
