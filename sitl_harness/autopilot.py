@@ -239,8 +239,7 @@ class Autopilot:
                 self.target = None
             if mode == "offboard":
                 self.target = None
-            if mode == "mission":
-                self.mission_phase = ""
+            self.mission_phase = ""  # an interrupted mission phase (climb, land, RTL landing) ends
             self.yaw_sp = self.yaw
             self.pers.on_mode_change(self, old, mode)
             if reason:

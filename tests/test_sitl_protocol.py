@@ -629,3 +629,23 @@ def test_px4_do_reposition_goes_there_in_hold():
     assert c.custom_mode == PX4_HOLD and c.speed_xy == pytest.approx(1.0, abs=0.1)
     c.pump(6.0)
     assert math.dist(c.pos, (5.0, 0.0, -3.0)) < 0.15
+
+
+@pytest.mark.parametrize("pers", ["px4", "ardupilot"])
+def test_rtl_returns_home_lands_and_disarms(pers):
+    sim, c = (px4_airborne if pers == "px4" else ap_airborne)(alt=3.0)
+    if pers == "px4":
+        for _ in range(20):
+            c.position_target(POS_MASK_PX4, pos=(8.0, -4.0, -3.0))
+            c.pump(0.05)
+        assert c.set_mode(6) == ACC
+        for _ in range(300):
+            c.position_target(POS_MASK_PX4, pos=(8.0, -4.0, -3.0))
+            c.pump(0.05)
+    else:
+        c.position_target(AP_POS, pos=(8.0, -4.0, -3.0))
+        c.pump(15.0)
+    assert math.dist(c.pos, (8.0, -4.0, -3.0)) < 0.2
+    assert c.command(mav.MAV_CMD_NAV_RETURN_TO_LAUNCH) == ACC
+    assert c.wait(lambda c: not c.armed, 40.0)
+    assert math.hypot(c.pos[0], c.pos[1]) < 0.35 and c.pos[2] == pytest.approx(0.0, abs=0.02)
