@@ -32,6 +32,7 @@ I8 = mav.MAV_PARAM_TYPE_INT8
 class ArduPilot(Personality):
     name = "ardupilot"
     autopilot_id = mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+    airborne_start_mode = "offboard"  # scenario start.alt_m > 0
     initial_mode = "manual"  # STABILIZE
     mission_skips_home = True
     capabilities = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST

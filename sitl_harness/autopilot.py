@@ -101,6 +101,7 @@ class Personality:
     name = "generic"
     autopilot_id = mav.MAV_AUTOPILOT_GENERIC
     initial_mode = "manual"
+    airborne_start_mode = "hold"
     params: tuple[ParamSpec, ...] = ()
     capabilities = 0
     mission_skips_home = False  # ArduPilot: mission item 0 is home
@@ -162,7 +163,7 @@ class Autopilot:
         self.prearm_ok = True
         self.texts: deque[tuple[int, str]] = deque(maxlen=64)
         self.reached: deque[int] = deque(maxlen=64)
-        self.yaw_sp = math.nan
+        self.yaw_sp = self.yaw
         self.apply_limits()
 
     # ------------------------------------------------------------------ state helpers

@@ -47,6 +47,7 @@ def custom_mode_of(main: int, sub: int = 0) -> int:
 class Px4(Personality):
     name = "px4"
     autopilot_id = mav.MAV_AUTOPILOT_PX4
+    airborne_start_mode = "hold"  # scenario start.alt_m > 0
     initial_mode = "hold"
     capabilities = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
                     | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT

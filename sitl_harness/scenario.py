@@ -7,7 +7,7 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
     name: column_ahead
     vehicle: mambo
     seed: 1
-    start: {x_m: 0, y_m: 0, yaw_deg: 0}
+    start: {x_m: 0, y_m: 0, yaw_deg: 0}   # add alt_m: 2 to start armed and hovering
     world:
       columns: [{x_m: 12, y_m: 0, radius_m: 0.5}]
       boxes: [{x_m: 20, y_m: 5, length_m: 2, width_m: 1, yaw_deg: 30}]
@@ -50,9 +50,13 @@ class _Strict(BaseModel):
 
 
 class Start(_Strict):
+    """Where the vehicle starts; with `alt_m` > 0 it starts armed and hovering there (PX4 in Hold,
+    ArduPilot in GUIDED), hover-thrust estimate converged — saves the take-off in tests."""
+
     x_m: Num = 0.0
     y_m: Num = 0.0
     yaw_deg: Num = 0.0
+    alt_m: NonNeg = 0.0
 
 
 class Home(_Strict):

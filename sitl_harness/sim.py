@@ -16,13 +16,13 @@ from __future__ import annotations
 import math
 
 
-from contracts.vehicle import load_vehicle
+from contracts.vehicle import G, load_vehicle
 
 from .ardupilot import ArduPilot
 from .autopilot import Autopilot, MissionItem
 from .kernel import VehicleModel
 from .mavlink_endpoint import MavlinkEndpoint, mav
-from .physics import euler_from_quat
+from .physics import X_R, euler_from_quat
 from .px4 import Px4
 from .scenario import Scenario, ScenarioError, load_scenario
 from .sensors import RangeSensor, RangeSensorConfig
@@ -84,6 +84,8 @@ class Sim:
             self.set_param(name, value)
         if sc.route.waypoints:
             self._load_route()
+        if sc.start.alt_m > 0:
+            self._start_airborne(sc.start.alt_m)
 
     # ------------------------------------------------------------------ configuration
     def set_param(self, name: str, value: float) -> None:
@@ -98,6 +100,18 @@ class Sim:
         if spec.field == "cruise_default":
             ap.cruise = ap.settings.cruise_default
         ap.apply_limits()
+
+    def _start_airborne(self, alt: float) -> None:
+        m, ap, v = self.model, self.autopilot, self.vehicle
+        m.x[2] = -alt
+        m.x[X_R:X_R + 4] = math.sqrt(v.mass_kg * G / (4 * m.thrust_ratio * v.rotor.k_thrust))
+        ap.set_hover_thrust(v.mass_kg * G / (m.thrust_ratio * v.t_nom_n))
+        m.resting = False
+        ap.armed = True
+        ap.ever_airborne = True
+        ap.landed_since = None
+        ap.set_mode(ap.pers.airborne_start_mode)
+        ap.traj.reset(m.pos, (0.0, 0.0, 0.0))
 
     def _load_route(self) -> None:
         ap = self.autopilot

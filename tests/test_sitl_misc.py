@@ -142,3 +142,14 @@ def test_inflight_degradation_scenario_timeline_over_mavlink(pers):
     hit = sim.collisions[0]
     assert hit.obstacle_name == "c1" and 14.0 < hit.position[0] < 14.8 and hit.time_s > 5.0
     assert any(t.startswith("COLLISION c1") for t in c.texts)
+
+
+@pytest.mark.parametrize("pers,mode", [("px4", PX4_HOLD), ("ardupilot", 4)])
+def test_scenario_can_start_hovering(pers, mode):
+    sim = Sim(scenario_from_dict({"start": {"x_m": 1.0, "y_m": 2.0, "alt_m": 2.5, "yaw_deg": 90}}), pers)
+    c = lockstep_client(sim)
+    c.pump(3.0)
+    assert c.armed and c.custom_mode == mode
+    assert c.last["EXTENDED_SYS_STATE"].landed_state == mav.MAV_LANDED_STATE_IN_AIR
+    assert math.dist(c.pos, (1.0, 2.0, -2.5)) < 0.1
+    assert c.last["ATTITUDE"].yaw == pytest.approx(math.pi / 2, abs=0.02)
