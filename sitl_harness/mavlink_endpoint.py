@@ -413,6 +413,8 @@ class MavlinkEndpoint:
         present = SENSORS | mav.MAV_SYS_STATUS_PREARM_CHECK | mav.MAV_SYS_STATUS_SENSOR_PROXIMITY
         health = SENSORS
         sim = self.sim
+        if sim.nav_fault:
+            health &= ~mav.MAV_SYS_STATUS_SENSOR_GPS
         if not sim.sensor.dropout:
             health |= mav.MAV_SYS_STATUS_SENSOR_PROXIMITY
         if self.ap.prearm_ok and not self.ap.armed:
@@ -500,12 +502,20 @@ class MavlinkEndpoint:
                                                s[S_ACCSP], s[S_ACCSP + 1], s[S_ACCSP + 2], yaw, 0.0)
 
     def _estimator_status(self) -> None:
+        if self.sim.nav_fault:  # attitude only, GPS glitch, test ratios above 1 (failing)
+            flags = mav.ESTIMATOR_ATTITUDE | mav.ESTIMATOR_POS_VERT_ABS | mav.ESTIMATOR_GPS_GLITCH
+            self.tx.estimator_status_send(self.usec(), flags, 1.5, 2.0, 0.3, 0.1, 0.0, 0.0, 10.0, 1.0)
+            return
         flags = (mav.ESTIMATOR_ATTITUDE | mav.ESTIMATOR_VELOCITY_HORIZ | mav.ESTIMATOR_VELOCITY_VERT
                  | mav.ESTIMATOR_POS_HORIZ_REL | mav.ESTIMATOR_POS_HORIZ_ABS | mav.ESTIMATOR_POS_VERT_ABS
                  | mav.ESTIMATOR_PRED_POS_HORIZ_REL | mav.ESTIMATOR_PRED_POS_HORIZ_ABS)
         self.tx.estimator_status_send(self.usec(), flags, 0.1, 0.1, 0.1, 0.1, 0.0, 0.0, 0.05, 0.05)
 
     def _ekf_status(self) -> None:
+        if self.sim.nav_fault:  # ArduPilot: position flags dropped, variances above 1
+            flags = mav.EKF_ATTITUDE | mav.EKF_POS_VERT_ABS
+            self.tx.ekf_status_report_send(flags, 1.5, 2.0, 0.3, 0.1, 0.0)
+            return
         flags = (mav.EKF_ATTITUDE | mav.EKF_VELOCITY_HORIZ | mav.EKF_VELOCITY_VERT | mav.EKF_POS_HORIZ_REL
                  | mav.EKF_POS_HORIZ_ABS | mav.EKF_POS_VERT_ABS | mav.EKF_PRED_POS_HORIZ_REL
                  | mav.EKF_PRED_POS_HORIZ_ABS)

@@ -21,6 +21,7 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
       - {at_s: 20, fog: clear}
       - {at_s: 15, sensor_dropout_s: 1.0}
       - {at_s: 25, link_dropout_s: 2.0}
+      - {at_s: 28, nav_fault_s: 3.0}
       - {at_s: 30, gust: {peak_m_s: 3, duration_s: 2, from_deg: 0}}
 """
 
@@ -122,6 +123,9 @@ class Gust(_Strict):
     from_deg: Num = 0.0
 
 
+FAULT_KINDS = ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "nav_fault_s", "gust")
+
+
 class Fault(_Strict):
     """One timeline event: exactly one of the optional fields."""
 
@@ -130,15 +134,14 @@ class Fault(_Strict):
     fog: Fog | Literal["clear"] | None = None
     sensor_dropout_s: Pos | None = None
     link_dropout_s: Pos | None = None
+    nav_fault_s: Pos | None = None  # estimator reports a bad position/velocity estimate (flags only)
     gust: Gust | None = None
 
     @model_validator(mode="after")
     def _one(self) -> "Fault":
-        set_ = [k for k in ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "gust")
-                if getattr(self, k) is not None]
+        set_ = [k for k in FAULT_KINDS if getattr(self, k) is not None]
         if len(set_) != 1:
-            raise ValueError(f"a fault needs exactly one of thrust_ratio, fog, sensor_dropout_s, "
-                             f"link_dropout_s, gust (got {', '.join(set_) or 'none'})")
+            raise ValueError(f"a fault needs exactly one of {', '.join(FAULT_KINDS)} (got {', '.join(set_) or 'none'})")
         return self
 
 

@@ -75,6 +75,7 @@ class Sim:
         self._sensor_dropout_until = -1.0
         self.link_down_until = -1.0
         self.link_dropped = 0
+        self.nav_fault_until = -1.0
         self.faults = sorted(sc.faults, key=lambda f: f.at_s)
         self._fault_idx = 0
         self.energy_j = 0.0
@@ -152,6 +153,7 @@ class Sim:
         t = self.time_s
         self._apply_faults(t)
         ap = self.autopilot
+        ap.prearm_ok = not self.nav_fault
         ap.update(t, self.tick_dt)
         self.wind_now = self.wind.step(self.tick_dt)
         self.model.set_wind(self.wind_now)
@@ -171,6 +173,11 @@ class Sim:
                 self.sensor_seq += 1
         self.endpoint.emit()
 
+    @property
+    def nav_fault(self) -> bool:
+        """The estimator reports a bad position/velocity solution (flags only; control uses truth)."""
+        return self.time_s < self.nav_fault_until
+
     def _apply_faults(self, t: float) -> None:
         while self._fault_idx < len(self.faults) and self.faults[self._fault_idx].at_s <= t + 1e-9:
             f = self.faults[self._fault_idx]
@@ -187,6 +194,8 @@ class Sim:
                 self._sensor_dropout_until = t + f.sensor_dropout_s
             elif f.link_dropout_s is not None:
                 self.link_down_until = t + f.link_dropout_s
+            elif f.nav_fault_s is not None:
+                self.nav_fault_until = t + f.nav_fault_s
             elif f.gust is not None:
                 self.wind.add_gust(t, f.gust.duration_s, f.gust.peak_m_s, f.gust.from_deg)
 

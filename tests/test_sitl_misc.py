@@ -192,3 +192,18 @@ def test_detect_and_hold_loop_over_mavlink_positive_and_negative_control():
     assert d_slow == pytest.approx(4 / 6 + 2 * 3 / 8, abs=0.3)
     fast, _ = detect_and_hold(6.0)
     assert len(fast.collisions) == 1 and fast.collisions[0].obstacle_name == "pole"
+
+
+@pytest.mark.parametrize("pers", ["px4", "ardupilot"])
+def test_nav_fault_shows_in_estimator_flags_and_blocks_arming(pers):
+    sim = Sim(scenario_from_dict({"faults": [{"at_s": 1.0, "nav_fault_s": 3.0}]}), pers)
+    c = lockstep_client(sim)
+    c.pump(1.0)  # t = 1.5
+    name = "ESTIMATOR_STATUS" if pers == "px4" else "EKF_STATUS_REPORT"
+    flag = mav.ESTIMATOR_POS_HORIZ_ABS if pers == "px4" else mav.EKF_POS_HORIZ_ABS
+    assert not c.last[name].flags & flag
+    assert not c.last["SYS_STATUS"].onboard_control_sensors_health & mav.MAV_SYS_STATUS_SENSOR_GPS
+    assert c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_DENIED
+    c.pump(3.0)  # t = 4.5: over
+    assert c.last[name].flags & flag
+    assert c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
