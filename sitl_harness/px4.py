@@ -4,8 +4,8 @@ Facts (shared/reference/mavlink-facts.md): custom_mode = main << 16 | sub << 24
 (`px4_custom_mode.h`); HEARTBEAT.autopilot = MAV_AUTOPILOT_PX4 (12); DO_CHANGE_SPEED always
 ACCEPTED, param2 > 0 sets the Navigator's cruising speed (used by the auto modes only, not by
 OFFBOARD), ≤ 0 resets it to MPC_XY_CRUISE, and NAV_TAKEOFF resets it (`navigator_main.cpp`);
-NAV_TAKEOFF param7 is AMSL, NaN → MIS_TAKEOFF_ALT above the current position
-(`FlightTaskTakeoff.cpp`); OFFBOARD needs a setpoint younger than COM_OF_LOSS_T (else
+NAV_TAKEOFF param7 is AMSL (`FlightTaskTakeoff.cpp`), raised to at least home + MIS_TAKEOFF_ALT,
+NaN → home + MIS_TAKEOFF_ALT (Navigator `takeoff.cpp`); OFFBOARD needs a setpoint younger than COM_OF_LOSS_T (else
 TEMPORARILY_REJECTED) and on loss does COM_OBL_RC_ACT; setpoints only in MAV_FRAME_LOCAL_NED and
 MAV_FRAME_BODY_NED, per-axis NaN = not controlled; INT32 parameters are encoded bytewise.
 """
@@ -130,20 +130,26 @@ class Px4(Personality):
         return ACCEPTED
 
     def takeoff(self, ap, p) -> int:
-        """param7 is the take-off altitude AMSL; NaN → MIS_TAKEOFF_ALT above the current position.
-        An altitude below home + MIS_TAKEOFF_ALT is raised to it (with a critical message)."""
+        """param7 is the take-off altitude AMSL. As PX4's Navigator (takeoff.cpp): below home +
+        MIS_TAKEOFF_ALT it is raised to that (critical message); NaN → home + MIS_TAKEOFF_ALT (info);
+        below the current altitude → stay at the current altitude."""
         if not ap.armed:
             ap.text(mav.MAV_SEVERITY_CRITICAL, "Takeoff denied: disarmed")
             return DENIED
         ap.cruise = ap.settings.cruise_default  # NAV_TAKEOFF resets the cruising speed
         min_alt = ap.settings.takeoff_alt
+        msg = f"Using minimum takeoff altitude: {min_alt:.2f} m"
         if _finite(p[6]):
             alt_rel = float(p[6]) - ap.home_geo[2]
             if alt_rel < min_alt:
-                ap.text(mav.MAV_SEVERITY_CRITICAL, f"Using minimum takeoff altitude: {min_alt:.2f} m")
+                ap.text(mav.MAV_SEVERITY_CRITICAL, msg)
                 alt_rel = min_alt
         else:
-            alt_rel = -ap.pos[2] + min_alt
+            ap.text(mav.MAV_SEVERITY_INFO, msg)
+            alt_rel = min_alt
+        if alt_rel < -ap.pos[2]:
+            ap.text(mav.MAV_SEVERITY_CRITICAL, "Already higher than takeoff altitude")
+            alt_rel = -ap.pos[2]
         return ap.takeoff_to(alt_rel)
 
     def takeoff_done(self, ap) -> None:

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-mavsdk = pytest.importorskip("mavsdk")
+pytest.importorskip("mavsdk.asyncio", reason="needs the native MAVSDK binding, mavsdk>=4")
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk  # noqa: E402
 from mavsdk.asyncio.plugins.action import ActionAsync  # noqa: E402
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw  # noqa: E402
