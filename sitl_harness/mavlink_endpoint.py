@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 
 os.environ["MAVLINK20"] = "1"
 
@@ -88,10 +89,14 @@ class MavlinkEndpoint:
         if signing_key is not None:
             if len(signing_key) != 32:
                 raise ValueError("signing key must be 32 bytes")
+            # signing timestamps are wall-clock based (10 µs since 2015-01-01; receivers reject a
+            # stream more than 60 s behind their own clock), so signed output is not byte-identical
+            # between runs even in lock-step
+            stamp = int((time.time() - 1_420_070_400) * 1e5)
             for m in (self.tx, self.rx):
                 m.signing.secret_key = signing_key
                 m.signing.link_id = 0
-                m.signing.timestamp = int((unix_epoch_s - 1_420_070_400) * 1e5)
+                m.signing.timestamp = stamp
             self.tx.signing.sign_outgoing = True
             self.rx.signing.allow_unsigned_callback = None
         self.stats = {"rx_datagrams": 0, "rx_messages": 0, "rx_bad": 0, "rx_truncated_bytes": 0,
