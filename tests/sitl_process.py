@@ -27,8 +27,14 @@ def sitl_process(scenario: str = "empty", personality: str = "px4", speedup: flo
            "--listen", f"udp:127.0.0.1:{port}", "--speedup", str(speedup), *extra]
     proc = subprocess.Popen(cmd, env=env, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
-        line = proc.stderr.readline()  # "SITL px4 listening on 127.0.0.1:PORT" once bound
-        if "listening" not in line:
+        import selectors
+
+        sel = selectors.DefaultSelector()
+        sel.register(proc.stderr, selectors.EVENT_READ)
+        ready = sel.select(timeout=120.0)  # first start may compile the numba kernel
+        sel.close()
+        line = proc.stderr.readline() if ready else "(no output within 120 s)"
+        if "listening" not in line:  # "SITL px4 listening on 127.0.0.1:PORT" once bound
             proc.kill()
             raise RuntimeError(f"SITL did not start: {line}{proc.stderr.read()}")
         yield port
