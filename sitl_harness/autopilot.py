@@ -259,6 +259,8 @@ class Autopilot:
         return self._enter(*req)
 
     def _enter(self, mode: str, custom: int) -> int:
+        """A mode change asked for over MAVLink (it also ends a reported failsafe state)."""
+        self.failsafe = ""
         if mode == "offboard":
             res = self.pers.can_enter_offboard(self)
             if res != ACCEPTED:
@@ -304,6 +306,7 @@ class Autopilot:
             self.text(mav.MAV_SEVERITY_CRITICAL, "Disarming denied: in air")
             return DENIED
         self.armed = False
+        self.failsafe = ""
         self.text(mav.MAV_SEVERITY_INFO, reason)
         if self.mode in ("land", "takeoff", "rtl", "mission") and self.pers.name == "px4":
             self.set_mode("hold")
