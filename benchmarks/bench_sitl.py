@@ -11,6 +11,8 @@
 - `udp_jitter_*`: `serve()` pacing on loopback UDP, how late each 10 ms tick starts (wall ms).
 - `circle_contour_max_m`: Mambo, R = 2 m, 7 m/s² lateral, tilt limit 45°, by thrust_ratio.
 - `step_overshoot`: Mambo cascade step responses.
+- `closed_form_rel_err`: hover throttle vs m·g/(thrust_ratio·T_nom), held 20° tilt vs g·tanθ,
+  saturated climb vs 0.92·thrust_ratio·T_nom/m − g, free fall vs g·t²/2 (relative errors).
 Goals (issue 3): rtf_vehicle ≥ 50, rtf_mavlink ≥ 20. Never asserted in tests.
 """
 
@@ -72,6 +74,49 @@ def mission_flight(telemetry: bool, parse: bool) -> float:
     return FLIGHT_S / wall, nbytes / FLIGHT_S
 
 
+def closed_form_checks() -> dict:
+    """Relative errors of the closed-form checks (the same set the physics tests assert)."""
+    from contracts.vehicle import G
+    from sitl_harness.control import M_OFF, S_HOVER, S_THR, SP_ACC, SP_MODE
+    from sitl_harness.physics import X_R, euler_from_quat
+
+    mb = load_vehicle("mambo")
+    v = mb.model_copy(update={"drag_coeff_n_s2_m2": 0.0})
+    out = {}
+    for tr in (1.0, 0.8, 0.6):
+        m = hovering(v, tr)
+        m.s[S_HOVER] = v.controller.thr_hover  # start the hover-thrust estimate from the vehicle file's seed
+        m.step(15000)
+        exp = v.mass_kg * G / (tr * v.t_nom_n)
+        out[f"hover_throttle_tr{tr}"] = float(m.s[S_THR] / exp - 1)
+    m = hovering(v)
+    th = math.radians(20.0)
+    m.sp[SP_POS] = math.nan
+    m.sp[SP_ACC] = G * math.tan(th)
+    m.step(1500)
+    v0, tilts = m.vel[0], []
+    for _ in range(100):
+        m.step(10)
+        r, p, _ = euler_from_quat(m.quat)
+        tilts.append(math.acos(math.cos(r) * math.cos(p)))
+    out["held_tilt_20deg_accel_vs_g_tan"] = float((m.vel[0] - v0) / (G * math.tan(sum(tilts) / len(tilts))) - 1)
+    for tr in (1.0, 0.6):
+        m = hovering(v, tr)
+        m.sp[SP_POS + 2] = math.nan
+        m.sp[SP_ACC + 2] = -50.0
+        m.step(300)
+        vz0 = m.vel[2]
+        m.step(200)
+        exp = v.collective_max_fraction * tr * v.t_nom_n / v.mass_kg - G
+        out[f"max_climb_accel_tr{tr}"] = float(-(m.vel[2] - vz0) / 0.2 / exp - 1)
+    m = hovering(v, pos=(0.0, 0.0, -100.0))
+    m.sp[SP_MODE] = M_OFF
+    m.x[X_R:X_R + 4] = 0.0
+    m.step(2000)
+    out["free_fall_2s"] = float((m.pos[2] + 100.0) / (0.5 * G * 4.0) - 1)
+    return {k: float(f"{x:.2e}") for k, x in out.items()}
+
+
 def udp_jitter(speedup: float, seconds_wall: float) -> dict:
     stop_at = [None]
 
@@ -116,6 +161,7 @@ def main() -> None:
                                                        kind=kind)["overshoot"], 4)
                              for name, kind, ax, sz in (("pos_x_1m", "pos", 0, 1.0), ("pos_z_1m_up", "pos", 2, -1.0),
                                                         ("vel_x_2m_s", "vel", 0, 2.0))}
+    out["closed_form_rel_err"] = closed_form_checks()
     print(json.dumps(out))
 
 
