@@ -53,6 +53,7 @@ class ArduPilot(Personality):
     )
 
     def init_settings(self, s: Settings) -> None:
+        s.cruise_default = 10.0  # WPNAV_SPEED 1000 cm/s (AC_WPNav.cpp, Copter 4.x; older 500)
         s.land_speed = 0.5  # LAND_SPEED 50 cm/s
         s.vel_up = 2.5  # WPNAV_SPEED_UP 250 cm/s
         s.takeoff_speed = 2.5
