@@ -32,6 +32,7 @@ I8 = mav.MAV_PARAM_TYPE_INT8
 class ArduPilot(Personality):
     name = "ardupilot"
     autopilot_id = mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+    airborne_start_mode = "offboard"  # scenario start.alt_m > 0
     initial_mode = "manual"  # STABILIZE
     mission_skips_home = True
     capabilities = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
@@ -47,16 +48,16 @@ class ArduPilot(Personality):
         ParamSpec("LAND_SPEED", "land_speed", CM, I16),
         ParamSpec("WPNAV_RADIUS", "acc_rad", CM),
         ParamSpec("GUID_TIMEOUT", "guid_timeout"),
-        ParamSpec("DISARM_DELAY", "disarm_land_s", 1.0, I8),
         ParamSpec("MOT_THST_HOVER", "hover_thrust"),  # reads the live (learned) hover thrust
         ParamSpec("SYSID_THISMAV", "sysid", 1.0, I16, read_only=True),
     )
 
     def init_settings(self, s: Settings) -> None:
+        s.cruise_default = 10.0  # WPNAV_SPEED 1000 cm/s (AC_WPNav.cpp, Copter 4.x; older 500)
         s.land_speed = 0.5  # LAND_SPEED 50 cm/s
         s.vel_up = 2.5  # WPNAV_SPEED_UP 250 cm/s
         s.takeoff_speed = 2.5
-        s.disarm_land_s = 1.0  # LAND disarms shortly after touchdown
+        s.disarm_land_s = 1.0  # LAND disarms shortly after touchdown (not DISARM_DELAY's 10 s rule)
 
     # ----- modes
     def default_custom(self, mode: str) -> int:
@@ -89,6 +90,8 @@ class ArduPilot(Personality):
         return float(round(value)) if ptype in (I16, I8, mav.MAV_PARAM_TYPE_INT32) else float(value)
 
     def decode_param(self, wire: float, ptype: int) -> float:
+        if not math.isfinite(wire):
+            return math.nan
         return float(round(wire)) if ptype in (I16, I8, mav.MAV_PARAM_TYPE_INT32) else float(wire)
 
     def on_mode_change(self, ap, old: str, new: str) -> None:

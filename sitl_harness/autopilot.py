@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from .control import M_ATT, M_IDLE, M_OFF, M_POS, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_Q, SP_THRUST, SP_VEL, SP_YAW, SP_YAWRATE
+from .control import (C_TILT_MAX, C_VEL_DN_MAX, C_VEL_UP_MAX, C_VEL_XY_MAX, M_ATT, M_IDLE, M_OFF, M_POS, S_ACCF,
+                      S_HOVER, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_Q, SP_THRUST, SP_VEL, SP_YAW, SP_YAWRATE)
 from .kernel import VehicleModel
-from .control import C_TILT_MAX, C_VEL_DN_MAX, C_VEL_UP_MAX, C_VEL_XY_MAX, S_ACCF, S_HOVER
 from .physics import euler_from_quat
 from .trajectory import AutoTrajectory
 
@@ -101,6 +101,7 @@ class Personality:
     name = "generic"
     autopilot_id = mav.MAV_AUTOPILOT_GENERIC
     initial_mode = "manual"
+    airborne_start_mode = "hold"
     params: tuple[ParamSpec, ...] = ()
     capabilities = 0
     mission_skips_home = False  # ArduPilot: mission item 0 is home
@@ -122,6 +123,7 @@ class Personality:
     def on_new_target(self, ap: "Autopilot") -> None: ...
     def on_mode_change(self, ap: "Autopilot", old: str, new: str) -> None: ...
     def mission_end(self, ap: "Autopilot") -> None: raise NotImplementedError
+    def extra_command(self, ap: "Autopilot", cmd: int, p: tuple, frame) -> int | None: return None
 
 
 class Autopilot:
@@ -152,6 +154,7 @@ class Autopilot:
         self.mission: list[MissionItem] = []
         self.mission_seq = 0
         self.mission_phase = ""
+        self.last_nav_target: np.ndarray | None = None
         self.loiter_until = 0.0
         self.landed_since: float | None = 0.0
         self.armed_since = 0.0
@@ -160,7 +163,7 @@ class Autopilot:
         self.prearm_ok = True
         self.texts: deque[tuple[int, str]] = deque(maxlen=64)
         self.reached: deque[int] = deque(maxlen=64)
-        self.yaw_sp = math.nan
+        self.yaw_sp = self.yaw
         self.apply_limits()
 
     # ------------------------------------------------------------------ state helpers
@@ -237,8 +240,7 @@ class Autopilot:
                 self.target = None
             if mode == "offboard":
                 self.target = None
-            if mode == "mission":
-                self.mission_phase = ""
+            self.mission_phase = ""  # an interrupted mission phase (climb, land, RTL landing) ends
             self.yaw_sp = self.yaw
             self.pers.on_mode_change(self, old, mode)
             if reason:
@@ -257,6 +259,8 @@ class Autopilot:
         return self._enter(*req)
 
     def _enter(self, mode: str, custom: int) -> int:
+        """A mode change asked for over MAVLink (it also ends a reported failsafe state)."""
+        self.failsafe = ""
         if mode == "offboard":
             res = self.pers.can_enter_offboard(self)
             if res != ACCEPTED:
@@ -264,9 +268,13 @@ class Autopilot:
         if mode == "mission" and not self.mission:
             self.text(mav.MAV_SEVERITY_WARNING, "Mission rejected: no mission")
             return DENIED
-        if mode in ("land", "rtl", "takeoff") and not self.in_air and mode != "takeoff":
-            self.set_mode(mode, custom)
-            return ACCEPTED
+        if mode == "takeoff":  # selecting the take-off mode: climb MIS_TAKEOFF_ALT above here
+            if not self.armed:
+                return DENIED
+            if self.in_air:
+                self.set_mode("hold")
+                return ACCEPTED
+            return self.takeoff_to(-self.pos[2] + self.settings.takeoff_alt)
         self.set_mode(mode, custom)
         return ACCEPTED
 
@@ -298,6 +306,7 @@ class Autopilot:
             self.text(mav.MAV_SEVERITY_CRITICAL, "Disarming denied: in air")
             return DENIED
         self.armed = False
+        self.failsafe = ""
         self.text(mav.MAV_SEVERITY_INFO, reason)
         if self.mode in ("land", "takeoff", "rtl", "mission") and self.pers.name == "px4":
             self.set_mode("hold")
@@ -342,7 +351,8 @@ class Autopilot:
                 self.mission_phase = ""
                 return ACCEPTED
             return DENIED
-        return UNSUPPORTED
+        res = self.pers.extra_command(self, cmd, p, frame)
+        return UNSUPPORTED if res is None else res
 
     def takeoff_to(self, alt_rel: float) -> int:
         """Common take-off: climb vertically to `alt_rel` m above home (personality checks first)."""
@@ -494,13 +504,17 @@ class Autopilot:
         for it in items:
             it.local = self.frame_to_local(it.frame, it.x, it.y, it.z)
         self.mission = items
+        self.last_nav_target = None
         self.mission_seq = 1 if (self.pers.mission_skips_home and len(items) > 1) else 0
         self.mission_phase = ""
 
     def _mission(self, dt: float) -> None:
         if self.mission_seq >= len(self.mission):
+            end = self.last_nav_target
             self.pers.mission_end(self)
-            if self.mode == "mission":  # still in the mission mode: hover at the end
+            if self.mode in ("mission", "hold") and end is not None and self.target is None:
+                self.target = end  # loiter at the last waypoint itself, not where it was accepted
+            if self.mode == "mission":
                 self._fly_traj(dt, self.target)
             return
         it = self.mission[self.mission_seq]
@@ -547,6 +561,7 @@ class Autopilot:
             else:
                 done = float(np.linalg.norm(here - tgt)) < rad
             if done:
+                self.last_nav_target = tgt.copy()
                 if c == mav.MAV_CMD_NAV_LOITER_TIME:
                     self.mission_phase = "loiter"
                     self.loiter_until = self.time + (it.params[0] if _finite(it.params[0]) else 0.0)

@@ -113,7 +113,9 @@ def quat_from_dcm(r00, r01, r02, r10, r11, r12, r20, r21, r22):
 
 @njit
 def attitude_from_thrust(tx, ty, tz, yaw):
-    """PX4 bodyzToAttitude: body z opposite the thrust vector (tx, ty, tz) NED, heading `yaw`."""
+    """PX4 bodyzToAttitude: body z opposite the thrust vector (tx, ty, tz) NED, heading `yaw`.
+    For a thrust vector from accelerations this is the attitude of the paper's eq. (8) (checked
+    against `contracts.flat.inputs_from_flat` in the tests)."""
     n = math.sqrt(tx * tx + ty * ty + tz * tz)
     if n < 1e-9:
         zx, zy, zz = 0.0, 0.0, 1.0

@@ -18,7 +18,7 @@ from .control import (C_ATT_P, C_DT, C_HTE_TAU, C_IDLE, C_N, C_POS_P, C_RATE_D, 
                       C_T_NOM, C_THR_MAX, C_THR_MIN, C_THR_XY_MARG, C_TILT_MAX, C_TILT_RATE_MAX,
                       C_VEL_D, C_VEL_DN_MAX, C_VEL_I, C_VEL_P, C_VEL_UP_MAX, C_VEL_XY_MAX,
                       C_YAW_MOM_MAX, C_YAW_P, C_YAW_RATE_MAX, C_ZPOS_P, C_ZVEL_I, C_ZVEL_P, S_CNT,
-                      S_HOVER, S_N, S_WCMD, control_step, empty_setpoint)
+                      S_HOVER, S_N, S_WCMD, S_YAWHOLD, control_step, empty_setpoint)
 from .physics import E_N, E_TR, E_WIND, X_N, X_R, initial_state, plant_params, rk4_step
 
 
@@ -64,6 +64,7 @@ class VehicleModel:
         self.sp = empty_setpoint()
         self.s = np.zeros(S_N)
         self.s[S_HOVER] = vehicle.controller.thr_hover
+        self.s[S_YAWHOLD] = yaw
         self.env = np.zeros(E_N)
         self.env[E_TR] = 1.0
         self._scratch = np.zeros((6, X_N))

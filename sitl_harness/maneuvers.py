@@ -94,3 +94,31 @@ def step_response(vehicle, axis: int, size: float, seconds: float = 8.0, kind: s
     rise = int(np.argmax(tr >= 0.9 * abs(size))) * 0.01 if np.any(tr >= 0.9 * abs(size)) else math.inf
     return {"overshoot": float((tr.max() - abs(size)) / abs(size)), "rise_90_s": rise,
             "final_error": float(abs(size) - tr[-1])}
+
+
+def track_reference(vehicle, t, p, v, a, thrust_ratio: float = 1.0, tilt_max: float | None = None,
+                    yaw: float = 0.0, wind=None, dt_nav: float = 0.01) -> np.ndarray:
+    """Fly a sampled reference (times `t` (n,), NED positions/velocities/accelerations (n, 3)) with
+    position + velocity + acceleration feed-forward, starting on it; returns the flown positions at
+    the reference times (n, 3). Pair with `contracts.contour.contour_errors` for E_tr."""
+    t = np.asarray(t, float)
+    p, v, a = (np.asarray(x, float) for x in (p, v, a))
+    m = hovering(vehicle, thrust_ratio, tuple(p[0]), tuple(v[0]), tilt_max)
+    m.sp[SP_YAW] = yaw
+    if wind is not None:
+        m.set_wind(wind)
+    n_phys = max(1, round(dt_nav / m.dt))
+    out = np.empty_like(p)
+    out[0] = m.pos
+    k = 1
+    tk = t[0]
+    while k < len(t):
+        for arr, idx in ((p, SP_POS), (v, SP_VEL), (a, SP_ACC)):
+            for i in range(3):
+                m.sp[idx + i] = np.interp(tk, t, arr[:, i])
+        m.step(n_phys)
+        tk += n_phys * m.dt
+        while k < len(t) and t[k] <= tk + 1e-9:
+            out[k] = m.pos
+            k += 1
+    return out

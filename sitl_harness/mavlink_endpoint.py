@@ -10,7 +10,8 @@ glued to the next datagram); packets with a bad CRC, a bad prefix or (when a sig
 missing or wrong signature are dropped and counted in `stats`; an exception in a handler (e.g. a
 NaN where an integer is needed) drops that message, is counted, and the vehicle keeps flying.
 
-Telemetry (default rates, Hz, changeable with MAV_CMD_SET_MESSAGE_INTERVAL): HEARTBEAT 1,
+Telemetry (default rates, Hz, changeable with MAV_CMD_SET_MESSAGE_INTERVAL): HEARTBEAT 1 (and at
+once after an arming or mode change),
 SYS_STATUS 2, EXTENDED_SYS_STATE 1, ATTITUDE 50, ATTITUDE_QUATERNION 10, LOCAL_POSITION_NED 30,
 GLOBAL_POSITION_INT 10, GPS_RAW_INT 5, HOME_POSITION 0.5, VFR_HUD 10, POSITION_TARGET_LOCAL_NED
 10, ESTIMATOR_STATUS (PX4) / EKF_STATUS_REPORT (ArduPilot) 2, BATTERY_STATUS 1, SYSTEM_TIME 1,
@@ -22,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 
 os.environ["MAVLINK20"] = "1"
 
@@ -31,12 +33,12 @@ from .autopilot import ACCEPTED, DENIED, UNSUPPORTED, MissionItem, _finite  # no
 from .control import S_ACCSP, S_THR, S_VSP, SP_POS, SP_YAW  # noqa: E402
 from .physics import euler_from_quat  # noqa: E402
 
-ID = mav
 SENSORS = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL | mav.MAV_SYS_STATUS_SENSOR_3D_MAG
            | mav.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE | mav.MAV_SYS_STATUS_SENSOR_GPS
            | mav.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL | mav.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
            | mav.MAV_SYS_STATUS_SENSOR_YAW_POSITION | mav.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
-           | mav.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS)
+           | mav.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+           | mav.MAV_SYS_STATUS_GEOFENCE)  # GEOFENCE present+healthy: MAVProxy reports a breach otherwise
 DEFAULT_RATES_HZ = {
     mav.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
     mav.MAVLINK_MSG_ID_SYS_STATUS: 2.0,
@@ -88,10 +90,14 @@ class MavlinkEndpoint:
         if signing_key is not None:
             if len(signing_key) != 32:
                 raise ValueError("signing key must be 32 bytes")
+            # signing timestamps are wall-clock based (10 µs since 2015-01-01; receivers reject a
+            # stream more than 60 s behind their own clock), so signed output is not byte-identical
+            # between runs even in lock-step
+            stamp = int((time.time() - 1_420_070_400) * 1e5)
             for m in (self.tx, self.rx):
                 m.signing.secret_key = signing_key
                 m.signing.link_id = 0
-                m.signing.timestamp = int((unix_epoch_s - 1_420_070_400) * 1e5)
+                m.signing.timestamp = stamp
             self.tx.signing.sign_outgoing = True
             self.rx.signing.allow_unsigned_callback = None
         self.stats = {"rx_datagrams": 0, "rx_messages": 0, "rx_bad": 0, "rx_truncated_bytes": 0,
@@ -131,6 +137,8 @@ class MavlinkEndpoint:
         self._upload: dict | None = None
         self._param_specs = {p.name: p for p in self.ap.pers.params}
         self._sensor_seq_sent = {k: -1 for k in SENSOR_MSGS}
+        self._hb_state = (self.ap.armed, self.ap.custom)
+        self.last_handler_error = ""
 
     # ------------------------------------------------------------------ time
     @property
@@ -169,8 +177,9 @@ class MavlinkEndpoint:
                 continue
             try:
                 self._handle(m)
-            except Exception:
+            except Exception as err:  # never let one message stop the vehicle
                 self.stats["rx_handler_errors"] += 1
+                self.last_handler_error = f"{m.get_type()}: {type(err).__name__}: {err}"
 
     def _handle(self, m) -> None:
         kind = m.get_type()
@@ -248,7 +257,7 @@ class MavlinkEndpoint:
 
     def _on_timesync(self, m) -> None:
         if m.tc1 == 0:  # a request: answer with our clock (ns)
-            self.tx.timesync_send(max(1, int(self.t * 1e9)), m.ts1)
+            self.tx.timesync_send(max(1, round(self.t * 1e9)), m.ts1)
 
     def _on_ping(self, m) -> None:
         if m.target_system == 0:
@@ -374,6 +383,10 @@ class MavlinkEndpoint:
                 self._upload = None
             else:
                 self._request_item()
+        state = (ap.armed, ap.custom)
+        if state != self._hb_state:  # announce arming and mode changes at once (clients wait on them)
+            self._hb_state = state
+            self.next_due[mav.MAVLINK_MSG_ID_HEARTBEAT] = t
         while self.once:
             self._senders[self.once.pop(0)]()
         for mid, iv in self.intervals.items():
@@ -406,6 +419,8 @@ class MavlinkEndpoint:
         present = SENSORS | mav.MAV_SYS_STATUS_PREARM_CHECK | mav.MAV_SYS_STATUS_SENSOR_PROXIMITY
         health = SENSORS
         sim = self.sim
+        if sim.nav_fault:
+            health &= ~mav.MAV_SYS_STATUS_SENSOR_GPS
         if not sim.sensor.dropout:
             health |= mav.MAV_SYS_STATUS_SENSOR_PROXIMITY
         if self.ap.prearm_ok and not self.ap.armed:
@@ -493,12 +508,20 @@ class MavlinkEndpoint:
                                                s[S_ACCSP], s[S_ACCSP + 1], s[S_ACCSP + 2], yaw, 0.0)
 
     def _estimator_status(self) -> None:
+        if self.sim.nav_fault:  # attitude only, GPS glitch, test ratios above 1 (failing)
+            flags = mav.ESTIMATOR_ATTITUDE | mav.ESTIMATOR_POS_VERT_ABS | mav.ESTIMATOR_GPS_GLITCH
+            self.tx.estimator_status_send(self.usec(), flags, 1.5, 2.0, 0.3, 0.1, 0.0, 0.0, 10.0, 1.0)
+            return
         flags = (mav.ESTIMATOR_ATTITUDE | mav.ESTIMATOR_VELOCITY_HORIZ | mav.ESTIMATOR_VELOCITY_VERT
                  | mav.ESTIMATOR_POS_HORIZ_REL | mav.ESTIMATOR_POS_HORIZ_ABS | mav.ESTIMATOR_POS_VERT_ABS
                  | mav.ESTIMATOR_PRED_POS_HORIZ_REL | mav.ESTIMATOR_PRED_POS_HORIZ_ABS)
         self.tx.estimator_status_send(self.usec(), flags, 0.1, 0.1, 0.1, 0.1, 0.0, 0.0, 0.05, 0.05)
 
     def _ekf_status(self) -> None:
+        if self.sim.nav_fault:  # ArduPilot: position flags dropped, variances above 1
+            flags = mav.EKF_ATTITUDE | mav.EKF_POS_VERT_ABS
+            self.tx.ekf_status_report_send(flags, 1.5, 2.0, 0.3, 0.1, 0.0)
+            return
         flags = (mav.EKF_ATTITUDE | mav.EKF_VELOCITY_HORIZ | mav.EKF_VELOCITY_VERT | mav.EKF_POS_HORIZ_REL
                  | mav.EKF_POS_HORIZ_ABS | mav.EKF_POS_VERT_ABS | mav.EKF_PRED_POS_HORIZ_REL
                  | mav.EKF_PRED_POS_HORIZ_ABS)
@@ -516,7 +539,7 @@ class MavlinkEndpoint:
         self.tx.system_time_send(int((self.unix_epoch_s + self.t) * 1e6), self.boot_ms())
 
     def _timesync(self) -> None:
-        self.tx.timesync_send(0, max(1, int(self.t * 1e9)))
+        self.tx.timesync_send(0, max(1, round(self.t * 1e9)))
 
     def _mission_current(self) -> None:
         ap = self.ap
@@ -544,5 +567,6 @@ class MavlinkEndpoint:
 
     def _obstacle_distance(self) -> None:
         r = self.sim.reading
-        self.tx.obstacle_distance_send(self.usec(), mav.MAV_DISTANCE_SENSOR_LASER, r.distances_cm, 0, r.min_cm,
+        inc = max(1, min(255, round(r.increment_deg)))  # uint8 degrees too, for readers that ignore increment_f
+        self.tx.obstacle_distance_send(self.usec(), mav.MAV_DISTANCE_SENSOR_LASER, r.distances_cm, inc, r.min_cm,
                                        r.max_cm, r.increment_deg, r.angle_offset_deg, mav.MAV_FRAME_BODY_FRD)

@@ -4,8 +4,8 @@ Facts (shared/reference/mavlink-facts.md): custom_mode = main << 16 | sub << 24
 (`px4_custom_mode.h`); HEARTBEAT.autopilot = MAV_AUTOPILOT_PX4 (12); DO_CHANGE_SPEED always
 ACCEPTED, param2 > 0 sets the Navigator's cruising speed (used by the auto modes only, not by
 OFFBOARD), ≤ 0 resets it to MPC_XY_CRUISE, and NAV_TAKEOFF resets it (`navigator_main.cpp`);
-NAV_TAKEOFF param7 is AMSL, NaN → MIS_TAKEOFF_ALT above the current position
-(`FlightTaskTakeoff.cpp`); OFFBOARD needs a setpoint younger than COM_OF_LOSS_T (else
+NAV_TAKEOFF param7 is AMSL (`FlightTaskTakeoff.cpp`), raised to at least home + MIS_TAKEOFF_ALT,
+NaN → home + MIS_TAKEOFF_ALT (Navigator `takeoff.cpp`); OFFBOARD needs a setpoint younger than COM_OF_LOSS_T (else
 TEMPORARILY_REJECTED) and on loss does COM_OBL_RC_ACT; setpoints only in MAV_FRAME_LOCAL_NED and
 MAV_FRAME_BODY_NED, per-axis NaN = not controlled; INT32 parameters are encoded bytewise.
 """
@@ -15,10 +15,11 @@ from __future__ import annotations
 import math
 import struct
 
+import numpy as np
+
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from .autopilot import (ACCEPTED, DENIED, TEMP_REJECTED, ParamSpec, Personality, Settings, _finite, _masked,
-                        _rot)
+from .autopilot import ACCEPTED, DENIED, TEMP_REJECTED, ParamSpec, Personality, Settings, _finite, _masked
 
 MAIN = {"manual": 3, "hold": 4, "takeoff": 4, "land": 4, "mission": 4, "rtl": 4, "offboard": 6}
 SUB = {"hold": 3, "takeoff": 2, "land": 6, "mission": 4, "rtl": 5}
@@ -31,6 +32,14 @@ I32 = mav.MAV_PARAM_TYPE_INT32
 OBL_ACTIONS = {3: "rtl", 4: "land", 5: "hold"}
 
 
+def _dcm(q) -> np.ndarray:
+    """Rotation matrix body → NED of quaternion q = (w, x, y, z)."""
+    w, x, y, z = (float(c) for c in q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
 def custom_mode_of(main: int, sub: int = 0) -> int:
     return (main << 16) | (sub << 24)
 
@@ -38,6 +47,7 @@ def custom_mode_of(main: int, sub: int = 0) -> int:
 class Px4(Personality):
     name = "px4"
     autopilot_id = mav.MAV_AUTOPILOT_PX4
+    airborne_start_mode = "hold"  # scenario start.alt_m > 0
     initial_mode = "hold"
     capabilities = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
                     | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT
@@ -120,24 +130,51 @@ class Px4(Personality):
         return ACCEPTED
 
     def takeoff(self, ap, p) -> int:
-        """param7 is the take-off altitude AMSL; NaN → MIS_TAKEOFF_ALT above the current position.
-        An altitude below home + MIS_TAKEOFF_ALT is raised to it (with a critical message)."""
+        """param7 is the take-off altitude AMSL. As PX4's Navigator (takeoff.cpp): below home +
+        MIS_TAKEOFF_ALT it is raised to that (critical message); NaN → home + MIS_TAKEOFF_ALT (info);
+        below the current altitude → stay at the current altitude."""
         if not ap.armed:
             ap.text(mav.MAV_SEVERITY_CRITICAL, "Takeoff denied: disarmed")
             return DENIED
         ap.cruise = ap.settings.cruise_default  # NAV_TAKEOFF resets the cruising speed
         min_alt = ap.settings.takeoff_alt
+        msg = f"Using minimum takeoff altitude: {min_alt:.2f} m"
         if _finite(p[6]):
             alt_rel = float(p[6]) - ap.home_geo[2]
             if alt_rel < min_alt:
-                ap.text(mav.MAV_SEVERITY_CRITICAL, f"Using minimum takeoff altitude: {min_alt:.2f} m")
+                ap.text(mav.MAV_SEVERITY_CRITICAL, msg)
                 alt_rel = min_alt
         else:
-            alt_rel = -ap.pos[2] + min_alt
+            ap.text(mav.MAV_SEVERITY_INFO, msg)
+            alt_rel = min_alt
+        if alt_rel < -ap.pos[2]:
+            ap.text(mav.MAV_SEVERITY_CRITICAL, "Already higher than takeoff altitude")
+            alt_rel = -ap.pos[2]
         return ap.takeoff_to(alt_rel)
 
     def takeoff_done(self, ap) -> None:
         ap.set_mode("hold")
+
+    def extra_command(self, ap, cmd: int, p: tuple, frame) -> int | None:
+        """MAV_CMD_DO_REPOSITION (192): Hold at a location (param1 ground speed > 0 sets the cruising
+        speed, param5/6 lat/lon — degrees, or 1e7·degrees from COMMAND_INT — param7 altitude AMSL;
+        NaN keeps the current value)."""
+        if cmd != mav.MAV_CMD_DO_REPOSITION:
+            return None
+        if not ap.in_air:
+            return DENIED
+        lat, lon, alt = p[4], p[5], p[6]
+        if frame is not None and _finite(lat) and _finite(lon):  # COMMAND_INT: degE7
+            lat, lon = lat * 1e-7, lon * 1e-7
+        here = ap.geo_from_local(ap.pos)
+        lat = lat if _finite(lat) else here[0]
+        lon = lon if _finite(lon) else here[1]
+        alt = alt if _finite(alt) else here[2]
+        ap.set_mode("hold")
+        if _finite(p[0]) and p[0] > 0:
+            ap.cruise = float(p[0])
+        ap.target = ap.local_from_geo(lat, lon, alt)
+        return ACCEPTED
 
     # ----- offboard
     def can_enter_offboard(self, ap) -> int:
@@ -169,13 +206,29 @@ class Px4(Personality):
             ap.set_mode("hold", reason="Failsafe: offboard lost, no RC for Position: Hold")
 
     def parse_position_target(self, ap, frame, mask, pos, vel, acc, yaw, yaw_rate):
-        if frame not in (mav.MAV_FRAME_LOCAL_NED, mav.MAV_FRAME_BODY_NED):
+        """As PX4's mavlink_receiver: LOCAL_NED per axis (ignored → NaN); BODY_NED rotates velocity
+        and acceleration by the attitude (ignored axes of a used group → 0) and ignores position;
+        FORCE_SET with an acceleration, another frame, or nothing valid → refused with a message."""
+        if frame == mav.MAV_FRAME_LOCAL_NED:
+            p, v, a = _masked(mask, pos, vel, acc)
+        elif frame == mav.MAV_FRAME_BODY_NED:
+            r = _dcm(ap.model.quat)
+            p = np.full(3, math.nan)
+            v, a = np.full(3, math.nan), np.full(3, math.nan)
+            if not mask & 0o070 == 0o070:
+                v = r @ np.where([(mask >> (3 + i)) & 1 for i in range(3)], 0.0, vel)
+            if not mask & 0o700 == 0o700:
+                a = r @ np.where([(mask >> (6 + i)) & 1 for i in range(3)], 0.0, acc)
+        else:
+            ap.text(mav.MAV_SEVERITY_CRITICAL, f"SET_POSITION_TARGET_LOCAL_NED coordinate frame {frame} unsupported")
             return None
-        p, v, a = _masked(mask, pos, vel, acc)
-        if frame == mav.MAV_FRAME_BODY_NED:  # vel/acc in the heading frame, pos as heading offset
-            c, s = math.cos(ap.yaw), math.sin(ap.yaw)
-            v, a = _rot(v, c, s), _rot(a, c, s)
-            p = _rot(p, c, s) + ap.pos
+        has_acc = bool(np.any(np.isfinite(a)))
+        if has_acc and mask & mav.POSITION_TARGET_TYPEMASK_FORCE_SET:
+            ap.text(mav.MAV_SEVERITY_CRITICAL, "SET_POSITION_TARGET_LOCAL_NED force not supported")
+            return None
+        if not (np.any(np.isfinite(p)) or np.any(np.isfinite(v)) or has_acc):
+            ap.text(mav.MAV_SEVERITY_CRITICAL, "SET_POSITION_TARGET_LOCAL_NED invalid")
+            return None
         yw = yaw if not mask & mav.POSITION_TARGET_TYPEMASK_YAW_IGNORE else math.nan
         yr = yaw_rate if not mask & mav.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE else math.nan
         return p, v, a, yw, yr

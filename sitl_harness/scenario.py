@@ -7,7 +7,7 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
     name: column_ahead
     vehicle: mambo
     seed: 1
-    start: {x_m: 0, y_m: 0, yaw_deg: 0}
+    start: {x_m: 0, y_m: 0, yaw_deg: 0}   # add alt_m: 2 to start armed and hovering
     world:
       columns: [{x_m: 12, y_m: 0, radius_m: 0.5}]
       boxes: [{x_m: 20, y_m: 5, length_m: 2, width_m: 1, yaw_deg: 30}]
@@ -21,6 +21,7 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
       - {at_s: 20, fog: clear}
       - {at_s: 15, sensor_dropout_s: 1.0}
       - {at_s: 25, link_dropout_s: 2.0}
+      - {at_s: 28, nav_fault_s: 3.0}
       - {at_s: 30, gust: {peak_m_s: 3, duration_s: 2, from_deg: 0}}
 """
 
@@ -30,6 +31,8 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import yaml
+
+from contracts.errors import ContractError
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -38,8 +41,9 @@ Num = Annotated[float, Field(allow_inf_nan=False)]
 SCENARIO_DIR = Path(__file__).resolve().parent / "scenarios"
 
 
-class ScenarioError(Exception):
-    """A one-line, user-facing error about a scenario file."""
+class ScenarioError(ContractError):
+    """A one-line, user-facing error about a scenario file, personality or address (a
+    `ContractError`, so one `except ContractError` in the CLI covers vehicle files too)."""
 
 
 class _Strict(BaseModel):
@@ -47,9 +51,13 @@ class _Strict(BaseModel):
 
 
 class Start(_Strict):
+    """Where the vehicle starts; with `alt_m` > 0 it starts armed and hovering there (PX4 in Hold,
+    ArduPilot in GUIDED), hover-thrust estimate converged — saves the take-off in tests."""
+
     x_m: Num = 0.0
     y_m: Num = 0.0
     yaw_deg: Num = 0.0
+    alt_m: NonNeg = 0.0
 
 
 class Home(_Strict):
@@ -115,6 +123,9 @@ class Gust(_Strict):
     from_deg: Num = 0.0
 
 
+FAULT_KINDS = ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "nav_fault_s", "gust")
+
+
 class Fault(_Strict):
     """One timeline event: exactly one of the optional fields."""
 
@@ -123,15 +134,14 @@ class Fault(_Strict):
     fog: Fog | Literal["clear"] | None = None
     sensor_dropout_s: Pos | None = None
     link_dropout_s: Pos | None = None
+    nav_fault_s: Pos | None = None  # estimator reports a bad position/velocity estimate (flags only)
     gust: Gust | None = None
 
     @model_validator(mode="after")
     def _one(self) -> "Fault":
-        set_ = [k for k in ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "gust")
-                if getattr(self, k) is not None]
+        set_ = [k for k in FAULT_KINDS if getattr(self, k) is not None]
         if len(set_) != 1:
-            raise ValueError(f"a fault needs exactly one of thrust_ratio, fog, sensor_dropout_s, "
-                             f"link_dropout_s, gust (got {', '.join(set_) or 'none'})")
+            raise ValueError(f"a fault needs exactly one of {', '.join(FAULT_KINDS)} (got {', '.join(set_) or 'none'})")
         return self
 
 

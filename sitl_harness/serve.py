@@ -139,7 +139,8 @@ def serve(scenario_path, personality: str = "px4", listen: str = "udp:127.0.0.1:
     """Serve `scenario_path` (a path or a shipped scenario name) until `duration_s` of simulated time
     (forever if None) or until `stop()` returns True. `on_ready(address)` is called once the socket
     is bound. Returns a summary dict (ticks, pacing jitter, collisions, dropped packets).
-    Raises `ScenarioError` (one line) for a bad scenario, personality, address or speed-up."""
+    Raises `ScenarioError` (one line, a `contracts.errors.ContractError`) for a bad scenario,
+    personality, address or speed-up, and `ContractError` for a bad vehicle file."""
     if not (isinstance(speedup, (int, float)) and math.isfinite(speedup) and speedup > 0):
         raise ScenarioError(f"--speedup {speedup!r}: expected a positive number")
     parse_listen(listen)

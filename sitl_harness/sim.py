@@ -15,15 +15,14 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 
-from contracts.vehicle import load_vehicle
+from contracts.vehicle import G, load_vehicle
 
 from .ardupilot import ArduPilot
 from .autopilot import Autopilot, MissionItem
 from .kernel import VehicleModel
 from .mavlink_endpoint import MavlinkEndpoint, mav
-from .physics import euler_from_quat
+from .physics import X_R, euler_from_quat
 from .px4 import Px4
 from .scenario import Scenario, ScenarioError, load_scenario
 from .sensors import RangeSensor, RangeSensorConfig
@@ -76,6 +75,7 @@ class Sim:
         self._sensor_dropout_until = -1.0
         self.link_down_until = -1.0
         self.link_dropped = 0
+        self.nav_fault_until = -1.0
         self.faults = sorted(sc.faults, key=lambda f: f.at_s)
         self._fault_idx = 0
         self.energy_j = 0.0
@@ -85,6 +85,8 @@ class Sim:
             self.set_param(name, value)
         if sc.route.waypoints:
             self._load_route()
+        if sc.start.alt_m > 0:
+            self._start_airborne(sc.start.alt_m)
 
     # ------------------------------------------------------------------ configuration
     def set_param(self, name: str, value: float) -> None:
@@ -99,6 +101,18 @@ class Sim:
         if spec.field == "cruise_default":
             ap.cruise = ap.settings.cruise_default
         ap.apply_limits()
+
+    def _start_airborne(self, alt: float) -> None:
+        m, ap, v = self.model, self.autopilot, self.vehicle
+        m.x[2] = -alt
+        m.x[X_R:X_R + 4] = math.sqrt(v.mass_kg * G / (4 * m.thrust_ratio * v.rotor.k_thrust))
+        ap.set_hover_thrust(v.mass_kg * G / (m.thrust_ratio * v.t_nom_n))
+        m.resting = False
+        ap.armed = True
+        ap.ever_airborne = True
+        ap.landed_since = None
+        ap.set_mode(ap.pers.airborne_start_mode)
+        ap.traj.reset(m.pos, (0.0, 0.0, 0.0))
 
     def _load_route(self) -> None:
         ap = self.autopilot
@@ -139,6 +153,7 @@ class Sim:
         t = self.time_s
         self._apply_faults(t)
         ap = self.autopilot
+        ap.prearm_ok = not self.nav_fault
         ap.update(t, self.tick_dt)
         self.wind_now = self.wind.step(self.tick_dt)
         self.model.set_wind(self.wind_now)
@@ -158,6 +173,11 @@ class Sim:
                 self.sensor_seq += 1
         self.endpoint.emit()
 
+    @property
+    def nav_fault(self) -> bool:
+        """The estimator reports a bad position/velocity solution (flags only; control uses truth)."""
+        return self.time_s < self.nav_fault_until
+
     def _apply_faults(self, t: float) -> None:
         while self._fault_idx < len(self.faults) and self.faults[self._fault_idx].at_s <= t + 1e-9:
             f = self.faults[self._fault_idx]
@@ -174,6 +194,8 @@ class Sim:
                 self._sensor_dropout_until = t + f.sensor_dropout_s
             elif f.link_dropout_s is not None:
                 self.link_down_until = t + f.link_dropout_s
+            elif f.nav_fault_s is not None:
+                self.nav_fault_until = t + f.nav_fault_s
             elif f.gust is not None:
                 self.wind.add_gust(t, f.gust.duration_s, f.gust.peak_m_s, f.gust.from_deg)
 
@@ -185,7 +207,7 @@ class Sim:
         """Electrical current [A]: hover power ∝ thrust^1.5 (momentum theory), scaled to the airframe."""
         if not self.autopilot.armed:
             return 0.2
-        t = float(np.sum(self.vehicle.rotor.k_thrust * self.model.rotor_speeds ** 2) * self.model.thrust_ratio)
+        t = self.vehicle.rotor.k_thrust * self.model.thrust_ratio * sum(float(w) * float(w) for w in self.model.rotor_speeds)
         r = self.vehicle.rotor.radius_m
         p_ideal = t ** 1.5 / math.sqrt(2 * 1.225 * 4 * math.pi * r * r)
         return 0.5 + p_ideal / 0.6 / max(self.battery_voltage(), 1.0)

@@ -28,17 +28,36 @@ def stop_speed(dist: float, acc: float, jerk: float) -> float:
     return -k + math.sqrt(k * k + 2.0 * acc * max(dist, 0.0))
 
 
-def _track(a: np.ndarray, e: np.ndarray, acc_max: float, jerk: float, dt: float) -> np.ndarray:
-    n = float(np.linalg.norm(e))
-    target = np.zeros_like(e) if n < 1e-9 else e / n * min(acc_max, math.sqrt(2.0 * jerk * n))
-    da = target - a
-    m = float(np.linalg.norm(da))
+def _track2(ax: float, ay: float, vx: float, vy: float, dx: float, dy: float, acc_max: float, jerk: float,
+            dt: float) -> tuple[float, float]:
+    """Jerk-limited velocity tracking in a plane (1-D: pass y = 0). The error is taken against the
+    velocity the reference reaches once its acceleration is ramped out (v + a·|a|/(2j)), so it
+    never overshoots the target speed."""
+    na = math.hypot(ax, ay)
+    ex = dx - (vx + ax * na / (2.0 * jerk))
+    ey = dy - (vy + ay * na / (2.0 * jerk))
+    n = math.hypot(ex, ey)
+    if n < 1e-9:
+        tx = ty = 0.0
+    else:
+        k = min(acc_max, math.sqrt(2.0 * jerk * n)) / n
+        tx, ty = ex * k, ey * k
+    ddx, ddy = tx - ax, ty - ay
+    m = math.hypot(ddx, ddy)
     step = jerk * dt
-    return target if m <= step else a + da * (step / m)
+    if m <= step:
+        return tx, ty
+    return ax + ddx * step / m, ay + ddy * step / m
+
+
+def _ramp_out(p: float, v: float, a: float, jerk: float) -> float:
+    """Position reached while an acceleration `a` is ramped to zero at the jerk limit (1-D part)."""
+    t = abs(a) / jerk
+    return p + v * t + a * t * t / 3.0
 
 
 class AutoTrajectory:
-    """Reference state for the auto modes; `goto` a target or `brake` to a stop and hold."""
+    """Reference state for the auto modes; `step` toward a target or brake to a stop and hold."""
 
     def __init__(self, acc_hor: float, jerk: float, acc_z: float = 3.0):
         self.acc_hor = acc_hor
@@ -54,36 +73,62 @@ class AutoTrajectory:
         self.a = np.array(a, dtype=float)
 
     def step(self, dt: float, target, speed_xy: float, speed_up: float, speed_down: float) -> None:
-        """Advance toward `target` (NED, any component may be None/NaN = brake on that axis) at
-        most at the given speeds; `target=None` brakes to a stop on all axes."""
-        tgt = np.full(3, np.nan) if target is None else np.array(target, dtype=float)
-        # horizontal desired velocity
-        vd = np.zeros(3)
-        if np.all(np.isfinite(tgt[:2])):
-            e = tgt[:2] - self.p[:2]
-            d = float(np.linalg.norm(e))
+        """Advance toward `target` (NED; a NaN/None component = brake on that axis) at most at the
+        given speeds; `target=None` brakes to a stop on all axes."""
+        j = self.jerk
+        px, py, pz = (float(c) for c in self.p)
+        vx, vy, vz = (float(c) for c in self.v)
+        ax, ay, az = (float(c) for c in self.a)
+        if target is None:
+            tx = ty = tz = math.nan
+        else:
+            tx, ty, tz = (math.nan if c is None else float(c) for c in target)
+        has_xy = math.isfinite(tx) and math.isfinite(ty)
+        has_z = math.isfinite(tz)
+        # desired velocity from the stop law on the distance left after ramping out the acceleration
+        dvx = dvy = dvz = 0.0
+        if has_xy:
+            ex, ey = tx - px, ty - py
+            d = math.hypot(ex, ey)
             if d > 1e-6:
-                vd[:2] = e / d * min(speed_xy, stop_speed(d, self.acc_hor, self.jerk))
-        if np.isfinite(tgt[2]):
-            e = tgt[2] - self.p[2]
-            lim = speed_down if e > 0 else speed_up
-            vd[2] = math.copysign(min(lim, stop_speed(abs(e), self.acc_z, self.jerk)), e)
-        self.a[:2] = _track(self.a[:2], vd[:2] - self.v[:2], self.acc_hor, self.jerk, dt)
-        self.a[2:] = _track(self.a[2:], vd[2:] - self.v[2:], self.acc_z, self.jerk, dt)
-        self.p += self.v * dt + 0.5 * self.a * dt * dt
-        self.v += self.a * dt
-        # settle exactly on a reached target (removes the √ law's last-centimetre creep)
-        for sl in (slice(0, 2), slice(2, 3)):
-            if np.all(np.isfinite(tgt[sl])):
-                if (np.linalg.norm(tgt[sl] - self.p[sl]) < 2e-3 and np.linalg.norm(self.v[sl]) < 0.02
-                        and np.linalg.norm(self.a[sl]) <= self.jerk * dt):
-                    self.p[sl] = tgt[sl]
-                    self.v[sl] = 0.0
-                    self.a[sl] = 0.0
-            elif np.linalg.norm(self.v[sl]) < 0.01 and np.linalg.norm(self.a[sl]) <= self.jerk * dt:
-                self.v[sl] = 0.0
-                self.a[sl] = 0.0
+                ux, uy = ex / d, ey / d
+                na = math.hypot(ax, ay)
+                t = na / j
+                qx = px + vx * t + ax * t * t / 3.0
+                qy = py + vy * t + ay * t * t / 3.0
+                dp = (tx - qx) * ux + (ty - qy) * uy
+                sp = min(speed_xy, stop_speed(dp, self.acc_hor, j))
+                dvx, dvy = ux * sp, uy * sp
+        if has_z:
+            e = tz - pz
+            sgn = 1.0 if e > 0 else -1.0
+            dp = (tz - _ramp_out(pz, vz, az, j)) * sgn
+            dvz = sgn * min(speed_down if e > 0 else speed_up, stop_speed(dp, self.acc_z, j))
+        ax, ay = _track2(ax, ay, vx, vy, dvx, dvy, self.acc_hor, j, dt)
+        az, _ = _track2(az, 0.0, vz, 0.0, dvz, 0.0, self.acc_z, j, dt)
+        h = 0.5 * dt * dt
+        px += vx * dt + ax * h
+        py += vy * dt + ay * h
+        pz += vz * dt + az * h
+        vx += ax * dt
+        vy += ay * dt
+        vz += az * dt
+        # settle exactly on a reached target (removes the √ law's last-centimetre creep), or at rest
+        lim = j * dt
+        if has_xy:
+            if math.hypot(tx - px, ty - py) < 2e-3 and math.hypot(vx, vy) < 0.02 and math.hypot(ax, ay) <= lim:
+                px, py, vx, vy, ax, ay = tx, ty, 0.0, 0.0, 0.0, 0.0
+        elif math.hypot(vx, vy) < 0.01 and math.hypot(ax, ay) <= lim:
+            vx = vy = ax = ay = 0.0
+        if has_z:
+            if abs(tz - pz) < 2e-3 and abs(vz) < 0.02 and abs(az) <= lim:
+                pz, vz, az = tz, 0.0, 0.0
+        elif abs(vz) < 0.01 and abs(az) <= lim:
+            vz = az = 0.0
+        self.p[:] = (px, py, pz)
+        self.v[:] = (vx, vy, vz)
+        self.a[:] = (ax, ay, az)
 
     @property
     def speed_xy(self) -> float:
-        return float(np.hypot(self.v[0], self.v[1]))
+        return float(math.hypot(self.v[0], self.v[1]))

@@ -27,6 +27,9 @@ class Wind:
             self.turb = self.rng.standard_normal(3) * self.sigma * np.array([1.0, 1.0, 0.5])
         self.gusts: list[tuple[float, float, np.ndarray]] = []  # (t_start, duration, peak vector)
         self.t = 0.0
+        self._noise = np.zeros((0, 3))
+        self._tx = tuple(float(c) for c in self.turb)
+        self._k = 0
 
     def set_mean(self, mean_m_s: float, from_deg: float) -> None:
         """Mean wind of `mean_m_s` blowing *from* compass direction `from_deg`."""
@@ -43,10 +46,20 @@ class Wind:
             v = max(float(np.linalg.norm(self.mean)), 1.0)
             a = math.exp(-dt * v / self.length)
             k = self.sigma * math.sqrt(1.0 - a * a)
-            self.turb = a * self.turb + k * self.rng.standard_normal(3) * np.array([1.0, 1.0, 0.5])
+            if self._k >= len(self._noise):  # draw normals in blocks (same sequence, fewer calls)
+                self._noise = self.rng.standard_normal((1024, 3)) * np.array([1.0, 1.0, 0.5])
+                self._k = 0
+            nz = self._noise[self._k]
+            self._k += 1
+            t = self.turb
+            self._tx = (a * self._tx[0] + k * float(nz[0]), a * self._tx[1] + k * float(nz[1]),
+                        a * self._tx[2] + k * float(nz[2]))
+            t[0], t[1], t[2] = self._tx
         return self.value()
 
     def value(self) -> np.ndarray:
+        if not self.gusts:
+            return np.array((self.mean[0] + self._tx[0], self.mean[1] + self._tx[1], self.mean[2] + self._tx[2]))
         w = self.mean + self.turb
         for t0, dur, peak in self.gusts:
             if t0 <= self.t <= t0 + dur:

@@ -38,9 +38,8 @@ class World:
     columns: list[Column] = field(default_factory=list)
     boxes: list[Box] = field(default_factory=list)
 
-    @property
-    def obstacles(self) -> list:
-        return [*self.columns, *self.boxes]
+    def __post_init__(self):
+        self.obstacles = [*self.columns, *self.boxes]
 
     def ray_cast(self, px: float, py: float, alt: float, angles: np.ndarray,
                  max_range: float) -> np.ndarray:
@@ -124,29 +123,31 @@ class CollisionMonitor:
         self.collisions: list[Collision] = []
         self.min_clearance = math.inf  # smallest surface distance minus r_body seen so far
         self._touching = False
-        self._prev: np.ndarray | None = None
+        self._prev: tuple[float, float, float] | None = None
 
     def update(self, t: float, pos: np.ndarray) -> Collision | None:
         if not self.world.obstacles:
             return None
-        prev = pos if self._prev is None else self._prev
-        self._prev = np.array(pos, dtype=float)
-        n = max(1, math.ceil(float(np.linalg.norm(pos[:2] - prev[:2])) / (0.25 * self.r_body)))
+        x1, y1, z1 = float(pos[0]), float(pos[1]), float(pos[2])
+        x0, y0, z0 = (x1, y1, z1) if self._prev is None else self._prev
+        self._prev = (x1, y1, z1)
+        n = max(1, math.ceil(math.hypot(x1 - x0, y1 - y0) / (0.25 * self.r_body)))
         worst = math.inf
         first = None  # first sample along the step where the body disc touches
         for k in range(1, n + 1):
-            p = prev + (pos - prev) * (k / n)
-            d, i = self.world.clearance(float(p[0]), float(p[1]), float(-p[2]))
+            f = k / n
+            px, py, pz = x0 + (x1 - x0) * f, y0 + (y1 - y0) * f, z0 + (z1 - z0) * f
+            d, i = self.world.clearance(px, py, -pz)
             worst = min(worst, d)
             if first is None and d < self.r_body:
-                first = (d, i, p)
+                first = (d, i, (px, py, pz))
         self.min_clearance = min(self.min_clearance, worst - self.r_body)
         touching = first is not None
         new = None
         if touching and not self._touching:
             d, widx, wpos = first
             o = self.world.obstacles[widx]
-            new = Collision(t, tuple(float(v) for v in wpos), widx, o.name or f"#{widx}", d)
+            new = Collision(t, wpos, widx, o.name or f"#{widx}", d)
             self.collisions.append(new)
         self._touching = touching
         return new

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.vehicle import G, load_vehicle
-from sitl_harness.control import M_POS, S_THR, SP_ACC, SP_MODE, SP_POS, SP_VEL
+from sitl_harness.control import S_THR, SP_ACC, SP_POS
 from sitl_harness.maneuvers import fly_circle, hovering, step_response
 from sitl_harness.physics import euler_from_quat
 from sitl_harness.trajectory import AutoTrajectory, stop_speed
@@ -122,3 +122,38 @@ def test_circle_tracking_error_grows_as_thrust_drops():
     assert all(b >= a - 0.005 for a, b in zip(e, e[1:]))
     assert e[-1] > 2.0 * e[0]
     assert e[0] < 0.25
+
+
+def test_cascade_attitude_matches_the_flat_map_eq8():
+    """The thrust-vector → attitude step of the cascade agrees with the paper's eq. (8)."""
+    from contracts.flat import inputs_from_flat
+    from sitl_harness.control import attitude_from_thrust
+
+    for ax, ay, psi in ((3.0, 0.0, 0.0), (0.0, -2.0, 0.7), (2.5, 1.5, -2.0), (-4.0, 3.0, 3.0)):
+        bz = np.array([-ax, -ay, G])
+        bz /= np.linalg.norm(bz)
+        q = attitude_from_thrust(*(-bz), psi)
+        roll, pitch, yaw = euler_from_quat(q)
+        _, phi, theta, _ = inputs_from_flat(ax, ay, 0.0, psi)
+        assert roll == pytest.approx(phi, abs=1e-9) and pitch == pytest.approx(theta, abs=1e-9)
+        assert yaw == pytest.approx(psi, abs=1e-9)
+
+
+def test_track_reference_with_contour_error_matches_circle_closed_form():
+    """The sampled-reference flyer plus contracts.contour gives the circle's closed-form figure."""
+    from contracts.contour import contour_errors
+    from sitl_harness.maneuvers import track_reference
+
+    v = load_vehicle("mambo")
+    r, acc = 2.0, 4.0
+    spd = math.sqrt(acc * r)
+    w = spd / r
+    t = np.arange(0.0, 3 * 2 * math.pi / w, 0.01)
+    p = np.stack([r * np.cos(w * t), r * np.sin(w * t), np.full_like(t, -5.0)], axis=1)
+    vel = np.stack([-spd * np.sin(w * t), spd * np.cos(w * t), 0 * t], axis=1)
+    a = np.stack([-acc * np.cos(w * t), -acc * np.sin(w * t), 0 * t], axis=1)
+    flown = track_reference(v, t, p, vel, a, tilt_max=math.radians(45))
+    lap = t >= 2 * math.pi / w
+    e = contour_errors(flown[lap], t[lap], t, p, window_s=0.5)
+    ref = fly_circle(v, 1.0, r, acc, math.radians(45), laps=2.0)
+    assert e.max() == pytest.approx(ref.contour_max_m, rel=0.1)

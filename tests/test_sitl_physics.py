@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.vehicle import G, load_vehicle
-from sitl_harness.control import M_OFF, M_POS, S_THR, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_VEL, SP_YAW
+from sitl_harness.control import M_OFF, M_POS, S_THR, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_YAW
 from sitl_harness.kernel import VehicleModel
 from sitl_harness.physics import E_N, E_TR, X_N, X_Q, X_R, deriv, euler_from_quat, initial_state, plant_params, quat_from_euler
 from sitl_harness.sensors import RangeSensor, RangeSensorConfig
@@ -257,3 +257,27 @@ def test_collision_monitor_swept_and_near_miss():
     for x in np.linspace(0, 10, 200):
         miss.update(x, np.array([x, 0.65, -2.0]))  # clearance 0.15 − 0.1 = 0.05 m
     assert not miss.collisions and miss.min_clearance == pytest.approx(0.05, abs=1e-3)
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+coord = st.floats(-20, 20)
+
+
+@settings(max_examples=150, deadline=None)
+@given(cx=coord, cy=coord, length=st.floats(0.2, 6), width=st.floats(0.2, 6), yaw=st.floats(-3.2, 3.2),
+       ox=coord, oy=coord, ang=st.floats(-3.2, 3.2), column=st.booleans())
+def test_ray_cast_hits_the_surface_first(cx, cy, length, width, yaw, ox, oy, ang, column):
+    """Property: the returned range lands on the surface (clearance 0) and no earlier point along
+    the ray is inside; an infinite range means no sampled point of the ray is inside."""
+    w = World([Column(cx, cy, 0.5 * width)]) if column else World([], [Box(cx, cy, length, width, yaw)])
+    if w.clearance(ox, oy, 0.0)[0] <= 1e-6:
+        return  # origin inside or on the surface
+    d = float(w.ray_cast(ox, oy, 0.0, np.array([ang]), 100.0)[0])
+    ux, uy = math.cos(ang), math.sin(ang)
+    stop = d if math.isfinite(d) else 100.0
+    for s in np.linspace(0.0, stop, 400)[:-1]:
+        assert w.clearance(ox + s * ux, oy + s * uy, 0.0)[0] > -1e-9
+    if math.isfinite(d):
+        assert abs(w.clearance(ox + d * ux, oy + d * uy, 0.0)[0]) < 1e-6
