@@ -1,0 +1,385 @@
+"""The online avoidance planner: a convexified version of the paper's planner (eq. 14–19) on the
+discretised flat dynamics (eq. 12–13), solved with OSQP (DESIGN.md §5, offboard mode).
+
+Horizontal plane, constant altitude, in the route frame (x along the route). Decision variables are
+the ZOH states q_k = (x, ẋ, y, ẏ), k = 0…N, and accelerations w_k, k = 0…N−1. Convexification:
+- speed and total tilt (acceleration) as inscribed polygons: inner approximations, so every plan the
+  QP returns satisfies the exact limits at the samples;
+- the keep-out discs as half-planes, one per segment and disc, tangent to the disc inflated by the
+  largest gap between a constant-acceleration arc and its chord (a·t_s²/8), imposed on both ends of
+  the segment — a half-plane is convex, so the whole arc stays out of the disc — refined by a few
+  sequential-convex iterations that re-linearise around the last solution.
+Two plans are tried: **pass** (track the cruise speed, end beyond the obstacle moving along the
+route) on either side, then **stop** (end at rest short of it); each is accepted only after an exact
+check (dense re-simulation against the true discs, speed and acceleration norms). Braking at full
+deceleration is the fallback that is always available.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+
+from contracts.flat import cone_polygon, zoh
+
+N_POLY = 16
+# The factor on the avoid contract's speed at which this planner is shown to find a verified avoiding
+# trajectory on 100 % of a seeded sample of table cells (tests/test_online_planner.py,
+# benchmarks/bench_planner.py): the offboard contract flies at OFFBOARD_CAP × V_safe.
+OFFBOARD_CAP = 0.95
+SUB_STEPS = 20  # dense re-simulation per interval for the exact check
+MARGIN_M = 0.01  # kept from the discs in the QP, so solver tolerance never fails the exact check
+SLACK_COST = 1e2  # per metre of keep-out violation in the first SCP iteration (×10 per iteration)
+
+
+@dataclass(frozen=True)
+class Disc:
+    """A keep-out disc (already R_obst + E_tr + r_body) in world coordinates."""
+
+    x: float
+    y: float
+    r: float
+
+
+@dataclass
+class Plan:
+    kind: str  # "pass", "stop", "brake"
+    t: np.ndarray  # (N+1,) times from now
+    p: np.ndarray  # (N+1, 2) world positions
+    v: np.ndarray  # (N+1, 2)
+    a: np.ndarray  # (N, 2) piecewise-constant accelerations
+    ok: bool  # passed the exact check
+    min_clearance: float  # smallest distance to a disc's edge along the dense path [m]
+    solve_s: float = 0.0
+    qp_solves: int = 0
+    rejected: int = 0  # QP solutions the exact check refused
+    notes: list[str] = field(default_factory=list)
+
+    def sample(self, tau: float):
+        """Position, velocity, acceleration `tau` seconds into the plan (held at the end)."""
+        ts = self.t[1] - self.t[0]
+        k = min(max(int(tau / ts), 0), len(self.a) - 1)
+        if tau >= self.t[-1]:
+            return self.p[-1].copy(), self.v[-1].copy(), np.zeros(2)
+        dt = tau - self.t[k]
+        a = self.a[k]
+        return self.p[k] + self.v[k] * dt + 0.5 * a * dt * dt, self.v[k] + a * dt, a.copy()
+
+
+def dense_path(p, v, a, ts, sub=SUB_STEPS):
+    """Positions along the piecewise-constant-acceleration path, `sub` points per interval."""
+    tau = (np.arange(sub) / sub * ts)[None, :, None]
+    pts = p[:-1, None, :] + v[:-1, None, :] * tau + 0.5 * a[:, None, :] * tau**2
+    return np.concatenate([pts.reshape(-1, 2), p[-1:]], axis=0)
+
+
+def exact_check(p, v, a, ts, discs, v_max, a_max, tol=1e-6):
+    """The true constraints, densely: (ok, min clearance, why not)."""
+    pts = dense_path(p, v, a, ts)
+    clear = math.inf
+    for d in discs:
+        clear = min(clear, float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y)) - d.r))
+    speeds = np.hypot(v[:, 0], v[:, 1])  # |v| is convex along an arc: the ends bound it
+    accs = np.hypot(a[:, 0], a[:, 1])
+    if clear < -tol:
+        return False, clear, f"enters a keep-out disc by {-clear:.3f} m"
+    if np.max(speeds[1:]) > v_max * (1 + tol):
+        return False, clear, "speed above V_max"
+    if np.max(accs) > a_max * (1 + tol):
+        return False, clear, "acceleration above the tilt limit"
+    return True, clear, ""
+
+
+def braking_plan(p0, v0, a_max, n=40) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Full deceleration against the velocity until rest, then hold."""
+    s = float(np.hypot(*v0))
+    t_stop = s / a_max if a_max > 0 else 0.0
+    ts = max(t_stop, 0.5) / n
+    a = np.zeros((n, 2))
+    p, v = np.zeros((n + 1, 2)), np.zeros((n + 1, 2))
+    p[0], v[0] = p0, v0
+    u = np.asarray(v0) / s if s > 0 else np.zeros(2)
+    for k in range(n):
+        rem = float(np.hypot(*v[k]))
+        a[k] = -u * min(a_max, rem / ts)
+        v[k + 1] = v[k] + a[k] * ts
+        p[k + 1] = p[k] + v[k] * ts + 0.5 * a[k] * ts * ts
+    return p, v, a, ts
+
+
+class AvoidancePlanner:
+    """OSQP avoidance planner with a fixed horizon of `n` intervals; solvers are cached per shape."""
+
+    def __init__(self, n: int = 40, scp_iters: int = 5, weights=(1.0, 0.05, 0.2, 0.02)):
+        self.n = n
+        self.scp_iters = scp_iters
+        self.w_v, self.w_y, self.w_vy, self.w_a = weights
+        self._solvers: dict = {}
+        self._patterns: dict = {}
+        self.poly_a, self.poly_b = cone_polygon(1.0, N_POLY)  # unit polygon, scaled per call
+
+    # ---------------------------------------------------------------- QP assembly
+    def _index(self):
+        n = self.n
+        nq = 4 * (n + 1)
+        return n, nq, nq + 2 * n
+
+    def _pattern(self, n_discs):
+        """The constraint matrix's fixed sparsity pattern (COO, no duplicates) and its CSC order.
+
+        Rows: q_0 = q0 (4) · dynamics q_{k+1} − F̂ q_k − Ĝ w_k = 0 (4N) · acceleration polygon (16N) ·
+        speed polygon for k ≥ 1 (16N) · two half-plane rows per disc and segment · terminal x_N, ẋ_N, ẏ_N.
+        """
+        n, nq, nz = self._index()
+        nz += n * n_discs  # one slack per disc and segment (soft keep-out while the SCP converges)
+        rows, cols, tags = [], [], []  # tag: how the value is computed
+
+        def add(r, c, tag):
+            rows.append(r)
+            cols.append(c)
+            tags.append(tag)
+
+        for i in range(4):
+            add(i, i, ("one",))
+        for k in range(n):
+            r0 = 4 + 4 * k
+            for i in range(4):
+                add(r0 + i, 4 * (k + 1) + i, ("one",))
+            for ax in range(2):  # per axis block: rows (pos, vel) × cols (pos, vel) and the input
+                rp, rv = r0 + 2 * ax, r0 + 2 * ax + 1
+                cp, cv = 4 * k + 2 * ax, 4 * k + 2 * ax + 1
+                add(rp, cp, ("minus_one",))
+                add(rp, cv, ("minus_ts",))
+                add(rv, cv, ("minus_one",))
+                add(rp, nq + 2 * k + ax, ("minus_half_ts2",))
+                add(rv, nq + 2 * k + ax, ("minus_ts",))
+        r = 4 + 4 * n
+        for k in range(n):
+            for j in range(N_POLY):
+                add(r + N_POLY * k + j, nq + 2 * k, ("poly", j, 0))
+                add(r + N_POLY * k + j, nq + 2 * k + 1, ("poly", j, 1))
+        r += N_POLY * n
+        for k in range(1, n + 1):
+            for j in range(N_POLY):
+                add(r + N_POLY * (k - 1) + j, 4 * k + 1, ("poly", j, 0))
+                add(r + N_POLY * (k - 1) + j, 4 * k + 3, ("poly", j, 1))
+        r += N_POLY * n
+        r_hp = r
+        for dd in range(n_discs):
+            for k in range(n):
+                for e, kk in enumerate((k, k + 1)):
+                    row = r + 2 * (dd * n + k) + e
+                    add(row, 4 * kk, ("hp", row - r_hp, 0))
+                    add(row, 4 * kk + 2, ("hp", row - r_hp, 1))
+                    add(row, nq + 2 * n + dd * n + k, ("one",))
+        r += 2 * n * n_discs
+        for i in range(n * n_discs):  # slacks ≥ 0
+            add(r + i, nq + 2 * n + i, ("one",))
+        r += n * n_discs
+        for i, c in enumerate((4 * n, 4 * n + 1, 4 * n + 3)):
+            add(r + i, c, ("one",))
+        m = r + 3
+        rows, cols = np.array(rows), np.array(cols)
+        order = np.lexsort((rows, cols))  # CSC order: by column, then row
+        csc = sp.csc_matrix((np.ones(len(rows)), (rows, cols)), shape=(m, nz))
+        assert csc.nnz == len(rows)
+        tags = [tags[i] for i in order]
+        kind = np.array([{"one": 0, "minus_one": 1, "minus_ts": 2, "minus_half_ts2": 3, "poly": 4, "hp": 5}[t[0]]
+                         for t in tags])
+        poly_j = np.array([t[1] if t[0] == "poly" else 0 for t in tags])
+        hp_i = np.array([t[1] if t[0] == "hp" else 0 for t in tags])
+        comp = np.array([t[2] if t[0] in ("poly", "hp") else 0 for t in tags])
+        return {"csc": csc, "kind": kind, "poly_j": poly_j, "hp_i": hp_i, "comp": comp, "r_hp": r_hp, "m": m, "nz": nz}
+
+    def _values(self, pat, ts, normals):
+        """CSC data for sampling time `ts` and half-plane `normals` (rows of unit vectors)."""
+        kind = pat["kind"]
+        val = np.empty(len(kind))
+        val[kind == 0] = 1.0
+        val[kind == 1] = -1.0
+        val[kind == 2] = -ts
+        val[kind == 3] = -0.5 * ts * ts
+        pk = kind == 4
+        val[pk] = self.poly_a[pat["poly_j"][pk], pat["comp"][pk]]
+        hk = kind == 5
+        if np.any(hk):
+            nv = normals[pat["hp_i"][hk], pat["comp"][hk]]
+            val[hk] = np.where(np.abs(nv) < 1e-12, 1e-12, nv)  # keep the slot: the pattern is fixed
+        return val
+
+    def _cost(self, kind, v_cruise, n_discs):
+        n, nq, nz0 = self._index()
+        nz = nz0 + n * n_discs
+        diag = np.zeros(nz)
+        q = np.zeros(nz)
+        for k in range(1, n + 1):
+            if kind == "pass":
+                diag[4 * k + 1] = self.w_v
+                q[4 * k + 1] = -self.w_v * v_cruise
+            diag[4 * k + 2] = self.w_y
+            diag[4 * k + 3] = self.w_vy
+        diag[nq:nz0] = self.w_a
+        if kind == "stop":
+            diag[[4 * k + 1 for k in range(1, n + 1)]] += 0.01  # prefer slowing early
+        diag[nz0:] = 1e-3
+        q[nz0:] = SLACK_COST
+        return sp.diags(diag, format="csc"), q
+
+    def _solver(self, kind, n_discs, pat, q, lo, hi, val, fresh):
+        """One OSQP workspace per (plan kind, number of discs): set up afresh for a cold start (its
+        scaling fits that problem), updated in place while replanning the same situation."""
+        key = (kind, n_discs)
+        if fresh or key not in self._solvers:
+            p_mat, _ = self._cost(kind, 0.0, n_discs)
+            a_mat = pat["csc"].copy()
+            a_mat.data = val
+            s = osqp.OSQP()
+            s.setup(p_mat, q, a_mat, lo, hi, verbose=False, eps_abs=1e-4, eps_rel=1e-4, max_iter=2000,
+                    polishing=True, warm_starting=True, adaptive_rho=True)
+            self._solvers[key] = s
+        else:
+            self._solvers[key].update(q=q, l=lo, u=hi, Ax=val)
+        return self._solvers[key]
+
+    # ---------------------------------------------------------------- one plan
+    def plan(self, p0, v0, route_dir, discs: list[Disc], v_max: float, a_max: float, v_cruise: float | None = None,
+             horizon_s: float | None = None, warm: Plan | None = None, elapsed: float = 0.0) -> Plan:
+        """Plan from (p0, v0) along `route_dir` around `discs` within V_max and the tilt's a_max.
+
+        `warm`: the previous plan, `elapsed` seconds old — its remainder is the first linearisation of
+        the same kind of plan (replanning), tried before the cold starts.
+        """
+        t0 = time.perf_counter()
+        u = np.asarray(route_dir, float)
+        u = u / np.linalg.norm(u)
+        rot = np.array([[u[0], u[1]], [-u[1], u[0]]])  # world → route frame
+        p0 = np.asarray(p0, float)
+        pr0, vr0 = np.zeros(2), rot @ np.asarray(v0, float)
+        local = [Disc(*(rot @ (np.array([d.x, d.y]) - p0)), d.r) for d in discs]
+        v_cruise = v_max if v_cruise is None else min(v_cruise, v_max)
+        speed0 = float(np.hypot(*vr0))
+        # horizons: passing needs the time to get beyond the obstacle (with room to slow down), stopping
+        # the time to brake; an explicit horizon overrides both
+        far = max((d.x + d.r for d in local), default=0.0)
+        h = {"pass": max(1.5, 2.0 * far / max(min(v_cruise, speed0) if speed0 > 0.1 else v_cruise, 0.3)),
+             "stop": max(1.5, 1.5 * speed0 / max(a_max, 1e-3))}
+        if horizon_s is not None:
+            h = {"pass": horizon_s, "stop": horizon_s}
+        total = 0
+        rejected = 0
+        notes = []
+        attempts = [("pass", 1.0, None), ("pass", -1.0, None), ("stop", 0.0, None)]
+        if warm is not None and warm.kind in ("pass", "stop"):
+            h[warm.kind] = max(h[warm.kind], warm.t[-1] - elapsed)
+            tw = h[warm.kind] / self.n
+            guess = np.array([warm.sample(elapsed + k * tw)[0] for k in range(self.n + 1)])
+            attempts.insert(0, (warm.kind, 0.0, (guess - p0) @ rot.T))
+        for kind, side, guess in attempts:
+            if kind == "pass" and not local:
+                side = 0.0
+            ts = h[kind] / self.n
+            res = self._scp(kind, side, pr0, vr0, local, v_max, a_max, v_cruise, ts, guess)
+            total += res[-1]
+            if res[0] is None:
+                notes.append(f"{kind}{'+' if side > 0 else '-' if side < 0 else ''}: {res[1]}")
+                continue
+            p, v, a, why, ok, clear = res[:6]
+            if ok:
+                return self._world(kind, p, v, a, ts, rot, p0, True, clear, t0, total, rejected, notes)
+            rejected += 1
+            notes.append(f"{kind}: rejected by the exact check ({why})")
+            if kind == "pass" and not local:
+                break
+        p, v, a, tsb = braking_plan(pr0, vr0, a_max, self.n)
+        ok, clear, why = exact_check(p, v, a, tsb, local, max(v_max, speed0), a_max)
+        if not ok:
+            notes.append(f"brake: {why}")
+        return self._world("brake", p, v, a, tsb, rot, p0, ok, clear, t0, total, rejected, notes)
+
+    def _world(self, kind, p, v, a, ts, rot, p0, ok, clear, t0, solves, rejected, notes) -> Plan:
+        back = rot.T
+        return Plan(kind, np.arange(len(p)) * ts, p @ back.T + p0, v @ back.T, a @ back.T, ok, clear,
+                    time.perf_counter() - t0, solves, rejected, notes)
+
+    def _scp(self, kind, side, p0, v0, discs, v_max, a_max, v_cruise, ts, guess=None):
+        n, nq, nz = self._index()
+        key = len(discs)
+        if key not in self._patterns:
+            self._patterns[key] = self._pattern(key)
+        pat = self._patterns[key]
+        _, q = self._cost(kind, v_cruise, len(discs))
+        inflate = a_max * ts * ts / 8.0 + MARGIN_M
+        m, r_hp = pat["m"], pat["r_hp"]
+        lo, hi = np.zeros(m), np.zeros(m)
+        lo[0:4] = hi[0:4] = [p0[0], v0[0], p0[1], v0[1]]
+        r = 4 + 4 * n
+        lo[r : r + 2 * N_POLY * n] = -np.inf
+        hi[r : r + N_POLY * n] = np.tile(self.poly_b * a_max, n)
+        hi[r + N_POLY * n : r + 2 * N_POLY * n] = np.tile(self.poly_b * v_max, n)
+        r = r_hp + 2 * n * len(discs)
+        hi[r_hp:r] = np.inf
+        lo[r : r + n * len(discs)], hi[r : r + n * len(discs)] = 0.0, np.inf
+        r += n * len(discs)
+        if kind == "pass":
+            beyond = max((d.x + d.r + inflate for d in discs), default=-np.inf)
+            lo[r : r + 3], hi[r : r + 3] = [beyond, 0.0, 0.0], [np.inf, np.inf, 0.0]
+        else:
+            lo[r : r + 3], hi[r : r + 3] = [-np.inf, 0.0, 0.0], [np.inf, 0.0, 0.0]
+        # first linearisation: the straight path at the current velocity; each segment's half-plane
+        # faces the point beside the disc on `side` at the segment's abscissa (pass: the normals turn
+        # smoothly from −x through the side to +x, so neighbouring half-planes always intersect), or
+        # the disc's front (stop)
+        warm = guess is not None
+        if not warm:
+            tk = np.arange(n + 1) * ts
+            guess = p0[None, :] + v0[None, :] * tk[:, None]
+        centres = np.array([[d.x, d.y] for d in discs]).reshape(-1, 2)
+        radii = np.array([d.r for d in discs])
+        lift = side * (radii + inflate)[:, None] if kind == "pass" else np.zeros((len(discs), 1))
+        solves, sol = 0, None
+        p = v = a = None
+        why, clear = "no iteration", -math.inf
+        for it in range(self.scp_iters):
+            normals = np.zeros((2 * n * len(discs), 2))
+            if discs:
+                mid = 0.5 * (guess[:-1] + guess[1:])  # (n, 2)
+                nrm = mid[None, :, :] - centres[:, None, :]  # (discs, n, 2)
+                if it == 0 and not warm:
+                    nrm[..., 1] = lift  # the virtual point beside the disc
+                    if kind == "stop":
+                        nrm[..., 0] = -1.0
+                ln = np.hypot(nrm[..., 0], nrm[..., 1])[..., None]
+                nrm = np.where(ln > 1e-9, nrm / np.maximum(ln, 1e-12), np.array([-1.0, 0.0]))
+                bound = np.einsum("dkc,dc->dk", nrm, centres) + radii[:, None] + inflate
+                normals = np.repeat(nrm.reshape(-1, 2), 2, axis=0)
+                lo[r_hp : r_hp + 2 * n * len(discs)] = np.repeat(bound.reshape(-1), 2)
+            # soft keep-out with a penalty that grows each iteration (exact check = the only judge)
+            q[nq + 2 * n :] = SLACK_COST * (10.0 ** it)
+            solver = self._solver(kind, len(discs), pat, q, lo, hi, self._values(pat, ts, normals),
+                                  fresh=(it == 0 and not warm))
+            if sol is None:  # start from the guess, never from another problem's solution
+                x_init = np.zeros(pat["nz"])
+                vel = np.vstack([v0, np.diff(guess, axis=0) / ts])
+                x_init[:nq] = np.column_stack([guess[:, 0], vel[:, 0], guess[:, 1], vel[:, 1]]).ravel()
+                solver.warm_start(x=x_init, y=np.zeros(pat["m"]))
+            else:
+                solver.warm_start(x=sol)
+            out = solver.solve(raise_error=False)
+            solves += 1
+            if out.x is None or not np.all(np.isfinite(out.x)) or "infeasible" in out.info.status:
+                return None, f"QP {out.info.status}", solves
+            # an unconverged iterate is still a candidate: the exact check below is the only judge
+            sol = out.x
+            qs = sol[:nq].reshape(n + 1, 4)
+            p, v, a = qs[:, [0, 2]], qs[:, [1, 3]], sol[nq : nq + 2 * n].reshape(n, 2)
+            ok, clear, why = exact_check(p, v, a, ts, discs, v_max, a_max)
+            if ok:
+                return p, v, a, why, ok, clear, solves
+            guess = p
+        return p, v, a, why, False, clear, solves
+
