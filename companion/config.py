@@ -41,7 +41,7 @@ class LinkConfig(_Strict):
 
 class ContractConfig(_Strict):
     r_obst_m: NonNeg = 1.0  # expected obstacle radius (also the R_OBST parameter)
-    e_tr_floor_m: NonNeg = 0.1  # smallest tracking error ever assumed
+    e_tr_floor_m: NonNeg = 0.3  # smallest tracking error ever assumed (braking overshoot included)
     e_tr_window_s: Pos = 2.0  # E_tr is the worst contour error over this window
     dwell_s: NonNeg = 2.0  # a higher limit takes effect only after holding this long
     late_detection_hold_s: NonNeg = 10.0  # how long a late first detection lowers D_od
@@ -60,6 +60,13 @@ class Timeouts(_Strict):
     telemetry_s: Pos = 0.5
     obstacle_s: Pos = 0.5  # PX4 collision prevention drops range data older than 0.5 s
     nav_s: Pos = 2.0
+
+
+class RouteConfig(_Strict):
+    """The route offboard mode flies: local NED waypoints [m] at a constant altitude."""
+
+    waypoints: list[tuple[float, float]]
+    altitude_m: Pos = 2.0
 
 
 class LogConfig(_Strict):
@@ -83,6 +90,8 @@ class Config(_Strict):
     thrust: ThrustConfig = ThrustConfig()
     timeouts: Timeouts = Timeouts()
     log: LogConfig = LogConfig()
+    route: RouteConfig | None = None  # offboard mode: the route to fly
+    offboard_entry_s: Pos = 1.0  # setpoints streamed before asking for OFFBOARD (PX4 needs > 0.5 s)
 
 
 def config_from_dict(data: object, source: str = "config") -> Config:

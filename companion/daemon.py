@@ -17,11 +17,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from contracts.flat import horizontal_accel_limit
 from contracts.table import ContractTable
+
+from contracts.errors import ContractError
 
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE, adapter_for
 from .config import Config
 from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from .guidance import OffboardGuidance, Route, obstacle_discs
+from .offboard import OffboardController
 from .link import mavlink
 from .supervisor import Decision, Inputs, Supervisor
 from .telemetry import Telemetry
@@ -120,6 +125,13 @@ class Daemon:
         self.last: Decision | None = None
         self._sensor_of = self._sensor_index()
         self.checks = StartupChecks(self.adapter, table.vehicle, cfg)
+        self.offboard = None
+        if cfg.mode == "offboard":
+            if cfg.route is None:
+                raise ContractError("mode offboard needs a route (config key route.waypoints)")
+            route = Route(cfg.route.waypoints, cfg.route.altitude_m)
+            self.offboard = OffboardController(OffboardGuidance(route), cfg.offboard_entry_s)
+        self._stopping = False
         self._t_checks: float | None = None
 
     # ------------------------------------------------------------------ input
@@ -178,7 +190,8 @@ class Daemon:
         elif kind == "ATTITUDE":
             self.dod.add_heading(t, msg.yaw)
         elif kind == "POSITION_TARGET_LOCAL_NED" and self.tel.target is not None and self.tel.t_target == t:
-            self.etr.command(t, *self.tel.target)
+            if self.offboard is None or not self.offboard.streaming:  # offboard: our own setpoints are the path
+                self.etr.command(t, *self.tel.target)
         elif kind == "VFR_HUD" and math.isfinite(self.tel.vz):
             self.thrust.add(t, self.tel.throttle, self.tel.roll, self.tel.pitch, self.tel.vz, self.tel.in_air)
         elif kind in ("ESTIMATOR_STATUS", "EKF_STATUS_REPORT"):
@@ -300,8 +313,9 @@ class Daemon:
             self._first_seen_in_air = tel.in_air
         engaged = (self.params["CG_ENGAGE"] >= 0.5 and self.startup_ok is not False
                    and self._first_seen_in_air is False)
+        applies = self.adapter.limit_applies(mode) or (self.offboard is not None and mode == "offboard")
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
-                      in_air=tel.in_air, mode=mode, limit_applies=self.adapter.limit_applies(mode),
+                      in_air=tel.in_air, mode=mode, limit_applies=applies,
                       mode_by_daemon=by_daemon, ground_speed=speed, dod=dod, e_tr=e_tr,
                       thrust_ratio=thrust_ratio, r_obst=r_obst, engaged=engaged, mission_seq=tel.mission_seq)
 
@@ -316,12 +330,44 @@ class Daemon:
             self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(self.adapter.hold_mode(), True), "hold")
         if d.send_speed is not None and self.sup.mode == "governor":
             self._command(t, MAV_CMD_DO_CHANGE_SPEED, self.adapter.speed_params(d.send_speed), "change_speed")
+        if self.offboard is not None and i.link_ok:
+            self._fly_offboard(t, i, d)
         for name, fields in d.events:
             self._event(t, name, **fields)
         for sev, text in d.statustext:
             self._statustext(sev, text)
         self._periodic(t, i, d)
         return d
+
+    def _fly_offboard(self, t: float, i: Inputs, d: Decision) -> None:
+        """Offboard mode: enter, stream the guidance's setpoints, leave (DESIGN.md §5)."""
+        tel, veh = self.tel, self.table.vehicle
+        a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
+                                       veh.mass_kg)
+        inflate = d.omega.e_tr + veh.r_body_m if math.isfinite(d.omega.e_tr) else i.e_tr + veh.r_body_m
+        discs, widest = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, i.r_obst, inflate)
+        if widest > i.r_obst + 0.05 and not getattr(self, "_wide_warned", False):
+            self._event(t, "violation_start", subsystem="environment", guarantee="no obstacle wider than R_obst",
+                        assumed=i.r_obst, observed=widest, action="planning around the observed width")
+            self._wide_warned = True
+        acts = self.offboard.step(
+            t, engaged=i.engaged and self.startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
+            mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,
+            v_max=d.v_cmd or 0.0, a_max=a_max, discs=discs, stop=d.hold or self._stopping or d.state != "active")
+        for name, fields in acts.events:
+            self._event(t, name, **fields)
+        if acts.enter:
+            self._commanded_mode = ("offboard", t, False)
+            self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params("offboard", True), "offboard")
+        sp = acts.setpoint
+        if sp is not None:
+            self.etr.command(t, float(sp.p[0]), float(sp.p[1]))
+            self._send(self.conn.mav.set_position_target_local_ned_encode(
+                int(t * 1000) & 0xFFFFFFFF, self.cfg.link.target_system, self.cfg.link.target_component,
+                mavlink.MAV_FRAME_LOCAL_NED, 2048,  # position, velocity, acceleration and yaw; no yaw rate
+                float(sp.p[0]), float(sp.p[1]), float(sp.z), float(sp.v[0]), float(sp.v[1]), 0.0,
+                float(sp.a[0]), float(sp.a[1]), 0.0, float(sp.yaw), 0.0))
+            self._setpoint = sp
 
     def _link_events(self, t: float, i: Inputs) -> None:
         if i.link_ok != self._link_up:
@@ -369,7 +415,12 @@ class Daemon:
                 self.counters.log_errors += 1
 
     def shutdown(self) -> None:
-        """Leave cleanly: persist the signing timestamp, say so to the ground station."""
+        """Leave cleanly: offboard hands over to Hold; persist the signing timestamp; say so."""
+        if self.offboard is not None and self.offboard.streaming:
+            t = self.clock()
+            self._commanded_mode = (self.adapter.hold_mode(), t, False)
+            self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(self.adapter.hold_mode(), True), "hold")
+            self._stopping = True
         if self.signing_clock is not None:
             self.signing_clock.save(self.conn.mav.signing.timestamp)
         self._statustext(5, "CG: contract-guard stopping")

@@ -124,6 +124,16 @@ class DodEstimator:
         return len(past) > 1 and max(abs(wrap(y - past[-1])) for y in past) > half
 
     # ---- output
+    def fresh_hits(self, t: float) -> list[tuple[float, float, float, bool]]:
+        """Obstacle hits of the fresh sensors: (body bearing, range, bearing uncertainty ±, from bins)."""
+        out = []
+        for s in self.sensors:
+            if t - s.t <= self.stale_s:
+                bins = s.bins_fov is not None
+                half = s.increment / 2 if bins else math.radians(s.cfg.h_fov_deg) / 2
+                out.extend((b, r, half, bins) for b, r in s.hits)
+        return out
+
     def estimate(self, t: float, beta: float, corridor_m: float = math.inf) -> DodEstimate:
         """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
         deciding which hits are on it (single-beam hits are always taken as on it)."""

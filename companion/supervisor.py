@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from contracts.stop import braking_decel, stop_dead_time, stopping_distance
 from contracts.table import ContractTable, Omega
 
+from .avoid_planner import OFFBOARD_CAP
 from .estimators import DodEstimate
 
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
@@ -97,6 +98,8 @@ class Supervisor:
         self.table = table
         self.mode = mode
         self.contract = "avoid" if mode == "offboard" else "stop"
+        # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
+        self.cap = OFFBOARD_CAP if self.contract == "avoid" else 1.0
         self.limit = OneSidedLimit(dwell_s)
         self.margin = speed_margin
         self.loop_dt = loop_dt
@@ -197,7 +200,7 @@ class Supervisor:
                             (c == OBSTACLE and math.isfinite(i.dod.obstacle_m))}
         fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
 
-        v_limit = self.limit.update(i.t, om.v_max)
+        v_limit = self.limit.update(i.t, om.v_max * self.cap)
         d.v_cmd = v_limit
         if fresh:
             unanswered = self.state == "holding" and i.mode != "hold" and i.t - self._t_hold > 1.0
@@ -244,7 +247,7 @@ class Supervisor:
             settle = (i.ground_speed - self.limit.value) / max(a, 0.1) + stop_dead_time(self.table.vehicle) + 1.0
         margin_m = i.e_tr + self.table.vehicle.r_body_m + i.ground_speed * self.loop_dt
         obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
-        return {
+        causes = {
             "non-finite telemetry": not finite,
             "stale telemetry": not i.telemetry_ok,
             "bad navigation estimate": not i.nav_ok,
@@ -252,6 +255,9 @@ class Supervisor:
             OBSTACLE: obstacle,
             "speed limit not in force": self._over_since is not None and i.t - self._over_since > settle,
         }
+        if self.contract == "avoid":
+            del causes[OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself
+        return causes
 
     def _shadow(self, d: Decision, i: Inputs) -> Decision:
         """Shadow mode: what the governor would do, logged, nothing commanded."""

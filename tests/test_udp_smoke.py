@@ -86,10 +86,22 @@ def gcs_fly(port):
     return m
 
 
+def wait_for_event(logdir, name, timeout=30.0):
+    """Until the daemon has logged `name` (it must see the vehicle on the ground before take-off:
+    a daemon that first sees it flying never engages by itself)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if (logdir / "events.jsonl").exists() and any(r.get("event") == name for r in read_log(logdir)):
+            return
+        time.sleep(0.2)
+    pytest.fail(f"the daemon never logged {name}")
+
+
 def test_daemon_governs_the_sitl_over_udp_and_stops_cleanly(world):
     port, config, logdir = world
     d = cg("run", "--config", config())
     try:
+        wait_for_event(logdir, "startup_check")
         gcs = gcs_fly(port)
         deadline = time.time() + 60
         acked = False
@@ -114,6 +126,7 @@ def test_kill9_and_restart_keep_the_log(world):
     port, config, logdir = world
     cfg = config()
     d = cg("run", "--config", cfg)
+    wait_for_event(logdir, "startup_check")
     gcs_fly(port)
     time.sleep(4.0)
     d.kill()

@@ -1,0 +1,206 @@
+"""Offboard guidance: the daemon as the paper's guidance subsystem (Figure 1). Pure, no I/O.
+
+- `Route`: the polyline to fly at constant altitude (NED), with along-track progress.
+- `obstacle_discs`: the keep-out discs from sensor hits — several beams of one obstacle give its
+  position and width; a single beam keeps the conservative set of positions consistent with the hit.
+- `OffboardGuidance`: each cycle a setpoint (position, velocity, acceleration feed-forward, yaw):
+  cruise along the route at the contract's V_max; when an obstacle is on the path, fly the online
+  avoidance plan (`avoid_planner`) around its keep-out disc; replan when an obstacle appears, when Ω
+  changes, when the vehicle drifts from the plan, or as the plan ages; brake when nothing else is safe.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .avoid_planner import AvoidancePlanner, Disc, Plan
+
+REPLAN_S = 0.5  # an active plan is refreshed this often
+DRIFT_M = 0.3  # … or as soon as the vehicle is this far from it
+
+
+@dataclass
+class Route:
+    """Waypoints (x, y) [m, local NED] flown at `altitude_m` above the origin (z = −altitude)."""
+
+    waypoints: np.ndarray
+    altitude_m: float
+
+    def __post_init__(self):
+        self.waypoints = np.asarray(self.waypoints, dtype=float).reshape(-1, 2)
+        seg = np.diff(self.waypoints, axis=0)
+        self._len = np.hypot(seg[:, 0], seg[:, 1])
+        self._cum = np.concatenate([[0.0], np.cumsum(self._len)])
+
+    @property
+    def length(self) -> float:
+        return float(self._cum[-1])
+
+    def project(self, p) -> float:
+        """Along-track distance of the route point nearest to p."""
+        best, s_best = math.inf, 0.0
+        for i, (a, ln) in enumerate(zip(self.waypoints[:-1], self._len)):
+            if ln <= 0:
+                continue
+            u = (self.waypoints[i + 1] - a) / ln
+            s = min(max(float(np.dot(np.asarray(p) - a, u)), 0.0), ln)
+            d = float(np.hypot(*(a + u * s - p)))
+            if d < best:
+                best, s_best = d, self._cum[i] + s
+        return s_best
+
+    def point(self, s: float):
+        """(position, unit direction) at along-track s (clamped to the route)."""
+        s = min(max(s, 0.0), self.length)
+        i = min(int(np.searchsorted(self._cum, s, side="right")) - 1, len(self._len) - 1)
+        u = (self.waypoints[i + 1] - self.waypoints[i]) / max(self._len[i], 1e-9)
+        return self.waypoints[i] + u * (s - self._cum[i]), u
+
+
+def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float) -> tuple[list[Disc], float]:
+    """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
+
+    Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
+    R_obst through the chord's ends, on the far side (or wider, if the chord is wider than 2·R_obst —
+    reported as the observed width). A single beam only says that the surface is at that range
+    somewhere in its field of view: every disc of radius R_obst touching such a point lies within
+    2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
+    Returns the discs and the widest obstacle radius observed (0 if none measurable).
+    """
+    p = np.asarray(p, float)
+    discs: list[Disc] = []
+    widest = 0.0
+    bins = sorted((b, r, h) for b, r, h, is_bins in hits if is_bins)
+    singles = [(b, r, h) for b, r, h, is_bins in hits if not is_bins]
+    clusters: list[list] = []
+    for b, r, h in bins:
+        if clusters and abs(b - clusters[-1][-1][0]) <= 2.5 * h + 1e-9 and abs(r - clusters[-1][-1][1]) < 2 * r_obst + 0.5:
+            clusters[-1].append((b, r, h))
+        else:
+            clusters.append([(b, r, h)])
+    for cl in clusters:
+        pts = np.array([p + r * np.array([math.cos(yaw + b), math.sin(yaw + b)]) for b, r, _ in cl])
+        half = cl[0][2]
+        lo_b, hi_b = cl[0][0] - half, cl[-1][0] + half  # the obstacle may fill its edge bins
+        r_near = min(r for _, r, _ in cl)
+        ends = [p + r_near * np.array([math.cos(yaw + a), math.sin(yaw + a)]) for a in (lo_b, hi_b)]
+        w2 = float(np.hypot(*(ends[1] - ends[0]))) / 2
+        mid = 0.5 * (ends[0] + ends[1])
+        u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
+        radius = max(r_obst, w2)
+        widest = max(widest, w2 if len(cl) > 1 else 0.0)
+        centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u
+        # every hit must be inside or on the disc's boundary; grow it if the fit missed one
+        grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)
+        discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + inflate))
+    for b, r, h in singles:
+        n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
+        for a in np.linspace(b - h, b + h, n):
+            hp = p + r * np.array([math.cos(yaw + a), math.sin(yaw + a)])
+            discs.append(Disc(float(hp[0]), float(hp[1]), 2 * r_obst + inflate))
+    return discs, widest
+
+
+@dataclass
+class Setpoint:
+    p: np.ndarray  # (x, y) NED [m]
+    v: np.ndarray
+    a: np.ndarray
+    z: float
+    yaw: float
+    mode: str  # "cruise", "avoid", "brake", "hold", "done"
+
+
+@dataclass
+class OffboardGuidance:
+    route: Route
+    planner: AvoidancePlanner = field(default_factory=AvoidancePlanner)
+    plan: Plan | None = None
+    plan_t: float = 0.0
+    plan_omega: tuple[float, float] | None = None
+    s_ref: float = 0.0  # along-track position of the cruise reference
+    v_ref: float = 0.0  # speed of the cruise reference
+    replans: int = 0
+    plan_times: list = field(default_factory=list)
+    rejected: int = 0
+    last_notes: list = field(default_factory=list)
+
+    def start(self, p, v) -> None:
+        self.s_ref = self.route.project(p)
+        self.v_ref = float(np.hypot(*v))
+        self.plan = None
+
+    def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc]) -> Setpoint:
+        """One cycle: the setpoint for now (t), given the vehicle's state and Ω = (v_max, a_max)."""
+        p, v = np.asarray(p, float), np.asarray(v, float)
+        z = -self.route.altitude_m
+        ahead = self._threats(p, v, discs)
+        if ahead:
+            return self._avoid(t, p, v, v_max, a_max, ahead, z)
+        if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1]:
+            return self._follow(t, z)  # finish going round the obstacle before rejoining
+        self.plan = None
+        return self._cruise(dt, p, v_max, a_max, z)
+
+    # ---------------------------------------------------------------- cruising
+    def _cruise(self, dt, p, v_max, a_max, z) -> Setpoint:
+        s_here = self.route.project(p)
+        if self.s_ref < s_here - 1.0 or self.s_ref > s_here + 2.0:
+            self.s_ref = s_here  # rejoin where the vehicle is
+        rest = self.route.length - self.s_ref
+        v_stop = math.sqrt(max(2 * 0.8 * a_max * rest, 0.0))  # arrive at the end at rest
+        target = min(v_max, v_stop)
+        dv = max(min(target - self.v_ref, 0.5 * a_max * dt), -a_max * dt)
+        acc = dv / dt if dt > 0 else 0.0
+        self.v_ref = max(self.v_ref + dv, 0.0)
+        self.s_ref += self.v_ref * dt
+        pos, u = self.route.point(self.s_ref)
+        mode = "done" if rest <= 0.05 else "cruise"
+        return Setpoint(pos, u * self.v_ref, u * acc, z, math.atan2(u[1], u[0]), mode)
+
+    # ---------------------------------------------------------------- avoiding
+    def _threats(self, p, v, discs) -> list[Disc]:
+        """Discs the route ahead (or the current motion) would run into."""
+        if not discs:
+            return []
+        _, u = self.route.point(self.route.project(p))
+        out = []
+        for d in discs:
+            rel = np.array([d.x, d.y]) - p
+            along = float(rel @ u)
+            lateral = abs(float(rel[0] * u[1] - rel[1] * u[0]))
+            if along > -d.r and lateral < d.r + 0.5:
+                out.append(d)
+        return out
+
+    def _avoid(self, t, p, v, v_max, a_max, discs, z) -> Setpoint:
+        omega = (round(v_max, 3), round(a_max, 3))
+        stale = self.plan is None or self.plan.kind == "brake" and not self.plan.ok
+        drift = 0.0
+        if self.plan is not None:
+            ps, _, _ = self.plan.sample(t - self.plan_t)
+            drift = float(np.hypot(*(ps - p)))
+        if (stale or omega != self.plan_omega or drift > DRIFT_M or t - self.plan_t > REPLAN_S
+                or self.plan.kind == "brake"):
+            _, u = self.route.point(self.route.project(p))
+            warm = self.plan if self.plan is not None and self.plan.kind != "brake" else None
+            new = self.planner.plan(p, v, u, discs, v_max=v_max, a_max=a_max, warm=warm,
+                                    elapsed=t - self.plan_t)
+            self.replans += 1
+            self.plan_times.append(new.solve_s)
+            self.rejected += new.rejected
+            self.last_notes = new.notes
+            self.plan, self.plan_t, self.plan_omega = new, t, omega
+        return self._follow(t, z)
+
+    def _follow(self, t, z) -> Setpoint:
+        pos, vel, acc = self.plan.sample(t - self.plan_t)
+        speed = float(np.hypot(*vel))
+        _, u = self.route.point(self.route.project(pos))
+        yaw = math.atan2(vel[1], vel[0]) if speed > 0.5 else math.atan2(u[1], u[0])
+        self.s_ref, self.v_ref = self.route.project(pos), float(vel @ u)
+        mode = {"pass": "avoid", "stop": "avoid", "brake": "brake"}[self.plan.kind]
+        return Setpoint(pos, vel, acc, z, yaw, mode)
