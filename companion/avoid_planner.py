@@ -88,7 +88,7 @@ def exact_check(p, v, a, ts, discs, v_max, a_max, tol=1e-6):
     accs = np.hypot(a[:, 0], a[:, 1])
     if clear < -tol:
         return False, clear, f"enters a keep-out disc by {-clear:.3f} m"
-    if np.max(speeds[1:]) > v_max * (1 + tol):
+    if np.any(speeds[1:] > np.asarray(v_max) * (1 + tol)):  # v_max: a bound, or one per sample k ≥ 1
         return False, clear, "speed above V_max"
     if np.max(accs) > a_max * (1 + tol):
         return False, clear, "acceleration above the tilt limit"
@@ -306,6 +306,12 @@ class AvoidancePlanner:
         return Plan(kind, np.arange(len(p)) * ts, p @ back.T + p0, v @ back.T, a @ back.T, ok, clear,
                     time.perf_counter() - t0, solves, rejected, notes)
 
+    def _speed_caps(self, v0, v_max, a_max, ts):
+        """Speed bound at k = 1…N: V_max, or — flying faster after the limit dropped — the current
+        speed less what braking at 70 % of a_max removes by then."""
+        k = np.arange(1, self.n + 1)
+        return np.maximum(v_max, float(np.hypot(*v0)) - 0.7 * a_max * ts * k)
+
     def _scp(self, kind, side, p0, v0, discs, v_max, a_max, v_cruise, ts, guess=None):
         n, nq, nz = self._index()
         key = len(discs)
@@ -320,7 +326,7 @@ class AvoidancePlanner:
         r = 4 + 4 * n
         lo[r : r + 2 * N_POLY * n] = -np.inf
         hi[r : r + N_POLY * n] = np.tile(self.poly_b * a_max, n)
-        hi[r + N_POLY * n : r + 2 * N_POLY * n] = np.tile(self.poly_b * v_max, n)
+        hi[r + N_POLY * n : r + 2 * N_POLY * n] = np.outer(self._speed_caps(v0, v_max, a_max, ts), self.poly_b).ravel()
         r = r_hp + 2 * n * len(discs)
         hi[r_hp:r] = np.inf
         lo[r : r + n * len(discs)], hi[r : r + n * len(discs)] = 0.0, np.inf
@@ -377,7 +383,7 @@ class AvoidancePlanner:
             sol = out.x
             qs = sol[:nq].reshape(n + 1, 4)
             p, v, a = qs[:, [0, 2]], qs[:, [1, 3]], sol[nq : nq + 2 * n].reshape(n, 2)
-            ok, clear, why = exact_check(p, v, a, ts, discs, v_max, a_max)
+            ok, clear, why = exact_check(p, v, a, ts, discs, self._speed_caps(v0, v_max, a_max, ts), a_max)
             if ok:
                 return p, v, a, why, ok, clear, solves
             guess = p

@@ -189,6 +189,7 @@ class Daemon:
             self.etr.measure(t, msg.x, msg.y)
         elif kind == "ATTITUDE":
             self.dod.add_heading(t, msg.yaw)
+            self.dod.set_speed(self.tel.ground_speed)
         elif kind == "POSITION_TARGET_LOCAL_NED" and self.tel.target is not None and self.tel.t_target == t:
             if self.offboard is None or not self.offboard.streaming:  # offboard: our own setpoints are the path
                 self.etr.command(t, *self.tel.target)
@@ -295,7 +296,8 @@ class Daemon:
         link_ok = t - tel.t_heartbeat <= to.heartbeat_s
         telemetry_ok = t - tel.t_local <= to.telemetry_s
         speed = tel.ground_speed if telemetry_ok else math.nan
-        beta = math.atan2(tel.vy, tel.vx) - tel.yaw if telemetry_ok and speed > 0.3 else 0.0
+        # along the velocity; below 1 m/s (drift, stopping within ~0.3 m, inside the E_tr floor) along the heading
+        beta = math.atan2(tel.vy, tel.vx) - tel.yaw if telemetry_ok and speed > 1.0 else 0.0
         r_obst = self.params["CG_R_OBST"]
         e_tr = self.etr.value
         corridor = 2 * r_obst + e_tr + self.table.vehicle.r_body_m
@@ -356,6 +358,9 @@ class Daemon:
             v_max=d.v_cmd or 0.0, a_max=a_max, discs=discs, stop=d.hold or self._stopping or d.state != "active")
         for name, fields in acts.events:
             self._event(t, name, **fields)
+        if acts.hold:
+            self._commanded_mode = (self.adapter.hold_mode(), t, False)
+            self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(self.adapter.hold_mode(), True), "hold")
         if acts.enter:
             self._commanded_mode = ("offboard", t, False)
             self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params("offboard", True), "offboard")

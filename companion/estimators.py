@@ -76,6 +76,13 @@ class DodEstimator:
         self._yaw_hist: deque[tuple[float, float]] = deque()
 
     # ---- inputs
+    def set_speed(self, speed: float) -> None:
+        """Ground speed now: an obstacle can come up to one sample interval's travel inside the range
+        before a sample sees it, which is on time (the reaction time budgets the sensor's latency)."""
+        self._speed = speed if math.isfinite(speed) else 0.0
+
+    _speed = 0.0
+
     def add_heading(self, t: float, yaw: float) -> None:
         self._yaw_hist.append((t, yaw))
         while len(self._yaw_hist) > 2 and self._yaw_hist[0][0] < t - 2.0:
@@ -101,12 +108,13 @@ class DodEstimator:
         s = self.sensors[i]
         fresh = t - s.t <= self.stale_s
         before = s.hits if fresh else []
+        tolerance = self.contract.late_detection_tolerance_m + self._speed * (t - s.t if fresh else 0.0)
         s.t, s.max_m = t, max(max_m, 0.0)
         s.trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
         for bearing, r in seen:
             if any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
                 continue  # the same obstacle as before
-            if r < self._last_d_od - self.contract.late_detection_tolerance_m and not self._side_entry(i, t, bearing):
+            if r < self._last_d_od - tolerance and not self._side_entry(i, t, bearing):
                 self._pending.append(LateDetection(t, i, bearing, r, self._last_d_od))
                 cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])
                 self._penalty = (t + self.contract.late_detection_hold_s, cap)

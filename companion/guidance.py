@@ -18,8 +18,8 @@ import numpy as np
 
 from .avoid_planner import AvoidancePlanner, Disc, Plan
 
-REPLAN_S = 0.5  # an active plan is refreshed this often
-DRIFT_M = 0.3  # … or as soon as the vehicle is this far from it
+REPLAN_S = 0.5  # an active plan is refreshed this often (also on a new Ω or drift, at most this often)
+DRIFT_M = 0.5  # drift from the plan that asks for a replan
 
 
 @dataclass
@@ -88,10 +88,11 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float) -> tuple[list[Di
         r_near = min(r for _, r, _ in cl)
         ends = [p + r_near * np.array([math.cos(yaw + a), math.sin(yaw + a)]) for a in (lo_b, hi_b)]
         w2 = float(np.hypot(*(ends[1] - ends[0]))) / 2
+        seen = float(np.hypot(*(pts[-1] - pts[0]))) / 2  # measured half-width, without the bins' padding
         mid = 0.5 * (ends[0] + ends[1])
         u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
         radius = max(r_obst, w2)
-        widest = max(widest, w2 if len(cl) > 1 else 0.0)
+        widest = max(widest, seen if len(cl) > 1 else 0.0)
         centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u
         # every hit must be inside or on the disc's boundary; grow it if the fit missed one
         grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)
@@ -123,7 +124,11 @@ class OffboardGuidance:
     plan_omega: tuple[float, float] | None = None
     s_ref: float = 0.0  # along-track position of the cruise reference
     v_ref: float = 0.0  # speed of the cruise reference
+    y_off: float = 0.0  # lateral offset of the cruise reference from the route (rejoining after a pass)
+    vy_off: float = 0.0
     replans: int = 0
+    kept: int = 0  # replans that failed while a verified plan was still being flown
+    plan_t_try: float = -1e9
     plan_times: list = field(default_factory=list)
     rejected: int = 0
     last_notes: list = field(default_factory=list)
@@ -132,6 +137,14 @@ class OffboardGuidance:
         self.s_ref = self.route.project(p)
         self.v_ref = float(np.hypot(*v))
         self.plan = None
+        self._rejoin_from(p, v)
+
+    def _rejoin_from(self, p, v) -> None:
+        """Start the cruise reference where the vehicle is, beside the route if it is beside it."""
+        base, u = self.route.point(self.route.project(p))
+        n = np.array([-u[1], u[0]])
+        self.y_off, self.vy_off = float((np.asarray(p) - base) @ n), float(np.asarray(v) @ n)
+        self.v_ref = max(float(np.asarray(v) @ u), 0.0)
 
     def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc]) -> Setpoint:
         """One cycle: the setpoint for now (t), given the vehicle's state and Ω = (v_max, a_max)."""
@@ -142,7 +155,11 @@ class OffboardGuidance:
             return self._avoid(t, p, v, v_max, a_max, ahead, z)
         if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1]:
             return self._follow(t, z)  # finish going round the obstacle before rejoining
-        self.plan = None
+        if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
+            end_p, end_v, _ = self.plan.sample(t - self.plan_t)
+            self.s_ref = self.route.project(end_p)
+            self._rejoin_from(end_p, end_v)
+            self.plan = None
         return self._cruise(dt, p, v_max, a_max, z)
 
     # ---------------------------------------------------------------- cruising
@@ -150,16 +167,23 @@ class OffboardGuidance:
         s_here = self.route.project(p)
         if self.s_ref < s_here - 1.0 or self.s_ref > s_here + 2.0:
             self.s_ref = s_here  # rejoin where the vehicle is
+        # lateral offset back to the route: critically damped, peak lateral acceleration ≤ a_max/2
+        w = math.sqrt(0.5 * a_max / max(abs(self.y_off), 0.2))
+        ay = -2.0 * w * self.vy_off - w * w * self.y_off
+        self.vy_off += ay * dt
+        self.y_off += self.vy_off * dt
         rest = self.route.length - self.s_ref
         v_stop = math.sqrt(max(2 * 0.8 * a_max * rest, 0.0))  # arrive at the end at rest
-        target = min(v_max, v_stop)
+        target = min(math.sqrt(max(v_max * v_max - self.vy_off * self.vy_off, 0.0)), v_stop)  # |v| ≤ V_max
         dv = max(min(target - self.v_ref, 0.5 * a_max * dt), -a_max * dt)
         acc = dv / dt if dt > 0 else 0.0
         self.v_ref = max(self.v_ref + dv, 0.0)
         self.s_ref += self.v_ref * dt
         pos, u = self.route.point(self.s_ref)
+        n = np.array([-u[1], u[0]])
         mode = "done" if rest <= 0.05 else "cruise"
-        return Setpoint(pos, u * self.v_ref, u * acc, z, math.atan2(u[1], u[0]), mode)
+        return Setpoint(pos + n * self.y_off, u * self.v_ref + n * self.vy_off, u * acc + n * ay, z,
+                        math.atan2(u[1], u[0]), mode)
 
     # ---------------------------------------------------------------- avoiding
     def _threats(self, p, v, discs) -> list[Disc]:
@@ -183,8 +207,8 @@ class OffboardGuidance:
         if self.plan is not None:
             ps, _, _ = self.plan.sample(t - self.plan_t)
             drift = float(np.hypot(*(ps - p)))
-        if (stale or omega != self.plan_omega or drift > DRIFT_M or t - self.plan_t > REPLAN_S
-                or self.plan.kind == "brake"):
+        due = t - max(self.plan_t, self.plan_t_try) > REPLAN_S
+        if stale or omega != self.plan_omega and due or drift > DRIFT_M and due or due or self.plan.kind == "brake":
             _, u = self.route.point(self.route.project(p))
             warm = self.plan if self.plan is not None and self.plan.kind != "brake" else None
             new = self.planner.plan(p, v, u, discs, v_max=v_max, a_max=a_max, warm=warm,
@@ -193,7 +217,13 @@ class OffboardGuidance:
             self.plan_times.append(new.solve_s)
             self.rejected += new.rejected
             self.last_notes = new.notes
-            self.plan, self.plan_t, self.plan_omega = new, t, omega
+            keep = (not new.ok and self.plan is not None and self.plan.ok and self.plan.kind != "brake"
+                    and t - self.plan_t < self.plan.t[-1])
+            if keep:  # a verified plan in progress beats braking: keep flying it, try again next time
+                self.kept += 1
+                self.plan_t_try = t
+            else:
+                self.plan, self.plan_t, self.plan_omega = new, t, omega
         return self._follow(t, z)
 
     def _follow(self, t, z) -> Setpoint:

@@ -4,6 +4,7 @@
                                         then ask for OFFBOARD / GUIDED)
         entering ──heartbeat shows it──▶ flying (guidance setpoints every cycle, ≥ 20 Hz)
         flying ──mode changed by someone else──▶ stood_down (stop streaming; never re-enter by itself)
+        flying ──route flown──▶ done (Hold)        done / stood_down ──disengaged──▶ off
         any ──hold requested (failsafe, stop, Ctrl-C)──▶ leaving (ask for Hold, stop streaming)
 """
 
@@ -21,6 +22,7 @@ from .guidance import OffboardGuidance, Setpoint
 class OffboardActions:
     setpoint: Setpoint | None = None
     enter: bool = False  # ask the autopilot for OFFBOARD / GUIDED now
+    hold: bool = False  # ask the autopilot for Hold now (the route is complete)
     events: list[tuple[str, dict]] = field(default_factory=list)
 
 
@@ -45,6 +47,10 @@ class OffboardController:
         self._t_last = t
         if stop and self.state in ("entering", "flying"):
             self._go(t, "off", "hold requested", acts)
+            return acts
+        if self.state in ("done", "stood_down"):  # until disengaged and asked again
+            if not engaged:
+                self._go(t, "off", "disengaged", acts)
             return acts
         if self.state == "off":
             if engaged and flying and not stop:
@@ -73,6 +79,10 @@ class OffboardController:
                 self._go(t, "stood_down", f"{mode} set by someone else", acts)
                 return acts
             acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs)
+            if acts.setpoint.mode == "done" and float(np.hypot(*v)) < 0.3:
+                acts.hold = True  # the route is flown: hand over to Hold
+                self._go(t, "done", "route complete", acts)
+                return acts
             if acts.setpoint.mode == "brake" and not getattr(self, "_braking", False):
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
             self._braking = acts.setpoint.mode == "brake"
