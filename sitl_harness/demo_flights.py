@@ -10,9 +10,10 @@ included; the tilt capped at `tilt_cap` when given, e.g. the paper's fixed 7.03�
 planner (`contracts.planner`, eq. (14)–(19)) plans around the virtual obstacle R_obst + E_tr (+ the
 body radius) from V_max, after the folded reaction time's straight coast; the SITL cascade flies
 the planned reference with position/velocity/acceleration feed-forward (the same loop as the E_tr
-sweep, `etr_sweep.fly`), thrust limited, design wind. The obstacle is revealed exactly at D_od: the
-reference crosses the point D_od before the column's surface at t = 0 on a cruise at full V_max. The
-SITL's own collision monitor (`world.CollisionMonitor`) measures the clearance to the real obstacle.
+sweep, `etr_sweep.fly`), thrust limited, design wind. The obstacle is revealed exactly at D_od: on a
+cruise at full V_max, the instant the *true* vehicle is D_od from the column's surface, the plan starts
+there (as a daemon re-planning from its measured state). The SITL's own collision monitor
+(`world.CollisionMonitor`) measures the clearance to the real obstacle.
 
 Negative controls: the same flight planned without the E_tr inflation, and the same manoeuvre entered
 at 1.15 × V_max (same ZOH accelerations and sample time; the contract's speed exceeded).
@@ -28,7 +29,7 @@ import numpy as np
 from contracts.contour import contour_errors
 from contracts.errors import ContractError
 
-from .etr_sweep import DT_NAV, WINDOW_S, Reference, fly, wind_for_seed, zoh_reference
+from .etr_sweep import DT_NAV, WINDOW_S, fly, wind_for_seed, zoh_reference
 from .scenario import Scenario, load_scenario
 from .world import Column, CollisionMonitor, World
 
@@ -84,7 +85,7 @@ class DemoFlight:
     plan_ok: bool
     seed: int
     r_body: float  # [m] the vehicle's radius (touching = centre within R_obst + r_body)
-    reveal_lag_m: float  # true − reference along-track position at the reveal (< 0: vehicle behind)
+    reveal_lag_m: float  # true − cruise-reference along-track position at the reveal (< 0: vehicle behind)
     planned: np.ndarray = field(repr=False, default=None)  # (m, 2) in the scenario's frame
     flown: np.ndarray = field(repr=False, default=None)  # (n, 2)
     obstacle: tuple = ()
@@ -150,37 +151,43 @@ def fly_demo(table, setup: DemoSetup, tilt_cap: float | None = None, variant: st
     c = setup.d_od + setup.r_obst
     origin = np.array([cx - c, cy])
     ref = zoh_reference("plan", (v_fly * t_r, v_fly, 0.0, 0.0), w, ts, COAST_AFTER_S, p0=origin)
-    ref = Reference(ref.name, ref.t + t_r, ref.p, ref.v, ref.a)  # the coast from the reveal comes first
+
+    # the reveal: the first instant the *true* vehicle is D_od from the surface; the plan starts there
+    # (from the reveal point on the line, time-aligned to the interpolated crossing), as a daemon
+    # re-planning from its measured state would; before it, the cruise line at full speed.
+    reveal = {}
 
     def setpoint(t, pos):
-        if t < t_r:
-            return origin + np.array([v_fly * t, 0.0]), np.array([v_fly, 0.0]), np.zeros(2)
-        return ref.at(t - t_r)
+        if "t" not in reveal:
+            gap = math.hypot(cx - pos[0], cy - pos[1]) - setup.r_obst - setup.d_od
+            if gap > 0.0:
+                return origin + np.array([v_fly * t, 0.0]), np.array([v_fly, 0.0]), np.zeros(2)
+            reveal["t"] = t + gap / v_fly  # interpolated crossing time (gap ≤ 0)
+            reveal["lag"] = float(pos[0] - (origin[0] + v_fly * t))  # true − cruise reference, along track
+        tau = t - reveal["t"]
+        if tau < t_r:
+            return origin + np.array([v_fly * tau, 0.0]), np.array([v_fly, 0.0]), np.zeros(2)
+        return ref.at(tau - t_r)
 
     settle = max(SETTLE_MIN_S, 0.0)
     mon = CollisionMonitor(World([Column(cx, cy, setup.r_obst, math.inf, "obstacle")], []), veh.r_body_m)
-    lag = {}
-
-    def on_sample(t, pos):
-        mon.update(t, pos)
-        if "v" not in lag and t >= 0.0:
-            lag["v"] = float(pos[0] - (origin[0] + v_fly * t))
-
-    fl = fly(veh, setpoint, float(ref.t[-1]), setup.thrust_ratio, wind_for_seed(veh, seed),
-             origin - np.array([v_fly * settle, 0.0]), (v_fly, 0.0), settle_s=settle, on_sample=on_sample)
-    # planned path from the reveal: the coast, then the plan
+    fl = fly(veh, setpoint, float(ref.t[-1]) + t_r + 1.5, setup.thrust_ratio, wind_for_seed(veh, seed),
+             origin - np.array([v_fly * settle, 0.0]), (v_fly, 0.0), settle_s=settle,
+             on_sample=lambda t, pos: mon.update(t, pos))
+    t0 = reveal.get("t", 0.0)
+    # planned path in flight time: the entry line, the coast from the reveal, then the plan
     tc = np.arange(0.0, t_r, DT_NAV)
-    path_t = np.concatenate([np.arange(-WINDOW_S, 0.0, DT_NAV), tc, ref.t])
-    path_p = np.vstack([origin + np.outer(np.arange(-WINDOW_S, 0.0, DT_NAV), [v_fly, 0.0]),
-                        origin + np.outer(tc, [v_fly, 0.0]), ref.p])
-    sel = fl.t >= 0.0
+    pre = np.arange(-WINDOW_S, 0.0, DT_NAV)
+    path_t = t0 + np.concatenate([pre, tc, t_r + ref.t])
+    path_p = np.vstack([origin + np.outer(pre, [v_fly, 0.0]), origin + np.outer(tc, [v_fly, 0.0]), ref.p])
+    sel = (fl.t >= t0) & (fl.t <= path_t[-1])
     e = contour_errors(fl.pos[sel, :2], fl.t[sel], path_t, path_p, WINDOW_S) if np.any(sel) else np.array([math.inf])
     return DemoFlight(
         name=setup.name, variant=variant, tilt_cap_deg=None if tilt_cap is None else math.degrees(tilt_cap),
         tilt_deg=math.degrees(tilt), v_max=v, v_flown=v_fly, e_tr=e_tr, e_tr_planned=e_plan, d_od=setup.d_od,
         r_obst=setup.r_obst, thrust_ratio=setup.thrust_ratio, min_clearance=float(mon.min_clearance),
         touched=bool(mon.collisions) or mon.min_clearance <= 0.0 or not fl.ok, contour_max=float(np.max(e)),
-        plan_ok=plan_ok, seed=seed, r_body=veh.r_body_m, reveal_lag_m=lag.get("v", math.nan), planned=path_p, flown=fl.pos[:, :2],
+        plan_ok=plan_ok, seed=seed, r_body=veh.r_body_m, reveal_lag_m=reveal.get("lag", math.nan), planned=path_p, flown=fl.pos[:, :2],
         obstacle=(cx, cy, setup.r_obst))
 
 

@@ -82,10 +82,12 @@ class Reference:
     a: np.ndarray
 
     def at(self, t: float):
-        """(p, v, a) at time t: the settle line before 0, the samples after (held at the end)."""
+        """(p, v, a) at time t: the settle line before 0, the nearest sample, the ballistic coast after the end."""
         if t < 0.0:
             return self.p[0] + self.v[0] * t, self.v[0], np.zeros(2)
-        i = min(int(round(t / DT_NAV)), len(self.t) - 1)
+        if t > self.t[-1]:
+            return self.p[-1] + self.v[-1] * (t - self.t[-1]), self.v[-1], np.zeros(2)
+        i = int(round(t / DT_NAV))
         return self.p[i], self.v[i], self.a[i]
 
     def path(self, t0: float = -WINDOW_S):

@@ -111,3 +111,13 @@ def test_the_sweep_uses_the_avoid_sweeps_pool_mechanism():
 
 def _echo(task):
     return [task["x"]]
+
+
+def test_dask_path_gives_the_same_surface_as_in_process(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    grid = es.EtrGrid(v=np.array([2.0]), tilt=np.radians([9.0]), thrust_ratio=np.array([0.8]), rhos=(0.1,),
+                      seeds=(0,))
+    local, _ = es.measure_surface(TABLE, MAMBO, grid, workers=1, progress=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
+        remote, _ = es.measure_surface(TABLE, MAMBO, grid, scheduler=lc.scheduler_address, progress=False)
+    assert np.array_equal(local, remote) and local[0, 0, 0] > 0
