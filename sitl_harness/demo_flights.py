@@ -187,12 +187,12 @@ def fly_demo(table, setup: DemoSetup, tilt_cap: float | None = None, variant: st
         tilt_deg=math.degrees(tilt), v_max=v, v_flown=v_fly, e_tr=e_tr, e_tr_planned=e_plan, d_od=setup.d_od,
         r_obst=setup.r_obst, thrust_ratio=setup.thrust_ratio, min_clearance=float(mon.min_clearance),
         touched=bool(mon.collisions) or mon.min_clearance <= 0.0 or not fl.ok, contour_max=float(np.max(e)),
-        plan_ok=plan_ok, seed=seed, r_body=veh.r_body_m, reveal_lag_m=reveal.get("lag", math.nan), planned=path_p, flown=fl.pos[:, :2],
-        obstacle=(cx, cy, setup.r_obst))
+        plan_ok=plan_ok, seed=seed, r_body=veh.r_body_m, reveal_lag_m=reveal.get("lag", math.nan), planned=path_p,
+        flown=fl.pos[:, :2], obstacle=(cx, cy, setup.r_obst))
 
 
-def demo_set(table, seeds=(0, 1, 2), variants=("contract", "no_inflation", "speed_x1.15"), tilt_modes=("paper", "chosen"),
-             names=SCENARIOS) -> list[DemoFlight]:
+def demo_set(table, seeds=(0, 1, 2), variants=("contract", "no_inflation", "speed_x1.15"),
+             tilt_modes=("paper", "chosen"), names=SCENARIOS) -> list[DemoFlight]:
     """Every scenario × tilt mode (the paper's fixed tilt as a cap, or the contract's choice) ×
     variant × seed."""
     out = []

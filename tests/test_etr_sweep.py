@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from contracts.lookup import is_monotone
-from contracts.table import SLOTS, arrays_sha256, verify
+from contracts.table import SLOTS, verify
 from contracts.vehicle import DATA_DIR, load_vehicle
 from sitl_harness import etr_sweep as es
 
