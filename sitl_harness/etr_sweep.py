@@ -102,18 +102,20 @@ def _grid(duration: float) -> np.ndarray:
 
 
 def zoh_reference(name: str, q0, w, ts: float, coast_s: float = COAST_S, p0=(0.0, 0.0)) -> Reference:
-    """The flat model's ZOH trajectory, eq. (12)–(13), evaluated in closed form on the DT_NAV grid
-    (x, y chains of q0 = [X, Ẋ, Y, Ẏ, …] and w (N, ≥2)), then the ballistic coast (a = 0)."""
+    """The flat model's ZOH trajectory, eq. (12)–(13) (nodes by `contracts.planner.propagate`), evaluated
+    in closed form on the DT_NAV grid (x, y chains of q0 = [X, Ẋ, Y, Ẏ, …] and w (N, ≥2)), then the
+    ballistic coast (a = 0). `p0` shifts the positions."""
+    from contracts.planner import propagate  # offline side (CasADi) like the rest of the sweep
+
     w = np.asarray(w, dtype=float)[:, :2]
     n = len(w)
+    q = np.zeros(8)
+    q[:4] = (q0[0] + p0[0], q0[1], q0[2] + p0[1], q0[3])
+    w4 = np.zeros((n, 4))
+    w4[:, :2] = w
+    qn = propagate(q, w4, ts)
+    pn, vn = qn[:, [0, 2]], qn[:, [1, 3]]
     t = _grid(n * ts + coast_s)
-    pn = np.empty((n + 1, 2))
-    vn = np.empty((n + 1, 2))
-    pn[0] = np.asarray(p0, dtype=float) + (q0[0], q0[2])
-    vn[0] = (q0[1], q0[3])
-    for k in range(n):
-        pn[k + 1] = pn[k] + vn[k] * ts + 0.5 * w[k] * ts * ts
-        vn[k + 1] = vn[k] + w[k] * ts
     k = np.minimum((t / ts).astype(int), n)
     tau = (t - k * ts)[:, None]
     a = np.where((k < n)[:, None], w[np.minimum(k, n - 1)], 0.0)

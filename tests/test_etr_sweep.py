@@ -29,6 +29,13 @@ def test_zoh_reference_matches_the_planner_propagation_at_the_nodes():
         i = int(round(k * ts / es.DT_NAV))
         assert np.allclose(ref.p[i], q[k, [0, 2]], atol=1e-9)
         assert np.allclose(ref.v[i], q[k, [1, 3]], atol=1e-9)
+    # between the nodes: the planner's own dense re-simulation
+    from contracts.planner import dense_states
+
+    t, qd, _ = dense_states(np.array(q0), w, ts, 10)
+    for i in range(0, len(t) - 1, 3):
+        j = int(round(t[i] / es.DT_NAV))
+        assert np.allclose(ref.p[j], qd[i, [0, 2]], atol=1e-9)
     # after the last interval: ballistic coast, no acceleration
     assert np.allclose(ref.a[-1], 0.0)
     assert np.allclose(ref.p[-1], q[-1, [0, 2]] + 0.5 * q[-1, [1, 3]], atol=1e-9)
