@@ -133,6 +133,32 @@ def cmd_table_build(args) -> int:
     return 0
 
 
+def cmd_table_etr(args) -> int:
+    """The controller contract E_tr_pred (Figure 12) from SITL flights, written into the table."""
+    from sitl_harness.etr_sweep import build_etr  # offline: flies the SITL
+
+    s = build_etr(args.table, args.vehicle, workers=args.workers, scheduler=args.scheduler,
+                  progress=not args.json, out=args.out)
+    _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s, "
+          f"{s['monotone_repairs_up']} repaired upward, worst raw contour error {s['raw_worst_max_m']:.3f} m")
+    return 0
+
+
+def cmd_figures(args) -> int:
+    """Figure 12 and the demonstration flights of Figures 14-16 (PNG + CSV)."""
+    from sitl_harness.figures import make_figures
+
+    t = _load_table(args.table or shipped_table("mambo"))
+    r = make_figures(t, args.out, seeds=tuple(range(args.seeds)))
+    rows = [f for f in r["flights"] if f["seed"] == 0]
+    text = "\n".join([f"wrote {len(r['files'])} files to {args.out}"] + [
+        f"{f['name']:16} {f['variant']:12} tilt {f['tilt_deg']:5.2f}° V_max {f['v_max']:.2f} m/s (flown "
+        f"{f['v_flown']:.2f}) E_tr {f['e_tr']:.2f} m clearance {f['min_clearance']:+.3f} m "
+        f"contour {f['contour_max']:.3f} m{' TOUCHED' if f['touched'] else ''}" for f in rows])
+    _emit(r, args.json, text)
+    return 0
+
+
 def cmd_table_plot(args) -> int:
     from contracts.avoid_plot import plot_table
 
@@ -304,6 +330,22 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--tilt-model", choices=["cone", "box"], default=None)
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_table_build)
+
+    e = tsub.add_parser("etr", help="fly the SITL and write the controller contract E_tr_pred (Figure 12) into a table")
+    e.add_argument("--table", type=Path, required=True, help="table with an avoid slot (updated in place unless --out)")
+    e.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
+    e.add_argument("--out", type=Path, help="write the result here instead of in place")
+    e.add_argument("--workers", type=int, default=2, help="local process pool size")
+    e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
+    e.add_argument("--json", action="store_true")
+    e.set_defaults(func=cmd_table_etr)
+
+    fg = sub.add_parser("figures", help="Figure 12 and the demonstration flights of Figures 14-16, PNG + CSV")
+    fg.add_argument("--out", type=Path, required=True)
+    fg.add_argument("--table", type=Path, help="table file (default: the shipped Mambo table)")
+    fg.add_argument("--seeds", type=int, default=3, help="wind seeds per flight")
+    fg.add_argument("--json", action="store_true")
+    fg.set_defaults(func=cmd_figures)
 
     pl = tsub.add_parser("plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
     pl.add_argument("file", type=Path)

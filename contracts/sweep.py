@@ -266,34 +266,42 @@ def _scaled(w, ts, v, lam):
 # ============================================================================ the build
 
 
-def _run_tasks(tasks, workers, scheduler, progress, total):
+def run_tasks(tasks, workers, scheduler, progress, total, fn=None, desc="avoid cells"):
+    """Run `fn(task) -> list` over `tasks` on a local process pool (`workers` > 1), in-process
+    (`workers` ≤ 1) or on a Dask distributed cluster (`scheduler` address); a tqdm bar counts the
+    items of the returned lists up to `total`. `fn` must be a module-level function (picklable);
+    default: the avoid sweep's `_solve_chunk`. Results come back in task order."""
     from tqdm import tqdm
 
+    fn = _solve_chunk if fn is None else fn
     results = [None] * len(tasks)
-    bar = tqdm(total=total, desc="avoid cells", unit="cell", disable=not progress)
+    bar = tqdm(total=total, desc=desc, unit="cell", disable=not progress)
     if scheduler:
         from distributed import Client, as_completed
 
         with Client(scheduler) as client:
-            futs = {client.submit(_solve_chunk, t, pure=False): i for i, t in enumerate(tasks)}
+            futs = {client.submit(fn, t, pure=False): i for i, t in enumerate(tasks)}
             for f in as_completed(list(futs)):
                 results[futs[f]] = f.result()
                 bar.update(len(results[futs[f]]))
     elif workers <= 1:
         for i, t in enumerate(tasks):
-            results[i] = _solve_chunk(t)
+            results[i] = fn(t)
             bar.update(len(results[i]))
     else:
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         import multiprocessing as mp
 
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
-            futs = {ex.submit(_solve_chunk, t): i for i, t in enumerate(tasks)}
+            futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
             for f in cf.as_completed(futs):
                 results[futs[f]] = f.result()
                 bar.update(len(results[futs[f]]))
     bar.close()
     return results
+
+
+_run_tasks = run_tasks  # the name the avoid sweep used
 
 
 def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str | None = None,

@@ -38,7 +38,8 @@ def test_table_query_json_keys_and_values():
     # Γ at a proposed speed: positive when faster than the contract allows
     r2 = cg("table", "query", MAMBO_TABLE, "--d-od", 6, "--r-obst", 1, "--e-tr", 0.3, "--thrust-ratio", 0.8,
             "--contract", "stop", "--v-max", q["v_max"] + 1, "--json")
-    assert json.loads(r2.stdout)["gamma"] == pytest.approx(1.0, abs=1e-6)
+    # at least 1: with E_tr_pred in the table the faster speed also predicts a larger E_tr (issue 6)
+    assert json.loads(r2.stdout)["gamma"] >= 1.0 - 1e-6
 
 
 @pytest.mark.parametrize(

@@ -53,12 +53,13 @@ def test_standby_commands_nothing():
 def test_governor_sends_the_stop_contract_speed_and_follows_dod():
     s = sup()
     d = s.step(BASE)
-    want = TABLE.v_stop(8.0, 1.0, 0.2, 1.0)
+    want = TABLE.omega(8.0, 1.0, 0.2, 1.0, contract="stop").v_max  # Ω: with the E_tr_pred fixed point (issue 6)
+    assert want <= TABLE.v_stop(8.0, 1.0, 0.2, 1.0)
     assert d.state == "active" and d.send_speed == pytest.approx(want) and d.v_cmd == pytest.approx(want)
     assert ("limit_change", {"v_max": pytest.approx(want), "reason": "ok"}) in d.events
     # fog: D_od drops, the limit drops in the same cycle
     d2 = s.step(replace(BASE, t=0.02, dod=dod(4.0)))
-    low = TABLE.v_stop(4.0, 1.0, 0.2, 1.0)
+    low = TABLE.omega(4.0, 1.0, 0.2, 1.0, contract="stop").v_max
     assert d2.send_speed == pytest.approx(low) and low < want
     # fog clears: the limit rises only after the dwell
     ds = run(s, BASE, 0.04, 2.0)
