@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .collision_sets import TS_DEFAULT, HeadOnLines, analytical_square_curve, input_vertices
+from .collision_sets import TS_DEFAULT, HeadOnLines, analytical_square_curve, input_vertices  # noqa: F401
 from .vehicle import Vehicle, load_vehicle
 
 CSV_COLUMNS = ("d_od_m", "v_numerical_circle", "v_analytical_inscribed", "v_analytical_circumscribed")
@@ -80,6 +80,37 @@ def numerical_circle_curve(vehicle: Vehicle, tilt: float, d_od, tilt_model: str 
         warm = (res.w, res.ts, res.lo) if res.branch == "pass" else None
         out.append(res.lo)
     return np.asarray(out)
+
+
+def numerical_square_speed(vehicle: Vehicle, tilt: float, side: float, d_od: float, tilt_model: str = "box",
+                           thrust_ratio: float = 1.0, n: int = 40, cpu_time: float = 3.0, keep_out: float = 0.01) -> float:
+    """Diagnostic: the planner's largest verified speed past a face-on square column (near face at
+    d_od), max-speed form, terminal set "past the rear face, Ẋ ≥ 0"; the stop branch √(2·a_x·d_od) is
+    not included. `keep_out` > 0 [m] works around two defects of `planner` for polygons with r = 0
+    (reported to the avoid engineer): the separating-line constraint is satisfied by n = 0, β = 0, and
+    `check_trajectory` measures the unsigned distance (0 inside), so a trajectory through the polygon
+    verifies whenever verify_tol > 0 (and verify_tol = 0 makes its sub-sampling exhaust memory)."""
+    from dataclasses import replace
+
+    from .avoid_limit import policy_guess
+    from .planner import Limits, PlanProblem, Polygon, plan
+
+    lim = Limits.from_vehicle(vehicle, tilt, thrust_ratio, tilt_model=tilt_model)
+    a = lim.accel_bound()
+    h = 0.5 * side
+    poly = Polygon(((d_od, -h), (d_od + side, -h), (d_od + side, h), (d_od, h)), r=keep_out)
+    inf = math.inf
+    c = d_od + h
+    v_seed = 0.8 * math.sqrt(a * c * c / h)
+    pr = PlanProblem(limits=replace(lim, v_max=v_seed), q0=(0.0, v_seed, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+                     obstacles=(poly,), terminal="box", qf_lb=(d_od + side, 0.0) + (-inf,) * 6, qf_ub=(inf,) * 8,
+                     n=n, free_speed=True, v_bounds=(0.0, 50.0))
+    best = 0.0
+    for beta in (1.35, 0.8, 0.6):
+        r = plan(pr, policy_guess(beta, v_seed, a, c, h * math.sqrt(2.0), n), cpu_time=cpu_time, verify_tol=1e-3)
+        if r.ok:
+            best = max(best, float(r.problem.q0[1]))
+    return best
 
 
 def compare(vehicle, tilt_deg: float, out_dir, tilt_model: str = "box", *, d_od_max: float = 10.0,

@@ -264,3 +264,18 @@ def test_with_d_od_to_each_near_face_the_circle_is_above_both_squares(cross_chec
     num, ana = r["numerical"], r["face"]
     assert np.all(num >= ana["circumscribed"])
     assert num[0] > 1.08 * ana["inscribed"][0]  # D_od = 1 m: clearly outside the band
+
+
+@pytest.mark.parametrize("tilt_deg,side", [(5.0, math.sqrt(2)), (13.0, 2.0)])
+def test_analytical_square_curve_matches_the_planner_for_the_same_square(tilt_deg, side):
+    """Face-on square: the same-step recursion loses nothing here, so the analytical curve (t_s = 0.02 s)
+    must agree with the planner's verified speed for that square (1 cm keep-out) within 2 %."""
+    pytest.importorskip("casadi")
+    from contracts import collision_compare as cc
+
+    veh = load_vehicle("mambo")
+    tilt = math.radians(tilt_deg)
+    lines = cc.analytical_square_curve(side, cs.input_vertices(tilt, "box"), cs.TS_DEFAULT)
+    for d in (3.0, 5.0):
+        v_num = cc.numerical_square_speed(veh, tilt, side, d)
+        assert v_num == pytest.approx(float(lines.v_max(d)), rel=0.02)
