@@ -43,7 +43,7 @@ from .flat import cone_polygon, thrust_limited_accel, zoh
 from .vehicle import G
 
 TS_DEFAULT = 0.02  # [s] the guidance loop period (50 Hz, DESIGN.md §5); see COLLISION_SETS.md
-K_MAX_DEFAULT = 100_000  # safety cap on the number of backward steps
+K_MAX_DEFAULT = 10_000  # safety cap on the number of backward steps (a degenerate W^C never empties)
 N_AXES = 2  # horizontal chains only: q = [X, Ẋ, Y, Ẏ]
 
 
