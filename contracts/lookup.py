@@ -30,13 +30,17 @@ def hurts_index(grid: np.ndarray, x: float) -> int:
     return i if i < len(grid) else NONE
 
 
-def react_fixed_point(c0, r_k, rho, f, t_r, g=G):
+def react_fixed_point(c0, r_k, rho, f, t_r, g=G, enclosing=False):
     """Largest V with V ≤ √(g·c(V))·F_cons(r_k/c(V)), c(V) = c0 − V·t_r, exactly for the step
     function F_cons of the conservative lookup on the ρ grid (`rho` ascending, `f` on it).
 
     Broadcasting: `rho`/`f` carry the grid on their last axis; `c0`, `r_k`, `t_r` broadcast against
     the rest. For grid cell j the admissible V satisfy ρ(V) ≤ ρ_j, i.e. V ≤ (c0 − r_k/ρ_j)/t_r, and
     V² + g F_j² t_r V − g F_j² c0 ≤ 0; the answer is the best cell. Returns 0 where no V > 0 is safe.
+
+    `enclosing=True` also answers from the discs that enclose the keep-out disc with the same near
+    point (radius r_k + δ at c0 + δ): safe for them is safe here, so the best of them is a valid and
+    tighter answer, and it makes the answer non-increasing in r_obst (see below).
     """
     c0 = np.asarray(c0, dtype=float)[..., None]
     r_k = np.asarray(r_k, dtype=float)[..., None]
@@ -45,7 +49,7 @@ def react_fixed_point(c0, r_k, rho, f, t_r, g=G):
     b = gf2 * t_r
     v_quad = 0.5 * (-b + np.sqrt(b * b + 4.0 * gf2 * np.maximum(c0, 0.0)))
     slack = c0 - r_k / rho  # ≥ 0 iff the cell admits V = 0
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         v_lim = np.where(t_r > 0.0, slack / t_r, np.where(slack >= 0.0, np.inf, -np.inf))
     v = np.minimum(v_quad, v_lim)
     # Enclosing discs: a disc of radius r_k + δ centred at c0 + δ contains the keep-out disc (same near
@@ -53,12 +57,13 @@ def react_fixed_point(c0, r_k, rho, f, t_r, g=G):
     # bounds cross (v_lim falls, v_quad rises with δ) at V*: V² + h·t_r·V − h·s = 0, h = g F²/(1 − ρ_j),
     # reached at radius u* = (s − V*·t_r)·ρ_j/(1 − ρ_j). Where u* ≥ r_k that crossing is the cell's best
     # answer; this keeps the lookup non-increasing in r_obst (and never less tight).
-    s = np.maximum(c0 - r_k, 0.0)
-    h = gf2 / (1.0 - rho)
-    ht = h * t_r
-    v_star = 0.5 * (-ht + np.sqrt(ht * ht + 4.0 * h * s))
-    u_star = (s - v_star * t_r) * rho / (1.0 - rho)
-    v = np.where(u_star >= r_k, np.maximum(v, v_star), v)
+    if enclosing:
+        s = np.maximum(c0 - r_k, 0.0)
+        h = gf2 / (1.0 - rho)
+        ht = h * t_r
+        v_star = 0.5 * (-ht + np.sqrt(ht * ht + 4.0 * h * s))
+        u_star = (s - v_star * t_r) * rho / (1.0 - rho)
+        v = np.where(u_star >= r_k, np.maximum(v, v_star), v)
     best = np.max(v, axis=-1, initial=0.0)
     return np.maximum(best, 0.0) * (1.0 - 1e-9)  # round-off never optimistic
 

@@ -288,7 +288,7 @@ class ContractTable:
         # A tilt limit also allows every smaller tilt, whose folded reaction time is shorter: the
         # answer is the best grid tilt up to the limit (keeps V_safe non-decreasing in tilt).
         f = self._f[:, : j + 1, k].T  # (j+1, n_rho)
-        return float(np.max(react_fixed_point(d_od + r_obst, r_k, self._rho, f, self._t_r[: j + 1])))
+        return float(np.max(react_fixed_point(d_od + r_obst, r_k, self._rho, f, self._t_r[: j + 1], enclosing=True)))
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py)."""
@@ -331,7 +331,8 @@ class ContractTable:
             def limit(e, idx):  # e: (len(idx), n) errors → (len(idx), n) speeds
                 j = np.asarray(js)[idx]
                 f = self._f[:, j, k].T[:, None, :]  # (len(idx), 1, n_rho)
-                return react_fixed_point(d_od + r_obst, r_obst + e + self._r_body, self._rho, f, self._t_r[j][:, None])
+                return react_fixed_point(d_od + r_obst, r_obst + e + self._r_body, self._rho, f, self._t_r[j][:, None],
+                                         enclosing=True)
         else:
             tilts = np.array([min(tilt, self.vehicle.tilt_max)])
             tr = min(thrust_ratio, self._tr_hi)
