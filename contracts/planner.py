@@ -123,7 +123,8 @@ class PlanProblem:
     `planar`: level flight at the altitude and yaw of q_0 (Z, ψ fixed, Z̈ = ψ̈ = 0) — the contract's
     setting (DESIGN.md §2); otherwise all four chains are free.
     `terminal`: "coast" (the ballistic continuation from q(N) is safe against every circle; for the
-    contract) or "box" (q(N) within [qf_lb, qf_ub], the paper's q(N) = q_f).
+    contract — polygons are kept out over the horizon only) or "box" (q(N) within [qf_lb, qf_ub],
+    the paper's q(N) = q_f).
     """
 
     limits: Limits

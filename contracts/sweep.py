@@ -390,7 +390,7 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
         "bracket_rel_width_max": float(np.nanmax(np.where(np.isfinite(HI), HI / np.maximum(V, 1e-12) - 1.0, np.nan)))
         if np.any(np.isfinite(HI)) else None,
         "build_wall_s": round(wall, 2), "workers": (scheduler or workers),
-        "trajectories": out.name + ".trajectories.npz" if not str(out).endswith(".npz") else out.with_suffix("").name + ".trajectories.npz",
+        "trajectories": trajectories_path(out).name,
     }
     meta = write_table(out, veh, tilt_model=tilt_model,
                        avoid=Slot((grid.rho, grid.tilt, grid.thrust_ratio), F_rep, info),
