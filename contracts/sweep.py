@@ -214,9 +214,13 @@ def solve_cell(lim: Limits, rho: float, n: int = 40, cpu_time: float = 1.0, rel_
     return CellResult(rho=rho, lo=lo, hi=hi, branch=branch, w=w_lo, ts=ts_lo, solves=solves)
 
 
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
 def _solve_chunk(task: dict) -> list[CellResult]:
     """Worker: one run of neighbouring ρ cells of one shape class, warm-starting along the run."""
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    for k, v in _ONE_THREAD.items():
+        os.environ.setdefault(k, v)
     out, warm = [], None
     for rho in task["rhos"]:
         res = solve_cell(task["limits"], rho, n=task["n"], cpu_time=task["cpu_time"], rel_tol=task["rel_tol"],
@@ -284,7 +288,8 @@ def _run_tasks(tasks, workers, scheduler, progress, total):
             results[i] = _solve_chunk(t)
             bar.update(len(results[i]))
     else:
-        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        for k, v in _ONE_THREAD.items():  # one solver thread per worker process (inherited at spawn)
+            os.environ.setdefault(k, v)
         import multiprocessing as mp
 
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:

@@ -114,11 +114,14 @@ def _random_points(seed, n, veh):
 def _lookup_vs_fresh(name, points):
     veh = load_vehicle(name)
     t = TABLES[name]
+    ratios = []
     for p in points:
         v_tab = _v(t, p)
         fresh = fresh_v_safe(veh, p["d_od"], p["r_obst"], p["e_tr"], p["tilt"], p["thrust_ratio"])
         assert v_tab <= fresh.lo, (p, v_tab, fresh.lo)
         assert v_tab >= 0.8 * fresh.lo, (p, v_tab, fresh.lo)  # and not uselessly low
+        ratios.append(v_tab / fresh.lo)
+    print(json.dumps({"vehicle": name, "lookup_over_fresh": [round(r, 4) for r in ratios]}))
 
 
 @pytest.mark.parametrize("name", VEHICLES)
