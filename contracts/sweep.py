@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .avoid_limit import policy_guess
+from .avoid_limit import policy_guess, stop_speed_kinematic
 from .errors import ContractError
 from .flat import horizontal_accel_limit
 from .lookup import repair_monotone
@@ -146,10 +146,8 @@ def brake_accel(lim: Limits) -> float:
     return min(lim.g * math.tan(tilt), a_t)
 
 
-def stop_speed_lead(a_b: float, c: float, r_k: float, lead: float = 0.0) -> float:
-    """Largest V with V·lead + V²/(2·a_b) ≤ c − r_k (closed-form stop branch)."""
-    d = max(c - r_k, 0.0)
-    return a_b * (-lead + math.sqrt(lead * lead + 2.0 * d / a_b)) if a_b > 0 else 0.0
+def _stop_speed(a_b: float, c: float, r_k: float, lead: float = 0.0) -> float:
+    return float(stop_speed_kinematic(a_b, c, r_k, lead))
 
 
 def stop_trajectory(a_b: float, v: float, n: int) -> tuple[np.ndarray, float]:
@@ -176,7 +174,7 @@ def solve_cell(lim: Limits, rho: float, n: int = 40, cpu_time: float = 1.0, rel_
     r_k = rho * c
     a_b = brake_accel(lim)
     a = lim.accel_bound()
-    v_stop = stop_speed_lead(a_b, c, r_k, lead_time) * (1.0 - 1e-9)
+    v_stop = _stop_speed(a_b, c, r_k, lead_time) * (1.0 - 1e-9)
     solves = []
     best = None
     v_cap = 50.0 * math.sqrt(max(a, 1e-9) * c) + 10.0 * v_stop
@@ -369,7 +367,7 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
                         col[i] = v_c / math.sqrt(G * C_REF)
                     else:  # never optimistic: fall back to the closed-form stop of this cell
                         fails += 1
-                        col[i] = stop_speed_lead(brake_accel(lim), C_REF, float(rho) * C_REF) / math.sqrt(G * C_REF)
+                        col[i] = _stop_speed(brake_accel(lim), C_REF, float(rho) * C_REF) / math.sqrt(G * C_REF)
                 checked[key] = col * (1.0 - 1e-9)
             F[:, j, k] = checked[key]
     F_rep, repairs = repair_monotone(F, (-1, +1, +1), "down")
