@@ -182,3 +182,24 @@ def test_tightness_against_physical_limit_estimate_50_cells(name):
 def test_tightness_few_cells():
     r = tightness_ratios("mambo", n_cells=4, seed=11)
     assert np.all(r <= 1.001) and np.all(r >= 0.93)
+
+
+@pytest.mark.parametrize("name", VEHICLES)
+def test_shipped_limiting_trajectories_re_simulate_clean(name):
+    """The side file's limiting trajectories, scaled to random cells and distances, are verified
+    trajectories at (at least) the table's speed."""
+    from contracts.planner import Limits, check_trajectory, head_on_problem
+    from contracts.sweep import limiting_trajectory
+
+    veh = load_vehicle(name)
+    t = TABLES[name]
+    rho, tilt, tr = t.avoid.axes
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        i, j, k = int(rng.integers(len(rho))), int(rng.integers(len(tilt))), int(rng.integers(len(tr)))
+        c = float(rng.uniform(1.0, 20.0))
+        traj = limiting_trajectory(DATA_DIR / f"{name}.npz", i, j, k, c)
+        lim = Limits.from_vehicle(veh, float(tilt[j]), float(tr[k]))
+        pr = head_on_problem(lim, traj["v"], c, traj["r_k"], n=len(traj["w"]))
+        assert check_trajectory(pr, traj["w"], traj["ts"], tol=0.0)["ok"]
+        assert t.avoid.values[i, j, k] * math.sqrt(G * c) <= traj["v"] * (1 + 1e-9)
