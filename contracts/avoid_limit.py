@@ -21,9 +21,13 @@ import math
 import numpy as np
 
 
-def stop_speed_kinematic(a, c, r_k):
-    """Stop branch, t_react = 0: full deceleration a stops within c − r_k: V = √(2·a·(c − r_k))."""
-    return np.sqrt(2.0 * np.asarray(a, float) * np.maximum(np.asarray(c, float) - np.asarray(r_k, float), 0.0))
+def stop_speed_kinematic(a, c, r_k, lead=0.0):
+    """Stop branch in closed form: the largest V with V·lead + V²/(2a) ≤ c − r_k (full deceleration a
+    after coasting `lead` seconds); with lead = 0 (the table's t_react = 0), V = √(2·a·(c − r_k))."""
+    a = np.asarray(a, float)
+    d = np.maximum(np.asarray(c, float) - np.asarray(r_k, float), 0.0)
+    lead = np.asarray(lead, float)
+    return np.where(a > 0, a * (-lead + np.sqrt(lead * lead + 2.0 * d / np.where(a > 0, a, 1.0))), 0.0)
 
 
 def policy_states(beta, v, a, t):

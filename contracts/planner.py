@@ -35,7 +35,6 @@ from .flat import inputs_from_flat, total_tilt
 from .vehicle import G, Vehicle
 
 SHRINK = 1e-6  # relative tightening of every limit inside the NLP
-OK_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 STOPPED = 1e-6  # [m/s] a final speed below this is a stop (the vehicle holds position)
 
 
@@ -123,7 +122,8 @@ class PlanProblem:
     `planar`: level flight at the altitude and yaw of q_0 (Z, ψ fixed, Z̈ = ψ̈ = 0) — the contract's
     setting (DESIGN.md §2); otherwise all four chains are free.
     `terminal`: "coast" (the ballistic continuation from q(N) is safe against every circle; for the
-    contract) or "box" (q(N) within [qf_lb, qf_ub], the paper's q(N) = q_f).
+    contract — polygons are kept out over the horizon only) or "box" (q(N) within [qf_lb, qf_ub],
+    the paper's q(N) = q_f).
     """
 
     limits: Limits
@@ -473,7 +473,7 @@ def _build(struct, ipopt_opts):
     nlp = {"x": x, "p": pvec, "f": -vfree if free_speed else n * ts, "g": ca.vertcat(*b.g)}
     opts = {"ipopt": dict(ipopt_opts), "print_time": False}
     solver = ca.nlpsol("planner", "ipopt", nlp, opts)
-    layout = {"nax": nax, "n": n, "nx": int(x.shape[0]), "n_obs_vars": [], "np": int(pvec.shape[0])}
+    layout = {"nax": nax, "n": n, "nx": int(x.shape[0]), "np": int(pvec.shape[0])}
     return solver, np.concatenate(b.lbg), np.concatenate(b.ubg), layout, obs
 
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .avoid_limit import policy_guess
+from .avoid_limit import policy_guess, stop_speed_kinematic
 from .errors import ContractError
 from .flat import horizontal_accel_limit
 from .lookup import repair_monotone
@@ -89,10 +89,13 @@ def _axis(spec, name, deg=False) -> np.ndarray:
 
 
 def default_grid(vehicle: Vehicle) -> Grid:
-    """The shipped grid: ρ geometric 0.01–0.97 (120), tilt 3°…tilt_max by 1°, thrust by 0.05."""
+    """The shipped grid: ρ geometric 0.01–0.97 (120), tilt 3°…tilt_max by 0.25°, thrust by 0.05.
+
+    The tilt axis is cheap in the cone model (cells scale one curve), and fine steps matter at small
+    tilts, where the conservative lookup would otherwise lose up to √(tan 3°/tan 4°) ≈ 13 % per step."""
     lo, hi = vehicle.thrust_ratio_range
     return Grid(rho=np.geomspace(0.01, 0.97, 120),
-                tilt=np.radians(np.arange(3.0, vehicle.tilt_max_deg + 0.5, 1.0)),
+                tilt=np.radians(np.round(np.arange(3.0, vehicle.tilt_max_deg + 0.125, 0.25), 10)),
                 thrust_ratio=np.round(np.arange(lo, hi + 0.025, 0.05), 10))
 
 
@@ -143,10 +146,8 @@ def brake_accel(lim: Limits) -> float:
     return min(lim.g * math.tan(tilt), a_t)
 
 
-def stop_speed_lead(a_b: float, c: float, r_k: float, lead: float = 0.0) -> float:
-    """Largest V with V·lead + V²/(2·a_b) ≤ c − r_k (closed-form stop branch)."""
-    d = max(c - r_k, 0.0)
-    return a_b * (-lead + math.sqrt(lead * lead + 2.0 * d / a_b)) if a_b > 0 else 0.0
+def _stop_speed(a_b: float, c: float, r_k: float, lead: float = 0.0) -> float:
+    return float(stop_speed_kinematic(a_b, c, r_k, lead))
 
 
 def stop_trajectory(a_b: float, v: float, n: int) -> tuple[np.ndarray, float]:
@@ -173,7 +174,7 @@ def solve_cell(lim: Limits, rho: float, n: int = 40, cpu_time: float = 1.0, rel_
     r_k = rho * c
     a_b = brake_accel(lim)
     a = lim.accel_bound()
-    v_stop = stop_speed_lead(a_b, c, r_k, lead_time) * (1.0 - 1e-9)
+    v_stop = _stop_speed(a_b, c, r_k, lead_time) * (1.0 - 1e-9)
     solves = []
     best = None
     v_cap = 50.0 * math.sqrt(max(a, 1e-9) * c) + 10.0 * v_stop
@@ -214,9 +215,13 @@ def solve_cell(lim: Limits, rho: float, n: int = 40, cpu_time: float = 1.0, rel_
     return CellResult(rho=rho, lo=lo, hi=hi, branch=branch, w=w_lo, ts=ts_lo, solves=solves)
 
 
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
 def _solve_chunk(task: dict) -> list[CellResult]:
     """Worker: one run of neighbouring ρ cells of one shape class, warm-starting along the run."""
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    for k, v in _ONE_THREAD.items():
+        os.environ.setdefault(k, v)
     out, warm = [], None
     for rho in task["rhos"]:
         res = solve_cell(task["limits"], rho, n=task["n"], cpu_time=task["cpu_time"], rel_tol=task["rel_tol"],
@@ -289,7 +294,8 @@ def run_tasks(tasks, workers, scheduler, progress, total, fn=None, desc="avoid c
             results[i] = fn(t)
             bar.update(len(results[i]))
     else:
-        os.environ.setdefault("OMP_NUM_THREADS", "1")
+        for k, v in _ONE_THREAD.items():  # one solver thread per worker process (inherited at spawn)
+            os.environ.setdefault(k, v)
         import multiprocessing as mp
 
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
@@ -369,7 +375,7 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
                         col[i] = v_c / math.sqrt(G * C_REF)
                     else:  # never optimistic: fall back to the closed-form stop of this cell
                         fails += 1
-                        col[i] = stop_speed_lead(brake_accel(lim), C_REF, float(rho) * C_REF) / math.sqrt(G * C_REF)
+                        col[i] = _stop_speed(brake_accel(lim), C_REF, float(rho) * C_REF) / math.sqrt(G * C_REF)
                 checked[key] = col * (1.0 - 1e-9)
             F[:, j, k] = checked[key]
     F_rep, repairs = repair_monotone(F, (-1, +1, +1), "down")
@@ -398,7 +404,7 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
         "bracket_rel_width_max": float(np.nanmax(np.where(np.isfinite(HI), HI / np.maximum(V, 1e-12) - 1.0, np.nan)))
         if np.any(np.isfinite(HI)) else None,
         "build_wall_s": round(wall, 2), "workers": (scheduler or workers),
-        "trajectories": out.name + ".trajectories.npz" if not str(out).endswith(".npz") else out.with_suffix("").name + ".trajectories.npz",
+        "trajectories": trajectories_path(out).name,
     }
     meta = write_table(out, veh, tilt_model=tilt_model,
                        avoid=Slot((grid.rho, grid.tilt, grid.thrust_ratio), F_rep, info),

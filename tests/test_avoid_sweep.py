@@ -8,7 +8,7 @@ import pytest
 pytest.importorskip("casadi")
 
 from contracts import sweep  # noqa: E402
-from contracts.avoid_limit import policy_limit_f  # noqa: E402
+from contracts.avoid_limit import policy_limit_f, stop_speed_kinematic  # noqa: E402
 from contracts.errors import ContractError  # noqa: E402
 from contracts.flat import horizontal_accel_limit  # noqa: E402
 from contracts.lookup import is_monotone  # noqa: E402
@@ -94,7 +94,7 @@ def test_build_fails_when_more_than_one_percent_of_cells_need_repair(tmp_path, m
             res = []
             for m, rho in enumerate(t["rhos"]):
                 a_b = sweep.brake_accel(t["limits"])
-                v = sweep.stop_speed_lead(a_b, 1.0, rho) * (0.5 if m % 2 == 0 else 1.0)
+                v = float(stop_speed_kinematic(a_b, 1.0, rho)) * (0.5 if m % 2 == 0 else 1.0)
                 w, ts = sweep.stop_trajectory(a_b, v, t["n"])
                 res.append(sweep.CellResult(rho, v, math.inf, "stop", w, ts, []))
             out.append(res)

@@ -114,11 +114,14 @@ def _random_points(seed, n, veh):
 def _lookup_vs_fresh(name, points):
     veh = load_vehicle(name)
     t = TABLES[name]
+    ratios = []
     for p in points:
         v_tab = _v(t, p)
         fresh = fresh_v_safe(veh, p["d_od"], p["r_obst"], p["e_tr"], p["tilt"], p["thrust_ratio"])
         assert v_tab <= fresh.lo, (p, v_tab, fresh.lo)
         assert v_tab >= 0.8 * fresh.lo, (p, v_tab, fresh.lo)  # and not uselessly low
+        ratios.append(v_tab / fresh.lo)
+    print(json.dumps({"vehicle": name, "lookup_over_fresh": [round(r, 4) for r in ratios]}))
 
 
 @pytest.mark.parametrize("name", VEHICLES)
@@ -179,3 +182,24 @@ def test_tightness_against_physical_limit_estimate_50_cells(name):
 def test_tightness_few_cells():
     r = tightness_ratios("mambo", n_cells=4, seed=11)
     assert np.all(r <= 1.001) and np.all(r >= 0.93)
+
+
+@pytest.mark.parametrize("name", VEHICLES)
+def test_shipped_limiting_trajectories_re_simulate_clean(name):
+    """The side file's limiting trajectories, scaled to random cells and distances, are verified
+    trajectories at (at least) the table's speed."""
+    from contracts.planner import Limits, check_trajectory, head_on_problem
+    from contracts.sweep import limiting_trajectory
+
+    veh = load_vehicle(name)
+    t = TABLES[name]
+    rho, tilt, tr = t.avoid.axes
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        i, j, k = int(rng.integers(len(rho))), int(rng.integers(len(tilt))), int(rng.integers(len(tr)))
+        c = float(rng.uniform(1.0, 20.0))
+        traj = limiting_trajectory(DATA_DIR / f"{name}.npz", i, j, k, c)
+        lim = Limits.from_vehicle(veh, float(tilt[j]), float(tr[k]))
+        pr = head_on_problem(lim, traj["v"], c, traj["r_k"], n=len(traj["w"]))
+        assert check_trajectory(pr, traj["w"], traj["ts"], tol=0.0)["ok"]
+        assert t.avoid.values[i, j, k] * math.sqrt(G * c) <= traj["v"] * (1 + 1e-9)
