@@ -115,7 +115,7 @@ def braking_plan(p0, v0, a_max, n=40) -> tuple[np.ndarray, np.ndarray, np.ndarra
 class AvoidancePlanner:
     """OSQP avoidance planner with a fixed horizon of `n` intervals; solvers are cached per shape."""
 
-    def __init__(self, n: int = 40, scp_iters: int = 5, weights=(1.0, 0.05, 0.2, 0.02)):
+    def __init__(self, n: int = 30, scp_iters: int = 4, weights=(1.0, 0.05, 0.2, 0.02)):
         self.n = n
         self.scp_iters = scp_iters
         self.w_v, self.w_y, self.w_vy, self.w_a = weights
@@ -239,7 +239,7 @@ class AvoidancePlanner:
             a_mat = pat["csc"].copy()
             a_mat.data = val
             s = osqp.OSQP()
-            s.setup(p_mat, q, a_mat, lo, hi, verbose=False, eps_abs=1e-4, eps_rel=1e-4, max_iter=2000,
+            s.setup(p_mat, q, a_mat, lo, hi, verbose=False, eps_abs=1e-4, eps_rel=1e-4, max_iter=400,
                     polishing=True, warm_starting=True, adaptive_rho=True)
             self._solvers[key] = s
         else:

@@ -17,12 +17,6 @@ from contracts.errors import ContractError
 
 EXIT_USER_ERROR = 2
 
-# The paper's demonstration scenarios (Figures 14–16): Mambo, thrust ratio, D_od, R_obst, E_tr, tilt.
-PAPER_SCENARIOS = [
-    {"figure": 14, "thrust_ratio": 0.6, "d_od": 6.0, "r_obst": 1.0, "e_tr": 0.85, "tilt_deg": 7.03, "paper_v_max": 4.09},
-    {"figure": 15, "thrust_ratio": 0.8, "d_od": 6.0, "r_obst": 0.3, "e_tr": 0.75, "tilt_deg": 9.0, "paper_v_max": 5.29},
-    {"figure": 16, "thrust_ratio": 1.0, "d_od": 3.0, "r_obst": 0.6, "e_tr": 0.24, "tilt_deg": 9.0, "paper_v_max": 2.93},
-]
 
 
 def _emit(obj: dict, as_json: bool, text: str) -> None:
@@ -243,24 +237,13 @@ def cmd_review(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    """Until the daemon and SITL land: query the shipped tables for the paper's scenarios."""
-    t = _load_table(args.table or shipped_table("mambo"))
-    rows = []
-    for sc in PAPER_SCENARIOS:
-        q = query_table(t, sc["d_od"], sc["r_obst"], sc["e_tr"], sc["thrust_ratio"], sc["tilt_deg"])
-        rows.append({**sc, **{k: q[k] for k in ("contract", "v_max", "v_safe", "v_stop", "gamma", "reason")}})
-    if args.json:
-        print(json.dumps({"vehicle": t.vehicle.name, "available": t.available, "scenarios": rows}))
-        return 0
-    print(f"contract-guard demo — vehicle {t.vehicle.name}, table contracts: {', '.join(t.available)}")
-    print("paper scenarios (Figures 14–16): obstacle revealed at D_od, head-on")
-    print(f"{'fig':>3} {'thrust':>6} {'D_od':>5} {'R_obst':>6} {'E_tr':>5} {'tilt°':>6}  {'paper V':>7}  {'contract':>8} {'V_max':>6} {'V_stop':>6}")
-    for r in rows:
-        print(
-            f"{r['figure']:>3} {r['thrust_ratio']:>6.2f} {r['d_od']:>5.1f} {r['r_obst']:>6.2f} {r['e_tr']:>5.2f} "
-            f"{r['tilt_deg']:>6.2f}  {r['paper_v_max']:>7.2f}  {r['contract']:>8} {r['v_max']:>6.2f} {r['v_stop']:>6.2f}"
-        )
-    return 0
+    """The SITL and the daemon on loopback UDP flying the paper's in-flight scenario (Figure 17)."""
+    from .demo import format_summary, run_demo
+
+    r = run_demo(args.scenario, args.out, speedup=args.speedup, duration_s=args.duration,
+                 personality=args.personality)
+    _emit(r, args.json, format_summary(r))
+    return 0 if r["safe"] else 1
 
 
 # ----------------------------------------------------------------------------- parser
@@ -270,8 +253,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="contract-guard", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
 
-    d = sub.add_parser("demo", help="fly (for now: query) the paper's scenarios and print a summary")
-    d.add_argument("--table", type=Path, help="table file (default: the shipped Mambo table)")
+    d = sub.add_parser("demo", help="fly the paper's in-flight scenario: SITL + daemon on loopback UDP")
+    d.add_argument("--scenario", default="fig17", help="scenario name or file (default: fig17)")
+    d.add_argument("--out", type=Path, default=Path("demo-out"), help="event log, plot and summary go here")
+    d.add_argument("--speedup", type=float, default=2.0)
+    d.add_argument("--duration", type=float, default=75.0, help="simulated seconds")
+    d.add_argument("--personality", choices=["px4", "ardupilot"], default="px4")
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_demo)
 
