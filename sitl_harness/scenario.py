@@ -30,10 +30,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-import yaml
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contracts.errors import ContractError
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from contracts.yamlfile import load_model, model_from_dict
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -161,25 +161,8 @@ class Scenario(_Strict):
     faults: list[Fault] = []
 
 
-def _one_line(err: ValidationError) -> str:
-    e = err.errors()[0]
-    where = ".".join(str(p) for p in e["loc"]) or "(top level)"
-    msg = e["msg"].removeprefix("Value error, ")
-    if e["type"] == "extra_forbidden":
-        msg = "unknown key"
-    more = f" [+{len(err.errors()) - 1} more]" if len(err.errors()) > 1 else ""
-    return f"{where}: {msg}{more}"
-
-
 def scenario_from_dict(data: object, source: str = "scenario") -> Scenario:
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise ScenarioError(f"{source}: expected a mapping")
-    try:
-        return Scenario.model_validate(data)
-    except ValidationError as err:
-        raise ScenarioError(f"{source}: {_one_line(err)}") from None
+    return model_from_dict(Scenario, data, source, ScenarioError, empty_ok=True)
 
 
 def resolve_scenario_path(name_or_path: str | Path) -> Path:
@@ -191,15 +174,4 @@ def resolve_scenario_path(name_or_path: str | Path) -> Path:
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
     """A scenario file by path, or a shipped one by name (`column_ahead`)."""
-    path = resolve_scenario_path(name_or_path)
-    try:
-        text = path.read_text()
-    except OSError as err:
-        raise ScenarioError(f"scenario file {path}: cannot read ({err.strerror or err})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark else ""
-        raise ScenarioError(f"scenario file {path}:{where} is not valid YAML") from None
-    return scenario_from_dict(data, f"scenario file {path.name}")
+    return load_model(Scenario, resolve_scenario_path(name_or_path), "scenario file", ScenarioError, empty_ok=True)
