@@ -249,6 +249,8 @@ class Daemon:
             self.params[msg.param_id] = v
             if msg.param_id == "CG_ENGAGE" and v >= 0.5 and old < 0.5:
                 self._first_seen_in_air = False  # asked anew: a restart in flight may engage now
+                if self.offboard is not None and self.offboard.state in ("done", "stood_down"):
+                    self.offboard.state = "off"  # … and offboard may be entered again
             self._event(self.clock(), "param_set", param=msg.param_id, old=old, new=v)
             self._send_param(msg.param_id)
 
@@ -314,7 +316,8 @@ class Daemon:
         if self._first_seen_in_air is None and tel.landed_state:
             self._first_seen_in_air = tel.in_air
         engaged = (self.params["CG_ENGAGE"] >= 0.5 and self.startup_ok is not False
-                   and self._first_seen_in_air is False)
+                   and self._first_seen_in_air is False
+                   and not (self.offboard is not None and self.offboard.state in ("done", "stood_down")))
         applies = self.adapter.limit_applies(mode) or (self.offboard is not None and mode == "offboard")
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
                       in_air=tel.in_air, mode=mode, limit_applies=applies,
@@ -358,6 +361,9 @@ class Daemon:
             v_max=d.v_cmd or 0.0, a_max=a_max, discs=discs, stop=d.hold or self._stopping or d.state != "active")
         for name, fields in acts.events:
             self._event(t, name, **fields)
+        if not self.offboard.streaming and getattr(self, "_was_streaming", False):
+            self.etr.reset()  # our setpoints are no longer the commanded path
+        self._was_streaming = self.offboard.streaming
         if acts.hold:
             self._commanded_mode = (self.adapter.hold_mode(), t, False)
             self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(self.adapter.hold_mode(), True), "hold")
@@ -456,7 +462,9 @@ class Daemon:
                 feeder.tick(bad_cycles < 10 and time.monotonic() - started < 5 * period)
             if hasattr(self.log, "tick"):
                 self.log.tick()
-            next_t += period
+            # the loop rate is in vehicle time: against a SITL sped up k times, cycle k times as often
+            rate = min(max(self.vclock.rate, 1.0), 10.0) if self.vclock is not None else 1.0
+            next_t += period / rate
             delay = next_t - time.monotonic()
             if delay > 0:
                 time.sleep(delay)

@@ -48,9 +48,7 @@ class OffboardController:
         if stop and self.state in ("entering", "flying"):
             self._go(t, "off", "hold requested", acts)
             return acts
-        if self.state in ("done", "stood_down"):  # until disengaged and asked again
-            if not engaged:
-                self._go(t, "off", "disengaged", acts)
+        if self.state in ("done", "stood_down"):  # until asked again (CG_ENGAGE off and on)
             return acts
         if self.state == "off":
             if engaged and flying and not stop:
