@@ -88,7 +88,9 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float) -> tuple[list[Di
         r_near = min(r for _, r, _ in cl)
         ends = [p + r_near * np.array([math.cos(yaw + a), math.sin(yaw + a)]) for a in (lo_b, hi_b)]
         w2 = float(np.hypot(*(ends[1] - ends[0]))) / 2
-        seen = float(np.hypot(*(pts[-1] - pts[0]))) / 2  # measured half-width, without the bins' padding
+        # measured half-width: a bin reports the nearest return in its sector at the sector's centre
+        # bearing, so each end may sit up to half a bin (r·h) outside the obstacle
+        seen = float(np.hypot(*(pts[-1] - pts[0]))) / 2 - r_near * math.tan(half)
         mid = 0.5 * (ends[0] + ends[1])
         u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
         radius = max(r_obst, w2)
