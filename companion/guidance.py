@@ -83,27 +83,26 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float) -> tuple[list[Di
             clusters.append([(b, r, h)])
     for cl in clusters:
         pts = np.array([p + r * np.array([math.cos(yaw + b), math.sin(yaw + b)]) for b, r, _ in cl])
-        half = cl[0][2]
-        lo_b, hi_b = cl[0][0] - half, cl[-1][0] + half  # the obstacle may fill its edge bins
         r_near = min(r for _, r, _ in cl)
-        ends = [p + r_near * np.array([math.cos(yaw + a), math.sin(yaw + a)]) for a in (lo_b, hi_b)]
-        w2 = float(np.hypot(*(ends[1] - ends[0]))) / 2
-        # measured half-width: a bin reports the nearest return in its sector at the sector's centre
-        # bearing, so each end may sit up to half a bin (r·h) outside the obstacle
-        seen = float(np.hypot(*(pts[-1] - pts[0]))) / 2 - r_near * math.tan(half)
-        mid = 0.5 * (ends[0] + ends[1])
+        # a bin reports the nearest return in its sector at the sector's centre bearing: every hit point
+        # may be off by up to half a bin sideways (and a little in range)
+        pad = r_near * math.tan(cl[0][2]) + 0.05
+        w2 = float(np.hypot(*(pts[-1] - pts[0]))) / 2  # half the chord the beams saw
+        mid = 0.5 * (pts[0] + pts[-1])
         u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
         radius = max(r_obst, w2)
-        widest = max(widest, seen if len(cl) > 1 else 0.0)
-        centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u
-        # every hit must be inside or on the disc's boundary; grow it if the fit missed one
-        grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)
-        discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + inflate))
+        if len(cl) > 1:
+            widest = max(widest, w2 - pad)
+        centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
+        grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
+        discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
     for b, r, h in singles:
         n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
+        reach = 2 * r * math.sin(h / (2 * (n - 1)))  # farthest any arc point is from its nearest sample
         for a in np.linspace(b - h, b + h, n):
             hp = p + r * np.array([math.cos(yaw + a), math.sin(yaw + a)])
-            discs.append(Disc(float(hp[0]), float(hp[1]), 2 * r_obst + inflate))
+            # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
+            discs.append(Disc(float(hp[0]), float(hp[1]), 2 * r_obst + reach + inflate))
     return discs, widest
 
 
