@@ -153,6 +153,17 @@ def cmd_figures(args) -> int:
     return 0
 
 
+def cmd_table_compare(args) -> int:
+    """Analytical (collision sets, eq. 20-28) vs numerical contract: Figures 4, 6, 7 and the CSV."""
+    from contracts.collision_compare import compare  # offline only: the numerical curve imports CasADi
+
+    s = compare(args.vehicle, args.tilt_deg, args.out, args.tilt_model, ts=args.ts, placement=args.placement,
+                d_od_step=args.d_od_step)
+    s.pop("rows", None)
+    _emit(s, args.json, "\n".join(f"wrote {f}" for f in s.get("files", [])))
+    return 0
+
+
 def cmd_table_plot(args) -> int:
     from contracts.avoid_plot import plot_table
 
@@ -333,6 +344,18 @@ def build_parser() -> argparse.ArgumentParser:
     fg.add_argument("--seeds", type=int, default=3, help="wind seeds per flight")
     fg.add_argument("--json", action="store_true")
     fg.set_defaults(func=cmd_figures)
+
+    cp = tsub.add_parser("compare", help="analytical vs numerical contract (Figures 4, 6, 7), PNG + CSV")
+    cp.add_argument("--vehicle", default="mambo")
+    cp.add_argument("--tilt-deg", type=float, default=5.0)
+    cp.add_argument("--out", type=Path, required=True)
+    cp.add_argument("--tilt-model", choices=["box", "cone"], default="box")
+    cp.add_argument("--placement", choices=["face", "concentric"], default="face",
+                    help="squares' near faces at D_od (face) or centred on the circle (concentric, Figure 5)")
+    cp.add_argument("--ts", type=float, default=0.02, help="sample time of the collision sets [s]")
+    cp.add_argument("--d-od-step", type=float, default=0.5)
+    cp.add_argument("--json", action="store_true")
+    cp.set_defaults(func=cmd_table_compare)
 
     pl = tsub.add_parser("plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
     pl.add_argument("file", type=Path)

@@ -219,26 +219,3 @@ def plot_lines(path, lines, d_od_max, title):
     fig.savefig(path, dpi=130)
     plt.close(fig)
     return Path(path)
-
-
-def main(argv=None) -> int:
-    """`python -m contracts.collision_compare --vehicle mambo --tilt-deg 5 --out DIR` (until the CLI wires it)."""
-    import argparse
-
-    p = argparse.ArgumentParser(description="analytical vs numerical contract (paper Figures 4, 6, 7)")
-    p.add_argument("--vehicle", default="mambo")
-    p.add_argument("--tilt-deg", type=float, default=5.0)
-    p.add_argument("--out", required=True)
-    p.add_argument("--tilt-model", default="box", choices=("box", "cone"))
-    p.add_argument("--placement", default="face", choices=PLACEMENTS)
-    p.add_argument("--ts", type=float, default=TS_DEFAULT)
-    p.add_argument("--d-od-step", type=float, default=0.5)
-    a = p.parse_args(argv)
-    s = compare(a.vehicle, a.tilt_deg, a.out, a.tilt_model, ts=a.ts, placement=a.placement, d_od_step=a.d_od_step)
-    s.pop("rows")
-    print(json.dumps(s))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
