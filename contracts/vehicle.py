@@ -15,7 +15,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from .yamlfile import load_model, model_from_dict
+from .yamlfile import load_model, model_from_dict, resolve_named
 
 G = 9.80665  # standard gravity [m/s²]
 DATA_DIR = Path(__file__).resolve().parent / "data"
@@ -158,10 +158,7 @@ def vehicle_from_dict(data: object, source: str = "vehicle") -> Vehicle:
 
 def resolve_vehicle_path(name_or_path: str | Path) -> Path:
     """A path as given, or a shipped vehicle by name (`mambo` → contracts/data/mambo.yaml)."""
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    return DATA_DIR / f"{p.name}.yaml"
+    return resolve_named(name_or_path, DATA_DIR)
 
 
 def load_vehicle(name_or_path: str | Path) -> Vehicle:

@@ -39,6 +39,14 @@ def model_from_dict(model: type[M], data: object, source: str, error: type[Excep
         raise error(f"{source}: {one_line(err)}") from None
 
 
+def resolve_named(name_or_path: str | Path, directory: Path) -> Path:
+    """A path as given, or a shipped file by name (`mambo` → `<directory>/mambo.yaml`)."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        return p
+    return directory / f"{p.name}.yaml"
+
+
 def load_model(model: type[M], path: str | Path, what: str, error: type[Exception] = ContractError,
                empty_ok: bool = False) -> M:
     """Read, parse and validate a YAML file; every failure is one `error` line naming the file."""

@@ -33,7 +33,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contracts.errors import ContractError
-from contracts.yamlfile import load_model, model_from_dict
+from contracts.yamlfile import load_model, model_from_dict, resolve_named
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -166,10 +166,8 @@ def scenario_from_dict(data: object, source: str = "scenario") -> Scenario:
 
 
 def resolve_scenario_path(name_or_path: str | Path) -> Path:
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        return p
-    return SCENARIO_DIR / f"{p.name}.yaml"
+    """A path as given, or a shipped scenario by name (`column_ahead`)."""
+    return resolve_named(name_or_path, SCENARIO_DIR)
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
