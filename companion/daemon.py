@@ -25,7 +25,7 @@ from contracts.errors import ContractError
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE, adapter_for
 from .config import Config
 from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
-from .guidance import OffboardGuidance, Route, obstacle_discs
+from .guidance import OffboardGuidance, Route, inflated, obstacle_discs
 from .offboard import OffboardController
 from .link import mavlink
 from .supervisor import Decision, Inputs, Supervisor
@@ -132,6 +132,7 @@ class Daemon:
             route = Route(cfg.route.waypoints, cfg.route.altitude_m)
             self.offboard = OffboardController(OffboardGuidance(route), cfg.offboard_entry_s)
         self._stopping = False
+        self._discs: list = []  # obstacle discs from the current beams (un-inflated)
         self._t_checks: float | None = None
 
     # ------------------------------------------------------------------ input
@@ -305,6 +306,7 @@ class Daemon:
         corridor = 2 * r_obst + e_tr + self.table.vehicle.r_body_m
         dod = self.dod.estimate(t, beta, corridor)
         thrust_ratio, _ = self.thrust.value(t)
+        self._discs, width = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, r_obst)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
         by_daemon = False
         if self._commanded_mode is not None:  # (mode, when commanded, seen in a heartbeat yet)
@@ -322,7 +324,8 @@ class Daemon:
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
                       in_air=tel.in_air, mode=mode, limit_applies=applies,
                       mode_by_daemon=by_daemon, ground_speed=speed, dod=dod, e_tr=e_tr,
-                      thrust_ratio=thrust_ratio, r_obst=r_obst, engaged=engaged, mission_seq=tel.mission_seq)
+                      thrust_ratio=thrust_ratio, r_obst=r_obst, engaged=engaged, mission_seq=tel.mission_seq,
+                      obstacle_width=width)
 
     def step(self) -> Decision:
         t = self.clock()
@@ -350,11 +353,7 @@ class Daemon:
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
                                        veh.mass_kg)
         inflate = d.omega.e_tr + veh.r_body_m if math.isfinite(d.omega.e_tr) else i.e_tr + veh.r_body_m
-        discs, widest = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, i.r_obst, inflate)
-        if widest > i.r_obst + 0.05 and not getattr(self, "_wide_warned", False):
-            self._event(t, "violation_start", subsystem="environment", guarantee="no obstacle wider than R_obst",
-                        assumed=i.r_obst, observed=widest, action="planning around the observed width")
-            self._wide_warned = True
+        discs = inflated(self._discs, inflate)
         acts = self.offboard.step(
             t, engaged=i.engaged and self.startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
             mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,
@@ -378,7 +377,6 @@ class Daemon:
                 mavlink.MAV_FRAME_LOCAL_NED, 2048,  # position, velocity, acceleration and yaw; no yaw rate
                 float(sp.p[0]), float(sp.p[1]), float(sp.z), float(sp.v[0]), float(sp.v[1]), 0.0,
                 float(sp.a[0]), float(sp.a[1]), 0.0, float(sp.yaw), 0.0))
-            self._setpoint = sp
 
     def _link_events(self, t: float, i: Inputs) -> None:
         if i.link_ok != self._link_up:

@@ -60,7 +60,7 @@ class Route:
         return self.waypoints[i] + u * (s - self._cum[i]), u
 
 
-def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float) -> tuple[list[Disc], float]:
+def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float]:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
     Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
@@ -104,6 +104,11 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float) -> tuple[list[Di
             # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
             discs.append(Disc(float(hp[0]), float(hp[1]), 2 * r_obst + reach + inflate))
     return discs, widest
+
+
+def inflated(discs: list[Disc], by: float) -> list[Disc]:
+    """The same discs grown by `by` (E_tr + r_body: the virtual obstacle of Figure 13)."""
+    return [Disc(d.x, d.y, d.r + by) for d in discs]
 
 
 @dataclass

@@ -10,7 +10,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -35,6 +34,7 @@ class OffboardController:
     _hold_here: np.ndarray | None = None
     _t_last: float | None = None
     _asked: int = 0
+    _braking: bool = False
 
     def _go(self, t, new, why, acts):
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
@@ -81,7 +81,7 @@ class OffboardController:
                 acts.hold = True  # the route is flown: hand over to Hold
                 self._go(t, "done", "route complete", acts)
                 return acts
-            if acts.setpoint.mode == "brake" and not getattr(self, "_braking", False):
+            if acts.setpoint.mode == "brake" and not self._braking:
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
             self._braking = acts.setpoint.mode == "brake"
         return acts
@@ -90,6 +90,3 @@ class OffboardController:
     def streaming(self) -> bool:
         return self.state in ("entering", "flying")
 
-
-def yaw_to(v, default: float) -> float:
-    return math.atan2(v[1], v[0]) if float(np.hypot(*v)) > 0.5 else default

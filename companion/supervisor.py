@@ -50,6 +50,7 @@ class Inputs:
     r_obst: float
     engaged: bool
     mission_seq: int = -1  # the autopilot's current mission item (a speed item may reset the limit)
+    obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
 
 
 @dataclass
@@ -166,6 +167,9 @@ class Supervisor:
         self._violation(d, "actuators", i.thrust_ratio < lo, subsystem="actuators",
                         guarantee=f"thrust_ratio >= {lo}", assumed=lo, observed=i.thrust_ratio,
                         action="no safe speed: hold")
+        self._violation(d, "environment", i.obstacle_width > i.r_obst + 0.05, subsystem="environment",
+                        guarantee="no obstacle wider than R_obst", assumed=i.r_obst, observed=i.obstacle_width,
+                        action="planning round the observed width")
         late = i.dod.late
         self._violation(d, "navigation", i.dod.reason.startswith("lowered"), subsystem="navigation",
                         guarantee="every obstacle within D_od is detected",

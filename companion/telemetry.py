@@ -27,10 +27,8 @@ class Telemetry:
     roll: float = 0.0
     pitch: float = 0.0
     yaw: float = 0.0
-    t_attitude: float = -math.inf
     throttle: float = math.nan  # fraction
     landed_state: int = 0
-    t_landed: float = -math.inf
     target: tuple[float, float] | None = None  # commanded horizontal position
     t_target: float = -math.inf
     mission_seq: int = -1
@@ -58,11 +56,11 @@ class Telemetry:
             self.t_local = t
             self.x, self.y, self.z, self.vx, self.vy, self.vz = msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz
         elif kind == "ATTITUDE":
-            self.t_attitude, self.roll, self.pitch, self.yaw = t, msg.roll, msg.pitch, msg.yaw
+            self.roll, self.pitch, self.yaw = msg.roll, msg.pitch, msg.yaw
         elif kind == "VFR_HUD":
             self.throttle = msg.throttle / 100.0
         elif kind == "EXTENDED_SYS_STATE":
-            self.landed_state, self.t_landed = msg.landed_state, t
+            self.landed_state = msg.landed_state
         elif kind == "POSITION_TARGET_LOCAL_NED":
             if not msg.type_mask & POSITION_TARGET_IGNORE_XY:
                 self.target, self.t_target = (msg.x, msg.y), t
