@@ -117,6 +117,7 @@ class Supervisor:
         self._held_for: list[str] = []  # the causes of the daemon's current Hold
         self._t_hold = -math.inf
         self._would: tuple[str, ...] = ()
+        self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
 
     # ------------------------------------------------------------------ helpers
     def _set_state(self, d: Decision, new: str, reason: str) -> None:
@@ -175,8 +176,11 @@ class Supervisor:
                         guarantee="every obstacle within D_od is detected",
                         assumed=late.assumed_d_od if late else None, observed=late.range_m if late else None,
                         action=f"D_od lowered to {i.dod.d_od:.2f} m")
-        if self.table.e_pred is not None and d.v_cmd:
-            e_pred = self.table.e_tr_pred(d.v_cmd, om.tilt, i.thrust_ratio)
+        if om.v_max >= MIN_SPEED_CMD:
+            self._tilt_in_force = om.tilt
+        if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
+            # against the operating point being flown: a Ω with no speed (D_od lost, say) has no tilt
+            e_pred = self.table.e_tr_pred(d.v_cmd, self._tilt_in_force, i.thrust_ratio)
             self._violation(d, "controller", i.e_tr > e_pred + 0.05, subsystem="controller",
                             guarantee="contour error <= E_tr_pred(V_max)", assumed=e_pred, observed=i.e_tr,
                             action="E_tr raised to the measured value")

@@ -156,3 +156,25 @@ def test_violations_start_and_end():
     d = s.step(replace(BASE, t=0.02, dod=dod(3.0, reason="lowered after a late first detection")))
     assert any(n == "violation_start" and f["subsystem"] == "navigation" for n, f in d.events)
     assert any(n == "violation_end" and f["subsystem"] == "actuators" for n, f in d.events)
+
+
+def test_controller_guarantee_is_checked_at_the_tilt_being_flown():
+    """When D_od is lost mid-flight Ω has no speed and no meaningful tilt; the measured contour error
+    is still judged against E_tr_pred at the operating point the vehicle was flying, not at the grid's
+    smallest tilt (which raised a false controller violation at every route end)."""
+    s = sup("offboard")
+    flying = replace(BASE, mode="offboard", ground_speed=5.0, dod=dod(6.0), e_tr=0.3)
+    d = s.step(flying)
+    om = d.omega
+    assert om.v_max > 1.0
+    e_flown = TABLE.e_tr_pred(d.v_cmd, om.tilt, 1.0)
+    e_low = TABLE.e_tr_pred(d.v_cmd, float(TABLE.e_pred.axes[1][0]), 1.0)
+    e_meas = 0.5 * (e_flown + e_low)
+    assert e_low + 0.05 < e_meas < e_flown - 0.05  # the two readings disagree here
+    lost = s.step(replace(flying, t=0.02, dod=dod(0.0), e_tr=e_meas))
+    assert lost.omega.v_max == 0.0
+    assert not [e for e in lost.events if e[0] == "violation_start" and e[1]["subsystem"] == "controller"]
+    s2 = sup("offboard")
+    s2.step(flying)
+    over = s2.step(replace(flying, t=0.02, dod=dod(0.0), e_tr=e_flown + 0.2))
+    assert [e for e in over.events if e[0] == "violation_start" and e[1]["subsystem"] == "controller"]
