@@ -39,11 +39,30 @@ SLACK_COST = 1e2  # per metre of keep-out violation in the first SCP iteration (
 
 @dataclass(frozen=True)
 class Disc:
-    """A keep-out disc (already R_obst + E_tr + r_body) in world coordinates."""
+    """A keep-out disc (already R_obst + E_tr + r_body) in world coordinates. `r_min` is the part
+    that may never be entered (R_obst + r_body); the rest, E_tr, is the controller's allowance."""
 
     x: float
     y: float
     r: float
+    r_min: float | None = None  # None: no allowance, the whole disc is never entered
+
+
+def admitted(discs: list[Disc], p0, gap: float) -> tuple[list[Disc], list[str]]:
+    """The discs a plan starting at `p0` must keep out of (paper, Figures 13–16: the vehicle may enter
+    the virtual obstacle by up to E_tr and must still avoid the real one). A disc that already holds
+    `p0` in its E_tr allowance shrinks to leave `gap` between it and p0 — a plan may then go no deeper
+    than the vehicle already is; one whose never-entered core is that close is kept whole (nothing
+    starting there is acceptable: the planner brakes)."""
+    out, notes = [], []
+    for d in discs:
+        dist = float(np.hypot(p0[0] - d.x, p0[1] - d.y))
+        if dist - gap < d.r and d.r_min is not None and dist - gap > d.r_min:
+            out.append(Disc(d.x, d.y, dist - gap, d.r_min))
+            notes.append(f"inside the E_tr allowance of a disc: keep-out {d.r:.2f} → {dist - gap:.2f} m")
+        else:
+            out.append(d)
+    return out, notes
 
 
 @dataclass
@@ -248,11 +267,13 @@ class AvoidancePlanner:
 
     # ---------------------------------------------------------------- one plan
     def plan(self, p0, v0, route_dir, discs: list[Disc], v_max: float, a_max: float, v_cruise: float | None = None,
-             horizon_s: float | None = None, warm: Plan | None = None, elapsed: float = 0.0) -> Plan:
+             horizon_s: float | None = None, warm: Plan | None = None, elapsed: float = 0.0,
+             budget_s: float | None = None) -> Plan:
         """Plan from (p0, v0) along `route_dir` around `discs` within V_max and the tilt's a_max.
 
         `warm`: the previous plan, `elapsed` seconds old — its remainder is the first linearisation of
-        the same kind of plan (replanning), tried before the cold starts.
+        the same kind of plan (replanning), tried before the cold starts. `budget_s`: no further QP
+        attempt starts once this much time is spent (the first always runs; braking is always ready).
         """
         t0 = time.perf_counter()
         u = np.asarray(route_dir, float)
@@ -260,7 +281,7 @@ class AvoidancePlanner:
         rot = np.array([[u[0], u[1]], [-u[1], u[0]]])  # world → route frame
         p0 = np.asarray(p0, float)
         pr0, vr0 = np.zeros(2), rot @ np.asarray(v0, float)
-        local = [Disc(*(rot @ (np.array([d.x, d.y]) - p0)), d.r) for d in discs]
+        local = [Disc(*(rot @ (np.array([d.x, d.y]) - p0)), d.r, d.r_min) for d in discs]
         v_cruise = v_max if v_cruise is None else min(v_cruise, v_max)
         speed0 = float(np.hypot(*vr0))
         # horizons: passing needs the time to get beyond the obstacle (with room to slow down), stopping
@@ -279,11 +300,16 @@ class AvoidancePlanner:
             tw = h[warm.kind] / self.n
             guess = np.array([warm.sample(elapsed + k * tw)[0] for k in range(self.n + 1)])
             attempts.insert(0, (warm.kind, 0.0, (guess - p0) @ rot.T))
-        for kind, side, guess in attempts:
+        for i, (kind, side, guess) in enumerate(attempts):
+            if i and budget_s is not None and time.perf_counter() - t0 > budget_s:
+                notes.append(f"time budget {budget_s * 1e3:.0f} ms spent: {len(attempts) - i} attempt(s) skipped")
+                break
             if kind == "pass" and not local:
                 side = 0.0
             ts = h[kind] / self.n
-            res = self._scp(kind, side, pr0, vr0, local, v_max, a_max, v_cruise, ts, guess)
+            keep_out, why_in = admitted(local, pr0, a_max * ts * ts / 8.0 + 2 * MARGIN_M)
+            notes += [n for n in why_in if n not in notes]
+            res = self._scp(kind, side, pr0, vr0, keep_out, v_max, a_max, v_cruise, ts, guess)
             total += res[-1]
             if res[0] is None:
                 notes.append(f"{kind}{'+' if side > 0 else '-' if side < 0 else ''}: {res[1]}")
@@ -296,7 +322,7 @@ class AvoidancePlanner:
             if kind == "pass" and not local:
                 break
         p, v, a, tsb = braking_plan(pr0, vr0, a_max, self.n)
-        ok, clear, why = exact_check(p, v, a, tsb, local, max(v_max, speed0), a_max)
+        ok, clear, why = exact_check(p, v, a, tsb, admitted(local, pr0, MARGIN_M)[0], max(v_max, speed0), a_max)
         if not ok:
             notes.append(f"brake: {why}")
         return self._world("brake", p, v, a, tsb, rot, p0, ok, clear, t0, total, rejected, notes)

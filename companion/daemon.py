@@ -352,8 +352,7 @@ class Daemon:
         tel, veh = self.tel, self.table.vehicle
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
                                        veh.mass_kg)
-        inflate = d.omega.e_tr + veh.r_body_m if math.isfinite(d.omega.e_tr) else i.e_tr + veh.r_body_m
-        discs = inflated(self._discs, inflate)
+        discs = inflated(self._discs, d.omega.e_tr if math.isfinite(d.omega.e_tr) else i.e_tr, veh.r_body_m)
         acts = self.offboard.step(
             t, engaged=i.engaged and self.startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
             mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,

@@ -20,6 +20,7 @@ from .avoid_planner import AvoidancePlanner, Disc, Plan
 
 REPLAN_S = 0.5  # an active plan is refreshed this often (also on a new Ω or drift, at most this often)
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
+PLAN_BUDGET_S = 0.04  # [s of CPU] planning stops starting new attempts after this (the loop keeps its rate)
 
 
 @dataclass
@@ -106,9 +107,10 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
     return discs, widest
 
 
-def inflated(discs: list[Disc], by: float) -> list[Disc]:
-    """The same discs grown by `by` (E_tr + r_body: the virtual obstacle of Figure 13)."""
-    return [Disc(d.x, d.y, d.r + by) for d in discs]
+def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:
+    """The same discs grown by E_tr + r_body (the virtual obstacle of Figure 13); the vehicle may use
+    the E_tr part (`Disc.r_min` keeps the rest)."""
+    return [Disc(d.x, d.y, d.r + e_tr + r_body, d.r + r_body) for d in discs]
 
 
 @dataclass
@@ -218,7 +220,7 @@ class OffboardGuidance:
             _, u = self.route.point(self.route.project(p))
             warm = self.plan if self.plan is not None and self.plan.kind != "brake" else None
             new = self.planner.plan(p, v, u, discs, v_max=v_max, a_max=a_max, warm=warm,
-                                    elapsed=t - self.plan_t)
+                                    elapsed=t - self.plan_t, budget_s=PLAN_BUDGET_S)
             self.replans += 1
             self.plan_times.append(new.solve_s)
             self.rejected += new.rejected

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from companion.avoid_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, exact_check
+from companion.avoid_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, admitted, dense_path, exact_check
 from contracts.flat import horizontal_accel_limit
 from contracts.table import verify
 from contracts.vehicle import DATA_DIR, G, load_vehicle
@@ -83,3 +83,39 @@ def test_the_planner_achieves_the_capped_avoid_contract_on_a_seeded_sample(plann
         plan = planner.plan([x0, 0], [v, 0], [1, 0], [Disc(d_od + r_obst, 0, r_k)], v_max=v, a_max=a)
         failed += not plan.ok
     assert failed == 0
+
+
+def test_a_plan_may_start_inside_the_e_tr_allowance_but_never_goes_deeper():
+    """Paper, Figures 14–16: the vehicle may enter the virtual obstacle (R_obst + E_tr) and must still
+    clear the real one. Starting 0.4 m inside a disc's E_tr allowance, the plan is accepted and keeps
+    at least its starting distance (less the stated gap); with no allowance the same start only brakes."""
+    c = np.array([5.0, -1.2])
+    disc = Disc(c[0], c[1], 1.6 + 0.9, 1.6)  # keep-out 2.5 m, of which 0.9 m is E_tr
+    p0 = c + np.array([-0.3, 2.1])  # 2.12 m from the centre, moving past it: inside the allowance
+    plan = AvoidancePlanner().plan(p0, [4.0, 0.0], [1, 0], [disc], v_max=4.0, a_max=A9)
+    assert plan.ok and plan.kind in ("pass", "stop")
+    ts = plan.t[1] - plan.t[0]
+    pts = dense_path(plan.p, plan.v, plan.a, ts)
+    closest = float(np.min(np.hypot(*(pts - c).T)))
+    assert closest >= math.hypot(0.3, 2.1) - (A9 * ts * ts / 8 + 0.02) - 1e-6
+    assert closest > disc.r_min
+    whole = AvoidancePlanner().plan(p0, [4.0, 0.0], [1, 0], [Disc(c[0], c[1], 2.5)], v_max=4.0, a_max=A9)
+    assert not whole.ok or whole.kind == "brake"
+
+
+def test_admitted_shrinks_only_the_allowance():
+    d = Disc(0.0, 0.0, 2.0, 1.5)
+    assert admitted([d], (3.0, 0.0), 0.1)[0] == [d]  # outside: as it is
+    (inside,), notes = admitted([d], (1.8, 0.0), 0.1)
+    assert inside.r == pytest.approx(1.7) and inside.r_min == 1.5 and notes
+    assert admitted([d], (1.55, 0.0), 0.1)[0] == [d]  # within gap of the core: kept whole
+    assert admitted([Disc(0.0, 0.0, 2.0)], (1.8, 0.0), 0.1)[0] == [Disc(0.0, 0.0, 2.0)]  # no allowance
+
+
+def test_the_time_budget_skips_further_attempts():
+    planner = AvoidancePlanner()
+    discs = [Disc(3.0, 0.0, 2.0)]  # too close to pass or stop: every attempt fails
+    slow = planner.plan([0, 0], [5.0, 0], [1, 0], discs, v_max=5.0, a_max=A9)
+    quick = planner.plan([0, 0], [5.0, 0], [1, 0], discs, v_max=5.0, a_max=A9, budget_s=0.0)
+    assert slow.qp_solves > quick.qp_solves and any("budget" in n for n in quick.notes)
+    assert quick.kind == "brake"
