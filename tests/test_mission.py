@@ -3,6 +3,7 @@ conversion to a level route, and lock-step flights where a ground station upload
 
 import math
 
+import numpy as np
 import pytest
 
 from companion.config import config_from_dict
@@ -18,6 +19,7 @@ from companion.mission import (
     route_from_items,
 )
 from contracts.errors import ContractError
+from tests.lockstep import Rig
 
 AP, DAEMON = (1, 1), (1, 191)
 LAT0, LON0, ALT0 = 47.397742, 8.545594, 488.0  # the SITL's default home
@@ -314,3 +316,136 @@ def test_route_config_source_and_keys():
         config_from_dict({"route": {"altitude_m": 2}})
     with pytest.raises(ContractError, match="come from the mission"):
         config_from_dict({"route": {"source": "mission", "waypoints": [[0, 0], [1, 0]]}})
+
+
+# ------------------------------------------------------------------------------------------ lock-step flights
+def scenario(personality):
+    return {"name": "mission_route", "vehicle": "mambo", "seed": 1, "start": {"alt_m": 2.0},
+            "params": {"COM_OBL_RC_ACT": 5} if personality == "px4" else {},
+            "world": {"columns": []},
+            "sensor": {"fov_deg": 60, "increment_deg": 5, "max_range_m": 6.0, "rate_hz": 20}}
+
+
+MISSION_CONFIG = {"mode": "offboard", "engage": True, "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
+                  "route": {"source": "mission"}, "contract": {"r_obst_m": 1.0}}
+
+
+def mission_items(rig, personality, points, alts):
+    """What a ground station plans: take-off, waypoints in MAV_FRAME_GLOBAL_RELATIVE_ALT_INT placed on
+    the map (the SITL's own geodesy), a speed change; ArduPilot's item 0 is home."""
+    ap, g = rig.sim.autopilot, rig.gcs
+    rows = []
+    if personality == "ardupilot":
+        rows.append((16, mav.MAV_FRAME_GLOBAL, ap.home_geo[0], ap.home_geo[1], ap.home_geo[2]))
+    rows.append((22, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0.0, 0.0, alts[0]))
+    for k, ((x, y), alt) in enumerate(zip(points, alts)):
+        lat, lon, _ = ap.geo_from_local((x, y, -alt))
+        rows.append((16, mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, lat, lon, alt))
+        if k == 0:
+            rows.append((178, mav.MAV_FRAME_MISSION, 0.0, 0.0, 0.0))
+    return [g.mission_item_int_encode(1, 1, seq, frame, cmd, 0, 1, 1.0 if cmd == 178 else 0.0,
+                                      3.0 if cmd == 178 else 0.0, 0, math.nan,
+                                      int(round(lat * 1e7)), int(round(lon * 1e7)), z)
+            for seq, (cmd, frame, lat, lon, z) in enumerate(rows)]
+
+
+def upload(rig, items, seconds=5.0):
+    """The ground station's side of the upload: MISSION_COUNT, then answer each MISSION_REQUEST_INT."""
+    rig.gcs.send(rig.gcs.mission_count_encode(1, 1, len(items), 0))
+    seen = len(rig.gcs_msgs)
+    for _ in range(int(seconds / 0.02)):
+        rig.run(0.02)
+        for m in rig.gcs_msgs[seen:]:
+            if getattr(m, "target_system", None) != 255:
+                continue
+            if m.get_type() == "MISSION_REQUEST_INT":
+                rig.gcs.send(items[m.seq])
+            elif m.get_type() == "MISSION_ACK":
+                return m.type
+        seen = len(rig.gcs_msgs)
+    return None
+
+
+def engage(rig, seconds, until_done=False):
+    """CG_ENGAGE off and on: an engage request (in flight the daemon engages only when asked anew).
+    With `until_done`, stop when the daemon has flown the route (its hand-over to Hold)."""
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
+    rig.run(0.2)
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
+    rig.run(0.1)
+    rig.run(seconds, until=(lambda r: r.daemon.offboard.state == "done") if until_done else None)
+
+
+def daemon_texts(rig):
+    """The daemon's STATUSTEXTs, chunks joined (MAVLink 2 id / chunk_seq)."""
+    out, parts = [], {}
+    for m in rig.daemon_messages():
+        if m.get_type() != "STATUSTEXT":
+            continue
+        text = m.text if isinstance(m.text, str) else m.text.decode()
+        if not m.id:
+            out.append(text)
+            continue
+        parts.setdefault(m.id, []).append(text)
+        if len(text) < 50:
+            out.append("".join(parts.pop(m.id)))
+    return out
+
+
+POINTS = [(0.0, 0.0), (12.0, 0.0), (24.0, 4.0)]  # a gentle turn (see the report on sharp corners)
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_daemon_flies_the_uploaded_mission_to_its_last_waypoint(personality):
+    rig = Rig(scenario(personality), personality, config=MISSION_CONFIG)
+    rig.run(0.5)
+    assert upload(rig, mission_items(rig, personality, POINTS, [2.0] * 3)) == mav.MAV_MISSION_ACCEPTED
+    t_uploaded = rig.sim.time_s
+    engage(rig, 14.0, until_done=True)
+    ready = [e for e in rig.log.named("mission") if e["status"] == "ready"]
+    assert len(ready) == 1 and ready[0]["t"] > t_uploaded
+    route = rig.daemon.offboard.guidance.route
+    assert route.waypoints.ravel().tolist() == pytest.approx(np.ravel(POINTS), abs=0.02)  # 1e-7° ≈ 1 cm
+    assert route.altitude_m == pytest.approx(2.0, abs=1e-3)
+    assert len(ready[0]["notes"]) == 2  # the take-off and the speed change
+    assert [e["to"] for e in rig.log.named("offboard")] == ["entering", "flying", "done"]
+    truth = rig.truth
+    assert not truth["collisions"]
+    assert math.hypot(truth["pos"][0] - 24.0, truth["pos"][1] - 4.0) < 1.0  # within E_tr of the end
+    assert abs(-truth["pos"][2] - 2.0) < 0.3
+    assert max(s["ground_speed"] for s in rig.log.states if s["ground_speed"] == s["ground_speed"]) > 1.0
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_non_level_mission_refuses_to_engage_and_says_why(personality):
+    rig = Rig(scenario(personality), personality, config=MISSION_CONFIG)
+    rig.run(0.5)
+    assert upload(rig, mission_items(rig, personality, POINTS, [2.0, 2.0, 4.0])) == mav.MAV_MISSION_ACCEPTED
+    t_uploaded = rig.sim.time_s
+    engage(rig, 4.0)
+    refused = [e for e in rig.log.named("mission") if e["status"] == "refused" and e["t"] > t_uploaded]
+    assert len(refused) == 1 and "level flight" in refused[0]["reason"]
+    assert any(t.startswith("CG: refusing to engage") and "level flight" in t for t in daemon_texts(rig))
+    assert rig.log.named("offboard") == []  # never entered offboard
+    kinds = {m.get_type() for m in rig.daemon_messages()}
+    assert "SET_POSITION_TARGET_LOCAL_NED" not in kinds
+    assert not any(m.get_type() == "COMMAND_LONG" and m.command == mav.MAV_CMD_DO_SET_MODE
+                   for m in rig.daemon_messages())
+    assert math.hypot(*rig.truth["pos"][:2]) < 0.5  # still hovering where it was
+
+
+def test_edited_mission_is_downloaded_again_on_the_next_engage_request():
+    rig = Rig(scenario("px4"), "px4", config=MISSION_CONFIG)
+    rig.run(0.5)
+    upload(rig, mission_items(rig, "px4", POINTS, [2.0] * 3))
+    engage(rig, 14.0, until_done=True)
+    assert rig.daemon.offboard.state == "done"
+    second = [(24.0, 4.0), (30.0, 14.0)]
+    assert upload(rig, mission_items(rig, "px4", second, [2.5, 2.5])) == mav.MAV_MISSION_ACCEPTED
+    engage(rig, 12.0, until_done=True)
+    route = rig.daemon.offboard.guidance.route
+    assert route.waypoints.ravel().tolist() == pytest.approx(np.ravel(second), abs=0.02)
+    assert route.altitude_m == pytest.approx(2.5, abs=1e-3)
+    assert [e["to"] for e in rig.log.named("offboard")] == ["entering", "flying", "done"] * 2
+    pos = rig.truth["pos"]
+    assert math.hypot(pos[0] - 30.0, pos[1] - 14.0) < 1.0 and abs(-pos[2] - 2.5) < 0.3
