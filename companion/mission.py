@@ -51,7 +51,7 @@ class Item:
 
 def decode_item(msg) -> Item:
     """MISSION_ITEM_INT (lat/lon × 1e7, local metres × 1e4) or MISSION_ITEM (floats as sent) → `Item`.
-    MISSION_ITEM_INT with a non-INT global frame is decoded × 1e7 too, as PX4 and ArduPilot do."""
+    A non-INT global frame in MISSION_ITEM_INT is decoded × 1e7 too ("in practice, many systems" do: mavlink.io)."""
     scale = 1.0
     if msg.get_type() == "MISSION_ITEM_INT":
         scale = 1e-7 if msg.frame in GLOBAL_FRAMES else 1e-4 if msg.frame in LOCAL_FRAMES else 1.0
@@ -250,6 +250,8 @@ def route_from_items(items: list[Item], *, skip_home: bool, home: Home | None,
                 raise MissionRefused(f"mission item {ending.seq}: {_cmd(ending.command)} before the last waypoint")
             x, y, z = item_position(it, home)
             wps.append((x, y, -z, it.seq))
+            if math.isfinite(it.params[0]) and it.params[0] > 0:
+                notes.append(f"mission item {it.seq}: hold time {it.params[0]:g} s ignored (the route flies through)")
         elif c == NAV_TAKEOFF and not wps:
             notes.append(f"mission item {it.seq}: {_cmd(c)} ignored (offboard starts in the air)")
         elif c in (NAV_LAND, NAV_RTL) and wps:
