@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contracts.yamlfile import load_model, model_from_dict
 
@@ -63,10 +63,21 @@ class Timeouts(_Strict):
 
 
 class RouteConfig(_Strict):
-    """The route offboard mode flies: local NED waypoints [m] at a constant altitude."""
+    """The route offboard mode flies: local NED waypoints [m] at a constant altitude (`source: config`),
+    or the autopilot's mission, downloaded when engaging (`source: mission`, companion/mission.py)."""
 
-    waypoints: list[tuple[float, float]]
+    source: Literal["config", "mission"] = "config"
+    waypoints: list[tuple[float, float]] | None = None
     altitude_m: Pos = 2.0
+    level_tolerance_m: NonNeg = 0.5  # mission: all waypoint altitudes within this (the contract assumes level flight)
+
+    @model_validator(mode="after")
+    def _fits_source(self):
+        if self.source == "config" and self.waypoints is None:
+            raise ValueError("waypoints are required with source: config")
+        if self.source == "mission" and {"waypoints", "altitude_m"} & self.model_fields_set:
+            raise ValueError("waypoints and altitude_m come from the mission with source: mission")
+        return self
 
 
 class LogConfig(_Strict):

@@ -28,6 +28,7 @@ from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
 from .guidance import OffboardGuidance, Route, inflated, obstacle_discs
 from .offboard import OffboardController
 from .link import mavlink
+from .mission import MissionSource
 from .supervisor import Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
@@ -50,6 +51,7 @@ STREAMS = {
     mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE: 50_000,
 }
 PARAMS = ("CG_ENGAGE", "CG_MODE", "CG_R_OBST")
+MISSION_MSGS = ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", "HOME_POSITION")
 MODES = ("shadow", "governor", "offboard")
 
 
@@ -115,6 +117,7 @@ class Daemon:
         self.params = {"CG_ENGAGE": float(cfg.engage), "CG_MODE": float(MODES.index(cfg.mode)),
                        "CG_R_OBST": cfg.contract.r_obst_m}
         self.counters = Counters()
+        self._text_id = 0  # STATUSTEXT.id of the last chunked text
         self.startup_ok: bool | None = None
         self._first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self._commanded_mode: tuple[str, float, bool] | None = None
@@ -126,11 +129,18 @@ class Daemon:
         self._sensor_of = self._sensor_index()
         self.checks = StartupChecks(self.adapter, table.vehicle, cfg)
         self.offboard = None
+        self.mission: MissionSource | None = None  # route.source: mission — the route comes from the autopilot
         if cfg.mode == "offboard":
             if cfg.route is None:
-                raise ContractError("mode offboard needs a route (config key route.waypoints)")
-            route = Route(cfg.route.waypoints, cfg.route.altitude_m)
-            self.offboard = OffboardController(OffboardGuidance(route), cfg.offboard_entry_s)
+                raise ContractError("mode offboard needs a route (config key route.waypoints or route.source: mission)")
+            guidance = None  # mission: set once a downloaded route is held (engaging waits for it)
+            if cfg.route.source == "mission":
+                lk = cfg.link
+                self.mission = MissionSource(lk.autopilot, lk.target_system, lk.target_component, lk.target_system,
+                                             lk.component_id, cfg.route.level_tolerance_m)
+            else:
+                guidance = OffboardGuidance(Route(cfg.route.waypoints, cfg.route.altitude_m))
+            self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
         self._stopping = False
         self._discs: list = []  # obstacle discs from the current beams (un-inflated)
         self._t_checks: float | None = None
@@ -212,6 +222,8 @@ class Daemon:
                 self._event(t, "command_ack", command=msg.command, result=msg.result)
         elif kind == "PARAM_VALUE":
             self._autopilot_param(t, msg)
+        elif kind in MISSION_MSGS and self.mission is not None:
+            self._mission_actions(t, self.mission.take(t, msg))
         elif used is None:
             return
 
@@ -252,6 +264,8 @@ class Daemon:
                 self._first_seen_in_air = False  # asked anew: a restart in flight may engage now
                 if self.offboard is not None and self.offboard.state in ("done", "stood_down"):
                     self.offboard.state = "off"  # … and offboard may be entered again
+                if self.mission is not None:  # fly the mission as it is now (it may have been edited)
+                    self._mission_actions(self.clock(), self.mission.request(self.clock(), "engage requested"))
             self._event(self.clock(), "param_set", param=msg.param_id, old=old, new=v)
             self._send_param(msg.param_id)
 
@@ -291,7 +305,23 @@ class Daemon:
             self.counters.log_errors += 1
 
     def _statustext(self, severity: int, text: str) -> None:
-        self._send(self.conn.mav.statustext_encode(severity, text.encode()[:50]))
+        """STATUSTEXT; longer than 50 bytes, in chunks (MAVLink 2 `id`, `chunk_seq`; a chunk shorter
+        than 50 bytes ends the text)."""
+        data = text.encode()
+        if len(data) <= 50:
+            self._send(self.conn.mav.statustext_encode(severity, data))
+            return
+        self._text_id = self._text_id % 65535 + 1
+        for k in range(len(data) // 50 + 1):
+            self._send(self.conn.mav.statustext_encode(severity, data[50 * k:50 * k + 50], self._text_id, k))
+
+    def _mission_actions(self, t: float, acts) -> None:
+        for msg in acts.send:
+            self._send(msg)
+        for name, fields in acts.events:
+            self._event(t, name, **fields)
+        for sev, text in acts.texts:
+            self._statustext(sev, text)
 
     # ------------------------------------------------------------------ the cycle
     def inputs(self, t: float) -> Inputs:
@@ -319,6 +349,7 @@ class Daemon:
             self._first_seen_in_air = tel.in_air
         engaged = (self.params["CG_ENGAGE"] >= 0.5 and self.startup_ok is not False
                    and self._first_seen_in_air is False
+                   and (self.mission is None or self.mission.route is not None)
                    and not (self.offboard is not None and self.offboard.state in ("done", "stood_down")))
         applies = self.adapter.limit_applies(mode) or (self.offboard is not None and mode == "offboard")
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
@@ -329,6 +360,8 @@ class Daemon:
 
     def step(self) -> Decision:
         t = self.clock()
+        if self.mission is not None:
+            self._mission_actions(t, self.mission.poll(t))
         i = self.inputs(t)
         d = self.sup.step(i)
         self.last = d
@@ -350,6 +383,9 @@ class Daemon:
     def _fly_offboard(self, t: float, i: Inputs, d: Decision) -> None:
         """Offboard mode: enter, stream the guidance's setpoints, leave (DESIGN.md §5)."""
         tel, veh = self.tel, self.table.vehicle
+        if self.mission is not None and not self.offboard.streaming and self.mission.route is not None \
+                and (self.offboard.guidance is None or self.offboard.guidance.route is not self.mission.route):
+            self.offboard.guidance = OffboardGuidance(self.mission.route)  # the mission's route, from the next entry
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
                                        veh.mass_kg)
         discs = inflated(self._discs, d.omega.e_tr if math.isfinite(d.omega.e_tr) else i.e_tr, veh.r_body_m)
@@ -383,6 +419,9 @@ class Daemon:
             self._event(t, "link", status="up" if i.link_ok else "down")
             if i.link_ok:
                 self._t_checks = t if self.startup_ok is None else self._t_checks
+                if self.mission is not None and self.mission.status in ("idle", "refused"):
+                    why = "start-up" if self.mission.status == "idle" else "link up"
+                    self._mission_actions(t, self.mission.request(t, why))
                 for name in self.checks.wanted():
                     self._send(self.conn.mav.param_request_read_encode(
                         self.cfg.link.target_system, self.cfg.link.target_component, name.encode(), -1))
