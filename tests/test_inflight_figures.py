@@ -32,11 +32,21 @@ def level(rig, t0, t1):
 
 
 def test_figure_17_fog_clears_then_thrust_drops():
+    """Up when the fog clears. After the thrust drop the paper's V_max goes down (≈5.5 → ≈5 m/s) because
+    its E_tr grows with less thrust; in this SITL it does not: the thrust drop is detected, but at the
+    Mambo's tilt ceiling (25°) thrust 0.8 still holds altitude with margin (it binds above ≈50°), so
+    neither V_safe nor the flown E_tr_pred changes — the contract's answer, checked here, not a miss."""
     rig = fly_scenario("fig17", 1.0)
     assert not rig.truth["collisions"]
     fog, clear, thrust = level(rig, 6, 24), level(rig, 30, 44), level(rig, 50, 60)
     assert fog and clear and clear > fog + 1.0  # up when the fog clears
-    assert thrust is not None and thrust <= clear + 1e-9  # never up when thrust drops (paper: down)
+    assert thrust is not None and thrust <= clear + 1e-9  # never up when thrust drops
+    late = [s for s in rig.log.states if 55 <= s["t"] <= 60 and s["mode"] == "offboard"]
+    assert late and all(abs(s["thrust_ratio"] - 0.8) < 0.05 for s in late)  # the drop is seen
+    s = late[-1]
+    table = rig.daemon.table
+    at = [table.omega(s["d_od"], s["r_obst"], 0.3, tr, contract="avoid") for tr in (0.8, 1.0)]
+    assert at[0].v_max == pytest.approx(at[1].v_max)  # the contract gives the same Ω at either thrust
 
 
 def test_figure_18_fog_clears_then_the_expected_obstacle_shrinks():
