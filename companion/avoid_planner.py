@@ -67,7 +67,7 @@ def admitted(discs: list[Disc], p0, gap: float) -> tuple[list[Disc], list[str]]:
 
 @dataclass
 class Plan:
-    kind: str  # "pass", "stop", "brake"
+    kind: str  # "pass", "stop", "brake" ("await": the guidance's braking while the first plan is computed)
     t: np.ndarray  # (N+1,) times from now
     p: np.ndarray  # (N+1, 2) world positions
     v: np.ndarray  # (N+1, 2)

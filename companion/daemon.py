@@ -25,7 +25,7 @@ from contracts.errors import ContractError
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE, adapter_for
 from .config import Config
 from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
-from .guidance import OffboardGuidance, Route, inflated, obstacle_discs
+from .guidance import InlinePlanning, OffboardGuidance, Route, ThreadedPlanning, inflated, obstacle_discs
 from .offboard import OffboardController
 from .link import mavlink
 from .mission import MissionSource
@@ -99,8 +99,12 @@ class Counters:
 
 
 class Daemon:
-    def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None):
+    def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
+                 planning: str = "thread"):
+        """`planning`: "thread" (the avoidance planner beside the loop, so the setpoint stream keeps its
+        rate) or "inline" (in the loop: deterministic lock-step tests)."""
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
+        self._planning = ThreadedPlanning() if planning == "thread" else InlinePlanning()
         self.signing_clock = signing_clock
         self._t_signing_saved = -math.inf
         self.vclock = VehicleClock() if clock is None else None
@@ -139,7 +143,7 @@ class Daemon:
                 self.mission = MissionSource(lk.autopilot, lk.target_system, lk.target_component, lk.target_system,
                                              lk.component_id, cfg.route.level_tolerance_m)
             else:
-                guidance = OffboardGuidance(Route(cfg.route.waypoints, cfg.route.altitude_m))
+                guidance = OffboardGuidance(Route(cfg.route.waypoints, cfg.route.altitude_m), planning=self._planning)
             self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
         self._stopping = False
         self._discs: list = []  # obstacle discs from the current beams (un-inflated)
@@ -385,7 +389,7 @@ class Daemon:
         tel, veh = self.tel, self.table.vehicle
         if self.mission is not None and not self.offboard.streaming and self.mission.route is not None \
                 and (self.offboard.guidance is None or self.offboard.guidance.route is not self.mission.route):
-            self.offboard.guidance = OffboardGuidance(self.mission.route)  # the mission's route, from the next entry
+            self.offboard.guidance = OffboardGuidance(self.mission.route, planning=self._planning)  # from the next entry
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
                                        veh.mass_kg)
         discs = inflated(self._discs, d.omega.e_tr if math.isfinite(d.omega.e_tr) else i.e_tr, veh.r_body_m)

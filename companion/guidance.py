@@ -12,13 +12,15 @@
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .avoid_planner import AvoidancePlanner, Disc, Plan
+from .avoid_planner import AvoidancePlanner, Disc, Plan, braking_plan
 
-REPLAN_S = 0.5  # an active plan is refreshed this often (also on a new Ω or drift, at most this often)
+REPLAN_S = 0.5  # an active plan is refreshed this often (new discs are picked up then)
+REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.04  # [s of CPU] planning stops starting new attempts after this (the loop keeps its rate)
 
@@ -120,13 +122,55 @@ class Setpoint:
     a: np.ndarray
     z: float
     yaw: float
-    mode: str  # "cruise", "avoid", "brake", "hold", "done"
+    mode: str  # "cruise", "avoid", "brake", "planning" (braking for the first plan), "hold", "done"
+
+
+class InlinePlanning:
+    """Plans at once in the caller's thread (lock-step tests: deterministic in vehicle time)."""
+
+    busy = False
+
+    def __init__(self):
+        self._out = None
+
+    def submit(self, fn, *args, **kw) -> None:
+        try:
+            self._out = fn(*args, **kw)
+        except Exception as e:  # the guidance treats it as a failed plan
+            self._out = e
+
+    def poll(self):
+        out, self._out = self._out, None
+        return out
+
+
+class ThreadedPlanning:
+    """One planning job at a time on a worker thread, so the setpoint stream keeps its rate while OSQP
+    solves (OSQP releases the GIL: the loop's thread is delayed by a few ms at most)."""
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cg-planner")
+        self._job: Future | None = None
+
+    @property
+    def busy(self) -> bool:
+        return self._job is not None and not self._job.done()
+
+    def submit(self, fn, *args, **kw) -> None:
+        self._job = self._pool.submit(fn, *args, **kw)
+
+    def poll(self):
+        if self._job is None or not self._job.done():
+            return None
+        job, self._job = self._job, None
+        return job.exception() or job.result()
 
 
 @dataclass
 class OffboardGuidance:
     route: Route
     planner: AvoidancePlanner = field(default_factory=AvoidancePlanner)
+    planning: InlinePlanning | ThreadedPlanning = field(default_factory=InlinePlanning)
     plan: Plan | None = None
     plan_t: float = 0.0
     plan_omega: tuple[float, float] | None = None
@@ -209,30 +253,51 @@ class OffboardGuidance:
         return out
 
     def _avoid(self, t, p, v, v_max, a_max, discs, z) -> Setpoint:
+        """Replan when an obstacle appears (no plan), every REPLAN_S, and — at most every REPLAN_MIN_S —
+        when Ω changes, the vehicle drifts from the plan or it is braking. A plan starts at the state
+        measured when it was asked for, so it is followed from its request time; while the first plan
+        is being computed the vehicle brakes."""
+        self._adopt(self.planning.poll())
         omega = (round(v_max, 3), round(a_max, 3))
-        stale = self.plan is None or self.plan.kind == "brake" and not self.plan.ok
-        drift = 0.0
+        since = t - max(self.plan_t, self.plan_t_try)
+        urgent = False
         if self.plan is not None:
-            ps, _, _ = self.plan.sample(t - self.plan_t)
-            drift = float(np.hypot(*(ps - p)))
-        due = t - max(self.plan_t, self.plan_t_try) > REPLAN_S
-        if stale or omega != self.plan_omega and due or drift > DRIFT_M and due or due or self.plan.kind == "brake":
+            drift = float(np.hypot(*(self.plan.sample(t - self.plan_t)[0] - p)))
+            urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
+        if (self.plan is None or since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
             _, u = self.route.point(self.route.project(p))
-            warm = self.plan if self.plan is not None and self.plan.kind != "brake" else None
-            new = self.planner.plan(p, v, u, discs, v_max=v_max, a_max=a_max, warm=warm,
-                                    elapsed=t - self.plan_t, budget_s=PLAN_BUDGET_S)
-            self.replans += 1
-            self.plan_times.append(new.solve_s)
-            self.rejected += new.rejected
-            self.last_notes = new.notes
-            keep = (not new.ok and self.plan is not None and self.plan.ok and self.plan.kind != "brake"
-                    and t - self.plan_t < self.plan.t[-1])
-            if keep:  # a verified plan in progress beats braking: keep flying it, try again next time
-                self.kept += 1
-                self.plan_t_try = t
-            else:
-                self.plan, self.plan_t, self.plan_omega = new, t, omega
+            warm = self.plan if self.plan is not None and self.plan.kind in ("pass", "stop") else None
+            self.plan_t_try = t
+            self.planning.submit(self._plan_job, t, omega, p, v, u, discs,
+                                 v_max=v_max, a_max=a_max, warm=warm, elapsed=t - self.plan_t, budget_s=PLAN_BUDGET_S)
+            self._adopt(self.planning.poll())
+        if self.plan is None:  # asked, not answered yet: start braking now (the slower choice)
+            bp, bv, ba, bts = braking_plan(np.asarray(p, float), np.asarray(v, float), a_max, self.planner.n)
+            self.plan = Plan("await", np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
+            self.plan_t, self.plan_omega = t, omega
         return self._follow(t, z)
+
+    def _plan_job(self, t_req, omega, *args, **kw):
+        return t_req, omega, self.planner.plan(*args, **kw)
+
+    def _adopt(self, done) -> None:
+        """Take a finished plan; a failed one never replaces a verified plan still in progress."""
+        if done is None:
+            return
+        if isinstance(done, BaseException):
+            self.last_notes = [f"planner error: {done!r}"[:200]]
+            return
+        t_req, omega, new = done
+        self.replans += 1
+        self.plan_times.append(new.solve_s)
+        self.rejected += new.rejected
+        self.last_notes = new.notes
+        keep = (not new.ok and self.plan is not None and self.plan.ok and self.plan.kind != "brake"
+                and t_req - self.plan_t < self.plan.t[-1])
+        if keep:  # a verified plan in progress beats braking: keep flying it, try again next time
+            self.kept += 1
+        else:
+            self.plan, self.plan_t, self.plan_omega = new, t_req, omega
 
     def _follow(self, t, z) -> Setpoint:
         pos, vel, acc = self.plan.sample(t - self.plan_t)
@@ -240,5 +305,5 @@ class OffboardGuidance:
         _, u = self.route.point(self.route.project(pos))
         yaw = math.atan2(vel[1], vel[0]) if speed > 0.5 else math.atan2(u[1], u[0])
         self.s_ref, self.v_ref = self.route.project(pos), float(vel @ u)
-        mode = {"pass": "avoid", "stop": "avoid", "brake": "brake"}[self.plan.kind]
+        mode = {"pass": "avoid", "stop": "avoid", "brake": "brake", "await": "planning"}[self.plan.kind]
         return Setpoint(pos, vel, acc, z, yaw, mode)

@@ -73,7 +73,7 @@ class Rig:
         self.conn = MemoryMavfile(daemon_read, daemon_write, source_system=1,
                                   source_component=self.cfg.link.component_id)
         self.log = log if log is not None else Recorder()
-        self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s)
+        self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s, planning="inline")
         gread, gwrite = self._endpoint()
         self._gcs_read = gread
         self.gcs = mav.MAVLink(_W(gwrite), srcSystem=255, srcComponent=190)

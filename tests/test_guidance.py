@@ -1,9 +1,12 @@
 import math
+import threading
+import time
 
 import numpy as np
 import pytest
 
-from companion.guidance import OffboardGuidance, Route, obstacle_discs
+from companion.avoid_planner import AvoidancePlanner, Disc
+from companion.guidance import OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
 
 
 def test_bins_give_the_obstacle_position_and_width():
@@ -52,3 +55,53 @@ def test_route_projection_and_cruise_reference():
         t += 0.02
         assert math.hypot(*sp.v) <= 3.0 + 1e-9 and math.hypot(*sp.a) <= 2.0 + 1e-9
     assert sp.z == -2.0 and g.s_ref > 10.0
+
+
+class _GatedPlanner(AvoidancePlanner):
+    """The real planner, held until the test opens the gate (so the worker's timing is the test's)."""
+
+    def __init__(self, fail=False):
+        super().__init__()
+        self.gate, self.fail = threading.Event(), fail
+
+    def plan(self, *a, **kw):
+        self.gate.wait(5.0)
+        if self.fail:
+            raise RuntimeError("solver blew up")
+        return super().plan(*a, **kw)
+
+
+def _threat_step(g, t):
+    return g.step(t, 0.02, [t * 5.0, 0.0], [5.0, 0.0], 5.0, 4.0, [Disc(12.0, 0.1, 1.6, 1.2)])
+
+
+def test_threaded_planning_brakes_until_the_plan_arrives_then_follows_it_from_its_request_time():
+    planner = _GatedPlanner()
+    g = OffboardGuidance(Route([[0, 0], [60, 0]], 2.0), planner=planner, planning=ThreadedPlanning())
+    g.start([0.0, 0.0], [5.0, 0.0])
+    first = _threat_step(g, 0.0)
+    assert first.mode == "planning" and first.v @ [1, 0] <= 5.0 and first.a @ [1, 0] < 0  # braking meanwhile
+    assert _threat_step(g, 0.02).mode == "planning"  # the loop goes on while the worker is busy
+    planner.gate.set()
+    t, sp = 0.04, None
+    for _ in range(200):
+        sp = _threat_step(g, t)
+        if sp.mode != "planning":
+            break
+        time.sleep(0.005)
+        t += 0.02
+    assert sp.mode == "avoid" and g.plan.ok and g.plan_t == 0.0  # the plan starts at the state asked for
+    assert g.replans == 1
+
+
+def test_a_planner_error_is_noted_and_the_vehicle_keeps_braking():
+    planner = _GatedPlanner(fail=True)
+    planner.gate.set()
+    g = OffboardGuidance(Route([[0, 0], [60, 0]], 2.0), planner=planner, planning=ThreadedPlanning())
+    g.start([0.0, 0.0], [5.0, 0.0])
+    t = 0.0
+    for _ in range(50):
+        sp = _threat_step(g, t)
+        time.sleep(0.005)
+        t += 0.02
+    assert sp.mode == "planning" and any("planner error" in n for n in g.last_notes)
