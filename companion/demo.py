@@ -3,8 +3,9 @@ in-flight scenario (Figure 17 by default), a summary, the event log and a plot.
 
 The demo is the ground station: it waits for the daemon, arms and takes off the SITL vehicle, lets
 the daemon fly the route in offboard mode, and performs the scenario's timed ground-station actions
-(`gcs`, e.g. Figure 18's CG_R_OBST 1 → 0.6 m) at vehicle time, through the SITL's MAVLink routing. It reads the scenario's world only to report clearances;
-the daemon sees the world only through MAVLink. Exit status 0 only if the flight was safe.
+(`gcs`, e.g. Figure 18's CG_R_OBST 1 → 0.6 m) at vehicle time, through the SITL's MAVLink routing.
+It reads the scenario's world only to report clearances; the daemon sees the world only through
+MAVLink. Exit status 0 only if the flight was safe.
 """
 
 from __future__ import annotations

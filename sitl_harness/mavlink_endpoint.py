@@ -3,8 +3,8 @@
 `MavlinkEndpoint.receive(datagram)` parses one datagram of real MAVLink bytes (MAVLink 2, dialect
 ardupilotmega ⊃ common), acts on the messages addressed to the vehicle (target system and component
 0 or its own) and returns every good message (for routing to other clients, `serve.Router`);
-`take_output()` returns the packets the vehicle sent since the last call. Sockets (`serve.py`) and the in-memory lock-step link (`lockstep.py`) only move
-these bytes.
+`take_output()` returns the packets the vehicle sent since the last call. Sockets (`serve.py`) and
+the in-memory lock-step link (`lockstep.py`) only move these bytes.
 
 Robustness: a datagram is parsed on its own (a truncated tail is counted and discarded, never
 glued to the next datagram); packets with a bad CRC, a bad prefix or (when a signing key is set) a
