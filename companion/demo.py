@@ -1,9 +1,11 @@
 """`contract-guard demo`: the SITL and the daemon as separate processes on loopback UDP, the paper's
 in-flight scenario (Figure 17 by default), a summary, the event log and a plot.
 
-The demo is the ground station: it waits for the daemon, arms and takes off the SITL vehicle, and lets
-the daemon fly the route in offboard mode. It reads the scenario's world only to report clearances;
-the daemon sees the world only through MAVLink. Exit status 0 only if the flight was safe.
+The demo is the ground station: it waits for the daemon, arms and takes off the SITL vehicle, lets
+the daemon fly the route in offboard mode, and performs the scenario's timed ground-station actions
+(`gcs`, e.g. Figure 18's CG_R_OBST 1 → 0.6 m) at vehicle time, through the SITL's MAVLink routing.
+It reads the scenario's world only to report clearances; the daemon sees the world only through
+MAVLink. Exit status 0 only if the flight was safe.
 """
 
 from __future__ import annotations
@@ -41,6 +43,78 @@ def _events(log_dir: Path) -> list[dict]:
         return []
 
 
+class GroundStation:
+    """The demo's ground station on its own MAVLink socket: HEARTBEAT at 1 Hz, the vehicle's clock
+    (the autopilot's time_boot_ms), and the scenario's timed parameter sets, each re-sent every second
+    until the target component echoes the value (PARAM_VALUE), at most `tries` times."""
+
+    def __init__(self, conn, actions, sysid: int = 1, tries: int = 5):
+        self.conn, self.sysid, self.tries = conn, sysid, tries
+        self.todo = sorted(actions, key=lambda a: a.at_s)
+        self.t_vehicle: float | None = None
+        self.records: list[dict] = []
+        self._t_hb = -math.inf
+
+    def connect(self, timeout_s: float) -> None:
+        deadline = time.time() + timeout_s
+        while self.t_vehicle is None:
+            if time.time() > deadline:
+                raise ContractError("the SITL did not answer the ground station")
+            self.poll(0.5)
+
+    def poll(self, dt: float) -> None:
+        """Read for `dt` s of wall time; send what is due."""
+        end = time.time() + dt
+        while True:
+            self._send_due()
+            left = end - time.time()
+            if left <= 0:
+                return
+            m = self.conn.recv_match(blocking=True, timeout=min(left, 0.1))
+            if m is not None:
+                self._take(m)
+
+    def settled(self) -> bool:
+        """Every action already due has been acknowledged or given up."""
+        due = bool(self.todo) and self.t_vehicle is not None and self.todo[0].at_s <= self.t_vehicle
+        return not due and all(r["t_acked"] is not None or r["tries"] >= self.tries
+                               and time.time() - r["_wall"] >= 1.0 for r in self.records)
+
+    def _take(self, m) -> None:
+        src = (m.get_srcSystem(), m.get_srcComponent())
+        if src == (self.sysid, 1) and getattr(m, "time_boot_ms", None):
+            self.t_vehicle = m.time_boot_ms / 1000.0
+        elif m.get_type() == "PARAM_VALUE" and src[0] == self.sysid:
+            for r in self.records:
+                if r["t_acked"] is None and (r["component_id"], r["name"]) == (src[1], m.param_id):
+                    r["echoed"] = m.param_value
+                    if math.isclose(m.param_value, r["value"], rel_tol=1e-6, abs_tol=1e-6):
+                        r["t_acked"] = self.t_vehicle
+
+    def _send_due(self) -> None:
+        now = time.time()
+        if now - self._t_hb >= 1.0:  # a live client of the SITL (and a ground station the daemon may see)
+            self.conn.mav.heartbeat_send(6, 8, 0, 0, 0)  # MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID
+            self._t_hb = now
+        while self.todo and self.t_vehicle is not None and self.todo[0].at_s <= self.t_vehicle:
+            a = self.todo.pop(0)
+            p = a.param_set
+            self.records.append({"at_s": a.at_s, "component": p.component, "component_id": p.component_id,
+                                 "name": p.name, "value": p.value, "t_sent": self.t_vehicle, "t_acked": None,
+                                 "echoed": None, "tries": 0, "_wall": -math.inf})
+        for r in self.records:
+            if r["t_acked"] is None and r["tries"] < self.tries and now - r["_wall"] >= 1.0:
+                self.conn.mav.param_set_send(self.sysid, r["component_id"], r["name"].encode(), r["value"],
+                                             9)  # MAV_PARAM_TYPE_REAL32
+                r["tries"] += 1
+                r["_wall"] = now
+
+    def report(self) -> list[dict]:
+        return [{k: v for k, v in r.items() if not k.startswith("_")} for r in self.records] + \
+            [{"at_s": a.at_s, "component": a.param_set.component, "name": a.param_set.name,
+              "value": a.param_set.value, "t_sent": None, "t_acked": None} for a in self.todo]
+
+
 def run_demo(scenario: str = "fig17", out: Path = Path("demo-out"), speedup: float = 2.0,
              duration_s: float = 75.0, personality: str = "px4") -> dict:
     from sitl_harness.scenario import load_scenario, resolve_scenario_path
@@ -69,7 +143,7 @@ def run_demo(scenario: str = "fig17", out: Path = Path("demo-out"), speedup: flo
                              "--personality", personality, "--listen", f"udp:127.0.0.1:{port}",
                              "--speedup", str(speedup), "--duration", str(duration_s), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    daemon = None
+    daemon = gcs = gs = None
     try:
         if "listening" not in (sitl.stderr.readline() or ""):
             raise ContractError("the SITL did not start")
@@ -81,19 +155,26 @@ def run_demo(scenario: str = "fig17", out: Path = Path("demo-out"), speedup: flo
                 raise ContractError("the daemon did not connect to the SITL")
             time.sleep(0.2)
         gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
-        while not gcs.wait_heartbeat(timeout=0.5):
-            gcs.mav.heartbeat_send(6, 8, 0, 0, 0)
+        gs = GroundStation(gcs, sc.gcs)
+        gs.connect(30)
+        while not gs.settled():  # actions due before take-off (e.g. the daemon's starting R_obst)
+            gs.poll(0.2)
         gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm
-        time.sleep(0.5)
+        gs.poll(0.5)
         # take off: PX4 AUTO.TAKEOFF (to MIS_TAKEOFF_ALT), ArduPilot GUIDED + NAV_TAKEOFF (relative altitude)
         if personality == "px4":
             gcs.mav.command_long_send(1, 1, 176, 0, 1 | 128, 4, 2, 0, 0, 0, 0)
         else:
             gcs.mav.command_long_send(1, 1, 176, 0, 1 | 128, 4, 0, 0, 0, 0, 0)
-            time.sleep(0.3)
+            gs.poll(0.3)
             gcs.mav.command_long_send(1, 1, 22, 0, 0, 0, 0, 0, 0, 0, sc.route.altitude_m)
-        summary_line, _ = sitl.communicate(timeout=duration_s / speedup + 120)
+        deadline = time.time() + duration_s / speedup + 120
+        while sitl.poll() is None and time.time() < deadline:
+            gs.poll(0.2)
+        summary_line, _ = sitl.communicate(timeout=30)
     finally:
+        if gcs is not None:
+            gcs.close()
         if daemon is not None:
             daemon.send_signal(signal.SIGINT)  # offboard hands over to Hold and the log is closed
             try:
@@ -104,10 +185,11 @@ def run_demo(scenario: str = "fig17", out: Path = Path("demo-out"), speedup: flo
             sitl.kill()
     sitl_summary = json.loads(summary_line.strip().splitlines()[-1]) if summary_line.strip() else {}
     rep = review([log_dir], out_dir=out / "review")
-    return summarise_flight(sc, _events(log_dir), sitl_summary, rep, out)
+    return summarise_flight(sc, _events(log_dir), sitl_summary, rep, out, gs.report())
 
 
-def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out: Path) -> dict:
+def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out: Path,
+                     gcs_actions: list[dict] = ()) -> dict:
     """Collisions, minimum clearance to the true columns, violations, speeds and the V_max steps."""
     from contracts.vehicle import load_vehicle
 
@@ -119,13 +201,20 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         for c in sc.world.columns:
             clear = min(clear, math.hypot(s["x"] - c.x_m, s["y"] - c.y_m) - c.radius_m - r_body)
     speeds = [s["ground_speed"] for s in flying if s.get("ground_speed") is not None]
-    steps, last = [], None
-    for s in flying:
-        v = s.get("v_cmd")
-        if v is not None and (last is None or abs(v - last) > 0.3):
-            steps.append({"t": round(s["t"], 1), "v_max": round(v, 2), "d_od": round(s["d_od"], 2),
-                          "thrust_ratio": round(s["thrust_ratio"], 2), "e_tr": round(s["e_tr"], 2)})
-            last = v
+    steps = []  # the daemon's own limit changes in offboard flight, with the state they took effect in
+    for e in records:
+        if e.get("event") != "limit_change" or e.get("t") is None:
+            continue
+        s = next((s for s in states if s["t"] >= e["t"]), None)
+        if s is not None and s.get("mode") == "offboard":
+            steps.append({"t": round(e["t"], 1), "v_max": round(e["v_max"], 2), "d_od": round(s["d_od"], 2),
+                          "thrust_ratio": round(s["thrust_ratio"], 2), "e_tr": round(s["e_tr"], 2),
+                          "r_obst": round(s["r_obst"], 2)})
+    gcs_actions = [dict(a) for a in gcs_actions]
+    for a in gcs_actions:  # when the daemon took it, on its log's clock
+        a["t_log"] = next((round(e["t"], 1) for e in records if e.get("event") == "param_set"
+                           and e.get("param") == a["name"] and e.get("t") is not None
+                           and math.isclose(e.get("new", math.nan), a["value"], rel_tol=1e-6)), None)
     collisions = int(sitl_summary.get("collisions", 0))
     result = {
         "scenario": sc.name, "collisions": collisions, "min_clearance_m": round(clear, 3),
@@ -133,6 +222,7 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         "mean_speed_m_s": round(sum(speeds) / len(speeds), 2) if speeds else 0.0,
         "max_speed_m_s": round(max(speeds), 2) if speeds else 0.0,
         "v_max_steps": steps, "route_progress_m": round(max((s["x"] for s in states), default=0.0), 1),
+        "gcs_actions": gcs_actions, "forwarded": int(sitl_summary.get("forwarded", 0)),
         "event_log": str(out / "log" / "events.jsonl"), "plot": str(out / "review" / "review.png"),
         "safe": collisions == 0 and clear > 0,
     }
@@ -146,9 +236,17 @@ def format_summary(r: dict) -> str:
              f"violations: {r['violations']}   failsafes: {r['failsafes']}",
              f"  speed: mean {r['mean_speed_m_s']:.2f} m/s, max {r['max_speed_m_s']:.2f} m/s; "
              f"route flown to x = {r['route_progress_m']:.0f} m",
-             "  V_max steps:"]
+             "  V_max steps (event-log time):"]
     lines += [f"    t {s['t']:6.1f} s  V_max {s['v_max']:5.2f} m/s  (D_od {s['d_od']:.1f} m, thrust "
-              f"{s['thrust_ratio']:.2f}, E_tr {s['e_tr']:.2f} m)" for s in r["v_max_steps"]]
+              f"{s['thrust_ratio']:.2f}, E_tr {s['e_tr']:.2f} m, R_obst {s['r_obst']:.2f} m)"
+              for s in r["v_max_steps"]]
+    for a in r.get("gcs_actions", []):
+        done = ("acknowledged" if a["t_acked"] is not None
+                else "NOT ACKNOWLEDGED" if a["t_sent"] is not None else "not sent")
+        if a.get("t_log") is not None:
+            done += f", in the event log at t {a['t_log']:.1f} s"
+        lines.append(f"  ground station: vehicle time {a['at_s']:.1f} s: {a['name']} = {a['value']:g} "
+                     f"({a['component']}) {done}")
     lines += [f"  event log: {r['event_log']}", f"  plot: {r['plot']}",
               "  SAFE" if r["safe"] else "  NOT SAFE"]
     return "\n".join(lines)

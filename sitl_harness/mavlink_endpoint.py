@@ -1,9 +1,10 @@
 """The vehicle's MAVLink side: decode what a client sends, encode telemetry. Transport-free.
 
 `MavlinkEndpoint.receive(datagram)` parses one datagram of real MAVLink bytes (MAVLink 2, dialect
-ardupilotmega ⊃ common) and acts on it; `take_output()` returns the packets the vehicle sent since
-the last call. Sockets (`serve.py`) and the in-memory lock-step link (`lockstep.py`) only move
-these bytes.
+ardupilotmega ⊃ common), acts on the messages addressed to the vehicle (target system and component
+0 or its own) and returns every good message (for routing to other clients, `serve.Router`);
+`take_output()` returns the packets the vehicle sent since the last call. Sockets (`serve.py`) and
+the in-memory lock-step link (`lockstep.py`) only move these bytes.
 
 Robustness: a datagram is parsed on its own (a truncated tail is counted and discarded, never
 glued to the next datagram); packets with a bad CRC, a bad prefix or (when a signing key is set) a
@@ -61,6 +62,11 @@ DEFAULT_RATES_HZ = {
 SENSOR_MSGS = (mav.MAVLINK_MSG_ID_DISTANCE_SENSOR, mav.MAVLINK_MSG_ID_OBSTACLE_DISTANCE)
 ONCE_ONLY = (mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION,)
 EPOCH_UNIX_S = 1_767_225_600  # 2026-01-01T00:00:00Z: SYSTEM_TIME origin in simulated time
+
+
+def target_of(m) -> tuple[int, int]:
+    """(target_system, target_component) of a decoded message; 0 for broadcast or no such field."""
+    return getattr(m, "target_system", 0), getattr(m, "target_component", 0)
 
 
 class _Sink:
@@ -152,8 +158,8 @@ class MavlinkEndpoint:
         return int(self.t * 1e6)
 
     # ------------------------------------------------------------------ input
-    def receive(self, datagram: bytes) -> None:
-        """Parse one datagram and act on every good message in it."""
+    def receive(self, datagram: bytes) -> list:
+        """Parse one datagram, act on the good messages addressed to us; return all good messages."""
         self.stats["rx_datagrams"] += 1
         try:
             msgs = self.rx.parse_buffer(bytes(datagram)) or []
@@ -166,13 +172,15 @@ class MavlinkEndpoint:
             self.rx.buf = bytearray()
             self.rx.buf_index = 0
             self.rx.expected_length = mav.HEADER_LEN_V1 + 2
+        good = []
         for m in msgs:
             if m.get_type() == "BAD_DATA":
                 self.stats["rx_bad"] += 1
                 continue
             self.stats["rx_messages"] += 1
-            tgt = getattr(m, "target_system", 0)
-            if tgt not in (0, self.sysid):
+            good.append(m)
+            sys_, comp = target_of(m)
+            if sys_ not in (0, self.sysid) or (sys_ and comp not in (0, self.compid)):
                 self.stats["rx_not_for_us"] += 1
                 continue
             try:
@@ -180,6 +188,7 @@ class MavlinkEndpoint:
             except Exception as err:  # never let one message stop the vehicle
                 self.stats["rx_handler_errors"] += 1
                 self.last_handler_error = f"{m.get_type()}: {type(err).__name__}: {err}"
+        return good
 
     def _handle(self, m) -> None:
         kind = m.get_type()

@@ -23,6 +23,8 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
       - {at_s: 25, link_dropout_s: 2.0}
       - {at_s: 28, nav_fault_s: 3.0}
       - {at_s: 30, gust: {peak_m_s: 3, duration_s: 2, from_deg: 0}}
+    gcs:                                # the ground station's actions (the SITL ignores them)
+      - {at_s: 45, param_set: {component: daemon, name: CG_R_OBST, value: 0.6}}
 """
 
 from __future__ import annotations
@@ -145,6 +147,28 @@ class Fault(_Strict):
         return self
 
 
+COMPONENT_IDS = {"autopilot": 1, "daemon": 191}  # MAV_COMP_ID_AUTOPILOT1, MAV_COMP_ID_ONBOARD_COMPUTER
+
+
+class ParamSet(_Strict):
+    component: Literal["daemon", "autopilot"] = "daemon"
+    name: Annotated[str, Field(min_length=1, max_length=16)]  # MAVLink param_id is char[16]
+    value: Num
+
+    @property
+    def component_id(self) -> int:
+        return COMPONENT_IDS[self.component]
+
+
+class GcsAction(_Strict):
+    """A ground-station action at `at_s` of vehicle time (or as soon as the ground station is
+    connected, if later), sent over MAVLink to system 1. Performed by `contract-guard demo` and the
+    lock-step tests; the SITL ignores it."""
+
+    at_s: NonNeg
+    param_set: ParamSet
+
+
 class Scenario(_Strict):
     name: str = "empty"
     description: str = ""
@@ -159,6 +183,7 @@ class Scenario(_Strict):
     route: Route = Route()
     params: dict[str, Num] = {}
     faults: list[Fault] = []
+    gcs: list[GcsAction] = []
 
 
 def scenario_from_dict(data: object, source: str = "scenario") -> Scenario:

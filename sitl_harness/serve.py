@@ -5,6 +5,12 @@ sends to it (every peer heard in the last 10 s gets the telemetry), e.g. MAVSDK'
 `udpout://HOST:PORT` or pymavlink's `udpout:HOST:PORT`; or `udpout:HOST:PORT`: the vehicle pushes
 to that address from an ephemeral port (for clients that listen, MAVSDK `udpin://`).
 
+Routing: like an autopilot's MAVLink router (mavlink.io/en/guide/routing.html), the vehicle relays
+between its clients (`Router`), so a ground station and a companion computer on the same port see
+each other: a client's broadcast messages (HEARTBEAT, STATUSTEXT, PARAM_VALUE, …) reach the others,
+and a message addressed to a component learnt behind another client (e.g. PARAM_SET to 1/191) is
+forwarded to that client only. Messages for the vehicle itself (1/1) are not forwarded.
+
 One simulated tick (10 ms) is paced to `10 ms / speedup` of wall time; the vehicle's clock
 (time_boot_ms, SYSTEM_TIME, TIMESYNC) runs `speedup` times faster than the wall clock. The loop
 reports its pacing jitter (how late each tick started, in wall-clock ms).
@@ -18,6 +24,7 @@ import socket
 import time
 from dataclasses import dataclass, field
 
+from .mavlink_endpoint import target_of
 from .scenario import ScenarioError
 from .sim import Sim
 
@@ -36,9 +43,36 @@ def parse_listen(listen: str) -> tuple[str, str, int]:
     return ("out" if kind == "udpout" else "in"), host, port_i
 
 
+class Router:
+    """MAVLink routing between clients (channels): routes are learnt from each message's source
+    (sysid, compid); a message goes to the other live clients if it is broadcast (no target or
+    target system 0), to those behind which its target system was seen (target component 0), or to
+    the one behind which its (system, component) was seen. Never back to its sender."""
+
+    def __init__(self, sysid: int = 1, compid: int = 1):
+        self.own = (sysid, compid)
+        self.routes: dict[tuple[int, int], object] = {}
+
+    def learn(self, client, msg) -> None:
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if src[1] != 0 and src != self.own:  # compid 0 is no valid source; never a route to ourselves
+            self.routes[src] = client
+
+    def destinations(self, client, msg, clients) -> list:
+        sys_, comp = target_of(msg)
+        if sys_ == 0:
+            wanted = set(clients)
+        elif comp == 0:
+            wanted = {c for (s, _), c in self.routes.items() if s == sys_}
+        else:
+            wanted = {self.routes.get((sys_, comp))}
+        return [c for c in clients if c in wanted and c != client]
+
+
 @dataclass
 class ServeStats:
     ticks: int = 0
+    forwarded: int = 0
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     late_ms: list[float] = field(default_factory=list)
@@ -52,6 +86,7 @@ class ServeStats:
             "jitter_ms_mean": float(lat.mean()), "jitter_ms_p99": float(np.percentile(lat, 99)),
             "jitter_ms_max": float(lat.max()), "collisions": len(sim.collisions),
             "rx_bad": sim.endpoint.stats["rx_bad"], "rx_messages": sim.endpoint.stats["rx_messages"],
+            "forwarded": self.forwarded,
         }
 
 
@@ -71,6 +106,8 @@ class UdpVehicle:
             self.fixed_peer = (host, port)
         self.address = self.sock.getsockname()
         self.peers: dict[tuple, float] = {}
+        self.router = Router(sim.endpoint.sysid, sim.endpoint.compid)
+        self.forwarded = 0
         self.sel = selectors.DefaultSelector()
         self.sel.register(self.sock, selectors.EVENT_READ)
 
@@ -87,20 +124,30 @@ class UdpVehicle:
             except ConnectionResetError:
                 continue
             self.peers[addr] = now
-            self.sim.deliver(data)
+            for m in self.sim.deliver(data):
+                self.router.learn(addr, m)
+                for dest in self.router.destinations(addr, m, self.live_peers(now)):
+                    self._send(m.get_msgbuf(), dest)
+                    self.forwarded += 1
+
+    def live_peers(self, now: float) -> list:
+        if self.fixed_peer:
+            return [self.fixed_peer]
+        return [a for a, t in self.peers.items() if now - t < PEER_TIMEOUT_S]
+
+    def _send(self, pkt: bytes, addr) -> None:
+        try:
+            self.sock.sendto(pkt, addr)
+        except (BlockingIOError, OSError):
+            pass
 
     def flush(self) -> None:
         out = self.sim.take_output()
         if not out:
             return
-        now = time.monotonic()
-        peers = [self.fixed_peer] if self.fixed_peer else [a for a, t in self.peers.items() if now - t < PEER_TIMEOUT_S]
-        for addr in peers:
+        for addr in self.live_peers(time.monotonic()):
             for pkt in out:
-                try:
-                    self.sock.sendto(pkt, addr)
-                except (BlockingIOError, OSError):
-                    pass
+                self._send(pkt, addr)
 
     def close(self) -> None:
         self.sel.close()
@@ -129,6 +176,7 @@ def run(vehicle: UdpVehicle, speedup: float = 1.0, duration_s: float | None = No
         vehicle.flush()
         st.ticks += 1
         next_t += period
+    st.forwarded = vehicle.forwarded
     st.sim_time_s = sim.time_s
     st.wall_time_s = time.monotonic() - t0
     return st

@@ -128,12 +128,13 @@ class Sim:
         ap.load_mission(items)
 
     # ------------------------------------------------------------------ I/O hooks (bytes only)
-    def deliver(self, datagram: bytes) -> None:
-        """Inbound MAVLink datagram from a client (dropped while the link is down)."""
+    def deliver(self, datagram: bytes) -> list:
+        """Inbound MAVLink datagram from a client (dropped while the link is down); returns its good
+        messages (`MavlinkEndpoint.receive`)."""
         if self.time_s < self.link_down_until:
             self.link_dropped += 1
-            return
-        self.endpoint.receive(datagram)
+            return []
+        return self.endpoint.receive(datagram)
 
     def take_output(self) -> list[bytes]:
         """Outbound MAVLink packets since the last call (discarded while the link is down)."""

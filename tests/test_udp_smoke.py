@@ -122,6 +122,31 @@ def test_daemon_governs_the_sitl_over_udp_and_stops_cleanly(world):
     assert sum(1 for r in recs if r["kind"] == "state") > 20
 
 
+def test_ground_station_sets_a_daemon_parameter_through_the_sitl(world):
+    """The demo's ground station → the SITL's routing → the daemon's PARAM_SET, echoed back."""
+    from companion.demo import GroundStation
+    from sitl_harness.scenario import GcsAction
+
+    port, config, logdir = world
+    d = cg("run", "--config", config(mode="shadow"))
+    try:
+        wait_for_event(logdir, "startup_check")
+        gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
+        gs = GroundStation(gcs, [GcsAction(at_s=0, param_set={"name": "CG_R_OBST", "value": 0.6})])
+        gs.connect(30)
+        deadline = time.time() + 20
+        while not gs.settled() and time.time() < deadline:
+            gs.poll(0.2)
+        gcs.close()
+    finally:
+        d.send_signal(signal.SIGTERM)
+        d.communicate(timeout=10)
+    [r] = gs.report()
+    assert r["t_acked"] is not None and r["echoed"] == pytest.approx(0.6)
+    assert any(e.get("event") == "param_set" and e["param"] == "CG_R_OBST" and e["new"] == pytest.approx(0.6)
+               for e in read_log(logdir))
+
+
 def test_kill9_and_restart_keep_the_log(world):
     port, config, logdir = world
     cfg = config()
