@@ -22,7 +22,7 @@ from .avoid_planner import AvoidancePlanner, Disc, Plan, braking_plan
 REPLAN_S = 0.5  # an active plan is refreshed this often (new discs are picked up then)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
-PLAN_BUDGET_S = 0.04  # [s of CPU] planning stops starting new attempts after this (the loop keeps its rate)
+PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
 
 
 @dataclass
@@ -126,9 +126,11 @@ class Setpoint:
 
 
 class InlinePlanning:
-    """Plans at once in the caller's thread (lock-step tests: deterministic in vehicle time)."""
+    """Plans at once in the caller's thread (lock-step tests: deterministic in vehicle time, so no
+    wall-clock budget either)."""
 
     busy = False
+    budget_s = None
 
     def __init__(self):
         self._out = None
@@ -147,6 +149,8 @@ class InlinePlanning:
 class ThreadedPlanning:
     """One planning job at a time on a worker thread, so the setpoint stream keeps its rate while OSQP
     solves (OSQP releases the GIL: the loop's thread is delayed by a few ms at most)."""
+
+    budget_s = PLAN_BUDGET_S
 
     def __init__(self):
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cg-planner")
@@ -268,8 +272,8 @@ class OffboardGuidance:
             _, u = self.route.point(self.route.project(p))
             warm = self.plan if self.plan is not None and self.plan.kind in ("pass", "stop") else None
             self.plan_t_try = t
-            self.planning.submit(self._plan_job, t, omega, p, v, u, discs,
-                                 v_max=v_max, a_max=a_max, warm=warm, elapsed=t - self.plan_t, budget_s=PLAN_BUDGET_S)
+            self.planning.submit(self._plan_job, t, omega, p, v, u, discs, v_max=v_max, a_max=a_max, warm=warm,
+                                 elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
             self._adopt(self.planning.poll())
         if self.plan is None:  # asked, not answered yet: start braking now (the slower choice)
             bp, bv, ba, bts = braking_plan(np.asarray(p, float), np.asarray(v, float), a_max, self.planner.n)
