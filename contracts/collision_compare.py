@@ -83,13 +83,11 @@ def numerical_circle_curve(vehicle: Vehicle, tilt: float, d_od, tilt_model: str 
 
 
 def numerical_square_speed(vehicle: Vehicle, tilt: float, side: float, d_od: float, tilt_model: str = "box",
-                           thrust_ratio: float = 1.0, n: int = 40, cpu_time: float = 3.0, keep_out: float = 0.01) -> float:
+                           thrust_ratio: float = 1.0, n: int = 40, cpu_time: float = 3.0, keep_out: float = 0.0) -> float:
     """Diagnostic: the planner's largest verified speed past a face-on square column (near face at
     d_od), max-speed form, terminal set "past the rear face, Ẋ ≥ 0"; the stop branch √(2·a_x·d_od) is
-    not included. `keep_out` > 0 [m] works around two defects of `planner` for polygons with r = 0
-    (reported to the avoid engineer): the separating-line constraint is satisfied by n = 0, β = 0, and
-    `check_trajectory` measures the unsigned distance (0 inside), so a trajectory through the polygon
-    verifies whenever verify_tol > 0 (and verify_tol = 0 makes its sub-sampling exhaust memory)."""
+    not included. `keep_out` [m]: the polygon's margin r (0: the bare square, as in the analytical
+    construction)."""
     from dataclasses import replace
 
     from .avoid_limit import policy_guess

@@ -11,15 +11,17 @@ contract's terminal set "the ballistic continuation is safe" (`terminal="coast"`
 
 Keep-out between samples (DESIGN.md §2): over one ZOH interval the position is a quadratic Bézier
 curve with control points P0 = p_k, P1 = p_k + v_k·t_s/2, P2 = p_{k+1}, so it lies in their convex
-hull. Per interval and obstacle a separating line n_k (|n_k| ≤ 1) puts all three control points at
-distance ≥ r from the obstacle (circle: n·(P − o) ≥ r; convex polygon with vertices V_j:
-n·P ≥ β + r, n·V_j ≤ β), which keeps the whole continuous path out, not only the samples. The
-coast terminal set uses the same device for the ray p_N + s·v_N, s ≥ 0: n·(p_N − o) ≥ r, n·v_N ≥ 0.
+hull. Per interval and obstacle a separating line n_k puts all three control points at distance ≥ r
+from the obstacle, eq. (19) q ∉ O (circle: |n| ≤ 1, n·(P − o) ≥ r; convex polygon with vertices V_j:
+|n| = 1, n·P ≥ β + r, n·V_j ≤ β), which keeps the whole continuous path out, not only the samples.
+The coast terminal set uses the same device for the ray p_N + s·v_N, s ≥ 0: n·(p_N − o) ≥ r,
+n·v_N ≥ 0.
 
 A solution is accepted only after `check_trajectory` re-simulates it from q_0 with ≥ 20 sub-steps per
-interval and confirms every constraint (keep-out by the exact minimum of each interval's quartic
-distance, not only at the sub-steps). The NLP tightens its limits by a relative 1e-6 so that IPOPT's
-tolerances never leave a verified trajectory outside the true limits.
+interval and confirms every constraint (keep-out by the exact minimum over each interval of the
+distance to a circle's centre, or of the signed distance to a polygon, not only at the sub-steps).
+The NLP tightens its limits by a relative 1e-6 so that IPOPT's tolerances never leave a verified
+trajectory outside the true limits.
 """
 
 from __future__ import annotations
@@ -226,7 +228,9 @@ def circle_min_distance(qn, w, ts, cx, cy):
 
 
 def polygon_distance(points, poly: Polygon):
-    """Euclidean distance from points (M, 2) to a convex polygon (0 inside)."""
+    """Signed distance from points (M, 2) to a convex polygon: Euclidean outside, −(depth to the
+    nearest face) = max_j(a_j·p − b_j) ≤ 0 inside."""
+    points = np.asarray(points, dtype=float)
     v = np.asarray(poly.vertices, dtype=float)
     a, b = poly.halfplanes()
     e0, e1 = v, np.roll(v, -1, axis=0)
@@ -234,8 +238,52 @@ def polygon_distance(points, poly: Polygon):
     t = np.clip(np.einsum("mke,ke->mk", points[:, None, :] - e0[None], d) / np.einsum("ke,ke->k", d, d), 0.0, 1.0)
     foot = e0[None] + t[..., None] * d[None]
     dist = np.min(np.linalg.norm(points[:, None, :] - foot, axis=-1), axis=1)
-    inside = np.all(points @ a.T - b <= 0.0, axis=1)
-    return np.where(inside, 0.0, dist)
+    face = np.max(points @ a.T - b, axis=1)
+    return np.where(face <= 0.0, face, dist)
+
+
+def _quadratic_roots(c2, c1, c0):
+    """Roots of c2·τ² + c1·τ + c0, elementwise, in the cancellation-free form (a degenerate quadratic
+    gives its linear root, a complex pair its real part; non-finite where there is none)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.sqrt(np.maximum(c1 * c1 - 4.0 * c2 * c0, 0.0))
+        q = -0.5 * (c1 + np.where(c1 >= 0.0, s, -s))
+        return q / c2, c0 / q
+
+
+def polygon_min_distance(qn, w, ts, poly: Polygon):
+    """Exact minimum over each ZOH interval of the signed distance (`polygon_distance`) from the
+    parabola p(τ) = p_k + v_k·τ + ½w_k·τ² to the polygon. Returns an (N,) array.
+
+    Candidates τ ∈ [0, t_s]: the ends; outside, stationary points of |p − V_j|² (cubic, as in
+    `circle_min_distance`) and of a_j·p; inside, where sd = max_j(a_j·p − b_j), also the crossings
+    a_i·p − b_i = a_j·p − b_j and the face crossings a_j·p = b_j. The distance is evaluated at each
+    candidate, so a root off by δτ moves the answer by at most |v|·δτ."""
+    qn, w = np.asarray(qn, float), np.asarray(w, float)
+    P, V, A = qn[:-1, [0, 2]], qn[:-1, [1, 3]], 0.5 * w[:, :2]
+    a, b = poly.halfplanes()
+    verts = np.asarray(poly.vertices, float)
+    i, j = np.triu_indices(len(b), 1)
+    C = np.vstack([a, a[i] - a[j]])  # linear functionals c·p − e whose zeros are candidates
+    e = np.concatenate([b, b[i] - b[j]])
+    c2, c1, c0 = A @ C.T, V @ C.T, P @ C.T - e
+    r1, r2 = _quadratic_roots(c2, c1, c0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stat = -c1[:, : len(b)] / (2.0 * c2[:, : len(b)])  # d/dτ a_j·p = 0
+    out = np.empty(len(P))
+    for k in range(len(P)):
+        cand = [np.array([0.0, ts]), r1[k], r2[k], stat[k]]
+        for vx in verts:
+            D = P[k] - vx
+            coef = [2.0 * A[k] @ A[k], 3.0 * V[k] @ A[k], 2.0 * D @ A[k] + V[k] @ V[k], D @ V[k]]
+            while coef and abs(coef[0]) < 1e-300:
+                coef = coef[1:]
+            if len(coef) > 1:
+                cand.append(np.roots(coef).real)
+        tau = np.concatenate(cand)
+        tau = np.clip(tau[np.isfinite(tau)], 0.0, ts)[:, None]
+        out[k] = np.min(polygon_distance(P[k] + V[k] * tau + A[k] * tau**2, poly))
+    return out
 
 
 def ray_clear_of_circle(p, v, c: Circle) -> float:
@@ -294,12 +342,9 @@ def check_trajectory(problem: PlanProblem, w, ts, sub: int = 20, tol: float = 1e
             m[f"keep_out_{i}"] = float(np.min(d) - ob.r) + tol
             if problem.terminal == "coast":
                 m[f"coast_{i}"] = ray_clear_of_circle(qn[-1, [0, 2]], qn[-1, [1, 3]], ob) + tol
-        else:  # samples dense enough that the Lipschitz bound |ḋ| ≤ |v| costs at most tol/2 between them
-            vmax = float(np.max(np.hypot(q[:, 1], q[:, 3])))
-            sp = max(sub, int(math.ceil(vmax * ts / max(tol, 1e-6))))
-            _, qp, _ = dense_states(problem.q0, w, ts, sp)
-            d = polygon_distance(qp[:, [0, 2]], ob)
-            m[f"keep_out_{i}"] = float(np.min(d) - ob.r - 0.5 * vmax * ts / sp) + tol
+        else:  # exact per-interval minimum of the signed distance (negative inside)
+            d = polygon_min_distance(qn, w, ts, ob)
+            m[f"keep_out_{i}"] = float(np.min(d) - ob.r) + tol
     if problem.terminal == "box":
         lo = np.asarray(problem.qf_lb, float)
         hi = np.asarray(problem.qf_ub, float)
@@ -450,11 +495,12 @@ def _build(struct, ipopt_opts):
             p2 = ca.vertcat(Q[k + 1][0], Q[k + 1][2])
             p1 = p0 + 0.5 * ts * v0
             nv = b.var(f"n{k}", 2)
-            b.con(ca.sumsqr(nv), -ca.inf, 1.0)
             if o[0] == "c":
+                b.con(ca.sumsqr(nv), -ca.inf, 1.0)
                 for pc in (p0, p1, p2):
                     b.con(ca.dot(nv, pc - ctr) - r, 0.0, ca.inf)
-            else:
+            else:  # |n| = 1: with |n| ≤ 1 and r = 0, n = 0, β = 0 would satisfy eq. (19) trivially
+                b.con(ca.sumsqr(nv), 1.0, 1.0)
                 beta = b.var(f"beta{k}")
                 for pc in (p0, p1, p2):
                     b.con(ca.dot(nv, pc) - beta - r, 0.0, ca.inf)
@@ -553,10 +599,11 @@ def _obstacle_normals_guess(problem: PlanProblem, qn: np.ndarray, ts: float) -> 
             ctr = np.asarray(o.vertices, float).mean(axis=0)
         for mpt in mids:
             d = mpt - ctr
-            u = d / max(np.linalg.norm(d), 1e-9)
-            out += list(u)
-            if not isinstance(o, Circle):
-                out.append(float(u @ ctr))
+            if isinstance(o, Circle):
+                out += list(d / max(np.linalg.norm(d), 1e-9))
+            else:  # a unit normal (|n| = 1) and the supporting line β = max_j n·V_j
+                u = d / np.linalg.norm(d) if np.linalg.norm(d) > 1e-9 else np.array([0.0, 1.0])
+                out += list(u) + [float(np.max(np.asarray(o.vertices, float) @ u))]
         if problem.terminal == "coast" and isinstance(o, Circle):
             d = qn[-1, [0, 2]] - ctr
             out += list(d / max(np.linalg.norm(d), 1e-9))

@@ -269,7 +269,7 @@ def test_with_d_od_to_each_near_face_the_circle_is_above_both_squares(cross_chec
 @pytest.mark.parametrize("tilt_deg,side", [(5.0, math.sqrt(2)), (13.0, 2.0)])
 def test_analytical_square_curve_matches_the_planner_for_the_same_square(tilt_deg, side):
     """Face-on square: the same-step recursion loses nothing here, so the analytical curve (t_s = 0.02 s)
-    must agree with the planner's verified speed for that square (1 cm keep-out) within 2 %."""
+    must agree with the planner's verified speed for that square (no keep-out margin) within 2 %."""
     pytest.importorskip("casadi")
     from contracts import collision_compare as cc
 
