@@ -2,11 +2,13 @@
 
 Goal (issue 2): median ≤ 50 µs, p99 ≤ 1 ms. Uses the shipped table if it carries the avoid contract,
 otherwise a synthetic avoid + E_tr_pred table of the shipped tables' size on the same vehicle.
+Records the 1-minute load average before and after: on a shared machine the figures move with it.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 import tempfile
 import time
@@ -44,6 +46,7 @@ def timed(fn, queries):
 
 
 def main():
+    load_before = os.getloadavg()[0]
     vehicle = load_vehicle("mambo")
     t = verify(DATA_DIR / "mambo.npz", vehicle)
     source = "shipped"
@@ -63,6 +66,7 @@ def main():
         "omega_avoid": timed(lambda d, r, e, k: t.omega(d, r, e, k, "avoid"), qs),
         "omega_stop": timed(lambda d, r, e, k: t.omega(d, r, e, k, "stop"), qs),
         "goal": {"median_us": 50, "p99_us": 1000},
+        "loadavg_1min": [load_before, os.getloadavg()[0]],
     }
     print(json.dumps(res))
 

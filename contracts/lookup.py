@@ -12,11 +12,15 @@ r_k = r_obst + e_tr + r_body. F does not increase with ρ ("hurts").
 
 from __future__ import annotations
 
+from bisect import bisect_left
+from math import sqrt
+
 import numpy as np
 
 from .vehicle import G
 
 NONE = -1  # index meaning "outside the grid on the side with no answer"
+MARGIN = 1.0 - 1e-9  # the reaction-time answer is scaled by this: round-off never optimistic
 
 
 def helps_index(grid: np.ndarray, x: float) -> int:
@@ -47,9 +51,13 @@ class ReactLookup:
     cell's bounds cross (Vlim falls, Vquad rises with δ) at V*_j, the root of V² + h t_r V − h s = 0
     with h = g F_j²/(1 − ρ_j), reached at radius u*_j = (s − V*_j t_r) ρ_j/(1 − ρ_j); where u*_j ≥ r_k
     (δ ≥ 0) V*_j is admissible too. This keeps the answer non-increasing in r_obst, never less tight.
+
+    Computed: V*_j is admissible exactly where Vquad_j ≤ Vlim_j (both say ρ_j (c0 − V t_r) ≥ r_k at
+    the crossing), i.e. for j ≥ j*, and there V*_j ≥ Vquad_j; so V = max(Vlim_{j*−1}, max_{j ≥ j*} V*_j),
+    with j* the first admissible disc — one pass over the n cells per keep-out radius.
     """
 
-    def __init__(self, rho, f, t_r, g=G):
+    def __init__(self, rho, f, t_r, g=G, v_grid=None):
         self.rho = np.asarray(rho, dtype=float)
         f = np.atleast_2d(np.asarray(f, dtype=float))
         self.k, self.n = f.shape
@@ -57,57 +65,112 @@ class ReactLookup:
         if np.any(self.t_r <= 0):
             raise ValueError("reaction time must be positive")  # the folded tilt time makes it so
         gf2 = g * f * f
-        self._b = gf2 * self.t_r
-        self._b2 = self._b * self._b
-        self._4gf2 = 4.0 * gf2
-        self._row = np.arange(self.k, dtype=float)[:, None]
-        self._row_start = (np.arange(self.k) * self.n)[:, None]
         self._rho_prev = np.concatenate([[np.inf], self.rho])  # ρ_{j−1}, shifted by one
         self._h = gf2 / (1.0 - self.rho)  # enclosing-disc family, per cell
         self._ht = self._h * self.t_r
         self._ht2 = self._ht * self._ht
+        self._h4 = 4.0 * self._h
         self._u = self.rho / (1.0 - self.rho)
+        # max over cells ≥ j of h (0 past the grid), flat per row: decides "V_safe ≥ w" (`step_fixed_point`)
+        hsuf = np.zeros((self.k, self.n + 1))
+        hsuf[:, :-1] = np.maximum.accumulate(self._h[:, ::-1], axis=1)[:, ::-1]
+        self._hsuf = hsuf.ravel()
+        self._hsuf_start = (np.arange(self.k) * (self.n + 1))[:, None]
+        # the same, as Python floats for one column at a time (`at`, `_reaches`)
+        self._rho_l, self._u_l, self._hsuf_l = self.rho.tolist(), self._u.tolist(), hsuf.tolist()
+        self._t_l, self._ht_l, self._ht2_l, self._h4_l = (
+            a.tolist() for a in (self.t_r[:, 0], self._ht, self._ht2, self._h4))
+        if v_grid is not None:  # the E_tr fixed point's speeds and w = v/MARGIN
+            self._v = np.asarray(v_grid, dtype=float)
+            w = self._v / MARGIN
+            self._w2 = np.where(w > 0, w * w, -np.inf)  # v ≤ 0 is always reached
+            self._wt = self.t_r * w  # (k, m)
 
-    def __call__(self, c0: float, r_k, lo: int = 0, hi: int | None = None) -> np.ndarray:
-        """Speeds for keep-out radii `r_k` (k, m) ≥ 0, over columns lo … hi−1 (all by default)."""
+    def __call__(self, c0: float, r_k, rows=slice(None)) -> np.ndarray:
+        """Speeds for finite keep-out radii `r_k` (k, m) ≥ 0, over columns `rows` (a slice or indices)."""
         c0 = max(float(c0), 0.0)
-        sl = slice(lo, hi)
-        t_r = self.t_r[sl]
-        v_quad = 0.5 * (np.sqrt(self._b2[sl] + self._4gf2[sl] * c0) - self._b[sl])  # (k, n)
-        k = v_quad.shape[0]
-        lift = self._row[:k] * (c0 + 1.0)  # one searchsorted for all rows: lift row i by i·(c0+1)
-        big_r = self.rho * (c0 - t_r * v_quad) + lift  # increasing along rows and across them
-        r_k = np.minimum(r_k, c0 + 0.5)  # R < c0 < c0 + 0.5: a clipped query still lands past the row
-        j = np.searchsorted(big_r.ravel(), (r_k + lift).ravel()).reshape(r_k.shape) - self._row_start[:k]
-        # the best cell: Vquad_{j*} (none when j* = n) or Vlim_{j*−1} (none when j* = 0)
-        n = self.n
-        vq = np.where(j < n, v_quad.ravel()[np.minimum(j, n - 1) + self._row_start[:k]], 0.0)
-        vl = np.where(j > 0, (c0 - r_k / self._rho_prev[j]) / t_r, 0.0)
-        # enclosing discs (k, m, n): V*_j where its disc is at least the keep-out disc
+        t_r = self.t_r[rows]
+        r_k = np.minimum(r_k, c0 + 0.5)  # past c0 nothing is admissible; keeps r_k/ρ finite
         gap = np.maximum(c0 - r_k, 0.0)[..., None]
-        h, ht = self._h[sl][:, None, :], self._ht[sl][:, None, :]
-        v_star = 0.5 * (np.sqrt(self._ht2[sl][:, None, :] + 4.0 * h * gap) - ht)
-        ok = (gap - v_star * t_r[..., None]) * self._u >= r_k[..., None]
+        ht = self._ht[rows][:, None, :]
+        v_star = 0.5 * (np.sqrt(self._ht2[rows][:, None, :] + self._h4[rows][:, None, :] * gap) - ht)  # (k, m, n)
+        ok = (gap - v_star * t_r[..., None]) * self._u >= r_k[..., None]  # u*_j ≥ r_k: j ≥ j*
         ve = np.max(np.where(ok, v_star, 0.0), axis=-1)
-        return np.maximum(np.maximum(np.maximum(vq, vl), ve), 0.0) * (1.0 - 1e-9)  # round-off never optimistic
+        j = self.n - ok.sum(axis=-1)  # j*
+        vl = np.where(j > 0, (c0 - r_k / self._rho_prev[j]) / t_r, 0.0)
+        return np.maximum(np.maximum(vl, ve), 0.0) * MARGIN
 
+    def at(self, c0: float, r_k: float, row: int) -> float:
+        """`self(c0, [[r_k]], [row])` in scalars: j* by bisection (the admissible discs are the cells
+        j ≥ j*), then V*_j over those cells only."""
+        c0 = max(float(c0), 0.0)
+        r = min(r_k, c0 + 0.5)
+        gap = max(c0 - r, 0.0)
+        t, ht2, h4, ht, u = self._t_l[row], self._ht2_l[row], self._h4_l[row], self._ht_l[row], self._u_l
+        lo, hi = 0, self.n
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if (gap - 0.5 * (sqrt(ht2[mid] + h4[mid] * gap) - ht[mid]) * t) * u[mid] >= r:
+                hi = mid
+            else:
+                lo = mid + 1
+        ve = 0.0
+        if lo < self.n:
+            ht2_, h4_, ht_ = self._ht2[row, lo:], self._h4[row, lo:], self._ht[row, lo:]
+            ve = float((0.5 * (np.sqrt(ht2_ + h4_ * gap) - ht_)).max())
+        vl = (c0 - r / self._rho_l[lo - 1]) / t if lo else 0.0
+        return max(vl, ve, 0.0) * MARGIN
 
-def step_fixed_point(v_grid, limit_on_grid):
-    """Largest V with V ≤ limit(E_cons(V)), E_cons the conservative (step) lookup on `v_grid`.
+    def _reaches(self, c0: float, r: float, w: float, row: int) -> bool:
+        """Unscaled speed ≥ w at keep-out radius r (see `step_fixed_point`)."""
+        c_w = c0 - self._t_l[row] * w
+        return w <= 0 or c_w > r and self._hsuf_l[row][bisect_left(self._rho_l, r / c_w)] * (c_w - r) >= w * w
 
-    `limit_on_grid[..., j]` is the speed limit using the error of grid speed v_j (already the worse
-    of measured and predicted); it does not increase with j. Candidate j is min(v_j, limit_j); every
-    candidate is feasible and the sup is among them. Speeds above the grid's top have no error bound.
-    Returns (best speed, its index j) along the last axis.
-    """
-    cand = np.minimum(v_grid, limit_on_grid)
-    j = cand.argmax(axis=-1)
-    return cand.max(axis=-1), j
+    def step_fixed_point(self, c0: float, r_k) -> tuple[int, int, float, float]:
+        """The E_tr fixed point (DESIGN.md §1) on the speed grid `v` given to the constructor: the largest
+        V with V ≤ self(c0, r_k(V)), r_k(V) the keep-out radius with the error of V's (worst) grid cell,
+        and the first row (tilt) reaching it. `r_k` (k, m): finite, non-decreasing along m, rows 0 … k−1;
+        each row's answer is max_j min(v_j, lim_j), lim = self(c0, r_k), its first argmax j.
+        Returns (row, j, V, lim at (row, j)).
+
+        Whether lim reaches v (⟺ the unscaled speed ≥ w = v/MARGIN) costs O(1): cell j admits the
+        V ≤ min(Vlim_j, V*_j), and Vlim_j ≥ w ⟺ ρ_j ≥ r_k/(c0 − w t_r), V*_j ≥ w ⟺ h_j (s − w t_r) ≥ w²,
+        so w is reached iff max{h_j : ρ_j ≥ r_k/(c0 − w t_r)} · (s − w t_r) ≥ w². Reached speeds are a
+        prefix of each row; with `top` the longest, the answer is v_{top−1} unless lim_top (< v_top) beats
+        it in a row of that length, so lim is computed only there (and at the answer's cell).
+        """
+        c0 = max(float(c0), 0.0)
+        k, m = r_k.shape
+        c_w = c0 - self._wt[:k]  # c0 − w·t_r; ≤ 0 reaches nothing (ρ past the grid, h = 0)
+        h = self._hsuf[np.searchsorted(self.rho, r_k / np.maximum(c_w, 1e-12)) + self._hsuf_start[:k]]
+        n_reached = (h * (c_w - r_k) >= self._w2).sum(axis=1)
+        top = int(n_reached.max())
+        if top == 0:  # no row reaches v_0: the best lim at v_0's error
+            lim = self(c0, r_k[:, :1], slice(0, k))[:, 0]
+            b = int(np.argmax(lim))
+            return b, 0, float(lim[b]), float(lim[b])
+        rows = np.flatnonzero(n_reached == top).tolist()
+        if top < m:  # the first row with the largest lim_top, if above v_{top−1}
+            best, row = float(self._v[top - 1]), -1
+            w = best / MARGIN * (1.0 - 1e-12)  # rows with lim_top ≥ v_{top−1} (and a hair below: round-off)
+            for i in reversed(rows):  # higher tilts first (usually the best); a tie goes to the lower row
+                r = float(r_k[i, top])
+                if not self._reaches(c0, r, w, i):
+                    continue  # lim_top < best for sure
+                lim = self.at(c0, r, i)
+                if lim > best or (lim == best and row >= 0):
+                    best, row, w = lim, i, lim / MARGIN * (1.0 - 1e-12)
+            if row >= 0:
+                return row, top, best, best
+        row = rows[0]
+        return row, top - 1, float(self._v[top - 1]), self.at(c0, float(r_k[row, top - 1]), row)
 
 
 def crossing_fixed_point(v_grid, limit_of_j) -> tuple[float, int]:
-    """`step_fixed_point` for one column by bisection, calling the scalar `limit_of_j(j)` O(log n) times:
-    min(v_j, limit_j) rises then falls, and the sup sits where v_j first reaches limit_j."""
+    """Largest V with V ≤ limit(E_cons(V)), E_cons the conservative (step) lookup on `v_grid`, for one
+    column by bisection, calling the scalar `limit_of_j(j)` (the limit with the error of grid speed v_j,
+    non-increasing in j) O(log n) times: min(v_j, limit_j) rises then falls, and the sup sits where
+    v_j first reaches limit_j. Speeds above the grid's top have no error bound. Returns (speed, j)."""
     lo, hi = 0, len(v_grid)  # find the first j with v_j ≥ limit_j
     cache = {}
 

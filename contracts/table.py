@@ -18,6 +18,7 @@ import io
 import json
 import math
 import zipfile
+from bisect import bisect_right
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,7 +33,6 @@ from .lookup import (
     helps_index,
     hurts_index,
     is_monotone,
-    step_fixed_point,
 )
 from .stop import braking_decel, stop_dead_time, stop_speed
 from .vehicle import G, Vehicle, vehicle_from_dict
@@ -252,13 +252,20 @@ class ContractTable:
         if avoid is not None:
             self._rho, self._tilts, self._trs = avoid.axes
             self._f = avoid.values
+            self._tilt_list, self._tr_list = self._tilts.tolist(), self._trs.tolist()  # for bisect
             t_r = np.array([v.reaction_time(t) for t in self._tilts])  # folded reaction per grid tilt
+            v_grid = None if e_tr_pred is None else e_tr_pred.axes[0]  # the E_tr fixed point's speeds
             # one exact reaction-time solver per thrust column, over all tilts (precomputed)
-            self._react = [ReactLookup(self._rho, self._f[:, :, k].T, t_r) for k in range(len(self._trs))]
+            self._react = [ReactLookup(self._rho, self._f[:, :, k].T, t_r, v_grid=v_grid)
+                           for k in range(len(self._trs))]
         if e_tr_pred is not None:
             self._ev, self._et, self._er = e_tr_pred.axes
-            if avoid is not None:  # the E_tr tilt cell that answers for each avoid grid tilt
-                self._e_tilt_of = np.array([hurts_index(self._et, t) for t in self._tilts])
+            if avoid is not None:  # per E_tr thrust cell, E_tr_pred (avoid tilt, v) at each avoid tilt's E_tr cell
+                e_tilt_of = np.array([hurts_index(self._et, t) for t in self._tilts])
+                self._e_rows_n = int(np.count_nonzero(e_tilt_of != NONE))  # tilts above the E_tr grid: no bound
+                cells = e_tilt_of[: self._e_rows_n]
+                self._e_rows = [e_tr_pred.values[:, cells, kk].T.copy() for kk in range(len(self._er))]
+                self._er_list = self._er.tolist()
 
     # ---- shape of the table
     @property
@@ -294,13 +301,11 @@ class ContractTable:
         return None
 
     def _avoid_cells(self, tilt, thrust_ratio):
-        """Grid tilt indices up to the worst corner of `tilt` (a tilt limit also allows every smaller
-        tilt, whose folded reaction time is shorter) and the thrust index."""
-        k = helps_index(self._trs, thrust_ratio)
-        top = helps_index(self._tilts, min(tilt, self.vehicle.tilt_max))
-        if NONE in (k, top):
-            return [], k
-        return list(range(top + 1)), k
+        """The worst-corner grid tilt of `tilt` (a tilt limit also allows every smaller grid tilt, whose
+        folded reaction time is shorter) and the thrust index (`helps_index`); top NONE: no answer."""
+        k = bisect_right(self._tr_list, thrust_ratio) - 1
+        top = bisect_right(self._tilt_list, min(tilt, self.vehicle.tilt_max)) - 1
+        return (NONE if k == NONE else top), k
 
     def v_safe(self, d_od, r_obst, e_tr, tilt, thrust_ratio) -> float:
         """Avoid-contract speed with the reaction-time fixed point V ≤ V_safe(d_od − V·t_react)."""
@@ -308,11 +313,11 @@ class ContractTable:
             raise ContractError("this table carries no avoid contract")
         if self._bad_inputs(d_od, r_obst, e_tr, thrust_ratio, tilt):
             return 0.0
-        js, k = self._avoid_cells(tilt, thrust_ratio)
-        if not js:
+        top, k = self._avoid_cells(tilt, thrust_ratio)
+        if top == NONE:
             return 0.0
-        r_k = np.full((len(js), 1), r_obst + e_tr + self._r_body)
-        return float(np.max(self._react[k](d_od + r_obst, r_k, js[0], js[-1] + 1)))
+        r_k = np.full((top + 1, 1), r_obst + e_tr + self._r_body)
+        return float(np.max(self._react[k](d_od + r_obst, r_k, slice(0, top + 1))))
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
@@ -351,23 +356,25 @@ class ContractTable:
         return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt)
 
     def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt) -> Omega:
-        js, k = self._avoid_cells(tilt, thrust_ratio)
-        if not js:
+        top, k = self._avoid_cells(tilt, thrust_ratio)
+        if top == NONE:
             return Omega("avoid", 0.0, tilt, e_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
         react, c0, r0 = self._react[k], d_od + r_obst, r_obst + self._r_body
         if self.e_pred is None:
-            lim = react(c0, np.full((len(js), 1), r0 + e_meas), js[0], js[-1] + 1)[:, 0]
+            lim = react(c0, np.full((top + 1, 1), r0 + e_meas), slice(0, top + 1))[:, 0]
             best = int(np.argmax(lim))  # ties → the smaller tilt
             v_max, e_b, v_s = float(lim[best]), e_meas, float(lim[best])
         else:
-            e = self._e_column(self._e_tilt_of[js], thrust_ratio, e_meas)  # (n_tilt, n_v)
-            finite = np.isfinite(e)
-            lim = np.where(finite, react(c0, r0 + np.where(finite, e, 0.0), js[0], js[-1] + 1), 0.0)
-            v_cand, jv = step_fixed_point(self._ev, lim)
-            best = int(np.argmax(v_cand))
-            v_max, e_b, v_s = float(v_cand[best]), float(e[best, jv[best]]), float(lim[best, jv[best]])
+            kk = bisect_right(self._er_list, thrust_ratio) - 1
+            rows = min(top + 1, self._e_rows_n)  # tilts with an E_tr bound (the others: no safe speed)
+            if kk == NONE or rows == 0:
+                best, v_max, e_b, v_s = 0, 0.0, math.inf, 0.0
+            else:  # e_tr = max(measured, E_tr_pred) on the speed grid, the fixed point solved on it
+                e = np.maximum(self._e_rows[kk][:rows], e_meas)
+                best, jv, v_max, v_s = react.step_fixed_point(c0, r0 + e)
+                e_b = float(e[best, jv])
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, R_obst, E_tr"
-        return Omega("avoid", v_max, float(self._tilts[js[best]]), e_b, v_s, v_max - v_s, reason)
+        return Omega("avoid", v_max, float(self._tilts[best]), e_b, v_s, v_max - v_s, reason)
 
     def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
         tilt = min(tilt, self.vehicle.tilt_max)
