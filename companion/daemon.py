@@ -96,6 +96,8 @@ class Counters:
     commands_sent: int = 0
     log_errors: int = 0
     loop_errors: int = 0
+    setpoints_sent: int = 0
+    setpoint_gap_max_s: float = 0.0  # longest gap between offboard setpoints while streaming (daemon time)
 
 
 class Daemon:
@@ -147,6 +149,7 @@ class Daemon:
             self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
         self._stopping = False
         self._discs: list = []  # obstacle discs from the current beams (un-inflated)
+        self._t_last_sp: float | None = None  # when the last offboard setpoint went out
         self._t_checks: float | None = None
 
     # ------------------------------------------------------------------ input
@@ -401,6 +404,7 @@ class Daemon:
             self._event(t, name, **fields)
         if not self.offboard.streaming and getattr(self, "_was_streaming", False):
             self.etr.reset()  # our setpoints are no longer the commanded path
+            self._t_last_sp = None
         self._was_streaming = self.offboard.streaming
         if acts.hold:
             self._commanded_mode = (self.adapter.hold_mode(), t, False)
@@ -410,6 +414,10 @@ class Daemon:
             self._command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params("offboard", True), "offboard")
         sp = acts.setpoint
         if sp is not None:
+            if self._t_last_sp is not None:
+                self.counters.setpoint_gap_max_s = max(self.counters.setpoint_gap_max_s, t - self._t_last_sp)
+            self._t_last_sp = t
+            self.counters.setpoints_sent += 1
             self.etr.command(t, float(sp.p[0]), float(sp.p[1]))
             self._send(self.conn.mav.set_position_target_local_ned_encode(
                 int(t * 1000) & 0xFFFFFFFF, self.cfg.link.target_system, self.cfg.link.target_component,

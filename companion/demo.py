@@ -223,6 +223,7 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         "max_speed_m_s": round(max(speeds), 2) if speeds else 0.0,
         "v_max_steps": steps, "route_progress_m": round(max((s["x"] for s in states), default=0.0), 1),
         "gcs_actions": gcs_actions, "forwarded": int(sitl_summary.get("forwarded", 0)),
+        "setpoints": _stream_figures(records),
         "event_log": str(out / "log" / "events.jsonl"), "plot": str(out / "review" / "review.png"),
         "safe": collisions == 0 and clear > 0,
     }
@@ -230,13 +231,22 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
     return result
 
 
+def _stream_figures(records: list[dict]) -> dict:
+    """The offboard setpoint stream as the daemon counted it (its `stop` record): count, longest gap."""
+    c = next((r["counters"] for r in reversed(records) if r.get("event") == "stop" and "counters" in r), {})
+    return {"sent": c.get("setpoints_sent"), "gap_max_s": c.get("setpoint_gap_max_s")}
+
+
 def format_summary(r: dict) -> str:
     lines = [f"contract-guard demo — scenario {r['scenario']}",
              f"  collisions: {r['collisions']}   minimum clearance: {r['min_clearance_m']:.2f} m   "
              f"violations: {r['violations']}   failsafes: {r['failsafes']}",
              f"  speed: mean {r['mean_speed_m_s']:.2f} m/s, max {r['max_speed_m_s']:.2f} m/s; "
-             f"route flown to x = {r['route_progress_m']:.0f} m",
-             "  V_max steps (event-log time):"]
+             f"route flown to x = {r['route_progress_m']:.0f} m"]
+    sp = r.get("setpoints") or {}
+    if sp.get("sent"):
+        lines.append(f"  setpoints: {sp['sent']} sent, longest gap {1e3 * sp['gap_max_s']:.0f} ms (vehicle time)")
+    lines += ["  V_max steps (event-log time):"]
     lines += [f"    t {s['t']:6.1f} s  V_max {s['v_max']:5.2f} m/s  (D_od {s['d_od']:.1f} m, thrust "
               f"{s['thrust_ratio']:.2f}, E_tr {s['e_tr']:.2f} m, R_obst {s['r_obst']:.2f} m)"
               for s in r["v_max_steps"]]
