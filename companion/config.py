@@ -70,6 +70,7 @@ class RouteConfig(_Strict):
     waypoints: list[tuple[float, float]] | None = None
     altitude_m: Pos = 2.0
     level_tolerance_m: NonNeg = 0.5  # mission: all waypoint altitudes within this (the contract assumes level flight)
+    corner_cut_m: NonNeg = 1.0  # corners flown as arcs passing this far inside the waypoint (0: stop there)
 
     @model_validator(mode="after")
     def _fits_source(self):
