@@ -1,12 +1,14 @@
 """Offboard guidance: the daemon as the paper's guidance subsystem (Figure 1). Pure, no I/O.
 
-- `Route`: the polyline to fly at constant altitude (NED), with along-track progress.
+- `Route`: the path to fly at constant altitude (NED): the waypoints with an arc at each corner, with
+  along-track progress and the cruise speed profile (arcs, stops, the end).
 - `obstacle_discs`: the keep-out discs from sensor hits — several beams of one obstacle give its
   position and width; a single beam keeps the conservative set of positions consistent with the hit.
 - `OffboardGuidance`: each cycle a setpoint (position, velocity, acceleration feed-forward, yaw):
-  cruise along the route at the contract's V_max; when an obstacle is on the path, fly the online
-  avoidance plan (`avoid_planner`) around its keep-out disc; replan when an obstacle appears, when Ω
-  changes, when the vehicle drifts from the plan, or as the plan ages; brake when nothing else is safe.
+  cruise along the route at up to the contract's V_max (yaw on the motion, turning before speeding
+  up); when an obstacle is on the path, fly the online avoidance plan (`avoid_planner`) around its
+  keep-out disc; replan when an obstacle appears, when Ω changes, when the vehicle drifts from the
+  plan, or as the plan ages; brake when nothing else is safe.
 """
 
 from __future__ import annotations
@@ -53,6 +55,8 @@ class Route:
         cuts = np.broadcast_to(np.asarray(self.corner_cut_m, float), (len(self.waypoints),))
         keep = np.concatenate([[True], np.hypot(*np.diff(self.waypoints, axis=0).T) > 1e-6])
         w, cuts = self.waypoints[keep], cuts[keep]  # repeated points dropped
+        if len(w) == 1:
+            w, cuts = np.vstack([w, w]), np.append(cuts, cuts)  # one place: a route of length 0
         seg = np.diff(w, axis=0)
         ln = np.hypot(seg[:, 0], seg[:, 1])
         u = seg / np.maximum(ln, 1e-12)[:, None]

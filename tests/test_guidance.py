@@ -50,6 +50,8 @@ def test_route_projection_and_cruise_reference():
     assert np.allclose(p, [10, 5]) and np.allclose(u, [0, 1])
     assert np.allclose(route.point(10.0)[1], [0, 1])  # at a vertex: the leg ahead
     assert route.speed_limit(10.0 - 1e-6, 3.0, 2.0) < 0.01 and route.next_stop(0.0) == pytest.approx(10.0)
+    one_place = Route([[1, 2], [1, 2]], 2.0)  # repeated points dropped: a route of length 0, done at once
+    assert one_place.length == 0.0 and one_place.project([5, 5]) == 0.0 and one_place.speed_limit(0.0, 3.0, 2.0) == 0
     g = OffboardGuidance(Route([[0, 0], [10, 0], [10, 10]], 2.0))
     g.start([0.0, 0.0], [0.0, 0.0])
     t, sp = 0.0, None

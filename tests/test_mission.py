@@ -331,6 +331,8 @@ def test_route_config_source_and_keys():
     assert config_from_dict({"route": {"source": "mission", "corner_cut_m": 0}}).route.corner_cut_m == 0.0
     with pytest.raises(ContractError, match="corner_cut_m"):
         config_from_dict({"route": {"source": "mission", "corner_cut_m": -1}})
+    with pytest.raises(ContractError, match="route.waypoints: List should have at least 2 items"):
+        config_from_dict({"route": {"waypoints": [[0, 0]]}})
     with pytest.raises(ContractError, match="route: waypoints are required with source: config"):
         config_from_dict({"route": {"altitude_m": 2}})
     with pytest.raises(ContractError, match="come from the mission"):
