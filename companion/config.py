@@ -67,9 +67,10 @@ class RouteConfig(_Strict):
     or the autopilot's mission, downloaded when engaging (`source: mission`, companion/mission.py)."""
 
     source: Literal["config", "mission"] = "config"
-    waypoints: list[tuple[float, float]] | None = None
+    waypoints: Annotated[list[tuple[float, float]], Field(min_length=2)] | None = None
     altitude_m: Pos = 2.0
     level_tolerance_m: NonNeg = 0.5  # mission: all waypoint altitudes within this (the contract assumes level flight)
+    corner_cut_m: NonNeg = 1.0  # corners flown as arcs passing this far inside the waypoint (0: stop there)
 
     @model_validator(mode="after")
     def _fits_source(self):

@@ -143,9 +143,11 @@ class Daemon:
             if cfg.route.source == "mission":
                 lk = cfg.link
                 self.mission = MissionSource(lk.autopilot, lk.target_system, lk.target_component, lk.target_system,
-                                             lk.component_id, cfg.route.level_tolerance_m)
+                                             lk.component_id, cfg.route.level_tolerance_m,
+                                             corner_cut_m=cfg.route.corner_cut_m)
             else:
-                guidance = OffboardGuidance(Route(cfg.route.waypoints, cfg.route.altitude_m), planning=self._planning)
+                route = Route(cfg.route.waypoints, cfg.route.altitude_m, cfg.route.corner_cut_m)
+                guidance = OffboardGuidance(route, planning=self._planning)
             self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
         self._stopping = False
         self._discs: list = []  # obstacle discs from the current beams (un-inflated)

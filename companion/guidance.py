@@ -1,23 +1,27 @@
 """Offboard guidance: the daemon as the paper's guidance subsystem (Figure 1). Pure, no I/O.
 
-- `Route`: the polyline to fly at constant altitude (NED), with along-track progress.
+- `Route`: the path to fly at constant altitude (NED): the waypoints with an arc at each corner, with
+  along-track progress and the cruise speed profile (arcs, stops, the end).
 - `obstacle_discs`: the keep-out discs from sensor hits — several beams of one obstacle give its
   position and width; a single beam keeps the conservative set of positions consistent with the hit.
 - `OffboardGuidance`: each cycle a setpoint (position, velocity, acceleration feed-forward, yaw):
-  cruise along the route at the contract's V_max; when an obstacle is on the path, fly the online
-  avoidance plan (`avoid_planner`) around its keep-out disc; replan when an obstacle appears, when Ω
-  changes, when the vehicle drifts from the plan, or as the plan ages; brake when nothing else is safe.
+  cruise along the route at up to the contract's V_max (yaw on the motion, turning before speeding
+  up); when an obstacle is on the path, fly the online avoidance plan (`avoid_planner`) around its
+  keep-out disc; replan when an obstacle appears, when Ω changes, when the vehicle drifts from the
+  plan, or as the plan ages; brake when nothing else is safe.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .avoid_planner import AvoidancePlanner, Disc, Plan, braking_plan
+from .estimators import wrap
 
 REPLAN_S = 0.5  # an active plan is refreshed this often (new discs are picked up then)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
@@ -25,42 +29,145 @@ DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
 
 
+A_LAT = 0.5  # fraction of a_max an arc's centripetal acceleration may use (the rest is for tracking)
+A_BRAKE = 0.8  # fraction of a_max the reference slows at, for arcs, stops and the route end
+YAW_RATE_ARC = 1.5  # [rad/s] arcs are flown no faster than turns the heading at this rate (v ≤ ω·R)
+REVERSAL_DEG = 150.0  # a corner turning more than this gets no arc: the reference stops at the vertex
+YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity, else the route
+HEADING_TOL = math.radians(20.0)  # the reference speeds up only with the heading this close to the yaw
+
+
 @dataclass
 class Route:
-    """Waypoints (x, y) [m, local NED] flown at `altitude_m` above the origin (z = −altitude)."""
+    """Waypoints (x, y) [m, local NED] flown at `altitude_m` above the origin (z = −altitude).
+
+    The path is the polyline with each interior vertex replaced by a circular arc tangent to both legs,
+    passing `corner_cut_m` from the vertex (one value, or one per waypoint, ends unused), shrunk so an
+    arc takes at most half of each adjacent leg. A corner turning more than REVERSAL_DEG, or with a cut
+    of 0, stays sharp and the reference stops there. `s` is along-track distance on this path."""
 
     waypoints: np.ndarray
     altitude_m: float
+    corner_cut_m: float | Sequence[float] = 1.0
 
     def __post_init__(self):
         self.waypoints = np.asarray(self.waypoints, dtype=float).reshape(-1, 2)
-        seg = np.diff(self.waypoints, axis=0)
-        self._len = np.hypot(seg[:, 0], seg[:, 1])
-        self._cum = np.concatenate([[0.0], np.cumsum(self._len)])
+        cuts = np.broadcast_to(np.asarray(self.corner_cut_m, float), (len(self.waypoints),))
+        keep = np.concatenate([[True], np.hypot(*np.diff(self.waypoints, axis=0).T) > 1e-6])
+        w, cuts = self.waypoints[keep], cuts[keep]  # repeated points dropped
+        if len(w) == 1:
+            w, cuts = np.vstack([w, w]), np.append(cuts, cuts)  # one place: a route of length 0
+        seg = np.diff(w, axis=0)
+        ln = np.hypot(seg[:, 0], seg[:, 1])
+        u = seg / np.maximum(ln, 1e-12)[:, None]
+        tan_len, radius, turn = np.zeros(len(w)), np.zeros(len(w)), np.zeros(len(w))
+        stop = np.zeros(len(w), bool)
+        for i in range(1, len(w) - 1):
+            d = math.atan2(u[i - 1, 0] * u[i, 1] - u[i - 1, 1] * u[i, 0], float(u[i - 1] @ u[i]))
+            if abs(d) < 1e-6:
+                continue  # straight on
+            turn[i] = d  # signed: + turns towards n = (−u_y, u_x)
+            if abs(d) > math.radians(REVERSAL_DEG) or not cuts[i] > 0:
+                stop[i] = True
+                continue
+            h = abs(d) / 2
+            r = cuts[i] / (1 / math.cos(h) - 1)  # the arc passes R/cos(δ/2) − R from the vertex
+            tan_len[i] = min(r * math.tan(h), ln[i - 1] / 2, ln[i] / 2)
+            radius[i] = tan_len[i] / math.tan(h)
+        # elements in along-track order, one row each:
+        # s0, length, x0, y0, ux, uy (lines: start point, direction) | cx, cy, R, θ0, sweep (arcs; R = 0 on lines)
+        rows, stops, s = [], [], 0.0
+        for i in range(len(w) - 1):
+            a = w[i] + u[i] * tan_len[i]
+            n_line = ln[i] - tan_len[i] - tan_len[i + 1]
+            rows.append([s, n_line, *a, *u[i], 0, 0, 0, 0, 0])
+            s += n_line
+            j = i + 1
+            if radius[j] > 0:
+                b = w[j] - u[i] * tan_len[j]
+                c = b + math.copysign(radius[j], turn[j]) * np.array([-u[i, 1], u[i, 0]])
+                th0 = math.atan2(b[1] - c[1], b[0] - c[0])
+                rows.append([s, radius[j] * abs(turn[j]), *b, *u[i], *c, radius[j], th0, turn[j]])
+                s += rows[-1][1]
+            elif stop[j]:
+                stops.append(s)
+        self._el = np.array(rows, float)
+        self._is_arc = self._el[:, 8] > 0
+        self._length = s
+        # speed constraints: (from s0, until s1, radius): arcs, stops at sharp corners, rest at the end
+        arcs = self._el[self._is_arc]
+        self._con = np.vstack([np.column_stack([arcs[:, 0], arcs[:, 0] + arcs[:, 1], arcs[:, 8]]),
+                               np.array([[x, x, 0.0] for x in stops]).reshape(-1, 3),
+                               [[s, math.inf, 0.0]]])
+        self._stops = np.array(stops + [s])
 
     @property
     def length(self) -> float:
-        return float(self._cum[-1])
+        return float(self._length)
 
-    def project(self, p) -> float:
-        """Along-track distance of the route point nearest to p."""
-        best, s_best = math.inf, 0.0
-        for i, (a, ln) in enumerate(zip(self.waypoints[:-1], self._len)):
-            if ln <= 0:
-                continue
-            u = (self.waypoints[i + 1] - a) / ln
-            s = min(max(float(np.dot(np.asarray(p) - a, u)), 0.0), ln)
-            d = float(np.hypot(*(a + u * s - p)))
-            if d < best:
-                best, s_best = d, self._cum[i] + s
-        return s_best
+    @property
+    def arcs(self) -> np.ndarray:
+        """One row per arc: along-track start, length, start point (2), start direction (2), centre (2),
+        radius, start angle, signed sweep [rad]."""
+        return self._el[self._is_arc]
+
+    def project(self, p, lo: float = -math.inf, hi: float = math.inf) -> float:
+        """Along-track distance of the route point nearest to p (among the parts between lo and hi: a
+        route that comes back near itself, e.g. a closed loop, is not confused with its other pass)."""
+        p = np.asarray(p, float)
+        e = self._el
+        rel = p - e[:, 2:4]
+        t = np.clip(np.einsum("ij,ij->i", rel, e[:, 4:6]), 0.0, e[:, 1])  # lines
+        d = np.hypot(*(rel - e[:, 4:6] * t[:, None]).T)
+        arc = self._is_arc
+        if arc.any():
+            a = e[arc]
+            sgn, sweep, r = np.sign(a[:, 10]), np.abs(a[:, 10]), a[:, 8]
+            q = p - a[:, 6:8]
+            ang = np.mod(sgn * (np.arctan2(q[:, 1], q[:, 0]) - a[:, 9]), 2 * np.pi)
+            ang = np.where((ang > sweep) & (ang - sweep > 2 * np.pi - ang), 0.0, np.minimum(ang, sweep))
+            th = a[:, 9] + sgn * ang
+            foot = a[:, 6:8] + r[:, None] * np.column_stack([np.cos(th), np.sin(th)])
+            d[arc] = np.hypot(*(p - foot).T)
+            t[arc] = r * ang
+        d[(e[:, 0] + e[:, 1] < lo) | (e[:, 0] > hi)] = math.inf
+        k = int(np.argmin(d))
+        return float(min(max(e[k, 0] + t[k], lo), hi))
+
+    def _at(self, s: float):
+        s = min(max(s, 0.0), self._length)
+        k = max(int(np.searchsorted(self._el[:, 0], s, side="right")) - 1, 0)
+        return self._el[k], s - self._el[k, 0]
 
     def point(self, s: float):
-        """(position, unit direction) at along-track s (clamped to the route)."""
-        s = min(max(s, 0.0), self.length)
-        i = min(int(np.searchsorted(self._cum, s, side="right")) - 1, len(self._len) - 1)
-        u = (self.waypoints[i + 1] - self.waypoints[i]) / max(self._len[i], 1e-9)
-        return self.waypoints[i] + u * (s - self._cum[i]), u
+        """(position, unit direction) at along-track s (clamped to the route; at a vertex, the leg ahead)."""
+        e, ds = self._at(s)
+        if e[8] <= 0:
+            return e[2:4] + e[4:6] * ds, e[4:6].copy()
+        sgn = math.copysign(1.0, e[10])
+        th = e[9] + sgn * ds / e[8]
+        return e[6:8] + e[8] * np.array([math.cos(th), math.sin(th)]), sgn * np.array([-math.sin(th), math.cos(th)])
+
+    def curvature(self, s: float) -> float:
+        """Signed curvature at s: du/ds = κ·n with n = (−u_y, u_x); 0 on lines."""
+        e, _ = self._at(s)
+        return math.copysign(1.0 / e[8], e[10]) if e[8] > 0 else 0.0
+
+    def next_stop(self, s: float) -> float:
+        """Along-track position of the first stop (sharp corner or the route end) after s."""
+        return float(self._stops[np.searchsorted(self._stops, s, side="right")]) if s < self._length else self._length
+
+    def speed_limit(self, s, v_max: float, a_max: float):
+        """The cruise reference's highest speed at s (scalar or array): V_max; on an arc
+        min(sqrt(A_LAT·a_max·R), YAW_RATE_ARC·R); before each arc, stop and the route end, the speed
+        from which slowing at A_BRAKE·a_max reaches that arc's speed, or rest, where it starts."""
+        s = np.asarray(s, float)[..., None]
+        s0, s1, r = self._con.T
+        v_k = np.minimum(np.sqrt(A_LAT * a_max * r), YAW_RATE_ARC * r)
+        lim = np.where(s < s0, np.sqrt(v_k * v_k + 2 * A_BRAKE * a_max * np.maximum(s0 - s, 0.0)), v_k)
+        lim = np.where(s < s1, lim, math.inf).min(axis=-1)
+        out = np.minimum(lim, v_max)
+        return float(out) if out.ndim == 0 else out
 
 
 def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float]:
@@ -202,8 +309,10 @@ class OffboardGuidance:
         self.y_off, self.vy_off = float((np.asarray(p) - base) @ n), float(np.asarray(v) @ n)
         self.v_ref = max(float(np.asarray(v) @ u), 0.0)
 
-    def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc]) -> Setpoint:
-        """One cycle: the setpoint for now (t), given the vehicle's state and Ω = (v_max, a_max)."""
+    def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc],
+             yaw: float | None = None) -> Setpoint:
+        """One cycle: the setpoint for now (t), given the vehicle's state (`yaw`: its measured heading,
+        if known) and Ω = (v_max, a_max)."""
         p, v = np.asarray(p, float), np.asarray(v, float)
         z = -self.route.altitude_m
         ahead = self._threats(p, v, discs)
@@ -216,11 +325,12 @@ class OffboardGuidance:
             self.s_ref = self.route.project(end_p)
             self._rejoin_from(end_p, end_v)
             self.plan = None
-        return self._cruise(dt, p, v_max, a_max, z)
+        return self._cruise(dt, p, v_max, a_max, z, yaw)
 
     # ---------------------------------------------------------------- cruising
-    def _cruise(self, dt, p, v_max, a_max, z) -> Setpoint:
-        s_here = self.route.project(p)
+    def _cruise(self, dt, p, v_max, a_max, z, heading=None) -> Setpoint:
+        route = self.route
+        s_here = route.project(p, self.s_ref - 3.0, self.s_ref + 3.0)
         if self.s_ref < s_here - 1.0 or self.s_ref > s_here + 2.0:
             self.s_ref = s_here  # rejoin where the vehicle is
         # lateral offset back to the route: critically damped, peak lateral acceleration ≤ a_max/2
@@ -228,18 +338,40 @@ class OffboardGuidance:
         ay = -2.0 * w * self.vy_off - w * w * self.y_off
         self.vy_off += ay * dt
         self.y_off += self.vy_off * dt
-        rest = self.route.length - self.s_ref
-        v_stop = math.sqrt(max(2 * 0.8 * a_max * rest, 0.0))  # arrive at the end at rest
-        target = min(math.sqrt(max(v_max * v_max - self.vy_off * self.vy_off, 0.0)), v_stop)  # |v| ≤ V_max
-        dv = max(min(target - self.v_ref, 0.5 * a_max * dt), -a_max * dt)
+        # along the path: the speed profile, and no speeding up until the heading is on the yaw wanted
+        _, u = route.point(self.s_ref)
+        n = np.array([-u[1], u[0]])
+        stretch = max(1.0 - route.curvature(self.s_ref) * self.y_off, 0.1)  # path speed at the offset / v_ref
+        limit = min(route.speed_limit(self.s_ref, v_max, a_max),
+                    route.speed_limit(self.s_ref + self.v_ref * dt, v_max, a_max))
+        target = min(math.sqrt(max(v_max * v_max - self.vy_off * self.vy_off, 0.0)) / max(stretch, 1.0), limit)
+        up = 0.5 * a_max * dt
+        if heading is not None and abs(wrap(heading - self._yaw(u * self.v_ref * stretch + n * self.vy_off, u))) \
+                > HEADING_TOL:
+            up = 0.0  # turn first
+        dv = max(min(target - self.v_ref, up), -a_max * dt)
         acc = dv / dt if dt > 0 else 0.0
         self.v_ref = max(self.v_ref + dv, 0.0)
+        stop = route.next_stop(self.s_ref)
         self.s_ref += self.v_ref * dt
-        pos, u = self.route.point(self.s_ref)
+        if self.s_ref >= stop:  # a sharp corner or the end: arrive there at rest
+            self.s_ref, self.v_ref, acc = stop, 0.0, 0.0
+        pos, u = route.point(self.s_ref)
         n = np.array([-u[1], u[0]])
-        mode = "done" if rest <= 0.05 else "cruise"
-        return Setpoint(pos + n * self.y_off, u * self.v_ref + n * self.vy_off, u * acc + n * ay, z,
-                        math.atan2(u[1], u[0]), mode)
+        k = route.curvature(self.s_ref)
+        stretch = max(1.0 - k * self.y_off, 0.1)
+        vel = u * self.v_ref * stretch + n * self.vy_off
+        # exact acceleration of the offset point: tangential, Coriolis-like, centripetal (v²/R) and lateral
+        a_vec = u * (stretch * acc - 2 * k * self.vy_off * self.v_ref) + n * (stretch * k * self.v_ref ** 2 + ay)
+        arrived = self.s_ref >= route.length - 1e-9 and abs(self.y_off) <= 0.1  # at rest, on the route
+        return Setpoint(pos + n * self.y_off, vel, a_vec, z, self._yaw(vel, u), "done" if arrived else "cruise")
+
+    @staticmethod
+    def _yaw(vel, u) -> float:
+        """The heading to fly: along the commanded velocity when it is above YAW_SPEED (the sensor looks
+        where the vehicle goes), else along the route ahead."""
+        d = vel if float(np.hypot(*vel)) > YAW_SPEED else u
+        return math.atan2(d[1], d[0])
 
     # ---------------------------------------------------------------- avoiding
     def _threats(self, p, v, discs) -> list[Disc]:

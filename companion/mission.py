@@ -226,6 +226,7 @@ class MissionPath:
     waypoints: list[tuple[float, float]]  # local NED (x, y) [m]
     altitude_m: float  # above the local origin (z = −altitude)
     notes: list[str] = field(default_factory=list)  # items ignored, and why
+    accept_m: list[float | None] = field(default_factory=list)  # per waypoint: its acceptance radius (param2), if set
 
 
 def route_from_items(items: list[Item], *, skip_home: bool, home: Home | None,
@@ -236,12 +237,13 @@ def route_from_items(items: list[Item], *, skip_home: bool, home: Home | None,
     NAV_LAND / NAV_RETURN_TO_LAUNCH are ignored (offboard starts in the air and ends in Hold at the last
     waypoint); other non-navigation items (DO_CHANGE_SPEED, …) are ignored with a note. Refused, with
     one line: any other navigation command, DO_JUMP, an unsupported frame, altitudes that differ by
-    more than `level_tol_m` (the contract assumes level flight), fewer than two waypoints."""
+    more than `level_tol_m` (the contract assumes level flight), fewer than two waypoints. A waypoint's
+    acceptance radius (param2 > 0) is kept: the route's corner there passes that close."""
     rest = items[1:] if skip_home and items else list(items)
     if not rest:
         raise MissionRefused("the autopilot holds no mission")
     notes: list[str] = []
-    wps: list[tuple[float, float, float, int]] = []
+    wps: list[tuple[float, float, float, float | None]] = []
     ending: Item | None = None  # a NAV_LAND / NAV_RETURN_TO_LAUNCH after the waypoints
     for it in rest:
         c = it.command
@@ -249,7 +251,8 @@ def route_from_items(items: list[Item], *, skip_home: bool, home: Home | None,
             if ending is not None:
                 raise MissionRefused(f"mission item {ending.seq}: {_cmd(ending.command)} before the last waypoint")
             x, y, z = item_position(it, home)
-            wps.append((x, y, -z, it.seq))
+            r = it.params[1]
+            wps.append((x, y, -z, r if math.isfinite(r) and r > 0 else None))
             if math.isfinite(it.params[0]) and it.params[0] > 0:
                 notes.append(f"mission item {it.seq}: hold time {it.params[0]:g} s ignored (the route flies through)")
         elif c == NAV_TAKEOFF and not wps:
@@ -277,7 +280,7 @@ def route_from_items(items: list[Item], *, skip_home: bool, home: Home | None,
     pts = [(w[0], w[1]) for w in wps]
     if all(math.hypot(p[0] - pts[0][0], p[1] - pts[0][1]) < 0.01 for p in pts):
         raise MissionRefused("all waypoints are at one place: a route needs a path")
-    return MissionPath(pts, alt, notes)
+    return MissionPath(pts, alt, notes, [w[3] for w in wps])
 
 
 # ---------------------------------------------------------------------------------------------- the daemon's view
@@ -295,10 +298,12 @@ class MissionSource:
     status: idle → downloading → (waiting_home →) ready | refused."""
 
     def __init__(self, autopilot: str, target_system: int, target_component: int, own_system: int,
-                 own_component: int, level_tol_m: float = 0.5, home_timeout_s: float = 5.0, **download):
+                 own_component: int, level_tol_m: float = 0.5, home_timeout_s: float = 5.0,
+                 corner_cut_m: float = 1.0, **download):
         self.skip_home = autopilot == "ardupilot"  # ArduPilot's mission item 0 is home
         self.ids = (target_system, target_component, own_system, own_component)
         self.level_tol_m, self.home_timeout_s, self.download_kw = level_tol_m, home_timeout_s, download
+        self.corner_cut_m = corner_cut_m  # where a waypoint sets no acceptance radius
         self.status, self.reason = "idle", ""
         self.route: Route | None = None
         self.path: MissionPath | None = None
@@ -368,7 +373,8 @@ class MissionSource:
         except MissionRefused as err:
             self._refuse(str(err), acts)
             return
-        self.path, self.route = path, Route(path.waypoints, path.altitude_m)
+        cuts = [self.corner_cut_m if r is None else r for r in path.accept_m]
+        self.path, self.route = path, Route(path.waypoints, path.altitude_m, cuts)
         self.status = "ready"
         acts.events.append(("mission", {"status": "ready", "waypoints": [list(p) for p in path.waypoints],
                                         "altitude_m": path.altitude_m, "items": len(self.download.items),

@@ -76,7 +76,7 @@ class OffboardController:
             if mode != "offboard" or not by_daemon:
                 self._go(t, "stood_down", f"{mode} set by someone else", acts)
                 return acts
-            acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs)
+            acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs, yaw=yaw)
             if acts.setpoint.mode == "done" and float(np.hypot(*v)) < 0.3:
                 acts.hold = True  # the route is flown: hand over to Hold
                 self._go(t, "done", "route complete", acts)

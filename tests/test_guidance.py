@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from companion.avoid_planner import AvoidancePlanner, Disc
-from companion.guidance import OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
+from companion.estimators import wrap
+from companion.guidance import A_LAT, YAW_RATE_ARC, OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
 
 
 def test_bins_give_the_obstacle_position_and_width():
@@ -42,12 +43,16 @@ def test_a_single_beam_keeps_every_position_consistent_with_the_hit():
 
 
 def test_route_projection_and_cruise_reference():
-    route = Route([[0, 0], [10, 0], [10, 10]], 2.0)
-    assert route.length == pytest.approx(20.0)
+    route = Route([[0, 0], [10, 0], [10, 10]], 2.0, corner_cut_m=0.0)  # uncut: the polyline, a stop at the corner
+    assert route.length == pytest.approx(20.0) and len(route.arcs) == 0
     assert route.project([5.0, 1.0]) == pytest.approx(5.0)
     p, u = route.point(15.0)
     assert np.allclose(p, [10, 5]) and np.allclose(u, [0, 1])
-    g = OffboardGuidance(route)
+    assert np.allclose(route.point(10.0)[1], [0, 1])  # at a vertex: the leg ahead
+    assert route.speed_limit(10.0 - 1e-6, 3.0, 2.0) < 0.01 and route.next_stop(0.0) == pytest.approx(10.0)
+    one_place = Route([[1, 2], [1, 2]], 2.0)  # repeated points dropped: a route of length 0, done at once
+    assert one_place.length == 0.0 and one_place.project([5, 5]) == 0.0 and one_place.speed_limit(0.0, 3.0, 2.0) == 0
+    g = OffboardGuidance(Route([[0, 0], [10, 0], [10, 10]], 2.0))
     g.start([0.0, 0.0], [0.0, 0.0])
     t, sp = 0.0, None
     for _ in range(500):
@@ -105,3 +110,149 @@ def test_a_planner_error_is_noted_and_the_vehicle_keeps_braking():
         time.sleep(0.005)
         t += 0.02
     assert sp.mode == "planning" and any("planner error" in n for n in g.last_notes)
+
+
+# ----------------------------------------------------------------------------- corners
+
+
+def fly_reference(route, v_max=5.5, a_max=4.4, seconds=60.0, heading=None, p0=None, dt=0.02):
+    """The cruise reference with a vehicle that tracks it exactly (its heading the setpoint's yaw, unless
+    `heading(k, sp)` says otherwise); rows (s_ref, v_ref, setpoint) until done."""
+    g = OffboardGuidance(route)
+    p = np.asarray(route.waypoints[0] if p0 is None else p0, float)
+    v = np.zeros(2)
+    g.start(p, v)
+    rows, yaw = [], math.atan2(*route.point(0.0)[1][::-1])
+    for k in range(int(seconds / dt)):
+        sp = g.step(k * dt, dt, p, v, v_max, a_max, [], yaw=yaw if heading is None else heading(k, rows))
+        rows.append((g.s_ref, g.v_ref, sp))
+        p, v, yaw = sp.p, sp.v, sp.yaw
+        if sp.mode == "done":
+            break
+    return rows
+
+
+def test_fillet_is_tangent_to_both_legs_and_passes_the_stated_cut_from_the_vertex():
+    route = Route([[0, 0], [10, 0], [10, 10]], 2.0, corner_cut_m=1.0)
+    (arc,) = route.arcs
+    r = 1.0 / (math.sqrt(2) - 1)  # cut = R/cos(45°) − R
+    t_len = r  # R·tan(45°)
+    assert arc[8] == pytest.approx(r) and arc[0] == pytest.approx(10 - t_len)
+    assert route.length == pytest.approx(20 - 2 * t_len + r * math.pi / 2)
+    # tangency: the arc starts on the first leg along it and ends on the second along it
+    p, u = route.point(arc[0])
+    assert np.allclose(p, [10 - t_len, 0]) and np.allclose(u, [1, 0])
+    p, u = route.point(arc[0] + arc[1])
+    assert np.allclose(p, [10, t_len]) and np.allclose(u, [0, 1])
+    assert route.curvature(arc[0] + 1.0) == pytest.approx(1 / r) and route.curvature(2.0) == 0.0
+    s = np.linspace(0, route.length, 4001)
+    pts = np.array([route.point(x)[0] for x in s])
+    dirs = np.array([route.point(x)[1] for x in s])
+    steps = np.hypot(*np.diff(pts, axis=0).T)
+    assert np.allclose(steps, np.diff(s), atol=1e-6)  # continuous, parametrised by length
+    turn = np.arccos(np.clip(np.einsum("ij,ij->i", dirs[1:], dirs[:-1]), -1, 1))
+    assert turn.max() <= np.diff(s)[0] / r + 1e-6  # the direction turns smoothly, never jumps
+    assert np.allclose(np.diff(pts, axis=0) / steps[:, None], (dirs[1:] + dirs[:-1]) / 2, atol=1e-3)
+    assert np.hypot(*(pts - [10, 0]).T).min() == pytest.approx(1.0, abs=1e-4)  # the cut
+    assert np.allclose([route.project(q) for q in pts[::40]], s[::40], atol=1e-9)
+    assert route.project([10.0, 0.0]) == pytest.approx(arc[0] + arc[1] / 2)  # the vertex: the arc's middle
+
+
+def test_fillets_never_overlap_a_short_leg_shrinks_them():
+    route = Route([[0, 0], [10, 0], [10, 2], [20, 2]], 2.0, corner_cut_m=1.0)
+    a1, a2 = route.arcs
+    tan_len = [a[8] * math.tan(abs(a[10]) / 2) for a in (a1, a2)]
+    assert tan_len == pytest.approx([1.0, 1.0])  # half of the 2 m leg (the cut alone asks for 2.41 m)
+    assert a1[0] + a1[1] <= a2[0] + 1e-9
+    assert route.length == pytest.approx(22 - 4 * 1.0 + 2 * 1.0 * math.pi / 2)
+    pts = np.array([route.point(x)[0] for x in np.linspace(0, route.length, 2001)])
+    assert np.hypot(*(pts - [10, 0]).T).min() == pytest.approx(math.sqrt(2) - 1, abs=1e-3)  # cut only 0.41 m
+    # per-waypoint cuts: the second corner uncut, a stop
+    route = Route([[0, 0], [10, 0], [10, 10], [20, 10]], 2.0, corner_cut_m=[0, 0.5, 0.0, 0])
+    assert len(route.arcs) == 1 and route.next_stop(0.0) == pytest.approx(route.length - 10)
+
+
+def test_a_near_reversal_is_a_stop_at_the_vertex():
+    def turning(deg):
+        a = math.radians(deg)
+        return Route([[0, 0], [10, 0], [10 + 10 * math.cos(a), 10 * math.sin(a)]], 2.0)
+
+    assert len(turning(140).arcs) == 1 and len(turning(160).arcs) == 0  # REVERSAL_DEG = 150
+    route = Route([[0, 0], [10, 0], [0, 1]], 2.0)  # turns 174°
+    assert len(route.arcs) == 0 and route.length == pytest.approx(10 + math.hypot(10, 1))
+    assert route.next_stop(0.0) == pytest.approx(10.0)
+    rows = fly_reference(route)
+    assert rows[-1][2].mode == "done" and np.allclose(rows[-1][2].p, [0, 1], atol=0.05)
+    at_vertex = [v for s, v, _ in rows if s == pytest.approx(10.0)]
+    assert at_vertex and max(at_vertex) == 0.0  # it stopped there, and went on
+    assert max(v for s, v, _ in rows if 9.0 < s < 10.0) < math.sqrt(2 * 0.8 * 4.4 * 1.0) + 0.05
+
+
+def test_speed_profile_slows_for_each_arc_and_comes_to_rest_at_the_end():
+    d = 10 / math.sqrt(2)
+    route = Route([[0, 0], [20, 0], [20, 20], [20 + 2 * d, 20 + 2 * d]], 2.0)  # a 90° and a 45° corner
+    v_max, a_max, dt = 5.5, 4.4, 0.02
+    rows = fly_reference(route, v_max, a_max, dt=dt)
+    assert rows[-1][2].mode == "done" and rows[-1][1] == 0.0
+    assert np.allclose(rows[-1][2].p, route.waypoints[-1], atol=0.05)
+    s, v = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+    assert np.all(v <= route.speed_limit(s, v_max, a_max) + 1e-3)  # never above the profile
+    assert v.max() == pytest.approx(v_max)  # and it is no slower than it says
+    for sp in (r[2] for r in rows):
+        assert math.hypot(*sp.v) <= v_max + 1e-9 and math.hypot(*sp.a) <= a_max + 1e-9
+    for a in route.arcs:
+        on = (s > a[0]) & (s < a[0] + a[1])
+        v_arc = min(math.sqrt(A_LAT * a_max * a[8]), YAW_RATE_ARC * a[8])
+        assert on.sum() > 10 and v[on].max() <= v_arc + 0.02 and v[on].min() >= 0.95 * v_arc
+        for k in np.flatnonzero(on)[1:-1]:  # the feed-forward is the path's acceleration: v²/R towards the centre
+            sp = rows[k][2]
+            to_centre = a[6:8] - sp.p
+            assert sp.a @ to_centre / np.hypot(*to_centre) == pytest.approx(v[k] ** 2 / a[8], rel=1e-6)
+            fd = (rows[k + 1][2].v - rows[k - 1][2].v) / (2 * dt)
+            assert np.hypot(*(fd - sp.a)) < 0.05 * a_max
+    # braking into the first arc and to rest at the end uses A_BRAKE·a_max, not more
+    assert np.diff(v).min() >= -1.01 * 0.8 * a_max * dt
+
+
+def test_yaw_follows_the_commanded_velocity_else_the_route_ahead():
+    route = Route([[0, 0], [30, 0], [30, 30]], 2.0)
+    g = OffboardGuidance(route)
+    g.start([0.0, 0.0], [0.0, 0.0])
+    g.y_off, g.vy_off = 2.0, 0.0  # 2 m beside the route, as after an avoidance pass: the lateral rejoin
+    p, v, sideways, slow = np.array([0.0, 2.0]), np.zeros(2), 0, 0
+    for k in range(1500):
+        sp = g.step(k * 0.02, 0.02, p, v, 5.0, 4.0, [], yaw=None)
+        _, u = route.point(g.s_ref)
+        if math.hypot(*sp.v) > 0.5:
+            assert sp.yaw == pytest.approx(math.atan2(sp.v[1], sp.v[0]))
+            sideways += abs(wrap(sp.yaw - math.atan2(u[1], u[0]))) > math.radians(10)
+        else:
+            assert sp.yaw == pytest.approx(math.atan2(u[1], u[0]))
+            slow += 1
+        p, v = sp.p, sp.v
+        if sp.mode == "done":
+            break
+    assert sideways > 10 and slow > 3 and sp.mode == "done"
+    assert sp.yaw == pytest.approx(math.pi / 2)  # at rest at the end: along the last leg
+
+
+def test_the_reference_turns_first_then_speeds_up():
+    route = Route([[0, 0], [-20, 0]], 2.0)  # behind the vehicle, which faces north (+x)
+    g = OffboardGuidance(route)
+    g.start([0.0, 0.0], [0.0, 0.0])
+    for k, heading_deg in enumerate([0.0] * 50 + [150.0] * 10 + [165.0] * 10):
+        sp = g.step(k * 0.02, 0.02, [0, 0], [0, 0], 5.0, 4.0, [], yaw=math.radians(heading_deg))
+        assert sp.yaw == pytest.approx(math.pi)  # asks to turn round
+        assert g.v_ref == (0.0 if k < 60 else pytest.approx(2.0 * 0.02 * (k - 59)))  # then speeds up at a_max/2
+    # flying, a heading more than 20° off holds the speed (no speeding up), it does not brake
+    v0 = g.v_ref
+    g.step(2.0, 0.02, sp.p, sp.v, 5.0, 4.0, [], yaw=math.radians(150.0))
+    assert g.v_ref == v0
+
+
+def test_a_closed_route_is_flown_once_round():
+    route = Route([[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]], 2.0)
+    rows = fly_reference(route, p0=[0.0, 0.0])
+    s = np.array([r[0] for r in rows])
+    assert rows[-1][2].mode == "done" and s[-1] == pytest.approx(route.length)
+    assert np.all(np.diff(s) >= 0)  # never jumps back to the start it passes again

@@ -296,6 +296,19 @@ def test_source_waits_for_home_then_holds_the_route():
     assert src.status == "ready" and src.route.length == pytest.approx(11.132, abs=0.01)
 
 
+def test_a_waypoints_acceptance_radius_sets_its_corner_cut():
+    """NAV_WAYPOINT param2 (acceptance radius) > 0: the corner there passes that close; else route.corner_cut_m."""
+    src = MissionSource("px4", *AP, *DAEMON, corner_cut_m=0.5)
+    src.request(0.0, "test")
+    src.take(0.0, count(4))
+    for seq, (x, y, accept) in enumerate([(0, 0, 0.0), (30, 0, 2.0), (30, 30, 0.0), (0, 30, 0.0)]):
+        src.take(0.0, mav.MAVLink_mission_item_int_message(*DAEMON, seq, mav.MAV_FRAME_LOCAL_NED, 16, 0, 1, 0.0,
+                                                           accept, 0, math.nan, x * 10000, y * 10000, -2.0, 0))
+    assert src.status == "ready" and src.path.accept_m == [None, 2.0, None, None]
+    radii = src.route.arcs[:, 8]
+    assert radii == pytest.approx([2.0 / (math.sqrt(2) - 1), 0.5 / (math.sqrt(2) - 1)])  # cut = R/cos 45° − R
+
+
 def test_source_refuses_without_home_and_on_a_failed_download():
     src = MissionSource("px4", *AP, *DAEMON, home_timeout_s=2.0)
     src.request(0.0, "test")
@@ -314,6 +327,12 @@ def test_source_refuses_without_home_and_on_a_failed_download():
 
 def test_route_config_source_and_keys():
     assert config_from_dict({"route": {"source": "mission"}}).route.waypoints is None
+    assert config_from_dict({"route": {"source": "mission"}}).route.corner_cut_m == 1.0
+    assert config_from_dict({"route": {"source": "mission", "corner_cut_m": 0}}).route.corner_cut_m == 0.0
+    with pytest.raises(ContractError, match="corner_cut_m"):
+        config_from_dict({"route": {"source": "mission", "corner_cut_m": -1}})
+    with pytest.raises(ContractError, match="route.waypoints: List should have at least 2 items"):
+        config_from_dict({"route": {"waypoints": [[0, 0]]}})
     with pytest.raises(ContractError, match="route: waypoints are required with source: config"):
         config_from_dict({"route": {"altitude_m": 2}})
     with pytest.raises(ContractError, match="come from the mission"):
@@ -332,9 +351,9 @@ MISSION_CONFIG = {"mode": "offboard", "engage": True, "sensors": [{"kind": "obst
                   "route": {"source": "mission"}, "contract": {"r_obst_m": 1.0}}
 
 
-def mission_items(rig, personality, points, alts):
+def mission_items(rig, personality, points, alts, accept_m=0.0):
     """What a ground station plans: take-off, waypoints in MAV_FRAME_GLOBAL_RELATIVE_ALT_INT placed on
-    the map (the SITL's own geodesy), a speed change; ArduPilot's item 0 is home."""
+    the map (the SITL's own geodesy; acceptance radius `accept_m`), a speed change; ArduPilot's item 0 is home."""
     ap, g = rig.sim.autopilot, rig.gcs
     rows = []
     if personality == "ardupilot":
@@ -346,7 +365,7 @@ def mission_items(rig, personality, points, alts):
         if k == 0:
             rows.append((178, mav.MAV_FRAME_MISSION, 0.0, 0.0, 0.0))
     return [g.mission_item_int_encode(1, 1, seq, frame, cmd, 0, 1, 1.0 if cmd == 178 else 0.0,
-                                      3.0 if cmd == 178 else 0.0, 0, math.nan,
+                                      3.0 if cmd == 178 else accept_m if cmd == 16 else 0.0, 0, math.nan,
                                       int(round(lat * 1e7)), int(round(lon * 1e7)), z)
             for seq, (cmd, frame, lat, lon, z) in enumerate(rows)]
 
@@ -416,6 +435,26 @@ def test_daemon_flies_the_uploaded_mission_to_its_last_waypoint(personality):
     assert math.hypot(truth["pos"][0] - 24.0, truth["pos"][1] - 4.0) < 1.0  # within E_tr of the end
     assert abs(-truth["pos"][2] - 2.0) < 0.3
     assert max(s["ground_speed"] for s in rig.log.states if s["ground_speed"] == s["ground_speed"]) > 1.0
+
+
+SQUARE = [(0.0, 0.0), (15.0, 0.0), (15.0, 15.0), (0.0, 15.0)]  # two 90° corners, as a ground station plans them
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_mission_with_right_angle_corners_is_flown_to_the_end(personality):
+    """Sharp corners from a ground station, each with a 1.5 m acceptance radius: arcs passing 1.5 m from
+    the waypoints, flown without a failsafe or a contract violation to a clean "route complete"."""
+    rig = Rig(scenario(personality), personality, config=MISSION_CONFIG)
+    rig.run(0.5)
+    assert upload(rig, mission_items(rig, personality, SQUARE, [2.0] * 4, accept_m=1.5)) == mav.MAV_MISSION_ACCEPTED
+    engage(rig, 25.0, until_done=True)
+    route = rig.daemon.offboard.guidance.route
+    assert route.arcs[:, 8] == pytest.approx([1.5 / (math.sqrt(2) - 1)] * 2, rel=0.01)
+    assert [(e["to"], e["reason"]) for e in rig.log.named("offboard")][-1] == ("done", "route complete")
+    for name in ("failsafe", "hold_trigger", "violation_start"):
+        assert rig.log.named(name) == [], name
+    pos = rig.truth["pos"]
+    assert math.hypot(pos[0] - 0.0, pos[1] - 15.0) < 1.0
 
 
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])

@@ -6,6 +6,10 @@ import math
 import numpy as np
 import pytest
 
+from companion import guidance
+from companion.estimators import wrap
+from companion.guidance import A_LAT, YAW_RATE_ARC
+from contracts.flat import horizontal_accel_limit
 from contracts.vehicle import G
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import Scaled
@@ -52,13 +56,17 @@ def test_offboard_flies_round_a_column_revealed_at_dod(personality, seed):
     truth = rig.truth
     assert not truth["collisions"], truth["collisions"]
     states = [e for e in rig.log.named("offboard")]
-    assert [s["to"] for s in states][:2] == ["entering", "flying"]
+    # round the column and on to a clean end: the lateral rejoin done, the yaw on the motion throughout
+    assert [(s["to"], s["reason"]) for s in states][1:] == [("flying", "autopilot in offboard"),
+                                                            ("done", "route complete")]
+    assert not rig.log.named("failsafe") and not rig.log.named("hold_trigger")
     g = rig.daemon.offboard.guidance
     assert g.replans > 0 and g.plan_times  # it planned round the column
     fast = max(s["ground_speed"] for s in rig.log.states if s["ground_speed"] == s["ground_speed"])
     v_cmd = max(s["v_cmd"] or 0 for s in rig.log.states)
     assert fast > 0.8 * v_cmd  # it really flew at the contract's speed
     assert truth["pos"][0] > 40.0  # and went on along the route past the column
+    assert math.hypot(truth["pos"][0] - 55.0, truth["pos"][1]) < 1.0  # to its end
 
 
 def test_negative_control_well_above_the_contract_touches():
@@ -226,3 +234,106 @@ def test_negative_control_without_the_etr_inflation_eats_the_margin():
         assert rig.daemon.offboard.guidance.replans > 0
         clearances.append(-1.0 if rig.truth["collisions"] else rig.truth["min_clearance_m"])
     assert max(clearances) < rig.daemon.cfg.contract.e_tr_floor_m, clearances
+
+
+# ----------------------------------------------------------------------------- corners and heading
+
+DESIGN_WIND = {"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}
+D45 = 20 / math.sqrt(2)
+CORNER_ROUTES = {
+    "90deg": [[0, 0], [20, 0], [20, 20]],
+    "45deg": [[0, 0], [20, 0], [20 + D45, D45]],
+    "behind": [[0, 0], [-20, 0]],  # the vehicle faces north (+x): the route starts behind it
+}
+
+
+class Heading:
+    """Truth, the measured heading and the guidance's reference at every daemon cycle; stops the run once
+    the route is flown."""
+
+    def __init__(self):
+        self.rows: list[tuple] = []  # (t, x, y, vx, vy, heading, s_ref, v_ref, offboard state)
+
+    def __call__(self, rig) -> bool:
+        tr, g = rig.truth, rig.daemon.offboard.guidance
+        self.rows.append((tr["time_s"], *tr["pos"][:2], *tr["vel"][:2], rig.daemon.tel.yaw, g.s_ref, g.v_ref,
+                          rig.daemon.offboard.state))
+        return rig.daemon.offboard.state == "done"
+
+
+def route_flight(personality, waypoints, seconds=25.0, seed=1):
+    sc = offboard_scenario(seed, wind=DESIGN_WIND, personality=personality)
+    sc["world"] = {"columns": []}
+    cfg = offboard_config()
+    cfg["route"] = {"waypoints": waypoints, "altitude_m": 2.0}
+    rig = Rig(sc, personality, config=cfg)
+    trace = Heading()
+    engage_and_fly(rig, seconds, trace)
+    return rig, trace
+
+
+def a_max_flown(rig):
+    """The smallest horizontal acceleration limit Ω gave the guidance while flying (as the daemon computes it)."""
+    veh = rig.daemon.table.vehicle
+    return min(horizontal_accel_limit(math.radians(s["tilt_deg"]), veh.t_max(min(s["thrust_ratio"], 1.0)), veh.mass_kg)
+               for s in rig.log.states if s["v_cmd"])
+
+
+def assert_clean_route(rig, trace, waypoints):
+    assert [(e["to"], e["reason"]) for e in rig.log.named("offboard")] == \
+        [("entering", "engaged"), ("flying", "autopilot in offboard"), ("done", "route complete")]
+    for name in ("failsafe", "hold_trigger", "violation_start", "no_avoiding_plan"):
+        assert rig.log.named(name) == [], name
+    flying = [r for r in trace.rows if r[8] == "flying"]
+    moving = [r for r in flying if math.hypot(r[3], r[4]) > 1.0]
+    # the forward sensor (60°) looked where the vehicle went: the motion never left its field of view …
+    assert max(abs(wrap(math.atan2(r[4], r[3]) - r[5])) for r in moving) < math.radians(30)
+    t0, t1 = flying[0][0], flying[-1][0]
+    assert min(s["d_od"] for s in rig.log.states if t0 <= s["t"] <= t1) == pytest.approx(D_SENSOR)  # … nor D_od
+    x, y = rig.truth["pos"][:2]
+    assert math.hypot(x - waypoints[-1][0], y - waypoints[-1][1]) < 1.0  # ends at the last waypoint
+
+
+@pytest.mark.parametrize("corner", ["90deg", "45deg"])
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_offboard_flies_a_corner_at_the_arc_speed_and_completes(personality, corner):
+    """A 90° corner (arc R = 2.41 m for the 1 m cut) and a 45° one (R = 12.1 m) in design wind: through each
+    at about the profile's arc speed, the contour error within the controller contract (no violation), the
+    sensor on the direction of travel, and a clean "route complete" at the last waypoint."""
+    wps = CORNER_ROUTES[corner]
+    rig, trace = route_flight(personality, wps)
+    assert_clean_route(rig, trace, wps)
+    route = rig.daemon.offboard.guidance.route
+    (arc,) = route.arcs
+    v_arc = min(math.sqrt(A_LAT * a_max_flown(rig) * arc[8]), YAW_RATE_ARC * arc[8],
+                max(s["v_cmd"] for s in rig.log.states if s["v_cmd"]))
+    on_arc = [math.hypot(r[3], r[4]) for r in trace.rows
+              if arc[0] + 0.2 * arc[1] < route.project(r[1:3]) < arc[0] + 0.8 * arc[1]]
+    assert len(on_arc) > 5 and 0.85 * v_arc < min(on_arc) and max(on_arc) < 1.15 * v_arc
+    if corner == "90deg":
+        assert v_arc < 0.5 * max(math.hypot(r[3], r[4]) for r in trace.rows)  # it really slowed for it
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_offboard_route_behind_the_vehicle_turns_first_then_flies(personality):
+    wps = CORNER_ROUTES["behind"]
+    rig, trace = route_flight(personality, wps)
+    assert_clean_route(rig, trace, wps)
+    off = [r for r in trace.rows if r[8] == "flying" and abs(wrap(r[5] - math.pi)) > math.radians(30)]
+    assert len(off) > 10  # it had to turn round …
+    assert max(math.hypot(r[3], r[4]) for r in off) < 0.5  # … and did so before speeding up
+
+
+@pytest.mark.parametrize("case", ["corner_too_fast", "no_turn_first"])
+def test_negative_control_corners_fail_without_the_profile_or_the_turn(case, monkeypatch):
+    """The same flights with the arc speed for 1.5 × a_max of centripetal acceleration (more than the
+    vehicle has), or speeding up before the heading is round: neither completes cleanly."""
+    if case == "corner_too_fast":
+        monkeypatch.setattr(guidance, "A_LAT", 1.5)
+    else:
+        monkeypatch.setattr(guidance, "HEADING_TOL", 4.0)
+    wps = CORNER_ROUTES["90deg" if case == "corner_too_fast" else "behind"]
+    rig, trace = route_flight("px4", wps)
+    with pytest.raises(AssertionError):
+        assert_clean_route(rig, trace, wps)
+    assert rig.log.named("failsafe") or rig.log.named("hold_trigger") or rig.log.named("violation_start")
