@@ -298,7 +298,8 @@ def build_parser() -> argparse.ArgumentParser:
     rv.add_argument("--config", type=Path, help=".tlog: the daemon config the flight used (sensors, r_obst, vehicle, "
                     "autopilot ids; replayed in shadow mode). Default: built-in defaults, autopilot from the tlog")
     rv.add_argument("--vehicle", help=".tlog: vehicle file or shipped name (overrides the config's)")
-    rv.add_argument("--table", type=Path, help=".tlog: Γ table (default: the config's, else the vehicle's shipped one)")
+    rv.add_argument("--table", type=Path,
+                    help=".tlog: Γ table (default: the config's, else the vehicle's shipped one)")
     rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here "
                     "(and, for a .tlog, the replayed event log replay-events.jsonl)")
     rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")

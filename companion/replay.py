@@ -72,7 +72,8 @@ class Scan:
     def rate_hz(self, src: tuple[int, int] | int, kind: str) -> float:
         """Mean rate of one message type while it was being sent, from a source (sys, comp) or from any
         component of a system (int)."""
-        keys = [key for key in self.counts if key[2] == kind and (key[:2] == src if isinstance(src, tuple) else key[0] == src)]
+        keys = [key for key in self.counts
+                if key[2] == kind and (key[:2] == src if isinstance(src, tuple) else key[0] == src)]
         if not keys:
             return 0.0
         n = sum(self.counts[key] for key in keys)
@@ -233,7 +234,8 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
             raise ContractError(f"table {tab.path} was built for another vehicle than {cfg.vehicle}")
     contract = "avoid" if flown == "offboard" else "stop"
     if contract == "avoid" and tab.avoid is None:
-        raise ContractError(f"the flight flew offboard (avoid contract); table {tab.path} carries the stop contract only")
+        raise ContractError(f"the flight flew offboard (avoid contract); table {tab.path} carries the stop "
+                            "contract only")
     return cfg, tab, contract, chosen
 
 
@@ -378,8 +380,8 @@ def review_tlog(path, out_dir=None, *, config=None, vehicle=None, table=None, ga
     kinds = sorted({s.kind.upper() for s in cfg.sensors})
     to = cfg.timeouts
     slow = []
-    for stream, src, timeout in [("LOCAL_POSITION_NED", target, to.telemetry_s), ("HEARTBEAT", target, to.heartbeat_s)] \
-            + [(k, target[0], to.obstacle_s) for k in kinds]:
+    streams = [("LOCAL_POSITION_NED", target, to.telemetry_s), ("HEARTBEAT", target, to.heartbeat_s)]
+    for stream, src, timeout in streams + [(k, target[0], to.obstacle_s) for k in kinds]:
         r = scan.rate_hz(src, stream)
         if 0 < r < 1.25 / timeout:  # a mean interval over 0.8 of the staleness limit: stale at every jitter
             slow.append({"stream": stream, "rate_hz": r, "timeout_s": timeout})

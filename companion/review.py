@@ -441,7 +441,8 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
         from .replay import review_tlog
 
         return review_tlog(tlog, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s)
-    rep, samples = analyse(_log_files(paths), gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=out_dir is not None)
+    rep, samples = analyse(_log_files(paths), gap_s=gap_s, tolerance_m_s=tolerance_m_s,
+                           keep_samples=out_dir is not None)
     if out_dir is not None:
         rep["outputs"] = write_outputs(rep, samples, Path(out_dir))
     return rep
@@ -610,8 +611,8 @@ def format_report(rep: dict) -> str:
         ap = rp["autopilot"]
         lines.append(f"  replayed {rp['packets']} packets ({rp['corrupt_packets']} corrupt stretch(es) skipped"
                      + (", torn tail" if rp["truncated_tail"] else "") + f") through {rp['table']} "
-                     f"({rp['contract']} contract, shadow mode); autopilot {ap['kind']} {ap['system']}/{ap['component']} "
-                     f"({ap['from']}); event log: {rp['event_log'] or 'not kept'}")
+                     f"({rp['contract']} contract, shadow mode); autopilot {ap['kind']} "
+                     f"{ap['system']}/{ap['component']} ({ap['from']}); event log: {rp['event_log'] or 'not kept'}")
         fl = rp.get("in_flight")
         if fl:
             lines.append("  in-flight daemon vs replay, max |difference|: " + ", ".join(

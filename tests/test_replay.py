@@ -85,7 +85,8 @@ def offset_of(rep):
 
 
 def violations(rep, offset=0.0, skip=("controller",)):
-    return [(v["subsystem"], v["start_t"] + offset, v["observed"]) for v in rep["violations"] if v["subsystem"] not in skip]
+    return [(v["subsystem"], v["start_t"] + offset, v["observed"])
+            for v in rep["violations"] if v["subsystem"] not in skip]
 
 
 def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
@@ -198,6 +199,33 @@ def test_corrupt_and_truncated_tlog_is_replayed_with_the_damage_counted(fog, tmp
     assert rp["skipped_bytes"] == sum(fr[k][1] for k in flipped) + 37 + fr[-1][1] - 5
     assert [v[0] for v in violations(rep)] == ["navigation"]  # the flight is still there
     assert any("tlog damaged: 4 corrupt stretch(es) skipped and last packet torn" in f for f in rep["findings"])
+
+
+def test_a_ground_station_style_tlog_says_what_it_lacks(fog, tmp_path):
+    """A ground station's tlog: no range sensor or estimator messages, position at 2 Hz."""
+    d, cfg = fog
+    data = (d / "raw.tlog").read_bytes()
+    parser = mavlink.MAVLink(None)
+    kept, n_pos = bytearray(), 0
+    for o, n in frames(data):
+        kind = parser.decode(bytearray(data[o + 8:o + n])).get_type()
+        if kind in ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE", "ESTIMATOR_STATUS"):
+            continue
+        if kind == "LOCAL_POSITION_NED":
+            n_pos += 1
+            if n_pos % 25:
+                continue
+        kept += data[o:o + n]
+    (tmp_path / "gcs.tlog").write_bytes(bytes(kept))
+    rep = review_tlog(tmp_path / "gcs.tlog")
+    rp = rep["replay"]
+    assert set(rp["missing_streams"]) == {"navigation health", "obstacle data (DISTANCE_SENSOR: D_od is 0 throughout)"}
+    assert [s["stream"] for s in rp["slow_streams"]] == ["LOCAL_POSITION_NED"]
+    assert rp["slow_streams"][0]["rate_hz"] == pytest.approx(2.0, abs=0.1)
+    text = " | ".join(rep["findings"])
+    assert "tlog lacks navigation health (ESTIMATOR_STATUS or EKF_STATUS_REPORT)" in text
+    assert "LOCAL_POSITION_NED at 2.0 Hz in the tlog, too slow" in text
+    assert rep["ranges"]["d_od"]["max"] == 0.0  # what the finding warns of
 
 
 def test_log_time_is_monotone_and_clock_jumps_are_closed_up():
