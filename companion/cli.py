@@ -237,9 +237,17 @@ def cmd_run(args) -> int:
 
 
 def cmd_review(args) -> int:
-    from .review import format_report, review
+    from .review import format_report, review, tlog_of
 
-    rep = review(args.log, out_dir=args.out)
+    tlog = tlog_of(args.log)
+    if tlog is not None:
+        from .replay import review_tlog
+
+        rep = review_tlog(tlog, args.out, config=args.config, vehicle=args.vehicle, table=args.table)
+    elif args.config or args.vehicle or args.table:
+        raise ContractError("--config, --vehicle and --table apply only to a .tlog (an event log carries its values)")
+    else:
+        rep = review(args.log, out_dir=args.out)
     _emit(rep, args.json, format_report(rep))
     return 0 if rep["ok"] or not args.strict else 1
 
@@ -284,9 +292,16 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--mode", choices=["shadow", "governor", "offboard"], help="override mode")
     r.set_defaults(func=cmd_run)
 
-    rv = sub.add_parser("review", help="contract-violation report for a flight's event log")
-    rv.add_argument("log", nargs="+", type=Path, help="log directory (its rotated set) or events*.jsonl files")
-    rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here")
+    rv = sub.add_parser("review", help="contract-violation report for a flight's event log or raw .tlog")
+    rv.add_argument("log", nargs="+", type=Path,
+                    help="log directory (its rotated set), events*.jsonl files, or one MAVLink .tlog to replay")
+    rv.add_argument("--config", type=Path, help=".tlog: the daemon config the flight used (sensors, r_obst, vehicle, "
+                    "autopilot ids; replayed in shadow mode). Default: built-in defaults, autopilot from the tlog")
+    rv.add_argument("--vehicle", help=".tlog: vehicle file or shipped name (overrides the config's)")
+    rv.add_argument("--table", type=Path,
+                    help=".tlog: Γ table (default: the config's, else the vehicle's shipped one)")
+    rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here "
+                    "(and, for a .tlog, the replayed event log replay-events.jsonl)")
     rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")
     rv.add_argument("--json", action="store_true")
     rv.set_defaults(func=cmd_review)

@@ -1,6 +1,7 @@
 """`contract-guard review LOG`: a contract-violation report for one flight, from the daemon's event log.
 
-`review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several),
+`review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several; a raw
+MAVLink `.tlog` is first replayed through a table by `companion.replay`, which adds a `replay` section),
 `summarise(records)` (pure) builds the report, `format_report(report)` renders it for a person. With
 `out_dir`: `review.png` (speed limit and ground speed, Γ, `d_od`, `e_tr`, `thrust_ratio`, `r_obst` over
 time, violation spans shaded, failsafes marked), `samples.csv` and `review.json`. Bad or missing input
@@ -404,6 +405,15 @@ def findings(rep: dict) -> list[str]:
 # ============================================================================ I/O
 
 
+def tlog_of(paths) -> Path | None:
+    """The one `.tlog` among `paths`, if any (a raw MAVLink log is replayed, not read)."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    tlogs = [Path(p) for p in paths if Path(p).suffix.lower() == ".tlog"]
+    if tlogs and len(paths) > 1:
+        raise ContractError(f"{tlogs[0]}: a .tlog is replayed on its own; review it without other logs")
+    return tlogs[0] if tlogs else None
+
+
 def _log_files(paths) -> list[Path]:
     if isinstance(paths, (str, Path)):
         paths = [paths]
@@ -416,9 +426,6 @@ def _log_files(paths) -> list[Path]:
             if not found:
                 raise ContractError(f"{p} holds no event log ({LOG_NAME}{LOG_SUFFIX})")
             files.extend(found)
-        elif p.suffix == ".tlog":
-            raise ContractError(f"{p} is a raw MAVLink .tlog; review reads the event log ({LOG_NAME}{LOG_SUFFIX}) "
-                                "beside it (replaying a .tlog through a table is not supported yet)")
         else:
             files.append(p)
     if not files:
@@ -427,10 +434,25 @@ def _log_files(paths) -> list[Path]:
 
 
 def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = 0.2) -> dict:
-    """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON."""
-    files = _log_files(paths)
+    """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON.
+    A single `.tlog` is replayed through the vehicle's shipped table first (`companion.replay`)."""
+    tlog = tlog_of(paths)
+    if tlog is not None:
+        from .replay import review_tlog
+
+        return review_tlog(tlog, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s)
+    rep, samples = analyse(_log_files(paths), gap_s=gap_s, tolerance_m_s=tolerance_m_s,
+                           keep_samples=out_dir is not None)
+    if out_dir is not None:
+        rep["outputs"] = write_outputs(rep, samples, Path(out_dir))
+    return rep
+
+
+def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
+            keep_samples: bool = False) -> tuple[dict, list[tuple] | None]:
+    """(report, state rows in `CSV_COLUMNS` order or None) for event-log files."""
     reader = read_events(files)
-    samples: list[tuple] | None = [] if out_dir is not None else None
+    samples: list[tuple] | None = [] if keep_samples else None
 
     def records():
         for rec in reader:
@@ -448,10 +470,7 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
         raise ContractError(f"{files[0]} is not a contract-guard event log (no records)")
     rep["findings"] = findings(rep)
     rep["ok"] = not rep["findings"]
-    rep = finite_copy(rep)  # a foreign log's NaN/Infinity tokens: the report stays strict JSON
-    if out_dir is not None:
-        rep["outputs"] = write_outputs(rep, samples, Path(out_dir))
-    return rep
+    return finite_copy(rep), samples  # a foreign log's NaN/Infinity tokens: the report stays strict JSON
 
 
 def write_outputs(rep: dict, samples: list[tuple], out_dir: Path) -> dict:
@@ -555,6 +574,8 @@ def plot(rep: dict, samples: list[tuple], path: Path) -> None:
         title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
         if rep["span"]["utc_first"]:
             title += f", from {rep['span']['utc_first']}"
+        if rep.get("replay"):
+            title += f" (replayed from {Path(rep['replay']['tlog']).name})"
         axes[0].set_title(title)
         fig.tight_layout(rect=(0, 0.03 if keys else 0, 1, 1))
         fig.savefig(path, dpi=100)
@@ -585,6 +606,17 @@ def format_report(rep: dict) -> str:
                  + (f", {sp['utc_first']} … {sp['utc_last']}" if sp["utc_first"] else ""))
     lines.append(f"  {rep['records']} records, {rep['state_samples']} state samples covering {rep['sampled_s']:.1f} s, "
                  f"{len(rep['boots'])} daemon run(s)")
+    rp = rep.get("replay")
+    if rp:
+        ap = rp["autopilot"]
+        lines.append(f"  replayed {rp['packets']} packets ({rp['corrupt_packets']} corrupt stretch(es) skipped"
+                     + (", torn tail" if rp["truncated_tail"] else "") + f") through {rp['table']} "
+                     f"({rp['contract']} contract, shadow mode); autopilot {ap['kind']} "
+                     f"{ap['system']}/{ap['component']} ({ap['from']}); event log: {rp['event_log'] or 'not kept'}")
+        fl = rp.get("in_flight")
+        if fl:
+            lines.append("  in-flight daemon vs replay, max |difference|: " + ", ".join(
+                f"{k} {_fmt(v)} ({fl['compared'][k]} values)" for k, v in fl["max_abs_diff"].items()))
     lines.append("  verdict: " + ("contract kept (no findings)" if rep["ok"] else "REVIEW NEEDED"))
     for f in rep["findings"]:
         lines.append(f"    - {f}")

@@ -1,0 +1,424 @@
+"""`contract-guard review FLIGHT.tlog`: replay a raw MAVLink `.tlog` through a Γ table, then review it.
+
+The packets go, in log time, to a shadow-mode `Daemon` over an in-memory link (what it sends is
+discarded), stepped at its loop rate with no sleeping; its fresh event log then goes through the
+ordinary review (`companion.review`). Every packet in the tlog is fed — the autopilot's stream and
+anything else (a ground station's, or our daemon's own outgoing packets when a router or MAVProxy
+logged both directions); the daemon keeps what it would have kept in flight. The in-flight daemon's
+`NAMED_VALUE_FLOAT` values, when present, are compared with the replay.
+
+Log time is the tlog's stamp relative to the first good packet; an earlier stamp by ≤ 1 s is taken
+as reordering, a larger step back or a silence longer than `MAX_GAP_US` as a clock jump (closed up,
+listed). Corrupt packets are counted and skipped (the reader resynchronises on the next packet with a
+valid CRC); a torn last packet is reported.
+"""
+
+from __future__ import annotations
+
+import bisect
+import re
+import shutil
+import struct
+import tempfile
+from array import array
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from contracts.errors import ContractError
+
+from .config import Config, load_config
+from .eventlog import EventLog, finite_copy
+from .link import MemoryMavfile, mavlink
+
+MAGIC = re.compile(b"[\xfd\xfe]")
+MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (clamped); more is a clock jump
+MAX_GAP_US = 300_000_000  # a longer silence is taken as a clock jump and closed up
+RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie within a day of the last good one
+TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
+AUTOPILOTS = {mavlink.MAV_AUTOPILOT_PX4: "px4", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
+NOT_AUTOPILOT = (mavlink.MAV_AUTOPILOT_INVALID,)
+IN_FLIGHT = {"CG_VMAX": "v_max", "CG_DOD": "d_od", "CG_ETR": "e_tr"}  # the daemon's NAMED_VALUE_FLOATs
+DAEMON_COMMANDS = {mavlink.MAV_CMD_DO_CHANGE_SPEED: "change_speed", mavlink.MAV_CMD_DO_SET_MODE: "set_mode"}
+REPLAY_LOG = "replay-events.jsonl"
+LISTED = 100
+
+
+@dataclass
+class Scan:
+    """The good packets of a tlog (where they are, their log time) and what the reader saw."""
+
+    size: int = 0
+    offset: array = field(default_factory=lambda: array("q"))  # of the packet's 8-byte stamp
+    length: array = field(default_factory=lambda: array("l"))  # MAVLink frame bytes after the stamp
+    t_us: array = field(default_factory=lambda: array("q"))  # log time [µs] from the first good packet
+    raw_us: array = field(default_factory=lambda: array("q"))  # the stamp as written (UNIX µs)
+    corrupt: int = 0  # stretches of bad bytes skipped (each counted once)
+    skipped_bytes: int = 0
+    truncated_tail: bool = False
+    unknown: int = 0  # valid frames of messages this dialect does not know (skipped)
+    counts: Counter = field(default_factory=Counter)  # (sys, comp, type) → packets
+    spans: dict = field(default_factory=dict)  # (sys, comp, type) → [first, last] log time [µs]
+    heartbeats: dict = field(default_factory=dict)  # (sys, comp) → (MAV_TYPE, MAV_AUTOPILOT)
+    time_jumps: list = field(default_factory=list)
+    in_flight: list = field(default_factory=list)  # (t_us, sys, comp, name, value): our daemon's values
+    texts: list = field(default_factory=list)  # (t_us, sys, comp, text): "CG: …" status texts
+    commands: list = field(default_factory=list)  # (t_us, sys, comp, name, param1, param2)
+
+    @property
+    def packets(self) -> int:
+        return len(self.offset)
+
+    def rate_hz(self, src: tuple[int, int] | int, kind: str) -> float:
+        """Mean rate of one message type while it was being sent, from a source (sys, comp) or from any
+        component of a system (int)."""
+        keys = [key for key in self.counts
+                if key[2] == kind and (key[:2] == src if isinstance(src, tuple) else key[0] == src)]
+        if not keys:
+            return 0.0
+        n = sum(self.counts[key] for key in keys)
+        span = (max(self.spans[key][1] for key in keys) - min(self.spans[key][0] for key in keys)) / 1e6
+        return (n - 1) / span if span > 0 else 0.0
+
+
+def _frame_len(data: bytes, pos: int) -> int | None:
+    """Bytes of the MAVLink frame after the stamp at `pos`: None if none starts there, -1 if the file ends first."""
+    if len(data) - pos < 11:
+        return -1
+    magic = data[pos + 8]
+    if magic == 0xFE:
+        return 8 + data[pos + 9]
+    if magic == 0xFD and not data[pos + 10] & ~1:  # incompat_flags: only MAVLINK_IFLAG_SIGNED exists
+        return 12 + data[pos + 9] + (13 if data[pos + 10] & 1 else 0)
+    return None
+
+
+def _decode(data: bytes, pos: int, parser):
+    """(status, frame length, message) for the packet at `pos`; status "ok", "bad" or "short"."""
+    n = _frame_len(data, pos)
+    if n is None:
+        return "bad", None, None
+    if n < 0 or pos + 8 + n > len(data):
+        return "short", n, None
+    try:
+        return "ok", n, parser.decode(bytearray(data[pos + 8:pos + 8 + n]))
+    except Exception:  # noqa: BLE001 — pymavlink raises MAVError, struct.error, …: a bad packet either way
+        return "bad", n, None
+
+
+def _resync(data: bytes, start: int, parser, last_raw: int | None) -> int | None:
+    """The next position holding a known message with a valid CRC (and a plausible stamp)."""
+    known = mavlink.mavlink_map
+    for m in MAGIC.finditer(data, start + 8):
+        p = m.start() - 8
+        if len(data) - p < 16:
+            break
+        msg_id = data[p + 13] if data[p + 8] == 0xFE else int.from_bytes(data[p + 15:p + 18], "little")
+        if msg_id not in known:  # cheap: most false starts end here, before a CRC is computed
+            continue
+        if last_raw is not None and abs(struct.unpack_from(">Q", data, p)[0] - last_raw) > RESYNC_WINDOW_US:
+            continue
+        status, _, msg = _decode(data, p, parser)
+        if status == "ok" and not msg.get_type().startswith("UNKNOWN"):
+            return p
+    return None
+
+
+def scan_tlog(data: bytes) -> Scan:
+    """Index the good packets of a tlog (pure; never raises on bad bytes)."""
+    parser = mavlink.MAVLink(None)
+    s = Scan(size=len(data))
+    pos, last_raw, last_t, shift = 0, None, 0, 0  # log time = stamp + shift
+    while pos < len(data):
+        status, n, msg = _decode(data, pos, parser)
+        if status != "ok":
+            nxt = _resync(data, pos + 1, parser, last_raw)
+            if nxt is None:
+                s.skipped_bytes += len(data) - pos
+                if status == "short":
+                    s.truncated_tail = True
+                else:
+                    s.corrupt += 1
+                break
+            s.corrupt += 1
+            s.skipped_bytes += nxt - pos
+            pos = nxt
+            continue
+        raw = struct.unpack_from(">Q", data, pos)[0]
+        at, pos = pos, pos + 8 + n
+        if msg.get_type().startswith("UNKNOWN"):
+            s.unknown += 1
+            continue
+        if last_raw is None:
+            shift = -raw
+        else:
+            step = raw + shift - last_t
+            if step < -MAX_BACKSTEP_US or step > MAX_GAP_US:
+                s.time_jumps.append({"t": last_t / 1e6, "jump_s": step / 1e6})
+                shift = last_t - raw
+        t = max(raw + shift, last_t)
+        last_raw, last_t = raw, t
+        s.offset.append(at)
+        s.length.append(n)
+        s.t_us.append(t)
+        s.raw_us.append(raw)
+        _note(s, t, msg)
+    return s
+
+
+def _note(s: Scan, t: int, msg) -> None:
+    """Keep the per-source counts and what the reviewer may want of a few messages."""
+    kind, src = msg.get_type(), (msg.get_srcSystem(), msg.get_srcComponent())
+    key = (*src, kind)
+    s.counts[key] += 1
+    s.spans.setdefault(key, [t, t])[1] = t
+    if kind == "HEARTBEAT":
+        s.heartbeats[src] = (msg.type, msg.autopilot)
+    elif kind == "NAMED_VALUE_FLOAT" and msg.name in IN_FLIGHT:
+        s.in_flight.append((t, *src, msg.name, msg.value))
+    elif kind == "STATUSTEXT" and msg.text.startswith("CG:"):
+        s.texts.append((t, *src, msg.text))
+    elif kind == "COMMAND_LONG" and msg.command in DAEMON_COMMANDS:
+        s.commands.append((t, *src, DAEMON_COMMANDS[msg.command], msg.param1, msg.param2))
+
+
+# ============================================================================ configuration
+
+
+def _autopilots(scan: Scan) -> list[tuple[int, int]]:
+    """Sources whose HEARTBEAT says autopilot, most LOCAL_POSITION_NED first."""
+    found = [src for src, (_, ap) in scan.heartbeats.items() if ap not in NOT_AUTOPILOT]
+    return sorted(found, key=lambda src: (-scan.counts[(*src, "LOCAL_POSITION_NED")], src))
+
+
+def _describe_sources(scan: Scan) -> str:
+    per: Counter = Counter()
+    for (sy, cp, _), c in scan.counts.items():
+        per[(sy, cp)] += c
+    return ", ".join(f"{sy}/{cp} ({c})" for (sy, cp), c in per.most_common(6)) or "none"
+
+
+def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, table: Path | None):
+    """(config forced to shadow, table, contract, how the autopilot was chosen) for this tlog."""
+    from contracts.table import verify
+    from contracts.vehicle import DATA_DIR, load_vehicle
+
+    cfg = load_config(config) if config is not None else Config()
+    chosen = "config"
+    if config is None:  # no flight config: take the autopilot the tlog shows
+        aps = _autopilots(scan)
+        if not aps:
+            raise ContractError(f"{path}: no usable telemetry: no autopilot HEARTBEAT in {scan.packets} packets "
+                                f"(sources sys/comp: {_describe_sources(scan)})")
+        sy, cp = aps[0]
+        kind = AUTOPILOTS.get(scan.heartbeats[(sy, cp)][1], "px4")
+        cfg = cfg.model_copy(update={"link": cfg.link.model_copy(
+            update={"target_system": sy, "target_component": cp, "autopilot": kind})})
+        chosen = "detected"
+    target = (cfg.link.target_system, cfg.link.target_component)
+    lacking = [k for k in ("HEARTBEAT", "LOCAL_POSITION_NED") if not scan.counts[(*target, k)]]
+    if lacking:
+        raise ContractError(f"{path}: no usable telemetry: no {' or '.join(lacking)} from the autopilot "
+                            f"{target[0]}/{target[1]} in {scan.packets} packets (sources sys/comp: "
+                            f"{_describe_sources(scan)}; set link.target_system/target_component in --config)")
+    flown = cfg.mode
+    cfg = cfg.model_copy(update={"mode": "shadow", "log": cfg.log.model_copy(update={"tlog": False})})
+    if vehicle is not None:
+        cfg = cfg.model_copy(update={"vehicle": vehicle, "table": None})
+    if table is not None and vehicle is None and config is None:
+        tab = verify(table, None)  # a table alone: its own vehicle
+    else:
+        veh = load_vehicle(cfg.vehicle)
+        tab = verify(table or cfg.table or DATA_DIR / f"{veh.name}.npz", None)
+        if tab.vehicle.fingerprint() != veh.fingerprint():
+            raise ContractError(f"table {tab.path} was built for another vehicle than {cfg.vehicle}")
+    contract = "avoid" if flown == "offboard" else "stop"
+    if contract == "avoid" and tab.avoid is None:
+        raise ContractError(f"the flight flew offboard (avoid contract); table {tab.path} carries the stop "
+                            "contract only")
+    return cfg, tab, contract, chosen
+
+
+# ============================================================================ the replay
+
+
+def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract: str = "stop",
+           source: str = "") -> dict:
+    """Feed the scanned packets to a shadow `Daemon` in log time; its event log goes to `log_dir`."""
+    from .daemon import Daemon
+
+    now = {"t": 0.0, "wall": scan.raw_us[0] / 1e6, "bytes": b""}
+
+    def read():
+        b, now["bytes"] = now["bytes"], b""
+        return b
+
+    conn = MemoryMavfile(read, lambda buf: None, source_system=cfg.link.target_system,
+                         source_component=cfg.link.component_id)
+    log = EventLog(log_dir, clock=lambda: now["wall"], fsync_events=False, max_bytes=1 << 62)
+    daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=lambda: now["wall"], planning="inline")
+    daemon.sup.contract = contract  # the contract the flight flew under (shadow alone would say "stop")
+    log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
+              contract=contract)
+    period = 1e6 / cfg.loop_hz
+    off, length, t_us, raw_us = scan.offset, scan.length, scan.t_us, scan.raw_us
+    i, k, n = 0, 0, scan.packets
+    while True:
+        tick = k * period
+        while i < n and t_us[i] <= tick + TICK_SLACK_US:
+            now["t"], now["wall"] = min(t_us[i], tick) / 1e6, raw_us[i] / 1e6
+            now["bytes"] = data[off[i] + 8:off[i] + 8 + length[i]]
+            daemon.poll()
+            i += 1
+        now["wall"] += tick / 1e6 - now["t"]  # the stamp of the last packet, carried on to this tick
+        now["t"] = tick / 1e6
+        daemon.step()
+        if i >= n:
+            break
+        k += 1
+    log.event(now["t"], "stop", counters=daemon.counters.__dict__)
+    log.close()
+    return {"steps": k + 1, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
+
+
+def in_flight(scan: Scan, samples: list[tuple], columns: tuple, target_system: int) -> dict | None:
+    """The in-flight daemon's own values (NAMED_VALUE_FLOAT, STATUSTEXT, commands) against the replay."""
+    srcs = {(sy, cp) for _, sy, cp, _, _ in scan.in_flight} | {(sy, cp) for _, sy, cp, _ in scan.texts}
+    srcs = {s for s in srcs if s[0] == target_system}
+    if not srcs:
+        return None
+    ti = columns.index("t")
+    rows = [r for r in samples if isinstance(r[ti], (int, float))]
+    times = [r[ti] for r in rows]
+    diffs: dict[str, list[float]] = {v: [] for v in IN_FLIGHT.values()}
+    for t, sy, cp, name, value in scan.in_flight:
+        j = bisect.bisect_right(times, t / 1e6 + 1e-6) - 1
+        if (sy, cp) not in srcs or value == -1.0 or j < 0 or t / 1e6 - times[j] > 0.25:
+            continue  # -1: the daemon's "not finite"; no replayed sample close enough before it
+        got = rows[j][columns.index(IN_FLIGHT[name])]
+        if isinstance(got, (int, float)):
+            diffs[IN_FLIGHT[name]].append(abs(got - value))
+    commands = Counter(name for _, sy, cp, name, _, _ in scan.commands if (sy, cp) in srcs)
+    return {
+        "components": sorted(srcs),
+        "compared": {k: len(v) for k, v in diffs.items()},
+        "max_abs_diff": {k: max(v) if v else None for k, v in diffs.items()},
+        "mean_abs_diff": {k: sum(v) / len(v) if v else None for k, v in diffs.items()},
+        "statustext": [{"t": t / 1e6, "text": text} for t, sy, cp, text in scan.texts if (sy, cp) in srcs][:LISTED],
+        "commands": dict(commands),
+    }
+
+
+def _needed(cfg: Config) -> dict[str, tuple[str, ...]]:
+    """What the daemon reads from the autopilot, by what it is for."""
+    need = {"attitude": ("ATTITUDE",), "landed state": ("EXTENDED_SYS_STATE",),
+            "navigation health": ("ESTIMATOR_STATUS", "EKF_STATUS_REPORT"),
+            "commanded path (E_tr)": ("POSITION_TARGET_LOCAL_NED",)}
+    if cfg.thrust.source == "hover":
+        need["hover throttle"] = ("VFR_HUD",)
+    return need
+
+
+def replay_findings(info: dict) -> list[str]:
+    """Lines a reviewer must see about the replay itself (what the tlog lacked or spoiled)."""
+    out = []
+    if info["corrupt_packets"] or info["truncated_tail"]:
+        what = [f"{info['corrupt_packets']} corrupt stretch(es) skipped"] if info["corrupt_packets"] else []
+        what += ["last packet torn"] if info["truncated_tail"] else []
+        out.append(f"tlog damaged: {' and '.join(what)} ({info['skipped_bytes']} bytes lost)")
+    if info["missing_streams"]:
+        out.append("tlog lacks " + "; ".join(f"{k} ({' or '.join(v)})" for k, v in info["missing_streams"].items())
+                   + ": the replay ran without them")
+    for s in info["slow_streams"]:
+        out.append(f"{s['stream']} at {s['rate_hz']:.1f} Hz in the tlog, too slow for the daemon's {s['timeout_s']} s "
+                   "staleness limit: stale-data findings may be the log's, not the flight's")
+    if info["time_jumps"]:
+        out.append(f"{len(info['time_jumps'])} clock jump(s) in the tlog stamps closed up")
+    fl = info.get("in_flight")
+    if fl:
+        worst = {k: v for k, v in fl["max_abs_diff"].items() if v is not None and v > 0.5}
+        if worst:
+            out.append("replay differs from the in-flight daemon: " + ", ".join(
+                f"{k} by up to {v:.2f}" for k, v in worst.items()) + " (another config or table?)")
+    return out
+
+
+def review_tlog(path, out_dir=None, *, config=None, vehicle=None, table=None, gap_s: float = 1.0,
+                tolerance_m_s: float = 0.2) -> dict:
+    """Replay the tlog at `path` and review the replayed event log (see the module docstring)."""
+    from . import review as rv
+
+    path = Path(path)
+    if not path.exists():
+        raise ContractError(f"no such file or directory: {path}")
+    try:
+        data = path.read_bytes()
+    except OSError as err:
+        raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
+    if not data:
+        raise ContractError(f"{path}: empty .tlog")
+    scan = scan_tlog(data)
+    if not scan.packets:
+        raise ContractError(f"{path}: no MAVLink packets in {len(data)} bytes (not a .tlog?)")
+    cfg, tab, contract, chosen = resolve(scan, path, config, vehicle, table)
+    work = Path(tempfile.mkdtemp(prefix="contract-guard-replay-"))
+    try:
+        run = replay(data, scan, cfg, tab, work, contract, str(path))
+        log_path = work / "events.jsonl"
+        rep, samples = rv.analyse([log_path], gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=True)
+        kept = None
+        if out_dir is not None:
+            kept = Path(out_dir) / REPLAY_LOG
+            try:
+                kept.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(log_path, kept)
+            except OSError as err:
+                raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    target = (cfg.link.target_system, cfg.link.target_component)
+    kinds = sorted({s.kind.upper() for s in cfg.sensors})
+    to = cfg.timeouts
+    slow = []
+    streams = [("LOCAL_POSITION_NED", target, to.telemetry_s), ("HEARTBEAT", target, to.heartbeat_s)]
+    for stream, src, timeout in streams + [(k, target[0], to.obstacle_s) for k in kinds]:
+        r = scan.rate_hz(src, stream)
+        if 0 < r < 1.25 / timeout:  # a mean interval over 0.8 of the staleness limit: stale at every jitter
+            slow.append({"stream": stream, "rate_hz": r, "timeout_s": timeout})
+    missing = {what: ks for what, ks in _needed(cfg).items() if not any(scan.counts[(*target, k)] for k in ks)}
+    for kind in kinds:
+        if not any(c for (sy, _, k), c in scan.counts.items() if sy == target[0] and k == kind):
+            missing[f"obstacle data ({kind}: D_od is 0 throughout)"] = (kind,)
+    info = {
+        "tlog": str(path),
+        "bytes": len(data),
+        "packets": scan.packets,
+        "corrupt_packets": scan.corrupt,
+        "skipped_bytes": scan.skipped_bytes,
+        "truncated_tail": scan.truncated_tail,
+        "unknown_messages": scan.unknown,
+        "t0_unix": scan.raw_us[0] / 1e6,
+        "span_s": scan.t_us[-1] / 1e6,
+        "time_jumps": scan.time_jumps[:LISTED],
+        "autopilot": {"system": target[0], "component": target[1], "kind": cfg.link.autopilot, "from": chosen},
+        "config": None if config is None else str(config),
+        "vehicle": tab.vehicle.name,
+        "table": str(tab.path),
+        "contract": contract,
+        "loop_hz": cfg.loop_hz,
+        "steps": run["steps"],
+        "daemon_messages": run["messages"],
+        "missing_streams": {k: list(v) for k, v in missing.items()},
+        "slow_streams": slow,
+        "event_log": None if kept is None else str(kept),
+        "in_flight": in_flight(scan, samples, rv.CSV_COLUMNS, target[0]),
+        "notes": ["shadow replay: the controller guarantee (contour error vs E_tr_pred at the commanded limit) "
+                  "is evaluated only against a commanded limit, so it is not checked here"],
+    }
+    rep["files"] = [str(path)]
+    rep["replay"] = finite_copy(info)
+    rep["findings"] = rv.findings(rep) + replay_findings(rep["replay"])
+    rep["ok"] = not rep["findings"]
+    if out_dir is not None:
+        rep["outputs"] = rv.write_outputs(rep, samples, Path(out_dir))
+    return rep
