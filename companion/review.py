@@ -8,8 +8,9 @@ time, violation spans shaded, failsafes marked), `samples.csv` and `review.json`
 ends in one `ContractError` line.
 
 The record schema (JSON Lines, written by `companion.eventlog.EventLog`; every record also carries
-`kind` ("state" | "event"), `t` vehicle time [s], `wall` UNIX time [s], `seq`, `boot`, and `nonfinite`
-naming fields whose NaN/inf was written as null):
+`kind` ("state" | "event"), `t` daemon time [s] (its clock runs at the vehicle's rate; lock-step: sim
+time), `wall` UNIX time [s], `seq`, `boot`, and `nonfinite` naming fields whose NaN/inf was written as
+null):
 
 State samples (`kind: "state"`, ≥ 10 Hz):
     t, state, mode, contract ("stop" | "avoid"), engaged (bool), x, y, z [m, local NED],
@@ -570,7 +571,7 @@ def plot(rep: dict, samples: list[tuple], path: Path) -> None:
             keys.append(Line2D([], [], color="red", lw=0.8, label="failsafe"))
         if keys:
             fig.legend(handles=keys, loc="lower center", ncol=len(keys), fontsize="small")
-        axes[-1].set_xlabel("t [s] (vehicle time)")
+        axes[-1].set_xlabel("t [s] (daemon clock, at the vehicle's rate)")
         title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
         if rep["span"]["utc_first"]:
             title += f", from {rep['span']['utc_first']}"
