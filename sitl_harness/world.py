@@ -73,7 +73,7 @@ class World:
             for o, u, h in ((lx, ux, hx), (ly, uy, hy)):
                 par = np.abs(u) < 1e-12
                 ok &= ~(par & (abs(o) > h))
-                with np.errstate(divide="ignore", invalid="ignore"):
+                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # par: masked below
                     t1 = (-h - o) / u
                     t2 = (h - o) / u
                 lo = np.where(par, -np.inf, np.minimum(t1, t2))
