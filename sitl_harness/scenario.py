@@ -99,6 +99,7 @@ class SensorSpec(_Strict):
     noise_sd_m: NonNeg = 0.02
     noise_rel: NonNeg = 0.01
     rate_hz: Annotated[float, Field(gt=0, le=100)] = 20.0
+    latency_s: Annotated[float, Field(ge=0, le=1)] = 0.0  # a frame is sent this long after it was seen
 
 
 class WindSpec(_Strict):

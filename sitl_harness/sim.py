@@ -14,6 +14,7 @@ or `serve.serve`).
 from __future__ import annotations
 
 import math
+from collections import deque
 
 
 from contracts.vehicle import G, load_vehicle
@@ -70,6 +71,7 @@ class Sim:
         self.monitor = CollisionMonitor(self.world, v.r_body_m)
         self.time_s = 0.0
         self.reading = None
+        self._frames: deque = deque()  # (time due, frame) — frames waiting out the sensor's latency
         self.sensor_seq = 0
         self._next_sensor = 0.0
         self._sensor_dropout_until = -1.0
@@ -170,8 +172,11 @@ class Sim:
             self._next_sensor += 1.0 / self.sensor.cfg.rate_hz
             self.sensor.dropout = t < self._sensor_dropout_until
             if not self.sensor.dropout:
-                self.reading = self.sensor.read(self.world, self.model.pos, ap.yaw)
-                self.sensor_seq += 1
+                self._frames.append((t + self.scenario.sensor.latency_s, self.sensor.read(self.world, self.model.pos,
+                                                                                           ap.yaw)))
+        while self._frames and self._frames[0][0] <= t + 1e-9:  # sensor latency: seen then, sent now
+            self.reading = self._frames.popleft()[1]
+            self.sensor_seq += 1
         self.endpoint.emit()
 
     @property

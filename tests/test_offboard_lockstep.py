@@ -16,6 +16,7 @@ from tests.test_daemon_lockstep import Scaled
 
 D_SENSOR = 6.0
 R_OBST = 1.0
+SENSOR_LATENCY_S = 0.05  # part of the vehicle file's t_react (0.1 s: sensor latency + decision + response)
 
 
 def offboard_scenario(seed=1, x_col=30.0, wind=None, faults=(), vehicle="mambo", personality="px4"):
@@ -25,7 +26,8 @@ def offboard_scenario(seed=1, x_col=30.0, wind=None, faults=(), vehicle="mambo",
         "name": "offboard_column", "vehicle": vehicle, "seed": seed,
         "start": {"alt_m": 2.0},
         "world": {"columns": [{"x_m": x_col, "y_m": 0.0, "radius_m": R_OBST, "name": "column"}]},
-        "sensor": {"fov_deg": 60, "increment_deg": 5, "max_range_m": D_SENSOR, "rate_hz": 20},
+        "sensor": {"fov_deg": 60, "increment_deg": 5, "max_range_m": D_SENSOR, "rate_hz": 20,
+                   "latency_s": SENSOR_LATENCY_S},
         **({"wind": wind} if wind else {}),
         "faults": list(faults),
     }

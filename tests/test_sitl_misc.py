@@ -236,3 +236,23 @@ def test_campaign_column_ahead_seeds_with_design_wind(pers):
     assert len({h.position for h in hits}) == len(hits)
     for h in hits:
         assert h.obstacle_name == "column" and 11.0 < h.position[0] < 11.6
+
+
+def test_sensor_latency_delays_each_frame_by_exactly_that_long():
+    """A frame seen at t is sent at t + latency_s (the contract's reaction time budgets it)."""
+    def frames(latency):
+        sim = Sim(scenario_from_dict({"world": {"columns": [{"x_m": 5.0, "y_m": 0.3, "radius_m": 0.5}]},
+                                      "sensor": {"latency_s": latency, "rate_hz": 20}}), seed=4)
+        out, seq = [], 0
+        for _ in range(100):
+            sim.tick()
+            if sim.sensor_seq != seq:
+                seq = sim.sensor_seq
+                out.append((round(sim.time_s, 6), tuple(sim.reading.distances_cm)))
+        return out
+
+    now, late = frames(0.0), frames(0.1)
+    assert len(late) == len(now) - 2  # two frames still in flight at the end
+    assert all(min(d) < 500 for _, d in now)  # the column is seen (4.5 m away)
+    for (t0, d0), (t1, d1) in zip(now, late):
+        assert d1 == d0 and t1 == pytest.approx(t0 + 0.1, abs=1e-6)
