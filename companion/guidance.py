@@ -318,6 +318,7 @@ class OffboardGuidance:
         ahead = self._threats(p, v, discs)
         if ahead:
             return self._avoid(t, p, v, v_max, a_max, ahead, z)
+        self.planning.poll()  # a plan for an obstacle no longer ahead is not flown
         if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1]:
             return self._follow(t, z)  # finish going round the obstacle before rejoining
         if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
@@ -424,6 +425,8 @@ class OffboardGuidance:
             self.last_notes = [f"planner error: {done!r}"[:200]]
             return
         t_req, omega, new = done
+        if self.plan is not None and t_req < self.plan_t:
+            return  # older than the plan being flown
         self.replans += 1
         self.plan_times.append(new.solve_s)
         self.rejected += new.rejected

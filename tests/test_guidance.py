@@ -256,3 +256,20 @@ def test_a_closed_route_is_flown_once_round():
     s = np.array([r[0] for r in rows])
     assert rows[-1][2].mode == "done" and s[-1] == pytest.approx(route.length)
     assert np.all(np.diff(s) >= 0)  # never jumps back to the start it passes again
+
+
+def test_a_plan_that_arrives_after_the_obstacle_is_gone_is_not_flown():
+    planner = _GatedPlanner()
+    g = OffboardGuidance(Route([[0, 0], [60, 0]], 2.0), planner=planner, planning=ThreadedPlanning())
+    g.start([0.0, 0.0], [5.0, 0.0])
+    assert _threat_step(g, 0.0).mode == "planning"
+    planner.gate.set()
+    while g.planning.busy:
+        time.sleep(0.005)
+    g.plan = None  # (the braking plan ended)
+    sp = g.step(0.5, 0.02, [2.5, 0.0], [5.0, 0.0], 5.0, 4.0, [])  # nothing ahead any more
+    assert sp.mode == "cruise"
+    planner.gate.clear()
+    later = g.step(0.6, 0.02, [3.0, 0.0], [5.0, 0.0], 5.0, 4.0, [Disc(12.0, 0.1, 1.6, 1.2)])  # seen again
+    assert later.mode == "planning" and g.replans == 0  # planned afresh: the stale answer was dropped
+    planner.gate.set()
