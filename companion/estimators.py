@@ -39,6 +39,7 @@ class _SensorState:
     hits: list[tuple[float, float]] = field(default_factory=list)  # (body bearing, range) seen now
     bins_fov: tuple[float, float] | None = None  # body bearings of the first and last used bin
     increment: float = 0.0
+    period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
 
 
 @dataclass(frozen=True)
@@ -108,7 +109,11 @@ class DodEstimator:
         s = self.sensors[i]
         fresh = t - s.t <= self.stale_s
         before = s.hits if fresh else []
-        tolerance = self.contract.late_detection_tolerance_m + self._speed * (t - s.t if fresh else 0.0)
+        gap = t - s.t if fresh else 0.0
+        if gap > 0:
+            s.period = gap if s.period == 0 else 0.9 * s.period + 0.1 * gap
+        # samples delivered in a burst were still taken one interval apart
+        tolerance = self.contract.late_detection_tolerance_m + self._speed * max(gap, s.period if fresh else 0.0)
         s.t, s.max_m = t, max(max_m, 0.0)
         s.trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
         for bearing, r in seen:

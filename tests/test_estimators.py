@@ -152,3 +152,22 @@ def test_nav_health_flags_and_staleness():
     assert n.healthy(3.0)
     n.update(4.0, "EKF_STATUS_REPORT", 1 | 2 | 8 | 32768)  # ArduPilot's GPS glitch bit
     assert not n.healthy(4.0)
+
+
+def test_samples_delivered_in_a_burst_still_get_one_interval_of_travel():
+    """A link that delivers two 20 Hz frames at once (as over UDP to a busy daemon) must not turn an
+    on-time detection into a late one: the frames were taken 50 ms apart."""
+    e = dod()
+    e.set_speed(6.0)
+    t = 0.0
+    for _ in range(20):
+        e.add_range(0, t, 10.0, 0.1, 10.0, 100)
+        e.add_heading(t, 0.0)
+        e.estimate(t, 0.0)
+        t += 0.05
+    e.add_range(0, t, 10.0, 0.1, 10.0, 100)
+    e.add_range(0, t + 0.001, 9.45, 0.1, 10.0, 100)  # burst: 6 m/s · 50 ms + 0.3 m tolerance covers 0.55 m
+    assert e.estimate(t + 0.001, 0.0).late is None
+    e.add_range(0, t + 0.05, 10.0, 0.1, 10.0, 100)
+    e.add_range(0, t + 0.051, 8.9, 0.1, 10.0, 100)  # 1.1 m inside: late even so
+    assert e.estimate(t + 0.051, 0.0).late is not None
