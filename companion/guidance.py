@@ -6,8 +6,8 @@
   position and width; a single beam keeps the conservative set of positions consistent with the hit.
 - `OffboardGuidance`: each cycle a setpoint (position, velocity, acceleration feed-forward, yaw):
   cruise along the route at up to the contract's V_max (yaw on the motion, turning before speeding
-  up); when an obstacle is on the path, fly the online avoidance plan (`avoid_planner`) around its
-  keep-out disc; replan when an obstacle appears, when Ω changes, when the vehicle drifts from the
+  up); when an obstacle is on the path, fly the online avoidance plan (`contracts.online_planner`) around
+  its keep-out disc; replan when an obstacle appears, when Ω changes, when the vehicle drifts from the
   plan, or as the plan ages; brake when nothing else is safe.
 """
 
@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .avoid_planner import AvoidancePlanner, Disc, Plan, braking_plan
+from contracts.online_planner import AvoidancePlanner, Disc, Plan, braking_plan
+
 from .estimators import wrap
 
 REPLAN_S = 0.5  # an active plan is refreshed this often (new discs are picked up then)

@@ -21,10 +21,10 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
+from contracts.online_planner import OFFBOARD_CAP
 from contracts.stop import braking_decel, stop_dead_time, stopping_distance
 from contracts.table import ContractTable, Omega
 
-from .avoid_planner import OFFBOARD_CAP
 from .estimators import DodEstimate
 
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)

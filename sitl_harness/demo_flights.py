@@ -157,7 +157,7 @@ def fly_demo(table, setup: DemoSetup, tilt_cap: float | None = None, variant: st
     # re-planning from its measured state would; before it, the cruise line at full speed.
     reveal = {}
 
-    def setpoint(t, pos):
+    def setpoint(t, pos, vel):
         if "t" not in reveal:
             gap = math.hypot(cx - pos[0], cy - pos[1]) - setup.r_obst - setup.d_od
             if gap > 0.0:

@@ -15,6 +15,15 @@ feed-forward, eq. (8)), thrust limited to the cell's `thrust_ratio`, the vehicle
 - ``avoid@ρ``: the avoid table's limiting trajectory (`contracts.sweep.limiting_trajectory`) at a
   spread of geometries ρ = r_k/c, scaled (c chosen) so that it starts at the cell's speed; after its
   last interval the reference coasts ballistically (the planner's terminal set);
+- ``online@ρ``: what the daemon itself flies in offboard mode — the online OSQP planner's plan
+  (`contracts.online_planner.AvoidancePlanner.plan`) from the entry state around the head-on keep-out
+  disc at the same ρ, scaled (c chosen) so that the cell's speed is the offboard contract's speed
+  there, v = OFFBOARD_CAP × V_safe(c, ρ): the tightest geometry the offboard contract admits at that
+  speed. The cell's v_max and a_h(tilt, thrust_ratio) are the planner's limits, as on board. While the
+  disc is still ahead it is replanned `ONLINE_REPLANS` time(s), every `REPLAN_S`, from the measured
+  state, warm-started, adopted as the guidance adopts it; after the plan's last interval the reference
+  coasts (pass) or holds (stop). Geometries where the planner finds no verified plan are skipped and
+  counted (the daemon brakes there: that is `step_down`);
 - ``cruise``: straight and level at v_max;
 - ``step_down`` / ``step_up``: speed steps v → 0 and v/2 → v at the cell's full horizontal
   acceleration a_h(tilt, thrust_ratio) (`contracts.flat.horizontal_accel_limit`).
@@ -43,6 +52,7 @@ from contracts.contour import contour_errors
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
 from contracts.lookup import repair_monotone
+from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, Plan
 from contracts.table import SLOTS, Slot, verify, write_table
 from contracts.vehicle import Vehicle, load_vehicle
 
@@ -64,7 +74,9 @@ BUILD_RHOS = (0.03, 0.1, 0.2, 0.35, 0.5, 0.7)  # avoid geometries flown to build
 HELD_OUT_RHOS = (0.05, 0.15, 0.27, 0.42, 0.6, 0.85)  # … and only to validate it
 BUILD_SEEDS = (0, 1)
 HELD_OUT_SEEDS = (101, 102)
-MANEUVERS = ("cruise", "step_down", "step_up", "avoid")
+MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online")
+REPLAN_S = 0.5  # [s] the daemon's replan period (companion.guidance.REPLAN_S; a test keeps them equal)
+ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured state, warm-started
 
 
 # ============================================================================ references (pure maths)
@@ -95,6 +107,17 @@ class Reference:
         pre = np.arange(math.floor(t0 / DT_NAV), 0) * DT_NAV
         pts = np.vstack([self.p[0] + np.outer(pre, self.v[0]), self.p]) if len(pre) else self.p
         return np.concatenate([pre, self.t]), pts
+
+    @property
+    def t_end(self) -> float:
+        return float(self.t[-1])
+
+    def flight(self) -> Reference:
+        """The setpoint source of one flight: a fixed reference is its own (no state)."""
+        return self
+
+    def setpoint(self, t: float, pos, vel):
+        return self.at(t)
 
 
 def _grid(duration: float) -> np.ndarray:
@@ -148,6 +171,94 @@ def avoid_reference(table_path, rho_index: int, tilt_index: int, thrust_index: i
     return zoh_reference(f"avoid@rho={tr['r_k'] / c:.3g}", tr["q0"], tr["w"], tr["ts"])
 
 
+@dataclass(frozen=True)
+class OnlineReference:
+    """``online@ρ`` (Figure 12 over what offboard mode flies): the online planner's first plan around
+    `disc` from the entry state (origin, +x at the plan's v[0]) and its limits; each `flight()`
+    replans it as the guidance would."""
+
+    name: str
+    plan: Plan
+    disc: Disc
+    v_max: float
+    a_max: float
+    replans: int = ONLINE_REPLANS
+
+    @property
+    def t_end(self) -> float:
+        return float(self.plan.t[-1]) + COAST_S
+
+    @property
+    def p(self) -> np.ndarray:  # entry state, as `Reference.p[0]`, `Reference.v[0]`
+        return self.plan.p[:1]
+
+    @property
+    def v(self) -> np.ndarray:
+        return self.plan.v[:1]
+
+    def flight(self) -> OnlineFlight:
+        return OnlineFlight(self)
+
+
+class OnlineFlight:
+    """One flight of an `OnlineReference`: the setpoints sent (its commanded path for the contour
+    error, Figure 11, as the on-board estimator sees it) and the replans — from the measured state, every REPLAN_S while the disc is still
+    ahead, warm-started from the plan in progress, which a failed replan does not replace."""
+
+    def __init__(self, ref: OnlineReference):
+        self.ref = ref
+        self.plan, self.plan_t = ref.plan, 0.0
+        self.left = ref.replans
+        self.planner = AvoidancePlanner()  # per flight: the replans do not depend on other flights
+        self.adopted = self.kept = 0
+        self._t: list[float] = []
+        self._p: list[np.ndarray] = []
+
+    def setpoint(self, t: float, pos, vel):
+        ref, d = self.ref, self.ref.disc
+        if t < 0.0:
+            p, v, a = ref.plan.p[0] + ref.plan.v[0] * t, ref.plan.v[0], np.zeros(2)
+        else:
+            if self.left and t - self.plan_t >= REPLAN_S - 1e-9 and pos[0] < d.x + d.r:
+                self.left -= 1
+                new = self.planner.plan(pos[:2], vel[:2], (1.0, 0.0), [d], v_max=ref.v_max, a_max=ref.a_max,
+                                        warm=self.plan, elapsed=t - self.plan_t)
+                if new.ok or not (self.plan.ok and t - self.plan_t < self.plan.t[-1]):
+                    self.plan, self.plan_t = new, t
+                    self.adopted += 1
+                else:
+                    self.kept += 1
+            tau = t - self.plan_t
+            if tau >= self.plan.t[-1]:  # after the last interval: coast (pass) or hold (stop, at rest)
+                p, v, a = self.plan.p[-1] + self.plan.v[-1] * (tau - self.plan.t[-1]), self.plan.v[-1], np.zeros(2)
+            else:
+                p, v, a = self.plan.sample(tau)
+        if t >= -WINDOW_S - 1e-9:
+            self._t.append(t)
+            self._p.append(np.asarray(p, dtype=float))
+        return p, v, a
+
+    def path(self):
+        """The setpoints sent from −WINDOW_S on: (times, points (m, 2))."""
+        return np.array(self._t), np.array(self._p)
+
+
+def online_reference(table_path, rho_index: int, tilt_index: int, thrust_index: int, v: float,
+                     a_max: float) -> OnlineReference | None:
+    """``online@ρ`` of one cell: the head-on disc at ρ = r_k/c with c such that v = OFFBOARD_CAP × V_safe(c, ρ)
+    (V_safe ∝ √c, DESIGN.md §2), planned at V_max = v and `a_max`; None without a verified pass/stop plan.
+    The whole disc is E_tr allowance (r_min = 0): a replan from inside it is always admitted."""
+    from contracts.sweep import limiting_trajectory
+
+    unit = limiting_trajectory(table_path, rho_index, tilt_index, thrust_index, 1.0)
+    c = (v / (OFFBOARD_CAP * unit["v"])) ** 2
+    disc = Disc(c, 0.0, unit["r_k"] * c, 0.0)
+    plan = AvoidancePlanner().plan((0.0, 0.0), (v, 0.0), (1.0, 0.0), [disc], v_max=v, a_max=a_max)
+    if not plan.ok or plan.kind not in ("pass", "stop"):
+        return None
+    return OnlineReference(f"online@rho={unit['r_k']:.3g}", plan, disc, v, a_max)
+
+
 # ============================================================================ flying (the SITL cascade)
 
 
@@ -166,7 +277,7 @@ class Flight:
 
 def fly(vehicle: Vehicle, setpoint: Callable, t_end: float, thrust_ratio: float, wind: Wind, start_p, start_v,
         settle_s: float = SETTLE_S, on_sample: Callable | None = None) -> Flight:
-    """Fly `setpoint(t, pos) -> (p, v, a)` (horizontal, NED) on the SITL cascade from −settle_s to
+    """Fly `setpoint(t, pos, vel) -> (p, v, a)` (horizontal, NED; true position and velocity) on the SITL cascade from −settle_s to
     t_end at altitude Z_REF with heading north: position + velocity + acceleration feed-forward
     (PX4 offboard style), thrust limited to `thrust_ratio`, the given wind. `on_sample(t, pos)` sees
     every true position."""
@@ -179,7 +290,7 @@ def fly(vehicle: Vehicle, setpoint: Callable, t_end: float, thrust_ratio: float,
     m.sp[SP_YAW] = 0.0
     for k in range(ticks):
         t = -settle_s + k * DT_NAV
-        p, v, a = setpoint(t, m.pos)
+        p, v, a = setpoint(t, m.pos, m.vel)
         m.sp[SP_POS:SP_POS + 3] = (p[0], p[1], Z_REF)
         m.sp[SP_VEL:SP_VEL + 3] = (v[0], v[1], 0.0)
         m.sp[SP_ACC:SP_ACC + 3] = (a[0], a[1], 0.0)
@@ -196,15 +307,17 @@ def fly(vehicle: Vehicle, setpoint: Callable, t_end: float, thrust_ratio: float,
     return Flight(ts, ps, ok)
 
 
-def worst_contour_error(vehicle: Vehicle, ref: Reference, thrust_ratio: float, seed: int) -> float:
+def worst_contour_error(vehicle: Vehicle, ref: Reference | OnlineReference, thrust_ratio: float, seed: int) -> float:
     """Fly `ref` (after SETTLE_S on its entry line) and return the worst horizontal contour error
-    from t = 0 to its end (Figure 11); +inf if the vehicle was lost."""
-    fl = fly(vehicle, lambda t, pos: ref.at(t), float(ref.t[-1]), thrust_ratio, wind_for_seed(vehicle, seed),
+    from t = 0 to its end against the path commanded in that flight (Figure 11); +inf if the vehicle
+    was lost."""
+    run = ref.flight()
+    fl = fly(vehicle, run.setpoint, ref.t_end, thrust_ratio, wind_for_seed(vehicle, seed),
              ref.p[0] - ref.v[0] * SETTLE_S, ref.v[0])
     if not fl.ok:
         return math.inf
     sel = np.flatnonzero(fl.t >= 0.0)[::MEASURE_EVERY]
-    path_t, path_p = ref.path()
+    path_t, path_p = run.path()
     e = contour_errors(fl.pos[sel, :2], fl.t[sel], path_t, path_p, WINDOW_S)
     worst = float(np.max(e)) if e.size else 0.0
     return worst if worst < DIVERGED_M else math.inf
@@ -214,8 +327,10 @@ def worst_contour_error(vehicle: Vehicle, ref: Reference, thrust_ratio: float, s
 
 
 def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_ratio: float,
-                    avoid_index: tuple[int, int], rhos=BUILD_RHOS) -> list[Reference]:
-    """The named manoeuvre set of one cell (module docstring)."""
+                    avoid_index: tuple[int, int], rhos=BUILD_RHOS,
+                    skipped: list | None = None) -> list[Reference | OnlineReference]:
+    """The named manoeuvre set of one cell (module docstring); the names of ``online@ρ`` geometries
+    without a verified plan are appended to `skipped`."""
     a_h = horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
     refs = [cruise_reference(v), speed_step_reference("step_down", v, 0.0, a_h),
             speed_step_reference("step_up", 0.5 * v, v, a_h)]
@@ -226,9 +341,13 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
             passes = z["branch"][cls] == 1
         for rho in rhos:
             i = int(np.argmin(np.abs(grid_rho - rho)))
-            if not passes[i]:
-                continue  # a stop-branch cell brakes straight at a_h: that is `step_down` already
-            refs.append(avoid_reference(table_path, i, avoid_index[0], avoid_index[1], v))
+            if passes[i]:  # a stop-branch cell brakes straight at a_h: that is `step_down` already
+                refs.append(avoid_reference(table_path, i, avoid_index[0], avoid_index[1], v))
+            online = online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h)
+            if online is not None:
+                refs.append(online)
+            elif skipped is not None:
+                skipped.append(f"online@rho={grid_rho[i]:.3g}")
     return refs
 
 
@@ -244,15 +363,16 @@ def _etr_column(task: dict) -> list[dict]:
     veh = task["vehicle"]
     out = []
     for v in task["v"]:
+        skipped: list[str] = []
         refs = cell_references(task["table"], veh, v, task["tilt"], task["thrust_ratio"], task["avoid_index"],
-                               task["rhos"])
+                               task["rhos"], skipped)
         per = {}
         for ref in refs:
             kind = ref.name.split("@")[0]
             for seed in task["seeds"]:
                 e = worst_contour_error(veh, ref, task["thrust_ratio"], seed)
                 per[kind] = max(per.get(kind, 0.0), e)
-        out.append({"v": v, "worst": max(per.values()), "per_maneuver": per})
+        out.append({"v": v, "worst": max(per.values()), "per_maneuver": per, "online_skipped": len(skipped)})
     return out
 
 
@@ -273,7 +393,9 @@ class EtrGrid:
     def describe(self) -> dict:
         return {"v_max": [float(x) for x in self.v], "tilt_deg": [round(math.degrees(x), 4) for x in self.tilt],
                 "thrust_ratio": [float(x) for x in self.thrust_ratio], "avoid_rhos": list(self.rhos),
-                "seeds": list(self.seeds)}
+                "seeds": list(self.seeds),
+                "online": {"rhos": list(self.rhos), "speed": "OFFBOARD_CAP x V_safe", "offboard_cap": OFFBOARD_CAP,
+                           "replans": ONLINE_REPLANS, "replan_s": REPLAN_S}}
 
 
 def default_etr_grid(vehicle: Vehicle) -> EtrGrid:
@@ -298,8 +420,9 @@ def _avoid_index(table, tilt: float, thrust_ratio: float) -> tuple[int, int]:
 
 
 def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 2, scheduler: str | None = None,
-                    progress: bool = True) -> tuple[np.ndarray, dict]:
-    """Worst contour error per cell (no margin, no repair) → (values (n_v, n_tilt, n_tr), per-manoeuvre worst)."""
+                    progress: bool = True) -> tuple[np.ndarray, dict, np.ndarray]:
+    """Worst contour error per cell (no margin, no repair) → (values (n_v, n_tilt, n_tr), per-manoeuvre
+    worst, number of ``online@ρ`` geometries skipped for want of a verified plan)."""
     from contracts.sweep import run_tasks
 
     table = verify(table_path, vehicle) if table_path is not None else None
@@ -314,13 +437,15 @@ def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 
                         desc="E_tr cells")
     worst = np.zeros((len(grid.v), len(grid.tilt), len(grid.thrust_ratio)))
     per = {m: np.zeros_like(worst) for m in MANEUVERS}
+    skipped = np.zeros(worst.shape, dtype=int)
     for task, res in zip(tasks, results):
         j, k = task["jk"]
         for i, r in enumerate(res):
             worst[i, j, k] = r["worst"]
+            skipped[i, j, k] = r["online_skipped"]
             for m, e in r["per_maneuver"].items():
                 per[m][i, j, k] = e
-    return worst, per
+    return worst, per, skipped
 
 
 def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: int = 2, scheduler: str | None = None,
@@ -334,7 +459,7 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
     if table.avoid is None:
         raise ContractError(f"table {table_path}: no avoid contract (its limiting trajectories are flown)")
     grid = grid or default_etr_grid(veh)
-    worst, per = measure_surface(table_path, veh, grid, workers, scheduler, progress)
+    worst, per, skipped = measure_surface(table_path, veh, grid, workers, scheduler, progress)
     e = np.where(np.isfinite(worst), worst * (1.0 + MARGIN_REL) + MARGIN_ABS, np.inf)
     e_rep, repairs = repair_monotone(e, SLOTS["e_tr_pred"][2], "up")
     wall = time.perf_counter() - t0
@@ -342,8 +467,10 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
         "method": "controller contract (paper: 'Contract: Controller subsystem', Figures 8, 11, 12): worst "
                   "horizontal contour error of SITL flights on the PX4-like cascade with position, velocity and "
                   "acceleration (attitude) feed-forward, thrust limited to thrust_ratio, the vehicle's design wind; "
-                  "manoeuvres: the avoid table's limiting trajectories at the listed rho, cruise, speed steps "
-                  "v->0 and v/2->v at the cell's full horizontal acceleration",
+                  "manoeuvres: the avoid table's limiting trajectories at the listed rho, the online OSQP "
+                  "planner's plans (replanned once from the measured state) at the same rho at "
+                  "OFFBOARD_CAP x V_safe, cruise, speed steps v->0 and v/2->v at the cell's full horizontal "
+                  "acceleration",
         "margin": {"relative": MARGIN_REL, "absolute_m": MARGIN_ABS,
                    "rule": "E_tr_pred = worst * (1 + relative) + absolute"},
         "grid": grid.describe(),
@@ -351,6 +478,8 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
                    "altitude_m": -Z_REF, "wind": {"mean_m_s": veh.wind.mean_m_s, "gust_m_s": veh.wind.gust_m_s,
                                                   "direction": "drawn per seed"}},
         "monotone_repairs_up": int(repairs), "unbounded_cells": int(np.sum(~np.isfinite(worst))),
+        "online_skipped": int(skipped.sum()), "online_flown": int(len(grid.rhos) * worst.size - skipped.sum()),
+        "worst_maneuver_cells": {m: int(np.sum((a >= worst) & (a > 0))) for m, a in per.items()},
         "raw_worst_max_m": float(np.max(np.where(np.isfinite(worst), worst, 0.0))),
         "build_wall_s": round(wall, 1), "workers": scheduler or workers,
     }
@@ -362,5 +491,7 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
     verify(dest, veh)
     return {"path": str(dest), "vehicle": veh.name, "cells": int(e.size), "wall_s": round(time.perf_counter() - t0, 1),
             "monotone_repairs_up": int(repairs), "unbounded_cells": info["unbounded_cells"],
+            "online_skipped": info["online_skipped"], "online_flown": info["online_flown"],
+            "worst_maneuver_cells": info["worst_maneuver_cells"],
             "raw_worst_max_m": info["raw_worst_max_m"], "grid": grid.describe(),
             "per_maneuver_worst_m": {m: float(np.max(np.where(np.isfinite(a), a, 0.0))) for m, a in per.items()}}

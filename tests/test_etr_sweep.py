@@ -6,6 +6,7 @@ import shutil
 import numpy as np
 import pytest
 
+from contracts.flat import horizontal_accel_limit
 from contracts.lookup import is_monotone
 from contracts.table import SLOTS, verify
 from contracts.vehicle import DATA_DIR, load_vehicle
@@ -67,6 +68,66 @@ def test_lost_vehicle_is_an_unbounded_cell():
     assert es.worst_contour_error(MAMBO, ref, 0.3, 0) == math.inf
 
 
+def _online(v, tilt_deg, tr, rho):
+    t = verify(TABLE, MAMBO)
+    tilt = math.radians(tilt_deg)
+    j, k = es._avoid_index(t, tilt, tr)
+    i = int(np.argmin(np.abs(t.avoid.axes[0] - rho)))
+    a_h = horizontal_accel_limit(tilt, MAMBO.t_max(tr), MAMBO.mass_kg)
+    return t, (i, j, k), a_h, es.online_reference(TABLE, i, j, k, v, a_h)
+
+
+def test_online_geometry_is_the_offboard_contracts_speed_and_the_plan_is_the_planners():
+    """online@ρ: the head-on disc at ρ whose offboard contract speed OFFBOARD_CAP × V_safe is the cell's
+    speed; the daemon's own planner plans it with the cell's V_max and a_h, and it is verified."""
+    from contracts.online_planner import OFFBOARD_CAP, exact_check
+
+    t, (i, j, k), a_h, ref = _online(6.0, 20.0, 1.0, 0.2)
+    d = ref.disc
+    assert d.y == 0.0 and d.r / d.x == pytest.approx(t.avoid.axes[0][i])
+    f = t.avoid.values[i, j, k]  # reduced form: V_safe = sqrt(g c) F (DESIGN.md §2)
+    assert OFFBOARD_CAP * math.sqrt(9.80665 * d.x) * f == pytest.approx(6.0, rel=1e-3)
+    p = ref.plan
+    assert p.ok and p.kind in ("pass", "stop") and np.allclose(p.v[0], [6.0, 0.0], atol=1e-3) \
+        and np.allclose(p.p[0], 0.0, atol=1e-3)
+    assert exact_check(p.p, p.v, p.a, p.t[1] - p.t[0], [d], 6.0, a_h)[0]
+    assert ref.name == f"online@rho={t.avoid.axes[0][i]:.3g}"
+
+
+def test_online_flight_replans_from_the_measured_state_and_records_the_sent_path():
+    _, _, _, ref = _online(6.0, 20.0, 1.0, 0.2)
+    run = ref.flight()
+    fl = es.fly(MAMBO, run.setpoint, ref.t_end, 1.0, es.wind_for_seed(MAMBO, 0), ref.p[0] - ref.v[0] * es.SETTLE_S,
+                ref.v[0])
+    assert fl.ok and run.adopted + run.kept == es.ONLINE_REPLANS == 1
+    path_t, path_p = run.path()
+    assert path_t[0] == pytest.approx(-es.WINDOW_S) and np.all(np.diff(path_t) > 0)
+    if run.adopted:  # the new plan starts where the vehicle was measured, not on the old plan
+        assert run.plan_t == pytest.approx(es.REPLAN_S) and run.plan is not ref.plan
+        k = int(np.argmin(np.abs(fl.t - es.REPLAN_S)))
+        assert np.allclose(run.plan.p[0], fl.pos[k, :2], atol=1e-4)  # (to the QP tolerance)
+    # before the manoeuvre the path is the entry line; the same flight flown twice gives the same error
+    assert np.allclose(path_p[0], [-6.0 * es.WINDOW_S, 0.0], atol=1e-3)
+    assert es.worst_contour_error(MAMBO, ref, 1.0, 0) == es.worst_contour_error(MAMBO, ref, 1.0, 0)
+
+
+def test_replan_period_is_the_guidances():
+    from companion.guidance import REPLAN_S
+
+    assert es.REPLAN_S == REPLAN_S
+
+
+def test_online_geometries_without_a_verified_plan_are_skipped_and_counted():
+    t = verify(TABLE, MAMBO)
+    tilt = math.radians(25.0)
+    idx = es._avoid_index(t, tilt, 1.0)
+    skipped = []
+    refs = es.cell_references(TABLE, MAMBO, 6.0, tilt, 1.0, idx, rhos=(0.03, 0.2), skipped=skipped)
+    names = [r.name for r in refs]
+    assert skipped == ["online@rho=0.0305"] and "online@rho=0.0305" not in names  # the planner brakes there
+    assert "online@rho=0.201" in names and "avoid@rho=0.0305" in names
+
+
 @pytest.fixture(scope="module")
 def tiny_build(tmp_path_factory):
     d = tmp_path_factory.mktemp("etr")
@@ -124,7 +185,7 @@ def test_dask_path_gives_the_same_surface_as_in_process(tmp_path):
     distributed = pytest.importorskip("distributed")
     grid = es.EtrGrid(v=np.array([2.0]), tilt=np.radians([9.0]), thrust_ratio=np.array([0.8]), rhos=(0.1,),
                       seeds=(0,))
-    local, _ = es.measure_surface(TABLE, MAMBO, grid, workers=1, progress=False)
+    local, _, _ = es.measure_surface(TABLE, MAMBO, grid, workers=1, progress=False)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
-        remote, _ = es.measure_surface(TABLE, MAMBO, grid, scheduler=lc.scheduler_address, progress=False)
+        remote, _, _ = es.measure_surface(TABLE, MAMBO, grid, scheduler=lc.scheduler_address, progress=False)
     assert np.array_equal(local, remote) and local[0, 0, 0] > 0

@@ -5,9 +5,9 @@ import time
 import numpy as np
 import pytest
 
-from companion.avoid_planner import AvoidancePlanner, Disc
 from companion.estimators import wrap
 from companion.guidance import A_LAT, YAW_RATE_ARC, OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
+from contracts.online_planner import AvoidancePlanner, Disc
 
 
 def test_bins_give_the_obstacle_position_and_width():

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from companion.avoid_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, admitted, dense_path, exact_check
 from contracts.flat import horizontal_accel_limit
+from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, admitted, dense_path, exact_check
 from contracts.table import verify
 from contracts.vehicle import DATA_DIR, G, load_vehicle
 

@@ -1,5 +1,7 @@
 """The online avoidance planner: a convexified version of the paper's planner (eq. 14–19) on the
-discretised flat dynamics (eq. 12–13), solved with OSQP (DESIGN.md §5, offboard mode).
+discretised flat dynamics (eq. 12–13), solved with OSQP (DESIGN.md §5, offboard mode). Pure maths, on
+the ground floor (§3): the daemon's guidance plans with it, and the controller-contract sweep
+(`sitl_harness.etr_sweep`, Figure 12) flies its plans.
 
 Horizontal plane, constant altitude, in the route frame (x along the route). Decision variables are
 the ZOH states q_k = (x, ẋ, y, ẏ), k = 0…N, and accelerations w_k, k = 0…N−1. Convexification:
