@@ -2,6 +2,7 @@
 
 import pytest
 
+from contracts.online_planner import OFFBOARD_CAP
 from sitl_harness.scenario import load_scenario
 from tests.lockstep import Rig
 
@@ -44,12 +45,16 @@ def level(rig, t0, t1):
 
 def test_figure_17_fog_clears_then_thrust_drops():
     """Up when the fog clears. After the thrust drop the paper's V_max goes down (≈5.5 → ≈5 m/s) because
-    its E_tr grows with less thrust; in this SITL it does not: the thrust drop is detected, but at the
-    Mambo's tilt ceiling (25°) thrust 0.8 still holds altitude with margin (it binds above ≈50°), so
-    neither V_safe nor the flown E_tr_pred changes — the contract's answer, checked here, not a miss."""
+    its E_tr grows with less thrust; in this SITL much less: at the Mambo's tilt ceiling (25°) thrust 0.8
+    still holds altitude with margin (it binds above ≈50°), so V_safe does not change, and only the
+    online plans at the top speeds are tracked a little worse with less thrust headroom (E_tr_pred at
+    7 m/s: 1.108 → 1.145 m), so Ω drops by ≈0.02 m/s. The conservative lookup already answers at the
+    0.8 grid point once the estimate dips below 1.0, so the flown levels before and after the drop
+    agree — the contract's answer at the seen thrust, checked here, not a miss."""
     rig = fly_scenario("fig17")
     assert not rig.truth["collisions"]
     fog, clear, thrust = level(rig, 6, 24), level(rig, 30, 44), level(rig, 50, 60)
+    print(f"fig17 V_max levels: fog {fog} -> clear {clear} -> thrust drop {thrust} m/s (paper ≈3 → ≈5.5 → ≈5)")
     assert fog and clear and clear > fog + 1.0  # up when the fog clears
     assert thrust is not None and thrust <= clear + 1e-9  # never up when thrust drops
     late = [s for s in rig.log.states if 55 <= s["t"] <= 60 and s["mode"] == "offboard"]
@@ -57,11 +62,13 @@ def test_figure_17_fog_clears_then_thrust_drops():
     s = late[-1]
     table = rig.daemon.table
     at = [table.omega(s["d_od"], s["r_obst"], 0.3, tr, contract="avoid") for tr in (0.8, 1.0)]
-    assert at[0].v_max == pytest.approx(at[1].v_max)  # the contract gives the same Ω at either thrust
+    assert at[0].v_max <= at[1].v_max  # never faster with less thrust
+    assert thrust == pytest.approx(OFFBOARD_CAP * at[0].v_max)  # flown: the capped contract at the seen thrust
 
 
 def test_figure_18_fog_clears_then_the_expected_obstacle_shrinks():
     rig = fly_scenario("fig18")
     assert not rig.truth["collisions"] and acked(rig, "CG_R_OBST", 0.6)
     fog, clear, small = level(rig, 6, 24), level(rig, 30, 44), level(rig, 50, 60)
+    print(f"fig18 V_max levels: fog {fog} -> clear {clear} -> R_obst 0.6 {small} m/s (paper ≈5.3 → ≈5.6)")
     assert fog and clear and small and fog < clear < small  # up, then up again
