@@ -202,8 +202,9 @@ class OnlineReference:
 
 class OnlineFlight:
     """One flight of an `OnlineReference`: the setpoints sent (its commanded path for the contour
-    error, Figure 11, as the on-board estimator sees it) and the replans — from the measured state, every REPLAN_S while the disc is still
-    ahead, warm-started from the plan in progress, which a failed replan does not replace."""
+    error, Figure 11, as the on-board estimator sees it) and the replans — from the measured state,
+    every REPLAN_S while the disc is still ahead, warm-started from the plan in progress, which a
+    failed replan does not replace."""
 
     def __init__(self, ref: OnlineReference):
         self.ref = ref
@@ -277,10 +278,10 @@ class Flight:
 
 def fly(vehicle: Vehicle, setpoint: Callable, t_end: float, thrust_ratio: float, wind: Wind, start_p, start_v,
         settle_s: float = SETTLE_S, on_sample: Callable | None = None) -> Flight:
-    """Fly `setpoint(t, pos, vel) -> (p, v, a)` (horizontal, NED; true position and velocity) on the SITL cascade from −settle_s to
-    t_end at altitude Z_REF with heading north: position + velocity + acceleration feed-forward
-    (PX4 offboard style), thrust limited to `thrust_ratio`, the given wind. `on_sample(t, pos)` sees
-    every true position."""
+    """Fly `setpoint(t, pos, vel) -> (p, v, a)` (horizontal, NED; given the true position and
+    velocity) on the SITL cascade from −settle_s to t_end at altitude Z_REF with heading north:
+    position + velocity + acceleration feed-forward (PX4 offboard style), thrust limited to
+    `thrust_ratio`, the given wind. `on_sample(t, pos)` sees every true position."""
     m = hovering(vehicle, thrust_ratio, (start_p[0], start_p[1], Z_REF), (start_v[0], start_v[1], 0.0))
     n_phys = max(1, round(DT_NAV / m.dt))
     ticks = int(round((t_end + settle_s) / DT_NAV))
