@@ -14,7 +14,9 @@ the ZOH states q_k = (x, ẋ, y, ẏ), k = 0…N, and accelerations w_k, k = 0�
 Two plans are tried: **pass** (track the cruise speed, end beyond the obstacle moving along the
 route) on either side, then **stop** (end at rest short of it); each is accepted only after an exact
 check (dense re-simulation against the true discs, speed and acceleration norms). Braking at full
-deceleration is the fallback that is always available.
+deceleration is the fallback that is always available. A plan may start inside a disc's E_tr
+allowance (`admitted`: the vehicle may enter the virtual obstacle, Figures 13–16) but not go deeper;
+`budget_s` stops further attempts once a replan has taken that long.
 """
 
 from __future__ import annotations
