@@ -402,10 +402,12 @@ class EtrGrid:
 def default_etr_grid(vehicle: Vehicle) -> EtrGrid:
     """The shipped grid, cut to what builds in about a quarter of an hour on two shared cores: v 1–8 m/s
     by 0.5 (above 8 m/s there is no bound: the contract answers at most 8 m/s), tilt 3, 5, 7, 9, 12,
-    15, 20, 25°, thrust_ratio at the bottom, middle and top of the vehicle's range (in between, the
-    conservative lookup answers with the lower thrust)."""
+    15, 20, 25° and every 5° above up to the vehicle's tilt limit (no tilt above the grid is usable),
+    thrust_ratio at the bottom, middle and top of the vehicle's range (in between, the conservative
+    lookup answers with the lower thrust)."""
     lo, hi = vehicle.thrust_ratio_range
-    tilts = [t for t in (3.0, 5.0, 7.0, 9.0, 12.0, 15.0, 20.0, 25.0) if t <= vehicle.tilt_max_deg + 1e-9]
+    tilts = [t for t in (3.0, 5.0, 7.0, 9.0, 12.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0)
+             if t <= vehicle.tilt_max_deg + 1e-9]
     return EtrGrid(v=np.round(np.arange(1.0, 8.0 + 1e-9, 0.5), 10), tilt=np.radians(tilts),
                    thrust_ratio=np.round(np.array([lo, 0.5 * (lo + hi), hi]), 10))
 

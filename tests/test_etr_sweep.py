@@ -189,3 +189,11 @@ def test_dask_path_gives_the_same_surface_as_in_process(tmp_path):
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
         remote, _, _ = es.measure_surface(TABLE, MAMBO, grid, scheduler=lc.scheduler_address, progress=False)
     assert np.array_equal(local, remote) and local[0, 0, 0] > 0
+
+
+def test_the_default_grid_reaches_each_vehicles_tilt_limit():
+    """No tilt above the E_tr grid is usable (the lookup has no bound there), so the grid must reach the
+    vehicle's limit: 25° for the Mambo, 35° for the X500."""
+    for name in ("mambo", "x500"):
+        veh = load_vehicle(name)
+        assert math.degrees(es.default_etr_grid(veh).tilt[-1]) == pytest.approx(veh.tilt_max_deg)
