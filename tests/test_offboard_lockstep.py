@@ -339,3 +339,18 @@ def test_negative_control_corners_fail_without_the_profile_or_the_turn(case, mon
     with pytest.raises(AssertionError):
         assert_clean_route(rig, trace, wps)
     assert rig.log.named("failsafe") or rig.log.named("hold_trigger") or rig.log.named("violation_start")
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_x500_flies_round_a_column_revealed_at_dod_in_its_design_wind(personality):
+    """The 2 kg airframe with its own E_tr_pred, in its 3 m/s design wind (the vehicle file's), seeds 1–3."""
+    for seed in (1, 2, 3):
+        rig = Rig(offboard_scenario(seed, vehicle="x500", personality=personality), personality,
+                  config={**offboard_config(x_end=70.0), "vehicle": "x500"})
+        engage_and_fly(rig, 25.0)
+        assert not rig.truth["collisions"], (seed, rig.truth["collisions"])
+        assert rig.log.named("offboard")[-1]["to"] == "done"  # route complete
+        assert not [e for e in rig.log.events if e["event"] in ("violation_start", "failsafe", "hold_trigger")]
+        v_cmd = max(s["v_cmd"] or 0 for s in rig.log.states)
+        fast = max(s["ground_speed"] for s in rig.log.states if s["ground_speed"] == s["ground_speed"])
+        assert v_cmd > 3.0 and fast > 0.8 * v_cmd
