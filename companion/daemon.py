@@ -106,7 +106,9 @@ class Daemon:
         """`planning`: "thread" (the avoidance planner beside the loop, so the setpoint stream keeps its
         rate) or "inline" (in the loop: deterministic lock-step tests)."""
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
-        self._planning = ThreadedPlanning() if planning == "thread" else InlinePlanning()
+        if planning not in ("thread", "inline"):
+            raise ValueError(f"planning must be 'thread' or 'inline', not {planning!r}")
+        self._planning = ThreadedPlanning if planning == "thread" else InlinePlanning  # one per guidance
         self.signing_clock = signing_clock
         self._t_signing_saved = -math.inf
         self.vclock = VehicleClock() if clock is None else None
@@ -147,7 +149,7 @@ class Daemon:
                                              corner_cut_m=cfg.route.corner_cut_m)
             else:
                 route = Route(cfg.route.waypoints, cfg.route.altitude_m, cfg.route.corner_cut_m)
-                guidance = OffboardGuidance(route, planning=self._planning)
+                guidance = OffboardGuidance(route, planning=self._planning())
             self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
         self._stopping = False
         self._discs: list = []  # obstacle discs from the current beams (un-inflated)
@@ -394,7 +396,7 @@ class Daemon:
         tel, veh = self.tel, self.table.vehicle
         if self.mission is not None and not self.offboard.streaming and self.mission.route is not None \
                 and (self.offboard.guidance is None or self.offboard.guidance.route is not self.mission.route):
-            self.offboard.guidance = OffboardGuidance(self.mission.route, planning=self._planning)  # from the next entry
+            self.offboard.guidance = OffboardGuidance(self.mission.route, planning=self._planning())  # from the next entry
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
                                        veh.mass_kg)
         discs = inflated(self._discs, d.omega.e_tr if math.isfinite(d.omega.e_tr) else i.e_tr, veh.r_body_m)

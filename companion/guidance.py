@@ -1,4 +1,5 @@
-"""Offboard guidance: the daemon as the paper's guidance subsystem (Figure 1). Pure, no I/O.
+"""Offboard guidance: the daemon as the paper's guidance subsystem (Figure 1). No I/O; planning runs
+inline (lock-step) or on one worker thread (`ThreadedPlanning`, in flight).
 
 - `Route`: the path to fly at constant altitude (NED): the waypoints with an arc at each corner, with
   along-track progress and the cruise speed profile (arcs, stops, the end).
@@ -244,10 +245,7 @@ class InlinePlanning:
         self._out = None
 
     def submit(self, fn, *args, **kw) -> None:
-        try:
-            self._out = fn(*args, **kw)
-        except Exception as e:  # the guidance treats it as a failed plan
-            self._out = e
+        self._out = fn(*args, **kw)
 
     def poll(self):
         out, self._out = self._out, None
@@ -275,7 +273,7 @@ class ThreadedPlanning:
         if self._job is None or not self._job.done():
             return None
         job, self._job = self._job, None
-        return job.exception() or job.result()
+        return job.result()  # the job itself turns a planner failure into its answer
 
 
 @dataclass
@@ -296,11 +294,14 @@ class OffboardGuidance:
     plan_times: list = field(default_factory=list)
     rejected: int = 0
     last_notes: list = field(default_factory=list)
+    epoch: int = 0  # bumped whenever the obstacle situation ends: older planning jobs are not flown
+    planner_failed: bool = False  # the last job raised: braking is not "awaiting" but the answer
 
     def start(self, p, v) -> None:
         self.s_ref = self.route.project(p)
         self.v_ref = float(np.hypot(*v))
         self.plan = None
+        self.epoch += 1
         self._rejoin_from(p, v)
 
     def _rejoin_from(self, p, v) -> None:
@@ -319,7 +320,7 @@ class OffboardGuidance:
         ahead = self._threats(p, v, discs)
         if ahead:
             return self._avoid(t, p, v, v_max, a_max, ahead, z)
-        self.planning.poll()  # a plan for an obstacle no longer ahead is not flown
+        self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
         if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1]:
             return self._follow(t, z)  # finish going round the obstacle before rejoining
         if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
@@ -406,33 +407,43 @@ class OffboardGuidance:
             _, u = self.route.point(self.route.project(p))
             warm = self.plan if self.plan is not None and self.plan.kind in ("pass", "stop") else None
             self.plan_t_try = t
-            self.planning.submit(self._plan_job, t, omega, p, v, u, discs, v_max=v_max, a_max=a_max, warm=warm,
-                                 elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
+            self.planning.submit(self._plan_job, self.epoch, t, omega, np.array(p, float), np.array(v, float), u,
+                                 list(discs), v_max=v_max, a_max=a_max, warm=warm, elapsed=t - self.plan_t,
+                                 budget_s=self.planning.budget_s)
             self._adopt(self.planning.poll())
         if self.plan is None:  # asked, not answered yet: start braking now (the slower choice)
-            bp, bv, ba, bts = braking_plan(np.asarray(p, float), np.asarray(v, float), a_max, self.planner.n)
-            self.plan = Plan("await", np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
+            bp, bv, ba, bts = braking_plan(np.array(p, float), np.array(v, float), a_max, self.planner.n)
+            kind = "brake" if self.planner_failed else "await"  # a planner that fails is not awaited
+            self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
             self.plan_t, self.plan_omega = t, omega
         return self._follow(t, z)
 
-    def _plan_job(self, t_req, omega, *args, **kw):
-        return t_req, omega, self.planner.plan(*args, **kw)
+    def _plan_job(self, epoch, t_req, omega, *args, **kw):
+        try:
+            return epoch, t_req, omega, self.planner.plan(*args, **kw)
+        except Exception as e:  # noqa: BLE001 — any planner failure means: brake
+            return epoch, t_req, omega, e
 
     def _adopt(self, done) -> None:
-        """Take a finished plan; a failed one never replaces a verified plan still in progress."""
-        if done is None:
+        """Take a finished plan of the current obstacle situation; a failed one never replaces a
+        verified plan still in progress."""
+        if done is None or done[0] != self.epoch:
             return
-        if isinstance(done, BaseException):
-            self.last_notes = [f"planner error: {done!r}"[:200]]
-            return
-        t_req, omega, new = done
+        _, t_req, omega, new = done
         if self.plan is not None and t_req < self.plan_t:
             return  # older than the plan being flown
+        if isinstance(new, BaseException):
+            self.last_notes = [f"planner error: {new!r}"[:200]]
+            self.planner_failed = True
+            if self.plan is not None and self.plan.kind == "await":
+                self.plan = Plan("brake", self.plan.t, self.plan.p, self.plan.v, self.plan.a, False, -math.inf)
+            return
+        self.planner_failed = False
         self.replans += 1
         self.plan_times.append(new.solve_s)
         self.rejected += new.rejected
         self.last_notes = new.notes
-        keep = (not new.ok and self.plan is not None and self.plan.ok and self.plan.kind != "brake"
+        keep = (not new.ok and self.plan is not None and self.plan.ok and self.plan.kind in ("pass", "stop")
                 and t_req - self.plan_t < self.plan.t[-1])
         if keep:  # a verified plan in progress beats braking: keep flying it, try again next time
             self.kept += 1
@@ -441,9 +452,9 @@ class OffboardGuidance:
 
     def _follow(self, t, z) -> Setpoint:
         pos, vel, acc = self.plan.sample(t - self.plan_t)
-        speed = float(np.hypot(*vel))
-        _, u = self.route.point(self.route.project(pos))
-        yaw = math.atan2(vel[1], vel[0]) if speed > 0.5 else math.atan2(u[1], u[0])
-        self.s_ref, self.v_ref = self.route.project(pos), float(vel @ u)
+        s_here = self.route.project(pos)
+        _, u = self.route.point(s_here)
+        yaw = self._yaw(vel, u)
+        self.s_ref, self.v_ref = s_here, float(vel @ u)
         mode = {"pass": "avoid", "stop": "avoid", "brake": "brake", "await": "planning"}[self.plan.kind]
         return Setpoint(pos, vel, acc, z, yaw, mode)

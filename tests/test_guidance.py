@@ -70,46 +70,76 @@ class _GatedPlanner(AvoidancePlanner):
         self.gate, self.fail = threading.Event(), fail
 
     def plan(self, *a, **kw):
-        self.gate.wait(5.0)
+        self.gate.wait(10.0)
         if self.fail:
             raise RuntimeError("solver blew up")
         return super().plan(*a, **kw)
+
+
+@pytest.fixture
+def gated():
+    """A guidance planning on a worker thread with a gated planner; the worker is shut down after."""
+    made = []
+
+    def make(fail=False):
+        planner, planning = _GatedPlanner(fail), ThreadedPlanning()
+        made.append((planner, planning))
+        g = OffboardGuidance(Route([[0, 0], [60, 0]], 2.0), planner=planner, planning=planning)
+        g.start([0.0, 0.0], [5.0, 0.0])
+        return g, planner
+
+    yield make
+    for planner, planning in made:
+        planner.gate.set()
+        planning._pool.shutdown(wait=True)
 
 
 def _threat_step(g, t):
     return g.step(t, 0.02, [t * 5.0, 0.0], [5.0, 0.0], 5.0, 4.0, [Disc(12.0, 0.1, 1.6, 1.2)])
 
 
-def test_threaded_planning_brakes_until_the_plan_arrives_then_follows_it_from_its_request_time():
-    planner = _GatedPlanner()
-    g = OffboardGuidance(Route([[0, 0], [60, 0]], 2.0), planner=planner, planning=ThreadedPlanning())
-    g.start([0.0, 0.0], [5.0, 0.0])
+def _until(cond, g, t0, seconds=20.0):
+    """Step the guidance every 20 ms of its time until `cond(setpoint)` (wall-clock deadline)."""
+    t, deadline = t0, time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        sp = _threat_step(g, t)
+        if cond(sp):
+            return sp
+        time.sleep(0.002)
+        t += 0.02
+    raise AssertionError("the worker did not answer in time")
+
+
+def test_threaded_planning_brakes_until_the_plan_arrives_then_follows_it_from_its_request_time(gated):
+    g, planner = gated()
     first = _threat_step(g, 0.0)
-    assert first.mode == "planning" and first.v @ [1, 0] <= 5.0 and first.a @ [1, 0] < 0  # braking meanwhile
+    assert first.mode == "planning" and first.a @ [1, 0] < 0  # braking meanwhile
     assert _threat_step(g, 0.02).mode == "planning"  # the loop goes on while the worker is busy
     planner.gate.set()
-    t, sp = 0.04, None
-    for _ in range(200):
-        sp = _threat_step(g, t)
-        if sp.mode != "planning":
-            break
-        time.sleep(0.005)
-        t += 0.02
+    sp = _until(lambda sp: sp.mode != "planning", g, 0.04)
     assert sp.mode == "avoid" and g.plan.ok and g.plan_t == 0.0  # the plan starts at the state asked for
     assert g.replans == 1
 
 
-def test_a_planner_error_is_noted_and_the_vehicle_keeps_braking():
-    planner = _GatedPlanner(fail=True)
+def test_a_planner_error_is_noted_and_the_vehicle_brakes(gated):
+    g, planner = gated(fail=True)
     planner.gate.set()
-    g = OffboardGuidance(Route([[0, 0], [60, 0]], 2.0), planner=planner, planning=ThreadedPlanning())
-    g.start([0.0, 0.0], [5.0, 0.0])
-    t = 0.0
-    for _ in range(50):
-        sp = _threat_step(g, t)
-        time.sleep(0.005)
-        t += 0.02
-    assert sp.mode == "planning" and any("planner error" in n for n in g.last_notes)
+    sp = _until(lambda sp: sp.mode == "brake", g, 0.0)  # the answer is braking, not more waiting
+    assert any("planner error" in n for n in g.last_notes) and g.planner_failed
+
+
+def test_a_plan_that_arrives_after_the_obstacle_is_gone_is_not_flown(gated):
+    g, planner = gated()
+    assert _threat_step(g, 0.0).mode == "planning"  # asked; the worker is held at the gate
+    g.plan = None  # (the braking plan ended)
+    sp = g.step(0.5, 0.02, [2.5, 0.0], [5.0, 0.0], 5.0, 4.0, [])  # nothing ahead any more …
+    assert sp.mode == "cruise"
+    planner.gate.set()  # … and only then does the old answer come
+    while g.planning.busy:
+        time.sleep(0.002)
+    later = g.step(0.6, 0.02, [3.0, 0.0], [5.0, 0.0], 5.0, 4.0, [Disc(25.0, 0.1, 1.6, 1.2)])  # a new obstacle
+    assert later.mode == "planning" and g.replans == 0  # planned afresh: the stale answer was dropped
+    assert g.plan.kind == "await" and g.plan_t == 0.6
 
 
 # ----------------------------------------------------------------------------- corners
@@ -256,20 +286,3 @@ def test_a_closed_route_is_flown_once_round():
     s = np.array([r[0] for r in rows])
     assert rows[-1][2].mode == "done" and s[-1] == pytest.approx(route.length)
     assert np.all(np.diff(s) >= 0)  # never jumps back to the start it passes again
-
-
-def test_a_plan_that_arrives_after_the_obstacle_is_gone_is_not_flown():
-    planner = _GatedPlanner()
-    g = OffboardGuidance(Route([[0, 0], [60, 0]], 2.0), planner=planner, planning=ThreadedPlanning())
-    g.start([0.0, 0.0], [5.0, 0.0])
-    assert _threat_step(g, 0.0).mode == "planning"
-    planner.gate.set()
-    while g.planning.busy:
-        time.sleep(0.005)
-    g.plan = None  # (the braking plan ended)
-    sp = g.step(0.5, 0.02, [2.5, 0.0], [5.0, 0.0], 5.0, 4.0, [])  # nothing ahead any more
-    assert sp.mode == "cruise"
-    planner.gate.clear()
-    later = g.step(0.6, 0.02, [3.0, 0.0], [5.0, 0.0], 5.0, 4.0, [Disc(12.0, 0.1, 1.6, 1.2)])  # seen again
-    assert later.mode == "planning" and g.replans == 0  # planned afresh: the stale answer was dropped
-    planner.gate.set()

@@ -54,7 +54,6 @@ def test_figure_17_fog_clears_then_thrust_drops():
     rig = fly_scenario("fig17")
     assert not rig.truth["collisions"]
     fog, clear, thrust = level(rig, 6, 24), level(rig, 30, 44), level(rig, 50, 60)
-    print(f"fig17 V_max levels: fog {fog} -> clear {clear} -> thrust drop {thrust} m/s (paper 3 → 5.5 → 5)")
     assert fog and clear and clear > fog + 1.0  # up when the fog clears
     assert thrust is not None and thrust <= clear + 1e-9  # never up when thrust drops
     late = [s for s in rig.log.states if 55 <= s["t"] <= 60 and s["mode"] == "offboard"]
@@ -70,5 +69,4 @@ def test_figure_18_fog_clears_then_the_expected_obstacle_shrinks():
     rig = fly_scenario("fig18")
     assert not rig.truth["collisions"] and acked(rig, "CG_R_OBST", 0.6)
     fog, clear, small = level(rig, 6, 24), level(rig, 30, 44), level(rig, 50, 60)
-    print(f"fig18 V_max levels: fog {fog} -> clear {clear} -> R_obst 0.6 {small} m/s (paper 5.3 → 5.6)")
     assert fog and clear and small and fog < clear < small  # up, then up again

@@ -16,7 +16,7 @@ from tests.test_daemon_lockstep import Scaled
 
 D_SENSOR = 6.0
 R_OBST = 1.0
-SENSOR_LATENCY_S = 0.05  # part of the vehicle file's t_react (0.1 s: sensor latency + decision + response)
+SENSOR_LATENCY_S = 0.05  # part of the vehicle file's t_react (sensor latency + decision + response)
 
 
 def offboard_scenario(seed=1, x_col=30.0, wind=None, faults=(), vehicle="mambo", personality="px4"):
