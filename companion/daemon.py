@@ -391,6 +391,14 @@ class Daemon:
         self._periodic(t, i, d)
         return d
 
+    def _e_tr_flown(self, i: Inputs, d: Decision) -> float:
+        """E_tr of the virtual obstacle (Figure 13): the measured error, or the controller contract at the
+        speed actually commanded if larger — while a higher V_max waits out its dwell, the vehicle still
+        flies the lower limit, and E_tr_pred is non-decreasing in speed."""
+        if self.table.e_pred is not None and d.v_cmd:
+            return max(i.e_tr, self.table.e_tr_pred(d.v_cmd, d.omega.tilt, i.thrust_ratio))
+        return max(i.e_tr, d.omega.e_tr) if math.isfinite(d.omega.e_tr) else i.e_tr
+
     def _fly_offboard(self, t: float, i: Inputs, d: Decision) -> None:
         """Offboard mode: enter, stream the guidance's setpoints, leave (DESIGN.md §5)."""
         tel, veh = self.tel, self.table.vehicle
@@ -399,7 +407,7 @@ class Daemon:
             self.offboard.guidance = OffboardGuidance(self.mission.route, planning=self._planning())  # from the next entry
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
                                        veh.mass_kg)
-        discs = inflated(self._discs, d.omega.e_tr if math.isfinite(d.omega.e_tr) else i.e_tr, veh.r_body_m)
+        discs = inflated(self._discs, self._e_tr_flown(i, d), veh.r_body_m)
         acts = self.offboard.step(
             t, engaged=i.engaged and self.startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
             mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,

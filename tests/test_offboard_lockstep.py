@@ -2,6 +2,7 @@
 
 import copy
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -354,3 +355,23 @@ def test_x500_flies_round_a_column_revealed_at_dod_in_its_design_wind(personalit
         v_cmd = max(s["v_cmd"] or 0 for s in rig.log.states)
         fast = max(s["ground_speed"] for s in rig.log.states if s["ground_speed"] == s["ground_speed"])
         assert v_cmd > 3.0 and fast > 0.8 * v_cmd
+
+
+def test_the_virtual_obstacle_uses_e_tr_at_the_speed_flown_during_a_dwell():
+    """When the fog clears, Ω jumps to a faster V_max with a larger E_tr_pred, but the limit rises only
+    after its dwell: meanwhile the vehicle flies the old limit, so the keep-out disc is R_obst + E_tr at
+    that speed (a disc suddenly grown round a slow vehicle made it swerve out of its sensor's view)."""
+    from companion.supervisor import Decision, Inputs
+    from companion.estimators import DodEstimate
+
+    rig = Rig(offboard_scenario(1), "px4", config=offboard_config())
+    table = rig.daemon.table
+    fast = table.omega(7.0, R_OBST, 0.3, 1.0, contract="avoid")  # the fog has cleared
+    slow = table.omega(3.0, R_OBST, 0.3, 1.0, contract="avoid")  # the limit still in force
+    i = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, in_air=True, mode="offboard",
+               limit_applies=False, mode_by_daemon=True, ground_speed=slow.v_max,
+               dod=DodEstimate(7.0, (0,), 3.0, None, "ok"), e_tr=0.3, thrust_ratio=1.0, r_obst=R_OBST, engaged=True)
+    e = rig.daemon._e_tr_flown(i, Decision("active", fast, slow.v_max))
+    assert e == pytest.approx(max(0.3, table.e_tr_pred(slow.v_max, fast.tilt, 1.0)))
+    assert e < fast.e_tr - 0.3  # not the faster Ω's
+    assert rig.daemon._e_tr_flown(replace(i, e_tr=2.0), Decision("active", fast, slow.v_max)) == 2.0  # measured
