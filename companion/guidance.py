@@ -21,11 +21,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.online_planner import AvoidancePlanner, Disc, Plan, braking_plan
+from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, braking_plan
 
 from .estimators import wrap
 
-REPLAN_S = 0.5  # an active plan is refreshed this often (new discs are picked up then)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)

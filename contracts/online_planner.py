@@ -36,6 +36,7 @@ N_POLY = 16
 # trajectory on 100 % of a seeded sample of table cells (tests/test_online_planner.py,
 # benchmarks/bench_planner.py): the offboard contract flies at OFFBOARD_CAP × V_safe.
 OFFBOARD_CAP = 0.92
+REPLAN_S = 0.5  # [s] the offboard guidance refreshes an active plan this often (the E_tr sweep models it)
 SUB_STEPS = 20  # dense re-simulation per interval for the exact check
 MARGIN_M = 0.01  # kept from the discs in the QP, so solver tolerance never fails the exact check
 SLACK_COST = 1e2  # per metre of keep-out violation in the first SCP iteration (×10 per iteration)

@@ -52,7 +52,7 @@ from contracts.contour import contour_errors
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
 from contracts.lookup import repair_monotone
-from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, Plan
+from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc, Plan
 from contracts.table import SLOTS, Slot, verify, write_table
 from contracts.vehicle import Vehicle, load_vehicle
 
@@ -75,7 +75,6 @@ HELD_OUT_RHOS = (0.05, 0.15, 0.27, 0.42, 0.6, 0.85)  # … and only to validate 
 BUILD_SEEDS = (0, 1)
 HELD_OUT_SEEDS = (101, 102)
 MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online")
-REPLAN_S = 0.5  # [s] the daemon's replan period (companion.guidance.REPLAN_S; a test keeps them equal)
 ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured state, warm-started
 
 

@@ -111,12 +111,6 @@ def test_online_flight_replans_from_the_measured_state_and_records_the_sent_path
     assert es.worst_contour_error(MAMBO, ref, 1.0, 0) == es.worst_contour_error(MAMBO, ref, 1.0, 0)
 
 
-def test_replan_period_is_the_guidances():
-    from companion.guidance import REPLAN_S
-
-    assert es.REPLAN_S == REPLAN_S
-
-
 def test_online_geometries_without_a_verified_plan_are_skipped_and_counted():
     t = verify(TABLE, MAMBO)
     tilt = math.radians(25.0)
