@@ -294,7 +294,7 @@ class Daemon:
         self.startup_ok = ok
         self._event(t, "startup_check", ok=ok, reason=reason)
         if not ok:
-            self._statustext(3, f"CG: refusing to engage: {reason}"[:50])
+            self._statustext(3, f"CG: refusing to engage: {reason}")
 
     # ------------------------------------------------------------------ output
     def _send(self, msg) -> None:

@@ -123,7 +123,7 @@ class Supervisor:
     def _set_state(self, d: Decision, new: str, reason: str) -> None:
         if new != self.state:
             d.events.append(("state_change", {"from": self.state, "to": new, "reason": reason}))
-            d.statustext.append((5 if new != "holding" else 2, f"CG: {new} ({reason})"[:50]))
+            d.statustext.append((5 if new != "holding" else 2, f"CG: {new} ({reason})"))
             self.state = new
         d.state = new
 
@@ -132,7 +132,7 @@ class Supervisor:
         if on and key not in self._violations:
             self._violations[key] = info
             d.events.append(("violation_start", info))
-            d.statustext.append((3, f"CG: {info['subsystem']} violation"[:50]))
+            d.statustext.append((3, f"CG: {info['subsystem']} violation"))
         elif not on and key in self._violations:
             info0 = self._violations.pop(key)
             d.events.append(("violation_end", {k: info0[k] for k in ("subsystem", "guarantee")}))
@@ -237,7 +237,7 @@ class Supervisor:
         elif self._no_limit_mode_warned != i.mode:
             self._no_limit_mode_warned = i.mode
             d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))
-            d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"[:50]))
+            d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"))
         return d
 
     def _causes(self, i: Inputs, om: Omega) -> dict[str, bool]:

@@ -120,6 +120,21 @@ class Rig:
         parser.robust_parsing = True
         return [m for d in self.daemon_out for m in (parser.parse_buffer(d) or [])]
 
+    def daemon_texts(self) -> list[str]:
+        """The daemon's STATUSTEXTs, chunks joined (MAVLink 2 id / chunk_seq)."""
+        out, parts = [], {}
+        for m in self.daemon_messages():
+            if m.get_type() != "STATUSTEXT":
+                continue
+            text = m.text if isinstance(m.text, str) else m.text.decode()
+            if not m.id:
+                out.append(text)
+                continue
+            parts.setdefault(m.id, []).append(text)
+            if len(text) < 50:
+                out.append("".join(parts.pop(m.id)))
+        return out
+
     def command(self, cmd, *params):
         p = list(params) + [0.0] * (7 - len(params))
         self.gcs.send(self.gcs.command_long_encode(1, 1, cmd, 0, *p))

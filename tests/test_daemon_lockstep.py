@@ -207,6 +207,8 @@ def test_a_startup_mismatch_refuses_to_engage_but_shadow_runs():
     chk = rig.log.named("startup_check")
     assert chk and not chk[0]["ok"] and "MPC_ACC_HOR" in chk[0]["reason"]
     assert not rig.log.named("limit_change")
+    # the ground station gets the whole reason, however long (STATUSTEXT chunks joined)
+    assert f"CG: refusing to engage: {chk[0]['reason']}" in rig.daemon_texts()
     assert all(s["v_max"] > 0 for s in rig.log.states[-10:])  # still computing everything
 
 

@@ -397,23 +397,7 @@ def engage(rig, seconds, until_done=False):
     rig.run(seconds, until=(lambda r: r.daemon.offboard.state == "done") if until_done else None)
 
 
-def daemon_texts(rig):
-    """The daemon's STATUSTEXTs, chunks joined (MAVLink 2 id / chunk_seq)."""
-    out, parts = [], {}
-    for m in rig.daemon_messages():
-        if m.get_type() != "STATUSTEXT":
-            continue
-        text = m.text if isinstance(m.text, str) else m.text.decode()
-        if not m.id:
-            out.append(text)
-            continue
-        parts.setdefault(m.id, []).append(text)
-        if len(text) < 50:
-            out.append("".join(parts.pop(m.id)))
-    return out
-
-
-POINTS = [(0.0, 0.0), (12.0, 0.0), (24.0, 4.0)]  # a gentle turn (see the report on sharp corners)
+POINTS = [(0.0, 0.0), (12.0, 0.0), (24.0, 4.0)]  # a gentle turn (sharp corners: test_offboard_lockstep.py)
 
 
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])
@@ -466,7 +450,7 @@ def test_non_level_mission_refuses_to_engage_and_says_why(personality):
     engage(rig, 4.0)
     refused = [e for e in rig.log.named("mission") if e["status"] == "refused" and e["t"] > t_uploaded]
     assert len(refused) == 1 and "level flight" in refused[0]["reason"]
-    assert any(t.startswith("CG: refusing to engage") and "level flight" in t for t in daemon_texts(rig))
+    assert any(t.startswith("CG: refusing to engage") and "level flight" in t for t in rig.daemon_texts())
     assert rig.log.named("offboard") == []  # never entered offboard
     kinds = {m.get_type() for m in rig.daemon_messages()}
     assert "SET_POSITION_TARGET_LOCAL_NED" not in kinds
