@@ -26,6 +26,15 @@ def connect(port):
     raise AssertionError("no telemetry from the SITL")
 
 
+def px4_take_off(c, alt):
+    """Arm, AUTO.TAKEOFF to `alt` above home (NAV_TAKEOFF takes AMSL), and wait for the Hold after it."""
+    assert c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACC
+    home = c.wait_msg("HOME_POSITION", 5.0)
+    assert c.command(mav.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 6, home.altitude / 1000 + alt) == ACC
+    assert c.wait(lambda c: c.custom_mode == PX4_TAKEOFF, 2.0)
+    assert c.wait(lambda c: c.custom_mode == PX4_HOLD, 20.0)
+
+
 def mission_items(c, length, alt, ap):
     home = c.wait_msg("HOME_POSITION", 5.0)
     items = [geo_item(home, 0, 0, 0)] if ap else []
@@ -37,11 +46,7 @@ def test_pymavlink_flies_px4_mission_with_speed_change():
         c = connect(port)
         try:
             assert c.param_set("MPC_XY_CRUISE", 2.0, mav.MAV_PARAM_TYPE_REAL32).param_value == pytest.approx(2.0)
-            assert c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACC
-            home = c.wait_msg("HOME_POSITION", 5.0)
-            assert c.command(mav.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 6, home.altitude / 1000 + 3.0) == ACC  # AMSL
-            assert c.wait(lambda c: c.custom_mode == PX4_TAKEOFF, 2.0)
-            assert c.wait(lambda c: c.custom_mode == PX4_HOLD, 20.0)
+            px4_take_off(c, 3.0)
             c.pump(1.0)
             assert c.pos[2] == pytest.approx(-3.0, abs=0.2)
             assert c.upload_mission(mission_items(c, 40.0, 3.0, ap=False)) == mav.MAV_MISSION_ACCEPTED
@@ -93,11 +98,7 @@ def test_malformed_udp_burst_leaves_vehicle_flying():
     with sitl_process("empty", "px4", SPEEDUP) as port:
         c = connect(port)
         try:
-            assert c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACC
-            home = c.wait_msg("HOME_POSITION", 5.0)
-            assert c.command(mav.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 6, home.altitude / 1000 + 2.0) == ACC
-            assert c.wait(lambda c: c.custom_mode == PX4_TAKEOFF, 2.0)
-            assert c.wait(lambda c: c.custom_mode == PX4_HOLD, 20.0)
+            px4_take_off(c, 2.0)
             c.pump(1.0)
             p0 = np.array(c.pos)
             rng = np.random.default_rng(11)
