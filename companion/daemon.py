@@ -102,9 +102,10 @@ class Counters:
 
 class Daemon:
     def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
-                 planning: str = "thread"):
+                 planning: str = "thread", contract: str | None = None):
         """`planning`: "thread" (the avoidance planner beside the loop, so the setpoint stream keeps its
-        rate) or "inline" (in the loop: deterministic lock-step tests)."""
+        rate) or "inline" (in the loop: deterministic lock-step tests). `contract`: the one to enforce
+        (default: "avoid" in offboard mode, else "stop"; a replay names the one the flight flew under)."""
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
         if planning not in ("thread", "inline"):
             raise ValueError(f"planning must be 'thread' or 'inline', not {planning!r}")
@@ -121,7 +122,9 @@ class Daemon:
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
         self.thrust = ThrustEstimator(cfg.thrust, hover, veh.thrust_ratio_range[0], veh.thrust_ratio_range[1])
         self.nav = NavHealth(cfg.timeouts.nav_s)
-        self.sup = Supervisor(table, cfg.mode, cfg.contract.dwell_s, cfg.speed_margin_m_s, 1.0 / cfg.loop_hz)
+        contract = contract or ("avoid" if cfg.mode == "offboard" else "stop")
+        self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
+                              speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz)
         self.params = {"CG_ENGAGE": float(cfg.engage), "CG_MODE": float(MODES.index(cfg.mode)),
                        "CG_R_OBST": cfg.contract.r_obst_m}
         self.counters = Counters()

@@ -256,8 +256,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     conn = MemoryMavfile(read, lambda buf: None, source_system=cfg.link.target_system,
                          source_component=cfg.link.component_id)
     log = EventLog(log_dir, clock=lambda: now["wall"], fsync_events=False, max_bytes=1 << 62)
-    daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=lambda: now["wall"], planning="inline")
-    daemon.sup.contract = contract  # the contract the flight flew under (shadow alone would say "stop")
+    daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=lambda: now["wall"], planning="inline",
+                    contract=contract)  # the contract the flight flew under (shadow alone would say "stop")
     log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
               contract=contract)
     period = 1e6 / cfg.loop_hz

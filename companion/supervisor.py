@@ -95,10 +95,14 @@ class OneSidedLimit:
 class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
-    def __init__(self, table: ContractTable, mode: str, dwell_s: float, speed_margin: float, loop_dt: float):
+    def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
+                 loop_dt: float):
+        """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight)."""
+        if contract not in ("stop", "avoid"):
+            raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
         self.mode = mode
-        self.contract = "avoid" if mode == "offboard" else "stop"
+        self.contract = contract
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         self.cap = OFFBOARD_CAP if self.contract == "avoid" else 1.0
         self.limit = OneSidedLimit(dwell_s)

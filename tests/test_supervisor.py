@@ -21,7 +21,8 @@ BASE = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, i
 
 
 def sup(mode="governor", dwell=2.0):
-    return Supervisor(TABLE, mode, dwell_s=dwell, speed_margin=0.2, loop_dt=0.02)
+    return Supervisor(TABLE, mode, contract="avoid" if mode == "offboard" else "stop", dwell_s=dwell,
+                      speed_margin=0.2, loop_dt=0.02)
 
 
 def run(s, inputs, t0, t1, dt=0.02, **changes):
