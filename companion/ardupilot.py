@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-from .autopilot_base import MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, MAV_MODE_FLAG_SAFETY_ARMED, Adapter, ParamCheck
+from .autopilot_base import (
+    MAV_CMD_DO_SET_MODE,
+    MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+    MAV_MODE_FLAG_SAFETY_ARMED,
+    Adapter,
+    ParamCheck,
+)
+
+MAV_CMD_NAV_TAKEOFF = 22
 
 MODES = {0: "manual", 1: "manual", 2: "altitude", 3: "mission", 4: "offboard", 5: "position", 6: "rtl",
          9: "land", 16: "position", 17: "hold", 20: "other", 21: "rtl"}
@@ -23,6 +31,13 @@ class ArduPilot(Adapter):
     def set_mode_params(self, mode: str, armed: bool) -> tuple[float, ...]:
         base = MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
         return (float(base), float(TO_NUMBER[mode]), 0.0, 0.0, 0.0, 0.0, 0.0)
+
+    def takeoff_commands(self, alt_m: float) -> list[tuple[int, tuple[float, ...]]]:
+        # GUIDED, then NAV_TAKEOFF to a relative altitude (param 7)
+        return [(MAV_CMD_DO_SET_MODE, self.set_mode_params("offboard", True)),
+                (MAV_CMD_NAV_TAKEOFF, (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, float(alt_m)))]
+
+    mission_item0_is_home = True
 
     param_checks = (
         ParamCheck("ANGLE_MAX", 0.01, "tilt_max_deg"),  # centidegrees

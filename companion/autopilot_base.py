@@ -1,4 +1,5 @@
-"""What differs between autopilots, behind one interface (one module per autopilot: px4.py, ardupilot.py).
+"""What differs between autopilots, behind one interface (one module per autopilot: px4.py, ardupilot.py;
+the registry that finds them by name or HEARTBEAT id: autopilots.py).
 
 Normalised mode names used across the daemon: takeoff, mission, hold, rtl, land, offboard (PX4
 OFFBOARD / ArduPilot GUIDED), position, altitude, manual, other.
@@ -33,6 +34,8 @@ class ParamCheck:
     name: str
     scale: float  # SI = raw · scale
     what: str  # vehicle-file quantity it must agree with
+    offboard_allowed: tuple[int, ...] = ()  # values offboard mode needs (empty: no such rule)
+    offboard_need: str = ""  # those values in words, for the refusal line
 
 
 class Adapter:
@@ -68,12 +71,9 @@ class Adapter:
         """PARAM_VALUE.param_value as a number: ArduPilot casts integers to float (the default)."""
         return float(value)
 
+    def takeoff_commands(self, alt_m: float) -> list[tuple[int, tuple[float, ...]]]:
+        """COMMAND_LONGs (command, params 1–7) a ground station sends to take off to `alt_m` when armed."""
+        raise NotImplementedError
+
+    mission_item0_is_home = False  # the mission's item 0 is the home position, not a waypoint
     param_checks: tuple[ParamCheck, ...] = ()
-
-
-def adapter_for(name: str) -> Adapter:
-    """The adapter of an autopilot by config name (`px4`, `ardupilot`)."""
-    from .ardupilot import ArduPilot
-    from .px4 import PX4
-
-    return {"px4": PX4, "ardupilot": ArduPilot}[name]()

@@ -255,12 +255,20 @@ def cmd_review(args) -> int:
 # ----------------------------------------------------------------------------- demo
 
 
+def demo(scenario: str = "fig17", out: Path = Path("demo-out"), **kw) -> dict:
+    """`companion.demo.run_demo` of a scenario by name or path (the harness is wired in here only)."""
+    from sitl_harness.scenario import load_scenario, resolve_scenario_path
+
+    from .demo import run_demo
+
+    return run_demo(load_scenario(scenario), resolve_scenario_path(scenario), out, **kw)
+
+
 def cmd_demo(args) -> int:
     """The SITL and the daemon on loopback UDP flying the paper's in-flight scenario (Figure 17)."""
-    from .demo import format_summary, run_demo
+    from .demo import format_summary
 
-    r = run_demo(args.scenario, args.out, speedup=args.speedup, duration_s=args.duration,
-                 personality=args.personality)
+    r = demo(args.scenario, args.out, speedup=args.speedup, duration_s=args.duration, personality=args.personality)
     _emit(r, args.json, format_summary(r))
     return 0 if r["safe"] else 1
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from contracts.yamlfile import load_model, model_from_dict
 
@@ -31,12 +31,21 @@ class SensorConfig(_Strict):
 class LinkConfig(_Strict):
     connect: str = "udpin:0.0.0.0:14540"  # pymavlink URL: udpin:/udpout:/tcp:/serial path
     baud: int = 921600
-    autopilot: Literal["px4", "ardupilot"] = "px4"
+    autopilot: str = "px4"  # an adapter's name (companion/autopilots.py)
     target_system: int = 1
     target_component: int = 1
     component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
     signing_key_file: Path | None = None  # 32-byte key (raw or 64 hex chars), readable only by us
     signing_timestamp_file: Path | None = None  # persisted across restarts (no RTC on many boards)
+
+    @field_validator("autopilot")
+    @classmethod
+    def _known(cls, name: str) -> str:
+        from .autopilots import ADAPTERS
+
+        if name not in ADAPTERS:
+            raise ValueError(f"unknown autopilot {name!r} (known: {', '.join(ADAPTERS)})")
+        return name
 
 
 class ContractConfig(_Strict):

@@ -115,13 +115,12 @@ class GroundStation:
               "value": a.param_set.value, "t_sent": None, "t_acked": None} for a in self.todo]
 
 
-def run_demo(scenario: str = "fig17", out: Path = Path("demo-out"), speedup: float = 2.0,
+def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: float = 2.0,
              duration_s: float = 75.0, personality: str = "px4") -> dict:
-    from sitl_harness.scenario import load_scenario, resolve_scenario_path
-
+    """Fly scenario `sc` (loaded from `scenario_path` by the CLI, which wires the harness in)."""
+    from .autopilots import adapter_for
     from .review import review
 
-    sc = load_scenario(scenario)
     out = Path(out)
     log_dir = out / "log"
     out.mkdir(parents=True, exist_ok=True)
@@ -139,7 +138,7 @@ def run_demo(scenario: str = "fig17", out: Path = Path("demo-out"), speedup: flo
     cfg_path = out / "daemon.yaml"
     cfg_path.write_text(yaml.safe_dump(cfg))
     py = sys.executable
-    sitl = subprocess.Popen([py, "-m", "sitl_harness", "--scenario", str(resolve_scenario_path(scenario)),
+    sitl = subprocess.Popen([py, "-m", "sitl_harness", "--scenario", str(scenario_path),
                              "--personality", personality, "--listen", f"udp:127.0.0.1:{port}",
                              "--speedup", str(speedup), "--duration", str(duration_s), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -161,13 +160,10 @@ def run_demo(scenario: str = "fig17", out: Path = Path("demo-out"), speedup: flo
             gs.poll(0.2)
         gcs.mav.command_long_send(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0)  # arm
         gs.poll(0.5)
-        # take off: PX4 AUTO.TAKEOFF (to MIS_TAKEOFF_ALT), ArduPilot GUIDED + NAV_TAKEOFF (relative altitude)
-        if personality == "px4":
-            gcs.mav.command_long_send(1, 1, 176, 0, 1 | 128, 4, 2, 0, 0, 0, 0)
-        else:
-            gcs.mav.command_long_send(1, 1, 176, 0, 1 | 128, 4, 0, 0, 0, 0, 0)
-            gs.poll(0.3)
-            gcs.mav.command_long_send(1, 1, 22, 0, 0, 0, 0, 0, 0, 0, sc.route.altitude_m)
+        for k, (cmd, params) in enumerate(adapter_for(personality).takeoff_commands(sc.route.altitude_m)):
+            if k:
+                gs.poll(0.3)
+            gcs.mav.command_long_send(1, 1, cmd, 0, *params)
         deadline = time.time() + duration_s / speedup + 120
         while sitl.poll() is None and time.time() < deadline:
             gs.poll(0.2)

@@ -17,14 +17,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.contour import ContourWindow
+from contracts.geometry import wrap
 from contracts.vehicle import G
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
-
-
-def wrap(a: float) -> float:
-    """Angle to (−π, π]."""
-    return math.atan2(math.sin(a), math.cos(a))
+from .samples import Scan
 
 
 # ============================================================================ D_od
@@ -89,21 +86,12 @@ class DodEstimator:
         while len(self._yaw_hist) > 2 and self._yaw_hist[0][0] < t - 2.0:
             self._yaw_hist.popleft()
 
-    def add_range(self, i: int, t: float, current_m: float, min_m: float, max_m: float, quality: int) -> None:
-        """A DISTANCE_SENSOR sample (PX4 convention: current ≥ max means nothing within range)."""
-        s = self.sensors[i]
-        seen = [(math.radians(s.cfg.orientation_deg), current_m)] if min_m < current_m < max_m - 0.01 else []
-        self._update(i, t, max_m, quality, seen)
-
-    def add_bins(self, i: int, t: float, bearings: np.ndarray, ranges_m: np.ndarray, max_m: float,
-                 increment: float) -> None:
-        """An OBSTACLE_DISTANCE sample: body bearings of the used bins and their ranges
-        (inf: nothing within max; nan: bins not used are left out by the caller)."""
-        s = self.sensors[i]
-        s.bins_fov = (float(bearings[0]), float(bearings[-1])) if len(bearings) else None
-        s.increment = increment
-        seen = [(float(b), float(r)) for b, r in zip(bearings, ranges_m) if r < max_m]
-        self._update(i, t, max_m, 0, seen)
+    def add_scan(self, scan: Scan) -> None:
+        """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
+        s = self.sensors[scan.sensor]
+        if scan.increment is not None:  # bins: their span and width
+            s.bins_fov, s.increment = scan.bins, scan.increment
+        self._update(scan.sensor, scan.t, scan.max_m, scan.quality, list(scan.hits))
 
     def _update(self, i, t, max_m, quality, seen) -> None:
         s = self.sensors[i]

@@ -23,7 +23,7 @@ import numpy as np
 
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, braking_plan
 
-from .estimators import wrap
+from contracts.geometry import wrap
 
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan

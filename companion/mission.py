@@ -297,10 +297,13 @@ class MissionSource:
     when a download completed and the mission converted; otherwise `status` and `reason` say why not.
     status: idle → downloading → (waiting_home →) ready | refused."""
 
-    def __init__(self, autopilot: str, target_system: int, target_component: int, own_system: int,
+    def __init__(self, skip_home: bool, target_system: int, target_component: int, own_system: int,
                  own_component: int, level_tol_m: float = 0.5, home_timeout_s: float = 5.0,
                  corner_cut_m: float = 1.0, **download):
-        self.skip_home = autopilot == "ardupilot"  # ArduPilot's mission item 0 is home
+        """`skip_home`: the autopilot's mission item 0 is its home position (the adapter says)."""
+        if not isinstance(skip_home, bool):
+            raise TypeError("skip_home must be a bool")
+        self.skip_home = skip_home
         self.ids = (target_system, target_component, own_system, own_component)
         self.level_tol_m, self.home_timeout_s, self.download_kw = level_tol_m, home_timeout_s, download
         self.corner_cut_m = corner_cut_m  # where a waypoint sets no acceptance radius

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from .autopilot_base import (
+    MAV_CMD_DO_SET_MODE,
     MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     MAV_MODE_FLAG_SAFETY_ARMED,
     Adapter,
@@ -44,9 +45,15 @@ class PX4(Adapter):
     def decode_param(self, value: float, param_type: int) -> float:
         return bytewise(value, param_type)  # PX4 encodes integer parameters bytewise
 
+    def takeoff_commands(self, alt_m: float) -> list[tuple[int, tuple[float, ...]]]:
+        # AUTO.TAKEOFF climbs to MIS_TAKEOFF_ALT (the parameter, not alt_m)
+        return [(MAV_CMD_DO_SET_MODE, (float(MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MAV_MODE_FLAG_SAFETY_ARMED),
+                                       *map(float, TO_MAIN_SUB["takeoff"]), 0.0, 0.0, 0.0, 0.0))]
+
     param_checks = (
         ParamCheck("MPC_TILTMAX_AIR", 1.0, "tilt_max_deg"),
         ParamCheck("MPC_ACC_HOR", 1.0, "braking.accel_max_m_s2"),
         ParamCheck("MPC_JERK_AUTO", 1.0, "braking.jerk_max_m_s3"),
-        ParamCheck("COM_OBL_RC_ACT", 1.0, "offboard-loss action (4 Land or 5 Hold for companion-only flight)"),
+        ParamCheck("COM_OBL_RC_ACT", 1.0, "offboard-loss action (4 Land or 5 Hold for companion-only flight)",
+                   offboard_allowed=(4, 5), offboard_need="4 (Land) or 5 (Hold)"),
     )

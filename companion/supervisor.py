@@ -21,11 +21,13 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from contracts.online_planner import OFFBOARD_CAP
+from contracts.online_planner import OFFBOARD_CAP, Disc
 from contracts.stop import braking_decel, stop_dead_time, stopping_distance
 from contracts.table import ContractTable, Omega
 
 from .estimators import DodEstimate
+from .guidance import inflated
+from .offboard import OffboardActions
 
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
 
@@ -45,12 +47,13 @@ class Inputs:
     mode_by_daemon: bool  # the current mode is one the daemon commanded
     ground_speed: float
     dod: DodEstimate
-    e_tr: float  # measured (with its floor)
+    e_tr_measured: float  # the worst contour error measured over the window (with its floor)
     thrust_ratio: float
     r_obst: float
     engaged: bool
     mission_seq: int = -1  # the autopilot's current mission item (a speed item may reset the limit)
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
+    discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
 
 
 @dataclass
@@ -62,6 +65,10 @@ class Decision:
     hold: bool = False  # command Hold/Brake now
     events: list[tuple[str, dict]] = field(default_factory=list)
     statustext: list[tuple[int, str]] = field(default_factory=list)  # (MAV_SEVERITY, text)
+    e_tr_virtual: float = 0.0  # E_tr of the virtual obstacle (Figure 13): measured, or E_tr_pred flown if larger
+    discs: list[Disc] = field(default_factory=list)  # the keep-out discs: the obstacles grown by E_tr + r_body
+    offboard: OffboardActions | None = None  # what offboard guidance does this cycle (companion/cycle.py)
+    stream_ended: bool = False  # the offboard setpoint stream stopped this cycle
 
 
 class OneSidedLimit:
@@ -122,6 +129,7 @@ class Supervisor:
         self._t_hold = -math.inf
         self._would: tuple[str, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
+        self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
 
     # ------------------------------------------------------------------ helpers
     def _set_state(self, d: Decision, new: str, reason: str) -> None:
@@ -146,9 +154,33 @@ class Supervisor:
         a = braking_decel(veh, min(thrust_ratio, veh.thrust_ratio_range[1]))
         return stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
 
+    def e_tr_pred_flown(self, v: float, tilt: float, thrust_ratio: float) -> float:
+        """E_tr_pred (Figure 12) of the controller contract at speed v, at the tilt of the operating point
+        being flown (a Ω with no speed — D_od lost, say — has no tilt of its own), one lookup per value."""
+        tilt = self._tilt_in_force if self._tilt_in_force is not None else tilt
+        if self._e_pred_at is None or self._e_pred_at[:3] != (v, tilt, thrust_ratio):
+            self._e_pred_at = (v, tilt, thrust_ratio, self.table.e_tr_pred(v, tilt, thrust_ratio))
+        return self._e_pred_at[3]
+
     # ------------------------------------------------------------------ the cycle
+    def e_tr_virtual(self, i: Inputs, d: Decision) -> float:
+        """E_tr of the virtual obstacle (Figure 13): the measured error, or the controller contract at the
+        speed actually commanded if larger — while a higher V_max waits out its dwell, the vehicle still
+        flies the lower limit, and E_tr_pred does not decrease with speed."""
+        if self.table.e_pred is not None and d.v_cmd:
+            return max(i.e_tr_measured, self.e_tr_pred_flown(d.v_cmd, d.omega.tilt, i.thrust_ratio))
+        return max(i.e_tr_measured, d.omega.e_tr) if math.isfinite(d.omega.e_tr) else i.e_tr_measured
+
     def step(self, i: Inputs) -> Decision:
-        om = self.table.omega(i.dod.d_od, i.r_obst, i.e_tr, i.thrust_ratio, contract=self.contract)
+        """One cycle's decision, with the keep-out discs guidance plans round (the obstacles grown by the
+        virtual obstacle's E_tr and the vehicle's radius)."""
+        d = self._decide(i)
+        d.e_tr_virtual = self.e_tr_virtual(i, d)
+        d.discs = inflated(list(i.discs), d.e_tr_virtual, self.table.vehicle.r_body_m)
+        return d
+
+    def _decide(self, i: Inputs) -> Decision:
+        om = self.table.omega(i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, contract=self.contract)
         d = Decision(self.state, om, self.limit.value)
         veh = self.table.vehicle
 
@@ -183,11 +215,10 @@ class Supervisor:
         if om.v_max >= MIN_SPEED_CMD:
             self._tilt_in_force = om.tilt
         if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
-            # against the operating point being flown: a Ω with no speed (D_od lost, say) has no tilt
-            e_pred = self.table.e_tr_pred(d.v_cmd, self._tilt_in_force, i.thrust_ratio)
-            self._violation(d, "controller", i.e_tr > e_pred + 0.05, subsystem="controller",
-                            guarantee="contour error <= E_tr_pred(V_max)", assumed=e_pred, observed=i.e_tr,
-                            action="E_tr raised to the measured value")
+            e_pred = self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio)
+            self._violation(d, "controller", i.e_tr_measured > e_pred + 0.05, subsystem="controller",
+                            guarantee="contour error <= E_tr_pred(V_max)", assumed=e_pred,
+                            observed=i.e_tr_measured, action="E_tr raised to the measured value")
 
         # failsafes, in order of what can still be done
         if not i.link_ok:
@@ -246,7 +277,7 @@ class Supervisor:
 
     def _causes(self, i: Inputs, om: Omega) -> dict[str, bool]:
         """Every reason to stop now (each edge-triggered after an override)."""
-        numbers = (i.ground_speed, i.e_tr, i.thrust_ratio, i.r_obst, i.dod.d_od)
+        numbers = (i.ground_speed, i.e_tr_measured, i.thrust_ratio, i.r_obst, i.dod.d_od)
         finite = all(math.isfinite(x) for x in numbers)
         # a tracking overshoot of a few per cent is the controller's business (E_tr), not a broken limit
         over = (finite and self.limit.value is not None
@@ -259,7 +290,7 @@ class Supervisor:
         if self._over_since is not None:  # time a compliant autopilot needs to slow to the limit
             a = braking_decel(self.table.vehicle, min(i.thrust_ratio, 1.0)) if finite else 1.0
             settle = (i.ground_speed - self.limit.value) / max(a, 0.1) + stop_dead_time(self.table.vehicle) + 1.0
-        margin_m = i.e_tr + self.table.vehicle.r_body_m + i.ground_speed * self.loop_dt
+        margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * self.loop_dt
         obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
             "non-finite telemetry": not finite,

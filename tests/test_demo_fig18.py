@@ -3,12 +3,12 @@ station lowering CG_R_OBST in flight through the SITL's routing (40–80 s of wa
 
 import pytest
 
-from companion.demo import run_demo
+from companion.cli import demo
 
 
 @pytest.mark.slow
 def test_demo_fig18_ground_station_lowers_r_obst_in_flight(tmp_path):
-    r = run_demo("fig18", tmp_path)
+    r = demo("fig18", tmp_path)
     assert r["safe"] and r["collisions"] == 0
     assert [a["value"] for a in r["gcs_actions"]] == [1.0, 0.6]
     assert all(a["t_acked"] is not None and a["t_log"] is not None for a in r["gcs_actions"])

@@ -5,7 +5,18 @@ import pytest
 
 from companion.config import ContractConfig, SensorConfig, ThrustConfig
 from companion.estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from companion.mavlink_in import bins_scan, range_scan
 from contracts.vehicle import G
+
+
+def add_range(e, i, t, current_m, min_m, max_m, quality):
+    """A DISTANCE_SENSOR sample of configured sensor i, as MAVLink-in normalises it."""
+    e.add_scan(range_scan(t, i, math.radians(e.sensors[i].cfg.orientation_deg), current_m, min_m, max_m, quality))
+
+
+def add_bins(e, i, t, bearings, ranges_m, max_m, increment):
+    """An OBSTACLE_DISTANCE sample of configured sensor i, as MAVLink-in normalises it."""
+    e.add_scan(bins_scan(t, i, bearings, ranges_m, max_m, increment))
 
 FWD = SensorConfig(h_fov_deg=30.0)
 RIGHT = SensorConfig(h_fov_deg=30.0, orientation_deg=90.0, id=2)
@@ -18,7 +29,7 @@ def dod(*sensors):
 
 def test_dod_is_the_reported_range_along_a_covered_direction():
     e = dod()
-    e.add_range(0, 0.0, current_m=10.0, min_m=0.1, max_m=10.0, quality=100)
+    add_range(e, 0, 0.0, current_m=10.0, min_m=0.1, max_m=10.0, quality=100)
     assert e.estimate(0.1, beta=0.0).d_od == 10.0
     assert e.estimate(0.1, beta=math.radians(14)).d_od == 10.0
     assert e.estimate(0.1, beta=math.radians(20)).d_od == 0.0  # outside the 30° field of view
@@ -27,20 +38,20 @@ def test_dod_is_the_reported_range_along_a_covered_direction():
 
 def test_dod_stale_untrusted_and_honest_fog():
     e = dod()
-    e.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
+    add_range(e, 0, 0.0, 10.0, 0.1, 10.0, 100)
     assert e.estimate(0.6, 0.0).d_od == 0.0  # stale ⇒ 0
-    e.add_range(0, 1.0, 10.0, 0.1, 10.0, 1)  # quality 1 = invalid
+    add_range(e, 0, 1.0, 10.0, 0.1, 10.0, 1)  # quality 1 = invalid
     assert e.estimate(1.0, 0.0).d_od == 0.0
-    e.add_range(0, 1.1, 3.0, 0.1, 3.0, 80)  # honest fog: the sensor reports a shorter range
+    add_range(e, 0, 1.1, 3.0, 0.1, 3.0, 80)  # honest fog: the sensor reports a shorter range
     assert e.estimate(1.1, 0.0).d_od == 3.0
-    e.add_range(0, 1.2, 10.0, 0.1, 10.0, 0)  # 0 = quality unknown: accepted
+    add_range(e, 0, 1.2, 10.0, 0.1, 10.0, 0)  # 0 = quality unknown: accepted
     assert e.estimate(1.2, 0.0).d_od == 10.0
 
 
 def test_dod_follows_the_direction_of_travel_across_sensors():
     e = dod(FWD, RIGHT)
-    e.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
-    e.add_range(1, 0.0, 4.0, 0.1, 4.0, 100)
+    add_range(e, 0, 0.0, 10.0, 0.1, 10.0, 100)
+    add_range(e, 1, 0.0, 4.0, 0.1, 4.0, 100)
     assert e.estimate(0.0, 0.0).d_od == 10.0
     assert e.estimate(0.0, math.radians(90)).d_od == 4.0  # flying sideways to the right
     assert e.estimate(0.0, math.radians(-90)).d_od == 0.0  # to the left nothing looks
@@ -50,34 +61,34 @@ def test_late_first_detection_lowers_dod_and_is_reported():
     e = dod()
     t = 0.0
     for _ in range(10):
-        e.add_range(0, t, 10.0, 0.1, 10.0, 100)
+        add_range(e, 0, t, 10.0, 0.1, 10.0, 100)
         e.add_heading(t, 0.0)
         assert e.estimate(t, 0.0).late is None
         t += 0.05
-    e.add_range(0, t, 3.0, 0.1, 10.0, 100)  # hidden fog: first seen at 3 m although 10 m were promised
+    add_range(e, 0, t, 3.0, 0.1, 10.0, 100)  # hidden fog: first seen at 3 m although 10 m were promised
     est = e.estimate(t, 0.0)
     assert est.late is not None and est.late.range_m == 3.0 and est.late.assumed_d_od == 10.0
     assert est.d_od == 3.0 and est.obstacle_m == 3.0
     # the same obstacle getting closer is not a new late detection
-    e.add_range(0, t + 0.05, 2.8, 0.1, 10.0, 100)
+    add_range(e, 0, t + 0.05, 2.8, 0.1, 10.0, 100)
     assert e.estimate(t + 0.05, 0.0).late is None
     # after the hold time the sensor's own range is believed again
-    e.add_range(0, t + 11.0, 10.0, 0.1, 10.0, 100)
+    add_range(e, 0, t + 11.0, 10.0, 0.1, 10.0, 100)
     assert e.estimate(t + 11.0, 0.0).d_od == 10.0
 
 
 def test_a_detection_at_the_range_edge_or_after_a_turn_is_not_late():
     e = dod()
-    e.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
+    add_range(e, 0, 0.0, 10.0, 0.1, 10.0, 100)
     e.estimate(0.0, 0.0)
-    e.add_range(0, 0.05, 9.9, 0.1, 10.0, 100)  # at the edge of the range: on time
+    add_range(e, 0, 0.05, 9.9, 0.1, 10.0, 100)  # at the edge of the range: on time
     assert e.estimate(0.05, 0.0).late is None
     e2 = dod()
-    e2.add_range(0, 0.0, 10.0, 0.1, 10.0, 100)
+    add_range(e2, 0, 0.0, 10.0, 0.1, 10.0, 100)
     e2.estimate(0.0, 0.0)
     e2.add_heading(0.0, 0.0)
     e2.add_heading(0.5, math.radians(40))  # turned more than half the field of view
-    e2.add_range(0, 0.5, 3.0, 0.1, 10.0, 100)
+    add_range(e2, 0, 0.5, 3.0, 0.1, 10.0, 100)
     assert e2.estimate(0.5, 0.0).late is None
 
 
@@ -87,15 +98,15 @@ def test_bins_side_entry_is_not_a_violation_but_interior_is():
     bearings = np.radians(np.arange(-30, 31, 5.0))
     inc = math.radians(5)
     far = np.full(len(bearings), np.inf)
-    e.add_bins(0, 0.0, bearings, far, 10.0, inc)
+    add_bins(e, 0, 0.0, bearings, far, 10.0, inc)
     assert e.estimate(0.0, 0.0).d_od == 10.0
     edge = far.copy()
     edge[0] = 4.0  # appears in the outermost bin: came in from the side
-    e.add_bins(0, 0.05, bearings, edge, 10.0, inc)
+    add_bins(e, 0, 0.05, bearings, edge, 10.0, inc)
     assert e.estimate(0.05, 0.0).late is None
     mid = edge.copy()
     mid[6] = 4.0  # appears dead ahead, well inside the promised 10 m
-    e.add_bins(0, 0.1, bearings, mid, 10.0, inc)
+    add_bins(e, 0, 0.1, bearings, mid, 10.0, inc)
     est = e.estimate(0.1, 0.0)
     assert est.late is not None and abs(est.late.bearing) < 1e-9 and est.d_od == 4.0
 
@@ -161,13 +172,13 @@ def test_samples_delivered_in_a_burst_still_get_one_interval_of_travel():
     e.set_speed(6.0)
     t = 0.0
     for _ in range(20):
-        e.add_range(0, t, 10.0, 0.1, 10.0, 100)
+        add_range(e, 0, t, 10.0, 0.1, 10.0, 100)
         e.add_heading(t, 0.0)
         e.estimate(t, 0.0)
         t += 0.05
-    e.add_range(0, t, 10.0, 0.1, 10.0, 100)
-    e.add_range(0, t + 0.001, 9.45, 0.1, 10.0, 100)  # burst: 6 m/s · 50 ms + 0.3 m tolerance covers 0.55 m
+    add_range(e, 0, t, 10.0, 0.1, 10.0, 100)
+    add_range(e, 0, t + 0.001, 9.45, 0.1, 10.0, 100)  # burst: 6 m/s · 50 ms + 0.3 m tolerance covers 0.55 m
     assert e.estimate(t + 0.001, 0.0).late is None
-    e.add_range(0, t + 0.05, 10.0, 0.1, 10.0, 100)
-    e.add_range(0, t + 0.051, 8.9, 0.1, 10.0, 100)  # 1.1 m inside: late even so
+    add_range(e, 0, t + 0.05, 10.0, 0.1, 10.0, 100)
+    add_range(e, 0, t + 0.051, 8.9, 0.1, 10.0, 100)  # 1.1 m inside: late even so
     assert e.estimate(t + 0.051, 0.0).late is not None

@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from companion.estimators import wrap
+from contracts.geometry import wrap
 from companion.guidance import A_LAT, YAW_RATE_ARC, OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
 from contracts.online_planner import AvoidancePlanner, Disc
 

@@ -282,7 +282,7 @@ def test_missions_that_are_not_a_route_are_refused(items, match):
 
 # ------------------------------------------------------------------------------------------ the daemon's view
 def test_source_waits_for_home_then_holds_the_route():
-    src = MissionSource("px4", *AP, *DAEMON, home_timeout_s=5.0)
+    src = MissionSource(False, *AP, *DAEMON, home_timeout_s=5.0)
     acts = src.request(0.0, "test")
     kinds = [m.get_type() for m in acts.send]
     assert kinds == ["MISSION_REQUEST_LIST", "COMMAND_LONG"] and acts.send[1].param1 == 242  # HOME_POSITION
@@ -298,7 +298,7 @@ def test_source_waits_for_home_then_holds_the_route():
 
 def test_a_waypoints_acceptance_radius_sets_its_corner_cut():
     """NAV_WAYPOINT param2 (acceptance radius) > 0: the corner there passes that close; else route.corner_cut_m."""
-    src = MissionSource("px4", *AP, *DAEMON, corner_cut_m=0.5)
+    src = MissionSource(False, *AP, *DAEMON, corner_cut_m=0.5)
     src.request(0.0, "test")
     src.take(0.0, count(4))
     for seq, (x, y, accept) in enumerate([(0, 0, 0.0), (30, 0, 2.0), (30, 30, 0.0), (0, 30, 0.0)]):
@@ -310,7 +310,7 @@ def test_a_waypoints_acceptance_radius_sets_its_corner_cut():
 
 
 def test_source_refuses_without_home_and_on_a_failed_download():
-    src = MissionSource("px4", *AP, *DAEMON, home_timeout_s=2.0)
+    src = MissionSource(False, *AP, *DAEMON, home_timeout_s=2.0)
     src.request(0.0, "test")
     src.take(0.0, count(2))
     src.take(0.0, item_int(0, LAT0, LON0, 2.0, frame=mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT))

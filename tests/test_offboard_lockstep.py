@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from companion import guidance
-from companion.estimators import wrap
+from contracts.geometry import wrap
 from companion.guidance import A_LAT, YAW_RATE_ARC
 from contracts.flat import horizontal_accel_limit
 from contracts.vehicle import G
@@ -370,8 +370,9 @@ def test_the_virtual_obstacle_uses_e_tr_at_the_speed_flown_during_a_dwell():
     slow = table.omega(3.0, R_OBST, 0.3, 1.0, contract="avoid")  # the limit still in force
     i = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, in_air=True, mode="offboard",
                limit_applies=False, mode_by_daemon=True, ground_speed=slow.v_max,
-               dod=DodEstimate(7.0, (0,), 3.0, None, "ok"), e_tr=0.3, thrust_ratio=1.0, r_obst=R_OBST, engaged=True)
-    e = rig.daemon._e_tr_flown(i, Decision("active", fast, slow.v_max))
+               dod=DodEstimate(7.0, (0,), 3.0, None, "ok"), e_tr_measured=0.3, thrust_ratio=1.0, r_obst=R_OBST, engaged=True)
+    e = rig.daemon.cycle.sup.e_tr_virtual(i, Decision("active", fast, slow.v_max))
     assert e == pytest.approx(max(0.3, table.e_tr_pred(slow.v_max, fast.tilt, 1.0)))
     assert e < fast.e_tr - 0.3  # not the faster Ω's
-    assert rig.daemon._e_tr_flown(replace(i, e_tr=2.0), Decision("active", fast, slow.v_max)) == 2.0  # measured
+    assert rig.daemon.cycle.sup.e_tr_virtual(replace(i, e_tr_measured=2.0), Decision("active", fast, slow.v_max)) \
+        == 2.0  # measured

@@ -16,7 +16,7 @@ def dod(d=8.0, obstacle=math.inf, reason="sensor 0 reports range"):
 
 
 BASE = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, in_air=True, mode="mission",
-              limit_applies=True, mode_by_daemon=False, ground_speed=2.0, dod=dod(), e_tr=0.2, thrust_ratio=1.0,
+              limit_applies=True, mode_by_daemon=False, ground_speed=2.0, dod=dod(), e_tr_measured=0.2, thrust_ratio=1.0,
               r_obst=1.0, engaged=True)
 
 
@@ -164,7 +164,7 @@ def test_controller_guarantee_is_checked_at_the_tilt_being_flown():
     is still judged against E_tr_pred at the operating point the vehicle was flying, not at the grid's
     smallest tilt (which raised a false controller violation at every route end)."""
     s = sup("offboard")
-    flying = replace(BASE, mode="offboard", ground_speed=5.0, dod=dod(6.0), e_tr=0.3)
+    flying = replace(BASE, mode="offboard", ground_speed=5.0, dod=dod(6.0), e_tr_measured=0.3)
     d = s.step(flying)
     om = d.omega
     assert om.v_max > 1.0
@@ -172,10 +172,10 @@ def test_controller_guarantee_is_checked_at_the_tilt_being_flown():
     e_low = TABLE.e_tr_pred(d.v_cmd, float(TABLE.e_pred.axes[1][0]), 1.0)
     e_meas = 0.5 * (e_flown + e_low)
     assert e_low + 0.05 < e_meas < e_flown - 0.05  # the two readings disagree here
-    lost = s.step(replace(flying, t=0.02, dod=dod(0.0), e_tr=e_meas))
+    lost = s.step(replace(flying, t=0.02, dod=dod(0.0), e_tr_measured=e_meas))
     assert lost.omega.v_max == 0.0
     assert not [e for e in lost.events if e[0] == "violation_start" and e[1]["subsystem"] == "controller"]
     s2 = sup("offboard")
     s2.step(flying)
-    over = s2.step(replace(flying, t=0.02, dod=dod(0.0), e_tr=e_flown + 0.2))
+    over = s2.step(replace(flying, t=0.02, dod=dod(0.0), e_tr_measured=e_flown + 0.2))
     assert [e for e in over.events if e[0] == "violation_start" and e[1]["subsystem"] == "controller"]

@@ -1,0 +1,168 @@
+"""MAVLink in: every message from the link becomes typed, timestamped samples (companion/samples.py), or
+nothing. Here, and only here: which sources are accepted, the daemon's clock following the vehicle's,
+the autopilot's state snapshot (`Telemetry`), sensor matching, unit and frame conversion (every sensor
+kind normalised into one `Scan`), and counting what is malformed. No decisions.
+
+A new sensor kind is one decoder here (a function returning a `Scan`) and one entry in `SENSOR_KINDS`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
+from .config import Config
+from .samples import (
+    AutopilotParam,
+    CommandAck,
+    Heading,
+    MissionMessage,
+    NavStatus,
+    ParamRequest,
+    PathTarget,
+    Position,
+    Scan,
+    Throttle,
+)
+from .telemetry import Telemetry
+
+UINT16_MAX = 65535
+MAV_FRAME_BODY_FRD = 12
+PARAM_MSGS = ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
+MISSION_MSGS = ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", "HOME_POSITION")
+SENSOR_MSGS = ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")  # accepted from any component of the vehicle
+
+
+class VehicleClock:
+    """Daemon time runs at the vehicle's rate: its own monotonic clock, scaled by how fast the vehicle's
+    `time_boot_ms` advances against it (1 for a real aircraft, K for a SITL sped up K times). Never
+    jumps and never runs backwards, with or without a vehicle (a reboot of the autopilot only resets
+    the rate estimate)."""
+
+    def __init__(self, local=time.monotonic):
+        self.local = local
+        self.rate = 1.0
+        self._anchor = (0.0, local())  # (daemon s, local s) where the current rate began
+        self._ref: tuple[float, float] | None = None  # (vehicle s, local s) of the rate window's start
+
+    def observe(self, time_boot_ms: int) -> None:
+        tv, tl = time_boot_ms / 1000.0, self.local()
+        if self._ref is None or tv < self._ref[0]:
+            self._ref = (tv, tl)
+            return
+        if tl - self._ref[1] >= 1.0:
+            r = min(max((tv - self._ref[0]) / (tl - self._ref[1]), 0.01), 1000.0)
+            self._anchor = (self(), tl)
+            self.rate += 0.5 * (r - self.rate) if abs(r / self.rate - 1) < 0.5 else (r - self.rate)
+            self._ref = (tv, tl)
+
+    def __call__(self) -> float:
+        return self._anchor[0] + (self.local() - self._anchor[1]) * self.rate
+
+
+def sensor_orientation(yaw_deg_clockwise: float) -> int:
+    """MAV_SENSOR_ORIENTATION of a horizontal sensor. The spec's yaw rotations turn to the left
+    (left-facing = ROTATION_YAW_90, right-facing = ROTATION_YAW_270), our yaw turns clockwise."""
+    return round((-yaw_deg_clockwise % 360) / 45) % 8
+
+
+def range_scan(t: float, sensor: int, bearing: float, current_m: float, min_m: float, max_m: float,
+               quality: int) -> Scan:
+    """A single range beam along body bearing `bearing` (PX4 convention: a reading at or beyond the
+    maximum, or at or below the minimum, sees nothing)."""
+    hits = ((bearing, current_m),) if min_m < current_m < max_m - 0.01 else ()
+    return Scan(t, sensor, hits, max_m, quality)
+
+
+def bins_scan(t: float, sensor: int, bearings: np.ndarray, ranges_m: np.ndarray, max_m: float,
+              increment: float) -> Scan:
+    """Bins of a sector sensor: body bearings of the used bins and their ranges (inf: nothing within
+    max; unused bins left out by the caller)."""
+    hits = tuple((float(b), float(r)) for b, r in zip(bearings, ranges_m) if r < max_m)
+    span = (float(bearings[0]), float(bearings[-1])) if len(bearings) else None
+    return Scan(t, sensor, hits, max_m, 0, span, increment)
+
+
+def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> Scan | None:
+    """DISTANCE_SENSOR: the configured sensor of this id (or any id) whose orientation matches; cm → m."""
+    i = sensor_of.get(("distance_sensor", msg.id), sensor_of.get(("distance_sensor", None)))
+    if i is None or msg.orientation != sensor_orientation(cfg.sensors[i].orientation_deg):
+        return None
+    return range_scan(t, i, math.radians(cfg.sensors[i].orientation_deg), msg.current_distance / 100,
+                      msg.min_distance / 100, msg.max_distance / 100, getattr(msg, "signal_quality", 0))
+
+
+def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> Scan | None:
+    """OBSTACLE_DISTANCE: bin k at angle_offset + k·increment (clockwise; MAV_FRAME_GLOBAL is north-aligned,
+    rotated into the body frame here); UINT16_MAX is an unused bin, beyond max_distance is free; cm → m."""
+    i = sensor_of.get(("obstacle_distance", None))
+    if i is None:
+        return None
+    inc = msg.increment_f if getattr(msg, "increment_f", 0) else float(msg.increment)
+    if inc <= 0:
+        return None  # PX4 ignores increment 0 too
+    d = np.asarray(msg.distances, dtype=float)
+    used = d != UINT16_MAX
+    ang = np.radians(getattr(msg, "angle_offset", 0.0) + inc * np.arange(len(d)))
+    if getattr(msg, "frame", MAV_FRAME_BODY_FRD) != MAV_FRAME_BODY_FRD:
+        ang = ang - tel.yaw
+    rng = np.where(d > msg.max_distance, np.inf, d / 100.0)
+    return bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc))
+
+
+SENSOR_KINDS = {"DISTANCE_SENSOR": _distance_sensor, "OBSTACLE_DISTANCE": _obstacle_distance}
+
+
+class MavlinkIn:
+    """Accepts the autopilot's (and its sensors') messages, keeps the `Telemetry` snapshot, and turns each
+    message into samples. `clock` is the daemon's clock; `vclock` (if any) follows `time_boot_ms`."""
+
+    def __init__(self, cfg: Config, adapter, clock, vclock: VehicleClock | None):
+        self.cfg, self.adapter, self.clock, self.vclock = cfg, adapter, clock, vclock
+        self.tel = Telemetry()
+        self._sensor_of = {(s.kind, s.id): i for i, s in enumerate(cfg.sensors)}
+
+    def accept(self, msg) -> list:
+        """Samples of one decoded message from the link (BAD_DATA is the caller's to count)."""
+        kind = msg.get_type()
+        if kind in PARAM_MSGS:
+            return [ParamRequest(msg)]  # from any ground station; the parameter server checks the address
+        src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
+        if src_sys != self.cfg.link.target_system:
+            return []
+        if src_comp != self.cfg.link.target_component and kind not in SENSOR_MSGS:
+            return []
+        tb = getattr(msg, "time_boot_ms", None)
+        if self.vclock is not None and tb:
+            self.vclock.observe(tb)
+        return self.samples(self.clock(), kind, msg)
+
+    def samples(self, t: float, kind: str, msg) -> list:
+        """The samples of one accepted message at daemon time t (may raise on nonsense: the caller counts it)."""
+        tel = self.tel
+        tel.update(t, msg)
+        if kind == "LOCAL_POSITION_NED":
+            return [Position(t, msg.x, msg.y)]
+        if kind == "ATTITUDE":
+            return [Heading(t, msg.yaw, tel.ground_speed)]
+        if kind == "POSITION_TARGET_LOCAL_NED":
+            return [PathTarget(t, *tel.target)] if tel.target is not None and tel.t_target == t else []
+        if kind == "VFR_HUD":
+            return [Throttle(t, tel.throttle, tel.roll, tel.pitch, tel.vz, tel.in_air)] if math.isfinite(tel.vz) else []
+        if kind in ("ESTIMATOR_STATUS", "EKF_STATUS_REPORT"):
+            return [NavStatus(t, kind, msg.flags)]
+        if kind in SENSOR_KINDS:
+            scan = SENSOR_KINDS[kind](self.cfg, self._sensor_of, t, msg, tel)
+            return [scan] if scan is not None else []
+        if kind == "COMMAND_ACK":
+            return [CommandAck(t, msg.command, msg.result)] \
+                if msg.command in (MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE) else []
+        if kind == "PARAM_VALUE":
+            name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else str(msg.param_id)
+            return [AutopilotParam(t, name, self.adapter.decode_param(msg.param_value, msg.param_type))]
+        if kind in MISSION_MSGS:
+            return [MissionMessage(t, msg)]
+        return []

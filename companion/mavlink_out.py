@@ -1,0 +1,159 @@
+"""MAVLink out: everything the daemon sends, and nothing it decides. Commands (the Hold command in one
+place), STATUSTEXT (chunked), offboard setpoints, the daemon's own HEARTBEAT and NAMED_VALUE_FLOATs,
+stream and parameter requests to the autopilot, and the parameter server for the daemon's `CG_*`
+parameters. A send that fails is dropped (the supervisor sees the link time out).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from .autopilot_base import MAV_CMD_DO_SET_MODE
+from .link import mavlink
+
+MAV_TYPE_ONBOARD_CONTROLLER = 18
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_STANDBY, MAV_STATE_ACTIVE, MAV_STATE_CRITICAL = 3, 4, 5
+MAV_PARAM_TYPE_REAL32 = 9
+HEARTBEAT_STATE = {"holding": MAV_STATE_CRITICAL, "failsafe": MAV_STATE_CRITICAL, "active": MAV_STATE_ACTIVE}
+SETPOINT_TYPE_MASK = 2048  # position, velocity, acceleration and yaw; no yaw rate
+
+# message id → interval [µs] the daemon asks for (SET_MESSAGE_INTERVAL)
+STREAMS = {
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 20_000,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 20_000,
+    mavlink.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 50_000,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 100_000,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 500_000,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 200_000,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 500_000,
+    mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: 50_000,
+    mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE: 50_000,
+}
+
+
+@dataclass
+class Counters:
+    messages: int = 0
+    bad_packets: int = 0
+    rejected_signature: int = 0
+    commands_sent: int = 0
+    log_errors: int = 0
+    loop_errors: int = 0
+    setpoints_sent: int = 0
+    setpoint_gap_max_s: float = 0.0  # longest gap between offboard setpoints while streaming (daemon time)
+
+
+class MavlinkOut:
+    """`event(t, name, **fields)` logs what was sent where the log wants it (commands)."""
+
+    def __init__(self, conn, link_cfg, adapter, counters: Counters, event: Callable[..., None]):
+        self.conn, self.link, self.adapter, self.counters, self.event = conn, link_cfg, adapter, counters, event
+        self._text_id = 0  # STATUSTEXT.id of the last chunked text
+        self._t_last_sp: float | None = None  # when the last offboard setpoint went out
+
+    def send(self, msg) -> None:
+        try:
+            self.conn.mav.send(msg)
+        except Exception:
+            pass  # the link is down; the supervisor sees the heartbeat time out
+
+    def command(self, t: float, cmd: int, params: tuple[float, ...], what: str) -> None:
+        self.counters.commands_sent += 1
+        self.send(self.conn.mav.command_long_encode(self.link.target_system, self.link.target_component, cmd, 0,
+                                                    *params))
+        self.event(t, "command", cmd=what, params=[p if math.isfinite(p) else None for p in params])
+
+    def set_mode(self, t: float, mode: str, what: str) -> None:
+        self.command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(mode, True), what)
+
+    def hold(self, t: float) -> None:
+        """Stop: the autopilot's Hold (PX4) / Brake (ArduPilot)."""
+        self.set_mode(t, self.adapter.hold_mode(), "hold")
+
+    def statustext(self, severity: int, text: str) -> None:
+        """STATUSTEXT; longer than 50 bytes, in chunks (MAVLink 2 `id`, `chunk_seq`; a chunk shorter
+        than 50 bytes ends the text)."""
+        data = text.encode()
+        if len(data) <= 50:
+            self.send(self.conn.mav.statustext_encode(severity, data))
+            return
+        self._text_id = self._text_id % 65535 + 1
+        for k in range(len(data) // 50 + 1):
+            self.send(self.conn.mav.statustext_encode(severity, data[50 * k:50 * k + 50], self._text_id, k))
+
+    def setpoint(self, t: float, sp) -> None:
+        """One offboard setpoint (SET_POSITION_TARGET_LOCAL_NED: position, velocity, acceleration, yaw)."""
+        if self._t_last_sp is not None:
+            self.counters.setpoint_gap_max_s = max(self.counters.setpoint_gap_max_s, t - self._t_last_sp)
+        self._t_last_sp = t
+        self.counters.setpoints_sent += 1
+        self.send(self.conn.mav.set_position_target_local_ned_encode(
+            int(t * 1000) & 0xFFFFFFFF, self.link.target_system, self.link.target_component,
+            mavlink.MAV_FRAME_LOCAL_NED, SETPOINT_TYPE_MASK,
+            float(sp.p[0]), float(sp.p[1]), float(sp.z), float(sp.v[0]), float(sp.v[1]), 0.0,
+            float(sp.a[0]), float(sp.a[1]), 0.0, float(sp.yaw), 0.0))
+
+    def end_stream(self) -> None:
+        self._t_last_sp = None
+
+    def request_streams(self, t: float, param_names) -> None:
+        """On link up: the autopilot parameters the start-up checks need, and the message rates."""
+        for name in param_names:
+            self.send(self.conn.mav.param_request_read_encode(self.link.target_system, self.link.target_component,
+                                                              name.encode(), -1))
+        for msg_id, interval in STREAMS.items():
+            self.command(t, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), float(interval), 0, 0, 0, 0, 0),
+                         "set_message_interval")
+
+    def heartbeat(self, state: str) -> None:
+        self.send(self.conn.mav.heartbeat_encode(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0,
+                                                 HEARTBEAT_STATE.get(state, MAV_STATE_STANDBY)))
+
+    def named_values(self, t: float, values: dict[str, float]) -> None:
+        """NAMED_VALUE_FLOAT each (−1 for a value that is not finite)."""
+        tb = int(t * 1000) & 0xFFFFFFFF
+        for name, v in values.items():
+            self.send(self.conn.mav.named_value_float_encode(tb, name.encode(), v if math.isfinite(v) else -1.0))
+
+
+class ParamServer:
+    """The daemon's parameters over the MAVLink parameter protocol, for any ground station that
+    addresses the daemon (its system, or broadcast; its component, or broadcast)."""
+
+    NAMES = ("CG_ENGAGE", "CG_MODE", "CG_R_OBST")
+    MODES = ("shadow", "governor", "offboard")  # CG_MODE's values
+
+    def __init__(self, out: MavlinkOut, component_id: int, values: dict[str, float]):
+        self.out, self.component_id, self.values = out, component_id, values
+
+    def handle(self, msg) -> tuple[str, float, float] | None:
+        """Answer one request; returns (name, old, new) when a PARAM_SET changed a value."""
+        link = self.out.link
+        if msg.target_system not in (link.target_system, 0) or msg.target_component not in (self.component_id, 0):
+            return None
+        kind = msg.get_type()
+        if kind == "PARAM_REQUEST_LIST":
+            for name in self.NAMES:
+                self.send(name)
+        elif kind == "PARAM_REQUEST_READ":
+            names = self.NAMES
+            name = msg.param_id if msg.param_index < 0 else names[msg.param_index] if msg.param_index < len(names) \
+                else None
+            if name in self.values:
+                self.send(name)
+        elif kind == "PARAM_SET" and msg.param_id in self.values:
+            v = float(msg.param_value)
+            if msg.param_id == "CG_MODE" and v not in (0.0, 1.0, 2.0) or not math.isfinite(v) or v < 0:
+                self.send(msg.param_id)  # refused: echo the current value
+                return None
+            old = self.values[msg.param_id]
+            self.values[msg.param_id] = v
+            return msg.param_id, old, v
+        return None
+
+    def send(self, name: str) -> None:
+        self.out.send(self.out.conn.mav.param_value_encode(name.encode(), self.values[name], MAV_PARAM_TYPE_REAL32,
+                                                           len(self.NAMES), self.NAMES.index(name)))

@@ -1,0 +1,10 @@
+"""Plane geometry shared by the daemon, its estimators and the harness (angles in radians)."""
+
+from __future__ import annotations
+
+import math
+
+
+def wrap(a: float) -> float:
+    """Angle to (−π, π]."""
+    return math.atan2(math.sin(a), math.cos(a))
