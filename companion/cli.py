@@ -23,18 +23,11 @@ def _emit(obj: dict, as_json: bool, text: str) -> None:
     print(json.dumps(obj, sort_keys=True) if as_json else text)
 
 
-def _load_table(path, vehicle_path=None):
-    from contracts.table import verify
-    from contracts.vehicle import load_vehicle
+def _load_table(path, vehicle=None):
+    """The table at `path`, verified (against `vehicle`, a shipped name or file, when given)."""
+    from contracts.table import load_for_vehicle
 
-    vehicle = load_vehicle(vehicle_path) if vehicle_path else None
-    return verify(path, vehicle)
-
-
-def shipped_table(name: str) -> Path:
-    from contracts.vehicle import DATA_DIR
-
-    return DATA_DIR / f"{name}.npz"
+    return load_for_vehicle(vehicle or None, path)
 
 
 # ----------------------------------------------------------------------------- table
@@ -142,6 +135,8 @@ def cmd_figures(args) -> int:
     """Figure 12 and the demonstration flights of Figures 14-16 (PNG + CSV)."""
     from sitl_harness.figures import make_figures
 
+    from contracts.table import shipped_table
+
     t = _load_table(args.table or shipped_table("mambo"))
     r = make_figures(t, args.out, seeds=tuple(range(args.seeds)))
     rows = [f for f in r["flights"] if f["seed"] == 0]
@@ -179,7 +174,7 @@ def cmd_run(args) -> int:
     """The daemon (what systemd starts)."""
     import signal
 
-    from contracts.vehicle import load_vehicle
+    from contracts.table import load_for_vehicle
 
     from .config import load_config
     from .daemon import Daemon
@@ -199,10 +194,7 @@ def cmd_run(args) -> int:
     if args.log_dir:
         upd["log"] = cfg.log.model_copy(update={"dir": Path(args.log_dir)})
     cfg = cfg.model_copy(update=upd)
-    vehicle = load_vehicle(cfg.vehicle)
-    table = _load_table(cfg.table or shipped_table(vehicle.name), None)
-    if table.vehicle.fingerprint() != vehicle.fingerprint():
-        raise ContractError(f"table {table.path} was built for another vehicle than {cfg.vehicle}")
+    table = load_for_vehicle(cfg.vehicle, cfg.table)
     if cfg.mode == "offboard" and table.avoid is None:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
     signing_clock = None
@@ -221,7 +213,7 @@ def cmd_run(args) -> int:
     signal.signal(signal.SIGINT, _stop)
     daemon = Daemon(cfg, table, conn, log, signing_clock=signing_clock)
     notifier = Notifier()
-    log.event(None, "start", mode=cfg.mode, vehicle=vehicle.name, table=str(table.path), connect=cfg.link.connect)
+    log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect)
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
     try:
         daemon.run(lambda: stop["now"], notifier)

@@ -200,8 +200,7 @@ def _describe_sources(scan: Scan) -> str:
 
 def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, table: Path | None):
     """(config forced to shadow, table, contract, how the autopilot was chosen) for this tlog."""
-    from contracts.table import verify
-    from contracts.vehicle import DATA_DIR, load_vehicle
+    from contracts.table import load_for_vehicle
 
     cfg = load_config(config) if config is not None else Config()
     chosen = "config"
@@ -225,13 +224,8 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
     cfg = cfg.model_copy(update={"mode": "shadow", "log": cfg.log.model_copy(update={"tlog": False})})
     if vehicle is not None:
         cfg = cfg.model_copy(update={"vehicle": vehicle, "table": None})
-    if table is not None and vehicle is None and config is None:
-        tab = verify(table, None)  # a table alone: its own vehicle
-    else:
-        veh = load_vehicle(cfg.vehicle)
-        tab = verify(table or cfg.table or DATA_DIR / f"{veh.name}.npz", None)
-        if tab.vehicle.fingerprint() != veh.fingerprint():
-            raise ContractError(f"table {tab.path} was built for another vehicle than {cfg.vehicle}")
+    alone = table is not None and vehicle is None and config is None  # a table alone: its own vehicle
+    tab = load_for_vehicle(None if alone else cfg.vehicle, table or cfg.table)
     contract = "avoid" if flown == "offboard" else "stop"
     if contract == "avoid" and tab.avoid is None:
         raise ContractError(f"the flight flew offboard (avoid contract); table {tab.path} carries the stop "
