@@ -30,6 +30,7 @@ from contracts.errors import ContractError
 from .config import Config, load_config
 from .eventlog import EventLog, finite_copy
 from .link import MemoryMavfile, mavlink
+from .logschema import COMMANDS, LOG_FILE, NVF
 
 MAGIC = re.compile(b"[\xfd\xfe]")
 MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (clamped); more is a clock jump
@@ -38,8 +39,9 @@ RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie 
 TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
 AUTOPILOTS = {mavlink.MAV_AUTOPILOT_PX4: "px4", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
 NOT_AUTOPILOT = (mavlink.MAV_AUTOPILOT_INVALID,)
-IN_FLIGHT = {"CG_VMAX": "v_max", "CG_DOD": "d_od", "CG_ETR": "e_tr"}  # the daemon's NAMED_VALUE_FLOATs
-DAEMON_COMMANDS = {mavlink.MAV_CMD_DO_CHANGE_SPEED: "change_speed", mavlink.MAV_CMD_DO_SET_MODE: "set_mode"}
+IN_FLIGHT = {name: f for name, (f, _, _) in NVF.items() if f}  # the daemon's NAMED_VALUE_FLOATs → state field
+# its COMMAND_LONGs counted: the speed limit and the mode (a hold or an offboard entry, alike on the wire)
+DAEMON_COMMANDS = {getattr(mavlink, COMMANDS["change_speed"]): "change_speed", getattr(mavlink, COMMANDS["hold"]): "set_mode"}
 REPLAY_LOG = "replay-events.jsonl"
 LISTED = 100
 
@@ -358,7 +360,7 @@ def review_tlog(path, out_dir=None, *, config=None, vehicle=None, table=None, ga
     work = Path(tempfile.mkdtemp(prefix="contract-guard-replay-"))
     try:
         run = replay(data, scan, cfg, tab, work, contract, str(path))
-        log_path = work / "events.jsonl"
+        log_path = work / LOG_FILE
         rep, samples = rv.analyse([log_path], gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=True)
         kept = None
         if out_dir is not None:

@@ -7,26 +7,9 @@ MAVLink `.tlog` is first replayed through a table by `companion.replay`, which a
 time, violation spans shaded, failsafes marked), `samples.csv` and `review.json`. Bad or missing input
 ends in one `ContractError` line.
 
-The record schema (JSON Lines, written by `companion.eventlog.EventLog`; every record also carries
-`kind` ("state" | "event"), `t` daemon time [s] (its clock runs at the vehicle's rate; lock-step: sim
-time), `wall` UNIX time [s], `seq`, `boot`, and `nonfinite` naming fields whose NaN/inf was written as
-null):
-
-State samples (`kind: "state"`, ≥ 10 Hz):
-    t, state, mode, contract ("stop" | "avoid"), engaged (bool), x, y, z [m, local NED],
-    vx, vy, vz, ground_speed [m/s], d_od, e_tr, e_tr_measured, r_obst [m], thrust_ratio [1],
-    v_max [m/s], tilt_deg [deg], v_safe [m/s], gamma [m/s] (Γ = limit in force − v_safe),
-    gamma_flown [m/s] (ground speed − v_safe: the contract evaluated on the flight itself),
-    v_cmd [m/s] (the limit actually commanded; null in shadow mode)
-
-Events (`kind: "event"`, field `event`):
-    violation_start / violation_end  subsystem ∈ {navigation, controller, environment, actuators, guidance},
-                                     guarantee (text), assumed, observed, action
-    failsafe (cause, action)         failsafe_clear (cause, optional: clears that cause, else all)
-    mode_change (from, to, by ∈ {daemon, other})     state_change (from, to, reason)
-    limit_change (v_max, reason)     command (name, params, result)     link (status ∈ {up, down, reconnect})
-    startup_check (ok, reason)       start, stop
-    log_open, log_recovered          written by the event log itself (restarts; records lost to write failures)
+The record schema (state fields with units, events with their fields) is `companion.logschema`. The
+reader also takes what today's daemon does not write: `failsafe_clear` (cause, optional: clears that
+cause, else all), a `command`'s `result`, and `link` status `reconnect`.
 
 Report semantics: time integrals hold each sample's value until the next sample of the same daemon run
 (`boot`), and do not bridge gaps longer than `gap_s` (default 1 s) or backwards steps of `t` (those are
@@ -46,16 +29,11 @@ from typing import Iterable
 
 from contracts.errors import ContractError
 
-from .eventlog import LOG_NAME, LOG_SUFFIX, file_set, finite_copy, read_events
+from .eventlog import file_set, finite_copy, read_events
+from .logschema import LOG_FILE, STATE_FIELDS, SUBSYSTEMS
 
 SCHEMA = "contract-guard/review"
 SCHEMA_VERSION = 1
-SUBSYSTEMS = ("navigation", "controller", "environment", "actuators", "guidance")
-STATE_FIELDS = (
-    "state", "mode", "contract", "engaged", "x", "y", "z", "vx", "vy", "vz", "ground_speed", "d_od", "e_tr",
-    "e_tr_measured", "r_obst", "thrust_ratio", "v_max", "tilt_deg", "v_safe", "gamma", "gamma_flown", "v_cmd",
-    "obstacle_m",
-)
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
 COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "e_tr", "e_tr_measured",
@@ -425,7 +403,7 @@ def _log_files(paths) -> list[Path]:
         if p.is_dir():
             found = file_set(p)
             if not found:
-                raise ContractError(f"{p} holds no event log ({LOG_NAME}{LOG_SUFFIX})")
+                raise ContractError(f"{p} holds no event log ({LOG_FILE})")
             files.extend(found)
         else:
             files.append(p)
