@@ -228,19 +228,60 @@ def cmd_run(args) -> int:
 # ----------------------------------------------------------------------------- review
 
 
+# raw-log suffix → "module:function" replaying such a log into an event log in a directory and returning a
+# `review.Origin`; a PX4 ULog (".ulg") or ArduPilot DataFlash (".bin") reader plugs in here
+RAW_LOGS = {".tlog": "companion.replay:replay_tlog"}
+
+
+def raw_log_of(paths) -> Path | None:
+    """The one raw log among `paths`, if any (it is replayed, not read)."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    raw = [Path(p) for p in paths if Path(p).suffix.lower() in RAW_LOGS]
+    if raw and len(paths) > 1:
+        raise ContractError(f"{raw[0]}: a {raw[0].suffix.lower()} is replayed on its own; review it without other logs")
+    return raw[0] if raw else None
+
+
+def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, gap_s: float = 1.0,
+               tolerance_m_s: float = 0.2):
+    """(report, origin) for event logs, or for one raw log replayed into an event log first (`origin`
+    says what it was made from; None for an event log). `config`, `vehicle`, `table`: for the replay."""
+    import importlib
+    import shutil
+    import tempfile
+
+    from .logschema import LOG_FILE, REPLAY_LOG_FILE
+    from .review import review
+
+    raw = raw_log_of(paths)
+    if raw is None:
+        if config or vehicle or table:
+            raise ContractError(f"--config, --vehicle and --table apply only to a {' or '.join(RAW_LOGS)} "
+                                "(an event log carries its values)")
+        return review(paths, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s), None
+    module, name = RAW_LOGS[raw.suffix.lower()].split(":")
+    to_event_log = getattr(importlib.import_module(module), name)
+    with tempfile.TemporaryDirectory(prefix="contract-guard-replay-", ignore_cleanup_errors=True) as work:
+        log = Path(work) / LOG_FILE
+        origin = to_event_log(raw, Path(work), config=config, vehicle=vehicle, table=table)
+        if out_dir is not None:
+            kept = Path(out_dir) / REPLAY_LOG_FILE
+            try:
+                kept.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(log, kept)
+            except OSError as err:
+                raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
+            origin.info["event_log"] = str(kept)
+        rep = review(log, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s, origin=origin)
+    return rep, origin
+
+
 def cmd_review(args) -> int:
-    from .review import format_report, review, tlog_of
+    """Event logs are reviewed; a raw log is replayed into an event log, then reviewed (`RAW_LOGS`)."""
+    from .review import format_report
 
-    tlog = tlog_of(args.log)
-    if tlog is not None:
-        from .replay import review_tlog
-
-        rep = review_tlog(tlog, args.out, config=args.config, vehicle=args.vehicle, table=args.table)
-    elif args.config or args.vehicle or args.table:
-        raise ContractError("--config, --vehicle and --table apply only to a .tlog (an event log carries its values)")
-    else:
-        rep = review(args.log, out_dir=args.out)
-    _emit(rep, args.json, format_report(rep))
+    rep, origin = review_log(args.log, args.out, config=args.config, vehicle=args.vehicle, table=args.table)
+    _emit(rep, args.json, format_report(rep, origin))
     return 0 if rep["ok"] or not args.strict else 1
 
 
