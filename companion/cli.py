@@ -23,18 +23,11 @@ def _emit(obj: dict, as_json: bool, text: str) -> None:
     print(json.dumps(obj, sort_keys=True) if as_json else text)
 
 
-def _load_table(path, vehicle_path=None):
-    from contracts.table import verify
-    from contracts.vehicle import load_vehicle
+def _load_table(path, vehicle=None):
+    """The table at `path`, verified (against `vehicle`, a shipped name or file, when given)."""
+    from contracts.table import load_for_vehicle
 
-    vehicle = load_vehicle(vehicle_path) if vehicle_path else None
-    return verify(path, vehicle)
-
-
-def shipped_table(name: str) -> Path:
-    from contracts.vehicle import DATA_DIR
-
-    return DATA_DIR / f"{name}.npz"
+    return load_for_vehicle(vehicle or None, path)
 
 
 # ----------------------------------------------------------------------------- table
@@ -142,6 +135,8 @@ def cmd_figures(args) -> int:
     """Figure 12 and the demonstration flights of Figures 14-16 (PNG + CSV)."""
     from sitl_harness.figures import make_figures
 
+    from contracts.table import shipped_table
+
     t = _load_table(args.table or shipped_table("mambo"))
     r = make_figures(t, args.out, seeds=tuple(range(args.seeds)))
     rows = [f for f in r["flights"] if f["seed"] == 0]
@@ -179,7 +174,7 @@ def cmd_run(args) -> int:
     """The daemon (what systemd starts)."""
     import signal
 
-    from contracts.vehicle import load_vehicle
+    from contracts.table import load_for_vehicle
 
     from .config import load_config
     from .daemon import Daemon
@@ -199,10 +194,7 @@ def cmd_run(args) -> int:
     if args.log_dir:
         upd["log"] = cfg.log.model_copy(update={"dir": Path(args.log_dir)})
     cfg = cfg.model_copy(update=upd)
-    vehicle = load_vehicle(cfg.vehicle)
-    table = _load_table(cfg.table or shipped_table(vehicle.name), None)
-    if table.vehicle.fingerprint() != vehicle.fingerprint():
-        raise ContractError(f"table {table.path} was built for another vehicle than {cfg.vehicle}")
+    table = load_for_vehicle(cfg.vehicle, cfg.table)
     if cfg.mode == "offboard" and table.avoid is None:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
     signing_clock = None
@@ -221,7 +213,7 @@ def cmd_run(args) -> int:
     signal.signal(signal.SIGINT, _stop)
     daemon = Daemon(cfg, table, conn, log, signing_clock=signing_clock)
     notifier = Notifier()
-    log.event(None, "start", mode=cfg.mode, vehicle=vehicle.name, table=str(table.path), connect=cfg.link.connect)
+    log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect)
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
     try:
         daemon.run(lambda: stop["now"], notifier)
@@ -236,19 +228,60 @@ def cmd_run(args) -> int:
 # ----------------------------------------------------------------------------- review
 
 
+# raw-log suffix → "module:function" replaying such a log into an event log in a directory and returning a
+# `review.Origin`; a PX4 ULog (".ulg") or ArduPilot DataFlash (".bin") reader plugs in here
+RAW_LOGS = {".tlog": "companion.replay:replay_tlog"}
+
+
+def raw_log_of(paths) -> Path | None:
+    """The one raw log among `paths`, if any (it is replayed, not read)."""
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    raw = [Path(p) for p in paths if Path(p).suffix.lower() in RAW_LOGS]
+    if raw and len(paths) > 1:
+        raise ContractError(f"{raw[0]}: a {raw[0].suffix.lower()} is replayed on its own; review it without other logs")
+    return raw[0] if raw else None
+
+
+def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, gap_s: float = 1.0,
+               tolerance_m_s: float = 0.2):
+    """(report, origin) for event logs, or for one raw log replayed into an event log first (`origin`
+    says what it was made from; None for an event log). `config`, `vehicle`, `table`: for the replay."""
+    import importlib
+    import shutil
+    import tempfile
+
+    from .logschema import LOG_FILE, REPLAY_LOG_FILE
+    from .review import review
+
+    raw = raw_log_of(paths)
+    if raw is None:
+        if config or vehicle or table:
+            raise ContractError(f"--config, --vehicle and --table apply only to a {' or '.join(RAW_LOGS)} "
+                                "(an event log carries its values)")
+        return review(paths, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s), None
+    module, name = RAW_LOGS[raw.suffix.lower()].split(":")
+    to_event_log = getattr(importlib.import_module(module), name)
+    with tempfile.TemporaryDirectory(prefix="contract-guard-replay-", ignore_cleanup_errors=True) as work:
+        log = Path(work) / LOG_FILE
+        origin = to_event_log(raw, Path(work), config=config, vehicle=vehicle, table=table)
+        if out_dir is not None:
+            kept = Path(out_dir) / REPLAY_LOG_FILE
+            try:
+                kept.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(log, kept)
+            except OSError as err:
+                raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
+            origin.info["event_log"] = str(kept)
+        rep = review(log, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s, origin=origin)
+    return rep, origin
+
+
 def cmd_review(args) -> int:
-    from .review import format_report, review, tlog_of
+    """Event logs are reviewed; a raw log is replayed into an event log, then reviewed (`RAW_LOGS`)."""
+    from .review import format_report
 
-    tlog = tlog_of(args.log)
-    if tlog is not None:
-        from .replay import review_tlog
-
-        rep = review_tlog(tlog, args.out, config=args.config, vehicle=args.vehicle, table=args.table)
-    elif args.config or args.vehicle or args.table:
-        raise ContractError("--config, --vehicle and --table apply only to a .tlog (an event log carries its values)")
-    else:
-        rep = review(args.log, out_dir=args.out)
-    _emit(rep, args.json, format_report(rep))
+    rep, origin = review_log(args.log, args.out, config=args.config, vehicle=args.vehicle, table=args.table)
+    _emit(rep, args.json, format_report(rep, origin))
     return 0 if rep["ok"] or not args.strict else 1
 
 

@@ -9,7 +9,7 @@ Files in the log directory:
   reads it back). A new process starts a new `raw.tlog` (the previous one is rotated to `raw.1.tlog`),
   so a packet torn by a crash never misaligns the next run's packets.
 
-Record schema (one JSON object per line; the daemon's fields are documented in `companion/review.py`):
+Record schema (one JSON object per line; every name is defined in `companion/logschema.py`):
 
     {"kind": "state", "t": 12.34, "wall": 1790000000.123, "seq": 17, "boot": "3f9c0a1b2d4e", ...fields}
     {"kind": "event", "t": 12.36, "wall": ..., "seq": 18, "boot": ..., "event": "violation_start", ...fields}
@@ -58,11 +58,11 @@ import uuid
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-LOG_NAME = "events"
-LOG_SUFFIX = ".jsonl"
+from .logschema import LOG_NAME, LOG_SUFFIX, RECORD_KEYS
+
 TLOG_NAME = "raw"
 TLOG_SUFFIX = ".tlog"
-RESERVED = frozenset(("kind", "t", "wall", "seq", "boot", "event", "nonfinite"))
+RESERVED = frozenset(RECORD_KEYS)
 _SEP = (",", ":")
 
 

@@ -1,8 +1,10 @@
-"""`contract-guard review FLIGHT.tlog`: replay a raw MAVLink `.tlog` through a Γ table, then review it.
+"""A raw MAVLink `.tlog` turned into an event log: `replay_tlog(path, log_dir)` replays it through a Γ table.
 
 The packets go, in log time, to a shadow-mode `Daemon` over an in-memory link (what it sends is
-discarded), stepped at its loop rate with no sleeping; its fresh event log then goes through the
-ordinary review (`companion.review`). Every packet in the tlog is fed — the autopilot's stream and
+discarded), stepped at its loop rate with no sleeping; it writes its event log into `log_dir`, which
+`companion.review` reads like any other (`contract-guard review FLIGHT.tlog`: `companion.cli` wires the
+two). The returned `Replay` (a `review.Origin`) becomes the report's `replay` section: what the tlog held,
+lacked or spoiled, and its findings. Every packet in the tlog is fed — the autopilot's stream and
 anything else (a ground station's, or our daemon's own outgoing packets when a router or MAVProxy
 logged both directions); the daemon keeps what it would have kept in flight. The in-flight daemon's
 `NAMED_VALUE_FLOAT` values, when present, are compared with the replay.
@@ -17,9 +19,7 @@ from __future__ import annotations
 
 import bisect
 import re
-import shutil
 import struct
-import tempfile
 from array import array
 from collections import Counter
 from dataclasses import dataclass, field
@@ -28,8 +28,10 @@ from pathlib import Path
 from contracts.errors import ContractError
 
 from .config import Config, load_config
-from .eventlog import EventLog, finite_copy
+from .eventlog import EventLog, finite_copy, read_events
 from .link import MemoryMavfile, mavlink
+from .logschema import COMMANDS, LOG_FILE, NVF
+from .review import Origin, fmt_value
 
 MAGIC = re.compile(b"[\xfd\xfe]")
 MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (clamped); more is a clock jump
@@ -38,9 +40,9 @@ RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie 
 TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
 AUTOPILOTS = {mavlink.MAV_AUTOPILOT_PX4: "px4", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
 NOT_AUTOPILOT = (mavlink.MAV_AUTOPILOT_INVALID,)
-IN_FLIGHT = {"CG_VMAX": "v_max", "CG_DOD": "d_od", "CG_ETR": "e_tr"}  # the daemon's NAMED_VALUE_FLOATs
-DAEMON_COMMANDS = {mavlink.MAV_CMD_DO_CHANGE_SPEED: "change_speed", mavlink.MAV_CMD_DO_SET_MODE: "set_mode"}
-REPLAY_LOG = "replay-events.jsonl"
+IN_FLIGHT = {name: f for name, (f, _, _) in NVF.items() if f}  # the daemon's NAMED_VALUE_FLOATs → state field
+# its COMMAND_LONGs counted: the speed limit and the mode (a hold or an offboard entry, alike on the wire)
+DAEMON_COMMANDS = {getattr(mavlink, COMMANDS["change_speed"]): "change_speed", getattr(mavlink, COMMANDS["hold"]): "set_mode"}
 LISTED = 100
 
 
@@ -200,8 +202,7 @@ def _describe_sources(scan: Scan) -> str:
 
 def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, table: Path | None):
     """(config forced to shadow, table, contract, how the autopilot was chosen) for this tlog."""
-    from contracts.table import verify
-    from contracts.vehicle import DATA_DIR, load_vehicle
+    from contracts.table import load_for_vehicle
 
     cfg = load_config(config) if config is not None else Config()
     chosen = "config"
@@ -225,13 +226,8 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
     cfg = cfg.model_copy(update={"mode": "shadow", "log": cfg.log.model_copy(update={"tlog": False})})
     if vehicle is not None:
         cfg = cfg.model_copy(update={"vehicle": vehicle, "table": None})
-    if table is not None and vehicle is None and config is None:
-        tab = verify(table, None)  # a table alone: its own vehicle
-    else:
-        veh = load_vehicle(cfg.vehicle)
-        tab = verify(table or cfg.table or DATA_DIR / f"{veh.name}.npz", None)
-        if tab.vehicle.fingerprint() != veh.fingerprint():
-            raise ContractError(f"table {tab.path} was built for another vehicle than {cfg.vehicle}")
+    alone = table is not None and vehicle is None and config is None  # a table alone: its own vehicle
+    tab = load_for_vehicle(None if alone else cfg.vehicle, table or cfg.table)
     contract = "avoid" if flown == "offboard" else "stop"
     if contract == "avoid" and tab.avoid is None:
         raise ContractError(f"the flight flew offboard (avoid contract); table {tab.path} carries the stop "
@@ -319,35 +315,52 @@ def _needed(cfg: Config) -> dict[str, tuple[str, ...]]:
     return need
 
 
-def replay_findings(info: dict) -> list[str]:
-    """Lines a reviewer must see about the replay itself (what the tlog lacked or spoiled)."""
-    out = []
-    if info["corrupt_packets"] or info["truncated_tail"]:
-        what = [f"{info['corrupt_packets']} corrupt stretch(es) skipped"] if info["corrupt_packets"] else []
-        what += ["last packet torn"] if info["truncated_tail"] else []
-        out.append(f"tlog damaged: {' and '.join(what)} ({info['skipped_bytes']} bytes lost)")
-    if info["missing_streams"]:
-        out.append("tlog lacks " + "; ".join(f"{k} ({' or '.join(v)})" for k, v in info["missing_streams"].items())
-                   + ": the replay ran without them")
-    for s in info["slow_streams"]:
-        out.append(f"{s['stream']} at {s['rate_hz']:.1f} Hz in the tlog, too slow for the daemon's {s['timeout_s']} s "
-                   "staleness limit: stale-data findings may be the log's, not the flight's")
-    if info["time_jumps"]:
-        out.append(f"{len(info['time_jumps'])} clock jump(s) in the tlog stamps closed up")
-    fl = info.get("in_flight")
-    if fl:
-        worst = {k: v for k, v in fl["max_abs_diff"].items() if v is not None and v > 0.5}
-        if worst:
-            out.append("replay differs from the in-flight daemon: " + ", ".join(
-                f"{k} by up to {v:.2f}" for k, v in worst.items()) + " (another config or table?)")
-    return out
+class Replay(Origin):
+    """A `.tlog` replayed: the report's `replay` section, what the tlog lacked or spoiled, and its text."""
+
+    key = "replay"
+
+    def findings(self) -> list[str]:
+        """Lines a reviewer must see about the replay itself (what the tlog lacked or spoiled)."""
+        info, out = self.info, []
+        if info["corrupt_packets"] or info["truncated_tail"]:
+            what = [f"{info['corrupt_packets']} corrupt stretch(es) skipped"] if info["corrupt_packets"] else []
+            what += ["last packet torn"] if info["truncated_tail"] else []
+            out.append(f"tlog damaged: {' and '.join(what)} ({info['skipped_bytes']} bytes lost)")
+        if info["missing_streams"]:
+            out.append("tlog lacks " + "; ".join(f"{k} ({' or '.join(v)})" for k, v in info["missing_streams"].items())
+                       + ": the replay ran without them")
+        for s in info["slow_streams"]:
+            out.append(f"{s['stream']} at {s['rate_hz']:.1f} Hz in the tlog, too slow for the daemon's {s['timeout_s']} s "
+                       "staleness limit: stale-data findings may be the log's, not the flight's")
+        if info["time_jumps"]:
+            out.append(f"{len(info['time_jumps'])} clock jump(s) in the tlog stamps closed up")
+        fl = info.get("in_flight")
+        if fl:
+            worst = {k: v for k, v in fl["max_abs_diff"].items() if v is not None and v > 0.5}
+            if worst:
+                out.append("replay differs from the in-flight daemon: " + ", ".join(
+                    f"{k} by up to {v:.2f}" for k, v in worst.items()) + " (another config or table?)")
+        return out
+
+    def lines(self) -> list[str]:
+        rp, ap = self.info, self.info["autopilot"]
+        out = [f"  replayed {rp['packets']} packets ({rp['corrupt_packets']} corrupt stretch(es) skipped"
+               + (", torn tail" if rp["truncated_tail"] else "") + f") through {rp['table']} "
+               f"({rp['contract']} contract, shadow mode); autopilot {ap['kind']} "
+               f"{ap['system']}/{ap['component']} ({ap['from']}); event log: {rp['event_log'] or 'not kept'}"]
+        fl = rp.get("in_flight")
+        if fl:
+            out.append("  in-flight daemon vs replay, max |difference|: " + ", ".join(
+                f"{k} {fmt_value(v)} ({fl['compared'][k]} values)" for k, v in fl["max_abs_diff"].items()))
+        return out
+
+    def title(self) -> str:
+        return f"replayed from {Path(self.info['tlog']).name}"
 
 
-def review_tlog(path, out_dir=None, *, config=None, vehicle=None, table=None, gap_s: float = 1.0,
-                tolerance_m_s: float = 0.2) -> dict:
-    """Replay the tlog at `path` and review the replayed event log (see the module docstring)."""
-    from . import review as rv
-
+def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -> Replay:
+    """Replay the tlog at `path` into an event log (`LOG_FILE`) in `log_dir` (see the module docstring)."""
     path = Path(path)
     if not path.exists():
         raise ContractError(f"no such file or directory: {path}")
@@ -361,21 +374,9 @@ def review_tlog(path, out_dir=None, *, config=None, vehicle=None, table=None, ga
     if not scan.packets:
         raise ContractError(f"{path}: no MAVLink packets in {len(data)} bytes (not a .tlog?)")
     cfg, tab, contract, chosen = resolve(scan, path, config, vehicle, table)
-    work = Path(tempfile.mkdtemp(prefix="contract-guard-replay-"))
-    try:
-        run = replay(data, scan, cfg, tab, work, contract, str(path))
-        log_path = work / "events.jsonl"
-        rep, samples = rv.analyse([log_path], gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=True)
-        kept = None
-        if out_dir is not None:
-            kept = Path(out_dir) / REPLAY_LOG
-            try:
-                kept.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(log_path, kept)
-            except OSError as err:
-                raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
+    run = replay(data, scan, cfg, tab, log_dir, contract, str(path))
+    columns = ("t", *IN_FLIGHT.values())
+    samples = [tuple(r.get(k) for k in columns) for r in read_events(log_dir / LOG_FILE) if r.get("kind") == "state"]
     target = (cfg.link.target_system, cfg.link.target_component)
     kinds = sorted({s.kind.upper() for s in cfg.sensors})
     to = cfg.timeouts
@@ -410,15 +411,9 @@ def review_tlog(path, out_dir=None, *, config=None, vehicle=None, table=None, ga
         "daemon_messages": run["messages"],
         "missing_streams": {k: list(v) for k, v in missing.items()},
         "slow_streams": slow,
-        "event_log": None if kept is None else str(kept),
-        "in_flight": in_flight(scan, samples, rv.CSV_COLUMNS, target[0]),
+        "event_log": None,  # where the replayed event log is kept, if it is (see companion.cli)
+        "in_flight": in_flight(scan, samples, columns, target[0]),
         "notes": ["shadow replay: the controller guarantee (contour error vs E_tr_pred at the commanded limit) "
                   "is evaluated only against a commanded limit, so it is not checked here"],
     }
-    rep["files"] = [str(path)]
-    rep["replay"] = finite_copy(info)
-    rep["findings"] = rv.findings(rep) + replay_findings(rep["replay"])
-    rep["ok"] = not rep["findings"]
-    if out_dir is not None:
-        rep["outputs"] = rv.write_outputs(rep, samples, Path(out_dir))
-    return rep
+    return Replay([str(path)], finite_copy(info))

@@ -1,32 +1,17 @@
 """`contract-guard review LOG`: a contract-violation report for one flight, from the daemon's event log.
 
-`review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several; a raw
-MAVLink `.tlog` is first replayed through a table by `companion.replay`, which adds a `replay` section),
-`summarise(records)` (pure) builds the report, `format_report(report)` renders it for a person. With
+`review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several),
+`summarise(records)` (pure) builds the report, `findings(report)` is what it concludes, and
+`format_report(report)` renders it for a person. This module reads event logs only: a raw log is first
+turned into one by a converter (`companion.replay` for a `.tlog`; `companion.cli` picks it), which hands
+over an `Origin` (its own report section and findings). With
 `out_dir`: `review.png` (speed limit and ground speed, Γ, `d_od`, `e_tr`, `thrust_ratio`, `r_obst` over
 time, violation spans shaded, failsafes marked), `samples.csv` and `review.json`. Bad or missing input
 ends in one `ContractError` line.
 
-The record schema (JSON Lines, written by `companion.eventlog.EventLog`; every record also carries
-`kind` ("state" | "event"), `t` daemon time [s] (its clock runs at the vehicle's rate; lock-step: sim
-time), `wall` UNIX time [s], `seq`, `boot`, and `nonfinite` naming fields whose NaN/inf was written as
-null):
-
-State samples (`kind: "state"`, ≥ 10 Hz):
-    t, state, mode, contract ("stop" | "avoid"), engaged (bool), x, y, z [m, local NED],
-    vx, vy, vz, ground_speed [m/s], d_od, e_tr, e_tr_measured, r_obst [m], thrust_ratio [1],
-    v_max [m/s], tilt_deg [deg], v_safe [m/s], gamma [m/s] (Γ = limit in force − v_safe),
-    gamma_flown [m/s] (ground speed − v_safe: the contract evaluated on the flight itself),
-    v_cmd [m/s] (the limit actually commanded; null in shadow mode)
-
-Events (`kind: "event"`, field `event`):
-    violation_start / violation_end  subsystem ∈ {navigation, controller, environment, actuators, guidance},
-                                     guarantee (text), assumed, observed, action
-    failsafe (cause, action)         failsafe_clear (cause, optional: clears that cause, else all)
-    mode_change (from, to, by ∈ {daemon, other})     state_change (from, to, reason)
-    limit_change (v_max, reason)     command (name, params, result)     link (status ∈ {up, down, reconnect})
-    startup_check (ok, reason)       start, stop
-    log_open, log_recovered          written by the event log itself (restarts; records lost to write failures)
+The record schema (state fields with units, events with their fields) is `companion.logschema`. The
+reader also takes what today's daemon does not write: `failsafe_clear` (cause, optional: clears that
+cause, else all), a `command`'s `result`, and `link` status `reconnect`.
 
 Report semantics: time integrals hold each sample's value until the next sample of the same daemon run
 (`boot`), and do not bridge gaps longer than `gap_s` (default 1 s) or backwards steps of `t` (those are
@@ -46,16 +31,11 @@ from typing import Iterable
 
 from contracts.errors import ContractError
 
-from .eventlog import LOG_NAME, LOG_SUFFIX, file_set, finite_copy, read_events
+from .eventlog import file_set, finite_copy, read_events
+from .logschema import LOG_FILE, STATE_FIELDS, SUBSYSTEMS
 
 SCHEMA = "contract-guard/review"
 SCHEMA_VERSION = 1
-SUBSYSTEMS = ("navigation", "controller", "environment", "actuators", "guidance")
-STATE_FIELDS = (
-    "state", "mode", "contract", "engaged", "x", "y", "z", "vx", "vy", "vz", "ground_speed", "d_od", "e_tr",
-    "e_tr_measured", "r_obst", "thrust_ratio", "v_max", "tilt_deg", "v_safe", "gamma", "gamma_flown", "v_cmd",
-    "obstacle_m",
-)
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
 COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "e_tr", "e_tr_measured",
@@ -345,9 +325,9 @@ class _Summary:
             "startup_checks": self.lists["startup_checks"],
             "log_gaps": self.lists["log_gaps"],
             "other_events": self.other_events,
+            "findings": None,  # set by conclude(), once the report is whole
+            "ok": None,
         }
-        rep["findings"] = findings(rep)
-        rep["ok"] = not rep["findings"]
         return rep
 
 
@@ -357,10 +337,21 @@ def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: flo
     `tolerance_m_s`: ground speed above the limit by no more than this is not a finding (issue 5 accepts
     limit + 0.2 m/s after a limit drop).
     """
+    return conclude(_summary(records, gap_s, tolerance_m_s))
+
+
+def _summary(records: Iterable[dict], gap_s: float, tolerance_m_s: float) -> dict:
     s = _Summary(gap_s, tolerance_m_s)
     for rec in records:
         s.add(rec)
     return s.result()
+
+
+def conclude(rep: dict, extra: Iterable[str] = ()) -> dict:
+    """Set the report's `findings` (the log's, then `extra`: what a conversion lacked) and `ok`."""
+    rep["findings"] = findings(rep) + list(extra)
+    rep["ok"] = not rep["findings"]
+    return rep
 
 
 def findings(rep: dict) -> list[str]:
@@ -406,13 +397,26 @@ def findings(rep: dict) -> list[str]:
 # ============================================================================ I/O
 
 
-def tlog_of(paths) -> Path | None:
-    """The one `.tlog` among `paths`, if any (a raw MAVLink log is replayed, not read)."""
-    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
-    tlogs = [Path(p) for p in paths if Path(p).suffix.lower() == ".tlog"]
-    if tlogs and len(paths) > 1:
-        raise ContractError(f"{tlogs[0]}: a .tlog is replayed on its own; review it without other logs")
-    return tlogs[0] if tlogs else None
+class Origin:
+    """What a converted event log was made from (a raw log replayed through the daemon): the report names
+    its `files` and holds `info` as section `key`; a converter subclasses it for its findings and text."""
+
+    key = "source"
+
+    def __init__(self, files: list[str], info: dict):
+        self.files, self.info = files, info
+
+    def findings(self) -> list[str]:
+        """Lines a reviewer must see about the conversion itself."""
+        return []
+
+    def lines(self) -> list[str]:
+        """The conversion, for a person (after the report's span)."""
+        return []
+
+    def title(self) -> str:
+        """A note for the plot's title."""
+        return ""
 
 
 def _log_files(paths) -> list[Path]:
@@ -425,7 +429,7 @@ def _log_files(paths) -> list[Path]:
         if p.is_dir():
             found = file_set(p)
             if not found:
-                raise ContractError(f"{p} holds no event log ({LOG_NAME}{LOG_SUFFIX})")
+                raise ContractError(f"{p} holds no event log ({LOG_FILE})")
             files.extend(found)
         else:
             files.append(p)
@@ -434,23 +438,19 @@ def _log_files(paths) -> list[Path]:
     return files
 
 
-def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = 0.2) -> dict:
+def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
+           origin: Origin | None = None) -> dict:
     """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON.
-    A single `.tlog` is replayed through the vehicle's shipped table first (`companion.replay`)."""
-    tlog = tlog_of(paths)
-    if tlog is not None:
-        from .replay import review_tlog
-
-        return review_tlog(tlog, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s)
+    `origin`: what a converter made the log from (its section and findings join the report)."""
     rep, samples = analyse(_log_files(paths), gap_s=gap_s, tolerance_m_s=tolerance_m_s,
-                           keep_samples=out_dir is not None)
+                           keep_samples=out_dir is not None, origin=origin)
     if out_dir is not None:
-        rep["outputs"] = write_outputs(rep, samples, Path(out_dir))
+        rep["outputs"] = write_outputs(rep, samples, Path(out_dir), origin.title() if origin else "")
     return rep
 
 
 def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
-            keep_samples: bool = False) -> tuple[dict, list[tuple] | None]:
+            keep_samples: bool = False, origin: Origin | None = None) -> tuple[dict, list[tuple] | None]:
     """(report, state rows in `CSV_COLUMNS` order or None) for event-log files."""
     reader = read_events(files)
     samples: list[tuple] | None = [] if keep_samples else None
@@ -462,19 +462,20 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2
             yield rec
 
     try:
-        rep = summarise(records(), gap_s=gap_s, tolerance_m_s=tolerance_m_s)
+        rep = _summary(records(), gap_s, tolerance_m_s)
     except OSError as err:
         raise ContractError(f"cannot read {err.filename or files[0]}: {err.strerror or err}") from err
-    rep["files"] = [str(f) for f in files]
+    rep["files"] = origin.files if origin else [str(f) for f in files]
     rep["bad_lines"] = [{"file": f, "line": n, "kind": k} for f, n, k in reader.bad_lines]
     if rep["records"] == 0:
         raise ContractError(f"{files[0]} is not a contract-guard event log (no records)")
-    rep["findings"] = findings(rep)
-    rep["ok"] = not rep["findings"]
-    return finite_copy(rep), samples  # a foreign log's NaN/Infinity tokens: the report stays strict JSON
+    rep = finite_copy(rep)  # a foreign log's NaN/Infinity tokens: the report stays strict JSON
+    if origin is not None:
+        rep[origin.key] = finite_copy(origin.info)
+    return conclude(rep, origin.findings() if origin else ()), samples
 
 
-def write_outputs(rep: dict, samples: list[tuple], out_dir: Path) -> dict:
+def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = "") -> dict:
     """`samples.csv`, `review.json` and `review.png` in `out_dir`; returns their paths."""
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -485,7 +486,7 @@ def write_outputs(rep: dict, samples: list[tuple], out_dir: Path) -> dict:
             for row in samples:
                 w.writerow([_cell(v) for v in row])
         png_path = out_dir / "review.png"
-        plot(rep, samples, png_path)
+        plot(rep, samples, png_path, note)
         json_path = out_dir / "review.json"
         outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path)}
         json_path.write_text(json.dumps({**rep, "outputs": outputs}, indent=1, default=str, allow_nan=False))
@@ -508,8 +509,9 @@ SUBSYSTEM_COLOURS = {"navigation": "tab:blue", "controller": "tab:orange", "envi
                      "actuators": "tab:red", "guidance": "tab:purple"}
 
 
-def plot(rep: dict, samples: list[tuple], path: Path) -> None:
-    """One PNG, panels sharing the time axis; violation spans shaded by subsystem, failsafes as red lines."""
+def plot(rep: dict, samples: list[tuple], path: Path, note: str = "") -> None:
+    """One PNG, panels sharing the time axis; violation spans shaded by subsystem, failsafes as red lines;
+    `note` goes into the title (e.g. "replayed from FLIGHT.tlog")."""
     try:
         import matplotlib
 
@@ -575,8 +577,8 @@ def plot(rep: dict, samples: list[tuple], path: Path) -> None:
         title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
         if rep["span"]["utc_first"]:
             title += f", from {rep['span']['utc_first']}"
-        if rep.get("replay"):
-            title += f" (replayed from {Path(rep['replay']['tlog']).name})"
+        if note:
+            title += f" ({note})"
         axes[0].set_title(title)
         fig.tight_layout(rect=(0, 0.03 if keys else 0, 1, 1))
         fig.savefig(path, dpi=100)
@@ -591,7 +593,8 @@ def _fmt_t(t) -> str:
     return "?" if t is None else f"{t:.2f} s"
 
 
-def _fmt(v, unit="") -> str:
+def fmt_value(v, unit="") -> str:
+    """A value for a person: 3 significant digits, — for none."""
     if v is None:
         return "—"
     if isinstance(v, float):
@@ -599,25 +602,15 @@ def _fmt(v, unit="") -> str:
     return f"{v}{unit}"
 
 
-def format_report(rep: dict) -> str:
+def format_report(rep: dict, origin: Origin | None = None) -> str:
     """The report as text for a person (the CLI prints it; `--json` prints the dict instead)."""
     sp = rep["span"]
     lines = [f"contract-guard review: {', '.join(rep.get('files', [])) or '(records)'}"]
-    lines.append(f"  span: t {_fmt_t(sp['t_first'])} … {_fmt_t(sp['t_last'])} ({_fmt(sp['duration_s'], ' s')})"
+    lines.append(f"  span: t {_fmt_t(sp['t_first'])} … {_fmt_t(sp['t_last'])} ({fmt_value(sp['duration_s'], ' s')})"
                  + (f", {sp['utc_first']} … {sp['utc_last']}" if sp["utc_first"] else ""))
     lines.append(f"  {rep['records']} records, {rep['state_samples']} state samples covering {rep['sampled_s']:.1f} s, "
                  f"{len(rep['boots'])} daemon run(s)")
-    rp = rep.get("replay")
-    if rp:
-        ap = rp["autopilot"]
-        lines.append(f"  replayed {rp['packets']} packets ({rp['corrupt_packets']} corrupt stretch(es) skipped"
-                     + (", torn tail" if rp["truncated_tail"] else "") + f") through {rp['table']} "
-                     f"({rp['contract']} contract, shadow mode); autopilot {ap['kind']} "
-                     f"{ap['system']}/{ap['component']} ({ap['from']}); event log: {rp['event_log'] or 'not kept'}")
-        fl = rp.get("in_flight")
-        if fl:
-            lines.append("  in-flight daemon vs replay, max |difference|: " + ", ".join(
-                f"{k} {_fmt(v)} ({fl['compared'][k]} values)" for k, v in fl["max_abs_diff"].items()))
+    lines += origin.lines() if origin else []
     lines.append("  verdict: " + ("contract kept (no findings)" if rep["ok"] else "REVIEW NEEDED"))
     for f in rep["findings"]:
         lines.append(f"    - {f}")
@@ -630,14 +623,14 @@ def format_report(rep: dict) -> str:
     for k in ("v_max", "v_cmd", "ground_speed", "gamma", "d_od", "e_tr", "thrust_ratio", "r_obst"):
         r = rep["ranges"][k]
         miss = f"  ({r['missing']} null)" if r["missing"] else ""
-        lines.append(f"    {k:<13} {_fmt(r['min'])} … {_fmt(r['max'])}{miss}")
+        lines.append(f"    {k:<13} {fmt_value(r['min'])} … {fmt_value(r['max'])}{miss}")
     lines.append(f"  violations: {rep['violation_count']}" + (f" (first {len(rep['violations'])} listed)"
                  if rep["violation_count"] > len(rep["violations"]) else ""))
     for v in rep["violations"]:
         end = _fmt_t(v["end_t"]) + ("" if v["ended_by"] == "violation_end" else f" ({v['ended_by']})")
-        lines.append(f"    {_fmt_t(v['start_t'])} … {end}  {_fmt(v['duration_s'], ' s')}  {v['subsystem']}: "
-                     f"{v['guarantee']}; assumed {_fmt(v['assumed'])}, observed {_fmt(v['observed'])}; "
-                     f"action {_fmt(v['action'])}")
+        lines.append(f"    {_fmt_t(v['start_t'])} … {end}  {fmt_value(v['duration_s'], ' s')}  {v['subsystem']}: "
+                     f"{v['guarantee']}; assumed {fmt_value(v['assumed'])}, observed {fmt_value(v['observed'])}; "
+                     f"action {fmt_value(v['action'])}")
     lines.append(f"  failsafes: {rep['failsafe_count']}")
     for fs in rep["failsafes"]:
         cleared = f", cleared at {_fmt_t(fs['cleared_t'])}" if fs["cleared_t"] is not None else ", not cleared"

@@ -35,7 +35,7 @@ from .lookup import (
     is_monotone,
 )
 from .stop import braking_decel, stop_dead_time, stop_speed
-from .vehicle import G, Vehicle, vehicle_from_dict
+from .vehicle import DATA_DIR, G, Vehicle, load_vehicle, vehicle_from_dict
 
 SCHEMA = "contract-guard/gamma-table"
 SCHEMA_VERSION = 1
@@ -213,6 +213,22 @@ def verify(path: str | Path, vehicle: Vehicle | None = None) -> "ContractTable":
     if meta.get("tilt_model") not in ("cone", "box"):
         raise ContractError(f"table {path}: unknown tilt_model {meta.get('tilt_model')!r}")
     return ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path)
+
+
+def shipped_table(name: str) -> Path:
+    """A shipped table by vehicle name: `mambo` → contracts/data/mambo.npz."""
+    return DATA_DIR / f"{name}.npz"
+
+
+def load_for_vehicle(vehicle: str | Path | Vehicle | None, table_path: str | Path | None = None) -> "ContractTable":
+    """The verified table for a vehicle (shipped name, vehicle file or `Vehicle`): `table_path`, else the
+    vehicle's shipped table; refused if built for another vehicle. No vehicle: `table_path` with its own."""
+    if vehicle is None:
+        if table_path is None:
+            raise ValueError("load_for_vehicle needs a vehicle or a table path")
+        return verify(table_path)
+    veh = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
+    return verify(shipped_table(veh.name) if table_path is None else table_path, veh)
 
 
 def _first_difference(a, b, prefix="") -> str:

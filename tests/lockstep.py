@@ -17,8 +17,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 from companion.config import config_from_dict  # noqa: E402
 from companion.daemon import Daemon  # noqa: E402
 from companion.link import MemoryMavfile  # noqa: E402
-from contracts.table import verify  # noqa: E402
-from contracts.vehicle import DATA_DIR, load_vehicle  # noqa: E402
+from contracts.table import load_for_vehicle  # noqa: E402
 from sitl_harness import LockstepLink, Sim  # noqa: E402
 from sitl_harness.scenario import scenario_from_dict  # noqa: E402
 
@@ -47,8 +46,7 @@ class Rig:
         self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
         self.link = LockstepLink(self.sim)
         self._queues: list[deque] = []
-        vehicle = load_vehicle(sc.vehicle)
-        table = verify(DATA_DIR / f"{sc.vehicle}.npz", vehicle)
+        table = load_for_vehicle(sc.vehicle)
         if table_wrapper is not None:
             table = table_wrapper(table)
         cfg = {"vehicle": sc.vehicle, "mode": "governor", "engage": True,

@@ -12,7 +12,9 @@ import yaml
 
 from companion.eventlog import EventLog, read_events
 from companion.link import mavlink
-from companion.replay import REPLAY_LOG, review_tlog, scan_tlog
+from companion.cli import review_log
+from companion.logschema import REPLAY_LOG_FILE as REPLAY_LOG
+from companion.replay import scan_tlog
 from companion.review import review
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
@@ -92,7 +94,7 @@ def violations(rep, offset=0.0, skip=("controller",)):
 def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
     d, cfg = fog
     live = review(d)
-    rep = review_tlog(d / "raw.tlog", tmp_path, config=cfg)
+    rep, _ = review_log(d / "raw.tlog", tmp_path, config=cfg)
     off = offset_of(rep)
     assert 0.0 <= off <= 0.05  # the first poll of the flight
 
@@ -122,7 +124,7 @@ def test_negative_control_another_e_tr_floor_gives_another_v_max(fog, tmp_path):
     other = yaml.safe_load(cfg.read_text())
     other["contract"]["e_tr_floor_m"] = 1.0
     (tmp_path / "other.yaml").write_text(yaml.safe_dump(other))
-    rep = review_tlog(d / "raw.tlog", tmp_path / "out", config=tmp_path / "other.yaml")
+    rep, _ = review_log(d / "raw.tlog", tmp_path / "out", config=tmp_path / "other.yaml")
     live_s, rep_s = states(d), states(tmp_path / "out" / REPLAY_LOG)
     assert len(disagreements(live_s, rep_s, "v_max", 0.02, offset_of(rep))) > len(live_s) // 2
 
@@ -132,7 +134,7 @@ def test_router_tlog_with_the_daemons_own_packets(thrust, tmp_path):
     confuse the replay, and its NAMED_VALUE_FLOATs are compared with the replayed values."""
     d, cfg = thrust
     live = review(d)
-    rep = review_tlog(d / "raw.tlog", config=cfg)
+    rep, _ = review_log(d / "raw.tlog", config=cfg)
     off = offset_of(rep)
     lv, rv = violations(live), violations(rep, off)
     assert [v[0] for v in lv] == ["actuators"]
@@ -147,7 +149,7 @@ def test_router_tlog_with_the_daemons_own_packets(thrust, tmp_path):
 
     # without the flight's config (thrust estimate τ 2 s instead of 0.5 s) the replay misses the
     # violation, and the in-flight comparison says the replay is not the flight
-    bare = review_tlog(d / "raw.tlog")
+    bare, _ = review_log(d / "raw.tlog")
     assert bare["replay"]["autopilot"] == {"system": 1, "component": 1, "kind": "ardupilot", "from": "detected"}
     assert violations(bare) == []
     assert bare["replay"]["in_flight"]["max_abs_diff"]["v_max"] > 1.0
@@ -158,7 +160,7 @@ def test_an_offboard_flight_is_replayed_under_the_avoid_contract(tmp_path):
     d = tmp_path / "flight"
     cfg = record(d, offboard_scenario(1), "px4", config=offboard_config(), outgoing=True, seconds=22.0,
                  flight=engage_and_fly)
-    rep = review_tlog(d / "raw.tlog", tmp_path / "out", config=cfg)
+    rep, _ = review_log(d / "raw.tlog", tmp_path / "out", config=cfg)
     assert rep["replay"]["contract"] == "avoid"
     live_s, rep_s = states(d), states(tmp_path / "out" / REPLAY_LOG)
     assert {s["contract"] for s in live_s} == {s["contract"] for s in rep_s} == {"avoid"}
@@ -192,7 +194,7 @@ def test_corrupt_and_truncated_tlog_is_replayed_with_the_damage_counted(fog, tmp
     broken += data[o:o + n - 5]  # the last packet torn
     (tmp_path / "broken.tlog").write_bytes(bytes(broken))
 
-    rep = review_tlog(tmp_path / "broken.tlog", config=cfg)
+    rep, _ = review_log(tmp_path / "broken.tlog", config=cfg)
     rp = rep["replay"]
     assert rp["corrupt_packets"] == 4 and rp["truncated_tail"] is True
     assert rp["packets"] == len(fr) - 3 - 1
@@ -217,7 +219,7 @@ def test_a_ground_station_style_tlog_says_what_it_lacks(fog, tmp_path):
                 continue
         kept += data[o:o + n]
     (tmp_path / "gcs.tlog").write_bytes(bytes(kept))
-    rep = review_tlog(tmp_path / "gcs.tlog")
+    rep, _ = review_log(tmp_path / "gcs.tlog")
     rp = rep["replay"]
     assert set(rp["missing_streams"]) == {"navigation health", "obstacle data (DISTANCE_SENSOR: D_od is 0 throughout)"}
     assert [s["stream"] for s in rp["slow_streams"]] == ["LOCAL_POSITION_NED"]

@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from companion.eventlog import EventLog
-from companion.review import SCHEMA, format_report, review, summarise
+from companion.logschema import REPLAY_LOG_FILE
+from companion.review import SCHEMA, Origin, format_report, review, summarise
 from contracts.errors import ContractError
 
 DT = 0.05  # 20 Hz samples
@@ -257,3 +258,44 @@ def test_a_flapping_guarantee_is_counted_in_full_but_listed_in_part():
     assert rep["violation_count"] == 1200 and len(rep["violations"]) == 1000
     assert rep["violations_by_subsystem"]["controller"]["total_s"] == pytest.approx(600.0)
     assert rep["findings"][0].startswith("1200 contract violation(s): controller ×1200 (600.0 s)")
+
+
+class _Fake(Origin):
+    key = "fake"
+
+    def findings(self):
+        return ["fake log: no obstacle sensor"]
+
+    def lines(self):
+        return ["  converted from a fake raw log"]
+
+
+def fake_to_event_log(path, log_dir, *, config, vehicle, table):
+    """A stand-in raw-log reader (the shape a .ulg or .bin reader takes): writes an event log, names its origin."""
+    log = EventLog(log_dir, fsync_events=False)
+    for i in range(40):
+        put(log, i)
+    log.close()
+    return _Fake([str(path)], {"source": str(path)})
+
+
+def test_the_cli_dispatches_raw_logs_to_their_reader_then_reviews_the_event_log(tmp_path, monkeypatch):
+    from companion import cli
+
+    monkeypatch.setitem(cli.RAW_LOGS, ".fake", "tests.test_review:fake_to_event_log")
+    (tmp_path / "flight.fake").write_bytes(b"")
+    rep, origin = cli.review_log(tmp_path / "flight.fake", tmp_path / "out")
+    assert rep["files"] == [str(tmp_path / "flight.fake")] and rep["fake"]["source"] == str(tmp_path / "flight.fake")
+    assert rep["findings"] == ["fake log: no obstacle sensor"] and rep["ok"] is False
+    assert rep["fake"]["event_log"] == str(tmp_path / "out" / REPLAY_LOG_FILE)
+    assert "converted from a fake raw log" in format_report(rep, origin)
+    with pytest.raises(ContractError, match="replayed on its own"):
+        cli.review_log([tmp_path / "flight.fake", tmp_path])
+
+
+def test_the_review_knows_nothing_of_raw_logs():
+    import subprocess
+    import sys
+
+    code = "import sys, companion.review; assert not [m for m in sys.modules if m.startswith('companion.replay')]"
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from contracts.errors import ContractError
 from contracts.lookup import is_monotone, repair_monotone
-from contracts.table import SLOTS, Slot, arrays_sha256, verify, write_table
+from contracts.table import SLOTS, Slot, arrays_sha256, load_for_vehicle, shipped_table, verify, write_table
 from contracts.vehicle import G, load_vehicle
 
 MAMBO = load_vehicle("mambo")
@@ -300,3 +300,12 @@ def test_on_board_modules_never_import_casadi():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
     assert r.returncode == 0, r.stderr
+
+
+def test_load_for_vehicle_takes_the_shipped_table_and_checks_the_vehicle():
+    t = load_for_vehicle("mambo")
+    assert t.path == shipped_table("mambo") and t.vehicle.name == "mambo"
+    assert load_for_vehicle(load_vehicle("x500")).vehicle.name == "x500"
+    assert load_for_vehicle(None, shipped_table("x500")).vehicle.name == "x500"  # a table alone: its own vehicle
+    with pytest.raises(ContractError, match="built for another vehicle"):
+        load_for_vehicle("x500", shipped_table("mambo"))

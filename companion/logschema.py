@@ -1,0 +1,118 @@
+"""The event log's schema, in one place: file names, the record envelope, the state sample's fields (in
+the order the daemon writes them), the events and their fields, the daemon's NAMED_VALUE_FLOATs and its
+command names (DESIGN.md §5). Written by `companion.eventlog`, read by `companion.review` and
+`companion.replay`; `tests/test_logschema.py` checks it against what the daemon really writes.
+
+A record is one JSON object per line (JSON Lines):
+
+    {"kind": "state", "t": 12.34, "wall": 1790000000.1, "seq": 17, "boot": "3f9c0a1b2d4e", ...STATE_FIELDS}
+    {"kind": "event", "t": 12.36, "wall": ..., "seq": 18, "boot": ..., "event": "violation_start", ...fields}
+
+Pure data: no I/O, no imports of the rest of the daemon.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+LOG_NAME = "events"  # the current file is events.jsonl; rotated to events.1.jsonl (newest) … events.<keep>.jsonl
+LOG_SUFFIX = ".jsonl"
+LOG_FILE = LOG_NAME + LOG_SUFFIX
+REPLAY_LOG_FILE = "replay-events.jsonl"  # an event log made by replaying a raw log, as kept beside its review
+
+# every record's envelope (a field of the same name is stored with a trailing underscore: `seq_`)
+ENVELOPE = {
+    "kind": "'state' | 'event'",
+    "t": "daemon time [s] (runs at the vehicle's rate; lock-step: sim time; null for the log's own events)",
+    "wall": "UNIX time [s] from the injected wall clock",
+    "seq": "record number of this daemon run, from 0 (a gap means lost records)",
+    "boot": "random id of this daemon run (one per EventLog)",
+    "event": "event name (events only; see EVENTS)",
+    "nonfinite": "dotted names of fields whose NaN/inf was written as null (only when there were any)",
+}
+RECORD_KEYS = tuple(ENVELOPE)
+
+# state sample (kind "state", at log.state_hz ≥ 10 Hz): field → (unit, meaning), in the order written
+STATE = {
+    "state": ("", "supervisor state: standby | active | holding | failsafe"),
+    "mode": ("", "autopilot flight mode (the adapter's name; 'other' while the link is down)"),
+    "contract": ("", "contract enforced: stop (governor, shadow) | avoid (offboard)"),
+    "engaged": ("bool", "the daemon is asked to act and may (CG_ENGAGE, start-up checks, not restarted in air)"),
+    "x": ("m", "position north, local NED"),
+    "y": ("m", "position east, local NED"),
+    "z": ("m", "position down, local NED"),
+    "vx": ("m/s", "velocity north"),
+    "vy": ("m/s", "velocity east"),
+    "vz": ("m/s", "velocity down"),
+    "ground_speed": ("m/s", "horizontal speed (NaN/null while telemetry is stale)"),
+    "d_od": ("m", "detection range D_od the navigation guarantees now"),
+    "e_tr": ("m", "tracking error E_tr used by the contract (measured or predicted, the larger)"),
+    "e_tr_measured": ("m", "contour error measured against the commanded path"),
+    "r_obst": ("m", "expected obstacle radius R_obst (CG_R_OBST)"),
+    "thrust_ratio": ("1", "available thrust T_max / T_nom, estimated"),
+    "v_max": ("m/s", "speed limit V_max of the chosen operating point Ω"),
+    "tilt_deg": ("deg", "tilt limit of Ω"),
+    "v_safe": ("m/s", "the contract's safe speed at Ω"),
+    "gamma": ("m/s", "Γ = limit in force (v_cmd, else v_max) − v_safe"),
+    "gamma_flown": ("m/s", "ground speed − v_safe: the contract evaluated on the flight itself"),
+    "v_cmd": ("m/s", "speed limit actually commanded (null when none: shadow, not engaged)"),
+    "obstacle_m": ("m", "nearest obstacle seen near the path (inf/null: none)"),
+}
+STATE_FIELDS = tuple(STATE)
+
+SUBSYSTEMS = ("navigation", "controller", "environment", "actuators", "guidance")  # violation_start.subsystem
+
+
+class Event(NamedTuple):
+    fields: tuple[str, ...]  # every field it may carry (beyond the envelope)
+    by: str  # who writes it
+    meaning: str
+
+
+_MISSION_STATS = ("resent", "duplicates", "out_of_order", "malformed")
+EVENTS = {
+    "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract"), "cli run, replay",
+                   "daemon run starts (connect: the live link; replay_of: the raw log replayed)"),
+    "stop": Event(("counters",), "cli run, replay", "daemon run ends cleanly (the daemon's counters)"),
+    "log_open": Event(("pid", "torn_tail"), "eventlog", "log opened (torn_tail: the previous run's last line was cut)"),
+    "log_recovered": Event(("dropped_records", "write_errors", "since_wall", "error"), "eventlog",
+                           "writes succeed again after a failure (records dropped meanwhile)"),
+    "violation_start": Event(("subsystem", "guarantee", "assumed", "observed", "action"), "supervisor",
+                             "a subsystem broke its guarantee (subsystem ∈ SUBSYSTEMS)"),
+    "violation_end": Event(("subsystem", "guarantee"), "supervisor", "that guarantee holds again"),
+    "state_change": Event(("from", "to", "reason"), "supervisor", "supervisor state changed"),
+    "mode_change": Event(("from", "to", "by"), "supervisor", "autopilot mode changed (by: daemon | other)"),
+    "failsafe": Event(("cause", "action"), "supervisor", "a failsafe cause made the daemon hold"),
+    "hold_trigger": Event(("cause", "action"), "supervisor", "a non-failsafe cause (obstacle, limit not in force) "
+                          "made the daemon hold"),
+    "limit_change": Event(("v_max", "reason"), "supervisor", "a new speed limit is sent"),
+    "limit_not_applicable": Event(("mode", "v_max"), "supervisor", "the autopilot's mode ignores the speed limit"),
+    "would_hold": Event(("causes",), "supervisor", "shadow mode: the causes a governor would hold for now"),
+    "command": Event(("cmd", "params"), "daemon", "a COMMAND_LONG sent (cmd ∈ COMMANDS)"),
+    "command_ack": Event(("command", "result"), "daemon", "the autopilot's answer to a speed or mode command"),
+    "link": Event(("status",), "daemon", "autopilot heartbeat: up | down"),
+    "startup_check": Event(("ok", "reason"), "daemon", "verdict of the start-up checks"),
+    "param_set": Event(("param", "old", "new"), "daemon", "a ground station set one of our parameters"),
+    "loop_error": Event(("error", "consecutive"), "daemon", "an exception inside a cycle (logged, not fatal)"),
+    "offboard": Event(("from", "to", "reason"), "offboard", "offboard controller state changed"),
+    "no_avoiding_plan": Event(("notes",), "offboard", "no avoiding plan: braking"),
+    "mission": Event(("status", "why", "reason", "waypoints", "altitude_m", "items", "notes", *_MISSION_STATS),
+                     "mission", "mission download: downloading | waiting_home | ready | refused"),
+}
+
+# NAMED_VALUE_FLOATs the daemon sends (2 Hz; -1 for a non-finite value): name → (state field it equals or
+# None, unit, meaning)
+NVF = {
+    "CG_VMAX": ("v_max", "m/s", "V_max of Ω"),
+    "CG_GAMMA": (None, "m/s", "Γ of Ω (v_max − v_safe; the state's gamma uses the limit in force)"),
+    "CG_DOD": ("d_od", "m", "D_od"),
+    "CG_ETR": ("e_tr", "m", "E_tr used"),
+}
+
+# `command` events: cmd → the MAVLink command (COMMAND_LONG) sent
+COMMANDS = {
+    "hold": "MAV_CMD_DO_SET_MODE",
+    "change_speed": "MAV_CMD_DO_CHANGE_SPEED",
+    "offboard": "MAV_CMD_DO_SET_MODE",
+    "set_message_interval": "MAV_CMD_SET_MESSAGE_INTERVAL",
+}
