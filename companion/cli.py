@@ -1,4 +1,4 @@
-"""`contract-guard`: the one entry point (DESIGN.md §7).
+"""`contract-guard`: keeps a multirotor's obstacle avoidance within its contract (PX4, ArduPilot).
 
 Every command that prints results has `--json` (one JSON object on stdout). Errors a person can cause
 end with one line on stderr and a non-zero exit status, never a traceback. This module wires the

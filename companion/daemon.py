@@ -22,6 +22,7 @@ from .autopilots import adapter_for
 from .config import Config
 from .cycle import Cycle
 from .guidance import InlinePlanning, ThreadedPlanning
+from .logschema import NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut, ParamServer
 from .mission import MissionSource
@@ -217,24 +218,32 @@ class Daemon:
         if t - self._t_hb_out >= 1.0 or t < self._t_hb_out:
             self._t_hb_out = t
             self.out.heartbeat(d.state)
-        if t - self._t_nvf >= 0.5 or t < self._t_nvf:
+        nvf_due = t - self._t_nvf >= 0.5 or t < self._t_nvf
+        state_due = t - self._t_state_log >= 1.0 / self.cfg.log.state_hz or t < self._t_state_log
+        if not (nvf_due or state_due):
+            return
+        record = self._state_record(i, d)
+        if nvf_due:
             self._t_nvf = t
-            self.out.named_values(t, {"CG_VMAX": d.omega.v_max, "CG_GAMMA": d.omega.gamma, "CG_DOD": i.dod.d_od,
-                                      "CG_ETR": d.omega.e_tr})
-        if t - self._t_state_log >= 1.0 / self.cfg.log.state_hz or t < self._t_state_log:
+            self.out.named_values(t, {name: record[field] if field else d.omega.gamma
+                                      for name, (field, _, _) in NVF.items()})
+        if state_due:
             self._t_state_log = t
-            tel = self.tel
             try:
-                self.log.state(
-                    t, state=d.state, mode=i.mode, contract=self.cycle.sup.contract, engaged=i.engaged,
-                    x=tel.x, y=tel.y, z=tel.z, vx=tel.vx, vy=tel.vy, vz=tel.vz, ground_speed=i.ground_speed,
-                    d_od=i.dod.d_od, e_tr=d.omega.e_tr, e_tr_measured=i.e_tr_measured, r_obst=i.r_obst,
-                    thrust_ratio=i.thrust_ratio, v_max=d.omega.v_max, tilt_deg=math.degrees(d.omega.tilt),
-                    v_safe=d.omega.v_safe, gamma=(d.v_cmd if d.v_cmd is not None else d.omega.v_max) - d.omega.v_safe,
-                    gamma_flown=i.ground_speed - d.omega.v_safe, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m,
-                )
+                self.log.state(t, **{k: record[k] for k in STATE_FIELDS})
             except Exception:
                 self.counters.log_errors += 1
+
+    def _state_record(self, i: Inputs, d: Decision) -> dict:
+        """The state sample's values (companion/logschema.py: STATE says what each means)."""
+        tel, om = self.tel, d.omega
+        return dict(
+            state=d.state, mode=i.mode, contract=self.cycle.sup.contract, engaged=i.engaged,
+            x=tel.x, y=tel.y, z=tel.z, vx=tel.vx, vy=tel.vy, vz=tel.vz, ground_speed=i.ground_speed,
+            d_od=i.dod.d_od, e_tr=om.e_tr, e_tr_measured=i.e_tr_measured, r_obst=i.r_obst,
+            thrust_ratio=i.thrust_ratio, v_max=om.v_max, tilt_deg=math.degrees(om.tilt), v_safe=om.v_safe,
+            gamma=(d.v_cmd if d.v_cmd is not None else om.v_max) - om.v_safe,
+            gamma_flown=i.ground_speed - om.v_safe, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m)
 
     def shutdown(self) -> None:
         """Leave cleanly: offboard hands over to Hold; persist the signing timestamp; say so."""

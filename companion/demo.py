@@ -27,6 +27,8 @@ from pymavlink import mavutil  # noqa: E402
 
 from contracts.errors import ContractError  # noqa: E402
 
+from .logschema import LOG_FILE  # noqa: E402
+
 
 def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -220,7 +222,7 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         "v_max_steps": steps, "route_progress_m": round(max((s["x"] for s in states), default=0.0), 1),
         "gcs_actions": gcs_actions, "forwarded": int(sitl_summary.get("forwarded", 0)),
         "setpoints": _stream_figures(records),
-        "event_log": str(out / "log" / "events.jsonl"), "plot": str(out / "review" / "review.png"),
+        "event_log": str(out / "log" / LOG_FILE), "plot": str(out / "review" / "review.png"),
         "safe": collisions == 0 and clear > 0,
     }
     (out / "summary.json").write_text(json.dumps(result, indent=2))

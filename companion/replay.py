@@ -27,6 +27,7 @@ from pathlib import Path
 
 from contracts.errors import ContractError
 
+from .autopilots import name_for_heartbeat
 from .config import Config, load_config
 from .eventlog import EventLog, finite_copy, read_events
 from .link import MemoryMavfile, mavlink
@@ -38,7 +39,6 @@ MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (cla
 MAX_GAP_US = 300_000_000  # a longer silence is taken as a clock jump and closed up
 RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie within a day of the last good one
 TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
-AUTOPILOTS = {mavlink.MAV_AUTOPILOT_PX4: "px4", mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA: "ardupilot"}
 NOT_AUTOPILOT = (mavlink.MAV_AUTOPILOT_INVALID,)
 IN_FLIGHT = {name: f for name, (f, _, _) in NVF.items() if f}  # the daemon's NAMED_VALUE_FLOATs → state field
 # its COMMAND_LONGs counted: the speed limit and the mode (a hold or an offboard entry, alike on the wire)
@@ -212,7 +212,7 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
             raise ContractError(f"{path}: no usable telemetry: no autopilot HEARTBEAT in {scan.packets} packets "
                                 f"(sources sys/comp: {_describe_sources(scan)})")
         sy, cp = aps[0]
-        kind = AUTOPILOTS.get(scan.heartbeats[(sy, cp)][1], "px4")
+        kind = name_for_heartbeat(scan.heartbeats[(sy, cp)][1]) or "px4"
         cfg = cfg.model_copy(update={"link": cfg.link.model_copy(
             update={"target_system": sy, "target_component": cp, "autopilot": kind})})
         chosen = "detected"
