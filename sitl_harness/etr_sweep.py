@@ -52,7 +52,7 @@ from contracts.contour import contour_errors
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
 from contracts.lookup import repair_monotone
-from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc, Plan
+from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc, Plan, keeps_plan
 from contracts.table import SLOTS, Slot, verify, write_table
 from contracts.vehicle import Vehicle, load_vehicle
 
@@ -223,13 +223,15 @@ class OnlineFlight:
                 self.left -= 1
                 new = self.planner.plan(pos[:2], vel[:2], (1.0, 0.0), [d], v_max=ref.v_max, a_max=ref.a_max,
                                         warm=self.plan, elapsed=t - self.plan_t)
-                if new.ok or not (self.plan.ok and t - self.plan_t < self.plan.t[-1]):
+                if keeps_plan(self.plan, t - self.plan_t, new):
+                    self.kept += 1
+                else:
                     self.plan, self.plan_t = new, t
                     self.adopted += 1
-                else:
-                    self.kept += 1
             tau = t - self.plan_t
-            if tau >= self.plan.t[-1]:  # after the last interval: coast (pass) or hold (stop, at rest)
+            # after the last interval, as the guidance: a pass rejoins the route at its end velocity (the
+            # coast); a stop is at rest (as `Plan.sample` holds)
+            if tau >= self.plan.t[-1]:
                 p, v, a = self.plan.p[-1] + self.plan.v[-1] * (tau - self.plan.t[-1]), self.plan.v[-1], np.zeros(2)
             else:
                 p, v, a = self.plan.sample(tau)
