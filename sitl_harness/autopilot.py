@@ -105,6 +105,8 @@ class Personality:
     params: tuple[ParamSpec, ...] = ()
     capabilities = 0
     mission_skips_home = False  # ArduPilot: mission item 0 is home
+    estimator_status_msg = mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS  # the estimator-health message it streams
+    hold_after_disarm_in: tuple[str, ...] = ()  # modes a disarm leaves for Hold (PX4: the auto modes)
 
     def init_settings(self, s: Settings) -> None: ...
     def default_custom(self, mode: str) -> int: raise NotImplementedError
@@ -308,7 +310,7 @@ class Autopilot:
         self.armed = False
         self.failsafe = ""
         self.text(mav.MAV_SEVERITY_INFO, reason)
-        if self.mode in ("land", "takeoff", "rtl", "mission") and self.pers.name == "px4":
+        if self.mode in self.pers.hold_after_disarm_in:
             self.set_mode("hold")
         return ACCEPTED
 
