@@ -14,7 +14,7 @@ feed-forward, eq. (8)), thrust limited to the cell's `thrust_ratio`, the vehicle
 seeded wind are `sitl_harness.maneuvers`'s; this module keeps the cells, the grid and the build —
 several seeds:
 
-- ``avoid@ρ``: the avoid table's limiting trajectory (`contracts.sweep.limiting_trajectory`) at a
+- ``avoid@ρ``: the avoid table's limiting trajectory (`contracts.trajectories.limiting_trajectory`) at a
   spread of geometries ρ = r_k/c, scaled (c chosen) so that it starts at the cell's speed; after its
   last interval the reference coasts ballistically (the planner's terminal set);
 - ``online@ρ``: what the daemon itself flies in offboard mode — the online OSQP planner's plan
@@ -53,7 +53,9 @@ from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
 from contracts.lookup import repair_monotone
 from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc
+from contracts.runner import run_tasks
 from contracts.table import SLOTS, Slot, verify, write_table
+from contracts.trajectories import limiting_trajectory, pass_branches
 from contracts.vehicle import Vehicle, load_vehicle
 
 from .maneuvers import (COAST_S, DT_NAV, SETTLE_S, WINDOW_S, Z_REF, OnlineReference, Reference, cruise_reference,
@@ -76,8 +78,6 @@ ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured stat
 def avoid_reference(table_path, rho_index: int, tilt_index: int, thrust_index: int, v: float) -> Reference:
     """The avoid table's limiting trajectory of one cell, scaled to start at speed `v` (V ∝ √c at a
     fixed acceleration scale, DESIGN.md §2's reduced form)."""
-    from contracts.sweep import limiting_trajectory
-
     unit = limiting_trajectory(table_path, rho_index, tilt_index, thrust_index, 1.0)
     c = (v / unit["v"]) ** 2 if unit["v"] > 0 else 1.0
     tr = limiting_trajectory(table_path, rho_index, tilt_index, thrust_index, c)
@@ -89,8 +89,6 @@ def online_reference(table_path, rho_index: int, tilt_index: int, thrust_index: 
     """``online@ρ`` of one cell: the head-on disc at ρ = r_k/c with c such that v = OFFBOARD_CAP × V_safe(c, ρ)
     (V_safe ∝ √c, DESIGN.md §2), planned at V_max = v and `a_max`; None without a verified pass/stop plan.
     The whole disc is E_tr allowance (r_min = 0): a replan from inside it is always admitted."""
-    from contracts.sweep import limiting_trajectory
-
     unit = limiting_trajectory(table_path, rho_index, tilt_index, thrust_index, 1.0)
     c = (v / (OFFBOARD_CAP * unit["v"])) ** 2
     disc = Disc(c, 0.0, unit["r_k"] * c, 0.0)
@@ -112,10 +110,7 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
     refs = [cruise_reference(v), speed_step_reference("step_down", v, 0.0, a_h),
             speed_step_reference("step_up", 0.5 * v, v, a_h)]
     if table_path is not None:
-        with np.load(_traj_path(table_path), allow_pickle=False) as z:
-            grid_rho = z["rho"]
-            cls = int(z["class_of_cell"][avoid_index])
-            passes = z["branch"][cls] == 1
+        grid_rho, passes = pass_branches(table_path, *avoid_index)
         for rho in rhos:
             i = int(np.argmin(np.abs(grid_rho - rho)))
             if passes[i]:  # a stop-branch cell brakes straight at a_h: that is `step_down` already
@@ -126,12 +121,6 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
             elif skipped is not None:
                 skipped.append(f"online@rho={grid_rho[i]:.3g}")
     return refs
-
-
-def _traj_path(table_path) -> Path:
-    from contracts.sweep import trajectories_path
-
-    return trajectories_path(table_path)
 
 
 def _etr_column(task: dict) -> list[dict]:
@@ -202,8 +191,6 @@ def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 
                     progress: bool = True) -> tuple[np.ndarray, dict, np.ndarray]:
     """Worst contour error per cell (no margin, no repair) → (values (n_v, n_tilt, n_tr), per-manoeuvre
     worst, number of ``online@ρ`` geometries skipped for want of a verified plan)."""
-    from contracts.sweep import run_tasks
-
     table = verify(table_path, vehicle) if table_path is not None else None
     tasks = []
     for j, tilt in enumerate(grid.tilt):

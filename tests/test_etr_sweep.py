@@ -165,10 +165,10 @@ def test_margin_and_upward_repair_are_what_the_slot_says(tiny_build):
 
 
 def test_the_sweep_uses_the_avoid_sweeps_pool_mechanism():
-    from contracts import sweep
+    from contracts import runner, sweep
 
-    assert sweep._run_tasks is sweep.run_tasks  # one mechanism, public, shared
-    out = sweep.run_tasks([{"x": 1}, {"x": 2}], 1, None, False, 2, fn=_echo, desc="t")
+    assert sweep.run_tasks is runner.run_tasks is es.run_tasks  # one mechanism, public, shared
+    out = runner.run_tasks([{"x": 1}, {"x": 2}], 1, None, False, 2, fn=_echo, desc="t")
     assert out == [[1], [2]]
 
 
