@@ -35,7 +35,7 @@ import yaml
 
 from .avoid_limit import policy_guess, stop_speed_kinematic
 from .errors import ContractError
-from .flat import horizontal_accel_limit
+from .flat import horizontal_accel_limit, thrust_limited_accel
 from .lookup import repair_monotone
 from .planner import Limits, check_trajectory, head_on_problem, plan
 from .runner import ONE_THREAD, run_tasks
@@ -143,9 +143,8 @@ def load_grid(path: str | Path, vehicle: Vehicle) -> Grid:
 
 def brake_accel(lim: Limits) -> float:
     """Full straight-line deceleration of the input set (level flight, heading +x)."""
-    a_t = math.sqrt(max((lim.t_max / lim.mass) ** 2 - lim.g**2, 0.0))
     tilt = lim.tilt if lim.tilt_model == "cone" else lim.theta_lim
-    return min(lim.g * math.tan(tilt), a_t)
+    return min(lim.g * math.tan(tilt), thrust_limited_accel(lim.t_max, lim.mass, lim.g))
 
 
 def _stop_speed(a_b: float, c: float, r_k: float, lead: float = 0.0) -> float:
