@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, braking_plan
+from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, braking_plan, keeps_plan
 
 from contracts.geometry import wrap
 
@@ -442,9 +442,7 @@ class OffboardGuidance:
         self.plan_times.append(new.solve_s)
         self.rejected += new.rejected
         self.last_notes = new.notes
-        keep = (not new.ok and self.plan is not None and self.plan.ok and self.plan.kind in ("pass", "stop")
-                and t_req - self.plan_t < self.plan.t[-1])
-        if keep:  # a verified plan in progress beats braking: keep flying it, try again next time
+        if keeps_plan(self.plan, t_req - self.plan_t, new):  # keep flying the verified plan in progress
             self.kept += 1
         else:
             self.plan, self.plan_t, self.plan_omega = new, t_req, omega

@@ -13,6 +13,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from contracts.geodesy import ne_from_geo
+
 from .guidance import Route
 from .link import mavlink
 
@@ -23,7 +25,6 @@ NAV_LAST = 95  # MAV_CMD_NAV_LAST: commands below it are navigation commands (co
 GLOBAL_FRAMES = (0, 3, 5, 6, 10, 11)  # MAV_FRAME_GLOBAL(_INT), _RELATIVE_ALT(_INT), _TERRAIN_ALT(_INT)
 LOCAL_FRAMES = (1, 4, 7, 8, 9, 12, 20, 21)  # int fields carry metres × 1e4 in MISSION_ITEM_INT
 RELATIVE_ALT, AMSL = (3, 6), (0, 5)
-R_EARTH_M = 6378137.0  # WGS-84 semi-major axis
 MAX_RANGE_M = 10_000.0  # beyond this from home the tangent plane is no place for a route
 
 
@@ -186,18 +187,6 @@ class Home:
         h = cls(msg.latitude * 1e-7, msg.longitude * 1e-7, msg.altitude * 1e-3, msg.x, msg.y, msg.z)
         ok = all(math.isfinite(v) for v in (h.x, h.y, h.z)) and abs(h.lat_deg) <= 90 and abs(h.lon_deg) <= 180
         return h if ok else None
-
-
-def ne_from_geo(lat: float, lon: float, lat0: float, lon0: float) -> tuple[float, float]:
-    """North/east metres of (lat, lon) from (lat0, lon0) on the local tangent plane (equirectangular, the
-    longitude scaled by the cosine of the mean latitude): ArduPilot's `Location::get_distance_NE`
-    (libraries/AP_Common/Location.cpp). PX4's azimuthal-equidistant `MapProjection::project`
-    (src/lib/geo/geo.cpp) agrees within millimetres over a route's extent; the radius (WGS-84 a here,
-    ArduPilot 6378100 m, PX4 6371000 m) scales distances by at most 0.11 %."""
-    north = math.radians(lat - lat0) * R_EARTH_M
-    dlon = (lon - lon0 + 180.0) % 360.0 - 180.0
-    east = math.radians(dlon) * R_EARTH_M * math.cos(math.radians(0.5 * (lat + lat0)))
-    return north, east
 
 
 def item_position(it: Item, home: Home | None) -> tuple[float, float, float]:

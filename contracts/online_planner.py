@@ -95,6 +95,14 @@ class Plan:
         return self.p[k] + self.v[k] * dt + 0.5 * a * dt * dt, self.v[k] + a * dt, a.copy()
 
 
+def keeps_plan(current: Plan | None, age: float, new: Plan) -> bool:
+    """Whether a failed new plan is dropped for `current`, a verified pass/stop plan `age` seconds in
+    and not yet ended: flying it beats braking (the next replan tries again). One rule for the
+    guidance and the E_tr sweep."""
+    return (not new.ok and current is not None and current.ok and current.kind in ("pass", "stop")
+            and age < current.t[-1])
+
+
 def dense_path(p, v, a, ts, sub=SUB_STEPS):
     """Positions along the piecewise-constant-acceleration path, `sub` points per interval."""
     tau = (np.arange(sub) / sub * ts)[None, :, None]

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from .flat import inputs_from_flat, total_tilt
+from .flat import inputs_from_flat, thrust_limited_accel, total_tilt
 from .vehicle import G, Vehicle
 
 SHRINK = 1e-6  # relative tightening of every limit inside the NLP
@@ -80,7 +80,7 @@ class Limits:
 
     def accel_bound(self) -> float:
         """An upper bound on |a_h| over the input set in level flight (used for scaling only)."""
-        a_t = math.sqrt(max((self.t_max / self.mass) ** 2 - self.g**2, 0.0))
+        a_t = thrust_limited_accel(self.t_max, self.mass, self.g)
         if self.tilt_model == "cone":
             return min(a_t, self.g * math.tan(self.tilt))
         tp, tt = math.tan(self.phi_lim), math.tan(self.theta_lim)

@@ -17,12 +17,12 @@ Shape classes. Only the input set's shape matters, not its size, beyond ρ (scal
   (T_max/m < g/cos² tilt), with thrust; cells whose thrust does not bind share the top thrust's class.
 
 Monotonicity is repaired only downward (`lookup.repair_monotone`), counted, and the build fails above
-1 % of the cells. Each cell's limiting trajectory goes to `<table>.trajectories.npz`.
+1 % of the cells. Each cell's limiting trajectory goes to `<table>.trajectories.npz` (`contracts.trajectories`);
+the tasks run on `contracts.runner`.
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import json
 import math
 import os
@@ -35,10 +35,12 @@ import yaml
 
 from .avoid_limit import policy_guess, stop_speed_kinematic
 from .errors import ContractError
-from .flat import horizontal_accel_limit
+from .flat import horizontal_accel_limit, thrust_limited_accel
 from .lookup import repair_monotone
 from .planner import Limits, check_trajectory, head_on_problem, plan
+from .runner import ONE_THREAD, run_tasks
 from .table import MAX_REPAIR_FRACTION, Slot, verify, write_table
+from .trajectories import trajectories_path, write_trajectories
 from .vehicle import G, Vehicle, load_vehicle
 
 C_REF = 1.0  # [m] the cell problems are solved at c = 1 m (any c gives the same F)
@@ -141,9 +143,8 @@ def load_grid(path: str | Path, vehicle: Vehicle) -> Grid:
 
 def brake_accel(lim: Limits) -> float:
     """Full straight-line deceleration of the input set (level flight, heading +x)."""
-    a_t = math.sqrt(max((lim.t_max / lim.mass) ** 2 - lim.g**2, 0.0))
     tilt = lim.tilt if lim.tilt_model == "cone" else lim.theta_lim
-    return min(lim.g * math.tan(tilt), a_t)
+    return min(lim.g * math.tan(tilt), thrust_limited_accel(lim.t_max, lim.mass, lim.g))
 
 
 def _stop_speed(a_b: float, c: float, r_k: float, lead: float = 0.0) -> float:
@@ -215,12 +216,9 @@ def solve_cell(lim: Limits, rho: float, n: int = 40, cpu_time: float = 1.0, rel_
     return CellResult(rho=rho, lo=lo, hi=hi, branch=branch, w=w_lo, ts=ts_lo, solves=solves)
 
 
-_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-
-
 def _solve_chunk(task: dict) -> list[CellResult]:
     """Worker: one run of neighbouring ρ cells of one shape class, warm-starting along the run."""
-    for k, v in _ONE_THREAD.items():
+    for k, v in ONE_THREAD.items():
         os.environ.setdefault(k, v)
     out, warm = [], None
     for rho in task["rhos"]:
@@ -271,45 +269,6 @@ def _scaled(w, ts, v, lam):
 # ============================================================================ the build
 
 
-def run_tasks(tasks, workers, scheduler, progress, total, fn=None, desc="avoid cells"):
-    """Run `fn(task) -> list` over `tasks` on a local process pool (`workers` > 1), in-process
-    (`workers` ≤ 1) or on a Dask distributed cluster (`scheduler` address); a tqdm bar counts the
-    items of the returned lists up to `total`. `fn` must be a module-level function (picklable);
-    default: the avoid sweep's `_solve_chunk`. Results come back in task order."""
-    from tqdm import tqdm
-
-    fn = _solve_chunk if fn is None else fn
-    results = [None] * len(tasks)
-    bar = tqdm(total=total, desc=desc, unit="cell", disable=not progress)
-    if scheduler:
-        from distributed import Client, as_completed
-
-        with Client(scheduler) as client:
-            futs = {client.submit(fn, t, pure=False): i for i, t in enumerate(tasks)}
-            for f in as_completed(list(futs)):
-                results[futs[f]] = f.result()
-                bar.update(len(results[futs[f]]))
-    elif workers <= 1:
-        for i, t in enumerate(tasks):
-            results[i] = fn(t)
-            bar.update(len(results[i]))
-    else:
-        for k, v in _ONE_THREAD.items():  # one solver thread per worker process (inherited at spawn)
-            os.environ.setdefault(k, v)
-        import multiprocessing as mp
-
-        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as ex:
-            futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
-            for f in cf.as_completed(futs):
-                results[futs[f]] = f.result()
-                bar.update(len(results[futs[f]]))
-    bar.close()
-    return results
-
-
-_run_tasks = run_tasks  # the name the avoid sweep used
-
-
 def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str | None = None,
                       tilt_model: str = "cone", progress: bool = True) -> dict:
     """Build, verify and write the avoid table (plus `<out>.trajectories.npz`); returns a summary.
@@ -337,7 +296,8 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
             tasks.append({"class": ci, "limits": lim, "rhos": [float(r) for r in grid.rho[s : s + grid.chunk]],
                           "n": grid.n_intervals, "cpu_time": grid.cpu_time_s, "rel_tol": grid.rel_tol,
                           "starts": grid.starts, "first": s})
-    results = _run_tasks(tasks, workers, scheduler, progress, len(classes) * len(grid.rho))
+    results = run_tasks(tasks, workers, scheduler, progress, len(classes) * len(grid.rho), fn=_solve_chunk,
+                        desc="avoid cells")
     n_rho, n = len(grid.rho), grid.n_intervals
     V = np.zeros((len(classes), n_rho))
     HI = np.full((len(classes), n_rho), np.inf)
@@ -409,16 +369,8 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
     meta = write_table(out, veh, tilt_model=tilt_model,
                        avoid=Slot((grid.rho, grid.tilt, grid.thrust_ratio), F_rep, info),
                        method={"avoid": "contracts.sweep.build_avoid_table"})
-    traj_path = trajectories_path(out)
-    np.savez_compressed(traj_path, rho=grid.rho, tilt=grid.tilt, thrust_ratio=grid.thrust_ratio, class_of_cell=cls_of,
-                        scale_of_cell=scale, v=V, v_hi=HI, w=W, ts=TS, branch=BR, c_ref=np.array(C_REF),
-                        metadata_json=np.frombuffer(json.dumps({
-                            "table": out.name, "tilt_model": tilt_model, "arrays_sha256": meta["arrays_sha256"],
-                            "how_to_scale": "cell (i,j,k) at centre distance c: class ci=class_of_cell[j,k], "
-                                            "lam=scale_of_cell[j,k], kappa=c/c_ref; ZOH inputs w[ci,i]*lam, "
-                                            "t_s=ts[ci,i]*sqrt(kappa/lam), V=v[ci,i]*sqrt(kappa*lam); "
-                                            "positions scale by kappa; start at origin flying +x, "
-                                            "keep-out disc radius rho*c at (c, 0)"}).encode(), dtype=np.uint8))
+    traj_path = write_trajectories(out, grid.rho, grid.tilt, grid.thrust_ratio, cls_of, scale, V, HI, W, TS, BR, C_REF,
+                                   tilt_model, meta["arrays_sha256"])
     verify(out, veh)
     wall = time.perf_counter() - t_start
     feas = cpu[ok] if ok.any() else np.zeros(1)
@@ -428,26 +380,6 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
             "solves": int(len(solves)), "solve_cpu_s": {"feasible": feas.tolist(), "infeasible": infeas.tolist()},
             "monotone_repairs": int(repairs), "verify_fallbacks": int(fails), "wall_s": wall,
             "grid": grid.describe()}
-
-
-def trajectories_path(table_path) -> Path:
-    p = Path(table_path)
-    return p.with_name(p.stem + ".trajectories.npz")
-
-
-def limiting_trajectory(table_path, rho_index: int, tilt_index: int, thrust_index: int, c: float) -> dict:
-    """The limiting trajectory of one cell at centre distance `c` [m] (physical units): q0, w, t_s,
-    V and the obstacle, ready for `planner.check_trajectory` or the controller contract."""
-    with np.load(trajectories_path(table_path), allow_pickle=False) as z:
-        ci = int(z["class_of_cell"][tilt_index, thrust_index])
-        lam = float(z["scale_of_cell"][tilt_index, thrust_index])
-        kappa = c / float(z["c_ref"])
-        w = np.zeros((z["w"].shape[2], 4))
-        w[:, :2] = z["w"][ci, rho_index] * lam
-        ts = float(z["ts"][ci, rho_index]) * math.sqrt(kappa / lam)
-        v = float(z["v"][ci, rho_index]) * math.sqrt(kappa * lam)
-        rho = float(z["rho"][rho_index])
-    return {"q0": (0.0, v, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), "w": w, "ts": ts, "v": v, "c": c, "r_k": rho * c}
 
 
 # ============================================================================ fresh answers (tests, note)

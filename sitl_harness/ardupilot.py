@@ -35,6 +35,7 @@ class ArduPilot(Personality):
     airborne_start_mode = "offboard"  # scenario start.alt_m > 0
     initial_mode = "manual"  # STABILIZE
     mission_skips_home = True
+    estimator_status_msg = mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT
     capabilities = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
                     | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT
                     | mav.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED)

@@ -20,13 +20,14 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from contracts.geodesy import geo_from_ne, ne_from_geo
+
 from .control import (C_TILT_MAX, C_VEL_DN_MAX, C_VEL_UP_MAX, C_VEL_XY_MAX, M_ATT, M_IDLE, M_OFF, M_POS, S_ACCF,
                       S_HOVER, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_Q, SP_THRUST, SP_VEL, SP_YAW, SP_YAWRATE)
 from .kernel import VehicleModel
 from .physics import euler_from_quat
 from .trajectory import AutoTrajectory
 
-R_EARTH = 6378137.0
 ACCEPTED = mav.MAV_RESULT_ACCEPTED
 DENIED = mav.MAV_RESULT_DENIED
 FAILED = mav.MAV_RESULT_FAILED
@@ -105,6 +106,8 @@ class Personality:
     params: tuple[ParamSpec, ...] = ()
     capabilities = 0
     mission_skips_home = False  # ArduPilot: mission item 0 is home
+    estimator_status_msg = mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS  # the estimator-health message it streams
+    hold_after_disarm_in: tuple[str, ...] = ()  # modes a disarm leaves for Hold (PX4: the auto modes)
 
     def init_settings(self, s: Settings) -> None: ...
     def default_custom(self, mode: str) -> int: raise NotImplementedError
@@ -202,14 +205,12 @@ class Autopilot:
     # ------------------------------------------------------------------ geodesy (flat earth)
     def local_from_geo(self, lat: float, lon: float, alt_amsl: float) -> np.ndarray:
         lat0, lon0, alt0 = self.home_geo
-        x = math.radians(lat - lat0) * R_EARTH
-        y = math.radians(lon - lon0) * R_EARTH * math.cos(math.radians(lat0))
+        x, y = ne_from_geo(lat, lon, lat0, lon0)
         return np.array([x, y, -(alt_amsl - alt0)])
 
     def geo_from_local(self, p) -> tuple[float, float, float]:
         lat0, lon0, alt0 = self.home_geo
-        lat = lat0 + math.degrees(p[0] / R_EARTH)
-        lon = lon0 + math.degrees(p[1] / (R_EARTH * math.cos(math.radians(lat0))))
+        lat, lon = geo_from_ne(p[0], p[1], lat0, lon0)
         return lat, lon, alt0 - p[2]
 
     def frame_to_local(self, frame: int, x: float, y: float, z: float) -> np.ndarray | None:
@@ -308,7 +309,7 @@ class Autopilot:
         self.armed = False
         self.failsafe = ""
         self.text(mav.MAV_SEVERITY_INFO, reason)
-        if self.mode in ("land", "takeoff", "rtl", "mission") and self.pers.name == "px4":
+        if self.mode in self.pers.hold_after_disarm_in:
             self.set_mode("hold")
         return ACCEPTED
 

@@ -10,7 +10,7 @@ included; the tilt capped at `tilt_cap` when given, e.g. the paper's fixed 7.03Â
 planner (`contracts.planner`, eq. (14)â€“(19)) plans around the virtual obstacle R_obst + E_tr (+ the
 body radius) from V_max, after the folded reaction time's straight coast; the SITL cascade flies
 the planned reference with position/velocity/acceleration feed-forward (the same loop as the E_tr
-sweep, `etr_sweep.fly`), thrust limited, design wind. The obstacle is revealed exactly at D_od: on a
+sweep, `maneuvers.fly`), thrust limited, design wind. The obstacle is revealed exactly at D_od: on a
 cruise at full V_max, the instant the *true* vehicle is D_od from the column's surface, the plan starts
 there (as a daemon re-planning from its measured state). The SITL's own collision monitor
 (`world.CollisionMonitor`) measures the clearance to the real obstacle.
@@ -29,7 +29,7 @@ import numpy as np
 from contracts.contour import contour_errors
 from contracts.errors import ContractError
 
-from .etr_sweep import DT_NAV, WINDOW_S, fly, wind_for_seed, zoh_reference
+from .maneuvers import DT_NAV, WINDOW_S, fly, wind_for_seed, zoh_reference
 from .scenario import Scenario, load_scenario
 from .world import Column, CollisionMonitor, World
 

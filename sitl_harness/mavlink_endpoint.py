@@ -111,10 +111,9 @@ class MavlinkEndpoint:
                       "tx_packets": 0}
         self.intervals = {k: 1.0 / v for k, v in DEFAULT_RATES_HZ.items()}
         self.intervals.update({k: 1.0 / sim.sensor.cfg.rate_hz for k in SENSOR_MSGS})
-        est = (mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT if self.ap.pers.name == "ardupilot"
-               else mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS)
-        self.intervals.pop(mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS if est != mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS
-                           else mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT)
+        for est in (mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS, mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT):
+            if est != self.ap.pers.estimator_status_msg:  # only the personality's own is streamed
+                self.intervals.pop(est)
         self._defaults = dict(self.intervals)
         self.next_due = {k: 0.0 for k in self.intervals}
         self.once: list[int] = []

@@ -49,6 +49,8 @@ class Px4(Personality):
     autopilot_id = mav.MAV_AUTOPILOT_PX4
     airborne_start_mode = "hold"  # scenario start.alt_m > 0
     initial_mode = "hold"
+    estimator_status_msg = mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS
+    hold_after_disarm_in = ("land", "takeoff", "rtl", "mission")  # the navigator leaves its auto modes
     capabilities = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | mav.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
                     | mav.MAV_PROTOCOL_CAPABILITY_COMMAND_INT | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT
                     | mav.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED

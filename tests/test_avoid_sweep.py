@@ -14,6 +14,7 @@ from contracts.flat import horizontal_accel_limit  # noqa: E402
 from contracts.lookup import is_monotone  # noqa: E402
 from contracts.planner import check_trajectory, head_on_problem  # noqa: E402
 from contracts.table import verify  # noqa: E402
+from contracts.trajectories import limiting_trajectory  # noqa: E402
 from contracts.vehicle import G, load_vehicle  # noqa: E402
 
 CI_GRID = {"rho": [0.05, 0.15, 0.3, 0.6], "tilt_deg": [5, 13], "thrust_ratio": [0.6, 1.0], "starts": 1}
@@ -59,7 +60,7 @@ def test_ci_trajectories_side_file_re_simulates_at_another_scale(ci_table):
     from contracts.planner import Limits
 
     for i, j, k, c in ((0, 0, 0, 7.3), (3, 1, 1, 2.2)):
-        tr = sweep.limiting_trajectory(out, i, j, k, c)
+        tr = limiting_trajectory(out, i, j, k, c)
         lim = Limits.from_vehicle(veh, float(table.avoid.axes[1][j]), float(table.avoid.axes[2][k]))
         pr = head_on_problem(lim, tr["v"], c, tr["r_k"], n=len(tr["w"]))
         assert check_trajectory(pr, tr["w"], tr["ts"], tol=0.0)["ok"]
@@ -88,7 +89,7 @@ def test_build_fails_when_more_than_one_percent_of_cells_need_repair(tmp_path, m
     """Fake solver output (valid pure stops, non-monotone in ρ): the build must refuse, not ship."""
     veh = load_vehicle("mambo")
 
-    def fake_run(tasks, workers, scheduler, progress, total):
+    def fake_run(tasks, workers, scheduler, progress, total, fn=None, desc=None):
         out = []
         for t in tasks:
             res = []
@@ -100,7 +101,7 @@ def test_build_fails_when_more_than_one_percent_of_cells_need_repair(tmp_path, m
             out.append(res)
         return out
 
-    monkeypatch.setattr(sweep, "_run_tasks", fake_run)
+    monkeypatch.setattr(sweep, "run_tasks", fake_run)
     with pytest.raises(ContractError, match="monotonicity repair"):
         sweep.build_avoid_table(veh, tmp_path / "bad.npz", grid={"rho": [0.1, 0.2, 0.3, 0.4], "tilt_deg": [5],
                                                                "thrust_ratio": [1.0]}, workers=1, progress=False)

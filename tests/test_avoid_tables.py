@@ -189,7 +189,7 @@ def test_shipped_limiting_trajectories_re_simulate_clean(name):
     """The side file's limiting trajectories, scaled to random cells and distances, are verified
     trajectories at (at least) the table's speed."""
     from contracts.planner import Limits, check_trajectory, head_on_problem
-    from contracts.sweep import limiting_trajectory
+    from contracts.trajectories import limiting_trajectory
 
     veh = load_vehicle(name)
     t = TABLES[name]

@@ -21,6 +21,7 @@ from contracts.lookup import is_monotone
 from contracts.table import SLOTS, arrays_sha256, verify
 from contracts.vehicle import DATA_DIR, load_vehicle
 from sitl_harness import etr_sweep as es
+from sitl_harness import maneuvers as mn
 
 MAMBO = load_vehicle("mambo")
 TABLE_PATH = DATA_DIR / "mambo.npz"
@@ -120,7 +121,7 @@ def held_out_ratios(cells, seeds):
         refs = es.cell_references(TABLE_PATH, MAMBO, v, tilt, tr, idx, rhos=es.HELD_OUT_RHOS)
         for ref in refs:
             for seed in seeds:
-                e = es.worst_contour_error(MAMBO, ref, tr, seed)
+                e = mn.worst_contour_error(MAMBO, ref, tr, seed)
                 out.append((e / pred, v, tilt_deg, tr, ref.name, seed, e, pred))
     return out
 

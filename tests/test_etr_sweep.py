@@ -11,6 +11,7 @@ from contracts.lookup import is_monotone
 from contracts.table import SLOTS, verify
 from contracts.vehicle import DATA_DIR, load_vehicle
 from sitl_harness import etr_sweep as es
+from sitl_harness import maneuvers as mn
 
 MAMBO = load_vehicle("mambo")
 TABLE = DATA_DIR / "mambo.npz"
@@ -24,10 +25,10 @@ def test_zoh_reference_matches_the_planner_propagation_at_the_nodes():
     w[:, :2] = rng.uniform(-2, 2, (7, 2))
     q0 = (0.0, 3.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0)
     ts = 0.1
-    ref = es.zoh_reference("x", q0, w, ts, coast_s=0.5)
+    ref = mn.zoh_reference("x", q0, w, ts, coast_s=0.5)
     q = propagate(np.array(q0), w, ts)
     for k in range(8):
-        i = int(round(k * ts / es.DT_NAV))
+        i = int(round(k * ts / mn.DT_NAV))
         assert np.allclose(ref.p[i], q[k, [0, 2]], atol=1e-9)
         assert np.allclose(ref.v[i], q[k, [1, 3]], atol=1e-9)
     # between the nodes: the planner's own dense re-simulation
@@ -35,7 +36,7 @@ def test_zoh_reference_matches_the_planner_propagation_at_the_nodes():
 
     t, qd, _ = dense_states(np.array(q0), w, ts, 10)
     for i in range(0, len(t) - 1, 3):
-        j = int(round(t[i] / es.DT_NAV))
+        j = int(round(t[i] / mn.DT_NAV))
         assert np.allclose(ref.p[j], qd[i, [0, 2]], atol=1e-9)
     # after the last interval: ballistic coast, no acceleration
     assert np.allclose(ref.a[-1], 0.0)
@@ -46,9 +47,9 @@ def test_zoh_reference_matches_the_planner_propagation_at_the_nodes():
 
 
 def test_speed_step_reaches_its_target_speed():
-    ref = es.speed_step_reference("s", 6.0, 0.0, 2.0)
+    ref = mn.speed_step_reference("s", 6.0, 0.0, 2.0)
     assert abs(ref.v[-1, 0]) < 1e-9 and ref.p[-1, 0] == pytest.approx(9.0)
-    up = es.speed_step_reference("u", 2.0, 4.0, 1.0)
+    up = mn.speed_step_reference("u", 2.0, 4.0, 1.0)
     assert up.v[-1, 0] == pytest.approx(4.0)
 
 
@@ -58,14 +59,14 @@ def test_contour_error_grows_with_speed():
     e = []
     for v in (2.0, 6.0):
         refs = es.cell_references(None, MAMBO, v, tilt, 0.8, (0, 0))
-        e.append(max(es.worst_contour_error(MAMBO, r, 0.8, 0) for r in refs))
+        e.append(max(mn.worst_contour_error(MAMBO, r, 0.8, 0) for r in refs))
     assert e[1] > 1.5 * e[0] > 0.0
 
 
 def test_lost_vehicle_is_an_unbounded_cell():
     """Thrust far below hover: the vehicle falls, the cell has no bound (+inf), never a number."""
-    ref = es.cruise_reference(2.0, duration=3.0)
-    assert es.worst_contour_error(MAMBO, ref, 0.3, 0) == math.inf
+    ref = mn.cruise_reference(2.0, duration=3.0)
+    assert mn.worst_contour_error(MAMBO, ref, 0.3, 0) == math.inf
 
 
 def _online(v, tilt_deg, tr, rho):
@@ -97,18 +98,18 @@ def test_online_geometry_is_the_offboard_contracts_speed_and_the_plan_is_the_pla
 def test_online_flight_replans_from_the_measured_state_and_records_the_sent_path():
     _, _, _, ref = _online(6.0, 20.0, 1.0, 0.2)
     run = ref.flight()
-    fl = es.fly(MAMBO, run.setpoint, ref.t_end, 1.0, es.wind_for_seed(MAMBO, 0), ref.p[0] - ref.v[0] * es.SETTLE_S,
+    fl = mn.fly(MAMBO, run.setpoint, ref.t_end, 1.0, mn.wind_for_seed(MAMBO, 0), ref.p[0] - ref.v[0] * mn.SETTLE_S,
                 ref.v[0])
     assert fl.ok and run.adopted + run.kept == es.ONLINE_REPLANS == 1
     path_t, path_p = run.path()
-    assert path_t[0] == pytest.approx(-es.WINDOW_S) and np.all(np.diff(path_t) > 0)
+    assert path_t[0] == pytest.approx(-mn.WINDOW_S) and np.all(np.diff(path_t) > 0)
     if run.adopted:  # the new plan starts where the vehicle was measured, not on the old plan
         assert run.plan_t == pytest.approx(es.REPLAN_S) and run.plan is not ref.plan
         k = int(np.argmin(np.abs(fl.t - es.REPLAN_S)))
         assert np.allclose(run.plan.p[0], fl.pos[k, :2], atol=1e-4)  # (to the QP tolerance)
     # before the manoeuvre the path is the entry line; the same flight flown twice gives the same error
-    assert np.allclose(path_p[0], [-6.0 * es.WINDOW_S, 0.0], atol=1e-3)
-    assert es.worst_contour_error(MAMBO, ref, 1.0, 0) == es.worst_contour_error(MAMBO, ref, 1.0, 0)
+    assert np.allclose(path_p[0], [-6.0 * mn.WINDOW_S, 0.0], atol=1e-3)
+    assert mn.worst_contour_error(MAMBO, ref, 1.0, 0) == mn.worst_contour_error(MAMBO, ref, 1.0, 0)
 
 
 def test_online_geometries_without_a_verified_plan_are_skipped_and_counted():
@@ -159,15 +160,15 @@ def test_margin_and_upward_repair_are_what_the_slot_says(tiny_build):
     j, k = 1, 0
     idx = es._avoid_index(after, float(tilts[j]), float(trs[k]))
     refs = es.cell_references(after.path, MAMBO, float(v[1]), float(tilts[j]), float(trs[k]), idx, rhos=(0.1, 0.35))
-    worst = max(es.worst_contour_error(MAMBO, r, float(trs[k]), 0) for r in refs)
+    worst = max(mn.worst_contour_error(MAMBO, r, float(trs[k]), 0) for r in refs)
     assert after.e_pred.values[1, j, k] >= worst * (1 + es.MARGIN_REL) + es.MARGIN_ABS - 1e-12
 
 
 def test_the_sweep_uses_the_avoid_sweeps_pool_mechanism():
-    from contracts import sweep
+    from contracts import runner, sweep
 
-    assert sweep._run_tasks is sweep.run_tasks  # one mechanism, public, shared
-    out = sweep.run_tasks([{"x": 1}, {"x": 2}], 1, None, False, 2, fn=_echo, desc="t")
+    assert sweep.run_tasks is runner.run_tasks is es.run_tasks  # one mechanism, public, shared
+    out = runner.run_tasks([{"x": 1}, {"x": 2}], 1, None, False, 2, fn=_echo, desc="t")
     assert out == [[1], [2]]
 
 

@@ -16,10 +16,10 @@ from companion.mission import (
     MissionDownload,
     MissionRefused,
     MissionSource,
-    ne_from_geo,
     route_from_items,
 )
 from contracts.errors import ContractError
+from contracts.geodesy import ne_from_geo
 from tests.lockstep import Rig
 
 AP, DAEMON = (1, 1), (1, 191)
