@@ -26,7 +26,7 @@ from contracts.avoid_limit import policy_limit_f  # noqa: E402
 from contracts.flat import horizontal_accel_limit  # noqa: E402
 from contracts.planner import Limits  # noqa: E402
 from contracts.sweep import build_avoid_table, solve_cell  # noqa: E402
-from contracts.table import verify  # noqa: E402
+from contracts.table import load_for_vehicle, verify  # noqa: E402
 from contracts.vehicle import DATA_DIR, G, load_vehicle  # noqa: E402
 
 SCENARIOS = [  # thrust_ratio, d_od, r_obst, e_tr, tilt_deg, the paper's V_max
@@ -41,7 +41,7 @@ BOX_TABLE = DATA_DIR / "mambo_box_paper.npz"
 
 def tightness(name, n_cells, seed=4):
     veh = load_vehicle(name)
-    t = verify(DATA_DIR / f"{name}.npz", veh)
+    t = load_for_vehicle(veh)
     rho, tilt, tr = t.avoid.axes
     rng = np.random.default_rng(seed)
     r = []
@@ -59,7 +59,7 @@ def scenarios(rebuild_box=False):
     veh = load_vehicle("mambo")
     if rebuild_box or not BOX_TABLE.exists():
         build_avoid_table(veh, BOX_TABLE, grid=BOX_GRID, workers=2, tilt_model="box", progress=False)
-    cone = verify(DATA_DIR / "mambo.npz", veh)
+    cone = load_for_vehicle(veh)
     box = verify(BOX_TABLE, veh)
     rows = []
     for tr, d, ro, e, td, paper in SCENARIOS:

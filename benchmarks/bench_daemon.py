@@ -87,8 +87,8 @@ def main() -> None:
     from companion.daemon import Daemon
     from companion.eventlog import EventLog
     from companion.link import open_connection
-    from contracts.table import verify
-    from contracts.vehicle import DATA_DIR, load_vehicle
+    from contracts.table import load_for_vehicle
+    from contracts.vehicle import load_vehicle
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -101,7 +101,7 @@ def main() -> None:
                             "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": "px4"},
                             "sensors": [{"h_fov_deg": 30}], "log": {"dir": tempfile.mkdtemp()}})
     v = load_vehicle("mambo")
-    table = verify(DATA_DIR / "mambo.npz", v)
+    table = load_for_vehicle(v)
     conn = open_connection(cfg.link.connect, 0, 1, 191)
     log = EventLog(cfg.log.dir)
     daemon = Daemon(cfg, table, conn, log)

@@ -19,8 +19,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from contracts.lookup import repair_monotone  # noqa: E402
-from contracts.table import SLOTS, Slot, verify, write_table  # noqa: E402
-from contracts.vehicle import DATA_DIR, load_vehicle  # noqa: E402
+from contracts.table import SLOTS, Slot, load_for_vehicle, verify, write_table  # noqa: E402
+from contracts.vehicle import load_vehicle  # noqa: E402
 
 
 def synthetic(vehicle, path):
@@ -48,7 +48,7 @@ def timed(fn, queries):
 def main():
     load_before = os.getloadavg()[0]
     vehicle = load_vehicle("mambo")
-    t = verify(DATA_DIR / "mambo.npz", vehicle)
+    t = load_for_vehicle(vehicle)
     source = "shipped"
     if t.avoid is None or t.e_pred is None:
         t = synthetic(vehicle, Path(tempfile.mkdtemp()) / "synthetic.npz")

@@ -23,13 +23,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from companion.guidance import OffboardGuidance, Route  # noqa: E402
 from contracts.flat import horizontal_accel_limit  # noqa: E402
 from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc  # noqa: E402
-from contracts.table import verify  # noqa: E402
-from contracts.vehicle import DATA_DIR, load_vehicle  # noqa: E402
+from contracts.table import load_for_vehicle  # noqa: E402
+from contracts.vehicle import load_vehicle  # noqa: E402
 
 
 def cells(vehicle, n, seed):
     veh = load_vehicle(vehicle)
-    t = verify(DATA_DIR / f"{vehicle}.npz", veh)
+    t = load_for_vehicle(veh)
     rng = np.random.default_rng(seed)
     out = []
     while len(out) < n:

@@ -14,7 +14,6 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-import numpy as np
 
 from contracts.contour import ContourWindow
 from contracts.geometry import wrap

@@ -75,7 +75,6 @@ def _policy_safe(v, a, c, r_k, betas, block=2000):
     alive = np.ones(len(betas), bool)
     safe = np.zeros(len(betas), bool)
     t0 = 0.0
-    p_prev = None
     while alive.any() and t0 <= t_end:
         t = t0 + dt * np.arange(block + 1)
         idx = np.flatnonzero(alive)

@@ -29,7 +29,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from contracts.flat import cone_polygon, zoh
+from contracts.flat import cone_polygon
 
 N_POLY = 16
 # The factor on the avoid contract's speed at which this planner is shown to find a verified avoiding

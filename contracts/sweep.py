@@ -23,7 +23,6 @@ the tasks run on `contracts.runner`.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time

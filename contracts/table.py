@@ -35,7 +35,7 @@ from .lookup import (
     is_monotone,
 )
 from .stop import braking_decel, stop_dead_time, stop_speed
-from .vehicle import DATA_DIR, G, Vehicle, load_vehicle, vehicle_from_dict
+from .vehicle import DATA_DIR, Vehicle, load_vehicle, vehicle_from_dict
 
 SCHEMA = "contract-guard/gamma-table"
 SCHEMA_VERSION = 1

@@ -10,7 +10,6 @@ pytest.importorskip("casadi")
 from contracts.avoid_limit import policy_guess, stop_speed_kinematic  # noqa: E402
 from contracts.flat import accel_from_inputs, zoh  # noqa: E402
 from contracts.planner import (  # noqa: E402
-    Circle,
     Limits,
     PlanProblem,
     Polygon,

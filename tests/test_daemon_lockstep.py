@@ -1,6 +1,5 @@
 """The daemon against the SITL in lock-step, governor mode: real MAVLink bytes, real physics."""
 
-import math
 
 import pytest
 

@@ -10,10 +10,10 @@ from hypothesis import strategies as st
 from test_table import MAMBO, avoid_tables, etr_tables, make
 
 from contracts.lookup import NONE, ReactLookup, helps_index, hurts_index
-from contracts.table import Omega, verify
-from contracts.vehicle import DATA_DIR, G
+from contracts.table import Omega, load_for_vehicle
+from contracts.vehicle import G
 
-SHIPPED = verify(DATA_DIR / "mambo.npz", MAMBO)
+SHIPPED = load_for_vehicle(MAMBO)
 TOL = 1e-12  # round-off only: the fast path decides "V_safe ≥ v" in closed form, not by comparing lim ≥ v
 
 

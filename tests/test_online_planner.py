@@ -8,8 +8,8 @@ import pytest
 
 from contracts.flat import horizontal_accel_limit
 from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, admitted, dense_path, exact_check
-from contracts.table import verify
-from contracts.vehicle import DATA_DIR, G, load_vehicle
+from contracts.table import load_for_vehicle
+from contracts.vehicle import G, load_vehicle
 
 A9 = G * math.tan(math.radians(9))
 
@@ -67,7 +67,7 @@ def test_the_planner_achieves_the_capped_avoid_contract_on_a_seeded_sample(plann
     """Start at OFFBOARD_CAP × V_safe (the table's, with its reaction time) with the obstacle revealed at
     D_od head-on; the planner must return a verified avoiding trajectory every time."""
     veh = load_vehicle(vehicle)
-    t = verify(DATA_DIR / f"{vehicle}.npz", veh)
+    t = load_for_vehicle(veh)
     rng = np.random.default_rng(2026)
     tried = failed = 0
     while tried < 25:

@@ -5,10 +5,9 @@ import pytest
 
 from companion.estimators import DodEstimate
 from companion.supervisor import Inputs, OneSidedLimit, Supervisor
-from contracts.table import verify
-from contracts.vehicle import DATA_DIR, load_vehicle
+from contracts.table import load_for_vehicle
 
-TABLE = verify(DATA_DIR / "mambo.npz", load_vehicle("mambo"))
+TABLE = load_for_vehicle("mambo")
 
 
 def dod(d=8.0, obstacle=math.inf, reason="sensor 0 reports range"):
