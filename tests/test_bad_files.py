@@ -91,3 +91,13 @@ def test_a_bad_file_is_one_line_and_a_non_zero_exit(command, kind, tmp_path):
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1, r.stderr[-2000:]
     assert str(f.name) in lines[0] or str(f) in lines[0]
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "x"])
+def test_a_non_finite_number_on_the_command_line_is_refused(value):
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "table", "query", str(MAMBO_TABLE), "--d-od", "6",
+                        "--r-obst", "1", "--e-tr", "0.3", "--thrust-ratio", "1", "--v-max", value],
+                       capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert r.returncode == 2 and r.stdout == ""
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "--v-max" in lines[0], r.stderr
