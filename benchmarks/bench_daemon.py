@@ -99,7 +99,7 @@ def main() -> None:
     time.sleep(0.5)
     cfg = config_from_dict({"vehicle": "mambo", "mode": "governor", "engage": True,
                             "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": "px4"},
-                            "sensors": [{"h_fov_deg": 30}], "log": {"dir": tempfile.mkdtemp()}})
+                            "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}], "log": {"dir": tempfile.mkdtemp()}})
     v = load_vehicle("mambo")
     table = load_for_vehicle(v)
     conn = open_connection(cfg.link.connect, 0, 1, 191)

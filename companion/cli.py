@@ -19,6 +19,24 @@ EXIT_USER_ERROR = 2
 
 
 
+class Parser(argparse.ArgumentParser):
+    """A usage error is one line on stderr and exit status 2 (`--help` shows the usage)."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def finite(text: str) -> float:
+    """An argparse type: a finite number (NaN and inf are refused with one line)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"not a finite number: {text!r}")
+    return v
+
+
 def _emit(obj: dict, as_json: bool, text: str) -> None:
     print(json.dumps(obj, sort_keys=True) if as_json else text)
 
@@ -209,8 +227,8 @@ def cmd_run(args) -> int:
     def _stop(signum, frame):
         stop["now"] = True
 
-    signal.signal(signal.SIGTERM, _stop)
-    signal.signal(signal.SIGINT, _stop)
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):  # every polite signal takes the shutdown path
+        signal.signal(sig, _stop)
     daemon = Daemon(cfg, table, conn, log, signing_clock=signing_clock)
     notifier = Notifier()
     log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect)
@@ -310,14 +328,14 @@ def cmd_demo(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="contract-guard", description=__doc__.splitlines()[0])
+    p = Parser(prog="contract-guard", description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="command", required=True)
 
     d = sub.add_parser("demo", help="fly the paper's in-flight scenario: SITL + daemon on loopback UDP")
     d.add_argument("--scenario", default="fig17", help="scenario name or file (default: fig17)")
     d.add_argument("--out", type=Path, default=Path("demo-out"), help="event log, plot and summary go here")
-    d.add_argument("--speedup", type=float, default=2.0)
-    d.add_argument("--duration", type=float, default=75.0, help="simulated seconds")
+    d.add_argument("--speedup", type=finite, default=2.0)
+    d.add_argument("--duration", type=finite, default=75.0, help="simulated seconds")
     d.add_argument("--personality", choices=["px4", "ardupilot"], default="px4")
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_demo)
@@ -363,12 +381,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = tsub.add_parser("query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed")
     q.add_argument("file", type=Path)
-    q.add_argument("--d-od", type=float, required=True, help="obstacle detection range [m]")
-    q.add_argument("--r-obst", type=float, required=True, help="expected obstacle radius [m]")
-    q.add_argument("--e-tr", type=float, required=True, help="measured tracking (contour) error [m]")
-    q.add_argument("--thrust-ratio", type=float, required=True, help="T_max / T_nom")
-    q.add_argument("--tilt-deg", type=float, help="fix the tilt limit [deg] (default: the contract chooses)")
-    q.add_argument("--v-max", type=float, help="evaluate Γ at this speed [m/s] instead of the chosen one")
+    q.add_argument("--d-od", type=finite, required=True, help="obstacle detection range [m]")
+    q.add_argument("--r-obst", type=finite, required=True, help="expected obstacle radius [m]")
+    q.add_argument("--e-tr", type=finite, required=True, help="measured tracking (contour) error [m]")
+    q.add_argument("--thrust-ratio", type=finite, required=True, help="T_max / T_nom")
+    q.add_argument("--tilt-deg", type=finite, help="fix the tilt limit [deg] (default: the contract chooses)")
+    q.add_argument("--v-max", type=finite, help="evaluate Γ at this speed [m/s] instead of the chosen one")
     q.add_argument("--contract", choices=["avoid", "stop"], help="default: avoid if the table has it")
     q.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
     q.add_argument("--json", action="store_true")
@@ -403,13 +421,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     cp = tsub.add_parser("compare", help="analytical vs numerical contract (Figures 4, 6, 7), PNG + CSV")
     cp.add_argument("--vehicle", default="mambo")
-    cp.add_argument("--tilt-deg", type=float, default=5.0)
+    cp.add_argument("--tilt-deg", type=finite, default=5.0)
     cp.add_argument("--out", type=Path, required=True)
     cp.add_argument("--tilt-model", choices=["box", "cone"], default="box")
     cp.add_argument("--placement", choices=["face", "concentric"], default="face",
                     help="squares' near faces at D_od (face) or centred on the circle (concentric, Figure 5)")
-    cp.add_argument("--ts", type=float, default=0.02, help="sample time of the collision sets [s]")
-    cp.add_argument("--d-od-step", type=float, default=0.5)
+    cp.add_argument("--ts", type=finite, default=0.02, help="sample time of the collision sets [s]")
+    cp.add_argument("--d-od-step", type=finite, default=0.5)
     cp.add_argument("--json", action="store_true")
     cp.set_defaults(func=cmd_table_compare)
 

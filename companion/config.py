@@ -26,6 +26,9 @@ class SensorConfig(_Strict):
     orientation_deg: float = 0.0  # sensor axis yaw in the body frame, clockwise from forward
     h_fov_deg: Annotated[float, Field(gt=0, le=360)]
     min_quality: Annotated[int, Field(ge=0, le=100)] = 50  # signal_quality below this: not trusted
+    # the sensor's rated range [m]: what its messages may claim (max_distance) is capped by it; required
+    # in governor and offboard mode (a sensor's word is not taken for its range)
+    max_range_m: Pos | None = None
 
 
 class LinkConfig(_Strict):
@@ -35,6 +38,7 @@ class LinkConfig(_Strict):
     target_system: int = 1
     target_component: int = 1
     component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    gcs_system_ids: list[Annotated[int, Field(ge=1, le=255)]] = [255]  # ground stations that may set CG_* parameters
     signing_key_file: Path | None = None  # 32-byte key (raw or 64 hex chars), readable only by us
     signing_timestamp_file: Path | None = None  # persisted across restarts (no RTC on many boards)
 
@@ -50,6 +54,7 @@ class LinkConfig(_Strict):
 
 class ContractConfig(_Strict):
     r_obst_m: NonNeg = 1.0  # expected obstacle radius (also the R_OBST parameter)
+    r_obst_range_m: tuple[Pos, Pos] = (0.1, 10.0)  # what a ground station may set CG_R_OBST to
     e_tr_floor_m: NonNeg = 0.3  # smallest tracking error ever assumed (braking overshoot included)
     e_tr_window_s: Pos = 2.0  # E_tr is the worst contour error over this window
     dwell_s: NonNeg = 2.0  # a higher limit takes effect only after holding this long
@@ -113,6 +118,15 @@ class Config(_Strict):
     log: LogConfig = LogConfig()
     route: RouteConfig | None = None  # offboard mode: the route to fly
     offboard_entry_s: Pos = 1.0  # setpoints streamed before asking for OFFBOARD (PX4 needs > 0.5 s)
+
+    @model_validator(mode="after")
+    def _sensors_rated(self):
+        if self.mode != "shadow":
+            for k, s in enumerate(self.sensors):
+                if s.max_range_m is None:
+                    raise ValueError(f"sensors[{k}].max_range_m (the sensor's rated range) is required in {self.mode} "
+                                     "mode: a message's max_distance is capped by it")
+        return self
 
 
 def config_from_dict(data: object, source: str = "config") -> Config:

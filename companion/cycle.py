@@ -18,8 +18,9 @@ from contracts.table import ContractTable
 from .config import Config
 from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
 from .guidance import OffboardGuidance, Route, obstacle_discs
+from .mavlink_in import SENSOR_MSGS
 from .offboard import OffboardController
-from .samples import Heading, NavStatus, PathTarget, Position, Scan, Throttle
+from .samples import Heading, Implausible, NavStatus, PathTarget, Position, Scan, Throttle
 from .supervisor import Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
@@ -66,6 +67,8 @@ class Cycle:
             self.nav.update(s.t, s.source, s.flags)
         elif isinstance(s, Scan):
             self.dod.add_scan(s)
+        elif isinstance(s, Implausible) and s.kind not in SENSOR_MSGS:  # a sensor's: its scan covers nothing
+            self.nav.fault(s.t, f"{s.kind}: {s.why}")
 
     def engage_requested(self) -> None:
         """CG_ENGAGE set anew: a restart in flight may engage now, and offboard may be entered again."""

@@ -26,7 +26,7 @@ from .logschema import NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut, ParamServer
 from .mission import MissionSource
-from .samples import AutopilotParam, CommandAck, MissionMessage, ParamRequest
+from .samples import AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest
 from .startup import StartupChecks
 from .supervisor import Decision, Inputs
 
@@ -48,9 +48,12 @@ class Daemon:
         self.counters = Counters()
         self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock)
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
-        self.param_server = ParamServer(self.out, cfg.link.component_id, {
-            "CG_ENGAGE": float(cfg.engage), "CG_MODE": float(ParamServer.MODES.index(cfg.mode)),
-            "CG_R_OBST": cfg.contract.r_obst_m})
+        self.param_server = ParamServer(
+            self.out, cfg.link.component_id,
+            {"CG_ENGAGE": float(cfg.engage), "CG_MODE": float(ParamServer.MODES.index(cfg.mode)),
+             "CG_R_OBST": cfg.contract.r_obst_m},
+            ranges={"CG_ENGAGE": frozenset({0.0, 1.0}), "CG_R_OBST": tuple(cfg.contract.r_obst_range_m)},
+            setters=tuple(cfg.link.gcs_system_ids))
         self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
                            ThreadedPlanning if planning == "thread" else InlinePlanning)
         self.checks = StartupChecks(self.adapter, table.vehicle, cfg)
@@ -67,6 +70,9 @@ class Daemon:
         self._t_state_log = -math.inf
         self._t_nvf = -math.inf
         self._t_checks: float | None = None
+        self._implausible_seen: dict[str, tuple[float, int]] = {}  # kind → (last logged, count since)
+        self._t_error_hold = -math.inf
+        self._verdict: tuple[bool, str] | None = None  # the start-up checks' last verdict logged
 
     # what tests and the CLI look at
     @property
@@ -105,17 +111,22 @@ class Daemon:
             if "signature" in str(getattr(msg, "reason", "")).lower():
                 self.counters.rejected_signature += 1  # unsigned or wrongly signed
             return
+        if kind.startswith("UNKNOWN_"):  # a frame of a message id our dialect does not define
+            self.counters.unknown_messages += 1
+            return
         self.counters.messages += 1
         try:
             for s in self.mav_in.accept(msg):
                 self._route(s)
-        except (ValueError, TypeError, OverflowError):
-            self.counters.bad_packets += 1  # decoded but nonsensical: drop it
+        except Exception:  # decoded but nonsensical (a decoder's or an estimator's complaint): drop it
+            self.counters.bad_packets += 1
 
     def _route(self, s) -> None:
         """A sample to where it belongs: the cycle's estimators, or the daemon's own protocols."""
         if isinstance(s, ParamRequest):
             self._param_request(s.msg)
+        elif isinstance(s, AutopilotRestart):
+            self._autopilot_restarted(s)
         elif isinstance(s, CommandAck):
             self._event(s.t, "command_ack", command=s.command, result=s.result)
         elif isinstance(s, AutopilotParam):
@@ -125,10 +136,33 @@ class Daemon:
             if self.mission is not None:
                 self._mission_actions(s.t, self.mission.take(s.t, s.msg))
         else:
+            if isinstance(s, Implausible):
+                self._implausible(s)
             self.cycle.take(s)
 
+    def _implausible(self, s: Implausible) -> None:
+        """Counted always; logged at the first of a kind and then at most once a second per kind."""
+        self.counters.implausible += 1
+        last, count = self._implausible_seen.get(s.kind, (-math.inf, 0))
+        if s.t - last >= 1.0:
+            self._event(s.t, "implausible_input", kind=s.kind, why=s.why, count=count + 1)
+            self._implausible_seen[s.kind] = (s.t, 0)
+        else:
+            self._implausible_seen[s.kind] = (last, count + 1)
+
+    def _autopilot_restarted(self, s: AutopilotRestart) -> None:
+        """A restarted autopilot may come back with other parameters: the start-up checks run again."""
+        self._event(s.t, "autopilot_restart", boot_s_before=s.from_s, boot_s_now=s.to_s)
+        self.out.statustext(4, "CG: autopilot restarted: start-up checks again")
+        self.startup_ok, self.checks.values, self._t_checks, self._verdict = None, {}, s.t, None
+        self.out.request_streams(s.t, self.checks.wanted())
+
     def _param_request(self, msg) -> None:
-        changed = self.param_server.handle(msg)
+        ps = self.param_server
+        changed = ps.handle(msg)
+        for name, value, source, why in ps.refused:
+            self._event(self.clock(), "param_refused", param=name, value=value, source=source, why=why)
+        ps.refused.clear()
         if changed is None:
             return
         name, old, new = changed
@@ -140,8 +174,13 @@ class Daemon:
         self.param_server.send(name)
 
     def _finish_checks(self, t: float) -> None:
+        """The verdict, logged and said when it changes (a ground station reading every parameter makes
+        the autopilot send them all again)."""
         ok, reason = self.checks.verdict()
         self.startup_ok = ok
+        if (ok, reason) == self._verdict:
+            return
+        self._verdict = (ok, reason)
         self._event(t, "startup_check", ok=ok, reason=reason)
         if not ok:
             self.out.statustext(3, f"CG: refusing to engage: {reason}")
@@ -161,11 +200,21 @@ class Daemon:
             self.out.statustext(sev, text)
 
     # ------------------------------------------------------------------ the cycle
-    def step(self) -> Decision:
+    def step(self) -> Decision | None:
+        """One cycle at the clock's time; None when it failed (the safe action was taken and logged)."""
         t = self.clock()
-        if self.mission is not None:
-            self._mission_actions(t, self.mission.poll(t))
+        try:
+            d = self._step(t)
+        except Exception as err:  # a fault of ours, in any stage, must still end in the safe action
+            self._cycle_failed(t, err)
+            return None
+        self._bad_cycles = 0
+        return d
+
+    def _step(self, t: float) -> Decision:
         m = self.mission
+        if m is not None:
+            self._mission_actions(t, m.poll(t))
         i, d = self.cycle.step(t, self.tel, r_obst=self.params["CG_R_OBST"], engage=self.params["CG_ENGAGE"] >= 0.5,
                                startup_ok=self.startup_ok, mission_route=m.route if m is not None else None,
                                route_ready=m is None or m.route is not None)
@@ -174,6 +223,27 @@ class Daemon:
         self._carry_out(t, d)
         self._periodic(t, i, d)
         return d
+
+    _bad_cycles = 0
+
+    def _cycle_failed(self, t: float, err: Exception) -> None:
+        """A cycle that raised: Hold (unless in shadow mode or on the ground), at most once a second; the
+        heartbeat says CRITICAL; logged at the 1st, 10th, 100th and every 1000th failure in a row."""
+        self._bad_cycles += 1
+        self.counters.loop_errors += 1
+        flying = self.tel.armed and self.tel.in_air
+        action = "none (shadow mode)" if self.cfg.mode == "shadow" else "hold" if flying else "none (not flying)"
+        if action == "hold" and t - self._t_error_hold >= 1.0:
+            self._t_error_hold = t
+            self.cycle.hold_commanded(t)
+            self.out.hold(t)
+        if self._bad_cycles in (1, 10, 100) or self._bad_cycles % 1000 == 0:
+            self._event(t, "loop_error", error=f"{type(err).__name__}: {err}"[:200], consecutive=self._bad_cycles,
+                        action=action)
+            self.out.statustext(2, "CG: internal error: holding" if action == "hold" else "CG: internal error")
+        if t - self._t_hb_out >= 1.0 or t < self._t_hb_out:
+            self._t_hb_out = t
+            self.out.heartbeat("failsafe")
 
     def _carry_out(self, t: float, d: Decision) -> None:
         """The decision on the link, in order: Hold, the speed limit, offboard, events and texts."""
@@ -263,21 +333,15 @@ class Daemon:
         feeder = WatchdogFeeder(notifier, time.monotonic) if notifier is not None else None
         period = 1.0 / self.cfg.loop_hz
         next_t = time.monotonic()
-        bad_cycles = 0
         while not should_stop():
             started = time.monotonic()
             try:
                 self.poll()
                 self.step()
-                bad_cycles = 0
-            except Exception as err:  # a bug must not take the loop down: log it, the next cycle retries
-                bad_cycles += 1
-                self.counters.loop_errors += 1
-                if bad_cycles in (1, 10, 100) or bad_cycles % 1000 == 0:
-                    self._event(self.clock(), "loop_error", error=f"{type(err).__name__}: {err}"[:200],
-                                consecutive=bad_cycles)
+            except Exception as err:  # a bug must not take the loop down: the safe action, logged; retried
+                self._cycle_failed(self.clock(), err)
             if feeder is not None:
-                feeder.tick(bad_cycles < 10 and time.monotonic() - started < 5 * period)
+                feeder.tick(self._bad_cycles < 10 and time.monotonic() - started < 5 * period)
             if hasattr(self.log, "tick"):
                 self.log.tick()
             # the loop rate is in vehicle time: against a SITL sped up k times, cycle k times as often

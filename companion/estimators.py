@@ -33,7 +33,7 @@ class _SensorState:
     max_m: float = 0.0  # reported maximum range (lowered by honest degradation)
     trusted: bool = False  # signal quality acceptable
     hits: list[tuple[float, float]] = field(default_factory=list)  # (body bearing, range) seen now
-    bins_fov: tuple[float, float] | None = None  # body bearings of the first and last used bin
+    known: tuple[float, ...] | None = None  # body bearings of the bins that report (None: a single beam)
     increment: float = 0.0
     period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
 
@@ -88,8 +88,8 @@ class DodEstimator:
     def add_scan(self, scan: Scan) -> None:
         """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
         s = self.sensors[scan.sensor]
-        if scan.increment is not None:  # bins: their span and width
-            s.bins_fov, s.increment = scan.bins, scan.increment
+        if scan.increment is not None:  # bins: which report, and their width
+            s.known, s.increment = scan.known, scan.increment
         self._update(scan.sensor, scan.t, scan.max_m, scan.quality, list(scan.hits))
 
     def _update(self, i, t, max_m, quality, seen) -> None:
@@ -115,8 +115,8 @@ class DodEstimator:
     def _side_entry(self, i: int, t: float, bearing: float) -> bool:
         """Whether a new hit may have come in from the side of the field of view rather than out of range."""
         s = self.sensors[i]
-        if s.bins_fov is not None:  # bins: an edge bin is a side entry
-            lo, hi = s.bins_fov
+        if s.known is not None:  # bins: an edge bin is a side entry
+            lo, hi = s.known[0], s.known[-1]
             return min(abs(wrap(bearing - lo)), abs(wrap(bearing - hi))) <= s.increment * 1.01
         # single beam: only a turn of more than half the field of view in the last second can bring one in
         half = math.radians(s.cfg.h_fov_deg) / 2
@@ -129,10 +129,18 @@ class DodEstimator:
         out = []
         for s in self.sensors:
             if t - s.t <= self.stale_s:
-                bins = s.bins_fov is not None
+                bins = s.known is not None
                 half = s.increment / 2 if bins else math.radians(s.cfg.h_fov_deg) / 2
                 out.extend((b, r, half, bins) for b, r in s.hits)
         return out
+
+    @staticmethod
+    def _covers(s: _SensorState, beta: float) -> bool:
+        """Whether the sensor looks along body bearing `beta`: a bin that reports (a bin that knows nothing
+        is not free space), or within a single beam's configured field of view."""
+        if s.known is not None:
+            return bool(s.known) and min(abs(wrap(beta - b)) for b in s.known) <= s.increment / 2 + 1e-9
+        return abs(wrap(beta - math.radians(s.cfg.orientation_deg))) <= math.radians(s.cfg.h_fov_deg) / 2 + 1e-9
 
     def estimate(self, t: float, beta: float, corridor_m: float = math.inf) -> DodEstimate:
         """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
@@ -142,16 +150,11 @@ class DodEstimator:
         for i, s in enumerate(self.sensors):
             if t - s.t > self.stale_s:
                 continue
-            if s.bins_fov is not None:
-                lo, hi = s.bins_fov
-                half = abs(wrap(hi - lo)) / 2 + s.increment / 2
-                axis = wrap(lo + abs(wrap(hi - lo)) / 2)
-            else:
-                half, axis = math.radians(s.cfg.h_fov_deg) / 2, math.radians(s.cfg.orientation_deg)
+            bins = s.known is not None
             for b, r in s.hits:
-                if s.bins_fov is None or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
+                if not bins or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
                     obstacle = min(obstacle, r)
-            if not s.trusted or abs(wrap(beta - axis)) > half + 1e-9:
+            if not s.trusted or not self._covers(s, beta):
                 continue
             covered.append(i)
             if s.max_m > d:
@@ -256,5 +259,11 @@ class NavHealth:
         self._ok = (flags & _NEED) == _NEED and not flags & _BAD.get(msg_type, 0)
         self.reason = "ok" if self._ok else f"{msg_type} flags 0x{flags:x}"
 
+    _t_fault = -math.inf
+
+    def fault(self, t: float, why: str) -> None:
+        """The vehicle's state as reported cannot be true (e.g. 10⁶ m/s): unhealthy for `stale_s`."""
+        self._t_fault, self.reason = t, f"implausible state: {why}"
+
     def healthy(self, t: float) -> bool:
-        return self._ok and t - self._t <= self.stale_s
+        return self._ok and t - self._t <= self.stale_s and t - self._t_fault > self.stale_s

@@ -15,6 +15,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from contracts.errors import ContractError  # noqa: E402
+from contracts.yamlfile import read_bounded  # noqa: E402
 
 mavlink = mavutil.mavlink
 SIGNING_EPOCH = 1420070400  # 2015-01-01, MAVLink 2 signing timestamps count 10 µs from here
@@ -58,9 +59,9 @@ def load_signing_key(path: Path) -> bytes:
     """32-byte key, raw or 64 hex characters; the file must not be readable by others."""
     try:
         st = path.stat()
-        raw = path.read_bytes().strip()
     except OSError as err:
         raise ContractError(f"signing key {path}: cannot read ({err.strerror or err})") from None
+    raw = read_bounded(path, "signing key", limit=256).strip()
     if st.st_mode & 0o077:
         raise ContractError(f"signing key {path}: readable by group or others (chmod 600)")
     if len(raw) == 64:

@@ -3,7 +3,8 @@ nothing. Here, and only here: which sources are accepted, the daemon's clock fol
 the autopilot's state snapshot (`Telemetry`), sensor matching, unit and frame conversion (every sensor
 kind normalised into one `Scan`), and counting what is malformed. No decisions.
 
-A new sensor kind is one decoder here (a function returning a `Scan`) and one entry in `SENSOR_KINDS`.
+A new sensor kind is one decoder here (a function returning its `Scan`, and an `Implausible` when the
+message contradicts itself) and one entry in `SENSOR_KINDS`.
 """
 
 from __future__ import annotations
@@ -17,8 +18,10 @@ from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .config import Config
 from .samples import (
     AutopilotParam,
+    AutopilotRestart,
     CommandAck,
     Heading,
+    Implausible,
     MissionMessage,
     NavStatus,
     ParamRequest,
@@ -34,6 +37,10 @@ MAV_FRAME_BODY_FRD = 12
 PARAM_MSGS = ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
 MISSION_MSGS = ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", "HOME_POSITION")
 SENSOR_MSGS = ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")  # accepted from any component of the vehicle
+RESTART_BACK_MS = 2000  # the autopilot's boot clock going back by more than this: it restarted
+PLAUSIBLE_XY_M = 1e6  # |x|, |y| of a local position (1000 km from its origin)
+PLAUSIBLE_Z_M = 1e5
+PLAUSIBLE_SPEED_M_S = 100.0  # no multirotor flies faster
 
 
 class VehicleClock:
@@ -70,47 +77,86 @@ def sensor_orientation(yaw_deg_clockwise: float) -> int:
 
 
 def range_scan(t: float, sensor: int, bearing: float, current_m: float, min_m: float, max_m: float,
-               quality: int) -> Scan:
-    """A single range beam along body bearing `bearing` (PX4 convention: a reading at or beyond the
-    maximum, or at or below the minimum, sees nothing)."""
-    hits = ((bearing, current_m),) if min_m < current_m < max_m - 0.01 else ()
-    return Scan(t, sensor, hits, max_m, quality)
+               quality: int, rated_m: float | None = None) -> Scan:
+    """A single range beam along body bearing `bearing`. PX4's convention: a reading at or beyond the
+    maximum sees nothing within it; a reading below the minimum is unknown, never free (the scan is
+    invalid: quality 1), and so is a message whose minimum exceeds its maximum. The claimed maximum is
+    capped by the sensor's rated range."""
+    if min_m > max_m or current_m < min_m:
+        return Scan(t, sensor, (), 0.0, 1)
+    cap = max_m if rated_m is None else min(max_m, rated_m)
+    hits = ((bearing, current_m),) if min_m < current_m < max_m - 0.01 and current_m < cap else ()
+    return Scan(t, sensor, hits, cap, quality)
 
 
 def bins_scan(t: float, sensor: int, bearings: np.ndarray, ranges_m: np.ndarray, max_m: float,
-              increment: float) -> Scan:
-    """Bins of a sector sensor: body bearings of the used bins and their ranges (inf: nothing within
-    max; unused bins left out by the caller)."""
-    hits = tuple((float(b), float(r)) for b, r in zip(bearings, ranges_m) if r < max_m)
-    span = (float(bearings[0]), float(bearings[-1])) if len(bearings) else None
-    return Scan(t, sensor, hits, max_m, 0, span, increment)
+              increment: float, rated_m: float | None = None) -> Scan:
+    """Bins of a sector sensor: body bearings of the bins that report and their ranges (inf: nothing
+    within max; the caller leaves out the bins that report nothing known). The claimed maximum is capped
+    by the sensor's rated range."""
+    cap = max_m if rated_m is None else min(max_m, rated_m)
+    hits = tuple((float(b), float(r)) for b, r in zip(bearings, ranges_m) if r < cap)
+    return Scan(t, sensor, hits, cap, 0, tuple(float(b) for b in bearings), increment)
 
 
-def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> Scan | None:
+def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> list:
     """DISTANCE_SENSOR: the configured sensor of this id (or any id) whose orientation matches; cm → m."""
     i = sensor_of.get(("distance_sensor", msg.id), sensor_of.get(("distance_sensor", None)))
     if i is None or msg.orientation != sensor_orientation(cfg.sensors[i].orientation_deg):
-        return None
-    return range_scan(t, i, math.radians(cfg.sensors[i].orientation_deg), msg.current_distance / 100,
-                      msg.min_distance / 100, msg.max_distance / 100, getattr(msg, "signal_quality", 0))
+        return []
+    c = cfg.sensors[i]
+    scan = range_scan(t, i, math.radians(c.orientation_deg), msg.current_distance / 100, msg.min_distance / 100,
+                      msg.max_distance / 100, getattr(msg, "signal_quality", 0), c.max_range_m)
+    bad = msg.min_distance > msg.max_distance
+    return [scan, Implausible(t, "DISTANCE_SENSOR", "min_distance above max_distance")] if bad else [scan]
 
 
-def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> Scan | None:
+def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> list:
     """OBSTACLE_DISTANCE: bin k at angle_offset + k·increment (clockwise; MAV_FRAME_GLOBAL is north-aligned,
-    rotated into the body frame here); UINT16_MAX is an unused bin, beyond max_distance is free; cm → m."""
+    rotated into the body frame here); UINT16_MAX is a bin that knows nothing, beyond max_distance is
+    free; cm → m. Bins wider than a circle, or a minimum above the maximum: an invalid scan."""
     i = sensor_of.get(("obstacle_distance", None))
     if i is None:
-        return None
+        return []
     inc = msg.increment_f if getattr(msg, "increment_f", 0) else float(msg.increment)
-    if inc <= 0:
-        return None  # PX4 ignores increment 0 too
+    offset = getattr(msg, "angle_offset", 0.0)
+    if not (math.isfinite(inc) and math.isfinite(offset)) or inc < 0 or msg.min_distance > msg.max_distance \
+            or inc * len(msg.distances) > 360.0 + 1e-6:
+        why = "increment or angle_offset not finite, bins past a circle, or min_distance above max_distance"
+        return [Scan(t, i, (), 0.0, 1, (), 0.0), Implausible(t, "OBSTACLE_DISTANCE", why)]
+    if inc == 0:
+        return []  # PX4 ignores increment 0 too
     d = np.asarray(msg.distances, dtype=float)
     used = d != UINT16_MAX
-    ang = np.radians(getattr(msg, "angle_offset", 0.0) + inc * np.arange(len(d)))
+    ang = np.radians(offset + inc * np.arange(len(d)))
     if getattr(msg, "frame", MAV_FRAME_BODY_FRD) != MAV_FRAME_BODY_FRD:
         ang = ang - tel.yaw
     rng = np.where(d > msg.max_distance, np.inf, d / 100.0)
-    return bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc))
+    return [bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc),
+                      cfg.sensors[i].max_range_m)]
+
+
+def implausible(kind: str, msg) -> str | None:
+    """Why the vehicle-state fields of a message cannot be true (not finite, out of any multirotor's
+    range), or None. Sensor messages are judged by their decoders."""
+    if kind == "LOCAL_POSITION_NED":
+        vals = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+        if not all(math.isfinite(v) for v in vals):
+            return "position or velocity not finite"
+        if max(abs(msg.x), abs(msg.y)) > PLAUSIBLE_XY_M or abs(msg.z) > PLAUSIBLE_Z_M:
+            return f"position beyond {PLAUSIBLE_XY_M:g} m"
+        if math.hypot(msg.vx, msg.vy) > PLAUSIBLE_SPEED_M_S or abs(msg.vz) > PLAUSIBLE_SPEED_M_S:
+            return f"speed above {PLAUSIBLE_SPEED_M_S:g} m/s"
+    elif kind == "ATTITUDE":
+        if not all(math.isfinite(v) for v in (msg.roll, msg.pitch, msg.yaw)):
+            return "attitude not finite"
+        if max(abs(msg.roll), abs(msg.pitch)) > math.pi + 1e-3 or abs(msg.yaw) > 2 * math.pi + 1e-3:
+            return "attitude out of range"
+    elif kind == "VFR_HUD" and not 0 <= msg.throttle <= 100:
+        return "throttle outside 0–100 %"
+    elif kind == "POSITION_TARGET_LOCAL_NED" and not (math.isfinite(msg.x) and math.isfinite(msg.y)):
+        return "target not finite"
+    return None
 
 
 SENSOR_KINDS = {"DISTANCE_SENSOR": _distance_sensor, "OBSTACLE_DISTANCE": _obstacle_distance}
@@ -123,6 +169,7 @@ class MavlinkIn:
     def __init__(self, cfg: Config, adapter, clock, vclock: VehicleClock | None):
         self.cfg, self.adapter, self.clock, self.vclock = cfg, adapter, clock, vclock
         self.tel = Telemetry()
+        self._last_boot_ms: int | None = None  # the autopilot's time_boot_ms last seen
         self._sensor_of = {(s.kind, s.id): i for i, s in enumerate(cfg.sensors)}
 
     def accept(self, msg) -> list:
@@ -138,10 +185,19 @@ class MavlinkIn:
         tb = getattr(msg, "time_boot_ms", None)
         if self.vclock is not None and tb:
             self.vclock.observe(tb)
-        return self.samples(self.clock(), kind, msg)
+        t = self.clock()
+        out = self.samples(t, kind, msg)
+        if tb is not None and src_comp == self.cfg.link.target_component:
+            last, self._last_boot_ms = self._last_boot_ms, tb
+            if last is not None and tb + RESTART_BACK_MS < last:
+                out.insert(0, AutopilotRestart(t, last / 1000, tb / 1000))
+        return out
 
     def samples(self, t: float, kind: str, msg) -> list:
         """The samples of one accepted message at daemon time t (may raise on nonsense: the caller counts it)."""
+        why = implausible(kind, msg)
+        if why is not None:
+            return [Implausible(t, kind, why)]  # not taken into the snapshot
         tel = self.tel
         tel.update(t, msg)
         if kind == "LOCAL_POSITION_NED":
@@ -155,8 +211,7 @@ class MavlinkIn:
         if kind in ("ESTIMATOR_STATUS", "EKF_STATUS_REPORT"):
             return [NavStatus(t, kind, msg.flags)]
         if kind in SENSOR_KINDS:
-            scan = SENSOR_KINDS[kind](self.cfg, self._sensor_of, t, msg, tel)
-            return [scan] if scan is not None else []
+            return SENSOR_KINDS[kind](self.cfg, self._sensor_of, t, msg, tel)
         if kind == "COMMAND_ACK":
             return [CommandAck(t, msg.command, msg.result)] \
                 if msg.command in (MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE) else []

@@ -36,12 +36,15 @@ STREAMS = {
 
 @dataclass
 class Counters:
-    messages: int = 0
+    messages: int = 0  # decoded messages of the dialect
+    unknown_messages: int = 0  # well-framed messages of an id the dialect does not define
     bad_packets: int = 0
     rejected_signature: int = 0
     commands_sent: int = 0
     log_errors: int = 0
     loop_errors: int = 0
+    implausible: int = 0  # messages dropped as implausible (not finite, out of range, inconsistent)
+    params_refused: int = 0
     setpoints_sent: int = 0
     setpoint_gap_max_s: float = 0.0  # longest gap between offboard setpoints while streaming (daemon time)
 
@@ -120,14 +123,34 @@ class MavlinkOut:
 
 
 class ParamServer:
-    """The daemon's parameters over the MAVLink parameter protocol, for any ground station that
-    addresses the daemon (its system, or broadcast; its component, or broadcast)."""
+    """The daemon's parameters over the MAVLink parameter protocol. Anyone addressing the daemon (its
+    system, or broadcast; its component, or broadcast) may read them; only the configured ground
+    stations may set them, each within its range (`ranges`: name → (lo, hi) or a set of values; a name
+    without one is read-only, such as CG_MODE, which reports the mode the daemon runs in). A refused set
+    is answered with the current value (PARAM_VALUE: the protocol's acknowledgement) and reported."""
 
     NAMES = ("CG_ENGAGE", "CG_MODE", "CG_R_OBST")
     MODES = ("shadow", "governor", "offboard")  # CG_MODE's values
 
-    def __init__(self, out: MavlinkOut, component_id: int, values: dict[str, float]):
+    def __init__(self, out: MavlinkOut, component_id: int, values: dict[str, float], ranges: dict,
+                 setters: tuple[int, ...]):
         self.out, self.component_id, self.values = out, component_id, values
+        self.ranges, self.setters = ranges, setters
+        self.refused: list[tuple[str, float, int, str]] = []  # (name, value, source system, why) since read
+
+    def _refusal(self, msg, v: float) -> str | None:
+        if msg.get_srcSystem() not in self.setters:
+            return f"system {msg.get_srcSystem()} is not a configured ground station"
+        allowed = self.ranges.get(msg.param_id)
+        if allowed is None:
+            return "read-only"
+        if not math.isfinite(v):
+            return "not finite"
+        if isinstance(allowed, tuple) and not allowed[0] <= v <= allowed[1]:
+            return f"outside {allowed[0]:g}–{allowed[1]:g}"
+        if isinstance(allowed, frozenset) and v not in allowed:
+            return f"not one of {sorted(allowed)}"
+        return None
 
     def handle(self, msg) -> tuple[str, float, float] | None:
         """Answer one request; returns (name, old, new) when a PARAM_SET changed a value."""
@@ -146,7 +169,10 @@ class ParamServer:
                 self.send(name)
         elif kind == "PARAM_SET" and msg.param_id in self.values:
             v = float(msg.param_value)
-            if msg.param_id == "CG_MODE" and v not in (0.0, 1.0, 2.0) or not math.isfinite(v) or v < 0:
+            why = self._refusal(msg, v)
+            if why is not None:
+                self.out.counters.params_refused += 1
+                self.refused.append((msg.param_id, v, msg.get_srcSystem(), why))
                 self.send(msg.param_id)  # refused: echo the current value
                 return None
             old = self.values[msg.param_id]

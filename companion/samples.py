@@ -64,16 +64,36 @@ class NavStatus:
 @dataclass(frozen=True, slots=True)
 class Scan:
     """One obstacle sensor's sample. `hits`: (body bearing, range) of what it sees within `max_m` now;
-    `bins`: body bearings of its first and last used bin (None: none used, or a single beam);
-    `increment`: bin width [rad] (None: a single beam)."""
+    `known`: body bearings of the bins that report (a bin reporting nothing known is not free space;
+    None: a single beam); `increment`: bin width [rad] (None: a single beam). An inconsistent message
+    becomes a scan with quality 1 (invalid): it covers nothing."""
 
     t: float
     sensor: int  # index in the configured sensors
     hits: tuple[tuple[float, float], ...]
     max_m: float
     quality: int  # 0 unknown, 1 invalid, 2–100 (MAVLink signal_quality)
-    bins: tuple[float, float] | None = None
+    known: tuple[float, ...] | None = None
     increment: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Implausible:
+    """A message whose fields are not finite, out of range or inconsistent: dropped, counted, and — for
+    the vehicle's state — a fault of the navigation estimate (the safe action follows)."""
+
+    t: float
+    kind: str  # message type
+    why: str
+
+
+@dataclass(frozen=True, slots=True)
+class AutopilotRestart:
+    """The autopilot's boot clock went back: it restarted (its parameters may have changed)."""
+
+    t: float
+    from_s: float
+    to_s: float
 
 
 @dataclass(frozen=True, slots=True)

@@ -184,8 +184,8 @@ class Supervisor:
         d = Decision(self.state, om, self.limit.value)
         veh = self.table.vehicle
 
-        # mode bookkeeping: who changed it, and authority
-        if i.mode != self._last_mode:
+        # mode bookkeeping: who changed it, and authority (with the link down the mode is unknown, not changed)
+        if i.link_ok and i.mode != self._last_mode:
             if self._last_mode is not None:
                 by = "daemon" if i.mode_by_daemon else "other"
                 d.events.append(("mode_change", {"from": self._last_mode, "to": i.mode, "by": by}))

@@ -1,6 +1,9 @@
 """YAML files validated by a pydantic model, failing with one line that names the field.
 
-One implementation for vehicle files, daemon configs and SITL scenarios.
+One implementation for vehicle files, daemon configs and SITL scenarios. Whatever file a person passes —
+binary, not UTF-8, endless (`/dev/zero`), huge, an alias bomb, nested past reason — ends in one line
+within a second: the file is read to at most `MAX_BYTES`, and a document expanding (aliases counted
+each time they are used) to more than `MAX_NODES` nodes is refused before it is built.
 """
 
 from __future__ import annotations
@@ -47,18 +50,70 @@ def resolve_named(name_or_path: str | Path, directory: Path) -> Path:
     return directory / f"{p.name}.yaml"
 
 
+MAX_BYTES = 512 * 1024  # no vehicle file, config or scenario comes near it; parsed in well under a second
+MAX_NODES = 100_000  # YAML nodes after alias expansion
+
+
+def read_bounded(path: str | Path, what: str, limit: int = MAX_BYTES, error: type[Exception] = ContractError) -> bytes:
+    """A file's bytes, at most `limit` of them (a larger or endless file is one `error` line)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            data = f.read(limit + 1)
+    except OSError as err:
+        raise error(f"{what} {path}: cannot read ({err.strerror or err})") from None
+    if len(data) > limit:
+        raise error(f"{what} {path}: larger than {limit // 1024} KiB: not a {what}") from None
+    return data
+
+
+def _expanded_size(node, memo: dict) -> int:
+    """Nodes in the document once every alias is expanded (each anchored node counted where it is used)."""
+    key = id(node)
+    if key not in memo:
+        memo[key] = 0  # a node that contains itself: counted once
+        if isinstance(node, yaml.MappingNode):
+            n = 1 + sum(_expanded_size(k, memo) + _expanded_size(v, memo) for k, v in node.value)
+        elif isinstance(node, yaml.SequenceNode):
+            n = 1 + sum(_expanded_size(v, memo) for v in node.value)
+        else:
+            n = 1
+        memo[key] = min(n, MAX_NODES + 1)
+    return memo[key]
+
+
+def parse_yaml(text: str) -> object:
+    """`yaml.safe_load`, refusing a document that expands past MAX_NODES (ValueError)."""
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)(text)  # libyaml where built in: 10× faster
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        if _expanded_size(node, {}) > MAX_NODES:
+            raise ValueError(f"expands to more than {MAX_NODES} YAML nodes (aliases?)")
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
 def load_model(model: type[M], path: str | Path, what: str, error: type[Exception] = ContractError,
                empty_ok: bool = False) -> M:
     """Read, parse and validate a YAML file; every failure is one `error` line naming the file."""
     path = Path(path)
+    raw = read_bounded(path, what, error=error)
+    if b"\0" in raw:
+        raise error(f"{what} {path}: a binary file, not YAML") from None
     try:
-        text = path.read_text()
-    except OSError as err:
-        raise error(f"{what} {path}: cannot read ({err.strerror or err})") from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise error(f"{what} {path}: not UTF-8 text (byte {err.start})") from None
     try:
-        data = yaml.safe_load(text)
+        data = parse_yaml(text)
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark else ""
         raise error(f"{what} {path}:{where} is not valid YAML") from None
+    except (ValueError, RecursionError) as err:
+        why = "nested too deeply" if isinstance(err, RecursionError) else str(err)
+        raise error(f"{what} {path}: refused: {why}") from None
     return model_from_dict(model, data, f"{what} {path.name}", error, empty_ok)

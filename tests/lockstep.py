@@ -54,6 +54,8 @@ class Rig:
                "sensors": [{"kind": "distance_sensor", "h_fov_deg": sc.sensor.fov_deg}]}
         for k, v in (config or {}).items():
             cfg[k] = {**cfg[k], **v} if isinstance(v, dict) and isinstance(cfg.get(k), dict) else v
+        # the sensors are the scenario's: rated at its range unless a test says otherwise
+        cfg["sensors"] = [{"max_range_m": sc.sensor.max_range_m, **s} for s in cfg["sensors"]]
         self.cfg = config_from_dict(cfg)
         read, write = self._endpoint()
         self.daemon_out: list[bytes] = []  # every datagram the daemon sent (what a router would forward)

@@ -136,8 +136,15 @@ def test_link_loss_and_restore():
     assert links[:3] == ["up", "down", "up"]
     down = rig.log.named("link")[1]["t"]
     assert 8.0 < down <= 8.0 + 1.6  # heartbeat time-out: 1.5 s after the last heartbeat (1 Hz)
-    after = [e for e in rig.log.named("command") if e["cmd"] == "change_speed" and e["t"] > 11.0]
-    assert after, "the limit is sent again when the link comes back"
+    # blind for 3 s, it held; with the link back it stays held (no one else changed the mode: a lost link
+    # is not a pilot's decision) until the pilot resumes the mission — then the limit is sent again
+    assert not [e for e in rig.log.named("mode_change") if e["by"] == "other" and e["t"] > 8.0]
+    assert rig.daemon.last.state == "holding"
+    t_resume = rig.sim.time_s
+    rig.command(176, 1 | 128, 4, 4)  # the ground station: PX4 AUTO.MISSION
+    rig.run(3.0)
+    after = [e for e in rig.log.named("command") if e["cmd"] == "change_speed" and e["t"] > t_resume]
+    assert after, "the limit is sent again when the mission is resumed"
 
 
 # ----------------------------------------------------------------------------- the daemon as a component

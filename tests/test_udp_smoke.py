@@ -59,7 +59,7 @@ def world(tmp_path):
         p.write_text(yaml.safe_dump({
             "vehicle": "mambo", "mode": mode, "engage": engage,
             "link": {"connect": connect or f"udpout:127.0.0.1:{port}", "autopilot": "px4"},
-            "sensors": [{"h_fov_deg": 30}], "log": {"dir": str(tmp_path / "log")},
+            "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}], "log": {"dir": str(tmp_path / "log")},
         }))
         return p
 

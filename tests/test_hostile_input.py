@@ -1,0 +1,264 @@
+"""Hostile and degenerate input (issue 17): nothing on the link may raise the commanded speed, blind the
+daemon or stop its loop; whatever is implausible is counted, logged and answered with the safe action.
+Lock-step flights with real MAVLink bytes from a second encoder on the vehicle's link."""
+
+import math
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.config import ContractConfig, SensorConfig, config_from_dict
+from companion.estimators import DodEstimator
+from companion.mavlink_in import MavlinkIn, range_scan
+from tests.lockstep import Rig
+from tests.test_daemon_lockstep import column_scenario, fly
+
+AUTOPILOT = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+PERIPHERAL = mav.MAVLink(None, srcSystem=1, srcComponent=158)  # MAV_COMP_ID_PERIPHERAL: a sensor on the vehicle
+RATED_M = 6.0  # the scenario's sensor range, and its rating in the daemon config
+
+
+def cruising(seconds=8.0, **config):
+    rig = Rig(column_scenario(1, x_col=400.0), "px4", config=config or None)
+    fly(rig, seconds)
+    assert rig.daemon.last.state == "active" and rig.log.states[-1]["v_cmd"]
+    return rig
+
+
+def inject(rig, make, seconds, rate_hz=20.0, enc=PERIPHERAL):
+    """Send `make(rig)` to the daemon at `rate_hz` for `seconds` of flight."""
+    for _ in range(int(seconds * rate_hz)):
+        rig.to_daemon(make(rig), enc)
+        rig.run(1.0 / rate_hz)
+
+
+def after(rig, t0):
+    return [s for s in rig.log.states if s["t"] >= t0]
+
+
+# ------------------------------------------------------------------ item 1: one message stops the loop
+def bins(inc_f=5.0, offset=-30.0, dist=None, min_cm=20, max_cm=600, frame=12):
+    d = list(dist) if dist is not None else [max_cm + 1] * 13 + [65535] * 59
+    return PERIPHERAL.obstacle_distance_encode(0, 0, d, 0, min_cm, max_cm, inc_f, offset, frame)
+
+
+@pytest.mark.parametrize("inc_f", [math.inf, -math.inf, math.nan])
+def test_a_non_finite_bin_increment_is_dropped_and_the_loop_goes_on(inc_f):
+    rig = cruising(sensors=[{"kind": "distance_sensor", "h_fov_deg": 30},
+                            {"kind": "obstacle_distance", "h_fov_deg": 60}])
+    t0 = rig.sim.time_s
+    rig.to_daemon(bins(inc_f=inc_f), PERIPHERAL)
+    rig.run(3.0)  # lock-step: a cycle that raised would end this test
+    states = after(rig, t0)
+    assert states[-1]["t"] > t0 + 2.8 and max(np.diff([t0] + [s["t"] for s in states])) < 0.2  # samples all along
+    assert not rig.log.named("loop_error")
+    ev = [e for e in rig.log.named("implausible_input") if e["kind"] == "OBSTACLE_DISTANCE"]
+    assert ev and rig.daemon.counters.implausible >= 1
+
+
+def test_an_exception_inside_the_cycle_ends_in_hold_and_is_logged(monkeypatch):
+    rig = cruising()
+    t0 = rig.sim.time_s
+
+    def broken(i):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(rig.daemon.cycle.sup, "step", broken)
+    rig.run(2.5)
+    errs = [e for e in rig.log.named("loop_error") if e["t"] >= t0]
+    assert errs and errs[0]["action"] == "hold" and "ZeroDivisionError" in errs[0]["error"]
+    holds = [e for e in rig.log.named("command") if e["cmd"] == "hold" and e["t"] >= t0]
+    assert holds and holds[0]["t"] - t0 < 0.1
+    assert 2 <= len(holds) <= 4  # re-sent about once a second, not every cycle
+    beats = [m for m in rig.daemon_messages() if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 191]
+    assert beats[-1].system_status == mav.MAV_STATE_CRITICAL
+
+
+# ------------------------------------------------------------------ item 4: a sensor's word for its range
+def lying_range(rig):
+    """A second forward sensor (id 5) claiming 655.35 m and nothing in range."""
+    return PERIPHERAL.distance_sensor_encode(0, 10, 65535, 65535, 0, 5, 0, 255, 0.5, 0.0, [0.0] * 4, 100)
+
+
+def test_a_sensor_claiming_655_m_does_not_raise_dod_or_the_speed():
+    rig = cruising(sensors=[{"kind": "distance_sensor", "id": 0, "h_fov_deg": 30},
+                            {"kind": "distance_sensor", "id": 5, "h_fov_deg": 30}])
+    t0 = rig.sim.time_s
+    v_before = rig.log.states[-1]["v_cmd"]
+    inject(rig, lying_range, 4.0)
+    states = after(rig, t0)
+    assert max(s["d_od"] for s in states) <= RATED_M + 1e-9
+    assert max(s["v_cmd"] or 0.0 for s in states) <= v_before + 1e-9
+    sent = [m.param2 for m in rig.daemon_messages() if m.get_type() == "COMMAND_LONG"
+            and m.command == mav.MAV_CMD_DO_CHANGE_SPEED]
+    assert max(sent) <= v_before + 1e-6
+
+
+def test_min_above_max_is_a_navigation_fault_and_the_daemon_holds():
+    rig = cruising()
+    t0 = rig.sim.time_s
+    inject(rig, lambda r: PERIPHERAL.distance_sensor_encode(0, 1000, 500, 300, 0, 0, 0, 100), 1.0)
+    assert [e for e in rig.log.named("implausible_input") if e["t"] >= t0]
+    assert [e for e in rig.log.named("failsafe") + rig.log.named("hold_trigger") if e["t"] >= t0]
+
+
+def test_a_reading_below_the_minimum_is_not_free_space():
+    cfg = SensorConfig(h_fov_deg=30.0, max_range_m=10.0)
+    e = DodEstimator([cfg], ContractConfig(), 0.5)
+    e.add_scan(range_scan(0.0, 0, 0.0, 0.05, 0.2, 10.0, 100, cfg.max_range_m))  # below min_distance
+    assert e.estimate(0.0, 0.0).d_od == 0.0
+    e.add_scan(range_scan(0.05, 0, 0.0, 10.0, 0.2, 10.0, 100, cfg.max_range_m))  # nothing within range
+    assert e.estimate(0.05, 0.0).d_od == 10.0
+
+
+def _bins_dod(distances, rated=8.0):
+    """D_od along the heading from one OBSTACLE_DISTANCE through MAVLink-in and the estimator."""
+    cfg = config_from_dict({"mode": "shadow", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60,
+                                                          "max_range_m": rated}]})
+    inp = MavlinkIn(cfg, None, lambda: 0.0, None)
+    e = DodEstimator(list(cfg.sensors), cfg.contract, 0.5)
+    msg = mav.MAVLink_obstacle_distance_message(0, 0, list(distances), 0, 20, 1000, 5.0, -30.0, 12)
+    for s in inp.samples(0.0, "OBSTACLE_DISTANCE", msg):
+        e.add_scan(s) if hasattr(s, "hits") else None
+    return e.estimate(0.0, 0.0).d_od
+
+
+def test_bins_that_know_nothing_are_not_free_space():
+    assert _bins_dod([65535] * 72) == 0.0  # every bin unknown
+    gap = [1001] * 13 + [65535] * 59
+    gap[6] = 65535  # the bin straight ahead knows nothing
+    assert _bins_dod(gap) == 0.0
+    assert _bins_dod([1001] * 13 + [65535] * 59) == 8.0  # all clear: capped at the rating (claims 10 m)
+
+
+# ------------------------------------------------------------------ item 7: parameters from anyone
+def param_set(rig, name, value, src=255):
+    enc = mav.MAVLink(None, srcSystem=src, srcComponent=190)
+    rig.to_daemon(enc.param_set_encode(1, 191, name.encode(), value, 9), enc)
+    rig.run(0.1)
+
+
+@pytest.mark.parametrize("name,value,src", [("CG_R_OBST", 0.0, 255), ("CG_R_OBST", 1e30, 255),
+                                            ("CG_ENGAGE", 1e30, 255), ("CG_ENGAGE", 0.0, 42),
+                                            ("CG_R_OBST", 0.6, 42), ("CG_MODE", 2.0, 255)])
+def test_a_parameter_set_out_of_range_or_from_a_stranger_is_refused(name, value, src):
+    rig = cruising()
+    before = dict(rig.daemon.params)
+    v_before = rig.log.states[-1]["v_cmd"]
+    param_set(rig, name, value, src)
+    rig.run(3.0)
+    assert rig.daemon.params == before
+    refused = rig.log.named("param_refused")
+    assert refused and refused[-1]["param"] == name and refused[-1]["source"] == src
+    assert max(s["v_cmd"] or 0.0 for s in rig.log.states[-30:]) <= v_before + 1e-9
+    echoed = [m.param_value for m in rig.daemon_messages() if m.get_type() == "PARAM_VALUE" and m.param_id == name]
+    assert echoed and echoed[-1] == pytest.approx(before[name])  # the acknowledgement carries the value kept
+
+
+def test_a_configured_ground_station_may_still_set_r_obst_in_range():
+    rig = cruising()
+    param_set(rig, "CG_R_OBST", 0.6)
+    assert rig.daemon.params["CG_R_OBST"] == pytest.approx(0.6)
+    assert rig.log.named("param_set")[-1]["new"] == pytest.approx(0.6)
+
+
+# ------------------------------------------------------------------ item 8: implausible state
+def test_a_velocity_of_a_million_metres_a_second_is_a_navigation_fault():
+    rig = cruising()
+    t0 = rig.sim.time_s
+    inject(rig, lambda r: AUTOPILOT.local_position_ned_encode(int(r.sim.time_s * 1000), r.truth["pos"][0],
+                                                              r.truth["pos"][1], -2.0, 1e6, 0.0, 0.0),
+           0.5, enc=AUTOPILOT)
+    fs = [e for e in rig.log.named("failsafe") if e["t"] >= t0]
+    assert fs and fs[0]["cause"] == "bad navigation estimate" and fs[0]["t"] - t0 < 0.3
+    assert max(s["ground_speed"] for s in after(rig, t0) if s["ground_speed"] == s["ground_speed"]) < 20.0
+    assert [e for e in rig.log.named("implausible_input") if e["kind"] == "LOCAL_POSITION_NED"]
+
+
+def test_implausible_messages_are_counted_once_each_and_logged_at_most_once_a_second():
+    rig = cruising()
+    n0 = rig.daemon.counters.implausible
+    inject(rig, lambda r: AUTOPILOT.attitude_encode(0, math.nan, 0.0, 0.0, 0, 0, 0), 2.0, rate_hz=50, enc=AUTOPILOT)
+    assert rig.daemon.counters.implausible - n0 == 100
+    ev = [e for e in rig.log.named("implausible_input") if e["kind"] == "ATTITUDE"]
+    assert 2 <= len(ev) <= 3 and sum(e["count"] for e in ev) <= 100
+    assert np.isfinite(rig.daemon.tel.roll)
+
+
+# ------------------------------------------------------------------ item 10: misleading records
+def test_a_link_loss_is_not_a_mode_change_by_someone_else():
+    rig = cruising()
+    t0 = rig.sim.time_s
+    saved = rig._pump
+    rig._pump = lambda: rig.link.client_recv()  # nothing reaches the daemon for a while
+    rig.run(3.0)
+    rig._pump = saved
+    rig.run(3.0)
+    links = [e["status"] for e in rig.log.named("link") if e["t"] >= t0]
+    assert links == ["down", "up"]
+    assert not [e for e in rig.log.named("mode_change") if e["t"] >= t0 and (e["by"] == "other" or e["to"] == "other")]
+    assert not [e for e in rig.log.named("state_change") if e["t"] >= t0 and "someone else" in e["reason"]]
+
+
+def test_frames_of_an_unknown_message_id_are_not_counted_as_good_messages():
+    """pymavlink hands over a well-framed message of an id it does not know as UNKNOWN_<id>."""
+    rig = cruising()
+    c = rig.daemon.counters
+    n0, u0 = c.messages, c.unknown_messages
+    rig.daemon._dispatch(mav.MAVLink_unknown(60000, b"\x00" * 9))
+    assert (c.messages, c.unknown_messages) == (n0, u0 + 1)
+
+
+def test_an_autopilot_restart_runs_the_start_up_checks_again():
+    rig = cruising()
+    t0 = rig.sim.time_s
+    checks = len(rig.log.named("startup_check"))
+    rig.to_daemon(AUTOPILOT.system_time_encode(0, 150), AUTOPILOT)  # boot clock back to 0.15 s
+    rig.run(6.0)
+    assert [e for e in rig.log.named("autopilot_restart") if e["t"] >= t0]
+    again = [m for m in rig.daemon_messages() if m.get_type() == "PARAM_REQUEST_READ"]
+    assert len(again) >= 2 * len(rig.daemon.checks.wanted())  # asked at link-up and again after the restart
+    assert rig.daemon.startup_ok is True and len(rig.log.named("startup_check")) == checks + 1
+
+
+def test_the_start_up_verdict_is_logged_when_it_changes_only():
+    rig = cruising()
+    n = len(rig.log.named("startup_check"))
+    for _ in range(5):  # a ground station reading the whole list: the autopilot sends every parameter again
+        rig.gcs.send(rig.gcs.param_request_list_encode(1, 1))
+        rig.run(0.5)
+    assert len(rig.log.named("startup_check")) == n == 1
+
+
+def test_sighup_takes_the_shutdown_path(tmp_path):
+    """SIGHUP (a closed terminal, a reload) ends the daemon like SIGTERM: shutdown, the `stop` record."""
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+
+    from companion.eventlog import read_events
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(yaml.safe_dump({"vehicle": "mambo", "mode": "shadow", "link": {"connect": f"udpin:127.0.0.1:{port}"},
+                                   "sensors": [{"h_fov_deg": 30}], "log": {"dir": str(tmp_path / "log")}}))
+    p = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.time() + 60
+        while not (tmp_path / "log").exists() or not any(r.get("event") == "start" for r in read_events(tmp_path / "log")):
+            assert time.time() < deadline and p.poll() is None, p.stderr.read() if p.poll() is not None else "no start"
+            time.sleep(0.2)
+        p.send_signal(signal.SIGHUP)
+        assert p.wait(30) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert [r for r in read_events(tmp_path / "log") if r.get("event") == "stop"]
