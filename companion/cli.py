@@ -61,6 +61,10 @@ def cmd_table_show(args) -> int:
     ]
     if m.get("note"):
         lines.append(f"  note: {m['note']}")
+    lines.append("  controller contract (E_tr_pred): " + ("yes" if t.e_pred is not None else
+                 "NONE — E_tr is the measured value only; the daemon refuses to engage with this table unless "
+                 "the config states contract.e_tr_assumed_m (build it: contract-guard table etr)"))
+    m = {**m, "controller_contract": t.e_pred is not None}
     for slot_name, slot in (("avoid", t.avoid), ("e_tr_pred", t.e_pred)):
         if slot is not None:
             for info, ax in zip(m["axes"][slot_name], slot.axes):
@@ -116,6 +120,10 @@ def cmd_table_query(args) -> int:
         f"E_tr {q['e_tr']:.3f} m, V_safe {q['v_safe']:.3f} m/s, Γ {q['gamma']:+.3f}; "
         f"stop-contract speed {q['v_stop']:.3f} m/s ({q['reason']})"
     )
+    q["controller_contract"] = t.e_pred is not None
+    if t.e_pred is None:
+        text += ("\n  no controller contract (E_tr_pred) in this table: E_tr is the --e-tr given, never the "
+                 "prediction at V_max (the daemon refuses to engage unless contract.e_tr_assumed_m is stated)")
     _emit(q, args.json, text)
     return 0
 
@@ -194,7 +202,9 @@ def cmd_run(args) -> int:
 
     from contracts.table import load_for_vehicle
 
-    from .config import load_config
+    from .config import config_from_dict, load_config
+    from .console import ConsoleLog, banner
+    from .cycle import controller_contract
     from .daemon import Daemon
     from .eventlog import EventLog
     from .link import SigningClock, load_signing_key, open_connection, setup_signing
@@ -204,14 +214,14 @@ def cmd_run(args) -> int:
 
     faulthandler.enable()  # a watchdog abort prints the stack to the journal
     cfg = load_config(args.config)
-    upd = {}
+    data = cfg.model_dump(mode="json")
     if args.mode:
-        upd["mode"] = args.mode
+        data["mode"] = args.mode
     if args.connect:
-        upd["link"] = cfg.link.model_copy(update={"connect": args.connect})
+        data["link"]["connect"] = args.connect
     if args.log_dir:
-        upd["log"] = cfg.log.model_copy(update={"dir": Path(args.log_dir)})
-    cfg = cfg.model_copy(update=upd)
+        data["log"]["dir"] = args.log_dir
+    cfg = config_from_dict(data, f"config {args.config} with the command line's overrides")
     table = load_for_vehicle(cfg.vehicle, cfg.table)
     if cfg.mode == "offboard" and table.avoid is None:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
@@ -221,25 +231,32 @@ def cmd_run(args) -> int:
     if key is not None:
         signing_clock = SigningClock(cfg.link.signing_timestamp_file)
         setup_signing(conn, key, signing_clock)
-    log = EventLog(cfg.log.dir, max_bytes=cfg.log.max_bytes, keep=cfg.log.keep, tlog=cfg.log.tlog)
+    log = ConsoleLog(EventLog(cfg.log.dir, max_bytes=cfg.log.max_bytes, keep=cfg.log.keep, tlog=cfg.log.tlog),
+                     quiet=args.quiet)
+    for line in banner(cfg, table, controller_contract(cfg, table)):
+        log.say(line)
     stop = {"now": False}
 
     def _stop(signum, frame):
         stop["now"] = True
+        stop["signal"] = signal.Signals(signum).name
 
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):  # every polite signal takes the shutdown path
         signal.signal(sig, _stop)
     daemon = Daemon(cfg, table, conn, log, signing_clock=signing_clock)
     notifier = Notifier()
-    log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect)
+    log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect,
+              controller_contract=controller_contract(cfg, table))
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
     try:
         daemon.run(lambda: stop["now"], notifier)
     finally:
+        log.say(f"stopping ({stop.get('signal', 'loop ended')})", 5)
         notifier.stopping()
         daemon.shutdown()
         log.event(None, "stop", counters=daemon.counters.__dict__)
         log.close()
+        log.say(log.summary(daemon.counters))
     return 0
 
 
@@ -349,6 +366,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--connect", help="override link.connect (pymavlink URL)")
     r.add_argument("--log-dir", help="override log.dir")
     r.add_argument("--mode", choices=["shadow", "governor", "offboard"], help="override mode")
+    r.add_argument("--quiet", action="store_true", help="print nothing (the event log still has everything)")
     r.set_defaults(func=cmd_run)
 
     rv = sub.add_parser("review", help="contract-violation report for a flight's event log or raw .tlog")

@@ -56,6 +56,9 @@ class ContractConfig(_Strict):
     r_obst_m: NonNeg = 1.0  # expected obstacle radius (also the R_OBST parameter)
     r_obst_range_m: tuple[Pos, Pos] = (0.1, 10.0)  # what a ground station may set CG_R_OBST to
     e_tr_floor_m: NonNeg = 0.3  # smallest tracking error ever assumed (braking overshoot included)
+    # the tracking error to assume when the table carries no controller contract (E_tr_pred, `table etr`):
+    # without a controller contract the daemon refuses to engage unless this is stated
+    e_tr_assumed_m: NonNeg | None = None
     e_tr_window_s: Pos = 2.0  # E_tr is the worst contour error over this window
     dwell_s: NonNeg = 2.0  # a higher limit takes effect only after holding this long
     late_detection_hold_s: NonNeg = 10.0  # how long a late first detection lowers D_od
@@ -104,14 +107,14 @@ class LogConfig(_Strict):
 
 
 class Config(_Strict):
-    vehicle: str = "mambo"  # shipped name or path to a vehicle file
+    vehicle: str | None = None  # shipped name or path to a vehicle file: which aircraft the contract is for
     table: Path | None = None  # default: the shipped table of the vehicle
     mode: Literal["shadow", "governor", "offboard"] = "shadow"
     engage: bool = False  # engage only when asked (also the CG_ENGAGE parameter)
     loop_hz: Pos = 50.0
     speed_margin_m_s: NonNeg = 0.2  # ground speed this far above the limit counts as "not in force"
     link: LinkConfig = LinkConfig()
-    sensors: list[SensorConfig] = [SensorConfig(h_fov_deg=30.0)]
+    sensors: list[SensorConfig] = []  # the obstacle sensors as mounted (none: D_od is 0, no speed is safe)
     contract: ContractConfig = ContractConfig()
     thrust: ThrustConfig = ThrustConfig()
     timeouts: Timeouts = Timeouts()
@@ -121,6 +124,8 @@ class Config(_Strict):
 
     @model_validator(mode="after")
     def _sensors_rated(self):
+        if self.mode != "shadow" and not self.sensors:
+            raise ValueError(f"sensors: at least one obstacle sensor is required in {self.mode} mode")
         if self.mode != "shadow":
             for k, s in enumerate(self.sensors):
                 if s.max_range_m is None:

@@ -25,13 +25,29 @@ from .supervisor import Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
 
+def e_tr_floor(cfg: Config, table: ContractTable) -> float:
+    """The smallest E_tr the contract may use: the configured floor, and without a controller contract in
+    the table at least the configured assumption (without either, the start-up checks refuse)."""
+    assumed = cfg.contract.e_tr_assumed_m if table.e_pred is None else None
+    return max(cfg.contract.e_tr_floor_m, assumed or 0.0)
+
+
+def controller_contract(cfg: Config, table: ContractTable) -> str:
+    """In words: where the contract's E_tr comes from (the start banner, the `start` record)."""
+    if table.e_pred is not None:
+        return "E_tr_pred from the table (the controller contract)"
+    if cfg.contract.e_tr_assumed_m is not None:
+        return f"no E_tr_pred in the table: E_tr assumed {e_tr_floor(cfg, table):.2f} m (contract.e_tr_assumed_m)"
+    return "no E_tr_pred in the table and no contract.e_tr_assumed_m: refuses to engage"
+
+
 class Cycle:
     def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str, planning):
         """`planning`: a factory of the planning runner (one per guidance: inline or on a worker thread)."""
         self.cfg, self.table, self.adapter, self._planning = cfg, table, adapter, planning
         veh = table.vehicle
         self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s)
-        self.etr = EtrEstimator(cfg.contract)
+        self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
         self.thrust = ThrustEstimator(cfg.thrust, hover, veh.thrust_ratio_range[0], veh.thrust_ratio_range[1])
         self.nav = NavHealth(cfg.timeouts.nav_s)

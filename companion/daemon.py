@@ -56,7 +56,7 @@ class Daemon:
             setters=tuple(cfg.link.gcs_system_ids))
         self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
                            ThreadedPlanning if planning == "thread" else InlinePlanning)
-        self.checks = StartupChecks(self.adapter, table.vehicle, cfg)
+        self.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
         self.startup_ok: bool | None = None
         self.mission: MissionSource | None = None  # route.source: mission — the route comes from the autopilot
         if cfg.mode == "offboard" and cfg.route.source == "mission":
@@ -73,6 +73,9 @@ class Daemon:
         self._implausible_seen: dict[str, tuple[float, int]] = {}  # kind → (last logged, count since)
         self._t_error_hold = -math.inf
         self._verdict: tuple[bool, str] | None = None  # the start-up checks' last verdict logged
+        if (why := self.checks.static()) is not None:  # refused before the autopilot is even heard
+            self.startup_ok, self._verdict = False, (False, why)
+            self._event(self.clock(), "startup_check", ok=False, reason=why)
 
     # what tests and the CLI look at
     @property
@@ -154,7 +157,8 @@ class Daemon:
         """A restarted autopilot may come back with other parameters: the start-up checks run again."""
         self._event(s.t, "autopilot_restart", boot_s_before=s.from_s, boot_s_now=s.to_s)
         self.out.statustext(4, "CG: autopilot restarted: start-up checks again")
-        self.startup_ok, self.checks.values, self._t_checks, self._verdict = None, {}, s.t, None
+        self.checks.values, self._t_checks, self._verdict = {}, s.t, None
+        self.startup_ok = None if self.checks.static() is None else False
         self.out.request_streams(s.t, self.checks.wanted())
 
     def _param_request(self, msg) -> None:
@@ -274,6 +278,8 @@ class Daemon:
             self._event(t, "link", status="up" if i.link_ok else "down")
             if i.link_ok:
                 self._t_checks = t if self.startup_ok is None else self._t_checks
+                if self.startup_ok is False:  # the ground station hears why, now that it can
+                    self.out.statustext(3, f"CG: refusing to engage: {self._verdict[1]}")
                 if self.mission is not None and self.mission.status in ("idle", "refused"):
                     why = "start-up" if self.mission.status == "idle" else "link up"
                     self._mission_actions(t, self.mission.request(t, why))

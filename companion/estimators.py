@@ -177,8 +177,8 @@ class DodEstimator:
 class EtrEstimator:
     """Worst horizontal contour error over a window, never below the configured floor."""
 
-    def __init__(self, contract: ContractConfig):
-        self.floor = contract.e_tr_floor_m
+    def __init__(self, contract: ContractConfig, floor_m: float | None = None):
+        self.floor = contract.e_tr_floor_m if floor_m is None else floor_m
         self.window = ContourWindow(window_s=contract.e_tr_window_s, path_span_s=contract.e_tr_window_s)
         self.last: float | None = None
 

@@ -7,7 +7,9 @@ vehicle). Malformed packets are counted (`bad_packets`) and dropped by pymavlink
 
 from __future__ import annotations
 
+import errno
 import os
+import socket
 import time
 from pathlib import Path
 
@@ -44,8 +46,25 @@ class MemoryMavfile(mavutil.mavfile):
         pass
 
 
+def _refuse_a_taken_port(url: str) -> None:
+    """pymavlink binds udpin with SO_REUSEADDR, so a second daemon on the same port would bind too and
+    share (or steal) the autopilot's datagrams: refuse when the port is taken."""
+    host, _, port = url.removeprefix("udpin:").rpartition(":")
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind((host or "0.0.0.0", int(port)))
+    except OSError as err:
+        if err.errno == errno.EADDRINUSE:
+            raise ContractError(f"cannot open link {url}: the port is taken (another contract-guard, "
+                                "or a ground station, listens there)") from None
+    except ValueError:
+        pass  # a malformed URL: pymavlink says so
+
+
 def open_connection(url: str, baud: int, system: int, component: int):
     """A pymavlink connection for a config URL (udpin:, udpout:, tcp:, serial device path)."""
+    if url.startswith("udpin:"):
+        _refuse_a_taken_port(url)
     try:
         conn = mavutil.mavlink_connection(url, baud=baud, source_system=system, source_component=component,
                                           autoreconnect=True, dialect="ardupilotmega")

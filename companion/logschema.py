@@ -71,7 +71,8 @@ class Event(NamedTuple):
 
 _MISSION_STATS = ("resent", "duplicates", "out_of_order", "malformed")
 EVENTS = {
-    "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract"), "cli run, replay",
+    "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract"),
+                   "cli run, replay",
                    "daemon run starts (connect: the live link; replay_of: the raw log replayed)"),
     "stop": Event(("counters",), "cli run, replay", "daemon run ends cleanly (the daemon's counters)"),
     "log_open": Event(("pid", "torn_tail"), "eventlog", "log opened (torn_tail: the previous run's last line was cut)"),

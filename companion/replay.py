@@ -28,7 +28,7 @@ from pathlib import Path
 from contracts.errors import ContractError
 
 from .autopilots import name_for_heartbeat
-from .config import Config, load_config
+from .config import Config, SensorConfig, load_config
 from .eventlog import EventLog, finite_copy, read_events
 from .link import MemoryMavfile, mavlink
 from .logschema import COMMANDS, LOG_FILE, NVF
@@ -40,6 +40,10 @@ MAX_GAP_US = 300_000_000  # a longer silence is taken as a clock jump and closed
 RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie within a day of the last good one
 TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
 NOT_AUTOPILOT = (mavlink.MAV_AUTOPILOT_INVALID,)
+# without the flight's config: the sensors assumed, said in the report's notes
+ASSUMED_SENSORS = (SensorConfig(kind="distance_sensor", h_fov_deg=30.0),)
+ASSUMED_NOTE = ("no --config: sensors assumed to be one forward DISTANCE_SENSOR with a 30° field of view, "
+                "its claimed range taken as rated (give the flight's config for its sensors and ratings)")
 IN_FLIGHT = {name: f for name, (f, _, _) in NVF.items() if f}  # the daemon's NAMED_VALUE_FLOATs → state field
 # its COMMAND_LONGs counted: the speed limit and the mode (a hold or an offboard entry, alike on the wire)
 DAEMON_COMMANDS = {getattr(mavlink, COMMANDS["change_speed"]): "change_speed", getattr(mavlink, COMMANDS["hold"]): "set_mode"}
@@ -204,7 +208,7 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
     """(config forced to shadow, table, contract, how the autopilot was chosen) for this tlog."""
     from contracts.table import load_for_vehicle
 
-    cfg = load_config(config) if config is not None else Config()
+    cfg = load_config(config) if config is not None else Config(sensors=list(ASSUMED_SENSORS))
     chosen = "config"
     if config is None:  # no flight config: take the autopilot the tlog shows
         aps = _autopilots(scan)
@@ -414,6 +418,7 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "event_log": None,  # where the replayed event log is kept, if it is (see companion.cli)
         "in_flight": in_flight(scan, samples, columns, target[0]),
         "notes": ["shadow replay: the controller guarantee (contour error vs E_tr_pred at the commanded limit) "
-                  "is evaluated only against a commanded limit, so it is not checked here"],
+                  "is evaluated only against a commanded limit, so it is not checked here"]
+        + ([ASSUMED_NOTE] if config is None else []),
     }
     return Replay([str(path)], finite_copy(info))

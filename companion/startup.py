@@ -12,9 +12,20 @@ class StartupChecks:
     offboard flight needs Land or Hold as offboard-loss action, and the configured sensors must cover
     the direction of flight. Any mismatch refuses to engage (shadow mode still runs)."""
 
-    def __init__(self, adapter, vehicle, cfg: Config):
+    def __init__(self, adapter, vehicle, cfg: Config, controller_contract: bool = True):
+        """`controller_contract`: the table carries E_tr_pred."""
         self.adapter, self.vehicle, self.cfg = adapter, vehicle, cfg
+        self.controller_contract = controller_contract
         self.values: dict[str, float] = {}
+
+    def static(self) -> str | None:
+        """What refuses at once, before the autopilot answers: the config and the table alone."""
+        if not self.controller_contract and self.cfg.contract.e_tr_assumed_m is None:
+            return ("the table carries no controller contract (E_tr_pred): build it (contract-guard table etr) "
+                    "or state contract.e_tr_assumed_m")
+        if not any(abs(((s.orientation_deg + 180) % 360) - 180) <= s.h_fov_deg / 2 for s in self.cfg.sensors):
+            return "no configured sensor looks forward"
+        return None
 
     def wanted(self) -> list[str]:
         return [c.name for c in self.adapter.param_checks]
@@ -27,8 +38,8 @@ class StartupChecks:
 
     def verdict(self) -> tuple[bool, str]:
         v = self.vehicle
-        if not any(abs(((s.orientation_deg + 180) % 360) - 180) <= s.h_fov_deg / 2 for s in self.cfg.sensors):
-            return False, "no configured sensor looks forward"
+        if (why := self.static()) is not None:
+            return False, why
         needs = {"tilt_max_deg": v.tilt_max_deg, "braking.accel_max_m_s2": v.braking.accel_max_m_s2,
                  "braking.jerk_max_m_s3": v.braking.jerk_max_m_s3}
         for c in self.adapter.param_checks:

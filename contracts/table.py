@@ -220,12 +220,18 @@ def shipped_table(name: str) -> Path:
     return DATA_DIR / f"{name}.npz"
 
 
+def shipped_vehicles() -> list[str]:
+    """Names of the vehicles whose tables ship with the package."""
+    return sorted(p.stem for p in DATA_DIR.glob("*.yaml") if (DATA_DIR / f"{p.stem}.npz").exists())
+
+
 def load_for_vehicle(vehicle: str | Path | Vehicle | None, table_path: str | Path | None = None) -> "ContractTable":
     """The verified table for a vehicle (shipped name, vehicle file or `Vehicle`): `table_path`, else the
     vehicle's shipped table; refused if built for another vehicle. No vehicle: `table_path` with its own."""
     if vehicle is None:
         if table_path is None:
-            raise ValueError("load_for_vehicle needs a vehicle or a table path")
+            raise ContractError("which aircraft? state `vehicle:` (a vehicle file, or a shipped name: "
+                                f"{', '.join(shipped_vehicles())}) or a table")
         return verify(table_path)
     veh = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
     return verify(shipped_table(veh.name) if table_path is None else table_path, veh)

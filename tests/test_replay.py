@@ -149,7 +149,7 @@ def test_router_tlog_with_the_daemons_own_packets(thrust, tmp_path):
 
     # without the flight's config (thrust estimate τ 2 s instead of 0.5 s) the replay misses the
     # violation, and the in-flight comparison says the replay is not the flight
-    bare, _ = review_log(d / "raw.tlog")
+    bare, _ = review_log(d / "raw.tlog", vehicle="mambo")
     assert bare["replay"]["autopilot"] == {"system": 1, "component": 1, "kind": "ardupilot", "from": "detected"}
     assert violations(bare) == []
     assert bare["replay"]["in_flight"]["max_abs_diff"]["v_max"] > 1.0
@@ -219,7 +219,7 @@ def test_a_ground_station_style_tlog_says_what_it_lacks(fog, tmp_path):
                 continue
         kept += data[o:o + n]
     (tmp_path / "gcs.tlog").write_bytes(bytes(kept))
-    rep, _ = review_log(tmp_path / "gcs.tlog")
+    rep, _ = review_log(tmp_path / "gcs.tlog", vehicle="mambo")
     rp = rep["replay"]
     assert set(rp["missing_streams"]) == {"navigation health", "obstacle data (DISTANCE_SENSOR: D_od is 0 throughout)"}
     assert [s["stream"] for s in rp["slow_streams"]] == ["LOCAL_POSITION_NED"]

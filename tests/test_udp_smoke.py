@@ -120,6 +120,12 @@ def test_daemon_governs_the_sitl_over_udp_and_stops_cleanly(world):
     assert "start" in names and names[-1] == "stop"
     assert any(r.get("event") == "startup_check" and r["ok"] for r in recs)
     assert sum(1 for r in recs if r["kind"] == "state") > 20
+    # the console, as a service's journal or a terminal shows it: one line per thing worth knowing
+    said = [ln.removeprefix("contract-guard: ") for ln in out.splitlines()]
+    for start in ("vehicle mambo, table", "governor mode (stop contract)", "sensors: [0] distance_sensor",
+                  "waiting for the autopilot", "autopilot link up", "start-up checks: ok", "speed limit",
+                  "stopping (SIGTERM)", "stopped after"):
+        assert any(ln.startswith(start) for ln in said), (start, out)
 
 
 def test_ground_station_sets_a_daemon_parameter_through_the_sitl(world):

@@ -1,0 +1,133 @@
+"""What `contract-guard run` says on stdout: a start banner (vehicle, table and its contracts, mode, link,
+sensors, the defaults that shape the contract), then one line per thing a person watching wants to
+know — link up/down, start-up verdict, engaging, holds, violations, parameter sets, errors — and a summary
+at exit. Under systemd (`$JOURNAL_STREAM` set) each line carries its syslog priority (`<3>` … `<6>`), as
+journald reads it; `--quiet` says nothing.
+
+`ConsoleLog` wraps the event log: every record still goes to the log; the console only reads events.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections import Counter
+
+ERR, WARNING, NOTICE, INFO = 3, 4, 5, 6
+
+
+def _fmt(v) -> str:
+    return f"{v:.2f}" if isinstance(v, float) and math.isfinite(v) else str(v)
+
+
+def event_line(name: str, f: dict) -> tuple[int, str] | None:
+    """The console line of one event (priority, text), or None for events a person need not watch."""
+    if name == "link":
+        return (INFO, "autopilot link up") if f["status"] == "up" else (WARNING, "autopilot link DOWN")
+    if name == "startup_check":
+        return (INFO, "start-up checks: ok") if f["ok"] else (ERR, f"start-up checks: REFUSING TO ENGAGE: {f['reason']}")
+    if name == "state_change":
+        return (NOTICE if f["to"] != "holding" else WARNING, f"state {f['from']} → {f['to']} ({f['reason']})")
+    if name in ("failsafe", "hold_trigger"):
+        return WARNING, f"HOLD: {f['cause']}"
+    if name == "violation_start":
+        return ERR, (f"VIOLATION {f['subsystem']}: {f['guarantee']} (assumed {_fmt(f.get('assumed'))}, observed "
+                     f"{_fmt(f.get('observed'))}); {f['action']}")
+    if name == "violation_end":
+        return NOTICE, f"violation over: {f['subsystem']}"
+    if name == "would_hold" and f["causes"]:
+        return WARNING, f"shadow: would HOLD: {', '.join(f['causes'])}"
+    if name == "limit_change":
+        return INFO, f"speed limit {f['v_max']:.2f} m/s"
+    if name == "mode_change" and f["by"] == "other":
+        return NOTICE, f"autopilot mode {f['from']} → {f['to']} (not by us)"
+    if name == "param_set":
+        return NOTICE, f"parameter {f['param']}: {f['old']:g} → {f['new']:g}"
+    if name == "param_refused":
+        return WARNING, f"parameter {f['param']} = {f['value']:g} from system {f['source']} refused: {f['why']}"
+    if name == "offboard":
+        return NOTICE, f"offboard {f['from']} → {f['to']} ({f['reason']})"
+    if name == "no_avoiding_plan":
+        return WARNING, "no avoiding plan: braking"
+    if name == "mission" and f["status"] in ("ready", "refused"):
+        return (INFO, f"mission route ready: {f.get('waypoints')} waypoints") if f["status"] == "ready" else \
+            (ERR, f"mission refused: {f.get('reason')}")
+    if name in ("loop_error", "implausible_input", "autopilot_restart", "log_recovered"):
+        detail = f.get("error") or f.get("why") or ""
+        return ERR if name == "loop_error" else WARNING, f"{name.replace('_', ' ')}: {f.get('kind', '')} {detail}".strip()
+    return None
+
+
+class ConsoleLog:
+    """An event log that also tells the console (see the module docstring)."""
+
+    def __init__(self, log, quiet: bool = False, out=sys.stdout, clock=time.monotonic):
+        self.log, self.quiet, self.out, self.clock = log, quiet, out, clock
+        self.journal = bool(os.environ.get("JOURNAL_STREAM"))
+        self.counts: Counter = Counter()
+        self.t0 = clock()
+
+    def say(self, text: str, priority: int = INFO) -> None:
+        if self.quiet:
+            return
+        try:
+            print(f"<{priority}>{text}" if self.journal else f"contract-guard: {text}", file=self.out, flush=True)
+        except (OSError, ValueError):
+            pass  # a closed terminal must not stop the daemon
+
+    def event(self, t, name, **fields):
+        self.counts[name] += 1
+        if name == "violation_start":
+            self.counts[f"violation:{fields.get('subsystem')}"] += 1
+        line = event_line(name, fields)
+        quiet_now = (name == "state_change" and fields.get("to") == "failsafe" and not self.counts["link"]  # never up
+                     or line is not None and line[1] == self._last_line)  # e.g. the same limit re-sent
+        if line is not None and not quiet_now:
+            self.say(line[1], line[0])
+            self._last_line = line[1]
+        return self.log.event(t, name, **fields)
+
+    _last_line = ""
+
+    def tick(self) -> None:
+        """Called every loop: while no autopilot has been heard, say so now and then."""
+        if not self.counts["link"] and self.clock() - self.t0 >= self._next_reminder:
+            self.say(f"still no autopilot heartbeat after {self._next_reminder:.0f} s", WARNING)
+            self._next_reminder *= 3
+        if hasattr(self.log, "tick"):
+            self.log.tick()
+
+    _next_reminder = 10.0
+
+    def __getattr__(self, name):  # state, raw, close: the log's
+        return getattr(self.log, name)
+
+    def summary(self, counters) -> str:
+        c = counters
+        by = ", ".join(f"{k.split(':', 1)[1]} {n}" for k, n in sorted(self.counts.items()) if k.startswith("violation:"))
+        return (f"stopped after {self.clock() - self.t0:.0f} s: {c.messages} messages ({c.bad_packets} malformed, "
+                f"{c.implausible} implausible), {c.commands_sent} commands, "
+                f"{self.counts['failsafe'] + self.counts['hold_trigger']} holds, violations: {by or 'none'}, "
+                f"{c.loop_errors} loop errors, {c.log_errors} log errors")
+
+
+def banner(cfg, table, controller_contract: str) -> list[str]:
+    """The start banner: what the daemon will enforce, on what, and the defaults that shape it."""
+    lk, ct = cfg.link, cfg.contract
+    sensors = "; ".join(f"[{k}] {s.kind} at {s.orientation_deg:g}°, {s.h_fov_deg:g}° wide, "
+                        f"rated {'(none: claims trusted, shadow only)' if s.max_range_m is None else f'{s.max_range_m:g} m'}"
+                        for k, s in enumerate(cfg.sensors)) or "none (D_od is 0: no speed is safe)"
+    engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
+    return [
+        f"vehicle {table.vehicle.name}, table {table.path} (contracts: {', '.join(table.available)})",
+        f"controller contract: {controller_contract}",
+        f"{cfg.mode} mode ({'stop' if cfg.mode != 'offboard' else 'avoid'} contract), {engage}",
+        f"sensors: {sensors}",
+        f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
+        f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "
+        f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, loop {cfg.loop_hz:g} Hz, event log {cfg.log.dir}",
+        f"waiting for the autopilot ({lk.autopilot}, system {lk.target_system} component {lk.target_component}) "
+        f"on {lk.connect}",
+    ]
