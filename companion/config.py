@@ -39,6 +39,9 @@ class LinkConfig(_Strict):
     target_component: int = 1
     component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
     gcs_system_ids: list[Annotated[int, Field(ge=1, le=255)]] = [255]  # ground stations that may set CG_* parameters
+    # the autopilot's clock rate against the host's: 1 for a real aircraft, K for a SITL sped up K times;
+    # daemon time runs at it, and an autopilot clock running otherwise is a fault
+    clock_rate: Annotated[float, Field(ge=0.1, le=20)] = 1.0
     signing_key_file: Path | None = None  # 32-byte key (raw or 64 hex chars), readable only by us
     signing_timestamp_file: Path | None = None  # persisted across restarts (no RTC on many boards)
 

@@ -54,9 +54,11 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
     if name == "mission" and f["status"] in ("ready", "refused"):
         return (INFO, f"mission route ready: {f.get('waypoints')} waypoints") if f["status"] == "ready" else \
             (ERR, f"mission refused: {f.get('reason')}")
-    if name in ("loop_error", "implausible_input", "autopilot_restart", "log_recovered"):
+    if name == "log_failing":
+        return ERR, f"EVENT LOG FAILING: {f['error']} (records are kept in memory and written when it can)"
+    if name in ("loop_error", "implausible_input", "autopilot_restart", "log_recovered", "log_writing"):
         detail = f.get("error") or f.get("why") or ""
-        return ERR if name == "loop_error" else WARNING, f"{name.replace('_', ' ')}: {f.get('kind', '')} {detail}".strip()
+        return ERR if name == "loop_error" else WARNING, f"{name.replace('_', ' ')}: {f.get('message', '')} {detail}".strip()
     return None
 
 

@@ -31,6 +31,10 @@ from .startup import StartupChecks
 from .supervisor import Decision, Inputs
 
 
+MAX_MESSAGES_PER_POLL = 2000  # messages taken per cycle at most (a 50 Hz autopilot sends ~400/s)
+RESTART_CHECK_S = 10.0  # the start-up checks re-run after an autopilot restart at most this often
+
+
 class Daemon:
     def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
                  planning: str = "thread", contract: str | None = None):
@@ -42,7 +46,7 @@ class Daemon:
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
         self.signing_clock = signing_clock
         self._t_signing_saved = -math.inf
-        self.vclock = VehicleClock() if clock is None else None
+        self.vclock = VehicleClock(rate=cfg.link.clock_rate) if clock is None else None
         self.clock = clock or self.vclock
         self.adapter = adapter_for(cfg.link.autopilot)
         self.counters = Counters()
@@ -72,6 +76,8 @@ class Daemon:
         self._t_checks: float | None = None
         self._implausible_seen: dict[str, tuple[float, int]] = {}  # kind → (last logged, count since)
         self._t_error_hold = -math.inf
+        self._t_restart = -math.inf
+        self._log_healthy = True
         self._verdict: tuple[bool, str] | None = None  # the start-up checks' last verdict logged
         if (why := self.checks.static()) is not None:  # refused before the autopilot is even heard
             self.startup_ok, self._verdict = False, (False, why)
@@ -92,9 +98,14 @@ class Daemon:
 
     # ------------------------------------------------------------------ input
     def poll(self) -> int:
-        """Drain the link; returns the number of messages taken."""
-        n = 0
+        """Drain the link, within a budget (MAX_MESSAGES_PER_POLL, and half a loop period of host time), so
+        that no flood can stall the cycle; what is left waits for the next cycle (or is dropped by the
+        kernel, which the UDP link counts). Returns the number of messages taken."""
+        n, t_end = 0, time.monotonic() + 0.5 / self.cfg.loop_hz
         while True:
+            if n >= MAX_MESSAGES_PER_POLL or n % 64 == 63 and time.monotonic() > t_end:
+                self.counters.poll_budget_hits += 1
+                break
             try:
                 msg = self.conn.recv_msg()
             except Exception:  # a transport hiccup (e.g. serial unplugged): try again next cycle
@@ -148,13 +159,18 @@ class Daemon:
         self.counters.implausible += 1
         last, count = self._implausible_seen.get(s.kind, (-math.inf, 0))
         if s.t - last >= 1.0:
-            self._event(s.t, "implausible_input", kind=s.kind, why=s.why, count=count + 1)
+            self._event(s.t, "implausible_input", message=s.kind, why=s.why, count=count + 1)
             self._implausible_seen[s.kind] = (s.t, 0)
         else:
             self._implausible_seen[s.kind] = (last, count + 1)
 
     def _autopilot_restarted(self, s: AutopilotRestart) -> None:
-        """A restarted autopilot may come back with other parameters: the start-up checks run again."""
+        """A restarted autopilot may come back with other parameters: the start-up checks run again (at
+        most every RESTART_CHECK_S: a boot clock that keeps going back is a fault, not a restart a second)."""
+        if s.t - self._t_restart < RESTART_CHECK_S:
+            self.cycle.take(Implausible(s.t, "time_boot_ms", "the autopilot's boot clock keeps going back"))
+            return
+        self._t_restart = s.t
         self._event(s.t, "autopilot_restart", boot_s_before=s.from_s, boot_s_now=s.to_s)
         self.out.statustext(4, "CG: autopilot restarted: start-up checks again")
         self.checks.values, self._t_checks, self._verdict = {}, s.t, None
@@ -176,6 +192,8 @@ class Daemon:
                 self._mission_actions(self.clock(), self.mission.request(self.clock(), "engage requested"))
         self._event(self.clock(), "param_set", param=name, old=old, new=new)
         self.param_server.send(name)
+        if self.signing_clock is not None:  # a set taken is never taken again, even after a kill -9
+            self.signing_clock.save(self.conn.mav.signing)
 
     def _finish_checks(self, t: float) -> None:
         """The verdict, logged and said when it changes (a ground station reading every parameter makes
@@ -285,10 +303,22 @@ class Daemon:
                     self._mission_actions(t, self.mission.request(t, why))
                 self.out.request_streams(t, self.checks.wanted())
 
+    def _watch_log(self, t: float) -> None:
+        """A failing event log is said (STATUSTEXT, the console) when it starts failing and when it recovers."""
+        healthy = getattr(self.log, "healthy", True)
+        if healthy == self._log_healthy:
+            return
+        self._log_healthy = healthy
+        error = str(getattr(self.log, "last_error", "") or "")[:120]
+        self.out.statustext(3 if not healthy else 5, f"CG: event log failing: {error}" if not healthy
+                            else "CG: event log writing again")
+        self._event(t, "log_failing" if not healthy else "log_writing", error=error)
+
     def _periodic(self, t: float, i: Inputs, d: Decision) -> None:
+        self._watch_log(t)
         if self.signing_clock is not None and abs(t - self._t_signing_saved) >= 10.0:
             self._t_signing_saved = t
-            self.signing_clock.save(self.conn.mav.signing.timestamp)
+            self.signing_clock.save(self.conn.mav.signing)
         if self.startup_ok is None and self._t_checks is not None and t - self._t_checks > 5.0:
             self._finish_checks(t)  # what did not answer in 5 s counts as missing
         if t - self._t_hb_out >= 1.0 or t < self._t_hb_out:
@@ -327,7 +357,7 @@ class Daemon:
         if self.cycle.shutdown(t):
             self.out.hold(t)
         if self.signing_clock is not None:
-            self.signing_clock.save(self.conn.mav.signing.timestamp)
+            self.signing_clock.save(self.conn.mav.signing)
         self.out.statustext(5, "CG: contract-guard stopping")
 
     # ------------------------------------------------------------------ real time
@@ -351,7 +381,7 @@ class Daemon:
             if hasattr(self.log, "tick"):
                 self.log.tick()
             # the loop rate is in vehicle time: against a SITL sped up k times, cycle k times as often
-            rate = min(max(self.vclock.rate, 1.0), 10.0) if self.vclock is not None else 1.0
+            rate = self.vclock.rate if self.vclock is not None else 1.0
             next_t += period / rate
             delay = next_t - time.monotonic()
             if delay > 0:

@@ -131,7 +131,7 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
     port = _free_port()
     cfg = {
         "vehicle": sc.vehicle, "mode": "offboard", "engage": True,
-        "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": personality},
+        "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": personality, "clock_rate": speedup},
         "sensors": [{"kind": "obstacle_distance", "h_fov_deg": sc.sensor.fov_deg, "max_range_m": sc.sensor.max_range_m}],
         "contract": {"r_obst_m": max((c.radius_m for c in sc.world.columns), default=1.0)},
         "route": {"waypoints": [list(w) for w in sc.route.waypoints], "altitude_m": sc.route.altitude_m},

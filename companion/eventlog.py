@@ -276,6 +276,8 @@ class _AppendFile:
                         continue
                     elif self.lines:  # one line longer than max_bytes: it goes whole into an empty file
                         end = data.find(b"\n", done) + 1 or len(data)
+                if self.lines and end - done > CHUNK_BYTES:  # whole lines, a chunk at a time: as space allows
+                    end = data.rfind(b"\n", done, done + CHUNK_BYTES) + 1 or end
                 self._append(data[done:end])
                 done = end
         except OSError as err:
@@ -320,6 +322,10 @@ class _AppendFile:
     def sync(self) -> None:
         if self.fd is not None:
             os.fsync(self.fd)
+
+
+CHUNK_BYTES = 16 * 1024  # a backlog goes to the file in chunks of whole lines, each all or nothing
+OUTAGE_STATE_BYTES = 16 * 1024  # state samples kept pending while the disk is full (the oldest go first)
 
 
 class WriteFailed(OSError):
@@ -474,7 +480,9 @@ class EventLog:
         with self._lock:
             if self.closed:
                 return
-            self.flush(sync=True)
+            if not self.flush(sync=True):  # the last records (`stop`) before the samples of an outage
+                self._drop_old_states(0)
+                self.flush(sync=True)
             for f in (self._file, self._tlog):
                 if f is not None:
                     try:
@@ -562,6 +570,8 @@ class EventLog:
 
     def _fail(self, err: BaseException) -> None:
         self.write_errors += 1
+        if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+            self._drop_old_states(OUTAGE_STATE_BYTES)  # the newest, and every event, first when space returns
         self._healthy = False
         self.last_error = f"{type(err).__name__}: {err}"
         if self._failing_since is None:
@@ -572,6 +582,21 @@ class EventLog:
             self._first_error = self.last_error
             self._dropped_at_failure = self.dropped_records
         self._trim_pending()
+
+    def _drop_old_states(self, keep_bytes: int) -> None:
+        """Drop the oldest pending state samples until at most `keep_bytes` of them are left (counted)."""
+        states = sum(len(ln) for ln, ev in self._pending if not ev)
+        if states <= keep_bytes:
+            return
+        kept = []
+        for ln, ev in self._pending:
+            if not ev and states > keep_bytes:
+                states -= len(ln)
+                self._pending_size -= len(ln)
+                self.dropped_records += 1
+            else:
+                kept.append((ln, ev))
+        self._pending = kept
 
     def _trim_pending(self) -> None:
         """Keep the pending backlog bounded: drop state samples first, then the oldest events."""

@@ -8,8 +8,11 @@ vehicle). Malformed packets are counted (`bad_packets`) and dropped by pymavlink
 from __future__ import annotations
 
 import errno
+import hashlib
+import json
 import os
 import socket
+import struct
 import time
 from pathlib import Path
 
@@ -46,25 +49,246 @@ class MemoryMavfile(mavutil.mavfile):
         pass
 
 
-def _refuse_a_taken_port(url: str) -> None:
-    """pymavlink binds udpin with SO_REUSEADDR, so a second daemon on the same port would bind too and
-    share (or steal) the autopilot's datagrams: refuse when the port is taken."""
-    host, _, port = url.removeprefix("udpin:").rpartition(":")
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: the kernel's drop count on each datagram
+RCVBUF_BYTES = 8 << 20  # room for ~100 ms of a 100 000 datagram/s flood between two polls
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)  # as root: past net.core.rmem_max
+MAX_CLIENTS = 8  # udpin: other senders (ground stations, routers) heard from and answered
+CLIENT_TIMEOUT_S = 10.0  # a client silent this long is forgotten
+MAX_DATAGRAMS_PER_READ = 256
+READ_BUDGET_S = 0.005  # one recv_msg reads datagrams for at most this long looking for a message
+
+
+class UdpLink(mavutil.mavfile):
+    """MAVLink over UDP with the parsing a safety daemon needs (pymavlink's `mavudp` keeps one parse buffer
+    for every sender, so a partial frame from anyone swallows the next real datagram):
+
+    - each datagram is parsed on its own (the parser's state is reset before it): never joined to another's;
+      a datagram that cannot hold a MAVLink frame is dropped unread (`not_mavlink`);
+    - `udpout:HOST:PORT` connects the socket, so the kernel delivers only that peer's datagrams and the
+      local side is bound to the interface that reaches it;
+    - `udpin:HOST:PORT` binds (a second daemon on the port is refused) and accepts the autopilot
+      (`autopilot` = (system, component) of its HEARTBEAT) only from the address it was first heard from:
+      from then on a second socket on the same port, connected to that address, receives the autopilot's
+      datagrams in a buffer of their own, so no flood on the port can crowd them out; another address
+      claiming its ids is dropped unread (`foreign_autopilot`) until the autopilot has been silent for
+      CLIENT_TIMEOUT_S, then followed (`autopilot_moves`). Other senders of well-formed MAVLink are
+      clients (answered too), at most MAX_CLIENTS, forgotten after CLIENT_TIMEOUT_S of silence; new
+      senders beyond that are dropped unread (`refused_sources`);
+    - reading drains the sockets in batches (`recv_msg` returns one message at a time; the daemon bounds
+      what it takes per cycle); the kernel's own drops are counted (SO_RXQ_OVFL, `kernel_drops`).
+    """
+
+    def __init__(self, url: str, source_system: int, source_component: int, autopilot: tuple[int, int]):
+        mode, _, address = url.partition(":")
+        host, _, port = address.rpartition(":")
+        try:
+            self.local = (socket.gethostbyname(host or "0.0.0.0"), int(port))
+        except (ValueError, OSError) as err:
+            raise ContractError(f"cannot open link {url}: {err}") from None
+        self.listening, self.autopilot_ids = mode == "udpin", autopilot
+        try:
+            if self.listening:
+                _refuse_a_taken_port(self.local)
+                self.sock = _udp_socket(bind=self.local)
+            else:
+                self.sock = _udp_socket(connect=self.local)
+        except OSError as err:
+            raise ContractError(f"cannot open link {url}: {err.strerror or err}") from None
+        self.ap_sock: socket.socket | None = None  # udpin: connected to the autopilot once it is heard
+        self.autopilot_addr: tuple | None = None if self.listening else self.local
+        self._autopilot_seen = 0.0
+        self.clients: dict[tuple, float] = {}
+        self.stats = {"datagrams": 0, "not_mavlink": 0, "refused_sources": 0, "foreign_autopilot": 0,
+                      "autopilot_moves": 0, "truncated_datagrams": 0, "kernel_drops": 0, "send_errors": 0}
+        self._drops: dict[int, int] = {}
+        self._queue: list = []
+        self._q = 0
+        mavutil.mavfile.__init__(self, self.sock.fileno(), url, source_system=source_system,
+                                 source_component=source_component)
+        self.robust_parsing = True
+        self.mav.robust_parsing = True
+
+    # ---- the autopilot's address
+    def _pin_autopilot(self, addr: tuple, now: float) -> None:
+        """Take the autopilot from `addr` from now on, on a socket of its own."""
+        if self.ap_sock is not None:
+            self.ap_sock.close()
+            self.ap_sock = None
+        self.autopilot_addr, self._autopilot_seen = addr, now
+        self.clients.pop(addr, None)
+        try:
+            self.ap_sock = _udp_socket(bind=self.local, connect=addr, reuse=True)
+        except OSError:
+            self.ap_sock = None  # the shared socket still serves (without the flood protection)
+
+    def _from_autopilot(self, msg, addr: tuple, now: float) -> bool:
+        """Whether a message claiming the autopilot's ids may be taken from `addr`."""
+        if addr == self.autopilot_addr:
+            return True
+        if msg.get_type() == "HEARTBEAT" and (self.autopilot_addr is None or now - self._autopilot_seen > CLIENT_TIMEOUT_S):
+            if self.autopilot_addr is not None:
+                self.stats["autopilot_moves"] += 1  # the old address fell silent: follow the new one
+            self._pin_autopilot(addr, now)
+            return True
+        self.stats["foreign_autopilot"] += 1
+        return False
+
+    def _claims_autopilot(self, data: bytes) -> bool:
+        """The first frame's header names the autopilot's system and component (read without parsing)."""
+        at = 5 if data[0] == 0xFD else 3
+        return len(data) > at + 1 and (data[at], data[at + 1]) == self.autopilot_ids
+
+    def _admit(self, addr: tuple, now: float) -> bool:
+        if addr in self.clients:
+            return True
+        for a, seen in list(self.clients.items()):
+            if now - seen > CLIENT_TIMEOUT_S:
+                del self.clients[a]
+        if len(self.clients) >= MAX_CLIENTS:
+            self.stats["refused_sources"] += 1
+            return False
+        return True
+
+    # ---- reading
+    def _parse(self, data: bytes) -> list:
+        mav = self.mav
+        mav.buf, mav.buf_index, mav.expected_length, mav.have_prefix_error = bytearray(), 0, 8, False
+        try:
+            msgs = mav.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 — pymavlink raises for some damage even when robust
+            msgs = [mavutil.mavlink.MAVLink_bad_data(bytearray(data[:64]), "unparsable datagram")]
+        if mav.buf_len():
+            self.stats["truncated_datagrams"] += 1  # a frame cut at the datagram's end: dropped, not carried over
+        return msgs
+
+    def _recv(self, sock: socket.socket):
+        data, anc, _, addr = sock.recvmsg(65535, socket.CMSG_SPACE(4))
+        for level, kind, payload in anc:
+            if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(payload) >= 4:
+                self._drops[sock.fileno()] = struct.unpack("I", payload[:4])[0]
+                self.stats["kernel_drops"] = sum(self._drops.values())
+        return data, addr
+
+    def _read_batch(self, sock: socket.socket) -> int:
+        """Read up to MAX_DATAGRAMS_PER_READ datagrams from `sock` into the queue; returns how many. Cheap
+        checks first, so that a flood costs little."""
+        now = time.monotonic()
+        for n in range(MAX_DATAGRAMS_PER_READ):
+            try:
+                data, addr = self._recv(sock)
+            except (BlockingIOError, InterruptedError):
+                return n
+            except OSError:  # e.g. ECONNREFUSED after sending to a closed port: nothing to read
+                return n
+            self.stats["datagrams"] += 1
+            if len(data) < 8 or data[0] not in (0xFD, 0xFE):
+                self.stats["not_mavlink"] += 1  # MAVLink over UDP: every datagram starts with a frame
+                continue
+            pinned = self.listening and self.autopilot_addr is not None and addr != self.autopilot_addr
+            if pinned and self._claims_autopilot(data) and now - self._autopilot_seen <= CLIENT_TIMEOUT_S:
+                self.stats["foreign_autopilot"] += 1
+                continue
+            if self.listening and addr != self.autopilot_addr and not self._admit(addr, now):
+                continue
+            valid = False
+            for m in self._parse(data):
+                if m.get_type() != "BAD_DATA":
+                    if self.listening and m.get_srcSystem() == self.autopilot_ids[0] \
+                            and m.get_srcComponent() == self.autopilot_ids[1] and not self._from_autopilot(m, addr, now):
+                        continue
+                    valid = True
+                self.post_message(m)
+                self._queue.append(m)
+            if addr == self.autopilot_addr:
+                self._autopilot_seen = now
+            elif valid and self.listening:  # a sender is a client once it has said something well-formed
+                self.clients[addr] = now
+        return MAX_DATAGRAMS_PER_READ
+
+    def recv_msg(self):
+        """The next message: the autopilot's socket first, then the port's, reading until a message comes,
+        the sockets are empty, or READ_BUDGET_S has passed."""
+        if self._q >= len(self._queue):
+            self._queue, self._q = [], 0
+            t_end = time.monotonic() + READ_BUDGET_S
+            while not self._queue and time.monotonic() < t_end:
+                got = self._read_batch(self.ap_sock) if self.ap_sock is not None else 0
+                if not self._queue:
+                    got += self._read_batch(self.sock)
+                if not got:
+                    break
+            if not self._queue:
+                return None
+        m = self._queue[self._q]
+        self._q += 1
+        return m
+
+    def recv(self, n=None):  # pymavlink's byte interface is not used: recv_msg parses per datagram
+        return b""
+
+    # ---- writing
+    def write(self, buf) -> None:
+        try:
+            if not self.listening:
+                self.sock.send(buf)
+                return
+            if self.ap_sock is not None:
+                self.ap_sock.send(buf)
+            now = time.monotonic()
+            for addr in [a for a, seen in self.clients.items() if now - seen <= CLIENT_TIMEOUT_S]:
+                self.sock.sendto(buf, addr)
+        except OSError:
+            self.stats["send_errors"] += 1  # the peer is not there (yet): the link checks will say so
+
+    def close(self) -> None:
+        for s in (self.sock, self.ap_sock):
+            if s is not None:
+                s.close()
+
+
+def _udp_socket(bind: tuple | None = None, connect: tuple | None = None, reuse: bool = False) -> socket.socket:
+    """A non-blocking UDP socket with a large receive buffer and the kernel's drop count on each datagram."""
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-            s.bind((host or "0.0.0.0", int(port)))
-    except OSError as err:
-        if err.errno == errno.EADDRINUSE:
-            raise ContractError(f"cannot open link {url}: the port is taken (another contract-guard, "
-                                "or a ground station, listens there)") from None
-    except ValueError:
-        pass  # a malformed URL: pymavlink says so
+        if reuse or bind is not None:  # the listening socket too, so the autopilot's socket may share the port
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RCVBUF_BYTES)
+        except OSError:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+        try:
+            s.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+        except OSError:
+            pass
+        if bind is not None:
+            s.bind(bind)
+        if connect is not None:
+            s.connect(connect)
+        s.setblocking(False)
+    except OSError:
+        s.close()
+        raise
+    return s
 
 
-def open_connection(url: str, baud: int, system: int, component: int):
-    """A pymavlink connection for a config URL (udpin:, udpout:, tcp:, serial device path)."""
-    if url.startswith("udpin:"):
-        _refuse_a_taken_port(url)
+def _refuse_a_taken_port(local: tuple) -> None:
+    """Our sockets share the port only among themselves: a bind without SO_REUSEADDR fails if anyone
+    holds it (another contract-guard, or a ground station)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        try:
+            s.bind(local)
+        except OSError as err:
+            if err.errno == errno.EADDRINUSE:
+                raise OSError(err.errno, "the port is taken (another contract-guard, or a ground station, "
+                                         "listens there)") from None
+            raise
+
+
+def open_connection(url: str, baud: int, system: int, component: int, autopilot: tuple[int, int] = (1, 1)):
+    """A MAVLink connection for a config URL: `UdpLink` for udpin:/udpout:, pymavlink for tcp: and serial
+    (`autopilot`: its system and component ids, which a UDP link accepts from one address only)."""
+    if url.startswith(("udpin:", "udpout:")):
+        return UdpLink(url, system, component, autopilot)
     try:
         conn = mavutil.mavlink_connection(url, baud=baud, source_system=system, source_component=component,
                                           autoreconnect=True, dialect="ardupilotmega")
@@ -93,35 +317,83 @@ def load_signing_key(path: Path) -> bytes:
     return raw
 
 
+MAX_STREAMS = 64  # signed streams (link id, system, component) remembered; the oldest is forgotten first
+NEW_STREAM_SLACK = 6000 * 1000  # a new stream may be this far (60 s, in 10 µs) behind our timestamp
+
+
 class SigningClock:
-    """The signing timestamp, persisted so that a board without a real-time clock never goes back in time
-    (a receiver rejects timestamps ≤ the last one it saw)."""
+    """The signing state, persisted so that a board without a real-time clock never goes back in time
+    (a receiver rejects timestamps ≤ the last one it saw) and a packet captured before a restart is
+    still old after it: our timestamp and every signed stream's last timestamp, as JSON (a file holding
+    one number, as older versions wrote, is read as our timestamp)."""
 
     def __init__(self, path: Path | None, wall=time.time):
         self.path, self.wall = path, wall
 
+    def _read(self) -> dict:
+        if self.path is None:
+            return {}
+        try:
+            data = json.loads(read_bounded(self.path, "signing timestamp file", limit=64 * 1024) or b"0")
+        except (ContractError, ValueError):
+            return {}
+        return {"timestamp": data} if isinstance(data, int) else data if isinstance(data, dict) else {}
+
     def initial(self) -> int:
         now = int((self.wall() - SIGNING_EPOCH) * 1e5)
-        saved = 0
-        if self.path is not None:
-            try:
-                saved = int(self.path.read_text().strip() or 0)
-            except (OSError, ValueError):
-                saved = 0
-        return max(now, saved + 1)
+        saved = self._read().get("timestamp", 0)
+        return max(now, int(saved) + 1 if isinstance(saved, int) else now)
 
-    def save(self, timestamp: int) -> None:
+    def streams(self) -> dict[tuple[int, int, int], int]:
+        out = {}
+        for k, ts in (self._read().get("streams") or {}).items():
+            try:
+                out[tuple(int(x) for x in k.split(":"))] = int(ts)
+            except (ValueError, TypeError):
+                continue
+        return dict(sorted(out.items(), key=lambda kv: kv[1])[-MAX_STREAMS:])
+
+    def save(self, signing) -> None:
+        """Persist a pymavlink `MAVLinkSigning` (its timestamp and stream timestamps)."""
         if self.path is None:
             return
+        data = {"timestamp": int(signing.timestamp),
+                "streams": {":".join(map(str, k)): int(v) for k, v in signing.stream_timestamps.items()}}
         try:
             tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(str(int(timestamp)))
+            tmp.write_text(json.dumps(data))
             os.replace(tmp, self.path)
         except OSError:
             pass  # never stops the loop; the next save may succeed
 
 
+def verified_signature_check(mav, key: bytes):
+    """A `check_signature` for a pymavlink MAVLink object that checks the HMAC *before* anything changes
+    (pymavlink records a stream's timestamp first, so forged packets could make every real one "old"),
+    keeps at most MAX_STREAMS streams, and refuses a new stream more than a minute behind our clock."""
+    sig = mav.signing
+
+    def check(msgbuf: bytearray, src_sys: int, src_comp: int) -> bool:
+        if hashlib.sha256(key + bytes(msgbuf[:-6])).digest()[:6] != bytes(msgbuf[-6:]):
+            return False
+        tlow, thigh = struct.unpack("<IH", bytes(msgbuf[-12:-6]))
+        ts, stream = tlow + (thigh << 32), (msgbuf[-13], src_sys, src_comp)
+        last = sig.stream_timestamps.get(stream)
+        if last is not None and ts <= last or last is None and ts + NEW_STREAM_SLACK < sig.timestamp:
+            return False  # replayed, or a new stream from the past
+        if last is None and len(sig.stream_timestamps) >= MAX_STREAMS:
+            del sig.stream_timestamps[min(sig.stream_timestamps, key=sig.stream_timestamps.get)]
+        sig.stream_timestamps[stream] = ts
+        sig.timestamp = max(sig.timestamp, ts)
+        return True
+
+    return check
+
+
 def setup_signing(conn, key: bytes, clock: SigningClock) -> None:
-    """Sign everything we send; accept only correctly signed packets (unsigned RADIO_STATUS excepted)."""
+    """Sign everything we send; accept only correctly signed packets (unsigned RADIO_STATUS excepted),
+    checked by `verified_signature_check`, with the streams remembered from before a restart."""
     conn.setup_signing(key, sign_outgoing=True, initial_timestamp=clock.initial(),
                        allow_unsigned_callback=lambda mav, msgid: msgid == mavlink.MAVLINK_MSG_ID_RADIO_STATUS)
+    conn.mav.signing.stream_timestamps.update(clock.streams())
+    conn.mav.check_signature = verified_signature_check(conn.mav, key)

@@ -44,30 +44,39 @@ PLAUSIBLE_SPEED_M_S = 100.0  # no multirotor flies faster
 
 
 class VehicleClock:
-    """Daemon time runs at the vehicle's rate: its own monotonic clock, scaled by how fast the vehicle's
-    `time_boot_ms` advances against it (1 for a real aircraft, K for a SITL sped up K times). Never
-    jumps and never runs backwards, with or without a vehicle (a reboot of the autopilot only resets
-    the rate estimate)."""
+    """Daemon time: the host's monotonic clock at the vehicle's configured rate (`rate`: 1 for a real
+    aircraft, K for a SITL sped up K times), so it never jumps, never runs backwards and judges staleness
+    in host time whatever any message says. The autopilot's `time_boot_ms` is only *checked* against it:
+    over each window of ≥ 1 s of host time, a boot clock advancing at other than `rate` (by more than
+    RATE_TOLERANCE) or jumping is a fault (`fault`, the reason, until a window is right again); going back
+    is the autopilot restarting (reported by MAVLink-in, not here)."""
 
-    def __init__(self, local=time.monotonic):
-        self.local = local
-        self.rate = 1.0
-        self._anchor = (0.0, local())  # (daemon s, local s) where the current rate began
-        self._ref: tuple[float, float] | None = None  # (vehicle s, local s) of the rate window's start
+    RATE_TOLERANCE = 0.25
+    WINDOW_S = 1.0
+
+    def __init__(self, local=time.monotonic, rate: float = 1.0):
+        self.local, self.rate = local, rate
+        self._t0 = local()
+        self._ref: tuple[float, float] | None = None  # (vehicle s, local s) of the window's start
+        self.fault: str | None = None
+        self.measured_rate: float | None = None
 
     def observe(self, time_boot_ms: int) -> None:
         tv, tl = time_boot_ms / 1000.0, self.local()
         if self._ref is None or tv < self._ref[0]:
             self._ref = (tv, tl)
             return
-        if tl - self._ref[1] >= 1.0:
-            r = min(max((tv - self._ref[0]) / (tl - self._ref[1]), 0.01), 1000.0)
-            self._anchor = (self(), tl)
-            self.rate += 0.5 * (r - self.rate) if abs(r / self.rate - 1) < 0.5 else (r - self.rate)
+        dl = tl - self._ref[1]
+        if dl >= self.WINDOW_S:
+            r = (tv - self._ref[0]) / dl
+            self.measured_rate = r
+            off = abs(r / self.rate - 1.0) > self.RATE_TOLERANCE
+            self.fault = (f"the autopilot's clock runs at {r:.3g}× the host's, expected {self.rate:g}×"
+                          if off else None)
             self._ref = (tv, tl)
 
     def __call__(self) -> float:
-        return self._anchor[0] + (self.local() - self._anchor[1]) * self.rate
+        return (self.local() - self._t0) * self.rate
 
 
 def sensor_orientation(yaw_deg_clockwise: float) -> int:
@@ -182,15 +191,17 @@ class MavlinkIn:
             return []
         if src_comp != self.cfg.link.target_component and kind not in SENSOR_MSGS:
             return []
-        tb = getattr(msg, "time_boot_ms", None)
-        if self.vclock is not None and tb:
-            self.vclock.observe(tb)
         t = self.clock()
         out = self.samples(t, kind, msg)
-        if tb is not None and src_comp == self.cfg.link.target_component:
+        tb = getattr(msg, "time_boot_ms", None)
+        if tb is not None and src_comp == self.cfg.link.target_component:  # the autopilot's clock, no one else's
             last, self._last_boot_ms = self._last_boot_ms, tb
             if last is not None and tb + RESTART_BACK_MS < last:
                 out.insert(0, AutopilotRestart(t, last / 1000, tb / 1000))
+            if self.vclock is not None:
+                self.vclock.observe(tb)
+                if self.vclock.fault is not None:
+                    out.append(Implausible(t, "time_boot_ms", self.vclock.fault))
         return out
 
     def samples(self, t: float, kind: str, msg) -> list:

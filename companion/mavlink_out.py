@@ -44,6 +44,7 @@ class Counters:
     log_errors: int = 0
     loop_errors: int = 0
     implausible: int = 0  # messages dropped as implausible (not finite, out of range, inconsistent)
+    poll_budget_hits: int = 0  # cycles that left messages for the next one (a flood)
     params_refused: int = 0
     setpoints_sent: int = 0
     setpoint_gap_max_s: float = 0.0  # longest gap between offboard setpoints while streaming (daemon time)

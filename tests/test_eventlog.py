@@ -503,3 +503,44 @@ def test_raw_from_the_link_thread_while_the_loop_logs(tmp_path):
         n += 1
     assert n == 3000 and log.tlog_errors == 0 and log.tlog_dropped == 0
     assert [r["seq"] for r in read_events(tmp_path)] == list(range(log.seq + 1))
+
+
+@pytest.mark.parametrize("freed", ["filler", "log file"])
+def test_the_log_comes_back_as_soon_as_a_little_space_is_free(tiny_fs, freed):
+    """A full disk with a large backlog: freeing 40 KB (or deleting the log file) brings new lines at once —
+    the backlog goes in chunks of whole lines, the oldest samples of the outage dropped first and counted —
+    and `stop` is written at close."""
+    filler = tiny_fs / "filler"
+    filler.write_bytes(b"\0" * 40_000)
+    mono = FakeClock(0.0)
+    log = EventLog(tiny_fs / "logs", monotonic=mono)
+    i = 0
+    while log.write_errors == 0 or i < 4000:  # well past full: a backlog of ~300 kB
+        mono.t += 0.02
+        log.state(i * 0.02, i=i, pad="x" * 60)
+        i += 1
+    assert not log.healthy
+    (filler if freed == "filler" else tiny_fs / "logs" / "events.jsonl").unlink()
+    mono.t += 2.0
+    assert log.event(100.0, "failsafe", cause="after", action="hold") is True and log.healthy
+    log.event(101.0, "stop", counters={})
+    log.close()
+    recs = list(read_events(tiny_fs / "logs"))
+    names = [r.get("event") for r in recs if r["kind"] == "event"]
+    assert names[-3:] == ["failsafe", "log_recovered", "stop"] or names[-3:] == ["log_recovered", "failsafe", "stop"]
+    rec = next(r for r in recs if r.get("event") == "log_recovered")
+    assert rec["dropped_records"] > 0  # the log says what it lost
+
+
+def test_stop_is_written_at_close_even_while_a_backlog_does_not_fit(tiny_fs):
+    mono = FakeClock(0.0)
+    log = EventLog(tiny_fs / "logs", monotonic=mono, pending_bytes=10_000_000)
+    (tiny_fs / "filler").write_bytes(b"\0" * 20_000)
+    for i in range(6000):
+        mono.t += 0.02
+        log.state(i * 0.02, i=i, pad="x" * 60)
+    (tiny_fs / "filler").unlink()  # 20 KB free again: less than the backlog, enough for the last records
+    log.event(200.0, "stop", counters={})
+    log.close()
+    names = [r.get("event") for r in read_events(tiny_fs / "logs") if r["kind"] == "event"]
+    assert "stop" in names

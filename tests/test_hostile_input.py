@@ -53,7 +53,7 @@ def test_a_non_finite_bin_increment_is_dropped_and_the_loop_goes_on(inc_f):
     states = after(rig, t0)
     assert states[-1]["t"] > t0 + 2.8 and max(np.diff([t0] + [s["t"] for s in states])) < 0.2  # samples all along
     assert not rig.log.named("loop_error")
-    ev = [e for e in rig.log.named("implausible_input") if e["kind"] == "OBSTACLE_DISTANCE"]
+    ev = [e for e in rig.log.named("implausible_input") if e["message"] == "OBSTACLE_DISTANCE"]
     assert ev and rig.daemon.counters.implausible >= 1
 
 
@@ -173,7 +173,7 @@ def test_a_velocity_of_a_million_metres_a_second_is_a_navigation_fault():
     fs = [e for e in rig.log.named("failsafe") if e["t"] >= t0]
     assert fs and fs[0]["cause"] == "bad navigation estimate" and fs[0]["t"] - t0 < 0.3
     assert max(s["ground_speed"] for s in after(rig, t0) if s["ground_speed"] == s["ground_speed"]) < 20.0
-    assert [e for e in rig.log.named("implausible_input") if e["kind"] == "LOCAL_POSITION_NED"]
+    assert [e for e in rig.log.named("implausible_input") if e["message"] == "LOCAL_POSITION_NED"]
 
 
 def test_implausible_messages_are_counted_once_each_and_logged_at_most_once_a_second():
@@ -181,7 +181,7 @@ def test_implausible_messages_are_counted_once_each_and_logged_at_most_once_a_se
     n0 = rig.daemon.counters.implausible
     inject(rig, lambda r: AUTOPILOT.attitude_encode(0, math.nan, 0.0, 0.0, 0, 0, 0), 2.0, rate_hz=50, enc=AUTOPILOT)
     assert rig.daemon.counters.implausible - n0 == 100
-    ev = [e for e in rig.log.named("implausible_input") if e["kind"] == "ATTITUDE"]
+    ev = [e for e in rig.log.named("implausible_input") if e["message"] == "ATTITUDE"]
     assert 2 <= len(ev) <= 3 and sum(e["count"] for e in ev) <= 100
     assert np.isfinite(rig.daemon.tel.roll)
 
@@ -262,3 +262,276 @@ def test_sighup_takes_the_shutdown_path(tmp_path):
         if p.poll() is None:
             p.kill()
     assert [r for r in read_events(tmp_path / "log") if r.get("event") == "stop"]
+
+
+# ------------------------------------------------------------------ item 5: signing
+KEY = bytes(range(32))
+
+
+def signed_rig(clock_file, engage=False):
+    from companion.link import SigningClock, setup_signing
+
+    rig = Rig(column_scenario(1, x_col=300.0), "px4", config={"engage": engage}, sim_kwargs={"signing_key": KEY})
+    clock = SigningClock(clock_file)
+    setup_signing(rig.conn, KEY, clock)
+    rig.daemon.signing_clock = clock
+    return rig
+
+
+def signer(key=KEY, ts=None, src=(255, 190), link_id=0):
+    m = mav.MAVLink(None, srcSystem=src[0], srcComponent=src[1])
+    m.signing.secret_key, m.signing.sign_outgoing, m.signing.link_id = key, True, link_id
+    from companion.link import SIGNING_EPOCH
+    import time as _time
+
+    m.signing.timestamp = ts if ts is not None else int((_time.time() - SIGNING_EPOCH) * 1e5)
+    return m
+
+
+def test_forged_signatures_change_nothing(tmp_path):
+    """256 wrongly signed HEARTBEATs claiming the autopilot's ids and timestamp 2⁴⁸−1: the real, signed
+    stream goes on being accepted (pymavlink alone stores the timestamp before checking the HMAC)."""
+    rig = signed_rig(tmp_path / "signing.json")
+    fly(rig, 4.0)
+    forger = signer(key=bytes(32), ts=2 ** 48 - 1, src=(1, 1))
+    for _ in range(256):
+        rig.to_daemon(forger.heartbeat_encode(2, 12, 0, 0, 4), forger)
+    rig.run(0.2)
+    before = rig.daemon.counters.messages
+    rig.run(3.0)
+    assert rig.daemon.counters.messages - before > 300  # the vehicle's telemetry is still taken
+    assert rig.daemon.counters.rejected_signature >= 256
+    assert not rig.log.named("failsafe") and rig.daemon.last.state != "failsafe"
+    assert all(ts < 2 ** 48 - 1 for ts in rig.conn.mav.signing.stream_timestamps.values())
+
+
+def test_the_signed_stream_table_is_bounded(tmp_path):
+    from companion.link import MAX_STREAMS
+
+    rig = signed_rig(tmp_path / "signing.json")
+    fly(rig, 2.0)
+    for link_id in range(200):  # 200 correctly signed streams (a key holder, or a replay of many)
+        s = signer(link_id=link_id)
+        rig.to_daemon(s.heartbeat_encode(6, 8, 0, 0, 4), s)
+    wrong = signer(key=bytes(32))
+    for k in range(2000):  # and wrong-key packets, which must leave no trace at all
+        wrong.signing.link_id = k % 256
+        rig.to_daemon(wrong.heartbeat_encode(6, 8, 0, 0, 4), wrong)
+    rig.run(0.5)
+    assert len(rig.conn.mav.signing.stream_timestamps) <= MAX_STREAMS
+
+
+def test_a_captured_engage_replayed_after_a_restart_does_not_engage(tmp_path):
+    clock_file = tmp_path / "signing.json"
+    rig = signed_rig(clock_file)
+    fly(rig, 3.0)
+    gcs = signer()
+    captured = gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9).pack(gcs)  # what an eavesdropper records
+    rig._daemon_in.append(captured)
+    rig.run(0.3)
+    assert rig.daemon.params["CG_ENGAGE"] == 1.0  # taken once, in the first run
+    # kill -9 and restart: a new daemon process with the persisted signing state, and the replay
+    again = signed_rig(clock_file)
+    fly(again, 3.0)
+    rejected = again.daemon.counters.rejected_signature
+    again._daemon_in.append(captured)
+    again.run(0.5)
+    assert again.daemon.params["CG_ENGAGE"] == 0.0
+    assert again.daemon.counters.rejected_signature == rejected + 1
+    assert not again.log.named("param_set")
+
+
+# ------------------------------------------------------------------ item 6: time from anyone
+def fake_autopilot_flight(tmp_path, boot_ms, seconds=6.0, extra=None):
+    """The daemon as a process against a scripted autopilot on loopback UDP; `boot_ms(t_host)` is the
+    autopilot's time_boot_ms. Returns (the daemon's event log, its HEARTBEAT arrival times)."""
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+
+    from companion.eventlog import read_events
+
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.02)
+    port = sock.getsockname()[1]
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(yaml.safe_dump({"vehicle": "mambo", "mode": "shadow",
+                                   "link": {"connect": f"udpout:127.0.0.1:{port}"},
+                                   "sensors": [{"h_fov_deg": 30, "max_range_m": 6}],
+                                   "log": {"dir": str(tmp_path / "log")}}))
+    d = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg), "--quiet"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    ap = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    beats, peer, t_first, t_start = [], None, None, time.monotonic()
+    try:
+        while True:
+            now = time.monotonic()
+            if t_first is None and now - t_start > 90:
+                break  # the daemon never spoke
+            if t_first is not None and now - t_first > seconds:
+                break
+            try:
+                data, peer = sock.recvfrom(4096)
+                t_first = t_first or time.monotonic()
+                for m in ap.parse_buffer(data) or []:
+                    if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 191:
+                        beats.append(time.monotonic())
+            except socket.timeout:
+                pass
+            if peer is None:
+                continue
+            tb = int(boot_ms(time.monotonic() - t_first)) & 0xFFFFFFFF
+            for msg in (ap.heartbeat_encode(2, 12, 1 | 128, 4 << 16 | 4 << 24, 4),
+                        ap.system_time_encode(0, tb), ap.attitude_encode(tb, 0, 0, 0, 0, 0, 0),
+                        ap.local_position_ned_encode(tb, 0, 0, -2, 0, 0, 0)):
+                sock.sendto(msg.pack(ap), peer)
+            for data in extra(tb) if extra else ():
+                sock.sendto(data, peer)
+    finally:
+        d.send_signal(signal.SIGTERM)
+        d.wait(30)
+        sock.close()
+    return read_events(tmp_path / "log"), beats
+
+
+@pytest.mark.parametrize("name,boot_ms", [("slow x0.01", lambda th: 5000 + 10 * th),
+                                          ("jump 1e6 s", lambda th: 5000 + 1000 * th + (1e9 if th > 2 else 0))])
+def test_an_autopilot_clock_at_the_wrong_rate_or_jumping_is_a_fault_not_our_time(name, boot_ms, tmp_path):
+    log, beats = fake_autopilot_flight(tmp_path, boot_ms)
+    faults = [r for r in log if r.get("event") == "implausible_input" and r.get("message") == "time_boot_ms"]
+    assert faults, f"{name}: the autopilot's clock fault was not logged"
+    gaps = [b - a for a, b in zip(beats, beats[1:])]
+    assert len(beats) >= 4 and max(gaps) < 1.6 and min(gaps) > 0.6  # our heartbeat: 1 Hz of host time
+
+
+def test_another_components_boot_clock_is_not_the_autopilots(tmp_path):
+    peripheral = mav.MAVLink(None, srcSystem=1, srcComponent=158)
+
+    def sensor(tb):
+        m = peripheral.distance_sensor_encode((tb * 6 + 777_000) & 0xFFFFFFFF, 10, 600, 601, 0, 0, 0, 255)
+        return [m.pack(peripheral)]
+
+    log, beats = fake_autopilot_flight(tmp_path, lambda th: 5000 + 1000 * th, extra=sensor)
+    assert not [r for r in log if r.get("event") == "implausible_input" and r.get("message") == "time_boot_ms"]
+    assert len(beats) >= 4 and max(b - a for a, b in zip(beats, beats[1:])) < 1.6
+
+
+# ------------------------------------------------------------------ item 9: a failing log is said
+def test_a_log_that_cannot_write_is_said_to_the_ground_station(tmp_path):
+    from companion.eventlog import EventLog
+
+    (tmp_path / "file").write_text("not a directory")
+    log = EventLog(tmp_path / "file" / "logs")  # cannot be created: a read-only or broken log directory
+    rig = Rig(column_scenario(1, x_col=300.0), "px4", log=log)
+    fly(rig, 3.0)
+    assert any(t.startswith("CG: event log failing") for t in rig.daemon_texts())
+    assert rig.daemon.last.state in ("active", "standby")  # and the daemon flies on
+
+
+# ------------------------------------------------------------------ items 2, 3: the UDP link
+def listening_daemon_flight(tmp_path, attack, seconds=6.0):
+    """The daemon as a process listening on loopback UDP (udpin), a scripted autopilot sending to it at
+    50 Hz, and `attack(daemon_addr)` called every autopilot cycle. Returns the daemon's event log."""
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    import yaml
+
+    from companion.eventlog import read_events
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(yaml.safe_dump({"vehicle": "mambo", "mode": "shadow", "link": {"connect": f"udpin:127.0.0.1:{port}"},
+                                   "sensors": [{"h_fov_deg": 30, "max_range_m": 6}],
+                                   "log": {"dir": str(tmp_path / "log")}}))
+    d = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg), "--quiet"],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.settimeout(0.02)
+    ap = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    target, t_first, t_start = ("127.0.0.1", port), None, time.monotonic()
+    try:
+        while time.monotonic() - t_start < 90 and (t_first is None or time.monotonic() - t_first < seconds):
+            tb = int((time.monotonic() - t_start) * 1000)
+            for msg in (ap.heartbeat_encode(2, 12, 1 | 128, 4 << 16 | 4 << 24, 4), ap.attitude_encode(tb, 0, 0, 0, 0, 0, 0),
+                        ap.local_position_ned_encode(tb, 1.0, 2.0, -2, 0, 0, 0)):
+                sock.sendto(msg.pack(ap), target)
+            try:
+                sock.recvfrom(4096)
+                t_first = t_first or time.monotonic()
+            except (socket.timeout, ConnectionRefusedError):
+                pass
+            if t_first is not None:
+                attack(target)
+    finally:
+        d.send_signal(signal.SIGTERM)
+        d.wait(30)
+        sock.close()
+    assert t_first is not None, "the daemon never answered"
+    return read_events(tmp_path / "log")
+
+
+def test_two_bytes_from_anyone_do_not_blind_the_daemon(tmp_path):
+    """`fd ff` — a MAVLink 2 start and a huge length — 100 times a second from another socket: pymavlink's
+    shared parse buffer waited for 255 bytes and swallowed the autopilot's next datagrams."""
+    import socket
+
+    junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+    def attack(target):
+        junk.sendto(b"\xfd\xff", target)
+        junk.sendto(b"\xfd\xff", target)
+
+    log = listening_daemon_flight(tmp_path, attack)
+    junk.close()
+    links = [r["status"] for r in log if r.get("event") == "link"]
+    assert links == ["up"]  # never down
+    states = [r for r in log if r.get("kind") == "state" and r.get("x") is not None]
+    assert len(states) > 40 and all(r["x"] == 1.0 for r in states)
+    assert not [r for r in log if r.get("event") == "would_hold" and "stale telemetry" in r.get("causes", [])]
+
+
+def test_the_autopilot_is_taken_from_its_address_only_and_the_clients_are_bounded(tmp_path):
+    """A second sender claiming the autopilot's ids (a spoofer) is dropped; 300 other senders do not all
+    become clients that the daemon answers."""
+    import socket
+
+    from companion.link import MAX_CLIENTS
+
+    spoof = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    fake = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    crowd = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(300)]
+    for s in crowd:
+        s.setblocking(False)
+    stranger = mav.MAVLink(None, srcSystem=200, srcComponent=190)
+    sent = {"n": 0}
+
+    def attack(target):
+        spoof.sendto(fake.local_position_ned_encode(0, 1000.0, 1000.0, -2, 0, 0, 0).pack(fake), target)
+        for s in crowd[sent["n"] % 300: sent["n"] % 300 + 10]:
+            s.sendto(stranger.heartbeat_encode(6, 8, 0, 0, 4).pack(stranger), target)
+        sent["n"] += 10
+
+    log = listening_daemon_flight(tmp_path, attack)
+    answered = 0
+    for s in crowd:
+        try:
+            s.recvfrom(4096)
+            answered += 1
+        except (BlockingIOError, ConnectionRefusedError):
+            pass
+        s.close()
+    spoof.close()
+    states = [r for r in log if r.get("kind") == "state" and r.get("x") is not None]
+    assert states and all(r["x"] == 1.0 for r in states)  # never the spoofer's 1000 m
+    assert answered <= MAX_CLIENTS

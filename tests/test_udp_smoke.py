@@ -58,7 +58,7 @@ def world(tmp_path):
         p = tmp_path / "cg.yaml"
         p.write_text(yaml.safe_dump({
             "vehicle": "mambo", "mode": mode, "engage": engage,
-            "link": {"connect": connect or f"udpout:127.0.0.1:{port}", "autopilot": "px4"},
+            "link": {"connect": connect or f"udpout:127.0.0.1:{port}", "autopilot": "px4", "clock_rate": 2.0},
             "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}], "log": {"dir": str(tmp_path / "log")},
         }))
         return p
