@@ -410,3 +410,29 @@ def test_the_virtual_obstacle_uses_e_tr_at_the_speed_flown_during_a_dwell():
     assert e < fast.e_tr - 0.3  # not the faster Ω's
     assert rig.daemon.cycle.sup.e_tr_virtual(replace(i, e_tr_measured=2.0), Decision("active", fast, slow.v_max)) \
         == 2.0  # measured
+
+
+# ----------------------------------------------------------------------------- above the controller contract's grid
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_offboard_never_flies_above_the_controller_contracts_grid(personality):
+    """Issue 19 item 6: a table wrapper raising every contract speed by 1.3 (a negative control's) takes
+    V_max past 8 m/s, the top of the Mambo's E_tr_pred grid, where E_tr_pred answers ∞. On f5862c5 the
+    daemon commanded 9.57 m/s, inflated the keep-out discs to infinity, OSQP refused the problem
+    ("Lower bound … inf > 1e30", a planner error), and the vehicle braked straight into the column
+    (−1.08 m). The daemon never flies a speed the controller contract does not cover: the limit stops
+    at the grid's top, every disc is finite, it plans round the column and flies on."""
+    sc = offboard_scenario(1, x_col=X_FOG_COL, wind=DESIGN_WIND, personality=personality)
+    sc["sensor"]["max_range_m"] = CLAIMED_M
+    rig = Rig(sc, personality, config=offboard_config(x_end=70.0), table_wrapper=lambda t: Scaled(t, 1.3))
+    discs = DiscTrace()
+    engage_and_fly(rig, 12.0, discs)
+    top = float(rig.daemon.table.e_pred.axes[0][-1])
+    assert max(s["v_cmd"] or 0.0 for s in rig.log.states) == pytest.approx(top)  # capped, not 9.57
+    seen = [d for _, ds in discs.rows for d in ds]
+    assert seen and all(math.isfinite(d.r) for d in seen)
+    assert all(math.isfinite(e) for e, _ in discs.rows)
+    assert not [e for e in rig.log.named("no_avoiding_plan") if any("error" in n for n in e["notes"])]
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    assert rig.truth["pos"][0] > X_FOG_COL + 10.0
