@@ -71,6 +71,7 @@ class Decision:
     discs: list[Disc] = field(default_factory=list)  # the keep-out discs: the obstacles grown by E_tr + r_body
     offboard: OffboardActions | None = None  # what offboard guidance does this cycle (companion/cycle.py)
     stream_ended: bool = False  # the offboard setpoint stream stopped this cycle
+    hold_causes: list[str] = field(default_factory=list)  # why it holds this cycle (fresh causes)
 
 
 class OneSidedLimit:
@@ -136,6 +137,11 @@ class Supervisor:
         # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
         e_pred = getattr(table, "e_pred", None)
         self.v_covered = float(e_pred.axes[0][-1]) if e_pred is not None else math.inf
+
+    @property
+    def tilt_in_force(self) -> float | None:
+        """The tilt of the last Ω with a speed to fly (the one being flown), None before the first."""
+        return self._tilt_in_force
 
     # ------------------------------------------------------------------ helpers
     def _set_state(self, d: Decision, new: str, reason: str) -> None:
@@ -265,6 +271,7 @@ class Supervisor:
                 for c in fresh:
                     d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger",
                                      {"cause": c, "action": "hold"}))
+            d.hold_causes = list(fresh)
             self._set_state(d, "holding", fresh[0])
             return d
         if self.state == "holding" and i.mode == "hold" and i.mode_by_daemon:
@@ -325,4 +332,6 @@ class Supervisor:
 
 
 OBSTACLE = "obstacle inside the stop distance"
+# causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
+BRAKE_STOP_CAUSES = {"no safe speed", "speed limit not in force"}
 FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed"}

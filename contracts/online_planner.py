@@ -144,16 +144,18 @@ def braking_plan(p0, v0, a_max, n=40) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return p, v, a, ts
 
 
-STOP_SWERVE_DEG = (0.0, 15.0, -15.0, 30.0, -30.0, 45.0, -45.0)  # best_stop's candidate directions
+STOP_SWERVE_DEG = (0.0, 10.0, -10.0, 20.0, -20.0, 30.0, -30.0, 45.0, -45.0)  # best_stop's candidate directions
 
 
-def best_stop(p0, v0, a_max, discs=(), n=40) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+def best_stop(p0, v0, a_max, discs=(), n=40, max_path_m: float = math.inf
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
     """The best stop the geometry allows: full deceleration (|a| = a_max) tilted by θ from straight
     against the velocity — sideways at a_max·sin θ while the speed along the motion is taken out, then
     the sideways speed braked. θ = 0 is `braking_plan`; |θ| ≤ 45° never flies faster than the start
     (the speed is convex in time and ends at s·tan θ ≤ s). In STOP_SWERVE_DEG's order (straight first),
     the first θ whose dense path keeps out of every disc wins; else the first that keeps out of every
-    disc's never-entered core (`r_min`); else straight braking, which takes out speed fastest. Returns
+    disc's never-entered core (`r_min`); else straight braking, which takes out speed fastest. A swerving
+    stop whose path is longer than `max_path_m` is not a candidate (the stop contract's distance). Returns
     positions, velocities, accelerations, the sampling time and the clearance to the full discs [m]."""
     p0, v0 = np.asarray(p0, float), np.asarray(v0, float)
     s = float(np.hypot(*v0))
@@ -162,6 +164,8 @@ def best_stop(p0, v0, a_max, discs=(), n=40) -> tuple[np.ndarray, np.ndarray, np
     for deg in (STOP_SWERVE_DEG if discs and s > 0.05 and a_max > 0 else (0.0,)):
         cand = _tilted_stop(p0, v0, s, a_max, math.radians(deg), n)
         pts = dense_path(*cand[:4])
+        if deg != 0.0 and float(np.sum(np.hypot(*np.diff(pts, axis=0).T))) > max_path_m:
+            continue
         gaps = [(float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y))), d) for d in discs]
         clear = min((g - d.r for g, d in gaps), default=math.inf)
         out = (*cand, clear)
