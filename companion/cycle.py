@@ -13,6 +13,7 @@ import math
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
+from contracts.stop import braking_decel
 from contracts.table import ContractTable
 
 from .config import Config
@@ -21,7 +22,7 @@ from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
 from .offboard import OffboardController
 from .samples import Heading, Implausible, NavStatus, PathTarget, Position, Scan, Throttle
-from .supervisor import Decision, Inputs, Supervisor
+from .supervisor import BRAKE_STOP_CAUSES, Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
 
@@ -140,10 +141,10 @@ class Cycle:
         """`mission_route`: the route downloaded from the autopilot, if the route comes from its mission."""
         i = self.inputs(t, tel, r_obst, engage, startup_ok, route_ready)
         d = self.sup.step(i)
+        if self.offboard is not None and i.link_ok:
+            self._fly_offboard(t, tel, i, d, startup_ok, mission_route)  # may defer the Hold (a braking stop)
         if d.hold:
             self.hold_commanded(t)
-        if self.offboard is not None and i.link_ok:
-            self._fly_offboard(t, tel, i, d, startup_ok, mission_route)
         return i, d
 
     def _fly_offboard(self, t: float, tel: Telemetry, i: Inputs, d: Decision, startup_ok: bool | None,
@@ -153,12 +154,27 @@ class Cycle:
         if mission_route is not None and not off.streaming and \
                 (off.guidance is None or off.guidance.route is not mission_route):
             off.guidance = OffboardGuidance(mission_route, planning=self._planning())  # from the next entry
-        a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, veh.thrust_ratio_range[1])),
-                                       veh.mass_kg)
+        lo, hi = veh.thrust_ratio_range
+        a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, hi)), veh.mass_kg)
+        # a fail-safe the daemon can fly out itself: it streams a braking stop (the stop contract's
+        # deceleration, from the measured state) and hands over to Hold at rest (issue 19 item 1)
+        # (another cause — stale or bad state, Ctrl-C — ends it in Hold at once, as before)
+        brakeable = not self.stopping and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
+        brake_stop = brakeable and (bool(d.hold_causes) or off.state == "braking")
+        if brake_stop and off.state in ("flying", "braking"):
+            d.hold = False  # deferred: offboard commands Hold once stopped
+        # the stop brakes at the tilt flown (Ω's of the last cycle with a speed: a Ω with none has no tilt of
+        # its own), and at least as hard as the autopilot's own braking would (the stop contract's)
+        tr = min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
+        tilt = self.sup.tilt_in_force if self.sup.tilt_in_force is not None else veh.tilt_max
+        stop_decel = braking_decel(veh, tr)
+        a_stop = max(horizontal_accel_limit(tilt, veh.t_max(tr), veh.mass_kg), stop_decel)
+        stop = d.hold or self.stopping or d.state != "active" or (off.state == "braking" and not brake_stop)
         acts = off.step(
             t, engaged=i.engaged and startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
             mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,
-            v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs, stop=d.hold or self.stopping or d.state != "active")
+            v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs, stop=stop, brake_stop=brake_stop, a_stop=a_stop,
+            stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3)
         d.offboard = acts
         if not off.streaming and self._was_streaming:
             self.etr.reset()  # our setpoints are no longer the commanded path

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, braking_plan, keeps_plan
+from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan
 
 from contracts.geometry import wrap
 
@@ -411,7 +411,7 @@ class OffboardGuidance:
                                  budget_s=self.planning.budget_s)
             self._adopt(self.planning.poll())
         if self.plan is None:  # asked, not answered yet: start braking now (the slower choice)
-            bp, bv, ba, bts = braking_plan(np.array(p, float), np.array(v, float), a_max, self.planner.n)
+            bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, discs, self.planner.n)
             kind = "brake" if self.planner_failed else "await"  # a planner that fails is not awaited
             self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
             self.plan_t, self.plan_omega = t, omega

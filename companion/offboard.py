@@ -5,16 +5,33 @@
         entering ──heartbeat shows it──▶ flying (guidance setpoints every cycle, ≥ 20 Hz)
         flying ──mode changed by someone else──▶ stood_down (stop streaming; never re-enter by itself)
         flying ──route flown──▶ done (Hold)        done / stood_down ──disengaged──▶ off
-        any ──hold requested (failsafe, stop, Ctrl-C)──▶ leaving (ask for Hold, stop streaming)
+        flying ──fail-safe the daemon can fly out itself (no safe speed, limit not in force)──▶ braking
+        braking (stream the best stop at the tilt's full deceleration from the measured state: straight,
+                 or a braking swerve off the keep-out discs last seen when straight would enter one)
+                ──at rest──▶ off (Hold)          braking ──mode changed by someone else──▶ stood_down
+        any ──hold requested (other failsafes, stop, Ctrl-C)──▶ leaving (ask for Hold, stop streaming)
+
+Why the daemon brakes itself before handing over (issue 19 item 1): PX4's Hold (FlightTaskAuto::activate
+resets its jerk-limited position smoothing to the last setpoint's acceleration and velocity) and
+ArduPilot's Brake (AC_PosControl::init_xy_controller starts from the current velocity and lean angles)
+both begin from the acceleration the vehicle has and ramp it out at the jerk limit, so a Hold commanded
+mid-swerve carries the manoeuvre on; a stop the daemon streams takes the acceleration out at once.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from contracts.online_planner import Plan, best_stop
+from contracts.stop import braking_distance
+
 from .guidance import OffboardGuidance, Setpoint
+
+
+SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop when the sensor sees none now
 
 
 @dataclass
@@ -35,16 +52,37 @@ class OffboardController:
     _t_last: float | None = None
     _asked: int = 0
     _braking: bool = False
+    _seen: tuple | None = None  # (t, the keep-out discs last seen)
 
     def _go(self, t, new, why, acts):
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
         self.state, self._t_state = new, t
 
     def step(self, t, *, engaged: bool, flying: bool, mode: str, by_daemon: bool, p, v, z, yaw,
-             v_max: float, a_max: float, discs, stop: bool) -> OffboardActions:
+             v_max: float, a_max: float, discs, stop: bool, brake_stop: bool = False,
+             a_stop: float = 0.0, stop_decel: float = 0.0, jerk: float = math.inf) -> OffboardActions:
+        """`brake_stop` (with `stop`): the stop may be flown by the daemon itself, braking at `a_stop`
+        (the tilt's horizontal acceleration limit), before it hands over to Hold; never longer than the
+        stop contract's braking (deceleration `stop_decel`, jerk `jerk`)."""
         acts = OffboardActions()
         dt = 0.02 if self._t_last is None else min(max(t - self._t_last, 1e-3), 0.2)
         self._t_last = t
+        if self.state == "braking":
+            return self._brake(t, stop and not brake_stop, mode, by_daemon, v, acts)
+        if discs:
+            self._seen = (t, list(discs))  # the obstacle is static: remembered if the sensor goes blind
+        if stop and self.state == "flying" and brake_stop and a_stop > 0:
+            known = list(discs) or (self._seen[1] if self._seen is not None and t - self._seen[0] < SEEN_S else [])
+            # braking at the tilt's full deceleration (the avoid contract's stop branch); a swerve off the
+            # discs may lengthen it to at most 0.9 × the stop contract's braking distance (`stop_decel`, `jerk`: the rest
+            # is for the vehicle's lag behind the stop it is given)
+            budget = 0.9 * braking_distance(float(np.hypot(*v)), stop_decel, jerk) if stop_decel > 0 else 0.0
+            bp, bv, ba, bts, _ = best_stop(np.asarray(p, float), np.asarray(v, float), a_stop, known, 40,
+                                           max_path_m=budget)
+            self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
+            self._stop_z, self._stop_yaw = z, yaw
+            self._go(t, "braking", "fail-safe: the daemon brakes to a stop, then Hold", acts)
+            return self._brake(t, False, mode, by_daemon, v, acts)
         if stop and self.state in ("entering", "flying"):
             self._go(t, "off", "hold requested", acts)
             return acts
@@ -86,7 +124,27 @@ class OffboardController:
             self._braking = acts.setpoint.mode == "brake"
         return acts
 
+    def _brake(self, t, abort: bool, mode: str, by_daemon: bool, v, acts) -> OffboardActions:
+        """Stream the fail-safe stop; at rest (or well past its end) hand over to Hold (handing over while
+        the vehicle still moves lets Hold carry on from its acceleration: measured, 16–18 m for 8 m)."""
+        if mode != "offboard" or not by_daemon:
+            self._go(t, "stood_down", f"{mode} set by someone else", acts)
+            return acts
+        if abort:  # a fail-safe the daemon cannot fly out (its own state is not to be trusted): Hold now
+            acts.hold = True
+            self._go(t, "off", "hold requested", acts)
+            return acts
+        tau = t - self._t_state
+        plan = self._stop_plan
+        if tau >= plan.t[-1] and (float(np.hypot(*v)) < 0.3 or tau > plan.t[-1] + 3.0):
+            acts.hold = True
+            self._go(t, "off", "stopped: hold", acts)
+            return acts
+        pos, vel, acc = plan.sample(tau)
+        acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, "brake")
+        return acts
+
     @property
     def streaming(self) -> bool:
-        return self.state in ("entering", "flying")
+        return self.state in ("entering", "flying", "braking")
 

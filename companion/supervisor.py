@@ -21,6 +21,8 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from contracts.online_planner import OFFBOARD_CAP, Disc
 from contracts.stop import braking_decel, stop_dead_time, stopping_distance
 from contracts.table import ContractTable, Omega
@@ -69,6 +71,7 @@ class Decision:
     discs: list[Disc] = field(default_factory=list)  # the keep-out discs: the obstacles grown by E_tr + r_body
     offboard: OffboardActions | None = None  # what offboard guidance does this cycle (companion/cycle.py)
     stream_ended: bool = False  # the offboard setpoint stream stopped this cycle
+    hold_causes: list[str] = field(default_factory=list)  # why it holds this cycle (fresh causes)
 
 
 class OneSidedLimit:
@@ -130,6 +133,15 @@ class Supervisor:
         self._would: tuple[str, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
+        # never fly a speed the controller contract does not cover: the top of E_tr_pred's speed axis
+        # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
+        e_pred = getattr(table, "e_pred", None)
+        self.v_covered = float(e_pred.axes[0][-1]) if e_pred is not None else math.inf
+
+    @property
+    def tilt_in_force(self) -> float | None:
+        """The tilt of the last Ω with a speed to fly (the one being flown), None before the first."""
+        return self._tilt_in_force
 
     # ------------------------------------------------------------------ helpers
     def _set_state(self, d: Decision, new: str, reason: str) -> None:
@@ -168,7 +180,12 @@ class Supervisor:
         speed actually commanded if larger — while a higher V_max waits out its dwell, the vehicle still
         flies the lower limit, and E_tr_pred does not decrease with speed."""
         if self.table.e_pred is not None and d.v_cmd:
-            return max(i.e_tr_measured, self.e_tr_pred_flown(d.v_cmd, d.omega.tilt, i.thrust_ratio))
+            e = max(i.e_tr_measured, self.e_tr_pred_flown(d.v_cmd, d.omega.tilt, i.thrust_ratio))
+            if math.isfinite(e):
+                return e
+            # no answer in the grid (tilt or thrust outside it): the largest error the contract knows —
+            # a keep-out disc is never unbounded (the planner could not plan round it, not even a stop)
+            return max(i.e_tr_measured, float(np.max(self.table.e_pred.values)))
         return max(i.e_tr_measured, d.omega.e_tr) if math.isfinite(d.omega.e_tr) else i.e_tr_measured
 
     def step(self, i: Inputs) -> Decision:
@@ -243,7 +260,7 @@ class Supervisor:
                             (c == OBSTACLE and math.isfinite(i.dod.obstacle_m))}
         fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
 
-        v_limit = self.limit.update(i.t, om.v_max * self.cap)
+        v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
         d.v_cmd = v_limit
         if fresh:
             unanswered = self.state == "holding" and i.mode != "hold" and i.t - self._t_hold > 1.0
@@ -254,6 +271,7 @@ class Supervisor:
                 for c in fresh:
                     d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger",
                                      {"cause": c, "action": "hold"}))
+            d.hold_causes = list(fresh)
             self._set_state(d, "holding", fresh[0])
             return d
         if self.state == "holding" and i.mode == "hold" and i.mode_by_daemon:
@@ -314,4 +332,6 @@ class Supervisor:
 
 
 OBSTACLE = "obstacle inside the stop distance"
+# causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
+BRAKE_STOP_CAUSES = {"no safe speed", "speed limit not in force"}
 FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed"}

@@ -144,6 +144,62 @@ def braking_plan(p0, v0, a_max, n=40) -> tuple[np.ndarray, np.ndarray, np.ndarra
     return p, v, a, ts
 
 
+STOP_SWERVE_DEG = (0.0, 10.0, -10.0, 20.0, -20.0, 30.0, -30.0, 45.0, -45.0)  # best_stop's candidate directions
+
+
+def best_stop(p0, v0, a_max, discs=(), n=40, max_path_m: float = math.inf
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
+    """The best stop the geometry allows: full deceleration (|a| = a_max) tilted by θ from straight
+    against the velocity — sideways at a_max·sin θ while the speed along the motion is taken out, then
+    the sideways speed braked. θ = 0 is `braking_plan`; |θ| ≤ 45° never flies faster than the start
+    (the speed is convex in time and ends at s·tan θ ≤ s). In STOP_SWERVE_DEG's order (straight first),
+    the first θ whose dense path keeps out of every disc wins; else the first that keeps out of every
+    disc's never-entered core (`r_min`); else straight braking, which takes out speed fastest. A swerving
+    stop whose path is longer than `max_path_m` is not a candidate (the stop contract's distance). Returns
+    positions, velocities, accelerations, the sampling time and the clearance to the full discs [m]."""
+    p0, v0 = np.asarray(p0, float), np.asarray(v0, float)
+    s = float(np.hypot(*v0))
+    discs = [d for d in discs if all(math.isfinite(x) for x in (d.x, d.y, d.r))]
+    first = core_ok = None
+    for deg in (STOP_SWERVE_DEG if discs and s > 0.05 and a_max > 0 else (0.0,)):
+        cand = _tilted_stop(p0, v0, s, a_max, math.radians(deg), n)
+        pts = dense_path(*cand[:4])
+        if deg != 0.0 and float(np.sum(np.hypot(*np.diff(pts, axis=0).T))) > max_path_m:
+            continue
+        gaps = [(float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y))), d) for d in discs]
+        clear = min((g - d.r for g, d in gaps), default=math.inf)
+        out = (*cand, clear)
+        if first is None:
+            first = out
+        if clear >= 0.0:
+            return out
+        if core_ok is None and all(g >= (d.r if d.r_min is None else d.r_min) for g, d in gaps):
+            core_ok = out
+    return core_ok if core_ok is not None else first
+
+
+def _tilted_stop(p0, v0, s, a_max, th, n):
+    if a_max <= 0:
+        t_stop = 0.0
+    else:  # the swerving stops get 10 % more time, so the sampled law surely ends at rest
+        t_stop = s / a_max if th == 0 else (s / a_max / math.cos(th) + s * abs(math.tan(th)) / a_max) * 1.1
+    ts = max(t_stop, 0.5) / n
+    u = v0 / s if s > 0 else np.zeros(2)
+    nn = np.array([-u[1], u[0]]) * math.copysign(1.0, th)
+    a = np.zeros((n, 2))
+    p, v = np.zeros((n + 1, 2)), np.zeros((n + 1, 2))
+    p[0], v[0] = p0, v0
+    for k in range(n):
+        va, vl = float(v[k] @ u), float(v[k] @ nn)
+        if va > 1e-9:
+            a[k] = -u * min(a_max * math.cos(th), va / ts) + nn * a_max * abs(math.sin(th))
+        else:
+            a[k] = -u * (va / ts) - nn * math.copysign(min(a_max, abs(vl) / ts), vl)
+        v[k + 1] = v[k] + a[k] * ts
+        p[k + 1] = p[k] + v[k] * ts + 0.5 * a[k] * ts * ts
+    return p, v, a, ts
+
+
 class AvoidancePlanner:
     """OSQP avoidance planner with a fixed horizon of `n` intervals; solvers are cached per shape."""
 
@@ -289,6 +345,13 @@ class AvoidancePlanner:
         attempt starts once this much time is spent (the first always runs; braking is always ready).
         """
         t0 = time.perf_counter()
+        bad = [d for d in discs if not all(math.isfinite(x) for x in (d.x, d.y, d.r))]
+        if bad:  # no QP with an unbounded keep-out: stop as well as the finite part of the geometry allows
+            core = [Disc(d.x, d.y, d.r_min) for d in bad if d.r_min is not None and
+                    all(math.isfinite(x) for x in (d.x, d.y, d.r_min))]
+            discs = [d for d in discs if d not in bad] + core
+            return self._stop_plan(p0, v0, discs, v_max, a_max, t0, 0, 0,
+                                   [f"{len(bad)} keep-out disc(s) not finite: no plan, the best stop"], False)
         u = np.asarray(route_dir, float)
         u = u / np.linalg.norm(u)
         rot = np.array([[u[0], u[1]], [-u[1], u[0]]])  # world → route frame
@@ -334,11 +397,18 @@ class AvoidancePlanner:
             notes.append(f"{kind}: rejected by the exact check ({why})")
             if kind == "pass" and not local:
                 break
-        p, v, a, tsb = braking_plan(pr0, vr0, a_max, self.n)
-        ok, clear, why = exact_check(p, v, a, tsb, admitted(local, pr0, MARGIN_M)[0], max(v_max, speed0), a_max)
+        return self._stop_plan(p0, v0, discs, v_max, a_max, t0, total, rejected, notes)
+
+    def _stop_plan(self, p0, v0, discs, v_max, a_max, t0, solves, rejected, notes, may_be_ok=True) -> Plan:
+        """The fallback that is always available: the best stop (`best_stop`), checked exactly."""
+        p0 = np.asarray(p0, float)
+        keep = admitted(list(discs), p0, MARGIN_M)[0]
+        p, v, a, tsb, _ = best_stop(p0, v0, a_max, keep, self.n)
+        ok, clear, why = exact_check(p, v, a, tsb, keep, max(v_max, float(np.hypot(*v0))), a_max)
         if not ok:
             notes.append(f"brake: {why}")
-        return self._world("brake", p, v, a, tsb, rot, p0, ok, clear, t0, total, rejected, notes)
+        return Plan("brake", np.arange(len(p)) * tsb, p, v, a, ok and may_be_ok, clear, time.perf_counter() - t0,
+                    solves, rejected, notes)
 
     def _world(self, kind, p, v, a, ts, rot, p0, ok, clear, t0, solves, rejected, notes) -> Plan:
         back = rot.T

@@ -205,8 +205,11 @@ def test_offboard_hidden_fog_too_short_to_avoid_still_brakes(personality):
 
 class WithoutEtr:
     """The same table with no tracking-error budget (a negative control only): Ω at E_tr = 0 — neither
-    the measured error nor E_tr_pred — so V_max is the contract's for a perfectly tracking vehicle and
-    the daemon inflates the keep-out discs by r_body alone (it inflates by Ω's E_tr + r_body)."""
+    the measured error nor E_tr_pred — so V_max is the contract's for a perfectly tracking vehicle.
+
+    The keep-out discs' inflation is not the table's: the supervisor computes it
+    (`Supervisor.e_tr_virtual`, the virtual obstacle's E_tr, carried by `Decision.e_tr_virtual` and
+    `Decision.discs`). `remove_from(daemon)` makes it 0 there, so the discs are R_obst + r_body alone."""
 
     def __init__(self, table):
         self._t = table
@@ -219,6 +222,24 @@ class WithoutEtr:
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None):
         return self._bare.omega(d_od, r_obst, 0.0, thrust_ratio, contract=contract, tilt=tilt)
 
+    @staticmethod
+    def remove_from(daemon) -> None:
+        """No E_tr in the virtual obstacle either (the supervisor's inflation of the discs)."""
+        daemon.cycle.sup.e_tr_virtual = lambda i, d: 0.0
+
+
+class DiscTrace:
+    """The keep-out discs the daemon planned round at every cycle (for assertions only)."""
+
+    def __init__(self):
+        self.rows: list[tuple[float, list]] = []
+
+    def __call__(self, rig) -> bool:
+        d = rig.daemon.last
+        if d is not None:
+            self.rows.append((d.e_tr_virtual, list(d.discs)))
+        return False
+
 
 def test_negative_control_without_the_etr_inflation_eats_the_margin():
     """The head-on flight of the safety test, but the daemon assumes E_tr = 0: V_max 7.07 m/s instead
@@ -227,13 +248,26 @@ def test_negative_control_without_the_etr_inflation_eats_the_margin():
     0.96, 1.08 m). What still separates them from the column is the bins' angular padding (≈ 0.3 m at
     6 m: a bin reports its nearest return at its centre bearing), which the tracking error of the pass
     all but uses up. So this control asserts what it can show: without E_tr every flight ends closer
-    to the column than the smallest tracking error the daemon ever assumes (`e_tr_floor_m`)."""
+    to the column than the smallest tracking error the daemon ever assumes (`e_tr_floor_m`).
+
+    Since 0e5e60a the daemon inflates the discs by `Decision.e_tr_virtual` (the supervisor's), which the
+    table wrapper alone no longer reached (issue 19 item 7: the discs kept E_tr_pred at the faster
+    speed, the planner found no pass and braked into the column, −1.06/−0.84/−0.99 m): the wrapper now
+    removes it there too, and the control checks that every disc flown round carries no E_tr part.
+    Measured with E_tr really removed (issue 19): all three seeds graze the column (−0.04, −0.17,
+    −0.004 m), i.e. the E_tr inflation is what keeps the margin."""
     clearances = []
     for seed in (1, 2, 3):
         rig = Rig(offboard_scenario(seed, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}), "px4",
                   config=offboard_config(), table_wrapper=WithoutEtr)
-        engage_and_fly(rig, 14.0)
-        assert all(s["e_tr"] == 0.0 for s in rig.log.states if s["v_cmd"])  # the wrapper is in force
+        WithoutEtr.remove_from(rig.daemon)
+        discs = DiscTrace()
+        engage_and_fly(rig, 14.0, discs)
+        assert all(s["e_tr"] == 0.0 for s in rig.log.states if s["v_cmd"])  # the wrapper is in force: Ω …
+        seen = [d for _, ds in discs.rows for d in ds]
+        assert seen and all(e == 0.0 for e, _ in discs.rows)  # … and the virtual obstacle
+        r_body = rig.daemon.table.vehicle.r_body_m
+        assert all(d.r == pytest.approx(d.r_min) and d.r_min > r_body for d in seen)  # discs: R + r_body alone
         assert rig.daemon.offboard.guidance.replans > 0
         clearances.append(-1.0 if rig.truth["collisions"] else rig.truth["min_clearance_m"])
     assert max(clearances) < rig.daemon.cfg.contract.e_tr_floor_m, clearances
@@ -376,3 +410,29 @@ def test_the_virtual_obstacle_uses_e_tr_at_the_speed_flown_during_a_dwell():
     assert e < fast.e_tr - 0.3  # not the faster Ω's
     assert rig.daemon.cycle.sup.e_tr_virtual(replace(i, e_tr_measured=2.0), Decision("active", fast, slow.v_max)) \
         == 2.0  # measured
+
+
+# ----------------------------------------------------------------------------- above the controller contract's grid
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_offboard_never_flies_above_the_controller_contracts_grid(personality):
+    """Issue 19 item 6: a table wrapper raising every contract speed by 1.3 (a negative control's) takes
+    V_max past 8 m/s, the top of the Mambo's E_tr_pred grid, where E_tr_pred answers ∞. On f5862c5 the
+    daemon commanded 9.57 m/s, inflated the keep-out discs to infinity, OSQP refused the problem
+    ("Lower bound … inf > 1e30", a planner error), and the vehicle braked straight into the column
+    (−1.08 m). The daemon never flies a speed the controller contract does not cover: the limit stops
+    at the grid's top, every disc is finite, it plans round the column and flies on."""
+    sc = offboard_scenario(1, x_col=X_FOG_COL, wind=DESIGN_WIND, personality=personality)
+    sc["sensor"]["max_range_m"] = CLAIMED_M
+    rig = Rig(sc, personality, config=offboard_config(x_end=70.0), table_wrapper=lambda t: Scaled(t, 1.3))
+    discs = DiscTrace()
+    engage_and_fly(rig, 12.0, discs)
+    top = float(rig.daemon.table.e_pred.axes[0][-1])
+    assert max(s["v_cmd"] or 0.0 for s in rig.log.states) == pytest.approx(top)  # capped, not 9.57
+    seen = [d for _, ds in discs.rows for d in ds]
+    assert seen and all(math.isfinite(d.r) for d in seen)
+    assert all(math.isfinite(e) for e, _ in discs.rows)
+    assert not [e for e in rig.log.named("no_avoiding_plan") if any("error" in n for n in e["notes"])]
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    assert rig.truth["pos"][0] > X_FOG_COL + 10.0

@@ -119,3 +119,27 @@ def test_the_time_budget_skips_further_attempts():
     quick = planner.plan([0, 0], [5.0, 0], [1, 0], discs, v_max=5.0, a_max=A9, budget_s=0.0)
     assert slow.qp_solves > quick.qp_solves and any("budget" in n for n in quick.notes)
     assert quick.kind == "brake"
+
+
+def test_an_unbounded_keep_out_disc_is_the_best_stop_not_an_exception():
+    """Issue 19 item 6: a disc inflated to infinity (E_tr_pred with no answer) made OSQP refuse the
+    problem and the planner raise. Now: no exception, a braking plan — the best stop the finite part of
+    the geometry (the disc's never-entered core) allows, which swerves off the core it would brake into."""
+    from contracts.online_planner import AvoidancePlanner, Disc, best_stop, braking_plan
+
+    planner = AvoidancePlanner()
+    core = Disc(5.2, 0.3, 1.2)
+    plan = planner.plan([0.0, 0.0], [6.0, 0.0], [1.0, 0.0], [Disc(core.x, core.y, math.inf, core.r)], 6.0, 4.0)
+    assert plan.kind == "brake" and not plan.ok and np.all(np.isfinite(plan.p))
+    assert any("not finite" in n for n in plan.notes)
+    # straight braking from 6 m/s at 4 m/s² needs 4.5 m: into the core from 4.04 m; the best stop clears it
+    p, v, a, ts = braking_plan(np.zeros(2), np.array([6.0, 0.0]), 4.0, 30)
+    straight = float(np.min(np.hypot(p[:, 0] - core.x, p[:, 1] - core.y))) - core.r
+    assert straight < 0
+    assert plan.min_clearance > 0
+    assert np.max(np.hypot(*plan.v.T)) <= 6.0 + 1e-9  # never faster than it was
+    assert np.max(np.hypot(*plan.a.T)) <= 4.0 + 1e-9
+    assert np.hypot(*plan.v[-1]) < 1e-6  # and at rest
+    # with nothing in the way the best stop is the straight one
+    p0, v0, a0, ts0, _ = best_stop(np.zeros(2), np.array([6.0, 0.0]), 4.0, [], 30)
+    assert np.allclose(p0, p) and ts0 == ts
