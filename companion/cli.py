@@ -265,7 +265,7 @@ def cmd_run(args) -> int:
 
 # raw-log suffix → "module:function" replaying such a log into an event log in a directory and returning a
 # `review.Origin`; a PX4 ULog (".ulg") or ArduPilot DataFlash (".bin") reader plugs in here
-RAW_LOGS = {".tlog": "companion.replay:replay_tlog"}
+RAW_LOGS = {".tlog": "companion.replay:replay_tlog", ".ulg": "companion.logreplay:replay_ulog"}
 
 
 def raw_log_of(paths) -> Path | None:
