@@ -264,8 +264,9 @@ def cmd_run(args) -> int:
 
 
 # raw-log suffix → "module:function" replaying such a log into an event log in a directory and returning a
-# `review.Origin`; a PX4 ULog (".ulg") or ArduPilot DataFlash (".bin") reader plugs in here
-RAW_LOGS = {".tlog": "companion.replay:replay_tlog", ".ulg": "companion.logreplay:replay_ulog"}
+# `review.Origin`: a MAVLink .tlog, a PX4 ULog, an ArduPilot DataFlash log
+RAW_LOGS = {".tlog": "companion.replay:replay_tlog", ".ulg": "companion.logreplay:replay_ulog",
+            ".bin": "companion.logreplay:replay_dataflash"}
 
 
 def raw_log_of(paths) -> Path | None:

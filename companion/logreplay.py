@@ -102,7 +102,7 @@ class FlightLog(Origin):
         judged = ", ".join(info["judged"]) or "nothing"
         out.append(f"  judged: {judged}; not judged: {', '.join(info['not_judged']) or 'nothing'}")
         et = info["e_tr"]
-        if et["measured_max_m"] is not None:
+        if et["measured_max_m"] is not None and info["sources"].get("target"):
             out.append(f"  E_tr against the commanded path ({info['sources'].get('target')}): max "
                        f"{et['measured_max_m']:.2f} m at t = {et['at_t']:.1f} s (contract used "
                        f"{fmt_value(et['used_at_max_m'], ' m')} there)")
@@ -176,3 +176,9 @@ def replay_ulog(path, log_dir: Path, **kw) -> FlightLog:
     from .ulog import read_ulog
 
     return replay_flight_log(read_ulog, path, log_dir, **kw)
+
+
+def replay_dataflash(path, log_dir: Path, **kw) -> FlightLog:
+    from .dataflash import read_dataflash
+
+    return replay_flight_log(read_dataflash, path, log_dir, **kw)

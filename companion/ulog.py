@@ -74,6 +74,22 @@ def _open(path: Path):
         raise ContractError(f"{path}: unreadable ULog ({type(err).__name__}: {str(err)[:120]})") from None
 
 
+ULOG_TYPES = frozenset(b"BFIMPQADLCSOR")  # the ULog message types (ULog file format, "Definitions section")
+
+
+def torn_tail(path: Path) -> bool:
+    """Whether the file ends inside a message (walks the ULog framing: uint16 size, uint8 type). A walk that
+    loses the framing (a corrupt stretch) says nothing: pyulog's own recovery reports that."""
+    data = path.read_bytes()
+    pos = 16
+    while pos + 3 <= len(data):
+        size, kind = int.from_bytes(data[pos:pos + 2], "little"), data[pos + 2]
+        if kind not in ULOG_TYPES:
+            return False
+        pos += 3 + size
+    return pos != len(data)
+
+
 def _sniff(head: bytes) -> str:
     """What a file with the wrong contents seems to be, for the error line."""
     if head[:2] == b"\xa3\x95":
@@ -128,7 +144,7 @@ def read_ulog(path) -> Feed:
         if xv is not None and len(xv) and not np.all(xv > 0):
             invalid = float(np.mean(xv <= 0))
             damaged_notes.append(f"vehicle_local_position xy_valid false in {invalid:.0%} of its samples (no horizontal "
-                                 "position estimate there: the estimator is unhealthy, nothing of the contract is judged)")
+                                 "position estimate there: the estimator is unhealthy, the contract not judged there)")
         if "estimator_status" not in top or "solution_status_flags" not in top["estimator_status"]:
             if xv is not None and vv is not None:
                 flags = np.where((xv > 0) & (vv > 0), NAV_FROM_VALIDITY, 0)
@@ -287,7 +303,9 @@ def read_ulog(path) -> Feed:
         "dropouts": len(ulog.dropouts),
         "dropout_s": float(sum(d.duration for d in ulog.dropouts) / 1000.0),
         "log_duration_s": (ulog.last_timestamp - ulog.start_timestamp) / 1e6,
-        "damaged": (["corrupt data skipped by the ULog reader (file_corruption)"] if corrupt else []) + damaged_notes,
+        "damaged": (["corrupt data skipped by the ULog reader (file_corruption)"] if corrupt else [])
+        + (["the file ends inside a message (truncated: the last message is lost)"] if torn_tail(path) else [])
+        + damaged_notes,
         "time_jumps": jumps[:100],
     }
     return Feed(ops=ops, info=info, autopilot="px4", wall0=wall0)
