@@ -58,6 +58,18 @@ def _open(path: Path):
         raise ContractError(f"{path}: unreadable DataFlash log ({type(err).__name__}: {str(err)[:120]})") from None
 
 
+def torn_tail(data: bytes, lengths: dict) -> int:
+    """Bytes of a last message cut short by the end of the file (0: none, or the framing was lost to a
+    corrupt stretch first, which DFReader's resynchronisation handles)."""
+    pos = 0
+    while pos + 3 <= len(data):
+        n = lengths.get(data[pos + 2]) if data[pos:pos + 2] == HEAD else None
+        if not n:
+            return 0
+        pos += n
+    return len(data) - (pos - n) if pos > len(data) else (len(data) - pos)
+
+
 def read_dataflash(path) -> Feed:
     path = Path(path)
     if not path.exists():
@@ -155,11 +167,12 @@ def read_dataflash(path) -> Feed:
         lacking["landed state (EV LAND_COMPLETE / NOT_LANDED)"] = "in-air state unknown: thrust is not estimated"
     size = path.stat().st_size
     damaged = []
-    offset = getattr(df, "offset", size)
     if stopped:
         damaged.append(f"the reader stopped early ({stopped}): the rest of the file is not reviewed")
-    elif offset < size - 3:
-        damaged.append(f"the last {size - offset} bytes are not a whole message (truncated)")
+    tail = torn_tail(path.read_bytes(), {k: f.len for k, f in df.formats.items()})
+    if tail:
+        damaged.append(f"the file ends inside a message (truncated: the last {tail} bytes lost)")
+
     span = ops[-1][0] / 1e6
     rates = {k: round((counts.get(k, 0) - 1) / span, 2) for k in counts if span > 0}
     info = {
