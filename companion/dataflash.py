@@ -28,7 +28,7 @@ from pathlib import Path
 
 from contracts.errors import ContractError
 
-from .loginput import Feed, order
+from .loginput import Feed, lacking, order, read_head
 
 HEAD = b"\xa3\x95"
 TYPES = ["XKF1", "NKF1", "ATT", "PSCN", "PSCE", "CTUN", "MODE", "ARM", "EV", "XKF4", "NKF4", "RFND", "PARM", "MSG"]
@@ -42,13 +42,7 @@ MAX_T_US = 1 << 62
 def _open(path: Path):
     from pymavlink import DFReader
 
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(16)
-    except OSError as err:
-        raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
-    if not head:
-        raise ContractError(f"{path}: empty file (zero bytes), not a DataFlash log")
+    head = read_head(path, "a DataFlash log")
     if not head.startswith(HEAD):
         what = "it looks like a PX4 ULog" if head.startswith(b"ULog") else f"starts with {head[:8].hex()}"
         raise ContractError(f"{path}: not an ArduPilot DataFlash log (no 0xA3 0x95 header; {what})")
@@ -151,20 +145,9 @@ def read_dataflash(path) -> Feed:
     plane = fw is not None and "Plane" in fw
     if plane and params.get("Q_ENABLE", 0) < 1:
         raise ContractError(f"{path}: a fixed-wing log ({fw}): the contract is for multirotors; not reviewed")
-    lacking = {}
-    if "range" not in used:
-        lacking["obstacle sensing (RFND, PRX)"] = \
-            "D_od is unknown: the navigation guarantee is not judged, and the replay's D_od is 0 (no safe speed)"
-    if "target" not in used:
-        lacking["commanded path (PSCN/PSCE)"] = "E_tr cannot be measured: the controller guarantee is judged on E_tr_pred alone"
-    if "thr" not in used:
-        lacking["thrust (CTUN)"] = "thrust_ratio is the configured fallback: the actuator guarantee is not judged"
-    if "nav" not in used:
-        lacking["navigation health (XKF4)"] = "the estimator is taken as unhealthy: every sample a failsafe"
-    if "mode" not in used:
-        lacking["modes and arming (MODE, ARM)"] = "modes unknown: time in each mode not reported"
-    if "landed" not in used:
-        lacking["landed state (EV LAND_COMPLETE / NOT_LANDED)"] = "in-air state unknown: thrust is not estimated"
+    missing = lacking(used, {"obstacle sensing": "RFND, PRX", "commanded path": "PSCN/PSCE", "thrust": "CTUN",
+                             "navigation health": "XKF4", "modes and arming": "MODE, ARM",
+                             "landed state": "EV LAND_COMPLETE / NOT_LANDED"})
     size = path.stat().st_size
     damaged = []
     if stopped:
@@ -187,7 +170,7 @@ def read_dataflash(path) -> Feed:
                      "branch": None, "os": None},
         "span_s": span,
         "sources": used,
-        "lacking": lacking,
+        "lacking": missing,
         "rates_hz": rates,
         "params": params,
         "dropouts": 0,

@@ -55,6 +55,38 @@ class Feed:
     wall0: float = 0.0  # UNIX time of t = 0, when the log knows it (else 0)
 
 
+def read_head(path, what: str) -> bytes:
+    """The first 16 bytes of a log file (to tell its format), or one `ContractError` line."""
+    from contracts.errors import ContractError
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as err:
+        raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
+    if not head:
+        raise ContractError(f"{path}: empty file (zero bytes), not {what}")
+    return head
+
+
+# what a log lacking an input means for the verdict (said once in the review): op(s) → (what, meaning)
+LACKING = (
+    (("range", "bins"), "obstacle sensing",
+     "D_od is unknown: the navigation guarantee is not judged, and the replay's D_od is 0 (no safe speed)"),
+    (("target",), "commanded path", "E_tr cannot be measured: the controller guarantee is judged on E_tr_pred alone"),
+    (("thr",), "thrust", "thrust_ratio is the configured fallback: the actuator guarantee is not judged"),
+    (("nav",), "navigation health", "the estimator is taken as unhealthy: every sample a failsafe"),
+    (("mode",), "modes and arming", "modes unknown: time in each mode not reported"),
+    (("landed",), "landed state", "in-air state unknown: thrust is not estimated"),
+)
+
+
+def lacking(used: dict, sources: dict[str, str]) -> dict[str, str]:
+    """{"obstacle sensing (distance_sensor, …)": what it means} for each input no op came from;
+    `sources`: the input's name → the format's topics/messages for it."""
+    return {f"{what} ({sources[what]})": means for ops, what, means in LACKING if not any(op in used for op in ops)}
+
+
 def order(ops: list) -> tuple[list, list]:
     """(ops sorted by time from the first, clock jumps closed up). Pure."""
     ops.sort(key=lambda o: o[0])

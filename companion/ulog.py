@@ -34,7 +34,7 @@ import numpy as np
 from contracts.errors import ContractError
 from contracts.geodesy import ne_from_geo
 
-from .loginput import MAV_TYPES, VTOL_TYPES, Feed, firmware_release, order, quat_euler
+from .loginput import MAV_TYPES, VTOL_TYPES, Feed, firmware_release, lacking, order, quat_euler, read_head
 
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 TOPICS = ["vehicle_local_position", "vehicle_attitude", "vehicle_local_position_setpoint", "trajectory_setpoint",
@@ -59,13 +59,7 @@ MAX_DT_US = 1 << 62
 def _open(path: Path):
     import pyulog
 
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(16)
-    except OSError as err:
-        raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
-    if not head:
-        raise ContractError(f"{path}: empty file (zero bytes), not a ULog")
+    head = read_head(path, "a ULog")
     if not head.startswith(ULOG_MAGIC[:4]):
         raise ContractError(f"{path}: not a PX4 ULog (no 'ULog' header; {_sniff(head)})")
     try:
@@ -264,22 +258,12 @@ def read_ulog(path) -> Feed:
                 wall0 = (u[ok[0]] - ts[gps][ok[0]] + t_first) / 1e6
                 break
     # what the replay lacks, by what it is for (said once in the review)
-    lacking = {}
-    if "range" not in used and "bins" not in used:
-        lacking["obstacle sensing (distance_sensor, obstacle_distance)"] = \
-            "D_od is unknown: the navigation guarantee is not judged, and the replay's D_od is 0 (no safe speed)"
-    if "target" not in used:
-        lacking["commanded path (vehicle_local_position_setpoint, trajectory_setpoint, position_setpoint_triplet)"] = \
-            "E_tr cannot be measured: the controller guarantee is judged on E_tr_pred alone"
-    if "thr" not in used:
-        lacking["thrust (vehicle_thrust_setpoint, actuator_controls_0, hover_thrust_estimate)"] = \
-            "thrust_ratio is the configured fallback: the actuator guarantee is not judged"
-    if "nav" not in used:
-        lacking["navigation health (estimator_status)"] = "the estimator is taken as unhealthy: every sample a failsafe"
-    if "mode" not in used:
-        lacking["modes and arming (vehicle_status)"] = "modes unknown: time in each mode not reported"
-    if "landed" not in used:
-        lacking["landed state (vehicle_land_detected)"] = "in-air state unknown: thrust is not estimated"
+    missing = lacking(used, {
+        "obstacle sensing": "distance_sensor, obstacle_distance",
+        "commanded path": "vehicle_local_position_setpoint, trajectory_setpoint, position_setpoint_triplet",
+        "thrust": "vehicle_thrust_setpoint, actuator_controls_0, hover_thrust_estimate",
+        "navigation health": "estimator_status", "modes and arming": "vehicle_status",
+        "landed state": "vehicle_land_detected"})
     rates = {}
     for topic, t in ts.items():
         if len(t) > 1 and t[-1] > t[0]:
@@ -297,7 +281,7 @@ def read_ulog(path) -> Feed:
                      "os": info_msgs.get("sys_os_name")},
         "span_s": ops[-1][0] / 1e6 if ops else 0.0,
         "sources": used,
-        "lacking": lacking,
+        "lacking": missing,
         "rates_hz": {k: round(v, 2) for k, v in sorted(rates.items())},
         "params": {k: float(params[k]) for k in PARAMS if k in params},
         "dropouts": len(ulog.dropouts),
