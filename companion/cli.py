@@ -317,8 +317,12 @@ def cmd_review(args) -> int:
     from .review import format_report
     from .reviewset import expand, review_set, summary_lines
 
-    raw = expand(args.log, RAW_LOGS)
-    if len(raw) > 1 or (raw and any(Path(p).is_dir() for p in args.log)):  # many flights: one table, each reviewed
+    from .eventlog import file_set
+
+    # many flights (several raw logs, or folders of them, and no event log among them): one table, each reviewed
+    event_logs = any(file_set(p) if p.is_dir() else p.suffix.lower() not in RAW_LOGS for p in map(Path, args.log))
+    raw = [] if event_logs else expand(args.log, RAW_LOGS)
+    if len(raw) > 1 or (raw and any(Path(p).is_dir() for p in args.log)):
         result, texts = review_set(args.log, RAW_LOGS, lambda path, out: review_log(
             path, out, config=args.config, vehicle=args.vehicle, table=args.table), args.out)
         text = "\n".join(summary_lines(result) + [""] + texts
