@@ -265,8 +265,9 @@ def cmd_run(args) -> int:
 
 
 # raw-log suffix → "module:function" replaying such a log into an event log in a directory and returning a
-# `review.Origin`; a PX4 ULog (".ulg") or ArduPilot DataFlash (".bin") reader plugs in here
-RAW_LOGS = {".tlog": "companion.replay:replay_tlog"}
+# `review.Origin`: a MAVLink .tlog, a PX4 ULog, an ArduPilot DataFlash log
+RAW_LOGS = {".tlog": "companion.replay:replay_tlog", ".ulg": "companion.logreplay:replay_ulog",
+            ".bin": "companion.logreplay:replay_dataflash"}
 
 
 def raw_log_of(paths) -> Path | None:
@@ -315,7 +316,20 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
 def cmd_review(args) -> int:
     """Event logs are reviewed; a raw log is replayed into an event log, then reviewed (`RAW_LOGS`)."""
     from .review import format_report
+    from .reviewset import expand, review_set, summary_lines
 
+    from .eventlog import file_set
+
+    # many flights (several raw logs, or folders of them, and no event log among them): one table, each reviewed
+    event_logs = any(file_set(p) if p.is_dir() else p.suffix.lower() not in RAW_LOGS for p in map(Path, args.log))
+    raw = [] if event_logs else expand(args.log, RAW_LOGS)
+    if len(raw) > 1 or (raw and any(Path(p).is_dir() for p in args.log)):
+        result, texts = review_set(args.log, RAW_LOGS, lambda path, out: review_log(
+            path, out, config=args.config, vehicle=args.vehicle, table=args.table), args.out)
+        text = "\n".join(summary_lines(result) + [""] + texts
+                          + [f"  wrote {k}: {v}" for k, v in result.get("outputs", {}).items()])
+        _emit(result, args.json, text)
+        return 0 if result["ok"] or not args.strict else 1
     rep, origin = review_log(args.log, args.out, config=args.config, vehicle=args.vehicle, table=args.table)
     _emit(rep, args.json, format_report(rep, origin))
     return 0 if rep["ok"] or not args.strict else 1
@@ -370,16 +384,18 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="print nothing (the event log still has everything)")
     r.set_defaults(func=cmd_run)
 
-    rv = sub.add_parser("review", help="contract-violation report for a flight's event log or raw .tlog")
+    rv = sub.add_parser("review", help="contract-violation report for a flight's event log, or for raw flight logs "
+                        "(.tlog, PX4 .ulg, ArduPilot .bin) replayed through the contract")
     rv.add_argument("log", nargs="+", type=Path,
-                    help="log directory (its rotated set), events*.jsonl files, or one MAVLink .tlog to replay")
-    rv.add_argument("--config", type=Path, help=".tlog: the daemon config the flight used (sensors, r_obst, vehicle, "
+                    help="log directory (its rotated set), events*.jsonl files, or raw flight logs to replay "
+                    "(.tlog, .ulg, .bin; several files or folders: a summary table and one report each)")
+    rv.add_argument("--config", type=Path, help="raw log: the daemon config the flight used (sensors, r_obst, vehicle, "
                     "autopilot ids; replayed in shadow mode). Default: built-in defaults, autopilot from the tlog")
-    rv.add_argument("--vehicle", help=".tlog: vehicle file or shipped name (overrides the config's)")
+    rv.add_argument("--vehicle", help="raw log: vehicle file or shipped name (overrides the config's)")
     rv.add_argument("--table", type=Path,
-                    help=".tlog: Γ table (default: the config's, else the vehicle's shipped one)")
+                    help="raw log: Γ table (default: the config's, else the vehicle's shipped one)")
     rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here "
-                    "(and, for a .tlog, the replayed event log replay-events.jsonl)")
+                    "(and, for a raw log, the replayed event log replay-events.jsonl; for several, index.html and a page each)")
     rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")
     rv.add_argument("--json", action="store_true")
     rv.set_defaults(func=cmd_review)

@@ -206,8 +206,6 @@ def _describe_sources(scan: Scan) -> str:
 
 def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, table: Path | None):
     """(config forced to shadow, table, contract, how the autopilot was chosen) for this tlog."""
-    from contracts.table import load_for_vehicle
-
     cfg = load_config(config) if config is not None else Config(sensors=list(ASSUMED_SENSORS))
     chosen = "config"
     if config is None:  # no flight config: take the autopilot the tlog shows
@@ -226,6 +224,14 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
         raise ContractError(f"{path}: no usable telemetry: no {' or '.join(lacking)} from the autopilot "
                             f"{target[0]}/{target[1]} in {scan.packets} packets (sources sys/comp: "
                             f"{_describe_sources(scan)}; set link.target_system/target_component in --config)")
+    return (*settle(cfg, config, vehicle, table), chosen)
+
+
+def settle(cfg: Config, config: Path | None, vehicle: str | None, table: Path | None):
+    """(config forced to shadow, table, contract) of a raw log's replay: the flight's mode decides the
+    contract (offboard: avoid, else stop); `--vehicle` replaces the config's; a table alone brings its own."""
+    from contracts.table import load_for_vehicle
+
     flown = cfg.mode
     cfg = cfg.model_copy(update={"mode": "shadow", "log": cfg.log.model_copy(update={"tlog": False})})
     if vehicle is not None:
@@ -236,7 +242,7 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
     if contract == "avoid" and tab.avoid is None:
         raise ContractError(f"the flight flew offboard (avoid contract); table {tab.path} carries the stop "
                             "contract only")
-    return cfg, tab, contract, chosen
+    return cfg, tab, contract
 
 
 # ============================================================================ the replay

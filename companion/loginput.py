@@ -1,0 +1,199 @@
+"""A flight log's input to the daemon: what `mavlink_in.py` is for the link, this is for an autopilot's own
+log (PX4 ULog: `companion/ulog.py`; ArduPilot DataFlash: `companion/dataflash.py`).
+
+A reader turns its format's topics/messages into `Op`s — `(t_us, op, args)` in SI units and the frames
+of DESIGN.md §2, converted there, once — and a `Feed` (the ops in log-time order plus what the reader saw).
+`LogIn.apply` turns one op into the daemon's `Telemetry` snapshot fields and the same typed samples
+(`companion/samples.py`) MAVLink-in makes of the equivalent MAVLink message, with the same validation
+(`mavlink_in.implausible`, `range_scan`, `bins_scan`), so one replay path (`companion/logreplay.py`)
+serves `.tlog`, `.ulg` and `.bin` alike.
+
+The ops:
+
+| op        | args                                      | MAVLink equivalent            | sample(s)          |
+|-----------|-------------------------------------------|-------------------------------|--------------------|
+| `mode`    | base_mode, custom_mode                    | HEARTBEAT                     | —                  |
+| `pos`     | x, y, z [m NED], vx, vy, vz [m/s NED]     | LOCAL_POSITION_NED            | Position           |
+| `att`     | roll, pitch, yaw [rad]                    | ATTITUDE                      | Heading            |
+| `target`  | x, y [m NED] (NaN: not position-controlled)| POSITION_TARGET_LOCAL_NED    | PathTarget         |
+| `thr`     | collective throttle [0–1]                 | VFR_HUD.throttle              | Throttle           |
+| `landed`  | MAV_LANDED_STATE                          | EXTENDED_SYS_STATE            | —                  |
+| `nav`     | source, ESTIMATOR_STATUS_FLAGS bits       | ESTIMATOR_STATUS / EKF_STATUS | NavStatus          |
+| `range`   | bearing [rad cw], current, min, max [m], quality (MAVLink) | DISTANCE_SENSOR | Scan         |
+| `bins`    | bearings [rad], ranges [m, inf free], max [m], increment [rad], north-aligned | OBSTACLE_DISTANCE | Scan |
+| `param`   | name, value                               | PARAM_VALUE                   | AutopilotParam     |
+| `seq`     | mission item                              | MISSION_CURRENT               | —                  |
+
+The log is the autopilot's own: while it writes, the autopilot is alive, so every op refreshes the
+snapshot's heartbeat time (a ULog writes `vehicle_status` only when it changes).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+from .config import Config
+from .mavlink_in import bins_scan, implausible, range_scan
+from .samples import AutopilotParam, Heading, Implausible, NavStatus, PathTarget, Position, Throttle
+from .telemetry import Telemetry
+
+# a silence longer than this between two ops is a clock jump (closed up, listed): a replay never steps
+# through hours of nothing, and a corrupt timestamp near 2⁶⁴ µs cannot make it hang
+MAX_GAP_US = 300_000_000
+
+
+@dataclass
+class Feed:
+    """A flight log read: its ops in log-time order (µs from the first), and what the reader saw.
+    `info`: vehicle, firmware, topics found and lacking, damage, clock jumps (the report's section)."""
+
+    ops: list = field(default_factory=list)  # (t_us, op, args)
+    info: dict = field(default_factory=dict)
+    autopilot: str = "px4"
+    wall0: float = 0.0  # UNIX time of t = 0, when the log knows it (else 0)
+
+
+def read_head(path, what: str) -> bytes:
+    """The first 16 bytes of a log file (to tell its format), or one `ContractError` line."""
+    from contracts.errors import ContractError
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as err:
+        raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
+    if not head:
+        raise ContractError(f"{path}: empty file (zero bytes), not {what}")
+    return head
+
+
+# what a log lacking an input means for the verdict (said once in the review): op(s) → (what, meaning)
+LACKING = (
+    (("range", "bins"), "obstacle sensing",
+     "D_od is unknown: the navigation guarantee is not judged, and the replay's D_od is 0 (no safe speed)"),
+    (("target",), "commanded path", "E_tr cannot be measured: the controller guarantee is judged on E_tr_pred alone"),
+    (("thr",), "thrust", "thrust_ratio is the configured fallback: the actuator guarantee is not judged"),
+    (("nav",), "navigation health", "the estimator is taken as unhealthy: every sample a failsafe"),
+    (("mode",), "modes and arming", "modes unknown: time in each mode not reported"),
+    (("landed",), "landed state", "in-air state unknown: thrust is not estimated"),
+)
+
+
+def lacking(used: dict, sources: dict[str, str]) -> dict[str, str]:
+    """{"obstacle sensing (distance_sensor, …)": what it means} for each input no op came from;
+    `sources`: the input's name → the format's topics/messages for it."""
+    return {f"{what} ({sources[what]})": means for ops, what, means in LACKING if not any(op in used for op in ops)}
+
+
+def order(ops: list) -> tuple[list, list]:
+    """(ops sorted by time from the first, clock jumps closed up). Pure."""
+    ops.sort(key=lambda o: o[0])
+    if not ops:
+        return ops, []
+    jumps, shift, last, out = [], -ops[0][0], 0, []
+    prev_raw = ops[0][0]
+    for t, op, args in ops:
+        step = t - prev_raw
+        if step > MAX_GAP_US:
+            jumps.append({"t": last / 1e6, "jump_s": step / 1e6})
+            shift = last - t
+        prev_raw = t
+        last = t + shift
+        out.append((last, op, args))
+    return out, jumps
+
+
+def quat_euler(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) [rad] of a Hamilton quaternion rotating body FRD into NED (PX4
+    `msg/VehicleAttitude.msg` q, w first); ZYX Tait–Bryan, as MAVLink ATTITUDE."""
+    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+class LogIn:
+    """Ops → the daemon's `Telemetry` fields and samples (the log's MavlinkIn)."""
+
+    def __init__(self, cfg: Config, tel: Telemetry, autopilot_id: int):
+        self.cfg, self.tel, self.autopilot_id = cfg, tel, autopilot_id
+        self._ranges = [i for i, s in enumerate(cfg.sensors) if s.kind == "distance_sensor"]
+        self._bins = [i for i, s in enumerate(cfg.sensors) if s.kind == "obstacle_distance"]
+
+    def apply(self, t: float, op: str, args: tuple) -> list:
+        tel = self.tel
+        tel.t_heartbeat, tel.autopilot = t, self.autopilot_id
+        if op == "pos":
+            ns = SimpleNamespace(x=args[0], y=args[1], z=args[2], vx=args[3], vy=args[4], vz=args[5])
+            why = implausible("LOCAL_POSITION_NED", ns)
+            if why is not None:
+                return [Implausible(t, "LOCAL_POSITION_NED", why)]
+            tel.t_local = t
+            tel.x, tel.y, tel.z, tel.vx, tel.vy, tel.vz = args
+            return [Position(t, tel.x, tel.y)]
+        if op == "att":
+            why = implausible("ATTITUDE", SimpleNamespace(roll=args[0], pitch=args[1], yaw=args[2]))
+            if why is not None:
+                return [Implausible(t, "ATTITUDE", why)]
+            tel.roll, tel.pitch, tel.yaw = args
+            return [Heading(t, tel.yaw, tel.ground_speed)]
+        if op == "target":
+            x, y = args
+            if not (math.isfinite(x) and math.isfinite(y)):
+                return []  # not position-controlled now (PX4 publishes NaN), as POSITION_TARGET's IGNORE_XY
+            tel.target, tel.t_target = (x, y), t
+            return [PathTarget(t, x, y)]
+        if op == "thr":
+            thr = args[0]
+            if not (math.isfinite(thr) and 0.0 <= thr <= 1.0):
+                return [Implausible(t, "VFR_HUD", "throttle outside 0–100 %")]
+            tel.throttle = thr
+            return [Throttle(t, thr, tel.roll, tel.pitch, tel.vz, tel.in_air)] if math.isfinite(tel.vz) else []
+        if op == "mode":
+            tel.base_mode, tel.custom_mode = args
+            return []
+        if op == "landed":
+            tel.landed_state = args[0]
+            return []
+        if op == "nav":
+            return [NavStatus(t, args[0], int(args[1]))]
+        if op == "range":
+            return self._range(t, *args)
+        if op == "bins":
+            bearings, ranges, max_m, inc, north_aligned = args
+            if north_aligned:  # MAV_FRAME_GLOBAL bins: rotated into the body frame, as MAVLink-in does
+                bearings = bearings - tel.yaw
+            return [bins_scan(t, i, bearings, ranges, max_m, inc, self.cfg.sensors[i].max_range_m) for i in self._bins]
+        if op == "param":
+            return [AutopilotParam(t, args[0], float(args[1]))]
+        if op == "seq":
+            tel.mission_seq = int(args[0])
+        return []
+
+    def _range(self, t: float, bearing: float, current: float, lo: float, hi: float, quality: int) -> list:
+        """The configured single-beam sensor looking along `bearing` (as MAVLink-in matches orientation)."""
+        for i in self._ranges:
+            c = self.cfg.sensors[i]
+            if abs((math.degrees(bearing) - c.orientation_deg + 180) % 360 - 180) < 1:
+                return [range_scan(t, i, math.radians(c.orientation_deg), current, lo, hi, quality, c.max_range_m)]
+        return []
+
+
+def firmware_release(v: int | None) -> str | None:
+    """PX4's `ver_sw_release` (0xAABBCCTT: major, minor, patch, type) in words (ULog spec, `ver_sw_release`)."""
+    if not v:
+        return None
+    v = int(v)
+    tt = v & 0xFF
+    kind = "release" if tt == 255 else "rc" if tt >= 192 else "beta" if tt >= 128 else "alpha" if tt >= 64 else "dev"
+    return f"v{v >> 24 & 0xFF}.{v >> 16 & 0xFF}.{v >> 8 & 0xFF} ({kind})"
+
+
+# MAVLink MAV_TYPE (common.xml) of the airframes a reviewer sees in logs
+MAV_TYPES = {0: "generic", 1: "fixed wing", 2: "quadrotor", 3: "coaxial", 4: "helicopter", 10: "ground rover",
+             13: "hexarotor", 14: "octorotor", 15: "tricopter", 19: "VTOL tailsitter duorotor",
+             20: "VTOL tailsitter quadrotor", 21: "VTOL tiltrotor", 22: "VTOL quadplane", 29: "dodecarotor"}
+MULTIROTOR_TYPES = {2, 3, 4, 13, 14, 15, 29}
+VTOL_TYPES = {19, 20, 21, 22, 23, 24, 25}
