@@ -163,7 +163,8 @@ def implausible(kind: str, msg) -> str | None:
             return "attitude out of range"
     elif kind == "VFR_HUD" and not 0 <= msg.throttle <= 100:
         return "throttle outside 0–100 %"
-    elif kind == "POSITION_TARGET_LOCAL_NED" and not (math.isfinite(msg.x) and math.isfinite(msg.y)):
+    elif kind == "POSITION_TARGET_LOCAL_NED" and not msg.type_mask & 3 \
+            and not (math.isfinite(msg.x) and math.isfinite(msg.y)):  # an unused position may be NaN (PX4 sends it)
         return "target not finite"
     return None
 
@@ -207,6 +208,8 @@ class MavlinkIn:
     def samples(self, t: float, kind: str, msg) -> list:
         """The samples of one accepted message at daemon time t (may raise on nonsense: the caller counts it)."""
         why = implausible(kind, msg)
+        if kind == "HEARTBEAT" and msg.autopilot != self.adapter.autopilot_id:
+            why = f"HEARTBEAT of autopilot type {msg.autopilot}, not the configured {self.adapter.name}"
         if why is not None:
             return [Implausible(t, kind, why)]  # not taken into the snapshot
         tel = self.tel
