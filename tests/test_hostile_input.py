@@ -434,9 +434,11 @@ def test_a_log_that_cannot_write_is_said_to_the_ground_station(tmp_path):
 
 
 # ------------------------------------------------------------------ items 2, 3: the UDP link
-def listening_daemon_flight(tmp_path, attack, seconds=6.0):
+def listening_daemon_flight(tmp_path, attack, seconds=6.0, key=None, run="log", stop=None):
     """The daemon as a process listening on loopback UDP (udpin), a scripted autopilot sending to it at
-    50 Hz, and `attack(daemon_addr)` called every autopilot cycle. Returns the daemon's event log."""
+    50 Hz (signed with `key`, which the daemon then requires), and `attack(daemon_addr)` called every
+    autopilot cycle; stopped with `stop` (default SIGTERM). Returns the daemon's event log (`run`: its
+    folder's name under tmp_path)."""
     import signal
     import socket
     import subprocess
@@ -451,14 +453,19 @@ def listening_daemon_flight(tmp_path, attack, seconds=6.0):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     cfg = tmp_path / "cg.yaml"
-    cfg.write_text(yaml.safe_dump({"vehicle": "mambo", "mode": "shadow", "link": {"connect": f"udpin:127.0.0.1:{port}"},
+    link = {"connect": f"udpin:127.0.0.1:{port}"}
+    if key is not None:
+        (tmp_path / "key").write_bytes(key)
+        (tmp_path / "key").chmod(0o600)
+        link.update(signing_key_file=str(tmp_path / "key"), signing_timestamp_file=str(tmp_path / "signing.json"))
+    cfg.write_text(yaml.safe_dump({"vehicle": "mambo", "mode": "shadow", "link": link,
                                    "sensors": [{"h_fov_deg": 30, "max_range_m": 6}],
-                                   "log": {"dir": str(tmp_path / "log")}}))
+                                   "log": {"dir": str(tmp_path / run)}}))
     d = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg), "--quiet"],
                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.settimeout(0.02)
-    ap = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    ap = signer(key, src=(1, 1)) if key is not None else mav.MAVLink(None, srcSystem=1, srcComponent=1)
     target, t_first, t_start = ("127.0.0.1", port), None, time.monotonic()
     try:
         while time.monotonic() - t_start < 90 and (t_first is None or time.monotonic() - t_first < seconds):
@@ -474,11 +481,11 @@ def listening_daemon_flight(tmp_path, attack, seconds=6.0):
             if t_first is not None:
                 attack(target)
     finally:
-        d.send_signal(signal.SIGTERM)
+        d.send_signal(stop or signal.SIGTERM)
         d.wait(30)
         sock.close()
     assert t_first is not None, "the daemon never answered"
-    return read_events(tmp_path / "log")
+    return read_events(tmp_path / run)
 
 
 def test_two_bytes_from_anyone_do_not_blind_the_daemon(tmp_path):
@@ -535,3 +542,36 @@ def test_the_autopilot_is_taken_from_its_address_only_and_the_clients_are_bounde
     states = [r for r in log if r.get("kind") == "state" and r.get("x") is not None]
     assert states and all(r["x"] == 1.0 for r in states)  # never the spoofer's 1000 m
     assert answered <= MAX_CLIENTS
+
+
+def test_a_signed_engage_replayed_over_udp_after_kill_9_does_not_engage(tmp_path):
+    """Over loopback UDP with the daemon as a process: a signed ground station's CG_ENGAGE is taken; the
+    daemon is killed (-9) and restarted; the captured datagram sent again is refused."""
+    import signal
+    import socket
+
+    gcs_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    gcs = signer(KEY)
+    captured = {"data": None, "sent": 0}
+
+    def engage_once(target):
+        if captured["data"] is None:
+            captured["data"] = gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9).pack(gcs)
+        if captured["sent"] < 1:
+            gcs_sock.sendto(captured["data"], target)
+            captured["sent"] += 1
+
+    first = listening_daemon_flight(tmp_path, engage_once, seconds=3.0, key=KEY, run="first", stop=signal.SIGKILL)
+    assert [r for r in first if r.get("event") == "param_set" and r.get("param") == "CG_ENGAGE"]
+
+    def replay(target):
+        if captured["sent"] < 3:
+            gcs_sock.sendto(captured["data"], target)
+            captured["sent"] += 1
+
+    second = listening_daemon_flight(tmp_path, replay, seconds=3.0, key=KEY, run="second")
+    gcs_sock.close()
+    assert captured["sent"] == 3
+    assert not [r for r in second if r.get("event") == "param_set"]
+    stop = [r for r in second if r.get("event") == "stop"]
+    assert stop and stop[0]["counters"]["rejected_signature"] >= 2
