@@ -353,7 +353,7 @@ def cmd_demo(args) -> int:
 
     r = demo(args.scenario, args.out, speedup=args.speedup, duration_s=args.duration, personality=args.personality)
     _emit(r, args.json, format_summary(r))
-    return 0 if r["safe"] else 1
+    return 0 if r["verdict"] == "SAFE" else 1
 
 
 # ----------------------------------------------------------------------------- parser
@@ -373,8 +373,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     # `sitl` hands its arguments to the harness's own parser (see main)
-    sub.add_parser("sitl", help="the SITL vehicle alone, for any MAVLink client: --scenario FILE "
-                   "--personality px4|ardupilot --listen udp:127.0.0.1:PORT [--speedup K]", add_help=False)
+    sub.add_parser("sitl", help="the SITL vehicle alone, for any MAVLink client: [--scenario NAME|FILE] "
+                   "--personality px4|ardupilot --listen udp:127.0.0.1:PORT [--speedup K] (an empty world by "
+                   "default; `sitl --help` names the shipped scenarios)", add_help=False)
 
     r = sub.add_parser("run", help="the on-board daemon (what systemd starts)")
     r.add_argument("--config", required=True, type=Path)
@@ -479,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["sitl"]:
         from sitl_harness.__main__ import main as sitl_main
 
-        return sitl_main(argv[1:])
+        return sitl_main(argv[1:], prog="contract-guard sitl")
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

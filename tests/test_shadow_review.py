@@ -68,3 +68,20 @@ def test_a_tracking_overshoot_below_v_safe_is_not_a_finding_but_a_real_excess_is
     assert not bad["ok"] and any("above the limit" in f for f in bad["findings"])
     unsafe = summarise([state(0.1 * i, 6.36 if 10 <= i < 20 else 6.0, 6.12, 6.13) for i in range(40)])
     assert any("flown outside the contract" in f for f in unsafe["findings"])
+
+
+def test_the_demo_has_one_verdict(tmp_path):
+    """`demo`'s verdict is the flight's truth and its review together; the exit status follows it (cli)."""
+    from companion.demo import format_summary, summarise_flight
+    from sitl_harness.scenario import load_scenario
+
+    sc = load_scenario("fig17")
+    recs = [{"kind": "state", "t": 1.0, "x": 0.0, "y": 0.0, "mode": "offboard", "ground_speed": 1.0}]
+    kept = summarise_flight(sc, recs, {"collisions": 0}, {"ok": True, "findings": [], "outputs": {}}, tmp_path)
+    assert kept["verdict"] == "SAFE" and format_summary(kept).endswith("SAFE")
+    flagged = summarise_flight(sc, recs, {"collisions": 0}, {"ok": False, "findings": ["autopilot link down for 1.0 s"],
+                                                            "outputs": {}}, tmp_path)
+    text = format_summary(flagged)
+    assert flagged["verdict"] == "REVIEW NEEDED" and "autopilot link down" in text and "SAFE\n" not in text + "\n"
+    hit = summarise_flight(sc, recs, {"collisions": 1}, {"ok": True, "findings": [], "outputs": {}}, tmp_path)
+    assert hit["verdict"] == "NOT SAFE"
