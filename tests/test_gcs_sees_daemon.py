@@ -52,3 +52,15 @@ def test_the_daemons_statustext_reaches_a_ground_station_through_the_sitl(tmp_pa
     # MAVProxy with its default target (the autopilot's 1:1) drops them; with --target-component 0 it shows them
     assert not any(shown_by_mavproxy(m, 1, 1) for m, _ in mine)
     assert all(shown_by_mavproxy(m, 1, 0) for m, _ in mine)
+
+
+def test_sitl_help_names_its_scenarios_and_the_recipe_config_matches_it():
+    from companion.config import load_config
+
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "sitl", "--help"], cwd=ROOT, capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "usage: contract-guard sitl" in r.stdout
+    out = " ".join(r.stdout.split())
+    assert "column_ahead" in out and "default: empty" in out and "mission" in out
+    cfg = load_config(ROOT / "examples" / "sitl-px4.yaml")
+    assert cfg.link.connect == "udpout:127.0.0.1:14540"  # docs/sitl.md: the SITL listens on udp:127.0.0.1:14540
