@@ -41,11 +41,46 @@ def _emit(obj: dict, as_json: bool, text: str) -> None:
     print(json.dumps(obj, sort_keys=True) if as_json else text)
 
 
+def one_line(record: dict) -> str:
+    """A build's record for a person: its scalar figures in one line (the lists and per-solve times are in
+    `--json`)."""
+    parts = []
+    for k, v in record.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float, str)) or (isinstance(v, str) and len(v) > 40):
+            continue
+        parts.append(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}")
+    return ", ".join(parts) + " (--json for the full record)"
+
+
+def need(extra: str, *modules: str) -> None:
+    """Before any work starts: the optional packages a command needs, else one line naming the extra."""
+    import importlib.util
+
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    if missing:
+        raise ContractError(f"this needs {', '.join(missing)}: pip install 'contract-guard[{extra}]'")
+
+
+def table_file(path) -> Path:
+    """A table by file or by shipped name: `x500`, `x500.npz` or the README's `contracts/data/x500.npz` from
+    any directory (an installed package keeps its tables inside it)."""
+    from contracts.table import shipped_table, shipped_vehicles
+
+    p = Path(path)
+    if p.exists():
+        return p
+    name = p.name[:-4] if p.name.endswith(".npz") else p.name
+    if name in shipped_vehicles() and (p.parent == Path(".") or p.parent.as_posix().endswith("contracts/data")):
+        return shipped_table(name)
+    return p
+
+
 def _load_table(path, vehicle=None):
-    """The table at `path`, verified (against `vehicle`, a shipped name or file, when given)."""
+    """The table at `path` (or a shipped one by name), verified (against `vehicle`, a shipped name or file,
+    when given)."""
     from contracts.table import load_for_vehicle
 
-    return load_for_vehicle(vehicle or None, path)
+    return load_for_vehicle(vehicle or None, table_file(path))
 
 
 # ----------------------------------------------------------------------------- table
@@ -129,6 +164,8 @@ def cmd_table_query(args) -> int:
 
 
 def cmd_table_build(args) -> int:
+    if not getattr(args, "stop_only", False):
+        need("build", "casadi")
     from contracts.table import write_table
     from contracts.vehicle import load_vehicle
 
@@ -142,7 +179,7 @@ def cmd_table_build(args) -> int:
 
     summary = build_avoid_table(vehicle, args.out, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                                 tilt_model=args.tilt_model or vehicle.tilt_model, progress=not args.json)
-    _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {summary}")
+    _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {one_line(summary)}")
     return 0
 
 
@@ -159,6 +196,7 @@ def cmd_table_etr(args) -> int:
 
 def cmd_figures(args) -> int:
     """Figure 12 and the demonstration flights of Figures 14-16 (PNG + CSV)."""
+    need("build", "matplotlib")
     from sitl_harness.figures import make_figures
 
     from contracts.table import shipped_table
@@ -176,6 +214,7 @@ def cmd_figures(args) -> int:
 
 def cmd_table_compare(args) -> int:
     """Analytical (collision sets, eq. 20-28) vs numerical contract: Figures 4, 6, 7 and the CSV."""
+    need("build", "matplotlib")
     from contracts.collision_compare import compare  # offline only: the numerical curve imports CasADi
 
     s = compare(args.vehicle, args.tilt_deg, args.out, args.tilt_model, ts=args.ts, placement=args.placement,
@@ -186,6 +225,7 @@ def cmd_table_compare(args) -> int:
 
 
 def cmd_table_plot(args) -> int:
+    need("plot", "matplotlib")
     from contracts.avoid_plot import plot_table
 
     files = plot_table(args.file, args.out)
@@ -353,7 +393,7 @@ def cmd_demo(args) -> int:
 
     r = demo(args.scenario, args.out, speedup=args.speedup, duration_s=args.duration, personality=args.personality)
     _emit(r, args.json, format_summary(r))
-    return 0 if r["safe"] else 1
+    return 0 if r["verdict"] == "SAFE" else 1
 
 
 # ----------------------------------------------------------------------------- parser
@@ -373,8 +413,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(func=cmd_demo)
 
     # `sitl` hands its arguments to the harness's own parser (see main)
-    sub.add_parser("sitl", help="the SITL vehicle alone, for any MAVLink client: --scenario FILE "
-                   "--personality px4|ardupilot --listen udp:127.0.0.1:PORT [--speedup K]", add_help=False)
+    sub.add_parser("sitl", help="the SITL vehicle alone, for any MAVLink client: [--scenario NAME|FILE] "
+                   "--personality px4|ardupilot --listen udp:127.0.0.1:PORT [--speedup K] (an empty world by "
+                   "default; `sitl --help` names the shipped scenarios)", add_help=False)
 
     r = sub.add_parser("run", help="the on-board daemon (what systemd starts)")
     r.add_argument("--config", required=True, type=Path)
@@ -479,7 +520,7 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["sitl"]:
         from sitl_harness.__main__ import main as sitl_main
 
-        return sitl_main(argv[1:])
+        return sitl_main(argv[1:], prog="contract-guard sitl")
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

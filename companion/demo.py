@@ -140,9 +140,10 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
     cfg_path = out / "daemon.yaml"
     cfg_path.write_text(yaml.safe_dump(cfg))
     py = sys.executable
+    # the demo ends the flight at `duration_s` of vehicle time; the SITL's own --duration is a backstop
     sitl = subprocess.Popen([py, "-m", "sitl_harness", "--scenario", str(scenario_path),
                              "--personality", personality, "--listen", f"udp:127.0.0.1:{port}",
-                             "--speedup", str(speedup), "--duration", str(duration_s), "--json"],
+                             "--speedup", str(speedup), "--duration", str(duration_s + 60.0), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     daemon = gcs = gs = None
     try:
@@ -167,23 +168,35 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
                 gs.poll(0.3)
             gcs.mav.command_long_send(1, 1, cmd, 0, *params)
         deadline = time.time() + duration_s / speedup + 120
-        while sitl.poll() is None and time.time() < deadline:
+        while sitl.poll() is None and time.time() < deadline and (gs.t_vehicle or 0.0) < duration_s:
             gs.poll(0.2)
+        # the end of the flight: the daemon first (offboard hands over to Hold, the log says "stop"), then
+        # the SITL, which prints its summary on SIGTERM; the other order logged "autopilot link down" at
+        # the end of every demo, a finding of the SITL stopping, not of the flight
+        _stop(daemon, signal.SIGINT, 15)
+        daemon = None
+        if sitl.poll() is None:
+            sitl.send_signal(signal.SIGTERM)
         summary_line, _ = sitl.communicate(timeout=30)
     finally:
         if gcs is not None:
             gcs.close()
         if daemon is not None:
-            daemon.send_signal(signal.SIGINT)  # offboard hands over to Hold and the log is closed
-            try:
-                daemon.wait(15)
-            except subprocess.TimeoutExpired:
-                daemon.kill()
+            _stop(daemon, signal.SIGINT, 15)
         if sitl.poll() is None:
             sitl.kill()
     sitl_summary = json.loads(summary_line.strip().splitlines()[-1]) if summary_line.strip() else {}
     rep = review([log_dir], out_dir=out / "review")
     return summarise_flight(sc, _events(log_dir), sitl_summary, rep, out, gs.report())
+
+
+def _stop(proc, sig, timeout_s: float) -> None:
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(5)
 
 
 def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out: Path,
@@ -222,9 +235,15 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         "v_max_steps": steps, "route_progress_m": round(max((s["x"] for s in states), default=0.0), 1),
         "gcs_actions": gcs_actions, "forwarded": int(sitl_summary.get("forwarded", 0)),
         "setpoints": _stream_figures(records),
-        "event_log": str(out / "log" / LOG_FILE), "plot": str(out / "review" / "review.png"),
+        "event_log": str(out / "log" / LOG_FILE), "plot": (rep.get("outputs") or {}).get("png"),
+        "plot_note": (rep.get("outputs") or {}).get("png_skipped"),
         "safe": collisions == 0 and clear > 0,
+        # one verdict: the flight's truth (no collision, clearance kept) and the review of its event log
+        "review_ok": bool(rep.get("ok")), "review_findings": list(rep.get("findings") or []),
+        "review": str(out / "review" / "review.json"),
     }
+    result["verdict"] = ("SAFE" if result["safe"] and result["review_ok"] else
+                         "NOT SAFE" if not result["safe"] else "REVIEW NEEDED")
     (out / "summary.json").write_text(json.dumps(result, indent=2))
     return result
 
@@ -255,6 +274,11 @@ def format_summary(r: dict) -> str:
             done += f", in the event log at t {a['t_log']:.1f} s"
         lines.append(f"  ground station: vehicle time {a['at_s']:.1f} s: {a['name']} = {a['value']:g} "
                      f"({a['component']}) {done}")
-    lines += [f"  event log: {r['event_log']}", f"  plot: {r['plot']}",
-              "  SAFE" if r["safe"] else "  NOT SAFE"]
+    lines += [f"  event log: {r['event_log']}"] + ([f"  plot: {r['plot']}"] if r.get("plot") else [])
+    if r.get("plot_note"):
+        lines.append(f"  {r['plot_note']}")
+    lines += [f"  review: {'contract kept' if r['review_ok'] else 'findings'} ({r['review']})"]
+    lines += [f"    - {f}" for f in r["review_findings"]]
+    lines.append(f"  {r['verdict']}" + ("" if r["verdict"] == "SAFE" else
+                                        " (no collision, but the review has findings)" if r["safe"] else ""))
     return "\n".join(lines)

@@ -41,6 +41,10 @@ COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "e_tr", "e_tr_measured",
                 "thrust_ratio", "r_obst", "tilt_deg")
 OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
+# ground speed above the limit by up to this fraction of it (plus `tolerance_m_s`) is a tracking overshoot, the
+# controller's business (covered by E_tr), not a broken limit: the supervisor's own rule ("speed limit not in
+# force" needs 1.05 × limit + margin). Above V_safe is always a finding (outside_contract).
+OVERSHOOT = 0.05
 MAX_LISTED = 1000  # longest list kept per kind of event in the report (the rest are counted)
 
 
@@ -83,6 +87,42 @@ class _Range:
         return {"min": self.lo if ok else None, "max": self.hi if ok else None, "missing": self.missing}
 
 
+class _Spans:
+    """Stretches of state samples where a condition holds: [{start_t, end_t, duration_s, worst, worst_t}];
+    a span ends at the first sample where it no longer holds (or at the end of its daemon run)."""
+
+    def __init__(self, key: str):
+        self.key = key
+        self.spans: list[dict] = []
+        self.open: dict | None = None
+        self.worst: dict | None = None  # over every sample, held or not
+        self.count = 0
+
+    def add(self, t, on: bool, value) -> None:
+        if value is not None and (self.worst is None or value > self.worst[self.key]):
+            self.worst = {self.key: value, "t": t}
+        if on and self.open is None:
+            self.open = {"start_t": t, "end_t": t, "duration_s": 0.0, "worst": value, "worst_t": t}
+        elif on:
+            self.open["end_t"] = t
+            if value is not None and (self.open["worst"] is None or value > self.open["worst"]):
+                self.open.update(worst=value, worst_t=t)
+        elif self.open is not None:
+            self._close(t)
+
+    def _close(self, t) -> None:
+        sp, self.open = self.open, None
+        sp["end_t"] = t
+        sp["duration_s"] = None if sp["start_t"] is None or t is None else max(t - sp["start_t"], 0.0)
+        self.count += 1
+        if len(self.spans) < MAX_LISTED:
+            self.spans.append(sp)
+
+    def end(self) -> None:
+        if self.open is not None:
+            self._close(self.open["end_t"])  # closed at the run's last sample where it held
+
+
 # ============================================================================ the pure part
 
 
@@ -103,6 +143,16 @@ class _Summary:
         self.ranges = {k: _Range() for k in RANGE_FIELDS}
         self.excess = None  # worst ground_speed − limit: dict
         self.excess_vmax = None
+        self.excess_far = None  # worst ground_speed − limit among the samples beyond the overshoot allowed
+        # the flight itself against the contract (what shadow mode would have enforced): ground speed above
+        # V_safe (gamma_flown > tolerance) and above the limit, as spans
+        self.flown = _Spans("gamma_flown")
+        self.over = _Spans("excess_m_s")
+        self.flown_s = 0.0
+        self.would: list[dict] = []  # shadow mode: the holds the daemon would have commanded, as spans
+        self.would_open: dict | None = None
+        self.would_empty = 0  # would_hold records with no cause: the end of a would-be hold
+        self.modes: dict[str, int] = {}  # daemon mode per `start` event
         self.open_viol: dict[tuple, dict] = {}
         self.violations: list[dict] = []  # the first MAX_LISTED; counted in full in by_sub
         self.by_sub: dict[str, dict] = {}
@@ -163,11 +213,20 @@ class _Summary:
         if gs is not None and limit is not None:
             over = gs - limit
             if self.excess is None or over > self.excess["excess_m_s"]:
-                self.excess = {"excess_m_s": over, "t": t, "ground_speed": gs, "limit": limit, "limit_source": source}
+                self.excess = {"excess_m_s": over, "t": t, "ground_speed": gs, "limit": limit, "limit_source": source,
+                               "allowed_m_s": self.tol + OVERSHOOT * limit}
+            if over > self.tol + OVERSHOOT * limit and (self.excess_far is None or over > self.excess_far["excess_m_s"]):
+                self.excess_far = {"excess_m_s": over, "t": t, "ground_speed": gs, "limit": limit,
+                                   "limit_source": source, "allowed_m_s": self.tol + OVERSHOOT * limit}
         if gs is not None and v_max is not None and (self.excess_vmax is None or gs - v_max > self.excess_vmax["excess_m_s"]):
             self.excess_vmax = {"excess_m_s": gs - v_max, "t": t, "ground_speed": gs, "v_max": v_max}
+        gf = _num(rec.get("gamma_flown"))
+        # above the limit by more than a tracking overshoot (the supervisor's own rule: 5 % + tolerance)
+        over_far = over is not None and over > self.tol + OVERSHOOT * limit
+        self.flown.add(t, gf is not None and gf > self.tol, gf)
+        self.over.add(t, over_far, over)
         if self.prev is not None and t is not None:
-            pt, pgamma, pover = self.prev
+            pt, pgamma, pover, pflown = self.prev
             dt = t - pt
             if 0 < dt <= self.gap_s:
                 self.sampled_s += dt
@@ -175,12 +234,14 @@ class _Summary:
                     self.gamma_unknown_s += dt
                 elif pgamma > 0:
                     self.gamma_pos_s += dt
-                if pover is not None and pover > self.tol:
+                if pover:
                     self.over_s += dt
+                if pflown is not None and pflown > self.tol:
+                    self.flown_s += dt
             elif dt != 0:
                 self.sample_gaps += 1
         if t is not None:
-            self.prev = (t, gamma, over)
+            self.prev = (t, gamma, over_far, gf)
 
     def _event(self, rec, t, b) -> None:
         name = rec.get("event")
@@ -241,7 +302,20 @@ class _Summary:
                 self.link_down_at = None
         elif name == "startup_check":
             self._keep(self.lists["startup_checks"], {"t": t, "ok": g("ok"), "reason": g("reason")})
+        elif name == "would_hold":
+            causes = g("causes")
+            causes = [str(c) for c in causes] if isinstance(causes, list) else ([] if causes is None else [str(causes)])
+            if self.would_open is not None and causes != self.would_open["causes"]:
+                self._close_would(t, "released" if not causes else "causes changed")
+            if not causes:
+                self.would_empty += 1
+            elif self.would_open is None:
+                self.would_open = {"start_t": t, "causes": causes, "end_t": None, "duration_s": None,
+                                   "ended_by": None, "boot": self.boot}
         elif name == "start":
+            mode = g("mode")
+            if isinstance(mode, str):
+                self.modes[mode] = self.modes.get(mode, 0) + 1
             self._keep(self.lists["starts"], {"t": t, "wall": _num(g("wall")), "boot": self.boot})
         elif name == "stop":
             b["clean_stop"] = True
@@ -264,8 +338,18 @@ class _Summary:
         else:
             self.other_events["(not listed: over the list limit)"] = self.other_events.get("(not listed: over the list limit)", 0) + 1
 
+    def _close_would(self, t, why: str) -> None:
+        w, self.would_open = self.would_open, None
+        w.update(end_t=t, ended_by=why)
+        w["duration_s"] = None if w["start_t"] is None or t is None else max(t - w["start_t"], 0.0)
+        self._keep(self.would, w)
+
     def _end_boot(self, why: str) -> None:
         """Close what the ending daemon run left open."""
+        if self.would_open is not None:
+            self._close_would(self.last_t_of_boot, why)
+        self.flown.end()
+        self.over.end()
         for v in self.open_viol.values():
             v.update(end_t=self.last_t_of_boot, ended_by=why)
             st = v["start_t"]
@@ -306,10 +390,22 @@ class _Summary:
             "gamma_unknown_s": self.gamma_unknown_s,
             "over_limit": {
                 "tolerance_m_s": self.tol,
+                "overshoot_ratio": OVERSHOOT,
                 "time_over_limit_s": self.over_s,
                 "worst": self.excess,
+                "worst_beyond_allowed": self.excess_far,
                 "worst_vs_v_max": self.excess_vmax,
             },
+            "outside_contract": {
+                "tolerance_m_s": self.tol,
+                "flown_above_v_safe_s": self.flown_s,
+                "flown_above_v_safe": self.flown.spans,
+                "worst_gamma_flown": self.flown.worst,
+                "above_limit": self.over.spans,
+            },
+            "would_hold": self.would,
+            "would_hold_count": len(self.would),
+            "modes": self.modes,
             "ranges": {k: r.out() for k, r in self.ranges.items()},
             "violations": self.violations,
             "violation_count": sum(v["count"] for v in self.by_sub.values()),
@@ -364,11 +460,23 @@ def findings(rep: dict) -> list[str]:
         out.append(f"Γ > 0 for {rep['gamma_positive_s']:.2f} s (speed limit above the safe speed)")
     if rep["gamma_unknown_s"] > 0:
         out.append(f"Γ unknown (null/NaN) for {rep['gamma_unknown_s']:.2f} s")
-    w = rep["over_limit"]["worst"]
-    if w and w["excess_m_s"] > rep["over_limit"]["tolerance_m_s"]:
-        out.append(f"ground speed above the limit ({w['limit_source']}) by up to {w['excess_m_s']:.2f} m/s "
-                   f"at t = {_fmt_t(w['t'])}; {rep['over_limit']['time_over_limit_s']:.2f} s above limit + "
-                   f"{rep['over_limit']['tolerance_m_s']:.2f} m/s")
+    oc = rep.get("outside_contract") or {}
+    wf = oc.get("worst_gamma_flown")
+    if oc.get("flown_above_v_safe"):
+        n = len(oc["flown_above_v_safe"])
+        out.append(f"flown outside the contract: ground speed above V_safe by up to {wf['gamma_flown']:.2f} m/s at "
+                   f"t = {_fmt_t(wf['t'])}; {oc['flown_above_v_safe_s']:.2f} s above V_safe + "
+                   f"{oc['tolerance_m_s']:.2f} m/s in {n} span(s)")
+    w = rep["over_limit"].get("worst_beyond_allowed")
+    if w:
+        src = w["limit_source"] + (", the limit it would have commanded" if w["limit_source"] == "v_max" else "")
+        out.append(f"ground speed above the limit ({src}) by up to {w['excess_m_s']:.2f} m/s "
+                   f"at t = {_fmt_t(w['t'])}; {rep['over_limit']['time_over_limit_s']:.2f} s above limit × "
+                   f"{1 + rep['over_limit']['overshoot_ratio']:.2f} + {rep['over_limit']['tolerance_m_s']:.2f} m/s")
+    if rep.get("would_hold"):
+        causes = sorted({c for wh in rep["would_hold"] for c in wh["causes"]})
+        out.append(f"shadow mode: the daemon would have held {rep['would_hold_count']}× "
+                   f"(first at t = {_fmt_t(rep['would_hold'][0]['start_t'])}; {'; '.join(causes)})")
     if rep["failsafe_count"]:
         out.append(f"{rep['failsafe_count']} failsafe(s)")
     if rep["link"]["down_s"] > 0 or any(e["status"] == "down" for e in rep["link"]["events"]):
@@ -486,13 +594,29 @@ def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = ""
             for row in samples:
                 w.writerow([_cell(v) for v in row])
         png_path = out_dir / "review.png"
-        plot(rep, samples, png_path, note)
         json_path = out_dir / "review.json"
         outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path)}
+        missing = missing_plot_extra()
+        if missing:  # the report, CSV and JSON without the plot; said in one line
+            png_path.unlink(missing_ok=True)
+            outputs["png"] = None
+            outputs["png_skipped"] = missing
+        else:
+            plot(rep, samples, png_path, note)
         json_path.write_text(json.dumps({**rep, "outputs": outputs}, indent=1, default=str, allow_nan=False))
     except OSError as err:
         raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
     return outputs
+
+
+PLOT_EXTRA = "no plot: it needs matplotlib (pip install 'contract-guard[plot]')"
+
+
+def missing_plot_extra() -> str | None:
+    """None when plots can be drawn, else the one line naming the extra to install."""
+    import importlib.util
+
+    return None if importlib.util.find_spec("matplotlib") is not None else PLOT_EXTRA
 
 
 def _cell(v):
@@ -545,6 +669,9 @@ def plot(rep: dict, samples: list[tuple], path: Path, note: str = "") -> None:
         ("thrust ratio", [("thrust_ratio", "T_max / T_nom")]),
         ("r_obst [m]", [("r_obst", "R_obst")]),
     ]
+    outside = [sp for sp in (rep.get("outside_contract") or {}).get("flown_above_v_safe", [])
+               if sp["start_t"] is not None and sp["end_t"] is not None]
+    would = [wh for wh in rep.get("would_hold", []) if wh["start_t"] is not None and wh["end_t"] is not None]
     fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(11, 2.0 * len(panels) + 1))
     try:
         for ax, (label, keys) in zip(axes, panels):
@@ -563,6 +690,10 @@ def plot(rep: dict, samples: list[tuple], path: Path, note: str = "") -> None:
             for fs in rep["failsafes"]:
                 if fs["t"] is not None:
                     ax.axvline(fs["t"], color="red", lw=0.8)
+            for sp in outside:
+                ax.axvspan(sp["start_t"], sp["end_t"], alpha=0.15, lw=0, color="black", hatch="//", fill=False)
+            for wh in would:
+                ax.axvspan(wh["start_t"], wh["end_t"], alpha=0.25, lw=0, color="tab:red")
         axes[1].axhline(0.0, color="black", lw=0.8)
         from matplotlib.lines import Line2D
         from matplotlib.patches import Patch
@@ -571,19 +702,35 @@ def plot(rep: dict, samples: list[tuple], path: Path, note: str = "") -> None:
         keys = [Patch(color=SUBSYSTEM_COLOURS.get(sub, "grey"), alpha=0.3, label=f"violation: {sub}") for sub in subs]
         if rep["failsafes"]:
             keys.append(Line2D([], [], color="red", lw=0.8, label="failsafe"))
+        if outside:
+            keys.append(Patch(fill=False, hatch="//", alpha=0.5, label="flown above V_safe"))
+        if would:
+            keys.append(Patch(color="tab:red", alpha=0.25, label="would hold (shadow)"))
         if keys:
             fig.legend(handles=keys, loc="lower center", ncol=len(keys), fontsize="small")
         axes[-1].set_xlabel("t [s] (daemon clock, at the vehicle's rate)")
-        title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
-        if rep["span"]["utc_first"]:
-            title += f", from {rep['span']['utc_first']}"
-        if note:
-            title += f" ({note})"
+        title = plot_title(rep, note)
         axes[0].set_title(title)
         fig.tight_layout(rect=(0, 0.03 if keys else 0, 1, 1))
         fig.savefig(path, dpi=100)
     finally:
         plt.close(fig)
+
+
+def plot_title(rep: dict, note: str = "") -> str:
+    """The plot's title: what it shows and the verdict (a shadow flight's would-be holds and the time it flew
+    above V_safe are there, not only the daemon's own violations)."""
+    title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
+    oc = rep.get("outside_contract") or {}
+    if oc.get("flown_above_v_safe"):
+        title += f", {oc['flown_above_v_safe_s']:.1f} s above V_safe"
+    if rep.get("would_hold"):
+        title += f", would hold {rep['would_hold_count']}×"
+    if rep["span"]["utc_first"]:
+        title += f", from {rep['span']['utc_first']}"
+    if note:
+        title += f" ({note})"
+    return title + ("" if rep["ok"] else " — REVIEW NEEDED")
 
 
 # ============================================================================ text
@@ -614,7 +761,26 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
     lines.append("  verdict: " + ("contract kept (no findings)" if rep["ok"] else "REVIEW NEEDED"))
     for f in rep["findings"]:
         lines.append(f"    - {f}")
-    lines.append(f"  Γ > 0 for {rep['gamma_positive_s']:.2f} s")
+    modes = rep.get("modes") or {}
+    if modes:
+        lines.append(f"  daemon mode: {', '.join(sorted(modes))}"
+                     + ("  (commanded nothing: what it would have done is below)" if set(modes) == {"shadow"} else ""))
+    lines.append(f"  Γ > 0 for {rep['gamma_positive_s']:.2f} s (limit in force − V_safe)")
+    oc = rep.get("outside_contract")
+    if oc is not None:
+        lines.append(f"  flown outside the contract (ground speed − V_safe > {oc['tolerance_m_s']:.2f} m/s): "
+                     f"{oc['flown_above_v_safe_s']:.2f} s in {len(oc['flown_above_v_safe'])} span(s)")
+        for sp in oc["flown_above_v_safe"]:
+            lines.append(f"    {_fmt_t(sp['start_t'])} … {_fmt_t(sp['end_t'])}  up to {fmt_value(sp['worst'], ' m/s')} "
+                         f"over V_safe at {_fmt_t(sp['worst_t'])}")
+        for sp in oc["above_limit"]:
+            lines.append(f"    above the limit: {_fmt_t(sp['start_t'])} … {_fmt_t(sp['end_t'])}  up to "
+                         f"{fmt_value(sp['worst'], ' m/s')} at {_fmt_t(sp['worst_t'])}")
+    if rep.get("would_hold") is not None and (rep["would_hold"] or set(modes) == {"shadow"}):
+        lines.append(f"  would have held (shadow mode): {rep['would_hold_count']}")
+        for wh in rep["would_hold"]:
+            lines.append(f"    {_fmt_t(wh['start_t'])} … {_fmt_t(wh['end_t'])} ({wh['ended_by']})  "
+                         f"{'; '.join(wh['causes'])}")
     w = rep["over_limit"]["worst"]
     if w:
         lines.append(f"  ground speed − limit: max {w['excess_m_s']:+.2f} m/s at t = {_fmt_t(w['t'])} "
@@ -647,5 +813,8 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         lines.append(f"  unparsable lines skipped: {len(rep['bad_lines'])} "
                      f"({', '.join(b['kind'] for b in rep['bad_lines'][:5])})")
     for k, v in rep.get("outputs", {}).items():
-        lines.append(f"  wrote {k}: {v}")
+        if k == "png_skipped":
+            lines.append(f"  {v}")
+        elif v is not None:
+            lines.append(f"  wrote {k}: {v}")
     return "\n".join(lines)

@@ -8,24 +8,47 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 
 from contracts.errors import ContractError
 
-from .scenario import ScenarioError
+from .scenario import SCENARIO_DIR, ScenarioError
 from .serve import serve
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m sitl_harness", description="SITL quadrotor speaking MAVLink")
-    ap.add_argument("--scenario", required=True, help="scenario YAML file or shipped scenario name")
+def scenario_names() -> list[str]:
+    """The shipped scenarios (`sitl_harness/scenarios/*.yaml`), by the name `--scenario` takes."""
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+
+
+def build_parser(prog: str = "python -m sitl_harness") -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog=prog, description="SITL quadrotor speaking MAVLink like a PX4 or ArduPilot Copter autopilot "
+        "(system 1, component 1); it routes MAVLink between its clients like an autopilot, so a daemon and a "
+        "ground station can both connect to it. A scenario with a route loads it as the autopilot's mission "
+        "(start it with MAV_CMD_MISSION_START or the ground station's Mission mode).",
+        epilog="shipped scenarios: " + ", ".join(scenario_names()) + ". The scenario schema: docs/sitl.md. "
+        "On SIGINT/SIGTERM it stops and prints its summary.")
+    ap.add_argument("--scenario", default="empty",
+                    help="scenario YAML file or shipped scenario name (default: empty, no obstacles, no route)")
     ap.add_argument("--personality", choices=("px4", "ardupilot"), default="px4")
     ap.add_argument("--listen", default="udp:127.0.0.1:14540", help="udp:HOST:PORT (answer senders) or udpout:HOST:PORT")
     ap.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall-clock second")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     ap.add_argument("--signing-key-hex", default=None, help="MAVLink 2 signing key, 64 hex digits")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "python -m sitl_harness") -> int:
+    args = build_parser(prog).parse_args(argv)
+    stopping = []
+
+    def _stop(signum, frame):  # stop at the next tick and print the summary (a supervisor's SIGTERM too)
+        stopping.append(signum)
+
+    old = {s: signal.signal(s, _stop) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         key = None
         if args.signing_key_hex is not None:
@@ -37,12 +60,15 @@ def main(argv: list[str] | None = None) -> int:
                 raise ScenarioError("--signing-key-hex: expected 64 hex digits (32 bytes)")
         ready = (lambda a: print(f"SITL {args.personality} listening on {a[0]}:{a[1]}", file=sys.stderr, flush=True))
         summary = serve(args.scenario, args.personality, args.listen, args.speedup, duration_s=args.duration,
-                        signing_key=key, on_ready=ready)
+                        signing_key=key, on_ready=ready, stop=lambda: bool(stopping))
     except (ScenarioError, ContractError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 0
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
     print(json.dumps(summary) if args.json else summary)
     return 0
 

@@ -63,7 +63,10 @@ def test_demo_flies_the_in_flight_scenario_safely(tmp_path):
     """`contract-guard demo`: SITL and daemon as processes on loopback UDP (about a minute)."""
     r = cg("demo", "--out", tmp_path / "demo", "--json")
     out = json.loads(r.stdout)
-    assert r.returncode == (0 if out["safe"] else 1)
+    assert r.returncode == (0 if out["verdict"] == "SAFE" else 1)  # one verdict: the exit status, the summary's
+    assert out["verdict"] == ("SAFE" if out["safe"] and out["review_ok"] else "NOT SAFE" if not out["safe"]
+                              else "REVIEW NEEDED")
+    assert json.loads((tmp_path / "demo" / "review" / "review.json").read_text())["ok"] is out["review_ok"]
     assert out["collisions"] == 0 and out["min_clearance_m"] > 0
     assert (tmp_path / "demo" / "log" / "events.jsonl").exists() and (tmp_path / "demo" / "review" / "review.png").exists()
 
