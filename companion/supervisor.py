@@ -130,6 +130,9 @@ class Supervisor:
         self._would: tuple[str, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
+        # a speed law flown instead of the contract's Ω (`law.omega(inputs) -> Omega`): the baselines of a
+        # campaign (companion/baselines.py); None on board
+        self.law = None
 
     # ------------------------------------------------------------------ helpers
     def _set_state(self, d: Decision, new: str, reason: str) -> None:
@@ -180,7 +183,8 @@ class Supervisor:
         return d
 
     def _decide(self, i: Inputs) -> Decision:
-        om = self.table.omega(i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, contract=self.contract)
+        om = (self.law.omega(i) if self.law is not None else
+              self.table.omega(i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, contract=self.contract))
         d = Decision(self.state, om, self.limit.value)
         veh = self.table.vehicle
 
@@ -300,8 +304,8 @@ class Supervisor:
             OBSTACLE: obstacle,
             "speed limit not in force": self._over_since is not None and i.t - self._over_since > settle,
         }
-        if self.contract == "avoid":
-            del causes[OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself
+        if self.contract == "avoid" or self.law is not None:
+            del causes[OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
         return causes
 
     def _shadow(self, d: Decision, i: Inputs) -> Decision:

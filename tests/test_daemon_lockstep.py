@@ -3,7 +3,7 @@
 
 import pytest
 
-from tests.lockstep import Rig
+from tests.lockstep import Rig, fly_mission
 
 D_SENSOR = 6.0
 
@@ -19,12 +19,7 @@ def column_scenario(seed=1, x_col=28.0, cruise=8.0, wind=None, faults=(), vehicl
     }
 
 
-def fly(rig, seconds=20.0):
-    rig.run(1.0)
-    rig.arm()
-    rig.run(0.5)
-    rig.start_mission()
-    rig.run(seconds)
+fly = fly_mission  # arm, start the mission, fly (companion/flights.py)
 
 
 class Scaled:

@@ -13,6 +13,7 @@ from companion.guidance import A_LAT, YAW_RATE_ARC
 from contracts.flat import horizontal_accel_limit
 from contracts.vehicle import G
 from tests.lockstep import Rig
+from tests.lockstep import engage_and_fly  # noqa: F401  (companion/flights.py; other tests import it from here)
 from tests.test_daemon_lockstep import Scaled
 
 D_SENSOR = 6.0
@@ -39,14 +40,6 @@ def offboard_config(x_end=55.0, **contract):
             "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
             "route": {"waypoints": [[0, 0], [x_end, 0]], "altitude_m": 2.0},
             "contract": {"r_obst_m": R_OBST, **contract}}
-
-
-def engage_and_fly(rig, seconds, until=None):
-    rig.run(1.0, until)
-    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
-    rig.run(0.2, until)
-    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))  # asked anew: it may engage in flight
-    rig.run(seconds, until)
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
