@@ -3,6 +3,7 @@
 
 import pytest
 
+from companion.baselines import Scaled  # noqa: F401  (a negative control; other tests import it from here)
 from tests.lockstep import Rig, fly_mission
 
 D_SENSOR = 6.0
@@ -20,22 +21,6 @@ def column_scenario(seed=1, x_col=28.0, cruise=8.0, wind=None, faults=(), vehicl
 
 
 fly = fly_mission  # arm, start the mission, fly (companion/flights.py)
-
-
-class Scaled:
-    """The same table with every contract speed raised by a factor (a negative control only)."""
-
-    def __init__(self, table, k):
-        self._t, self._k = table, k
-
-    def __getattr__(self, name):
-        return getattr(self._t, name)
-
-    def omega(self, *a, **kw):
-        from dataclasses import replace
-
-        om = self._t.omega(*a, **kw)
-        return replace(om, v_max=om.v_max * self._k, v_safe=om.v_safe * self._k)
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

@@ -1,6 +1,5 @@
 """Offboard mode against the SITL in lock-step: the daemon flies the route and avoids (DESIGN.md §5)."""
 
-import copy
 import math
 from dataclasses import replace
 
@@ -14,7 +13,7 @@ from contracts.flat import horizontal_accel_limit
 from contracts.vehicle import G
 from tests.lockstep import Rig
 from tests.lockstep import engage_and_fly  # noqa: F401  (companion/flights.py; other tests import it from here)
-from tests.test_daemon_lockstep import Scaled
+from companion.baselines import Scaled, WithoutEtr
 
 D_SENSOR = 6.0
 R_OBST = 1.0
@@ -194,23 +193,6 @@ def test_offboard_hidden_fog_too_short_to_avoid_still_brakes(personality):
 
 
 # ----------------------------------------------------------------------------- without the E_tr inflation
-
-
-class WithoutEtr:
-    """The same table with no tracking-error budget (a negative control only): Ω at E_tr = 0 — neither
-    the measured error nor E_tr_pred — so V_max is the contract's for a perfectly tracking vehicle and
-    the daemon inflates the keep-out discs by r_body alone (it inflates by Ω's E_tr + r_body)."""
-
-    def __init__(self, table):
-        self._t = table
-        self._bare = copy.copy(table)
-        self._bare.e_pred = None  # only in this copy: Ω without E_tr_pred
-
-    def __getattr__(self, name):
-        return getattr(self._t, name)
-
-    def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None):
-        return self._bare.omega(d_od, r_obst, 0.0, thrust_ratio, contract=contract, tilt=tilt)
 
 
 def test_negative_control_without_the_etr_inflation_eats_the_margin():
