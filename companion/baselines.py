@@ -6,7 +6,9 @@ A law acts as a governor through the same daemon: each cycle it turns the same M
 (`Inputs`: the nearest obstacle on the path, the sensor's range, the ground speed, sensor health) into a
 speed limit, which the daemon sends as `MAV_CMD_DO_CHANGE_SPEED`; a limit below 0.2 m/s is a Hold (the
 daemon's "no safe speed"). The daemon's own stop-distance Hold is off under a law (the law is the whole
-answer), its failsafes (link, stale position, bad navigation) stay. The laws (checked against their sources):
+answer); its failsafes (link, stale position, bad navigation) and its check that the autopilot slows to the
+limit in time (else Hold: "speed limit not in force") stay — a governor acts through DO_CHANGE_SPEED, slower
+than PX4's law inside its own position loop, and that check is what a governor has to make up for it. The laws (checked against their sources):
 
 - **PX4 Collision Prevention** (`src/lib/collision_prevention/CollisionPrevention.cpp`,
   `_constrainAccelerationSetpoint`; `src/lib/mathlib/math/TrajMath.hpp` `computeMaxSpeedFromDistance`): per

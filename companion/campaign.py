@@ -70,6 +70,7 @@ ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr)?$")
 FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav")
 ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
+STILL_S = 5.0  # stood still this long after setting off: the flight is over
 LATENCY_BUDGET_S = 0.05  # part of the vehicles' t_react (sensor latency + decision + response)
 
 
@@ -292,6 +293,7 @@ class _Trace:
         self.rows: list[tuple[float, float, float, float]] = []
         self.t0: float | None = None
         self.t_arrive: float | None = None
+        self._still_since: float | None = None
 
     def __call__(self, rig) -> bool:
         sim = rig.sim
@@ -303,7 +305,14 @@ class _Trace:
             self.t0 = t
         if self.t_arrive is None and math.hypot(x - self.end[0], y - self.end[1]) < ARRIVE_M:
             self.t_arrive = t
-        return self.t_arrive is not None and v < 0.3
+        # the flight is over when it has arrived, or stood still for STILL_S since it set off (held: a Hold is
+        # kept until the pilot decides, which no campaign flight does)
+        if self.t0 is None or v >= 0.1:
+            self._still_since = None
+        elif self._still_since is None:
+            self._still_since = t
+        return (self.t_arrive is not None and v < 0.3) or (self._still_since is not None
+                                                             and t - self._still_since > STILL_S)
 
 
 def _law(arm: str, s: dict, spec: CampaignSpec):
@@ -479,6 +488,16 @@ def read_rows(out: Path) -> list[dict]:
     return [rows[k] for k in sorted(rows)]
 
 
+def _drop_torn_line(p: Path) -> None:
+    """An interrupted write leaves a last line without its newline: cut it (its flight is flown again)."""
+    if not p.exists():
+        return
+    data = p.read_bytes()
+    if data and not data.endswith(b"\n"):
+        with open(p, "r+b") as f:
+            f.truncate(data.rfind(b"\n") + 1)
+
+
 def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = None, progress: bool = True,
         spec_path: str = "SPEC.yaml", limit: int | None = None) -> list[dict]:
     """Fly every flight not yet in `OUT/results.jsonl` (resume), in chunks; returns all rows by index.
@@ -499,6 +518,7 @@ def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = No
     else:
         meta.write_text(json.dumps({"spec_hash": h, "spec": spec.model_dump(mode="json"),
                                     "spec_path": str(spec_path)}, indent=1, sort_keys=True))
+    _drop_torn_line(out / "results.jsonl")
     done = {r["index"] for r in read_rows(out)}
     todo = [i for i in range(spec.flights) if i not in done]
     if limit is not None:

@@ -126,7 +126,8 @@ def worst(rows: list[dict], spec_path: str, n: int = 5) -> list[dict]:
 
 
 def summarize(rows: list[dict], spec_path: str = "SPEC.yaml") -> dict:
-    arms = list(dict.fromkeys(r["arm"] for r in sorted(rows, key=lambda r: r["index"])))
+    rows = sorted(rows, key=lambda r: r["index"])  # the same figures whatever order the rows came in
+    arms = list(dict.fromkeys(r["arm"] for r in rows))
     per = {a: {g: arm_stats([r for r in rows if r["arm"] == a and in_group(r, g)]) for g in GROUPS} for a in arms}
     return {"flights": len(rows), "arms": arms, "per_arm": per, "ratios": ratios(rows, arms),
             "ratios_in_assumption": ratios([r for r in rows if r["in_assumption"]], arms),
