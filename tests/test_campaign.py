@@ -196,3 +196,22 @@ def test_a_small_campaign_is_safe_in_assumption_and_its_controls_collide(tmp_pat
     assert faults and all(c["subsystem"] != "not detected" for c in faults)  # every fault detected, attributed
     assert s["worst"][0]["refly"].startswith("contract-guard campaign ")
     assert summarize(rows) == summarize(list(reversed(rows)))  # order-free
+
+
+# ----------------------------------------------------------------------------- a pool and a Dask cluster agree
+
+def _lines(out):
+    return sorted((out / "results.jsonl").read_text().splitlines(), key=lambda x: json.loads(x)["index"])
+
+
+def test_a_process_pool_and_a_dask_cluster_give_the_same_rows_bit_for_bit(tmp_path):
+    from distributed import LocalCluster
+
+    spec = cg.spec_from_dict({**SMALL, "scenarios": 2, "arms": ["governor", "px4_cp"],
+                              "vehicles": ["mambo", "x500"], "personalities": ["px4", "ardupilot"]})
+    cg.run(spec, tmp_path / "pool", workers=2, progress=False)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        cg.run(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+    pool, dask = _lines(tmp_path / "pool"), _lines(tmp_path / "dask")
+    assert len(pool) == 4 and pool == dask
+    assert pool[0] == cg.row_json(cg.fly(spec, 0))  # and the same as flying it here
