@@ -23,7 +23,8 @@ import numpy as np
 
 from .campaign import BASELINES, refly_command
 
-GROUPS = ("all", "in_assumption", "nominal", "hidden_fog", "thrust_loss", "wind_beyond_design")
+GROUPS = ("all", "in_assumption", "nominal", "hidden_fog", "thrust_loss", "thrust_below_range", "wind_beyond_design",
+          "obstacle_wider_than_r_obst", "link_loss", "sensor_dropout", "bad_nav")
 
 
 def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
