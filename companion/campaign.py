@@ -545,7 +545,9 @@ def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = No
     if limit is not None:
         todo = todo[:limit]
     data = spec.model_dump(mode="json")
-    chunk = max(8, 4 * max(workers, 1))
+    # rows are written (fsync'd) per chunk: small in-process; larger on a pool, which contracts/runner.py starts
+    # afresh for each chunk (process spawn + the SITL kernel's JIT compile per worker, a few seconds)
+    chunk = 8 if workers <= 1 and not scheduler else max(32, 16 * max(workers, 1))
     bar = tqdm(total=spec.flights, initial=len(done), desc=spec.name, unit="flight", disable=not progress)
     with open(out / "results.jsonl", "a") as f:
         for c in range(0, len(todo), chunk):

@@ -130,7 +130,11 @@ def summarize(rows: list[dict], spec_path: str = "SPEC.yaml") -> dict:
     rows = sorted(rows, key=lambda r: r["index"])  # the same figures whatever order the rows came in
     arms = list(dict.fromkeys(r["arm"] for r in rows))
     per = {a: {g: arm_stats([r for r in rows if r["arm"] == a and in_group(r, g)]) for g in GROUPS} for a in arms}
-    return {"flights": len(rows), "arms": arms, "per_arm": per, "ratios": ratios(rows, arms),
+    by_vp = {a: {f"{v}/{p}": arm_stats([r for r in rows if r["arm"] == a and r["in_assumption"]
+                                       and r["vehicle"] == v and r["personality"] == p])
+                 for v in sorted({r["vehicle"] for r in rows}) for p in sorted({r["personality"] for r in rows})}
+             for a in arms}
+    return {"flights": len(rows), "arms": arms, "per_arm": per, "in_assumption_by_vehicle_personality": by_vp, "ratios": ratios(rows, arms),
             "ratios_in_assumption": ratios([r for r in rows if r["in_assumption"]], arms),
             "fault_matrix": fault_matrix(rows), "worst": worst(rows, spec_path)}
 
@@ -203,6 +207,8 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
            for a, rs in s["ratios"].items() for b, q in rs.items()]
     fm = [[c["mode"], c["fault"], c["subsystem"], c["action"], f"{c['flights']}/{c['of_kind']}",
            _f(c["latency_s"]["p50"]), _f(c["latency_s"]["p95"]), _f(c["latency_s"]["max"])] for c in s["fault_matrix"]]
+    vp = [[a, k, st["flights"], st["collisions"], _f(st["cp95_high"], "{:.4f}"), _f(st["mean_speed_m_s"])]
+          for a, d in s["in_assumption_by_vehicle_personality"].items() for k, st in d.items() if st["flights"]]
     wf = [[w["arm"], w["index"], w["collided"], _f(w["min_clearance_m"]), w["vehicle"], w["personality"],
            ",".join(w["stresses"]), w["refly"]] for w in s["worst"]]
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>contract-guard campaign</title>
@@ -210,6 +216,8 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
 </head><body><h1>Campaign: {s['flights']} flights</h1>
 <h2>Per arm and group</h2>{_table(per, ["arm", "group", "flights", "collisions", "CP 95 % upper", "min clearance",
                                           "median clearance", "mean speed", "time to destination", "completion"])}
+<h2>In assumption, by vehicle and personality</h2>{_table(vp, ["arm", "vehicle/personality", "flights",
+                                                                  "collisions", "CP 95 % upper", "mean speed"])}
 <img src="clearance.png"><img src="speed.png">
 <h2>Against each baseline (paired by scenario)</h2>{_table(rat, ["arm", "baseline", "scenarios", "speed ratio",
                                                                   "time ratio", "both completed"])}
