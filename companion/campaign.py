@@ -509,6 +509,13 @@ def read_rows(out: Path) -> list[dict]:
     return [rows[k] for k in sorted(rows)]
 
 
+def same_campaign(old: dict, spec: CampaignSpec) -> bool:
+    """Whether the spec stored in an output directory is this one but for `scenarios`: a campaign may be
+    extended (or cut short) by its number of scenarios — flight i depends on (spec, i) only."""
+    new = spec.model_dump(mode="json")
+    return {k: v for k, v in old.items() if k != "scenarios"} == {k: v for k, v in new.items() if k != "scenarios"}
+
+
 def _drop_torn_line(p: Path) -> None:
     """An interrupted write leaves a last line without its newline: cut it (its flight is flown again)."""
     if not p.exists():
@@ -531,14 +538,13 @@ def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = No
     out.mkdir(parents=True, exist_ok=True)
     meta = out / "campaign.json"
     h = spec_hash(spec)
-    if meta.exists():
+    if meta.exists():  # the same campaign, its number of scenarios aside (flight i does not depend on it)
         old = json.loads(meta.read_text())
-        if old.get("spec_hash") != h:
+        if not same_campaign(old.get("spec") or {}, spec):
             raise CampaignError(f"{out}: holds another campaign (spec hash {old.get('spec_hash')}, this one {h}); "
                                 "use another --out")
-    else:
-        meta.write_text(json.dumps({"spec_hash": h, "spec": spec.model_dump(mode="json"),
-                                    "spec_path": str(spec_path)}, indent=1, sort_keys=True))
+    meta.write_text(json.dumps({"spec_hash": h, "spec": spec.model_dump(mode="json"),
+                                "spec_path": str(spec_path)}, indent=1, sort_keys=True))
     _drop_torn_line(out / "results.jsonl")
     done = {r["index"] for r in read_rows(out)}
     todo = [i for i in range(spec.flights) if i not in done]
@@ -559,4 +565,4 @@ def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = No
             os.fsync(f.fileno())
             bar.update(len(part))
     bar.close()
-    return read_rows(out)
+    return [r for r in read_rows(out) if r["index"] < spec.flights]

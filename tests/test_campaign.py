@@ -149,9 +149,11 @@ def test_a_campaign_resumes_and_a_flight_refies_to_its_row(tmp_path, capsys):
     again = json.loads(capsys.readouterr().out)
     assert cg.row_json({k: v for k, v in again.items() if k != "log"}) == cg.row_json(r0)
     assert (tmp_path / "one" / "flight-0.jsonl").exists()
-    # another spec in the same directory is refused
+    # another spec in the same directory is refused; the same with more scenarios extends it
     with pytest.raises(cg.CampaignError, match="another campaign"):
         cg.run(cg.spec_from_dict({**SMALL, "seed": 4}), out, progress=False)
+    more = cg.run(cg.spec_from_dict({**SMALL, "scenarios": 2}), out, progress=False, limit=1)
+    assert [r["index"] for r in more] == [0, 1, 2, 3] and more[:3] == rows
 
 
 def test_clopper_pearson_exact():
