@@ -396,6 +396,43 @@ def cmd_demo(args) -> int:
     return 0 if r["verdict"] == "SAFE" else 1
 
 
+# ----------------------------------------------------------------------------- campaign
+
+
+def cmd_campaign(args) -> int:
+    """Monte Carlo lock-step flights over a scenario distribution, baselines and controls; the report."""
+    from . import campaign as cg
+
+    spec = cg.load_spec(args.spec)
+    if args.fly is not None:  # re-fly one flight, deterministic from (seed, index)
+        row, rig = cg.fly(spec, args.fly, keep_rig=True)
+        if args.out is not None:
+            args.out.mkdir(parents=True, exist_ok=True)
+            log = args.out / f"flight-{args.fly}.jsonl"
+            with open(log, "w") as f:
+                for rec in sorted(rig.log.states + rig.log.events, key=lambda r: r["t"]):
+                    f.write(json.dumps(cg._plain(rec), sort_keys=True) + "\n")
+            row["log"] = str(log)
+        text = (f"flight {row['index']} ({row['arm']}, {row['vehicle']}, {row['personality']}): "
+                f"collided {row['collided']}, min clearance {row['min_clearance_m']}, mean speed "
+                f"{row['mean_speed_m_s']:.2f} m/s, route completed {row['route_completed']}, "
+                f"faults {[(f['kind'], f['subsystem'], f['latency_s']) for f in row['fault_outcomes']]}")
+        _emit(cg._plain(row), args.json, text)
+        return 0
+    if args.out is None:
+        raise ContractError("campaign: --out DIR is required (results.jsonl and the report go there)")
+    from .campaign_report import format_summary, write_report
+
+    if not args.report_only:
+        rows = cg.run(spec, args.out, workers=args.workers, scheduler=args.scheduler,
+                      progress=not args.no_progress and not args.json, spec_path=str(args.spec), limit=args.limit)
+    else:
+        rows = cg.read_rows(args.out)
+    summary = write_report(rows, args.out, spec_path=str(args.spec))
+    _emit(summary, args.json, format_summary(summary) + f"\nreport: {args.out / 'report.html'}")
+    return 0
+
+
 # ----------------------------------------------------------------------------- parser
 
 
@@ -506,6 +543,19 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--d-od-step", type=finite, default=0.5)
     cp.add_argument("--json", action="store_true")
     cp.set_defaults(func=cmd_table_compare)
+
+    cg = sub.add_parser("campaign", help="Monte Carlo lock-step flights over a scenario distribution, with the "
+                        "PX4/ArduPilot laws as baselines and negative controls, on a pool or a Dask cluster; report")
+    cg.add_argument("spec", type=Path, help="campaign spec (YAML)")
+    cg.add_argument("--out", type=Path, help="results.jsonl and the report (an interrupted campaign resumes here)")
+    cg.add_argument("--workers", type=int, default=1, help="local process pool size (default 1: in-process)")
+    cg.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
+    cg.add_argument("--fly", type=int, metavar="INDEX", help="re-fly one flight (with --out: its event log too)")
+    cg.add_argument("--limit", type=int, help="fly at most this many more flights, then report")
+    cg.add_argument("--report-only", action="store_true", help="report the results already in --out")
+    cg.add_argument("--no-progress", action="store_true")
+    cg.add_argument("--json", action="store_true")
+    cg.set_defaults(func=cmd_campaign)
 
     pl = tsub.add_parser("plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
     pl.add_argument("file", type=Path)

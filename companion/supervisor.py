@@ -137,6 +137,9 @@ class Supervisor:
         # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
         e_pred = getattr(table, "e_pred", None)
         self.v_covered = float(e_pred.axes[0][-1]) if e_pred is not None else math.inf
+        # a speed law flown instead of the contract's Ω (`law.omega(inputs) -> Omega`): the baselines of a
+        # campaign (companion/baselines.py); None on board
+        self.law = None
 
     @property
     def tilt_in_force(self) -> float | None:
@@ -197,7 +200,8 @@ class Supervisor:
         return d
 
     def _decide(self, i: Inputs) -> Decision:
-        om = self.table.omega(i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, contract=self.contract)
+        om = (self.law.omega(i) if self.law is not None else
+              self.table.omega(i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, contract=self.contract))
         d = Decision(self.state, om, self.limit.value)
         veh = self.table.vehicle
 
@@ -318,8 +322,8 @@ class Supervisor:
             OBSTACLE: obstacle,
             "speed limit not in force": self._over_since is not None and i.t - self._over_since > settle,
         }
-        if self.contract == "avoid":
-            del causes[OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself
+        if self.contract == "avoid" or self.law is not None:
+            del causes[OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
         return causes
 
     def _shadow(self, d: Decision, i: Inputs) -> Decision:

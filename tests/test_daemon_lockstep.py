@@ -3,7 +3,8 @@
 
 import pytest
 
-from tests.lockstep import Rig
+from companion.baselines import Scaled  # noqa: F401  (a negative control; other tests import it from here)
+from tests.lockstep import Rig, fly_mission
 
 D_SENSOR = 6.0
 
@@ -19,28 +20,7 @@ def column_scenario(seed=1, x_col=28.0, cruise=8.0, wind=None, faults=(), vehicl
     }
 
 
-def fly(rig, seconds=20.0):
-    rig.run(1.0)
-    rig.arm()
-    rig.run(0.5)
-    rig.start_mission()
-    rig.run(seconds)
-
-
-class Scaled:
-    """The same table with every contract speed raised by a factor (a negative control only)."""
-
-    def __init__(self, table, k):
-        self._t, self._k = table, k
-
-    def __getattr__(self, name):
-        return getattr(self._t, name)
-
-    def omega(self, *a, **kw):
-        from dataclasses import replace
-
-        om = self._t.omega(*a, **kw)
-        return replace(om, v_max=om.v_max * self._k, v_safe=om.v_safe * self._k)
+fly = fly_mission  # arm, start the mission, fly (companion/flights.py)
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

@@ -1,6 +1,8 @@
 """DESIGN.md §3's dependency rules, read from the source (every import, at module level or in a function):
 `contracts/` imports neither of the others; `sitl_harness/` never imports `companion/`; `companion/`
-imports `sitl_harness/` only from its command-line module; no module imports itself round a circle; and
+imports `sitl_harness/` only from its two wiring modules (the command line, and `companion/flights.py`, the
+lock-step flight of the daemon against the SITL that tests and campaigns fly — DESIGN.md §3 names only the
+first); no module imports itself round a circle; and
 the on-board path loads no CasADi and no matplotlib."""
 
 import ast
@@ -12,7 +14,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("contracts", "companion", "sitl_harness")
-CLI = "companion.cli"  # wires `sitl` and `demo`: the one companion module that may import the harness
+# the companion modules that may import the harness: the CLI (wires `sitl`, `demo`) and the lock-step flight
+WIRING = ("companion.cli", "companion.flights")
 
 
 def module_name(path: Path) -> str:
@@ -56,8 +59,8 @@ def violations(g: dict[str, set[str]]) -> list[str]:
                 out.append(f"{mod} imports {dep}: contracts/ is the ground floor")
             if top == "sitl_harness" and dtop == "companion":
                 out.append(f"{mod} imports {dep}: the harness never imports the companion")
-            if top == "companion" and dtop == "sitl_harness" and mod != CLI:
-                out.append(f"{mod} imports {dep}: only {CLI} may import the harness")
+            if top == "companion" and dtop == "sitl_harness" and mod not in WIRING:
+                out.append(f"{mod} imports {dep}: only {' and '.join(WIRING)} may import the harness")
     return out
 
 
@@ -103,8 +106,9 @@ def test_no_import_circles():
 def test_the_checks_can_fail():
     g = {"contracts.table": {"companion.config"}, "sitl_harness.sim": {"companion.daemon"},
          "companion.demo": {"sitl_harness.scenario"}, "companion.cli": {"sitl_harness.scenario"},
+         "companion.flights": {"sitl_harness"}, "companion.campaign": {"sitl_harness.sim"},
          "companion.review": {"companion.replay"}, "companion.replay": {"companion.review"}}
-    assert len(violations(g)) == 3
+    assert len(violations(g)) == 4
     assert cycles(g) == [["companion.replay", "companion.review"]]
     # relative imports inside functions are seen too
     src = ROOT / "companion" / "_probe_for_test.py"

@@ -1,6 +1,5 @@
 """Offboard mode against the SITL in lock-step: the daemon flies the route and avoids (DESIGN.md §5)."""
 
-import copy
 import math
 from dataclasses import replace
 
@@ -13,7 +12,8 @@ from companion.guidance import A_LAT, YAW_RATE_ARC
 from contracts.flat import horizontal_accel_limit
 from contracts.vehicle import G
 from tests.lockstep import Rig
-from tests.test_daemon_lockstep import Scaled
+from tests.lockstep import engage_and_fly  # noqa: F401  (companion/flights.py; other tests import it from here)
+from companion.baselines import Scaled, WithoutEtr
 
 D_SENSOR = 6.0
 R_OBST = 1.0
@@ -39,14 +39,6 @@ def offboard_config(x_end=55.0, **contract):
             "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
             "route": {"waypoints": [[0, 0], [x_end, 0]], "altitude_m": 2.0},
             "contract": {"r_obst_m": R_OBST, **contract}}
-
-
-def engage_and_fly(rig, seconds, until=None):
-    rig.run(1.0, until)
-    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
-    rig.run(0.2, until)
-    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))  # asked anew: it may engage in flight
-    rig.run(seconds, until)
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
@@ -201,31 +193,6 @@ def test_offboard_hidden_fog_too_short_to_avoid_still_brakes(personality):
 
 
 # ----------------------------------------------------------------------------- without the E_tr inflation
-
-
-class WithoutEtr:
-    """The same table with no tracking-error budget (a negative control only): Ω at E_tr = 0 — neither
-    the measured error nor E_tr_pred — so V_max is the contract's for a perfectly tracking vehicle.
-
-    The keep-out discs' inflation is not the table's: the supervisor computes it
-    (`Supervisor.e_tr_virtual`, the virtual obstacle's E_tr, carried by `Decision.e_tr_virtual` and
-    `Decision.discs`). `remove_from(daemon)` makes it 0 there, so the discs are R_obst + r_body alone."""
-
-    def __init__(self, table):
-        self._t = table
-        self._bare = copy.copy(table)
-        self._bare.e_pred = None  # only in this copy: Ω without E_tr_pred
-
-    def __getattr__(self, name):
-        return getattr(self._t, name)
-
-    def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None):
-        return self._bare.omega(d_od, r_obst, 0.0, thrust_ratio, contract=contract, tilt=tilt)
-
-    @staticmethod
-    def remove_from(daemon) -> None:
-        """No E_tr in the virtual obstacle either (the supervisor's inflation of the discs)."""
-        daemon.cycle.sup.e_tr_virtual = lambda i, d: 0.0
 
 
 class DiscTrace:

@@ -1,0 +1,187 @@
+"""The lock-step flight of the real daemon against the real SITL: one rig for the tests and the campaign.
+
+`Rig(scenario, personality, config)` puts the daemon (`companion.daemon.Daemon`) and a ground station on
+one in-process SITL link (`sitl_harness.LockstepLink`) that carries real MAVLink bytes both ways;
+`Rig.run(seconds)` advances the simulator and the daemon in turn at the daemon's loop rate. Truth
+(collisions, clearance) comes from the simulator's own API and is only read by assertions and by the
+campaign's results, never by the daemon.
+
+This is one of the two wiring modules that may import `sitl_harness/` (the other is `companion/cli.py`,
+which wires `sitl` and `demo`; `tests/test_import_graph.py` allows exactly these two): a flight needs both
+the daemon and the SITL. Nothing on board imports it. `tests/lockstep.py` re-exports it.
+
+`law`: a speed law that replaces the contract's Ω (a baseline flown as a governor, `companion/baselines.py`);
+`table_wrapper`: a wrapper of the contract table (the negative controls). Neither is an on-board default.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+
+os.environ.setdefault("MAVLINK20", "1")
+
+from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
+
+from contracts.table import load_for_vehicle  # noqa: E402
+from sitl_harness import LockstepLink, Sim  # noqa: E402
+from sitl_harness.scenario import scenario_from_dict  # noqa: E402
+
+from .config import config_from_dict  # noqa: E402
+from .daemon import Daemon  # noqa: E402
+from .link import MemoryMavfile  # noqa: E402
+
+
+class Recorder:
+    """Keeps what the daemon logs, for assertions (the real event log is tested on its own)."""
+
+    def __init__(self):
+        self.events: list[dict] = []
+        self.states: list[dict] = []
+
+    def event(self, t, name, **fields):
+        self.events.append({"t": t, "event": name, **fields})
+
+    def state(self, t, **fields):
+        self.states.append({"t": t, **fields})
+
+    def named(self, name):
+        return [e for e in self.events if e["event"] == name]
+
+
+class Rig:
+    def __init__(self, scenario: dict, personality: str = "px4", config: dict | None = None, log=None,
+                 table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None, law=None):
+        sc = scenario_from_dict(scenario)
+        self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
+        self.link = LockstepLink(self.sim)
+        self._queues: list[deque] = []
+        table = load_for_vehicle(sc.vehicle)
+        if table_wrapper is not None:
+            table = table_wrapper(table)
+        cfg = {"vehicle": sc.vehicle, "mode": "governor", "engage": True,
+               "link": {"autopilot": personality, "connect": "memory"},
+               "sensors": [{"kind": "distance_sensor", "h_fov_deg": sc.sensor.fov_deg}]}
+        for k, v in (config or {}).items():
+            cfg[k] = {**cfg[k], **v} if isinstance(v, dict) and isinstance(cfg.get(k), dict) else v
+        # the sensors are the scenario's: rated at its range unless a test says otherwise
+        cfg["sensors"] = [{"max_range_m": sc.sensor.max_range_m, **s} for s in cfg["sensors"]]
+        self.cfg = config_from_dict(cfg)
+        read, write = self._endpoint()
+        self.daemon_out: list[bytes] = []  # every datagram the daemon sent (what a router would forward)
+        self._daemon_in: deque = deque()  # datagrams for the daemon only (a ground station via a router)
+
+        def daemon_read():
+            extra = b"".join(self._daemon_in)
+            self._daemon_in.clear()
+            return extra + read()
+
+        def daemon_write(data):
+            self.daemon_out.append(data)
+            write(data)
+
+        self.conn = MemoryMavfile(daemon_read, daemon_write, source_system=1,
+                                  source_component=self.cfg.link.component_id)
+        self.log = log if log is not None else Recorder()
+        self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s, planning="inline")
+        if law is not None:
+            self.daemon.cycle.sup.law = law
+        gread, gwrite = self._endpoint()
+        self._gcs_read = gread
+        self.gcs = mav.MAVLink(_W(gwrite), srcSystem=255, srcComponent=190)
+        self.gcs_msgs: list = []
+        self.daemon_on = True
+
+    def _endpoint(self):
+        q: deque = deque()
+        self._queues.append(q)
+
+        def read():
+            out = b"".join(q)
+            q.clear()
+            return out
+
+        return read, self.link.client_send
+
+    def _pump(self):
+        data = self.link.client_recv()
+        for q in self._queues:
+            q.append(data)
+        for m in self.gcs.parse_buffer(self._gcs_read()) or []:
+            self.gcs_msgs.append(m)
+
+    def run(self, seconds: float, until=None) -> None:
+        dt = 1.0 / self.cfg.loop_hz
+        end = self.sim.time_s + seconds
+        while self.sim.time_s < end - 1e-9:
+            self.link.step(dt)
+            self._pump()
+            if self.daemon_on:
+                self.daemon.poll()
+                self.daemon.step()
+            if until is not None and until(self):
+                return
+
+    # ---- ground station
+    def to_daemon(self, msg, mav_obj=None) -> None:
+        """A ground-station message routed to the daemon (as mavlink-router would)."""
+        self._daemon_in.append(msg.pack(mav_obj or self.gcs))
+
+    def daemon_messages(self):
+        parser = mav.MAVLink(None)
+        parser.robust_parsing = True
+        return [m for d in self.daemon_out for m in (parser.parse_buffer(d) or [])]
+
+    def daemon_texts(self) -> list[str]:
+        """The daemon's STATUSTEXTs, chunks joined (MAVLink 2 id / chunk_seq)."""
+        out, parts = [], {}
+        for m in self.daemon_messages():
+            if m.get_type() != "STATUSTEXT":
+                continue
+            text = m.text if isinstance(m.text, str) else m.text.decode()
+            if not m.id:
+                out.append(text)
+                continue
+            parts.setdefault(m.id, []).append(text)
+            if len(text) < 50:
+                out.append("".join(parts.pop(m.id)))
+        return out
+
+    def command(self, cmd, *params):
+        p = list(params) + [0.0] * (7 - len(params))
+        self.gcs.send(self.gcs.command_long_encode(1, 1, cmd, 0, *p))
+
+    def arm(self):
+        self.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+
+    def start_mission(self):
+        self.command(mav.MAV_CMD_MISSION_START, 0, 0)
+
+    @property
+    def truth(self):
+        return self.sim.truth()
+
+
+class _W:
+    def __init__(self, write):
+        self.write = write
+
+
+# ----------------------------------------------------------------------------- the flights the tests and campaigns fly
+
+def fly_mission(rig: Rig, seconds: float = 20.0, until=None) -> None:
+    """Governor/shadow: a second on the ground, arm, start the autopilot's mission, fly `seconds`."""
+    rig.run(1.0, until)
+    rig.arm()
+    rig.run(0.5, until)
+    rig.start_mission()
+    rig.run(seconds, until)
+
+
+def engage_and_fly(rig: Rig, seconds: float, until=None) -> None:
+    """Offboard, from a hover: engage asked anew from the ground station (it may engage in flight), fly."""
+    rig.run(1.0, until)
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
+    rig.run(0.2, until)
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
+    rig.run(seconds, until)

@@ -1,0 +1,219 @@
+"""Campaigns (`companion/campaign.py`): the spec, deterministic sampling, the baselines' laws against their
+sources' algebra, re-flying one flight, resuming, the report — and a small campaign of lock-step flights
+(0 collisions in assumption; the ×1.3 control and no guard collide in a stated share)."""
+
+import json
+import math
+
+import pytest
+
+from companion import baselines as bl
+from companion import campaign as cg
+from companion.campaign_report import clopper_pearson, summarize, write_report
+from companion.cli import main
+
+SMALL = {"name": "t", "seed": 3, "scenarios": 1, "vehicles": ["mambo"], "personalities": ["px4"],
+         "arms": ["governor", "no_guard", "px4_cp"], "duration_s": 25,
+         "scenario": {"sensor_range_m": 6.0, "r_obst_true_m": 0.5, "lateral_offset_m": 0.0, "x_obst_m": 25.0,
+                      "wind_factor": 0.5, "gust_factor": 0.5}}
+
+
+# ----------------------------------------------------------------------------- spec and sampling
+
+@pytest.mark.parametrize("bad, says", [
+    ({"arms": ["governor", "warp"]}, "arms: unknown arm 'warp'"),
+    ({"scenario": {"x_obst_m": [30, 20]}}, "scenario.x_obst_m: range low 30.0 above high 20.0"),
+    ({"colour": 1}, "colour: unknown key"),
+    ({"faults": [{"kind": "meteor", "p": 0.1}]}, "faults.0.kind"),
+    ({"scenarios": 0}, "scenarios"),
+])
+def test_a_bad_spec_is_one_line_naming_the_field(bad, says):
+    with pytest.raises(cg.CampaignError) as e:
+        cg.spec_from_dict({**SMALL, **bad})
+    assert says in str(e.value) and "\n" not in str(e.value)
+
+
+def test_the_cli_refuses_a_bad_spec_in_one_line(tmp_path, capsys):
+    p = tmp_path / "spec.yaml"
+    p.write_text("scenarios: 2\narms: [nope]\n")
+    assert main(["campaign", str(p), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "unknown arm 'nope'" in err
+
+
+def test_sampling_is_a_function_of_seed_and_index():
+    spec = cg.load_spec("examples/campaign-compare.yaml")
+    a, b = cg.sample_scenario(spec, 7), cg.sample_scenario(spec, 7)
+    assert a == b and a != cg.sample_scenario(spec, 8)
+    other = cg.spec_from_dict({**spec.model_dump(mode="json"), "seed": spec.seed + 1})
+    assert cg.sample_scenario(other, 7) != a
+    # every arm flies the same scenario
+    arms = len(spec.arms)
+    assert all(cg.flight_of(spec, 7 * arms + j)[0] == a for j in range(arms))
+    assert [cg.flight_of(spec, 7 * arms + j)[1] for j in range(arms)] == spec.arms
+    # the stated envelope is respected, and in-assumption means what it says
+    ss = [cg.sample_scenario(spec, k) for k in range(200)]
+    assert all(0.3 <= s["r_obst_true_m"] <= 1.3 and 20 <= s["x_obst_m"] <= 35 for s in ss)
+    assert all(not s["in_assumption"] for s in ss if s["r_obst_true_m"] > s["r_obst_m"] or s["wind_factor"] > 1
+               or any(f["kind"] == "fog_hidden" for f in s["faults"]))
+    assert 0 < sum(s["in_assumption"] for s in ss) < 200
+    with pytest.raises(cg.CampaignError):
+        cg.flight_of(spec, spec.flights)
+
+
+# ----------------------------------------------------------------------------- the laws, against their sources
+
+def test_px4_max_speed_from_distance_is_trajmath_algebra():
+    """TrajMath.hpp: v_f² = v² − 2a(x − v·2a/J); with v_f = 0, v = −2a²/J + sqrt(4a⁴/J² + 2a·x)."""
+    a, j = 3.0, 8.0
+    for s in (0.0, 0.5, 2.0, 7.3):
+        v = bl.px4_max_speed_from_distance(j, a, s)
+        assert v == pytest.approx(-2 * a * a / j + math.sqrt(4 * a**4 / j**2 + 2 * a * s))
+        assert v * v == pytest.approx(2 * a * (s - v * 2 * a / j), abs=1e-9)
+    assert bl.px4_max_speed_from_distance(j, a, 0.0, 1.5) == 1.5  # never below the final speed
+
+
+def test_px4_cp_speed_stop_distance_and_position_loop():
+    # s = max(0, d − max(min distance, CP_DIST) − v·(CP_DELAY + age)); v_max = min(MPC_XY_P·s, smooth)
+    v = bl.px4_cp_speed(6.0, 2.0, cp_dist=1.0, min_distance=0.1, age=0.1)
+    s = 6.0 - 1.0 - 2.0 * 0.5
+    assert v == pytest.approx(min(0.95 * s, bl.px4_max_speed_from_distance(8.0, 3.0, s)))
+    assert bl.px4_cp_speed(6.0, 2.0, cp_dist=1.0, min_distance=0.1, age=0.1, in_range=False) > v  # no age term
+    assert bl.px4_cp_speed(1.0, 0.0, cp_dist=1.0, min_distance=0.1) == 0.0  # at CP_DIST: no motion
+    assert bl.px4_cp_speed(0.5, 0.0, cp_dist=0.2, min_distance=0.6) == 0.0  # D is at least the sensor minimum
+
+
+def test_ac_avoid_sqrt_controller():
+    """AP_Math sqrt_controller: kP·e up to a/kP², then sqrt(2a(e − a/(2kP²))); continuous; a capped at 1 m/s²."""
+    kp, a = 1.0, 1.0
+    lin = a / kp**2
+    assert bl.sqrt_controller(lin, kp, a) == pytest.approx(kp * lin)
+    assert bl.sqrt_controller(lin + 1e-9, kp, a) == pytest.approx(kp * lin, abs=1e-6)
+    assert bl.sqrt_controller(5.0, kp, a) == pytest.approx(math.sqrt(2 * a * (5.0 - lin / 2)))
+    assert bl.ac_avoid_speed(7.0) == pytest.approx(math.sqrt(2 * (5.0 - 0.5)))  # e = d − AVOID_MARGIN (2 m)
+    assert bl.ac_avoid_speed(7.0, accel=3.0) == bl.ac_avoid_speed(7.0)  # AC_AVOID_ACCEL_CMSS_MAX
+    assert bl.ac_avoid_speed(1.5) == 0.0
+
+
+def test_the_laws_fail_as_their_sources_do():
+    from companion.estimators import DodEstimate
+
+    class I:  # the fields of Inputs a law reads
+        ground_speed = 3.0
+        dod = DodEstimate(0.0, (), math.inf, None, "stale")
+
+    assert bl.Px4CollisionPrevention().omega(I).v_max == 0.0  # no data: no motion
+    assert bl.ArduPilotAcAvoid(cruise_m_s=8.0).omega(I).v_max == 8.0  # proximity unhealthy: fail-open
+    I.dod = DodEstimate(6.0, (0,), 4.0, None, "ok")
+    assert bl.ArduPilotAcAvoid(cruise_m_s=8.0).omega(I).v_max == pytest.approx(bl.ac_avoid_speed(4.0))
+    assert bl.Px4CollisionPrevention(cp_dist_m=1.0).omega(I).v_max == pytest.approx(
+        bl.px4_cp_speed(4.0, 3.0, cp_dist=1.0, min_distance=0.1))
+
+
+def test_the_px4_law_governs_a_real_flight_and_stops_short():
+    """Flown as a governor through the daemon: it slows as the column nears, holds, and does not touch it."""
+    spec = cg.spec_from_dict(SMALL)
+    row, rig = cg.fly(spec, 2, keep_rig=True)
+    assert row["arm"] == "px4_cp" and not row["collided"]
+    assert rig.log.named("failsafe") + rig.log.named("hold_trigger")  # and ends held short of it
+    sent = [e["v_max"] for e in rig.log.named("limit_change")]
+    assert len(sent) > 3 and min(sent) < 0.5 * max(sent)  # the limit fell with the distance
+    assert rig.daemon.cycle.sup.law is not None
+    row, rig = cg.fly(spec, 0, keep_rig=True)  # the governor itself: no law (the on-board default)
+    assert row["arm"] == "governor" and rig.daemon.cycle.sup.law is None
+
+
+# ----------------------------------------------------------------------------- rows, re-flying, resuming
+
+def test_a_campaign_resumes_and_a_flight_refies_to_its_row(tmp_path, capsys):
+    spec = cg.spec_from_dict(SMALL)
+    out = tmp_path / "c"
+    cg.run(spec, out, progress=False, limit=2)
+    assert [r["index"] for r in cg.read_rows(out)] == [0, 1]
+    with open(out / "results.jsonl", "a") as f:
+        f.write('{"index": 2, "arm": "px4')  # torn by an interruption
+    rows = cg.run(spec, out, progress=False)
+    assert [r["index"] for r in rows] == [0, 1, 2]
+    lines = [json.loads(x) for x in (out / "results.jsonl").read_text().splitlines() if x.endswith("}")]
+    assert sorted(r["index"] for r in lines if "collided" in r) == [0, 1, 2]
+    r0 = rows[0]
+    for key in ("collided", "contact_speed_m_s", "min_clearance_m", "mean_speed_m_s", "max_speed_m_s",
+                "route_completed", "time_to_destination_s", "violations", "fault_outcomes", "failsafes", "holds",
+                "sensor_range_m", "r_obst_true_m", "lateral_offset_m", "wind_factor", "faults", "in_assumption"):
+        assert key in r0
+    assert rows[1]["arm"] == "no_guard" and rows[1]["collided"]  # head-on at cruise speed
+    # one command re-flies one flight, to the same row
+    spec_file = tmp_path / "spec.yaml"
+    spec_file.write_text(json.dumps(SMALL))
+    assert main(["campaign", str(spec_file), "--fly", "0", "--json", "--out", str(tmp_path / "one")]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert cg.row_json({k: v for k, v in again.items() if k != "log"}) == cg.row_json(r0)
+    assert (tmp_path / "one" / "flight-0.jsonl").exists()
+    # another spec in the same directory is refused; the same with more scenarios extends it
+    with pytest.raises(cg.CampaignError, match="another campaign"):
+        cg.run(cg.spec_from_dict({**SMALL, "seed": 4}), out, progress=False)
+    more = cg.run(cg.spec_from_dict({**SMALL, "scenarios": 2}), out, progress=False, limit=1)
+    assert [r["index"] for r in more] == [0, 1, 2, 3] and more[:3] == rows
+
+
+def test_clopper_pearson_exact():
+    assert clopper_pearson(0, 1000)[1] == pytest.approx(1 - 0.025 ** (1 / 1000))
+    lo, hi = clopper_pearson(5, 10)
+    assert lo == pytest.approx(0.187086, abs=1e-6) and hi == pytest.approx(0.812914, abs=1e-6)
+    assert clopper_pearson(10, 10) == (pytest.approx(0.025 ** (1 / 10)), 1.0)
+
+
+# ----------------------------------------------------------------------------- a small campaign in the default suite
+
+SMALL_CAMPAIGN = {
+    "name": "suite", "seed": 5, "scenarios": 6, "vehicles": ["mambo", "x500"], "personalities": ["px4", "ardupilot"],
+    "arms": ["governor", "offboard", "no_guard", "governor_x1.3", "offboard_x1.3"], "duration_s": 30,
+    "scenario": {"sensor_range_m": [5, 8], "r_obst_true_m": [0.5, 1.0], "lateral_offset_m": [-0.5, 0.5],
+                 "x_obst_m": [25, 32], "wind_factor": [0, 1], "gust_factor": [0, 1]},
+    "faults": [{"kind": "fog_honest", "p": 0.3, "at_s": [4, 10], "visibility_m": [3, 5]},
+               {"kind": "thrust_loss", "p": 0.3, "at_s": [4, 10], "thrust_ratio": [0.75, 0.95]}]}
+
+
+def test_a_small_campaign_is_safe_in_assumption_and_its_controls_collide(tmp_path):
+    """30 lock-step flights: head-on columns (offset ≤ 0.5 m), design wind, honest fog and thrust losses.
+    Stated shares (measured at this commit): no guard collides in 6/6, the governor at 1.3 × the contract's
+    speed in 6/6, offboard at 1.3 × in at least 3/6; ours in 0 (their 95 % Clopper–Pearson upper bound at
+    6 flights is 0.46: this test shows the controls can fail, the large campaign gives the rate)."""
+    spec = cg.spec_from_dict(SMALL_CAMPAIGN)
+    rows = cg.run(spec, tmp_path, progress=False)
+    assert len(rows) == 30 and all(r["in_assumption"] for r in rows)
+    s = write_report(rows, tmp_path)
+    per = s["per_arm"]
+    assert per["governor"]["all"]["collisions"] == 0 and per["offboard"]["all"]["collisions"] == 0
+    # 5/6 complete the route; flight 11 (mambo, PX4, no fault) measures a contour error above E_tr_pred during
+    # its pass (a controller violation), raises E_tr to it, finds no safe speed and holds, safely
+    assert per["offboard"]["all"]["route_completion"] >= 5 / 6
+    assert per["no_guard"]["all"]["collisions"] == 6
+    assert per["governor_x1.3"]["all"]["collisions"] == 6
+    assert per["offboard_x1.3"]["all"]["collisions"] >= 3
+    assert per["offboard"]["all"]["cp95_high"] == pytest.approx(1 - 0.025 ** (1 / 6))
+    for f in ("report.html", "report.json", "clearance.png", "speed.png"):
+        assert (tmp_path / f).stat().st_size > 0
+    faults = [c for c in s["fault_matrix"] if c["mode"] in ("governor", "offboard")]
+    assert faults and all(c["subsystem"] != "not detected" for c in faults)  # every fault detected, attributed
+    assert s["worst"][0]["refly"].startswith("contract-guard campaign ")
+    assert summarize(rows) == summarize(list(reversed(rows)))  # order-free
+
+
+# ----------------------------------------------------------------------------- a pool and a Dask cluster agree
+
+def _lines(out):
+    return sorted((out / "results.jsonl").read_text().splitlines(), key=lambda x: json.loads(x)["index"])
+
+
+def test_a_process_pool_and_a_dask_cluster_give_the_same_rows_bit_for_bit(tmp_path):
+    from distributed import LocalCluster
+
+    spec = cg.spec_from_dict({**SMALL, "scenarios": 2, "arms": ["governor", "px4_cp"],
+                              "vehicles": ["mambo", "x500"], "personalities": ["px4", "ardupilot"]})
+    cg.run(spec, tmp_path / "pool", workers=2, progress=False)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        cg.run(spec, tmp_path / "dask", scheduler=cluster.scheduler_address, progress=False)
+    pool, dask = _lines(tmp_path / "pool"), _lines(tmp_path / "dask")
+    assert len(pool) == 4 and pool == dask
+    assert pool[0] == cg.row_json(cg.fly(spec, 0))  # and the same as flying it here
