@@ -131,12 +131,13 @@ class Daemon:
         self.counters.messages += 1
         try:
             for s in self.mav_in.accept(msg):
-                self._route(s)
+                self.take(s)
         except Exception:  # decoded but nonsensical (a decoder's or an estimator's complaint): drop it
             self.counters.bad_packets += 1
 
-    def _route(self, s) -> None:
-        """A sample to where it belongs: the cycle's estimators, or the daemon's own protocols."""
+    def take(self, s) -> None:
+        """A sample to where it belongs: the cycle's estimators, or the daemon's own protocols (MAVLink-in's
+        samples, or a flight log reader's)."""
         if isinstance(s, ParamRequest):
             self._param_request(s.msg)
         elif isinstance(s, AutopilotRestart):

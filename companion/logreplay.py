@@ -21,7 +21,7 @@ from .eventlog import EventLog, finite_copy, read_events
 from .link import MemoryMavfile
 from .loginput import Feed, LogIn
 from .logschema import LOG_FILE
-from .replay import ASSUMED_NOTE, ASSUMED_SENSORS, TICK_SLACK_US, settle
+from .replay import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle
 from .review import Origin, fmt_value
 
 AUTOPILOT_IDS = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT
@@ -41,27 +41,25 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
     log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
               contract=contract)
     login = LogIn(cfg, daemon.tel, AUTOPILOT_IDS.get(feed.autopilot, 0))
-    period = 1e6 / cfg.loop_hz
-    ops, n, i, k, bad = feed.ops, len(feed.ops), 0, 0, 0
-    while True:
-        tick = k * period
-        while i < n and ops[i][0] <= tick + TICK_SLACK_US:
-            t_us, op, args = ops[i]
-            now["t"] = min(t_us, tick) / 1e6
-            try:
-                for s in login.apply(now["t"], op, args):
-                    daemon._route(s)  # the daemon's own routing of MAVLink-in's samples
-            except Exception:  # noqa: BLE001 — a sample the estimators refuse: counted, as a bad packet
-                bad += 1
-            i += 1
+    ops, bad = feed.ops, [0]
+
+    def take(i: int, tick: float) -> None:
+        t_us, op, args = ops[i]
+        now["t"] = min(t_us, tick) / 1e6
+        try:
+            for s in login.apply(now["t"], op, args):
+                daemon.take(s)  # the daemon's own routing of MAVLink-in's samples
+        except Exception:  # noqa: BLE001 — a sample the estimators refuse: counted, as a bad packet
+            bad[0] += 1
+
+    def step(tick: float) -> None:
         now["t"] = tick / 1e6
         daemon.step()
-        if i >= n:
-            break
-        k += 1
+
+    steps = in_log_time([o[0] for o in ops], cfg.loop_hz, take, step)
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {"steps": k + 1, "ops": n, "refused_samples": bad}
+    return {"steps": steps, "ops": len(ops), "refused_samples": bad[0]}
 
 
 class FlightLog(Origin):

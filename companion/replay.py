@@ -266,25 +266,37 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
                     contract=contract)  # the contract the flight flew under (shadow alone would say "stop")
     log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
               contract=contract)
-    period = 1e6 / cfg.loop_hz
     off, length, t_us, raw_us = scan.offset, scan.length, scan.t_us, scan.raw_us
-    i, k, n = 0, 0, scan.packets
-    while True:
-        tick = k * period
-        while i < n and t_us[i] <= tick + TICK_SLACK_US:
-            now["t"], now["wall"] = min(t_us[i], tick) / 1e6, raw_us[i] / 1e6
-            now["bytes"] = data[off[i] + 8:off[i] + 8 + length[i]]
-            daemon.poll()
-            i += 1
+
+    def take(i: int, tick: float) -> None:
+        now["t"], now["wall"] = min(t_us[i], tick) / 1e6, raw_us[i] / 1e6
+        now["bytes"] = data[off[i] + 8:off[i] + 8 + length[i]]
+        daemon.poll()
+
+    def step(tick: float) -> None:
         now["wall"] += tick / 1e6 - now["t"]  # the stamp of the last packet, carried on to this tick
         now["t"] = tick / 1e6
         daemon.step()
-        if i >= n:
-            break
-        k += 1
+
+    steps = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step)
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {"steps": k + 1, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
+    return {"steps": steps, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
+
+
+def in_log_time(t_us, loop_hz: float, take, step) -> int:
+    """Step a replayed daemon every loop period of log time: `take(i, tick_us)` for every entry stamped
+    by that tick (within TICK_SLACK_US), then `step(tick_us)`; returns the number of steps."""
+    period, n, i, k = 1e6 / loop_hz, len(t_us), 0, 0
+    while True:
+        tick = k * period
+        while i < n and t_us[i] <= tick + TICK_SLACK_US:
+            take(i, tick)
+            i += 1
+        step(tick)
+        if i >= n:
+            return k + 1
+        k += 1
 
 
 def in_flight(scan: Scan, samples: list[tuple], columns: tuple, target_system: int) -> dict | None:
