@@ -255,8 +255,7 @@ class ThrustEstimator:
     Valid only airborne and settled (issue 19 item 5): the autopilot says the vehicle is in the air, it has
     been for `SETTLE_S` without a break, and its vertical acceleration has come within `SETTLED_A_UP` (from
     then on every sample counts, until the next landing) — on the ground and during spin-up the throttle
-    holds the vehicle against nothing (PX4's spin-up read 0.678 for a true 0.700). Until then, and again after
-    a landing, the estimate is the fallback. A vehicle first seen flying is past its lift-off (only settling)."""
+    holds the vehicle against nothing (PX4's spin-up read 0.678 for a true 0.700). Until then, and again after a landing, the estimate is the fallback."""
 
     def __init__(self, cfg: ThrustConfig, hover_nominal: float, fallback: float, top: float = 1.0):
         self.cfg, self.h_nom, self.fallback, self.top = cfg, hover_nominal, fallback, top
@@ -266,7 +265,6 @@ class ThrustEstimator:
         self._a_up = 0.0
         self._air_since: float | None = None  # in the air without a break since
         self._settled = False  # airborne SETTLE_S and vertically settled, since the last lift-off
-        self._seen_ground = False  # on the ground at some sample (else first seen flying: no lift-off to wait out)
 
     def add(self, t: float, throttle: float, roll: float, pitch: float, vz_down: float, in_air: bool) -> None:
         if self._vz is not None and t > self._vz[0]:
@@ -275,11 +273,10 @@ class ThrustEstimator:
             self._a_up += k * (a - self._a_up)
         self._vz = (t, vz_down)
         if not in_air:
-            self._seen_ground = True
             self._air_since, self._h, self._settled = None, None, False  # on the ground: what was estimated aloft is not known now
             return
-        if self._air_since is None:  # lift-off now; first seen already flying: its lift-off is long past
-            self._air_since = t if self._seen_ground else -math.inf
+        if self._air_since is None:
+            self._air_since = t
         tilt_cos = math.cos(roll) * math.cos(pitch)
         # settled once after lift-off; from then on every sample counts (a thrust loss in flight makes the
         # vehicle sink: skipping those samples would keep the estimate high just when it must fall)
