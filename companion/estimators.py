@@ -243,19 +243,10 @@ class EtrEstimator:
 # ============================================================================ thrust_ratio
 
 
-SETTLE_S = 2.0  # airborne this long before the hover throttle means anything (spin-up, lift-off, climb-out)
-SETTLED_A_UP = 1.0  # [m/s²] and no faster vertical acceleration than this (the correction's own error)
-
-
 class ThrustEstimator:
     """thrust_ratio = nominal hover throttle / measured hover throttle, the latter from the collective
     throttle corrected for tilt and vertical acceleration: h = throttle·cosφ·cosθ·g/(g + a_up),
-    low-passed. Falls back to the configured value (default: the vehicle's lowest) when unknown.
-
-    Valid only airborne and settled (issue 19 item 5): the autopilot says the vehicle is in the air, it has
-    been for `SETTLE_S` without a break, and its vertical acceleration has come within `SETTLED_A_UP` (from
-    then on every sample counts, until the next landing) — on the ground and during spin-up the throttle
-    holds the vehicle against nothing (PX4's spin-up read 0.678 for a true 0.700). Until then, and again after a landing, the estimate is the fallback."""
+    low-passed. Falls back to the configured value (default: the vehicle's lowest) when unknown."""
 
     def __init__(self, cfg: ThrustConfig, hover_nominal: float, fallback: float, top: float = 1.0):
         self.cfg, self.h_nom, self.fallback, self.top = cfg, hover_nominal, fallback, top
@@ -263,8 +254,6 @@ class ThrustEstimator:
         self._t = None
         self._vz = None  # (t, vz down)
         self._a_up = 0.0
-        self._air_since: float | None = None  # in the air without a break since
-        self._settled = False  # airborne SETTLE_S and vertically settled, since the last lift-off
 
     def add(self, t: float, throttle: float, roll: float, pitch: float, vz_down: float, in_air: bool) -> None:
         if self._vz is not None and t > self._vz[0]:
@@ -272,16 +261,8 @@ class ThrustEstimator:
             k = min(1.0, (t - self._vz[0]) / 0.2)
             self._a_up += k * (a - self._a_up)
         self._vz = (t, vz_down)
-        if not in_air:
-            self._air_since, self._h, self._settled = None, None, False  # on the ground: what was estimated aloft is not known now
-            return
-        if self._air_since is None:
-            self._air_since = t
         tilt_cos = math.cos(roll) * math.cos(pitch)
-        # settled once after lift-off; from then on every sample counts (a thrust loss in flight makes the
-        # vehicle sink: skipping those samples would keep the estimate high just when it must fall)
-        self._settled = self._settled or (t - self._air_since >= SETTLE_S and abs(self._a_up) <= SETTLED_A_UP)
-        if not (self._settled and 0.05 < throttle <= 1.0 and tilt_cos > math.cos(math.radians(35))):
+        if not (in_air and 0.05 < throttle <= 1.0 and tilt_cos > math.cos(math.radians(35))):
             return
         h = throttle * tilt_cos * G / max(G + self._a_up, 0.5 * G)
         if self._h is None:
@@ -294,7 +275,7 @@ class ThrustEstimator:
         if self.cfg.source == "configured":
             return (self.cfg.value or self.fallback), "configured"
         if self._h is None or t - self._t > 2.0:
-            return self.fallback, "not airborne and settled: vehicle's lowest thrust ratio"
+            return self.fallback, "no hover throttle in flight: vehicle's lowest thrust ratio"
         return min(self.top, self.h_nom / self._h), f"hover throttle {self._h:.3f} vs nominal {self.h_nom:.3f}"
 
 
