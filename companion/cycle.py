@@ -72,6 +72,7 @@ class Cycle:
     def take(self, s) -> None:
         if isinstance(s, Position):
             self.etr.measure(s.t, s.x, s.y)
+            self.dod.add_position(s.t, s.x, s.y)
         elif isinstance(s, Heading):
             self.dod.add_heading(s.t, s.yaw)
             self.dod.set_speed(s.ground_speed)
@@ -115,6 +116,7 @@ class Cycle:
         beta = math.atan2(tel.vy, tel.vx) - tel.yaw if telemetry_ok and speed > 1.0 else 0.0
         e_tr = self.etr.value
         corridor = 2 * r_obst + e_tr + self.table.vehicle.r_body_m
+        self.dod.r_obst = r_obst
         dod = self.dod.estimate(t, beta, corridor)
         thrust_ratio, _ = self.thrust.value(t)
         discs, width = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, r_obst)

@@ -71,6 +71,9 @@ class DodEstimator:
         self._last_d_od = 0.0
         self._pending: list[LateDetection] = []
         self._yaw_hist: deque[tuple[float, float]] = deque()
+        self._pos: tuple[float, float, float] | None = None  # (t, x, y) local NED, the last known
+        self._tracked: deque[tuple[float, float, float]] = deque(maxlen=256)  # (t seen, x, y) of obstacle hits
+        self.r_obst = contract.r_obst_m  # the R_obst in force (the cycle sets it every step)
 
     # ---- inputs
     def set_speed(self, speed: float) -> None:
@@ -84,6 +87,11 @@ class DodEstimator:
         self._yaw_hist.append((t, yaw))
         while len(self._yaw_hist) > 2 and self._yaw_hist[0][0] < t - 2.0:
             self._yaw_hist.popleft()
+
+    def add_position(self, t: float, x: float, y: float) -> None:
+        """The vehicle's horizontal position, to place hits in the local frame (tracking, issue 19 item 4)."""
+        if math.isfinite(x) and math.isfinite(y):
+            self._pos = (t, x, y)
 
     def add_scan(self, scan: Scan) -> None:
         """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
@@ -103,14 +111,48 @@ class DodEstimator:
         tolerance = self.contract.late_detection_tolerance_m + self._speed * max(gap, s.period if fresh else 0.0)
         s.t, s.max_m = t, max(max_m, 0.0)
         s.trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
-        for bearing, r in seen:
+        placed = self._placed(i, t, seen)
+        for k, (bearing, r) in enumerate(seen):
             if any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
                 continue  # the same obstacle as before
-            if r < self._last_d_od - tolerance and not self._side_entry(i, t, bearing):
+            if r < self._last_d_od - tolerance and not self._side_entry(i, t, bearing) \
+                    and not self._tracked_already(t, placed[k], tolerance):
                 self._pending.append(LateDetection(t, i, bearing, r, self._last_d_od))
                 cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])
                 self._penalty = (t + self.contract.late_detection_hold_s, cap)
+        for p in placed:
+            if p is not None:
+                self._tracked.append((t, *p[:2]))
         s.hits = seen
+
+    def _placed(self, i: int, t: float, seen) -> list[tuple[float, float, float] | None]:
+        """Each hit in the local frame: (x, y, uncertainty ±) from the last position and heading (None when
+        either is unknown or older than the sensor's staleness)."""
+        s = self.sensors[i]
+        if self._pos is None or not self._yaw_hist or t - self._pos[0] > self.stale_s \
+                or t - self._yaw_hist[-1][0] > self.stale_s:
+            return [None] * len(seen)
+        _, x, y = self._pos
+        yaw = self._yaw_hist[-1][1]
+        half = s.increment / 2 if s.known is not None else math.radians(s.cfg.h_fov_deg) / 2
+        out = []
+        for bearing, r in seen:
+            a = yaw + bearing
+            out.append((x + r * math.cos(a), y + r * math.sin(a), r * math.sin(min(half, math.pi / 2))))
+        return out
+
+    def _tracked_already(self, t: float, p, tolerance: float) -> bool:
+        """Whether a hit is on an obstacle already tracked (issue 19 item 4): within 2·R_obst (two points of one
+        obstacle no wider than R_obst) plus the bearing's uncertainty and the tolerance of a point seen within
+        the late-detection hold time. A column that leaves the field of view during a pass, or that a fast yaw
+        sweeps across several bins between two samples, is not a new late detection."""
+        if p is None:
+            return False
+        horizon = t - self.contract.late_detection_hold_s
+        while self._tracked and self._tracked[0][0] < horizon:
+            self._tracked.popleft()
+        reach = 2 * max(self.r_obst, 0.0) + p[2] + tolerance
+        return any(math.hypot(p[0] - qx, p[1] - qy) <= reach for _, qx, qy in self._tracked)
 
     def _side_entry(self, i: int, t: float, bearing: float) -> bool:
         """Whether a new hit may have come in from the side of the field of view rather than out of range."""

@@ -182,3 +182,35 @@ def test_samples_delivered_in_a_burst_still_get_one_interval_of_travel():
     add_range(e, 0, t + 0.05, 10.0, 0.1, 10.0, 100)
     add_range(e, 0, t + 0.051, 8.9, 0.1, 10.0, 100)  # 1.1 m inside: late even so
     assert e.estimate(t + 0.051, 0.0).late is not None
+
+
+def test_an_obstacle_already_tracked_is_not_a_new_late_detection():
+    """Issue 19 item 4: a column seen on time, lost from the field of view during a pass, then swept back
+    into middle bins by a fast yaw is the same obstacle; another obstacle appearing there is still late."""
+    cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=60.0)
+    bearings = np.radians(np.arange(-30, 31, 5.0))
+    inc = math.radians(5)
+    far = np.full(len(bearings), np.inf)
+
+    def flight(dx):
+        e = DodEstimator([cfg], ContractConfig(r_obst_m=0.8), stale_s=0.5)
+        e.add_position(0.0, 0.0, 0.0)
+        e.add_heading(0.0, 0.0)
+        seen = far.copy()
+        seen[0] = 3.9  # on time, in the outermost bin: column surface at (3.38, -1.95)
+        add_bins(e, 0, 0.0, bearings, seen, 4.0, inc)
+        assert e.estimate(0.0, 0.0).late is None
+        add_bins(e, 0, 0.05, bearings, far, 4.0, inc)  # out of view
+        e.estimate(0.05, 0.0)
+        # moved on, yaw swung fast to -30°: three middle bins light up at once, 1.5 m ahead
+        yaw = math.radians(-30)
+        e.add_position(0.5, 3.38 - 1.5 * math.cos(yaw) + dx, -1.95 - 1.5 * math.sin(yaw))
+        e.add_heading(0.5, yaw)
+        back = far.copy()
+        back[5:8] = 1.5
+        add_bins(e, 0, 0.5, bearings, back, 4.0, inc)
+        return e.estimate(0.5, 0.0)
+
+    assert flight(0.0).late is None  # the tracked column (within 2·R_obst of its points): not late
+    est = flight(8.5)  # 8.5 m on: no tracked obstacle there, a late detection as before
+    assert est.late is not None and est.d_od == 1.5
