@@ -75,11 +75,16 @@ class Client:
                     return m
         return None
 
-    def command(self, cmd: int, *params: float, timeout: float = 2.0):
+    def command(self, cmd: int, *params: float, timeout: float = 2.0, tries: int = 3):
+        """COMMAND_LONG and its COMMAND_ACK, re-sent (confirmation 1, 2, …) when no answer comes in
+        `timeout`, as the MAVLink command protocol does over a lossy link (a loaded CI machine's UDP)."""
         p = list(params) + [0.0] * (7 - len(params))
-        self.mav.command_long_send(1, 1, cmd, 0, *p)
-        ack = self.wait_msg("COMMAND_ACK", timeout, lambda m: m.command == cmd)
-        return None if ack is None else ack.result
+        for confirmation in range(tries):
+            self.mav.command_long_send(1, 1, cmd, confirmation, *p)
+            ack = self.wait_msg("COMMAND_ACK", timeout, lambda m: m.command == cmd)
+            if ack is not None:
+                return ack.result
+        return None
 
     # --- conveniences
     @property
