@@ -59,7 +59,6 @@ class VehicleClock:
         self._t0 = local()
         self._ref: tuple[float, float] | None = None  # (vehicle s, local s) of the window's start
         self.fault: str | None = None
-        self.measured_rate: float | None = None
 
     def observe(self, time_boot_ms: int) -> None:
         tv, tl = time_boot_ms / 1000.0, self.local()
@@ -69,7 +68,6 @@ class VehicleClock:
         dl = tl - self._ref[1]
         if dl >= self.WINDOW_S:
             r = (tv - self._ref[0]) / dl
-            self.measured_rate = r
             off = abs(r / self.rate - 1.0) > self.RATE_TOLERANCE
             self.fault = (f"the autopilot's clock runs at {r:.3g}× the host's, expected {self.rate:g}×"
                           if off else None)
