@@ -56,6 +56,7 @@ MAX_CLIENTS = 8  # udpin: other senders (ground stations, routers) heard from an
 CLIENT_TIMEOUT_S = 10.0  # a client silent this long is forgotten
 MAX_DATAGRAMS_PER_READ = 256
 READ_BUDGET_S = 0.005  # one recv_msg reads datagrams for at most this long looking for a message
+PORT_DATAGRAMS_PER_POLL = 256  # udpin, autopilot pinned: the shared port's datagrams read per poll at most
 
 
 class UdpLink(mavutil.mavfile):
@@ -75,7 +76,10 @@ class UdpLink(mavutil.mavfile):
       clients (answered too), at most MAX_CLIENTS, forgotten after CLIENT_TIMEOUT_S of silence; new
       senders beyond that are dropped unread (`refused_sources`);
     - reading drains the sockets in batches (`recv_msg` returns one message at a time; the daemon bounds
-      what it takes per cycle); the kernel's own drops are counted (SO_RXQ_OVFL, `kernel_drops`).
+      what it takes per cycle); once the autopilot has its own socket, the shared port (ground stations,
+      and whatever a flood sends) is read for at most PORT_DATAGRAMS_PER_POLL datagrams between two
+      empty reads (one poll), so a flood on the port costs a bounded, small part of each cycle; the rest
+      waits or is dropped by the kernel, which is counted (SO_RXQ_OVFL, `kernel_drops`).
     """
 
     def __init__(self, url: str, source_system: int, source_component: int, autopilot: tuple[int, int]):
@@ -103,6 +107,7 @@ class UdpLink(mavutil.mavfile):
         self._drops: dict[int, int] = {}
         self._queue: list = []
         self._q = 0
+        self._port_read = 0  # shared-port datagrams read in this poll (see PORT_DATAGRAMS_PER_POLL)
         mavutil.mavfile.__init__(self, self.sock.fileno(), url, source_system=source_system,
                                  source_component=source_component)
         self.robust_parsing = True
@@ -169,11 +174,11 @@ class UdpLink(mavutil.mavfile):
                 self.stats["kernel_drops"] = sum(self._drops.values())
         return data, addr
 
-    def _read_batch(self, sock: socket.socket) -> int:
-        """Read up to MAX_DATAGRAMS_PER_READ datagrams from `sock` into the queue; returns how many. Cheap
-        checks first, so that a flood costs little."""
+    def _read_batch(self, sock: socket.socket, limit: int = MAX_DATAGRAMS_PER_READ) -> int:
+        """Read up to `limit` datagrams from `sock` into the queue; returns how many. Cheap checks first,
+        so that a flood costs little."""
         now = time.monotonic()
-        for n in range(MAX_DATAGRAMS_PER_READ):
+        for n in range(limit):
             try:
                 data, addr = self._recv(sock)
             except (BlockingIOError, InterruptedError):
@@ -203,21 +208,32 @@ class UdpLink(mavutil.mavfile):
                 self._autopilot_seen = now
             elif valid and self.listening:  # a sender is a client once it has said something well-formed
                 self.clients[addr] = now
-        return MAX_DATAGRAMS_PER_READ
+        return limit
+
+    def _read_port(self) -> int:
+        """The shared port's next batch; with the autopilot on its own socket, within this poll's quota."""
+        if self.ap_sock is None:
+            return self._read_batch(self.sock)
+        limit = min(MAX_DATAGRAMS_PER_READ, PORT_DATAGRAMS_PER_POLL - self._port_read)
+        got = self._read_batch(self.sock, limit) if limit > 0 else 0
+        self._port_read += got
+        return got
 
     def recv_msg(self):
         """The next message: the autopilot's socket first, then the port's, reading until a message comes,
-        the sockets are empty, or READ_BUDGET_S has passed."""
+        the sockets are empty (or the port's quota is spent), or READ_BUDGET_S has passed. None ends a
+        poll and renews the port's quota."""
         if self._q >= len(self._queue):
             self._queue, self._q = [], 0
             t_end = time.monotonic() + READ_BUDGET_S
             while not self._queue and time.monotonic() < t_end:
                 got = self._read_batch(self.ap_sock) if self.ap_sock is not None else 0
                 if not self._queue:
-                    got += self._read_batch(self.sock)
+                    got += self._read_port()
                 if not got:
                     break
             if not self._queue:
+                self._port_read = 0
                 return None
         m = self._queue[self._q]
         self._q += 1
