@@ -1,0 +1,84 @@
+"""The SITL writes the autopilot's own flight log (issue 14): a ULog for the PX4 personality, a DataFlash
+`.bin` for ArduPilot. Read back with the well-kept libraries (pyulog, pymavlink's DFReader), never a
+hand-written reader, and checked against the simulator's truth in the real formats' units and frames."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pymavlink import DFReader
+from pyulog import ULog
+
+from sitl_harness import Sim
+from sitl_harness.__main__ import build_parser
+
+SCENARIO = {"vehicle": "x500", "start": {"alt_m": 5.0, "yaw_deg": 30.0}, "world": {"columns": [{"x_m": 5.196, "y_m": 3.0, "radius_m": 0.5}]}}
+
+
+def _fly(personality, tmp_path, seconds=4.0):
+    from sitl_harness.scenario import scenario_from_dict
+
+    sim = Sim(scenario_from_dict(SCENARIO), personality, log_dir=tmp_path)
+    sim.step(seconds)
+    truth = sim.truth()
+    return sim.close_log(), truth, sim
+
+
+def test_px4_ulog_reads_back_with_pyulog(tmp_path):
+    path, truth, _ = _fly("px4", tmp_path)
+    assert path.name == "flight-001.ulg" and path.parent == tmp_path
+    u = ULog(str(path))
+    top = {d.name: d.data for d in u.data_list}
+    lp = top["vehicle_local_position"]
+    rate = (len(lp["timestamp"]) - 1) / ((lp["timestamp"][-1] - lp["timestamp"][0]) / 1e6)
+    assert rate == pytest.approx(10, rel=0.05)
+    # metres NED, the last sample within one 100 ms step of the truth
+    assert lp["z"][-1] == pytest.approx(truth["pos"][2], abs=0.1) and lp["z"][-1] < -4
+    assert lp["xy_valid"].all()
+    att = top["vehicle_attitude"]
+    w, x, y, z = (att[f"q[{i}]"][-1] for i in range(4))
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))  # Hamilton, w first, FRD→NED
+    assert yaw == pytest.approx(truth["yaw"], abs=0.02) and yaw == pytest.approx(math.radians(30), abs=0.05)
+    thr = top["vehicle_thrust_setpoint"]["xyz[2]"]
+    assert np.all(thr < 0) and -thr[-1] == pytest.approx(truth["hover_thrust"], abs=0.1)  # FRD: up is negative
+    assert top["vehicle_status"]["arming_state"][-1] == 2 and top["vehicle_status"]["nav_state"][-1] == 4  # ARMED, LOITER
+    assert top["estimator_status"]["solution_status_flags"][-1] & 0x0B == 0x0B
+    assert top["estimator_selector_status"]["primary_instance"][-1] == 0
+    od = top["obstacle_distance"]
+    assert od["frame"][-1] == 12 and od["increment"][-1] == pytest.approx(5.0)  # MAV_FRAME_BODY_FRD, degrees
+    centre = int(np.argmin([abs(od["angle_offset"][-1] + od["increment"][-1] * k) for k in range(72)]))
+    assert od[f"distances[{centre}]"][-1] == pytest.approx((6.0 - 0.5) * 100, abs=40)  # centimetres
+    ds = top["distance_sensor"]
+    assert ds["current_distance"][-1] == pytest.approx(5.5, abs=0.4) and ds["orientation"][-1] == 0
+    assert u.initial_parameters["MPC_TILTMAX_AIR"] == pytest.approx(35.0)
+    assert u.initial_parameters["MAV_TYPE"] == 2
+    assert u.msg_info_dict["sys_name"] == "PX4" and u.msg_info_dict["ver_sw_release"] == 0x010F0000
+
+
+def test_ardupilot_dataflash_reads_back_with_dfreader(tmp_path):
+    path, truth, _ = _fly("ardupilot", tmp_path)
+    assert path.suffix == ".bin"
+    df = DFReader.DFReader_binary(str(path), zero_time_base=False)
+    last, counts, parms = {}, {}, {}
+    while (m := df.recv_msg()) is not None:
+        k = m.get_type()
+        last[k], counts[k] = m, counts.get(k, 0) + 1
+        if k == "PARM":
+            parms[m.Name] = m.Value
+    assert counts["XKF1"] == pytest.approx(40, abs=2)  # 10 Hz
+    assert last["XKF1"].PD == pytest.approx(truth["pos"][2], abs=0.1)
+    assert last["ATT"].Yaw == pytest.approx(30.0, abs=3) and last["ATT"].Yaw == pytest.approx(
+        math.degrees(truth["yaw"]) % 360, abs=0.5)  # degrees
+    assert last["CTUN"].ThO == pytest.approx(truth["hover_thrust"], abs=0.1)
+    assert last["RFND"].Dist == pytest.approx(5.5, abs=0.4) and last["RFND"].Stat == 4  # metres, Good
+    assert last["PRX"].D0 == pytest.approx(5.5, abs=0.4) and last["PRX"].D180 == 0.0  # metres; behind: no data
+    assert last["MODE"].Mode == 4  # GUIDED (an airborne start)
+    assert parms["ANGLE_MAX"] == pytest.approx(3500)  # centidegrees
+    assert df.formats[df.name_to_id["GUIP"]].units[2] == "cm"
+
+
+def test_sitl_cli_takes_log_dir():
+    args = build_parser().parse_args(["--log-dir", "/tmp/x"])
+    assert args.log_dir == "/tmp/x"
