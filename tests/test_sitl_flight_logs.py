@@ -13,6 +13,7 @@ from pyulog import ULog
 
 from sitl_harness import Sim
 from sitl_harness.__main__ import build_parser
+from sitl_harness.flightlog import Px4Log
 
 SCENARIO = {"vehicle": "x500", "start": {"alt_m": 5.0, "yaw_deg": 30.0}, "world": {"columns": [{"x_m": 5.196, "y_m": 3.0, "radius_m": 0.5}]}}
 
@@ -82,3 +83,80 @@ def test_ardupilot_dataflash_reads_back_with_dfreader(tmp_path):
 def test_sitl_cli_takes_log_dir():
     args = build_parser().parse_args(["--log-dir", "/tmp/x"])
     assert args.log_dir == "/tmp/x"
+
+
+def test_the_readers_take_the_sitl_logs_in_si_units(tmp_path):
+    """companion.ulog / companion.dataflash on the SITL's own logs: the same position, heading, thrust and
+    range as the truth, whatever the format's units (cm, degrees, FRD thrust, PRX sectors)."""
+    from companion.dataflash import read_dataflash
+    from companion.ulog import read_ulog
+
+    for personality, read in (("px4", read_ulog), ("ardupilot", read_dataflash)):
+        path, truth, _ = _fly(personality, tmp_path / personality)
+        feed = read(path)
+        last = {op: args for _, op, args in feed.ops}
+        assert last["pos"][2] == pytest.approx(truth["pos"][2], abs=0.1), personality
+        assert last["att"][2] == pytest.approx(truth["yaw"], abs=0.02), personality
+        assert last["thr"][0] == pytest.approx(truth["hover_thrust"], abs=0.1), personality
+        assert feed.info["lacking"] == {} or personality == "ardupilot", feed.info["lacking"]
+        bearings, ranges, _, inc, north = last["bins"]
+        ahead = ranges[np.argmin(np.abs(bearings))]
+        assert ahead == pytest.approx(5.5, abs=0.4) and not north, personality
+        if personality == "ardupilot":  # PRX: 45° sectors, and no data behind the 60° field of view
+            assert inc == pytest.approx(math.radians(45)) and len(bearings) == 3
+            assert feed.info["sources"]["bins"] == "PRX"
+        else:
+            assert inc == pytest.approx(math.radians(5.0)) and feed.info["sources"]["bins"] == "obstacle_distance"
+
+
+def test_guided_targets_are_the_commanded_path_without_pscn(tmp_path):
+    """A DataFlash log with GUIDED targets (GUIP, cm, NEU) but no PSCN/PSCE: GUIP is the commanded path."""
+    from companion.dataflash import read_dataflash
+    from sitl_harness.flightlog import DataFlashWriter
+
+    path = tmp_path / "guip.bin"
+    with DataFlashWriter(path) as w:
+        w.write("UNIT", 1, ord("m"), "m")
+        w.write("MULT", 1, ord("B"), 0.01)
+        w.write("FMTU", 1, w.type_of("GUIP"), "s-mmm-nnnooo", "F-BBB-BBBBBB")
+        for k in range(1, 50):
+            t = k * 100_000
+            w.write("XKF1", t, 0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.1 * k, 0.0, -2.0)
+            w.write("GUIP", t, 1, 10.0 * k + 50.0, 250.0, 200.0, 0, 100.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    feed = read_dataflash(path)
+    targets = [a for _, op, a in feed.ops if op == "target"]
+    assert targets[-1] == pytest.approx((4.9 + 0.5, 2.5)) and feed.info["sources"]["target"] == "GUIP (GUIDED target)"
+
+
+def test_fixed_wing_phases_are_cut_out():
+    from companion.loginput import exclude
+
+    ops = [(t, "pos", (t,)) for t in range(0, 100, 10)]
+    out, cuts = exclude(ops, [(30, 60)])
+    assert [o[0] for o in out] == [0, 10, 20, 30, 40, 50, 60] and [o[2][0] for o in out][3] == 60
+    assert cuts == [{"t": 30e-6, "cut_s": 30e-6}]
+
+
+def test_the_primary_estimator_is_the_one_judged(tmp_path):
+    """estimator_selector_status names instance 1 primary: its estimator_status (a bad solution) is the one read."""
+    from companion.ulog import read_ulog
+    from sitl_harness.ulog_writer import ULogWriter
+
+    path = tmp_path / "two_ekf.ulg"
+    w = ULogWriter(path)
+    w.define("vehicle_local_position", Px4Log.TOPICS["vehicle_local_position"])
+    w.define("estimator_status", "uint64_t timestamp;uint16_t solution_status_flags")
+    w.define("estimator_selector_status", "uint64_t timestamp;uint8_t primary_instance")
+    lp, e0, e1, sel = w.add("vehicle_local_position"), w.add("estimator_status", 0), w.add("estimator_status", 1), \
+        w.add("estimator_selector_status")
+    for k in range(1, 30):
+        t = k * 100_000
+        w.data(lp, {"timestamp": t, "x": 0.1 * k, "z": -2.0, "xy_valid": True, "v_xy_valid": True})
+        w.data(e0, {"timestamp": t, "solution_status_flags": 0x33F})
+        w.data(e1, {"timestamp": t, "solution_status_flags": 0x21})
+        w.data(sel, {"timestamp": t, "primary_instance": 0 if k < 5 else 1})
+    w.close()
+    feed = read_ulog(path)
+    navs = [a[1] for _, op, a in feed.ops if op == "nav"]
+    assert set(navs) == {0x21}
+    assert "primary estimator changed 1×" in feed.info["estimator_notes"][0]
