@@ -14,7 +14,7 @@ Message → op, fields and units from ArduPilot's log message documentation
 | ARM                | ArmState                                                 | mode (armed flag) |
 | EV                 | Id 18 LAND_COMPLETE, 28 NOT_LANDED, 10 ARMED, 11 DISARMED | landed |
 | XKF4 (core 0)      | SS: nav_filter_status bits (= EKF_STATUS_REPORT.flags)   | nav     |
-| RFND               | Dist [m], Stat (4 = good), Orient (MAV_SENSOR_ORIENTATION) | range |
+| RFND               | Dist [m], Stat (4 Good; 3 OutOfRangeHigh: nothing within RNGFND1_MAX_CM), Orient (MAV_SENSOR_ORIENTATION) | range |
 | PRX (AP_Proximity LogStructure.h) | He, D0…D315: nearest object per 45° body sector [m] (0: no data; ≥ PRX1_MAX: none within range) | bins |
 | GUIP (ArduCopter Log.cpp) | pX, pY: GUIDED position target, NEU from the EKF origin; cm in Copter 4.x (FMTU multiplier B), m where FMTU says so | target (when no PSCN/PSCE) |
 | PARM               | Name, Value (ANGLE_MAX cdeg, WPNAV_ACCEL cm/s², WPNAV_JERK, …) | param |
@@ -45,7 +45,7 @@ TYPES = ["XKF1", "NKF1", "ATT", "PSCN", "PSCE", "CTUN", "MODE", "ARM", "EV", "XK
 PARAMS = ("ANGLE_MAX", "WPNAV_ACCEL", "WPNAV_JERK", "WPNAV_SPEED", "GUID_TIMEOUT", "MOT_THST_HOVER", "FRAME_CLASS",
           "Q_ENABLE", "AVOID_ENABLE", "PRX1_TYPE", "PRX1_MAX", "RNGFND1_TYPE", "RNGFND1_MIN_CM", "RNGFND1_MAX_CM")
 EV_LANDED = {18: 1, 28: 2}  # LAND_COMPLETE → on ground, NOT_LANDED → in air (AP_Logger LogEvent)
-RFND_GOOD = 4  # AP_RangeFinder Status::Good
+RFND_GOOD, RFND_OUT_OF_RANGE_HIGH = 4, 3  # AP_RangeFinder::Status
 MAX_T_US = 1 << 62
 PRX_SECTORS = ("D0", "D45", "D90", "D135", "D180", "D225", "D270", "D315")
 # DataFlash format characters → numpy (LogStructure.h; DFReader's FORMAT_TO_STRUCT gives the multipliers)
@@ -199,14 +199,18 @@ def read_dataflash(path) -> Feed:
         core0 = d["C"] == 0 if "C" in d else np.ones(len(d["TimeUS"]), bool)
         add(d["TimeUS"][core0], "nav", [("EKF_STATUS_REPORT", int(v)) for v in d["SS"][core0].tolist()], ekf4)
     if (d := col.get("RFND")):
-        # RFND has no min/max: the RNGFND1_MIN_CM/MAX_CM parameters give them; without them, or unless Stat is
-        # Good, a reading is unknown (invalid), never free space
+        # RFND has no min/max: the RNGFND1_MIN_CM/MAX_CM parameters give them. Stat Good: a reading;
+        # OutOfRangeHigh: nothing within the maximum (what MAVLink's DISTANCE_SENSOR says with a distance
+        # beyond max_distance, and MAVLink-in reads as free to the maximum); any other status, or no
+        # maximum known: unknown (invalid), never free space
         lo, hi = params.get("RNGFND1_MIN_CM", 0.0) / 100, params.get("RNGFND1_MAX_CM", 0.0) / 100
         o = d["Orient"].astype(int)
         fwd = o < 8  # ROTATION_YAW_45·k (clockwise); down-facing (25) covers no path
-        good = (d["Stat"] == RFND_GOOD) & (hi > 0)
-        rows = [(math.radians(45 * oo), float(dist), lo, hi if g else 0.0, 0 if g else 1)
-                for oo, dist, g in zip(o[fwd].tolist(), d["Dist"][fwd].tolist(), good[fwd].tolist())]
+        stat = d["Stat"].astype(int)
+        good = ((stat == RFND_GOOD) | (stat == RFND_OUT_OF_RANGE_HIGH)) & (hi > 0)
+        dist = np.where(stat == RFND_OUT_OF_RANGE_HIGH, max(hi, 0.0) + 0.01, d["Dist"].astype(float))
+        rows = [(math.radians(45 * oo), float(dd), lo, hi if g else 0.0, 0 if g else 1)
+                for oo, dd, g in zip(o[fwd].tolist(), dist[fwd].tolist(), good[fwd].tolist())]
         add(d["TimeUS"][fwd], "range", rows, "RFND")
     if (d := col.get("PRX")):
         layer = d["Layer"] if "Layer" in d else np.full(len(d["TimeUS"]), 2)
