@@ -30,7 +30,10 @@ clock search, a walk of the whole log looking for GPS time, is skipped (`_Reader
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -66,13 +69,34 @@ def _reader_class():
     return _Reader
 
 
+@contextlib.contextmanager
+def _quiet_stderr():
+    """File descriptor 2 to /dev/null for the block (the indexer writes from C as well as from Python)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _skipped(df) -> int:
+    """Bytes DFReader's index does not cover: skipped over a corrupt stretch or torn at the end."""
+    covered = sum(df.counts[k] * df.formats[k].len for k in range(256) if df.counts[k] and k in df.formats)
+    return max(0, df.data_len - covered)
+
+
 def _open(path: Path):
     head = read_head(path, "a DataFlash log")
     if not head.startswith(HEAD):
         what = "it looks like a PX4 ULog" if head.startswith(b"ULog") else f"starts with {head[:8].hex()}"
         raise ContractError(f"{path}: not an ArduPilot DataFlash log (no 0xA3 0x95 header; {what})")
     try:
-        return _reader_class()(str(path), zero_time_base=False)
+        with _quiet_stderr():  # DFReader's indexer prints a line per byte of a corrupt stretch: counted instead
+            return _reader_class()(str(path), zero_time_base=False)
     except Exception as err:  # noqa: BLE001 — DFReader raises anything on a broken file: one line
         raise ContractError(f"{path}: unreadable DataFlash log ({type(err).__name__}: {str(err)[:120]})") from None
 
@@ -243,6 +267,9 @@ def read_dataflash(path) -> Feed:
     if stopped:
         damaged.append(f"the reader stopped early ({stopped}): the rest of the file is not reviewed")
     torn = max(torn, _trailing(df))
+    if (skipped := _skipped(df) - torn) > 0:
+        damaged.append(f"{skipped} bytes of corrupt data skipped (the reader resynchronised on the next message "
+                       "header): the messages there are lost")
     if torn:
         damaged.append(f"the file ends inside a message (truncated: the last {torn} bytes lost)")
     span = ops[-1][0] / 1e6

@@ -217,7 +217,11 @@ def read_ulog(path) -> Feed:
             fw = vt[:-1] == VEHICLE_TYPE_FIXED_WING
             fixed_wing_s = float(np.sum(np.diff(t)[fw]) / 1e6)
             vtype = int(vt[-1])
-            fw_spans = [(int(t[i]), int(t[i + 1])) for i in np.nonzero(fw)[0]]
+            for i in np.nonzero(fw)[0]:  # consecutive fixed-wing samples make one phase
+                if fw_spans and fw_spans[-1][1] == int(t[i]):
+                    fw_spans[-1] = (fw_spans[-1][0], int(t[i + 1]))
+                else:
+                    fw_spans.append((int(t[i]), int(t[i + 1])))
     if (d := top.get("vehicle_land_detected")) is not None and (c := _col(d, "landed")) is not None:
         add("vehicle_land_detected", ts["vehicle_land_detected"], "landed", [(1 if v > 0 else 2,) for v in c.tolist()])
     if (d := top.get("estimator_status")) is not None and (c := _col(d, "solution_status_flags")) is not None:

@@ -160,3 +160,37 @@ def test_the_primary_estimator_is_the_one_judged(tmp_path):
     navs = [a[1] for _, op, a in feed.ops if op == "nav"]
     assert set(navs) == {0x21}
     assert "primary estimator changed 1×" in feed.info["estimator_notes"][0]
+
+
+def test_a_vtols_fixed_wing_phase_is_excluded_and_said_once(tmp_path):
+    """A VTOL ULog: hover-speed multirotor flight, a 20 s fixed-wing phase at 18 m/s, multirotor again. The
+    fixed-wing phase is cut out of the review (said once), so its speed is not a multirotor finding."""
+    from companion.cli import review_log
+    from sitl_harness.ulog_writer import ULogWriter
+
+    path = tmp_path / "vtol.ulg"
+    w = ULogWriter(path)
+    for name in ("vehicle_local_position", "vehicle_status", "distance_sensor", "vehicle_land_detected"):
+        w.define(name, Px4Log.TOPICS[name])
+    w.param("MAV_TYPE", 22, True)  # MAV_TYPE_VTOL_QUADROTOR (quadplane)
+    lp, st, ds, ld = (w.add(n) for n in ("vehicle_local_position", "vehicle_status", "distance_sensor",
+                                         "vehicle_land_detected"))
+    w.data(ld, {"timestamp": 1, "landed": False})
+    x = 0.0
+    for k in range(1, 601):  # 60 s at 10 Hz
+        t = k * 100_000
+        fw = 200 <= k < 400
+        v = 18.0 if fw else 0.5
+        x += v * 0.1
+        w.data(lp, {"timestamp": t, "x": x, "z": -20.0, "vx": v, "xy_valid": True, "v_xy_valid": True})
+        w.data(ds, {"timestamp": t, "min_distance": 0.2, "max_distance": 40.0, "current_distance": 41.0,
+                    "signal_quality": 100, "orientation": 0})
+        if k % 5 == 0:
+            w.data(st, {"timestamp": t, "nav_state": 3, "arming_state": 2, "vehicle_type": 2 if fw else 1,
+                        "is_vtol": True})
+    w.close()
+    rep, origin = review_log(path, tmp_path / "out", vehicle="x500")
+    said = [f for f in rep["findings"] if "fixed-wing" in f]
+    assert len(said) == 1 and "excluded" in said[0] and "1 phase(s)" in said[0], rep["findings"]
+    assert rep["outside_contract"]["flown_above_v_safe_s"] == 0 and not rep["over_limit"]["worst_beyond_allowed"]
+    assert rep["span"]["duration_s"] == pytest.approx(40.0, abs=1.0)  # 60 s less the 20 s cut out
