@@ -186,9 +186,13 @@ def read_dataflash(path) -> Feed:
             att = np.radians(np.stack([d[k][core0].astype(float) for k in ("Roll", "Pitch", "Yaw")], axis=1))
             add(t, "att", [tuple(r) for r in att.tolist()], ekf)
     if have_att:
+        # at most one sample per 20 ms, as the ULog reader: the daemon's loop takes no more, and Copter logs
+        # ATT at up to 400 Hz with fast attitude logging
         d = col["ATT"]
-        att = np.radians(np.stack([d[k].astype(float) for k in ("Roll", "Pitch", "Yaw")], axis=1))
-        add(d["TimeUS"], "att", [tuple(r) for r in att.tolist()], "ATT")
+        t = d["TimeUS"].astype(np.int64)
+        keep = np.concatenate(([True], np.diff(t // 20_000) > 0))
+        att = np.radians(np.stack([d[k][keep].astype(float) for k in ("Roll", "Pitch", "Yaw")], axis=1))
+        add(t[keep], "att", [tuple(r) for r in att.tolist()], "ATT")
     if col.get("PSCN") and col.get("PSCE"):  # written as a pair: each PSCE with the PSCN at most 5 ms before
         n, e = col["PSCN"], col["PSCE"]
         k = np.searchsorted(n["TimeUS"], e["TimeUS"], side="right") - 1

@@ -189,7 +189,7 @@ def test_a_vtols_fixed_wing_phase_is_excluded_and_said_once(tmp_path):
             w.data(st, {"timestamp": t, "nav_state": 3, "arming_state": 2, "vehicle_type": 2 if fw else 1,
                         "is_vtol": True})
     w.close()
-    rep, origin = review_log(path, tmp_path / "out", vehicle="x500")
+    rep, _ = review_log(path, tmp_path / "out", vehicle="x500")
     said = [f for f in rep["findings"] if "fixed-wing" in f]
     assert len(said) == 1 and "excluded" in said[0] and "1 phase(s)" in said[0], rep["findings"]
     assert rep["outside_contract"]["flown_above_v_safe_s"] == 0 and not rep["over_limit"]["worst_beyond_allowed"]
