@@ -6,8 +6,11 @@ must agree on the findings each can see, and agree with the simulator's truth:
 - navigation violations (Γ of the navigation guarantee broken: an obstacle found inside the stop distance),
 - the time flown above V_safe and above the limit, and by how much,
 - the holds (live governor: `hold_trigger`; shadow and every replay: `would_hold`) and their causes,
-- collisions: only the truth has them; every review must find the negative control outside the contract,
-  and the hidden-fog flight's navigation violation before its collision.
+- collisions: only the truth has them; every review must find the negative controls outside the contract,
+  and the hidden-fog flight's navigation violation before its collision — except that the daemon's own
+  event log cannot see a raised limit (the negative control the issue names: the governor's table × 1.3):
+  it records the raised V_safe as the contract's, so its review finds nothing while both raw-log replays,
+  through the real table, find the flight above V_safe (asserted as such, so a change is noticed).
 
 What each cannot see, and so is not compared: the controller guarantee is judged live only (a shadow replay
 commands no limit, its notes say so); the .tlog and the autopilot's log hold none of the daemon's decisions
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import pytest
 
+from companion.baselines import Scaled
 from companion.cli import review_log
 from companion.eventlog import read_events
 from companion.review import review
@@ -44,12 +48,17 @@ def flight(kind: str, personality: str):
     if kind == "offboard":
         return offboard_scenario(1, personality=personality), {"config": offboard_config(), "flight": engage_and_fly,
                                                                "seconds": 22.0}
-    # the negative control: no guard (shadow mode) at 8 m/s, twice what the contract allows, into a column
+    if kind == "limit_raised":  # the negative control the issue names: the governor's limit raised × 1.3
+        return column_scenario(1, x_col=28.0, cruise=8.0), {
+            "seconds": 14.0, "rig_kwargs": {"table_wrapper": lambda table: Scaled(table, 1.3)}}
+    # the other negative control: no guard (shadow mode) at 8 m/s, twice what the contract allows, into a column
     return column_scenario(1, x_col=28.0, cruise=8.0), {"config": {"mode": "shadow"}, "seconds": 12.0}
 
 
 FLIGHTS = [("fog_honest", "px4"), ("fog_hidden", "px4"), ("fog_hidden", "ardupilot"), ("offboard", "px4"),
-           ("offboard", "ardupilot"), ("no_guard", "px4"), ("no_guard", "ardupilot")]
+           ("offboard", "ardupilot"), ("no_guard", "px4"), ("no_guard", "ardupilot"), ("limit_raised", "px4"),
+           ("limit_raised", "ardupilot")]
+NEGATIVE = ("no_guard", "limit_raised")
 
 
 def signature(rep: dict) -> dict:
@@ -87,33 +96,42 @@ def test_the_three_logs_agree_with_each_other_and_with_the_truth(three_reviews):
     r = three_reviews
     live, tlog, own = (signature(r["reps"][k]) for k in ("live", "tlog", "own"))
     kind, truth = r["kind"], r["truth"]
-    # the truth: the negative control hits the column, and so does the hidden fog (a sensor that reports a
+    # the truth: the negative controls hit the column, and so does the hidden fog (a sensor that reports a
     # range it cannot see breaks the navigation assumption: the contract cannot hold); nothing else does
-    assert bool(truth["collisions"]) == (kind in ("no_guard", "fog_hidden")), truth["collisions"]
+    assert bool(truth["collisions"]) == (kind in (*NEGATIVE, "fog_hidden")), truth["collisions"]
     if kind == "fog_hidden":  # the hidden fog breaks the navigation guarantee: found in every log
         assert len(live["navigation"]) == 1 and live["navigation"][0] > FOG_AT_S
+    if kind == "limit_raised":
+        # what the daemon's own event log cannot see: it logs the raised limit as the contract's (V_safe × 1.3
+        # too), so its review finds nothing; the replays of the raw logs, through the real table, do
+        assert live["above_v_safe_s"] == 0 and live["worst_over"] is None and not r["reps"]["live"]["findings"]
     for name, other in (("tlog", tlog), ("own", own)):
         assert len(other["navigation"]) == len(live["navigation"]), (name, other, live)
         for a, b in zip(other["navigation"], live["navigation"]):
             assert a == pytest.approx(b, abs=0.15), name  # one step of the ULog's 10 Hz local position
         assert other["other_violations"] == live["other_violations"], name
         assert (other["gamma_positive_s"] > 0) == (live["gamma_positive_s"] > 0), name
-        assert other["above_v_safe_s"] == pytest.approx(live["above_v_safe_s"], abs=0.3), name
-        assert other["above_limit_s"] == pytest.approx(live["above_limit_s"], abs=0.3), name
-        assert (other["worst_over"] is None) == (live["worst_over"] is None), name
-        if live["worst_over"] is not None:
-            assert other["worst_over"] == pytest.approx(live["worst_over"], abs=0.1), name
+        ref = tlog if kind == "limit_raised" else live  # the .tlog is the reference where the event log is blind
+        assert other["above_v_safe_s"] == pytest.approx(ref["above_v_safe_s"], abs=0.3), name
+        assert other["above_limit_s"] == pytest.approx(ref["above_limit_s"], abs=0.3), name
+        assert (other["worst_over"] is None) == (ref["worst_over"] is None), name
+        if ref["worst_over"] is not None:
+            assert other["worst_over"] == pytest.approx(ref["worst_over"], abs=0.1), name
     # the holds and their causes: the live governor's real holds are the replays' would-be holds
-    live_holds = r["live_holds"] if kind.startswith("fog") else [(t, c[0]) for t, c in live["holds"] if t > 1.0]
+    if kind == "no_guard":
+        live_holds = [(t, c[0]) for t, c in live["holds"] if t > 1.0]
+    else:
+        live_holds = r["live_holds"]
     for name, other in (("tlog", tlog), ("own", own)):
         moving = [(t, c) for t, c in other["holds"] if t > 1.0]  # before take-off: no safe speed, in every log
         assert [c for _, c in moving] == [(c,) for _, c in live_holds], (name, other["holds"], live_holds)
         for (t, _), (t_live, _) in zip(moving, live_holds):
             assert t == pytest.approx(t_live, abs=0.15), name
-    if kind == "no_guard":  # the negative control is outside the contract in every log
-        for name, s in (("live", live), ("tlog", tlog), ("own", own)):
-            assert s["above_v_safe_s"] > 3.0 and s["worst_over"] > 3.0, name
-            assert s["holds"] and "obstacle inside the stop distance" in s["holds"][0][1], name
+    if kind in NEGATIVE:  # the negative controls are outside the contract in every log that can see it
+        seen = (("tlog", tlog), ("own", own)) + ((("live", live),) if kind == "no_guard" else ())
+        for name, s in seen:
+            assert s["above_v_safe_s"] > 3.0 and s["worst_over"] > (3.0 if kind == "no_guard" else 1.0), name
+            assert s["holds"] and "obstacle inside the stop distance" in s["holds"][-1][1], name
     else:  # the guarded flights kept the contract where each log can judge it, except the hidden fog's violation
         for name, s in (("live", live), ("tlog", tlog), ("own", own)):
             assert s["above_v_safe_s"] < (2.0 if kind == "fog_hidden" else 0.3), name

@@ -25,11 +25,12 @@ T0 = 1_790_000_000.0  # UNIX time of the simulator's t = 0 (the tlog's stamps)
 
 
 def record(directory: Path, scenario, personality, config=None, outgoing=False, seconds=16.0, flight=fly,
-           log_dir=None, keep: dict | None = None):
+           log_dir=None, keep: dict | None = None, rig_kwargs: dict | None = None):
     """Fly in lock-step with the daemon writing its event log and raw.tlog (stamped in sim time); with
     `outgoing`, the daemon's own packets go into the tlog too (a router or MAVProxy logging both ways);
     with `log_dir`, the SITL writes the autopilot's own flight log there too (`Rig.close_log`); `keep`
-    gets the rig as "rig" (for its truth). Returns the config file the flight used."""
+    gets the rig as "rig" (for its truth); `rig_kwargs`: more `Rig` arguments (e.g. a negative control's
+    table_wrapper). Returns the config file the flight used."""
     box = {}
 
     def wall():
@@ -37,7 +38,7 @@ def record(directory: Path, scenario, personality, config=None, outgoing=False, 
 
     log = EventLog(directory, tlog=True, clock=wall, fsync_events=False)
     rig = box["rig"] = Rig(scenario, personality, config={**(config or {}), "log": {"tlog": True}}, log=log,
-                           log_dir=log_dir)
+                           log_dir=log_dir, **(rig_kwargs or {}))
     rig.daemon.wall = wall
     if keep is not None:
         keep["rig"] = rig
