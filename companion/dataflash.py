@@ -17,6 +17,7 @@ Message → op, fields and units from ArduPilot's log message documentation
 | RFND               | Dist [m], Stat (4 Good; 3 OutOfRangeHigh: nothing within RNGFND1_MAX_CM), Orient (MAV_SENSOR_ORIENTATION) | range |
 | PRX (AP_Proximity LogStructure.h) | He, D0…D315: nearest object per 45° body sector [m] (0: no data; ≥ PRX1_MAX: none within range) | bins |
 | GUIP (ArduCopter Log.cpp) | pX, pY: GUIDED position target, NEU from the EKF origin; cm in Copter 4.x (FMTU multiplier B), m where FMTU says so | target (when no PSCN/PSCE) |
+| GPS                | Status (3: 3D fix), GWk, GMS: GPS week and ms → the log's UTC (wall0) | —     |
 | PARM               | Name, Value (ANGLE_MAX cdeg, WPNAV_ACCEL cm/s², WPNAV_JERK, …) | param |
 
 A file DFReader cannot read (empty, another format) ends in one `ContractError` line; DFReader skips a
@@ -44,7 +45,8 @@ from .loginput import Feed, lacking, order, read_head
 
 HEAD = b"\xa3\x95"
 TYPES = ["XKF1", "NKF1", "ATT", "PSCN", "PSCE", "CTUN", "MODE", "ARM", "EV", "XKF4", "NKF4", "RFND", "PRX", "GUIP",
-         "PARM", "MSG"]
+         "PARM", "MSG", "GPS"]
+GPS_EPOCH_UNIX_S, GPS_LEAP_S, GPS_FIX_3D = 315_964_800, 18, 3  # 1980-01-06; GPS − UTC since 2017; AP_GPS status
 PARAMS = ("ANGLE_MAX", "WPNAV_ACCEL", "WPNAV_JERK", "WPNAV_SPEED", "GUID_TIMEOUT", "MOT_THST_HOVER", "FRAME_CLASS",
           "Q_ENABLE", "AVOID_ENABLE", "PRX1_TYPE", "PRX1_MAX", "RNGFND1_TYPE", "RNGFND1_MIN_CM", "RNGFND1_MAX_CM")
 EV_LANDED = {18: 1, 28: 2}  # LAND_COMPLETE → on ground, NOT_LANDED → in air (AP_Logger LogEvent)
@@ -256,6 +258,13 @@ def read_dataflash(path) -> Feed:
             rows.append((bearings[known], np.where(row[known] >= cap - 0.005, np.inf, row[known]),
                          cap if math.isfinite(cap) else float(np.max(row, initial=0.0)), math.radians(45), False))
         add(d["TimeUS"][mid], "bins", rows, "PRX")
+    wall0 = 0.0
+    if (d := col.get("GPS")) and "GWk" in d and "GMS" in d and ops:  # the log's UTC, from the first 3D fix
+        fix = np.nonzero((d["Status"] >= GPS_FIX_3D) & (d["GWk"] > 0))[0] if "Status" in d else np.zeros(0, int)
+        if len(fix):
+            k = int(fix[0])
+            utc = GPS_EPOCH_UNIX_S + int(d["GWk"][k]) * 604_800 + int(d["GMS"][k]) / 1000 - GPS_LEAP_S
+            wall0 = utc - (int(d["TimeUS"][k]) - min(t for t, _, _ in ops)) / 1e6
     if not any(op == "pos" for _, op, _ in ops):
         raise ContractError(f"{path}: no usable telemetry: the DataFlash log has no XKF1/NKF1 (EKF position) "
                             f"(messages: {', '.join(sorted(df.name_to_id)) or 'none'})")
@@ -298,4 +307,4 @@ def read_dataflash(path) -> Feed:
         "damaged": damaged,
         "time_jumps": jumps[:100],
     }
-    return Feed(ops=ops, info=info, autopilot="ardupilot")
+    return Feed(ops=ops, info=info, autopilot="ardupilot", wall0=wall0)

@@ -38,7 +38,7 @@ from .ulog_writer import ULogWriter
 HEAD = b"\xa3\x95"
 FMT_TYPE = 128
 STRUCT = {"B": "B", "I": "I", "Q": "Q", "f": "f", "N": "16s", "M": "B", "n": "4s", "Z": "64s", "i": "i", "h": "h",
-          "b": "b", "d": "d"}
+          "b": "b", "d": "d", "H": "H", "L": "i", "e": "i"}
 
 # name → (format, columns); a subset of each message's real columns, with the real names and units
 MESSAGES = {
@@ -61,6 +61,8 @@ MESSAGES = {
     "MULT": ("Qbd", "TimeUS,Id,Mult"),
     "FMTU": ("QBNN", "TimeUS,FmtType,UnitIds,MultIds"),
     "MSG": ("QZ", "TimeUS,Message"),  # text, e.g. the firmware version at boot
+    # AP_GPS LogStructure.h: Status (3 = 3D fix), GPS week ms and week, Lat/Lng (1e-7 deg), Alt (cm → 'e')
+    "GPS": ("QBBIHBLLe", "TimeUS,I,Status,GMS,GWk,NSats,Lat,Lng,Alt"),
 }
 
 
@@ -107,6 +109,7 @@ PX4_NAV_STATE = {(1, 0): 0, (2, 0): 1, (3, 0): 2, (4, 2): 17, (4, 3): 4, (4, 4):
                  (4, 8): 19, (4, 9): 20, (5, 0): 10, (6, 0): 14, (7, 0): 15}
 EV_ARMED, EV_DISARMED, EV_LAND_COMPLETE, EV_NOT_LANDED = 10, 11, 18, 28  # AP_Logger LogEvent
 RFND_NO_DATA, RFND_OUT_OF_RANGE_HIGH, RFND_GOOD = 1, 3, 4  # AP_RangeFinder::Status
+GPS_EPOCH_UNIX_S, GPS_LEAP_S = 315_964_800, 18  # 1980-01-06T00:00:00Z; GPS − UTC since 2017
 PX4_SW_RELEASE = 0x010F0000  # v1.15.0, as the SITL's AUTOPILOT_VERSION says
 
 
@@ -316,7 +319,8 @@ class ArduPilotLog(FlightLog):
     """The ArduPilot personality's DataFlash log (ArduPilot's messages, fields and units)."""
 
     suffix = ".bin"
-    RATES: ClassVar[dict[str, float]] = dict.fromkeys(("XKF1", "XKF4", "ATT", "PSC", "CTUN", "GUIP", "params"), 10.0)
+    RATES: ClassVar[dict[str, float]] = {**dict.fromkeys(("XKF1", "XKF4", "ATT", "PSC", "CTUN", "GUIP", "params"), 10.0),
+                                         "GPS": 5.0}
 
     def __init__(self, sim, path: Path):
         super().__init__(sim, path)
@@ -378,6 +382,11 @@ class ArduPilotLog(FlightLog):
             vel = [float(c) * 100 if math.isfinite(c) else 0.0 for c in ob.vel]
             w.write("GUIP", us, 1, float(ob.pos[0]) * 100, float(ob.pos[1]) * 100, pz, 0,
                     vel[0], vel[1], -vel[2], 0.0, 0.0, 0.0)  # cm, cm/s, NEU (z up)
+        if due("GPS", t):
+            lat, lon, alt = ap.geo_from_local(m.pos)
+            gps_s = sim.endpoint.unix_epoch_s + t - GPS_EPOCH_UNIX_S + GPS_LEAP_S
+            week, ms = divmod(round(gps_s * 1000), 604_800_000)
+            w.write("GPS", us, 0, 3, ms, week, 14, round(lat * 1e7), round(lon * 1e7), round(alt * 100))
         if (rd := self.fresh_reading(sim)) is not None:
             stat = RFND_OUT_OF_RANGE_HIGH if rd.current_cm > rd.max_cm else RFND_GOOD
             w.write("RFND", us, 0, min(rd.current_cm, rd.max_cm) / 100, stat, 0)

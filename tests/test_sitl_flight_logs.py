@@ -194,3 +194,17 @@ def test_a_vtols_fixed_wing_phase_is_excluded_and_said_once(tmp_path):
     assert len(said) == 1 and "excluded" in said[0] and "1 phase(s)" in said[0], rep["findings"]
     assert rep["outside_contract"]["flown_above_v_safe_s"] == 0 and not rep["over_limit"]["worst_beyond_allowed"]
     assert rep["span"]["duration_s"] == pytest.approx(40.0, abs=1.0)  # 60 s less the 20 s cut out
+
+
+def test_the_dataflash_log_knows_its_utc_from_gps(tmp_path):
+    """GPS week and ms (less the leap seconds) give the log's wall-clock time, as the ULog's time_utc_usec."""
+    from companion.dataflash import read_dataflash
+    from sitl_harness.scenario import scenario_from_dict
+
+    sim = Sim(scenario_from_dict(SCENARIO), "ardupilot", log_dir=tmp_path, unix_epoch_s=1_767_225_600.0)
+    sim.step(2.0)
+    feed = read_dataflash(sim.close_log())
+    assert feed.wall0 == pytest.approx(1_767_225_600.0, abs=0.02)
+    df = DFReader.DFReader_binary(str(next(tmp_path.glob("*.bin"))), zero_time_base=False)
+    gps = df.recv_match(type="GPS")
+    assert gps.Lat == pytest.approx(sim.scenario.home.lat_deg, abs=1e-4) and gps.Status == 3  # degrees (1e-7 int)
