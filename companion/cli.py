@@ -208,8 +208,14 @@ def cmd_table_etr(args) -> int:
     from contracts.runner import show_progress
     from sitl_harness.etr_sweep import build_etr  # offline: flies the SITL
 
+    from contracts.vehicle import DATA_DIR
+
+    table = table_file(args.table)
+    if table.resolve().parent == DATA_DIR and args.out is None:
+        raise ContractError(f"table etr: {args.table} is a shipped table; give --out for the result (shipped tables "
+                            "are not rewritten in place)")
     with _interruptible():
-        s = build_etr(args.table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
+        s = build_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                       progress=show_progress(not args.json), out=args.out, resume=args.resume)
     resumed = f", {s['resumed_cells']} from the checkpoint" if s["resumed_cells"] else ""
     _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s"
