@@ -19,7 +19,7 @@ import sys
 import time
 
 os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil  # noqa: E402
+from pymavlink import mavutil
 
 mav = mavutil.mavlink
 MODES = {"px4": {"mission": (4, 4)}, "ardupilot": {"mission": (3, 0)}}  # PX4 main/sub, Copter AUTO = 3
