@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import struct
 import sys
 import time
 
@@ -30,8 +31,11 @@ def say(text: str) -> None:
 
 
 class Station:
-    def __init__(self, url: str, sysid: int = 255):
+    def __init__(self, url: str, sysid: int = 255, tlog: str | None = None):
         self.m = mavutil.mavlink_connection(url, source_system=sysid, source_component=mav.MAV_COMP_ID_MISSIONPLANNER)
+        # what it receives, stamped on arrival (8-byte big-endian µs, then the packet), as MAVProxy's and
+        # QGC's telemetry logs are
+        self.tlog = open(tlog, "wb") if tlog else None
         self.last: dict[str, object] = {}
         self.seen: set[tuple[int, int]] = set()
         self.t_hb = 0.0
@@ -54,6 +58,8 @@ class Station:
         return None
 
     def _take(self, msg) -> None:
+        if self.tlog is not None:
+            self.tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + msg.get_msgbuf())
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         kind = msg.get_type()
         self.last[kind] = msg
@@ -85,9 +91,10 @@ def main(argv=None) -> int:
     ap.add_argument("--takeoff-m", type=float, default=2.5, help="take-off altitude above home [m] (PX4: at least its MIS_TAKEOFF_ALT 2.5 m)")
     ap.add_argument("--seconds", type=float, default=40.0, help="listen this long after engaging")
     ap.add_argument("--no-engage", action="store_true", help="leave CG_ENGAGE alone")
+    ap.add_argument("--tlog", help="write what this ground station receives to a .tlog (as MAVProxy does)")
     ap.add_argument("--wait-s", type=float, default=60.0, help="give up when the vehicle or daemon stays silent")
     a = ap.parse_args(argv)
-    s = Station(a.connect)
+    s = Station(a.connect, tlog=a.tlog)
     say(f"connecting to {a.connect}")
     if s.poll(a.wait_s, lambda m: m.get_type() == "HEARTBEAT" and (m.get_srcSystem(), m.get_srcComponent()) == (1, 1)) is None:
         say("no autopilot heartbeat (is the SITL listening on that port?)")
@@ -121,6 +128,9 @@ def main(argv=None) -> int:
         ok &= echo is not None and echo.param_value == 1.0
     s.poll(a.seconds)
     say(f"done: fastest ground speed {s.v_max_seen:.2f} m/s{'' if ok else ' (a step failed)'}")
+    if s.tlog is not None:
+        s.tlog.close()
+    s.m.close()
     return 0 if ok else 1
 
 
