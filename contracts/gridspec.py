@@ -45,3 +45,15 @@ def load_mapping(path, what: str = "grid file") -> dict:
     if not isinstance(data, dict):
         raise ContractError(f"{what} {path}: expected a mapping")
     return data
+
+
+def as_grid(grid, vehicle, default, from_dict, what: str = "grid file"):
+    """The grid a build was given: a grid object as is, a mapping through `from_dict(mapping, vehicle)`, a
+    YAML path loaded first, None → `default(vehicle)`."""
+    from pathlib import Path
+
+    if grid is None:
+        return default(vehicle)
+    if isinstance(grid, (str, Path)):
+        grid = load_mapping(grid, what)
+    return from_dict(grid, vehicle) if isinstance(grid, dict) else grid

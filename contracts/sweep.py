@@ -34,8 +34,8 @@ import numpy as np
 from .avoid_limit import policy_guess, stop_speed_kinematic
 from .errors import ContractError
 from .flat import horizontal_accel_limit, thrust_limited_accel
+from .gridspec import as_grid, load_mapping
 from .gridspec import axis as _axis
-from .gridspec import load_mapping
 from .lookup import repair_monotone
 from .planner import Limits, check_trajectory, head_on_problem, plan
 from .runner import ONE_THREAD, Checkpoint, run_tasks
@@ -257,12 +257,7 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
     """
     t_start = time.perf_counter()
     veh = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
-    if grid is None:
-        grid = default_grid(veh)
-    elif isinstance(grid, (str, Path)):
-        grid = load_grid(grid, veh)
-    elif isinstance(grid, dict):
-        grid = grid_from_dict(grid, veh)
+    grid = as_grid(grid, veh, default_grid, grid_from_dict)
     if tilt_model not in ("cone", "box"):
         raise ContractError(f"unknown tilt model {tilt_model!r} (cone or box)")
     out = Path(out)
@@ -324,6 +319,8 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
     F_rep, repairs = repair_monotone(F, (-1, +1, +1), "down")
     frac = repairs / F.size
     if frac > MAX_REPAIR_FRACTION:
+        if ckpt is not None:  # a finished build that fails: nothing to resume
+            ckpt.remove()
         raise ContractError(f"avoid table: {repairs} of {F.size} cells ({100 * frac:.2f} %) needed a "
                             f"monotonicity repair (limit {100 * MAX_REPAIR_FRACTION:.0f} %)")
     cpu = np.array([s[2] for s in solves])

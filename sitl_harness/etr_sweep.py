@@ -51,7 +51,7 @@ import numpy as np
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
-from contracts.gridspec import axis, load_mapping
+from contracts.gridspec import as_grid, axis, load_mapping
 from contracts.lookup import repair_monotone
 from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc
 from contracts.runner import Checkpoint, run_tasks
@@ -258,12 +258,7 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
     veh = table.vehicle
     if table.avoid is None:
         raise ContractError(f"table {table_path}: no avoid contract (its limiting trajectories are flown)")
-    if grid is None:
-        grid = default_etr_grid(veh)
-    elif isinstance(grid, (str, Path)):
-        grid = load_etr_grid(grid, veh)
-    elif isinstance(grid, dict):
-        grid = etr_grid_from_dict(grid, veh)
+    grid = as_grid(grid, veh, default_etr_grid, etr_grid_from_dict, "E_tr grid file")
     dest = Path(out) if out is not None else Path(table_path)
     ckpt = None
     if checkpoint:

@@ -23,7 +23,7 @@ GRID = ROOT / "examples" / "vehicles" / "grid-small.yaml"
 
 
 def cg(*args, **kw):
-    return subprocess.Popen([sys.executable, "-m", "companion.cli", *map(str, args)], check=False, cwd=ROOT, env=ENV,
+    return subprocess.Popen([sys.executable, "-m", "companion.cli", *map(str, args)], cwd=ROOT, env=ENV,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
 
 
