@@ -35,7 +35,7 @@ class Station:
         self.m = mavutil.mavlink_connection(url, source_system=sysid, source_component=mav.MAV_COMP_ID_MISSIONPLANNER)
         # what it receives, stamped on arrival (8-byte big-endian µs, then the packet), as MAVProxy's and
         # QGC's telemetry logs are
-        self.tlog = open(tlog, "wb") if tlog else None
+        self.tlog = open(tlog, "wb") if tlog else None  # noqa: SIM115 (closed at the end of main)
         self.last: dict[str, object] = {}
         self.seen: set[tuple[int, int]] = set()
         self.t_hb = 0.0
