@@ -104,3 +104,34 @@ def test_interrupted_etr_sweep_resumes_to_the_same_controller_contract(tmp_path)
     ref = tmp_path / "ref.npz"
     finished(["table", "etr", "--table", "x500", "--grid", grid, "--out", ref, "--workers", "1"])
     assert_same_arrays(out, ref)
+
+
+def test_a_progress_bar_on_a_terminal(tmp_path):
+    """On a terminal (a pty of 24×100) `table etr` draws its tqdm bar on stderr, and still ends in one line."""
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    grid = tmp_path / "etr.yaml"
+    grid.write_text("v_max: [2.0]\ntilt_deg: [30]\nthrust_ratio: [0.7, 1.0]\nrhos: [0.35]\nseeds: [0]\n")
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: a terminal of 24 rows and 100 columns, as a person's
+        fcntl.ioctl(0, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+        os.chdir(ROOT)
+        os.execve(sys.executable, [sys.executable, "-m", "companion.cli", "table", "etr", "--table", "x500", "--grid",
+                                   str(grid), "--out", str(tmp_path / "t.npz"), "--workers", "1"], ENV)
+    out = b""
+    while True:
+        try:
+            chunk = os.read(fd, 65536)
+        except OSError:
+            break
+        if not chunk:
+            break
+        out += chunk
+    _, status = os.waitpid(pid, 0)
+    text = out.decode(errors="replace")
+    assert os.waitstatus_to_exitcode(status) == 0, text
+    assert "E_tr cells: 100%" in text and "2/2" in text, text
+    assert text.replace("\r", "\n").strip().splitlines()[-1].startswith("wrote E_tr_pred into"), text
