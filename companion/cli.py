@@ -8,12 +8,15 @@ subcommands; the work lives in `contracts/`, `companion/` and `sitl_harness/`.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import signal
 import sys
 from pathlib import Path
 
 from contracts.errors import ContractError
+from contracts.runner import BuildInterrupted
 
 EXIT_USER_ERROR = 2
 
@@ -163,6 +166,20 @@ def cmd_table_query(args) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _interruptible():
+    """SIGTERM (systemd, `kill`, a CI timeout) stops a long build as Ctrl-C does: the workers are stopped
+    and the checkpoint is kept (`contracts.runner.run_tasks`)."""
+    def _term(signum, frame):
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, _term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
 def cmd_table_build(args) -> int:
     if not getattr(args, "stop_only", False):
         need("build", "casadi")
@@ -175,22 +192,35 @@ def cmd_table_build(args) -> int:
         _emit({"ok": True, "out": str(args.out), "available": meta["available"]}, args.json,
               f"wrote {args.out} ({meta['note']})")
         return 0
+    from contracts.runner import show_progress
     from contracts.sweep import build_avoid_table  # offline only: imports CasADi
 
-    summary = build_avoid_table(vehicle, args.out, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
-                                tilt_model=args.tilt_model or vehicle.tilt_model, progress=not args.json)
+    with _interruptible():
+        summary = build_avoid_table(vehicle, args.out, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
+                                    tilt_model=args.tilt_model or vehicle.tilt_model,
+                                    progress=show_progress(not args.json), resume=args.resume)
     _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {one_line(summary)}")
     return 0
 
 
 def cmd_table_etr(args) -> int:
     """The controller contract E_tr_pred (Figure 12) from SITL flights, written into the table."""
+    from contracts.runner import show_progress
     from sitl_harness.etr_sweep import build_etr  # offline: flies the SITL
 
-    s = build_etr(args.table, args.vehicle, workers=args.workers, scheduler=args.scheduler,
-                  progress=not args.json, out=args.out)
-    _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s, "
-          f"{s['monotone_repairs_up']} repaired upward, worst raw contour error {s['raw_worst_max_m']:.3f} m")
+    from contracts.vehicle import DATA_DIR
+
+    table = table_file(args.table)
+    if table.resolve().parent == DATA_DIR and args.out is None:
+        raise ContractError(f"table etr: {args.table} is a shipped table; give --out for the result (shipped tables "
+                            "are not rewritten in place)")
+    with _interruptible():
+        s = build_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
+                      progress=show_progress(not args.json), out=args.out, resume=args.resume)
+    resumed = f", {s['resumed_cells']} from the checkpoint" if s["resumed_cells"] else ""
+    _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s"
+          f"{resumed}, {s['monotone_repairs_up']} repaired upward, worst raw contour error "
+          f"{s['raw_worst_max_m']:.3f} m (--json for the full record)")
     return 0
 
 
@@ -513,6 +543,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--workers", type=int, default=2, help="local process pool size")
     b.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     b.add_argument("--tilt-model", choices=["cone", "box"], default=None)
+    b.add_argument("--resume", action="store_true",
+                   help="continue an interrupted build from its checkpoint (OUT.partial/, kept until the table is written)")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_table_build)
 
@@ -520,6 +552,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--table", type=Path, required=True, help="table with an avoid slot (updated in place unless --out)")
     e.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
     e.add_argument("--out", type=Path, help="write the result here instead of in place")
+    e.add_argument("--grid", type=Path, help="E_tr grid YAML: v_max, tilt_deg, thrust_ratio, rhos, seeds "
+                   "(default: the vehicle's shipped grid, about 15 min on two cores)")
+    e.add_argument("--resume", action="store_true",
+                   help="continue an interrupted sweep from its checkpoint (DEST.partial/, kept until the table is written)")
     e.add_argument("--workers", type=int, default=2, help="local process pool size")
     e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     e.add_argument("--json", action="store_true")
@@ -574,6 +610,9 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
+    except BuildInterrupted as err:
+        print(f"contract-guard: {err}", file=sys.stderr)
+        return 130
     except ContractError as err:
         print(f"contract-guard: error: {err}", file=sys.stderr)
         return EXIT_USER_ERROR

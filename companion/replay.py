@@ -7,7 +7,9 @@ two). The returned `Replay` (a `review.Origin`) becomes the report's `replay` se
 lacked or spoiled, and its findings. Every packet in the tlog is fed — the autopilot's stream and
 anything else (a ground station's, or our daemon's own outgoing packets when a router or MAVProxy
 logged both directions); the daemon keeps what it would have kept in flight. The in-flight daemon's
-`NAMED_VALUE_FLOAT` values, when present, are compared with the replay.
+`NAMED_VALUE_FLOAT` values, when present, are compared with the replay, aligned in time and over the part
+of the flight in which it was engaged (`in_flight`); a real difference is one finding saying which value,
+where, and what it points at.
 
 Log time is the tlog's stamp relative to the first good packet; an earlier stamp by ≤ 1 s is taken
 as reordering, a larger step back or a silence longer than `MAX_GAP_US` as a clock jump (closed up,
@@ -299,8 +301,49 @@ def in_log_time(t_us, loop_hz: float, take, step) -> int:
         k += 1
 
 
+# The in-flight daemon's NAMED_VALUE_FLOATs against the replay (`in_flight`). A value is stamped when the
+# logger received it: it was computed up to one NVF period (0.5 s) plus the routing before that, from the
+# autopilot packets the logger received at about the same time as the daemon did. So it is compared with
+# every replayed sample in [t − ALIGN_BEFORE_S, t + ALIGN_AFTER_S] and differs by the *smallest* difference
+# there (a step in D_od or V_max is not a difference when the two cross it a sample apart).
+ALIGN_BEFORE_S = 0.6
+ALIGN_AFTER_S = 0.15
+TOLERANCE = {"v_max": 0.2, "d_od": 0.3, "e_tr": 0.1}  # [m/s, m, m]: beyond these a value differs
+# the in-flight daemon's state STATUSTEXTs (`supervisor`: "CG: <state> (<reason>)"): engaged while active/holding
+ENGAGED_TEXT = ("CG: active", "CG: holding")
+DISENGAGED_TEXT = ("CG: standby", "CG: failsafe", "CG: contract-guard stopping")
+WARM_UP_S = 2.0  # with no state text at all (a shadow flight): skip the in-flight daemon's first seconds
+WHY = {  # what a difference in each value points at, in the order a reviewer should read them
+    "d_od": "D_od differs: the sensors (range, field of view, orientation) or the obstacle data in the tlog are "
+            "not the flight's",
+    "e_tr": "E_tr differs: another E_tr floor or window, another table's controller contract (E_tr_pred), or "
+            "the commanded path is not in the tlog",
+    "v_max": "V_max differs where D_od and E_tr agree: another table, R_obst or thrust estimate than the flight's",
+}
+
+
+def engaged_spans(texts, srcs, t_end_s: float) -> tuple[list[tuple[float, float]], str]:
+    """Spans [s] in which the in-flight daemon was engaged (active or holding), from its own STATUSTEXTs;
+    with none, everything after its warm-up. Returns (spans, what was compared)."""
+    mine = [(t / 1e6, text) for t, sy, cp, text in texts if (sy, cp) in srcs]
+    if not any(text.startswith(ENGAGED_TEXT + DISENGAGED_TEXT) for _, text in mine):
+        return [], "all"
+    spans, start = [], None
+    for t, text in mine:
+        if text.startswith(ENGAGED_TEXT) and start is None:
+            start = t
+        elif text.startswith(DISENGAGED_TEXT) and start is not None:
+            spans.append((start, t))
+            start = None
+    if start is not None:
+        spans.append((start, t_end_s))
+    return spans, "engaged"
+
+
 def in_flight(scan: Scan, samples: list[tuple], columns: tuple, target_system: int) -> dict | None:
-    """The in-flight daemon's own values (NAMED_VALUE_FLOAT, STATUSTEXT, commands) against the replay."""
+    """The in-flight daemon's values (NAMED_VALUE_FLOAT, STATUSTEXT, commands) against the replay, aligned
+    in time (see ALIGN_BEFORE_S) and over the part of the flight in which it was engaged (its STATUSTEXTs
+    say when; a flight it never engaged in is compared after its warm-up)."""
     srcs = {(sy, cp) for _, sy, cp, _, _ in scan.in_flight} | {(sy, cp) for _, sy, cp, _ in scan.texts}
     srcs = {s for s in srcs if s[0] == target_system}
     if not srcs:
@@ -308,23 +351,48 @@ def in_flight(scan: Scan, samples: list[tuple], columns: tuple, target_system: i
     ti = columns.index("t")
     rows = [r for r in samples if isinstance(r[ti], (int, float))]
     times = [r[ti] for r in rows]
-    diffs: dict[str, list[float]] = {v: [] for v in IN_FLIGHT.values()}
-    for t, sy, cp, name, value in scan.in_flight:
-        j = bisect.bisect_right(times, t / 1e6 + 1e-6) - 1
-        if (sy, cp) not in srcs or value == -1.0 or j < 0 or t / 1e6 - times[j] > 0.25:
-            continue  # -1: the daemon's "not finite"; no replayed sample close enough before it
-        got = rows[j][columns.index(IN_FLIGHT[name])]
-        if isinstance(got, (int, float)):
-            diffs[IN_FLIGHT[name]].append(abs(got - value))
+    mine = [(t / 1e6, name, value) for t, sy, cp, name, value in scan.in_flight if (sy, cp) in srcs]
+    spans, part = engaged_spans(scan.texts, srcs, scan.t_us[-1] / 1e6 if len(scan.t_us) else 0.0)
+    if part == "all" and mine:
+        spans = [(mine[0][0] + WARM_UP_S, float("inf"))]
+    diffs: dict[str, list[tuple[float, float]]] = {v: [] for v in IN_FLIGHT.values()}
+    for t, name, value in mine:
+        if value == -1.0 or not any(a <= t <= b for a, b in spans):
+            continue  # -1: the daemon's "not finite"; outside the compared part
+        lo = bisect.bisect_left(times, t - ALIGN_BEFORE_S)
+        hi = bisect.bisect_right(times, t + ALIGN_AFTER_S)
+        k = columns.index(IN_FLIGHT[name])
+        near = [rows[j][k] for j in range(lo, hi) if isinstance(rows[j][k], (int, float))]
+        if near:
+            diffs[IN_FLIGHT[name]].append((t, min(abs(v - value) for v in near)))
     commands = Counter(name for _, sy, cp, name, _, _ in scan.commands if (sy, cp) in srcs)
+    worst = {k: max(v, key=lambda x: x[1]) if v else None for k, v in diffs.items()}
     return {
         "components": sorted(srcs),
+        "compared_part": part,
+        "engaged_spans": [[a, b] for a, b in spans] if part == "engaged" else None,
+        "alignment_s": [-ALIGN_BEFORE_S, ALIGN_AFTER_S],
+        "tolerance": TOLERANCE,
         "compared": {k: len(v) for k, v in diffs.items()},
-        "max_abs_diff": {k: max(v) if v else None for k, v in diffs.items()},
-        "mean_abs_diff": {k: sum(v) / len(v) if v else None for k, v in diffs.items()},
+        "max_abs_diff": {k: w[1] if w else None for k, w in worst.items()},
+        "max_abs_diff_t": {k: w[0] if w else None for k, w in worst.items()},
+        "mean_abs_diff": {k: sum(d for _, d in v) / len(v) if v else None for k, v in diffs.items()},
+        "differing": {k: sum(1 for _, d in v if d > TOLERANCE[k]) for k, v in diffs.items()},
         "statustext": [{"t": t / 1e6, "text": text} for t, sy, cp, text in scan.texts if (sy, cp) in srcs][:LISTED],
         "commands": dict(commands),
     }
+
+
+def differs(fl: dict) -> str | None:
+    """One finding line when the replay really differs from the in-flight daemon, saying where and why."""
+    bad = {k: n for k, n in fl["differing"].items() if n}
+    if not bad:
+        return None
+    what = ", ".join(f"{k} by up to {fl['max_abs_diff'][k]:.2f} at t = {fl['max_abs_diff_t'][k]:.2f} s "
+                     f"({n} of {fl['compared'][k]} values beyond {TOLERANCE[k]:g})" for k, n in bad.items())
+    why = [WHY[k] for k in ("d_od", "e_tr") if k in bad] or [WHY["v_max"]]
+    part = "while it was engaged" if fl["compared_part"] == "engaged" else "after its warm-up"
+    return f"replay differs from the in-flight daemon {part}: {what}; {'; '.join(why)}"
 
 
 def _needed(cfg: Config) -> dict[str, tuple[str, ...]]:
@@ -358,11 +426,9 @@ class Replay(Origin):
         if info["time_jumps"]:
             out.append(f"{len(info['time_jumps'])} clock jump(s) in the tlog stamps closed up")
         fl = info.get("in_flight")
-        if fl:
-            worst = {k: v for k, v in fl["max_abs_diff"].items() if v is not None and v > 0.5}
-            if worst:
-                out.append("replay differs from the in-flight daemon: " + ", ".join(
-                    f"{k} by up to {v:.2f}" for k, v in worst.items()) + " (another config or table?)")
+        line = differs(fl) if fl else None
+        if line:
+            out.append(line)
         return out
 
     def lines(self) -> list[str]:
@@ -373,8 +439,10 @@ class Replay(Origin):
                f"{ap['system']}/{ap['component']} ({ap['from']}); event log: {rp['event_log'] or 'not kept'}"]
         fl = rp.get("in_flight")
         if fl:
-            out.append("  in-flight daemon vs replay, max |difference|: " + ", ".join(
-                f"{k} {fmt_value(v)} ({fl['compared'][k]} values)" for k, v in fl["max_abs_diff"].items()))
+            part = "while engaged" if fl["compared_part"] == "engaged" else "after its warm-up"
+            out.append(f"  in-flight daemon vs replay ({part}, aligned within {ALIGN_BEFORE_S:g} s), max |difference|: "
+                       + ", ".join(f"{k} {fmt_value(v)} ({fl['compared'][k]} values)"
+                                   for k, v in fl["max_abs_diff"].items()))
         return out
 
     def title(self) -> str:

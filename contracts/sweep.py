@@ -30,14 +30,15 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from .avoid_limit import policy_guess, stop_speed_kinematic
 from .errors import ContractError
 from .flat import horizontal_accel_limit, thrust_limited_accel
+from .gridspec import as_grid, load_mapping
+from .gridspec import axis as _axis
 from .lookup import repair_monotone
 from .planner import Limits, check_trajectory, head_on_problem, plan
-from .runner import ONE_THREAD, run_tasks
+from .runner import ONE_THREAD, Checkpoint, run_tasks
 from .table import MAX_REPAIR_FRACTION, Slot, verify, write_table
 from .trajectories import trajectories_path, write_trajectories
 from .vehicle import G, Vehicle, load_vehicle
@@ -67,26 +68,6 @@ class Grid:
                 "thrust_ratio": [float(self.thrust_ratio[0]), float(self.thrust_ratio[-1]), len(self.thrust_ratio)],
                 "n_intervals": self.n_intervals, "cpu_time_s": self.cpu_time_s, "rel_tol": self.rel_tol,
                 "starts": self.starts}
-
-
-def _axis(spec, name, deg=False) -> np.ndarray:
-    if isinstance(spec, (list, tuple)):
-        vals = np.asarray(spec, dtype=float)
-    elif isinstance(spec, dict):
-        lo, hi = float(spec["min"]), float(spec["max"])
-        if "step" in spec:
-            vals = np.arange(lo, hi + 0.5 * float(spec["step"]), float(spec["step"]))
-            vals = np.round(vals, 10)
-        else:
-            n = int(spec["n"])
-            vals = np.geomspace(lo, hi, n) if spec.get("spacing", "linear") == "geometric" else np.linspace(lo, hi, n)
-    elif isinstance(spec, (int, float)):
-        vals = np.asarray([float(spec)])
-    else:
-        raise ContractError(f"grid: {name} must be a list or a mapping with min/max and n or step")
-    if vals.size == 0 or not np.all(np.isfinite(vals)) or np.any(np.diff(vals) <= 0):
-        raise ContractError(f"grid: {name} must be finite and strictly increasing")
-    return np.radians(vals) if deg else vals
 
 
 def default_grid(vehicle: Vehicle) -> Grid:
@@ -128,13 +109,7 @@ def grid_from_dict(data: dict, vehicle: Vehicle) -> Grid:
 
 
 def load_grid(path: str | Path, vehicle: Vehicle) -> Grid:
-    try:
-        data = yaml.safe_load(Path(path).read_text())
-    except OSError as err:
-        raise ContractError(f"grid file {path}: cannot read ({err.strerror or err})") from None
-    except yaml.YAMLError:
-        raise ContractError(f"grid file {path}: not valid YAML") from None
-    return grid_from_dict(data or {}, vehicle)
+    return grid_from_dict(load_mapping(path), vehicle)
 
 
 # ============================================================================ one cell
@@ -269,22 +244,20 @@ def _scaled(w, ts, v, lam):
 
 
 def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str | None = None,
-                      tilt_model: str = "cone", progress: bool = True) -> dict:
+                      tilt_model: str = "cone", progress: bool = True, resume: bool = False,
+                      checkpoint: bool = True) -> dict:
     """Build, verify and write the avoid table (plus `<out>.trajectories.npz`); returns a summary.
 
     `vehicle`: a `Vehicle`, a shipped name or a YAML path. `grid`: a `Grid`, a dict (`grid_from_dict`),
     a YAML path, or None (`default_grid`). `workers`: local process pool size (1: in-process);
     `scheduler`: a Dask distributed scheduler address (overrides `workers`).
-    Raises `ContractError` if more than 1 % of the cells need a monotonicity repair.
+    Raises `ContractError` if more than 1 % of the cells need a monotonicity repair. With `checkpoint`,
+    finished tasks are kept in `<out>.partial/` until the table is written; `resume` continues from it
+    (`contracts.runner.Checkpoint`), and an existing checkpoint without `resume` is refused.
     """
     t_start = time.perf_counter()
     veh = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
-    if grid is None:
-        grid = default_grid(veh)
-    elif isinstance(grid, (str, Path)):
-        grid = load_grid(grid, veh)
-    elif isinstance(grid, dict):
-        grid = grid_from_dict(grid, veh)
+    grid = as_grid(grid, veh, default_grid, grid_from_dict)
     if tilt_model not in ("cone", "box"):
         raise ContractError(f"unknown tilt model {tilt_model!r} (cone or box)")
     out = Path(out)
@@ -295,8 +268,14 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
             tasks.append({"class": ci, "limits": lim, "rhos": [float(r) for r in grid.rho[s : s + grid.chunk]],
                           "n": grid.n_intervals, "cpu_time": grid.cpu_time_s, "rel_tol": grid.rel_tol,
                           "starts": grid.starts, "first": s})
+    ckpt = None
+    if checkpoint:
+        key = {"build": "avoid", "vehicle": veh.fingerprint(), "tilt_model": tilt_model, "grid": grid.describe(),
+               "axes": [grid.rho.tolist(), grid.tilt.tolist(), grid.thrust_ratio.tolist()], "chunk": grid.chunk,
+               "tasks": len(tasks)}
+        ckpt = Checkpoint(out, key, resume, "contract-guard table build")
     results = run_tasks(tasks, workers, scheduler, progress, len(classes) * len(grid.rho), fn=_solve_chunk,
-                        desc="avoid cells")
+                        desc="avoid cells", checkpoint=ckpt)
     n_rho, n = len(grid.rho), grid.n_intervals
     V = np.zeros((len(classes), n_rho))
     HI = np.full((len(classes), n_rho), np.inf)
@@ -340,6 +319,8 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
     F_rep, repairs = repair_monotone(F, (-1, +1, +1), "down")
     frac = repairs / F.size
     if frac > MAX_REPAIR_FRACTION:
+        if ckpt is not None:  # a finished build that fails: nothing to resume
+            ckpt.remove()
         raise ContractError(f"avoid table: {repairs} of {F.size} cells ({100 * frac:.2f} %) needed a "
                             f"monotonicity repair (limit {100 * MAX_REPAIR_FRACTION:.0f} %)")
     cpu = np.array([s[2] for s in solves])
@@ -371,6 +352,8 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
     traj_path = write_trajectories(out, grid.rho, grid.tilt, grid.thrust_ratio, cls_of, scale, V, HI, W, TS, BR, C_REF,
                                    tilt_model, meta["arrays_sha256"])
     verify(out, veh)
+    if ckpt is not None:
+        ckpt.remove()
     wall = time.perf_counter() - t_start
     feas = cpu[ok] if ok.any() else np.zeros(1)
     infeas = cpu[~ok] if (~ok).any() else np.zeros(1)
@@ -378,7 +361,7 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
             "cells": int(F.size), "shape_classes": len(classes), "class_cells": int(len(classes) * n_rho),
             "solves": int(len(solves)), "solve_cpu_s": {"feasible": feas.tolist(), "infeasible": infeas.tolist()},
             "monotone_repairs": int(repairs), "verify_fallbacks": int(fails), "wall_s": wall,
-            "grid": grid.describe()}
+            "resumed_cells": ckpt.resumed_items if ckpt is not None else 0, "grid": grid.describe()}
 
 
 # ============================================================================ fresh answers (tests, note)

@@ -51,9 +51,10 @@ import numpy as np
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
+from contracts.gridspec import as_grid, axis, load_mapping
 from contracts.lookup import repair_monotone
 from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc
-from contracts.runner import run_tasks
+from contracts.runner import Checkpoint, run_tasks
 from contracts.table import SLOTS, Slot, verify, write_table
 from contracts.trajectories import limiting_trajectory, pass_branches
 from contracts.vehicle import Vehicle, load_vehicle
@@ -177,6 +178,36 @@ def default_etr_grid(vehicle: Vehicle) -> EtrGrid:
                    thrust_ratio=np.round(np.array([lo, 0.5 * (lo + hi), hi]), 10))
 
 
+def etr_grid_from_dict(data: dict, vehicle: Vehicle) -> EtrGrid:
+    """`table etr --grid FILE` format (YAML mapping); every key optional, defaults from `default_etr_grid`:
+
+        v_max: {min: 1, max: 8, step: 0.5}     # [m/s], or a list
+        tilt_deg: [5, 15, 30]                  # must lie on the avoid table's tilt axis
+        thrust_ratio: [0.6, 1.0]               # must lie on the avoid table's thrust axis
+        rhos: [0.1, 0.35]                      # avoid geometries flown (default BUILD_RHOS)
+        seeds: [0, 1]                          # wind seeds per flight
+    """
+    known = {"v_max", "tilt_deg", "thrust_ratio", "rhos", "seeds"}
+    bad = set(data) - known
+    if bad:
+        raise ContractError(f"E_tr grid: unknown key {min(bad)!r} (known: {', '.join(sorted(known))})")
+    g = default_etr_grid(vehicle)
+    v = axis(data["v_max"], "v_max") if "v_max" in data else g.v
+    if v[0] <= 0:
+        raise ContractError("E_tr grid: v_max must be positive")
+    tilt = axis(data["tilt_deg"], "tilt_deg", deg=True) if "tilt_deg" in data else g.tilt
+    tr = axis(data["thrust_ratio"], "thrust_ratio") if "thrust_ratio" in data else g.thrust_ratio
+    rhos = tuple(float(r) for r in axis(data["rhos"], "rhos")) if "rhos" in data else g.rhos
+    seeds = tuple(int(x) for x in data["seeds"]) if "seeds" in data else g.seeds
+    if not seeds:
+        raise ContractError("E_tr grid: seeds must name at least one seed")
+    return EtrGrid(v=v, tilt=tilt, thrust_ratio=tr, rhos=rhos, seeds=seeds)
+
+
+def load_etr_grid(path, vehicle: Vehicle) -> EtrGrid:
+    return etr_grid_from_dict(load_mapping(path, "E_tr grid file"), vehicle)
+
+
 def _avoid_index(table, tilt: float, thrust_ratio: float) -> tuple[int, int]:
     _, tilts, trs = table.avoid.axes
     j = np.flatnonzero(np.isclose(tilts, tilt, atol=1e-9))
@@ -188,9 +219,10 @@ def _avoid_index(table, tilt: float, thrust_ratio: float) -> tuple[int, int]:
 
 
 def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 2, scheduler: str | None = None,
-                    progress: bool = True) -> tuple[np.ndarray, dict, np.ndarray]:
+                    progress: bool = True, checkpoint=None) -> tuple[np.ndarray, dict, np.ndarray]:
     """Worst contour error per cell (no margin, no repair) → (values (n_v, n_tilt, n_tr), per-manoeuvre
-    worst, number of ``online@ρ`` geometries skipped for want of a verified plan)."""
+    worst, number of ``online@ρ`` geometries skipped for want of a verified plan). `checkpoint`: a
+    `contracts.runner.Checkpoint` keeping the finished columns."""
     table = verify(table_path, vehicle) if table_path is not None else None
     tasks = []
     for j, tilt in enumerate(grid.tilt):
@@ -200,7 +232,7 @@ def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 
                           "v": [float(x) for x in grid.v], "tilt": float(tilt), "thrust_ratio": float(tr),
                           "avoid_index": idx, "rhos": tuple(grid.rhos), "seeds": tuple(grid.seeds), "jk": (j, k)})
     results = run_tasks(tasks, workers, scheduler, progress, len(tasks) * len(grid.v), fn=_etr_column,
-                        desc="E_tr cells")
+                        desc="E_tr cells", checkpoint=checkpoint)
     worst = np.zeros((len(grid.v), len(grid.tilt), len(grid.thrust_ratio)))
     per = {m: np.zeros_like(worst) for m in MANEUVERS}
     skipped = np.zeros(worst.shape, dtype=int)
@@ -215,17 +247,25 @@ def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 
 
 
 def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: int = 2, scheduler: str | None = None,
-              progress: bool = True, out=None) -> dict:
+              progress: bool = True, out=None, resume: bool = False, checkpoint: bool = True) -> dict:
     """Fly the sweep, add the margin, repair upward and write E_tr_pred into the table (in place, or
-    to `out`), keeping its avoid slot exactly; returns a summary (build time included)."""
+    to `out`), keeping its avoid slot exactly; returns a summary (build time included). `grid`: an
+    `EtrGrid`, a mapping (`etr_grid_from_dict`), a YAML path or None. With `checkpoint` the finished
+    columns are kept in `<destination>.partial/` until the table is written; `resume` continues from it."""
     t0 = time.perf_counter()
     veh = vehicle if isinstance(vehicle, Vehicle) else (load_vehicle(vehicle) if vehicle else None)
     table = verify(table_path, veh)
     veh = table.vehicle
     if table.avoid is None:
         raise ContractError(f"table {table_path}: no avoid contract (its limiting trajectories are flown)")
-    grid = grid or default_etr_grid(veh)
-    worst, per, skipped = measure_surface(table_path, veh, grid, workers, scheduler, progress)
+    grid = as_grid(grid, veh, default_etr_grid, etr_grid_from_dict, "E_tr grid file")
+    dest = Path(out) if out is not None else Path(table_path)
+    ckpt = None
+    if checkpoint:
+        key = {"build": "e_tr_pred", "vehicle": veh.fingerprint(), "table_arrays": table.meta.get("arrays_sha256"),
+               "grid": grid.describe(), "margin": [MARGIN_REL, MARGIN_ABS], "maneuvers": list(MANEUVERS)}
+        ckpt = Checkpoint(dest, key, resume, "contract-guard table etr")
+    worst, per, skipped = measure_surface(table_path, veh, grid, workers, scheduler, progress, ckpt)
     e = np.where(np.isfinite(worst), worst * (1.0 + MARGIN_REL) + MARGIN_ABS, np.inf)
     e_rep, repairs = repair_monotone(e, SLOTS["e_tr_pred"][2], "up")
     wall = time.perf_counter() - t0
@@ -249,13 +289,15 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
         "raw_worst_max_m": float(np.max(np.where(np.isfinite(worst), worst, 0.0))),
         "build_wall_s": round(wall, 1), "workers": scheduler or workers,
     }
-    dest = Path(out) if out is not None else Path(table_path)
     method = dict(table.meta.get("method") or {})
     method["e_tr_pred"] = "sitl_harness.etr_sweep.build_etr"
     write_table(dest, veh, tilt_model=table.tilt_model, avoid=table.avoid,
                 e_tr_pred=Slot((grid.v, grid.tilt, grid.thrust_ratio), e_rep, info), method=method)
     verify(dest, veh)
+    if ckpt is not None:
+        ckpt.remove()
     return {"path": str(dest), "vehicle": veh.name, "cells": int(e.size), "wall_s": round(time.perf_counter() - t0, 1),
+            "resumed_cells": ckpt.resumed_items if ckpt is not None else 0,
             "monotone_repairs_up": int(repairs), "unbounded_cells": info["unbounded_cells"],
             "online_skipped": info["online_skipped"], "online_flown": info["online_flown"],
             "worst_maneuver_cells": info["worst_maneuver_cells"],

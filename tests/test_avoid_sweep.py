@@ -89,7 +89,7 @@ def test_build_fails_when_more_than_one_percent_of_cells_need_repair(tmp_path, m
     """Fake solver output (valid pure stops, non-monotone in ρ): the build must refuse, not ship."""
     veh = load_vehicle("mambo")
 
-    def fake_run(tasks, workers, scheduler, progress, total, fn=None, desc=None):
+    def fake_run(tasks, workers, scheduler, progress, total, fn=None, desc=None, checkpoint=None):
         out = []
         for t in tasks:
             res = []
@@ -105,7 +105,7 @@ def test_build_fails_when_more_than_one_percent_of_cells_need_repair(tmp_path, m
     with pytest.raises(ContractError, match="monotonicity repair"):
         sweep.build_avoid_table(veh, tmp_path / "bad.npz", grid={"rho": [0.1, 0.2, 0.3, 0.4], "tilt_deg": [5],
                                                                "thrust_ratio": [1.0]}, workers=1, progress=False)
-    assert not (tmp_path / "bad.npz").exists()
+    assert not (tmp_path / "bad.npz").exists() and not (tmp_path / "bad.npz.partial").exists()
 
 
 def test_dask_scheduler_path(tmp_path):
