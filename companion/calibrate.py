@@ -33,6 +33,8 @@ from .loginput import Feed, order
 IN_AIR = 2  # MAV_LANDED_STATE_IN_AIR
 POSITION_MODES = ("mission", "hold", "offboard", "position", "rtl")
 MAV_CMD_DO_SET_MODE = 176
+HOVER_MIN = 200  # hover samples a log needs before its hover throttle may lower the vehicle file's
+HOVER_IQR = 0.05
 
 
 # ----------------------------------------------------------------------------- reading
@@ -272,9 +274,12 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
     vdict = vehicle.metadata()
     vdict["braking"] = {**vdict["braking"], "accel_max_m_s2": brk["accel_max_m_s2"], "jerk_max_m_s3": brk["jerk_max_m_s3"],
                         "hold_switch_s": brk["hold_switch_s"]}
-    h_all = [lg["hover"]["median"] for lg in logs if lg.get("hover", {}).get("median")]
+    # the thrust_ratio estimator's nominal: a lower nominal reads as less thrust (never optimistic), so the
+    # file's value is only lowered, and only from steady hover records (≥ HOVER_MIN samples, IQR ≤ HOVER_IQR)
+    h_all = [lg["hover"]["median"] for lg in logs if (lg.get("hover") or {}).get("median")
+             and lg["hover"]["samples"] >= HOVER_MIN and lg["hover"]["iqr"] <= HOVER_IQR]
     if h_all:
-        vdict["controller"] = {**vdict["controller"], "thr_hover": float(np.median(h_all))}
+        vdict["controller"] = {**vdict["controller"], "thr_hover": min(vehicle.controller.thr_hover, float(np.median(h_all)))}
     vdict["description"] = (vehicle.description + f" — calibrated from {len(traces)} flight log(s)").strip(" —")
     veh_cal = vehicle_from_dict(vdict, "calibrated vehicle")
     n_cells = int(ec.counts.size)
@@ -287,8 +292,8 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
                  "bound": f"covered cell (n >= {ec.n_min}): the largest of its n window maxima, which exceeds the "
                           f"{quantile:g}-quantile with confidence 1 - {quantile:g}^n >= {confidence:g}; times "
                           f"(1 + {cal.MARGIN_REL:g}) plus {cal.MARGIN_ABS_M:g} m",
-                 "uncovered": f"max(E_sitl, E_sitl * rho*), rho* = {ec.ratio:.3f} (the largest measured/predicted "
-                              "ratio over covered cells, at least 1)",
+                 "uncovered": f"max(E_sitl, E_sitl * rho*, the bound of its own windows), rho* = {ec.ratio:.3f} (the "
+                              "largest measured/predicted ratio over covered cells, at least 1)",
                  "monotone": "repaired upward", "quantile": quantile, "confidence": confidence, "n_min": ec.n_min},
         "counts": ec.counts.tolist(), "covered": ec.covered.astype(int).tolist(),
         "covered_cells": int(np.count_nonzero(ec.covered)), "cells": n_cells,

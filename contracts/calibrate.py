@@ -14,8 +14,8 @@ Upper bound per cell (distribution-free order statistic): the largest of the cel
 exceeds the `quantile` q of a window's worst error with confidence 1 − qⁿ; a cell is *covered* when
 n ≥ n_min = ⌈ln(1 − confidence) / ln q⌉. The calibrated value of a covered cell is that maximum times
 (1 + margin) plus `margin_abs_m` (the SITL build's own margin rule). An uncovered cell is never
-optimistic: `max(E_sitl, E_sitl · ρ*)` with ρ* the largest measured/predicted ratio over the covered
-cells (1 when none is covered). The result is made monotone upward (`lookup.repair_monotone`, "up"),
+optimistic: `max(E_sitl, E_sitl · ρ*, its own windows' bound)` with ρ* the largest measured/predicted
+ratio over the covered cells (1 when none is covered). The result is made monotone upward (`lookup.repair_monotone`, "up"),
 so a covered cell is never below a smaller speed's or tilt's calibrated value either.
 
 **Braking** (the stop contract, `contracts/stop.py`): from each logged stop (Hold/Brake commanded at
@@ -127,7 +127,8 @@ def calibrate_etr(stock: np.ndarray, axes, samples: list[tuple[float, float, flo
     bound = worst * (1.0 + margin) + margin_abs_m
     fin = covered & np.isfinite(stock) & (stock > 0)
     ratio = float(max(1.0, np.max(bound[fin] / stock[fin]))) if np.any(fin) else 1.0
-    vals = np.where(covered, bound, np.maximum(stock, stock * ratio))
+    # uncovered: the SITL's value scaled by ρ*, and never below what its own few windows showed
+    vals = np.where(covered, bound, np.fmax(np.maximum(stock, stock * ratio), bound))
     vals, repairs = repair_monotone(vals, ETR_DIRS, "up")
     return EtrCalibration(vals, counts, covered, worst, ratio, repairs, outside, nm)
 

@@ -91,3 +91,31 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
     tee.close()
     return {"holds": log, "flight_s": rig.sim.time_s, "collisions": len(rig.truth.get("collisions", []))
             if isinstance(rig.truth, dict) else None}
+
+
+def truth_vehicle(name: str = "x500", gain: float = 0.6):
+    """A "real aircraft" that differs from its vehicle file: position- and velocity-loop gains × `gain`."""
+    from contracts.vehicle import load_vehicle, vehicle_from_dict
+
+    v = load_vehicle(name)
+    d = v.metadata()
+    c = d["controller"]
+    d["controller"] = {**c, "pos_p": c["pos_p"] * gain, "vel_p": c["vel_p"] * gain, "vel_i": c["vel_i"] * gain}
+    return vehicle_from_dict(d, f"{name} with gains x{gain}")
+
+
+def heldout_plan(path: Path, speeds=(3.0, 5.0, 7.0), home=(47.397742, 8.545594, 488.0), alt=5.0) -> Path:
+    """Held-out manoeuvres (not in the calibration plan): a zig-zag of 45° turns at each speed."""
+    from contracts.geodesy import geo_from_ne
+    from contracts.missionfile import MAV_FRAME_GLOBAL_RELATIVE_ALT, Item, MissionPlan, write_plan
+
+    items, n, e = [], 0.0, 0.0
+    for v in speeds:
+        items.append(Item(178, MAV_FRAME_GLOBAL_RELATIVE_ALT, (1.0, v, -1.0, 0.0), 0.0, 0.0, 0.0))
+        for k in range(4):
+            n += 6.0 * v
+            e += 6.0 * v * (1 if k % 2 == 0 else -1)
+            lat, lon = geo_from_ne(n, e, home[0], home[1])
+            items.append(Item(16, MAV_FRAME_GLOBAL_RELATIVE_ALT, (0.0, 0.0, 0.0, math.nan), lat, lon, alt))
+    write_plan(path, MissionPlan(home, items, {"legs": []}))
+    return path
