@@ -19,12 +19,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.calibrate import calibrate, read_log, trace_of  # noqa: E402
-from companion.calibrate_plan import speed_ladder, write_plan_files  # noqa: E402
-from contracts import calibrate as cal  # noqa: E402
-from contracts.table import load_for_vehicle, verify  # noqa: E402
-from contracts.vehicle import load_vehicle  # noqa: E402
-from tests.calibration_flights import fly_calibration, heldout_plan, truth_vehicle  # noqa: E402
+from companion.calibrate import calibrate, read_log, trace_of
+from companion.calibrate_plan import speed_ladder, write_plan_files
+from contracts import calibrate as cal
+from contracts.table import load_for_vehicle, verify
+from contracts.vehicle import load_vehicle
+from tests.calibration_flights import fly_calibration, heldout_plan, truth_vehicle
 
 
 def scores(tlog: Path, tables: dict) -> dict:
@@ -32,7 +32,7 @@ def scores(tlog: Path, tables: dict) -> dict:
     tr = trace_of(tlog.name, feed, cmds)
     w = cal.windows(tr.t, tr.xy, np.hypot(tr.vel[:, 0], tr.vel[:, 1]), tr.tilt, tr.t_path, tr.xy_path, tr.airborne)
     ratio_tr = tr.hover.get("median")
-    out = {"windows": int(len(w.e)), "e_max_m": float(np.max(w.e)) if len(w.e) else None}
+    out = {"windows": len(w.e), "e_max_m": float(np.max(w.e)) if len(w.e) else None}
     for name, t in tables.items():
         k = min(1.0, t.vehicle.controller.thr_hover / ratio_tr) if ratio_tr else 0.7
         pred = np.array([t.e_tr_pred(v, ti, k) for v, ti in zip(w.v, w.tilt)])

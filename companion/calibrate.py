@@ -243,7 +243,7 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
                      "autopilot": feed.autopilot, "span_s": float(tr.t[-1] - tr.t[0]) if len(tr.t) else 0.0,
                      "airborne_s": float(np.count_nonzero(tr.airborne) / max(len(tr.t), 1) * (tr.t[-1] - tr.t[0]))
                      if len(tr.t) > 1 else 0.0,
-                     "windows": int(len(w.e)), "path_samples": int(len(tr.t_path)), "holds": len(tr.holds),
+                     "windows": len(w.e), "path_samples": len(tr.t_path), "holds": len(tr.holds),
                      "stops_measured": len(flight_stops), "hover": tr.hover, "thrust_ratio": ratio})
     if not traces:
         raise ContractError("no log could be read: " + "; ".join(x["error"] for x in logs))
@@ -298,8 +298,8 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         "counts": ec.counts.tolist(), "covered": ec.covered.astype(int).tolist(),
         "covered_cells": int(np.count_nonzero(ec.covered)), "cells": n_cells,
         "covered_fraction": float(np.count_nonzero(ec.covered)) / n_cells,
-        "samples": int(len(samples)), "samples_outside_grid": ec.outside, "ratio": ec.ratio,
-        "monotone_repairs_up": ec.repairs, "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "samples": len(samples), "samples_outside_grid": ec.outside, "ratio": ec.ratio,
+        "monotone_repairs_up": ec.repairs, "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "logs": [{k: lg.get(k) for k in ("log", "sha256", "format", "windows", "span_s", "error") if k in lg} for lg in logs],
         "stock_table": str(table.path), "stock_arrays_sha256": table.meta.get("arrays_sha256"),
     }

@@ -21,8 +21,14 @@ import math
 from pathlib import Path
 
 from contracts.geodesy import geo_from_ne
-from contracts.missionfile import MAV_FRAME_GLOBAL_RELATIVE_ALT, MAV_CMD_NAV_WAYPOINT, Item, MissionPlan, \
-    write_plan, write_waypoints
+from contracts.missionfile import (
+    MAV_CMD_NAV_WAYPOINT,
+    MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    Item,
+    MissionPlan,
+    write_plan,
+    write_waypoints,
+)
 from contracts.stop import stopping_distance
 
 MAV_CMD_DO_CHANGE_SPEED = 178

@@ -226,6 +226,6 @@ def hover_throttle(throttle, roll, pitch, vz, in_air, max_vz=0.3, max_tilt=math.
     ok = np.asarray(in_air, bool) & (np.abs(vz) < max_vz) & (np.arccos(np.clip(c, -1, 1)) < max_tilt) & (thr > 0.05)
     h = thr[ok] * c[ok]
     if len(h) < 10:
-        return {"samples": int(len(h)), "median": None, "p05": None, "p95": None, "iqr": None}
+        return {"samples": len(h), "median": None, "p05": None, "p95": None, "iqr": None}
     p05, p25, p50, p75, p95 = np.percentile(h, [5, 25, 50, 75, 95])
-    return {"samples": int(len(h)), "median": float(p50), "p05": float(p05), "p95": float(p95), "iqr": float(p75 - p25)}
+    return {"samples": len(h), "median": float(p50), "p05": float(p05), "p95": float(p95), "iqr": float(p75 - p25)}

@@ -107,7 +107,12 @@ def truth_vehicle(name: str = "x500", gain: float = 0.6):
 def heldout_plan(path: Path, speeds=(3.0, 5.0, 7.0), home=(47.397742, 8.545594, 488.0), alt=5.0) -> Path:
     """Held-out manoeuvres (not in the calibration plan): a zig-zag of 45° turns at each speed."""
     from contracts.geodesy import geo_from_ne
-    from contracts.missionfile import MAV_FRAME_GLOBAL_RELATIVE_ALT, Item, MissionPlan, write_plan
+    from contracts.missionfile import (
+        MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        Item,
+        MissionPlan,
+        write_plan,
+    )
 
     items, n, e = [], 0.0, 0.0
     for v in speeds:
