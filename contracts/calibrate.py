@@ -166,7 +166,9 @@ def measure_stop(t, vel_xy, t_cmd: float, smooth_s: float = 0.1) -> Stop | None:
         return None
     s = vel[i0:] @ u
     tt = t[i0:]
-    rest = np.nonzero(np.linalg.norm(vel[i0:], axis=1) < REST_M_S)[0]
+    # rest: the speed along the initial direction has fallen to REST_M_S (a side wind's drift is not motion
+    # towards the obstacle; a resumed mission after a stop that never came to rest is not integrated)
+    rest = np.nonzero(s < REST_M_S)[0]
     if len(rest) == 0:
         return None
     n = int(rest[0]) + 1
