@@ -248,3 +248,39 @@ def test_public_px4_logs_run_through_calibrate(tmp_path, stock):
     # they cover (almost) nothing: the table is the stock one wherever nothing was measured
     cov = np.array(new.e_pred.info["calibration"]["covered"], bool)
     assert np.all(new.e_pred.values[~cov] >= stock.e_pred.values[~cov])
+
+
+@pytest.fixture(scope="module")
+def calibrated(flown, tmp_path_factory):
+    d, _ = flown
+    out = tmp_path_factory.mktemp("caltab") / "new.npz"
+    calibrate([d / "px4.tlog", d / "ardupilot.tlog"], load_vehicle("x500"), load_for_vehicle("x500"), out, report=False)
+    return verify(out)
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_under_the_calibrated(calibrated,
+                                                                                                 personality):
+    """The modified X500 (gains −40 %, 5 m/s side wind) in governor mode at up to 8 m/s toward a column revealed
+    at the sensor's 10 m: under the stock table, at least one seed of four breaks its controller contract
+    (measured contour error above the E_tr_pred in force) or hits the column; under the calibrated table none
+    does, over the same seeds."""
+    from companion.flights import Rig, fly_mission
+    from tests.calibration_flights import truth_vehicle
+    from tests.test_daemon_lockstep import column_scenario
+
+    truth = truth_vehicle("x500", 0.6)
+    stock = load_for_vehicle("x500")
+    broke = {"stock": [], "calibrated": []}
+    for seed in range(1, 5):
+        for name, tab in (("stock", stock), ("calibrated", calibrated)):
+            sc = column_scenario(seed, x_col=40.0, cruise=8.0, vehicle="x500",
+                                 wind={"mean_m_s": 5.0, "from_deg": 90, "gust_m_s": 1.0})
+            sc["sensor"]["max_range_m"] = 10.0
+            rig = Rig(sc, personality, table_wrapper=lambda t, tab=tab: tab, sim_kwargs={"vehicle": truth})
+            fly_mission(rig, 30.0)
+            ctrl = [e for e in rig.log.named("violation_start") if e["subsystem"] == "controller"]
+            if ctrl or rig.truth["collisions"]:
+                broke[name].append(seed)
+    assert broke["stock"], "negative control: the stock table must let the worse aircraft break its contract"
+    assert broke["calibrated"] == [], broke
