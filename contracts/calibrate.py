@@ -48,7 +48,7 @@ ETR_DIRS = (+1, +1, -1)  # E_tr_pred grows with v_max and tilt, falls with thrus
 
 def n_min(quantile: float = QUANTILE, confidence: float = CONFIDENCE) -> int:
     """Smallest n for which the largest of n samples bounds the q-quantile with the confidence."""
-    return int(math.ceil(math.log(1.0 - confidence) / math.log(quantile)))
+    return math.ceil(math.log(1.0 - confidence) / math.log(quantile))
 
 
 @dataclass(frozen=True)
