@@ -1,11 +1,15 @@
 """Review time per flight-hour and peak memory for each raw-log format (issue 14; goal: a 20-minute log in
 under 10 s and under 1 GiB). Prints one JSON object.
 
-    python benchmarks/bench_review.py [--minutes 20]
+    python benchmarks/bench_review.py [--minutes 20] [--no-sitl]
 
 The DataFlash log is written by the harness's writer (a straight flight at the DataFlash rates of
-`tests/test_flight_logs.py`, 50 Hz EKF/attitude/controller, rangefinder); the ULog is the largest real
-PX4 log in ../shared/logs/px4 when present. Each review runs in a fresh process (peak RSS is its own)."""
+`tests/test_flight_logs.py`, 50 Hz EKF/attitude/controller, rangefinder); `ulog` is the largest real PX4 log
+in ../shared/logs/px4 when present; `sitl_ulog` / `sitl_dataflash` are the SITL's own logs of a `--minutes`
+hover (sitl_harness/flightlog.py, the PX4 SITL's topic rates; skip with --no-sitl). Each review runs in a
+fresh process (peak RSS is its own); `s` is wall time, `cpu_s` the process's CPU time (on a shared machine
+the CPU time is the fairer figure), `read_s` the reader alone, `replay_s` the rest (the shadow daemon at its
+loop rate and the review)."""
 
 from __future__ import annotations
 
@@ -20,12 +24,25 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "logs" / "px4"
 CHILD = """
-import json, resource, sys, time
+import json, os, resource, sys, time
+import companion.dataflash, companion.ulog
 from companion.cli import review_log
-t = time.perf_counter()
+read = {"s": 0.0}
+def timed(reader):  # the replay imports the reader at call time: the timed one
+    def r(path):
+        t0 = time.perf_counter()
+        try:
+            return reader(path)
+        finally:
+            read["s"] += time.perf_counter() - t0
+    return r
+companion.ulog.read_ulog = timed(companion.ulog.read_ulog)
+companion.dataflash.read_dataflash = timed(companion.dataflash.read_dataflash)
+c0, t = os.times(), time.perf_counter()
 rep, origin = review_log(sys.argv[1], vehicle="x500")
-dt = time.perf_counter() - t
-print(json.dumps({"s": dt, "span_s": rep["span"]["duration_s"], "samples": rep["state_samples"],
+dt, c1 = time.perf_counter() - t, os.times()
+print(json.dumps({"s": dt, "cpu_s": (c1.user - c0.user) + (c1.system - c0.system), "read_s": read["s"],
+                  "replay_s": dt - read["s"], "span_s": rep["span"]["duration_s"], "samples": rep["state_samples"],
                   "rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
 
@@ -38,9 +55,22 @@ def run(path: Path) -> dict:
     return r
 
 
+def sitl_log(where: Path, personality: str, seconds: float) -> Path:
+    """The SITL's own log of a hover of `seconds` near a column (the sensor sees it all along)."""
+    from sitl_harness import Sim
+    from sitl_harness.scenario import scenario_from_dict
+
+    sc = scenario_from_dict({"vehicle": "x500", "start": {"alt_m": 5.0},
+                             "world": {"columns": [{"x_m": 6.0, "y_m": 0.0, "radius_m": 0.5}]}})
+    sim = Sim(sc, personality, log_dir=where)
+    sim.step(seconds)
+    return sim.close_log()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--minutes", type=float, default=20.0)
+    ap.add_argument("--no-sitl", action="store_true", help="skip the SITL's own ULog / DataFlash logs")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "tests"))
@@ -52,6 +82,11 @@ def main() -> None:
         path = write_bin(Path(tmp) / "long.bin", speed=3.0, dur=args.minutes * 60)
         res["write_bin_s"] = time.perf_counter() - t
         res["dataflash"] = run(path)
+        if not args.no_sitl:
+            for personality, key in (("px4", "sitl_ulog"), ("ardupilot", "sitl_dataflash")):
+                t = time.perf_counter()
+                log = sitl_log(Path(tmp) / personality, personality, args.minutes * 60)
+                res[key] = run(log) | {"write_s": time.perf_counter() - t}
     ulogs = sorted(SHARED.glob("*.ulg"), key=lambda p: p.stat().st_size) if SHARED.is_dir() else []
     res["ulog"] = run(ulogs[-1]) | {"file": ulogs[-1].name} if ulogs else None
     res["goal"] = "20-minute log < 10 s and < 1 GiB"

@@ -125,9 +125,11 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
 
     out = Path(out)
     log_dir = out / "log"
+    ap_log_dir = out / "autopilot-log"  # the SITL's own flight log (.ulg / .bin), as the autopilot's SD card
     out.mkdir(parents=True, exist_ok=True)
-    for old in log_dir.glob("*") if log_dir.exists() else []:
-        old.unlink()
+    for d in (log_dir, ap_log_dir):
+        for old in d.glob("*") if d.exists() else []:
+            old.unlink()
     port = _free_port()
     cfg = {
         "vehicle": sc.vehicle, "mode": "offboard", "engage": True,
@@ -143,7 +145,8 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
     # the demo ends the flight at `duration_s` of vehicle time; the SITL's own --duration is a backstop
     sitl = subprocess.Popen([py, "-m", "sitl_harness", "--scenario", str(scenario_path),
                              "--personality", personality, "--listen", f"udp:127.0.0.1:{port}",
-                             "--speedup", str(speedup), "--duration", str(duration_s + 60.0), "--json"],
+                             "--speedup", str(speedup), "--duration", str(duration_s + 60.0), "--json",
+                             "--log-dir", str(ap_log_dir)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     daemon = gcs = gs = None
     try:
@@ -235,7 +238,7 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         "v_max_steps": steps, "route_progress_m": round(max((s["x"] for s in states), default=0.0), 1),
         "gcs_actions": gcs_actions, "forwarded": int(sitl_summary.get("forwarded", 0)),
         "setpoints": _stream_figures(records),
-        "event_log": str(out / "log" / LOG_FILE), "plot": (rep.get("outputs") or {}).get("png"),
+        "event_log": str(out / "log" / LOG_FILE), "autopilot_log": sitl_summary.get("flight_log"), "plot": (rep.get("outputs") or {}).get("png"),
         "plot_note": (rep.get("outputs") or {}).get("png_skipped"),
         "safe": collisions == 0 and clear > 0,
         # one verdict: the flight's truth (no collision, clearance kept) and the review of its event log
@@ -274,7 +277,10 @@ def format_summary(r: dict) -> str:
             done += f", in the event log at t {a['t_log']:.1f} s"
         lines.append(f"  ground station: vehicle time {a['at_s']:.1f} s: {a['name']} = {a['value']:g} "
                      f"({a['component']}) {done}")
-    lines += [f"  event log: {r['event_log']}"] + ([f"  plot: {r['plot']}"] if r.get("plot") else [])
+    lines.append(f"  event log: {r['event_log']}")
+    if r.get("autopilot_log"):
+        lines.append(f"  autopilot log: {r['autopilot_log']}")
+    lines += [f"  plot: {r['plot']}"] if r.get("plot") else []
     if r.get("plot_note"):
         lines.append(f"  {r['plot_note']}")
     lines += [f"  review: {'contract kept' if r['review_ok'] else 'findings'} ({r['review']})"]

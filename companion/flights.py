@@ -10,6 +10,9 @@ This is one of the two wiring modules that may import `sitl_harness/` (the other
 which wires `sitl` and `demo`; `tests/test_import_graph.py` allows exactly these two): a flight needs both
 the daemon and the SITL. Nothing on board imports it. `tests/lockstep.py` re-exports it.
 
+`log_dir`: the SITL writes the autopilot's own flight log there (a ULog for PX4, a DataFlash `.bin` for
+ArduPilot; `Rig.close_log()` finishes it and gives its path).
+
 `law`: a speed law that replaces the contract's Ω (a baseline flown as a governor, `companion/baselines.py`);
 `table_wrapper`: a wrapper of the contract table (the negative controls). Neither is an on-board default.
 """
@@ -51,9 +54,12 @@ class Recorder:
 
 class Rig:
     def __init__(self, scenario: dict, personality: str = "px4", config: dict | None = None, log=None,
-                 table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None, law=None):
+                 table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None, law=None,
+                 log_dir=None):
         sc = scenario_from_dict(scenario)
         self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
+        if log_dir is not None:  # the autopilot's own flight log (.ulg / .bin); `close_log()` finishes it
+            self.sim.start_log(log_dir)
         self.link = LockstepLink(self.sim)
         self._queues: list[deque] = []
         table = load_for_vehicle(sc.vehicle)
@@ -160,6 +166,10 @@ class Rig:
     @property
     def truth(self):
         return self.sim.truth()
+
+    def close_log(self):
+        """Finish the SITL's own flight log (asked for with `log_dir`); its path, or None."""
+        return self.sim.close_log()
 
 
 class _W:

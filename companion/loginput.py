@@ -30,13 +30,22 @@ snapshot's heartbeat time (a ULog writes `vehicle_status` only when it changes).
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
 from .config import Config
 from .mavlink_in import bins_scan, implausible, range_scan
-from .samples import AutopilotParam, Heading, Implausible, NavStatus, PathTarget, Position, Throttle
+from .samples import (
+    AutopilotParam,
+    Heading,
+    Implausible,
+    NavStatus,
+    PathTarget,
+    Position,
+    Throttle,
+)
 from .telemetry import Telemetry
 
 # a silence longer than this between two ops is a clock jump (closed up, listed): a replay never steps
@@ -103,6 +112,30 @@ def order(ops: list) -> tuple[list, list]:
         last = t + shift
         out.append((last, op, args))
     return out, jumps
+
+
+def exclude(ops: list, spans: list[tuple[int, int]]) -> tuple[list, list]:
+    """(ops without those inside the `spans` [t0, t1) µs, later ones moved earlier by the time cut out; the
+    cuts as {"t": log time of the cut [s], "cut_s": its length}). For a VTOL's fixed-wing phases, where the
+    multirotor contract does not apply: cut out rather than left as a silence the daemon would find stale.
+    Pure; `ops` need not be sorted."""
+    if not spans:
+        return ops, []
+    spans = sorted(spans)
+    starts = [a for a, _ in spans]
+    cum, total = [], 0
+    for a, b in spans:
+        total += b - a
+        cum.append(total)
+    out = []
+    for t, op, args in ops:
+        k = bisect.bisect_right(starts, t) - 1  # the last span starting at or before t
+        if k >= 0 and t < spans[k][1]:
+            continue
+        out.append((t - (cum[k] if k >= 0 else 0), op, args))
+    t_first = min((o[0] for o in out), default=0)
+    cuts = [{"t": (a - (cum[i - 1] if i else 0) - t_first) / 1e6, "cut_s": (b - a) / 1e6} for i, (a, b) in enumerate(spans)]
+    return out, cuts
 
 
 def quat_euler(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:

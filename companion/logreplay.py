@@ -80,12 +80,19 @@ class FlightLog(Origin):
         for s in info["slow_streams"]:
             out.append(f"{s['stream']} logged at {s['rate_hz']:.1f} Hz, too slow for the daemon's {s['timeout_s']} s "
                        "staleness limit: stale-data findings may be the log's, not the flight's")
+        out += info.get("estimator_notes", [])
         for p in info["param_findings"]:
             out.append(p)
         veh = info["vehicle"]
-        if veh.get("vtol"):
+        if veh.get("vtol") and veh.get("fixed_wing_cut"):
+            cuts = veh["fixed_wing_cut"]
+            out.append(f"a VTOL ({veh['airframe']}): {sum(c['cut_s'] for c in cuts):.0f} s of fixed-wing flight in "
+                       f"{len(cuts)} phase(s) (first at t = {cuts[0]['t']:.1f} s) excluded: this multirotor contract "
+                       "does not apply there; the rest of the flight is judged")
+        elif veh.get("vtol"):
             out.append(f"a VTOL ({veh['airframe']}): {veh['fixed_wing_s']:.0f} s in fixed-wing flight, where this "
-                       "multirotor contract does not apply; findings there are not the contract's")
+                       "multirotor contract does not apply (the log does not say when, so findings there are not "
+                       "told apart)")
         return out
 
     def lines(self) -> list[str]:

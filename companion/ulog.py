@@ -14,7 +14,8 @@ Topic → op, each field's meaning from PX4's `msg/*.msg` (units and frames conv
 | hover_thrust_estimate (HoverThrustEstimate.msg)        | hover_thrust, valid                   | thr (only when no thrust setpoint is logged) |
 | vehicle_status (VehicleStatus.msg)                     | nav_state, arming_state (2 = ARMED), vehicle_type / is_rotary_wing, is_vtol | mode |
 | vehicle_land_detected (VehicleLandDetected.msg)        | landed                                | landed   |
-| estimator_status (EstimatorStatus.msg), instance 0     | solution_status_flags (= MAVLink ESTIMATOR_STATUS.flags) | nav |
+| estimator_status (EstimatorStatus.msg), the primary instance | solution_status_flags (= MAVLink ESTIMATOR_STATUS.flags) | nav |
+| estimator_selector_status (EstimatorSelectorStatus.msg) | primary_instance: which estimator_status instance is the primary (0 without it); a change of primary is said | — |
 | distance_sensor (DistanceSensor.msg)                   | current/min/max_distance [m], orientation (ROTATION_*), signal_quality (−1 unknown, 0 invalid) | range |
 | obstacle_distance (ObstacleDistance.msg)               | distances[72] [cm], increment [deg], angle_offset [deg], min/max_distance [cm], frame | bins |
 | mission_result (MissionResult.msg)                     | seq_current                           | seq      |
@@ -34,13 +35,23 @@ import numpy as np
 from contracts.errors import ContractError
 from contracts.geodesy import ne_from_geo
 
-from .loginput import MAV_TYPES, VTOL_TYPES, Feed, firmware_release, lacking, order, quat_euler, read_head
+from .loginput import (
+    MAV_TYPES,
+    VTOL_TYPES,
+    Feed,
+    exclude,
+    firmware_release,
+    lacking,
+    order,
+    quat_euler,
+    read_head,
+)
 
 ULOG_MAGIC = b"ULog\x01\x12\x35"
 TOPICS = ["vehicle_local_position", "vehicle_attitude", "vehicle_local_position_setpoint", "trajectory_setpoint",
           "position_setpoint_triplet", "vehicle_thrust_setpoint", "actuator_controls_0", "hover_thrust_estimate",
           "vehicle_status", "vehicle_land_detected", "estimator_status", "distance_sensor", "obstacle_distance",
-          "mission_result", "vehicle_gps_position", "sensor_gps"]
+          "mission_result", "vehicle_gps_position", "sensor_gps", "estimator_selector_status"]
 MAV_FRAME_GLOBAL = 0
 MAV_FRAME_LOCAL_NED = 1
 ARMING_STATE_ARMED = 2  # VehicleStatus.msg
@@ -95,15 +106,27 @@ def _sniff(head: bytes) -> str:
     return f"starts with {head[:8].hex()}"
 
 
-def _topics(ulog) -> dict:
-    """topic name → data dict of instance 0 (the primary; estimator_status may have several instances)."""
-    out = {}
+def _topics(ulog) -> tuple[dict, list[str]]:
+    """(topic name → data dict of its primary instance, notes). The primary is instance 0, except for
+    estimator_status: the instance estimator_selector_status names primary most of the time (PX4 runs
+    several EKF instances and switches between them; each switch is said)."""
+    out, notes = {}, []
     for d in ulog.data_list:
         if d.multi_id == 0 or d.name not in out:
             if d.name in out and d.multi_id != 0:
                 continue
             out[d.name] = d.data
-    return out
+    sel = out.get("estimator_selector_status")
+    if sel is not None and len(p := np.asarray(sel.get("primary_instance", []), dtype=int)):
+        primary = int(np.bincount(p).argmax())
+        inst = {d.multi_id: d.data for d in ulog.data_list if d.name == "estimator_status"}
+        if primary in inst:
+            out["estimator_status"] = inst[primary]
+        switches = int(np.count_nonzero(np.diff(p)))
+        if switches:
+            notes.append(f"the primary estimator changed {switches}× (estimator_selector_status); estimator_status "
+                         f"instance {primary}, the primary most of the flight, is the one judged")
+    return out, notes
 
 
 def _col(data: dict, *names):
@@ -118,7 +141,7 @@ def read_ulog(path) -> Feed:
     if not path.exists():
         raise ContractError(f"no such file or directory: {path}")
     ulog = _open(path)
-    top = _topics(ulog)
+    top, selector_notes = _topics(ulog)
     ops: list = []
     ts = {k: np.asarray(v["timestamp"], dtype=np.int64) for k, v in top.items() if len(v.get("timestamp", ()))}
     used: dict[str, str] = {}
@@ -177,7 +200,7 @@ def read_ulog(path) -> Feed:
         add("actuator_controls_0", ts["actuator_controls_0"], "thr", [(v,) for v in c.tolist()])
     elif (d := top.get("hover_thrust_estimate")) is not None and (h := _col(d, "hover_thrust")) is not None:
         add("hover_thrust_estimate", ts["hover_thrust_estimate"], "thr", [(v,) for v in h.tolist()])
-    fixed_wing_s, vtype = 0.0, None
+    fixed_wing_s, vtype, fw_spans = 0.0, None, []
     if (d := top.get("vehicle_status")) is not None:
         nav, arm = _col(d, "nav_state"), _col(d, "arming_state")
         if nav is not None and arm is not None:
@@ -194,6 +217,11 @@ def read_ulog(path) -> Feed:
             fw = vt[:-1] == VEHICLE_TYPE_FIXED_WING
             fixed_wing_s = float(np.sum(np.diff(t)[fw]) / 1e6)
             vtype = int(vt[-1])
+            for i in np.nonzero(fw)[0]:  # consecutive fixed-wing samples make one phase
+                if fw_spans and fw_spans[-1][1] == int(t[i]):
+                    fw_spans[-1] = (fw_spans[-1][0], int(t[i + 1]))
+                else:
+                    fw_spans.append((int(t[i]), int(t[i + 1])))
     if (d := top.get("vehicle_land_detected")) is not None and (c := _col(d, "landed")) is not None:
         add("vehicle_land_detected", ts["vehicle_land_detected"], "landed", [(1 if v > 0 else 2,) for v in c.tolist()])
     if (d := top.get("estimator_status")) is not None and (c := _col(d, "solution_status_flags")) is not None:
@@ -240,12 +268,15 @@ def read_ulog(path) -> Feed:
     if not any(op == "pos" for _, op, _ in ops):
         raise ContractError(f"{path}: no usable telemetry: the ULog has no vehicle_local_position "
                             f"(topics: {', '.join(sorted(d.name for d in ulog.data_list)[:12]) or 'none'})")
-    ops, jumps = order(ops)
     info_msgs = ulog.msg_info_dict
-    mav_type = int(params["MAV_TYPE"]) if "MAV_TYPE" in params else None
-    kind = MAV_TYPES.get(mav_type, f"MAV_TYPE {mav_type}") if mav_type is not None else "unknown airframe"
     is_vtol = _col(top.get("vehicle_status") or {}, "is_vtol")
+    mav_type = int(params["MAV_TYPE"]) if "MAV_TYPE" in params else None
     vtol = mav_type in VTOL_TYPES or (is_vtol is not None and bool(np.any(is_vtol > 0)))
+    cuts = []
+    if vtol and fw_spans:  # a VTOL's fixed-wing phases: not the multirotor contract's; cut out, said once
+        ops, cuts = exclude(ops, fw_spans)
+    ops, jumps = order(ops)
+    kind = MAV_TYPES.get(mav_type, f"MAV_TYPE {mav_type}") if mav_type is not None else "unknown airframe"
     if mav_type == 1 or (not vtol and vtype == VEHICLE_TYPE_FIXED_WING):
         raise ContractError(f"{path}: a fixed-wing log ({kind}, {info_msgs.get('ver_hw', '?')}): the contract is "
                             "for multirotors; not reviewed")
@@ -275,7 +306,8 @@ def read_ulog(path) -> Feed:
         "bytes": path.stat().st_size,
         "vehicle": {"hardware": info_msgs.get("ver_hw"), "airframe": kind, "mav_type": mav_type,
                     "sys_autostart": int(params["SYS_AUTOSTART"]) if "SYS_AUTOSTART" in params else None,
-                    "vtol": bool(vtol), "fixed_wing_s": fixed_wing_s},
+                    "vtol": bool(vtol), "fixed_wing_s": fixed_wing_s,
+                    "fixed_wing_cut": cuts},
         "firmware": {"name": info_msgs.get("sys_name", "PX4"), "release": firmware_release(info_msgs.get("ver_sw_release")),
                      "git": info_msgs.get("ver_sw"), "branch": info_msgs.get("ver_sw_branch"),
                      "os": info_msgs.get("sys_os_name")},
@@ -290,6 +322,7 @@ def read_ulog(path) -> Feed:
         "damaged": (["corrupt data skipped by the ULog reader (file_corruption)"] if corrupt else [])
         + (["the file ends inside a message (truncated: the last message is lost)"] if torn_tail(path) else [])
         + damaged_notes,
+        "estimator_notes": selector_notes,
         "time_jumps": jumps[:100],
     }
     return Feed(ops=ops, info=info, autopilot="px4", wall0=wall0)

@@ -37,6 +37,9 @@ def build_parser(prog: str = "python -m sitl_harness") -> argparse.ArgumentParse
     ap.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall-clock second")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     ap.add_argument("--signing-key-hex", default=None, help="MAVLink 2 signing key, 64 hex digits")
+    ap.add_argument("--log-dir", default=None, metavar="DIR",
+                    help="write the autopilot's own flight log into DIR (flight-NNN.ulg for px4, flight-NNN.bin "
+                    "for ardupilot), as the real autopilot writes to its SD card; `contract-guard review` reads it")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     return ap
 
@@ -60,7 +63,8 @@ def main(argv: list[str] | None = None, prog: str = "python -m sitl_harness") ->
                 raise ScenarioError("--signing-key-hex: expected 64 hex digits (32 bytes)")
         ready = (lambda a: print(f"SITL {args.personality} listening on {a[0]}:{a[1]}", file=sys.stderr, flush=True))
         summary = serve(args.scenario, args.personality, args.listen, args.speedup, duration_s=args.duration,
-                        signing_key=key, on_ready=ready, stop=lambda: bool(stopping))
+                        signing_key=key, on_ready=ready, stop=lambda: bool(stopping),
+                        log_dir=args.log_dir)
     except (ScenarioError, ContractError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

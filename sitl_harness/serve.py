@@ -183,16 +183,23 @@ def run(vehicle: UdpVehicle, speedup: float = 1.0, duration_s: float | None = No
 
 
 def serve(scenario_path, personality: str = "px4", listen: str = "udp:127.0.0.1:14540", speedup: float = 1.0,
-          *, duration_s: float | None = None, signing_key: bytes | None = None, stop=None, on_ready=None) -> dict:
+          *, duration_s: float | None = None, signing_key: bytes | None = None, stop=None, on_ready=None,
+          log_dir=None) -> dict:
     """Serve `scenario_path` (a path or a shipped scenario name) until `duration_s` of simulated time
     (forever if None) or until `stop()` returns True. `on_ready(address)` is called once the socket
-    is bound. Returns a summary dict (ticks, pacing jitter, collisions, dropped packets).
+    is bound. `log_dir`: write the autopilot's own flight log there (`flightlog.py`: a ULog for PX4, a
+    DataFlash `.bin` for ArduPilot). Returns a summary dict (ticks, pacing jitter, collisions, dropped packets).
     Raises `ScenarioError` (one line, a `contracts.errors.ContractError`) for a bad scenario,
     personality, address or speed-up, and `ContractError` for a bad vehicle file."""
     if not (isinstance(speedup, (int, float)) and math.isfinite(speedup) and speedup > 0):
         raise ScenarioError(f"--speedup {speedup!r}: expected a positive number")
     parse_listen(listen)
     sim = Sim(scenario_path, personality, signing_key=signing_key, unix_epoch_s=time.time())
+    if log_dir is not None:
+        try:
+            sim.start_log(log_dir)
+        except OSError as err:
+            raise ScenarioError(f"--log-dir {log_dir}: cannot write ({err.strerror or err})") from None
     try:
         vehicle = UdpVehicle(sim, listen)
     except OSError as err:
@@ -203,4 +210,8 @@ def serve(scenario_path, personality: str = "px4", listen: str = "udp:127.0.0.1:
         st = run(vehicle, speedup, duration_s, stop)
     finally:
         vehicle.close()
-    return st.summary(sim)
+        log = sim.close_log()
+    summary = st.summary(sim)
+    if log is not None:
+        summary["flight_log"] = str(log)
+    return summary

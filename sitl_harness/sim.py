@@ -43,7 +43,7 @@ def make_personality(name: str):
 class Sim:
     def __init__(self, scenario: Scenario | str | None = None, personality: str = "px4", *,
                  vehicle=None, seed: int | None = None, tick_hz: float = 100.0,
-                 signing_key: bytes | None = None, unix_epoch_s: float | None = None):
+                 signing_key: bytes | None = None, unix_epoch_s: float | None = None, log_dir=None):
         sc = scenario if isinstance(scenario, Scenario) else (
             load_scenario(scenario) if scenario is not None else Scenario())
         self.scenario = sc
@@ -91,6 +91,27 @@ class Sim:
             self._load_route()
         if sc.start.alt_m > 0:
             self._start_airborne(sc.start.alt_m)
+        self.flight_log = None  # the autopilot's own log (flightlog.py), when asked for
+        if log_dir is not None:
+            self.start_log(log_dir)
+
+    # ------------------------------------------------------------------ the autopilot's own flight log
+    def start_log(self, where):
+        """Record the autopilot's own log: a ULog (PX4) or DataFlash `.bin` (ArduPilot) in directory `where`
+        (`flight-NNN.ulg`/`.bin`) or at file `where`. Returns its path; `close_log()` finishes it."""
+        from .flightlog import start_log
+
+        self.close_log()
+        self.flight_log = start_log(self, where)
+        return self.flight_log.path
+
+    def close_log(self):
+        """Finish the flight log (if any); returns its path."""
+        fl, self.flight_log = self.flight_log, None
+        if fl is None:
+            return None
+        fl.close()
+        return fl.path
 
     # ------------------------------------------------------------------ configuration
     def set_param(self, name: str, value: float) -> None:
@@ -194,6 +215,8 @@ class Sim:
         while self._frames and self._frames[0][0] <= t + 1e-9:  # sensor latency: seen then, sent now
             self.reading = self._frames.popleft()[1]
             self.sensor_seq += 1
+        if self.flight_log is not None:
+            self.flight_log.tick(self)
         self.endpoint.emit()
 
     @property

@@ -220,6 +220,9 @@ def test_damaged_dataflash(tmp_path):
     (tmp_path / "corrupt.bin").write_bytes(bytes(bad))
     rep, _, _ = review(tmp_path / "corrupt.bin")  # DFReader resynchronises on the next header
     assert rep["state_samples"] > 50
+    assert any("bytes of corrupt data skipped" in f for f in rep["findings"])
+    r = cli("review", tmp_path / "corrupt.bin", "--vehicle", "x500")  # said once, not a line per byte
+    assert "bad header" not in r.stderr and "Traceback" not in r.stderr
 
     rep, _, _ = review(write_bin(tmp_path / "jump.bin", dur=10.0, jump_at=5.0))
     assert rep["flight_log"]["time_jumps"] and rep["span"]["duration_s"] < 20

@@ -24,18 +24,23 @@ ROOT = Path(__file__).resolve().parents[1]
 T0 = 1_790_000_000.0  # UNIX time of the simulator's t = 0 (the tlog's stamps)
 
 
-def record(directory: Path, scenario, personality, config=None, outgoing=False, seconds=16.0, flight=fly):
+def record(directory: Path, scenario, personality, config=None, outgoing=False, seconds=16.0, flight=fly,
+           log_dir=None, keep: dict | None = None):
     """Fly in lock-step with the daemon writing its event log and raw.tlog (stamped in sim time); with
-    `outgoing`, the daemon's own packets go into the tlog too (a router or MAVProxy logging both ways).
-    Returns the config file the flight used."""
+    `outgoing`, the daemon's own packets go into the tlog too (a router or MAVProxy logging both ways);
+    with `log_dir`, the SITL writes the autopilot's own flight log there too (`Rig.close_log`); `keep`
+    gets the rig as "rig" (for its truth). Returns the config file the flight used."""
     box = {}
 
     def wall():
         return T0 + box["rig"].sim.time_s
 
     log = EventLog(directory, tlog=True, clock=wall, fsync_events=False)
-    rig = box["rig"] = Rig(scenario, personality, config={**(config or {}), "log": {"tlog": True}}, log=log)
+    rig = box["rig"] = Rig(scenario, personality, config={**(config or {}), "log": {"tlog": True}}, log=log,
+                           log_dir=log_dir)
     rig.daemon.wall = wall
+    if keep is not None:
+        keep["rig"] = rig
     if outgoing:
         send = rig.conn.write
 
@@ -46,6 +51,7 @@ def record(directory: Path, scenario, personality, config=None, outgoing=False, 
         rig.conn.write = both
     flight(rig, seconds)
     log.close()
+    rig.close_log()
     cfg = directory / "flight.yaml"
     cfg.write_text(yaml.safe_dump(rig.cfg.model_dump(mode="json", exclude_none=True)))
     return cfg
