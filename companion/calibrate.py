@@ -256,11 +256,9 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         stop_rows.append({"log": name, "source": src, "t_cmd": s.t_cmd, "v0": s.v0, "reaction_s": s.reaction_s,
                           "decel_peak_m_s2": s.decel_peak, "jerk_m_s3": s.jerk, "distance_m": s.distance_m,
                           "predicted_m": pred, "overshoot_m": s.distance_m - pred})
-    # reaction measured from a command only: a mode switch has no command time
-    cmd_stops = [s for _, src, s in stops if src == "command"]
-    mode_stops = [cal.Stop(s.t_cmd, s.v0, 0.0, s.decel_peak, s.jerk, s.distance_m, s.t_rest)
-                  for _, src, s in stops if src != "command"]
-    brk = cal.calibrate_braking(cmd_stops + mode_stops, b.accel_max_m_s2, b.jerk_max_m_s3, b.hold_switch_s)
+    # a stop timed from the autopilot's mode switch (ULog, DataFlash: no command logged) measures only part
+    # of the reaction, a lower bound of it: it may lengthen the switch time, never shorten it
+    brk = cal.calibrate_braking([s for _, _, s in stops], b.accel_max_m_s2, b.jerk_max_m_s3, b.hold_switch_s)
     findings = []
     over = [r for r in stop_rows if r["overshoot_m"] > 0.05]
     if over:

@@ -57,12 +57,14 @@ class TlogTee:
 
 
 def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str = "px4", seed: int = 0,
-                    wind_m_s: float | None = None, vehicle: str = "x500", max_s: float = 900.0) -> dict:
-    """Fly the plan; returns the holds commanded (t, speed) and the flight time."""
+                    wind_m_s: float | None = None, vehicle: str = "x500", max_s: float = 900.0,
+                    log_dir: Path | None = None) -> dict:
+    """Fly the plan; returns the holds commanded (t, speed), the flight time and, with `log_dir`, the path of
+    the autopilot's own log the SITL wrote (PX4 ULog / ArduPilot DataFlash)."""
     sc = {"name": "calibration", "vehicle": vehicle, "seed": seed, "route": {"mission": str(plan_path)},
           "wind": {} if wind_m_s is None else {"mean_m_s": wind_m_s, "from_deg": 90.0}}
     rig = Rig(sc, personality, config={"mode": "shadow", "engage": False}, seed=seed,
-              sim_kwargs={"vehicle": truth} if truth is not None else None)
+              sim_kwargs={"vehicle": truth} if truth is not None else None, log_dir=log_dir)
     tee = TlogTee(rig, tlog)
     mp = read_mission(plan_path)
     holds = {leg["mission_seq_plan"] if personality == "px4" else leg["mission_seq_waypoints"]: leg
@@ -89,7 +91,8 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
     fly_mission(rig, max_s, until=watch)
     rig.run(2.0)
     tee.close()
-    return {"holds": log, "flight_s": rig.sim.time_s, "collisions": len(rig.truth.get("collisions", []))
+    own = rig.close_log() if log_dir is not None else None
+    return {"holds": log, "flight_s": rig.sim.time_s, "autopilot_log": None if own is None else str(own), "collisions": len(rig.truth.get("collisions", []))
             if isinstance(rig.truth, dict) else None}
 
 

@@ -183,7 +183,8 @@ def flown(tmp_path_factory):
     truth = truth_vehicle("x500", 0.6)
     out = {}
     for pers, f in (("px4", info["plan"]), ("ardupilot", info["waypoints"])):
-        out[pers] = fly_calibration(Path(f), d / f"{pers}.tlog", truth=truth, personality=pers, wind_m_s=5.0)
+        out[pers] = fly_calibration(Path(f), d / f"{pers}.tlog", truth=truth, personality=pers, wind_m_s=5.0,
+                                    log_dir=d / pers)
     return d, out
 
 
@@ -235,6 +236,26 @@ def test_calibrated_table_is_never_optimistic_for_a_worse_aircraft(flown, stock,
     lines = banner(config_from_dict({"vehicle": str(tmp_path / "new.yaml"), "table": str(tmp_path / "new.npz")}),
                    new, "E_tr_pred")
     assert any("of the envelope" in x for x in lines)
+
+
+def test_the_autopilots_own_logs_calibrate_like_the_tlog(flown, stock, tmp_path):
+    """The same flights' PX4 ULog and ArduPilot DataFlash (written by the SITL) give the tlog's answer."""
+    d, out = flown
+    own = [Path(out["px4"]["autopilot_log"]), Path(out["ardupilot"]["autopilot_log"])]
+    assert [p.suffix for p in own] == [".ulg", ".bin"]
+    veh = load_vehicle("x500")
+    a = calibrate([d / "px4.tlog", d / "ardupilot.tlog"], veh, stock, tmp_path / "a.npz", report=False)
+    b = calibrate(own, veh, stock, tmp_path / "b.npz", report=False)
+    assert [lg["format"] for lg in b["logs"]] == ["PX4 ULog", "ArduPilot DataFlash"]
+    assert b["samples"] == pytest.approx(a["samples"], rel=0.05)
+    assert b["ratio_measured_over_predicted"] == pytest.approx(a["ratio_measured_over_predicted"], rel=0.1)
+    ba, bb = a["braking"]["calibrated"], b["braking"]["calibrated"]
+    assert bb["stops"] == ba["stops"] == 4
+    assert bb["accel_max_m_s2"] == pytest.approx(ba["accel_max_m_s2"], rel=0.05)
+    assert bb["jerk_max_m_s3"] == pytest.approx(ba["jerk_max_m_s3"], rel=0.15)
+    assert bb["hold_switch_s"] == pytest.approx(ba["hold_switch_s"], abs=0.1)
+    ea, eb = verify(tmp_path / "a.npz").e_pred.values, verify(tmp_path / "b.npz").e_pred.values
+    assert np.max(np.abs(eb / ea - 1)) < 0.15
 
 
 # ----------------------------------------------------------------------------- the public logs
