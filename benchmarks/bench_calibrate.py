@@ -14,9 +14,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.calibrate import calibrate  # noqa: E402
-from contracts.table import load_for_vehicle  # noqa: E402
-from contracts.vehicle import load_vehicle  # noqa: E402
+from companion.calibrate import calibrate
+from contracts.table import load_for_vehicle
+from contracts.vehicle import load_vehicle
 
 
 def main() -> None:

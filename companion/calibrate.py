@@ -33,6 +33,7 @@ from .loginput import Feed, order
 IN_AIR = 2  # MAV_LANDED_STATE_IN_AIR
 POSITION_MODES = ("mission", "hold", "offboard", "position", "rtl")
 MAV_CMD_DO_SET_MODE = 176
+MAX_BAD_IN_A_ROW = 10_000  # a .tlog that raises this often in a row is not read further (never a hang)
 HOVER_MIN = 200  # hover samples a log needs before its hover throttle may lower the vehicle file's
 HOVER_IQR = 0.05
 
@@ -50,10 +51,13 @@ def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
     except Exception as err:  # noqa: BLE001
         raise ContractError(f"{path}: not a readable .tlog ({err})") from None
     ops, cmds, ap_sys, autopilot, t0 = [], [], None, "px4", None
-    while True:
+    bad = 0
+    while bad < MAX_BAD_IN_A_ROW:
         try:
             m = mlog.recv_match(blocking=False)
-        except Exception:  # noqa: BLE001 — a bad packet: skipped, as the replay does
+            bad = 0
+        except Exception:  # noqa: BLE001 — a bad packet: counted and skipped, as the replay does
+            bad += 1
             continue
         if m is None:
             break
@@ -355,11 +359,11 @@ def v_max_changes(stock, new) -> list[dict]:
 
 def format_summary(s: dict) -> str:
     c = s["coverage"]
-    lines = [f"calibrated {s['table']} from {sum(1 for x in s['logs'] if 'error' not in x)} log(s), "
-             f"{s['samples']} window samples; vehicle file {s['vehicle_file']}",
-             f"  controller contract measured on {c['covered_cells']} of {c['cells']} cells "
-             f"({100 * c['covered_fraction']:.1f} % of the envelope; a cell needs >= {c['n_min']} windows); "
-             f"measured/predicted up to {s['ratio_measured_over_predicted']:.2f}"]
+    lines = [(f"calibrated {s['table']} from {sum(1 for x in s['logs'] if 'error' not in x)} log(s), "
+              f"{s['samples']} window samples; vehicle file {s['vehicle_file']}"),
+             (f"  controller contract measured on {c['covered_cells']} of {c['cells']} cells "
+              f"({100 * c['covered_fraction']:.1f} % of the envelope; a cell needs >= {c['n_min']} windows); "
+              f"measured/predicted up to {s['ratio_measured_over_predicted']:.2f}")]
     for lg in s["logs"]:
         if "error" in lg:
             lines.append(f"  {lg['log']}: skipped: {lg['error']}")

@@ -176,7 +176,7 @@ def measure_stop(t, vel_xy, t_cmd: float, smooth_s: float = 0.1) -> Stop | None:
     if len(tt) < 4:
         return None
     # deceleration by differences over `smooth_s`
-    h = max(1, int(round(smooth_s / max(np.median(np.diff(tt)), 1e-6))))
+    h = max(1, round(float(smooth_s / max(np.median(np.diff(tt)), 1e-6))))
     a = np.zeros(len(s))
     a[h:-h] = -(s[2 * h:] - s[:-2 * h]) / (tt[2 * h:] - tt[:-2 * h]) if len(s) > 2 * h else 0.0
     on = np.nonzero(a >= ONSET_M_S2)[0]
@@ -220,7 +220,10 @@ def calibrate_braking(stops: list[Stop], accel: float, jerk: float, hold_switch_
 # ----------------------------------------------------------------------------- hover thrust
 
 
-def hover_throttle(throttle, roll, pitch, vz, in_air, max_vz=0.3, max_tilt=math.radians(10)) -> dict:
+HOVER_MAX_TILT = math.radians(10)
+
+
+def hover_throttle(throttle, roll, pitch, vz, in_air, max_vz=0.3, max_tilt=HOVER_MAX_TILT) -> dict:
     """Hover throttle from level, steady samples: throttle·cos φ·cos θ (the thrust_ratio estimator's
     nominal), its median and spread (5–95 % and the interquartile range), and the sample count."""
     thr, roll, pitch, vz = (np.asarray(a, float) for a in (throttle, roll, pitch, vz))

@@ -26,7 +26,7 @@ class TlogTee:
     """Stamps every packet crossing the ground station's side of a lock-step link into a `.tlog`."""
 
     def __init__(self, rig: Rig, path: Path):
-        self.rig, self.fh = rig, open(path, "wb")
+        self.rig, self.fh = rig, open(path, "wb")  # noqa: SIM115 — open for the whole flight, closed by close()
         self.parser = mav.MAVLink(None)
         self.parser.robust_parsing = True
         link = rig.link
