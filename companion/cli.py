@@ -102,7 +102,10 @@ def cmd_table_show(args) -> int:
     lines.append("  controller contract (E_tr_pred): " + ("yes" if t.e_pred is not None else
                  "NONE — E_tr is the measured value only; the daemon refuses to engage with this table unless "
                  "the config states contract.e_tr_assumed_m (build it: contract-guard table etr)"))
-    m = {**m, "controller_contract": t.e_pred is not None}
+    from .console import controller_coverage
+
+    lines.append(f"  controller contract coverage: {controller_coverage(t)}")
+    m = {**m, "controller_contract": t.e_pred is not None, "controller_coverage": controller_coverage(t)}
     for slot_name, slot in (("avoid", t.avoid), ("e_tr_pred", t.e_pred)):
         if slot is not None:
             for info, ax in zip(m["axes"][slot_name], slot.axes):
@@ -463,6 +466,45 @@ def cmd_campaign(args) -> int:
     return 0
 
 
+# ----------------------------------------------------------------------------- calibrate
+
+
+def cmd_calibrate_plan(args) -> int:
+    from contracts.table import load_for_vehicle
+    from contracts.vehicle import load_vehicle
+
+    from .calibrate_plan import speed_ladder, write_plan_files
+
+    veh = load_vehicle(args.vehicle)
+    try:
+        grid = load_for_vehicle(veh, table_file(args.table) if args.table else None).e_pred
+    except ContractError:
+        grid = None
+    v_top = args.v_top or (float(grid.axes[0][-1]) if grid is not None else 8.0)
+    speeds = speed_ladder(v_top, grid.axes[0] if grid is not None else None)
+    info = write_plan_files(veh, args.out, speeds, args.altitude)
+    _emit(info, args.json, f"calibration plan for {veh.name}: {info['legs']} legs ({info['hold_legs']} hold legs the "
+          f"daemon or the operator commands), speeds {', '.join(f'{v:g}' for v in speeds)} m/s at {args.altitude:g} m\n"
+          f"  {info['plan']}\n  {info['waypoints']}\n  {info['legs_file']}")
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    from contracts.vehicle import load_vehicle
+
+    from .calibrate import calibrate, format_summary
+
+    veh = load_vehicle(args.vehicle)
+    table = _load_table(args.table, args.vehicle)
+    logs = [p for x in args.log for p in (sorted(q for q in x.rglob("*") if q.suffix.lower() in (".tlog", ".ulg", ".bin"))
+                                           if x.is_dir() else [x])]
+    if not logs:
+        raise ContractError("no flight logs (.tlog, .ulg, .bin) given")
+    s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence)
+    _emit(s, args.json, format_summary(s) + f"\nreport: {args.out.with_suffix('')}.report.html")
+    return 0
+
+
 # ----------------------------------------------------------------------------- parser
 
 
@@ -593,6 +635,27 @@ def build_parser() -> argparse.ArgumentParser:
     cg.add_argument("--json", action="store_true")
     cg.set_defaults(func=cmd_campaign)
 
+    ca = sub.add_parser("calibrate", help="calibrate the controller contract and braking from flight logs "
+                        "(`calibrate plan` writes the calibration flight plan)")
+    ca.add_argument("log", nargs="+", type=Path, help="flight logs (.tlog, .ulg, .bin) or folders of them")
+    ca.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
+    ca.add_argument("--table", type=Path, required=True, help="the table to calibrate (its avoid slot is kept)")
+    ca.add_argument("--out", type=Path, required=True, help="the calibrated table (NEW.npz; NEW.yaml and the report beside)")
+    ca.add_argument("--quantile", type=finite, default=0.9, help="quantile the per-cell bound covers (default 0.9)")
+    ca.add_argument("--confidence", type=finite, default=0.9, help="its confidence (default 0.9)")
+    ca.add_argument("--json", action="store_true")
+    ca.set_defaults(func=cmd_calibrate)
+
+    cpl = sub.add_parser("calibrate-plan", help=argparse.SUPPRESS)
+    cpl.prog = "contract-guard calibrate plan"
+    cpl.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
+    cpl.add_argument("--out", type=Path, required=True, help="directory for calibration.plan / .waypoints / -legs.json")
+    cpl.add_argument("--table", type=Path, help="table whose E_tr_pred speed grid sets the ladder (default: shipped)")
+    cpl.add_argument("--v-top", type=finite, help="top speed of the ladder [m/s] (default: the grid's top)")
+    cpl.add_argument("--altitude", type=finite, default=5.0, help="altitude above home [m]")
+    cpl.add_argument("--json", action="store_true")
+    cpl.set_defaults(func=cmd_calibrate_plan)
+
     pl = tsub.add_parser("plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
     pl.add_argument("file", type=Path)
     pl.add_argument("--out", type=Path, required=True)
@@ -607,6 +670,8 @@ def main(argv: list[str] | None = None) -> int:
         from sitl_harness.__main__ import main as sitl_main
 
         return sitl_main(argv[1:], prog="contract-guard sitl")
+    if argv[:2] == ["calibrate", "plan"]:
+        argv = ["calibrate-plan", *argv[2:]]
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)

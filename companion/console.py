@@ -115,6 +115,19 @@ class ConsoleLog:
                 f"{c.loop_errors} loop errors, {c.log_errors} log errors")
 
 
+def controller_coverage(table) -> str:
+    """How much of the controller contract the aircraft's own flights measured (`contract-guard calibrate`)."""
+    if table.e_pred is None:
+        return "no controller contract"
+    c = (table.e_pred.info or {}).get("calibration")
+    if not c:
+        return "built in the SITL from the vehicle file (not measured on this aircraft)"
+    logs = sum(1 for lg in c.get("logs", []) if not lg.get("error"))
+    return (f"measured on {c['covered_cells']} of {c['cells']} cells ({100 * c['covered_fraction']:.1f} % of the "
+            f"envelope) from {c['samples']} windows of {logs} flight log(s); the rest is the SITL's prediction "
+            f"scaled by {c['ratio']:.2f} (never below it)")
+
+
 def banner(cfg, table, controller_contract: str) -> list[str]:
     """The start banner: what the daemon will enforce, on what, and the defaults that shape it."""
     lk, ct = cfg.link, cfg.contract
@@ -124,7 +137,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
     return [
         f"vehicle {table.vehicle.name}, table {table.path} (contracts: {', '.join(table.available)})",
-        f"controller contract: {controller_contract}",
+        f"controller contract: {controller_contract}; {controller_coverage(table)}",
         f"{cfg.mode} mode ({'stop' if cfg.mode != 'offboard' else 'avoid'} contract), {engage}",
         f"sensors: {sensors}",
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "

@@ -113,6 +113,15 @@ class Route(_Strict):
     altitude_m: Pos = 2.0
     cruise_speed_m_s: Pos | None = None
     waypoints: list[tuple[Num, Num]] = []
+    # or a mission file the autopilot loads as it is: a QGroundControl .plan or a `QGC WPL 110` .waypoints
+    # (relative paths from the current directory); e.g. `contract-guard calibrate plan`'s output
+    mission: str | None = None
+
+    @model_validator(mode="after")
+    def _one_route(self) -> "Route":
+        if self.mission and self.waypoints:
+            raise ValueError("give either waypoints or a mission file, not both")
+        return self
 
 
 class Fog(_Strict):

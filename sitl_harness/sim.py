@@ -85,7 +85,9 @@ class Sim:
                                         **({} if unix_epoch_s is None else {"unix_epoch_s": unix_epoch_s}))
         for name, value in sc.params.items():
             self.set_param(name, value)
-        if sc.route.waypoints:
+        if sc.route.mission:
+            self._load_mission_file(sc.route.mission)
+        elif sc.route.waypoints:
             self._load_route()
         if sc.start.alt_m > 0:
             self._start_airborne(sc.start.alt_m)
@@ -148,6 +150,21 @@ class Sim:
             lat, lon, _ = ap.geo_from_local((x, y, 0.0))
             items.append(MissionItem(len(items), mav.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mav.MAV_CMD_NAV_WAYPOINT,
                                      (0.0, 0.0, 0.0, math.nan), lat, lon, r.altitude_m))
+        ap.load_mission(items)
+
+    def _load_mission_file(self, path: str) -> None:
+        """A .plan or .waypoints file (contracts/missionfile.py) as the autopilot's mission. A `.waypoints`
+        item 0 is home: kept where the personality's mission starts with home (ArduPilot), else dropped;
+        a `.plan` has none: home is put first for ArduPilot, as `_load_route` does."""
+        from contracts.missionfile import read_mission
+
+        ap = self.autopilot
+        mp = read_mission(path)
+        lat, lon, alt = ap.home_geo
+        items = [MissionItem(0, mav.MAV_FRAME_GLOBAL, mav.MAV_CMD_NAV_WAYPOINT, (0, 0, 0, 0), lat, lon, alt)] \
+            if ap.pers.mission_skips_home else []
+        for it in mp.items:
+            items.append(MissionItem(len(items), it.frame, it.command, it.params, it.x, it.y, it.z))
         ap.load_mission(items)
 
     # ------------------------------------------------------------------ I/O hooks (bytes only)

@@ -1,0 +1,460 @@
+"""`contract-guard calibrate LOG... --vehicle FILE --table TABLE --out NEW.npz`: the contract of this aircraft.
+
+Reads each flight log — a MAVLink `.tlog`, a PX4 ULog `.ulg`, an ArduPilot DataFlash `.bin` — into the
+ops of `companion/loginput.py` (the ULog/DataFlash readers are issue 14's; a `.tlog` is turned into the
+same ops here), then into one `Trace` per log (position, velocity, attitude, commanded path, throttle,
+modes, Hold commands), and hands the numbers to the pure statistics of `contracts/calibrate.py`:
+- `E_tr_pred` measured per cell (window samples, order-statistic bound, coverage, the never-optimistic
+  rule for uncovered cells, monotone upward), written into a copy of the table with its avoid slot;
+- braking and reaction from the logged stops, a finding where the vehicle file is optimistic, and a
+  calibrated vehicle file beside the table (`NEW.yaml`), which the new table embeds;
+- hover throttle and its spread;
+- provenance (log SHA-256s, sample counts, the rule) in the table's metadata;
+- a report: `NEW.report.json`, `NEW.report.html` and, with matplotlib, `NEW.report.png`.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from contracts import calibrate as cal
+from contracts.errors import ContractError
+
+from .autopilots import adapter_for
+from .loginput import Feed, order
+
+IN_AIR = 2  # MAV_LANDED_STATE_IN_AIR
+POSITION_MODES = ("mission", "hold", "offboard", "position", "rtl")
+MAV_CMD_DO_SET_MODE = 176
+MAX_BAD_IN_A_ROW = 10_000  # a .tlog that raises this often in a row is not read further (never a hang)
+HOVER_MIN = 200  # hover samples a log needs before its hover throttle may lower the vehicle file's
+HOVER_IQR = 0.05
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
+    """A `.tlog` as the ops of `loginput` (the autopilot's messages only) and the mode commands seen on the
+    link (t [s], requested mode name) from any ground station or the daemon."""
+    from pymavlink import mavutil
+
+    try:
+        mlog = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
+    except Exception as err:  # noqa: BLE001
+        raise ContractError(f"{path}: not a readable .tlog ({err})") from None
+    ops, cmds, ap_sys, autopilot, t0 = [], [], None, "px4", None
+    bad = 0
+    while bad < MAX_BAD_IN_A_ROW:
+        try:
+            m = mlog.recv_match(blocking=False)
+            bad = 0
+        except Exception:  # noqa: BLE001 — a bad packet: counted and skipped, as the replay does
+            bad += 1
+            continue
+        if m is None:
+            break
+        kind = m.get_type()
+        if kind == "BAD_DATA":
+            continue
+        t_us = int(getattr(m, "_timestamp", 0.0) * 1e6)
+        t0 = t_us if t0 is None else t0
+        src = (m.get_srcSystem(), m.get_srcComponent())
+        if kind == "HEARTBEAT" and m.autopilot not in (8,) and src[1] == 1:  # 8: MAV_AUTOPILOT_INVALID
+            ap_sys = src[0]
+            autopilot = "ardupilot" if m.autopilot == 3 else "px4"
+            ops.append((t_us, "mode", (m.base_mode, m.custom_mode)))
+            continue
+        if kind == "COMMAND_LONG" and m.command == MAV_CMD_DO_SET_MODE and src[0] != ap_sys:
+            cmds.append((t_us, (m.param1, m.param2, m.param3)))
+            continue
+        if ap_sys is None or src[0] != ap_sys or src[1] != 1:
+            continue
+        if kind == "LOCAL_POSITION_NED":
+            ops.append((t_us, "pos", (m.x, m.y, m.z, m.vx, m.vy, m.vz)))
+        elif kind == "ATTITUDE":
+            ops.append((t_us, "att", (m.roll, m.pitch, m.yaw)))
+        elif kind == "POSITION_TARGET_LOCAL_NED":
+            ignore = m.type_mask & 0b11 != 0
+            ops.append((t_us, "target", (math.nan, math.nan) if ignore else (m.x, m.y)))
+        elif kind == "VFR_HUD":
+            ops.append((t_us, "thr", (m.throttle / 100.0,)))
+        elif kind == "EXTENDED_SYS_STATE":
+            ops.append((t_us, "landed", (m.landed_state,)))
+    ad = adapter_for(autopilot)
+    t_first = min([o[0] for o in ops] + [c[0] for c in cmds]) if ops else 0
+    # a mode command's params → the mode it asks for (base_mode, custom main/sub or ArduPilot number)
+    modes = [((t - t_first) / 1e6, _commanded_mode(ad, p)) for t, p in cmds]
+    shifted = [(t - t_first, op, a) for t, op, a in ops]
+    ordered, jumps = order(shifted)
+    return Feed(ordered, {"format": "MAVLink tlog", "time_jumps": jumps}, autopilot), modes
+
+
+def _commanded_mode(ad, p) -> str:
+    if ad.name == "ardupilot":
+        return ad.mode_name(int(p[0]), int(p[1]))
+    custom = (int(p[1]) & 0xFF) << 16 | (int(p[2]) & 0xFF) << 24
+    return ad.mode_name(int(p[0]), custom)
+
+
+def read_log(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
+    """Any supported flight log → (Feed, mode commands). Damage is the reader's to report."""
+    path = Path(path)
+    if not path.exists():
+        raise ContractError(f"no such file: {path}")
+    suffix = path.suffix.lower()
+    if suffix == ".tlog":
+        return tlog_feed(path)
+    if suffix == ".ulg":
+        from .ulog import read_ulog
+
+        return read_ulog(path), []
+    if suffix == ".bin":
+        from .dataflash import read_dataflash
+
+        return read_dataflash(path), []
+    raise ContractError(f"{path}: calibrate reads .tlog, .ulg and .bin flight logs")
+
+
+@dataclass
+class Trace:
+    """One flight, as arrays at the position samples (SI, NED)."""
+
+    name: str
+    autopilot: str
+    t: np.ndarray
+    xy: np.ndarray
+    vel: np.ndarray  # (n, 3)
+    tilt: np.ndarray
+    airborne: np.ndarray
+    t_path: np.ndarray
+    xy_path: np.ndarray
+    hover: dict
+    holds: list  # (t_cmd, source)
+    mode_at: list = field(default_factory=list)  # (t, mode name) changes
+
+
+def trace_of(name: str, feed: Feed, commands: list[tuple[float, str]]) -> Trace:
+    ad = adapter_for(feed.autopilot if feed.autopilot in ("px4", "ardupilot") else "px4")
+    pos, att, tgt, thr, modes, landed = [], [], [], [], [], []
+    for t_us, op, a in feed.ops:
+        t = t_us / 1e6
+        if op == "pos" and all(math.isfinite(v) for v in a):
+            pos.append((t, *a))
+        elif op == "att" and all(math.isfinite(v) for v in a):
+            att.append((t, a[0], a[1]))
+        elif op == "target" and math.isfinite(a[0]) and math.isfinite(a[1]):
+            tgt.append((t, a[0], a[1]))
+        elif op == "thr" and math.isfinite(a[0]):
+            thr.append((t, a[0]))
+        elif op == "mode":
+            name_ = ad.mode_name(int(a[0]), int(a[1]))
+            if not modes or modes[-1][1] != name_:
+                modes.append((t, name_))
+        elif op == "landed":
+            landed.append((t, int(a[0])))
+    P = np.array(pos, float).reshape(-1, 7)
+    t = P[:, 0]
+    A = np.array(att, float).reshape(-1, 3)
+    roll = np.interp(t, A[:, 0], A[:, 1]) if len(A) else np.zeros(len(t))
+    pitch = np.interp(t, A[:, 0], A[:, 2]) if len(A) else np.zeros(len(t))
+    tilt = np.arccos(np.clip(np.cos(roll) * np.cos(pitch), -1, 1))
+    mode_now = _step_lookup(modes, t, "other")
+    if landed:
+        in_air = _step_lookup(landed, t, 0) == IN_AIR
+    else:  # no landed state: more than 1 m above the lowest point of the flight
+        in_air = P[:, 3] < (np.max(P[:, 3]) - 1.0) if len(P) else np.zeros(0, bool)
+    steady_z = np.abs(P[:, 6]) < 0.5
+    airborne = in_air & steady_z & np.isin(mode_now, POSITION_MODES)
+    T = np.array(tgt, float).reshape(-1, 3)
+    H = np.array(thr, float).reshape(-1, 2)
+    if len(H) and len(t):
+        hover = cal.hover_throttle(H[:, 1], np.interp(H[:, 0], t, roll), np.interp(H[:, 0], t, pitch),
+                                   np.interp(H[:, 0], t, P[:, 6]), np.interp(H[:, 0], t, in_air.astype(float)) > 0.5)
+    else:
+        hover = cal.hover_throttle([], [], [], [], [])
+    holds = [(tc, "command") for tc, m in commands if m == "hold"]
+    if not holds:  # no commands logged: the autopilot's own switch to Hold/Brake (the reaction excludes it)
+        holds = [(tm, "mode switch") for (tm, m), (_, prev) in zip(modes[1:], modes[:-1]) if m == "hold" and prev != "hold"]
+    return Trace(name, feed.autopilot, t, P[:, 1:3], P[:, 4:7], tilt, airborne, T[:, 0], T[:, 1:3], hover, holds, modes)
+
+
+def _step_lookup(changes: list, t: np.ndarray, before):
+    """The value of a piecewise-constant record [(t, value)] at times `t`."""
+    if not changes:
+        return np.array([before] * len(t), dtype=object if isinstance(before, str) else int)
+    ts = np.array([c[0] for c in changes])
+    vals = np.array([c[1] for c in changes] + [before], dtype=object if isinstance(before, str) else int)
+    idx = np.searchsorted(ts, t, side="right") - 1
+    return vals[np.where(idx < 0, len(changes), idx)]
+
+
+def sha256_file(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# ----------------------------------------------------------------------------- calibration
+
+
+def flight_thrust_ratio(trace: Trace, hover_nominal: float, top: float) -> float | None:
+    """thrust_ratio of the flight: nominal hover throttle over the logged one (None: not estimable)."""
+    h = trace.hover.get("median")
+    return None if not h else min(top, hover_nominal / h)
+
+
+def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUANTILE, confidence=cal.CONFIDENCE,
+              report: bool = True) -> dict:
+    """Calibrate `table` (a verified `ContractTable` for `vehicle`) from the logs; write `out` (+ .yaml, report)."""
+    from contracts.table import Slot, write_table
+    from contracts.vehicle import vehicle_from_dict
+
+    if table.e_pred is None:
+        raise ContractError(f"table {table.path}: no controller contract (E_tr_pred) to calibrate")
+    axes = table.e_pred.axes
+    hover_nominal = vehicle.controller.thr_hover
+    logs, samples, stops, traces = [], [], [], []
+    for p in paths:
+        p = Path(p)
+        try:
+            feed, cmds = read_log(p)
+            tr = trace_of(p.name, feed, cmds)
+        except ContractError as err:
+            logs.append({"log": str(p), "error": str(err)})
+            continue
+        except Exception as err:  # noqa: BLE001 — a log the readers could not make sense of: said, not fatal
+            logs.append({"log": str(p), "error": f"unreadable ({type(err).__name__}: {err})"})
+            continue
+        ratio = flight_thrust_ratio(tr, hover_nominal, float(axes[2][-1]))
+        w = cal.windows(tr.t, tr.xy, np.hypot(tr.vel[:, 0], tr.vel[:, 1]), tr.tilt, tr.t_path, tr.xy_path, tr.airborne)
+        # no hover estimate: the grid's lowest thrust_ratio (the cell that helps least, never optimistic)
+        r_used = ratio if ratio is not None else float(axes[2][0])
+        samples += [(e, v, ti, r_used) for e, v, ti in zip(w.e, w.v, w.tilt)]
+        flight_stops = [(src, s) for tc, src in tr.holds if (s := cal.measure_stop(tr.t, tr.vel[:, :2], tc)) is not None]
+        stops += [(p.name, src, s) for src, s in flight_stops]
+        traces.append(tr)
+        logs.append({"log": str(p), "sha256": sha256_file(p), "format": feed.info.get("format", p.suffix),
+                     "autopilot": feed.autopilot, "span_s": float(tr.t[-1] - tr.t[0]) if len(tr.t) else 0.0,
+                     "airborne_s": float(np.count_nonzero(tr.airborne) / max(len(tr.t), 1) * (tr.t[-1] - tr.t[0]))
+                     if len(tr.t) > 1 else 0.0,
+                     "windows": len(w.e), "path_samples": len(tr.t_path), "holds": len(tr.holds),
+                     "stops_measured": len(flight_stops), "hover": tr.hover, "thrust_ratio": ratio})
+    if not traces:
+        raise ContractError("no log could be read: " + "; ".join(x["error"] for x in logs))
+    ec = cal.calibrate_etr(table.e_pred.values, axes, samples, quantile=quantile, confidence=confidence)
+    b = vehicle.braking
+    t_dead = b.hold_switch_s
+    stop_rows = []
+    for name, src, s in stops:
+        pred = cal.predicted_stop(s.v0, b.accel_max_m_s2, b.jerk_max_m_s3, t_dead)
+        stop_rows.append({"log": name, "source": src, "t_cmd": s.t_cmd, "v0": s.v0, "reaction_s": s.reaction_s,
+                          "decel_peak_m_s2": s.decel_peak, "jerk_m_s3": s.jerk, "distance_m": s.distance_m,
+                          "predicted_m": pred, "overshoot_m": s.distance_m - pred})
+    # a stop timed from the autopilot's mode switch (ULog, DataFlash: no command logged) measures only part
+    # of the reaction, a lower bound of it: it may lengthen the switch time, never shorten it
+    brk = cal.calibrate_braking([s for _, _, s in stops], b.accel_max_m_s2, b.jerk_max_m_s3, b.hold_switch_s)
+    findings = []
+    over = [r for r in stop_rows if r["overshoot_m"] > 0.05]
+    if over:
+        worst = max(over, key=lambda r: r["overshoot_m"])
+        findings.append(f"the vehicle file's braking is optimistic: {len(over)} of {len(stop_rows)} logged stops ran "
+                        f"longer than the stop contract's closed form (worst {worst['distance_m']:.2f} m against "
+                        f"{worst['predicted_m']:.2f} m from {worst['v0']:.1f} m/s)")
+    if ec.ratio > 1.0:
+        findings.append(f"the aircraft tracks worse than its SITL model: measured/predicted E_tr up to {ec.ratio:.2f} "
+                        "on the covered cells (the uncovered cells are scaled by it)")
+    vdict = vehicle.metadata()
+    vdict["braking"] = {**vdict["braking"], "accel_max_m_s2": brk["accel_max_m_s2"], "jerk_max_m_s3": brk["jerk_max_m_s3"],
+                        "hold_switch_s": brk["hold_switch_s"]}
+    # the thrust_ratio estimator's nominal: a lower nominal reads as less thrust (never optimistic), so the
+    # file's value is only lowered, and only from steady hover records (≥ HOVER_MIN samples, IQR ≤ HOVER_IQR)
+    h_all = [lg["hover"]["median"] for lg in logs if (lg.get("hover") or {}).get("median")
+             and lg["hover"]["samples"] >= HOVER_MIN and lg["hover"]["iqr"] <= HOVER_IQR]
+    if h_all:
+        vdict["controller"] = {**vdict["controller"], "thr_hover": min(vehicle.controller.thr_hover, float(np.median(h_all)))}
+    vdict["description"] = (vehicle.description + f" — calibrated from {len(traces)} flight log(s)").strip(" —")
+    veh_cal = vehicle_from_dict(vdict, "calibrated vehicle")
+    n_cells = int(ec.counts.size)
+    info = dict(table.e_pred.info)
+    info["method"] = "calibrated from flight logs (contracts/calibrate.py) over the SITL-built E_tr_pred: " + str(
+        info.get("method", ""))[:200]
+    info["calibration"] = {
+        "rule": {"sample": f"worst contour error per {cal.WINDOW_S:g} s window, speed and tilt the largest in the "
+                           f"window and the {cal.LOOKBACK_S:g} s before it, the flight's thrust_ratio",
+                 "bound": f"covered cell (n >= {ec.n_min}): the largest of its n window maxima, which exceeds the "
+                          f"{quantile:g}-quantile with confidence 1 - {quantile:g}^n >= {confidence:g}; times "
+                          f"(1 + {cal.MARGIN_REL:g}) plus {cal.MARGIN_ABS_M:g} m",
+                 "uncovered": f"max(E_sitl, E_sitl * rho*, the bound of its own windows), rho* = {ec.ratio:.3f} (the "
+                              "largest measured/predicted ratio over covered cells, at least 1)",
+                 "monotone": "repaired upward", "quantile": quantile, "confidence": confidence, "n_min": ec.n_min},
+        "counts": ec.counts.tolist(), "covered": ec.covered.astype(int).tolist(),
+        "covered_cells": int(np.count_nonzero(ec.covered)), "cells": n_cells,
+        "covered_fraction": float(np.count_nonzero(ec.covered)) / n_cells,
+        "samples": len(samples), "samples_outside_grid": ec.outside, "ratio": ec.ratio,
+        "monotone_repairs_up": ec.repairs, "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "logs": [{k: lg.get(k) for k in ("log", "sha256", "format", "windows", "span_s", "error") if k in lg} for lg in logs],
+        "stock_table": str(table.path), "stock_arrays_sha256": table.meta.get("arrays_sha256"),
+    }
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_table(out, veh_cal, tilt_model=table.tilt_model, avoid=table.avoid,
+                e_tr_pred=Slot(axes, ec.values, info), method=table.meta.get("method"))
+    yaml_path = out.with_suffix(".yaml")
+    _write_vehicle_yaml(yaml_path, veh_cal, vehicle)
+    from contracts.table import verify
+
+    new = verify(out, veh_cal)
+    scen = v_max_changes(table, new)
+    summary = {
+        "table": str(out), "vehicle_file": str(yaml_path), "logs": logs, "samples": len(samples),
+        "coverage": {"covered_cells": info["calibration"]["covered_cells"], "cells": n_cells,
+                     "covered_fraction": info["calibration"]["covered_fraction"], "n_min": ec.n_min},
+        "ratio_measured_over_predicted": ec.ratio, "monotone_repairs_up": ec.repairs,
+        "braking": {"file": b.model_dump(), "calibrated": brk, "stops": stop_rows},
+        "hover": {"nominal": hover_nominal, "per_log": [lg.get("hover") for lg in logs if "hover" in lg]},
+        "v_max": scen, "findings": findings,
+    }
+    if report:
+        write_report(out, summary, table, new, ec, traces)
+    return summary
+
+
+def _write_vehicle_yaml(path: Path, veh, stock) -> None:
+    import yaml
+
+    d = veh.metadata()
+    head = (f"# {veh.name}: calibrated by `contract-guard calibrate` from flight logs; braking and hover thrust "
+            "measured (never better than the original file's).\n# Original vehicle: "
+            f"{stock.name} (sha256 {stock.fingerprint()[:16]}).\n")
+    path.write_text(head + yaml.safe_dump(d, sort_keys=False))
+
+
+# the paper's scenarios and typical conditions: (label, d_od, r_obst, thrust_ratio)
+SCENARIOS = (("D_od 4 m, R_obst 0.5 m", 4.0, 0.5, 1.0), ("D_od 8 m, R_obst 0.5 m", 8.0, 0.5, 1.0),
+             ("D_od 8 m, thrust 0.85", 8.0, 0.5, 0.85), ("D_od 12 m, R_obst 1 m", 12.0, 1.0, 1.0))
+
+
+def v_max_changes(stock, new) -> list[dict]:
+    rows = []
+    for label, d, r, k in SCENARIOS:
+        row = {"scenario": label, "d_od": d, "r_obst": r, "thrust_ratio": k}
+        for contract in ("avoid", "stop"):
+            if contract == "avoid" and (stock.avoid is None or new.avoid is None):
+                continue
+            a, b = stock.omega(d, r, 0.0, k, contract), new.omega(d, r, 0.0, k, contract)
+            row[contract] = {"stock": a.v_max, "calibrated": b.v_max}
+        rows.append(row)
+    return rows
+
+
+def format_summary(s: dict) -> str:
+    c = s["coverage"]
+    lines = [(f"calibrated {s['table']} from {sum(1 for x in s['logs'] if 'error' not in x)} log(s), "
+              f"{s['samples']} window samples; vehicle file {s['vehicle_file']}"),
+             (f"  controller contract measured on {c['covered_cells']} of {c['cells']} cells "
+              f"({100 * c['covered_fraction']:.1f} % of the envelope; a cell needs >= {c['n_min']} windows); "
+              f"measured/predicted up to {s['ratio_measured_over_predicted']:.2f}")]
+    for lg in s["logs"]:
+        if "error" in lg:
+            lines.append(f"  {lg['log']}: skipped: {lg['error']}")
+        else:
+            h = lg["hover"]
+            lines.append(f"  {Path(lg['log']).name}: {lg['format']}, {lg['span_s']:.0f} s, {lg['windows']} windows, "
+                         f"{lg['stops_measured']}/{lg['holds']} stops measured, hover throttle "
+                         + (f"{h['median']:.3f} (5-95 % {h['p05']:.3f}-{h['p95']:.3f})" if h.get("median") else "unknown"))
+    br = s["braking"]["calibrated"]
+    lines.append(f"  braking: {br['stops']} stop(s); decel {br['accel_max_m_s2']:.2f} m/s^2, jerk "
+                 f"{br['jerk_max_m_s3']:.2f} m/s^3, hold switch {br['hold_switch_s']:.3f} s"
+                 + (" (changed from the vehicle file)" if br.get("changed") else " (as the vehicle file)"))
+    for row in s["v_max"]:
+        parts = [f"{k} {row[k]['stock']:.2f} -> {row[k]['calibrated']:.2f} m/s" for k in ("avoid", "stop") if k in row]
+        lines.append(f"  V_max at {row['scenario']}: " + ", ".join(parts))
+    for f in s["findings"]:
+        lines.append(f"  finding: {f}")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- report
+
+
+def write_report(out: Path, summary: dict, stock, new, ec, traces) -> None:
+    base = out.with_suffix("")
+    Path(f"{base}.report.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
+    png = _plot(Path(f"{base}.report.png"), stock, new, ec, summary)
+    rows = "".join(f"<tr><td>{r['log']}</td><td>{r['source']}</td><td>{r['v0']:.2f}</td><td>{r['reaction_s']:.3f}</td>"
+                   f"<td>{r['decel_peak_m_s2']:.2f}</td><td>{r['jerk_m_s3']:.2f}</td><td>{r['distance_m']:.2f}</td>"
+                   f"<td>{r['predicted_m']:.2f}</td><td>{r['overshoot_m']:+.2f}</td></tr>"
+                   for r in summary["braking"]["stops"])
+    vm = "".join(f"<tr><td>{r['scenario']}</td>" + "".join(
+        f"<td>{r[k]['stock']:.2f} → {r[k]['calibrated']:.2f}</td>" if k in r else "<td>—</td>" for k in ("avoid", "stop"))
+        + "</tr>" for r in summary["v_max"])
+    text = format_summary(summary).replace("&", "&amp;").replace("<", "&lt;")
+    html = f"""<!doctype html><html><head><meta charset="utf-8"><title>calibration {out.name}</title>
+<style>body{{font-family:sans-serif;max-width:70em;margin:1em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ccc}}</style>
+</head><body><h1>Calibration: {out.name}</h1><pre>{text}</pre>
+{f'<img src="{Path(png).name}" style="max-width:100%">' if png else '<p>(no plot: pip install contract-guard[plot])</p>'}
+<h2>Logged stops against the stop contract's closed form</h2><table><tr><th>log</th><th>from</th><th>v0 m/s</th>
+<th>reaction s</th><th>decel m/s²</th><th>jerk m/s³</th><th>distance m</th><th>closed form m</th><th>overshoot m</th></tr>{rows}</table>
+<h2>V_max, stock → calibrated [m/s]</h2><table><tr><th>scenario</th><th>avoid</th><th>stop</th></tr>{vm}</table>
+</body></html>"""
+    Path(f"{base}.report.html").write_text(html)
+
+
+def _plot(path: Path, stock, new, ec, summary) -> str | None:
+    import importlib.util
+
+    if importlib.util.find_spec("matplotlib") is None:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    v, tilt, tr = stock.e_pred.axes
+    k = len(tr) - 1
+    fig, ax = plt.subplots(1, 3, figsize=(16, 4.6))
+    tilt_deg = np.degrees(tilt)
+    for j in range(0, len(tilt), max(1, len(tilt) // 4)):
+        line, = ax[0].plot(v, stock.e_pred.values[:, j, k], "--", lw=1)
+        ax[0].plot(v, new.e_pred.values[:, j, k], "-", color=line.get_color(), label=f"tilt {tilt_deg[j]:.0f}°")
+        m = ec.covered[:, j, k]
+        ax[0].plot(v[m], ec.measured_max[m, j, k], "o", color=line.get_color(), ms=4)
+    ax[0].set(xlabel="V_max [m/s]", ylabel="E_tr_pred [m]",
+              title=f"E_tr_pred at thrust_ratio {tr[k]:g}: SITL (dashed), calibrated (solid), measured max (dots)")
+    ax[0].title.set_fontsize(8)
+    ax[0].legend(fontsize=7)
+    cov = ec.counts.sum(axis=2).T
+    im = ax[1].imshow(cov, origin="lower", aspect="auto", cmap="viridis",
+                      extent=(v[0] - 0.25, v[-1] + 0.25, 0, len(tilt)))
+    ax[1].set_yticks(np.arange(len(tilt)) + 0.5, [f"{d:.0f}" for d in tilt_deg])
+    cv = ec.covered.any(axis=2).T
+    for (jj, ii) in zip(*np.nonzero(cv)):
+        ax[1].text(v[ii], jj + 0.5, "✓", color="w", ha="center", va="center", fontsize=8)
+    ax[1].set(xlabel="V_max [m/s]", ylabel="tilt [deg]", title="window samples per cell (✓ covered)")
+    fig.colorbar(im, ax=ax[1])
+    rows = summary["braking"]["stops"]
+    if rows:
+        vv = np.array([r["v0"] for r in rows])
+        ax[2].plot(vv, [r["distance_m"] for r in rows], "o", label="logged stops (command → rest)")
+        vs = np.linspace(0, max(vv) * 1.05, 50)
+        b, c = summary["braking"]["file"], summary["braking"]["calibrated"]
+        ax[2].plot(vs, [cal.predicted_stop(x, b["accel_max_m_s2"], b["jerk_max_m_s3"], b["hold_switch_s"]) for x in vs],
+                   "--", label="closed form, vehicle file")
+        ax[2].plot(vs, [cal.predicted_stop(x, c["accel_max_m_s2"], c["jerk_max_m_s3"], c["hold_switch_s"]) for x in vs],
+                   "-", label="closed form, calibrated")
+        ax[2].legend(fontsize=7)
+    ax[2].set(xlabel="speed at the Hold command [m/s]", ylabel="stopping distance [m]", title="braking")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return str(path)

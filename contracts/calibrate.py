@@ -1,0 +1,236 @@
+"""Calibrating the contract from the aircraft's own flights: the statistics, pure (no I/O, no logs).
+
+`companion/calibrate.py` reads the logs and calls these; the daemon never imports this module.
+
+**Controller contract** (the table's `E_tr_pred` slot, Figure 12). The logged flight is cut into
+windows of `WINDOW_S`; each window gives one sample: its worst contour error `e` (the shortest distance
+from the vehicle to the commanded path, Figure 11, `contracts.contour`), the largest horizontal speed
+`v` and total tilt seen in the window and the `LOOKBACK_S` before it (an error that lags a manoeuvre is
+charged to the manoeuvre's speed and tilt), and the flight's thrust_ratio. A sample belongs to the cell
+whose grid speed and tilt are the first at or above its own (the conservative corner of DESIGN.md §2:
+`hurts_index`) and whose thrust_ratio is the last at or below (`helps_index`).
+
+Upper bound per cell (distribution-free order statistic): the largest of the cell's n window maxima
+exceeds the `quantile` q of a window's worst error with confidence 1 − qⁿ; a cell is *covered* when
+n ≥ n_min = ⌈ln(1 − confidence) / ln q⌉. The calibrated value of a covered cell is that maximum times
+(1 + margin) plus `margin_abs_m` (the SITL build's own margin rule). An uncovered cell is never
+optimistic: `max(E_sitl, E_sitl · ρ*, its own windows' bound)` with ρ* the largest measured/predicted
+ratio over the covered cells (1 when none is covered). The result is made monotone upward (`lookup.repair_monotone`, "up"),
+so a covered cell is never below a smaller speed's or tilt's calibrated value either.
+
+**Braking** (the stop contract, `contracts/stop.py`): from each logged stop (Hold/Brake commanded at
+speed) the reaction (command → braking onset), the peak deceleration, the jerk of its rise, the
+distance from the command to rest, and the closed form's distance for the same speed with the vehicle
+file's limits; calibrated limits are never better than the file's (min of deceleration and jerk, max of
+the switch time, enlarged until the closed form covers every logged stop).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .contour import contour_errors
+from .lookup import NONE, helps_index, hurts_index, repair_monotone
+from .stop import braking_distance, stopping_distance
+
+WINDOW_S = 1.0  # one sample per window of flight [s]
+LOOKBACK_S = 4.0  # a window's speed and tilt include this much before it [s]
+CONTOUR_WINDOW_S = 1.0  # the commanded path near a sample: ± this [s] (as the SITL build)
+QUANTILE = 0.9
+CONFIDENCE = 0.9
+MARGIN_REL = 0.25  # the SITL build's margin (its table's `e_tr_pred.margin`)
+MARGIN_ABS_M = 0.02
+ETR_DIRS = (+1, +1, -1)  # E_tr_pred grows with v_max and tilt, falls with thrust_ratio
+
+
+def n_min(quantile: float = QUANTILE, confidence: float = CONFIDENCE) -> int:
+    """Smallest n for which the largest of n samples bounds the q-quantile with the confidence."""
+    return math.ceil(math.log(1.0 - confidence) / math.log(quantile))
+
+
+@dataclass(frozen=True)
+class Windows:
+    """The samples of one flight: per window its worst contour error [m], speed [m/s], tilt [rad], time [s]."""
+
+    e: np.ndarray
+    v: np.ndarray
+    tilt: np.ndarray
+    t: np.ndarray
+
+
+def windows(t, xy, speed, tilt, t_path, xy_path, airborne=None, window_s=WINDOW_S, lookback_s=LOOKBACK_S) -> Windows:
+    """Cut a flight into window samples. `t` (n,), `xy` (n, 2) position, `speed` (n,) horizontal speed,
+    `tilt` (n,) total tilt [rad] (all at the position samples); `t_path`, `xy_path` the commanded path;
+    `airborne` (n,) bool: samples outside it (on the ground, taking off, landing) and samples with no
+    commanded path within `CONTOUR_WINDOW_S` are left out."""
+    t = np.asarray(t, float)
+    if len(t) == 0 or len(t_path) == 0:
+        return Windows(*(np.zeros(0) for _ in range(4)))
+    t_path = np.asarray(t_path, float)
+    e = contour_errors(np.asarray(xy, float), t, t_path, np.asarray(xy_path, float), CONTOUR_WINDOW_S)
+    near = np.searchsorted(t_path, t - CONTOUR_WINDOW_S) < np.searchsorted(t_path, t + CONTOUR_WINDOW_S)
+    ok = near & np.isfinite(e) & (np.ones(len(t), bool) if airborne is None else np.asarray(airborne, bool))
+    speed, tilt = np.asarray(speed, float), np.asarray(tilt, float)
+    k = np.floor((t - t[0]) / window_s).astype(int)
+    out = ([], [], [], [])
+    for w in np.unique(k[ok]):
+        sel = ok & (k == w)
+        if np.count_nonzero(sel) < 3 or np.count_nonzero(k == w) != np.count_nonzero(sel):
+            continue  # a window only partly airborne or partly without a path: left out whole
+        t0, t1 = t[0] + w * window_s, t[0] + (w + 1) * window_s
+        back = (t >= t0 - lookback_s) & (t < t1)
+        out[0].append(float(np.max(e[sel])))
+        out[1].append(float(np.nanmax(speed[back])))
+        out[2].append(float(np.nanmax(tilt[back])))
+        out[3].append(t0)
+    return Windows(*(np.array(a) for a in out))
+
+
+def cell_of(axes, v: float, tilt: float, thrust_ratio: float) -> tuple[int, int, int] | None:
+    """The E_tr_pred cell a sample is evidence for (None: above the speed/tilt grid or below its thrust)."""
+    i, j = hurts_index(axes[0], v), hurts_index(axes[1], tilt)
+    k = helps_index(axes[2], thrust_ratio)
+    return None if NONE in (i, j, k) else (i, j, k)
+
+
+@dataclass
+class EtrCalibration:
+    values: np.ndarray  # calibrated E_tr_pred
+    counts: np.ndarray  # window samples per cell (int)
+    covered: np.ndarray  # bool per cell: n ≥ n_min
+    measured_max: np.ndarray  # largest window error per cell (NaN: no sample)
+    ratio: float  # ρ*: largest measured/predicted over covered cells (1 if none)
+    repairs: int  # cells raised by the monotone repair
+    outside: int  # samples outside the grid (not used)
+    n_min: int
+
+
+def calibrate_etr(stock: np.ndarray, axes, samples: list[tuple[float, float, float, float]], *,
+                  quantile=QUANTILE, confidence=CONFIDENCE, margin=MARGIN_REL, margin_abs_m=MARGIN_ABS_M) -> EtrCalibration:
+    """The calibrated E_tr_pred grid from window samples `(e, v, tilt, thrust_ratio)` (see the module)."""
+    stock = np.asarray(stock, float)
+    counts = np.zeros(stock.shape, int)
+    worst = np.full(stock.shape, np.nan)
+    outside = 0
+    for e, v, tilt, tr in samples:
+        c = cell_of(axes, v, tilt, tr)
+        if c is None or not math.isfinite(e):
+            outside += 1
+            continue
+        counts[c] += 1
+        worst[c] = e if not counts[c] > 1 else max(worst[c], e)
+    nm = n_min(quantile, confidence)
+    covered = counts >= nm
+    bound = worst * (1.0 + margin) + margin_abs_m
+    fin = covered & np.isfinite(stock) & (stock > 0)
+    ratio = float(max(1.0, np.max(bound[fin] / stock[fin]))) if np.any(fin) else 1.0
+    # uncovered: the SITL's value scaled by ρ*, and never below what its own few windows showed
+    vals = np.where(covered, bound, np.fmax(np.maximum(stock, stock * ratio), bound))
+    vals, repairs = repair_monotone(vals, ETR_DIRS, "up")
+    return EtrCalibration(vals, counts, covered, worst, ratio, repairs, outside, nm)
+
+
+# ----------------------------------------------------------------------------- braking
+
+
+@dataclass(frozen=True)
+class Stop:
+    """One logged stop: commanded at `t_cmd` at speed `v0`."""
+
+    t_cmd: float
+    v0: float  # [m/s]
+    reaction_s: float  # command → braking onset
+    decel_peak: float  # [m/s²]
+    jerk: float  # rise of the deceleration, 20 % → 80 % of its peak [m/s³]
+    distance_m: float  # command → rest, along the initial direction
+    t_rest: float
+
+
+ONSET_M_S2 = 0.5  # the deceleration that marks the onset of braking
+REST_M_S = 0.1
+
+
+def measure_stop(t, vel_xy, t_cmd: float, smooth_s: float = 0.1) -> Stop | None:
+    """The stop commanded at `t_cmd` in the velocity record `vel_xy` (n, 2) at times `t` (None: not a stop
+    from speed, or the record ends before rest)."""
+    t, vel = np.asarray(t, float), np.asarray(vel_xy, float)
+    i0 = int(np.searchsorted(t, t_cmd))
+    if i0 >= len(t) - 3:
+        return None
+    u = vel[i0] / max(np.linalg.norm(vel[i0]), 1e-9)
+    v0 = float(np.linalg.norm(vel[i0]))
+    if v0 < 0.5:
+        return None
+    s = vel[i0:] @ u
+    tt = t[i0:]
+    # rest: the speed along the initial direction has fallen to REST_M_S (a side wind's drift is not motion
+    # towards the obstacle; a resumed mission after a stop that never came to rest is not integrated)
+    rest = np.nonzero(s < REST_M_S)[0]
+    if len(rest) == 0:
+        return None
+    n = int(rest[0]) + 1
+    tt, s = tt[:n + 1], s[:n + 1]
+    if len(tt) < 4:
+        return None
+    # deceleration by differences over `smooth_s`
+    h = max(1, round(float(smooth_s / max(np.median(np.diff(tt)), 1e-6))))
+    a = np.zeros(len(s))
+    a[h:-h] = -(s[2 * h:] - s[:-2 * h]) / (tt[2 * h:] - tt[:-2 * h]) if len(s) > 2 * h else 0.0
+    on = np.nonzero(a >= ONSET_M_S2)[0]
+    if len(on) == 0:
+        return None
+    t_on = float(tt[on[0]])
+    a_pk = float(np.max(a))
+    i20 = np.nonzero(a >= 0.2 * a_pk)[0][0]
+    i80 = np.nonzero(a >= 0.8 * a_pk)[0][0]
+    jerk = 0.6 * a_pk / max(float(tt[i80] - tt[i20]), 1e-3)
+    dist = float(np.sum(0.5 * (s[1:] + s[:-1]) * np.diff(tt)))
+    return Stop(t_cmd, v0, t_on - t_cmd, a_pk, jerk, dist, float(tt[-1]))
+
+
+def predicted_stop(v0: float, a: float, j: float, t_dead: float) -> float:
+    """The stop contract's closed form (contracts/stop.py): dead time, then the jerk-limited stop."""
+    return stopping_distance(v0, a, j, t_dead)
+
+
+def calibrate_braking(stops: list[Stop], accel: float, jerk: float, hold_switch_s: float) -> dict:
+    """Braking limits never better than the file's: min of the file's and the lowest measured deceleration
+    (of the stops fast enough to reach it) and jerk, max of the file's switch time and the longest measured reaction, then the switch time enlarged
+    until the closed form's stop (without the daemon's own t_react, which no log measures) covers every
+    logged stop. Returns the calibrated values and per-stop overshoots against the file's closed form."""
+    if not stops:
+        return {"accel_max_m_s2": accel, "jerk_max_m_s3": jerk, "hold_switch_s": hold_switch_s, "stops": 0,
+                "changed": False}
+    # the deceleration limit is reached only from v ≥ a²/j (below, the S-curve peaks at √(v·j))
+    full = [s for s in stops if s.v0 >= 1.5 * accel * accel / jerk]
+    a_c = min([accel] + [s.decel_peak for s in full])
+    j_c = min(jerk, min(s.jerk for s in stops))
+    h_c = max(hold_switch_s, max(s.reaction_s for s in stops))
+    for s in stops:  # v·h + braking ≥ measured ⇒ h ≥ (measured − braking)/v
+        need = (s.distance_m - braking_distance(s.v0, a_c, j_c)) / s.v0
+        h_c = max(h_c, need)
+    h_c = math.ceil(h_c * 1000.0) / 1000.0
+    return {"accel_max_m_s2": a_c, "jerk_max_m_s3": j_c, "hold_switch_s": h_c, "stops": len(stops),
+            "changed": (a_c, j_c, h_c) != (accel, jerk, hold_switch_s)}
+
+
+# ----------------------------------------------------------------------------- hover thrust
+
+
+HOVER_MAX_TILT = math.radians(10)
+
+
+def hover_throttle(throttle, roll, pitch, vz, in_air, max_vz=0.3, max_tilt=HOVER_MAX_TILT) -> dict:
+    """Hover throttle from level, steady samples: throttle·cos φ·cos θ (the thrust_ratio estimator's
+    nominal), its median and spread (5–95 % and the interquartile range), and the sample count."""
+    thr, roll, pitch, vz = (np.asarray(a, float) for a in (throttle, roll, pitch, vz))
+    c = np.cos(roll) * np.cos(pitch)
+    ok = np.asarray(in_air, bool) & (np.abs(vz) < max_vz) & (np.arccos(np.clip(c, -1, 1)) < max_tilt) & (thr > 0.05)
+    h = thr[ok] * c[ok]
+    if len(h) < 10:
+        return {"samples": len(h), "median": None, "p05": None, "p95": None, "iqr": None}
+    p05, p25, p50, p75, p95 = np.percentile(h, [5, 25, 50, 75, 95])
+    return {"samples": len(h), "median": float(p50), "p05": float(p05), "p95": float(p95), "iqr": float(p75 - p25)}

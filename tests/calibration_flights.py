@@ -1,0 +1,129 @@
+"""Lock-step calibration flights for the issue-15 tests: a "real aircraft" (a vehicle that differs from its
+vehicle file) flies `contract-guard calibrate plan`'s mission in the real SITL, the daemon on the link in
+shadow mode, and the ground station's side of the link is written as a MAVLink `.tlog` (the autopilot's
+stream and the ground station's commands, each packet stamped, as MAVProxy writes it).
+
+The plan's hold legs are flown as the plan says: at `hold_before_m` before the leg's waypoint the ground
+station commands Hold (PX4 Hold / ArduPilot Brake), waits `rest_s` at rest and resumes the mission.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.autopilots import adapter_for
+from companion.flights import Rig, fly_mission
+from contracts.missionfile import read_mission
+
+EPOCH_US = 1_790_000_000_000_000
+
+
+class TlogTee:
+    """Stamps every packet crossing the ground station's side of a lock-step link into a `.tlog`."""
+
+    def __init__(self, rig: Rig, path: Path):
+        self.rig, self.fh = rig, open(path, "wb")  # noqa: SIM115 — open for the whole flight, closed by close()
+        self.parser = mav.MAVLink(None)
+        self.parser.robust_parsing = True
+        link = rig.link
+        recv, send = link.client_recv, link.client_send
+
+        def tee_recv():
+            data = recv()
+            self._write(data)
+            return data
+
+        def tee_send(data):
+            self._write(data)
+            return send(data)
+
+        link.client_recv = tee_recv
+        rig.gcs.file.write = tee_send  # the ground station's own commands
+        self._send = send
+
+    def _write(self, data: bytes) -> None:
+        if not data:
+            return
+        stamp = struct.pack(">Q", EPOCH_US + int(self.rig.sim.time_s * 1e6))
+        for m in self.parser.parse_buffer(data) or []:
+            self.fh.write(stamp + bytes(m.get_msgbuf()))
+
+    def close(self) -> None:
+        self.fh.close()
+
+
+def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str = "px4", seed: int = 0,
+                    wind_m_s: float | None = None, vehicle: str = "x500", max_s: float = 900.0,
+                    log_dir: Path | None = None) -> dict:
+    """Fly the plan; returns the holds commanded (t, speed), the flight time and, with `log_dir`, the path of
+    the autopilot's own log the SITL wrote (PX4 ULog / ArduPilot DataFlash)."""
+    sc = {"name": "calibration", "vehicle": vehicle, "seed": seed, "route": {"mission": str(plan_path)},
+          "wind": {} if wind_m_s is None else {"mean_m_s": wind_m_s, "from_deg": 90.0}}
+    rig = Rig(sc, personality, config={"mode": "shadow", "engage": False}, seed=seed,
+              sim_kwargs={"vehicle": truth} if truth is not None else None, log_dir=log_dir)
+    tee = TlogTee(rig, tlog)
+    mp = read_mission(plan_path)
+    holds = {leg["mission_seq_plan"] if personality == "px4" else leg["mission_seq_waypoints"]: leg
+             for leg in mp.extra.get("legs", []) if leg["kind"] == "hold"}
+    ad = adapter_for(personality)
+    ap = rig.sim.autopilot
+    done, log = set(), []
+    n_items = len(ap.mission)
+
+    def watch(r: Rig) -> bool:
+        seq = ap.mission_seq
+        leg = holds.get(seq)
+        if leg is not None and seq not in done and ap.mode == "mission":
+            it = ap.mission[seq]
+            d = math.hypot(*(ap.pos[:2] - it.local[:2]))
+            if d <= leg["hold_before_m"]:
+                done.add(seq)
+                r.command(mav.MAV_CMD_DO_SET_MODE, *ad.set_mode_params(ad.hold_mode(), True))
+                log.append({"t": r.sim.time_s, "speed_m_s": leg["speed_m_s"], "seq": seq})
+                r.run(leg["rest_s"] + 3.0 * leg["speed_m_s"] / 3.0 + 1.0)
+                r.command(mav.MAV_CMD_DO_SET_MODE, *ad.set_mode_params("mission", True))
+        return seq >= n_items - 1 and ap.mode in ("hold", "mission") and ap.traj.speed_xy < 0.05 and done == set(holds)
+
+    fly_mission(rig, max_s, until=watch)
+    rig.run(2.0)
+    tee.close()
+    own = rig.close_log() if log_dir is not None else None
+    return {"holds": log, "flight_s": rig.sim.time_s, "autopilot_log": None if own is None else str(own), "collisions": len(rig.truth.get("collisions", []))
+            if isinstance(rig.truth, dict) else None}
+
+
+def truth_vehicle(name: str = "x500", gain: float = 0.6):
+    """A "real aircraft" that differs from its vehicle file: position- and velocity-loop gains × `gain`."""
+    from contracts.vehicle import load_vehicle, vehicle_from_dict
+
+    v = load_vehicle(name)
+    d = v.metadata()
+    c = d["controller"]
+    d["controller"] = {**c, "pos_p": c["pos_p"] * gain, "vel_p": c["vel_p"] * gain, "vel_i": c["vel_i"] * gain}
+    return vehicle_from_dict(d, f"{name} with gains x{gain}")
+
+
+def heldout_plan(path: Path, speeds=(3.0, 5.0, 7.0), home=(47.397742, 8.545594, 488.0), alt=5.0) -> Path:
+    """Held-out manoeuvres (not in the calibration plan): a zig-zag of 45° turns at each speed."""
+    from contracts.geodesy import geo_from_ne
+    from contracts.missionfile import (
+        MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        Item,
+        MissionPlan,
+        write_plan,
+    )
+
+    items, n, e = [], 0.0, 0.0
+    for v in speeds:
+        items.append(Item(178, MAV_FRAME_GLOBAL_RELATIVE_ALT, (1.0, v, -1.0, 0.0), 0.0, 0.0, 0.0))
+        for k in range(4):
+            n += 6.0 * v
+            e += 6.0 * v * (1 if k % 2 == 0 else -1)
+            lat, lon = geo_from_ne(n, e, home[0], home[1])
+            items.append(Item(16, MAV_FRAME_GLOBAL_RELATIVE_ALT, (0.0, 0.0, 0.0, math.nan), lat, lon, alt))
+    write_plan(path, MissionPlan(home, items, {"legs": []}))
+    return path

@@ -1,0 +1,307 @@
+"""Issue 15: calibrating the contract from flight logs (contracts/calibrate.py, companion/calibrate*.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from companion.calibrate import calibrate, read_log, trace_of
+from companion.calibrate_plan import plan_legs, speed_ladder, write_plan_files
+from companion.cli import main
+from contracts import calibrate as cal
+from contracts.errors import ContractError
+from contracts.missionfile import read_mission
+from contracts.stop import braking_distance
+from contracts.table import load_for_vehicle, verify
+from contracts.vehicle import load_vehicle
+
+REPO = Path(__file__).resolve().parents[1]
+PX4_LOGS = REPO.parent / "shared" / "logs" / "px4"
+
+
+@pytest.fixture(scope="module")
+def stock():
+    return load_for_vehicle("x500")
+
+
+# ----------------------------------------------------------------------------- statistics
+
+
+def test_n_min_is_the_order_statistic_sample_size():
+    assert cal.n_min(0.9, 0.9) == 22  # 0.9^22 = 0.098 < 0.1, 0.9^21 = 0.109
+    assert 1 - 0.9 ** cal.n_min(0.9, 0.9) >= 0.9 > 1 - 0.9 ** (cal.n_min(0.9, 0.9) - 1)
+    assert cal.n_min(0.95, 0.95) == 59
+
+
+def test_covered_cell_gets_its_bound_and_uncovered_cells_never_go_below_stock(stock):
+    axes, e0 = stock.e_pred.axes, stock.e_pred.values
+    # 30 windows at 3 m/s, 10° tilt, full thrust, all 0.2 m (the SITL says ~0.32 there): tighter
+    s = [(0.2, 3.0, math.radians(10), 1.0)] * 30
+    c = cal.calibrate_etr(e0, axes, s)
+    cell = cal.cell_of(axes, 3.0, math.radians(10), 1.0)
+    assert c.covered[cell] and c.counts[cell] == 30
+    assert c.values[cell] == pytest.approx(max(0.2 * 1.25 + 0.02, 0.0)) or c.values[cell] >= 0.27
+    assert c.values[cell] < e0[cell]  # a better-tracking aircraft: tighter there
+    assert np.all(c.values[~c.covered] >= e0[~c.covered])
+    assert c.ratio == 1.0
+    # the same windows at 0.6 m: worse than the SITL; every uncovered cell is scaled by ρ* ≥ 1
+    c2 = cal.calibrate_etr(e0, axes, [(0.6, 3.0, math.radians(10), 1.0)] * 30)
+    assert c2.ratio > 1.5
+    assert np.all(c2.values[~c2.covered] >= e0[~c2.covered] * c2.ratio - 1e-12)
+    # too few windows: not covered, the cell keeps the SITL's value (never optimistic)
+    c3 = cal.calibrate_etr(e0, axes, [(0.01, 3.0, math.radians(10), 1.0)] * 21)
+    assert not c3.covered.any() and np.array_equal(c3.values, e0)
+
+
+def _monotone(v):
+    from contracts.lookup import is_monotone
+
+    return is_monotone(v, cal.ETR_DIRS)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.floats(0.0, 3.0), st.floats(0.5, 8.0), st.floats(0.0, 0.6), st.floats(0.7, 1.05)),
+                min_size=0, max_size=120),
+       st.integers(1, 25))
+def test_half_envelope_calibration_is_never_more_optimistic_in_the_uncovered_half(samples, repeat):
+    """Logs that cover only the lower half of the speed axis: in the other half, every cell is ≥ the stock."""
+    t = load_for_vehicle("x500")
+    axes, e0 = t.e_pred.axes, t.e_pred.values
+    v_half = float(axes[0][len(axes[0]) // 2])
+    low = [(e, min(v, v_half), ti, k) for e, v, ti, k in samples] * repeat
+    c = cal.calibrate_etr(e0, axes, low)
+    upper = axes[0] > v_half
+    assert np.all(c.values[upper] >= e0[upper])
+    assert np.all(c.values[~c.covered] >= e0[~c.covered])
+    assert _monotone(c.values)
+    # and a covered cell is at least the largest error seen in it
+    seen = np.nan_to_num(c.measured_max, nan=0.0)
+    assert np.all(c.values >= seen - 1e-12)
+
+
+def _s_curve(v0, a, j, t_react, dt=0.01):
+    """A jerk-limited stop (decel ramps at j to a, held, ramps down) after a dead time: (t, vel)."""
+    t, v, acc, out = 0.0, v0, 0.0, []
+    while v > 0 or t < t_react + 0.5:
+        out.append((t, v))
+        if t >= t_react and v > 0:
+            # ramp down when the remaining speed is what the ramp-down removes
+            if v <= acc * acc / (2 * j):
+                acc = max(acc - j * dt, 0.05)
+            else:
+                acc = min(acc + j * dt, a)
+            v = max(v - acc * dt, 0.0)
+        t += dt
+    tt = np.array([p[0] for p in out])
+    vel = np.stack([[p[1] for p in out], np.zeros(len(out))], axis=1)
+    return tt, vel
+
+
+def test_a_logged_stop_is_measured_within_tolerance_of_its_truth():
+    t, vel = _s_curve(6.0, 2.5, 3.0, 0.4)
+    s = cal.measure_stop(t, vel, 0.0)
+    assert s is not None
+    assert s.reaction_s == pytest.approx(0.4 + 0.5 / 3.0, abs=0.08)  # onset at 0.5 m/s² of the ramp
+    assert s.decel_peak == pytest.approx(2.5, rel=0.05)
+    assert s.jerk == pytest.approx(3.0, rel=0.15)
+    assert s.distance_m == pytest.approx(6.0 * 0.4 + braking_distance(6.0, 2.5, 3.0), rel=0.03)
+    b = cal.calibrate_braking([s], 3.0, 4.0, 0.1)
+    assert b["accel_max_m_s2"] <= 2.5 * 1.05 and b["jerk_max_m_s3"] <= 3.0 * 1.15 and b["hold_switch_s"] >= 0.4
+    assert cal.predicted_stop(6.0, b["accel_max_m_s2"], b["jerk_max_m_s3"], b["hold_switch_s"]) >= s.distance_m
+    # a vehicle better than its file: the file's limits stay (never better than the file)
+    fast = cal.measure_stop(*_s_curve(6.0, 4.0, 8.0, 0.05), 0.0)
+    assert cal.calibrate_braking([fast], 3.0, 4.0, 0.1)["accel_max_m_s2"] == 3.0
+
+
+def test_hover_throttle_median_and_spread():
+    rng = np.random.default_rng(1)
+    thr = 0.57 + 0.01 * rng.standard_normal(500)
+    h = cal.hover_throttle(thr, np.zeros(500), np.zeros(500), np.zeros(500), np.ones(500, bool))
+    assert h["median"] == pytest.approx(0.57, abs=0.003) and 0.02 < h["p95"] - h["p05"] < 0.05
+    assert cal.hover_throttle(thr, np.zeros(500), np.zeros(500), np.zeros(500), np.zeros(500, bool))["median"] is None
+
+
+# ----------------------------------------------------------------------------- plan files
+
+
+def test_plan_files_round_trip_and_load_in_pymavlink(tmp_path):
+    from pymavlink import mavwp
+
+    veh = load_vehicle("x500")
+    info = write_plan_files(veh, tmp_path, [2.0, 4.0])
+    plan, wps = read_mission(info["plan"]), read_mission(info["waypoints"])
+    assert [(i.command, i.frame) for i in plan.items] == [(i.command, i.frame) for i in wps.items]
+    for a, b in zip(plan.items, wps.items):
+        assert a.x == pytest.approx(b.x, abs=1e-7) and a.y == pytest.approx(b.y, abs=1e-7)
+    assert [leg["kind"] for leg in plan.extra["legs"]] == [leg["kind"] for leg in wps.extra["legs"]]
+    assert sum(leg["kind"] == "hold" for leg in plan.extra["legs"]) == 2
+    doc = json.loads(Path(info["plan"]).read_text())
+    assert doc["fileType"] == "Plan" and doc["mission"]["items"][0]["type"] == "SimpleItem"
+    loader = mavwp.MAVWPLoader()
+    n = loader.load(info["waypoints"])
+    assert n == len(wps.items) + 1  # home is item 0
+    assert loader.wp(1).command == 178 and loader.wp(1).param2 == 2.0  # DO_CHANGE_SPEED 2 m/s
+
+
+def test_plan_reaches_each_speed_and_stops_inside_the_leg():
+    veh = load_vehicle("x500")
+    lay = plan_legs(veh, speed_ladder(8.0))
+    assert lay["speeds_m_s"] == [1.0, 3.0, 5.0, 7.0, 8.0]
+    kinds = {leg["kind"] for leg in lay["legs"]}
+    assert kinds == {"hold", "step_down", "autopilot_stop", "turn"}
+
+
+def test_calibrate_plan_cli_and_bad_mission_file(tmp_path, capsys):
+    assert main(["calibrate", "plan", "--vehicle", "x500", "--out", str(tmp_path / "p"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert Path(out["plan"]).exists() and Path(out["waypoints"]).exists() and out["hold_legs"] == 8
+    bad = tmp_path / "bad.waypoints"
+    bad.write_text("QGC WPL 110\n0\t1\t0\t16\n")
+    with pytest.raises(ContractError, match="fields"):
+        read_mission(bad)
+    assert main(["calibrate", str(bad), "--vehicle", "x500", "--table", "x500", "--out", str(tmp_path / "n.npz")]) == 2
+    assert "calibrate reads" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- end to end (lock-step SITL)
+
+
+@pytest.fixture(scope="module")
+def flown(tmp_path_factory):
+    """The X500 with position/velocity gains −40 % and 5 m/s wind flies a short calibration plan (2, 4 m/s),
+    PX4 from the .plan and ArduPilot from the .waypoints; .tlogs as a ground station writes them."""
+    from tests.calibration_flights import fly_calibration, truth_vehicle
+
+    d = tmp_path_factory.mktemp("cal")
+    info = write_plan_files(load_vehicle("x500"), d / "plan", [2.0, 4.0])
+    truth = truth_vehicle("x500", 0.6)
+    out = {}
+    for pers, f in (("px4", info["plan"]), ("ardupilot", info["waypoints"])):
+        out[pers] = fly_calibration(Path(f), d / f"{pers}.tlog", truth=truth, personality=pers, wind_m_s=5.0,
+                                    log_dir=d / pers)
+    return d, out
+
+
+def test_sitl_flies_the_plan_from_either_file(flown):
+    d, out = flown
+    for pers in ("px4", "ardupilot"):
+        assert len(out[pers]["holds"]) == 2, pers
+        feed, cmds = read_log(d / f"{pers}.tlog")
+        tr = trace_of(pers, feed, cmds)
+        assert feed.autopilot == pers
+        assert np.max(np.hypot(tr.vel[:, 0], tr.vel[:, 1])) > 3.8  # the 4 m/s leg was flown
+        assert [src for _, src in tr.holds] == ["command", "command"]
+
+
+def test_calibrated_table_is_never_optimistic_for_a_worse_aircraft(flown, stock, tmp_path, capsys):
+    d, _ = flown
+    logs = [d / "px4.tlog", d / "ardupilot.tlog"]
+    assert main(["calibrate", *map(str, logs), "--vehicle", "x500", "--table", "x500",
+                 "--out", str(tmp_path / "new.npz"), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    new = verify(tmp_path / "new.npz", load_vehicle(tmp_path / "new.yaml"))
+    c = new.e_pred.info["calibration"]
+    assert c["covered_cells"] >= 1 and len(c["logs"]) == 2 and all(len(lg["sha256"]) == 64 for lg in c["logs"])
+    # every window flown is bounded by the calibrated E_tr_pred of its cell
+    for p in logs:
+        feed, cmds = read_log(p)
+        tr = trace_of(p.name, feed, cmds)
+        w = cal.windows(tr.t, tr.xy, np.hypot(tr.vel[:, 0], tr.vel[:, 1]), tr.tilt, tr.t_path, tr.xy_path, tr.airborne)
+        k = min(1.0, load_vehicle("x500").controller.thr_hover / tr.hover["median"])
+        pred = np.array([new.e_tr_pred(v, ti, k) for v, ti in zip(w.v, w.tilt)])
+        assert np.all(w.e <= pred), (p.name, float(np.max(w.e / pred)))
+    # the worse aircraft: a larger E_tr_pred everywhere it was not measured, a lower V_max than the stock table
+    assert np.all(new.e_pred.values >= stock.e_pred.values) or s["ratio_measured_over_predicted"] > 1.0
+    lower = [r for r in s["v_max"] if r["stop"]["calibrated"] < r["stop"]["stock"] or
+             r["avoid"]["calibrated"] < r["avoid"]["stock"]]
+    assert lower, s["v_max"]
+    # braking: the calibrated closed form covers every logged stop
+    b = s["braking"]["calibrated"]
+    assert b["stops"] == 4
+    for r in s["braking"]["stops"]:
+        assert cal.predicted_stop(r["v0"], b["accel_max_m_s2"], b["jerk_max_m_s3"], b["hold_switch_s"]) >= r["distance_m"]
+    assert (tmp_path / "new.report.html").exists()
+    # coverage is shown by `table show` and in the daemon's start-up banner
+    assert main(["table", "show", str(tmp_path / "new.npz")]) == 0
+    assert f"measured on {c['covered_cells']} of {c['cells']} cells" in capsys.readouterr().out
+    from companion.config import config_from_dict
+    from companion.console import banner
+
+    lines = banner(config_from_dict({"vehicle": str(tmp_path / "new.yaml"), "table": str(tmp_path / "new.npz")}),
+                   new, "E_tr_pred")
+    assert any("of the envelope" in x for x in lines)
+
+
+def test_the_autopilots_own_logs_calibrate_like_the_tlog(flown, stock, tmp_path):
+    """The same flights' PX4 ULog and ArduPilot DataFlash (written by the SITL) give the tlog's answer."""
+    d, out = flown
+    own = [Path(out["px4"]["autopilot_log"]), Path(out["ardupilot"]["autopilot_log"])]
+    assert [p.suffix for p in own] == [".ulg", ".bin"]
+    veh = load_vehicle("x500")
+    a = calibrate([d / "px4.tlog", d / "ardupilot.tlog"], veh, stock, tmp_path / "a.npz", report=False)
+    b = calibrate(own, veh, stock, tmp_path / "b.npz", report=False)
+    assert [lg["format"] for lg in b["logs"]] == ["PX4 ULog", "ArduPilot DataFlash"]
+    assert b["samples"] == pytest.approx(a["samples"], rel=0.05)
+    assert b["ratio_measured_over_predicted"] == pytest.approx(a["ratio_measured_over_predicted"], rel=0.1)
+    ba, bb = a["braking"]["calibrated"], b["braking"]["calibrated"]
+    assert bb["stops"] == ba["stops"] == 4
+    assert bb["accel_max_m_s2"] == pytest.approx(ba["accel_max_m_s2"], rel=0.05)
+    assert bb["jerk_max_m_s3"] == pytest.approx(ba["jerk_max_m_s3"], rel=0.15)
+    assert bb["hold_switch_s"] == pytest.approx(ba["hold_switch_s"], abs=0.1)
+    ea, eb = verify(tmp_path / "a.npz").e_pred.values, verify(tmp_path / "b.npz").e_pred.values
+    assert np.max(np.abs(eb / ea - 1)) < 0.15
+
+
+# ----------------------------------------------------------------------------- the public logs
+
+
+@pytest.mark.skipif(not PX4_LOGS.exists(), reason="public PX4 logs not present (../shared/logs/px4)")
+def test_public_px4_logs_run_through_calibrate(tmp_path, stock):
+    s = calibrate(sorted(PX4_LOGS.glob("*.ulg")), load_vehicle("x500"), stock, tmp_path / "pub.npz", report=False)
+    assert len(s["logs"]) == 5 and not any("error" in lg for lg in s["logs"])
+    new = verify(tmp_path / "pub.npz")
+    # they cover (almost) nothing: the table is the stock one wherever nothing was measured
+    cov = np.array(new.e_pred.info["calibration"]["covered"], bool)
+    assert np.all(new.e_pred.values[~cov] >= stock.e_pred.values[~cov])
+
+
+@pytest.fixture(scope="module")
+def calibrated(flown, tmp_path_factory):
+    d, _ = flown
+    out = tmp_path_factory.mktemp("caltab") / "new.npz"
+    calibrate([d / "px4.tlog", d / "ardupilot.tlog"], load_vehicle("x500"), load_for_vehicle("x500"), out, report=False)
+    return verify(out)
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_under_the_calibrated(calibrated,
+                                                                                                 personality):
+    """The modified X500 (gains −40 %, 5 m/s side wind) in governor mode at up to 8 m/s toward a column revealed
+    at the sensor's 10 m: under the stock table, at least one seed of four breaks its controller contract
+    (measured contour error above the E_tr_pred in force) or hits the column; under the calibrated table none
+    does, over the same seeds."""
+    from companion.flights import Rig, fly_mission
+    from tests.calibration_flights import truth_vehicle
+    from tests.test_daemon_lockstep import column_scenario
+
+    truth = truth_vehicle("x500", 0.6)
+    stock = load_for_vehicle("x500")
+    broke = {"stock": [], "calibrated": []}
+    for seed in range(1, 5):
+        for name, tab in (("stock", stock), ("calibrated", calibrated)):
+            sc = column_scenario(seed, x_col=40.0, cruise=8.0, vehicle="x500",
+                                 wind={"mean_m_s": 5.0, "from_deg": 90, "gust_m_s": 1.0})
+            sc["sensor"]["max_range_m"] = 10.0
+            rig = Rig(sc, personality, table_wrapper=lambda t, tab=tab: tab, sim_kwargs={"vehicle": truth})
+            fly_mission(rig, 30.0)
+            ctrl = [e for e in rig.log.named("violation_start") if e["subsystem"] == "controller"]
+            if ctrl or rig.truth["collisions"]:
+                broke[name].append(seed)
+    assert broke["stock"], "negative control: the stock table must let the worse aircraft break its contract"
+    assert broke["calibrated"] == [], broke
