@@ -39,6 +39,7 @@ class ArduPilot(Adapter):
 
     mission_item0_is_home = True
 
+    cruise_param = ("WPNAV_SPEED", 0.01)  # cm/s; every mode's init reloads it (AC_WPNav)
     param_checks = (
         ParamCheck("ANGLE_MAX", 0.01, "tilt_max_deg"),  # centidegrees
         ParamCheck("WPNAV_ACCEL", 0.01, "braking.accel_max_m_s2"),  # cm/s²

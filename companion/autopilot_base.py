@@ -77,3 +77,6 @@ class Adapter:
 
     mission_item0_is_home = False  # the mission's item 0 is the home position, not a waypoint
     param_checks: tuple[ParamCheck, ...] = ()
+    # the autopilot's own cruise speed in its auto modes (name, SI = raw · scale): a governor's speed
+    # command sets that speed, so the daemon sends min(limit, cruise) and never speeds a mission up
+    cruise_param: tuple[str, float] | None = None

@@ -39,8 +39,12 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return NOTICE, f"violation over: {f['subsystem']}"
     if name == "would_hold" and f["causes"]:
         return WARNING, f"shadow: would HOLD: {', '.join(f['causes'])}"
+    if name == "limit_change" and "sent" in f:
+        return INFO, f"speed limit {f['v_max']:.2f} m/s; sent {f['sent']:.2f} m/s, the autopilot's own cruise"
     if name == "limit_change":
         return INFO, f"speed limit {f['v_max']:.2f} m/s"
+    if name == "cruise_speed":
+        return INFO, f"autopilot cruise speed {f['v']:.2f} m/s ({f['param']}): the limit sent is never above it"
     if name == "mode_change" and f["by"] == "other":
         return NOTICE, f"autopilot mode {f['from']} → {f['to']} (not by us)"
     if name == "param_set":

@@ -21,7 +21,7 @@ from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
 from .offboard import OffboardController
-from .samples import Heading, Implausible, NavStatus, PathTarget, Position, Scan, Throttle
+from .samples import AutopilotParam, Heading, Implausible, NavStatus, PathTarget, Position, Scan, Throttle
 from .supervisor import BRAKE_STOP_CAUSES, Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
@@ -66,6 +66,7 @@ class Cycle:
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self.commanded_mode: tuple[str, float, bool] | None = None  # (mode, when, seen in a heartbeat yet)
         self.stopping = False  # the daemon is shutting down: stop flying
+        self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
         self._was_streaming = False
 
     # ------------------------------------------------------------------ samples
@@ -85,6 +86,9 @@ class Cycle:
             self.nav.update(s.t, s.source, s.flags)
         elif isinstance(s, Scan):
             self.dod.add_scan(s)
+        elif isinstance(s, AutopilotParam) and self.adapter.cruise_param and s.name == self.adapter.cruise_param[0]:
+            v = s.value * self.adapter.cruise_param[1]
+            self.v_cruise = v if 0 < v < 100 else math.nan  # nonsense is not a cruise speed
         elif isinstance(s, Implausible) and s.kind not in SENSOR_MSGS:  # a sensor's: its scan covers nothing
             self.nav.fault(s.t, f"{s.kind}: {s.why}")
 
@@ -136,7 +140,8 @@ class Cycle:
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
                       in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=by_daemon,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
-                      engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs))
+                      engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
+                      v_cruise=self.v_cruise)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
              mission_route: Route | None = None, route_ready: bool = True) -> tuple[Inputs, Decision]:

@@ -145,6 +145,7 @@ class Daemon:
         elif isinstance(s, CommandAck):
             self._event(s.t, "command_ack", command=s.command, result=s.result)
         elif isinstance(s, AutopilotParam):
+            self._cruise_param(s)
             if self.checks.take(s.name, s.value):
                 self._finish_checks(s.t)
         elif isinstance(s, MissionMessage):
@@ -154,6 +155,14 @@ class Daemon:
             if isinstance(s, Implausible):
                 self._implausible(s)
             self.cycle.take(s)
+
+    def _cruise_param(self, s: AutopilotParam) -> None:
+        """The autopilot's cruise speed, logged when it changes: a governor's limit is never sent above it."""
+        before = self.cycle.v_cruise
+        self.cycle.take(s)
+        now = self.cycle.v_cruise
+        if now != before and not (math.isnan(now) and math.isnan(before)):
+            self._event(s.t, "cruise_speed", param=s.name, v=now)
 
     def _implausible(self, s: Implausible) -> None:
         """Counted always; logged at the first of a kind and then at most once a second per kind."""

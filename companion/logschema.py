@@ -88,7 +88,10 @@ EVENTS = {
     "failsafe": Event(("cause", "action"), "supervisor", "a failsafe cause made the daemon hold"),
     "hold_trigger": Event(("cause", "action"), "supervisor", "a non-failsafe cause (obstacle, limit not in force) "
                           "made the daemon hold"),
-    "limit_change": Event(("v_max", "reason"), "supervisor", "a new speed limit is sent"),
+    "limit_change": Event(("v_max", "reason"), "supervisor", "a new speed limit is sent (`sent`, `cruise`: a "
+                          "governor sent the autopilot's lower cruise speed instead)"),
+    "cruise_speed": Event(("param", "v"), "daemon", "the autopilot's cruise-speed parameter (NaN: unusable); a "
+                          "governor never sends a limit above it"),
     "limit_not_applicable": Event(("mode", "v_max"), "supervisor", "the autopilot's mode ignores the speed limit"),
     "would_hold": Event(("causes",), "supervisor", "shadow mode: the causes a governor would hold for now"),
     "command": Event(("cmd", "params"), "daemon", "a COMMAND_LONG sent (cmd ∈ COMMANDS)"),

@@ -50,6 +50,7 @@ class PX4(Adapter):
         return [(MAV_CMD_DO_SET_MODE, (float(MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | MAV_MODE_FLAG_SAFETY_ARMED),
                                        *map(float, TO_MAIN_SUB["takeoff"]), 0.0, 0.0, 0.0, 0.0))]
 
+    cruise_param = ("MPC_XY_CRUISE", 1.0)  # m/s; DO_CHANGE_SPEED ≤ 0 resets to it (Navigator)
     param_checks = (
         ParamCheck("MPC_TILTMAX_AIR", 1.0, "tilt_max_deg"),
         ParamCheck("MPC_ACC_HOR", 1.0, "braking.accel_max_m_s2"),

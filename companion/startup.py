@@ -28,13 +28,15 @@ class StartupChecks:
         return None
 
     def wanted(self) -> list[str]:
-        return [c.name for c in self.adapter.param_checks]
+        """The parameters to ask for: the checked ones, and the cruise speed (not checked, but used)."""
+        cruise = [self.adapter.cruise_param[0]] if self.adapter.cruise_param else []
+        return [c.name for c in self.adapter.param_checks] + cruise
 
     def take(self, name: str, value: float) -> bool:
-        """Record one parameter; True when all wanted ones are in."""
+        """Record one parameter; True when all checked ones are in."""
         if name in self.wanted():
             self.values[name] = value
-        return set(self.values) >= set(self.wanted())
+        return set(self.values) >= {c.name for c in self.adapter.param_checks}
 
     def verdict(self) -> tuple[bool, str]:
         v = self.vehicle

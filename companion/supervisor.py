@@ -54,6 +54,7 @@ class Inputs:
     r_obst: float
     engaged: bool
     mission_seq: int = -1  # the autopilot's current mission item (a speed item may reset the limit)
+    v_cruise: float = math.nan  # the autopilot's own auto-mode cruise speed (its parameter), NaN: not heard
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
 
@@ -285,12 +286,16 @@ class Supervisor:
         # the limit: send it when it changed, after mode changes/take-off, and every 5 s
         if i.limit_applies:
             self._no_limit_mode_warned = None
-            changed = self._last_sent is None or abs(v_limit - self._last_sent) > max(0.05, 0.02 * v_limit)
+            # DO_CHANGE_SPEED sets the speed: a governor sends no more than the mission's own cruise
+            capped = self.mode == "governor" and 0 < i.v_cruise < v_limit
+            v_send = i.v_cruise if capped else v_limit
+            changed = self._last_sent is None or abs(v_send - self._last_sent) > max(0.05, 0.02 * v_send)
             if changed or i.t - self._last_sent_t > 5.0:
-                d.send_speed = max(v_limit, MIN_SPEED_CMD)
+                d.send_speed = max(v_send, MIN_SPEED_CMD)
                 if changed:
-                    d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason}))
-                self._last_sent, self._last_sent_t = v_limit, i.t
+                    d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason} |
+                                     ({"sent": v_send, "cruise": i.v_cruise} if capped else {})))
+                self._last_sent, self._last_sent_t = v_send, i.t
         elif self._no_limit_mode_warned != i.mode:
             self._no_limit_mode_warned = i.mode
             d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))

@@ -203,3 +203,27 @@ def test_stale_obstacle_data_holds():
     fly(rig, 9.0)
     fs = [e for e in rig.log.named("failsafe") if e["cause"] == "no safe speed"]
     assert fs and 8.0 + 0.4 <= fs[0]["t"] <= 8.0 + 0.7  # obstacle data older than 0.5 s: D_od = 0
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_the_governor_never_speeds_a_mission_up_past_its_own_cruise(personality):
+    """DO_CHANGE_SPEED sets the speed: a mission asking 2 m/s (MPC_XY_CRUISE / WPNAV_SPEED) once flew at up
+    to 4.18 m/s when the daemon sent the contract's V_max. The daemon reads the cruise parameter and sends
+    min(limit, cruise); the Hold at the column still comes."""
+    rig = Rig(column_scenario(1, cruise=2.0), personality)
+    fly(rig, 30.0)
+    assert [e["v"] for e in rig.log.named("cruise_speed")] == [pytest.approx(2.0)]
+    sent = [e["params"][1] for e in rig.log.named("command") if e["cmd"] == "change_speed"]
+    assert sent and max(sent) <= 2.0 + 1e-6
+    assert max(s["v_cmd"] for s in rig.log.states if s["v_cmd"] is not None) > 2.5  # the contract allows more
+    assert max(s["ground_speed"] for s in rig.log.states) <= 2.0 * 1.05 + 0.2
+    assert rig.log.named("hold_trigger") and not rig.truth["collisions"]
+
+
+def test_without_the_cruise_parameter_the_limit_sent_speeds_the_mission_up():
+    """The control of the test above: an adapter that does not read the cruise speed sends V_max."""
+    rig = Rig(column_scenario(1, cruise=2.0), "px4")
+    rig.daemon.adapter.cruise_param = None  # an instance attribute: the class keeps its own
+    fly(rig, 30.0)
+    sent = [e["params"][1] for e in rig.log.named("command") if e["cmd"] == "change_speed"]
+    assert max(sent) > 2.5 and max(s["ground_speed"] for s in rig.log.states) > 2.5
