@@ -97,11 +97,11 @@ def test_the_recipe_flight_does_not_collide(flight):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="reported for issue 13, not fixed here (guidance/supervisor): with the config "
-                   "stating column_ahead's real sensor (8 m, 60°) the stop contract allows 5.04 m/s, the limit raises "
-                   "the mission's 2 m/s cruise speed, and the Hold, commanded while the vehicle still accelerates, "
-                   "does not stop it before the column (seen: a collision at x = 11.4 m)")
 def test_the_recipe_with_the_scenarios_real_sensor_does_not_collide(tmp_path):
+    """With the config stating column_ahead's real sensor (8 m, 60°) the stop contract allows 5.04 m/s; the
+    limit used to *raise* the mission's 2 m/s cruise (DO_CHANGE_SPEED sets the speed) and the Hold, commanded
+    while the vehicle still accelerated, did not stop it before the column (a collision at x = 11.4 m). The
+    daemon now never sends more than the autopilot's cruise speed."""
     import time
 
     port = free_port()
