@@ -50,30 +50,50 @@ class ContourWindow:
     """On-board sliding window: the worst contour error over the last `window_s` seconds.
 
     Feed commanded path samples with `command(t, p)` (they may lie ahead of the current time) and
-    measured positions with `measure(t, p)`; `worst` is the largest error in the window.
+    measured positions with `measure(t, p)`; `worst` is the largest error in the window. The path is kept
+    in a growing array (times non-decreasing; a sample earlier than the last starts a new plan), so a
+    measurement slices it instead of re-stacking every sample (at 50 Hz, per cycle).
     """
 
     def __init__(self, window_s: float = 2.0, path_span_s: float = 2.0):
         self.window_s = window_s
         self.path_span_s = path_span_s
-        self._path: deque[tuple[float, np.ndarray]] = deque()
+        self._t = np.empty(0)
+        self._p = np.empty((0, 0))
+        self._lo = self._hi = 0  # the live path is [_lo, _hi) of the arrays
         self._errors: deque[tuple[float, float]] = deque()  # decreasing in error (monotonic max queue)
 
     def command(self, t: float, p) -> None:
-        if self._path and t < self._path[-1][0]:
-            self._path.clear()  # a new plan replaces the old one from here on
-        self._path.append((t, np.asarray(p, dtype=float)))
+        p = np.asarray(p, dtype=float)
+        if self._hi > self._lo and t < self._t[self._hi - 1]:
+            self._lo = self._hi = 0  # a new plan replaces the old one from here on
+        if self._hi == len(self._t) or self._p.shape[1] != p.shape[0]:
+            self._make_room(p.shape[0])
+        self._t[self._hi] = t
+        self._p[self._hi] = p
+        self._hi += 1
+
+    def _make_room(self, dim: int) -> None:
+        """Move the live part to the front, growing the arrays when it fills more than half of them."""
+        n = self._hi - self._lo
+        if self._p.shape[1] != dim:
+            n = 0  # another dimension: a new path
+        cap = max(64, 2 * n if 2 * n > len(self._t) // 2 else len(self._t))
+        t, q = np.empty(cap), np.empty((cap, dim))
+        if n:
+            t[:n], q[:n] = self._t[self._lo:self._hi], self._p[self._lo:self._hi]
+        self._t, self._p, self._lo, self._hi = t, q, 0, n
 
     def measure(self, t: float, p) -> float | None:
         """Contour error of position `p` at time `t` (None if no commanded path is known yet)."""
-        while len(self._path) > 1 and self._path[1][0] < t - self.path_span_s:
-            self._path.popleft()
-        if not self._path:
+        lo, hi = self._lo, self._hi
+        if hi == lo:
             return None
-        pts = np.array([q for s, q in self._path if s <= t + self.path_span_s])
-        if len(pts) == 0:
-            pts = self._path[0][1][None, :]
-        e = distance_to_polyline(p, pts)
+        # drop the leading samples while the next one is older than the span (one sample stays)
+        lo += int(np.searchsorted(self._t[lo + 1:hi], t - self.path_span_s, side="left"))
+        self._lo = lo
+        n = int(np.searchsorted(self._t[lo:hi], t + self.path_span_s, side="right"))
+        e = distance_to_polyline(p, self._p[lo:lo + max(n, 1)])
         while self._errors and self._errors[-1][1] <= e:
             self._errors.pop()
         self._errors.append((t, e))
@@ -86,5 +106,5 @@ class ContourWindow:
         return self._errors[0][1] if self._errors else 0.0
 
     def reset(self) -> None:
-        self._path.clear()
+        self._lo = self._hi = 0
         self._errors.clear()

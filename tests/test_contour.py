@@ -66,3 +66,28 @@ def test_contour_window_tracks_the_worst_over_its_window():
     assert w.worst == pytest.approx(0.2)  # the 0.5 sample has left the window
     w.reset()
     assert w.worst == 0.0
+
+
+def test_the_window_gives_the_errors_of_a_plain_restacking_of_its_path():
+    """The sliding path is sliced from one array; a reference that re-stacks the kept samples at every
+    measurement (the window's first implementation) gives bit-identical errors, across new plans."""
+    from collections import deque
+
+    rng = np.random.default_rng(3)
+    w, path, span = ContourWindow(window_s=2.0, path_span_s=2.0), deque(), 2.0
+    t = 0.0
+    for _ in range(4000):
+        t += 0.02
+        if rng.random() < 0.7:
+            tc = t + (rng.uniform(-0.5, 1.5) if rng.random() < 0.05 else 0.5)
+            q = rng.normal(size=2)
+            if path and tc < path[-1][0]:
+                path.clear()
+            path.append((tc, q))
+            w.command(tc, q)
+        p = rng.normal(size=2)
+        while len(path) > 1 and path[1][0] < t - span:
+            path.popleft()
+        kept = [q for s, q in path if s <= t + span] or ([path[0][1]] if path else [])
+        want = distance_to_polyline(p, np.array(kept)) if kept else None
+        assert w.measure(t, p) == want
