@@ -201,6 +201,8 @@ class DodEstimator:
             covered.append(i)
             if s.max_m > d:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
+        if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
+            d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
         if self._penalty is not None:
             if t <= self._penalty[0]:
                 if self._penalty[1] < d:
