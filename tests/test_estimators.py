@@ -245,3 +245,13 @@ def test_a_flight_first_seen_flying_keeps_the_thrust_estimate():
         est.add(t, 0.47 / 0.9, 0.0, 0.0, 0.0, None if k < 3 else True)
         t += 0.02
     assert est.value(t)[0] == pytest.approx(0.9, rel=2e-3)
+
+
+def test_the_navigation_margin_trusts_only_part_of_the_claimed_range():
+    """Issue 19 item 8: contract.nav_margin m gives D_od = (1 − m) × the claim, and says so."""
+    e = DodEstimator([FWD], ContractConfig(nav_margin=0.3), stale_s=0.5)
+    add_range(e, 0, 0.0, current_m=10.0, min_m=0.1, max_m=10.0, quality=100)
+    est = e.estimate(0.1, beta=0.0)
+    assert est.d_od == pytest.approx(7.0) and "0.3 not trusted" in est.reason
+    add_range(e, 0, 0.2, current_m=6.8, min_m=0.1, max_m=10.0, quality=100)  # first seen at 6.8 m: on time (tolerance)
+    assert e.estimate(0.2, beta=0.0).late is None
