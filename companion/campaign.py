@@ -113,10 +113,11 @@ class FaultDist(_Strict):
     p: Annotated[float, Field(ge=0, le=1)]
     at_s: Range = (4.0, 10.0)
     visibility_m: Range = (3.0, 5.0)  # fog
+    visibility_frac: Range | None = None  # fog: the visibility as a fraction of the sensor's range (instead of _m)
     thrust_ratio: Range = (0.65, 0.9)  # thrust_loss
     duration_s: Range = (0.5, 2.0)  # sensor_dropout, link_loss, bad_nav
 
-    @field_validator("at_s", "visibility_m", "thrust_ratio", "duration_s")
+    @field_validator("at_s", "visibility_m", "visibility_frac", "thrust_ratio", "duration_s")
     @classmethod
     def _ranges(cls, v):
         return _check_range(v)
@@ -133,6 +134,7 @@ class CampaignSpec(_Strict):
     scenario: ScenarioDims = ScenarioDims()
     faults: list[FaultDist] = []
     px4_cp_dist_m: Annotated[float, Field(ge=0)] = 1.0  # CP_DIST for the PX4 baseline (PX4's −1 disables it)
+    nav_margin: Annotated[float, Field(ge=0, le=0.9)] = 0.0  # our arms' contract.nav_margin (issue 19 item 8)
 
     @field_validator("arms")
     @classmethod
@@ -203,7 +205,10 @@ def sample_scenario(spec: CampaignSpec, k: int) -> dict:
     faults = []
     for f in spec.faults:
         u, at = rng.random(), _u(rng, f.at_s)
-        vis, tr, dur = _u(rng, f.visibility_m), _u(rng, f.thrust_ratio), _u(rng, f.duration_s)
+        vis, tr, dur = _u(rng, f.visibility_m if f.visibility_frac is None else f.visibility_frac), \
+            _u(rng, f.thrust_ratio), _u(rng, f.duration_s)
+        if f.visibility_frac is not None:
+            vis *= s["sensor_range_m"]
         if u < f.p:
             fault = {"kind": f.kind, "at_s": at}
             if f.kind.startswith("fog"):
@@ -294,8 +299,8 @@ def scenario_dict(s: dict, arm: str) -> dict:
     return sc
 
 
-def daemon_config(s: dict, arm: str) -> dict:
-    cfg = {"vehicle": s["vehicle"], "contract": {"r_obst_m": s["r_obst_m"]}}
+def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
+    cfg = {"vehicle": s["vehicle"], "contract": {"r_obst_m": s["r_obst_m"], "nav_margin": nav_margin}}
     if arm_mode(arm) == "offboard":
         cfg.update({"mode": "offboard", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
                     "route": {"waypoints": [[0, 0], [s["route_end_m"], 0]], "altitude_m": ALT_M}})
@@ -364,7 +369,7 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
 
     s, arm = flight_of(spec, i)
     mode = arm_mode(arm)
-    rig = Rig(scenario_dict(s, arm), s["personality"], config=daemon_config(s, arm),
+    rig = Rig(scenario_dict(s, arm), s["personality"], config=daemon_config(s, arm, spec.nav_margin),
               table_wrapper=_wrapper(arm), law=_law(arm, s, spec))
     trace = _Trace((s["route_end_m"], 0.0))
     if arm == "no_guard":

@@ -320,7 +320,7 @@ def cmd_run(args) -> int:
     daemon = Daemon(cfg, table, conn, log, signing_clock=signing_clock)
     notifier = Notifier()
     log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect,
-              controller_contract=controller_contract(cfg, table))
+              controller_contract=controller_contract(cfg, table), nav_margin=cfg.contract.nav_margin)
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
     try:
         daemon.run(lambda: stop["now"], notifier)

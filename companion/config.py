@@ -66,6 +66,10 @@ class ContractConfig(_Strict):
     dwell_s: NonNeg = 2.0  # a higher limit takes effect only after holding this long
     late_detection_hold_s: NonNeg = 10.0  # how long a late first detection lowers D_od
     late_detection_tolerance_m: NonNeg = 0.3
+    # navigation margin (issue 19 item 8): the part of a sensor's claimed range not trusted, D_od = (1 − m) ×
+    # the claim; 0 is the paper's contract (the claim is the guarantee). m survives a hidden shortfall of up to
+    # m (the sensor silently seeing only 1 − m of what it claims), at a lower speed limit
+    nav_margin: Annotated[float, Field(ge=0, le=0.9, allow_inf_nan=False)] = 0.0
 
 
 class ThrustConfig(_Strict):

@@ -146,7 +146,8 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"sensors: {sensors}",
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "
-        f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, loop {cfg.loop_hz:g} Hz, event log {cfg.log.dir}",
+        f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, navigation margin {ct.nav_margin:g} of each sensor's claimed "
+        f"range{'' if ct.nav_margin else ' (claims trusted in full)'}, loop {cfg.loop_hz:g} Hz, event log {cfg.log.dir}",
         f"waiting for the autopilot ({lk.autopilot}, system {lk.target_system} component {lk.target_component}) "
         f"on {lk.connect}",
     ]

@@ -201,6 +201,8 @@ class DodEstimator:
             covered.append(i)
             if s.max_m > d:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
+        if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
+            d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
         if self._penalty is not None:
             if t <= self._penalty[0]:
                 if self._penalty[1] < d:
@@ -243,10 +245,23 @@ class EtrEstimator:
 # ============================================================================ thrust_ratio
 
 
+SETTLE_S = 2.0  # [s] after the last sample on the ground, before the throttle is a hover throttle (spin-up, lift-off)
+SETTLED_A_UP = 1.0  # [m/s²] and once the vertical acceleration has come within this (the correction's own error)
+
+
 class ThrustEstimator:
     """thrust_ratio = nominal hover throttle / measured hover throttle, the latter from the collective
     throttle corrected for tilt and vertical acceleration: h = throttle·cosφ·cosθ·g/(g + a_up),
-    low-passed. Falls back to the configured value (default: the vehicle's lowest) when unknown."""
+    low-passed. Falls back to the configured value (default: the vehicle's lowest) when unknown.
+
+    Valid only airborne and settled (issue 19 item 5): on the ground and during spin-up the throttle holds
+    the vehicle against nothing (PX4's spin-up read 0.678 for a true 0.700). A sample counts once the
+    autopilot says the vehicle is in the air, its last sample on the ground is `SETTLE_S` or more before, and
+    its vertical acceleration has come within `SETTLED_A_UP` (then every sample counts until the next landing:
+    a thrust loss in flight makes it sink, and skipping those would keep the estimate high just when it must
+    fall). A landed state not yet reported (MAV_LANDED_STATE_UNDEFINED: `in_air` None) is no ground sample, so a
+    flight first seen flying keeps the estimate, and only the samples decide: a replay of the flight's .tlog
+    decides at the same sample as the live daemon."""
 
     def __init__(self, cfg: ThrustConfig, hover_nominal: float, fallback: float, top: float = 1.0):
         self.cfg, self.h_nom, self.fallback, self.top = cfg, hover_nominal, fallback, top
@@ -254,15 +269,27 @@ class ThrustEstimator:
         self._t = None
         self._vz = None  # (t, vz down)
         self._a_up = 0.0
+        self._t_ground: float | None = None  # the last sample on the ground (None: none seen)
+        self._settled = False  # airborne and settled since the last sample on the ground
 
-    def add(self, t: float, throttle: float, roll: float, pitch: float, vz_down: float, in_air: bool) -> None:
+    def add(self, t: float, throttle: float, roll: float, pitch: float, vz_down: float, in_air: bool | None) -> None:
+        """`in_air` None: the autopilot has not said (no EXTENDED_SYS_STATE yet) — neither ground nor air."""
         if self._vz is not None and t > self._vz[0]:
             a = -(vz_down - self._vz[1]) / (t - self._vz[0])
             k = min(1.0, (t - self._vz[0]) / 0.2)
             self._a_up += k * (a - self._a_up)
         self._vz = (t, vz_down)
+        if in_air is None:
+            return
+        if not in_air:  # on the ground: what was estimated aloft is not known now
+            self._t_ground, self._h, self._settled = t, None, False
+            return
+        # 1 ms short of SETTLE_S: on a regular sample grid the wait is an exact multiple of the period, and a
+        # log's µs stamps must not move the decision by a sample (the replay decides at the live sample)
+        self._settled = self._settled or ((self._t_ground is None or t - self._t_ground >= SETTLE_S - 1e-3)
+                                          and abs(self._a_up) <= SETTLED_A_UP)
         tilt_cos = math.cos(roll) * math.cos(pitch)
-        if not (in_air and 0.05 < throttle <= 1.0 and tilt_cos > math.cos(math.radians(35))):
+        if not (self._settled and 0.05 < throttle <= 1.0 and tilt_cos > math.cos(math.radians(35))):
             return
         h = throttle * tilt_cos * G / max(G + self._a_up, 0.5 * G)
         if self._h is None:
@@ -275,7 +302,7 @@ class ThrustEstimator:
         if self.cfg.source == "configured":
             return (self.cfg.value or self.fallback), "configured"
         if self._h is None or t - self._t > 2.0:
-            return self.fallback, "no hover throttle in flight: vehicle's lowest thrust ratio"
+            return self.fallback, "not airborne and settled: vehicle's lowest thrust ratio"
         return min(self.top, self.h_nom / self._h), f"hover throttle {self._h:.3f} vs nominal {self.h_nom:.3f}"
 
 

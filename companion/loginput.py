@@ -183,7 +183,8 @@ class LogIn:
             if not (math.isfinite(thr) and 0.0 <= thr <= 1.0):
                 return [Implausible(t, "VFR_HUD", "throttle outside 0–100 %")]
             tel.throttle = thr
-            return [Throttle(t, thr, tel.roll, tel.pitch, tel.vz, tel.in_air)] if math.isfinite(tel.vz) else []
+            air = tel.in_air if tel.landed_state else None  # UNDEFINED: not said
+            return [Throttle(t, thr, tel.roll, tel.pitch, tel.vz, air)] if math.isfinite(tel.vz) else []
         if op == "mode":
             tel.base_mode, tel.custom_mode = args
             return []

@@ -71,7 +71,7 @@ class Event(NamedTuple):
 
 _MISSION_STATS = ("resent", "duplicates", "out_of_order", "malformed")
 EVENTS = {
-    "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract"),
+    "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract", "nav_margin"),
                    "cli run, replay",
                    "daemon run starts (connect: the live link; replay_of: the raw log replayed)"),
     "stop": Event(("counters",), "cli run, replay", "daemon run ends cleanly (the daemon's counters)"),

@@ -219,7 +219,8 @@ class MavlinkIn:
         if kind == "POSITION_TARGET_LOCAL_NED":
             return [PathTarget(t, *tel.target)] if tel.target is not None and tel.t_target == t else []
         if kind == "VFR_HUD":
-            return [Throttle(t, tel.throttle, tel.roll, tel.pitch, tel.vz, tel.in_air)] if math.isfinite(tel.vz) else []
+            air = tel.in_air if tel.landed_state else None  # MAV_LANDED_STATE_UNDEFINED: not said
+            return [Throttle(t, tel.throttle, tel.roll, tel.pitch, tel.vz, air)] if math.isfinite(tel.vz) else []
         if kind in ("ESTIMATOR_STATUS", "EKF_STATUS_REPORT"):
             return [NavStatus(t, kind, msg.flags)]
         if kind in SENSOR_KINDS:

@@ -32,6 +32,10 @@ from .guidance import OffboardGuidance, Setpoint
 
 
 SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop when the sensor sees none now
+# [s] a fail-safe stop hands over to Hold once the vehicle has stayed below 0.3 m/s this long at the stop's end:
+# a vehicle that overran the stop is still accelerating back at ~g·tan(tilt) as its speed crosses zero, and
+# ArduPilot's Brake (AC_PosControl::init_xy_controller: the current lean angles) carries that acceleration on
+SETTLE_S = 0.5
 
 
 @dataclass
@@ -53,6 +57,7 @@ class OffboardController:
     _asked: int = 0
     _braking: bool = False
     _seen: tuple | None = None  # (t, the keep-out discs last seen)
+    _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
 
     def _go(self, t, new, why, acts):
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
@@ -80,7 +85,7 @@ class OffboardController:
             bp, bv, ba, bts, _ = best_stop(np.asarray(p, float), np.asarray(v, float), a_stop, known, 40,
                                            max_path_m=budget)
             self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
-            self._stop_z, self._stop_yaw = z, yaw
+            self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
             self._go(t, "braking", "fail-safe: the daemon brakes to a stop, then Hold", acts)
             return self._brake(t, False, mode, by_daemon, v, acts)
         if stop and self.state in ("entering", "flying"):
@@ -136,7 +141,9 @@ class OffboardController:
             return acts
         tau = t - self._t_state
         plan = self._stop_plan
-        if tau >= plan.t[-1] and (float(np.hypot(*v)) < 0.3 or tau > plan.t[-1] + 3.0):
+        slow = tau >= plan.t[-1] and float(np.hypot(*v)) < 0.3
+        self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
+        if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + 3.0:
             acts.hold = True
             self._go(t, "off", "stopped: hold", acts)
             return acts

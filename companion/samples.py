@@ -49,7 +49,7 @@ class Throttle:
     roll: float
     pitch: float
     vz_down: float
-    in_air: bool
+    in_air: bool | None  # None: the autopilot has not said (MAV_LANDED_STATE_UNDEFINED)
 
 
 @dataclass(frozen=True, slots=True)

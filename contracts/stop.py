@@ -34,6 +34,27 @@ def stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
     return v * t_r + braking_distance(v, a, j)
 
 
+def braking_distance_from(v: float, a0: float, a: float, j: float) -> float:
+    """Distance of the time-optimal jerk-limited stop from speed v with acceleration a0 along the velocity
+    (a0 > 0: speeding up), decel ≤ a, jerk ≤ j — how PX4's Hold (FlightTaskAuto::activate restarts its
+    PositionSmoothing from the last setpoint's acceleration) and ArduPilot's Brake (AC_PosControl::
+    init_xy_controller: the acceleration of the current lean angles) stop.
+
+    The jerk −j first ramps a0 out over t0 = a0/j (distance v·t0 + a0·t0²/2 − j·t0³/6 = v·a0/j + a0³/(3j²),
+    speed v + a0²/(2j)), then the stop from zero acceleration follows (`braking_distance`). An a0 < 0 (braking
+    already) is taken as 0: never longer than that stop.
+    """
+    v, a0 = max(v, 0.0), max(a0, 0.0)
+    return v * a0 / j + a0**3 / (3.0 * j * j) + braking_distance(v + a0 * a0 / (2.0 * j), a, j)
+
+
+def stopping_distance_from(v: float, a0: float, a: float, j: float, t_r: float) -> float:
+    """Dead time t_r still flying the last command (speed v, acceleration a0 ≥ 0 along it), then the
+    jerk-limited stop from there (`braking_distance_from`); a0 = 0 is `stopping_distance`."""
+    v, a0 = max(v, 0.0), max(a0, 0.0)
+    return v * t_r + 0.5 * a0 * t_r * t_r + braking_distance_from(v + a0 * t_r, a0, a, j)
+
+
 def _positive_root_cubic(b: float, k: float) -> float:
     """The positive root of s³ + b·s² − k = 0 (b ≥ 0, k > 0: exactly one), Cardano or trigonometric."""
     p = -b * b / 3.0
@@ -62,6 +83,31 @@ def stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float:
     return v * (1.0 - 1e-9)  # round-off must never make the answer optimistic
 
 
+def approach_stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
+    """The longest stop from any state of the autopilot's jerk-limited approach to speed v (acceleration ≤ a
+    along the velocity, speed + a0²/(2j) ≤ v, as its velocity smoothing keeps it) when Hold comes: the dead
+    time at ≤ v, then `braking_distance_from`. Ramping a0 out costs v·a0/j − a0³/(6j²) beyond the stop from
+    v, largest at a0 = min(a, √(2jv)): the stop contract holds from a state with acceleration."""
+    v = max(v, 0.0)
+    a_up = min(a, math.sqrt(2.0 * j * v))
+    return v * t_r + v * a_up / j - a_up**3 / (6.0 * j * j) + braking_distance(v, a, j)
+
+
+def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float:
+    """Largest v with approach_stopping_distance(v) ≤ d_avail (0 where d_avail ≤ 0). Where the approach
+    reaches a (v ≥ a²/(2j)) it is `stop_speed` with dead time t_r + a/j and d_avail + a³/(6j²); below, bisection."""
+    if not d_avail > 0.0:
+        return 0.0
+    v = stop_speed(d_avail + a**3 / (6.0 * j * j), a, j, t_r + a / j)
+    if v >= a * a / (2.0 * j):
+        return v
+    lo, hi = 0.0, a * a / (2.0 * j)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if approach_stopping_distance(mid, a, j, t_r) <= d_avail else (lo, mid)
+    return lo * (1.0 - 1e-9)
+
+
 def braking_decel(vehicle: Vehicle, thrust_ratio: float, tilt: float | None = None) -> float:
     """The autopilot's braking deceleration, degraded by thrust: min(MPC_ACC_HOR-like limit,
     g·tan(tilt), √((T_max/m)² − g²)) with T_max the thrust left at `thrust_ratio`."""
@@ -77,7 +123,8 @@ def stop_dead_time(vehicle: Vehicle) -> float:
 
 def v_stop(vehicle: Vehicle, d_od: float, r_obst: float, e_tr: float, thrust_ratio: float,
            tilt: float | None = None) -> float:
-    """Stop-contract speed limit [m/s]; 0 where no speed is safe.
+    """Stop-contract speed limit [m/s]; 0 where no speed is safe. It holds from any state of the autopilot's
+    approach to it (issue 19 item 1: a Hold while speeding up first ramps the acceleration out).
 
     `r_obst` only sets the disc's centre: for a head-on stop only its near edge matters.
     """
@@ -85,4 +132,4 @@ def v_stop(vehicle: Vehicle, d_od: float, r_obst: float, e_tr: float, thrust_rat
     a = braking_decel(vehicle, thrust_ratio, tilt)
     if a <= 0.0:
         return 0.0
-    return stop_speed(d_od - e_tr - vehicle.r_body_m, a, vehicle.braking.jerk_max_m_s3, stop_dead_time(vehicle))
+    return approach_stop_speed(d_od - e_tr - vehicle.r_body_m, a, vehicle.braking.jerk_max_m_s3, stop_dead_time(vehicle))

@@ -34,7 +34,7 @@ from .lookup import (
     hurts_index,
     is_monotone,
 )
-from .stop import braking_decel, stop_dead_time, stop_speed
+from .stop import approach_stop_speed, braking_decel, stop_dead_time
 from .vehicle import DATA_DIR, Vehicle, load_vehicle, vehicle_from_dict
 
 SCHEMA = "contract-guard/gamma-table"
@@ -349,7 +349,7 @@ class ContractTable:
         return self._stop(d_od, e_tr, braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt))
 
     def _stop(self, d_od: float, e_tr: float, a: float) -> float:
-        return stop_speed(d_od - e_tr - self._r_body, a, self.vehicle.braking.jerk_max_m_s3, self._t_dead)
+        return approach_stop_speed(d_od - e_tr - self._r_body, a, self.vehicle.braking.jerk_max_m_s3, self._t_dead)
 
     def _e_column(self, e_tilt_idx, thrust_ratio, e_meas):
         """max(measured, E_tr_pred) on the speed grid for E-tilt cells `e_tilt_idx` → (len, n_v)."""

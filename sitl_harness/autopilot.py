@@ -125,6 +125,14 @@ class Personality:
     def parse_position_target(self, ap, frame, mask, pos, vel, acc, yaw, yaw_rate): raise NotImplementedError
     def on_new_target(self, ap: "Autopilot") -> None: ...
     def on_mode_change(self, ap: "Autopilot", old: str, new: str) -> None: ...
+
+    def auto_start_state(self, ap: "Autopilot", old: str):
+        """(p, v, a) an auto mode's jerk-limited reference starts from when entered from mode `old`. Here
+        ArduPilot's (AC_PosControl::init_xy_controller: the current position and velocity, and the acceleration
+        of the current lean angles — the filtered acceleration; none vertically)."""
+        acc = ap.model.s[S_ACCF:S_ACCF + 3] * (1.0, 1.0, 0.0) if ap.in_air else np.zeros(3)
+        return ap.pos, ap.model.vel, acc
+
     def mission_end(self, ap: "Autopilot") -> None: raise NotImplementedError
     def extra_command(self, ap: "Autopilot", cmd: int, p: tuple, frame) -> int | None: return None
 
@@ -236,8 +244,7 @@ class Autopilot:
             self.mode = mode
             self.custom = self.pers.default_custom(mode) if custom is None else custom
             if mode in ("hold", "takeoff", "land", "mission", "rtl", "manual"):
-                acc = self.model.s[S_ACCF:S_ACCF + 3] * (1.0, 1.0, 0.0) if self.in_air else (0.0, 0.0, 0.0)
-                self.traj.reset(self.pos, self.model.vel, acc)
+                self.traj.reset(*self.pers.auto_start_state(self, old))
                 self.target = None
             if mode == "offboard":
                 self.target = None

@@ -110,6 +110,24 @@ class Px4(Personality):
             f |= mav.MAV_MODE_FLAG_SAFETY_ARMED
         return f
 
+    def auto_start_state(self, ap, old: str):
+        """FlightTaskAuto::activate: the position smoothing restarts from the last trajectory setpoint's
+        position, velocity and acceleration (a NaN component: the current position / velocity, zero
+        acceleration). Out of OFFBOARD that is the last position target streamed (an attitude target has
+        none); out of another auto mode, the reference it was flying; out of a stick mode, the vehicle's
+        state (its setpoint tracks the sticks, not modelled: the filtered acceleration, as before)."""
+        if old in ("hold", "takeoff", "land", "mission", "rtl") and ap.in_air:
+            return ap.traj.p.copy(), ap.traj.v.copy(), ap.traj.a.copy()
+        if old != "offboard" or not ap.in_air:
+            return super().auto_start_state(ap, old)
+        ob = ap.ob
+        if ob.q is not None:
+            return ap.pos, ap.model.vel, np.zeros(3)
+        p = np.where(np.isfinite(ob.pos), ob.pos, ap.pos)
+        v = np.where(np.isfinite(ob.vel), ob.vel, ap.model.vel)
+        a = np.where(np.isfinite(ob.acc), ob.acc, 0.0) * (1.0, 1.0, 0.0)
+        return p, v, a
+
     # ----- parameters: INT32 bytewise in the float field
     def encode_param(self, value: float, ptype: int) -> float:
         if ptype == I32:

@@ -167,7 +167,7 @@ def test_clopper_pearson_exact():
 
 SMALL_CAMPAIGN = {
     "name": "suite", "seed": 5, "scenarios": 6, "vehicles": ["mambo", "x500"], "personalities": ["px4", "ardupilot"],
-    "arms": ["governor", "offboard", "no_guard", "governor_x1.3", "offboard_x1.3"], "duration_s": 30,
+    "arms": ["governor", "offboard", "no_guard", "governor_x1.7", "offboard_x1.3"], "duration_s": 30,
     "scenario": {"sensor_range_m": [5, 8], "r_obst_true_m": [0.5, 1.0], "lateral_offset_m": [-0.5, 0.5],
                  "x_obst_m": [25, 32], "wind_factor": [0, 1], "gust_factor": [0, 1]},
     "faults": [{"kind": "fog_honest", "p": 0.3, "at_s": [4, 10], "visibility_m": [3, 5]},
@@ -176,8 +176,10 @@ SMALL_CAMPAIGN = {
 
 def test_a_small_campaign_is_safe_in_assumption_and_its_controls_collide(tmp_path):
     """30 lock-step flights: head-on columns (offset ≤ 0.5 m), design wind, honest fog and thrust losses.
-    Stated shares (measured at this commit): no guard collides in 6/6, the governor at 1.3 × the contract's
-    speed in 6/6, offboard at 1.3 × in at least 3/6; ours in 0 (their 95 % Clopper–Pearson upper bound at
+    Stated shares (measured at this commit): no guard collides in 6/6, the governor at 1.7 × the contract's
+    speed in 6/6 (the stop contract holds from the approach to its limit since issue 19 item 1, so from these
+    steady-cruise detections it has slack: 1.3 × collides in 0/6, 1.5 × in 3/6), offboard at 1.3 × in at least
+    3/6; ours in 0 (their 95 % Clopper–Pearson upper bound at
     6 flights is 0.46: this test shows the controls can fail, the large campaign gives the rate)."""
     spec = cg.spec_from_dict(SMALL_CAMPAIGN)
     rows = cg.run(spec, tmp_path, progress=False)
@@ -189,7 +191,7 @@ def test_a_small_campaign_is_safe_in_assumption_and_its_controls_collide(tmp_pat
     # its pass (a controller violation), raises E_tr to it, finds no safe speed and holds, safely
     assert per["offboard"]["all"]["route_completion"] >= 5 / 6
     assert per["no_guard"]["all"]["collisions"] == 6
-    assert per["governor_x1.3"]["all"]["collisions"] == 6
+    assert per["governor_x1.7"]["all"]["collisions"] == 6
     assert per["offboard_x1.3"]["all"]["collisions"] >= 3
     assert per["offboard"]["all"]["cp95_high"] == pytest.approx(1 - 0.025 ** (1 / 6))
     for f in ("report.html", "report.json", "clearance.png", "speed.png"):

@@ -214,3 +214,44 @@ def test_an_obstacle_already_tracked_is_not_a_new_late_detection():
     assert flight(0.0).late is None  # the tracked column (within 2·R_obst of its points): not late
     est = flight(8.5)  # 8.5 m on: no tracked obstacle there, a late detection as before
     assert est.late is not None and est.d_od == 1.5
+
+
+def test_thrust_ratio_is_only_measured_airborne_and_settled():
+    """Issue 19 item 5: spin-up and lift-off throttle is no hover throttle; the fallback until 2 s after the last
+    sample on the ground and settled, and again after a landing; an unreported landed state is no ground."""
+    est = ThrustEstimator(ThrustConfig(tau_s=0.5), hover_nominal=0.47, fallback=0.7)
+    t = 0.0
+    for _ in range(50):  # on the ground, motors spinning up
+        est.add(t, 0.6, 0.0, 0.0, 0.0, False)
+        t += 0.02
+    assert est.value(t)[0] == 0.7
+    for _ in range(90):  # just airborne (1.8 s), throttle high: not yet valid
+        est.add(t, 0.75, 0.0, 0.0, 0.0, True)
+        t += 0.02
+    assert est.value(t) == (0.7, "not airborne and settled: vehicle's lowest thrust ratio")
+    for _ in range(200):  # settled in hover at 0.47/0.9
+        est.add(t, 0.47 / 0.9, 0.0, 0.0, 0.0, True)
+        t += 0.02
+    assert est.value(t)[0] == pytest.approx(0.9, rel=2e-3)
+    est.add(t, 0.2, 0.0, 0.0, 0.0, False)  # landed
+    assert est.value(t)[0] == 0.7
+
+
+def test_a_flight_first_seen_flying_keeps_the_thrust_estimate():
+    """No landed state reported yet (None), then in the air: no lift-off to wait out, the first samples count."""
+    est = ThrustEstimator(ThrustConfig(tau_s=0.5), hover_nominal=0.47, fallback=0.7)
+    t = 0.0
+    for k in range(10):
+        est.add(t, 0.47 / 0.9, 0.0, 0.0, 0.0, None if k < 3 else True)
+        t += 0.02
+    assert est.value(t)[0] == pytest.approx(0.9, rel=2e-3)
+
+
+def test_the_navigation_margin_trusts_only_part_of_the_claimed_range():
+    """Issue 19 item 8: contract.nav_margin m gives D_od = (1 − m) × the claim, and says so."""
+    e = DodEstimator([FWD], ContractConfig(nav_margin=0.3), stale_s=0.5)
+    add_range(e, 0, 0.0, current_m=10.0, min_m=0.1, max_m=10.0, quality=100)
+    est = e.estimate(0.1, beta=0.0)
+    assert est.d_od == pytest.approx(7.0) and "0.3 not trusted" in est.reason
+    add_range(e, 0, 0.2, current_m=6.8, min_m=0.1, max_m=10.0, quality=100)  # first seen at 6.8 m: on time (tolerance)
+    assert e.estimate(0.2, beta=0.0).late is None

@@ -25,3 +25,25 @@ def test_a_column_tracked_since_its_detection_is_no_late_detection_in_the_pass(p
     assert not r["collided"], r["clearance_m"]
     assert not navigation_violations(r["rig"]), navigation_violations(r["rig"])
     assert all(s["d_od"] == 0.0 or s["d_od"] > 4.2 for s in r["rig"].log.states if s["d_od"] == s["d_od"])  # never lowered
+
+
+def actuator_violations(rig):
+    return [e for e in rig.log.named("violation_start") if e.get("subsystem") == "actuators"]
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+@pytest.mark.parametrize("vehicle,thrust", [("x500", 0.70), ("mambo", 0.61)])
+def test_no_thrust_verdict_before_airborne_and_settled(vehicle, thrust, personality):
+    """Item 5: governor, true thrust at (X500) or just above (Mambo) the bottom of the vehicle's range. On
+    648351d (X500/PX4, seeds 1–3) the hover throttle of the take-off read 0.678 at 2.02 s, on the ground: an
+    actuator violation, "no safe speed", Hold on the ground. The estimate is valid only airborne 2 s after the
+    last sample on the ground and settled vertically; until then it is the vehicle's lowest thrust ratio."""
+    r = fly(mode="governor", vehicle=vehicle, personality=personality, d_od=6.0, r_obst=1.0, r_true=0.6, offset=0.3,
+            thrust=thrust, wind=0.3, gust=0.2, wind_from=90, latency=0.01, seed=1, seconds=10.0)
+    rig = r["rig"]
+    assert not actuator_violations(rig) and not rig.log.named("failsafe"), rig.log.named("failsafe")
+    lo = rig.daemon.table.vehicle.thrust_ratio_range[0]
+    assert all(s["thrust_ratio"] >= lo for s in rig.log.states)
+    last = rig.log.states[-1]
+    assert last["z"] < -1.0  # flying the mission by then
+    assert abs(last["thrust_ratio"] - max(thrust, lo)) < 0.03  # and the estimate has come to the truth

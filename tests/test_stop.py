@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from contracts.stop import braking_decel, braking_distance, stop_speed, stopping_distance, v_stop
+from contracts.stop import (approach_stop_speed, approach_stopping_distance, braking_decel, braking_distance, stop_speed,
+                            stopping_distance, v_stop)
 from contracts.vehicle import G, load_vehicle
 
 
@@ -53,8 +54,9 @@ def test_v_stop_uses_the_keep_out_disc_near_edge():
     got = float(v_stop(v, d_od=8.0, r_obst=0.5, e_tr=0.3, thrust_ratio=1.0))
     a = braking_decel(v, 1.0)
     t_r = v.t_react_s + v.braking.hold_switch_s
-    want = float(stop_speed(8.0 - 0.3 - v.r_body_m, a, v.braking.jerk_max_m_s3, t_r))
+    want = float(approach_stop_speed(8.0 - 0.3 - v.r_body_m, a, v.braking.jerk_max_m_s3, t_r))
     assert got == pytest.approx(want)
+    assert got < float(stop_speed(8.0 - 0.3 - v.r_body_m, a, v.braking.jerk_max_m_s3, t_r))  # from cruise: faster
     # monotone: more range helps, more tracking error hurts
     assert float(v_stop(v, 9.0, 0.5, 0.3, 1.0)) > got > float(v_stop(v, 8.0, 0.5, 0.6, 1.0))
 
@@ -74,3 +76,13 @@ def test_braking_distance_branches_meet_at_the_knee():
     a, j = 3.0, 4.0
     vk = a * a / j
     assert float(braking_distance(vk * (1 - 1e-9), a, j)) == pytest.approx(float(braking_distance(vk, a, j)))
+
+
+@pytest.mark.parametrize("d", [0.02, 0.3, 1.1, 2.0, 6.0, 40.0])
+@pytest.mark.parametrize("t_r", [0.0, 0.25])
+def test_approach_stop_speed_inverts_its_distance_on_both_branches(d, t_r):
+    a, j = 3.0, 4.0
+    v = approach_stop_speed(d, a, j, t_r)
+    assert approach_stopping_distance(v, a, j, t_r) == pytest.approx(d, rel=1e-6)
+    assert approach_stopping_distance(v, a, j, t_r) <= d
+    assert approach_stopping_distance(v, a, j, t_r) >= stopping_distance(v, a, j, t_r)
