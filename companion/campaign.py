@@ -460,7 +460,10 @@ def result_row(spec: CampaignSpec, i: int, s: dict, arm: str, rig, trace: _Trace
         "violations": viol,
         "fault_outcomes": fault_outcomes(s, arm, rig, trace),
         "failsafes": [e["cause"] for e in log.named("failsafe")],
-        "holds": len([e for e in log.events if e["event"] in ("failsafe", "hold_trigger")]),
+        # Holds commanded (one per cycle that commanded one, whatever its number of causes; a cause that
+        # arrives while already holding is logged with its own action and is not another Hold)
+        "holds": len({e["t"] for e in log.events if e["event"] in ("failsafe", "hold_trigger")
+                      and e.get("action") == "hold"}),
         "sim_time_s": rig.sim.time_s,
     }
 

@@ -272,9 +272,12 @@ class Supervisor:
                 d.hold = True
                 self._t_hold = i.t
                 self._held_for = list(fresh)
-                for c in fresh:
-                    d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger",
-                                     {"cause": c, "action": "hold"}))
+                said = [(c, "hold") for c in fresh]
+            else:  # a cause that arrives while already holding is logged too (issue 16: it was silent)
+                said = [(c, ALREADY_HOLDING) for c in fresh if c not in self._held_for]
+                self._held_for += [c for c, _ in said]
+            for c, action in said:
+                d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger", {"cause": c, "action": action}))
             d.hold_causes = list(fresh)
             self._set_state(d, "holding", fresh[0])
             return d
@@ -336,6 +339,7 @@ class Supervisor:
 
 
 OBSTACLE = "obstacle inside the stop distance"
+ALREADY_HOLDING = "already holding"  # the action of a cause that arrives while the daemon already holds
 # causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
 BRAKE_STOP_CAUSES = {"no safe speed", "speed limit not in force"}
 FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed"}

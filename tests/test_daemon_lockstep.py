@@ -203,3 +203,17 @@ def test_stale_obstacle_data_holds():
     fly(rig, 9.0)
     fs = [e for e in rig.log.named("failsafe") if e["cause"] == "no safe speed"]
     assert fs and 8.0 + 0.4 <= fs[0]["t"] <= 8.0 + 0.7  # obstacle data older than 0.5 s: D_od = 0
+
+
+def test_bad_navigation_while_already_holding_is_logged():
+    """Issue 16: a fault arriving while the daemon already holds was silent. A sensor drop-out holds at
+    10 s (no safe speed); the estimator goes bad at 13 s: its failsafe is in the log, not as another Hold."""
+    sc = column_scenario(1, x_col=300.0, faults=[{"at_s": 10.0, "sensor_dropout_s": 6.0},
+                                                 {"at_s": 13.0, "nav_fault_s": 2.0}])
+    rig = Rig(sc, "px4")
+    fly(rig, 16.0)
+    fs = rig.log.named("failsafe")
+    first = next(e for e in fs if e["cause"] == "no safe speed")
+    nav = [e for e in fs if e["cause"] == "bad navigation estimate"]
+    assert first["action"] == "hold" and first["t"] < 13.0
+    assert nav and 13.0 <= nav[0]["t"] <= 13.0 + 1.5 and nav[0]["action"] == "already holding"
