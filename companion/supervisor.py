@@ -140,6 +140,13 @@ class Supervisor:
         # a speed law flown instead of the contract's Ω (`law.omega(inputs) -> Omega`): the baselines of a
         # campaign (companion/baselines.py); None on board
         self.law = None
+        self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
+
+    def latch_hold(self, d: Decision, reason: str) -> None:
+        """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
+        toggled, whether or not its cause has cleared (`companion/offboard.py`, authority)."""
+        self.latched = True
+        self._set_state(d, "holding", reason)
 
     @property
     def tilt_in_force(self) -> float | None:
@@ -211,6 +218,7 @@ class Supervisor:
                 by = "daemon" if i.mode_by_daemon else "other"
                 d.events.append(("mode_change", {"from": self._last_mode, "to": i.mode, "by": by}))
                 if self.state == "holding" and by == "other":
+                    self.latched = False
                     self._suppressed |= set(self._held_for)
                     self._set_state(d, "active", f"{i.mode} set by someone else: standing down")
                 self._last_sent = None  # re-send the limit after any mode change
@@ -281,8 +289,8 @@ class Supervisor:
             d.hold_causes = list(fresh)
             self._set_state(d, "holding", fresh[0])
             return d
-        if self.state == "holding" and i.mode == "hold" and i.mode_by_daemon:
-            return d  # stay stopped until someone else decides (authority)
+        if self.state == "holding" and (i.mode == "hold" and i.mode_by_daemon or self.latched and i.mode == "offboard"):
+            return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
         self._set_state(d, "active", "limit in force")
 
         # the limit: send it when it changed, after mode changes/take-off, and every 5 s
