@@ -35,6 +35,7 @@ A_BRAKE = 0.8  # fraction of a_max the reference slows at, for arcs, stops and t
 YAW_RATE_ARC = 1.5  # [rad/s] arcs are flown no faster than turns the heading at this rate (v ≤ ω·R)
 REVERSAL_DEG = 150.0  # a corner turning more than this gets no arc: the reference stops at the vertex
 YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity, else the route
+YAW_MEAS_BELOW = 2.0  # [m/s] the measured velocity weighs in the yaw below this commanded speed (1 at rest)
 SIDE_DEG = 25.0  # [°] a rejoin's sideways speed keeps the reference this close to the route's direction…
 SIDE_SLOW = 0.7  # [m/s] …or below this (under the 1 m/s at which D_od is taken along the heading: cycle.py)
 HEADING_TOL = math.radians(20.0)  # the reference speeds up only with the heading this close to the yaw
@@ -379,13 +380,15 @@ class OffboardGuidance:
         return Setpoint(pos + n * self.y_off, vel, a_vec, z, self._yaw(vel, u), "done" if arrived else "cruise")
 
     def _yaw(self, vel, u) -> float:
-        """The heading to fly: along the commanded velocity plus the measured one when their sum is above
-        2·YAW_SPEED (the sensor looks where the vehicle goes — the contract's D_od is along the measured
-        velocity — and where it is told to go next), else along the route ahead. The commanded velocity
-        alone let the measured track run 30° and more off the heading when the vehicle lagged its reference
-        (overshooting a route's end after a pass, drifting back to it: D_od 0, no safe speed; issue 19
-        items 2 and 3)."""
-        d = np.asarray(vel, float) + self._v_meas
+        """The heading to fly: along the commanded velocity, plus — when that is slow — the measured one
+        (weight 1 at rest, 0 from YAW_MEAS_BELOW), when the sum is above 2·YAW_SPEED, else along the route
+        ahead. The sensor looks where the vehicle goes (the contract's D_od is along the measured velocity)
+        and where it is told to go. The commanded velocity alone let a slow vehicle's track run 30° and more
+        off the heading while it lagged a slow reference (overshooting a route's end after a pass, drifting
+        back: D_od 0, no safe speed; issue 19 items 2, 3); the measured one at speed made the X500 lag its
+        avoidance pass beyond E_tr_pred."""
+        vel = np.asarray(vel, float)
+        d = vel + max(0.0, 1.0 - float(np.hypot(*vel)) / YAW_MEAS_BELOW) * self._v_meas
         d = d if float(np.hypot(*d)) > 2 * YAW_SPEED else u
         return math.atan2(d[1], d[0])
 

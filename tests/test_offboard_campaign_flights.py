@@ -14,7 +14,8 @@ from companion import campaign as cg
 SPEC = "examples/campaign-evidence.yaml"
 # index: (vehicle, personality, offset of the first column) — so a change of the spec fails loudly here
 FLIGHTS = {53: ("x500", "px4", 2.368), 549: ("x500", "ardupilot", 2.356), 239: ("x500", "px4", 2.524),
-           743: ("x500", "px4", 2.229), 1373: ("x500", "px4", 2.198)}
+           743: ("x500", "px4", 2.229), 1373: ("x500", "px4", 2.198),
+           3: ("x500", "px4", 0.439), 29: ("mambo", "ardupilot", -1.834)}
 
 
 def _fly(i):
@@ -40,3 +41,14 @@ def test_a_column_to_the_side_is_passed_on_its_near_side_without_contact(i):
 def test_the_other_worst_flights_do_not_collide(i):
     row = _fly(i)
     assert not row["collided"] and row["min_clearance_m"] > 0.5
+
+
+@pytest.mark.parametrize("i", [3, 29])
+def test_a_route_that_ends_soon_after_a_pass_is_completed_without_a_failsafe(i):
+    """Issue 19 item 3: the column 15 m before the route's end. On main (8d3832e) the pass ended at 6 m/s 2 m
+    before the end; the vehicle overshot it by 2–5 m and slid back sideways or backwards at ~1 m/s outside the
+    60° field of view: D_od 0, no safe speed, braking, Hold, re-entry — 4 (flight 3) and 5 (flight 29)
+    fail-safes, the route not completed. Now: completed, no fail-safe."""
+    row = _fly(i)
+    assert not row["collided"] and row["route_completed"], row["failsafes"]
+    assert row["failsafes"] == [] and row["holds"] == 0
