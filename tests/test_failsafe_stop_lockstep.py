@@ -9,7 +9,11 @@ import pytest
 
 from tests.failsafe_stop import fly
 from tests.lockstep import Rig
-from tests.test_offboard_lockstep import engage_and_fly, offboard_config, offboard_scenario
+from tests.test_offboard_lockstep import (
+    engage_and_fly,
+    offboard_config,
+    offboard_scenario,
+)
 
 
 def check(r):
