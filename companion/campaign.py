@@ -71,6 +71,7 @@ FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "lin
 ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
 STILL_S = 5.0  # stood still this long after setting off: the flight is over
+FAULT_WINDOW_S = 5.0  # an arrived flight still flies this long after its last fault (≥ the thrust estimate's p95)
 LATENCY_BUDGET_S = 0.05  # part of the vehicles' t_react (sensor latency + decision + response)
 
 
@@ -314,8 +315,11 @@ def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
 class _Trace:
     """Truth at every daemon cycle (for the row only; the daemon never sees it), and the early stop."""
 
-    def __init__(self, end):
+    def __init__(self, end, hold_on_until: float = 0.0):
+        """`hold_on_until`: an arrived or held flight is not ended before this time (a fault's detection
+        window: a fault that arrives while the daemon holds is to be seen too)."""
         self.end = end
+        self.hold_on_until = hold_on_until
         self.rows: list[tuple[float, float, float, float]] = []
         self.t0: float | None = None
         self.t_arrive: float | None = None
@@ -337,8 +341,9 @@ class _Trace:
             self._still_since = None
         elif self._still_since is None:
             self._still_since = t
-        return (self.t_arrive is not None and v < 0.3) or (self._still_since is not None
+        over = (self.t_arrive is not None and v < 0.3) or (self._still_since is not None
                                                              and t - self._still_since > STILL_S)
+        return over and t >= self.hold_on_until
 
 
 def _law(arm: str, s: dict, spec: CampaignSpec):
@@ -371,7 +376,9 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     mode = arm_mode(arm)
     rig = Rig(scenario_dict(s, arm), s["personality"], config=daemon_config(s, arm, spec.nav_margin),
               table_wrapper=_wrapper(arm), law=_law(arm, s, spec))
-    trace = _Trace((s["route_end_m"], 0.0))
+    # a fault shortly before or after the arrival is still given FAULT_WINDOW_S to be detected (the flight
+    # hovers at the end): ending at arrival counted 0.1–2 s-old faults as missed (issue 16's fault matrix)
+    trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
     if arm == "no_guard":
         rig.daemon_on = False
     if ARM_RE.match(arm) and (ARM_RE.match(arm).group(2) or "") == "_no_etr":
@@ -405,10 +412,14 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
         t0, kind = f["at_s"], f["kind"]
         after = [e for e in log.events if e["t"] >= t0 - 1e-9]
         states = [x for x in log.states if x["t"] >= t0 - 1e-9]
-        det, subsystem, occurs = None, None, rig.sim.time_s > t0
+        # a fault occurs in the flight when it starts before the route is flown (after the arrival the daemon
+        # has handed over to Hold and is done; the flight then goes on FAULT_WINDOW_S only for detection)
+        det, subsystem = None, None
+        occurs = rig.sim.time_s > t0 and (trace.t_arrive is None or t0 <= trace.t_arrive)
         if kind == "fog_hidden":
             # detectable only once an obstacle came inside the claimed range after the fault
-            occurs = any(_surface_distance(s, x, y) < s["sensor_range_m"] for t, x, y, _ in trace.rows if t >= t0)
+            occurs = occurs and any(_surface_distance(s, x, y) < s["sensor_range_m"] for t, x, y, _ in trace.rows
+                                    if t >= t0)
             e = _first(after, lambda e: e["event"] == "violation_start" and e["subsystem"] == "navigation")
             det, subsystem = (e["t"], "navigation") if e else (None, None)
         elif kind == "fog_honest":
@@ -465,7 +476,10 @@ def result_row(spec: CampaignSpec, i: int, s: dict, arm: str, rig, trace: _Trace
         "violations": viol,
         "fault_outcomes": fault_outcomes(s, arm, rig, trace),
         "failsafes": [e["cause"] for e in log.named("failsafe")],
-        "holds": len([e for e in log.events if e["event"] in ("failsafe", "hold_trigger")]),
+        # Holds commanded (one per cycle that commanded one, whatever its number of causes; a cause that
+        # arrives while already holding is logged with its own action and is not another Hold)
+        "holds": len({e["t"] for e in log.events if e["event"] in ("failsafe", "hold_trigger")
+                      and e.get("action") == "hold"}),
         "sim_time_s": rig.sim.time_s,
     }
 

@@ -95,8 +95,9 @@ class Cycle:
     def engage_requested(self) -> None:
         """CG_ENGAGE set anew: a restart in flight may engage now, and offboard may be entered again."""
         self.first_seen_in_air = False
-        if self.offboard is not None and self.offboard.state in ("done", "stood_down"):
+        if self.offboard is not None and self.offboard.state in ("done", "stood_down", "held"):
             self.offboard.state = "off"
+        self.sup.latched = False
 
     def hold_commanded(self, t: float) -> None:
         self.commanded_mode = (self.adapter.hold_mode(), t, False)
@@ -181,8 +182,10 @@ class Cycle:
             t, engaged=i.engaged and startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
             mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,
             v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs, stop=stop, brake_stop=brake_stop, a_stop=a_stop,
-            stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3)
+            stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3, failsafe=d.state == "holding")
         d.offboard = acts
+        if off.state == "held" and not self.sup.latched:  # a fail-safe Hold is latched (offboard.py)
+            self.sup.latch_hold(d, "fail-safe stop: held until the pilot or CG_ENGAGE decides")
         if not off.streaming and self._was_streaming:
             self.etr.reset()  # our setpoints are no longer the commanded path
             d.stream_ended = True

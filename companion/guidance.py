@@ -35,6 +35,9 @@ A_BRAKE = 0.8  # fraction of a_max the reference slows at, for arcs, stops and t
 YAW_RATE_ARC = 1.5  # [rad/s] arcs are flown no faster than turns the heading at this rate (v ≤ ω·R)
 REVERSAL_DEG = 150.0  # a corner turning more than this gets no arc: the reference stops at the vertex
 YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity, else the route
+YAW_MEAS_BELOW = 2.0  # [m/s] the measured velocity weighs in the yaw below this commanded speed (1 at rest)
+SIDE_DEG = 25.0  # [°] a rejoin's sideways speed keeps the reference this close to the route's direction…
+SIDE_SLOW = 0.7  # [m/s] …or below this (under the 1 m/s at which D_od is taken along the heading: cycle.py)
 HEADING_TOL = math.radians(20.0)  # the reference speeds up only with the heading this close to the yaw
 
 
@@ -295,6 +298,7 @@ class OffboardGuidance:
     last_notes: list = field(default_factory=list)
     epoch: int = 0  # bumped whenever the obstacle situation ends: older planning jobs are not flown
     planner_failed: bool = False  # the last job raised: braking is not "awaiting" but the answer
+    _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
 
     def start(self, p, v) -> None:
         self.s_ref = self.route.project(p)
@@ -315,12 +319,14 @@ class OffboardGuidance:
         """One cycle: the setpoint for now (t), given the vehicle's state (`yaw`: its measured heading,
         if known) and Ω = (v_max, a_max)."""
         p, v = np.asarray(p, float), np.asarray(v, float)
+        self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
         z = -self.route.altitude_m
         ahead = self._threats(p, v, discs)
         if ahead:
             return self._avoid(t, p, v, v_max, a_max, ahead, z)
         self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
-        if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1]:
+        if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1] \
+                and not self._past_the_profile(t, v_max, a_max):
             return self._follow(t, z)  # finish going round the obstacle before rejoining
         if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
             end_p, end_v, _ = self.plan.sample(t - self.plan_t)
@@ -338,7 +344,12 @@ class OffboardGuidance:
         # lateral offset back to the route: critically damped, peak lateral acceleration ≤ a_max/2
         w = math.sqrt(0.5 * a_max / max(abs(self.y_off), 0.2))
         ay = -2.0 * w * self.vy_off - w * w * self.y_off
-        self.vy_off += ay * dt
+        # sideways no faster than keeps the reference's direction within SIDE_DEG of the route, or below
+        # SIDE_SLOW: slow and sideways (rejoining at a route's end) the track left the sensor's view (issue 19)
+        cap = max(SIDE_SLOW, self.v_ref * math.tan(math.radians(SIDE_DEG)))
+        vy = min(max(self.vy_off + ay * dt, -cap), cap)
+        ay = (vy - self.vy_off) / dt if dt > 0 else 0.0
+        self.vy_off = vy
         self.y_off += self.vy_off * dt
         # along the path: the speed profile, and no speeding up until the heading is on the yaw wanted
         _, u = route.point(self.s_ref)
@@ -368,11 +379,17 @@ class OffboardGuidance:
         arrived = self.s_ref >= route.length - 1e-9 and abs(self.y_off) <= 0.1  # at rest, on the route
         return Setpoint(pos + n * self.y_off, vel, a_vec, z, self._yaw(vel, u), "done" if arrived else "cruise")
 
-    @staticmethod
-    def _yaw(vel, u) -> float:
-        """The heading to fly: along the commanded velocity when it is above YAW_SPEED (the sensor looks
-        where the vehicle goes), else along the route ahead."""
-        d = vel if float(np.hypot(*vel)) > YAW_SPEED else u
+    def _yaw(self, vel, u) -> float:
+        """The heading to fly: along the commanded velocity, plus — when that is slow — the measured one
+        (weight 1 at rest, 0 from YAW_MEAS_BELOW), when the sum is above 2·YAW_SPEED, else along the route
+        ahead. The sensor looks where the vehicle goes (the contract's D_od is along the measured velocity)
+        and where it is told to go. The commanded velocity alone let a slow vehicle's track run 30° and more
+        off the heading while it lagged a slow reference (overshooting a route's end after a pass, drifting
+        back: D_od 0, no safe speed; issue 19 items 2, 3); the measured one at speed made the X500 lag its
+        avoidance pass beyond E_tr_pred."""
+        vel = np.asarray(vel, float)
+        d = vel + max(0.0, 1.0 - float(np.hypot(*vel)) / YAW_MEAS_BELOW) * self._v_meas
+        d = d if float(np.hypot(*d)) > 2 * YAW_SPEED else u
         return math.atan2(d[1], d[0])
 
     # ---------------------------------------------------------------- avoiding
@@ -407,8 +424,8 @@ class OffboardGuidance:
             warm = self.plan if self.plan is not None and self.plan.kind in ("pass", "stop") else None
             self.plan_t_try = t
             self.planning.submit(self._plan_job, self.epoch, t, omega, np.array(p, float), np.array(v, float), u,
-                                 list(discs), v_max=v_max, a_max=a_max, warm=warm, elapsed=t - self.plan_t,
-                                 budget_s=self.planning.budget_s)
+                                 list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 warm=warm, elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
             self._adopt(self.planning.poll())
         if self.plan is None:  # asked, not answered yet: start braking now (the slower choice)
             bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, discs, self.planner.n)
@@ -416,6 +433,21 @@ class OffboardGuidance:
             self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
             self.plan_t, self.plan_omega = t, omega
         return self._follow(t, z)
+
+    def _past_the_profile(self, t: float, v_max: float, a_max: float) -> bool:
+        """Whether the pass being finished (its obstacle behind) flies faster than the route's speed profile
+        at half its braking allows — then the vehicle rejoins now and slows for what is ahead (the route's end,
+        a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it (issue 19 item 3)."""
+        pos, vel, _ = self.plan.sample(t - self.plan_t)
+        return float(np.hypot(*vel)) > float(self.route.speed_limit(self.route.project(pos), v_max, 0.5 * a_max))
+
+    def _pass_speed(self, discs, v_max: float, a_max: float) -> float:
+        """The speed a pass ends at: what the route's speed profile allows beyond the farthest disc, at half
+        the braking the cruise reference uses (the rest is for rejoining the route sideways). A pass that
+        ended at V_max 2 m before the route's end overshot it by 2–5 m and drifted back outside the
+        sensor's view (issue 19 item 3)."""
+        s_far = max(self.route.project((d.x, d.y)) + d.r for d in discs)
+        return float(self.route.speed_limit(s_far, v_max, 0.5 * a_max))
 
     def _plan_job(self, epoch, t_req, omega, *args, **kw):
         try:

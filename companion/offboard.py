@@ -8,8 +8,15 @@
         flying ──fail-safe the daemon can fly out itself (no safe speed, limit not in force)──▶ braking
         braking (stream the best stop at the tilt's full deceleration from the measured state: straight,
                  or a braking swerve off the keep-out discs last seen when straight would enter one)
-                ──at rest──▶ off (Hold)          braking ──mode changed by someone else──▶ stood_down
-        any ──hold requested (other failsafes, stop, Ctrl-C)──▶ leaving (ask for Hold, stop streaming)
+                ──at rest──▶ held (Hold)         braking ──mode changed by someone else──▶ stood_down
+        entering / flying ──a fail-safe Hold (the supervisor holds)──▶ held (ask for Hold, stop streaming)
+        entering / flying ──stop asked otherwise (not engaged, Ctrl-C)──▶ off
+        held ──CG_ENGAGE off and on (`Cycle.engage_requested`)──▶ off
+
+Authority after a fail-safe (issue 16, "seen but left alone"): a fail-safe Hold is latched. The daemon never
+re-enters offboard by itself after it (it did, 2–5 s later, as soon as the cause had cleared: repeated
+Hold/re-enter cycles); the pilot or the ground station decides — another mode, or CG_ENGAGE toggled to
+resume the route. A cause that clears is no evidence that the next pass will not raise it again.
 
 Why the daemon brakes itself before handing over (issue 19 item 1): PX4's Hold (FlightTaskAuto::activate
 resets its jerk-limited position smoothing to the last setpoint's acceleration and velocity) and
@@ -31,6 +38,7 @@ from contracts.stop import braking_distance
 from .guidance import OffboardGuidance, Setpoint
 
 
+HELD = "fail-safe Hold, held until the pilot or the ground station decides (CG_ENGAGE off and on to resume)"
 SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop when the sensor sees none now
 # [s] a fail-safe stop hands over to Hold once the vehicle has stayed below 0.3 m/s this long at the stop's end:
 # a vehicle that overran the stop is still accelerating back at ~g·tan(tilt) as its speed crosses zero, and
@@ -65,10 +73,12 @@ class OffboardController:
 
     def step(self, t, *, engaged: bool, flying: bool, mode: str, by_daemon: bool, p, v, z, yaw,
              v_max: float, a_max: float, discs, stop: bool, brake_stop: bool = False,
-             a_stop: float = 0.0, stop_decel: float = 0.0, jerk: float = math.inf) -> OffboardActions:
+             a_stop: float = 0.0, stop_decel: float = 0.0, jerk: float = math.inf,
+             failsafe: bool = False) -> OffboardActions:
         """`brake_stop` (with `stop`): the stop may be flown by the daemon itself, braking at `a_stop`
         (the tilt's horizontal acceleration limit), before it hands over to Hold; never longer than the
-        stop contract's braking (deceleration `stop_decel`, jerk `jerk`)."""
+        stop contract's braking (deceleration `stop_decel`, jerk `jerk`). `failsafe` (with `stop`): the
+        stop is a fail-safe Hold, which is latched (`held`)."""
         acts = OffboardActions()
         dt = 0.02 if self._t_last is None else min(max(t - self._t_last, 1e-3), 0.2)
         self._t_last = t
@@ -89,9 +99,9 @@ class OffboardController:
             self._go(t, "braking", "fail-safe: the daemon brakes to a stop, then Hold", acts)
             return self._brake(t, False, mode, by_daemon, v, acts)
         if stop and self.state in ("entering", "flying"):
-            self._go(t, "off", "hold requested", acts)
+            self._go(t, "held" if failsafe else "off", HELD if failsafe else "hold requested", acts)
             return acts
-        if self.state in ("done", "stood_down"):  # until asked again (CG_ENGAGE off and on)
+        if self.state in ("done", "stood_down", "held"):  # until asked again (CG_ENGAGE off and on)
             return acts
         if self.state == "off":
             if engaged and flying and not stop:
@@ -137,7 +147,7 @@ class OffboardController:
             return acts
         if abort:  # a fail-safe the daemon cannot fly out (its own state is not to be trusted): Hold now
             acts.hold = True
-            self._go(t, "off", "hold requested", acts)
+            self._go(t, "held", HELD, acts)
             return acts
         tau = t - self._t_state
         plan = self._stop_plan
@@ -145,7 +155,7 @@ class OffboardController:
         self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
         if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + 3.0:
             acts.hold = True
-            self._go(t, "off", "stopped: hold", acts)
+            self._go(t, "held", "stopped: " + HELD, acts)
             return acts
         pos, vel, acc = plan.sample(tau)
         acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, "brake")

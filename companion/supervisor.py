@@ -141,6 +141,13 @@ class Supervisor:
         # a speed law flown instead of the contract's Ω (`law.omega(inputs) -> Omega`): the baselines of a
         # campaign (companion/baselines.py); None on board
         self.law = None
+        self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
+
+    def latch_hold(self, d: Decision, reason: str) -> None:
+        """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
+        toggled, whether or not its cause has cleared (`companion/offboard.py`, authority)."""
+        self.latched = True
+        self._set_state(d, "holding", reason)
 
     @property
     def tilt_in_force(self) -> float | None:
@@ -212,6 +219,7 @@ class Supervisor:
                 by = "daemon" if i.mode_by_daemon else "other"
                 d.events.append(("mode_change", {"from": self._last_mode, "to": i.mode, "by": by}))
                 if self.state == "holding" and by == "other":
+                    self.latched = False
                     self._suppressed |= set(self._held_for)
                     self._set_state(d, "active", f"{i.mode} set by someone else: standing down")
                 self._last_sent = None  # re-send the limit after any mode change
@@ -273,14 +281,17 @@ class Supervisor:
                 d.hold = True
                 self._t_hold = i.t
                 self._held_for = list(fresh)
-                for c in fresh:
-                    d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger",
-                                     {"cause": c, "action": "hold"}))
+                said = [(c, "hold") for c in fresh]
+            else:  # a cause that arrives while already holding is logged too (issue 16: it was silent)
+                said = [(c, ALREADY_HOLDING) for c in fresh if c not in self._held_for]
+                self._held_for += [c for c, _ in said]
+            for c, action in said:
+                d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger", {"cause": c, "action": action}))
             d.hold_causes = list(fresh)
             self._set_state(d, "holding", fresh[0])
             return d
-        if self.state == "holding" and i.mode == "hold" and i.mode_by_daemon:
-            return d  # stay stopped until someone else decides (authority)
+        if self.state == "holding" and (i.mode == "hold" and i.mode_by_daemon or self.latched and i.mode == "offboard"):
+            return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
         self._set_state(d, "active", "limit in force")
 
         # the limit: send it when it changed, after mode changes/take-off, and every 5 s
@@ -341,6 +352,7 @@ class Supervisor:
 
 
 OBSTACLE = "obstacle inside the stop distance"
+ALREADY_HOLDING = "already holding"  # the action of a cause that arrives while the daemon already holds
 # causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
 BRAKE_STOP_CAUSES = {"no safe speed", "speed limit not in force"}
 FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed"}

@@ -219,3 +219,29 @@ def test_a_process_pool_and_a_dask_cluster_give_the_same_rows_bit_for_bit(tmp_pa
     pool, dask = _lines(tmp_path / "pool"), _lines(tmp_path / "dask")
     assert len(pool) == 4 and pool == dask
     assert pool[0] == cg.row_json(cg.fly(spec, 0))  # and the same as flying it here
+
+
+def test_an_arrived_flight_flies_on_for_its_faults_detection_window():
+    """Issue 16's fault matrix: flights ended at the arrival counted faults 0.1–2 s old as missed (a thrust
+    estimate needs ≈ 2.5 s). An arrived flight now ends no earlier than FAULT_WINDOW_S after its last fault."""
+    class _M:
+        pos, vel = [40.0, 0.0, -2.0], [0.0, 0.0, 0.0]
+
+    class _S:
+        model, time_s = _M(), 0.0
+
+    class _R:
+        sim = _S()
+
+    rig = _R()
+    trace = cg._Trace((40.0, 0.0), 10.0 + cg.FAULT_WINDOW_S)
+    trace.t0 = 0.0
+    ends = []
+    for k in range(1, 1000):
+        rig.sim.time_s = k * 0.02
+        if trace(rig):
+            ends.append(rig.sim.time_s)
+            break
+    assert trace.t_arrive is not None and trace.t_arrive < 1.0
+    assert ends and ends[0] >= 10.0 + cg.FAULT_WINDOW_S - 1e-9
+    assert cg._Trace((40.0, 0.0))(rig)  # without a fault it ends at the arrival, as before

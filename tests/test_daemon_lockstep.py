@@ -242,3 +242,17 @@ def test_without_the_cruise_parameter_the_limit_sent_speeds_the_mission_up():
     fly(rig, 30.0)
     sent = [e["params"][1] for e in rig.log.named("command") if e["cmd"] == "change_speed"]
     assert max(sent) > 2.5 and max(s["ground_speed"] for s in rig.log.states) > 2.5
+
+
+def test_bad_navigation_while_already_holding_is_logged():
+    """Issue 16: a fault arriving while the daemon already holds was silent. A sensor drop-out holds at
+    10 s (no safe speed); the estimator goes bad at 13 s: its failsafe is in the log, not as another Hold."""
+    sc = column_scenario(1, x_col=300.0, faults=[{"at_s": 10.0, "sensor_dropout_s": 6.0},
+                                                 {"at_s": 13.0, "nav_fault_s": 2.0}])
+    rig = Rig(sc, "px4")
+    fly(rig, 16.0)
+    fs = rig.log.named("failsafe")
+    first = next(e for e in fs if e["cause"] == "no safe speed")
+    nav = [e for e in fs if e["cause"] == "bad navigation estimate"]
+    assert first["action"] == "hold" and first["t"] < 13.0
+    assert nav and 13.0 <= nav[0]["t"] <= 13.0 + 1.5 and nav[0]["action"] == "already holding"

@@ -10,6 +10,12 @@ along it at the fail-safe (`stopping_distance_from`)."""
 import pytest
 
 from tests.failsafe_stop import fly
+from tests.lockstep import Rig
+from tests.test_offboard_lockstep import (
+    engage_and_fly,
+    offboard_config,
+    offboard_scenario,
+)
 
 
 def check(r):
@@ -19,7 +25,7 @@ def check(r):
     assert r["v_end"] < 0.3, r
     rig = r["rig"]
     off = rig.log.named("offboard")
-    assert ("braking", "off") == (off[-2]["to"], off[-1]["to"]) and off[-1]["reason"] == "stopped: hold"
+    assert ("braking", "held") == (off[-2]["to"], off[-1]["to"]) and off[-1]["reason"].startswith("stopped: ")
     assert rig.log.named("mode_change")[-1]["to"] == "hold"  # handed over to Hold at rest
 
 
@@ -42,3 +48,27 @@ def test_thirty_two_seeded_failsafes_mid_swerve_all_stop_within_the_stop_contrac
     out = [fly(seed, pers, veh) for seed in range(1, 9) for pers in ("px4", "ardupilot") for veh in ("mambo", "x500")]
     for r in out:
         check(r)
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_a_failsafe_hold_in_offboard_is_latched_until_cg_engage_is_toggled(personality):
+    """Authority (issue 16, "seen but left alone"): after a fail-safe stop the daemon re-entered offboard by
+    itself 2–5 s later, as soon as the cause had cleared (repeated Hold/re-enter cycles). A 1 s sensor
+    drop-out mid-route: braking stop, Hold; the cause clears, and the daemon stays held (8 s); CG_ENGAGE
+    off and on resumes the route. Before the fix the daemon re-entered offboard within 5 s."""
+    sc = offboard_scenario(1, x_col=300.0, personality=personality, faults=[{"at_s": 5.0, "sensor_dropout_s": 1.0}])
+    rig = Rig(sc, personality, config=offboard_config(x_end=80.0))
+    engage_and_fly(rig, 5.5)
+    rig.run(10.0)
+    off = rig.log.named("offboard")
+    held = [e for e in off if e["to"] == "held"]
+    assert held and held[0]["t"] < 7.0, off
+    assert not [e for e in off if e["t"] > held[0]["t"]], off  # no re-entry by itself
+    assert rig.log.named("mode_change")[-1]["to"] == "hold" and rig.daemon.cycle.sup.state == "holding"
+    x_held = float(rig.sim.model.pos[0])
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
+    rig.run(0.2)
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
+    rig.run(6.0)
+    assert [e for e in rig.log.named("offboard") if e["to"] == "flying" and e["t"] > held[0]["t"]]
+    assert float(rig.sim.model.pos[0]) > x_held + 5.0  # the route resumed

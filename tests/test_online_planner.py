@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 
 from contracts.flat import horizontal_accel_limit
-from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, admitted, dense_path, exact_check
+from contracts.online_planner import (
+    OFFBOARD_CAP,
+    AvoidancePlanner,
+    Disc,
+    admitted,
+    dense_path,
+    exact_check,
+    pass_sides,
+)
 from contracts.table import load_for_vehicle
 from contracts.vehicle import G, load_vehicle
 
@@ -143,3 +151,22 @@ def test_an_unbounded_keep_out_disc_is_the_best_stop_not_an_exception():
     # with nothing in the way the best stop is the straight one
     p0, v0, a0, ts0, _ = best_stop(np.zeros(2), np.array([6.0, 0.0]), 4.0, [], 30)
     assert np.allclose(p0, p) and ts0 == ts
+
+
+@pytest.mark.parametrize("y", [2.2, -2.2])
+def test_a_disc_to_one_side_is_passed_on_its_near_side(planner, y):
+    """Campaign flight 53 (issue 16): a keep-out disc reaching 0.6 m over the route from +y was passed on +y
+    (its far side, a 6.5 m swerve) because +y was always tried first. The nearer side comes first now."""
+    disc = Disc(7.0, y, 2.8)
+    plan = planner.plan([0, 0], [5.8, 0], [1, 0], [disc], v_max=5.8, a_max=G * math.tan(math.radians(35)))
+    assert plan.ok and plan.kind == "pass"
+    assert np.sign(plan.p[:, 1]).sum() * np.sign(y) < 0  # beside the route, away from the disc
+    assert np.max(np.abs(plan.p[:, 1])) < 2.0
+
+
+def test_the_side_follows_the_sideways_speed():
+    """Already moving sideways fast (a pass under way): the side it carries the vehicle to comes first, so a
+    replan does not reverse the manoeuvre."""
+    disc = [Disc(7.0, 0.3, 2.0)]
+    assert pass_sides(disc, [5.0, 0.0], 5.0) == (-1.0, 1.0)
+    assert pass_sides(disc, [5.0, 4.0], 5.0) == (1.0, -1.0)
