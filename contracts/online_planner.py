@@ -34,8 +34,10 @@ from contracts.flat import cone_polygon
 N_POLY = 16
 # The factor on the avoid contract's speed at which this planner is shown to find a verified avoiding
 # trajectory on 100 % of a seeded sample of table cells (tests/test_online_planner.py,
-# benchmarks/bench_planner.py): the offboard contract flies at OFFBOARD_CAP × V_safe.
-OFFBOARD_CAP = 0.92
+# benchmarks/bench_planner.py): the offboard contract flies at OFFBOARD_CAP × V_safe. Issue 18: 200/200 seeded
+# cells per vehicle at 0.92–0.98 on two samples (seeds 0, 7), 199/200 at 0.99; 0.97 keeps one step below the
+# largest value that held (the slower when unsure). The E_tr sweep flies its online plans at this cap.
+OFFBOARD_CAP = 0.97
 REPLAN_S = 0.5  # [s] the offboard guidance refreshes an active plan this often (the E_tr sweep models it)
 SUB_STEPS = 20  # dense re-simulation per interval for the exact check
 MARGIN_M = 0.01  # kept from the discs in the QP, so solver tolerance never fails the exact check
@@ -353,7 +355,7 @@ class AvoidancePlanner:
             a_mat = pat["csc"].copy()
             a_mat.data = val
             s = osqp.OSQP()
-            s.setup(p_mat, q, a_mat, lo, hi, verbose=False, eps_abs=1e-4, eps_rel=1e-4, max_iter=4000,
+            s.setup(p_mat, q, a_mat, lo, hi, verbose=False, eps_abs=1e-4, eps_rel=1e-4, max_iter=400,
                     polishing=True, warm_starting=True, adaptive_rho=True)
             self._solvers[key] = s
         else:
