@@ -114,7 +114,9 @@ class Supervisor:
         self.mode = mode
         self.contract = contract
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
-        self.cap = OFFBOARD_CAP if self.contract == "avoid" else 1.0
+        # (and never faster than the E_tr sweep flew those plans: the table records that cap)
+        flown = table.etr_offboard_cap
+        self.cap = (OFFBOARD_CAP if flown is None else min(OFFBOARD_CAP, flown)) if self.contract == "avoid" else 1.0
         self.limit = OneSidedLimit(dwell_s)
         self.margin = speed_margin
         self.loop_dt = loop_dt
