@@ -198,7 +198,7 @@ def test_failsafe_flight_brakes_mid_swerve_from_the_measured_state():
     """Issue 19 item 9: ``failsafe@ρ`` flies the online plan and, at FAILSAFE_FRAC of it, the daemon's
     fail-safe braking stop (`best_stop` from the measured state at the cell's a_h), then rests. It is part
     of the cell's manoeuvre set next to ``online@ρ``."""
-    t, (i, j, k), a_h, _ = _online(6.0, 20.0, 1.0, 0.2)
+    _, (i, j, k), a_h, _ = _online(6.0, 20.0, 1.0, 0.2)
     ref = es.online_reference(TABLE, i, j, k, 6.0, a_h, "failsafe")
     assert ref.name.startswith("failsafe@rho=") and ref.failsafe_frac == es.FAILSAFE_FRAC
     run = ref.flight()
