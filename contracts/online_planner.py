@@ -38,6 +38,7 @@ N_POLY = 16
 # cells per vehicle at 0.92–0.98 on two samples (seeds 0, 7), 199/200 at 0.99; 0.97 keeps one step below the
 # largest value that held (the slower when unsure). The E_tr sweep flies its online plans at this cap.
 OFFBOARD_CAP = 0.97
+UNRECORDED_CAP = 0.92  # the cap before issue 18: for a contract whose E_tr_pred records no cap it was flown at
 REPLAN_S = 0.5  # [s] the offboard guidance refreshes an active plan this often (the E_tr sweep models it)
 SUB_STEPS = 20  # dense re-simulation per interval for the exact check
 MARGIN_M = 0.01  # kept from the discs in the QP, so solver tolerance never fails the exact check
@@ -98,6 +99,13 @@ class Plan:
         dt = tau - self.t[k]
         a = self.a[k]
         return self.p[k] + self.v[k] * dt + 0.5 * a * dt * dt, self.v[k] + a * dt, a.copy()
+
+
+def offboard_cap(flown: float | None) -> float:
+    """The factor on V_safe that offboard flies: OFFBOARD_CAP, but never more than the cap at which the
+    controller contract's sweep flew this planner's plans (`ContractTable.etr_offboard_cap`); a contract
+    that records none (no E_tr_pred slot, or a table from before the record) gets UNRECORDED_CAP."""
+    return min(OFFBOARD_CAP, UNRECORDED_CAP if flown is None else flown)
 
 
 def keeps_plan(current: Plan | None, age: float, new: Plan) -> bool:

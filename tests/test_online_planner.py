@@ -7,7 +7,16 @@ import numpy as np
 import pytest
 
 from contracts.flat import horizontal_accel_limit
-from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc, admitted, dense_path, exact_check
+from contracts.online_planner import (
+    OFFBOARD_CAP,
+    UNRECORDED_CAP,
+    AvoidancePlanner,
+    Disc,
+    admitted,
+    dense_path,
+    exact_check,
+    offboard_cap,
+)
 from contracts.table import load_for_vehicle
 from contracts.vehicle import G, load_vehicle
 
@@ -156,7 +165,8 @@ def test_offboard_never_flies_a_larger_cap_than_its_controller_contract_was_flow
     flown = t.etr_offboard_cap
     assert flown is not None and 0 < flown <= 1
     sup = Supervisor(t, "offboard", contract="avoid", dwell_s=2.0, speed_margin=0.0, loop_dt=0.02)
-    assert sup.cap == min(OFFBOARD_CAP, flown)
+    assert sup.cap == min(OFFBOARD_CAP, flown) == offboard_cap(flown)
+    assert offboard_cap(None) == UNRECORDED_CAP < OFFBOARD_CAP  # nothing recorded: the old, slower cap
     assert Supervisor(t, "governor", contract="stop", dwell_s=2.0, speed_margin=0.0, loop_dt=0.02).cap == 1.0
     info = dict(t.e_pred.info, grid={**t.e_pred.info["grid"], "online": {**t.e_pred.info["grid"]["online"],
                                                                            "offboard_cap": 0.5}})
