@@ -13,6 +13,7 @@ import math
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
+from contracts.online_planner import offboard_cap
 from contracts.stop import braking_decel
 from contracts.table import ContractTable
 
@@ -36,7 +37,10 @@ def e_tr_floor(cfg: Config, table: ContractTable) -> float:
 def controller_contract(cfg: Config, table: ContractTable) -> str:
     """In words: where the contract's E_tr comes from (the start banner, the `start` record)."""
     if table.e_pred is not None:
-        return "E_tr_pred from the table (the controller contract)"
+        flown = table.etr_offboard_cap
+        return ("E_tr_pred from the table (the controller contract)" + ("" if cfg.mode != "offboard" else
+                f"; offboard flies {offboard_cap(flown):.2f} x V_safe (its online plans were flown at "
+                f"{'an unrecorded cap' if flown is None else f'{flown:.2f}'} x V_safe)"))
     if cfg.contract.e_tr_assumed_m is not None:
         return f"no E_tr_pred in the table: E_tr assumed {e_tr_floor(cfg, table):.2f} m (contract.e_tr_assumed_m)"
     return "no E_tr_pred in the table and no contract.e_tr_assumed_m: refuses to engage"

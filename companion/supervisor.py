@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.online_planner import OFFBOARD_CAP, Disc
+from contracts.online_planner import Disc, offboard_cap
 from contracts.stop import approach_stopping_distance, braking_decel, stop_dead_time
 from contracts.table import ContractTable, Omega
 
@@ -115,7 +115,8 @@ class Supervisor:
         self.mode = mode
         self.contract = contract
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
-        self.cap = OFFBOARD_CAP if self.contract == "avoid" else 1.0
+        # (and never faster than the E_tr sweep flew those plans: the table records that cap)
+        self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
         self.limit = OneSidedLimit(dwell_s)
         self.margin = speed_margin
         self.loop_dt = loop_dt

@@ -291,6 +291,16 @@ class ContractTable:
 
     # ---- shape of the table
     @property
+    def etr_offboard_cap(self) -> float | None:
+        """The factor on V_safe at which the E_tr sweep flew the online planner's plans (`online@ρ`, recorded
+        in the E_tr_pred slot); None without an E_tr_pred slot or an older record. Offboard must not fly a
+        larger factor than its controller contract was flown at (issue 18)."""
+        if self.e_pred is None:
+            return None
+        cap = ((self.e_pred.info.get("grid") or {}).get("online") or {}).get("offboard_cap")
+        return float(cap) if isinstance(cap, (int, float)) and math.isfinite(cap) and 0 < cap <= 1 else None
+
+    @property
     def available(self) -> list[str]:
         return ["stop"] + [n for n, s in (("avoid", self.avoid), ("e_tr_pred", self.e_pred)) if s is not None]
 

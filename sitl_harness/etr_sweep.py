@@ -26,6 +26,12 @@ several seeds:
   state, warm-started, adopted as the guidance adopts it (`contracts.online_planner.keeps_plan`); after the plan's last interval the reference
   coasts (pass) or holds (stop). Geometries where the planner finds no verified plan are skipped and
   counted (the daemon brakes there: that is `step_down`);
+- ``failsafe@ρ`` (issue 19 item 9): the same plan interrupted halfway (`FAILSAFE_FRAC`), mid-swerve, by
+  the braking stop the daemon streams itself on an offboard fail-safe (`best_stop` from the measured
+  state at a_h, straight or swerving, then rest);
+- ``drop@ρ`` (issue 19 item 9, a thrust drop): the first plan made at the acceleration of the top of
+  the vehicle's thrust range (`a_h(tilt, thrust_max)`), flown with the cell's thrust; the replans (the
+  thrust estimate has caught up by then) use the cell's a_h. Only for cells below the top;
 - ``cruise``: straight and level at v_max;
 - ``step_down`` / ``step_up``: speed steps v → 0 and v/2 → v at the cell's full horizontal
   acceleration a_h(tilt, thrust_ratio) (`contracts.flat.horizontal_accel_limit`).
@@ -69,8 +75,9 @@ BUILD_RHOS = (0.03, 0.1, 0.2, 0.35, 0.5, 0.7)  # avoid geometries flown to build
 HELD_OUT_RHOS = (0.05, 0.15, 0.27, 0.42, 0.6, 0.85)  # … and only to validate it
 BUILD_SEEDS = (0, 1)
 HELD_OUT_SEEDS = (101, 102)
-MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online")
+MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online", "failsafe", "drop")
 ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured state, warm-started
+FAILSAFE_FRAC = 0.5  # ``failsafe@ρ``: the fail-safe stop starts at this fraction of the first plan
 
 
 # ============================================================================ the cell's references
@@ -86,17 +93,20 @@ def avoid_reference(table_path, rho_index: int, tilt_index: int, thrust_index: i
 
 
 def online_reference(table_path, rho_index: int, tilt_index: int, thrust_index: int, v: float,
-                     a_max: float) -> OnlineReference | None:
+                     a_max: float, kind: str = "online", a_plan: float | None = None) -> OnlineReference | None:
     """``online@ρ`` of one cell: the head-on disc at ρ = r_k/c with c such that v = OFFBOARD_CAP × V_safe(c, ρ)
-    (V_safe ∝ √c, DESIGN.md §2), planned at V_max = v and `a_max`; None without a verified pass/stop plan.
+    (V_safe ∝ √c, DESIGN.md §2), planned at V_max = v and `a_max` (the first plan at `a_plan` if given:
+    ``drop``); None without a verified pass/stop plan. ``failsafe``: interrupted by the fail-safe stop.
     The whole disc is E_tr allowance (r_min = 0): a replan from inside it is always admitted."""
     unit = limiting_trajectory(table_path, rho_index, tilt_index, thrust_index, 1.0)
     c = (v / (OFFBOARD_CAP * unit["v"])) ** 2
     disc = Disc(c, 0.0, unit["r_k"] * c, 0.0)
-    plan = AvoidancePlanner().plan((0.0, 0.0), (v, 0.0), (1.0, 0.0), [disc], v_max=v, a_max=a_max)
+    plan = AvoidancePlanner().plan((0.0, 0.0), (v, 0.0), (1.0, 0.0), [disc], v_max=v,
+                                   a_max=a_max if a_plan is None else a_plan)
     if not plan.ok or plan.kind not in ("pass", "stop"):
         return None
-    return OnlineReference(f"online@rho={unit['r_k']:.3g}", plan, disc, v, a_max, ONLINE_REPLANS)
+    return OnlineReference(f"{kind}@rho={unit['r_k']:.3g}", plan, disc, v, a_max, ONLINE_REPLANS,
+                           FAILSAFE_FRAC if kind == "failsafe" else None)
 
 
 # ============================================================================ one cell
@@ -108,6 +118,7 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
     """The named manoeuvre set of one cell (module docstring); the names of ``online@ρ`` geometries
     without a verified plan are appended to `skipped`."""
     a_h = horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
+    a_top = horizontal_accel_limit(tilt, vehicle.t_max(vehicle.thrust_ratio_range[1]), vehicle.mass_kg)
     refs = [cruise_reference(v), speed_step_reference("step_down", v, 0.0, a_h),
             speed_step_reference("step_up", 0.5 * v, v, a_h)]
     if table_path is not None:
@@ -119,8 +130,13 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
             online = online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h)
             if online is not None:
                 refs.append(online)
+                refs.append(online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h, "failsafe"))
             elif skipped is not None:
                 skipped.append(f"online@rho={grid_rho[i]:.3g}")
+            if a_top > a_h * (1 + 1e-9):
+                drop = online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h, "drop", a_top)
+                if drop is not None:
+                    refs.append(drop)
     return refs
 
 
@@ -162,7 +178,8 @@ class EtrGrid:
                 "thrust_ratio": [float(x) for x in self.thrust_ratio], "avoid_rhos": list(self.rhos),
                 "seeds": list(self.seeds),
                 "online": {"rhos": list(self.rhos), "speed": "OFFBOARD_CAP x V_safe", "offboard_cap": OFFBOARD_CAP,
-                           "replans": ONLINE_REPLANS, "replan_s": REPLAN_S}}
+                           "replans": ONLINE_REPLANS, "replan_s": REPLAN_S, "failsafe_frac": FAILSAFE_FRAC,
+                           "drop_from": "thrust_ratio_max"}}
 
 
 def default_etr_grid(vehicle: Vehicle) -> EtrGrid:
@@ -275,8 +292,10 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
                   "acceleration (attitude) feed-forward, thrust limited to thrust_ratio, the vehicle's design wind; "
                   "manoeuvres: the avoid table's limiting trajectories at the listed rho, the online OSQP "
                   "planner's plans (replanned once from the measured state) at the same rho at "
-                  "OFFBOARD_CAP x V_safe, cruise, speed steps v->0 and v/2->v at the cell's full horizontal "
-                  "acceleration",
+                  "OFFBOARD_CAP x V_safe, the same plans interrupted halfway by the daemon's fail-safe braking stop "
+                  "(best_stop from the measured state), the first plan made at the top of the thrust range's "
+                  "acceleration and flown at the cell's thrust (a thrust drop), cruise, speed steps v->0 and v/2->v "
+                  "at the cell's full horizontal acceleration",
         "margin": {"relative": MARGIN_REL, "absolute_m": MARGIN_ABS,
                    "rule": "E_tr_pred = worst * (1 + relative) + absolute"},
         "grid": grid.describe(),

@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from contracts.contour import contour_errors
-from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, keeps_plan
+from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan
 from contracts.vehicle import G, Vehicle
 
 from .control import C_TILT_MAX, M_POS, S_HOVER, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_VEL, SP_YAW
@@ -203,12 +203,14 @@ class OnlineReference:
     plan: Plan
     disc: Disc
     v_max: float
-    a_max: float
+    a_max: float  # the replans' (and the fail-safe stop's) acceleration limit: the cell's a_h
     replans: int  # replans modelled per flight
+    failsafe_frac: float | None = None  # at this fraction of the first plan, the daemon's fail-safe stop
 
     @property
     def t_end(self) -> float:
-        return float(self.plan.t[-1]) + COAST_S
+        extra = 0.0 if self.failsafe_frac is None else 2.0 * self.v_max / max(self.a_max, 1e-3)
+        return float(self.plan.t[-1]) + COAST_S + extra
 
     @property
     def p(self) -> np.ndarray:  # entry state, as `Reference.p[0]`, `Reference.v[0]`
@@ -226,7 +228,10 @@ class OnlineFlight:
     """One flight of an `OnlineReference`: the setpoints sent (its commanded path for the contour
     error, Figure 11, as the on-board estimator sees it) and the replans — from the measured state,
     every REPLAN_S while the disc is still ahead, warm-started from the plan in progress, which a
-    failed replan does not replace."""
+    failed replan does not replace. With `failsafe_frac` the flight ends as the daemon's offboard
+    fail-safe does (issue 19 items 1, 9): at that fraction of the plan, a braking stop from the measured
+    state at the cell's a_h (`contracts.online_planner.best_stop`, straight or swerving ≤ 45°, off the
+    disc), then rest."""
 
     def __init__(self, ref: OnlineReference):
         self.ref = ref
@@ -234,6 +239,8 @@ class OnlineFlight:
         self.left = ref.replans
         self.planner = AvoidancePlanner()  # per flight: the replans do not depend on other flights
         self.adopted = self.kept = 0
+        self.stop: Plan | None = None
+        self.stop_t = 0.0
         self._t: list[float] = []
         self._p: list[np.ndarray] = []
 
@@ -241,6 +248,13 @@ class OnlineFlight:
         ref, d = self.ref, self.ref.disc
         if t < 0.0:
             p, v, a = ref.plan.p[0] + ref.plan.v[0] * t, ref.plan.v[0], np.zeros(2)
+        elif self.stop is None and ref.failsafe_frac is not None and t >= ref.failsafe_frac * float(ref.plan.t[-1]):
+            sp_, sv, sa, sts, _ = best_stop(np.asarray(pos[:2], float), np.asarray(vel[:2], float), ref.a_max, [d])
+            self.stop = Plan("brake", np.arange(len(sp_)) * sts, sp_, sv, sa, True, 0.0)
+            self.stop_t = t
+            p, v, a = self.stop.sample(0.0)
+        elif self.stop is not None:
+            p, v, a = self.stop.sample(t - self.stop_t)  # held at rest after its end
         else:
             if self.left and t - self.plan_t >= REPLAN_S - 1e-9 and pos[0] < d.x + d.r:
                 self.left -= 1

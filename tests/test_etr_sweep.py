@@ -192,3 +192,23 @@ def test_the_default_grid_reaches_each_vehicles_tilt_limit():
     for name in ("mambo", "x500"):
         veh = load_vehicle(name)
         assert math.degrees(es.default_etr_grid(veh).tilt[-1]) == pytest.approx(veh.tilt_max_deg)
+
+
+def test_failsafe_flight_brakes_mid_swerve_from_the_measured_state():
+    """Issue 19 item 9: ``failsafe@ρ`` flies the online plan and, at FAILSAFE_FRAC of it, the daemon's
+    fail-safe braking stop (`best_stop` from the measured state at the cell's a_h), then rests. It is part
+    of the cell's manoeuvre set next to ``online@ρ``."""
+    _, (i, j, k), a_h, _ = _online(6.0, 20.0, 1.0, 0.2)
+    ref = es.online_reference(TABLE, i, j, k, 6.0, a_h, "failsafe")
+    assert ref.name.startswith("failsafe@rho=") and ref.failsafe_frac == es.FAILSAFE_FRAC
+    run = ref.flight()
+    fl = mn.fly(MAMBO, run.setpoint, ref.t_end, 1.0, mn.wind_for_seed(MAMBO, 0), ref.p[0] - ref.v[0] * mn.SETTLE_S,
+                ref.v[0])
+    assert fl.ok and run.stop is not None
+    assert run.stop_t == pytest.approx(es.FAILSAFE_FRAC * ref.plan.t[-1], abs=mn.DT_NAV + 1e-9)
+    kk = int(np.argmin(np.abs(fl.t - run.stop_t)))
+    assert np.allclose(run.stop.p[0], fl.pos[kk, :2], atol=0.05)  # from where the vehicle was measured
+    assert np.hypot(*run.stop.v[-1]) < 1e-6  # it ends at rest
+    assert np.max(np.hypot(*run.stop.a.T)) <= a_h * (1 + 1e-9)  # at the cell's acceleration
+    refs = es.cell_references(TABLE, MAMBO, 6.0, math.radians(20.0), 1.0, (j, k), rhos=(0.2,))
+    assert {r.name.split("@")[0] for r in refs} >= {"online", "failsafe"}

@@ -2,7 +2,7 @@
 
 import pytest
 
-from contracts.online_planner import OFFBOARD_CAP
+from contracts.online_planner import OFFBOARD_CAP, offboard_cap
 from sitl_harness.scenario import load_scenario
 from tests.lockstep import Rig
 
@@ -62,7 +62,9 @@ def test_figure_17_fog_clears_then_thrust_drops():
     table = rig.daemon.table
     at = [table.omega(s["d_od"], s["r_obst"], 0.3, tr, contract="avoid") for tr in (0.8, 1.0)]
     assert at[0].v_max <= at[1].v_max  # never faster with less thrust
-    assert thrust == pytest.approx(OFFBOARD_CAP * at[0].v_max)  # flown: the capped contract at the seen thrust
+    cap = rig.daemon.cycle.sup.cap  # in force: OFFBOARD_CAP, or the cap the table's E_tr_pred was flown at if less
+    assert cap == offboard_cap(table.etr_offboard_cap) <= OFFBOARD_CAP
+    assert thrust == pytest.approx(cap * at[0].v_max)  # flown: the capped contract at the seen thrust
 
 
 def test_figure_18_fog_clears_then_the_expected_obstacle_shrinks():
