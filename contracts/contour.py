@@ -18,13 +18,15 @@ def distance_to_polyline(p, pts) -> float:
     p = np.asarray(p, dtype=float)
     if len(pts) == 1:
         return float(np.linalg.norm(p - pts[0]))
-    a, ab = pts[:-1], np.diff(pts, axis=0)
+    a = pts[:-1]
+    ab = pts[1:] - a
     ap = p - a
     den = np.einsum("ij,ij->i", ab, ab)
-    s = np.divide(np.einsum("ij,ij->i", ap, ab), den, out=np.zeros_like(den), where=den > 0)
-    s = np.clip(s, 0.0, 1.0)
+    # the foot point's fraction along each segment; a zero-length segment (ab = 0, so ap·ab = 0) gives 0
+    s = np.einsum("ij,ij->i", ap, ab) / np.where(den > 0, den, 1.0)
+    np.clip(s, 0.0, 1.0, out=s)
     d = ap - s[:, None] * ab
-    return float(np.sqrt(np.min(np.einsum("ij,ij->i", d, d))))
+    return float(np.sqrt(np.einsum("ij,ij->i", d, d).min()))
 
 
 def contour_errors(positions, times, path_times, path_points, window_s: float) -> np.ndarray:
