@@ -66,6 +66,7 @@ class OffboardController:
     _braking: bool = False
     _seen: tuple | None = None  # (t, the keep-out discs last seen)
     _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
+    _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
 
     def _go(self, t, new, why, acts):
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
@@ -113,6 +114,7 @@ class OffboardController:
         if self.state == "entering":
             if mode == "offboard" and by_daemon:
                 self.guidance.start(p, v)
+                self._done_at = None
                 self._go(t, "flying", "autopilot in offboard", acts)
             else:
                 acts.setpoint = Setpoint(self._hold_here, np.zeros(2), np.zeros(2), self._hold_z, self._hold_yaw,
@@ -129,14 +131,27 @@ class OffboardController:
             if mode != "offboard" or not by_daemon:
                 self._go(t, "stood_down", f"{mode} set by someone else", acts)
                 return acts
+            if self._done_at is not None:
+                return self._finish(t, acts)
             acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs, yaw=yaw)
             if acts.setpoint.mode == "done" and float(np.hypot(*v)) < 0.3:
-                acts.hold = True  # the route is flown: hand over to Hold
-                self._go(t, "done", "route complete", acts)
-                return acts
+                # the route is flown: hold the vehicle where it is for SETTLE_S, then hand over to Hold, so
+                # that the last setpoint is where it rests (PX4's Hold restarts from the last setpoint: handed
+                # over 1.5 m past it, the vehicle flew back there, 1.3 m/s backwards, unseen by its sensors)
+                self._done_at = (t, np.asarray(p, float).copy(), z, yaw)
+                return self._finish(t, acts)
             if acts.setpoint.mode == "brake" and not self._braking:
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
             self._braking = acts.setpoint.mode == "brake"
+        return acts
+
+    def _finish(self, t, acts) -> OffboardActions:
+        """The route's end: a setpoint at rest where the vehicle stopped, then Hold after SETTLE_S."""
+        since, here, z, yaw = self._done_at
+        acts.setpoint = Setpoint(here, np.zeros(2), np.zeros(2), z, yaw, "hold")
+        if t - since >= SETTLE_S:
+            acts.hold = True
+            self._go(t, "done", "route complete", acts)
         return acts
 
     def _brake(self, t, abort: bool, mode: str, by_daemon: bool, v, acts) -> OffboardActions:
