@@ -76,11 +76,9 @@ class ContourWindow:
         self._hi += 1
 
     def _make_room(self, dim: int) -> None:
-        """Move the live part to the front, growing the arrays when it fills more than half of them."""
-        n = self._hi - self._lo
-        if self._p.shape[1] != dim:
-            n = 0  # another dimension: a new path
-        cap = max(64, 2 * n if 2 * n > len(self._t) // 2 else len(self._t))
+        """Copy the live part to the front of arrays twice its size (amortised O(1) per sample)."""
+        n = self._hi - self._lo if self._p.shape[1] == dim else 0  # another dimension: a new path
+        cap = max(64, 2 * n)
         t, q = np.empty(cap), np.empty((cap, dim))
         if n:
             t[:n], q[:n] = self._t[self._lo:self._hi], self._p[self._lo:self._hi]
