@@ -188,7 +188,8 @@ class Cycle:
             v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs, stop=stop, brake_stop=brake_stop, a_stop=a_stop,
             stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3, failsafe=d.state == "holding")
         d.offboard = acts
-        if off.state == "held" and not self.sup.latched:  # a fail-safe Hold is latched (offboard.py)
+        if any(name == "offboard" and f["to"] == "held" for name, f in acts.events):  # on entering it only:
+            # a fail-safe Hold is latched (offboard.py) until someone else's mode change or CG_ENGAGE clears it
             self.sup.latch_hold(d, "fail-safe stop: held until the pilot or CG_ENGAGE decides")
         if not off.streaming and self._was_streaming:
             self.etr.reset()  # our setpoints are no longer the commanded path

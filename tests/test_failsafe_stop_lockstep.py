@@ -74,3 +74,17 @@ def test_a_failsafe_hold_in_offboard_is_latched_until_cg_engage_is_toggled(perso
     rig.run(6.0)
     assert [e for e in rig.log.named("offboard") if e["to"] == "flying" and e["t"] > held[0]["t"]]
     assert float(rig.sim.model.pos[0]) > x_held + 5.0  # the route resumed
+
+
+def test_a_pilot_taking_over_a_latched_hold_is_not_held_again():
+    """After a latched fail-safe Hold the pilot switches to Position: the daemon stands down once. (The latch
+    was re-armed the next cycle while offboard stayed `held`: a false `active → holding` record followed.)"""
+    sc = offboard_scenario(1, x_col=300.0, personality="px4", faults=[{"at_s": 5.0, "sensor_dropout_s": 1.0}])
+    rig = Rig(sc, "px4", config=offboard_config(x_end=80.0))
+    engage_and_fly(rig, 5.5)
+    rig.run(8.0)
+    t_pilot = rig.daemon.clock()
+    rig.command(176, 129, 3, 0)  # DO_SET_MODE PX4 Position (main mode 3), from the ground station
+    rig.run(5.0)
+    after = [(e["from"], e["to"]) for e in rig.log.named("state_change") if e["t"] > t_pilot]
+    assert after == [("holding", "active")], after
