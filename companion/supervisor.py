@@ -125,6 +125,7 @@ class Supervisor:
         self._last_sent_t = -math.inf
         self._last_mode: str | None = None
         self._last_in_air = False
+        self._linked = False  # an autopilot heartbeat has been seen (the first link is "up", not "restored")
         self._last_seq = -1
         self._over_since: float | None = None
         self._suppressed: set[str] = set()  # hold causes stood down from after an override
@@ -253,11 +254,12 @@ class Supervisor:
 
         # failsafes, in order of what can still be done
         if not i.link_ok:
-            self._set_state(d, "failsafe", "autopilot heartbeat lost")
+            self._set_state(d, "failsafe", "autopilot heartbeat lost" if self._linked else "no autopilot heartbeat yet")
             return d
         if self.state == "failsafe":
             self._last_sent = None
-            self._set_state(d, "standby", "link restored")
+            self._set_state(d, "standby", "link restored" if self._linked else "link up")
+        self._linked = True
         flying = i.armed and i.in_air
         if not (i.engaged and flying) or self.mode == "shadow":
             self.limit.reset()

@@ -73,8 +73,18 @@ def main(argv: list[str] | None = None, prog: str = "python -m sitl_harness") ->
     finally:
         for s, h in old.items():
             signal.signal(s, h)
-    print(json.dumps(summary) if args.json else summary)
+    print(json.dumps(summary) if args.json else summary_text(summary))
     return 0
+
+
+def summary_text(s: dict) -> str:
+    """The end-of-run summary for a person (``--json`` gives the same fields for a machine)."""
+    return (f"SITL stopped: {s['sim_time_s']:.1f} s simulated in {s['wall_time_s']:.1f} s wall ({s['ticks']} ticks)\n"
+            f"  collisions: {s['collisions']}\n"
+            f"  tick jitter: mean {s['jitter_ms_mean']:.2f} ms, p99 {s['jitter_ms_p99']:.2f} ms, "
+            f"max {s['jitter_ms_max']:.2f} ms\n"
+            f"  MAVLink in: {s['rx_messages']} messages, {s['rx_bad']} malformed (dropped); "
+            f"{s['forwarded']} forwarded")
 
 
 if __name__ == "__main__":

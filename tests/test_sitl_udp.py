@@ -164,3 +164,25 @@ def test_cli_errors_are_one_line():
                        capture_output=True, text=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "no_such_scenario" in r.stderr
     assert "Traceback" not in r.stderr
+
+
+def test_cli_end_summary_is_written_for_a_person_and_json_for_a_machine():
+    """The SITL's end-of-run summary was printed as a Python dict; now lines a person reads, and `--json` one
+    JSON object with the same figures."""
+    import json
+    import subprocess
+    import sys
+
+    from sitl_process import ROOT
+
+    def run(*extra):
+        return subprocess.run([sys.executable, "-m", "sitl_harness", "--scenario", "empty", "--duration", "1",
+                               "--speedup", "10", "--listen", "udpout:127.0.0.1:9", *extra], cwd=ROOT,
+                              capture_output=True, text=True, timeout=60,
+                              env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    text, js = run(), run("--json")
+    assert text.returncode == 0 and js.returncode == 0, (text.stderr, js.stderr)
+    lines = text.stdout.splitlines()
+    assert lines[0].startswith("SITL stopped: 1.0 s simulated") and "{" not in text.stdout
+    assert "collisions: 0" in text.stdout and "malformed (dropped)" in text.stdout
+    assert json.loads(js.stdout)["ticks"] == 100

@@ -124,6 +124,19 @@ def test_link_loss_is_a_failsafe_without_commands_and_restores():
     assert d.state == "active" and d.send_speed is not None  # limit re-sent after the link comes back
 
 
+def test_before_the_first_heartbeat_the_log_says_not_yet_seen_not_lost():
+    """Started before the autopilot, the daemon said "autopilot heartbeat lost", then "link restored", of a link
+    it never had; a reviewer reads that as a link loss."""
+    def reasons(d):
+        return [f["reason"] for n, f in d.events if n == "state_change"]
+    s = sup()
+    assert reasons(s.step(replace(BASE, link_ok=False))) == ["no autopilot heartbeat yet"]
+    assert reasons(s.step(replace(BASE, t=0.02))) == ["link up", "limit in force"]
+    s.step(replace(BASE, t=0.04, link_ok=False))
+    assert s.state == "failsafe"
+    assert "link restored" in reasons(s.step(replace(BASE, t=0.06)))
+
+
 def test_mode_without_speed_limit_is_reported_once():
     s = sup()
     ds = run(s, BASE, 0.0, 0.1, mode="position", limit_applies=False)
