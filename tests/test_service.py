@@ -104,6 +104,7 @@ def test_unit_has_the_required_settings():
         "StateDirectory": "contract-guard", "LogsDirectory": "contract-guard",
         "ConfigurationDirectory": "contract-guard", "ProtectSystem": "strict", "ProtectHome": "yes",
         "PrivateTmp": "yes", "NoNewPrivileges": "yes", "DevicePolicy": "closed", "NotifyAccess": "main",
+        "Nice": "-10", "CPUWeight": "1000",  # its share of a contended CPU, within and across cgroups
     }
     for k, v in required.items():
         assert svc.get(k) == [v], k
