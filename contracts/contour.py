@@ -7,6 +7,7 @@ sampled trajectories in any dimension. One implementation, shared by the control
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
 from collections import deque
 
 import numpy as np
@@ -64,13 +65,14 @@ class ContourWindow:
     measured positions with `measure(t, p)`; `worst` is the largest error in the window. The path is kept
     in a growing array (times non-decreasing; a sample earlier than the last starts a new plan), so a
     measurement slices it instead of re-stacking every sample (at 50 Hz, per cycle); each segment's
-    direction and |ab|² are computed once, when first measured against (`_segments`), not every cycle.
+    direction and |ab|² are computed once, when first measured against (`_segments`), not every cycle; the
+    times are a list, searched with `bisect` (as `np.searchsorted`, without an array call per search).
     """
 
     def __init__(self, window_s: float = 2.0, path_span_s: float = 2.0):
         self.window_s = window_s
         self.path_span_s = path_span_s
-        self._t = np.empty(0)
+        self._t: list[float] = []
         self._p = np.empty((0, 0))
         self._lo = self._hi = 0  # the live path is [_lo, _hi) of the arrays
         self._ab, self._den = np.empty((0, 0)), np.empty(0)  # segment k: from point k to k + 1
@@ -83,7 +85,7 @@ class ContourWindow:
             self._lo = self._hi = self._seg = 0  # a new plan replaces the old one from here on
         if self._hi == len(self._t) or self._p.shape[1] != p.shape[0]:
             self._make_room(p.shape[0])
-        self._t[self._hi] = t
+        self._t[self._hi] = float(t)
         self._p[self._hi] = p
         self._hi += 1
 
@@ -91,7 +93,7 @@ class ContourWindow:
         """Copy the live part to the front of arrays twice its size (amortised O(1) per sample)."""
         n = self._hi - self._lo if self._p.shape[1] == dim else 0  # another dimension: a new path
         cap = max(64, 2 * n)
-        t, q, ab, den = np.empty(cap), np.empty((cap, dim)), np.empty((cap, dim)), np.empty(cap)
+        t, q, ab, den = [0.0] * cap, np.empty((cap, dim)), np.empty((cap, dim)), np.empty(cap)
         seg = max(self._seg - self._lo, 0) if n else 0
         if n:
             t[:n], q[:n] = self._t[self._lo:self._hi], self._p[self._lo:self._hi]
@@ -113,9 +115,9 @@ class ContourWindow:
         if hi == lo:
             return None
         # drop the leading samples while the next one is older than the span (one sample stays)
-        lo += int(np.searchsorted(self._t[lo + 1:hi], t - self.path_span_s, side="left"))
+        lo = bisect_left(self._t, t - self.path_span_s, lo + 1, hi) - 1
         self._lo = lo
-        n = int(np.searchsorted(self._t[lo:hi], t + self.path_span_s, side="right"))
+        n = bisect_right(self._t, t + self.path_span_s, lo, hi) - lo
         if n <= 1:
             e = float(np.linalg.norm(np.asarray(p, dtype=float) - self._p[lo]))
         else:
