@@ -10,7 +10,10 @@ Message → op, fields and units from ArduPilot's log message documentation
 | ATT                | Roll, Pitch, Yaw [deg]                                   | att     |
 | PSCN + PSCE        | TPN, TPE: target position [m NED from the EKF origin]    | target  |
 | CTUN               | ThO: throttle output [0–1] (what VFR_HUD.throttle carries) | thr   |
-| MODE               | ModeNum / Mode: the Copter mode number (= HEARTBEAT custom_mode) | mode |
+| QTUN (a quadplane) | ThO: the VTOL motors' throttle, motors->get_throttle() [0–1] (ArduPlane's CTUN.ThO is the forward motor's) | thr |
+| MODE               | ModeNum / Mode: the Copter mode number (= HEARTBEAT custom_mode); a quadplane's ArduPlane number, translated (`PLANE_AS_COPTER`) | mode |
+| QTUN               | its presence: logged at 25 Hz while a quadplane's VTOL motors are active (QuadPlane::update) | fixed-wing phases |
+| VER                | FWS: the firmware string ("ArduPlane V4.5.7 …"), as the boot MSG | — |
 | ARM                | ArmState                                                 | mode (armed flag) |
 | EV                 | Id 18 LAND_COMPLETE, 28 NOT_LANDED, 10 ARMED, 11 DISARMED | landed |
 | XKF4 (core 0)      | SS: nav_filter_status bits (= EKF_STATUS_REPORT.flags)   | nav     |
@@ -19,6 +22,9 @@ Message → op, fields and units from ArduPilot's log message documentation
 | GUIP (ArduCopter Log.cpp) | pX, pY: GUIDED position target, NEU from the EKF origin; cm in Copter 4.x (FMTU multiplier B), m where FMTU says so | target (when no PSCN/PSCE) |
 | GPS                | Status (3: 3D fix), GWk, GMS: GPS week and ms → the log's UTC (wall0) | —     |
 | PARM               | Name, Value (ANGLE_MAX cdeg, WPNAV_ACCEL cm/s², WPNAV_JERK, …) | param |
+
+A quadplane (ArduPlane with Q_ENABLE ≥ 1) is judged only where it flies as a multirotor: its fixed-wing
+phases are cut out of the ops (`plane_fixed_wing_spans`, `loginput.exclude`) and said once, as for a PX4 VTOL.
 
 A file DFReader cannot read (empty, another format) ends in one `ContractError` line; DFReader skips a
 corrupt stretch by searching for the next message header, and stops at a torn last message (both said).
@@ -41,17 +47,33 @@ import numpy as np
 
 from contracts.errors import ContractError
 
-from .loginput import Feed, lacking, order, read_head
+from .loginput import Feed, exclude, lacking, order, read_head
 
 HEAD = b"\xa3\x95"
 TYPES = ["XKF1", "NKF1", "ATT", "PSCN", "PSCE", "CTUN", "MODE", "ARM", "EV", "XKF4", "NKF4", "RFND", "PRX", "GUIP",
-         "PARM", "MSG", "GPS"]
+         "PARM", "MSG", "GPS", "VER", "QTUN"]
 GPS_EPOCH_UNIX_S, GPS_LEAP_S, GPS_FIX_3D = 315_964_800, 18, 3  # 1980-01-06; GPS − UTC since 2017; AP_GPS status
 PARAMS = ("ANGLE_MAX", "WPNAV_ACCEL", "WPNAV_JERK", "WPNAV_SPEED", "GUID_TIMEOUT", "MOT_THST_HOVER", "FRAME_CLASS",
           "Q_ENABLE", "AVOID_ENABLE", "PRX1_TYPE", "PRX1_MAX", "RNGFND1_TYPE", "RNGFND1_MIN_CM", "RNGFND1_MAX_CM")
 EV_LANDED = {18: 1, 28: 2}  # LAND_COMPLETE → on ground, NOT_LANDED → in air (AP_Logger LogEvent)
 RFND_GOOD, RFND_OUT_OF_RANGE_HIGH = 4, 3  # AP_RangeFinder::Status
 MAX_T_US = 1 << 62
+# ArduPlane Mode::Number (ArduPlane/mode.h). The Q-modes fly as a multirotor; AUTO, RTL and GUIDED may fly either
+# way (a VTOL_TAKEOFF/VTOL_LAND mission item, Q_RTL_MODE, Q_GUIDED_MODE), which QTUN tells; the others are
+# fixed-wing modes (an assisted fixed-wing flight, Q_ASSIST, included)
+PLANE_VTOL_MODES = {17, 18, 19, 20, 21, 22, 23}  # QSTABILIZE QHOVER QLOITER QLAND QRTL QAUTOTUNE QACRO
+PLANE_EITHER_MODES = {10, 11, 15}  # AUTO RTL GUIDED
+PLANE_UNSET_MODES = {16}  # INITIALISING: not flying yet
+# a quadplane's mode as the ArduCopter mode of the same behaviour (the adapter's numbering); any other: not a
+# Copter mode ("other")
+PLANE_AS_COPTER = {17: 0, 18: 2, 19: 5, 20: 9, 21: 6, 22: 15, 23: 1, 10: 3, 11: 6, 15: 4}
+PLANE_OTHER = 1000
+QTUN_GAP_US = 500_000  # QTUN at 25 Hz while the VTOL motors are active or were within 0.25 s: a longer gap, not active
+QTUN_PERIOD_US = 40_000
+# a quadplane's VTOL parameters (QuadPlane var_info: Q_ANGLE_MAX; the groups Q_WP_ of AC_WPNav and Q_M_ of the
+# motors) → the ArduCopter names the daemon's start-up checks read (the log's own names stay in `params`)
+QUADPLANE_PARAMS = {"Q_ANGLE_MAX": "ANGLE_MAX", "Q_WP_ACCEL": "WPNAV_ACCEL", "Q_WP_JERK": "WPNAV_JERK",
+                    "Q_WP_SPEED": "WPNAV_SPEED", "Q_M_THST_HOVER": "MOT_THST_HOVER"}
 PRX_SECTORS = ("D0", "D45", "D90", "D135", "D180", "D225", "D270", "D315")
 # DataFlash format characters → numpy (LogStructure.h; DFReader's FORMAT_TO_STRUCT gives the multipliers)
 NP_TYPES = {"a": ("<i2", (32,)), "b": "i1", "B": "u1", "g": "<f2", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4",
@@ -141,6 +163,59 @@ def _text(v) -> str:
     return (v if isinstance(v, str) else bytes(v).split(b"\0")[0].decode(errors="replace")).strip()
 
 
+def _spans(times, gap_us: int, tail_us: int) -> list[tuple[int, int]]:
+    """[first, last + tail) of each run of `times` (sorted µs) with no gap longer than `gap_us`."""
+    out: list[tuple[int, int]] = []
+    for t in times:
+        if out and t - (out[-1][1] - tail_us) <= gap_us:
+            out[-1] = (out[-1][0], t + tail_us)
+        else:
+            out.append((t, t + tail_us))
+    return out
+
+
+def _minus(spans, holes) -> list[tuple[int, int]]:
+    """`spans` less `holes` (both [t0, t1) lists, `holes` sorted and disjoint)."""
+    out = []
+    for a, b in spans:
+        for h0, h1 in holes:
+            if h1 <= a or h0 >= b:
+                continue
+            if h0 > a:
+                out.append((a, h0))
+            a = max(a, h1)
+            if a >= b:
+                break
+        if a < b:
+            out.append((a, b))
+    return out
+
+
+def plane_fixed_wing_spans(modes, armed, qtun, t_end: int) -> list[tuple[int, int]]:
+    """[t0, t1) µs spans in which a quadplane flew as a fixed wing: armed, in a fixed-wing mode, or in AUTO/RTL/
+    GUIDED with its VTOL motors inactive (no QTUN). `modes`: (t, ArduPlane mode number) in time order; `armed`:
+    (t, armed) in time order, empty when the log has no ARM (then armed throughout); `qtun`: QTUN times. Before
+    the first MODE the mode is unknown: kept. Pure."""
+    active = _spans(sorted(qtun), QTUN_GAP_US, QTUN_PERIOD_US)
+    fw = []
+    for k, (t, m) in enumerate(modes):
+        end = modes[k + 1][0] if k + 1 < len(modes) else t_end
+        if end <= t or m in PLANE_VTOL_MODES or m in PLANE_UNSET_MODES:
+            continue
+        fw += _minus([(t, end)], active) if m in PLANE_EITHER_MODES else [(t, end)]
+    if armed:  # disarmed: not flying either way (kept: the daemon sees it on the ground)
+        marks = [(0, not armed[0][1]), *armed]  # before the first ARM: the state it changed from
+        disarmed = [(t, marks[k + 1][0] if k + 1 < len(marks) else t_end) for k, (t, on) in enumerate(marks) if not on]
+        fw = _minus(fw, [s for s in disarmed if s[1] > s[0]])
+    merged: list[tuple[int, int]] = []
+    for a, b in sorted(fw):
+        if merged and a <= merged[-1][1]:
+            merged[-1] = (merged[-1][0], max(b, merged[-1][1]))
+        elif b > a:
+            merged.append((a, b))
+    return merged
+
+
 def read_dataflash(path) -> Feed:
     path = Path(path)
     if not path.exists():
@@ -170,13 +245,26 @@ def read_dataflash(path) -> Feed:
     except Exception as err:  # noqa: BLE001 — a format DFReader accepted but numpy cannot lay out: what was read stands
         stopped = f"{type(err).__name__}: {str(err)[:80]}"
     # parameters first: RFND needs RNGFND1_MIN/MAX_CM, PRX its PRX1_MAX
+    parms = []
     if (d := col.get("PARM")):
         for t, name, value in zip(d["TimeUS"].tolist(), d["Name"].tolist(), d["Value"].tolist()):
             name = _text(name)
-            if name in PARAMS:
+            if name in PARAMS or name in QUADPLANE_PARAMS:
                 params[name] = float(value)
-                add([max(int(t), 1)], "param", [(name, float(value))], "PARM")
-    texts = [_text(m) for m in (col.get("MSG") or {}).get("Message", [])[:20]]
+                parms.append((max(int(t), 1), name, float(value)))
+    texts = [_text(m) for m in (col.get("VER") or {}).get("FWS", [])[:1]]
+    texts += [_text(m) for m in (col.get("MSG") or {}).get("Message", [])[:20]]
+    fw = next((x for x in texts if x.startswith(("ArduCopter", "ArduPlane", "ArduRover", "APM:"))), None)
+    plane = fw is not None and "Plane" in fw
+    if plane and params.get("Q_ENABLE", 0) < 1:
+        raise ContractError(f"{path}: a fixed-wing log ({fw}): the contract is for multirotors; not reviewed")
+    for t, name, value in parms:  # a quadplane's VTOL parameters stand for the Copter ones the daemon checks
+        if plane:
+            name = QUADPLANE_PARAMS.get(name, None if name in QUADPLANE_PARAMS.values() else name)
+        elif name in QUADPLANE_PARAMS:
+            name = None
+        if name is not None:
+            add([t], "param", [(name, value)], "PARM")
     ekf = "XKF1" if col.get("XKF1") else "NKF1"
     have_att = bool(col.get("ATT"))
     if (d := col.get(ekf)):
@@ -207,7 +295,9 @@ def read_dataflash(path) -> Feed:
         scale = 1.0 if len(units) > 2 and units[fmt.colhash["pX"]] == "m" else 0.01  # Copter 4.x: cm (FMTU "B")
         add(d["TimeUS"], "target", list(zip((d["pX"] * scale).tolist(), (d["pY"] * scale).tolist())),
             "GUIP (GUIDED target)")
-    if (d := col.get("CTUN")):
+    if plane and (d := col.get("QTUN")) and "ThO" in d:  # a quadplane's lift motors (its CTUN.ThO: the forward motor)
+        add(d["TimeUS"], "thr", [(v,) for v in d["ThO"].astype(float).tolist()], "QTUN")
+    elif not plane and (d := col.get("CTUN")):
         add(d["TimeUS"], "thr", [(v,) for v in d["ThO"].astype(float).tolist()], "CTUN")
     # MODE and ARM together make HEARTBEAT's (base_mode, custom_mode): in time order, with the state between
     events = []
@@ -218,6 +308,8 @@ def read_dataflash(path) -> Feed:
         events += [(t, 1, int(v)) for t, v in zip(d["TimeUS"].tolist(), d["ArmState"].tolist())]
     custom, armed = 0, False
     for t, which, v in sorted(events):
+        if which == 0 and plane:  # a quadplane's mode, in the Copter numbering the adapter reads
+            v = PLANE_AS_COPTER.get(v, PLANE_OTHER + v)
         custom, armed = (v, armed) if which == 0 else (custom, bool(v))
         add([t], "mode", [(1 | (128 if armed else 0), custom)], "MODE")
     if (d := col.get("EV")):
@@ -268,12 +360,22 @@ def read_dataflash(path) -> Feed:
     if not any(op == "pos" for _, op, _ in ops):
         raise ContractError(f"{path}: no usable telemetry: the DataFlash log has no XKF1/NKF1 (EKF position) "
                             f"(messages: {', '.join(sorted(df.name_to_id)) or 'none'})")
+    cuts, fixed_wing_s = [], None
+    if plane and (d := col.get("MODE")):  # a quadplane's fixed-wing phases: not the multirotor contract's
+        nums = d["ModeNum"] if "ModeNum" in d else d["Mode"]
+        arm = col.get("ARM") or {}
+        spans = plane_fixed_wing_spans(
+            list(zip(d["TimeUS"].tolist(), nums.astype(int).tolist())),
+            list(zip(arm.get("TimeUS", np.zeros(0)).tolist(), (arm.get("ArmState", np.zeros(0)) > 0).tolist())),
+            (col.get("QTUN") or {}).get("TimeUS", np.zeros(0, np.int64)).tolist(), max(t for t, _, _ in ops) + 1)
+        ops, cuts = exclude(ops, spans)
+        fixed_wing_s = sum(c["cut_s"] for c in cuts)
+        if not any(op == "pos" for _, op, _ in ops):
+            raise ContractError(f"{path}: a quadplane log ({fw}) that flew as a fixed wing throughout "
+                                f"({fixed_wing_s:.0f} s): nothing for the multirotor contract to judge; not reviewed")
     ops, jumps = order(ops)
-    fw = next((x for x in texts if x.startswith(("ArduCopter", "ArduPlane", "ArduRover", "APM:"))), None)
-    plane = fw is not None and "Plane" in fw
-    if plane and params.get("Q_ENABLE", 0) < 1:
-        raise ContractError(f"{path}: a fixed-wing log ({fw}): the contract is for multirotors; not reviewed")
-    missing = lacking(used, {"obstacle sensing": "RFND, PRX", "commanded path": "PSCN/PSCE, GUIP", "thrust": "CTUN",
+    missing = lacking(used, {"obstacle sensing": "RFND, PRX", "commanded path": "PSCN/PSCE, GUIP",
+                             "thrust": "QTUN" if plane else "CTUN",
                              "navigation health": "XKF4", "modes and arming": "MODE, ARM",
                              "landed state": "EV LAND_COMPLETE / NOT_LANDED"})
     damaged = []
@@ -294,7 +396,9 @@ def read_dataflash(path) -> Feed:
         "vehicle": {"hardware": next((x for x in texts if x.startswith(("CubeOrange", "Pixhawk", "fmuv", "ChibiOS"))), None),
                     "airframe": "VTOL quadplane" if plane else
                     (f"copter, FRAME_CLASS {int(params['FRAME_CLASS'])}" if "FRAME_CLASS" in params else "copter"),
-                    "mav_type": None, "sys_autostart": None, "vtol": plane, "fixed_wing_s": 0.0},
+                    "mav_type": None, "sys_autostart": None, "vtol": plane,
+                    "fixed_wing_s": fixed_wing_s if plane else 0.0, "fixed_wing_cut": cuts,
+                    "fixed_wing_from": "MODE, ARM and QTUN messages" if plane and fixed_wing_s is not None else None},
         "firmware": {"name": fw or "ArduPilot (no version message in the log)", "release": None, "git": None,
                      "branch": None, "os": None},
         "span_s": span,

@@ -25,7 +25,7 @@ from .replay import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle
 from .review import Origin, fmt_value
 
 AUTOPILOT_IDS = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT
-TILT_PARAMS = {"MPC_TILTMAX_AIR": 1.0, "ANGLE_MAX": 0.01}  # → degrees (ArduPilot: centidegrees)
+TILT_PARAMS = {"MPC_TILTMAX_AIR": 1.0, "ANGLE_MAX": 0.01, "Q_ANGLE_MAX": 0.01}  # → degrees (ArduPilot: centidegrees)
 
 
 def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, source: str) -> dict:
@@ -89,6 +89,12 @@ class FlightLog(Origin):
             out.append(f"a VTOL ({veh['airframe']}): {sum(c['cut_s'] for c in cuts):.0f} s of fixed-wing flight in "
                        f"{len(cuts)} phase(s) (first at t = {cuts[0]['t']:.1f} s) excluded: this multirotor contract "
                        "does not apply there; the rest of the flight is judged")
+        elif veh.get("vtol") and veh.get("fixed_wing_s") is None:
+            out.append(f"a VTOL ({veh['airframe']}): the log does not say when it flew as a fixed wing (no MODE "
+                       "messages), where this multirotor contract does not apply: findings there are not told apart")
+        elif veh.get("vtol") and veh.get("fixed_wing_s") == 0 and veh.get("fixed_wing_from"):
+            out.append(f"a VTOL ({veh['airframe']}): no fixed-wing phase in its {veh['fixed_wing_from']}; all of it "
+                       "is judged as a multirotor")
         elif veh.get("vtol"):
             out.append(f"a VTOL ({veh['airframe']}): {veh['fixed_wing_s']:.0f} s in fixed-wing flight, where this "
                        "multirotor contract does not apply (the log does not say when, so findings there are not "

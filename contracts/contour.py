@@ -7,6 +7,7 @@ sampled trajectories in any dimension. One implementation, shared by the control
 
 from __future__ import annotations
 
+from bisect import bisect_left, bisect_right
 from collections import deque
 
 import numpy as np
@@ -18,12 +19,21 @@ def distance_to_polyline(p, pts) -> float:
     p = np.asarray(p, dtype=float)
     if len(pts) == 1:
         return float(np.linalg.norm(p - pts[0]))
-    a = pts[:-1]
-    ab = pts[1:] - a
-    ap = p - a
+    ab = pts[1:] - pts[:-1]
+    return distance_to_segments(p, pts[:-1], ab, segment_norms(ab))
+
+
+def segment_norms(ab: np.ndarray) -> np.ndarray:
+    """|ab|² of each segment, 1 for a zero-length one (its foot-point fraction ap·ab / 1 is then 0)."""
     den = np.einsum("ij,ij->i", ab, ab)
-    # the foot point's fraction along each segment; a zero-length segment (ab = 0, so ap·ab = 0) gives 0
-    s = np.einsum("ij,ij->i", ap, ab) / np.where(den > 0, den, 1.0)
+    return np.where(den > 0, den, 1.0)
+
+
+def distance_to_segments(p: np.ndarray, a: np.ndarray, ab: np.ndarray, den: np.ndarray) -> float:
+    """Shortest distance from `p` (d,) to the segments from `a` (m, d) along `ab` (m, d), m ≥ 1, whose
+    `segment_norms` are `den`: the foot point's fraction along each, clipped to the segment."""
+    ap = p - a
+    s = np.einsum("ij,ij->i", ap, ab) / den
     np.clip(s, 0.0, 1.0, out=s)
     d = ap - s[:, None] * ab
     return float(np.sqrt(np.einsum("ij,ij->i", d, d).min()))
@@ -54,24 +64,28 @@ class ContourWindow:
     Feed commanded path samples with `command(t, p)` (they may lie ahead of the current time) and
     measured positions with `measure(t, p)`; `worst` is the largest error in the window. The path is kept
     in a growing array (times non-decreasing; a sample earlier than the last starts a new plan), so a
-    measurement slices it instead of re-stacking every sample (at 50 Hz, per cycle).
+    measurement slices it instead of re-stacking every sample (at 50 Hz, per cycle); each segment's
+    direction and |ab|² are computed once, when first measured against (`_segments`), not every cycle; the
+    times are a list, searched with `bisect` (as `np.searchsorted`, without an array call per search).
     """
 
     def __init__(self, window_s: float = 2.0, path_span_s: float = 2.0):
         self.window_s = window_s
         self.path_span_s = path_span_s
-        self._t = np.empty(0)
+        self._t: list[float] = []
         self._p = np.empty((0, 0))
         self._lo = self._hi = 0  # the live path is [_lo, _hi) of the arrays
+        self._ab, self._den = np.empty((0, 0)), np.empty(0)  # segment k: from point k to k + 1
+        self._seg = 0  # segments [_lo, _seg) are computed
         self._errors: deque[tuple[float, float]] = deque()  # decreasing in error (monotonic max queue)
 
     def command(self, t: float, p) -> None:
         p = np.asarray(p, dtype=float)
         if self._hi > self._lo and t < self._t[self._hi - 1]:
-            self._lo = self._hi = 0  # a new plan replaces the old one from here on
+            self._lo = self._hi = self._seg = 0  # a new plan replaces the old one from here on
         if self._hi == len(self._t) or self._p.shape[1] != p.shape[0]:
             self._make_room(p.shape[0])
-        self._t[self._hi] = t
+        self._t[self._hi] = float(t)
         self._p[self._hi] = p
         self._hi += 1
 
@@ -79,10 +93,21 @@ class ContourWindow:
         """Copy the live part to the front of arrays twice its size (amortised O(1) per sample)."""
         n = self._hi - self._lo if self._p.shape[1] == dim else 0  # another dimension: a new path
         cap = max(64, 2 * n)
-        t, q = np.empty(cap), np.empty((cap, dim))
+        t, q, ab, den = [0.0] * cap, np.empty((cap, dim)), np.empty((cap, dim)), np.empty(cap)
+        seg = max(self._seg - self._lo, 0) if n else 0
         if n:
             t[:n], q[:n] = self._t[self._lo:self._hi], self._p[self._lo:self._hi]
-        self._t, self._p, self._lo, self._hi = t, q, 0, n
+            ab[:seg], den[:seg] = self._ab[self._lo:self._seg], self._den[self._lo:self._seg]
+        self._t, self._p, self._ab, self._den, self._lo, self._hi, self._seg = t, q, ab, den, 0, n, seg
+
+    def _segments(self, end: int) -> None:
+        """Compute the segments up to `end` (exclusive; each needs its next point)."""
+        k = max(self._seg, self._lo)
+        if end > k:
+            ab = self._ab[k:end]
+            np.subtract(self._p[k + 1:end + 1], self._p[k:end], out=ab)
+            self._den[k:end] = segment_norms(ab)
+            self._seg = end
 
     def measure(self, t: float, p) -> float | None:
         """Contour error of position `p` at time `t` (None if no commanded path is known yet)."""
@@ -90,10 +115,15 @@ class ContourWindow:
         if hi == lo:
             return None
         # drop the leading samples while the next one is older than the span (one sample stays)
-        lo += int(np.searchsorted(self._t[lo + 1:hi], t - self.path_span_s, side="left"))
+        lo = bisect_left(self._t, t - self.path_span_s, lo + 1, hi) - 1
         self._lo = lo
-        n = int(np.searchsorted(self._t[lo:hi], t + self.path_span_s, side="right"))
-        e = distance_to_polyline(p, self._p[lo:lo + max(n, 1)])
+        n = bisect_right(self._t, t + self.path_span_s, lo, hi) - lo
+        if n <= 1:
+            e = float(np.linalg.norm(np.asarray(p, dtype=float) - self._p[lo]))
+        else:
+            self._segments(lo + n - 1)
+            e = distance_to_segments(np.asarray(p, dtype=float), self._p[lo:lo + n - 1], self._ab[lo:lo + n - 1],
+                                     self._den[lo:lo + n - 1])
         while self._errors and self._errors[-1][1] <= e:
             self._errors.pop()
         self._errors.append((t, e))
@@ -106,5 +136,5 @@ class ContourWindow:
         return self._errors[0][1] if self._errors else 0.0
 
     def reset(self) -> None:
-        self._lo = self._hi = 0
+        self._lo = self._hi = self._seg = 0
         self._errors.clear()

@@ -55,7 +55,7 @@ def test_window_keeps_a_self_crossing_path_from_hiding_the_error():
 def test_contour_window_tracks_the_worst_over_its_window():
     w = ContourWindow(window_s=1.0, path_span_s=2.0)
     assert w.measure(0.0, [0.0, 0.0]) is None
-    for k in range(0, 60):
+    for k in range(60):
         t = 0.1 * k
         w.command(t, [t, 0.0])
     w.measure(1.0, [1.0, 0.5])
@@ -68,19 +68,46 @@ def test_contour_window_tracks_the_worst_over_its_window():
     assert w.worst == 0.0
 
 
+def _first_distance(p, pts) -> float:
+    """distance_to_polyline as first written (one function, nothing cached): the reference of the tests below."""
+    pts, p = np.asarray(pts, dtype=float), np.asarray(p, dtype=float)
+    if len(pts) == 1:
+        return float(np.linalg.norm(p - pts[0]))
+    a = pts[:-1]
+    ab = pts[1:] - a
+    ap = p - a
+    den = np.einsum("ij,ij->i", ab, ab)
+    s = np.clip(np.einsum("ij,ij->i", ap, ab) / np.where(den > 0, den, 1.0), 0.0, 1.0)
+    d = ap - s[:, None] * ab
+    return float(np.sqrt(np.einsum("ij,ij->i", d, d).min()))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_distance_to_polyline_is_bit_identical_to_the_first_one(dim):
+    rng = np.random.default_rng(dim)
+    for n in (1, 2, 3, 17, 200):
+        for _ in range(50):
+            pts = rng.normal(size=(n, dim)) * rng.choice([1e-3, 1.0, 1e3])
+            if n > 2:
+                pts[n // 2] = pts[n // 2 - 1]  # a zero-length segment
+            p = rng.normal(size=dim)
+            assert distance_to_polyline(p, pts) == _first_distance(p, pts)
+
+
 def test_the_window_gives_the_errors_of_a_plain_restacking_of_its_path():
-    """The sliding path is sliced from one array; a reference that re-stacks the kept samples at every
-    measurement (the window's first implementation) gives bit-identical errors, across new plans."""
+    """The sliding path is sliced from one array and its segments computed once; a reference that re-stacks
+    the kept samples at every measurement (the window's first implementation) gives bit-identical errors,
+    across new plans, repeated path points and the arrays' growth."""
     from collections import deque
 
     rng = np.random.default_rng(3)
     w, path, span = ContourWindow(window_s=2.0, path_span_s=2.0), deque(), 2.0
     t = 0.0
-    for _ in range(4000):
+    for _ in range(6000):
         t += 0.02
         if rng.random() < 0.7:
             tc = t + (rng.uniform(-0.5, 1.5) if rng.random() < 0.05 else 0.5)
-            q = rng.normal(size=2)
+            q = path[-1][1] if path and rng.random() < 0.1 else rng.normal(size=2)  # now and then: the same point
             if path and tc < path[-1][0]:
                 path.clear()
             path.append((tc, q))
@@ -89,5 +116,5 @@ def test_the_window_gives_the_errors_of_a_plain_restacking_of_its_path():
         while len(path) > 1 and path[1][0] < t - span:
             path.popleft()
         kept = [q for s, q in path if s <= t + span] or ([path[0][1]] if path else [])
-        want = distance_to_polyline(p, np.array(kept)) if kept else None
+        want = _first_distance(p, np.array(kept)) if kept else None
         assert w.measure(t, p) == want

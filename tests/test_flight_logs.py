@@ -240,9 +240,10 @@ def test_unreadable_dataflash_is_one_line(tmp_path):
     plane = write_bin(tmp_path / "plane.bin", dur=2.0, version="ArduPlane V4.5.7 (abc1234)")
     with pytest.raises(ContractError, match="fixed-wing log.*not reviewed"):
         review(plane)
+    # a quadplane in ArduPlane's mode 3 (TRAINING) throughout: a fixed wing all along, nothing to judge
     quadplane = write_bin(tmp_path / "quadplane.bin", dur=2.0, version="ArduPlane V4.5.7 (abc1234)", q_enable=1)
-    rep, _, _ = review(quadplane)
-    assert any("multirotor contract does not apply" in f for f in rep["findings"])
+    with pytest.raises(ContractError, match="quadplane log.*flew as a fixed wing throughout.*not reviewed"):
+        review(quadplane)
     r = cli("review", tmp_path / "ulog.bin", "--vehicle", "x500")
     assert r.returncode == 2 and "Traceback" not in r.stderr and "looks like a PX4 ULog" in r.stderr
 
@@ -309,3 +310,105 @@ def test_html_report_renders_in_headless_chromium(tmp_path):
     # the embedded plot: matplotlib's blue and orange lines are drawn, far down the page (not a broken image)
     blue = (abs(flight[..., 0] - 0.12) < 0.08) & (abs(flight[..., 1] - 0.47) < 0.08) & (abs(flight[..., 2] - 0.71) < 0.08)
     assert blue.sum() > 200 and np.nonzero(blue)[0].max() > 400
+
+
+# ------------------------------------------------------------------ ArduPlane quadplanes
+
+QTUN = ("Qffff", "TimeUS,ThI,ABst,ThO,ThH")  # a subset of ArduPlane's QTUN (Log.cpp): the VTOL motors' throttle
+# (ArduPlane mode, speed [m/s], QTUN logged: the VTOL motors active) for 10 s each
+QUADPLANE_PHASES = ((19, 0.5, True), (5, 18.0, False), (5, 18.0, False), (10, 1.0, True), (10, 18.0, False),
+                    (10, 18.0, False), (20, 0.5, True))
+
+
+def write_quadplane_bin(path, phases=QUADPLANE_PHASES, *, modes=True, phase_s=10.0):
+    """A quadplane (ArduPlane, Q_ENABLE 1) flying along +x through `phases`: QLOITER, FBWA, AUTO with its VTOL
+    motors (QTUN logged), AUTO as a fixed wing (no QTUN), QLAND; a forward rangefinder seeing nothing in 12 m."""
+    from sitl_harness.flightlog import MESSAGES
+
+    with DataFlashWriter(path, {**MESSAGES, "QTUN": QTUN}) as w:
+        w.write("MSG", 500, "ArduPlane V4.5.7 (abc1234)")
+        for n, v in {"Q_ENABLE": 1, "Q_ANGLE_MAX": 4500, "Q_WP_ACCEL": 300, "Q_WP_JERK": 4, "RNGFND1_MAX_CM": 1200,
+                     "RNGFND1_MIN_CM": 20}.items():
+            w.write("PARM", 1000, n, float(v))
+        w.write("ARM", 2000, 1, 0, 0)
+        w.write("EV", 4000, 28)
+        t, x, last = 0.01, 0.0, None
+        while t < phase_s * len(phases):
+            mode, v, vtol = phases[int(t // phase_s)]
+            us = int(t * 1e6)
+            if modes and mode != last:
+                w.write("MODE", us, mode, mode, 0)
+                last = mode
+            x += v * 0.02
+            w.write("XKF1", us, 0, 0.0, 0.0, 0.0, v, 0.0, 0.0, 0.0, x, 0.0, -20.0)
+            w.write("XKF4", us, 0, 1 | 2 | 4 | 8 | 16 | 32)
+            w.write("ATT", us, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+            w.write("RFND", us, 0, 12.0, 4, 0)
+            if vtol and round(t / 0.02) % 2 == 0 and t % phase_s < phase_s - 0.1:  # 25 Hz; stops just before
+                w.write("QTUN", us, 0.45, 1.0, 0.45, 0.45)
+            t += 0.02
+    return path
+
+
+def test_a_quadplanes_fixed_wing_phases_are_cut_and_said_once(tmp_path):
+    """FBWA, and AUTO with the VTOL motors idle (no QTUN), are fixed-wing flight at 18 m/s: cut out, said once;
+    the multirotor phases (QLOITER, AUTO on its VTOL motors, QLAND) are judged, with their modes' names.
+    Before the quadplane's phases were told apart, the 18 m/s was a multirotor far above its limit."""
+    rep, _, text = review(write_quadplane_bin(tmp_path / "quadplane.bin"))
+    veh = rep["flight_log"]["vehicle"]
+    assert veh["vtol"] and veh["airframe"] == "VTOL quadplane"
+    assert [round(c["cut_s"]) for c in veh["fixed_wing_cut"]] == [20, 20]
+    said = [f for f in rep["findings"] if "fixed-wing" in f]
+    assert len(said) == 1 and "40 s of fixed-wing flight in 2 phase(s)" in said[0], rep["findings"]
+    assert text.count("fixed-wing flight in 2 phase(s)") == 1
+    assert rep["span"]["duration_s"] == pytest.approx(30.0, abs=0.5)
+    assert rep["ranges"]["ground_speed"]["max"] == pytest.approx(1.0)
+    assert rep["outside_contract"]["flown_above_v_safe_s"] == 0 and not rep["over_limit"]["worst_beyond_allowed"]
+    assert [m["to"] for m in rep["mode_changes"]] == ["position", "mission", "land"]  # QLOITER, AUTO, QLAND
+    assert rep["flight_log"]["sources"]["thr"] == "QTUN"  # the lift motors' throttle, not CTUN's forward motor
+    # its VTOL parameters are the multirotor's: checked at start-up as ANGLE_MAX, WPNAV_* (ArduPlane has no
+    # GUID_TIMEOUT: that check fails, as it should), the tilt limit a finding in its own name
+    checks = [f for f in rep["findings"] if "start-up check" in f]
+    assert len(checks) == 1 and "GUID_TIMEOUT" in checks[0], checks
+    assert any("Q_ANGLE_MAX = 45°" in f for f in rep["findings"])
+
+
+def test_plane_fixed_wing_spans():
+    from companion.dataflash import plane_fixed_wing_spans
+
+    s = 1_000_000
+    modes = [(1 * s, 19), (10 * s, 5), (20 * s, 10), (40 * s, 20)]
+    qtun = list(range(20 * s, 30 * s, 40_000))  # AUTO on its VTOL motors for 10 s, then as a fixed wing
+    assert plane_fixed_wing_spans(modes, [], qtun, 50 * s) == [(10 * s, 20 * s), (30 * s, 40 * s)]
+    # disarmed (before arming at 15 s, after disarming at 35 s): not flying, so not cut
+    armed = [(15 * s, True), (35 * s, False)]
+    assert plane_fixed_wing_spans(modes, armed, qtun, 50 * s) == [(15 * s, 20 * s), (30 * s, 35 * s)]
+    assert plane_fixed_wing_spans([], [], [], 50 * s) == []  # no MODE: nothing known, nothing cut
+    assert plane_fixed_wing_spans([(0, 16), (s, 18)], [], [], 2 * s) == []  # INITIALISING, QHOVER
+
+
+def test_a_quadplane_without_modes_or_flying_fixed_wing_throughout(tmp_path):
+    rep, _, _ = review(write_quadplane_bin(tmp_path / "nomodes.bin", modes=False))
+    assert sum("does not say when it flew as a fixed wing" in f for f in rep["findings"]) == 1
+    rep, _, _ = review(write_quadplane_bin(tmp_path / "hover.bin", ((19, 0.5, True),)))
+    assert sum("no fixed-wing phase in its MODE, ARM and QTUN messages" in f for f in rep["findings"]) == 1
+    with pytest.raises(ContractError, match="flew as a fixed wing throughout.*not reviewed"):
+        review(write_quadplane_bin(tmp_path / "cruise.bin", ((5, 18.0, False),)))
+    r = cli("review", tmp_path / "cruise.bin", "--vehicle", "x500")
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "fixed wing throughout" in r.stderr
+
+
+SHARED_BINS = sorted((SHARED.parent).glob("**/*.bin")) if SHARED.parent.is_dir() else []
+
+
+@pytest.mark.skipif(not SHARED_BINS, reason=f"no ArduPilot DataFlash logs in {SHARED.parent} (a quadplane's would "
+                    "be reviewed here)")
+@pytest.mark.parametrize("path", SHARED_BINS, ids=lambda p: p.name)
+def test_the_shared_dataflash_logs(path):
+    try:
+        rep, _, _ = review(path)
+    except ContractError as err:  # a fixed wing, or nothing to judge: one line
+        assert "\n" not in str(err)
+        return
+    if rep["flight_log"]["vehicle"]["vtol"]:
+        assert sum("fixed-wing" in f or "fixed wing" in f for f in rep["findings"]) == 1
