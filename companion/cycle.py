@@ -14,7 +14,7 @@ import math
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
 from contracts.online_planner import offboard_cap
-from contracts.stop import braking_decel
+from contracts.stop import braking_decel, stop_jerk
 from contracts.table import ContractTable
 
 from .config import Config
@@ -186,7 +186,8 @@ class Cycle:
             t, engaged=i.engaged and startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
             mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,
             v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs, stop=stop, brake_stop=brake_stop, a_stop=a_stop,
-            stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3, failsafe=d.state == "holding")
+            stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3, failsafe=d.state == "holding",
+            track_jerk=stop_jerk(veh))
         d.offboard = acts
         if any(name == "offboard" and f["to"] == "held" for name, f in acts.events):  # on entering it only:
             # a fail-safe Hold is latched (offboard.py) until someone else's mode change or CG_ENGAGE clears it

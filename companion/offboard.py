@@ -6,9 +6,10 @@
         flying ──mode changed by someone else──▶ stood_down (stop streaming; never re-enter by itself)
         flying ──route flown──▶ done (Hold)        done / stood_down ──disengaged──▶ off
         flying ──fail-safe the daemon can fly out itself (no safe speed, limit not in force)──▶ braking
-        braking (stream the best stop at the tilt's full deceleration from the measured state: straight,
-                 or a braking swerve off the keep-out discs last seen when straight would enter one)
-                ──at rest──▶ held (Hold)         braking ──mode changed by someone else──▶ stood_down
+        braking (stream the best stop at the tilt's full deceleration from the measured state, its
+                 acceleration turned from the last setpoint's at the attitude-rate limit: straight, or a
+                 braking swerve off the keep-out discs last seen when straight would enter one)
+                ──at rest at its end point──▶ held (Hold)         braking ──mode changed by someone else──▶ stood_down
         entering / flying ──a fail-safe Hold (the supervisor holds)──▶ held (ask for Hold, stop streaming)
         entering / flying ──stop asked otherwise (not engaged, Ctrl-C)──▶ off
         held ──CG_ENGAGE off and on (`Cycle.engage_requested`)──▶ off
@@ -33,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.online_planner import Plan, best_stop
-from contracts.stop import braking_distance
+from contracts.stop import stop_path_budget
 
 from .guidance import OffboardGuidance, Setpoint
 
@@ -44,6 +45,12 @@ SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop whe
 # a vehicle that overran the stop is still accelerating back at ~g·tan(tilt) as its speed crosses zero, and
 # ArduPilot's Brake (AC_PosControl::init_xy_controller: the current lean angles) carries that acceleration on
 SETTLE_S = 0.5
+# ... and within AT_END_M of the stop's end point (issue 19 item 1: after a hard stop the autopilot's velocity
+# integrator still holds the drag it learnt at speed, ~1.3 m/s² on the Mambo at 5.3 m/s; it holds the vehicle
+# ~0.7 m past the end against the position loop, and Hold, which restarts at the current position, let it push
+# on another 0.45 m into the column; held at the end point, the integrator bleeds off); at most END_WAIT_S
+AT_END_M = 0.2
+END_WAIT_S = 10.0
 
 
 @dataclass
@@ -66,6 +73,7 @@ class OffboardController:
     _braking: bool = False
     _seen: tuple | None = None  # (t, the keep-out discs last seen)
     _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
+    _a_last: np.ndarray | None = None  # the acceleration of the last setpoint streamed while flying
     _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
 
     def _go(self, t, new, why, acts):
@@ -75,16 +83,17 @@ class OffboardController:
     def step(self, t, *, engaged: bool, flying: bool, mode: str, by_daemon: bool, p, v, z, yaw,
              v_max: float, a_max: float, discs, stop: bool, brake_stop: bool = False,
              a_stop: float = 0.0, stop_decel: float = 0.0, jerk: float = math.inf,
-             failsafe: bool = False) -> OffboardActions:
+             failsafe: bool = False, track_jerk: float = math.inf) -> OffboardActions:
         """`brake_stop` (with `stop`): the stop may be flown by the daemon itself, braking at `a_stop`
         (the tilt's horizontal acceleration limit), before it hands over to Hold; never longer than the
-        stop contract's braking (deceleration `stop_decel`, jerk `jerk`). `failsafe` (with `stop`): the
+        stop contract's braking (deceleration `stop_decel`, jerk `jerk`), its acceleration turned from the last
+        setpoint's at `track_jerk`. `failsafe` (with `stop`): the
         stop is a fail-safe Hold, which is latched (`held`)."""
         acts = OffboardActions()
         dt = 0.02 if self._t_last is None else min(max(t - self._t_last, 1e-3), 0.2)
         self._t_last = t
         if self.state == "braking":
-            return self._brake(t, stop and not brake_stop, mode, by_daemon, v, acts)
+            return self._brake(t, stop and not brake_stop, mode, by_daemon, p, v, acts)
         if discs:
             self._seen = (t, list(discs))  # the obstacle is static: remembered if the sensor goes blind
         if stop and self.state == "flying" and brake_stop and a_stop > 0:
@@ -92,13 +101,15 @@ class OffboardController:
             # braking at the tilt's full deceleration (the avoid contract's stop branch); a swerve off the
             # discs may lengthen it to at most 0.9 × the stop contract's braking distance (`stop_decel`, `jerk`: the rest
             # is for the vehicle's lag behind the stop it is given)
-            budget = 0.9 * braking_distance(float(np.hypot(*v)), stop_decel, jerk) if stop_decel > 0 else 0.0
+            budget = stop_path_budget(float(np.hypot(*v)), stop_decel, jerk)
+            # from the acceleration last commanded (what the vehicle is turning to; PX4's Hold restarts from it
+            # too), turned onto the stop at `track_jerk`: a stop the vehicle can track (issue 19 item 1)
             bp, bv, ba, bts, _ = best_stop(np.asarray(p, float), np.asarray(v, float), a_stop, known, 40,
-                                           max_path_m=budget)
+                                           max_path_m=budget, a0=self._a_last, jerk=track_jerk)
             self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
             self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
             self._go(t, "braking", "fail-safe: the daemon brakes to a stop, then Hold", acts)
-            return self._brake(t, False, mode, by_daemon, v, acts)
+            return self._brake(t, False, mode, by_daemon, p, v, acts)
         if stop and self.state in ("entering", "flying"):
             self._go(t, "held" if failsafe else "off", HELD if failsafe else "hold requested", acts)
             return acts
@@ -143,6 +154,7 @@ class OffboardController:
             if acts.setpoint.mode == "brake" and not self._braking:
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
             self._braking = acts.setpoint.mode == "brake"
+            self._a_last = np.asarray(acts.setpoint.a, float)
         return acts
 
     def _finish(self, t, acts) -> OffboardActions:
@@ -154,7 +166,7 @@ class OffboardController:
             self._go(t, "done", "route complete", acts)
         return acts
 
-    def _brake(self, t, abort: bool, mode: str, by_daemon: bool, v, acts) -> OffboardActions:
+    def _brake(self, t, abort: bool, mode: str, by_daemon: bool, p, v, acts) -> OffboardActions:
         """Stream the fail-safe stop; at rest (or well past its end) hand over to Hold (handing over while
         the vehicle still moves lets Hold carry on from its acceleration: measured, 16–18 m for 8 m)."""
         if mode != "offboard" or not by_daemon:
@@ -166,9 +178,10 @@ class OffboardController:
             return acts
         tau = t - self._t_state
         plan = self._stop_plan
-        slow = tau >= plan.t[-1] and float(np.hypot(*v)) < 0.3
+        near = float(np.hypot(*(np.asarray(p, float) - plan.p[-1]))) <= AT_END_M
+        slow = tau >= plan.t[-1] and float(np.hypot(*v)) < 0.3 and near
         self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
-        if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + 3.0:
+        if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
             acts.hold = True
             self._go(t, "held", "stopped: " + HELD, acts)
             return acts

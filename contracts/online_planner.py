@@ -191,38 +191,42 @@ def braking_plan(p0, v0, a_max, n=40) -> tuple[np.ndarray, np.ndarray, np.ndarra
 STOP_SWERVE_DEG = (0.0, 10.0, -10.0, 20.0, -20.0, 30.0, -30.0, 45.0, -45.0)  # best_stop's candidate directions
 
 
-def best_stop(p0, v0, a_max, discs=(), n=40, max_path_m: float = math.inf
+def best_stop(p0, v0, a_max, discs=(), n=40, max_path_m: float = math.inf, a0=None, jerk: float = math.inf
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, float]:
-    """The best stop the geometry allows: full deceleration (|a| = a_max) tilted by θ from straight
-    against the velocity — sideways at a_max·sin θ while the speed along the motion is taken out, then
-    the sideways speed braked. θ = 0 is `braking_plan`; |θ| ≤ 45° never flies faster than the start
-    (the speed is convex in time and ends at s·tan θ ≤ s). In STOP_SWERVE_DEG's order (straight first),
-    the first θ whose dense path keeps out of every disc wins; else the first that keeps out of every
-    disc's never-entered core (`r_min`); else straight braking, which takes out speed fastest. A swerving
-    stop whose path is longer than `max_path_m` is not a candidate (the stop contract's distance). Returns
-    positions, velocities, accelerations, the sampling time and the clearance to the full discs [m]."""
+    """The best stop the geometry allows: deceleration |a| = a_max tilted by θ from straight against the
+    velocity — sideways at a_max·sin θ while the speed along the motion is taken out, then the sideways
+    speed braked. With a finite `jerk` the acceleration starts at `a0` (the vehicle's, measured) and turns
+    and grows at most at `jerk` (a stop the vehicle can track: no step of the tilt), and ramps back to 0 at
+    rest (|a| ≤ √(2·j·speed) per axis). θ = 0 is straight braking; |θ| ≤ 45° never flies faster than the start
+    (the speed is convex in time and ends at s·tan θ ≤ s; a swerve that does, from a0, is not a candidate). In STOP_SWERVE_DEG's order (straight first), the
+    first θ whose dense path keeps out of every disc wins; else the one with the largest clearance (a
+    straight stop that only clears the never-entered core lost to a swerve off it: issue 19 item 1). A
+    swerving stop whose path is longer than `max_path_m` is not a candidate (the stop contract's distance).
+    Returns positions, velocities, accelerations, the sampling time and the clearance to the full discs [m]."""
     p0, v0 = np.asarray(p0, float), np.asarray(v0, float)
+    a0 = np.zeros(2) if a0 is None or not np.all(np.isfinite(a0)) else np.asarray(a0, float)
     s = float(np.hypot(*v0))
     discs = [d for d in discs if all(math.isfinite(x) for x in (d.x, d.y, d.r))]
-    first = core_ok = None
+    best = None
     for deg in (STOP_SWERVE_DEG if discs and s > 0.05 and a_max > 0 else (0.0,)):
-        cand = _tilted_stop(p0, v0, s, a_max, math.radians(deg), n)
+        cand = _tilted_stop(p0, v0, s, a_max, math.radians(deg), n, a0, jerk)
         pts = dense_path(*cand[:4])
-        if deg != 0.0 and float(np.sum(np.hypot(*np.diff(pts, axis=0).T))) > max_path_m:
-            continue
-        gaps = [(float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y))), d) for d in discs]
-        clear = min((g - d.r for g, d in gaps), default=math.inf)
+        if deg != 0.0 and (float(np.sum(np.hypot(*np.diff(pts, axis=0).T))) > max_path_m
+                           or float(np.max(np.hypot(*cand[1].T))) > s * (1.0 + 1e-6)):
+            continue  # too long for the stop contract, or faster than the start
+        clear = min((float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y))) - d.r for d in discs), default=math.inf)
         out = (*cand, clear)
-        if first is None:
-            first = out
         if clear >= 0.0:
             return out
-        if core_ok is None and all(g >= (d.r if d.r_min is None else d.r_min) for g, d in gaps):
-            core_ok = out
-    return core_ok if core_ok is not None else first
+        if best is None or clear > best[-1]:
+            best = out
+    return best
 
 
-def _tilted_stop(p0, v0, s, a_max, th, n):
+def _tilted_stop(p0, v0, s, a_max, th, n, a0=(0.0, 0.0), jerk=math.inf):
+    """One candidate of `best_stop`: n intervals of constant acceleration, ending at rest."""
+    if math.isfinite(jerk) and jerk > 0 and a_max > 0 and s > 0:
+        return _smooth_stop(p0, v0, s, a_max, th, n, np.asarray(a0, float), jerk)
     if a_max <= 0:
         t_stop = 0.0
     else:  # the swerving stops get 10 % more time, so the sampled law surely ends at rest
@@ -240,6 +244,69 @@ def _tilted_stop(p0, v0, s, a_max, th, n):
         else:
             a[k] = -u * (va / ts) - nn * math.copysign(min(a_max, abs(vl) / ts), vl)
         v[k + 1] = v[k] + a[k] * ts
+        p[k + 1] = p[k] + v[k] * ts + 0.5 * a[k] * ts * ts
+    return p, v, a, ts
+
+
+SMOOTH_DT = 0.01  # [s] step of the jerk-limited stop's law, before it is sampled on n intervals
+REST_M_S = 1e-4  # [m/s] the jerk-limited stop is at rest below this speed on each axis
+SMOOTH_T_MAX = 30.0  # [s] longest such stop simulated (a 45° swerve from 8 m/s at 1 m/s² takes ~20 s)
+
+
+def _smooth_stop(p0, v0, s, a_max, th, n, a0, jerk):
+    """`_tilted_stop` with the acceleration turned at most at `jerk` per axis (along the start velocity û,
+    and across it), starting from `a0`: along û the speed is taken out at ≤ a_max·cos θ while the sideways
+    acceleration ramps to a_max·sin θ (θ ≠ 0) or takes out any sideways speed (θ = 0); then the sideways
+    speed is braked. Each speed w is brought to rest with its acceleration (the jerk-limited S-curve's
+    |b| ≤ √(2·j·|w|)); |a| ≤ max(a_max, |a0|), never growing above a_max. An a0 along the motion is ramped
+    out first (+a0²/(2j) of speed, as the vehicle flies it). The law is stepped at SMOOTH_DT and sampled on
+    n equal intervals (each the mean acceleration over it, so |a| and the speed stay within the law's)."""
+    u = v0 / s
+    nn = np.array([-u[1], u[0]]) * math.copysign(1.0, th if th != 0 else 1.0)
+    j = jerk / math.sqrt(2.0)  # per axis: |jerk| ≤ `jerk`
+    dt, jd = SMOOTH_DT, jerk / math.sqrt(2.0) * SMOOTH_DT
+    w = [s, 0.0]  # along û, across
+    b = [float(a0 @ u), float(a0 @ nn)]
+    cap = max(a_max, math.hypot(*b))
+    ts_, ws = [0.0], [tuple(w)]
+    swerve = th != 0.0
+    t = 0.0
+
+    def toward_rest(wi, lim):
+        """This axis's acceleration toward rest: the jerk-limited S-curve's √(2·j·|w|) (zero acceleration at
+        zero speed), within `lim`, and linear near rest (|w|/(2·dt)) so the stepped law settles."""
+        return -math.copysign(min(lim, math.sqrt(2.0 * j * abs(wi)), abs(wi) / (2.0 * dt)), wi)
+
+    while t < SMOOTH_T_MAX:
+        if swerve and w[0] <= REST_M_S:
+            swerve = False  # the speed along the motion is out: brake the sideways speed
+        if swerve:
+            want = (toward_rest(w[0], a_max * math.cos(th)), a_max * abs(math.sin(th)))
+        else:
+            want = (toward_rest(w[0], a_max), toward_rest(w[1], a_max))
+        nb = [bi + min(max(wi - bi, -jd), jd) for bi, wi in zip(b, want)]
+        norm = math.hypot(*nb)
+        cap = max(a_max, min(cap, norm))
+        if norm > cap:
+            nb = [x * cap / norm for x in nb]
+        w = [wi + 0.5 * (bi + ni) * dt for wi, bi, ni in zip(w, b, nb)]
+        b = nb
+        t += dt
+        ts_.append(t)
+        ws.append(tuple(w))
+        if not swerve and max(abs(x) for x in w) <= REST_M_S and max(abs(x) for x in b) <= jd:
+            break  # at rest
+    ts_, ws = np.array(ts_), np.array(ws)
+    tk = np.linspace(0.0, ts_[-1], n + 1)
+    wk = np.stack([np.interp(tk, ts_, ws[:, 0]), np.interp(tk, ts_, ws[:, 1])], axis=1)
+    wk[-1] = 0.0  # at rest
+    frame = np.stack([u, nn])  # rows: û, n̂
+    v = wk @ frame
+    ts = float(tk[1])
+    a = np.diff(v, axis=0) / ts
+    p = np.zeros((n + 1, 2))
+    p[0] = p0
+    for k in range(n):
         p[k + 1] = p[k] + v[k] * ts + 0.5 * a[k] * ts * ts
     return p, v, a, ts
 

@@ -15,7 +15,9 @@ from __future__ import annotations
 import math
 
 from .flat import horizontal_accel_limit
-from .vehicle import Vehicle
+from .vehicle import G, Vehicle
+
+STOP_BUDGET = 0.75  # part of the stop contract's braking distance a swerving fail-safe stop may use
 
 
 def braking_distance(v: float, a: float, j: float) -> float:
@@ -114,6 +116,20 @@ def braking_decel(vehicle: Vehicle, thrust_ratio: float, tilt: float | None = No
     tilt = vehicle.tilt_max if tilt is None else min(tilt, vehicle.tilt_max)
     a_phys = horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
     return min(vehicle.braking.accel_max_m_s2, a_phys)
+
+
+def stop_jerk(vehicle: Vehicle) -> float:
+    """The jerk of the daemon's own fail-safe stop [m/s³]: g times the attitude-rate limit, the fastest the
+    horizontal acceleration g·tan(tilt) can turn near level (d/dt g·tan θ ≥ g·θ̇). A stop whose acceleration
+    steps (as the full-tilt stop did) is one the vehicle cannot track (issue 19 item 1)."""
+    return G * vehicle.tilt_rate_max
+
+
+def stop_path_budget(v: float, stop_decel: float, jerk: float) -> float:
+    """The longest path a swerving fail-safe stop from speed v may plan [m]: STOP_BUDGET of the stop contract's
+    braking distance (`braking_distance`); the rest is for the vehicle's lag behind the stop and its return
+    to the stop's end while the autopilot's velocity integrator (its learnt drag) bleeds off."""
+    return STOP_BUDGET * braking_distance(v, stop_decel, jerk) if stop_decel > 0 else 0.0
 
 
 def stop_dead_time(vehicle: Vehicle) -> float:

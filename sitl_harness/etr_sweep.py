@@ -47,6 +47,7 @@ tilt, non-increasing in thrust_ratio; `contracts.lookup.repair_monotone`) and wr
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -61,6 +62,7 @@ from contracts.gridspec import as_grid, axis, load_mapping
 from contracts.lookup import repair_monotone
 from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc
 from contracts.runner import Checkpoint, run_tasks
+from contracts.stop import braking_decel, stop_jerk
 from contracts.table import SLOTS, Slot, verify, write_table
 from contracts.trajectories import limiting_trajectory, pass_branches
 from contracts.vehicle import Vehicle, load_vehicle
@@ -130,7 +132,10 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
             online = online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h)
             if online is not None:
                 refs.append(online)
-                refs.append(online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h, "failsafe"))
+                fs = online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h, "failsafe")
+                refs.append(fs and dataclasses.replace(  # the daemon's stop (companion/offboard.py, cycle.py)
+                    fs, stop_decel=braking_decel(vehicle, thrust_ratio), brake_jerk=vehicle.braking.jerk_max_m_s3,
+                    stop_jerk=stop_jerk(vehicle)))
             elif skipped is not None:
                 skipped.append(f"online@rho={grid_rho[i]:.3g}")
             if a_top > a_h * (1 + 1e-9):

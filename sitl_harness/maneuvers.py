@@ -19,6 +19,7 @@ import numpy as np
 
 from contracts.contour import contour_errors
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan
+from contracts.stop import stop_path_budget
 from contracts.vehicle import G, Vehicle
 
 from .control import C_TILT_MAX, M_POS, S_HOVER, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_VEL, SP_YAW
@@ -206,6 +207,13 @@ class OnlineReference:
     a_max: float  # the replans' (and the fail-safe stop's) acceleration limit: the cell's a_h
     replans: int  # replans modelled per flight
     failsafe_frac: float | None = None  # at this fraction of the first plan, the daemon's fail-safe stop
+    stop_decel: float = 0.0  # the stop contract's braking deceleration and jerk (the swerve's path budget)
+    brake_jerk: float = math.inf
+    stop_jerk: float = math.inf  # the fail-safe stop's jerk (`contracts.stop.stop_jerk`)
+
+    def stop_budget(self, speed: float) -> float:
+        """The fail-safe stop's path budget from `speed` (`contracts.stop.stop_path_budget`; none: ∞)."""
+        return stop_path_budget(speed, self.stop_decel, self.brake_jerk) if self.stop_decel > 0 else math.inf
 
     @property
     def t_end(self) -> float:
@@ -241,6 +249,7 @@ class OnlineFlight:
         self.adopted = self.kept = 0
         self.stop: Plan | None = None
         self.stop_t = 0.0
+        self._a_last = np.zeros(2)  # the last setpoint's acceleration (the fail-safe stop starts from it)
         self._t: list[float] = []
         self._p: list[np.ndarray] = []
 
@@ -249,7 +258,11 @@ class OnlineFlight:
         if t < 0.0:
             p, v, a = ref.plan.p[0] + ref.plan.v[0] * t, ref.plan.v[0], np.zeros(2)
         elif self.stop is None and ref.failsafe_frac is not None and t >= ref.failsafe_frac * float(ref.plan.t[-1]):
-            sp_, sv, sa, sts, _ = best_stop(np.asarray(pos[:2], float), np.asarray(vel[:2], float), ref.a_max, [d])
+            # as the daemon (companion/offboard.py): from the last setpoint's acceleration at the stop's jerk,
+            # a swerve no longer than the stop contract's budget
+            sp_, sv, sa, sts, _ = best_stop(np.asarray(pos[:2], float), np.asarray(vel[:2], float), ref.a_max, [d],
+                                            max_path_m=ref.stop_budget(float(np.hypot(*vel[:2]))),
+                                            a0=self._a_last, jerk=ref.stop_jerk)
             self.stop = Plan("brake", np.arange(len(sp_)) * sts, sp_, sv, sa, True, 0.0)
             self.stop_t = t
             p, v, a = self.stop.sample(0.0)
@@ -272,6 +285,7 @@ class OnlineFlight:
                 p, v, a = self.plan.p[-1] + self.plan.v[-1] * (tau - self.plan.t[-1]), self.plan.v[-1], np.zeros(2)
             else:
                 p, v, a = self.plan.sample(tau)
+        self._a_last = np.asarray(a, dtype=float)
         if t >= -WINDOW_S - 1e-9:
             self._t.append(t)
             self._p.append(np.asarray(p, dtype=float))

@@ -218,3 +218,49 @@ def test_the_planner_reaches_the_avoid_contract_where_it_used_to_fail(planner):
         plan = AvoidancePlanner().plan([v * veh.reaction_time(tilt), 0], [v, 0], [1, 0],
                                        [Disc(d_od + r_obst, 0, r_obst + veh.r_body_m)], v_max=v, a_max=a)
         assert plan.ok and plan.kind == "pass", (i, k, plan.notes)
+
+
+# Issue 19 item 1: the daemon's fail-safe stop mid-swerve (Mambo, seed 8 of tests/test_failsafe_stop_lockstep.py:
+# the measured state, the disc last seen, the Mambo's full-tilt deceleration, the path budget of that flight)
+MID_P, MID_V = np.array([25.5698, -0.1755]), np.array([5.1533, -1.0077])
+MID_DISC = Disc(30.0452, -0.1135, 2.2284, 1.3523)
+MID_A, MID_BUDGET, MID_A0 = G * math.tan(math.radians(25.0)), 4.92, np.array([-0.872, -4.395])
+
+
+def test_a_straight_stop_into_the_etr_margin_loses_to_a_swerve_with_more_clearance():
+    """On 260d4bd the straight stop won because it cleared the disc's never-entered core, although it ended
+    0.58 m inside the E_tr margin and a swerve off the disc within the budget kept ~0.45 m more: the vehicle's
+    ~0.7 m overrun then hit the column. The stop with the most clearance wins when none clears the disc."""
+    from contracts.online_planner import best_stop, braking_plan, dense_path
+
+    p, v, a, ts = braking_plan(MID_P, MID_V, MID_A, 40)
+    pts = dense_path(p, v, a, ts)
+    straight = float(np.min(np.hypot(pts[:, 0] - MID_DISC.x, pts[:, 1] - MID_DISC.y))) - MID_DISC.r
+    assert straight < -0.5
+    bp, bv, ba, bts, clear = best_stop(MID_P, MID_V, MID_A, [MID_DISC], 40, max_path_m=MID_BUDGET)
+    assert clear > straight + 0.3
+    path = dense_path(bp, bv, ba, bts)
+    assert float(np.sum(np.hypot(*np.diff(path, axis=0).T))) <= MID_BUDGET  # within the stop contract's budget
+    assert np.max(np.hypot(*bv.T)) <= np.hypot(*MID_V) * (1 + 1e-6)  # never faster than it was
+    assert np.hypot(*bv[-1]) < 1e-9
+
+
+@pytest.mark.parametrize("deg_disc", [None, "mid"])
+def test_the_failsafe_stop_turns_from_the_vehicles_acceleration_at_the_jerk_limit(deg_disc):
+    """A stop the vehicle can track: it starts from the acceleration the vehicle was given (mid-swerve, 4.5 m/s²
+    sideways), turns it at most at the jerk limit (the full-tilt stop stepped it by 5.2 m/s² at once), stays
+    within the deceleration, and ends at rest with zero acceleration."""
+    from contracts.online_planner import best_stop
+
+    jerk = G * math.radians(220.0)  # contracts.stop.stop_jerk for the Mambo
+    discs = [MID_DISC] if deg_disc else []
+    p, v, a, ts, _ = best_stop(MID_P, MID_V, MID_A, discs, 40, max_path_m=MID_BUDGET, a0=MID_A0, jerk=jerk)
+    tol = 1.03  # the law is stepped at SMOOTH_DT and sampled on the plan's intervals
+    assert np.hypot(*(a[0] - MID_A0)) <= jerk * ts * tol
+    assert np.max(np.hypot(*np.diff(a, axis=0).T)) <= jerk * ts * tol
+    assert np.max(np.hypot(*a.T)) <= max(MID_A, float(np.hypot(*MID_A0))) * (1 + 1e-9)
+    assert np.hypot(*v[-1]) < 1e-9 and np.hypot(*a[-1]) <= jerk * ts * tol
+    assert np.all(np.isfinite(p))
+    # without a jerk limit the acceleration steps (the old stop)
+    _, _, a_step, ts_step, _ = best_stop(MID_P, MID_V, MID_A, discs, 40, max_path_m=MID_BUDGET)
+    assert np.hypot(*(a_step[0] - MID_A0)) > 3 * jerk * ts_step
