@@ -27,7 +27,8 @@ from .samples import Scan
 # ============================================================================ D_od
 
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
-SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: the position at a sample is known to about this
+SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
+SENSOR_LAG_S = 0.1  # [s] a sample was taken up to this before it is placed (latency ≤ 0.05 s + one position interval)
 
 
 @dataclass
@@ -80,6 +81,7 @@ class DodEstimator:
         self._yaw_hist: deque[tuple[float, float]] = deque()
         self._pos: tuple[float, float, float] | None = None  # (t, x, y) local NED, the last known
         self._tracked: deque[tuple[float, float, float]] = deque(maxlen=256)  # (t seen, x, y) of obstacle hits
+        self._pos_hist: deque[tuple[float, float, float]] = deque()  # (t, x, y) over the last SENSOR_LAG_S
         self.r_obst = contract.r_obst_m  # the R_obst in force (the cycle sets it every step)
 
     # ---- inputs
@@ -96,9 +98,18 @@ class DodEstimator:
             self._yaw_hist.popleft()
 
     def add_position(self, t: float, x: float, y: float) -> None:
-        """The vehicle's horizontal position, to place hits in the local frame (tracking, issue 19 item 4)."""
+        """The vehicle's horizontal position, to place hits and the swept coverage in the local frame
+        (issue 19 items 4 and 2); its velocity from the last two."""
         if math.isfinite(x) and math.isfinite(y):
             self._pos = (t, x, y)
+            self._pos_hist.append(self._pos)
+            while len(self._pos_hist) > 2 and self._pos_hist[1][0] <= t - SENSOR_LAG_S:
+                self._pos_hist.popleft()
+
+    def _lag_shift(self) -> np.ndarray:
+        """Where the vehicle was `SENSOR_LAG_S` before its last position, from there (the travel in the lag)."""
+        t0, x0, y0 = self._pos_hist[0]
+        return np.array([x0 - self._pos[1], y0 - self._pos[2]]) if self._pos[0] - t0 <= self.stale_s else np.zeros(2)
 
     def add_scan(self, scan: Scan) -> None:
         """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
@@ -152,7 +163,10 @@ class DodEstimator:
     def _sweep(self, i: int, t: float, seen) -> None:
         """Keep what this sample saw free (its wedges in the local frame) for `COVERAGE_S`: the swept coverage
         `estimate` falls back on when the direction of travel is outside every field of view (issue 19 item 2).
-        An untrusted sample, or one whose position or heading is unknown or stale, adds nothing."""
+        The sample is placed at the last position and heading, but was taken up to `SENSOR_LAG_S` before:
+        each wedge is narrowed by the heading's turn in that time and keeps the travel in it as its apex's
+        uncertainty (`covered_distance`'s shift). An untrusted sample, or one whose position or heading is
+        unknown or stale, adds nothing."""
         s = self.sensors[i]
         while s.swept and s.swept[0][0] < t - COVERAGE_S:
             s.swept.popleft()
@@ -170,29 +184,36 @@ class DodEstimator:
             first = math.radians(s.cfg.orientation_deg) - math.radians(s.cfg.h_fov_deg) / 2 + w / 2
             r = min((r for _, r in seen), default=math.inf)
             sec = sample_sectors(apex, yaw, [first + k * w for k in range(n)], w, [r] * n, s.max_m)
+        turn = abs(self._yaw_rate()) * SENSOR_LAG_S
+        sec = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
         if sec:
-            s.swept.append((t, sec))
+            s.swept.append((t, sec, self._lag_shift()))
+
+    def _yaw_rate(self) -> float:
+        if len(self._yaw_hist) < 2 or self._yaw_hist[-1][0] <= self._yaw_hist[-2][0]:
+            return 0.0
+        (t0, y0), (t1, y1) = self._yaw_hist[-2], self._yaw_hist[-1]
+        return wrap(y1 - y0) / (t1 - t0)
 
     def _swept(self, t: float, theta: float) -> float:
         """The distance along absolute direction `theta` from the vehicle through the space the fresh, trusted
         sensors saw free in the last `COVERAGE_S` (contracts.coverage), each wedge no farther than its sensor
-        claims now and within the navigation margin, less the travel in one sample interval (the sample's
-        position is the last known one, not the one it was taken at)."""
+        claims now and within the navigation margin, less `SWEPT_MARGIN_M` (position noise)."""
         if self._pos is None or t - self._pos[0] > self.stale_s:
             return 0.0
-        rows, period = [], 0.0
+        rows, shifts = [], []
         trust = 1.0 - self.contract.nav_margin
         for s in self.sensors:
             if t - s.t > self.stale_s or not s.trusted:
                 continue
-            period = max(period, s.period)
-            for ts, sec in s.swept:
+            for ts, sec, shift in s.swept:
                 if ts >= t - COVERAGE_S:
                     rows.extend((*q[:4], min(q[4], s.max_m) * trust) for q in sec)
+                    shifts.extend([shift] * len(sec))
         if not rows:
             return 0.0
-        d = covered_distance(self._pos[1:], theta, np.array(rows))
-        return max(d - self._speed * period - SWEPT_MARGIN_M, 0.0)
+        d = covered_distance(self._pos[1:], theta, np.array(rows), np.array(shifts))
+        return max(d - SWEPT_MARGIN_M, 0.0)
 
     def _tracked_already(self, t: float, p, tolerance: float) -> bool:
         """Whether a hit is on an obstacle already tracked (issue 19 item 4): within 2·R_obst (two points of one

@@ -53,11 +53,22 @@ def ray_intervals(p, theta: float, sectors: np.ndarray) -> np.ndarray:
     return np.column_stack([lo, hi])
 
 
-def covered_distance(p, theta: float, sectors: np.ndarray, gap_m: float = 0.0) -> float:
+def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: float = 0.0) -> float:
     """How far the ray from p along θ runs through seen-free space without a break: the end of the chain
     of the sectors' stretches that starts at p (0 when p's own neighbourhood along θ was never seen).
-    Stretches closer than `gap_m` are joined (the default joins only touching ones)."""
-    iv = ray_intervals(p, theta, sectors)
+
+    `shifts` (n, 2): where each sector's apex is known only to the segment from its apex to apex + shift (a
+    sample taken up to a latency before the position it is placed at). A wedge is a translate of a convex
+    cone cut by a disc, both convex in the apex, so what every apex on the segment saw is what both ends saw:
+    the stretch is the intersection of the two ends' stretches. Stretches closer than `gap_m` are joined (the
+    default joins only touching ones)."""
+    sec = np.asarray(sectors, float).reshape(-1, 5)
+    iv = ray_intervals(p, theta, sec)
+    if shifts is not None:
+        moved = sec.copy()
+        moved[:, :2] += np.asarray(shifts, float).reshape(-1, 2)
+        other = ray_intervals(p, theta, moved)
+        iv = np.column_stack([np.maximum(iv[:, 0], other[:, 0]), np.minimum(iv[:, 1], other[:, 1])])
     iv = iv[iv[:, 1] > iv[:, 0] + EPS]
     if len(iv) == 0:
         return 0.0
