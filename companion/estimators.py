@@ -62,6 +62,7 @@ class DodEstimate:
     obstacle_m: float  # nearest obstacle hit near the path [m] (inf: none)
     late: LateDetection | None  # a late first detection in this update, if any
     reason: str  # why d_od is what it is
+    swept: bool = False  # d_od is the swept coverage: the direction of travel is outside every field of view
 
 
 class DodEstimator:
@@ -277,6 +278,7 @@ class DodEstimator:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
         if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
             d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
+        swept = 0.0
         if not covered and self._yaw_hist:  # outside every field of view: what was seen free on the way
             swept = self._swept(t, self._yaw_hist[-1][1] + beta)
             if swept > 0.0:
@@ -291,7 +293,7 @@ class DodEstimator:
         self._last_d_od = d
         late = self._pending[0] if self._pending else None
         self._pending.clear()
-        return DodEstimate(d, tuple(covered), obstacle, late, reason)
+        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0)
 
 
 # ============================================================================ E_tr
