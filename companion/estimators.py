@@ -14,16 +14,21 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
+import numpy as np
 
 from contracts.contour import ContourWindow
+from contracts.coverage import covered_distance, sample_sectors
 from contracts.geometry import wrap
 from contracts.vehicle import G
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
 from .samples import Scan
 
-
 # ============================================================================ D_od
+
+COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
+SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
+SENSOR_LAG_S = 0.1  # [s] a sample was taken up to this before it is placed (latency ≤ 0.05 s + one position interval)
 
 
 @dataclass
@@ -36,6 +41,7 @@ class _SensorState:
     known: tuple[float, ...] | None = None  # body bearings of the bins that report (None: a single beam)
     increment: float = 0.0
     period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
+    swept: deque = field(default_factory=deque)  # (t, sectors seen free then: contracts.coverage rows)
 
 
 @dataclass(frozen=True)
@@ -56,12 +62,15 @@ class DodEstimate:
     obstacle_m: float  # nearest obstacle hit near the path [m] (inf: none)
     late: LateDetection | None  # a late first detection in this update, if any
     reason: str  # why d_od is what it is
+    swept: bool = False  # d_od is the swept coverage: the direction of travel is outside every field of view
 
 
 class DodEstimator:
     """`D_od` along the direction of travel from the sensors' configured mounting and field of view,
-    their reported range limits and signal quality, staleness (stale ⇒ 0), coverage (no sensor ⇒ 0) and
-    late first detections (which lower the estimate for a hold time)."""
+    their reported range limits and signal quality, staleness (stale ⇒ 0), coverage and late first
+    detections (which lower the estimate for a hold time). A direction outside every field of view gets
+    the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the swept
+    coverage, `contracts.coverage`; never more than was seen; none ⇒ 0; issue 19 item 2)."""
 
     def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float):
         self.sensors = [_SensorState(c) for c in sensors]
@@ -73,6 +82,7 @@ class DodEstimator:
         self._yaw_hist: deque[tuple[float, float]] = deque()
         self._pos: tuple[float, float, float] | None = None  # (t, x, y) local NED, the last known
         self._tracked: deque[tuple[float, float, float]] = deque(maxlen=256)  # (t seen, x, y) of obstacle hits
+        self._pos_hist: deque[tuple[float, float, float]] = deque()  # (t, x, y) over the last SENSOR_LAG_S
         self.r_obst = contract.r_obst_m  # the R_obst in force (the cycle sets it every step)
 
     # ---- inputs
@@ -89,9 +99,18 @@ class DodEstimator:
             self._yaw_hist.popleft()
 
     def add_position(self, t: float, x: float, y: float) -> None:
-        """The vehicle's horizontal position, to place hits in the local frame (tracking, issue 19 item 4)."""
+        """The vehicle's horizontal position, to place hits and the swept coverage in the local frame
+        (issue 19 items 4 and 2); its velocity from the last two."""
         if math.isfinite(x) and math.isfinite(y):
             self._pos = (t, x, y)
+            self._pos_hist.append(self._pos)
+            while len(self._pos_hist) > 2 and self._pos_hist[1][0] <= t - SENSOR_LAG_S:
+                self._pos_hist.popleft()
+
+    def _lag_shift(self) -> np.ndarray:
+        """Where the vehicle was `SENSOR_LAG_S` before its last position, from there (the travel in the lag)."""
+        t0, x0, y0 = self._pos_hist[0]
+        return np.array([x0 - self._pos[1], y0 - self._pos[2]]) if self._pos[0] - t0 <= self.stale_s else np.zeros(2)
 
     def add_scan(self, scan: Scan) -> None:
         """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
@@ -112,6 +131,7 @@ class DodEstimator:
         s.t, s.max_m = t, max(max_m, 0.0)
         s.trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
         placed = self._placed(i, t, seen)
+        self._sweep(i, t, seen)
         for k, (bearing, r) in enumerate(seen):
             if any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
                 continue  # the same obstacle as before
@@ -140,6 +160,61 @@ class DodEstimator:
             a = yaw + bearing
             out.append((x + r * math.cos(a), y + r * math.sin(a), r * math.sin(min(half, math.pi / 2))))
         return out
+
+    def _sweep(self, i: int, t: float, seen) -> None:
+        """Keep what this sample saw free (its wedges in the local frame) for `COVERAGE_S`: the swept coverage
+        `estimate` falls back on when the direction of travel is outside every field of view (issue 19 item 2).
+        The sample is placed at the last position and heading, but was taken up to `SENSOR_LAG_S` before:
+        each wedge is narrowed by the heading's turn in that time and keeps the travel in it as its apex's
+        uncertainty (`covered_distance`'s shift). An untrusted sample, or one whose position or heading is
+        unknown or stale, adds nothing."""
+        s = self.sensors[i]
+        while s.swept and s.swept[0][0] < t - COVERAGE_S:
+            s.swept.popleft()
+        if not s.trusted or s.max_m <= 0 or self._pos is None or not self._yaw_hist \
+                or t - self._pos[0] > self.stale_s or t - self._yaw_hist[-1][0] > self.stale_s:
+            return
+        apex, yaw = self._pos[1:], self._yaw_hist[-1][1]
+        if s.known is not None:  # bins: each free to its hit, or to the claimed range
+            hit = {round(b, 9): r for b, r in seen}
+            ranges = [hit.get(round(b, 9), math.inf) for b in s.known]
+            sec = sample_sectors(apex, yaw, s.known, s.increment, ranges, s.max_m)
+        else:  # a single beam: its whole field of view, free to the nearest hit
+            n = 1 + int(s.cfg.h_fov_deg // 90)  # wedges narrower than π
+            w = math.radians(s.cfg.h_fov_deg) / n
+            first = math.radians(s.cfg.orientation_deg) - math.radians(s.cfg.h_fov_deg) / 2 + w / 2
+            r = min((r for _, r in seen), default=math.inf)
+            sec = sample_sectors(apex, yaw, [first + k * w for k in range(n)], w, [r] * n, s.max_m)
+        turn = abs(self._yaw_rate()) * SENSOR_LAG_S
+        sec = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
+        if sec:
+            s.swept.append((t, sec, self._lag_shift()))
+
+    def _yaw_rate(self) -> float:
+        if len(self._yaw_hist) < 2 or self._yaw_hist[-1][0] <= self._yaw_hist[-2][0]:
+            return 0.0
+        (t0, y0), (t1, y1) = self._yaw_hist[-2], self._yaw_hist[-1]
+        return wrap(y1 - y0) / (t1 - t0)
+
+    def _swept(self, t: float, theta: float) -> float:
+        """The distance along absolute direction `theta` from the vehicle through the space the fresh, trusted
+        sensors saw free in the last `COVERAGE_S` (contracts.coverage), each wedge no farther than its sensor
+        claims now and within the navigation margin, less `SWEPT_MARGIN_M` (position noise)."""
+        if self._pos is None or t - self._pos[0] > self.stale_s:
+            return 0.0
+        rows, shifts = [], []
+        trust = 1.0 - self.contract.nav_margin
+        for s in self.sensors:
+            if t - s.t > self.stale_s or not s.trusted:
+                continue
+            for ts, sec, shift in s.swept:
+                if ts >= t - COVERAGE_S:
+                    rows.extend((*q[:4], min(q[4], s.max_m) * trust) for q in sec)
+                    shifts.extend([shift] * len(sec))
+        if not rows:
+            return 0.0
+        d = covered_distance(self._pos[1:], theta, np.array(rows), np.array(shifts))
+        return max(d - SWEPT_MARGIN_M, 0.0)
 
     def _tracked_already(self, t: float, p, tolerance: float) -> bool:
         """Whether a hit is on an obstacle already tracked (issue 19 item 4): within 2·R_obst (two points of one
@@ -203,6 +278,12 @@ class DodEstimator:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
         if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
             d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
+        swept = 0.0
+        if not covered and self._yaw_hist:  # outside every field of view: what was seen free on the way
+            swept = self._swept(t, self._yaw_hist[-1][1] + beta)
+            if swept > 0.0:
+                d, reason = swept, (f"direction of travel outside the field of view: {swept:.2f} m of it seen free "
+                                    f"in the last {COVERAGE_S:g} s")
         if self._penalty is not None:
             if t <= self._penalty[0]:
                 if self._penalty[1] < d:
@@ -212,7 +293,7 @@ class DodEstimator:
         self._last_d_od = d
         late = self._pending[0] if self._pending else None
         self._pending.clear()
-        return DodEstimate(d, tuple(covered), obstacle, late, reason)
+        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0)
 
 
 # ============================================================================ E_tr

@@ -38,6 +38,8 @@ YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity
 YAW_MEAS_BELOW = 2.0  # [m/s] the measured velocity weighs in the yaw below this commanded speed (1 at rest)
 SIDE_DEG = 25.0  # [°] a rejoin's sideways speed keeps the reference this close to the route's direction…
 SIDE_SLOW = 0.7  # [m/s] …or below this (under the 1 m/s at which D_od is taken along the heading: cycle.py)
+REJOIN_OPEN_M = 0.5  # [m] a rejoin this far beside the route slows for the next stop at A_REJOIN_STOP·a_max
+A_REJOIN_STOP = 0.2
 HEADING_TOL = math.radians(20.0)  # the reference speeds up only with the heading this close to the yaw
 
 
@@ -344,9 +346,12 @@ class OffboardGuidance:
         # lateral offset back to the route: critically damped, peak lateral acceleration ≤ a_max/2
         w = math.sqrt(0.5 * a_max / max(abs(self.y_off), 0.2))
         ay = -2.0 * w * self.vy_off - w * w * self.y_off
-        # sideways no faster than keeps the reference's direction within SIDE_DEG of the route, or below
-        # SIDE_SLOW: slow and sideways (rejoining at a route's end) the track left the sensor's view (issue 19)
-        cap = max(SIDE_SLOW, self.v_ref * math.tan(math.radians(SIDE_DEG)))
+        # sideways no faster than keeps the reference's direction within SIDE_DEG of the route, or its whole
+        # speed below SIDE_SLOW: slow and sideways (rejoining at a route's end) the track left the sensor's
+        # view (issue 19 items 2, 3). A floor on the sideways speed alone (0.7 m/s) let the along-track
+        # speed fall to 0 under it: the track swung 40° → 80° off the heading at 1.1 m/s, faster than the
+        # yaw (≈ 45°/s flown) could follow, where the sensor had seen under a metre free: no safe speed.
+        cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)), math.sqrt(max(SIDE_SLOW ** 2 - self.v_ref ** 2, 0.0)))
         vy = min(max(self.vy_off + ay * dt, -cap), cap)
         ay = (vy - self.vy_off) / dt if dt > 0 else 0.0
         self.vy_off = vy
@@ -357,6 +362,9 @@ class OffboardGuidance:
         stretch = max(1.0 - route.curvature(self.s_ref) * self.y_off, 0.1)  # path speed at the offset / v_ref
         limit = min(route.speed_limit(self.s_ref, v_max, a_max),
                     route.speed_limit(self.s_ref + self.v_ref * dt, v_max, a_max))
+        if abs(self.y_off) > REJOIN_OPEN_M:  # still beside the route: slow gently for the stop ahead, so the
+            # vehicle does not overshoot it and come back outside the sensor's view (issue 19 item 2)
+            limit = min(limit, math.sqrt(2 * A_REJOIN_STOP * a_max * max(route.next_stop(self.s_ref) - self.s_ref, 0.0)))
         target = min(math.sqrt(max(v_max * v_max - self.vy_off * self.vy_off, 0.0)) / max(stretch, 1.0), limit)
         up = 0.5 * a_max * dt
         if heading is not None and abs(wrap(heading - self._yaw(u * self.v_ref * stretch + n * self.vy_off, u))) \

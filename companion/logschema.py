@@ -82,6 +82,9 @@ EVENTS = {
                            "writes succeed again after a failure (records dropped meanwhile)"),
     "violation_start": Event(("subsystem", "guarantee", "assumed", "observed", "action"), "supervisor",
                              "a subsystem broke its guarantee (subsystem ∈ SUBSYSTEMS)"),
+    "dod_coverage": Event(("basis", "d_od", "reason"), "supervisor",
+                          "D_od's basis changed to or from `swept`: the direction of travel outside every field of "
+                          "view, D_od the distance along it seen free recently (else `field of view` or `none`: 0)"),
     "violation_end": Event(("subsystem", "guarantee"), "supervisor", "that guarantee holds again"),
     "state_change": Event(("from", "to", "reason"), "supervisor", "supervisor state changed"),
     "mode_change": Event(("from", "to", "by"), "supervisor", "autopilot mode changed (by: daemon | other)"),

@@ -131,6 +131,7 @@ class Supervisor:
         self._over_since: float | None = None
         self._suppressed: set[str] = set()  # hold causes stood down from after an override
         self._violations: dict[str, dict] = {}
+        self._dod_swept = False  # the last D_od was the swept coverage (dod_coverage events)
         self._no_limit_mode_warned: str | None = None
         self._held_for: list[str] = []  # the causes of the daemon's current Hold
         self._t_hold = -math.inf
@@ -254,6 +255,10 @@ class Supervisor:
         self._violation(d, "environment", i.obstacle_width > i.r_obst + 0.05, subsystem="environment",
                         guarantee="no obstacle wider than R_obst", assumed=i.r_obst, observed=i.obstacle_width,
                         action="planning round the observed width")
+        if i.dod.swept != self._dod_swept:  # D_od's basis: said when the swept coverage starts and ends
+            self._dod_swept = i.dod.swept
+            basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")
+            d.events.append(("dod_coverage", {"basis": basis, "d_od": i.dod.d_od, "reason": i.dod.reason}))
         late = i.dod.late
         self._violation(d, "navigation", i.dod.reason.startswith("lowered"), subsystem="navigation",
                         guarantee="every obstacle within D_od is detected",

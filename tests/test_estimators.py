@@ -255,3 +255,62 @@ def test_the_navigation_margin_trusts_only_part_of_the_claimed_range():
     assert est.d_od == pytest.approx(7.0) and "0.3 not trusted" in est.reason
     add_range(e, 0, 0.2, current_m=6.8, min_m=0.1, max_m=10.0, quality=100)  # first seen at 6.8 m: on time (tolerance)
     assert e.estimate(0.2, beta=0.0).late is None
+
+
+def swept_flight(track_deg: float, *, hit_m: float | None = None, margin: float = 0.0, seconds: float = 2.0):
+    """Issue 19 item 2: a vehicle flies +x at 2 m/s for `seconds`, ending at the origin, its 60° bin sensor
+    (6 m) forward; then its track swings to `track_deg` (slowing with a sideways component) while its heading
+    stays on +x. Returns the estimator and its D_od along the new track."""
+    cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=60.0)
+    e = DodEstimator([cfg], ContractConfig(nav_margin=margin), stale_s=0.5)
+    bearings = np.radians(np.arange(-27.5, 28, 5.0))
+    ranges = np.full(len(bearings), np.inf)
+    if hit_m is not None:
+        ranges[-1] = hit_m  # the bin at +27.5°: something there
+    e.set_speed(2.0)
+    n = round(seconds / 0.05)
+    for k in range(n + 1):
+        t = 0.05 * k
+        e.add_position(t, 2.0 * (t - seconds), 0.0)
+        e.add_heading(t, 0.0)
+        add_bins(e, 0, t, bearings, ranges, 6.0, math.radians(5))
+    return e, e.estimate(seconds, math.radians(track_deg))
+
+
+def test_a_direction_of_travel_outside_the_view_gets_what_was_seen_free_on_the_way():
+    _, inside = swept_flight(20.0)
+    assert inside.d_od == 6.0 and inside.reason.startswith("sensor 0")  # inside the view: as before
+    _, est = swept_flight(40.0)
+    assert 1.0 < est.d_od < 6.0 and est.reason.startswith("direction of travel outside the field of view")
+    # never more than seen: every point of the ray up to D_od lies in a wedge a sample saw free
+    th = math.radians(40.0)
+    for s in np.linspace(0.0, est.d_od, 50):
+        q = (s * math.cos(th), s * math.sin(th))
+        assert s == 0 or any(math.hypot(q[0] - x, q[1]) <= 6.0 and abs(math.atan2(q[1], q[0] - x)) <= math.radians(30)
+                             for x in np.linspace(-4.0, 0.0, 41))
+    # the navigation margin shortens it like any claimed range
+    _, est_m = swept_flight(40.0, margin=0.3)
+    assert est_m.d_od < est.d_od
+
+
+@pytest.mark.parametrize("seconds, obstacle", [(2.0, (0.5, 2.8)), (0.2, (0.3, 0.8))])
+def test_negative_control_an_obstacle_the_sensor_never_saw_is_beyond_dod(seconds, obstacle):
+    """An obstacle outside every wedge flown past (never in the ±30° view from the line flown) is farther along
+    the direction of travel towards it than D_od: the claim stays true. After a short run (0.4 m) one 0.85 m
+    away leaves D_od under a metre: the contract has no safe speed, the vehicle stops."""
+    ox, oy = obstacle
+    for x in np.linspace(-2.0 * seconds, 0.0, 50):
+        assert math.atan2(oy, ox - x) > math.radians(30)  # never in view
+    dist = math.hypot(ox, oy)
+    _, est = swept_flight(math.degrees(math.atan2(oy, ox)), seconds=seconds)
+    assert est.d_od < dist
+    if seconds < 1:
+        assert est.d_od < 0.85
+
+
+def test_negative_control_behind_a_hit_or_with_the_sensor_stale_is_not_covered():
+    _, clear = swept_flight(40.0)
+    _, blocked = swept_flight(40.0, hit_m=1.2)  # the +27.5° bin saw something 1.2 m off at every sample
+    assert blocked.d_od < clear.d_od
+    e, _ = swept_flight(40.0)
+    assert e.estimate(2.6, math.radians(40.0)).d_od == 0.0  # the sensor stale: nothing, as before

@@ -207,3 +207,16 @@ def test_a_fault_that_arrives_while_already_holding_is_logged_once_without_anoth
     assert not d.hold and fs == [{"cause": "bad navigation estimate", "action": "already holding"}]
     d = s.step(replace(BASE, t=0.08, thrust_ratio=0.4, mode="hold", mode_by_daemon=True, nav_ok=False))
     assert not [n for n, _ in d.events if n == "failsafe"]  # once
+
+
+def test_dod_from_the_swept_coverage_is_logged_when_it_starts_and_ends():
+    """Issue 19 item 2: D_od taken from what was seen free (the direction of travel outside the view) is said."""
+    s = sup("offboard")
+    assert not [e for e in s.step(BASE).events if e[0] == "dod_coverage"]  # the field of view: nothing new
+    swept = DodEstimate(2.5, (), math.inf, None, "direction of travel outside the field of view: 2.50 m …", True)
+    d = s.step(replace(BASE, t=0.02, dod=swept))
+    assert ("dod_coverage", {"basis": "swept", "d_od": 2.5, "reason": swept.reason}) in d.events
+    assert d.omega.v_max > 0  # a speed, not "no safe speed"
+    assert not [e for e in s.step(replace(BASE, t=0.04, dod=swept)).events if e[0] == "dod_coverage"]
+    d = s.step(replace(BASE, t=0.06))
+    assert [e[1]["basis"] for e in d.events if e[0] == "dod_coverage"] == ["field of view"]
