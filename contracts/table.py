@@ -26,6 +26,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ContractError
+from .flat import thrust_limited_accel
 from .lookup import (
     NONE,
     ReactLookup,
@@ -33,13 +34,21 @@ from .lookup import (
     helps_index,
     hurts_index,
     is_monotone,
+    law_cells,
+    react_speed,
 )
 from .stop import approach_stop_speed, braking_decel, stop_dead_time
-from .vehicle import DATA_DIR, Vehicle, load_vehicle, vehicle_from_dict
+from .vehicle import DATA_DIR, G, Vehicle, load_vehicle, vehicle_from_dict
 
 SCHEMA = "contract-guard/gamma-table"
 SCHEMA_VERSION = 1
 MAX_REPAIR_FRACTION = 0.01  # the build fails if more cells than this needed a monotonicity repair
+LAW_CLAIM = "cone: F = sqrt(a_h/g)*G(rho)"  # how a cone build states its scaling law (contracts/sweep.py)
+# The law's row answers between grid tilts, at points no planner checked with the folded reaction time
+# t_react + tilt/rate (DESIGN.md §2). Against the rate-limited planner that folding holds only to within
+# the planners' 1e-3 brackets (measured, issue 18: at 7° it is 0.07 % above it), so the law's row keeps
+# two brackets of margin (0.2 %); the worst corner it replaces loses up to 13 % a degree at small tilts.
+LAW_MARGIN = 1.0 - 2e-3
 
 # slot → (value array, axis arrays, per-axis monotone direction of the values, safe repair direction)
 SLOTS = {
@@ -280,6 +289,7 @@ class ContractTable:
             # one exact reaction-time solver per thrust column, over all tilts (precomputed)
             self._react = [ReactLookup(self._rho, self._f[:, :, k].T, t_r, v_grid=v_grid)
                            for k in range(len(self._trs))]
+            self._law = self._scaling_law(avoid)
         if e_tr_pred is not None:
             self._ev, self._et, self._er = e_tr_pred.axes
             if avoid is not None:  # per E_tr thrust cell, E_tr_pred (avoid tilt, v) at each avoid tilt's E_tr cell
@@ -288,6 +298,48 @@ class ContractTable:
                 cells = e_tilt_of[: self._e_rows_n]
                 self._e_rows = [e_tr_pred.values[:, cells, kk].T.copy() for kk in range(len(self._er))]
                 self._er_list = self._er.tolist()
+
+    def _scaling_law(self, avoid: Slot):
+        """Between grid points, the cone build's own law F = √(a_h/g)·G(ρ) (issue 18): where the table states it
+        and every corner of a cell obeys it (`lookup.law_cells`, checked here at load over every cell), the
+        answer at (tilt, thrust) scales the cell's corners to that point's a_h. Derived at load from the
+        hashed arrays and the verified vehicle (nothing stored). None: worst corner only (box tables, …)."""
+        if self.tilt_model != "cone" or not str(avoid.info.get("scaling", "")).startswith(LAW_CLAIM):
+            return None
+        v = self.vehicle
+        a = np.array([[self._a_h(t, k) for k in self._tr_list] for t in self._tilt_list])
+        g_hat, holds = law_cells(self._f, a)
+        if not holds.any():
+            return None
+        h = g_hat * g_hat / (1.0 - self._rho)[:, None, None]  # h_j = a_h·Ĝ_j²/(1 − ρ_j) at a_h = 1
+        hsuf = np.zeros((len(self._rho) + 1, *a.shape))
+        hsuf[:-1] = np.maximum.accumulate(h[::-1], axis=0)[::-1]
+        cells = [[(h[:, j, k].tolist(), hsuf[:, j, k].tolist()) if holds[j, k] else None
+                  for k in range(a.shape[1])] for j in range(a.shape[0])]
+        return {"a": a.tolist(), "cells": cells, "tilt_top": min(self._tilt_list[-1], v.tilt_max),
+                "tr_top": self._tr_list[-1], "holds": holds}
+
+    def _a_h(self, tilt: float, thrust_ratio: float) -> float:
+        """The cone's horizontal acceleration limit min(g·tan tilt, √((T_max/m)² − g²)) (`flat.horizontal_accel_limit`)."""
+        return min(G * math.tan(tilt), thrust_limited_accel(self.vehicle.t_max(thrust_ratio), self.vehicle.mass_kg))
+
+    def _law_row(self, tilt, thrust_ratio, top, k):
+        """(a_h, tilt, reaction time, cell) of the law's row at the actual (tilt, thrust), clipped to the grid's
+        top, in the cell (top, k); None where the law does not hold there or adds nothing (a grid point)."""
+        law = self._law
+        if law is None or law["cells"][top][k] is None:
+            return None
+        tilt = min(tilt, law["tilt_top"])
+        lam = self._a_h(tilt, min(thrust_ratio, law["tr_top"]))
+        if not lam > law["a"][top][k] * (1.0 + 1e-12):
+            return None
+        return lam, tilt, self.vehicle.reaction_time(tilt), law["cells"][top][k]
+
+    def _law_speed(self, row, k, c0, r_k) -> float:
+        """The reaction-time fixed point on the law's row (`lookup.react_speed`), times LAW_MARGIN."""
+        lam, _, t_r, (h, hsuf) = row
+        react = self._react[k]
+        return react_speed(c0, r_k, t_r, lam, react._rho_l, react._u_l, h, hsuf) * LAW_MARGIN
 
     # ---- shape of the table
     @property
@@ -348,8 +400,11 @@ class ContractTable:
         top, k = self._avoid_cells(tilt, thrust_ratio)
         if top == NONE:
             return 0.0
-        r_k = np.full((top + 1, 1), r_obst + e_tr + self._r_body)
-        return float(np.max(self._react[k](d_od + r_obst, r_k, slice(0, top + 1))))
+        c0, r_k, react = d_od + r_obst, r_obst + e_tr + self._r_body, self._react[k]
+        row = self._law_row(tilt, thrust_ratio, top, k)
+        if row is not None:  # the law's row, then any grid tilt ≤ top that beats it (a shorter reaction time)
+            return react.best(c0, r_k, top + 1, self._law_speed(row, k, c0, r_k))
+        return react.best(c0, r_k, top, react.at(c0, r_k, top))
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
@@ -405,8 +460,24 @@ class ContractTable:
                 e = np.maximum(self._e_rows[kk][:rows], e_meas)
                 best, jv, v_max, v_s = react.step_fixed_point(c0, r0 + e)
                 e_b = float(e[best, jv])
+        tilt_b = float(self._tilts[best])
+        row = self._law_row(tilt, thrust_ratio, top, k)
+        if row is not None:  # the law's row at the actual tilt and thrust, if it beats the grid's (ties: the grid)
+            v_l, e_l, s_l = self._law_omega(row, k, c0, r0, e_meas, thrust_ratio)
+            if v_l > v_max:
+                v_max, e_b, v_s, tilt_b = v_l, e_l, s_l, row[1]
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, R_obst, E_tr"
-        return Omega("avoid", v_max, float(self._tilts[best]), e_b, v_s, v_max - v_s, reason)
+        return Omega("avoid", v_max, tilt_b, e_b, v_s, v_max - v_s, reason)
+
+    def _law_omega(self, row, k, c0, r0, e_meas, thrust_ratio):
+        """(V, e_tr, V_safe) of the E_tr fixed point on the law's row (E_tr_pred at its worst corner)."""
+        if self.e_pred is None:
+            v = self._law_speed(row, k, c0, r0 + e_meas)
+            return v, e_meas, v
+        e = self._e_column([hurts_index(self._et, row[1])], thrust_ratio, e_meas)[0].tolist()
+        lim = lambda j: self._law_speed(row, k, c0, r0 + e[j]) if math.isfinite(e[j]) else 0.0
+        v, j = crossing_fixed_point(self._ev, lim)
+        return v, e[j], lim(j)
 
     def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
         tilt = min(tilt, self.vehicle.tilt_max)
