@@ -99,38 +99,40 @@ class ReactLookup:
         vl = np.where(j > 0, (c0 - r_k / self._rho_prev[j]) / t_r, 0.0)
         return np.maximum(np.maximum(vl, ve), 0.0) * MARGIN
 
-    def at(self, c0: float, r_k: float, row: int) -> float:
-        """`self(c0, [[r_k]], [row])` in scalars (`react_speed`)."""
-        return react_speed(c0, r_k, self._t_l[row], 1.0, self._rho_l, self._u_l, self._h_l[row], self._hsuf_l[row])
+    def at(self, c0: float, r_k: float, row: int, lam: float = 1.0) -> float:
+        """`self(c0, [[r_k]], [row])` in scalars (`react_speed`), the row's h scaled by `lam`."""
+        return react_speed(c0, r_k, self._t_l[row], lam, self._rho_l, self._u_l, self._h_l[row], self._hsuf_l[row])
 
-    def best(self, c0: float, r: float, n_rows: int, floor: float = 0.0) -> float:
-        """max(floor, max over rows 0 … n_rows−1 of `at(c0, r, row)`) without solving every row: the O(1)
-        test of `step_fixed_point` ("the unscaled speed reaches w") over all rows at once keeps only the
-        rows that can beat the best so far, solved in scalars from the top (usually the best) down."""
+    def best(self, c0: float, r: float, n_rows: int, floor: float = 0.0, lam=None) -> float:
+        """max(floor, max over rows 0 … n_rows−1 of `at(c0, r, row, lam[row])`) without solving every row:
+        the O(1) test of `step_fixed_point` ("the unscaled speed reaches w") over all rows at once keeps only
+        the rows that can beat the best so far, solved in scalars from the top (usually the best) down.
+        `lam` (n_rows,) scales each row's h (the thrust law), None: 1."""
         c0 = max(float(c0), 0.0)
         w = floor / MARGIN * (1.0 - 1e-12)
         c_w = c0 - self._t_col[:n_rows] * w
         h = self._hsuf[np.searchsorted(self.rho, r / np.maximum(c_w, 1e-12)) + self._hsuf_start[:n_rows, 0]]
-        gain = h * (c_w - r)
+        gain = h * (c_w - r) if lam is None else h * lam * (c_w - r)
         cand = np.flatnonzero(gain > 0.0 if w <= 0.0 else (c_w > r) & (gain >= w * w)).tolist()
         best = floor
         for row in reversed(cand):
-            if best > floor and not self._reaches(c0, r, best / MARGIN * (1.0 - 1e-12), row):
+            s = 1.0 if lam is None else float(lam[row])
+            if best > floor and not self._reaches(c0, r, best / MARGIN * (1.0 - 1e-12), row, s):
                 continue
-            best = max(best, self.at(c0, r, row))
+            best = max(best, self.at(c0, r, row, s))
         return best
 
-    def _reaches(self, c0: float, r: float, w: float, row: int) -> bool:
-        """Unscaled speed ≥ w at keep-out radius r (see `step_fixed_point`)."""
+    def _reaches(self, c0: float, r: float, w: float, row: int, lam: float = 1.0) -> bool:
+        """Unscaled speed ≥ w at keep-out radius r (see `step_fixed_point`), the row's h scaled by `lam`."""
         c_w = c0 - self._t_l[row] * w
-        return w <= 0 or c_w > r and self._hsuf_l[row][bisect_left(self._rho_l, r / c_w)] * (c_w - r) >= w * w
+        return w <= 0 or c_w > r and lam * self._hsuf_l[row][bisect_left(self._rho_l, r / c_w)] * (c_w - r) >= w * w
 
-    def step_fixed_point(self, c0: float, r_k) -> tuple[int, int, float, float]:
+    def step_fixed_point(self, c0: float, r_k, lam=None) -> tuple[int, int, float, float]:
         """The E_tr fixed point (DESIGN.md §1) on the speed grid `v` given to the constructor: the largest
         V with V ≤ self(c0, r_k(V)), r_k(V) the keep-out radius with the error of V's (worst) grid cell,
         and the first row (tilt) reaching it. `r_k` (k, m): finite, non-decreasing along m, rows 0 … k−1;
         each row's answer is max_j min(v_j, lim_j), lim = self(c0, r_k), its first argmax j.
-        Returns (row, j, V, lim at (row, j)).
+        Returns (row, j, V, lim at (row, j)). `lam` (k,) scales each row's h (the thrust law), None: 1.
 
         Whether lim reaches v (⟺ the unscaled speed ≥ w = v/MARGIN) costs O(1): cell j admits the
         V ≤ min(Vlim_j, V*_j), and Vlim_j ≥ w ⟺ ρ_j ≥ r_k/(c0 − w t_r), V*_j ≥ w ⟺ h_j (s − w t_r) ≥ w²,
@@ -142,10 +144,16 @@ class ReactLookup:
         k, m = r_k.shape
         c_w = c0 - self._wt[:k]  # c0 − w·t_r; ≤ 0 reaches nothing (ρ past the grid, h = 0)
         h = self._hsuf[np.searchsorted(self.rho, r_k / np.maximum(c_w, 1e-12)) + self._hsuf_start[:k]]
+        if lam is not None:
+            h = h * lam[:k, None]
         n_reached = (h * (c_w - r_k) >= self._w2).sum(axis=1)
         top = int(n_reached.max())
+        s = [1.0] * k if lam is None else lam[:k].tolist()
         if top == 0:  # no row reaches v_0: the best lim at v_0's error
-            lim = self(c0, r_k[:, :1], slice(0, k))[:, 0]
+            if lam is None:
+                lim = self(c0, r_k[:, :1], slice(0, k))[:, 0]
+            else:
+                lim = np.array([self.at(c0, float(r_k[i, 0]), i, s[i]) for i in range(k)])
             b = int(np.argmax(lim))
             return b, 0, float(lim[b]), float(lim[b])
         rows = np.flatnonzero(n_reached == top).tolist()
@@ -154,15 +162,15 @@ class ReactLookup:
             w = best / MARGIN * (1.0 - 1e-12)  # rows with lim_top ≥ v_{top−1} (and a hair below: round-off)
             for i in reversed(rows):  # higher tilts first (usually the best); a tie goes to the lower row
                 r = float(r_k[i, top])
-                if not self._reaches(c0, r, w, i):
+                if not self._reaches(c0, r, w, i, s[i]):
                     continue  # lim_top < best for sure
-                lim = self.at(c0, r, i)
+                lim = self.at(c0, r, i, s[i])
                 if lim > best or (lim == best and row >= 0):
                     best, row, w = lim, i, lim / MARGIN * (1.0 - 1e-12)
             if row >= 0:
                 return row, top, best, best
         row = rows[0]
-        return row, top - 1, float(self._v[top - 1]), self.at(c0, float(r_k[row, top - 1]), row)
+        return row, top - 1, float(self._v[top - 1]), self.at(c0, float(r_k[row, top - 1]), row, s[row])
 
 
 def react_speed(c0: float, r_k: float, t: float, lam: float, rho, u, h, hsuf) -> float:
@@ -191,7 +199,7 @@ def react_speed(c0: float, r_k: float, t: float, lam: float, rho, u, h, hsuf) ->
     return max(vl, ve, 0.0) * MARGIN
 
 
-def law_cells(f: np.ndarray, a: np.ndarray, rel_tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+def law_cells(f: np.ndarray, a: np.ndarray, rel_tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
     """The cone tables' scaling law F(ρ; tilt, thrust) = √(a_h/g)·G(ρ) (`contracts.sweep`: every cell scales
     one verified curve; a_h the horizontal acceleration limit), checked at every grid cell.
 

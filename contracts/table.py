@@ -316,8 +316,13 @@ class ContractTable:
         hsuf[:-1] = np.maximum.accumulate(h[::-1], axis=0)[::-1]
         cells = [[(h[:, j, k].tolist(), hsuf[:, j, k].tolist()) if holds[j, k] else None
                   for k in range(a.shape[1])] for j in range(a.shape[0])]
-        return {"a": a.tolist(), "cells": cells, "tilt_top": min(self._tilt_list[-1], v.tilt_max),
-                "tr_top": self._tr_list[-1], "holds": holds}
+        # the thrust law on the grid's own tilts (`_thrust_lam`): where the edge (j, k)–(j, k+1) obeys it
+        k1 = np.minimum(np.arange(a.shape[1]) + 1, a.shape[1] - 1)
+        g_n = self._f / np.sqrt(a / G)[None]
+        edge = np.all(np.abs(g_n - g_n[:, :, k1]) <= 1e-12 * np.maximum(g_n, g_n[:, :, k1]), axis=0) & (a > 0)
+        return {"a": a.tolist(), "a_grid": a, "cells": cells, "tilt_top": min(self._tilt_list[-1], v.tilt_max),
+                "tr_top": self._tr_list[-1], "holds": holds, "g_tan": G * np.tan(self._tilts), "edge": edge,
+                "acc": [thrust_limited_accel(v.t_max(x), v.mass_kg) for x in self._tr_list]}
 
     def _a_h(self, tilt: float, thrust_ratio: float) -> float:
         """The cone's horizontal acceleration limit min(g·tan tilt, √((T_max/m)² − g²)) (`flat.horizontal_accel_limit`)."""
@@ -334,6 +339,18 @@ class ContractTable:
         if not lam > law["a"][top][k] * (1.0 + 1e-12):
             return None
         return lam, tilt, self.vehicle.reaction_time(tilt), law["cells"][top][k]
+
+    def _thrust_lam(self, thrust_ratio, top, k):
+        """Per grid tilt 0 … top, the thrust law's a_h(tilt_j, thrust)/a_h(tilt_j, thrust_k) (≥ 1; 1 where the
+        edge does not obey it), or None where thrust binds at no row (all 1: the grid's rows as they are)."""
+        law = self._law
+        if law is None or law["acc"][k] >= law["g_tan"][top]:  # thrust limits no row at the corner
+            return None
+        acc = thrust_limited_accel(self.vehicle.t_max(min(thrust_ratio, law["tr_top"])), self.vehicle.mass_kg)
+        if not acc > law["acc"][k]:
+            return None
+        lam = np.minimum(law["g_tan"][: top + 1], acc) / law["a_grid"][: top + 1, k]
+        return np.where(law["edge"][: top + 1, k], lam, 1.0)
 
     def _law_speed(self, row, k, c0, r_k) -> float:
         """The reaction-time fixed point on the law's row (`lookup.react_speed`), times LAW_MARGIN."""
@@ -401,10 +418,10 @@ class ContractTable:
         if top == NONE:
             return 0.0
         c0, r_k, react = d_od + r_obst, r_obst + e_tr + self._r_body, self._react[k]
-        row = self._law_row(tilt, thrust_ratio, top, k)
+        row, lam = self._law_row(tilt, thrust_ratio, top, k), self._thrust_lam(thrust_ratio, top, k)
         if row is not None:  # the law's row, then any grid tilt ≤ top that beats it (a shorter reaction time)
-            return react.best(c0, r_k, top + 1, self._law_speed(row, k, c0, r_k))
-        return react.best(c0, r_k, top, react.at(c0, r_k, top))
+            return react.best(c0, r_k, top + 1, self._law_speed(row, k, c0, r_k), lam)
+        return react.best(c0, r_k, top, react.at(c0, r_k, top, 1.0 if lam is None else float(lam[top])), lam)
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
@@ -447,8 +464,12 @@ class ContractTable:
         if top == NONE:
             return Omega("avoid", 0.0, tilt, e_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
         react, c0, r0 = self._react[k], d_od + r_obst, r_obst + self._r_body
+        lam = self._thrust_lam(thrust_ratio, top, k)  # None unless thrust binds at a grid tilt ≤ top
         if self.e_pred is None:
-            lim = react(c0, np.full((top + 1, 1), r0 + e_meas), slice(0, top + 1))[:, 0]
+            if lam is None:
+                lim = react(c0, np.full((top + 1, 1), r0 + e_meas), slice(0, top + 1))[:, 0]
+            else:  # (tables without E_tr_pred only: tests and tools)
+                lim = np.array([react.at(c0, r0 + e_meas, i, float(s)) for i, s in enumerate(lam)])
             best = int(np.argmax(lim))  # ties → the smaller tilt
             v_max, e_b, v_s = float(lim[best]), e_meas, float(lim[best])
         else:
@@ -458,7 +479,7 @@ class ContractTable:
                 best, v_max, e_b, v_s = 0, 0.0, math.inf, 0.0
             else:  # e_tr = max(measured, E_tr_pred) on the speed grid, the fixed point solved on it
                 e = np.maximum(self._e_rows[kk][:rows], e_meas)
-                best, jv, v_max, v_s = react.step_fixed_point(c0, r0 + e)
+                best, jv, v_max, v_s = react.step_fixed_point(c0, r0 + e, lam)
                 e_b = float(e[best, jv])
         tilt_b = float(self._tilts[best])
         row = self._law_row(tilt, thrust_ratio, top, k)

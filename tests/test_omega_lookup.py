@@ -82,26 +82,46 @@ def ref_react(t):
     return _REF[id(t)][1]
 
 
-def ref_law_row(t, tilt, thrust_ratio):
+def ref_law_row(t, tilt, thrust_ratio, check_only=False):
     """(reference solver, tilt) of the law's row at (tilt, thrust), or None (no law, a grid point, corners disagree)."""
     if t.tilt_model != "cone" or not str(t.avoid.info.get("scaling", "")).startswith(LAW_CLAIM):
         return None
+    if check_only:
+        return True
     rho, tilts, trs = t.avoid.axes
     veh = t.vehicle
     tilt_c, tr_c = min(tilt, veh.tilt_max, tilts[-1]), min(thrust_ratio, trs[-1])
     j, k = helps_index(tilts, tilt_c), helps_index(trs, tr_c)
     if NONE in (j, k):
         return None
-    a_h = lambda x, y: horizontal_accel_limit(x, veh.t_max(y), veh.mass_kg)  # noqa: E731
+    a_h = lambda x, y: horizontal_accel_limit(x, veh.t_max(y), veh.mass_kg)
     a_p = a_h(tilt_c, tr_c)
     if not a_p > a_h(tilts[j], trs[k]) * (1 + 1e-12):
         return None
     corners = {(jj, kk) for jj in (j, min(j + 1, len(tilts) - 1)) for kk in (k, min(k + 1, len(trs) - 1))}
     norm = np.array([t.avoid.values[:, jj, kk] / math.sqrt(a_h(tilts[jj], trs[kk])) for jj, kk in corners])
-    if np.any(norm.max(axis=0) - norm.min(axis=0) > 1e-9 * norm.max(axis=0)):
+    if np.any(norm.max(axis=0) - norm.min(axis=0) > 1e-12 * norm.max(axis=0)):
         return None  # the law does not hold in this cell: the worst corner only
     f_p = np.min(norm, axis=0) * math.sqrt(a_p)
     return RefReactLookup(rho, f_p[None], [veh.reaction_time(tilt_c)]), tilt_c
+
+
+def ref_grid_rows(t, k, thrust_ratio):
+    """The reference solver over every grid tilt at thrust column k; on a law table with the thrust law: each
+    tilt's column scaled from thrust_k to the thrust by √(a_h(tilt, thrust)/a_h(tilt, thrust_k)) where both
+    thrust corners obey the law (issue 18)."""
+    if ref_law_row(t, 0.0, 0.0, check_only=True) is None:
+        return ref_react(t)[k]
+    rho, tilts, trs = t.avoid.axes
+    veh = t.vehicle
+    a_h = lambda x, y: horizontal_accel_limit(x, veh.t_max(y), veh.mass_kg)
+    tr_c, k1 = min(thrust_ratio, trs[-1]), min(k + 1, len(trs) - 1)
+    f = t.avoid.values[:, :, k].T.copy()
+    for j, x in enumerate(tilts):
+        n0, n1 = f[j] / math.sqrt(a_h(x, trs[k])), t.avoid.values[:, j, k1] / math.sqrt(a_h(x, trs[k1]))
+        if np.all(np.abs(n0 - n1) <= 1e-12 * np.maximum(n0, n1)):
+            f[j] = f[j] * math.sqrt(a_h(x, tr_c) / a_h(x, trs[k]))
+    return RefReactLookup(rho, f, np.array([veh.reaction_time(x) for x in tilts]))
 
 
 def ref_cells(t, tilt, thrust_ratio):
@@ -132,7 +152,7 @@ def omega_reference(t, d_od, r_obst, e_meas, thrust_ratio, tilt=None) -> Omega:
     js, k = ref_cells(t, tilt, thrust_ratio)
     if not js:
         return Omega("avoid", 0.0, tilt, e_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
-    react, c0, r0 = ref_react(t)[k], d_od + r_obst, r_obst + t.vehicle.r_body_m
+    react, c0, r0 = ref_grid_rows(t, k, thrust_ratio), d_od + r_obst, r_obst + t.vehicle.r_body_m
     if t.e_pred is None:
         lim = react(c0, np.full((len(js), 1), r0 + e_meas), js[0], js[-1] + 1)[:, 0]
         best = int(np.argmax(lim))
@@ -175,7 +195,7 @@ def v_safe_reference(t, d_od, r_obst, e_tr, tilt, thrust_ratio) -> float:
     if not js:
         return 0.0
     r_k = np.full((len(js), 1), r_obst + e_tr + t.vehicle.r_body_m)
-    v = float(np.max(ref_react(t)[k](d_od + r_obst, r_k, js[0], js[-1] + 1)))
+    v = float(np.max(ref_grid_rows(t, k, thrust_ratio)(d_od + r_obst, r_k, js[0], js[-1] + 1)))
     law = ref_law_row(t, tilt, thrust_ratio)
     if law is not None:
         v = max(v, float(law[0](d_od + r_obst, r_k[:1])[0, 0]) * LAW_MARGIN)
