@@ -18,7 +18,7 @@ import io
 import json
 import math
 import zipfile
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -292,6 +292,10 @@ class ContractTable:
             self._law = self._scaling_law(avoid)
         if e_tr_pred is not None:
             self._ev, self._et, self._er = e_tr_pred.axes
+            self._ev_l, self._et_l, self._er_l = (a.tolist() for a in e_tr_pred.axes)
+            # E_tr_pred over the speed grid per (E tilt cell, thrust cell), as Python floats (`_e_list`)
+            self._e_lists = [[e_tr_pred.values[:, i, kk].tolist() for kk in range(len(self._er))]
+                             for i in range(len(self._et))]
             if avoid is not None:  # per E_tr thrust cell, E_tr_pred (avoid tilt, v) at each avoid tilt's E_tr cell
                 e_tilt_of = np.array([hurts_index(self._et, t) for t in self._tilts])
                 self._e_rows_n = int(np.count_nonzero(e_tilt_of != NONE))  # tilts above the E_tr grid: no bound
@@ -433,6 +437,11 @@ class ContractTable:
     def _stop(self, d_od: float, e_tr: float, a: float) -> float:
         return approach_stop_speed(d_od - e_tr - self._r_body, a, self.vehicle.braking.jerk_max_m_s3, self._t_dead)
 
+    def _e_list(self, tilt, thrust_ratio):
+        """E_tr_pred over the speed grid at the worst corner of (tilt, thrust), a list; None: no bound (∞)."""
+        i, kk = bisect_left(self._et_l, tilt), bisect_right(self._er_l, thrust_ratio) - 1
+        return None if i == len(self._et_l) or kk == NONE else self._e_lists[i][kk]
+
     def _e_column(self, e_tilt_idx, thrust_ratio, e_meas):
         """max(measured, E_tr_pred) on the speed grid for E-tilt cells `e_tilt_idx` → (len, n_v)."""
         kk = helps_index(self._er, thrust_ratio)
@@ -495,10 +504,12 @@ class ContractTable:
         if self.e_pred is None:
             v = self._law_speed(row, k, c0, r0 + e_meas)
             return v, e_meas, v
-        e = self._e_column([hurts_index(self._et, row[1])], thrust_ratio, e_meas)[0].tolist()
-        lim = lambda j: self._law_speed(row, k, c0, r0 + e[j]) if math.isfinite(e[j]) else 0.0
-        v, j = crossing_fixed_point(self._ev, lim)
-        return v, e[j], lim(j)
+        col = self._e_list(row[1], thrust_ratio)
+        if col is None:
+            return 0.0, math.inf, 0.0
+        lim = lambda j: self._law_speed(row, k, c0, r0 + max(col[j], e_meas))  # noqa: E731
+        v, j = crossing_fixed_point(self._ev_l, lim)
+        return v, max(col[j], e_meas), lim(j)
 
     def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
         tilt = min(tilt, self.vehicle.tilt_max)
@@ -507,10 +518,13 @@ class ContractTable:
             v = self._stop(d_od, e_meas, a)
             v_max, e_b, v_s = v, e_meas, v
         else:
-            e = self._e_column([hurts_index(self._et, tilt)], thrust_ratio, e_meas)[0]
-            lim = lambda j: self._stop(d_od, e[j], a) if math.isfinite(e[j]) else 0.0  # noqa: E731
-            v_max, j = crossing_fixed_point(self._ev, lim)
-            e_b, v_s = float(e[j]), lim(j)
+            col = self._e_list(tilt, thrust_ratio)
+            if col is None:  # no E_tr bound at this tilt or thrust: no safe speed
+                v_max, e_b, v_s = 0.0, math.inf, 0.0
+            else:
+                lim = lambda j: self._stop(d_od, max(col[j], e_meas), a)  # noqa: E731
+                v_max, j = crossing_fixed_point(self._ev_l, lim)
+                e_b, v_s = max(col[j], e_meas), lim(j)
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
         return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)
 
