@@ -85,14 +85,19 @@ class ReactLookup:
             self._w2 = np.where(w > 0, w * w, -np.inf)  # v ≤ 0 is always reached
             self._wt = self.t_r * w  # (k, m)
 
-    def __call__(self, c0: float, r_k, rows=slice(None)) -> np.ndarray:
-        """Speeds for finite keep-out radii `r_k` (k, m) ≥ 0, over columns `rows` (a slice or indices)."""
+    def __call__(self, c0: float, r_k, rows=slice(None), lam=None) -> np.ndarray:
+        """Speeds for finite keep-out radii `r_k` (k, m) ≥ 0, over columns `rows` (a slice or indices);
+        `lam` (k,) scales each row's h (the thrust law), None: 1."""
         c0 = max(float(c0), 0.0)
         t_r = self.t_r[rows]
         r_k = np.minimum(r_k, c0 + 0.5)  # past c0 nothing is admissible; keeps r_k/ρ finite
         gap = np.maximum(c0 - r_k, 0.0)[..., None]
-        ht = self._ht[rows][:, None, :]
-        v_star = 0.5 * (np.sqrt(self._ht2[rows][:, None, :] + self._h4[rows][:, None, :] * gap) - ht)  # (k, m, n)
+        ht, ht2, h4 = self._ht[rows][:, None, :], self._ht2[rows][:, None, :], self._h4[rows][:, None, :]
+        if lam is not None:
+            s = np.asarray(lam, dtype=float)[:, None, None]
+            ht, h4 = ht * s, h4 * s
+            ht2 = ht * ht
+        v_star = 0.5 * (np.sqrt(ht2 + h4 * gap) - ht)  # (k, m, n)
         ok = (gap - v_star * t_r[..., None]) * self._u >= r_k[..., None]  # u*_j ≥ r_k: j ≥ j*
         ve = np.max(np.where(ok, v_star, 0.0), axis=-1)
         j = self.n - ok.sum(axis=-1)  # j*
@@ -150,10 +155,7 @@ class ReactLookup:
         top = int(n_reached.max())
         s = [1.0] * k if lam is None else lam[:k].tolist()
         if top == 0:  # no row reaches v_0: the best lim at v_0's error
-            if lam is None:
-                lim = self(c0, r_k[:, :1], slice(0, k))[:, 0]
-            else:
-                lim = np.array([self.at(c0, float(r_k[i, 0]), i, s[i]) for i in range(k)])
+            lim = self(c0, r_k[:, :1], slice(0, k), None if lam is None else lam[:k])[:, 0]
             b = int(np.argmax(lim))
             return b, 0, float(lim[b]), float(lim[b])
         rows = np.flatnonzero(n_reached == top).tolist()

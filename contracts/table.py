@@ -475,10 +475,7 @@ class ContractTable:
         react, c0, r0 = self._react[k], d_od + r_obst, r_obst + self._r_body
         lam = self._thrust_lam(thrust_ratio, top, k)  # None unless thrust binds at a grid tilt ≤ top
         if self.e_pred is None:
-            if lam is None:
-                lim = react(c0, np.full((top + 1, 1), r0 + e_meas), slice(0, top + 1))[:, 0]
-            else:  # (tables without E_tr_pred only: tests and tools)
-                lim = np.array([react.at(c0, r0 + e_meas, i, float(s)) for i, s in enumerate(lam)])
+            lim = react(c0, np.full((top + 1, 1), r0 + e_meas), slice(0, top + 1), lam)[:, 0]
             best = int(np.argmax(lim))  # ties → the smaller tilt
             v_max, e_b, v_s = float(lim[best]), e_meas, float(lim[best])
         else:
