@@ -78,60 +78,66 @@ class ReactLookup:
         self._hsuf_start = (np.arange(self.k) * (self.n + 1))[:, None]
         # the same, as Python floats for one column at a time (`at`, `_reaches`)
         self._rho_l, self._u_l, self._hsuf_l = self.rho.tolist(), self._u.tolist(), hsuf.tolist()
-        self._t_l, self._ht_l, self._ht2_l, self._h4_l = (
-            a.tolist() for a in (self.t_r[:, 0], self._ht, self._ht2, self._h4))
+        self._h_l, self._t_col, self._t_l = self._h.tolist(), self.t_r[:, 0].copy(), self.t_r[:, 0].tolist()
         if v_grid is not None:  # the E_tr fixed point's speeds and w = v/MARGIN
             self._v = np.asarray(v_grid, dtype=float)
             w = self._v / MARGIN
             self._w2 = np.where(w > 0, w * w, -np.inf)  # v ≤ 0 is always reached
             self._wt = self.t_r * w  # (k, m)
 
-    def __call__(self, c0: float, r_k, rows=slice(None)) -> np.ndarray:
-        """Speeds for finite keep-out radii `r_k` (k, m) ≥ 0, over columns `rows` (a slice or indices)."""
+    def __call__(self, c0: float, r_k, rows=slice(None), lam=None) -> np.ndarray:
+        """Speeds for finite keep-out radii `r_k` (k, m) ≥ 0, over columns `rows` (a slice or indices);
+        `lam` (k,) scales each row's h (the thrust law), None: 1."""
         c0 = max(float(c0), 0.0)
         t_r = self.t_r[rows]
         r_k = np.minimum(r_k, c0 + 0.5)  # past c0 nothing is admissible; keeps r_k/ρ finite
         gap = np.maximum(c0 - r_k, 0.0)[..., None]
-        ht = self._ht[rows][:, None, :]
-        v_star = 0.5 * (np.sqrt(self._ht2[rows][:, None, :] + self._h4[rows][:, None, :] * gap) - ht)  # (k, m, n)
+        ht, ht2, h4 = self._ht[rows][:, None, :], self._ht2[rows][:, None, :], self._h4[rows][:, None, :]
+        if lam is not None:
+            s = np.asarray(lam, dtype=float)[:, None, None]
+            ht, h4 = ht * s, h4 * s
+            ht2 = ht * ht
+        v_star = 0.5 * (np.sqrt(ht2 + h4 * gap) - ht)  # (k, m, n)
         ok = (gap - v_star * t_r[..., None]) * self._u >= r_k[..., None]  # u*_j ≥ r_k: j ≥ j*
         ve = np.max(np.where(ok, v_star, 0.0), axis=-1)
         j = self.n - ok.sum(axis=-1)  # j*
         vl = np.where(j > 0, (c0 - r_k / self._rho_prev[j]) / t_r, 0.0)
         return np.maximum(np.maximum(vl, ve), 0.0) * MARGIN
 
-    def at(self, c0: float, r_k: float, row: int) -> float:
-        """`self(c0, [[r_k]], [row])` in scalars: j* by bisection (the admissible discs are the cells
-        j ≥ j*), then V*_j over those cells only."""
+    def at(self, c0: float, r_k: float, row: int, lam: float = 1.0) -> float:
+        """`self(c0, [[r_k]], [row])` in scalars (`react_speed`), the row's h scaled by `lam`."""
+        return react_speed(c0, r_k, self._t_l[row], lam, self._rho_l, self._u_l, self._h_l[row], self._hsuf_l[row])
+
+    def best(self, c0: float, r: float, n_rows: int, floor: float = 0.0, lam=None) -> float:
+        """max(floor, max over rows 0 … n_rows−1 of `at(c0, r, row, lam[row])`) without solving every row:
+        the O(1) test of `step_fixed_point` ("the unscaled speed reaches w") over all rows at once keeps only
+        the rows that can beat the best so far, solved in scalars from the top (usually the best) down.
+        `lam` (n_rows,) scales each row's h (the thrust law), None: 1."""
         c0 = max(float(c0), 0.0)
-        r = min(r_k, c0 + 0.5)
-        gap = max(c0 - r, 0.0)
-        t, ht2, h4, ht, u = self._t_l[row], self._ht2_l[row], self._h4_l[row], self._ht_l[row], self._u_l
-        lo, hi = 0, self.n
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if (gap - 0.5 * (sqrt(ht2[mid] + h4[mid] * gap) - ht[mid]) * t) * u[mid] >= r:
-                hi = mid
-            else:
-                lo = mid + 1
-        ve = 0.0
-        if lo < self.n:
-            ht2_, h4_, ht_ = self._ht2[row, lo:], self._h4[row, lo:], self._ht[row, lo:]
-            ve = float((0.5 * (np.sqrt(ht2_ + h4_ * gap) - ht_)).max())
-        vl = (c0 - r / self._rho_l[lo - 1]) / t if lo else 0.0
-        return max(vl, ve, 0.0) * MARGIN
+        w = floor / MARGIN * (1.0 - 1e-12)
+        c_w = c0 - self._t_col[:n_rows] * w
+        h = self._hsuf[np.searchsorted(self.rho, r / np.maximum(c_w, 1e-12)) + self._hsuf_start[:n_rows, 0]]
+        gain = h * (c_w - r) if lam is None else h * lam * (c_w - r)
+        cand = np.flatnonzero(gain > 0.0 if w <= 0.0 else (c_w > r) & (gain >= w * w)).tolist()
+        best = floor
+        for row in reversed(cand):
+            s = 1.0 if lam is None else float(lam[row])
+            if best > floor and not self._reaches(c0, r, best / MARGIN * (1.0 - 1e-12), row, s):
+                continue
+            best = max(best, self.at(c0, r, row, s))
+        return best
 
-    def _reaches(self, c0: float, r: float, w: float, row: int) -> bool:
-        """Unscaled speed ≥ w at keep-out radius r (see `step_fixed_point`)."""
+    def _reaches(self, c0: float, r: float, w: float, row: int, lam: float = 1.0) -> bool:
+        """Unscaled speed ≥ w at keep-out radius r (see `step_fixed_point`), the row's h scaled by `lam`."""
         c_w = c0 - self._t_l[row] * w
-        return w <= 0 or c_w > r and self._hsuf_l[row][bisect_left(self._rho_l, r / c_w)] * (c_w - r) >= w * w
+        return w <= 0 or c_w > r and lam * self._hsuf_l[row][bisect_left(self._rho_l, r / c_w)] * (c_w - r) >= w * w
 
-    def step_fixed_point(self, c0: float, r_k) -> tuple[int, int, float, float]:
+    def step_fixed_point(self, c0: float, r_k, lam=None) -> tuple[int, int, float, float]:
         """The E_tr fixed point (DESIGN.md §1) on the speed grid `v` given to the constructor: the largest
         V with V ≤ self(c0, r_k(V)), r_k(V) the keep-out radius with the error of V's (worst) grid cell,
         and the first row (tilt) reaching it. `r_k` (k, m): finite, non-decreasing along m, rows 0 … k−1;
         each row's answer is max_j min(v_j, lim_j), lim = self(c0, r_k), its first argmax j.
-        Returns (row, j, V, lim at (row, j)).
+        Returns (row, j, V, lim at (row, j)). `lam` (k,) scales each row's h (the thrust law), None: 1.
 
         Whether lim reaches v (⟺ the unscaled speed ≥ w = v/MARGIN) costs O(1): cell j admits the
         V ≤ min(Vlim_j, V*_j), and Vlim_j ≥ w ⟺ ρ_j ≥ r_k/(c0 − w t_r), V*_j ≥ w ⟺ h_j (s − w t_r) ≥ w²,
@@ -143,10 +149,13 @@ class ReactLookup:
         k, m = r_k.shape
         c_w = c0 - self._wt[:k]  # c0 − w·t_r; ≤ 0 reaches nothing (ρ past the grid, h = 0)
         h = self._hsuf[np.searchsorted(self.rho, r_k / np.maximum(c_w, 1e-12)) + self._hsuf_start[:k]]
+        if lam is not None:
+            h = h * lam[:k, None]
         n_reached = (h * (c_w - r_k) >= self._w2).sum(axis=1)
         top = int(n_reached.max())
+        s = [1.0] * k if lam is None else lam[:k].tolist()
         if top == 0:  # no row reaches v_0: the best lim at v_0's error
-            lim = self(c0, r_k[:, :1], slice(0, k))[:, 0]
+            lim = self(c0, r_k[:, :1], slice(0, k), None if lam is None else lam[:k])[:, 0]
             b = int(np.argmax(lim))
             return b, 0, float(lim[b]), float(lim[b])
         rows = np.flatnonzero(n_reached == top).tolist()
@@ -155,15 +164,61 @@ class ReactLookup:
             w = best / MARGIN * (1.0 - 1e-12)  # rows with lim_top ≥ v_{top−1} (and a hair below: round-off)
             for i in reversed(rows):  # higher tilts first (usually the best); a tie goes to the lower row
                 r = float(r_k[i, top])
-                if not self._reaches(c0, r, w, i):
+                if not self._reaches(c0, r, w, i, s[i]):
                     continue  # lim_top < best for sure
-                lim = self.at(c0, r, i)
+                lim = self.at(c0, r, i, s[i])
                 if lim > best or (lim == best and row >= 0):
                     best, row, w = lim, i, lim / MARGIN * (1.0 - 1e-12)
             if row >= 0:
                 return row, top, best, best
         row = rows[0]
-        return row, top - 1, float(self._v[top - 1]), self.at(c0, float(r_k[row, top - 1]), row)
+        return row, top - 1, float(self._v[top - 1]), self.at(c0, float(r_k[row, top - 1]), row, s[row])
+
+
+def react_speed(c0: float, r_k: float, t: float, lam: float, rho, u, h, hsuf) -> float:
+    """One column of `ReactLookup` in scalars: the reaction-time fixed point for the cells h_j = lam·h[j]
+    (h_j = g·F_j²/(1 − ρ_j)), reaction time t, u_j = ρ_j/(1 − ρ_j), hsuf[j] = max(h[j:]) (0 at n).
+
+    j* (the first admissible enclosing disc; the admissible ones are j ≥ j*) by bisection; the best V*_j
+    over j ≥ j* is V* at the largest h_j there (V* rises with h), so the answer is
+    max(Vlim_{j*−1}, V*(lam·hsuf[j*])) — O(log n), no array. Python lists (or tuples) in, a float out."""
+    c0 = max(float(c0), 0.0)
+    r = min(r_k, c0 + 0.5)
+    gap = max(c0 - r, 0.0)
+    lo, hi = 0, len(rho)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        hm = lam * h[mid]
+        ht = hm * t
+        if (gap - 0.5 * (sqrt(ht * ht + 4.0 * hm * gap) - ht) * t) * u[mid] >= r:
+            hi = mid
+        else:
+            lo = mid + 1
+    hm = lam * hsuf[lo]  # 0 past the grid
+    ht = hm * t
+    ve = 0.5 * (sqrt(ht * ht + 4.0 * hm * gap) - ht)
+    vl = (c0 - r / rho[lo - 1]) / t if lo else 0.0
+    return max(vl, ve, 0.0) * MARGIN
+
+
+def law_cells(f: np.ndarray, a: np.ndarray, rel_tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """The cone tables' scaling law F(ρ; tilt, thrust) = √(a_h/g)·G(ρ) (`contracts.sweep`: every cell scales
+    one verified curve; a_h the horizontal acceleration limit), checked at every grid cell.
+
+    `f` (n_ρ, n_tilt, n_thrust) the table, `a` (n_tilt, n_thrust) a_h at the grid points. For the cell
+    [tilt_j, tilt_j+1] × [thrust_k, thrust_k+1] (clipped at the top of each axis) returns Ĝ = min over its
+    corners c of F_c/√(a_c/g), and whether the corners agree within `rel_tol` at every ρ (the law holds
+    there). Where it holds, √(a_h(p)/g)·Ĝ at a point p of the cell is no more than any corner's verified
+    value scaled to p by the law, F_c·√(a_h(p)/a_c). Returns (Ĝ (n_ρ, n_tilt, n_thrust), holds (n_tilt, n_thrust))."""
+    nt, nk = a.shape
+    j1, k1 = np.minimum(np.arange(nt) + 1, nt - 1), np.minimum(np.arange(nk) + 1, nk - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        g_n = f / np.sqrt(a / G)[None]
+    corners = np.stack([g_n, g_n[:, j1], g_n[:, :, k1], g_n[:, j1][:, :, k1]])
+    g_hat, g_max = corners.min(axis=0), corners.max(axis=0)
+    ok = np.isfinite(g_max) & (g_max - g_hat <= rel_tol * g_max)
+    holds = ok.all(axis=0) & (a > 0) & (a[j1] > 0) & (a[:, k1] > 0)
+    return np.where(np.isfinite(g_hat), g_hat, 0.0), holds
 
 
 def crossing_fixed_point(v_grid, limit_of_j) -> tuple[float, int]:

@@ -18,7 +18,7 @@ import io
 import json
 import math
 import zipfile
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +26,7 @@ import numpy as np
 
 from . import __version__
 from .errors import ContractError
+from .flat import thrust_limited_accel
 from .lookup import (
     NONE,
     ReactLookup,
@@ -33,13 +34,21 @@ from .lookup import (
     helps_index,
     hurts_index,
     is_monotone,
+    law_cells,
+    react_speed,
 )
 from .stop import approach_stop_speed, braking_decel, stop_dead_time
-from .vehicle import DATA_DIR, Vehicle, load_vehicle, vehicle_from_dict
+from .vehicle import DATA_DIR, G, Vehicle, load_vehicle, vehicle_from_dict
 
 SCHEMA = "contract-guard/gamma-table"
 SCHEMA_VERSION = 1
 MAX_REPAIR_FRACTION = 0.01  # the build fails if more cells than this needed a monotonicity repair
+LAW_CLAIM = "cone: F = sqrt(a_h/g)*G(rho)"  # how a cone build states its scaling law (contracts/sweep.py)
+# The law's row answers between grid tilts, at points no planner checked with the folded reaction time
+# t_react + tilt/rate (DESIGN.md §2). Against the rate-limited planner that folding holds only to within
+# the planners' 1e-3 brackets (measured, issue 18: at 7° it is 0.07 % above it), so the law's row keeps
+# two brackets of margin (0.2 %); the worst corner it replaces loses up to 13 % a degree at small tilts.
+LAW_MARGIN = 1.0 - 2e-3
 
 # slot → (value array, axis arrays, per-axis monotone direction of the values, safe repair direction)
 SLOTS = {
@@ -280,14 +289,78 @@ class ContractTable:
             # one exact reaction-time solver per thrust column, over all tilts (precomputed)
             self._react = [ReactLookup(self._rho, self._f[:, :, k].T, t_r, v_grid=v_grid)
                            for k in range(len(self._trs))]
+            self._law = self._scaling_law(avoid)
         if e_tr_pred is not None:
             self._ev, self._et, self._er = e_tr_pred.axes
+            self._ev_l, self._et_l, self._er_l = (a.tolist() for a in e_tr_pred.axes)
+            # E_tr_pred over the speed grid per (E tilt cell, thrust cell), as Python floats (`_e_list`)
+            self._e_lists = [[e_tr_pred.values[:, i, kk].tolist() for kk in range(len(self._er))]
+                             for i in range(len(self._et))]
             if avoid is not None:  # per E_tr thrust cell, E_tr_pred (avoid tilt, v) at each avoid tilt's E_tr cell
                 e_tilt_of = np.array([hurts_index(self._et, t) for t in self._tilts])
                 self._e_rows_n = int(np.count_nonzero(e_tilt_of != NONE))  # tilts above the E_tr grid: no bound
                 cells = e_tilt_of[: self._e_rows_n]
                 self._e_rows = [e_tr_pred.values[:, cells, kk].T.copy() for kk in range(len(self._er))]
                 self._er_list = self._er.tolist()
+
+    def _scaling_law(self, avoid: Slot):
+        """Between grid points, the cone build's own law F = √(a_h/g)·G(ρ) (issue 18): where the table states it
+        and every corner of a cell obeys it (`lookup.law_cells`, checked here at load over every cell), the
+        answer at (tilt, thrust) scales the cell's corners to that point's a_h. Derived at load from the
+        hashed arrays and the verified vehicle (nothing stored). None: worst corner only (box tables, …)."""
+        if self.tilt_model != "cone" or not str(avoid.info.get("scaling", "")).startswith(LAW_CLAIM):
+            return None
+        v = self.vehicle
+        a = np.array([[self._a_h(t, k) for k in self._tr_list] for t in self._tilt_list])
+        g_hat, holds = law_cells(self._f, a)
+        if not holds.any():
+            return None
+        h = g_hat * g_hat / (1.0 - self._rho)[:, None, None]  # h_j = a_h·Ĝ_j²/(1 − ρ_j) at a_h = 1
+        hsuf = np.zeros((len(self._rho) + 1, *a.shape))
+        hsuf[:-1] = np.maximum.accumulate(h[::-1], axis=0)[::-1]
+        cells = [[(h[:, j, k].tolist(), hsuf[:, j, k].tolist()) if holds[j, k] else None
+                  for k in range(a.shape[1])] for j in range(a.shape[0])]
+        # the thrust law on the grid's own tilts (`_thrust_lam`): where the edge (j, k)–(j, k+1) obeys it
+        k1 = np.minimum(np.arange(a.shape[1]) + 1, a.shape[1] - 1)
+        g_n = self._f / np.sqrt(a / G)[None]
+        edge = np.all(np.abs(g_n - g_n[:, :, k1]) <= 1e-12 * np.maximum(g_n, g_n[:, :, k1]), axis=0) & (a > 0)
+        return {"a": a.tolist(), "a_grid": a, "cells": cells, "tilt_top": min(self._tilt_list[-1], v.tilt_max),
+                "tr_top": self._tr_list[-1], "holds": holds, "g_tan": G * np.tan(self._tilts), "edge": edge,
+                "acc": [thrust_limited_accel(v.t_max(x), v.mass_kg) for x in self._tr_list]}
+
+    def _a_h(self, tilt: float, thrust_ratio: float) -> float:
+        """The cone's horizontal acceleration limit min(g·tan tilt, √((T_max/m)² − g²)) (`flat.horizontal_accel_limit`)."""
+        return min(G * math.tan(tilt), thrust_limited_accel(self.vehicle.t_max(thrust_ratio), self.vehicle.mass_kg))
+
+    def _law_row(self, tilt, thrust_ratio, top, k):
+        """(a_h, tilt, reaction time, cell) of the law's row at the actual (tilt, thrust), clipped to the grid's
+        top, in the cell (top, k); None where the law does not hold there or adds nothing (a grid point)."""
+        law = self._law
+        if law is None or law["cells"][top][k] is None:
+            return None
+        tilt = min(tilt, law["tilt_top"])
+        lam = self._a_h(tilt, min(thrust_ratio, law["tr_top"]))
+        if not lam > law["a"][top][k] * (1.0 + 1e-12):
+            return None
+        return lam, tilt, self.vehicle.reaction_time(tilt), law["cells"][top][k]
+
+    def _thrust_lam(self, thrust_ratio, top, k):
+        """Per grid tilt 0 … top, the thrust law's a_h(tilt_j, thrust)/a_h(tilt_j, thrust_k) (≥ 1; 1 where the
+        edge does not obey it), or None where thrust binds at no row (all 1: the grid's rows as they are)."""
+        law = self._law
+        if law is None or law["acc"][k] >= law["g_tan"][top]:  # thrust limits no row at the corner
+            return None
+        acc = thrust_limited_accel(self.vehicle.t_max(min(thrust_ratio, law["tr_top"])), self.vehicle.mass_kg)
+        if not acc > law["acc"][k]:
+            return None
+        lam = np.minimum(law["g_tan"][: top + 1], acc) / law["a_grid"][: top + 1, k]
+        return np.where(law["edge"][: top + 1, k], lam, 1.0)
+
+    def _law_speed(self, row, k, c0, r_k) -> float:
+        """The reaction-time fixed point on the law's row (`lookup.react_speed`), times LAW_MARGIN."""
+        lam, _, t_r, (h, hsuf) = row
+        react = self._react[k]
+        return react_speed(c0, r_k, t_r, lam, react._rho_l, react._u_l, h, hsuf) * LAW_MARGIN
 
     # ---- shape of the table
     @property
@@ -348,8 +421,11 @@ class ContractTable:
         top, k = self._avoid_cells(tilt, thrust_ratio)
         if top == NONE:
             return 0.0
-        r_k = np.full((top + 1, 1), r_obst + e_tr + self._r_body)
-        return float(np.max(self._react[k](d_od + r_obst, r_k, slice(0, top + 1))))
+        c0, r_k, react = d_od + r_obst, r_obst + e_tr + self._r_body, self._react[k]
+        row, lam = self._law_row(tilt, thrust_ratio, top, k), self._thrust_lam(thrust_ratio, top, k)
+        if row is not None:  # the law's row, then any grid tilt ≤ top that beats it (a shorter reaction time)
+            return react.best(c0, r_k, top + 1, self._law_speed(row, k, c0, r_k), lam)
+        return react.best(c0, r_k, top, react.at(c0, r_k, top, 1.0 if lam is None else float(lam[top])), lam)
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
@@ -360,6 +436,11 @@ class ContractTable:
 
     def _stop(self, d_od: float, e_tr: float, a: float) -> float:
         return approach_stop_speed(d_od - e_tr - self._r_body, a, self.vehicle.braking.jerk_max_m_s3, self._t_dead)
+
+    def _e_list(self, tilt, thrust_ratio):
+        """E_tr_pred over the speed grid at the worst corner of (tilt, thrust), a list; None: no bound (∞)."""
+        i, kk = bisect_left(self._et_l, tilt), bisect_right(self._er_l, thrust_ratio) - 1
+        return None if i == len(self._et_l) or kk == NONE else self._e_lists[i][kk]
 
     def _e_column(self, e_tilt_idx, thrust_ratio, e_meas):
         """max(measured, E_tr_pred) on the speed grid for E-tilt cells `e_tilt_idx` → (len, n_v)."""
@@ -392,8 +473,9 @@ class ContractTable:
         if top == NONE:
             return Omega("avoid", 0.0, tilt, e_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
         react, c0, r0 = self._react[k], d_od + r_obst, r_obst + self._r_body
+        lam = self._thrust_lam(thrust_ratio, top, k)  # None unless thrust binds at a grid tilt ≤ top
         if self.e_pred is None:
-            lim = react(c0, np.full((top + 1, 1), r0 + e_meas), slice(0, top + 1))[:, 0]
+            lim = react(c0, np.full((top + 1, 1), r0 + e_meas), slice(0, top + 1), lam)[:, 0]
             best = int(np.argmax(lim))  # ties → the smaller tilt
             v_max, e_b, v_s = float(lim[best]), e_meas, float(lim[best])
         else:
@@ -403,10 +485,28 @@ class ContractTable:
                 best, v_max, e_b, v_s = 0, 0.0, math.inf, 0.0
             else:  # e_tr = max(measured, E_tr_pred) on the speed grid, the fixed point solved on it
                 e = np.maximum(self._e_rows[kk][:rows], e_meas)
-                best, jv, v_max, v_s = react.step_fixed_point(c0, r0 + e)
+                best, jv, v_max, v_s = react.step_fixed_point(c0, r0 + e, lam)
                 e_b = float(e[best, jv])
+        tilt_b = float(self._tilts[best])
+        row = self._law_row(tilt, thrust_ratio, top, k)
+        if row is not None:  # the law's row at the actual tilt and thrust, if it beats the grid's (ties: the grid)
+            v_l, e_l, s_l = self._law_omega(row, k, c0, r0, e_meas, thrust_ratio)
+            if v_l > v_max:
+                v_max, e_b, v_s, tilt_b = v_l, e_l, s_l, row[1]
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, R_obst, E_tr"
-        return Omega("avoid", v_max, float(self._tilts[best]), e_b, v_s, v_max - v_s, reason)
+        return Omega("avoid", v_max, tilt_b, e_b, v_s, v_max - v_s, reason)
+
+    def _law_omega(self, row, k, c0, r0, e_meas, thrust_ratio):
+        """(V, e_tr, V_safe) of the E_tr fixed point on the law's row (E_tr_pred at its worst corner)."""
+        if self.e_pred is None:
+            v = self._law_speed(row, k, c0, r0 + e_meas)
+            return v, e_meas, v
+        col = self._e_list(row[1], thrust_ratio)
+        if col is None:
+            return 0.0, math.inf, 0.0
+        lim = lambda j: self._law_speed(row, k, c0, r0 + max(col[j], e_meas))  # noqa: E731
+        v, j = crossing_fixed_point(self._ev_l, lim)
+        return v, max(col[j], e_meas), lim(j)
 
     def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
         tilt = min(tilt, self.vehicle.tilt_max)
@@ -415,10 +515,13 @@ class ContractTable:
             v = self._stop(d_od, e_meas, a)
             v_max, e_b, v_s = v, e_meas, v
         else:
-            e = self._e_column([hurts_index(self._et, tilt)], thrust_ratio, e_meas)[0]
-            lim = lambda j: self._stop(d_od, e[j], a) if math.isfinite(e[j]) else 0.0  # noqa: E731
-            v_max, j = crossing_fixed_point(self._ev, lim)
-            e_b, v_s = float(e[j]), lim(j)
+            col = self._e_list(tilt, thrust_ratio)
+            if col is None:  # no E_tr bound at this tilt or thrust: no safe speed
+                v_max, e_b, v_s = 0.0, math.inf, 0.0
+            else:
+                lim = lambda j: self._stop(d_od, max(col[j], e_meas), a)  # noqa: E731
+                v_max, j = crossing_fixed_point(self._ev_l, lim)
+                e_b, v_s = max(col[j], e_meas), lim(j)
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
         return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)
 

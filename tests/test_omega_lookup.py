@@ -1,6 +1,10 @@
-"""The fast avoid Ω (ReactLookup.step_fixed_point, .at) gives the answers of the full-grid reference it
+"""The fast avoid Ω (ReactLookup.step_fixed_point, .at, .best) gives the answers of the full-grid reference it
 replaced (kept below, verbatim but for names): same V_max and tilt (and E_tr, V_safe, Γ, reason), on
-random tables and queries, out-of-range inputs included; V_safe too. No solver calls."""
+random tables and queries, out-of-range inputs included; V_safe too. No solver calls.
+
+On a cone table stating its scaling law (the shipped ones), the reference has the law's row too (issue 18),
+computed here on its own: each corner of the cell scaled to the point by √(a_h(p)/a_h(c)), the least taken,
+through the reference solver at the point's reaction time."""
 
 import math
 
@@ -9,8 +13,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_table import MAMBO, avoid_tables, etr_tables, make
 
+from contracts.flat import horizontal_accel_limit
 from contracts.lookup import NONE, ReactLookup, helps_index, hurts_index
-from contracts.table import Omega, load_for_vehicle
+from contracts.table import LAW_CLAIM, LAW_MARGIN, Omega, load_for_vehicle
 from contracts.vehicle import G
 
 SHIPPED = load_for_vehicle(MAMBO)
@@ -77,6 +82,48 @@ def ref_react(t):
     return _REF[id(t)][1]
 
 
+def ref_law_row(t, tilt, thrust_ratio, check_only=False):
+    """(reference solver, tilt) of the law's row at (tilt, thrust), or None (no law, a grid point, corners disagree)."""
+    if t.tilt_model != "cone" or not str(t.avoid.info.get("scaling", "")).startswith(LAW_CLAIM):
+        return None
+    if check_only:
+        return True
+    rho, tilts, trs = t.avoid.axes
+    veh = t.vehicle
+    tilt_c, tr_c = min(tilt, veh.tilt_max, tilts[-1]), min(thrust_ratio, trs[-1])
+    j, k = helps_index(tilts, tilt_c), helps_index(trs, tr_c)
+    if NONE in (j, k):
+        return None
+    a_h = lambda x, y: horizontal_accel_limit(x, veh.t_max(y), veh.mass_kg)
+    a_p = a_h(tilt_c, tr_c)
+    if not a_p > a_h(tilts[j], trs[k]) * (1 + 1e-12):
+        return None
+    corners = {(jj, kk) for jj in (j, min(j + 1, len(tilts) - 1)) for kk in (k, min(k + 1, len(trs) - 1))}
+    norm = np.array([t.avoid.values[:, jj, kk] / math.sqrt(a_h(tilts[jj], trs[kk])) for jj, kk in corners])
+    if np.any(norm.max(axis=0) - norm.min(axis=0) > 1e-12 * norm.max(axis=0)):
+        return None  # the law does not hold in this cell: the worst corner only
+    f_p = np.min(norm, axis=0) * math.sqrt(a_p)
+    return RefReactLookup(rho, f_p[None], [veh.reaction_time(tilt_c)]), tilt_c
+
+
+def ref_grid_rows(t, k, thrust_ratio):
+    """The reference solver over every grid tilt at thrust column k; on a law table with the thrust law: each
+    tilt's column scaled from thrust_k to the thrust by √(a_h(tilt, thrust)/a_h(tilt, thrust_k)) where both
+    thrust corners obey the law (issue 18)."""
+    if ref_law_row(t, 0.0, 0.0, check_only=True) is None:
+        return ref_react(t)[k]
+    rho, tilts, trs = t.avoid.axes
+    veh = t.vehicle
+    a_h = lambda x, y: horizontal_accel_limit(x, veh.t_max(y), veh.mass_kg)
+    tr_c, k1 = min(thrust_ratio, trs[-1]), min(k + 1, len(trs) - 1)
+    f = t.avoid.values[:, :, k].T.copy()
+    for j, x in enumerate(tilts):
+        n0, n1 = f[j] / math.sqrt(a_h(x, trs[k])), t.avoid.values[:, j, k1] / math.sqrt(a_h(x, trs[k1]))
+        if np.all(np.abs(n0 - n1) <= 1e-12 * np.maximum(n0, n1)):
+            f[j] = f[j] * math.sqrt(a_h(x, tr_c) / a_h(x, trs[k]))
+    return RefReactLookup(rho, f, np.array([veh.reaction_time(x) for x in tilts]))
+
+
 def ref_cells(t, tilt, thrust_ratio):
     k = helps_index(t.avoid.axes[2], thrust_ratio)
     top = helps_index(t.avoid.axes[1], min(tilt, t.vehicle.tilt_max))
@@ -105,7 +152,7 @@ def omega_reference(t, d_od, r_obst, e_meas, thrust_ratio, tilt=None) -> Omega:
     js, k = ref_cells(t, tilt, thrust_ratio)
     if not js:
         return Omega("avoid", 0.0, tilt, e_meas, 0.0, 0.0, "tilt or thrust below the table's grid")
-    react, c0, r0 = ref_react(t)[k], d_od + r_obst, r_obst + t.vehicle.r_body_m
+    react, c0, r0 = ref_grid_rows(t, k, thrust_ratio), d_od + r_obst, r_obst + t.vehicle.r_body_m
     if t.e_pred is None:
         lim = react(c0, np.full((len(js), 1), r0 + e_meas), js[0], js[-1] + 1)[:, 0]
         best = int(np.argmax(lim))
@@ -118,8 +165,27 @@ def omega_reference(t, d_od, r_obst, e_meas, thrust_ratio, tilt=None) -> Omega:
         v_cand, jv = ref_step_fixed_point(t.e_pred.axes[0], lim)
         best = int(np.argmax(v_cand))
         v_max, e_b, v_s = float(v_cand[best]), float(e[best, jv[best]]), float(lim[best, jv[best]])
+    tilt_b = float(tilts[js[best]])
+    law = ref_law_row(t, tilt, thrust_ratio)
+    if law is not None:
+        ref, tilt_l = law
+        if t.e_pred is None:
+            e_l = np.array([[e_meas]])
+        else:
+            e_l = ref_e_column(t, [hurts_index(t.e_pred.axes[1], tilt_l)], thrust_ratio, e_meas)
+        fin = np.isfinite(e_l)
+        lim_l = np.where(fin, ref(c0, r0 + np.where(fin, e_l, 0.0)), 0.0) * LAW_MARGIN
+        if t.e_pred is None:
+            v_l, jl = float(lim_l[0, 0]), 0
+            cand = (v_l, e_meas, v_l)
+        else:
+            vc, jv_l = ref_step_fixed_point(t.e_pred.axes[0], lim_l)
+            jl = int(jv_l[0])
+            cand = (float(vc[0]), float(e_l[0, jl]), float(lim_l[0, jl]))
+        if cand[0] > v_max:
+            (v_max, e_b, v_s), tilt_b = cand, tilt_l
     reason = "ok" if v_max > 0 else "no safe speed at this D_od, R_obst, E_tr"
-    return Omega("avoid", v_max, float(tilts[js[best]]), e_b, v_s, v_max - v_s, reason)
+    return Omega("avoid", v_max, tilt_b, e_b, v_s, v_max - v_s, reason)
 
 
 def v_safe_reference(t, d_od, r_obst, e_tr, tilt, thrust_ratio) -> float:
@@ -129,7 +195,11 @@ def v_safe_reference(t, d_od, r_obst, e_tr, tilt, thrust_ratio) -> float:
     if not js:
         return 0.0
     r_k = np.full((len(js), 1), r_obst + e_tr + t.vehicle.r_body_m)
-    return float(np.max(ref_react(t)[k](d_od + r_obst, r_k, js[0], js[-1] + 1)))
+    v = float(np.max(ref_grid_rows(t, k, thrust_ratio)(d_od + r_obst, r_k, js[0], js[-1] + 1)))
+    law = ref_law_row(t, tilt, thrust_ratio)
+    if law is not None:
+        v = max(v, float(law[0](d_od + r_obst, r_k[:1])[0, 0]) * LAW_MARGIN)
+    return v
 
 
 # ----------------------------------------------------------------------------- sameness
@@ -160,7 +230,7 @@ def test_fast_omega_equals_the_reference_on_the_shipped_table(d_od, r_obst, e_me
     same(SHIPPED.omega(d_od, r_obst, e_meas, tr, tilt=tilt), omega_reference(SHIPPED, d_od, r_obst, e_meas, tr, tilt))
     if tilt is not None:
         v_ref = v_safe_reference(SHIPPED, d_od, r_obst, e_meas, tilt, tr)
-        assert SHIPPED.v_safe(d_od, r_obst, e_meas, tilt, tr) == v_ref
+        assert close(SHIPPED.v_safe(d_od, r_obst, e_meas, tilt, tr), v_ref)
 
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
@@ -189,8 +259,12 @@ def test_fast_omega_equals_the_reference_on_a_dense_random_sweep():
         ref = omega_reference(SHIPPED, d_od, r_obst, e_meas, tr, cap)
         same(fast, ref)
         exact += fast == ref
+        assert fast.v_max <= ref.v_max * (1 + TOL) and fast.v_safe <= ref.v_safe * (1 + TOL)
         kinds[0 if fast.v_max < v_grid[0] else 3 if fast.v_max == v_grid[-1] else 2 if fast.v_max in v_grid else 1] += 1
-    assert exact == n  # bit for bit on this sweep
+    # bit for bit on the grid's rows but where the scalar path takes V* at the largest h_j rather than the
+    # largest V*_j (the stop branch's h_j are equal but for round-off); the law's row (most tilt caps here
+    # are off the grid) is computed another way: round-off apart, and never above
+    assert exact >= 0.1 * n
     assert np.all(kinds > n // 50), kinds  # every path of step_fixed_point taken
 
 
@@ -201,7 +275,7 @@ def test_fast_omega_at_the_grid_speeds_and_edges():
         for tr in (MAMBO.thrust_ratio_range[0], 0.8, 1.0, 1.2):
             for tilt in (None, SHIPPED.avoid.axes[1][0], SHIPPED.avoid.axes[1][0] - 1e-9, math.radians(9.0), 0.0):
                 fast = SHIPPED.omega(d_od, 0.5, 0.1, tr, tilt=tilt)
-                assert fast == omega_reference(SHIPPED, d_od, 0.5, 0.1, tr, tilt)
+                same(fast, omega_reference(SHIPPED, d_od, 0.5, 0.1, tr, tilt))
     assert SHIPPED.omega(1e4, 0.5, 0.0, 1.0).v_max == v_grid[-1]
 
 
