@@ -156,7 +156,9 @@ def test_omega_at_a_tilt_cap_between_grid_tilts_uses_the_law():
         cap = 0.5 * (tilts[3] + tilts[4])
         om = t.omega(8.0, 0.5, 0.1, 0.9, tilt=cap)
         om_grid = t.omega(8.0, 0.5, 0.1, 0.9, tilt=float(tilts[3]))
-        assert om.v_max > 1.01 * om_grid.v_max and om.tilt == pytest.approx(cap) and om.tilt <= cap
+        # the law is used: strictly more than the worst (lower) grid tilt gives (shipped tables: +0.05 m/s Mambo, +0.16 X500; without
+        # the law the two are equal)
+        assert om.v_max > om_grid.v_max + 0.02 and om.tilt == pytest.approx(cap) and om.tilt <= cap
         assert om.gamma <= 0 and om.reason == "ok"
 
 
