@@ -73,6 +73,15 @@ def test_reader_monotone_on_shipped_tables(name, q, d, which):
     assert 0.0 <= v1 < math.inf and 0.0 <= v2 < math.inf
     if which in ("r_obst", "e_tr"):
         assert v2 <= v1 + 1e-9
+    elif which == "tilt":
+        # Between grid tilts the cone tables answer by the build's scaling law at the actual tilt and its reaction
+        # time (issue 18), which can dip as the tilt rises (the longer time to reach it): by < 1 %, and never below
+        # the answer at the grid tilt at or below the query (tests/test_lookup_law.py). Each answer is still below
+        # every corner's verified value scaled by the law; the daemon asks at the tilt limit, a grid tilt.
+        tilts = t.avoid.axes[1]
+        j = max(int(np.searchsorted(tilts, q["tilt"], side="right")) - 1, 0)
+        assert v2 >= v1 * (1 - 0.01) - 1e-9
+        assert v2 >= _v(t, dict(q, tilt=float(tilts[j]))) - 1e-9
     else:
         assert v2 >= v1 - 1e-9
 
