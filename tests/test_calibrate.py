@@ -255,7 +255,12 @@ def test_the_autopilots_own_logs_calibrate_like_the_tlog(flown, stock, tmp_path)
     assert bb["jerk_max_m_s3"] == pytest.approx(ba["jerk_max_m_s3"], rel=0.15)
     assert bb["hold_switch_s"] == pytest.approx(ba["hold_switch_s"], abs=0.1)
     ea, eb = verify(tmp_path / "a.npz").e_pred.values, verify(tmp_path / "b.npz").e_pred.values
-    assert np.max(np.abs(eb / ea - 1)) < 0.15
+    # the same answer but at a cell's edge: a window whose tilt sits on a tilt edge is charged to the next tilt cell
+    # from one log and not the other (attitude sampled at other rates), and the monotone repair carries that
+    # upward. Measured with the E_tr_pred rebuilt for issue 19 item 9: 48 of 450 cells differ (1-3 m/s), by
+    # up to 25 % (0.61 / 0.76 m); before it, < 15 % everywhere
+    r = np.abs(eb / ea - 1)
+    assert np.median(r) < 1e-3 and np.mean(r > 0.01) < 0.15 and np.max(r) < 0.3
 
 
 # ----------------------------------------------------------------------------- the public logs

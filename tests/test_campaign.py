@@ -178,8 +178,8 @@ def test_a_small_campaign_is_safe_in_assumption_and_its_controls_collide(tmp_pat
     """30 lock-step flights: head-on columns (offset ≤ 0.5 m), design wind, honest fog and thrust losses.
     Stated shares (measured at this commit): no guard collides in 6/6, the governor at 1.7 × the contract's
     speed in 6/6 (the stop contract holds from the approach to its limit since issue 19 item 1, so from these
-    steady-cruise detections it has slack: 1.3 × collides in 0/6, 1.5 × in 3/6), offboard at 1.3 × in at least
-    3/6; ours in 0 (their 95 % Clopper–Pearson upper bound at
+    steady-cruise detections it has slack: 1.3 × collides in 0/6, 1.5 × in 3/6), offboard at 1.3 × comes closer in
+    every flight (it no longer collides: see below); ours in 0 (their 95 % Clopper–Pearson upper bound at
     6 flights is 0.46: this test shows the controls can fail, the large campaign gives the rate)."""
     spec = cg.spec_from_dict(SMALL_CAMPAIGN)
     rows = cg.run(spec, tmp_path, progress=False)
@@ -192,7 +192,14 @@ def test_a_small_campaign_is_safe_in_assumption_and_its_controls_collide(tmp_pat
     assert per["offboard"]["all"]["route_completion"] >= 5 / 6
     assert per["no_guard"]["all"]["collisions"] == 6
     assert per["governor_x1.7"]["all"]["collisions"] == 6
-    assert per["offboard_x1.3"]["all"]["collisions"] >= 3
+    # offboard × 1.3 is held at the controller contract's grid top (8 m/s, issue 19 item 6; × 1.5 and × 1.7 fly the
+    # same) and, since E_tr_pred covers the fail-safe stop mid-swerve (issue 19 item 9), its online plans still clear
+    # these head-on columns (0/6 at this commit; at least 3/6 before): it must come closer in every flight (0.19-0.95 m against
+    # 1.05-1.68 m). The offboard control that must touch is test_offboard_lockstep's
+    # test_negative_control_well_above_the_contract_touches.
+    by = {(r["scenario"], r["arm"]): r for r in rows}
+    for k in {r["scenario"] for r in rows}:
+        assert by[(k, "offboard_x1.3")]["min_clearance_m"] < by[(k, "offboard")]["min_clearance_m"] - 0.2, k
     assert per["offboard"]["all"]["cp95_high"] == pytest.approx(1 - 0.025 ** (1 / 6))
     for f in ("report.html", "report.json", "clearance.png", "speed.png"):
         assert (tmp_path / f).stat().st_size > 0

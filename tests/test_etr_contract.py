@@ -157,13 +157,28 @@ def demo():
     return demo_set(TABLE, seeds=(0,))
 
 
+def stop_branch_covers(f) -> bool:
+    """Straight braking from f.v_max after the folded reaction time stops short of the inflated obstacle."""
+    from contracts.planner import Limits
+    from contracts.sweep import brake_accel
+
+    veh = TABLE.vehicle
+    tilt = math.radians(f.tilt_deg)
+    a = brake_accel(Limits.from_vehicle(veh, tilt, f.thrust_ratio, tilt_model=TABLE.tilt_model))
+    return f.v_max * veh.reaction_time(tilt) + f.v_max ** 2 / (2 * a) <= f.d_od - f.e_tr - veh.r_body_m
+
+
 def test_demonstration_flights_never_touch_and_stay_within_the_assumed_etr(demo):
     contract = [f for f in demo if f.variant == "contract"]
     assert len(contract) == 6  # three scenarios × (paper tilt, chosen tilt)
     for f in contract:
         print(f"{f.name} cap {f.tilt_cap_deg} tilt {f.tilt_deg:.2f} V_max {f.v_max:.2f} E_tr {f.e_tr:.3f} "
               f"clearance {f.min_clearance:.3f} contour {f.contour_max:.3f}")
-        assert f.plan_ok, f.summary()
+        # a verified pass, or else the contract's speed is one its stop branch covers (straight braking at the
+        # cell's full deceleration after the folded reaction time ends short of the inflated obstacle): since
+        # E_tr_pred bounds the fail-safe stop mid-swerve (issue 19 item 9) the larger E_tr leaves fig16's pass
+        # infeasible at full tilt, and the flight brakes
+        assert f.plan_ok or stop_branch_covers(f), f.summary()
         assert not f.touched and f.min_clearance > 0, f.summary()
         assert f.contour_max <= f.e_tr, f.summary()
         assert f.v_flown == f.v_max  # at full V_max

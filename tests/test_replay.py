@@ -12,6 +12,7 @@ import yaml
 
 from companion.eventlog import EventLog, read_events
 from companion.link import mavlink
+from contracts.table import load_for_vehicle
 from companion.cli import review_log
 from companion.logschema import REPLAY_LOG_FILE as REPLAY_LOG
 from companion.replay import scan_tlog
@@ -113,8 +114,19 @@ def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
 
     live_s, rep_s = states(d), states(tmp_path / REPLAY_LOG)
     assert len(rep_s) == pytest.approx(len(live_s), abs=5)
+    speeds = load_for_vehicle("mambo").e_pred.axes[0]
+    v_at = {s["t"]: s["v_max"] for s in live_s}
     for key, tol in (("d_od", 0.01), ("v_max", 0.02), ("e_tr", 0.02), ("thrust_ratio", 0.01)):
-        assert disagreements(live_s, rep_s, key, tol, off) == [], key
+        bad = disagreements(live_s, rep_s, key, tol, off)
+        if key == "e_tr":
+            # E_tr_pred is a step function of V_max: where Ω's fixed point sits on one of its grid speeds (3.0 m/s
+            # here, with the E_tr_pred rebuilt for issue 19 item 9), a hair's difference in the estimates flips E_tr
+            # between the two cells' values (0.60 / 0.70 m) and V_max by 1 mm, both consistent answers: such
+            # samples only, and few of them
+            assert all(v_at[t] is not None and min(abs(speeds - v_at[t])) < 0.005 for t in bad), bad
+            assert len(bad) <= 0.05 * len(live_s), bad
+        else:
+            assert bad == [], key
     assert {s["contract"] for s in rep_s} == {"stop"} and all(s["v_cmd"] is None for s in rep_s)  # shadow
 
     rp = rep["replay"]

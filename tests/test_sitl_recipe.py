@@ -91,7 +91,7 @@ def test_the_recipe_flies_a_governed_mission(flight):
 
 
 def test_the_recipe_flight_does_not_collide(flight):
-    m = re.search(r"'collisions': (\d+)", flight["sitl"])
+    m = re.search(r"^  collisions: (\d+)$", flight["sitl"], re.MULTILINE)
     assert m is not None, flight["sitl"]
     assert int(m.group(1)) == 0, flight["sitl"]
 
@@ -126,7 +126,7 @@ def test_the_recipe_with_the_scenarios_real_sensor_does_not_collide(tmp_path):
         daemon.wait(30)
         sitl.send_signal(signal.SIGINT)
         out, err = sitl.communicate(timeout=30)
-    m = re.search(r"'collisions': (\d+)", out + err)
+    m = re.search(r"^  collisions: (\d+)$", out + err, re.MULTILINE)
     assert m is not None and int(m.group(1)) == 0, out + err
 
 

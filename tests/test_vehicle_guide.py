@@ -109,7 +109,7 @@ def test_the_walkthrough_runs_as_written(tmp_path):
                                                                                                            console)
     assert "violations: none" in console
     sitl = outputs["%1"]
-    assert "'collisions': 0" in sitl, sitl  # the SITL's summary at SIGINT
+    assert "\n  collisions: 0\n" in sitl, sitl  # the SITL's summary at SIGINT
     print(console)  # -s shows the daemon's console verbatim
     # the review, as the page runs it, and its JSON: the contract was kept and the hold is there
     rep = json.loads(subprocess.run([sys.executable, "-m", "companion.cli", "review", "quad-1600g-log", "--json"],
