@@ -17,9 +17,8 @@ import math
 import numpy as np
 import pytest
 
-from companion import campaign as cg
+from tests.campaign_flight import fly_recorded
 
-SPEC = "examples/campaign-evidence.yaml"
 # index: (vehicle, personality, offset of the first column) — so a change of the spec fails loudly here
 FLIGHTS = {363: ("x500", "px4", -1.686), 1445: ("x500", "ardupilot", 1.531), 881: ("x500", "px4", -1.595),
            1631: ("x500", "px4", 0.778), 1931: ("x500", "px4", 0.021), 1619: ("x500", "ardupilot", -0.26),
@@ -27,13 +26,7 @@ FLIGHTS = {363: ("x500", "px4", -1.686), 1445: ("x500", "ardupilot", 1.531), 881
 
 
 def _fly(i, keep_rig=False):
-    spec = cg.load_spec(SPEC)
-    s, arm = cg.flight_of(spec, i)
-    veh, pers, off = FLIGHTS[i]
-    assert (arm, s["vehicle"], s["personality"], round(s["lateral_offset_m"], 3)) == ("offboard", veh, pers, off), \
-        f"{SPEC} no longer samples flight {i} as recorded here"
-    assert s["in_assumption"]
-    return s, cg.fly(spec, i, keep_rig=keep_rig)
+    return fly_recorded(FLIGHTS, i, keep_rig=keep_rig)
 
 
 def ray_to_surface(p, theta, columns, r) -> float:

@@ -9,9 +9,8 @@ fix (8d3832e) each collided: 53 at −0.10 m, 239 −0.21 m, 549 −0.28 m, 743 
 
 import pytest
 
-from companion import campaign as cg
+from tests.campaign_flight import fly_recorded
 
-SPEC = "examples/campaign-evidence.yaml"
 # index: (vehicle, personality, offset of the first column) — so a change of the spec fails loudly here
 FLIGHTS = {53: ("x500", "px4", 2.368), 549: ("x500", "ardupilot", 2.356), 239: ("x500", "px4", 2.524),
            743: ("x500", "px4", 2.229), 1373: ("x500", "px4", 2.198),
@@ -19,13 +18,7 @@ FLIGHTS = {53: ("x500", "px4", 2.368), 549: ("x500", "ardupilot", 2.356), 239: (
 
 
 def _fly(i):
-    spec = cg.load_spec(SPEC)
-    s, arm = cg.flight_of(spec, i)
-    veh, pers, off = FLIGHTS[i]
-    assert (arm, s["vehicle"], s["personality"], round(s["lateral_offset_m"], 3)) == ("offboard", veh, pers, off), \
-        f"{SPEC} no longer samples flight {i} as recorded here"
-    assert s["in_assumption"]
-    return cg.fly(spec, i)
+    return fly_recorded(FLIGHTS, i)[1]
 
 
 @pytest.mark.parametrize("i", [53, 549])  # one per personality in the default suite
