@@ -18,7 +18,6 @@ Limits move one way fast: a lower limit takes effect at once, a higher one after
 from __future__ import annotations
 
 import math
-import struct
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -138,7 +137,7 @@ class Supervisor:
         self._would: tuple[str, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
-        self._omega_at: tuple[object, bytes, Omega] | None = None  # (table, its inputs' bits, Ω)
+        self._omega_at: tuple[tuple, Omega] | None = None  # ((d_od, r_obst, e_tr measured, thrust), Ω)
         # never fly a speed the controller contract does not cover: the top of E_tr_pred's speed axis
         # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
         e_pred = getattr(table, "e_pred", None)
@@ -191,18 +190,14 @@ class Supervisor:
         return self._e_pred_at[3]
 
     def omega(self, i: Inputs) -> Omega:
-        """Ω of the contract at this cycle's inputs: one lookup per value (the lookup is a pure function of
-        the table and these inputs, so a cycle whose inputs are bit for bit the last one's reuses its Ω)."""
+        """Ω of the contract at this cycle's inputs: one lookup per value, as `e_tr_pred_flown` (the lookup is a
+        pure function of the table and these inputs, so a cycle whose inputs equal the last one's reuses its Ω)."""
         if self.law is not None:
             return self.law.omega(i)
-        try:
-            key = struct.pack("<4d", i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio)  # bits: -0.0 ≠ 0.0
-        except (struct.error, TypeError):
-            key = None  # not numbers: looked up (and refused) anew
-        if key is None or self._omega_at is None or self._omega_at[0] is not self.table or self._omega_at[1] != key:
-            om = self.table.omega(i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, contract=self.contract)
-            self._omega_at = (self.table, key, om)
-        return self._omega_at[2]
+        key = (i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio)
+        if self._omega_at is None or self._omega_at[0] != key:
+            self._omega_at = (key, self.table.omega(*key, contract=self.contract))
+        return self._omega_at[1]
 
     # ------------------------------------------------------------------ the cycle
     def e_tr_virtual(self, i: Inputs, d: Decision) -> float:

@@ -442,15 +442,6 @@ class ContractTable:
         i, kk = bisect_left(self._et_l, tilt), bisect_right(self._er_l, thrust_ratio) - 1
         return None if i == len(self._et_l) or kk == NONE else self._e_lists[i][kk]
 
-    def _e_column(self, e_tilt_idx, thrust_ratio, e_meas):
-        """max(measured, E_tr_pred) on the speed grid for E-tilt cells `e_tilt_idx` → (len, n_v)."""
-        kk = helps_index(self._er, thrust_ratio)
-        idx = np.asarray(e_tilt_idx)
-        if kk == NONE:
-            return np.full((len(idx), len(self._ev)), np.inf)
-        e = self.e_pred.values[:, np.maximum(idx, 0), kk].T
-        return np.maximum(np.where((idx == NONE)[:, None], np.inf, e), e_meas)
-
     # ---- operating point Ω
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None) -> Omega:
         """Ω = (V_max, tilt) maximising V_max subject to Γ ≤ 0, with e_tr = max(measured, E_tr_pred(V_max)).
