@@ -98,7 +98,8 @@ def online_reference(table_path, rho_index: int, tilt_index: int, thrust_index: 
                      a_max: float, kind: str = "online", a_plan: float | None = None) -> OnlineReference | None:
     """``online@ρ`` of one cell: the head-on disc at ρ = r_k/c with c such that v = OFFBOARD_CAP × V_safe(c, ρ)
     (V_safe ∝ √c, DESIGN.md §2), planned at V_max = v and `a_max` (the first plan at `a_plan` if given:
-    ``drop``); None without a verified pass/stop plan. ``failsafe``: interrupted by the fail-safe stop.
+    ``drop``); None without a verified pass/stop plan. ``failsafe``: interrupted by the fail-safe stop (the
+    cell's set derives it from its ``online@ρ`` instead of planning the same plan again: `cell_references`).
     The whole disc is E_tr allowance (r_min = 0): a replan from inside it is always admitted."""
     unit = limiting_trajectory(table_path, rho_index, tilt_index, thrust_index, 1.0)
     c = (v / (OFFBOARD_CAP * unit["v"])) ** 2
@@ -132,9 +133,9 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
             online = online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h)
             if online is not None:
                 refs.append(online)
-                fs = online_reference(table_path, i, avoid_index[0], avoid_index[1], v, a_h, "failsafe")
-                refs.append(fs and dataclasses.replace(  # the daemon's stop (companion/offboard.py, cycle.py)
-                    fs, stop_decel=braking_decel(vehicle, thrust_ratio), brake_jerk=vehicle.braking.jerk_max_m_s3,
+                refs.append(dataclasses.replace(  # the same plan, cut by the daemon's stop (offboard.py, cycle.py)
+                    online, name=online.name.replace("online@", "failsafe@", 1), failsafe_frac=FAILSAFE_FRAC,
+                    stop_decel=braking_decel(vehicle, thrust_ratio), brake_jerk=vehicle.braking.jerk_max_m_s3,
                     stop_jerk=stop_jerk(vehicle)))
             elif skipped is not None:
                 skipped.append(f"online@rho={grid_rho[i]:.3g}")
