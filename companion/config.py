@@ -84,6 +84,11 @@ class Timeouts(_Strict):
     telemetry_s: Pos = 0.5
     obstacle_s: Pos = 0.5  # PX4 collision prevention drops range data older than 0.5 s
     nav_s: Pos = 2.0
+    # the daemon's own cycle (companion/estimators.py Timeliness): lateness beyond one period up to this is sleep
+    # jitter inside t_react's budget; beyond it, it counts as reaction time (a lower speed); a cycle this late
+    # beyond its period breaks the daemon's guarantee outright: the autopilot is handed Hold
+    cycle_jitter_s: NonNeg = 0.01
+    cycle_late_s: Pos = 0.25
 
 
 class RouteConfig(_Strict):

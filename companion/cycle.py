@@ -18,7 +18,7 @@ from contracts.stop import braking_decel, stop_jerk
 from contracts.table import ContractTable
 
 from .config import Config
-from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
 from .offboard import OffboardController
@@ -56,8 +56,10 @@ class Cycle:
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
         self.thrust = ThrustEstimator(cfg.thrust, hover, veh.thrust_ratio_range[0], veh.thrust_ratio_range[1])
         self.nav = NavHealth(cfg.timeouts.nav_s)
+        self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
         self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
-                              speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz)
+                              speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
+                              late_hold_s=cfg.timeouts.cycle_late_s)
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":
             if cfg.route is None:
@@ -118,6 +120,7 @@ class Cycle:
     def inputs(self, t: float, tel: Telemetry, r_obst: float, engage: bool, startup_ok: bool | None,
                route_ready: bool) -> Inputs:
         to = self.cfg.timeouts
+        late = self.timing.tick(t)
         link_ok = t - tel.t_heartbeat <= to.heartbeat_s
         telemetry_ok = t - tel.t_local <= to.telemetry_s
         speed = tel.ground_speed if telemetry_ok else math.nan
@@ -146,7 +149,7 @@ class Cycle:
                       in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=by_daemon,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
-                      v_cruise=self.v_cruise)
+                      v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
              mission_route: Route | None = None, route_ready: bool = True) -> tuple[Inputs, Decision]:

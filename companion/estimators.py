@@ -417,3 +417,43 @@ class NavHealth:
 
     def healthy(self, t: float) -> bool:
         return self._ok and t - self._t <= self.stale_s and t - self._t_fault > self.stale_s
+
+
+# ============================================================================ the daemon's own timeliness
+
+LATE_WINDOW_S = 10.0  # [s] a late cycle counts this long: a loaded computer is likely to be late again
+
+
+class Timeliness:
+    """Guidance's own guarantee: the daemon decides once every cycle, 1/loop_hz — the "decision" part of the
+    vehicle file's `t_react` (sensor latency + one cycle + the autopilot's response). A cycle that comes later
+    than its period by more than `jitter_s` (sleep jitter, inside that budget) is reaction time the contract did
+    not budget: until `LATE_WINDOW_S` has passed, `late_s` is the worst such lateness, which the supervisor adds
+    to t_react (V ≤ V_safe(d_od − V·(t_react + late_s)), DESIGN.md §2). Measured in daemon time (the vehicle's
+    clock rate), so a SITL sped up k times sees k times the host's lateness; in lock-step and replays the cycles
+    are on time by construction. `unbudgeted_s`: this cycle's lateness where it exceeds what was counted before it
+    (the contract was flying a smaller reaction time than happened: the guarantee broken), else 0."""
+
+    def __init__(self, period_s: float, jitter_s: float, window_s: float = LATE_WINDOW_S):
+        self.period, self.jitter, self.window = period_s, jitter_s, window_s
+        self._t: float | None = None
+        self._late: deque[tuple[float, float]] = deque()  # (t, lateness), lateness decreasing (a max queue)
+        self.last_late_s = 0.0  # this cycle's own lateness (0 when on time)
+        self.unbudgeted_s = 0.0
+
+    def tick(self, t: float) -> float:
+        """One cycle at daemon time t; returns the worst counted lateness of the window [s] (0: on time)."""
+        late = 0.0 if self._t is None or t < self._t else t - self._t - self.period
+        self._t = t
+        self.last_late_s = late if late > self.jitter else 0.0
+        while self._late and self._late[0][0] < t - self.window:
+            self._late.popleft()
+        counted = self._late[0][1] if self._late else 0.0
+        self.unbudgeted_s = self.last_late_s if self.last_late_s > counted else 0.0
+        if self.last_late_s > 0.0:
+            while self._late and self._late[-1][1] <= late:
+                self._late.pop()
+            self._late.append((t, late))
+        while self._late and self._late[0][0] < t - self.window:
+            self._late.popleft()
+        return self._late[0][1] if self._late else 0.0

@@ -82,6 +82,9 @@ EVENTS = {
                            "writes succeed again after a failure (records dropped meanwhile)"),
     "violation_start": Event(("subsystem", "guarantee", "assumed", "observed", "action"), "supervisor",
                              "a subsystem broke its guarantee (subsystem ∈ SUBSYSTEMS)"),
+    "reaction_time": Event(("late_s", "t_react_s"), "supervisor",
+                           "the daemon's own lateness counted as reaction time changed (a late cycle, or 10 s on "
+                           "time since): Ω flies V ≤ V_safe(d_od − V·(t_react + late_s)); 0 when on time"),
     "dod_coverage": Event(("basis", "d_od", "reason"), "supervisor",
                           "D_od's basis changed to or from `swept`: the direction of travel outside every field of "
                           "view, D_od the distance along it seen free recently (else `field of view` or `none`: 0)"),

@@ -57,6 +57,8 @@ class Inputs:
     v_cruise: float = math.nan  # the autopilot's own auto-mode cruise speed (its parameter), NaN: not heard
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
+    late_s: float = 0.0  # the daemon's own worst lateness, beyond t_react's budget, of the last 10 s (Timeliness)
+    late_unbudgeted_s: float = 0.0  # this cycle's lateness where it exceeds what was counted before it, else 0
 
 
 @dataclass
@@ -107,8 +109,9 @@ class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
     def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
-                 loop_dt: float):
-        """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight)."""
+                 loop_dt: float, late_hold_s: float = math.inf):
+        """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
+        `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold)."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
@@ -120,6 +123,8 @@ class Supervisor:
         self.limit = OneSidedLimit(dwell_s)
         self.margin = speed_margin
         self.loop_dt = loop_dt
+        self.late_hold_s = late_hold_s
+        self._late_counted = 0.0  # the lateness Ω counts as reaction time (last said in a `reaction_time` event)
         self.state = "standby"
         self._last_sent: float | None = None
         self._last_sent_t = -math.inf
@@ -194,7 +199,20 @@ class Supervisor:
         pure function of the table and these inputs, so a cycle whose inputs equal the last one's reuses its Ω)."""
         if self.law is not None:
             return self.law.omega(i)
-        key = (i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio)
+        if i.late_s <= 0.0:
+            return self._omega(i.dod.d_od, i)
+        # the daemon's own lateness is reaction time the table's fold did not budget (DESIGN.md §2):
+        # V ≤ V_safe(d_od − V·late_s − V·t_react), with V·late_s taken at the speed flown (measured or commanded,
+        # the larger) — and again at Ω's own speed when that is higher: a shorter D_od never gives a higher V_max,
+        # so that answer is safe at its own speed
+        v_ref = max(i.ground_speed if math.isfinite(i.ground_speed) else 0.0, self.limit.value or 0.0)
+        om = self._omega(i.dod.d_od - v_ref * i.late_s, i)
+        if om.v_max > v_ref:
+            om = self._omega(i.dod.d_od - om.v_max * i.late_s, i)
+        return om
+
+    def _omega(self, d_od: float, i: Inputs) -> Omega:
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio)
         if self._omega_at is None or self._omega_at[0] != key:
             self._omega_at = (key, self.table.omega(*key, contract=self.contract))
         return self._omega_at[1]
@@ -259,6 +277,16 @@ class Supervisor:
                         guarantee="every obstacle within D_od is detected",
                         assumed=late.assumed_d_od if late else None, observed=late.range_m if late else None,
                         action=f"D_od lowered to {i.dod.d_od:.2f} m")
+        # the daemon's own guarantee: broken by a cycle later than the reaction time being flown budgets; the
+        # lateness then counts as reaction time for the next 10 s (`omega`), said when that changes
+        self._violation(d, "guidance", i.late_unbudgeted_s > 0.0, subsystem="guidance",
+                        guarantee=f"decides every cycle ({self.loop_dt * 1e3:.0f} ms, inside t_react)",
+                        assumed=self.loop_dt + self._late_counted, observed=self.loop_dt + i.late_unbudgeted_s,
+                        action="lateness counted as reaction time: a lower speed" +
+                               (", hold" if i.late_s > self.late_hold_s else ""))
+        if abs(i.late_s - self._late_counted) > 0.005 or (i.late_s == 0.0) != (self._late_counted == 0.0):
+            self._late_counted = i.late_s
+            d.events.append(("reaction_time", {"late_s": i.late_s, "t_react_s": veh.t_react_s + i.late_s}))
         if om.v_max >= MIN_SPEED_CMD:
             self._tilt_in_force = om.tilt
         if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
@@ -346,13 +374,14 @@ class Supervisor:
         if self._over_since is not None:  # time a compliant autopilot needs to slow to the limit
             a = braking_decel(self.table.vehicle, min(i.thrust_ratio, 1.0)) if finite else 1.0
             settle = (i.ground_speed - self.limit.value) / max(a, 0.1) + stop_dead_time(self.table.vehicle) + 1.0
-        margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * self.loop_dt
+        margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
         obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
             "non-finite telemetry": not finite,
             "stale telemetry": not i.telemetry_ok,
             "bad navigation estimate": not i.nav_ok,
             "no safe speed": om.v_max < MIN_SPEED_CMD,
+            LATE: i.late_s > self.late_hold_s,
             OBSTACLE: obstacle,
             "speed limit not in force": self._over_since is not None and i.t - self._over_since > settle,
         }
@@ -370,7 +399,8 @@ class Supervisor:
 
 
 OBSTACLE = "obstacle inside the stop distance"
+LATE = "companion computer late"  # a cycle later than timeouts.cycle_late_s: the autopilot's own Hold, at once
 ALREADY_HOLDING = "already holding"  # the action of a cause that arrives while the daemon already holds
 # causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
 BRAKE_STOP_CAUSES = {"no safe speed", "speed limit not in force"}
-FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed"}
+FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed", LATE}

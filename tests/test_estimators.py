@@ -314,3 +314,31 @@ def test_negative_control_behind_a_hit_or_with_the_sensor_stale_is_not_covered()
     assert blocked.d_od < clear.d_od
     e, _ = swept_flight(40.0)
     assert e.estimate(2.6, math.radians(40.0)).d_od == 0.0  # the sensor stale: nothing, as before
+
+
+def test_timeliness_counts_a_late_cycle_for_its_window_and_ignores_jitter():
+    from companion.estimators import Timeliness
+
+    tm = Timeliness(0.02, jitter_s=0.01, window_s=10.0)
+    t = 0.0
+    assert tm.tick(t) == 0.0  # the first cycle has nothing to be late against
+    for _ in range(50):
+        t += 0.02
+        assert tm.tick(t) == 0.0
+    t += 0.028  # 8 ms late: jitter inside the budget
+    assert tm.tick(t) == 0.0 and tm.last_late_s == 0.0
+    t += 0.02 + 0.15  # 150 ms late
+    assert tm.tick(t) == pytest.approx(0.15) and tm.last_late_s == pytest.approx(0.15)
+    assert tm.unbudgeted_s == pytest.approx(0.15)  # more than was counted: the guarantee broke
+    t += 0.02 + 0.05  # a smaller lateness does not hide the worse one
+    assert tm.tick(t) == pytest.approx(0.15)
+    assert tm.unbudgeted_s == 0.0  # inside the reaction time already counted
+    t_late = t
+    while t < t_late + 9.9:
+        t += 0.02
+        assert tm.tick(t) == pytest.approx(0.05 if t - (t_late - 0.07) > 10.0 else 0.15)
+    while t < t_late + 10.1:
+        t += 0.02
+        tm.tick(t)
+    assert tm.tick(t + 0.02) == 0.0  # both have left the window
+    assert tm.tick(1.0) == 0.0  # a clock that goes back (a restart) is not lateness

@@ -220,3 +220,42 @@ def test_dod_from_the_swept_coverage_is_logged_when_it_starts_and_ends():
     assert not [e for e in s.step(replace(BASE, t=0.04, dod=swept)).events if e[0] == "dod_coverage"]
     d = s.step(replace(BASE, t=0.06))
     assert [e[1]["basis"] for e in d.events if e[0] == "dod_coverage"] == ["field of view"]
+
+
+# ------------------------------------------------ the daemon's own lateness (guidance's guarantee)
+
+def test_lateness_counts_as_reaction_time_never_faster_and_safe_at_its_own_speed():
+    """A late cycle is reaction time the table's fold did not budget: Ω must satisfy
+    V ≤ V_safe(d_od − V·late, …) (the table's own t_react fold on top), whatever speed is being flown."""
+    for contract, mode in (("stop", "governor"), ("avoid", "offboard")):
+        for speed in (0.0, 2.0, 6.0):
+            for late in (0.05, 0.2, 0.6):
+                on_time = sup(mode).step(replace(BASE, ground_speed=speed, mode=mode))
+                s = sup(mode)
+                d = s.step(replace(BASE, ground_speed=speed, mode=mode, late_s=late, late_unbudgeted_s=late))
+                v = d.omega.v_max
+                assert v < on_time.omega.v_max  # a lower speed, always
+                # safe at its own speed: the table at D_od shortened by v·late answers at least v
+                assert v <= TABLE.omega(8.0 - v * late, 1.0, 0.2, 1.0, contract=contract).v_max + 1e-9
+                starts = [f for n, f in d.events if n == "violation_start"]
+                assert [f["subsystem"] for f in starts] == ["guidance"]
+                assert starts[0]["observed"] == pytest.approx(0.02 + late) and starts[0]["assumed"] == 0.02
+                assert ("reaction_time", {"late_s": late, "t_react_s": TABLE.vehicle.t_react_s + late}) in d.events
+
+
+def test_lateness_beyond_the_hard_limit_holds_at_once_and_only_unbudgeted_lateness_is_a_violation():
+    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02, late_hold_s=0.25)
+    s.step(BASE)
+    d = s.step(replace(BASE, t=0.02, late_s=0.1, late_unbudgeted_s=0.1))
+    assert not d.hold and d.state == "active"  # only slower
+    assert [n for n, _ in d.events].count("violation_start") == 1
+    d = s.step(replace(BASE, t=0.04, late_s=0.1))  # counted, on time: the guarantee holds at the longer t_react
+    assert ("violation_end", {"subsystem": "guidance", "guarantee": "decides every cycle (20 ms, inside t_react)"}) \
+        in d.events
+    d = s.step(replace(BASE, t=0.06, late_s=0.3, late_unbudgeted_s=0.3))
+    assert d.hold and d.state == "holding" and "companion computer late" in d.hold_causes
+    assert ("failsafe", {"cause": "companion computer late", "action": "hold"}) in d.events
+    (start,) = [f for n, f in d.events if n == "violation_start"]
+    assert start["assumed"] == pytest.approx(0.12) and start["observed"] == pytest.approx(0.32)
+    d = s.step(replace(BASE, t=0.08, late_s=0.0))  # 10 s later (Timeliness's window): on time again
+    assert ("reaction_time", {"late_s": 0.0, "t_react_s": TABLE.vehicle.t_react_s}) in d.events
