@@ -330,6 +330,9 @@ class _Summary:
         s = self.by_sub.setdefault(str(v["subsystem"]), {"count": 0, "total_s": 0.0})
         s["count"] += 1
         s["total_s"] += v["duration_s"] or 0.0
+        observed = _num(v.get("observed"))
+        if observed is not None and math.isfinite(observed):
+            s["worst_observed"] = max(s.get("worst_observed", -math.inf), observed)
         self._keep(self.violations, v)
 
     def _keep(self, lst: list, item: dict) -> None:
@@ -450,11 +453,19 @@ def conclude(rep: dict, extra: Iterable[str] = ()) -> dict:
     return rep
 
 
+def _worst(subsystem: str, v: dict) -> str:
+    """What the worst violation of a subsystem means, where a number says it plainly (the daemon's own cycle)."""
+    if subsystem == "guidance" and "worst_observed" in v:
+        return f"; cycles up to {v['worst_observed'] * 1e3:.0f} ms apart: the companion computer was late"
+    return ""
+
+
 def findings(rep: dict) -> list[str]:
     """One line per thing a safety reviewer must look at; empty when the flight kept its contract."""
     out = []
     if rep["violation_count"]:
-        parts = ", ".join(f"{k} ×{v['count']} ({v['total_s']:.1f} s)" for k, v in sorted(rep["violations_by_subsystem"].items()))
+        parts = ", ".join(f"{k} ×{v['count']} ({v['total_s']:.1f} s{_worst(k, v)})"
+                          for k, v in sorted(rep["violations_by_subsystem"].items()))
         out.append(f"{rep['violation_count']} contract violation(s): {parts}")
     if rep["gamma_positive_s"] > 0:
         out.append(f"Γ > 0 for {rep['gamma_positive_s']:.2f} s (speed limit above the safe speed)")

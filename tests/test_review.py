@@ -299,3 +299,15 @@ def test_the_review_knows_nothing_of_raw_logs():
 
     code = "import sys, companion.review; assert not [m for m in sys.modules if m.startswith('companion.replay')]"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def test_the_daemons_own_lateness_is_a_finding_that_says_how_late():
+    recs = []
+    for i, gap in enumerate((0.035, 0.14, 0.06)):
+        for name, t in (("violation_start", i * 5.0), ("violation_end", i * 5.0 + 0.02)):
+            recs.append({"kind": "event", "t": t, "seq": len(recs), "boot": "a", "event": name, "subsystem": "guidance",
+                         "guarantee": "decides every cycle (20 ms, inside t_react)", "assumed": 0.02, "observed": gap})
+    rep = summarise(recs)
+    assert rep["violations_by_subsystem"]["guidance"]["worst_observed"] == pytest.approx(0.14)
+    assert rep["findings"][0] == ("3 contract violation(s): guidance ×3 (0.1 s; cycles up to 140 ms apart: the "
+                                  "companion computer was late)")
