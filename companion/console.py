@@ -35,8 +35,12 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
     if name == "violation_start":
         return ERR, (f"VIOLATION {f['subsystem']}: {f['guarantee']} (assumed {_fmt(f.get('assumed'))}, observed "
                      f"{_fmt(f.get('observed'))}); {f['action']}")
-    if name == "violation_end":
-        return NOTICE, f"violation over: {f['subsystem']}"
+    if name == "violation_end":  # the daemon's own lateness: one late cycle, its aftermath is `reaction_time`'s
+        return None if f["subsystem"] == "guidance" else (NOTICE, f"violation over: {f['subsystem']}")
+    if name == "reaction_time":
+        return (NOTICE, f"cycles on time again: reaction time back to {f['t_react_s']:.2f} s") if not f["late_s"] else \
+            (WARNING, f"the daemon's cycles run late: reaction time {f['t_react_s']:.2f} s (+{f['late_s'] * 1e3:.0f} ms) "
+                      "for the next 10 s, a lower speed")
     if name == "would_hold" and f["causes"]:
         return WARNING, f"shadow: would HOLD: {', '.join(f['causes'])}"
     if name == "limit_change" and "sent" in f:

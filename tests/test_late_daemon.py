@@ -62,3 +62,15 @@ def test_a_cycle_later_than_the_hard_limit_hands_over_to_the_autopilots_hold(per
     ctl.run(3.0)
     assert not ctl.log.named("failsafe") and ctl.log.states[-1]["mode"] == "offboard"
     assert guidance_violations(ctl)
+
+
+def test_the_console_says_when_the_daemon_runs_late_and_when_it_is_on_time_again():
+    from companion.console import event_line
+
+    late = event_line("reaction_time", {"late_s": 0.12, "t_react_s": 0.22})
+    assert late[1] == ("the daemon's cycles run late: reaction time 0.22 s (+120 ms) for the next 10 s, "
+                       "a lower speed")
+    assert event_line("reaction_time", {"late_s": 0.0, "t_react_s": 0.1})[1] == \
+        "cycles on time again: reaction time back to 0.10 s"
+    assert event_line("violation_end", {"subsystem": "guidance", "guarantee": "g"}) is None  # one late cycle
+    assert event_line("violation_end", {"subsystem": "navigation", "guarantee": "g"})[1] == "violation over: navigation"
