@@ -28,6 +28,7 @@ from . import __version__
 from .errors import ContractError
 from .flat import thrust_limited_accel
 from .lookup import (
+    MARGIN,
     NONE,
     ReactLookup,
     crossing_fixed_point,
@@ -35,6 +36,7 @@ from .lookup import (
     hurts_index,
     is_monotone,
     law_cells,
+    reaches,
     react_speed,
 )
 from .stop import approach_stop_speed, braking_decel, stop_dead_time
@@ -496,8 +498,23 @@ class ContractTable:
         if col is None:
             return 0.0, math.inf, 0.0
         lim = lambda j: self._law_speed(row, k, c0, r0 + max(col[j], e_meas))  # noqa: E731
-        v, j = crossing_fixed_point(self._ev_l, lim)
-        return v, max(col[j], e_meas), lim(j)
+        lam, _, t_r, (_, hsuf) = row
+        rho, c0p, ev = self._react[k]._rho_l, max(c0, 0.0), self._ev_l
+
+        def decide(j):  # v_j ≥ lim_j for sure where the unscaled speed misses v_j/(MARGIN·LAW_MARGIN) by 1e-9
+            v = ev[j]
+            if not v > 0.0:
+                return None
+            w = v / (MARGIN * LAW_MARGIN)
+            r = r0 + max(col[j], e_meas)
+            if not reaches(c0p, r, w * (1.0 - 1e-9), t_r, lam, rho, hsuf):
+                return True
+            if reaches(c0p, r, w * (1.0 + 1e-9), t_r, lam, rho, hsuf):
+                return False
+            return None
+
+        v, j, lim_j = crossing_fixed_point(ev, lim, decide)
+        return v, max(col[j], e_meas), lim_j
 
     def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
         tilt = min(tilt, self.vehicle.tilt_max)
@@ -511,8 +528,8 @@ class ContractTable:
                 v_max, e_b, v_s = 0.0, math.inf, 0.0
             else:
                 lim = lambda j: self._stop(d_od, max(col[j], e_meas), a)  # noqa: E731
-                v_max, j = crossing_fixed_point(self._ev_l, lim)
-                e_b, v_s = max(col[j], e_meas), lim(j)
+                v_max, j, v_s = crossing_fixed_point(self._ev_l, lim)
+                e_b = max(col[j], e_meas)
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
         return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)
 
