@@ -6,6 +6,8 @@ safe to import on board. Arrays broadcast: every function takes scalars or equal
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .vehicle import G
@@ -73,7 +75,7 @@ def total_tilt(ax, ay, az=0.0, g=G):
 def thrust_limited_accel(t_max: float, mass: float, g=G) -> float:
     """Largest horizontal acceleration that thrust `t_max` allows in level flight, √((T/m)² − g²)."""
     s = t_max / mass
-    return float(np.sqrt(max(s * s - g * g, 0.0)))
+    return math.sqrt(max(s * s - g * g, 0.0))  # float(np.sqrt(…)) to the bit (both round correctly), without numpy's call
 
 
 def horizontal_accel_limit(tilt: float, t_max: float, mass: float, g=G) -> float:

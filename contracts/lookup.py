@@ -129,8 +129,7 @@ class ReactLookup:
 
     def _reaches(self, c0: float, r: float, w: float, row: int, lam: float = 1.0) -> bool:
         """Unscaled speed ≥ w at keep-out radius r (see `step_fixed_point`), the row's h scaled by `lam`."""
-        c_w = c0 - self._t_l[row] * w
-        return w <= 0 or c_w > r and lam * self._hsuf_l[row][bisect_left(self._rho_l, r / c_w)] * (c_w - r) >= w * w
+        return reaches(c0, r, w, self._t_l[row], lam, self._rho_l, self._hsuf_l[row])
 
     def step_fixed_point(self, c0: float, r_k, lam=None) -> tuple[int, int, float, float]:
         """The E_tr fixed point (DESIGN.md §1) on the speed grid `v` given to the constructor: the largest
@@ -173,6 +172,13 @@ class ReactLookup:
                 return row, top, best, best
         row = rows[0]
         return row, top - 1, float(self._v[top - 1]), self.at(c0, float(r_k[row, top - 1]), row, s[row])
+
+
+def reaches(c0: float, r: float, w: float, t: float, lam: float, rho, hsuf) -> bool:
+    """Whether `react_speed`'s unscaled speed (before MARGIN) at keep-out radius r is ≥ w, in O(1) (the test of
+    `ReactLookup.step_fixed_point`): max{lam·h_j : ρ_j ≥ r/(c0 − w·t)}·(c0 − w·t − r) ≥ w²."""
+    c_w = c0 - t * w
+    return w <= 0 or c_w > r and lam * hsuf[bisect_left(rho, r / c_w)] * (c_w - r) >= w * w
 
 
 def react_speed(c0: float, r_k: float, t: float, lam: float, rho, u, h, hsuf) -> float:
@@ -221,11 +227,14 @@ def law_cells(f: np.ndarray, a: np.ndarray, rel_tol: float = 1e-12) -> tuple[np.
     return np.where(np.isfinite(g_hat), g_hat, 0.0), holds
 
 
-def crossing_fixed_point(v_grid, limit_of_j) -> tuple[float, int]:
+def crossing_fixed_point(v_grid, limit_of_j, decide=None) -> tuple[float, int, float]:
     """Largest V with V ≤ limit(E_cons(V)), E_cons the conservative (step) lookup on `v_grid`, for one
     column by bisection, calling the scalar `limit_of_j(j)` (the limit with the error of grid speed v_j,
     non-increasing in j) O(log n) times: min(v_j, limit_j) rises then falls, and the sup sits where
-    v_j first reaches limit_j. Speeds above the grid's top have no error bound. Returns (speed, j)."""
+    v_j first reaches limit_j. Speeds above the grid's top have no error bound.
+
+    `decide(j)`, if given, answers "v_j ≥ limit_j" where it is sure (True/False) and None where not; the
+    limit is then computed only where it is not sure and at the answer. Returns (speed, j, limit_j)."""
     lo, hi = 0, len(v_grid)  # find the first j with v_j ≥ limit_j
     cache = {}
 
@@ -236,7 +245,8 @@ def crossing_fixed_point(v_grid, limit_of_j) -> tuple[float, int]:
 
     while lo < hi:
         mid = (lo + hi) // 2
-        if v_grid[mid] >= lim(mid):
+        sure = None if decide is None else decide(mid)
+        if sure if sure is not None else v_grid[mid] >= lim(mid):
             hi = mid
         else:
             lo = mid + 1
@@ -245,7 +255,7 @@ def crossing_fixed_point(v_grid, limit_of_j) -> tuple[float, int]:
         best, arg = lim(lo), lo
     if lo > 0 and v_grid[lo - 1] > best:
         best, arg = float(v_grid[lo - 1]), lo - 1
-    return float(best), arg
+    return float(best), arg, lim(arg)
 
 
 def repair_monotone(values: np.ndarray, directions: tuple[int, ...], safe: str) -> tuple[np.ndarray, int]:

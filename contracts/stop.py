@@ -95,18 +95,60 @@ def approach_stopping_distance(v: float, a: float, j: float, t_r: float) -> floa
     return v * t_r + v * a_up / j - a_up**3 / (6.0 * j * j) + braking_distance(v, a, j)
 
 
+KAPPA = 1.0 + 2.0 * math.sqrt(2.0) / 3.0  # below the knee: approach_stopping_distance = t_r·v + KAPPA·v^{3/2}/√j
+EVAL_TOL = 5e-15  # bound on the relative round-off of approach_stopping_distance (≈ 15 roundings, 3× spared)
+ZONE = 6e-14  # relative half-width about the closed-form root inside which the bisection's steps are evaluated
+
+
+def _approach_root(d_avail: float, j: float, t_r: float) -> float:
+    """The v with t_r·v + KAPPA·v^{3/2}/√j = d_avail (the approach stopping distance where a_up = √(2jv) < a:
+    v·a_up/j − a_up³/(6j²) + v·√(v/j) = KAPPA·v^{3/2}/√j): with s = √v, s³ + (t_r√j/KAPPA)·s² − d√j/KAPPA = 0,
+    Cardano (`_positive_root_cubic`), then Newton steps (Cardano cancels where t_r is large and d small)."""
+    sj = math.sqrt(j)
+    b, k = t_r * sj / KAPPA, d_avail * sj / KAPPA
+    s_up = min(math.sqrt(k / b) if b > 0.0 else math.inf, math.cbrt(k))  # b·s² ≤ k and s³ ≤ k
+    s = _positive_root_cubic(b, k)
+    if not 0.0 < s <= s_up:  # q² or the cubes under- or overflowed
+        s = s_up
+    if not 0.0 < s < math.inf:
+        return math.nan  # degenerate (k underflowed, t_r infinite …): the caller bisects as before
+    for _ in range(40):  # the cubic is convex for s > 0: from above, Newton falls monotonically
+        step = ((s + b) * s * s - k) / (s * (3.0 * s + 2.0 * b))
+        s -= step
+        if not abs(step) > 1e-16 * s:
+            break
+    return s * s
+
+
 def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float:
     """Largest v with approach_stopping_distance(v) ≤ d_avail (0 where d_avail ≤ 0). Where the approach
-    reaches a (v ≥ a²/(2j)) it is `stop_speed` with dead time t_r + a/j and d_avail + a³/(6j²); below, bisection."""
+    reaches a (v ≥ a²/(2j)) it is `stop_speed` with dead time t_r + a/j and d_avail + a³/(6j²).
+
+    Below, the 60-step bisection on [0, a²/(2j)] it always was, to the bit, but its steps are decided by the
+    closed-form root v_c (`_approach_root`) wherever they fall outside v_c·(1 ± ZONE): the distance is evaluated
+    only inside, and at the zone's ends, which must bracket the root by 3·EVAL_TOL (else every step is evaluated,
+    as before): the distance rises with v and is computed to within EVAL_TOL, so a step outside the zone would
+    have been decided the same way. The bisection stops where its bracket no longer moves."""
     if not d_avail > 0.0:
         return 0.0
     v = stop_speed(d_avail + a**3 / (6.0 * j * j), a, j, t_r + a / j)
-    if v >= a * a / (2.0 * j):
+    top = a * a / (2.0 * j)
+    if v >= top:
         return v
-    lo, hi = 0.0, a * a / (2.0 * j)
+    v_c = _approach_root(d_avail, j, t_r) if j > 0.0 else math.nan
+    x_lo, x_hi = v_c * (1.0 - ZONE), v_c * (1.0 + ZONE)
+    if not (approach_stopping_distance(x_lo, a, j, t_r) * (1.0 + 3.0 * EVAL_TOL) <= d_avail
+            < approach_stopping_distance(x_hi, a, j, t_r) * (1.0 - 3.0 * EVAL_TOL)):
+        x_lo, x_hi = -math.inf, math.inf  # no certified bracket: evaluate every step
+    lo, hi = 0.0, top
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if approach_stopping_distance(mid, a, j, t_r) <= d_avail else (lo, mid)
+        if mid == lo or (mid == hi and hi != top):
+            break  # the bracket no longer moves (lo and hi were decided already)
+        if mid < x_lo or (mid <= x_hi and approach_stopping_distance(mid, a, j, t_r) <= d_avail):
+            lo = mid
+        else:
+            hi = mid
     return lo * (1.0 - 1e-9)
 
 

@@ -28,6 +28,7 @@ from . import __version__
 from .errors import ContractError
 from .flat import thrust_limited_accel
 from .lookup import (
+    MARGIN,
     NONE,
     ReactLookup,
     crossing_fixed_point,
@@ -35,6 +36,7 @@ from .lookup import (
     hurts_index,
     is_monotone,
     law_cells,
+    reaches,
     react_speed,
 )
 from .stop import approach_stop_speed, braking_decel, stop_dead_time
@@ -280,6 +282,7 @@ class ContractTable:
         self._r_body = v.r_body_m
         self._tr_lo, self._tr_hi = v.thrust_ratio_range
         self._t_dead = stop_dead_time(v)
+        self._tilt_max = v.tilt_max  # read on every query (a property computing radians)
         if avoid is not None:
             self._rho, self._tilts, self._trs = avoid.axes
             self._f = avoid.values
@@ -395,7 +398,8 @@ class ContractTable:
     # ---- contract speeds
     def _bad_inputs(self, d_od, r_obst, e_tr, thrust_ratio, tilt=0.0) -> str | None:
         try:
-            if not all(math.isfinite(x) for x in (d_od, r_obst, e_tr, thrust_ratio, tilt)):
+            if not math.isfinite(d_od + r_obst + e_tr + thrust_ratio + tilt) and not all(
+                    math.isfinite(x) for x in (d_od, r_obst, e_tr, thrust_ratio, tilt)):  # (the sum can overflow)
                 return "non-finite input"
         except TypeError:
             return "non-numeric input"
@@ -409,7 +413,7 @@ class ContractTable:
         """The worst-corner grid tilt of `tilt` (a tilt limit also allows every smaller grid tilt, whose
         folded reaction time is shorter) and the thrust index (`helps_index`); top NONE: no answer."""
         k = bisect_right(self._tr_list, thrust_ratio) - 1
-        top = bisect_right(self._tilt_list, min(tilt, self.vehicle.tilt_max)) - 1
+        top = bisect_right(self._tilt_list, min(tilt, self._tilt_max)) - 1
         return (NONE if k == NONE else top), k
 
     def v_safe(self, d_od, r_obst, e_tr, tilt, thrust_ratio) -> float:
@@ -429,7 +433,7 @@ class ContractTable:
 
     def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
         """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
-        tilt = self.vehicle.tilt_max if tilt is None else tilt
+        tilt = self._tilt_max if tilt is None else tilt
         if self._bad_inputs(d_od, r_obst, e_tr, thrust_ratio, tilt):
             return 0.0
         return self._stop(d_od, e_tr, braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt))
@@ -449,7 +453,7 @@ class ContractTable:
         `tilt` caps the tilt (default: the vehicle's limit); the avoid contract picks the best grid tilt
         up to it, the stop contract brakes at it. Safe-first: any doubt → 0.
         """
-        tilt = self.vehicle.tilt_max if tilt is None else tilt
+        tilt = self._tilt_max if tilt is None else tilt
         bad = self._bad_inputs(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
         if not bad and contract == "avoid" and self.avoid is None:
             bad = "no avoid contract in this table"
@@ -496,11 +500,26 @@ class ContractTable:
         if col is None:
             return 0.0, math.inf, 0.0
         lim = lambda j: self._law_speed(row, k, c0, r0 + max(col[j], e_meas))  # noqa: E731
-        v, j = crossing_fixed_point(self._ev_l, lim)
-        return v, max(col[j], e_meas), lim(j)
+        lam, _, t_r, (_, hsuf) = row
+        rho, c0p, ev = self._react[k]._rho_l, max(c0, 0.0), self._ev_l
+
+        def decide(j):  # v_j ≥ lim_j for sure where the unscaled speed misses v_j/(MARGIN·LAW_MARGIN) by 1e-9
+            v = ev[j]
+            if not v > 0.0:
+                return None
+            w = v / (MARGIN * LAW_MARGIN)
+            r = r0 + max(col[j], e_meas)
+            if not reaches(c0p, r, w * (1.0 - 1e-9), t_r, lam, rho, hsuf):
+                return True
+            if reaches(c0p, r, w * (1.0 + 1e-9), t_r, lam, rho, hsuf):
+                return False
+            return None
+
+        v, j, lim_j = crossing_fixed_point(ev, lim, decide)
+        return v, max(col[j], e_meas), lim_j
 
     def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
-        tilt = min(tilt, self.vehicle.tilt_max)
+        tilt = min(tilt, self._tilt_max)
         a = braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt)
         if self.e_pred is None:
             v = self._stop(d_od, e_meas, a)
@@ -511,14 +530,14 @@ class ContractTable:
                 v_max, e_b, v_s = 0.0, math.inf, 0.0
             else:
                 lim = lambda j: self._stop(d_od, max(col[j], e_meas), a)  # noqa: E731
-                v_max, j = crossing_fixed_point(self._ev_l, lim)
-                e_b, v_s = max(col[j], e_meas), lim(j)
+                v_max, j, v_s = crossing_fixed_point(self._ev_l, lim)
+                e_b = max(col[j], e_meas)
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
         return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)
 
     def gamma(self, v_max, d_od, r_obst, e_tr_meas, thrust_ratio, tilt=None, contract="avoid") -> float:
         """Γ = V_max − V_safe at a proposed V_max (e_tr = max(measured, E_tr_pred(V_max)))."""
-        tilt = self.vehicle.tilt_max if tilt is None else tilt
+        tilt = self._tilt_max if tilt is None else tilt
         e = max(e_tr_meas, self.e_tr_pred(v_max, tilt, thrust_ratio))
         if not math.isfinite(e):
             return math.inf

@@ -1,3 +1,5 @@
+import math
+
 import numpy as np
 import pytest
 
@@ -86,3 +88,40 @@ def test_approach_stop_speed_inverts_its_distance_on_both_branches(d, t_r):
     assert approach_stopping_distance(v, a, j, t_r) == pytest.approx(d, rel=1e-6)
     assert approach_stopping_distance(v, a, j, t_r) <= d
     assert approach_stopping_distance(v, a, j, t_r) >= stopping_distance(v, a, j, t_r)
+
+
+def approach_stop_speed_bisection(d_avail, a, j, t_r):
+    """contracts.stop.approach_stop_speed before issue 18: below the knee, 60 bisection steps, each evaluated."""
+    if not d_avail > 0.0:
+        return 0.0
+    v = stop_speed(d_avail + a**3 / (6.0 * j * j), a, j, t_r + a / j)
+    if v >= a * a / (2.0 * j):
+        return v
+    lo, hi = 0.0, a * a / (2.0 * j)
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if approach_stopping_distance(mid, a, j, t_r) <= d_avail else (lo, mid)
+    return lo * (1.0 - 1e-9)
+
+
+def test_approach_stop_speed_is_the_old_bisection_to_the_bit():
+    """The closed form only decides the bisection's steps far from the root: the same bits as every step evaluated,
+    over random vehicles and distances — below, at and above the knee, tiny and degenerate ones included."""
+    rng = np.random.default_rng(18)
+    n, below = 20000, 0
+    for _ in range(n):
+        a = float(rng.choice([rng.uniform(0.05, 15.0), 10 ** rng.uniform(-3, 2)]))
+        j = float(rng.choice([rng.uniform(0.5, 60.0), 4.0, 10 ** rng.uniform(-2, 3)]))
+        t_r = float(rng.choice([0.0, rng.uniform(0.0, 1.0), 10 ** rng.uniform(-6, 1)]))
+        knee = approach_stopping_distance(a * a / (2 * j), a, j, t_r)
+        d = float(rng.choice([knee * rng.random(), knee * 10 ** rng.uniform(-15, 0), knee * (1 - 10 ** rng.uniform(-16, -3)),
+                              knee, knee * rng.uniform(1, 3), 10 ** rng.uniform(-300, 1)]))
+        old = approach_stop_speed_bisection(d, a, j, t_r)
+        assert approach_stop_speed(d, a, j, t_r) == old, (d, a, j, t_r)
+        below += old < a * a / (2 * j) * (1 - 1e-9)
+    assert below > n // 2  # most took the bisection's branch
+    for d in (0.0, -1.0, math.nan, math.inf, -math.inf, 5e-324, 1e-310, 1e-300):
+        for t_r in (0.0, 0.25, 1e3, math.inf):
+            old = approach_stop_speed_bisection(d, 3.0, 4.0, t_r)
+            new = approach_stop_speed(d, 3.0, 4.0, t_r)
+            assert new == old or (math.isnan(new) and math.isnan(old)), (d, t_r)
