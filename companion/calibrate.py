@@ -272,7 +272,8 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
                         f"{worst['predicted_m']:.2f} m from {worst['v0']:.1f} m/s)")
     if ec.ratio > 1.0:
         findings.append(f"the aircraft tracks worse than its SITL model: measured/predicted E_tr up to {ec.ratio:.2f} "
-                        "on the covered cells (the uncovered cells are scaled by it)")
+                        "on the covered cells (the uncovered cells are scaled by their covered neighbours' ratio, "
+                        "or by it where they have none)")
     vdict = vehicle.metadata()
     vdict["braking"] = {**vdict["braking"], "accel_max_m_s2": brk["accel_max_m_s2"], "jerk_max_m_s3": brk["jerk_max_m_s3"],
                         "hold_switch_s": brk["hold_switch_s"]}
@@ -294,13 +295,18 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
                  "bound": f"covered cell (n >= {ec.n_min}): the largest of its n window maxima, which exceeds the "
                           f"{quantile:g}-quantile with confidence 1 - {quantile:g}^n >= {confidence:g}; times "
                           f"(1 + {cal.MARGIN_REL:g}) plus {cal.MARGIN_ABS_M:g} m",
-                 "uncovered": f"max(E_sitl, E_sitl * rho*, the bound of its own windows), rho* = {ec.ratio:.3f} (the "
-                              "largest measured/predicted ratio over covered cells, at least 1)",
+                 "uncovered": f"max(E_sitl, E_sitl * rho_nb, the bound of its own windows): rho_nb the largest "
+                              "measured/predicted ratio of the covered cells within "
+                              f"{cal.NEIGHBOUR_STEPS} grid step(s) in every axis; where there is none, rho* = "
+                              f"{ec.ratio:.3f} (the largest ratio over all covered cells, at least 1)",
+                 "neighbour_steps": cal.NEIGHBOUR_STEPS,
                  "monotone": "repaired upward", "quantile": quantile, "confidence": confidence, "n_min": ec.n_min},
         "counts": ec.counts.tolist(), "covered": ec.covered.astype(int).tolist(),
         "covered_cells": int(np.count_nonzero(ec.covered)), "cells": n_cells,
         "covered_fraction": float(np.count_nonzero(ec.covered)) / n_cells,
         "samples": len(samples), "samples_outside_grid": ec.outside, "ratio": ec.ratio,
+        "uncovered_from_neighbours": int(np.count_nonzero(ec.from_neighbours)),
+        "rho_covered": [[int(i), int(j), int(k), round(float(ec.rho[i, j, k]), 4)] for i, j, k in zip(*np.nonzero(np.isfinite(ec.rho)))],
         "monotone_repairs_up": ec.repairs, "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "logs": [{k: lg.get(k) for k in ("log", "sha256", "format", "windows", "span_s", "error") if k in lg} for lg in logs],
         "stock_table": str(table.path), "stock_arrays_sha256": table.meta.get("arrays_sha256"),

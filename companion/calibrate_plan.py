@@ -1,14 +1,19 @@
 """`contract-guard calibrate plan`: a mission that exercises the contract's envelope in open space.
 
-Per speed of a ladder up to the top of the controller contract's speed axis (the table's `E_tr_pred`
-v_max grid), in a lawn-mower pattern of parallel legs along north:
+Per speed of a ladder up to the top of the controller contract's speed axis (every speed of the table's
+`E_tr_pred` v_max grid from 1 m/s), in a lawn-mower pattern of parallel lanes along north:
 1. `DO_CHANGE_SPEED v`, a straight leg (accelerate at the vehicle's braking/acceleration limit, then
    cruise `CRUISE_S`) to waypoint A — a **hold leg**: the daemon in governor mode (or the operator)
    commands Hold/Brake `hold_before_m` before A, while at speed v; after `REST_S` at rest the mission
    is resumed (these are the legs "the daemon commands itself", marked in the files);
 2. on to waypoint B (collinear, re-accelerating to v), where `DO_CHANGE_SPEED v/2` gives a speed step
    down at full speed, then waypoint C and `LOITER_TIME` — the autopilot's own stop from v/2;
-3. a sideways leg of `2·turn radius` to the next leg's start: two 90° turns.
+3. a **zig-zag** at v (with `zigzag`): legs of `ZIGZAG_LEG_S · v + ZIGZAG_LEG_M` metres at ±30° from the lane
+   (60° turns), then at ±60° (120° turns), joined by a 30° turn — the turns' braking, re-acceleration and
+   overshoot reach the tilts of the contract's tilt axis that the autopilot's acceleration limit allows at
+   that speed, with `ZIGZAG_LEGS` legs each (enough 1 s windows per (speed, tilt) cell to cover it, pooled over
+   a PX4 and an ArduPilot flight); no 90° turn, so a 90° zig-zag stays a held-out manoeuvre;
+4. a sideways leg of `2·turn radius` to the next leg's start: two 90° turns.
 Every waypoint is at the plan's altitude, relative to home. The files: `calibration.plan` (QGroundControl)
 and `calibration.waypoints` (MAVProxy / Mission Planner), the same items, and `calibration-legs.json`
 (the marked legs; also inside both files). Pure geometry apart from `write_plan_files`.
@@ -36,19 +41,40 @@ MAV_CMD_NAV_LOITER_TIME = 19
 CRUISE_S = 10.0  # steady cruise per speed before the Hold [s]: ≥ 10 one-second contour windows
 REST_S = 2.0  # at rest in Hold before the mission resumes [s]
 LOITER_S = 2.0
+ZIGZAG_LEG_S = 8.0  # a zig-zag leg: this many seconds at v …
+ZIGZAG_LEG_M = 4.0  # … plus this many metres (room to accelerate and turn)
+ZIGZAG_LEGS = 4  # legs per turn angle
+ZIGZAG_DEG = (30.0, 60.0)  # legs at ± these angles from the lane: turns of 60° and 120°
 HOME = (47.397742, 8.545594, 488.0)  # PX4 SITL's default home (the SITL's too)
 
 
-def speed_ladder(v_top: float, v_grid=None) -> list[float]:
-    """The plan's speeds: the grid's speeds from 1 m/s up to `v_top`, every second one (and the top)."""
+def speed_ladder(v_top: float, v_grid=None, every: int = 1) -> list[float]:
+    """The plan's speeds: the grid's speeds from 1 m/s up to `v_top`, every `every`-th one (and the top)."""
     grid = [float(v) for v in (v_grid if v_grid is not None else range(1, int(v_top) + 1)) if 1.0 <= v <= v_top]
-    out = grid[::2]
+    out = grid[::every]
     if grid and out[-1] != grid[-1]:
         out.append(grid[-1])
     return out
 
 
-def plan_legs(vehicle, speeds: list[float], altitude_m: float = 5.0, turn_radius_m: float = 4.0) -> dict:
+def zigzag_points(start, sign: float, v: float) -> list[tuple[float, float]]:
+    """The zig-zag's waypoints (north, east) from `start`, heading `sign` along north (see the module). Pure."""
+    n, e = start
+    leg = ZIGZAG_LEG_S * v + ZIGZAG_LEG_M
+    out = []
+    for k, deg in enumerate(ZIGZAG_DEG):
+        for i in range(ZIGZAG_LEGS):
+            # ±deg alternately; the second set starts on the side the first ended on (a 30° turn, no 90°)
+            side = (1 if i % 2 == 0 else -1) * (1 if k % 2 == 0 else -1)
+            a = math.radians(deg)
+            n += sign * leg * math.cos(a)
+            e += side * leg * math.sin(a)
+            out.append((n, e))
+    return out
+
+
+def plan_legs(vehicle, speeds: list[float], altitude_m: float = 5.0, turn_radius_m: float = 4.0,
+              zigzag: bool = True) -> dict:
     """The plan in local metres: {"points": [(north, east)], "items": [(kind, …)], "legs": [...]}. Pure."""
     a = vehicle.braking.accel_max_m_s2
     j = vehicle.braking.jerk_max_m_s3
@@ -74,6 +100,16 @@ def plan_legs(vehicle, speeds: list[float], altitude_m: float = 5.0, turn_radius
         items.append(("loiter", LOITER_S, (c_north, east)))
         legs.append({"kind": "autopilot_stop", "speed_m_s": max(v / 2, 0.5), "item": len(items) - 2,
                      "commanded_by": "autopilot (waypoint with loiter)"})
+        if zigzag:
+            items.append(("speed", v))
+            first = len(items)
+            for pt in zigzag_points((c_north, east), sign, v):
+                items.append(("wp", pt))
+            legs.append({"kind": "zigzag", "speed_m_s": v, "item": first, "items": len(items) - first,
+                         "turns_deg": [2 * d for d in ZIGZAG_DEG], "commanded_by": "mission"})
+            c_north, east = items[-1][1]
+            if i == len(speeds) - 1:  # the plan ends at rest at its last waypoint (no stop at the mission's end)
+                items.append(("loiter", LOITER_S, (c_north, east)))
         if i < len(speeds) - 1:
             east += 2 * turn_radius_m
             items.append(("speed", min(v, 2.0)))
@@ -84,9 +120,9 @@ def plan_legs(vehicle, speeds: list[float], altitude_m: float = 5.0, turn_radius
     return {"items": items, "legs": legs, "altitude_m": altitude_m, "speeds_m_s": speeds}
 
 
-def mission_plan(vehicle, speeds: list[float], altitude_m: float = 5.0, home=HOME) -> MissionPlan:
+def mission_plan(vehicle, speeds: list[float], altitude_m: float = 5.0, home=HOME, zigzag: bool = True) -> MissionPlan:
     """The legs as MAVLink mission items (global frame, altitude relative to home)."""
-    lay = plan_legs(vehicle, speeds, altitude_m)
+    lay = plan_legs(vehicle, speeds, altitude_m, zigzag=zigzag)
     lat0, lon0, _ = home
     out = []
     for it in lay["items"]:
@@ -107,9 +143,9 @@ def mission_plan(vehicle, speeds: list[float], altitude_m: float = 5.0, home=HOM
     return MissionPlan(tuple(home), out, extra, cruise_speed_m_s=speeds[0] if speeds else 1.0)
 
 
-def write_plan_files(vehicle, out_dir: Path, speeds: list[float], altitude_m: float = 5.0) -> dict:
+def write_plan_files(vehicle, out_dir: Path, speeds: list[float], altitude_m: float = 5.0, zigzag: bool = True) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
-    mp = mission_plan(vehicle, speeds, altitude_m)
+    mp = mission_plan(vehicle, speeds, altitude_m, zigzag=zigzag)
     write_plan(out_dir / "calibration.plan", mp)
     write_waypoints(out_dir / "calibration.waypoints", mp)
     (out_dir / "calibration-legs.json").write_text(json.dumps(mp.extra, indent=1) + "\n")

@@ -14,9 +14,12 @@ Upper bound per cell (distribution-free order statistic): the largest of the cel
 exceeds the `quantile` q of a window's worst error with confidence 1 − qⁿ; a cell is *covered* when
 n ≥ n_min = ⌈ln(1 − confidence) / ln q⌉. The calibrated value of a covered cell is that maximum times
 (1 + margin) plus `margin_abs_m` (the SITL build's own margin rule). An uncovered cell is never
-optimistic: `max(E_sitl, E_sitl · ρ*, its own windows' bound)` with ρ* the largest measured/predicted
-ratio over the covered cells (1 when none is covered). The result is made monotone upward (`lookup.repair_monotone`, "up"),
-so a covered cell is never below a smaller speed's or tilt's calibrated value either.
+optimistic (the issue's neighbour rule): `max(E_sitl, E_sitl · ρ_nb, its own windows' bound)`, with ρ_nb
+the largest measured/predicted ratio (bound / E_sitl) over the covered cells within `NEIGHBOUR_STEPS` grid
+steps of it in every axis, or, where no covered cell is that near, ρ* — the largest ratio over all covered
+cells (1 when none is covered). Never below the SITL prediction. The result is made monotone upward
+(`lookup.repair_monotone`, "up"), so a covered cell is never below a smaller speed's or tilt's calibrated
+value either.
 
 **Braking** (the stop contract, `contracts/stop.py`): from each logged stop (Hold/Brake commanded at
 speed) the reaction (command → braking onset), the peak deceleration, the jerk of its rise, the
@@ -37,13 +40,19 @@ from .lookup import NONE, helps_index, hurts_index, repair_monotone
 from .stop import braking_distance, stopping_distance
 
 WINDOW_S = 1.0  # one sample per window of flight [s]
-LOOKBACK_S = 4.0  # a window's speed and tilt include this much before it [s]
+# a window's speed and tilt include this much before it [s]: an error that lingers after a manoeuvre (the settling
+# after a stop or a turn) is charged to the manoeuvre's speed and tilt, not to the slow flight that follows it.
+# Measured (benchmarks/calibrate_evidence.py, the X500 with gains x0.6, +60 ms actuator delay, 5 m/s wind): at 4 s,
+# windows at rest 0.3 m/s after a Hold from 8 m/s still carried 0.9 m and made the 1 m/s cells 1.6 m (monotone
+# upward from there); at 8 s the held-out median rose 0.11 -> 0.26 (per window), worst 0.31 -> 0.76; 12 s as 8 s
+LOOKBACK_S = 8.0
 CONTOUR_WINDOW_S = 1.0  # the commanded path near a sample: ± this [s] (as the SITL build)
 QUANTILE = 0.9
 CONFIDENCE = 0.9
 MARGIN_REL = 0.25  # the SITL build's margin (its table's `e_tr_pred.margin`)
 MARGIN_ABS_M = 0.02
 ETR_DIRS = (+1, +1, -1)  # E_tr_pred grows with v_max and tilt, falls with thrust_ratio
+NEIGHBOUR_STEPS = 1  # an uncovered cell's neighbours: covered cells at most this many grid steps away per axis
 
 
 def n_min(quantile: float = QUANTILE, confidence: float = CONFIDENCE) -> int:
@@ -61,11 +70,12 @@ class Windows:
     t: np.ndarray
 
 
-def windows(t, xy, speed, tilt, t_path, xy_path, airborne=None, window_s=WINDOW_S, lookback_s=LOOKBACK_S) -> Windows:
+def windows(t, xy, speed, tilt, t_path, xy_path, airborne=None, window_s=WINDOW_S, lookback_s=None) -> Windows:
     """Cut a flight into window samples. `t` (n,), `xy` (n, 2) position, `speed` (n,) horizontal speed,
     `tilt` (n,) total tilt [rad] (all at the position samples); `t_path`, `xy_path` the commanded path;
     `airborne` (n,) bool: samples outside it (on the ground, taking off, landing) and samples with no
     commanded path within `CONTOUR_WINDOW_S` are left out."""
+    lookback_s = LOOKBACK_S if lookback_s is None else lookback_s
     t = np.asarray(t, float)
     if len(t) == 0 or len(t_path) == 0:
         return Windows(*(np.zeros(0) for _ in range(4)))
@@ -103,6 +113,9 @@ class EtrCalibration:
     covered: np.ndarray  # bool per cell: n ≥ n_min
     measured_max: np.ndarray  # largest window error per cell (NaN: no sample)
     ratio: float  # ρ*: largest measured/predicted over covered cells (1 if none)
+    rho: np.ndarray  # measured/predicted (bound / E_sitl) per covered cell (NaN elsewhere)
+    scale: np.ndarray  # the ratio each cell's SITL value was scaled by (covered cells: NaN)
+    from_neighbours: np.ndarray  # bool per cell: uncovered and scaled by its neighbours' ratio (else ρ*)
     repairs: int  # cells raised by the monotone repair
     outside: int  # samples outside the grid (not used)
     n_min: int
@@ -126,11 +139,41 @@ def calibrate_etr(stock: np.ndarray, axes, samples: list[tuple[float, float, flo
     covered = counts >= nm
     bound = worst * (1.0 + margin) + margin_abs_m
     fin = covered & np.isfinite(stock) & (stock > 0)
-    ratio = float(max(1.0, np.max(bound[fin] / stock[fin]))) if np.any(fin) else 1.0
-    # uncovered: the SITL's value scaled by ρ*, and never below what its own few windows showed
-    vals = np.where(covered, bound, np.fmax(np.maximum(stock, stock * ratio), bound))
+    rho = np.where(fin, bound / np.where(fin, stock, 1.0), np.nan)  # measured/predicted per covered cell
+    ratio = float(max(1.0, np.nanmax(rho))) if np.any(fin) else 1.0
+    scale, near = neighbour_ratio(rho, ratio)
+    scale[covered] = np.nan
+    near &= ~covered
+    # uncovered: the SITL's value scaled by its neighbours' ratio (or ρ*), never below the SITL's value nor
+    # below what its own few windows showed
+    vals = np.where(covered, bound, np.fmax(np.maximum(stock, stock * np.nan_to_num(scale, nan=ratio)), bound))
     vals, repairs = repair_monotone(vals, ETR_DIRS, "up")
-    return EtrCalibration(vals, counts, covered, worst, ratio, repairs, outside, nm)
+    return EtrCalibration(vals, counts, covered, worst, ratio, rho, scale, near, repairs, outside, nm)
+
+
+def neighbour_ratio(rho: np.ndarray, fallback: float, steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell, the largest of `rho` (measured/predicted of the covered cells, NaN elsewhere) over the cells at
+    most `steps` grid steps away in every axis (itself included), and whether there was any; `fallback` where
+    there was none (`steps` default: `NEIGHBOUR_STEPS`). Pure."""
+    steps = NEIGHBOUR_STEPS if steps is None else steps
+    best = np.full(rho.shape, -np.inf)
+    it = np.ndindex(*(2 * steps + 1,) * rho.ndim)
+    src = np.where(np.isfinite(rho), rho, -np.inf)
+    for off in it:
+        d = [o - steps for o in off]
+        shifted = np.full(rho.shape, -np.inf)
+        dst_sl, src_sl = [], []
+        for k, dk in enumerate(d):
+            n = rho.shape[k]
+            if abs(dk) >= n:
+                break
+            dst_sl.append(slice(max(0, -dk), n - max(0, dk)))
+            src_sl.append(slice(max(0, dk), n - max(0, -dk)))
+        else:
+            shifted[tuple(dst_sl)] = src[tuple(src_sl)]
+            best = np.maximum(best, shifted)
+    near = np.isfinite(best)
+    return np.where(near, best, fallback), near
 
 
 # ----------------------------------------------------------------------------- braking

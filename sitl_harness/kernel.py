@@ -3,6 +3,11 @@
 `advance` runs `n` physics steps in place with the controller executed every `decim` steps (the
 controller sees the true state: the SITL models a perfect estimator). `VehicleModel` wraps the
 arrays for Python callers.
+
+Actuator (command) delay: with `delay_steps` = N > 0 the rotor-speed commands reach the motors N
+physics steps after the controller computed them (a FIFO of N commands: ESC/bus transport, the
+"larger actuator delay" of a real aircraft, a truth property its vehicle file does not know). N = 0
+(the default) is the direct path, unchanged.
 """
 
 from __future__ import annotations
@@ -23,8 +28,9 @@ from .physics import E_N, E_TR, E_WIND, X_N, X_R, initial_state, plant_params, r
 
 
 @njit
-def advance(x, s, prm, cp, sp, env, n, dt, decim, scratch):
-    """Advance `n` physics steps of `dt`; returns how many of them ended resting on the ground."""
+def advance(x, s, prm, cp, sp, env, n, dt, decim, scratch, fifo, head):
+    """Advance `n` physics steps of `dt`; returns how many of them ended resting on the ground.
+    `fifo` (N, 4) holds the last N commands, `head[0]` the index of the oldest (N = 0: no delay)."""
     k1 = scratch[0]
     k2 = scratch[1]
     k3 = scratch[2]
@@ -38,8 +44,16 @@ def advance(x, s, prm, cp, sp, env, n, dt, decim, scratch):
             control_step(x, prm, cp, sp, s)
             s[S_CNT] = decim
         s[S_CNT] -= 1.0
-        for i in range(4):
-            wcmd[i] = s[S_WCMD + i]
+        nd = fifo.shape[0]
+        if nd == 0:
+            for i in range(4):
+                wcmd[i] = s[S_WCMD + i]
+        else:  # the oldest command goes to the motors, the newest takes its place
+            h = head[0]
+            for i in range(4):
+                wcmd[i] = fifo[h, i]
+                fifo[h, i] = s[S_WCMD + i]
+            head[0] = (h + 1) % nd
         if rk4_step(x, wcmd, prm, env, dt, k1, k2, k3, k4, tmp, f4):
             resting += 1
     return resting
@@ -52,9 +66,12 @@ class VehicleModel:
     rounded to an integer divisor of the physics rate.
     """
 
-    def __init__(self, vehicle, physics_hz: float = 1000.0, yaw: float = 0.0, pos=(0.0, 0.0, 0.0)):
+    def __init__(self, vehicle, physics_hz: float = 1000.0, yaw: float = 0.0, pos=(0.0, 0.0, 0.0),
+                 actuator_delay_s: float = 0.0):
         if physics_hz < 500.0:
             raise ValueError("physics_hz must be at least 500")
+        if not (math.isfinite(actuator_delay_s) and 0.0 <= actuator_delay_s <= 1.0):
+            raise ValueError("actuator_delay_s must be in [0, 1] s")
         self.vehicle = vehicle
         self.dt = 1.0 / physics_hz
         self.decim = max(1, round(physics_hz / vehicle.controller.rate_hz))
@@ -68,6 +85,11 @@ class VehicleModel:
         self.env = np.zeros(E_N)
         self.env[E_TR] = 1.0
         self._scratch = np.zeros((6, X_N))
+        # the command FIFO: N = round(delay / dt) physics steps, filled with "rotors stopped" (the vehicle
+        # starts at rest with its rotors stopped; `Sim._start_airborne` fills it with the hover command)
+        self.delay_steps = round(actuator_delay_s / self.dt)
+        self.fifo = np.zeros((self.delay_steps, 4))
+        self._head = np.zeros(1, np.int64)
         self.resting = True
         self.step(0)  # compile / load the cached kernel now, not in the first real-time tick
 
@@ -85,7 +107,7 @@ class VehicleModel:
 
     def step(self, n: int) -> None:
         rest = advance(self.x, self.s, self.prm, self.cp, self.sp, self.env, int(n), self.dt,
-                       float(self.decim), self._scratch)
+                       float(self.decim), self._scratch, self.fifo, self._head)
         if n > 0:
             self.resting = rest > 0 and self.x[2] >= 0.0
 

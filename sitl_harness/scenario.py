@@ -7,6 +7,7 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
     name: column_ahead
     vehicle: mambo
     seed: 1
+    actuator_delay_s: 0.0                 # extra rotor-command latency of the simulated aircraft
     start: {x_m: 0, y_m: 0, yaw_deg: 0}   # add alt_m: 2 to start armed and hovering
     world:
       columns: [{x_m: 12, y_m: 0, radius_m: 0.5}]
@@ -185,6 +186,9 @@ class Scenario(_Strict):
     vehicle: str = "mambo"
     seed: int = 0
     physics_hz: Annotated[float, Field(ge=500, le=10000)] = 1000.0
+    # the simulated aircraft's extra command latency [s]: rotor commands reach the motors this much later
+    # (a FIFO of round(delay · physics_hz) physics steps, kernel.py); a truth property, not in the vehicle file
+    actuator_delay_s: Annotated[float, Field(ge=0, le=1)] = 0.0
     home: Home = Home()
     start: Start = Start()
     world: WorldSpec = WorldSpec()

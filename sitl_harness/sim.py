@@ -43,7 +43,8 @@ def make_personality(name: str):
 class Sim:
     def __init__(self, scenario: Scenario | str | None = None, personality: str = "px4", *,
                  vehicle=None, seed: int | None = None, tick_hz: float = 100.0,
-                 signing_key: bytes | None = None, unix_epoch_s: float | None = None, log_dir=None):
+                 signing_key: bytes | None = None, unix_epoch_s: float | None = None, log_dir=None,
+                 actuator_delay_s: float | None = None):
         sc = scenario if isinstance(scenario, Scenario) else (
             load_scenario(scenario) if scenario is not None else Scenario())
         self.scenario = sc
@@ -51,8 +52,10 @@ class Sim:
         self.seed = sc.seed if seed is None else seed
         v = self.vehicle
         self.tick_dt = 1.0 / tick_hz
+        # the aircraft's command latency (the scenario's, or this keyword's): a truth property, not the file's
+        delay = sc.actuator_delay_s if actuator_delay_s is None else actuator_delay_s
         self.model = VehicleModel(v, physics_hz=sc.physics_hz, yaw=math.radians(sc.start.yaw_deg),
-                                  pos=(sc.start.x_m, sc.start.y_m, 0.0))
+                                  pos=(sc.start.x_m, sc.start.y_m, 0.0), actuator_delay_s=delay)
         self.n_phys = max(1, round(self.tick_dt / self.model.dt))
         self.autopilot = Autopilot(self.model, make_personality(personality),
                                    home=(sc.home.lat_deg, sc.home.lon_deg, sc.home.alt_m),
@@ -131,6 +134,7 @@ class Sim:
         m, ap, v = self.model, self.autopilot, self.vehicle
         m.x[2] = -alt
         m.x[X_R:X_R + 4] = math.sqrt(v.mass_kg * G / (4 * m.thrust_ratio * v.rotor.k_thrust))
+        m.fifo[:] = m.x[X_R]  # the delayed commands in flight: the hover command
         ap.set_hover_thrust(v.mass_kg * G / (m.thrust_ratio * v.t_nom_n))
         m.resting = False
         ap.armed = True

@@ -20,6 +20,11 @@ from companion.flights import Rig, fly_mission
 from contracts.missionfile import read_mission
 
 EPOCH_US = 1_790_000_000_000_000
+TRUTH_GAIN = 0.6  # the "real aircraft": position- and velocity-loop gains −40 % …
+TRUTH_DELAY_S = 0.06  # … and a 60 ms larger actuator delay than its vehicle file's SITL (which has none),
+# with its inner loops tuned for it: the file's attitude/rate gains at 60 ms more delay diverge (checked: rolls
+# past 45° within 3 s of hover in 5 m/s wind); att_p × 0.6, rate_p × 0.5 fly (stable to about 80 ms)
+TRUTH_INNER = {"att_p": 0.6, "rate_p": 0.5}
 
 
 class TlogTee:
@@ -56,26 +61,34 @@ class TlogTee:
         self.fh.close()
 
 
+def truth_sim_kwargs(truth=None, actuator_delay_s: float = TRUTH_DELAY_S) -> dict:
+    """The `Sim` keywords of the "real aircraft": its vehicle (`truth_vehicle`) and its actuator delay."""
+    return {**({"vehicle": truth} if truth is not None else {}), "actuator_delay_s": actuator_delay_s}
+
+
 def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str = "px4", seed: int = 0,
                     wind_m_s: float | None = None, vehicle: str = "x500", max_s: float = 900.0,
-                    log_dir: Path | None = None) -> dict:
-    """Fly the plan; returns the holds commanded (t, speed), the flight time and, with `log_dir`, the path of
-    the autopilot's own log the SITL wrote (PX4 ULog / ArduPilot DataFlash)."""
+                    log_dir: Path | None = None, actuator_delay_s: float = TRUTH_DELAY_S) -> dict:
+    """Fly the plan; returns the holds commanded (t, speed), when each mission item became current (t, seq), the
+    flight time, whether the plan was flown to its end, and, with `log_dir`, the path of the autopilot's own log
+    the SITL wrote (PX4 ULog / ArduPilot DataFlash). Times are the SITL's (the `.tlog`'s stamps minus EPOCH_US)."""
     sc = {"name": "calibration", "vehicle": vehicle, "seed": seed, "route": {"mission": str(plan_path)},
           "wind": {} if wind_m_s is None else {"mean_m_s": wind_m_s, "from_deg": 90.0}}
     rig = Rig(sc, personality, config={"mode": "shadow", "engage": False}, seed=seed,
-              sim_kwargs={"vehicle": truth} if truth is not None else None, log_dir=log_dir)
+              sim_kwargs=truth_sim_kwargs(truth, actuator_delay_s), log_dir=log_dir)
     tee = TlogTee(rig, tlog)
     mp = read_mission(plan_path)
     holds = {leg["mission_seq_plan"] if personality == "px4" else leg["mission_seq_waypoints"]: leg
              for leg in mp.extra.get("legs", []) if leg["kind"] == "hold"}
     ad = adapter_for(personality)
     ap = rig.sim.autopilot
-    done, log = set(), []
+    done, log, items = set(), [], []
     n_items = len(ap.mission)
 
     def watch(r: Rig) -> bool:
         seq = ap.mission_seq
+        if not items or items[-1]["seq"] != seq:
+            items.append({"t": r.sim.time_s, "seq": seq})
         leg = holds.get(seq)
         if leg is not None and seq not in done and ap.mode == "mission":
             it = ap.mission[seq]
@@ -89,22 +102,27 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
         return seq >= n_items - 1 and ap.mode in ("hold", "mission") and ap.traj.speed_xy < 0.05 and done == set(holds)
 
     fly_mission(rig, max_s, until=watch)
+    finished = ap.mission_seq >= n_items - 1 and done == set(holds)
     rig.run(2.0)
     tee.close()
     own = rig.close_log() if log_dir is not None else None
-    return {"holds": log, "flight_s": rig.sim.time_s, "autopilot_log": None if own is None else str(own), "collisions": len(rig.truth.get("collisions", []))
-            if isinstance(rig.truth, dict) else None}
+    return {"holds": log, "items": items, "finished": finished, "flight_s": rig.sim.time_s,
+            "autopilot_log": None if own is None else str(own),
+            "collisions": len(rig.truth.get("collisions", [])) if isinstance(rig.truth, dict) else None}
 
 
-def truth_vehicle(name: str = "x500", gain: float = 0.6):
-    """A "real aircraft" that differs from its vehicle file: position- and velocity-loop gains × `gain`."""
+def truth_vehicle(name: str = "x500", gain: float = TRUTH_GAIN, inner: dict | None = None):
+    """A "real aircraft" that differs from its vehicle file: position- and velocity-loop gains × `gain`, and the
+    inner loops scaled by `inner` (default `TRUTH_INNER`, the tuning that flies with `TRUTH_DELAY_S`)."""
     from contracts.vehicle import load_vehicle, vehicle_from_dict
 
     v = load_vehicle(name)
     d = v.metadata()
     c = d["controller"]
-    d["controller"] = {**c, "pos_p": c["pos_p"] * gain, "vel_p": c["vel_p"] * gain, "vel_i": c["vel_i"] * gain}
-    return vehicle_from_dict(d, f"{name} with gains x{gain}")
+    inner = TRUTH_INNER if inner is None else inner
+    d["controller"] = {**c, "pos_p": c["pos_p"] * gain, "vel_p": c["vel_p"] * gain, "vel_i": c["vel_i"] * gain,
+                       **{k: c[k] * f for k, f in inner.items()}}
+    return vehicle_from_dict(d, f"{name} with gains x{gain}, inner loops {inner}")
 
 
 def heldout_plan(path: Path, speeds=(3.0, 5.0, 7.0), home=(47.397742, 8.545594, 488.0), alt=5.0) -> Path:

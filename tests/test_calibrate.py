@@ -59,6 +59,34 @@ def test_covered_cell_gets_its_bound_and_uncovered_cells_never_go_below_stock(st
     assert not c3.covered.any() and np.array_equal(c3.values, e0)
 
 
+
+def test_uncovered_cells_take_their_covered_neighbours_ratio_else_the_largest():
+    """The neighbour rule: a cell next to a covered one is its SITL value × that neighbour's measured/predicted
+    ratio; a cell with no covered neighbour × ρ* (the largest ratio); a ratio below 1 never lowers the SITL
+    value; then monotone upward."""
+    t = load_for_vehicle("x500")
+    axes, e0 = t.e_pred.axes, t.e_pred.values
+    lo = (2.0, math.radians(5), 1.0)  # a mild cell, measured 2.5x worse than the SITL says …
+    hi = (7.0, math.radians(20), 1.0)  # … and a fast one, measured 1.2x
+    c_lo, c_hi = cal.cell_of(axes, *lo), cal.cell_of(axes, *hi)
+    e_lo = (2.5 * e0[c_lo] - cal.MARGIN_ABS_M) / (1 + cal.MARGIN_REL)
+    e_hi = (1.2 * e0[c_hi] - cal.MARGIN_ABS_M) / (1 + cal.MARGIN_REL)
+    c = cal.calibrate_etr(e0, axes, [(e_lo, *lo)] * 25 + [(e_hi, *hi)] * 25)
+    assert c.covered[c_lo] and c.covered[c_hi] and c.ratio == pytest.approx(2.5)
+    assert c.rho[c_lo] == pytest.approx(2.5) and c.rho[c_hi] == pytest.approx(1.2)
+    i, j, k = c_hi
+    nb = (i, j + 1, k)  # next to the fast cell only: scaled by 1.2, not by ρ* = 2.5
+    assert c.from_neighbours[nb] and c.scale[nb] == pytest.approx(1.2)
+    assert c.values[nb] >= 1.2 * e0[nb] - 1e-12
+    far = (i, len(axes[1]) - 1, 0)  # no covered cell near: ρ*
+    assert not c.from_neighbours[far] and c.values[far] >= 2.5 * e0[far] - 1e-12
+    assert np.all(c.values[~c.covered] >= e0[~c.covered])
+    assert _monotone(c.values)
+    # a neighbour that tracks better than the SITL (ratio < 1) leaves its neighbours at the SITL value, no lower
+    good = cal.calibrate_etr(e0, axes, [(0.5 * e0[c_hi] / (1 + cal.MARGIN_REL), *hi)] * 25)
+    assert good.rho[c_hi] < 1 and np.all(good.values[~good.covered] >= e0[~good.covered])
+
+
 def _monotone(v):
     from contracts.lookup import is_monotone
 
@@ -151,16 +179,37 @@ def test_plan_files_round_trip_and_load_in_pymavlink(tmp_path):
 
 def test_plan_reaches_each_speed_and_stops_inside_the_leg():
     veh = load_vehicle("x500")
+    assert speed_ladder(8.0, every=2) == [1.0, 3.0, 5.0, 7.0, 8.0]
+    grid = load_for_vehicle("x500").e_pred.axes[0]
+    assert speed_ladder(8.0, grid) == [float(v) for v in grid]  # every speed of the contract's V_max axis
     lay = plan_legs(veh, speed_ladder(8.0))
-    assert lay["speeds_m_s"] == [1.0, 3.0, 5.0, 7.0, 8.0]
+    assert lay["speeds_m_s"] == [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0]
     kinds = {leg["kind"] for leg in lay["legs"]}
-    assert kinds == {"hold", "step_down", "autopilot_stop", "turn"}
+    assert kinds == {"hold", "step_down", "autopilot_stop", "zigzag", "turn"}
+    assert {leg["kind"] for leg in plan_legs(veh, [2.0], zigzag=False)["legs"]} == {"hold", "step_down", "autopilot_stop"}
+
+
+def test_plan_zigzag_turns_are_60_and_120_degrees_never_90():
+    """The zig-zag's heading changes: 60° (legs at ±30°), one 30° between the sets, 120° (legs at ±60°); a 90°
+    zig-zag (the evidence's held-out manoeuvre) is not in the plan; each leg is long enough to reach v."""
+    from companion.calibrate_plan import ZIGZAG_LEGS, zigzag_points
+
+    veh = load_vehicle("x500")
+    for v, sign in ((2.0, 1.0), (7.0, -1.0)):
+        pts = [(0.0, 0.0), *zigzag_points((0.0, 0.0), sign, v)]
+        hd = [math.degrees(math.atan2(b[1] - a[1], b[0] - a[0])) for a, b in zip(pts[:-1], pts[1:])]
+        turns = [round(abs((h2 - h1 + 180) % 360 - 180)) for h1, h2 in zip(hd[:-1], hd[1:])]
+        assert turns == [60] * (ZIGZAG_LEGS - 1) + [30] + [120] * (ZIGZAG_LEGS - 1), turns
+        assert pts[-1][1] == pytest.approx(0.0, abs=1e-9)  # back on the lane
+        leg = math.dist(pts[0], pts[1])
+        a = veh.braking.accel_max_m_s2
+        assert leg > v * v / a + 2.0 * v  # accelerate to v, cruise, brake into the waypoint
 
 
 def test_calibrate_plan_cli_and_bad_mission_file(tmp_path, capsys):
     assert main(["calibrate", "plan", "--vehicle", "x500", "--out", str(tmp_path / "p"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert Path(out["plan"]).exists() and Path(out["waypoints"]).exists() and out["hold_legs"] == 8
+    assert Path(out["plan"]).exists() and Path(out["waypoints"]).exists() and out["hold_legs"] == 15
     bad = tmp_path / "bad.waypoints"
     bad.write_text("QGC WPL 110\n0\t1\t0\t16\n")
     with pytest.raises(ContractError, match="fields"):
@@ -174,13 +223,13 @@ def test_calibrate_plan_cli_and_bad_mission_file(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def flown(tmp_path_factory):
-    """The X500 with position/velocity gains −40 % and 5 m/s wind flies a short calibration plan (2, 4 m/s),
+    """The X500 with position/velocity gains −40 %, a 60 ms actuator delay and 5 m/s wind flies a short calibration plan (2, 4 m/s),
     PX4 from the .plan and ArduPilot from the .waypoints; .tlogs as a ground station writes them."""
     from tests.calibration_flights import fly_calibration, truth_vehicle
 
     d = tmp_path_factory.mktemp("cal")
     info = write_plan_files(load_vehicle("x500"), d / "plan", [2.0, 4.0])
-    truth = truth_vehicle("x500", 0.6)
+    truth = truth_vehicle("x500")
     out = {}
     for pers, f in (("px4", info["plan"]), ("ardupilot", info["waypoints"])):
         out[pers] = fly_calibration(Path(f), d / f"{pers}.tlog", truth=truth, personality=pers, wind_m_s=5.0,
@@ -252,7 +301,10 @@ def test_the_autopilots_own_logs_calibrate_like_the_tlog(flown, stock, tmp_path)
     ba, bb = a["braking"]["calibrated"], b["braking"]["calibrated"]
     assert bb["stops"] == ba["stops"] == 4
     assert bb["accel_max_m_s2"] == pytest.approx(ba["accel_max_m_s2"], rel=0.05)
-    assert bb["jerk_max_m_s3"] == pytest.approx(ba["jerk_max_m_s3"], rel=0.15)
+    # the jerk is the lowest stop's: with the truth's +60 ms actuator delay and slower inner loops, the 2 m/s stop's
+    # short deceleration rise (peak 2.1 m/s²) reads 3.97 m/s³ from the .tlog and 3.18 from the DataFlash log's
+    # samples (measured; the 4 m/s stops agree within 10 %)
+    assert bb["jerk_max_m_s3"] == pytest.approx(ba["jerk_max_m_s3"], rel=0.25)
     assert bb["hold_switch_s"] == pytest.approx(ba["hold_switch_s"], abs=0.1)
     ea, eb = verify(tmp_path / "a.npz").e_pred.values, verify(tmp_path / "b.npz").e_pred.values
     # the same answer but at a cell's edge: a window whose tilt sits on a tilt edge is charged to the next tilt cell
@@ -287,15 +339,15 @@ def calibrated(flown, tmp_path_factory):
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])
 def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_under_the_calibrated(calibrated,
                                                                                                  personality):
-    """The modified X500 (gains −40 %, 5 m/s side wind) in governor mode at up to 8 m/s toward a column revealed
-    at the sensor's 10 m: under the stock table, at least one seed of four breaks its controller contract
+    """The modified X500 (gains −40 %, +60 ms actuator delay, 5 m/s side wind) in governor mode at up to 8 m/s
+    toward a column revealed at the sensor's 10 m: under the stock table, at least one seed of four breaks its controller contract
     (measured contour error above the E_tr_pred in force) or hits the column; under the calibrated table none
     does, over the same seeds."""
     from companion.flights import Rig, fly_mission
-    from tests.calibration_flights import truth_vehicle
+    from tests.calibration_flights import truth_sim_kwargs, truth_vehicle
     from tests.test_daemon_lockstep import column_scenario
 
-    truth = truth_vehicle("x500", 0.6)
+    truth = truth_vehicle("x500")
     stock = load_for_vehicle("x500")
     broke = {"stock": [], "calibrated": []}
     for seed in range(1, 5):
@@ -303,7 +355,7 @@ def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_unde
             sc = column_scenario(seed, x_col=40.0, cruise=8.0, vehicle="x500",
                                  wind={"mean_m_s": 5.0, "from_deg": 90, "gust_m_s": 1.0})
             sc["sensor"]["max_range_m"] = 10.0
-            rig = Rig(sc, personality, table_wrapper=lambda t, tab=tab: tab, sim_kwargs={"vehicle": truth})
+            rig = Rig(sc, personality, table_wrapper=lambda t, tab=tab: tab, sim_kwargs=truth_sim_kwargs(truth))
             fly_mission(rig, 30.0)
             ctrl = [e for e in rig.log.named("violation_start") if e["subsystem"] == "controller"]
             if ctrl or rig.truth["collisions"]:

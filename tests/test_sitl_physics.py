@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.vehicle import G, load_vehicle
-from sitl_harness.control import M_OFF, M_POS, S_THR, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_YAW
+from sitl_harness.control import M_OFF, M_POS, S_THR, S_WCMD, SP_ACC, SP_HTE, SP_MODE, SP_POS, SP_YAW
 from sitl_harness.kernel import VehicleModel
 from sitl_harness.physics import E_N, E_TR, X_N, X_Q, X_R, deriv, euler_from_quat, initial_state, plant_params, quat_from_euler
 from sitl_harness.sensors import RangeSensor, RangeSensorConfig
@@ -148,6 +148,50 @@ def test_motor_lag_time_constant(mambo):
     frac = (m.x[X_R] - 1000.0) / (cmd - 1000.0)
     assert frac == pytest.approx(1 - math.exp(-n * m.dt / tau), rel=1e-6)
     assert frac == pytest.approx(1 - math.exp(-1), rel=0.01)
+
+
+
+def test_actuator_delay_shifts_the_rotor_commands_by_its_steps(mambo):
+    """The command FIFO: with a delay of N physics steps the rotors see the controller's commands exactly N
+    steps late (the same rotor history, shifted); with no delay the direct path; a bad delay is refused."""
+    def rotor_history(delay_s, n=400):
+        m = VehicleModel(still(mambo), actuator_delay_s=delay_s)
+        m.x[2] = -5.0
+        m.x[X_R:X_R + 4] = 1000.0
+        m.fifo[:] = 1000.0
+        m.sp[SP_MODE] = M_POS
+        m.sp[SP_POS:SP_POS + 3] = (0.0, 0.0, -6.0)  # a climb step: the commands change at once
+        m.sp[SP_YAW] = 0.0
+        cmds, rot = [], []
+        for _ in range(n):
+            m.step(1)
+            cmds.append(m.s[S_WCMD:S_WCMD + 4].copy())
+            rot.append(m.x[X_R])
+        return m, np.array(cmds), np.array(rot)
+
+    m0, c0, r0 = rotor_history(0.0)
+    m6, c6, r6 = rotor_history(0.06)
+    assert m0.delay_steps == 0 and m6.delay_steps == 60
+    # the first 60 steps the motors still get the queued 1000 rad/s: the rotors do not move
+    assert np.allclose(r6[:60], 1000.0) and not np.allclose(r0[:60], 1000.0)
+    # the delayed aircraft's first step of change is the undelayed one's first, 60 steps on
+    k0 = int(np.argmax(np.abs(r0 - 1000.0) > 1e-6))
+    k6 = int(np.argmax(np.abs(r6 - 1000.0) > 1e-6))
+    assert k6 - k0 == 60
+    # the very commands that reach the motors: step k's command arrives at step k + 60
+    assert np.array_equal(c6[0], c0[0])
+    with pytest.raises(ValueError, match="actuator_delay_s"):
+        VehicleModel(mambo, actuator_delay_s=float("nan"))
+    # a scenario's `actuator_delay_s` reaches the model; the Sim keyword overrides it; an airborne start
+    # queues the hover command (no drop while the FIFO fills)
+    from sitl_harness.scenario import scenario_from_dict
+    from sitl_harness.sim import Sim
+
+    sim = Sim(scenario_from_dict({"vehicle": "mambo", "actuator_delay_s": 0.02, "start": {"alt_m": 3.0}}))
+    assert sim.model.delay_steps == 20 and np.all(sim.model.fifo == sim.model.x[X_R])
+    sim.step(1.0)
+    assert abs(sim.model.pos[2] + 3.0) < 0.05
+    assert Sim(scenario_from_dict({"vehicle": "mambo"}), actuator_delay_s=0.005).model.delay_steps == 5
 
 
 def test_speed_saturation(mambo):
