@@ -402,6 +402,16 @@ def _first(items, pred):
     return next((e for e in items if pred(e)), None)
 
 
+def masked_by_link_loss(f: dict, faults: list[dict]) -> bool:
+    """A fault the daemon cannot observe: another kind's, all of it inside a link loss (nothing of the autopilot
+    is heard; evidence flight 941's bad navigation estimate came and went during one)."""
+    if f["kind"] == "link_loss":
+        return False
+    end = f["at_s"] + f.get("duration_s", math.inf)
+    return any(g["kind"] == "link_loss" and g["at_s"] <= f["at_s"] and end <= g["at_s"] + g["duration_s"]
+               for g in faults)
+
+
 def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
     """Per fault of the flight: the subsystem it was attributed to, the detection latency, the action."""
     if arm == "no_guard":
@@ -416,6 +426,7 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
         # has handed over to Hold and is done; the flight then goes on FAULT_WINDOW_S only for detection)
         det, subsystem = None, None
         occurs = rig.sim.time_s > t0 and (trace.t_arrive is None or t0 <= trace.t_arrive)
+        occurs = occurs and not masked_by_link_loss(f, s["faults"])
         if kind == "fog_hidden":
             # detectable only once an obstacle came inside the claimed range after the fault
             occurs = occurs and any(_surface_distance(s, x, y) < s["sensor_range_m"] for t, x, y, _ in trace.rows
@@ -434,8 +445,13 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
                 det = x["t"] if x else None
             subsystem = "actuators" if det is not None else None
         elif kind == "sensor_dropout":
+            # D_od = 0 in a state sample, or the Hold it causes: a drop-out just over the 0.5 s time-out makes
+            # D_od 0 for a cycle or two, between 10 Hz state samples (evidence flights 200, 2832)
             x = _first(states, lambda x: x["d_od"] == 0.0)
-            det, subsystem = (x["t"], "navigation (stale obstacle data)") if x else (None, None)
+            e = _first(after, lambda e: e["event"] == "failsafe" and e["cause"] == "no safe speed"
+                       and e["t"] <= t0 + f["duration_s"] + 0.5)
+            t_det = min([y["t"] for y in (x, e) if y is not None], default=None)
+            det, subsystem = (t_det, "navigation (stale obstacle data)") if t_det is not None else (None, None)
         elif kind == "link_loss":
             e = _first(after, lambda e: e["event"] == "link" and e.get("status") == "down")
             det, subsystem = (e["t"], "link") if e else (None, None)

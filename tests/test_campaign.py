@@ -252,3 +252,15 @@ def test_an_arrived_flight_flies_on_for_its_faults_detection_window():
     assert trace.t_arrive is not None and trace.t_arrive < 1.0
     assert ends and ends[0] >= 10.0 + cg.FAULT_WINDOW_S - 1e-9
     assert cg._Trace((40.0, 0.0))(rig)  # without a fault it ends at the arrival, as before
+
+
+def test_a_fault_inside_a_link_loss_is_not_counted_as_missed():
+    from companion.campaign import masked_by_link_loss
+
+    loss = {"kind": "link_loss", "at_s": 6.4, "duration_s": 3.1}
+    inside = {"kind": "bad_nav", "at_s": 8.0, "duration_s": 1.1}  # evidence flight 941
+    after = {"kind": "bad_nav", "at_s": 9.0, "duration_s": 1.1}  # outlasts the loss: observable after it
+    fog = {"kind": "fog_honest", "at_s": 7.0}  # lasts: observable once the link is back
+    assert masked_by_link_loss(inside, [loss, inside])
+    assert not masked_by_link_loss(after, [loss, after]) and not masked_by_link_loss(fog, [loss, fog])
+    assert not masked_by_link_loss(loss, [loss]) and not masked_by_link_loss(inside, [inside])
