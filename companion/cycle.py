@@ -13,7 +13,7 @@ import math
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
-from contracts.online_planner import offboard_cap
+from contracts.online_planner import load_solver, offboard_cap
 from contracts.stop import braking_decel, stop_jerk
 from contracts.table import ContractTable
 
@@ -62,6 +62,7 @@ class Cycle:
         if cfg.mode == "offboard":
             if cfg.route is None:
                 raise ContractError("mode offboard needs a route (config key route.waypoints or route.source: mission)")
+            load_solver()  # now, not at the first plan (a route from the mission makes its planner in the loop)
             guidance = None  # route from the mission: set once a downloaded route is held (engaging waits for it)
             if cfg.route.source != "mission":
                 route = Route(cfg.route.waypoints, cfg.route.altitude_m, cfg.route.corner_cut_m)

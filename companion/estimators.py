@@ -41,7 +41,44 @@ class _SensorState:
     known: tuple[float, ...] | None = None  # body bearings of the bins that report (None: a single beam)
     increment: float = 0.0
     period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
-    swept: deque = field(default_factory=deque)  # (t, sectors seen free then: contracts.coverage rows)
+    swept: deque = field(default_factory=deque)  # `_Seen` samples of the last COVERAGE_S
+
+
+@dataclass(slots=True)
+class _Seen:
+    """What one trusted sample saw free, as it was taken: the sample's hits (body bearing, range), the sensor's
+    bins, increment and claimed range then, the position (`apex`) and heading it is placed at, the heading's
+    turn and the travel (`shift`) in the sensor lag. Its wedges in the local frame (`sectors`) are made only
+    when the swept coverage is asked for — the direction of travel outside every field of view, rare — and
+    then once (issue 14: not at every sample)."""
+
+    t: float
+    apex: tuple[float, float]
+    yaw: float
+    known: tuple[float, ...] | None
+    increment: float
+    max_m: float
+    seen: list
+    turn: float
+    shift: tuple[float, float]
+    _sectors: list | None = None
+
+    def sectors(self, cfg: SensorConfig) -> list[tuple]:
+        """The free wedges (contracts.coverage rows), each narrowed by the turn in the lag."""
+        if self._sectors is None:
+            if self.known is not None:  # bins: each free to its hit, or to the claimed range
+                hit = {round(b, 9): r for b, r in self.seen}
+                ranges = [hit.get(round(b, 9), math.inf) for b in self.known]
+                sec = sample_sectors(self.apex, self.yaw, self.known, self.increment, ranges, self.max_m)
+            else:  # a single beam: its whole field of view, free to the nearest hit
+                n = 1 + int(cfg.h_fov_deg // 90)  # wedges narrower than π
+                w = math.radians(cfg.h_fov_deg) / n
+                first = math.radians(cfg.orientation_deg) - math.radians(cfg.h_fov_deg) / 2 + w / 2
+                r = min((r for _, r in self.seen), default=math.inf)
+                sec = sample_sectors(self.apex, self.yaw, [first + k * w for k in range(n)], w, [r] * n, self.max_m)
+            turn = self.turn
+            self._sectors = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
+        return self._sectors
 
 
 @dataclass(frozen=True)
@@ -107,10 +144,10 @@ class DodEstimator:
             while len(self._pos_hist) > 2 and self._pos_hist[1][0] <= t - SENSOR_LAG_S:
                 self._pos_hist.popleft()
 
-    def _lag_shift(self) -> np.ndarray:
+    def _lag_shift(self) -> tuple[float, float]:
         """Where the vehicle was `SENSOR_LAG_S` before its last position, from there (the travel in the lag)."""
         t0, x0, y0 = self._pos_hist[0]
-        return np.array([x0 - self._pos[1], y0 - self._pos[2]]) if self._pos[0] - t0 <= self.stale_s else np.zeros(2)
+        return (x0 - self._pos[1], y0 - self._pos[2]) if self._pos[0] - t0 <= self.stale_s else (0.0, 0.0)
 
     def add_scan(self, scan: Scan) -> None:
         """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
@@ -162,33 +199,20 @@ class DodEstimator:
         return out
 
     def _sweep(self, i: int, t: float, seen) -> None:
-        """Keep what this sample saw free (its wedges in the local frame) for `COVERAGE_S`: the swept coverage
-        `estimate` falls back on when the direction of travel is outside every field of view (issue 19 item 2).
-        The sample is placed at the last position and heading, but was taken up to `SENSOR_LAG_S` before:
-        each wedge is narrowed by the heading's turn in that time and keeps the travel in it as its apex's
-        uncertainty (`covered_distance`'s shift). An untrusted sample, or one whose position or heading is
-        unknown or stale, adds nothing."""
+        """Keep what this sample saw free (a `_Seen`; its wedges are made when first needed) for `COVERAGE_S`:
+        the swept coverage `estimate` falls back on when the direction of travel is outside every field of view
+        (issue 19 item 2). The sample is placed at the last position and heading, but was taken up to
+        `SENSOR_LAG_S` before: each wedge is narrowed by the heading's turn in that time and keeps the travel in
+        it as its apex's uncertainty (`covered_distance`'s shift). An untrusted sample, or one whose position or
+        heading is unknown or stale, adds nothing."""
         s = self.sensors[i]
-        while s.swept and s.swept[0][0] < t - COVERAGE_S:
+        while s.swept and s.swept[0].t < t - COVERAGE_S:
             s.swept.popleft()
         if not s.trusted or s.max_m <= 0 or self._pos is None or not self._yaw_hist \
                 or t - self._pos[0] > self.stale_s or t - self._yaw_hist[-1][0] > self.stale_s:
             return
-        apex, yaw = self._pos[1:], self._yaw_hist[-1][1]
-        if s.known is not None:  # bins: each free to its hit, or to the claimed range
-            hit = {round(b, 9): r for b, r in seen}
-            ranges = [hit.get(round(b, 9), math.inf) for b in s.known]
-            sec = sample_sectors(apex, yaw, s.known, s.increment, ranges, s.max_m)
-        else:  # a single beam: its whole field of view, free to the nearest hit
-            n = 1 + int(s.cfg.h_fov_deg // 90)  # wedges narrower than π
-            w = math.radians(s.cfg.h_fov_deg) / n
-            first = math.radians(s.cfg.orientation_deg) - math.radians(s.cfg.h_fov_deg) / 2 + w / 2
-            r = min((r for _, r in seen), default=math.inf)
-            sec = sample_sectors(apex, yaw, [first + k * w for k in range(n)], w, [r] * n, s.max_m)
-        turn = abs(self._yaw_rate()) * SENSOR_LAG_S
-        sec = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
-        if sec:
-            s.swept.append((t, sec, self._lag_shift()))
+        s.swept.append(_Seen(t, self._pos[1:], self._yaw_hist[-1][1], s.known, s.increment, s.max_m, seen,
+                             abs(self._yaw_rate()) * SENSOR_LAG_S, self._lag_shift()))
 
     def _yaw_rate(self) -> float:
         if len(self._yaw_hist) < 2 or self._yaw_hist[-1][0] <= self._yaw_hist[-2][0]:
@@ -207,10 +231,11 @@ class DodEstimator:
         for s in self.sensors:
             if t - s.t > self.stale_s or not s.trusted:
                 continue
-            for ts, sec, shift in s.swept:
-                if ts >= t - COVERAGE_S:
+            for seen in s.swept:
+                if seen.t >= t - COVERAGE_S:
+                    sec = seen.sectors(s.cfg)
                     rows.extend((*q[:4], min(q[4], s.max_m) * trust) for q in sec)
-                    shifts.extend([shift] * len(sec))
+                    shifts.extend([seen.shift] * len(sec))
         if not rows:
             return 0.0
         d = covered_distance(self._pos[1:], theta, np.array(rows), np.array(shifts))
