@@ -26,13 +26,28 @@ from .logschema import NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut, ParamServer
 from .mission import MissionSource
-from .samples import AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest
+from .samples import (
+    AutopilotParam,
+    AutopilotRestart,
+    CommandAck,
+    Heading,
+    Implausible,
+    MissionMessage,
+    NavStatus,
+    ParamRequest,
+    PathTarget,
+    Position,
+    Scan,
+    Throttle,
+)
 from .startup import StartupChecks
 from .supervisor import Decision, Inputs
 
 
 MAX_MESSAGES_PER_POLL = 2000  # messages taken per cycle at most (a 50 Hz autopilot sends ~400/s)
 RESTART_CHECK_S = 10.0  # the start-up checks re-run after an autopilot restart at most this often
+# the samples only the cycle's estimators take (the type itself: `Daemon.take` routes the others by isinstance)
+CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, Scan))
 
 
 class Daemon:
@@ -138,7 +153,9 @@ class Daemon:
     def take(self, s) -> None:
         """A sample to where it belongs: the cycle's estimators, or the daemon's own protocols (MAVLink-in's
         samples, or a flight log reader's)."""
-        if isinstance(s, ParamRequest):
+        if type(s) in CYCLE_SAMPLES:  # the most of them (50 Hz streams): straight to the estimators
+            self.cycle.take(s)
+        elif isinstance(s, ParamRequest):
             self._param_request(s.msg)
         elif isinstance(s, AutopilotRestart):
             self._autopilot_restarted(s)
