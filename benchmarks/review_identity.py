@@ -11,7 +11,9 @@ autopilot's own log (a hidden-fog flight on PX4, an offboard flight on PX4, an u
 each with the flight's config), and the real PX4 logs in ../shared/logs/px4 when present. `snapshot` runs
 `contract-guard review LOG --json --out D` in a fresh process per log, with D at one fixed path (so the
 paths in the report agree between checkouts), and keeps stdout, review.json, samples.csv and the replayed
-event log. Each review runs in this checkout (its directory is the child's working directory, first on
+event log. Compared: every field and value exactly (a float by its every bit; the JSON text is parsed, so
+key order and spacing are not compared), less what differs between any two runs (`PER_RUN`). Each review
+runs in this checkout (its directory is the child's working directory, first on
 sys.path): to snapshot the code before a change, run a copy of this script in an unpacked `git archive` of
 the base commit.
 """
@@ -29,6 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "logs" / "px4"
 WORK = Path("/tmp/contract-guard-review-identity-out")  # the one --out path of every review
 KEPT = ("stdout.json", "review.json", "samples.csv", "replay-events.jsonl")
+# what differs between any two runs of one checkout, so it is not compared: the daemon run's random id and
+# the process id (`boot`, `pid`); and the checkout's own folder in paths (the shipped table's), written as <root>
+PER_RUN = ("boot", "pid")
 
 
 def write_logs(where: Path, minutes: float) -> None:
@@ -73,6 +78,7 @@ def write_logs(where: Path, minutes: float) -> None:
 def snapshot(logs_dir: Path, out: Path) -> None:
     logs = json.loads((logs_dir / "logs.json").read_text())
     out.mkdir(parents=True, exist_ok=True)
+    (out / "root.txt").write_text(str(ROOT))
     for name, (path, extra) in logs.items():
         shutil.rmtree(WORK, ignore_errors=True)
         r = subprocess.run([sys.executable, "-c", "import sys; from companion.cli import main; sys.exit(main())",
@@ -86,6 +92,24 @@ def snapshot(logs_dir: Path, out: Path) -> None:
             if (WORK / f).exists():
                 shutil.copyfile(WORK / f, dest / f)
         print(f"{name}: exit {r.returncode}", flush=True)
+
+
+def normal(v, root: str):
+    """A JSON value without what differs between runs (`PER_RUN` keys dropped, the checkout's folder as <root>)."""
+    if isinstance(v, dict):
+        return {k: normal(x, root) for k, x in v.items() if k not in PER_RUN}
+    if isinstance(v, list):
+        return [normal(x, root) for x in v]
+    return v.replace(root, "<root>") if isinstance(v, str) else v
+
+
+def csv_rows(path: Path, root: str) -> list:
+    import csv
+
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    drop = [i for i, name in enumerate(rows[0]) if name in PER_RUN] if rows else []
+    return [[c.replace(root, "<root>") for i, c in enumerate(r) if i not in drop] for r in rows]
 
 
 def differences(a, b, where: str = "") -> list[str]:
@@ -107,7 +131,7 @@ def differences(a, b, where: str = "") -> list[str]:
 
 
 def compare(a: Path, b: Path) -> int:
-    bad = 0
+    bad, ra, rb = 0, (a / "root.txt").read_text().strip(), (b / "root.txt").read_text().strip()
     for d in sorted(p for p in a.iterdir() if p.is_dir()):
         other, diffs, checked = b / d.name, [], []
         for f in KEPT:
@@ -119,20 +143,19 @@ def compare(a: Path, b: Path) -> int:
                 continue
             checked.append(f)
             if f.endswith(".json"):
-                ta, tb = fa.read_text(), fb.read_text()
-                diffs += [f"{f}{x}" for x in differences(json.loads(ta or "null"), json.loads(tb or "null"))]
-                if ta != tb and not diffs:
-                    diffs.append(f"{f}: same values, other text")
+                diffs += [f"{f}{x}" for x in differences(normal(json.loads(fa.read_text() or "null"), ra),
+                                                          normal(json.loads(fb.read_text() or "null"), rb))]
             elif f.endswith(".jsonl"):
                 la, lb = fa.read_text().splitlines(), fb.read_text().splitlines()
                 if len(la) != len(lb):
                     diffs.append(f"{f}: {len(la)} != {len(lb)} records")
                 for i, (x, y) in enumerate(zip(la, lb)):
-                    if x != y:
-                        diffs += [f"{f}[{i}]{z}" for z in differences(json.loads(x), json.loads(y))] or \
-                            [f"{f}[{i}]: same values, other text"]
-            elif fa.read_bytes() != fb.read_bytes():
-                diffs.append(f"{f}: bytes differ")
+                    diffs += [f"{f}[{i}]{z}" for z in differences(normal(json.loads(x), ra), normal(json.loads(y), rb))]
+            else:
+                ca, cb = csv_rows(fa, ra), csv_rows(fb, rb)
+                diffs += [f"{f}: row {i}: {x} != {y}" for i, (x, y) in enumerate(zip(ca, cb)) if x != y]
+                if len(ca) != len(cb):
+                    diffs.append(f"{f}: {len(ca)} != {len(cb)} rows")
         bad += bool(diffs)
         print(f"{d.name}: {'IDENTICAL' if not diffs else f'{len(diffs)} difference(s)'} ({', '.join(checked)})")
         for x in diffs[:20]:
