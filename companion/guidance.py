@@ -186,6 +186,8 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
     2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
     Returns the discs and the widest obstacle radius observed (0 if none measurable).
     """
+    if not hits:  # nothing seen (most cycles): no disc
+        return [], 0.0
     p = np.asarray(p, float)
     discs: list[Disc] = []
     widest = 0.0

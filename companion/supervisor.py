@@ -341,8 +341,9 @@ class Supervisor:
 
     def _causes(self, i: Inputs, om: Omega) -> dict[str, bool]:
         """Every reason to stop now (each edge-triggered after an override)."""
-        numbers = (i.ground_speed, i.e_tr_measured, i.thrust_ratio, i.r_obst, i.dod.d_od)
-        finite = all(math.isfinite(x) for x in numbers)
+        isfinite = math.isfinite
+        finite = (isfinite(i.ground_speed) and isfinite(i.e_tr_measured) and isfinite(i.thrust_ratio)
+                  and isfinite(i.r_obst) and isfinite(i.dod.d_od))
         # a tracking overshoot of a few per cent is the controller's business (E_tr), not a broken limit
         over = (finite and self.limit.value is not None
                 and i.ground_speed > 1.05 * self.limit.value + self.margin)
