@@ -46,38 +46,46 @@ class _SensorState:
 
 @dataclass(slots=True)
 class _Seen:
-    """What one trusted sample saw free, as it was taken: the sample's hits (body bearing, range), the sensor's
-    bins, increment and claimed range then, the position (`apex`) and heading it is placed at, the heading's
-    turn and the travel (`shift`) in the sensor lag. Its wedges in the local frame (`sectors`) are made only
-    when the swept coverage is asked for — the direction of travel outside every field of view, rare — and
-    then once (issue 14: not at every sample)."""
+    """What one trusted sample saw free, as it was taken: its hits (body bearing, range), the sensor's bins,
+    increment and claimed range then, the last position (t, x, y) and the one `SENSOR_LAG_S` before it, the
+    last two headings (t, yaw). Its wedges in the local frame (`sectors`) and the travel in the lag (`shift`)
+    are made only when the swept coverage is asked for — the direction of travel outside every field of view,
+    rare — and then once (issue 14: not at every sample)."""
 
     t: float
-    apex: tuple[float, float]
-    yaw: float
+    pos: tuple[float, float, float]
+    pos_lag: tuple[float, float, float]
+    stale_s: float
+    yaw_last: tuple[float, float]
+    yaw_prev: tuple[float, float] | None
     known: tuple[float, ...] | None
     increment: float
     max_m: float
     seen: list
-    turn: float
-    shift: tuple[float, float]
+    shift: tuple[float, float] | None = None  # set by `sectors`
     _sectors: list | None = None
 
     def sectors(self, cfg: SensorConfig) -> list[tuple]:
-        """The free wedges (contracts.coverage rows), each narrowed by the turn in the lag."""
+        """The free wedges (contracts.coverage rows), each narrowed by the heading's turn in the lag; sets
+        `shift`, where the vehicle was `SENSOR_LAG_S` before, from the position they are placed at."""
         if self._sectors is None:
+            apex, yaw = self.pos[1:], self.yaw_last[1]
             if self.known is not None:  # bins: each free to its hit, or to the claimed range
                 hit = {round(b, 9): r for b, r in self.seen}
                 ranges = [hit.get(round(b, 9), math.inf) for b in self.known]
-                sec = sample_sectors(self.apex, self.yaw, self.known, self.increment, ranges, self.max_m)
+                sec = sample_sectors(apex, yaw, self.known, self.increment, ranges, self.max_m)
             else:  # a single beam: its whole field of view, free to the nearest hit
                 n = 1 + int(cfg.h_fov_deg // 90)  # wedges narrower than π
                 w = math.radians(cfg.h_fov_deg) / n
                 first = math.radians(cfg.orientation_deg) - math.radians(cfg.h_fov_deg) / 2 + w / 2
                 r = min((r for _, r in self.seen), default=math.inf)
-                sec = sample_sectors(self.apex, self.yaw, [first + k * w for k in range(n)], w, [r] * n, self.max_m)
-            turn = self.turn
+                sec = sample_sectors(apex, yaw, [first + k * w for k in range(n)], w, [r] * n, self.max_m)
+            prev, last = self.yaw_prev, self.yaw_last  # the yaw rate from the last two headings
+            rate = 0.0 if prev is None or last[0] <= prev[0] else wrap(last[1] - prev[1]) / (last[0] - prev[0])
+            turn = abs(rate) * SENSOR_LAG_S
             self._sectors = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
+            (t0, x0, y0), (t1, x1, y1) = self.pos_lag, self.pos
+            self.shift = (x0 - x1, y0 - y1) if t1 - t0 <= self.stale_s else (0.0, 0.0)
         return self._sectors
 
 
@@ -144,11 +152,6 @@ class DodEstimator:
             while len(self._pos_hist) > 2 and self._pos_hist[1][0] <= t - SENSOR_LAG_S:
                 self._pos_hist.popleft()
 
-    def _lag_shift(self) -> tuple[float, float]:
-        """Where the vehicle was `SENSOR_LAG_S` before its last position, from there (the travel in the lag)."""
-        t0, x0, y0 = self._pos_hist[0]
-        return (x0 - self._pos[1], y0 - self._pos[2]) if self._pos[0] - t0 <= self.stale_s else (0.0, 0.0)
-
     def add_scan(self, scan: Scan) -> None:
         """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
         s = self.sensors[scan.sensor]
@@ -211,14 +214,9 @@ class DodEstimator:
         if not s.trusted or s.max_m <= 0 or self._pos is None or not self._yaw_hist \
                 or t - self._pos[0] > self.stale_s or t - self._yaw_hist[-1][0] > self.stale_s:
             return
-        s.swept.append(_Seen(t, self._pos[1:], self._yaw_hist[-1][1], s.known, s.increment, s.max_m, seen,
-                             abs(self._yaw_rate()) * SENSOR_LAG_S, self._lag_shift()))
-
-    def _yaw_rate(self) -> float:
-        if len(self._yaw_hist) < 2 or self._yaw_hist[-1][0] <= self._yaw_hist[-2][0]:
-            return 0.0
-        (t0, y0), (t1, y1) = self._yaw_hist[-2], self._yaw_hist[-1]
-        return wrap(y1 - y0) / (t1 - t0)
+        yh = self._yaw_hist
+        s.swept.append(_Seen(t, self._pos, self._pos_hist[0], self.stale_s, yh[-1], yh[-2] if len(yh) > 1 else None,
+                             s.known, s.increment, s.max_m, seen))
 
     def _swept(self, t: float, theta: float) -> float:
         """The distance along absolute direction `theta` from the vehicle through the space the fresh, trusted
