@@ -46,6 +46,10 @@ def controller_contract(cfg: Config, table: ContractTable) -> str:
     return "no E_tr_pred in the table and no contract.e_tr_assumed_m: refuses to engage"
 
 
+# the samples only the estimators take (by type: `Daemon.take` sends them here first, the others by isinstance)
+CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, Scan))
+
+
 class Cycle:
     def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str, planning):
         """`planning`: a factory of the planning runner (one per guidance: inline or on a worker thread)."""

@@ -20,34 +20,19 @@ from contracts.table import ContractTable
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED
 from .autopilots import adapter_for
 from .config import Config
-from .cycle import Cycle
+from .cycle import CYCLE_SAMPLES, Cycle
 from .guidance import InlinePlanning, ThreadedPlanning
 from .logschema import NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut, ParamServer
 from .mission import MissionSource
-from .samples import (
-    AutopilotParam,
-    AutopilotRestart,
-    CommandAck,
-    Heading,
-    Implausible,
-    MissionMessage,
-    NavStatus,
-    ParamRequest,
-    PathTarget,
-    Position,
-    Scan,
-    Throttle,
-)
+from .samples import AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest
 from .startup import StartupChecks
 from .supervisor import Decision, Inputs
 
 
 MAX_MESSAGES_PER_POLL = 2000  # messages taken per cycle at most (a 50 Hz autopilot sends ~400/s)
 RESTART_CHECK_S = 10.0  # the start-up checks re-run after an autopilot restart at most this often
-# the samples only the cycle's estimators take (the type itself: `Daemon.take` routes the others by isinstance)
-CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, Scan))
 
 
 class Daemon:
