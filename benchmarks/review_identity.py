@@ -5,8 +5,8 @@ checkouts must give the same report, field by field, and the same replayed event
     python benchmarks/review_identity.py snapshot DIR OUT          # review each with this process's code
     python benchmarks/review_identity.py compare OUT_A OUT_B       # field-by-field differences (exit 1 if any)
 
-The logs: the bench's DataFlash log (`bench_review.py`'s straight flight, `--minutes` long), the SITL's own
-ULog and DataFlash of a hover by a column, lock-step SITL flights recorded as the daemon's `.tlog` plus the
+The logs: the bench's DataFlash log and `.tlog` (`bench_review.py`'s straight flight, `--minutes` long), the
+SITL's own ULog and DataFlash of a hover by a column, lock-step SITL flights recorded as the daemon's `.tlog` plus the
 autopilot's own log (a hidden-fog flight on PX4, an offboard flight on PX4, an unguarded one on ArduPilot;
 each with the flight's config), and the real PX4 logs in ../shared/logs/px4 when present. `snapshot` runs
 `contract-guard review LOG --json --out D` in a fresh process per log, with D at one fixed path (so the
@@ -41,7 +41,7 @@ def write_logs(where: Path, minutes: float) -> None:
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "tests"))
     sys.path.insert(0, str(ROOT / "benchmarks"))
-    from bench_review import sitl_log
+    from bench_review import sitl_log, write_tlog
     from test_flight_logs import write_bin
 
     from tests.test_daemon_lockstep import column_scenario, fly
@@ -51,6 +51,7 @@ def write_logs(where: Path, minutes: float) -> None:
     where.mkdir(parents=True, exist_ok=True)
     logs: dict[str, list] = {"bench_dataflash": [str(write_bin(where / "bench.bin", speed=3.0, dur=minutes * 60)),
                                                  ["--vehicle", "x500"]]}
+    logs["bench_tlog"] = [str(write_tlog(where / "bench.tlog", minutes * 60)), ["--vehicle", "x500"]]
     for personality in ("px4", "ardupilot"):
         path = sitl_log(where / f"hover-{personality}", personality, 120.0)
         logs[f"sitl_hover_{personality}"] = [str(path), ["--vehicle", "x500"]]
@@ -81,8 +82,9 @@ def snapshot(logs_dir: Path, out: Path) -> None:
     (out / "root.txt").write_text(str(ROOT))
     for name, (path, extra) in logs.items():
         shutil.rmtree(WORK, ignore_errors=True)
-        r = subprocess.run([sys.executable, "-c", "import sys; from companion.cli import main; sys.exit(main())",
-                            "review", path, "--json", "--out", str(WORK), *extra], capture_output=True, text=True, cwd=ROOT)
+        cli = "import sys; from companion.cli import main; sys.exit(main())"
+        r = subprocess.run([sys.executable, "-c", cli, "review", path, "--json", "--out", str(WORK), *extra],
+                           capture_output=True, text=True, cwd=ROOT)
         (WORK / "stdout.json").write_text(r.stdout)
         (WORK / "stderr.txt").write_text(r.stderr + f"\nexit {r.returncode}\n")
         dest = out / name
