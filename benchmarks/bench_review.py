@@ -4,7 +4,8 @@ under 10 s and under 1 GiB). Prints one JSON object.
     python benchmarks/bench_review.py [--minutes 20] [--no-sitl]
 
 The DataFlash log is written by the harness's writer (a straight flight at the DataFlash rates of
-`tests/test_flight_logs.py`, 50 Hz EKF/attitude/controller, rangefinder); `ulog` is the largest real PX4 log
+`tests/test_flight_logs.py`, 50 Hz EKF/attitude/controller, rangefinder); `tlog` is the same flight as a
+ground station's MAVLink `.tlog` (`write_tlog`); `ulog` is the largest real PX4 log
 in ../shared/logs/px4 when present; `sitl_ulog` / `sitl_dataflash` are the SITL's own logs of a `--minutes`
 hover (sitl_harness/flightlog.py, the PX4 SITL's topic rates; skip with --no-sitl). Each review runs in a
 fresh process (peak RSS is its own); `s` is wall time, `cpu_s` the process's CPU time (on a shared machine
@@ -55,6 +56,37 @@ def run(path: Path) -> dict:
     return r
 
 
+def write_tlog(path: Path, seconds: float) -> Path:
+    """The DataFlash log's straight flight (3 m/s along +x at 5 m, a forward rangefinder seeing nothing within
+    its 12 m) as a ground station's PX4 `.tlog` at the same rates: 50 Hz LOCAL_POSITION_NED, ATTITUDE,
+    POSITION_TARGET_LOCAL_NED, VFR_HUD, DISTANCE_SENSOR; 1 Hz HEARTBEAT (AUTO.MISSION, armed),
+    ESTIMATOR_STATUS, EXTENDED_SYS_STATE (in air)."""
+    import struct
+
+    from pymavlink.dialects.v20 import common as mav
+
+    m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
+    t0_us = 1_790_000_000_000_000  # the tlog's UNIX stamps
+    with open(path, "wb") as out:
+        def put(t_us: int, msg) -> None:
+            out.write(struct.pack(">Q", t0_us + t_us) + msg.pack(m))
+
+        t, k = 10_000, 0
+        while t < seconds * 1e6:
+            ms, x = t // 1000, 3.0 * t / 1e6
+            if k % 50 == 0:
+                put(t, m.heartbeat_encode(2, 12, 1 | 4 | 8 | 16 | 128, (4 << 16) | (4 << 24), 4))
+                put(t, m.estimator_status_encode(t, 1 | 2 | 8 | 16 | 32, 0, 0, 0, 0, 0, 0, 0, 0))
+                put(t, m.extended_sys_state_encode(0, 2))
+            put(t, m.local_position_ned_encode(ms, x, 0.05, -5.0, 3.0, 0.0, 0.0))
+            put(t, m.attitude_encode(ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+            put(t, m.position_target_local_ned_encode(ms, 1, 0b110111111000, x, 0.0, -5.0, 3.0, 0, 0, 0, 0, 0, 0, 0))
+            put(t, m.vfr_hud_encode(3.0, 3.0, 0, 45, -5.0, 0.0))
+            put(t, m.distance_sensor_encode(ms, 20, 1200, 1200, 0, 0, 0, 0))
+            t, k = t + 20_000, k + 1
+    return path
+
+
 def sitl_log(where: Path, personality: str, seconds: float) -> Path:
     """The SITL's own log of a hover of `seconds` near a column (the sensor sees it all along)."""
     from sitl_harness import Sim
@@ -82,6 +114,7 @@ def main() -> None:
         path = write_bin(Path(tmp) / "long.bin", speed=3.0, dur=args.minutes * 60)
         res["write_bin_s"] = time.perf_counter() - t
         res["dataflash"] = run(path)
+        res["tlog"] = run(write_tlog(Path(tmp) / "long.tlog", args.minutes * 60))
         if not args.no_sitl:
             for personality, key in (("px4", "sitl_ulog"), ("ardupilot", "sitl_dataflash")):
                 t = time.perf_counter()

@@ -13,7 +13,7 @@ import math
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
-from contracts.online_planner import offboard_cap
+from contracts.online_planner import load_solver, offboard_cap
 from contracts.stop import braking_decel, stop_jerk
 from contracts.table import ContractTable
 
@@ -46,6 +46,10 @@ def controller_contract(cfg: Config, table: ContractTable) -> str:
     return "no E_tr_pred in the table and no contract.e_tr_assumed_m: refuses to engage"
 
 
+# the samples only the estimators take (by type: `Daemon.take` sends them here first, the others by isinstance)
+CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, Scan))
+
+
 class Cycle:
     def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str, planning):
         """`planning`: a factory of the planning runner (one per guidance: inline or on a worker thread)."""
@@ -64,6 +68,7 @@ class Cycle:
         if cfg.mode == "offboard":
             if cfg.route is None:
                 raise ContractError("mode offboard needs a route (config key route.waypoints or route.source: mission)")
+            load_solver()  # now, not at the first plan (a route from the mission makes its planner in the loop)
             guidance = None  # route from the mission: set once a downloaded route is held (engaging waits for it)
             if cfg.route.source != "mission":
                 route = Route(cfg.route.waypoints, cfg.route.altitude_m, cfg.route.corner_cut_m)

@@ -20,7 +20,7 @@ from contracts.table import ContractTable
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED
 from .autopilots import adapter_for
 from .config import Config
-from .cycle import Cycle
+from .cycle import CYCLE_SAMPLES, Cycle
 from .guidance import InlinePlanning, ThreadedPlanning
 from .logschema import NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
@@ -138,7 +138,9 @@ class Daemon:
     def take(self, s) -> None:
         """A sample to where it belongs: the cycle's estimators, or the daemon's own protocols (MAVLink-in's
         samples, or a flight log reader's)."""
-        if isinstance(s, ParamRequest):
+        if type(s) in CYCLE_SAMPLES:  # the most of them (50 Hz streams): straight to the estimators
+            self.cycle.take(s)
+        elif isinstance(s, ParamRequest):
             self._param_request(s.msg)
         elif isinstance(s, AutopilotRestart):
             self._autopilot_restarted(s)

@@ -41,7 +41,52 @@ class _SensorState:
     known: tuple[float, ...] | None = None  # body bearings of the bins that report (None: a single beam)
     increment: float = 0.0
     period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
-    swept: deque = field(default_factory=deque)  # (t, sectors seen free then: contracts.coverage rows)
+    swept: deque = field(default_factory=deque)  # `_Seen` samples of the last COVERAGE_S
+
+
+@dataclass(slots=True)
+class _Seen:
+    """What one trusted sample saw free, as it was taken: its hits (body bearing, range), the sensor's bins,
+    increment and claimed range then, the last position (t, x, y) and the one `SENSOR_LAG_S` before it, the
+    last two headings (t, yaw). Its wedges in the local frame (`sectors`) and the travel in the lag (`shift`)
+    are made only when the swept coverage is asked for — the direction of travel outside every field of view,
+    rare — and then once (issue 14: not at every sample)."""
+
+    t: float
+    pos: tuple[float, float, float]
+    pos_lag: tuple[float, float, float]
+    stale_s: float
+    yaw_last: tuple[float, float]
+    yaw_prev: tuple[float, float] | None
+    known: tuple[float, ...] | None
+    increment: float
+    max_m: float
+    seen: list
+    shift: tuple[float, float] | None = None  # set by `sectors`
+    _sectors: list | None = None
+
+    def sectors(self, cfg: SensorConfig) -> list[tuple]:
+        """The free wedges (contracts.coverage rows), each narrowed by the heading's turn in the lag; sets
+        `shift`, where the vehicle was `SENSOR_LAG_S` before, from the position they are placed at."""
+        if self._sectors is None:
+            apex, yaw = self.pos[1:], self.yaw_last[1]
+            if self.known is not None:  # bins: each free to its hit, or to the claimed range
+                hit = {round(b, 9): r for b, r in self.seen}
+                ranges = [hit.get(round(b, 9), math.inf) for b in self.known]
+                sec = sample_sectors(apex, yaw, self.known, self.increment, ranges, self.max_m)
+            else:  # a single beam: its whole field of view, free to the nearest hit
+                n = 1 + int(cfg.h_fov_deg // 90)  # wedges narrower than π
+                w = math.radians(cfg.h_fov_deg) / n
+                first = math.radians(cfg.orientation_deg) - math.radians(cfg.h_fov_deg) / 2 + w / 2
+                r = min((r for _, r in self.seen), default=math.inf)
+                sec = sample_sectors(apex, yaw, [first + k * w for k in range(n)], w, [r] * n, self.max_m)
+            prev, last = self.yaw_prev, self.yaw_last  # the yaw rate from the last two headings
+            rate = 0.0 if prev is None or last[0] <= prev[0] else wrap(last[1] - prev[1]) / (last[0] - prev[0])
+            turn = abs(rate) * SENSOR_LAG_S
+            self._sectors = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
+            (t0, x0, y0), (t1, x1, y1) = self.pos_lag, self.pos
+            self.shift = (x0 - x1, y0 - y1) if t1 - t0 <= self.stale_s else (0.0, 0.0)
+        return self._sectors
 
 
 @dataclass(frozen=True)
@@ -107,11 +152,6 @@ class DodEstimator:
             while len(self._pos_hist) > 2 and self._pos_hist[1][0] <= t - SENSOR_LAG_S:
                 self._pos_hist.popleft()
 
-    def _lag_shift(self) -> np.ndarray:
-        """Where the vehicle was `SENSOR_LAG_S` before its last position, from there (the travel in the lag)."""
-        t0, x0, y0 = self._pos_hist[0]
-        return np.array([x0 - self._pos[1], y0 - self._pos[2]]) if self._pos[0] - t0 <= self.stale_s else np.zeros(2)
-
     def add_scan(self, scan: Scan) -> None:
         """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
         s = self.sensors[scan.sensor]
@@ -162,39 +202,21 @@ class DodEstimator:
         return out
 
     def _sweep(self, i: int, t: float, seen) -> None:
-        """Keep what this sample saw free (its wedges in the local frame) for `COVERAGE_S`: the swept coverage
-        `estimate` falls back on when the direction of travel is outside every field of view (issue 19 item 2).
-        The sample is placed at the last position and heading, but was taken up to `SENSOR_LAG_S` before:
-        each wedge is narrowed by the heading's turn in that time and keeps the travel in it as its apex's
-        uncertainty (`covered_distance`'s shift). An untrusted sample, or one whose position or heading is
-        unknown or stale, adds nothing."""
+        """Keep what this sample saw free (a `_Seen`; its wedges are made when first needed) for `COVERAGE_S`:
+        the swept coverage `estimate` falls back on when the direction of travel is outside every field of view
+        (issue 19 item 2). The sample is placed at the last position and heading, but was taken up to
+        `SENSOR_LAG_S` before: each wedge is narrowed by the heading's turn in that time and keeps the travel in
+        it as its apex's uncertainty (`covered_distance`'s shift). An untrusted sample, or one whose position or
+        heading is unknown or stale, adds nothing."""
         s = self.sensors[i]
-        while s.swept and s.swept[0][0] < t - COVERAGE_S:
+        while s.swept and s.swept[0].t < t - COVERAGE_S:
             s.swept.popleft()
         if not s.trusted or s.max_m <= 0 or self._pos is None or not self._yaw_hist \
                 or t - self._pos[0] > self.stale_s or t - self._yaw_hist[-1][0] > self.stale_s:
             return
-        apex, yaw = self._pos[1:], self._yaw_hist[-1][1]
-        if s.known is not None:  # bins: each free to its hit, or to the claimed range
-            hit = {round(b, 9): r for b, r in seen}
-            ranges = [hit.get(round(b, 9), math.inf) for b in s.known]
-            sec = sample_sectors(apex, yaw, s.known, s.increment, ranges, s.max_m)
-        else:  # a single beam: its whole field of view, free to the nearest hit
-            n = 1 + int(s.cfg.h_fov_deg // 90)  # wedges narrower than π
-            w = math.radians(s.cfg.h_fov_deg) / n
-            first = math.radians(s.cfg.orientation_deg) - math.radians(s.cfg.h_fov_deg) / 2 + w / 2
-            r = min((r for _, r in seen), default=math.inf)
-            sec = sample_sectors(apex, yaw, [first + k * w for k in range(n)], w, [r] * n, s.max_m)
-        turn = abs(self._yaw_rate()) * SENSOR_LAG_S
-        sec = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
-        if sec:
-            s.swept.append((t, sec, self._lag_shift()))
-
-    def _yaw_rate(self) -> float:
-        if len(self._yaw_hist) < 2 or self._yaw_hist[-1][0] <= self._yaw_hist[-2][0]:
-            return 0.0
-        (t0, y0), (t1, y1) = self._yaw_hist[-2], self._yaw_hist[-1]
-        return wrap(y1 - y0) / (t1 - t0)
+        yh = self._yaw_hist
+        s.swept.append(_Seen(t, self._pos, self._pos_hist[0], self.stale_s, yh[-1], yh[-2] if len(yh) > 1 else None,
+                             s.known, s.increment, s.max_m, seen))
 
     def _swept(self, t: float, theta: float) -> float:
         """The distance along absolute direction `theta` from the vehicle through the space the fresh, trusted
@@ -207,10 +229,11 @@ class DodEstimator:
         for s in self.sensors:
             if t - s.t > self.stale_s or not s.trusted:
                 continue
-            for ts, sec, shift in s.swept:
-                if ts >= t - COVERAGE_S:
+            for seen in s.swept:
+                if seen.t >= t - COVERAGE_S:
+                    sec = seen.sectors(s.cfg)
                     rows.extend((*q[:4], min(q[4], s.max_m) * trust) for q in sec)
-                    shifts.extend([shift] * len(sec))
+                    shifts.extend([seen.shift] * len(sec))
         if not rows:
             return 0.0
         d = covered_distance(self._pos[1:], theta, np.array(rows), np.array(shifts))

@@ -64,6 +64,7 @@ TLOG_NAME = "raw"
 TLOG_SUFFIX = ".tlog"
 RESERVED = frozenset(RECORD_KEYS)
 _SEP = (",", ":")
+_FLAT = frozenset((str, int, float, bool, type(None)))  # the value types of a flat record (`encode_record`)
 
 
 # ============================================================================ encoding (pure)
@@ -108,8 +109,15 @@ def encode_record(rec: dict) -> str:
     """One strict-JSON line (with the newline) for a record; never raises.
 
     Fast path: `json.dumps(allow_nan=False)`; only a record that holds NaN/inf (or an object json cannot
-    encode) takes the slow path that writes them as null and lists them in `"nonfinite"`.
+    encode) takes the slow path that writes them as null and lists them in `"nonfinite"`. A flat record (str
+    keys; str, int, float, bool or None values: every state sample) holding NaN/inf — a state sample with no
+    obstacle in sight has `obstacle_m` inf — is cleaned in one pass and encoded once, to the same line.
     """
+    nonfinite = [k for k, v in rec.items() if type(v) is float and not math.isfinite(v)]
+    if nonfinite and all(type(k) is str and type(v) in _FLAT for k, v in rec.items()):
+        clean = {k: None if type(v) is float and not math.isfinite(v) else v for k, v in rec.items()}
+        clean["nonfinite"] = nonfinite
+        return json.dumps(clean, allow_nan=False, separators=_SEP) + "\n"
     try:
         return json.dumps(rec, allow_nan=False, separators=_SEP, default=_default) + "\n"
     except (ValueError, TypeError, RecursionError):

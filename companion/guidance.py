@@ -18,6 +18,7 @@ import math
 from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -176,6 +177,12 @@ class Route:
         return float(out) if out.ndim == 0 else out
 
 
+@lru_cache(maxsize=256)
+def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
+    """`np.linspace(lo, hi, n)` as floats, once per arc (a single beam's field of view: the same every cycle)."""
+    return tuple(np.linspace(lo, hi, n).tolist())
+
+
 def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float]:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
@@ -186,6 +193,8 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
     2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
     Returns the discs and the widest obstacle radius observed (0 if none measurable).
     """
+    if not hits:  # nothing seen (most cycles): no disc
+        return [], 0.0
     p = np.asarray(p, float)
     discs: list[Disc] = []
     widest = 0.0
@@ -212,13 +221,13 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
         grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
         discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
+    px, py = float(p[0]), float(p[1])
     for b, r, h in singles:
         n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
         reach = 2 * r * math.sin(h / (2 * (n - 1)))  # farthest any arc point is from its nearest sample
-        for a in np.linspace(b - h, b + h, n):
-            hp = p + r * np.array([math.cos(yaw + a), math.sin(yaw + a)])
+        for a in _arc(b - h, b + h, n):  # each hit point p + r·(cos, sin)(yaw + a), in floats
             # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
-            discs.append(Disc(float(hp[0]), float(hp[1]), 2 * r_obst + reach + inflate))
+            discs.append(Disc(px + r * math.cos(yaw + a), py + r * math.sin(yaw + a), 2 * r_obst + reach + inflate))
     return discs, widest
 
 

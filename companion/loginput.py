@@ -33,10 +33,9 @@ from __future__ import annotations
 import bisect
 import math
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 
 from .config import Config
-from .mavlink_in import bins_scan, implausible, range_scan
+from .mavlink_in import bins_scan, implausible_attitude, implausible_position, range_scan
 from .samples import (
     AutopilotParam,
     Heading,
@@ -159,15 +158,14 @@ class LogIn:
         tel = self.tel
         tel.t_heartbeat, tel.autopilot = t, self.autopilot_id
         if op == "pos":
-            ns = SimpleNamespace(x=args[0], y=args[1], z=args[2], vx=args[3], vy=args[4], vz=args[5])
-            why = implausible("LOCAL_POSITION_NED", ns)
+            why = implausible_position(*args)
             if why is not None:
                 return [Implausible(t, "LOCAL_POSITION_NED", why)]
             tel.t_local = t
             tel.x, tel.y, tel.z, tel.vx, tel.vy, tel.vz = args
             return [Position(t, tel.x, tel.y)]
         if op == "att":
-            why = implausible("ATTITUDE", SimpleNamespace(roll=args[0], pitch=args[1], yaw=args[2]))
+            why = implausible_attitude(*args)
             if why is not None:
                 return [Implausible(t, "ATTITUDE", why)]
             tel.roll, tel.pitch, tel.yaw = args

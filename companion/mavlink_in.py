@@ -143,23 +143,35 @@ def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemet
                       cfg.sensors[i].max_range_m)]
 
 
+def implausible_position(x: float, y: float, z: float, vx: float, vy: float, vz: float) -> str | None:
+    """`implausible` of a local position [m] and velocity [m/s] (LOCAL_POSITION_NED's fields; a log's `pos`)."""
+    isfinite = math.isfinite
+    if not (isfinite(x) and isfinite(y) and isfinite(z) and isfinite(vx) and isfinite(vy) and isfinite(vz)):
+        return "position or velocity not finite"
+    if max(abs(x), abs(y)) > PLAUSIBLE_XY_M or abs(z) > PLAUSIBLE_Z_M:
+        return f"position beyond {PLAUSIBLE_XY_M:g} m"
+    if math.hypot(vx, vy) > PLAUSIBLE_SPEED_M_S or abs(vz) > PLAUSIBLE_SPEED_M_S:
+        return f"speed above {PLAUSIBLE_SPEED_M_S:g} m/s"
+    return None
+
+
+def implausible_attitude(roll: float, pitch: float, yaw: float) -> str | None:
+    """`implausible` of an attitude [rad] (ATTITUDE's fields; a log's `att`)."""
+    if not (math.isfinite(roll) and math.isfinite(pitch) and math.isfinite(yaw)):
+        return "attitude not finite"
+    if max(abs(roll), abs(pitch)) > math.pi + 1e-3 or abs(yaw) > 2 * math.pi + 1e-3:
+        return "attitude out of range"
+    return None
+
+
 def implausible(kind: str, msg) -> str | None:
     """Why the vehicle-state fields of a message cannot be true (not finite, out of any multirotor's
     range), or None. Sensor messages are judged by their decoders."""
     if kind == "LOCAL_POSITION_NED":
-        vals = (msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
-        if not all(math.isfinite(v) for v in vals):
-            return "position or velocity not finite"
-        if max(abs(msg.x), abs(msg.y)) > PLAUSIBLE_XY_M or abs(msg.z) > PLAUSIBLE_Z_M:
-            return f"position beyond {PLAUSIBLE_XY_M:g} m"
-        if math.hypot(msg.vx, msg.vy) > PLAUSIBLE_SPEED_M_S or abs(msg.vz) > PLAUSIBLE_SPEED_M_S:
-            return f"speed above {PLAUSIBLE_SPEED_M_S:g} m/s"
-    elif kind == "ATTITUDE":
-        if not all(math.isfinite(v) for v in (msg.roll, msg.pitch, msg.yaw)):
-            return "attitude not finite"
-        if max(abs(msg.roll), abs(msg.pitch)) > math.pi + 1e-3 or abs(msg.yaw) > 2 * math.pi + 1e-3:
-            return "attitude out of range"
-    elif kind == "VFR_HUD" and not 0 <= msg.throttle <= 100:
+        return implausible_position(msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)
+    if kind == "ATTITUDE":
+        return implausible_attitude(msg.roll, msg.pitch, msg.yaw)
+    if kind == "VFR_HUD" and not 0 <= msg.throttle <= 100:
         return "throttle outside 0–100 %"
     elif kind == "POSITION_TARGET_LOCAL_NED" and not msg.type_mask & 3 \
             and not (math.isfinite(msg.x) and math.isfinite(msg.y)):  # an unused position may be NaN (PX4 sends it)

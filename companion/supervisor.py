@@ -143,6 +143,7 @@ class Supervisor:
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
         self._omega_at: tuple[tuple, Omega] | None = None  # ((d_od, r_obst, e_tr measured, thrust), Ω)
+        self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
         # never fly a speed the controller contract does not cover: the top of E_tr_pred's speed axis
         # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
         e_pred = getattr(table, "e_pred", None)
@@ -181,9 +182,16 @@ class Supervisor:
             info0 = self._violations.pop(key)
             d.events.append(("violation_end", {k: info0[k] for k in ("subsystem", "guarantee")}))
 
+    def _braking_decel(self, thrust_ratio: float) -> float:
+        """The autopilot's braking deceleration at this thrust ratio (`contracts.stop.braking_decel` of the
+        table's vehicle, a pure function of it): one evaluation per value, as `e_tr_pred_flown`."""
+        if self._decel_at is None or self._decel_at[0] != thrust_ratio:
+            self._decel_at = (thrust_ratio, braking_decel(self.table.vehicle, thrust_ratio))
+        return self._decel_at[1]
+
     def _stop_distance(self, v: float, thrust_ratio: float) -> float:
         veh = self.table.vehicle
-        a = braking_decel(veh, min(thrust_ratio, veh.thrust_ratio_range[1]))
+        a = self._braking_decel(min(thrust_ratio, veh.thrust_ratio_range[1]))
         return approach_stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
 
     def e_tr_pred_flown(self, v: float, tilt: float, thrust_ratio: float) -> float:
@@ -361,8 +369,9 @@ class Supervisor:
 
     def _causes(self, i: Inputs, om: Omega) -> dict[str, bool]:
         """Every reason to stop now (each edge-triggered after an override)."""
-        numbers = (i.ground_speed, i.e_tr_measured, i.thrust_ratio, i.r_obst, i.dod.d_od)
-        finite = all(math.isfinite(x) for x in numbers)
+        isfinite = math.isfinite
+        finite = (isfinite(i.ground_speed) and isfinite(i.e_tr_measured) and isfinite(i.thrust_ratio)
+                  and isfinite(i.r_obst) and isfinite(i.dod.d_od))
         # a tracking overshoot of a few per cent is the controller's business (E_tr), not a broken limit
         over = (finite and self.limit.value is not None
                 and i.ground_speed > 1.05 * self.limit.value + self.margin)
@@ -372,7 +381,7 @@ class Supervisor:
             self._over_since = None
         settle = 0.0
         if self._over_since is not None:  # time a compliant autopilot needs to slow to the limit
-            a = braking_decel(self.table.vehicle, min(i.thrust_ratio, 1.0)) if finite else 1.0
+            a = self._braking_decel(min(i.thrust_ratio, 1.0)) if finite else 1.0
             settle = (i.ground_speed - self.limit.value) / max(a, 0.1) + stop_dead_time(self.table.vehicle) + 1.0
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
         obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1

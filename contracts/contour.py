@@ -7,6 +7,7 @@ sampled trajectories in any dimension. One implementation, shared by the control
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_left, bisect_right
 from collections import deque
 
@@ -33,10 +34,11 @@ def distance_to_segments(p: np.ndarray, a: np.ndarray, ab: np.ndarray, den: np.n
     """Shortest distance from `p` (d,) to the segments from `a` (m, d) along `ab` (m, d), m ≥ 1, whose
     `segment_norms` are `den`: the foot point's fraction along each, clipped to the segment."""
     ap = p - a
-    s = np.einsum("ij,ij->i", ap, ab) / den
-    np.clip(s, 0.0, 1.0, out=s)
-    d = ap - s[:, None] * ab
-    return float(np.sqrt(np.einsum("ij,ij->i", d, d).min()))
+    s = np.einsum("ij,ij->i", ap, ab)
+    s /= den
+    np.minimum(np.maximum(s, 0.0, out=s), 1.0, out=s)  # clipped to [0, 1] (ufuncs: no np.clip wrappers per call)
+    ap -= s[:, None] * ab  # the foot point's offset
+    return math.sqrt(np.einsum("ij,ij->i", ap, ap).min())
 
 
 def contour_errors(positions, times, path_times, path_points, window_s: float) -> np.ndarray:
@@ -118,12 +120,13 @@ class ContourWindow:
         lo = bisect_left(self._t, t - self.path_span_s, lo + 1, hi) - 1
         self._lo = lo
         n = bisect_right(self._t, t + self.path_span_s, lo, hi) - lo
+        p = np.asarray(p, dtype=float)
         if n <= 1:
-            e = float(np.linalg.norm(np.asarray(p, dtype=float) - self._p[lo]))
+            e = float(np.linalg.norm(p - self._p[lo]))
         else:
-            self._segments(lo + n - 1)
-            e = distance_to_segments(np.asarray(p, dtype=float), self._p[lo:lo + n - 1], self._ab[lo:lo + n - 1],
-                                     self._den[lo:lo + n - 1])
+            end = lo + n - 1
+            self._segments(end)
+            e = distance_to_segments(p, self._p[lo:end], self._ab[lo:end], self._den[lo:end])
         while self._errors and self._errors[-1][1] <= e:
             self._errors.pop()
         self._errors.append((t, e))

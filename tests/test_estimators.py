@@ -342,3 +342,18 @@ def test_timeliness_counts_a_late_cycle_for_its_window_and_ignores_jitter():
         tm.tick(t)
     assert tm.tick(t + 0.02) == 0.0  # both have left the window
     assert tm.tick(1.0) == 0.0  # a clock that goes back (a restart) is not lateness
+
+def test_the_swept_wedges_are_made_only_when_the_swept_coverage_is_asked_for(monkeypatch):
+    """Issue 14 (review speed): a scan keeps what it saw; its wedges are made when the direction of travel is
+    outside every field of view — rare — and once, not at every scan."""
+    import companion.estimators as est_mod
+
+    made = []
+    real = est_mod.sample_sectors
+    monkeypatch.setattr(est_mod, "sample_sectors", lambda *a, **kw: made.append(1) or real(*a, **kw))
+    _, inside = swept_flight(20.0)
+    assert inside.d_od == 6.0 and made == []  # 41 scans, the direction in view: none made
+    e, outside = swept_flight(40.0)
+    assert 1.0 < outside.d_od < 6.0 and len(made) == 41  # each scan of the last COVERAGE_S, once
+    again = e.estimate(2.0, math.radians(40.0))
+    assert again.d_od == outside.d_od and len(made) == 41  # asked again: reused

@@ -78,6 +78,32 @@ def test_nonfinite_values_become_null_and_are_named():
     assert sorted(out["nonfinite"]) == sorted(["t", "d_od", "e_tr", "params.v", "params.w[1]", "np32", "arr[1]"])
 
 
+def test_a_flat_record_with_nonfinite_values_is_encoded_once_to_the_same_line(monkeypatch):
+    """A state sample with no obstacle in sight holds inf (`obstacle_m`): one pass, one `json.dumps`, and the
+    very line of the general path (every non-finite value found, anywhere, nulled and named)."""
+    def general(rec):
+        bad = []
+        clean = el.finite_copy(rec, "", bad)
+        clean["nonfinite"] = bad
+        return json.dumps(clean, allow_nan=False, separators=(",", ":"), default=str) + "\n"
+
+    recs = [el._record("state", 1.5, 2.0, 3, "b", None, {"obstacle_m": math.inf, "d_od": 4.0, "v_cmd": None,
+                                                          "engaged": False, "state": "standby", "n": 7}),
+            {"kind": "state", "t": math.nan, "a": -math.inf, "b": math.inf, "nonfinite": "x", "ok": True},
+            {"kind": "state", "z": float("nan")}]
+    dumps, calls = json.dumps, []
+    monkeypatch.setattr(el.json, "dumps", lambda *a, **kw: calls.append(1) or dumps(*a, **kw))
+    for rec in recs:
+        calls.clear()
+        line = encode_record(rec)
+        assert len(calls) == 1
+        assert line == general(rec)
+    assert strict_loads(encode_record(recs[0]))["nonfinite"] == ["obstacle_m"]
+    calls.clear()  # not flat (a list, a numpy float): the general path, as before
+    assert encode_record({"kind": "state", "w": [math.inf], "x": np.float64("inf")}) == \
+        general({"kind": "state", "w": [math.inf], "x": np.float64("inf")}) and len(calls) == 3
+
+
 def test_finite_records_have_no_nonfinite_key_and_odd_objects_do_not_break_encoding():
     class Odd:
         def __str__(self):

@@ -126,3 +126,25 @@ def test_the_onboard_path_loads_neither_casadi_nor_matplotlib(heavy):
             "from contracts.table import verify; verify('contracts/data/mambo.npz'); "
             f"assert {heavy!r} not in sys.modules, sorted(m for m in sys.modules if m.startswith({heavy!r}))")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
+
+
+def test_the_qp_solver_loads_only_where_plans_are_made(tmp_path):
+    """OSQP and scipy (≈0.6 s to import) serve the avoidance planner only: a log review's shadow daemon never
+    plans, so reviewing a log loads neither; a cycle in offboard mode loads them when it is made (with a route
+    from the mission its planner is made later, in the loop: the first plan must not wait for an import)."""
+    from tests.test_flight_logs import write_bin
+
+    log = write_bin(tmp_path / "f.bin", dur=3.0)
+    review = ("import sys; from companion.cli import review_log; "
+              f"rep, _ = review_log({str(log)!r}, vehicle='x500'); assert rep['state_samples'] > 0; "
+              "loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('osqp', 'scipy')); "
+              "assert not loaded, loaded")
+    subprocess.run([sys.executable, "-c", review], check=True, cwd=ROOT)
+    offboard = ("import sys; from companion.config import Config; from companion.cycle import Cycle; "
+                "from companion.guidance import InlinePlanning; from contracts.table import load_for_vehicle; "
+                "cfg = Config(vehicle='x500', mode='offboard', route={'source': 'mission'}, "
+                "sensors=[{'kind': 'obstacle_distance', 'h_fov_deg': 60, 'max_range_m': 10}]); "
+                "assert 'osqp' not in sys.modules; "
+                "Cycle(cfg, load_for_vehicle(cfg.vehicle, cfg.table), None, 'avoid', InlinePlanning); "
+                "assert {'osqp', 'scipy.sparse'} <= set(sys.modules)")
+    subprocess.run([sys.executable, "-c", offboard], check=True, cwd=ROOT)
