@@ -402,14 +402,17 @@ def _first(items, pred):
     return next((e for e in items if pred(e)), None)
 
 
-def masked_by_link_loss(f: dict, faults: list[dict]) -> bool:
-    """A fault the daemon cannot observe: another kind's, all of it inside a link loss (nothing of the autopilot
-    is heard; evidence flight 941's bad navigation estimate came and went during one)."""
-    if f["kind"] == "link_loss":
+def masked_by_link_loss(f: dict, faults: list[dict], observe_s: float = 0.5) -> bool:
+    """A fault the daemon cannot observe (so an undetected one is no miss): another kind's, of which less than
+    `observe_s` lies outside the link losses (nothing of the autopilot is heard during one, and its first messages
+    after it take a moment: evidence flight 941's bad navigation estimate came and went inside a loss, flight 2440's
+    outlasted one by 0.12 s)."""
+    if f["kind"] == "link_loss" or "duration_s" not in f:
         return False
-    end = f["at_s"] + f.get("duration_s", math.inf)
-    return any(g["kind"] == "link_loss" and g["at_s"] <= f["at_s"] and end <= g["at_s"] + g["duration_s"]
-               for g in faults)
+    t0, t1 = f["at_s"], f["at_s"] + f["duration_s"]
+    hidden = sum(max(0.0, min(t1, g["at_s"] + g["duration_s"]) - max(t0, g["at_s"]))
+                 for g in faults if g["kind"] == "link_loss")
+    return hidden > 0.0 and f["duration_s"] - hidden < observe_s
 
 
 def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
@@ -426,7 +429,6 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
         # has handed over to Hold and is done; the flight then goes on FAULT_WINDOW_S only for detection)
         det, subsystem = None, None
         occurs = rig.sim.time_s > t0 and (trace.t_arrive is None or t0 <= trace.t_arrive)
-        occurs = occurs and not masked_by_link_loss(f, s["faults"])
         if kind == "fog_hidden":
             # detectable only once an obstacle came inside the claimed range after the fault
             occurs = occurs and any(_surface_distance(s, x, y) < s["sensor_range_m"] for t, x, y, _ in trace.rows
@@ -458,6 +460,7 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
         elif kind == "bad_nav":
             e = _first(after, lambda e: e["event"] == "failsafe" and e["cause"] == "bad navigation estimate")
             det, subsystem = (e["t"], "navigation (estimator)") if e else (None, None)
+        occurs = occurs and (det is not None or not masked_by_link_loss(f, s["faults"]))  # unseen: not a miss
         action = None
         if det is not None:
             acts = [e for e in after if e["t"] >= det - 1e-9 and e["t"] <= det + 1.0 and

@@ -259,7 +259,9 @@ def test_a_fault_inside_a_link_loss_is_not_counted_as_missed():
 
     loss = {"kind": "link_loss", "at_s": 6.4, "duration_s": 3.1}
     inside = {"kind": "bad_nav", "at_s": 8.0, "duration_s": 1.1}  # evidence flight 941
-    after = {"kind": "bad_nav", "at_s": 9.0, "duration_s": 1.1}  # outlasts the loss: observable after it
+    after = {"kind": "bad_nav", "at_s": 9.0, "duration_s": 1.1}  # outlasts the loss by 0.6 s: observable after it
+    barely = {"kind": "bad_nav", "at_s": 9.36, "duration_s": 0.3}  # 0.12 s after the loss (flight 2440's)
+    assert masked_by_link_loss(barely, [loss, barely])
     fog = {"kind": "fog_honest", "at_s": 7.0}  # lasts: observable once the link is back
     assert masked_by_link_loss(inside, [loss, inside])
     assert not masked_by_link_loss(after, [loss, after]) and not masked_by_link_loss(fog, [loss, fog])
