@@ -116,6 +116,11 @@ class Daemon:
             self._dispatch(msg)
         return n
 
+    def feed(self, msg) -> None:
+        """One message as `poll` hands it on, from a log that is decoded already (a `.tlog` replay): the same
+        routing and checks from here on, without parsing the bytes a second time."""
+        self._dispatch(msg)
+
     def _dispatch(self, msg) -> None:
         kind = msg.get_type()
         if self.cfg.log.tlog and kind != "BAD_DATA":
