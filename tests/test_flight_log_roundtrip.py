@@ -48,9 +48,11 @@ def flight(kind: str, personality: str):
     if kind == "offboard":
         return offboard_scenario(1, personality=personality), {"config": offboard_config(), "flight": engage_and_fly,
                                                                "seconds": 22.0}
-    if kind == "limit_raised":  # the negative control the issue names: the governor's limit raised × 1.3
+    if kind == "limit_raised":  # the negative control the issue names: the governor's limit raised — × 1.7, the
+        # campaign's governor control: since the stop contract holds from an accelerating state (issue 19 item 1)
+        # × 1.3 has slack from steady cruise and no longer collides (it failed so on 2c3566f)
         return column_scenario(1, x_col=28.0, cruise=8.0), {
-            "seconds": 14.0, "rig_kwargs": {"table_wrapper": lambda table: Scaled(table, 1.3)}}
+            "seconds": 14.0, "rig_kwargs": {"table_wrapper": lambda table: Scaled(table, 1.7)}}
     # the other negative control: no guard (shadow mode) at 8 m/s, twice what the contract allows, into a column
     return column_scenario(1, x_col=28.0, cruise=8.0), {"config": {"mode": "shadow"}, "seconds": 12.0}
 
