@@ -447,11 +447,11 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
                 det = x["t"] if x else None
             subsystem = "actuators" if det is not None else None
         elif kind == "sensor_dropout":
-            # D_od = 0 in a state sample, or the Hold it causes: a drop-out just over the 0.5 s time-out makes
+            # D_od = 0 in a state sample, or the Hold it causes: a drop-out just over the obstacle time-out makes
             # D_od 0 for a cycle or two, between 10 Hz state samples (evidence flights 200, 2832)
             x = _first(states, lambda x: x["d_od"] == 0.0)
-            e = _first(after, lambda e: e["event"] == "failsafe" and e["cause"] == "no safe speed"
-                       and e["t"] <= t0 + f["duration_s"] + 0.5)
+            stale_by = t0 + f["duration_s"] + rig.cfg.timeouts.obstacle_s
+            e = _first(after, lambda e: e["event"] == "failsafe" and e["cause"] == "no safe speed" and e["t"] <= stale_by)
             t_det = min([y["t"] for y in (x, e) if y is not None], default=None)
             det, subsystem = (t_det, "navigation (stale obstacle data)") if t_det is not None else (None, None)
         elif kind == "link_loss":

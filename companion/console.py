@@ -15,6 +15,8 @@ import sys
 import time
 from collections import Counter
 
+from .estimators import LATE_WINDOW_S
+
 ERR, WARNING, NOTICE, INFO = 3, 4, 5, 6
 
 
@@ -40,7 +42,7 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
     if name == "reaction_time":
         return (NOTICE, f"cycles on time again: reaction time back to {f['t_react_s']:.2f} s") if not f["late_s"] else \
             (WARNING, f"the daemon's cycles run late: reaction time {f['t_react_s']:.2f} s (+{f['late_s'] * 1e3:.0f} ms) "
-                      "for the next 10 s, a lower speed")
+                      f"for the next {LATE_WINDOW_S:.0f} s, a lower speed")
     if name == "would_hold" and f["causes"]:
         return WARNING, f"shadow: would HOLD: {', '.join(f['causes'])}"
     if name == "limit_change" and "sent" in f:

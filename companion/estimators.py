@@ -477,6 +477,4 @@ class Timeliness:
             while self._late and self._late[-1][1] <= late:
                 self._late.pop()
             self._late.append((t, late))
-        while self._late and self._late[0][0] < t - self.window:
-            self._late.popleft()
         return self._late[0][1] if self._late else 0.0

@@ -34,6 +34,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import maximum_filter
 
 from .contour import contour_errors
 from .lookup import NONE, helps_index, hurts_index, repair_monotone
@@ -156,22 +157,8 @@ def neighbour_ratio(rho: np.ndarray, fallback: float, steps: int | None = None) 
     most `steps` grid steps away in every axis (itself included), and whether there was any; `fallback` where
     there was none (`steps` default: `NEIGHBOUR_STEPS`). Pure."""
     steps = NEIGHBOUR_STEPS if steps is None else steps
-    best = np.full(rho.shape, -np.inf)
-    it = np.ndindex(*(2 * steps + 1,) * rho.ndim)
     src = np.where(np.isfinite(rho), rho, -np.inf)
-    for off in it:
-        d = [o - steps for o in off]
-        shifted = np.full(rho.shape, -np.inf)
-        dst_sl, src_sl = [], []
-        for k, dk in enumerate(d):
-            n = rho.shape[k]
-            if abs(dk) >= n:
-                break
-            dst_sl.append(slice(max(0, -dk), n - max(0, dk)))
-            src_sl.append(slice(max(0, dk), n - max(0, -dk)))
-        else:
-            shifted[tuple(dst_sl)] = src[tuple(src_sl)]
-            best = np.maximum(best, shifted)
+    best = maximum_filter(src, size=2 * steps + 1, mode="constant", cval=-np.inf)
     near = np.isfinite(best)
     return np.where(near, best, fallback), near
 
