@@ -5,7 +5,9 @@ Goal (issue 18): Ω and v_safe median ≤ 20 µs, p99 ≤ 200 µs at low load (i
 between grid points, issue 18). Uses the shipped table if it carries the avoid contract,
 otherwise a synthetic avoid + E_tr_pred table of the shipped tables' size on the same vehicle.
 Records the 1-minute load average before and after: on a shared machine the figures move with it; the
-`cpu_` figures (the thread's CPU time per call) move less.
+`cpu_` figures (the thread's CPU time per call) move less. Ω avoid runs the compiled kernel where numba can
+JIT (`omega_kernel`); `omega_avoid_numpy_path` is the same queries on the numpy path (a process without a JIT,
+such as the service unit with MemoryDenyWriteExecute=yes).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import contracts.lookup as lookup  # noqa: E402
 from contracts.lookup import repair_monotone  # noqa: E402
 from contracts.table import SLOTS, Slot, load_for_vehicle, verify, write_table  # noqa: E402
 from contracts.vehicle import load_vehicle  # noqa: E402
@@ -81,9 +84,15 @@ def main(argv=None):
         "v_safe_any_tilt": timed(lambda d, r, e, k, x: t.v_safe(d, r, e, x, k), qt),
         "omega_avoid": timed(lambda d, r, e, k: t.omega(d, r, e, k, "avoid"), qs),
         "omega_stop": timed(lambda d, r, e, k: t.omega(d, r, e, k, "stop"), qs),
+        "omega_kernel": lookup.kernel_name(),
         "goal": {"median_us": 20, "p99_us": 200},
         "loadavg_1min": [load_before, os.getloadavg()[0]],
     }
+    if lookup.USE_KERNEL:  # the same queries on the numpy path: what a process without a JIT (the service unit) runs
+        lookup.USE_KERNEL = False
+        res["omega_avoid_numpy_path"] = timed(lambda d, r, e, k: t.omega(d, r, e, k, "avoid"), qs)
+        lookup.USE_KERNEL = True
+        res["loadavg_1min"][1] = os.getloadavg()[0]
     print(json.dumps(res))
 
 

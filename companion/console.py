@@ -15,6 +15,8 @@ import sys
 import time
 from collections import Counter
 
+from contracts.lookup import kernel_name
+
 from .estimators import LATE_WINDOW_S
 
 ERR, WARNING, NOTICE, INFO = 3, 4, 5, 6
@@ -146,7 +148,8 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
                         for k, s in enumerate(cfg.sensors)) or "none (D_od is 0: no speed is safe)"
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
     return [
-        f"vehicle {table.vehicle.name}, table {table.path} (contracts: {', '.join(table.available)})",
+        f"vehicle {table.vehicle.name}, table {table.path} (contracts: {', '.join(table.available)}; "
+        f"Ω lookup {kernel_name()})",
         f"controller contract: {controller_contract}; {controller_coverage(table)}",
         f"{cfg.mode} mode ({'stop' if cfg.mode != 'offboard' else 'avoid'} contract), {engage}",
         f"sensors: {sensors}",

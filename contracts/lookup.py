@@ -17,10 +17,19 @@ from math import sqrt
 
 import numpy as np
 
+from .jit import HAVE_NUMBA, njit
 from .vehicle import G
 
 NONE = -1  # index meaning "outside the grid on the side with no answer"
 MARGIN = 1.0 - 1e-9  # the reaction-time answer is scaled by this: round-off never optimistic
+# `ReactLookup.step_fixed_point` runs the compiled kernel `_fixed_point_kernel` where numba is installed (the
+# `fast` extra), else its numpy path; the two give the same bits (tests/test_lookup_kernel.py). False: numpy.
+USE_KERNEL = HAVE_NUMBA
+
+
+def kernel_name() -> str:
+    """Which Ω path runs here, for the start banner and the benchmark."""
+    return "compiled (numba)" if USE_KERNEL else "numpy (no numba, or no executable memory for its JIT)"
 
 
 def helps_index(grid: np.ndarray, x: float) -> int:
@@ -75,6 +84,8 @@ class ReactLookup:
         hsuf = np.zeros((self.k, self.n + 1))
         hsuf[:, :-1] = np.maximum.accumulate(self._h[:, ::-1], axis=1)[:, ::-1]
         self._hsuf = hsuf.ravel()
+        self._hsuf2 = hsuf  # (k, n + 1), the kernel's view
+        self._ones = np.ones(self.k)
         self._hsuf_start = (np.arange(self.k) * (self.n + 1))[:, None]
         # the same, as Python floats for one column at a time (`at`, `_reaches`)
         self._rho_l, self._u_l, self._hsuf_l = self.rho.tolist(), self._u.tolist(), hsuf.tolist()
@@ -84,6 +95,8 @@ class ReactLookup:
             w = self._v / MARGIN
             self._w2 = np.where(w > 0, w * w, -np.inf)  # v ≤ 0 is always reached
             self._wt = self.t_r * w  # (k, m)
+            if USE_KERNEL:  # compile (or load numba's cache) now, at table load, not in the daemon's first cycle
+                self.step_fixed_point(1.0, np.full((self.k, len(self._v)), 0.5))
 
     def __call__(self, c0: float, r_k, rows=slice(None), lam=None) -> np.ndarray:
         """Speeds for finite keep-out radii `r_k` (k, m) ≥ 0, over columns `rows` (a slice or indices);
@@ -146,6 +159,11 @@ class ReactLookup:
         """
         c0 = max(float(c0), 0.0)
         k, m = r_k.shape
+        if USE_KERNEL:  # the same answer compiled; it leaves "no row reaches v_0" (row −1) to the numpy path
+            ans = _fixed_point_kernel(c0, r_k, self._wt[:k], self._w2, self._v, self.rho, self._u, self._h[:k],
+                                      self._hsuf2[:k], self._t_col[:k], self._ones[:k] if lam is None else lam[:k])
+            if ans[0] >= 0:
+                return ans
         c_w = c0 - self._wt[:k]  # c0 − w·t_r; ≤ 0 reaches nothing (ρ past the grid, h = 0)
         h = self._hsuf[np.searchsorted(self.rho, r_k / np.maximum(c_w, 1e-12)) + self._hsuf_start[:k]]
         if lam is not None:
@@ -205,6 +223,64 @@ def react_speed(c0: float, r_k: float, t: float, lam: float, rho, u, h, hsuf) ->
     ve = 0.5 * (sqrt(ht * ht + 4.0 * hm * gap) - ht)
     vl = (c0 - r / rho[lo - 1]) / t if lo else 0.0
     return max(vl, ve, 0.0) * MARGIN
+
+
+@njit
+def _bisect_left(a, x):
+    """`bisect.bisect_left` on a sorted float array (numba has no bisect)."""
+    lo, hi = 0, a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < x:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+# `react_speed` compiled for arrays (the same source: no second copy of the maths), for the kernel
+_react_speed_c = njit(react_speed)
+
+
+@njit
+def _fixed_point_kernel(c0, r_k, wt, w2, v, rho, u, h, hsuf, t_col, lam):
+    """`ReactLookup.step_fixed_point` as loops, compiled by numba: per row the count of grid speeds reached
+    (the O(1) test `reaches`), the longest, then the tie rule on the rows of that length. Arrays: `r_k`, `wt` (k, m),
+    `w2` (m,), `v` (m,), `rho`, `u` (n,), `h` (k, n), `hsuf` (k, n + 1), `t_col`, `lam` (k,). Returns
+    (row, j, V, lim), or row −1 where no row reaches v_0 (the caller's numpy path answers that)."""
+    k, m = r_k.shape
+    n_reached = np.zeros(k, np.int64)
+    top = 0
+    for i in range(k):
+        cnt = 0
+        for j in range(m):
+            c_w = c0 - wt[i, j]
+            if hsuf[i, _bisect_left(rho, r_k[i, j] / max(c_w, 1e-12))] * lam[i] * (c_w - r_k[i, j]) >= w2[j]:
+                cnt += 1
+        n_reached[i] = cnt
+        top = max(top, cnt)
+    if top == 0:
+        return -1, 0, 0.0, 0.0
+    if top < m:
+        best, row = v[top - 1], -1
+        w = best / MARGIN * (1.0 - 1e-12)
+        for i in range(k - 1, -1, -1):
+            if n_reached[i] != top:
+                continue
+            r = r_k[i, top]
+            c_w = c0 - t_col[i] * w  # `reaches`
+            if not (w <= 0 or c_w > r and lam[i] * hsuf[i, _bisect_left(rho, r / c_w)] * (c_w - r) >= w * w):
+                continue
+            lim = _react_speed_c(c0, r, t_col[i], lam[i], rho, u, h[i], hsuf[i])
+            if lim > best or (lim == best and row >= 0):
+                best, row, w = lim, i, lim / MARGIN * (1.0 - 1e-12)
+        if row >= 0:
+            return row, top, best, best
+    row = 0
+    while n_reached[row] != top:
+        row += 1
+    return row, top - 1, v[top - 1], _react_speed_c(c0, r_k[row, top - 1], t_col[row], lam[row], rho, u, h[row],
+                                                    hsuf[row])
 
 
 def law_cells(f: np.ndarray, a: np.ndarray, rel_tol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:

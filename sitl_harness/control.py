@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from contracts.jit import njit
 from .physics import P_D, P_G, P_IXX, P_IYY, P_IZZ, P_KQ, P_KT, P_SPIN, P_WMAX, RX, RY, X_Q, X_V, X_W
 
 # controller parameters

@@ -18,7 +18,7 @@ import numpy as np
 
 from contracts.vehicle import G
 
-from ._jit import njit
+from contracts.jit import njit
 from .control import (C_ATT_P, C_DT, C_HTE_TAU, C_IDLE, C_N, C_POS_P, C_RATE_D, C_RATE_I, C_RATE_P,
                       C_T_NOM, C_THR_MAX, C_THR_MIN, C_THR_XY_MARG, C_TILT_MAX, C_TILT_RATE_MAX,
                       C_VEL_D, C_VEL_DN_MAX, C_VEL_I, C_VEL_P, C_VEL_UP_MAX, C_VEL_XY_MAX,

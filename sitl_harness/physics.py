@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from ._jit import njit
+from contracts.jit import njit
 
 # state layout
 X_P, X_V, X_Q, X_W, X_R, X_N = 0, 3, 6, 10, 13, 17

@@ -129,15 +129,16 @@ def test_the_onboard_path_loads_neither_casadi_nor_matplotlib(heavy):
 
 
 def test_the_qp_solver_loads_only_where_plans_are_made(tmp_path):
-    """OSQP and scipy (≈0.6 s to import) serve the avoidance planner only: a log review's shadow daemon never
-    plans, so reviewing a log loads neither; a cycle in offboard mode loads them when it is made (with a route
-    from the mission its planner is made later, in the loop: the first plan must not wait for an import)."""
+    """OSQP and scipy.sparse (≈0.6 s to import) serve the avoidance planner only: a log review's shadow daemon
+    never plans, so reviewing a log loads neither; a cycle in offboard mode loads them when it is made (with a route
+    from the mission its planner is made later, in the loop: the first plan must not wait for an import). numba,
+    where installed (the compiled Ω lookup), imports scipy's core and linalg itself, not scipy.sparse."""
     from tests.test_flight_logs import write_bin
 
     log = write_bin(tmp_path / "f.bin", dur=3.0)
     review = ("import sys; from companion.cli import review_log; "
               f"rep, _ = review_log({str(log)!r}, vehicle='x500'); assert rep['state_samples'] > 0; "
-              "loaded = sorted(m for m in sys.modules if m.split('.')[0] in ('osqp', 'scipy')); "
+              "loaded = sorted(m for m in sys.modules if m.split('.')[0] == 'osqp' or m.startswith('scipy.sparse')); "
               "assert not loaded, loaded")
     subprocess.run([sys.executable, "-c", review], check=True, cwd=ROOT)
     offboard = ("import sys; from companion.config import Config; from companion.cycle import Cycle; "

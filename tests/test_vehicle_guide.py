@@ -101,7 +101,7 @@ def test_the_walkthrough_runs_as_written(tmp_path):
     gcs = next(v for k, v in outputs.items() if "ground_station.py" in k)
     assert "param set CG_ENGAGE 1: echoed 1" in gcs and "1:191 says: CG: active (limit in force)" in gcs, gcs
     console = outputs["%2"]
-    for start in ("vehicle quad-1600g, table quad-1600g.npz (contracts: stop, avoid, e_tr_pred)",
+    for start in ("vehicle quad-1600g, table quad-1600g.npz (contracts: stop, avoid, e_tr_pred; Ω lookup",
                   "governor mode (stop contract)", "sensors: [0] distance_sensor at 0°, 60° wide, rated 8 m",
                   "autopilot link up", "start-up checks: ok", "speed limit", "HOLD: obstacle inside the stop distance",
                   "stopped after"):
