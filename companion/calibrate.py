@@ -43,7 +43,7 @@ HOVER_IQR = 0.05
 
 def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
     """A `.tlog` as the ops of `loginput` (the autopilot's messages only) and the mode commands seen on the
-    link (t [s], requested mode name) from any ground station or the daemon."""
+    link (t [s], requested mode name) from any ground station or the daemon (any sender but the autopilot)."""
     from pymavlink import mavutil
 
     try:
@@ -72,7 +72,8 @@ def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
             autopilot = "ardupilot" if m.autopilot == 3 else "px4"
             ops.append((t_us, "mode", (m.base_mode, m.custom_mode)))
             continue
-        if kind == "COMMAND_LONG" and m.command == MAV_CMD_DO_SET_MODE and src[0] != ap_sys:
+        # from a ground station, or the daemon (a component of the autopilot's system: not the autopilot itself)
+        if kind == "COMMAND_LONG" and m.command == MAV_CMD_DO_SET_MODE and src != (ap_sys, 1):
             cmds.append((t_us, (m.param1, m.param2, m.param3)))
             continue
         if ap_sys is None or src[0] != ap_sys or src[1] != 1:
