@@ -36,6 +36,9 @@ MAV_CMD_DO_SET_MODE = 176
 MAX_BAD_IN_A_ROW = 10_000  # a .tlog that raises this often in a row is not read further (never a hang)
 HOVER_MIN = 200  # hover samples a log needs before its hover throttle may lower the vehicle file's
 HOVER_IQR = 0.05
+# a switch to Hold seen only as the mode (ULog, DataFlash) from below this speed is no braking evidence: the
+# calibration plan stops from 1 m/s up, and PX4 itself switches to Hold at a mission's end, perhaps still drifting
+MIN_SWITCH_STOP_M_S = 1.0
 
 
 # ----------------------------------------------------------------------------- reading
@@ -241,7 +244,8 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         # no hover estimate: the grid's lowest thrust_ratio (the cell that helps least, never optimistic)
         r_used = ratio if ratio is not None else float(axes[2][0])
         samples += [(e, v, ti, r_used) for e, v, ti in zip(w.e, w.v, w.tilt)]
-        flight_stops = [(src, s) for tc, src in tr.holds if (s := cal.measure_stop(tr.t, tr.vel[:, :2], tc)) is not None]
+        flight_stops = [(src, s) for tc, src in tr.holds if (s := cal.measure_stop(tr.t, tr.vel[:, :2], tc)) is not None
+                        and (src == "command" or s.v0 >= MIN_SWITCH_STOP_M_S)]
         stops += [(p.name, src, s) for src, s in flight_stops]
         traces.append(tr)
         logs.append({"log": str(p), "sha256": sha256_file(p), "format": feed.info.get("format", p.suffix),

@@ -13,7 +13,9 @@ rest (ground speed < `REST_SPEED_M_S`) for `rest_s`; the mission again. `read_le
 Each leg once. It acts only while the supervisor is active (engaged, flying, no hold of its own) and the
 autopilot flies its mission; the waypoint is placed in the local frame from HOME_POSITION (as the mission's own
 waypoints are: companion/mission.py). `mission_speed(seq)`: the speed the mission's own DO_CHANGE_SPEED items set
-at that item, which the governor does not exceed (it would otherwise speed the plan's slow legs up).
+at that item, which the governor sends in place of the autopilot's cruise parameter when its limit is higher (it
+would otherwise speed the plan's slow legs up, or cap its fast ones at the cruise parameter): the legs file must
+be the mission the autopilot flies (best: give the `.plan` / `.waypoints` itself).
 """
 
 from __future__ import annotations
@@ -222,12 +224,14 @@ class CalibrationHolds:
     def _fly(self, t: float, acts: Actions, mode: str, speed: float) -> None:
         if self.phase == "commanded":
             if mode == "hold":
-                self.phase, self._t = "holding", t
+                self.phase, self._t = "holding", t  # (and at rest from now, if it is)
             elif mode != "mission":
                 self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")
-            elif t - self._t > TAKE_S:
-                self._end(acts, "abandoned", reason=f"the autopilot did not take Hold in {TAKE_S:g} s")
-            return
+                return
+            else:
+                if t - self._t > TAKE_S:
+                    self._end(acts, "abandoned", reason=f"the autopilot did not take Hold in {TAKE_S:g} s")
+                return
         if self.phase == "holding":
             if mode != "hold":
                 self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")

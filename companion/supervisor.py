@@ -352,10 +352,10 @@ class Supervisor:
         # the limit: send it when it changed, after mode changes/take-off, and every 5 s
         if i.limit_applies:
             self._no_limit_mode_warned = None
-            # DO_CHANGE_SPEED sets the speed: a governor sends no more than the mission's own cruise (and, where it
-            # knows them — the calibration plan's — than the mission's own speed items)
-            own = [v for v in (i.v_cruise, i.v_mission) if v > 0]  # (NaN: not known)
-            v_own = min(own) if own else math.nan
+            # DO_CHANGE_SPEED sets the speed: a governor sends no more than the mission's own speed — the speed its
+            # own speed item set at this item where the daemon knows the mission's items (calibration.legs), which
+            # is the speed the autopilot flies there (PX4 Navigator, ArduPilot Auto), else the cruise parameter
+            v_own = i.v_mission if i.v_mission > 0 else i.v_cruise  # (NaN: not known)
             capped = self.mode == "governor" and 0 < v_own < v_limit
             v_send = v_own if capped else v_limit
             changed = self._last_sent is None or abs(v_send - self._last_sent) > max(0.05, 0.02 * v_send)

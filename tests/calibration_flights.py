@@ -7,9 +7,11 @@ The plan's hold legs are flown as the plan says: at `hold_before_m` before the l
 ArduPilot Brake), `rest_s` at rest, the mission again. `holds="daemon"` (the default): the daemon commands them,
 in governor mode with `calibration.legs` (companion/calibration_holds.py), its sensor rated at `SENSOR_RANGE_M`
 (open space: the stop contract's limit is then the plan's top speed, and the governor flies the plan's own speeds).
-The operator engages the daemon (CG_ENGAGE from the ground station) once the take-off has
-reached the plan's altitude: from the ground, the x500's thrust_ratio estimate reads low in the climb and a
-governor engaged from the start holds for "no safe speed" at take-off. `holds="gcs"`: the daemon in shadow mode and the ground station commands them (the way before the daemon could).
+The ground station plays the operator: after a safety Hold of the daemon's own (at the plan's top speed a tail
+wind carries the ground speed past the contract's top, 8 m/s for the X500: "speed limit not in force") it resumes
+the mission once the vehicle has been at rest 2 s (`resumed_after_daemon_holds`: when, why). `holds="none"`: the
+daemon in governor mode without `calibration.legs` (a negative control: nothing commands the holds).
+`holds="gcs"`: the daemon in shadow mode and the ground station commands them (the way before the daemon could).
 A plan without hold legs (the held-out flights) is flown with the daemon in shadow mode.
 """
 
@@ -89,17 +91,19 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
     end, the daemon's events (`events`, holds="daemon"), and, with `log_dir`, the path of the autopilot's own log
     the SITL wrote (PX4 ULog / ArduPilot DataFlash). Times are the SITL's (the `.tlog`'s stamps minus EPOCH_US).
     `pilot(rig) -> bool`: called every cycle (a test's pilot: its own mode changes); True ends the flight."""
-    if holds not in ("daemon", "gcs"):
-        raise ValueError(f"holds must be 'daemon' or 'gcs', not {holds!r}")
+    if holds not in ("daemon", "gcs", "none"):
+        raise ValueError(f"holds must be 'daemon', 'gcs' or 'none', not {holds!r}")
     mp = read_mission(plan_path)
     legs = {leg["mission_seq_plan"] if personality == "px4" else leg["mission_seq_waypoints"]: leg
             for leg in mp.extra.get("legs", []) if leg["kind"] == "hold"}
     by_daemon = holds == "daemon" and bool(legs)
+    governor = by_daemon or holds == "none"
     sc = {"name": "calibration", "vehicle": vehicle, "seed": seed, "route": {"mission": str(plan_path)},
           "wind": {} if wind_m_s is None else {"mean_m_s": wind_m_s, "from_deg": 90.0},
-          **({"sensor": {"max_range_m": SENSOR_RANGE_M}} if by_daemon else {})}
-    config = {"mode": "governor", "engage": False, "calibration": {"legs": str(plan_path)}} if by_daemon else \
-        {"mode": "shadow", "engage": False}
+          **({"sensor": {"max_range_m": SENSOR_RANGE_M}} if governor else {})}
+    config = {"mode": "governor", "engage": True} if governor else {"mode": "shadow", "engage": False}
+    if by_daemon:
+        config["calibration"] = {"legs": str(plan_path)}
     rig = Rig(sc, personality, config=config, seed=seed, sim_kwargs=truth_sim_kwargs(truth, actuator_delay_s),
               log_dir=log_dir)
     tee = TlogTee(rig, tlog)
@@ -108,11 +112,10 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
     done, log, items = set(), [], []
     n_items = len(ap.mission)
     cal = rig.daemon.calibration
-    engage_below_z = -(float(mp.extra.get("altitude_m", 5.0)) - 0.5)  # the take-off has reached the plan's altitude
-    engaged = [False]
+    resumed, rest = [], {"since": None}
 
     def flown() -> bool:
-        return (len(cal.done) == len(cal.by_seq)) if by_daemon else done == set(legs)
+        return (len(cal.done) == len(cal.by_seq)) if by_daemon else holds == "none" or done == set(legs)
 
     def watch(r: Rig) -> bool:
         seq = ap.mission_seq
@@ -120,11 +123,18 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
             items.append({"t": r.sim.time_s, "seq": seq})
         if pilot is not None and pilot(r):
             return True
-        if by_daemon and not engaged[0] and ap.pos[2] <= engage_below_z:
-            engaged[0] = True
-            r.to_daemon(r.gcs.param_set_encode(1, r.cfg.link.component_id, b"CG_ENGAGE", 1.0, 9))
+        sup = r.daemon.cycle.sup
+        if governor and sup.state == "holding":  # the operator decides: on with the plan
+            if ap.traj.speed_xy < 0.1:
+                rest["since"] = r.sim.time_s if rest["since"] is None else rest["since"]
+                if r.sim.time_s - rest["since"] >= 2.0:
+                    resumed.append({"t": r.sim.time_s, "after": list(sup._held_for)})
+                    r.command(mav.MAV_CMD_DO_SET_MODE, *ad.set_mode_params("mission", True))
+                    rest["since"] = None
+            else:
+                rest["since"] = None
         leg = legs.get(seq)
-        if not by_daemon and leg is not None and seq not in done and ap.mode == "mission":  # the ground station's
+        if holds == "gcs" and leg is not None and seq not in done and ap.mode == "mission":  # the ground station's
             it = ap.mission[seq]
             d = math.hypot(*(ap.pos[:2] - it.local[:2]))
             if d <= leg["hold_before_m"]:
@@ -140,14 +150,17 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
     rig.run(2.0)
     tee.close()
     own = rig.close_log() if log_dir is not None else None
-    events = rig.log.events if by_daemon else []
+    events = rig.log.events if governor else []
     if by_daemon:
         log = [{"t": e["t"], "speed_m_s": e["leg_speed_m_s"], "seq": e["seq"], "ground_speed_m_s": e["speed_m_s"],
                 "distance_m": e["distance_m"]} for e in events if e["event"] == "calibration_hold"
                and e["status"] == "commanded"]
     return {"holds": log, "items": items, "finished": finished, "flight_s": rig.sim.time_s,
-            "autopilot_log": None if own is None else str(own), "holds_by": "daemon" if by_daemon else "gcs",
-            "events": events,
+            "autopilot_log": None if own is None else str(own), "holds_by": "daemon" if by_daemon else holds if legs else None,
+            "events": events, "resumed_after_daemon_holds": resumed,
+            # the autopilot's own waypoints (truth: where the SITL resolved each item), by its sequence number
+            "waypoints_local": {k: [float(it.local[0]), float(it.local[1])] for k, it in enumerate(ap.mission)
+                                if it.local is not None and all(map(math.isfinite, it.local[:2]))},
             "collisions": len(rig.truth.get("collisions", [])) if isinstance(rig.truth, dict) else None}
 
 
