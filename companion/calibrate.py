@@ -36,6 +36,9 @@ MAV_CMD_DO_SET_MODE = 176
 MAX_BAD_IN_A_ROW = 10_000  # a .tlog that raises this often in a row is not read further (never a hang)
 HOVER_MIN = 200  # hover samples a log needs before its hover throttle may lower the vehicle file's
 HOVER_IQR = 0.05
+# a switch to Hold seen only as the mode (ULog, DataFlash) from below this speed is no braking evidence: the
+# calibration plan stops from 1 m/s up, and PX4 itself switches to Hold at a mission's end, perhaps still drifting
+MIN_SWITCH_STOP_M_S = 1.0
 
 
 # ----------------------------------------------------------------------------- reading
@@ -43,7 +46,7 @@ HOVER_IQR = 0.05
 
 def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
     """A `.tlog` as the ops of `loginput` (the autopilot's messages only) and the mode commands seen on the
-    link (t [s], requested mode name) from any ground station or the daemon."""
+    link (t [s], requested mode name) from any ground station or the daemon (any sender but the autopilot)."""
     from pymavlink import mavutil
 
     try:
@@ -72,7 +75,8 @@ def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
             autopilot = "ardupilot" if m.autopilot == 3 else "px4"
             ops.append((t_us, "mode", (m.base_mode, m.custom_mode)))
             continue
-        if kind == "COMMAND_LONG" and m.command == MAV_CMD_DO_SET_MODE and src[0] != ap_sys:
+        # from a ground station, or the daemon (a component of the autopilot's system: not the autopilot itself)
+        if kind == "COMMAND_LONG" and m.command == MAV_CMD_DO_SET_MODE and src != (ap_sys, 1):
             cmds.append((t_us, (m.param1, m.param2, m.param3)))
             continue
         if ap_sys is None or src[0] != ap_sys or src[1] != 1:
@@ -240,7 +244,8 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         # no hover estimate: the grid's lowest thrust_ratio (the cell that helps least, never optimistic)
         r_used = ratio if ratio is not None else float(axes[2][0])
         samples += [(e, v, ti, r_used) for e, v, ti in zip(w.e, w.v, w.tilt)]
-        flight_stops = [(src, s) for tc, src in tr.holds if (s := cal.measure_stop(tr.t, tr.vel[:, :2], tc)) is not None]
+        flight_stops = [(src, s) for tc, src in tr.holds if (s := cal.measure_stop(tr.t, tr.vel[:, :2], tc)) is not None
+                        and (src == "command" or s.v0 >= MIN_SWITCH_STOP_M_S)]
         stops += [(p.name, src, s) for src, s in flight_stops]
         traces.append(tr)
         logs.append({"log": str(p), "sha256": sha256_file(p), "format": feed.info.get("format", p.suffix),

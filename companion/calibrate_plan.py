@@ -91,7 +91,7 @@ def plan_legs(vehicle, speeds: list[float], altitude_m: float = 5.0, turn_radius
         items.append(("speed", v))
         items.append(("wp", (a_north, east)))
         legs.append({"kind": "hold", "speed_m_s": v, "item": len(items) - 1, "hold_before_m": round(hold_before, 2),
-                     "rest_s": REST_S, "commanded_by": "daemon (governor mode) or the operator"})
+                     "rest_s": REST_S, "commanded_by": "daemon (governor mode, config calibration.legs) or the operator"})
         items.append(("wp", (b_north, east)))
         items.append(("speed", max(v / 2, 0.5)))
         legs.append({"kind": "step_down", "speed_m_s": v, "to_m_s": max(v / 2, 0.5), "item": len(items) - 1,
@@ -135,11 +135,19 @@ def mission_plan(vehicle, speeds: list[float], altitude_m: float = 5.0, home=HOM
             out.append(Item(MAV_CMD_NAV_WAYPOINT, MAV_FRAME_GLOBAL_RELATIVE_ALT, (0.0, 0.0, 0.0, math.nan), lat, lon, altitude_m))
         else:
             out.append(Item(MAV_CMD_NAV_LOITER_TIME, MAV_FRAME_GLOBAL_RELATIVE_ALT, (it[1], 0.0, 0.0, math.nan), lat, lon, altitude_m))
+    legs = [{**leg, "mission_seq_plan": leg["item"], "mission_seq_waypoints": leg["item"] + 1} for leg in lay["legs"]]
+    for leg in legs:  # where the daemon commands a hold leg: its waypoint (the daemon places it from HOME_POSITION)
+        if leg["kind"] == "hold":
+            wp = out[leg["item"]]
+            leg.update(lat_deg=wp.x, lon_deg=wp.y, alt_m=wp.z)
     extra = {"kind": "calibration plan", "vehicle": vehicle.name, "speeds_m_s": speeds, "altitude_m": altitude_m,
-             "legs": [{**leg, "mission_seq_plan": leg["item"], "mission_seq_waypoints": leg["item"] + 1}
-                      for leg in lay["legs"]],
+             "legs": legs,
+             # the mission's own speed items: a governor flying the plan never sends more than the speed in force
+             "mission_speeds": [{"mission_seq_plan": k, "mission_seq_waypoints": k + 1, "speed_m_s": it.params[1]}
+                                for k, it in enumerate(out) if it.command == MAV_CMD_DO_CHANGE_SPEED],
              "note": "mission_seq_plan: index in the .plan's items (PX4's sequence); mission_seq_waypoints: the "
-                     ".waypoints sequence (item 0 is home; ArduPilot's)"}
+                     ".waypoints sequence (item 0 is home; ArduPilot's); a hold leg's lat_deg/lon_deg/alt_m: its "
+                     "waypoint (altitude relative to home)"}
     return MissionPlan(tuple(home), out, extra, cruise_speed_m_s=speeds[0] if speeds else 1.0)
 
 

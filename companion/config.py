@@ -110,6 +110,26 @@ class RouteConfig(_Strict):
         return self
 
 
+class CalibrationConfig(_Strict):
+    """The calibration plan's hold legs, flown by the daemon in governor mode (companion/calibration_holds.py):
+    `calibration-legs.json` of `contract-guard calibrate plan`, or the `.plan` / `.waypoints` it wrote."""
+
+    legs: Path
+
+    @field_validator("legs")
+    @classmethod
+    def _readable(cls, path: Path) -> Path:
+        from contracts.errors import ContractError
+
+        from .calibration_holds import read_legs
+
+        try:
+            read_legs(path)
+        except ContractError as err:
+            raise ValueError(str(err)) from None
+        return path
+
+
 class LogConfig(_Strict):
     dir: Path = Path("/var/log/contract-guard")
     max_bytes: int = 50_000_000
@@ -133,6 +153,7 @@ class Config(_Strict):
     log: LogConfig = LogConfig()
     route: RouteConfig | None = None  # offboard mode: the route to fly
     offboard_entry_s: Pos = 1.0  # setpoints streamed before asking for OFFBOARD (PX4 needs > 0.5 s)
+    calibration: CalibrationConfig | None = None  # governor mode: the daemon flies the calibration plan's hold legs
 
     @model_validator(mode="after")
     def _sensors_rated(self):
@@ -143,6 +164,9 @@ class Config(_Strict):
                 if s.max_range_m is None:
                     raise ValueError(f"sensors[{k}].max_range_m (the sensor's rated range) is required in {self.mode} "
                                      "mode: a message's max_distance is capped by it")
+        if self.calibration is not None and self.mode != "governor":
+            raise ValueError(f"calibration.legs: the daemon flies the hold legs in governor mode only (mode is "
+                             f"{self.mode})")
         return self
 
 

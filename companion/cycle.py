@@ -78,6 +78,8 @@ class Cycle:
         self.commanded_mode: tuple[str, float, bool] | None = None  # (mode, when, seen in a heartbeat yet)
         self.stopping = False  # the daemon is shutting down: stop flying
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
+        # the speed the mission's own speed items set at an item (seq → m/s, NaN: unknown): the calibration plan's
+        self.mission_speed = None
         self._was_streaming = False
 
     # ------------------------------------------------------------------ samples
@@ -154,7 +156,8 @@ class Cycle:
                       in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=by_daemon,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
-                      v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s)
+                      v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s,
+                      v_mission=self.mission_speed(tel.mission_seq) if self.mission_speed is not None else math.nan)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
              mission_route: Route | None = None, route_ready: bool = True) -> tuple[Inputs, Decision]:

@@ -19,13 +19,14 @@ from contracts.table import ContractTable
 
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED
 from .autopilots import adapter_for
+from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
 from .cycle import CYCLE_SAMPLES, Cycle
 from .guidance import InlinePlanning, ThreadedPlanning
 from .logschema import NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut, ParamServer
-from .mission import MissionSource
+from .mission import Home, MissionSource, home_request
 from .samples import AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest
 from .startup import StartupChecks
 from .supervisor import Decision, Inputs
@@ -68,6 +69,12 @@ class Daemon:
             self.mission = MissionSource(self.adapter.mission_item0_is_home, lk.target_system, lk.target_component,
                                          lk.target_system, lk.component_id, cfg.route.level_tolerance_m,
                                          corner_cut_m=cfg.route.corner_cut_m)
+        # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
+        self.calibration: CalibrationHolds | None = None
+        if cfg.calibration is not None:
+            self.calibration = CalibrationHolds(read_legs(cfg.calibration.legs), self.adapter.mission_item0_is_home)
+            self.cycle.mission_speed = self.calibration.mission_speed
+        self._t_home_asked = -math.inf
         self.last: Decision | None = None
         self._link_up = False
         self._t_hb_out = -math.inf
@@ -156,6 +163,8 @@ class Daemon:
             if self.checks.take(s.name, s.value):
                 self._finish_checks(s.t)
         elif isinstance(s, MissionMessage):
+            if self.calibration is not None and s.msg.get_type() == "HOME_POSITION":
+                self.calibration.take_home(Home.from_msg(s.msg))
             if self.mission is not None:
                 self._mission_actions(s.t, self.mission.take(s.t, s.msg))
         else:
@@ -260,8 +269,32 @@ class Daemon:
         self.last = d
         self._link_events(t, i)
         self._carry_out(t, d)
+        if self.calibration is not None:
+            self._calibration_holds(t, i, d)
         self._periodic(t, i, d)
         return d
+
+    def _calibration_holds(self, t: float, i: Inputs, d: Decision) -> None:
+        """The calibration plan's hold legs (companion/calibration_holds.py): Hold, at rest `rest_s`, the mission.
+        A hold or failsafe of the supervisor's own this cycle wins (the leg is abandoned)."""
+        cal, tel = self.calibration, self.tel
+        if cal.home is None and i.link_ok and t - self._t_home_asked >= 5.0:  # the waypoints are placed from it
+            self._t_home_asked = t
+            self.out.send(home_request(self.cfg.link.target_system, self.cfg.link.target_component))
+        safety = (d.hold_causes[0] if d.hold_causes else "hold") if d.hold else \
+            (f"state {d.state}" if d.state in ("holding", "failsafe") else None)
+        acts = cal.step(t, mode=i.mode, mission_seq=tel.mission_seq, x=tel.x, y=tel.y, speed=i.ground_speed,
+                        telemetry_ok=i.telemetry_ok, active=d.state == "active", safety=safety)
+        if acts.command == "hold":
+            self.cycle.hold_commanded(t)
+            self.out.hold(t)
+        elif acts.command == "mission":
+            self.cycle.commanded_mode = ("mission", t, False)
+            self.out.set_mode(t, "mission", "mission")
+        for name, fields in acts.events:
+            self._event(t, name, **fields)
+        for sev, text in acts.texts:
+            self.out.statustext(sev, text)
 
     _bad_cycles = 0
 

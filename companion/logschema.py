@@ -95,7 +95,8 @@ EVENTS = {
     "hold_trigger": Event(("cause", "action"), "supervisor", "a non-failsafe cause (obstacle, limit not in force) "
                           "made the daemon hold"),
     "limit_change": Event(("v_max", "reason"), "supervisor", "a new speed limit is sent (`sent`, `cruise`: a "
-                          "governor sent the autopilot's lower cruise speed instead)"),
+                          "governor sent the autopilot's lower cruise speed instead; `mission_speed`: the mission's "
+                          "own speed item's, with calibration.legs)"),
     "cruise_speed": Event(("param", "v"), "daemon", "the autopilot's cruise-speed parameter (NaN: unusable); a "
                           "governor never sends a limit above it"),
     "limit_not_applicable": Event(("mode", "v_max"), "supervisor", "the autopilot's mode ignores the speed limit"),
@@ -116,6 +117,12 @@ EVENTS = {
                         "an exception inside a cycle (logged, not fatal; action: the safe action taken)"),
     "offboard": Event(("from", "to", "reason"), "offboard", "offboard controller state changed"),
     "no_avoiding_plan": Event(("notes",), "offboard", "no avoiding plan: braking"),
+    "calibration_hold": Event(("status", "leg", "seq", "leg_speed_m_s", "speed_m_s", "distance_m", "hold_before_m",
+                               "rest_s", "at_rest", "reason"), "daemon",
+                              "a calibration plan's hold leg (config calibration.legs, governor mode): commanded "
+                              "(speed_m_s: ground speed, distance_m: to its waypoint), resumed (rest_s at rest; "
+                              "at_rest false: not at rest in time) or abandoned (reason: the daemon's own hold or "
+                              "failsafe, a mode change by someone else, a command not taken)"),
     "mission": Event(("status", "why", "reason", "waypoints", "altitude_m", "items", "notes", *_MISSION_STATS),
                      "mission", "mission download: downloading | waiting_home | ready | refused"),
 }
@@ -134,5 +141,6 @@ COMMANDS = {
     "hold": "MAV_CMD_DO_SET_MODE",
     "change_speed": "MAV_CMD_DO_CHANGE_SPEED",
     "offboard": "MAV_CMD_DO_SET_MODE",
+    "mission": "MAV_CMD_DO_SET_MODE",  # a calibration hold leg resumes the mission
     "set_message_interval": "MAV_CMD_SET_MESSAGE_INTERVAL",
 }

@@ -210,6 +210,12 @@ def item_position(it: Item, home: Home | None) -> tuple[float, float, float]:
     return home.x + north, home.y + east, home.z - up
 
 
+def home_request(target_system: int, target_component: int):
+    """MAV_CMD_REQUEST_MESSAGE for HOME_POSITION (where global waypoints are placed from)."""
+    return mavlink.MAVLink_command_long_message(target_system, target_component, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
+                                                float(mavlink.MAVLINK_MSG_ID_HOME_POSITION), 0, 0, 0, 0, 0, 0)
+
+
 @dataclass
 class MissionPath:
     waypoints: list[tuple[float, float]]  # local NED (x, y) [m]
@@ -306,9 +312,7 @@ class MissionSource:
 
     def _ask_home(self, t: float, acts: Actions) -> None:
         self._t_home_asked = t
-        acts.send.append(mavlink.MAVLink_command_long_message(
-            *self.ids[:2], mavlink.MAV_CMD_REQUEST_MESSAGE, 0, float(mavlink.MAVLINK_MSG_ID_HOME_POSITION),
-            0, 0, 0, 0, 0, 0))
+        acts.send.append(home_request(*self.ids[:2]))
 
     def request(self, t: float, why: str) -> Actions:
         acts = Actions()

@@ -55,6 +55,7 @@ class Inputs:
     engaged: bool
     mission_seq: int = -1  # the autopilot's current mission item (a speed item may reset the limit)
     v_cruise: float = math.nan  # the autopilot's own auto-mode cruise speed (its parameter), NaN: not heard
+    v_mission: float = math.nan  # the speed the mission's own speed items set at this item, NaN: not known
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     late_s: float = 0.0  # the daemon's own worst lateness, beyond t_react's budget, of the last 10 s (Timeliness)
@@ -351,15 +352,19 @@ class Supervisor:
         # the limit: send it when it changed, after mode changes/take-off, and every 5 s
         if i.limit_applies:
             self._no_limit_mode_warned = None
-            # DO_CHANGE_SPEED sets the speed: a governor sends no more than the mission's own cruise
-            capped = self.mode == "governor" and 0 < i.v_cruise < v_limit
-            v_send = i.v_cruise if capped else v_limit
+            # DO_CHANGE_SPEED sets the speed: a governor sends no more than the mission's own speed — the speed its
+            # own speed item set at this item where the daemon knows the mission's items (calibration.legs), which
+            # is the speed the autopilot flies there (PX4 Navigator, ArduPilot Auto), else the cruise parameter
+            v_own = i.v_mission if i.v_mission > 0 else i.v_cruise  # (NaN: not known)
+            capped = self.mode == "governor" and 0 < v_own < v_limit
+            v_send = v_own if capped else v_limit
             changed = self._last_sent is None or abs(v_send - self._last_sent) > max(0.05, 0.02 * v_send)
             if changed or i.t - self._last_sent_t > 5.0:
                 d.send_speed = max(v_send, MIN_SPEED_CMD)
                 if changed:
                     d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason} |
-                                     ({"sent": v_send, "cruise": i.v_cruise} if capped else {})))
+                                     ({"sent": v_send, "cruise": i.v_cruise} if capped else {}) |
+                                     ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
                 self._last_sent, self._last_sent_t = v_send, i.t
         elif self._no_limit_mode_warned != i.mode:
             self._no_limit_mode_warned = i.mode

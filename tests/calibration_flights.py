@@ -1,10 +1,18 @@
 """Lock-step calibration flights for the issue-15 tests: a "real aircraft" (a vehicle that differs from its
-vehicle file) flies `contract-guard calibrate plan`'s mission in the real SITL, the daemon on the link in
-shadow mode, and the ground station's side of the link is written as a MAVLink `.tlog` (the autopilot's
-stream and the ground station's commands, each packet stamped, as MAVProxy writes it).
+vehicle file) flies `contract-guard calibrate plan`'s mission in the real SITL, the daemon on the link, and the
+ground station's side of the link is written as a MAVLink `.tlog` (the autopilot's stream, the ground station's
+commands and the daemon's messages as a router forwards them, each packet stamped, as MAVProxy writes it).
 
-The plan's hold legs are flown as the plan says: at `hold_before_m` before the leg's waypoint the ground
-station commands Hold (PX4 Hold / ArduPilot Brake), waits `rest_s` at rest and resumes the mission.
+The plan's hold legs are flown as the plan says: at `hold_before_m` before the leg's waypoint Hold (PX4 Hold /
+ArduPilot Brake), `rest_s` at rest, the mission again. `holds="daemon"` (the default): the daemon commands them,
+in governor mode with `calibration.legs` (companion/calibration_holds.py), its sensor rated at `SENSOR_RANGE_M`
+(open space: the stop contract's limit is then the plan's top speed, and the governor flies the plan's own speeds).
+The ground station plays the operator: after a safety Hold of the daemon's own (at the plan's top speed a tail
+wind carries the ground speed past the contract's top, 8 m/s for the X500: "speed limit not in force") it resumes
+the mission once the vehicle has been at rest 2 s (`resumed_after_daemon_holds`: when, why). `holds="none"`: the
+daemon in governor mode without `calibration.legs` (a negative control: nothing commands the holds).
+`holds="gcs"`: the daemon in shadow mode and the ground station commands them (the way before the daemon could).
+A plan without hold legs (the held-out flights) is flown with the daemon in shadow mode.
 """
 
 from __future__ import annotations
@@ -25,6 +33,7 @@ TRUTH_DELAY_S = 0.06  # … and a 60 ms larger actuator delay than its vehicle f
 # with its inner loops tuned for it: the file's attitude/rate gains at 60 ms more delay diverge (checked: rolls
 # past 45° within 3 s of hover in 5 m/s wind); att_p × 0.6, rate_p × 0.5 fly (stable to about 80 ms)
 TRUTH_INNER = {"att_p": 0.6, "rate_p": 0.5}
+SENSOR_RANGE_M = 40.0  # the calibration flight's forward sensor (a lidar's range): V_stop covers 8 m/s at E_tr 3 m
 
 
 class TlogTee:
@@ -48,6 +57,13 @@ class TlogTee:
 
         link.client_recv = tee_recv
         rig.gcs.file.write = tee_send  # the ground station's own commands
+        daemon_write = rig.conn._write
+
+        def tee_daemon(data):  # the daemon's, as a router forwards them to the ground station
+            self._write(data)
+            return daemon_write(data)
+
+        rig.conn._write = tee_daemon
         self._send = send
 
     def _write(self, data: bytes) -> None:
@@ -68,29 +84,57 @@ def truth_sim_kwargs(truth=None, actuator_delay_s: float = TRUTH_DELAY_S) -> dic
 
 def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str = "px4", seed: int = 0,
                     wind_m_s: float | None = None, vehicle: str = "x500", max_s: float = 900.0,
-                    log_dir: Path | None = None, actuator_delay_s: float = TRUTH_DELAY_S) -> dict:
-    """Fly the plan; returns the holds commanded (t, speed), when each mission item became current (t, seq), the
-    flight time, whether the plan was flown to its end, and, with `log_dir`, the path of the autopilot's own log
-    the SITL wrote (PX4 ULog / ArduPilot DataFlash). Times are the SITL's (the `.tlog`'s stamps minus EPOCH_US)."""
-    sc = {"name": "calibration", "vehicle": vehicle, "seed": seed, "route": {"mission": str(plan_path)},
-          "wind": {} if wind_m_s is None else {"mean_m_s": wind_m_s, "from_deg": 90.0}}
-    rig = Rig(sc, personality, config={"mode": "shadow", "engage": False}, seed=seed,
-              sim_kwargs=truth_sim_kwargs(truth, actuator_delay_s), log_dir=log_dir)
-    tee = TlogTee(rig, tlog)
+                    log_dir: Path | None = None, actuator_delay_s: float = TRUTH_DELAY_S, holds: str = "daemon",
+                    pilot=None) -> dict:
+    """Fly the plan; returns the holds commanded (t, speed, seq; by the daemon: from its `calibration_hold`
+    events), when each mission item became current (t, seq), the flight time, whether the plan was flown to its
+    end, the daemon's events (`events`, holds="daemon"), and, with `log_dir`, the path of the autopilot's own log
+    the SITL wrote (PX4 ULog / ArduPilot DataFlash). Times are the SITL's (the `.tlog`'s stamps minus EPOCH_US).
+    `pilot(rig) -> bool`: called every cycle (a test's pilot: its own mode changes); True ends the flight."""
+    if holds not in ("daemon", "gcs", "none"):
+        raise ValueError(f"holds must be 'daemon', 'gcs' or 'none', not {holds!r}")
     mp = read_mission(plan_path)
-    holds = {leg["mission_seq_plan"] if personality == "px4" else leg["mission_seq_waypoints"]: leg
-             for leg in mp.extra.get("legs", []) if leg["kind"] == "hold"}
+    legs = {leg["mission_seq_plan"] if personality == "px4" else leg["mission_seq_waypoints"]: leg
+            for leg in mp.extra.get("legs", []) if leg["kind"] == "hold"}
+    by_daemon = holds == "daemon" and bool(legs)
+    governor = by_daemon or holds == "none"
+    sc = {"name": "calibration", "vehicle": vehicle, "seed": seed, "route": {"mission": str(plan_path)},
+          "wind": {} if wind_m_s is None else {"mean_m_s": wind_m_s, "from_deg": 90.0},
+          **({"sensor": {"max_range_m": SENSOR_RANGE_M}} if governor else {})}
+    config = {"mode": "governor", "engage": True} if governor else {"mode": "shadow", "engage": False}
+    if by_daemon:
+        config["calibration"] = {"legs": str(plan_path)}
+    rig = Rig(sc, personality, config=config, seed=seed, sim_kwargs=truth_sim_kwargs(truth, actuator_delay_s),
+              log_dir=log_dir)
+    tee = TlogTee(rig, tlog)
     ad = adapter_for(personality)
     ap = rig.sim.autopilot
     done, log, items = set(), [], []
     n_items = len(ap.mission)
+    cal = rig.daemon.calibration
+    resumed, rest = [], {"since": None}
+
+    def flown() -> bool:
+        return (len(cal.done) == len(cal.by_seq)) if by_daemon else holds == "none" or done == set(legs)
 
     def watch(r: Rig) -> bool:
         seq = ap.mission_seq
         if not items or items[-1]["seq"] != seq:
             items.append({"t": r.sim.time_s, "seq": seq})
-        leg = holds.get(seq)
-        if leg is not None and seq not in done and ap.mode == "mission":
+        if pilot is not None and pilot(r):
+            return True
+        sup = r.daemon.cycle.sup
+        if governor and sup.state == "holding":  # the operator decides: on with the plan
+            if ap.traj.speed_xy < 0.1:
+                rest["since"] = r.sim.time_s if rest["since"] is None else rest["since"]
+                if r.sim.time_s - rest["since"] >= 2.0:
+                    resumed.append({"t": r.sim.time_s, "after": list(sup._held_for)})
+                    r.command(mav.MAV_CMD_DO_SET_MODE, *ad.set_mode_params("mission", True))
+                    rest["since"] = None
+            else:
+                rest["since"] = None
+        leg = legs.get(seq)
+        if holds == "gcs" and leg is not None and seq not in done and ap.mode == "mission":  # the ground station's
             it = ap.mission[seq]
             d = math.hypot(*(ap.pos[:2] - it.local[:2]))
             if d <= leg["hold_before_m"]:
@@ -99,15 +143,24 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
                 log.append({"t": r.sim.time_s, "speed_m_s": leg["speed_m_s"], "seq": seq})
                 r.run(leg["rest_s"] + 3.0 * leg["speed_m_s"] / 3.0 + 1.0)
                 r.command(mav.MAV_CMD_DO_SET_MODE, *ad.set_mode_params("mission", True))
-        return seq >= n_items - 1 and ap.mode in ("hold", "mission") and ap.traj.speed_xy < 0.05 and done == set(holds)
+        return seq >= n_items - 1 and ap.mode in ("hold", "mission") and ap.traj.speed_xy < 0.05 and flown()
 
     fly_mission(rig, max_s, until=watch)
-    finished = ap.mission_seq >= n_items - 1 and done == set(holds)
+    finished = ap.mission_seq >= n_items - 1 and flown()
     rig.run(2.0)
     tee.close()
     own = rig.close_log() if log_dir is not None else None
+    events = rig.log.events if governor else []
+    if by_daemon:
+        log = [{"t": e["t"], "speed_m_s": e["leg_speed_m_s"], "seq": e["seq"], "ground_speed_m_s": e["speed_m_s"],
+                "distance_m": e["distance_m"]} for e in events if e["event"] == "calibration_hold"
+               and e["status"] == "commanded"]
     return {"holds": log, "items": items, "finished": finished, "flight_s": rig.sim.time_s,
-            "autopilot_log": None if own is None else str(own),
+            "autopilot_log": None if own is None else str(own), "holds_by": "daemon" if by_daemon else holds if legs else None,
+            "events": events, "resumed_after_daemon_holds": resumed,
+            # the autopilot's own waypoints (truth: where the SITL resolved each item), by its sequence number
+            "waypoints_local": {k: [float(it.local[0]), float(it.local[1])] for k, it in enumerate(ap.mission)
+                                if it.local is not None and all(map(math.isfinite, it.local[:2]))},
             "collisions": len(rig.truth.get("collisions", [])) if isinstance(rig.truth, dict) else None}
 
 
