@@ -1,6 +1,7 @@
 """What a campaign compares the contract with: the autopilots' own avoidance laws flown as governors, and
-negative controls of our own. Pure (no I/O); never an on-board default — `companion/flights.py` installs a
-law on a daemon's supervisor (`Supervisor.law`) or wraps its table, for a campaign or a test only.
+negative controls of our own. Pure (no I/O); never an on-board default. Each is a speed policy
+(companion/supervisor.py `ContractSpeed` says what one has), passed to the daemon's supervisor
+(`Rig(policy=...)`, `Daemon(policy=...)`) for a campaign or a test only.
 
 A law acts as a governor through the same daemon: each cycle it turns the same MAVLink-derived sensor data
 (`Inputs`: the nearest obstacle on the path, the sensor's range, the ground speed, sensor health) into a
@@ -34,9 +35,11 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from contracts.table import Omega
+
+from .supervisor import ContractSpeed
 
 MIN_SPEED = 0.2  # the supervisor's MIN_SPEED_CMD: a limit below it is a Hold
 
@@ -88,7 +91,13 @@ class Px4CollisionPrevention:
     tilt: float = 0.0  # the tilt Ω carries (for the log only)
     name: str = "px4_cp"
 
-    def omega(self, i) -> Omega:
+    stop_hold = False  # the law is the whole answer to an obstacle
+    inflate_e_tr = True
+
+    def take(self, sample) -> None:
+        pass
+
+    def omega(self, i, sup=None) -> Omega:
         if not i.dod.covered_by or not math.isfinite(i.ground_speed):  # no data: no motion (then Loiter)
             return _omega(0.0, self.tilt, "px4 collision prevention: no data")
         in_range = math.isfinite(i.dod.obstacle_m)
@@ -109,7 +118,13 @@ class ArduPilotAcAvoid:
     tilt: float = 0.0
     name: str = "ac_avoid"
 
-    def omega(self, i) -> Omega:
+    stop_hold = False
+    inflate_e_tr = True
+
+    def take(self, sample) -> None:
+        pass
+
+    def omega(self, i, sup=None) -> Omega:
         if not i.dod.covered_by:  # proximity not healthy: AC_Avoid returns without limiting
             return _omega(self.cruise_m_s, self.tilt, "ac_avoid: proximity unhealthy, not limiting")
         d = min(i.dod.obstacle_m, i.dod.d_od)
@@ -121,42 +136,30 @@ def _omega(v: float, tilt: float, reason: str) -> Omega:
     return Omega(contract="stop", v_max=v, tilt=tilt, e_tr=0.0, v_safe=v, gamma=0.0, reason=reason)
 
 
-# ----------------------------------------------------------------------------- negative controls (table wrappers)
+# ----------------------------------------------------------------------------- negative controls (speed policies)
 
-class Scaled:
-    """The same table with every contract speed raised by a factor (a negative control only)."""
+class Scaled(ContractSpeed):
+    """The contract with every speed raised by a factor `k` (a negative control only)."""
 
-    def __init__(self, table, k):
-        self._t, self._k = table, k
-
-    def __getattr__(self, name):
-        return getattr(self._t, name)
-
-    def omega(self, *a, **kw):
-        om = self._t.omega(*a, **kw)
-        return replace(om, v_max=om.v_max * self._k, v_safe=om.v_safe * self._k)
+    def __init__(self, k: float):
+        super().__init__(k)
+        self.name = f"contract x {k:g}"
 
 
-class WithoutEtr:
-    """The same table with no tracking-error budget (a negative control only): Ω at E_tr = 0 — neither
-    the measured error nor E_tr_pred — so V_max is the contract's for a perfectly tracking vehicle.
+class WithoutEtr(ContractSpeed):
+    """The contract with no tracking-error budget (a negative control only): Ω at E_tr = 0 — neither the measured
+    error nor E_tr_pred — so V_max is the contract's for a perfectly tracking vehicle; and no E_tr in the keep-out
+    discs either (they are R_obst + r_body alone)."""
 
-    The keep-out discs' inflation is not the table's: the supervisor computes it (`Supervisor.e_tr_virtual`,
-    carried by `Decision.e_tr_virtual` and `Decision.discs`); `remove_from(daemon)` makes it 0 there too,
-    so the discs are R_obst + r_body alone."""
+    name = "contract without E_tr"
+    inflate_e_tr = False
 
-    @staticmethod
-    def remove_from(daemon) -> None:
-        """No E_tr in the virtual obstacle either (the supervisor's inflation of the discs)."""
-        daemon.cycle.sup.e_tr_virtual = lambda i, d: 0.0
+    def __init__(self):
+        super().__init__()
+        self._bare = None
 
-    def __init__(self, table):
-        self._t = table
-        self._bare = copy.copy(table)
-        self._bare.e_pred = None  # only in this copy: Ω without E_tr_pred
-
-    def __getattr__(self, name):
-        return getattr(self._t, name)
-
-    def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None):
-        return self._bare.omega(d_od, r_obst, 0.0, thrust_ratio, contract=contract, tilt=tilt)
+    def omega(self, i, sup) -> Omega:
+        if self._bare is None:
+            self._bare = copy.copy(sup.table)
+            self._bare.e_pred = None  # only in this copy: Ω without E_tr_pred
+        return self._bare.omega(i.dod.d_od, i.r_obst, 0.0, i.thrust_ratio, contract=sup.contract)

@@ -195,17 +195,18 @@ class CalibrationHolds:
         self.done.add(self.leg.number)
         self.leg, self.phase, self._t_rest = None, "waiting", None
 
-    def step(self, t: float, *, mode: str, mission_seq: int, x: float, y: float, speed: float, telemetry_ok: bool,
-             active: bool, safety: str | None) -> Actions:
+    def step(self, t: float, *, mode: str, taken_over: bool, mission_seq: int, x: float, y: float, speed: float,
+             telemetry_ok: bool, active: bool, safety: str | None) -> Actions:
         """One cycle. `active`: the supervisor is active (engaged, flying, commanding limits); `safety`: why the
-        daemon itself holds or is in failsafe this cycle (None: it does not)."""
+        daemon itself holds or is in failsafe this cycle (None: it does not); `taken_over`: someone else changed
+        the mode this cycle (the mode authority's judgement): the leg is abandoned, never fought."""
         acts = Actions()
         if self.leg is not None:
             if safety is not None or not active:
                 self._end(acts, "abandoned", reason=f"the daemon's own {'hold' if safety else 'stand-by'}: "
                                                     f"{safety or 'not active'}")
             else:
-                self._fly(t, acts, mode, speed)
+                self._fly(t, acts, mode, taken_over, speed)
             return acts
         leg = self.by_seq.get(mission_seq)
         if leg is None or leg.number in self.done or not active or safety is not None or mode != "mission" \
@@ -221,21 +222,18 @@ class CalibrationHolds:
             self._event(acts, "commanded", speed_m_s=speed, distance_m=d, hold_before_m=leg.hold_before_m)
         return acts
 
-    def _fly(self, t: float, acts: Actions, mode: str, speed: float) -> None:
+    def _fly(self, t: float, acts: Actions, mode: str, taken_over: bool, speed: float) -> None:
+        if taken_over:
+            self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")
+            return
         if self.phase == "commanded":
             if mode == "hold":
                 self.phase, self._t = "holding", t  # (and at rest from now, if it is)
-            elif mode != "mission":
-                self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")
-                return
             else:
                 if t - self._t > TAKE_S:
                     self._end(acts, "abandoned", reason=f"the autopilot did not take Hold in {TAKE_S:g} s")
                 return
         if self.phase == "holding":
-            if mode != "hold":
-                self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")
-                return
             if self._t_rest is None and speed < REST_SPEED_M_S:
                 self._t_rest = t
             at_rest = self._t_rest is not None
@@ -249,7 +247,5 @@ class CalibrationHolds:
             rested = self._rested
             self._end(acts, "resumed", rest_s=rested, at_rest=rested is not None,
                       **({} if rested is not None else {"reason": f"not at rest within {REST_TIMEOUT_S:g} s"}))
-        elif mode != "hold":
-            self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")
         elif t - self._t > TAKE_S:
             self._end(acts, "abandoned", reason=f"the autopilot did not take the mission in {TAKE_S:g} s")

@@ -346,26 +346,18 @@ class _Trace:
         return over and t >= self.hold_on_until
 
 
-def _law(arm: str, s: dict, spec: CampaignSpec):
-    from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention
+def _policy(arm: str, s: dict, spec: CampaignSpec):
+    """The speed policy an arm flies (None: the contract's own): a baseline law, or a negative control."""
+    from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention, Scaled, WithoutEtr
 
     if arm == "px4_cp":
         return Px4CollisionPrevention(cp_dist_m=spec.px4_cp_dist_m)
     if arm == "ac_avoid":
         return ArduPilotAcAvoid(cruise_m_s=s["cruise_m_s"])
-    return None
-
-
-def _wrapper(arm: str):
-    from .baselines import Scaled, WithoutEtr
-
     m = ARM_RE.match(arm)
     if m is None or m.group(2) is None:
         return None
-    if m.group(2) == "_no_etr":
-        return WithoutEtr
-    k = float(m.group(3))
-    return lambda t: Scaled(t, k)
+    return WithoutEtr() if m.group(2) == "_no_etr" else Scaled(float(m.group(3)))
 
 
 def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
@@ -375,16 +367,12 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     s, arm = flight_of(spec, i)
     mode = arm_mode(arm)
     rig = Rig(scenario_dict(s, arm), s["personality"], config=daemon_config(s, arm, spec.nav_margin),
-              table_wrapper=_wrapper(arm), law=_law(arm, s, spec))
+              policy=_policy(arm, s, spec))
     # a fault shortly before or after the arrival is still given FAULT_WINDOW_S to be detected (the flight
     # hovers at the end): ending at arrival counted 0.1–2 s-old faults as missed (issue 16's fault matrix)
     trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
     if arm == "no_guard":
         rig.daemon_on = False
-    if ARM_RE.match(arm) and (ARM_RE.match(arm).group(2) or "") == "_no_etr":
-        from .baselines import WithoutEtr
-
-        WithoutEtr.remove_from(rig.daemon)  # and none in the keep-out discs
     seconds = spec.duration_s
     if mode == "offboard":
         engage_and_fly(rig, seconds, trace)

@@ -322,12 +322,21 @@ def cmd_run(args) -> int:
     log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect,
               controller_contract=controller_contract(cfg, table), nav_margin=cfg.contract.nav_margin)
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
+
+    def should_stop() -> bool:  # said once, before the shutdown's own Hold (stop means stop: daemon.py)
+        if stop["now"] and "said" not in stop:
+            stop["said"] = True
+            log.say(f"stopping ({stop['signal']})", 5)
+            notifier.stopping()
+        return stop["now"]
+
     try:
-        daemon.run(lambda: stop["now"], notifier)
+        daemon.run(should_stop, notifier)
     finally:
-        log.say(f"stopping ({stop.get('signal', 'loop ended')})", 5)
-        notifier.stopping()
-        daemon.shutdown()
+        if "said" not in stop:
+            log.say("stopping (loop ended)", 5)
+            notifier.stopping()
+        daemon.finish()
         log.event(None, "stop", counters=daemon.counters.__dict__)
         log.close()
         log.say(log.summary(daemon.counters))

@@ -57,6 +57,12 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return NOTICE, f"autopilot mode {f['from']} → {f['to']} (not by us)"
     if name == "param_set":
         return NOTICE, f"parameter {f['param']}: {f['old']:g} → {f['new']:g}"
+    if name == "engage_refused":
+        return ERR, f"engage REFUSED: {f['reason']}"
+    if name == "shutdown" and f["hold"]:
+        return (WARNING, "stopping in flight: Hold commanded, the autopilot shows it") if f["confirmed"] else \
+            (ERR, f"stopping in flight: Hold commanded, NOT confirmed in {f['waited_s']:.1f} s: the autopilot's own "
+                  "companion-loss failsafe decides now")
     if name == "param_refused":
         return WARNING, f"parameter {f['param']} = {f['value']:g} from system {f['source']} refused: {f['why']}"
     if name == "offboard":
@@ -95,9 +101,12 @@ class ConsoleLog:
         self.counts[name] += 1
         if name == "violation_start":
             self.counts[f"violation:{fields.get('subsystem')}"] += 1
+        if name == "shutdown" and fields.get("hold"):
+            self.counts["shutdown_hold"] += 1
         line = event_line(name, fields)
         quiet_now = (name == "state_change" and fields.get("to") == "failsafe" and not self.counts["link"]  # never up
-                     or line is not None and line[1] == self._last_line)  # e.g. the same limit re-sent
+                     or line is not None and line[1] == self._last_line  # e.g. the same limit re-sent
+                    and name != "engage_refused")  # (a refusal is said each time it is asked)
         if line is not None and not quiet_now:
             self.say(line[1], line[0])
             self._last_line = line[1]
@@ -123,7 +132,7 @@ class ConsoleLog:
         by = ", ".join(f"{k.split(':', 1)[1]} {n}" for k, n in sorted(self.counts.items()) if k.startswith("violation:"))
         return (f"stopped after {self.clock() - self.t0:.0f} s: {c.messages} messages ({c.bad_packets} malformed, "
                 f"{c.implausible} implausible), {c.commands_sent} commands, "
-                f"{self.counts['failsafe'] + self.counts['hold_trigger']} holds, violations: {by or 'none'}, "
+                f"{self.counts['failsafe'] + self.counts['hold_trigger'] + self.counts['shutdown_hold']} holds, violations: {by or 'none'}, "
                 f"{c.loop_errors} loop errors, {c.log_errors} log errors")
 
 

@@ -1,10 +1,11 @@
-"""The daemon's pure cycle: samples → estimators (E_tr, D_od, thrust_ratio, nav health) → supervisor
-(Γ, Ω, the keep-out discs) → offboard guidance. No I/O: `take(sample)` feeds it, `step(...)` returns the
-`Inputs` it judged and the `Decision` (what to command, log and say), which MAVLink-out carries out.
+"""The daemon's pure cycle: samples → estimators (E_tr, D_od, thrust_ratio, nav health) → mode authority (whose
+mode is it) → supervisor (Γ, Ω, the keep-out discs) → the actors that may want a mode (offboard guidance, the
+calibration plan's hold legs, the shutdown) → the mode authority's arbitration → one `Outbox`. No I/O:
+`take(sample)` feeds it, `step(...)` returns the `Inputs` it judged, the supervisor's frozen `Decision` and the
+cycle's `Outbox` (everything to send, log and say), which MAVLink-out applies in one call.
 
-It also keeps what the decisions depend on between cycles: which mode the daemon itself commanded (so a
-mode change by someone else is told apart), and whether the vehicle was first seen flying (a restart in
-flight never engages until asked anew).
+It also keeps what the decisions depend on between cycles: whether the vehicle was first seen flying (a restart
+in flight never engages until asked anew), and the shutdown's progress (stop means stop).
 """
 
 from __future__ import annotations
@@ -17,14 +18,24 @@ from contracts.online_planner import load_solver, offboard_cap
 from contracts.stop import braking_decel, stop_jerk
 from contracts.table import ContractTable
 
+from .authority import HOLD, ModeAuthority, ModeRequest, Requester
+from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
 from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
-from .offboard import OffboardController
-from .samples import AutopilotParam, Heading, Implausible, NavStatus, PathTarget, Position, Scan, Throttle
-from .supervisor import BRAKE_STOP_CAUSES, Decision, Inputs, Supervisor
+from .mission import Home
+from .offboard import OffboardActions, OffboardController
+from .outbox import Outbox
+from .samples import (AutopilotParam, Heading, Implausible, MissionMessage, NavStatus, PathTarget, Position, Scan,
+                      Throttle)
+from .states import BRAKE_STOP_CAUSES, FINISHED, OffboardState, State
+from .supervisor import Decision, Inputs, Supervisor
 from .telemetry import Telemetry
+
+SHUTDOWN_WAIT_S = 1.0  # stop means stop: the shutdown Hold is re-sent until the autopilot shows it, this long at most
+SHUTDOWN_RESEND_S = 0.25
+RECHECK_FAILED = "start-up checks failed in flight"  # a failed re-check while engaged in flight: Hold
 
 
 def e_tr_floor(cfg: Config, table: ContractTable) -> float:
@@ -51,8 +62,9 @@ CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, S
 
 
 class Cycle:
-    def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str, planning):
-        """`planning`: a factory of the planning runner (one per guidance: inline or on a worker thread)."""
+    def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str, planning, policy=None):
+        """`planning`: a factory of the planning runner (one per guidance: inline or on a worker thread);
+        `policy`: the speed policy flown (companion/supervisor.py ContractSpeed by default)."""
         self.cfg, self.table, self.adapter, self._planning = cfg, table, adapter, planning
         veh = table.vehicle
         self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s)
@@ -63,7 +75,8 @@ class Cycle:
         self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
         self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
-                              late_hold_s=cfg.timeouts.cycle_late_s)
+                              late_hold_s=cfg.timeouts.cycle_late_s, policy=policy)
+        self.authority = ModeAuthority(adapter.hold_mode())
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":
             if cfg.route is None:
@@ -75,12 +88,14 @@ class Cycle:
                 guidance = OffboardGuidance(route, planning=planning())
             self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
-        self.commanded_mode: tuple[str, float, bool] | None = None  # (mode, when, seen in a heartbeat yet)
-        self.stopping = False  # the daemon is shutting down: stop flying
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
-        # the speed the mission's own speed items set at an item (seq → m/s, NaN: unknown): the calibration plan's
-        self.mission_speed = None
+        # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
+        self.calibration: CalibrationHolds | None = None
+        if cfg.calibration is not None:
+            self.calibration = CalibrationHolds(read_legs(cfg.calibration.legs), adapter.mission_item0_is_home)
+        self.shutdown: Shutdown | None = None  # the daemon is stopping (`stop`)
         self._was_streaming = False
+        self._engaged_in_flight = False  # last cycle: engaged, flying, not shadow (a failed re-check then holds)
 
     # ------------------------------------------------------------------ samples
     def take(self, s) -> None:
@@ -104,24 +119,30 @@ class Cycle:
             self.v_cruise = v if 0 < v < 100 else math.nan  # nonsense is not a cruise speed
         elif isinstance(s, Implausible) and s.kind not in SENSOR_MSGS:  # a sensor's: its scan covers nothing
             self.nav.fault(s.t, f"{s.kind}: {s.why}")
+        elif isinstance(s, MissionMessage) and self.calibration is not None and s.msg.get_type() == "HOME_POSITION":
+            self.calibration.take_home(Home.from_msg(s.msg))  # the hold legs' waypoints are placed from it
+        self.sup.policy.take(s)
 
     def engage_requested(self) -> None:
         """CG_ENGAGE set anew: a restart in flight may engage now, and offboard may be entered again."""
         self.first_seen_in_air = False
-        if self.offboard is not None and self.offboard.state in ("done", "stood_down", "held"):
-            self.offboard.state = "off"
+        if self.offboard is not None and self.offboard.state in FINISHED:
+            self.offboard.state = OffboardState.OFF
         self.sup.latched = False
 
-    def hold_commanded(self, t: float) -> None:
-        self.commanded_mode = (self.adapter.hold_mode(), t, False)
+    def stop(self, t: float) -> None:
+        """The daemon is stopping: from the next cycle on, stop flying (a shutdown Hold if engaged in flight)."""
+        if self.shutdown is None:
+            self.shutdown = Shutdown(t)
 
-    def shutdown(self, t: float) -> bool:
-        """Stop flying; True when the autopilot must be handed over to Hold (offboard was streaming)."""
-        if self.offboard is not None and self.offboard.streaming:
-            self.hold_commanded(t)
-            self.stopping = True
-            return True
-        return False
+    def failed_hold(self, t: float) -> Outbox:
+        """A cycle that raised: the failsafe Hold, through the authority, as an outbox of its own."""
+        return Outbox(mode=self.authority.arbitrate(t, [ModeRequest(HOLD, Requester.FAILSAFE)]))
+
+    @property
+    def mission_speed(self):
+        """The speed the mission's own speed items set at an item (seq → m/s, NaN: unknown): the calibration plan's."""
+        return self.calibration.mission_speed if self.calibration is not None else None
 
     # ------------------------------------------------------------------ the cycle
     def inputs(self, t: float, tel: Telemetry, r_obst: float, engage: bool, startup_ok: bool | None,
@@ -140,39 +161,89 @@ class Cycle:
         thrust_ratio, _ = self.thrust.value(t)
         discs, width = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, r_obst)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
-        by_daemon = False
-        if self.commanded_mode is not None:
-            want, t_cmd, seen = self.commanded_mode
-            if mode == want:
-                self.commanded_mode, by_daemon = (want, t_cmd, True), True
-            elif seen or t - t_cmd > 3.0:  # left it since, or never took it (heartbeats are 1 Hz)
-                self.commanded_mode = None
+        self.view = view = self.authority.observe(t, mode, link_ok)
         if self.first_seen_in_air is None and tel.landed_state:
             self.first_seen_in_air = tel.in_air
         engaged = (engage and startup_ok is not False and self.first_seen_in_air is False and route_ready
-                   and not (self.offboard is not None and self.offboard.state in ("done", "stood_down")))
+                   and not (self.offboard is not None and self.offboard.state in (OffboardState.DONE,
+                                                                                   OffboardState.STOOD_DOWN)))
         applies = self.adapter.limit_applies(mode) or (self.offboard is not None and mode == "offboard")
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
-                      in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=by_daemon,
+                      in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=view.by_daemon,
+                      mode_changed=view.event is not None, taken_over=view.taken_over,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
                       v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s,
                       v_mission=self.mission_speed(tel.mission_seq) if self.mission_speed is not None else math.nan)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
-             mission_route: Route | None = None, route_ready: bool = True) -> tuple[Inputs, Decision]:
-        """`mission_route`: the route downloaded from the autopilot, if the route comes from its mission."""
+             mission_route: Route | None = None, route_ready: bool = True, protocol=None
+             ) -> tuple[Inputs, Decision, Outbox]:
+        """`mission_route`: the route downloaded from the autopilot, if the route comes from its mission;
+        `protocol`: what the daemon's protocols want sent this cycle (companion/mission.py `Actions`)."""
         i = self.inputs(t, tel, r_obst, engage, startup_ok, route_ready)
         d = self.sup.step(i)
+        requests, events, texts = [], [], []
+        messages = list(protocol.send) if protocol is not None else []
+        if protocol is not None:
+            events += protocol.events
+            texts += protocol.texts
+        if self.view.event is not None:
+            events.append(self.view.event)
+        acts, ended, fail_hold = None, False, d.hold
         if self.offboard is not None and i.link_ok:
-            self._fly_offboard(t, tel, i, d, startup_ok, mission_route)  # may defer the Hold (a braking stop)
-        if d.hold:
-            self.hold_commanded(t)
-        return i, d
+            acts, d, braking = self._fly_offboard(t, tel, i, d, startup_ok, mission_route)
+            fail_hold = d.hold and not braking  # a fail-safe the daemon flies out itself: its Hold comes at rest
+            if acts.hold:
+                requests.append(ModeRequest(HOLD, Requester.OFFBOARD_STOP))
+            if acts.enter:
+                requests.append(ModeRequest("offboard", Requester.OFFBOARD_ENTRY))
+            ended = not self.offboard.streaming and self._was_streaming
+            self._was_streaming = self.offboard.streaming
+            if ended:
+                self.etr.reset()  # our setpoints are no longer the commanded path
+        events += d.events
+        texts += d.statustext
+        if acts is not None:
+            events += acts.events
+        engaged_flying = i.engaged and i.armed and i.in_air and self.cfg.mode != "shadow"
+        if startup_ok is False and self._engaged_in_flight and i.link_ok:  # a failed re-check in flight: Hold
+            requests.append(ModeRequest(HOLD, Requester.FAILSAFE))
+            events.append(("failsafe", {"cause": RECHECK_FAILED, "action": "hold"}))
+            texts.append((2, f"CG: {RECHECK_FAILED}: holding"))
+        self._engaged_in_flight = engaged_flying
+        if self.calibration is not None:
+            self._calibration(t, tel, i, d, requests, events, texts)
+        if self.shutdown is not None:
+            self.shutdown.step(t, i, d, self.authority, engaged_flying, requests, events, texts)
+        if fail_hold:
+            requests.append(ModeRequest(HOLD, Requester.FAILSAFE))
+        cmd = self.authority.arbitrate(t, requests)
+        sp = acts.setpoint if acts is not None else None
+        if sp is not None:
+            self.etr.command(t, float(sp.p[0]), float(sp.p[1]))
+        speed = d.send_speed if self.cfg.mode == "governor" else None
+        return i, d, Outbox(cmd, speed, tuple(messages), sp, ended, tuple(events), tuple(texts))
+
+    def _calibration(self, t: float, tel: Telemetry, i: Inputs, d: Decision, requests, events, texts) -> None:
+        """The calibration plan's hold legs (companion/calibration_holds.py): Hold, at rest `rest_s`, the mission.
+        A hold or failsafe of the supervisor's own this cycle wins (the leg is abandoned)."""
+        cal = self.calibration
+        safety = (d.hold_causes[0] if d.hold_causes else "hold") if d.hold else \
+            (f"state {d.state}" if d.state in (State.HOLDING, State.FAILSAFE) else None)
+        acts = cal.step(t, mode=i.mode, taken_over=i.taken_over, mission_seq=tel.mission_seq, x=tel.x, y=tel.y,
+                        speed=i.ground_speed, telemetry_ok=i.telemetry_ok, active=d.state == State.ACTIVE,
+                        safety=safety)
+        if acts.command is not None:
+            requests.append(ModeRequest(HOLD if acts.command == "hold" else acts.command, Requester.CALIBRATION))
+        events += acts.events
+        texts += acts.texts
 
     def _fly_offboard(self, t: float, tel: Telemetry, i: Inputs, d: Decision, startup_ok: bool | None,
-                      mission_route: Route | None) -> None:
-        """Offboard mode: enter, fly the guidance's setpoints round the keep-out discs, leave (DESIGN.md §5)."""
+                      mission_route: Route | None) -> tuple[OffboardActions, Decision, bool]:
+        """Offboard mode: enter, fly the guidance's setpoints round the keep-out discs, leave (DESIGN.md §5). Its
+        actions, the decision (latched when offboard enters its fail-safe hold) and whether the supervisor's Hold
+        is flown as a braking stop (the Hold then comes at rest, asked by offboard)."""
         off, veh = self.offboard, self.table.vehicle
         if mission_route is not None and not off.streaming and \
                 (off.guidance is None or off.guidance.route is not mission_route):
@@ -180,36 +251,76 @@ class Cycle:
         lo, hi = veh.thrust_ratio_range
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, hi)), veh.mass_kg)
         # a fail-safe the daemon can fly out itself: it streams a braking stop (the stop contract's
-        # deceleration, from the measured state) and hands over to Hold at rest (issue 19 item 1)
-        # (another cause — stale or bad state, Ctrl-C — ends it in Hold at once, as before)
-        brakeable = not self.stopping and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
-        brake_stop = brakeable and (bool(d.hold_causes) or off.state == "braking")
-        if brake_stop and off.state in ("flying", "braking"):
-            d.hold = False  # deferred: offboard commands Hold once stopped
+        # deceleration, from the measured state) and hands over to Hold at rest
+        # (another cause — stale or bad state, Ctrl-C — ends it in Hold at once)
+        stopping = self.shutdown is not None
+        brakeable = not stopping and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
+        brake_stop = brakeable and (bool(d.hold_causes) or off.state == OffboardState.BRAKING)
+        braking = brake_stop and off.state in (OffboardState.FLYING, OffboardState.BRAKING)
         # the stop brakes at the tilt flown (Ω's of the last cycle with a speed: a Ω with none has no tilt of
         # its own), and at least as hard as the autopilot's own braking would (the stop contract's)
         tr = min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
         tilt = self.sup.tilt_in_force if self.sup.tilt_in_force is not None else veh.tilt_max
         stop_decel = braking_decel(veh, tr)
         a_stop = max(horizontal_accel_limit(tilt, veh.t_max(tr), veh.mass_kg), stop_decel)
-        stop = d.hold or self.stopping or d.state != "active" or (off.state == "braking" and not brake_stop)
+        hold = d.hold and not braking
+        stop = hold or stopping or d.state != State.ACTIVE or (off.state == OffboardState.BRAKING and not brake_stop)
         acts = off.step(
-            t, engaged=i.engaged and startup_ok is not False and d.state == "active", flying=i.armed and i.in_air,
-            mode=i.mode, by_daemon=i.mode_by_daemon, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z, yaw=tel.yaw,
-            v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs, stop=stop, brake_stop=brake_stop, a_stop=a_stop,
-            stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3, failsafe=d.state == "holding",
+            t, engaged=i.engaged and startup_ok is not False and d.state == State.ACTIVE, flying=i.armed and i.in_air,
+            mode=i.mode, by_daemon=i.mode_by_daemon, taken_over=i.taken_over, p=(tel.x, tel.y), v=(tel.vx, tel.vy),
+            z=tel.z, yaw=tel.yaw, v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs, stop=stop, brake_stop=brake_stop,
+            a_stop=a_stop, stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3, failsafe=d.state == State.HOLDING,
             track_jerk=stop_jerk(veh))
-        d.offboard = acts
-        if any(name == "offboard" and f["to"] == "held" for name, f in acts.events):  # on entering it only:
+        if any(name == "offboard" and f["to"] == OffboardState.HELD for name, f in acts.events):  # on entering it:
             # a fail-safe Hold is latched (offboard.py) until someone else's mode change or CG_ENGAGE clears it
-            self.sup.latch_hold(d, "fail-safe stop: held until the pilot or CG_ENGAGE decides")
-        if not off.streaming and self._was_streaming:
-            self.etr.reset()  # our setpoints are no longer the commanded path
-            d.stream_ended = True
-        self._was_streaming = off.streaming
-        if acts.hold:
-            self.hold_commanded(t)
-        if acts.enter:
-            self.commanded_mode = ("offboard", t, False)
-        if acts.setpoint is not None:
-            self.etr.command(t, float(acts.setpoint.p[0]), float(acts.setpoint.p[1]))
+            d = self.sup.latch_hold(d, "fail-safe stop: held until the pilot or CG_ENGAGE decides")
+        return acts, d, braking
+
+
+    def state_record(self, i: Inputs, d: Decision, tel: Telemetry) -> dict:
+        """The cycle's state sample (companion/logschema.py: STATE says what each value means)."""
+        om = d.omega
+        return dict(
+            state=d.state, mode=i.mode, contract=self.sup.contract, engaged=i.engaged,
+            x=tel.x, y=tel.y, z=tel.z, vx=tel.vx, vy=tel.vy, vz=tel.vz, ground_speed=i.ground_speed,
+            d_od=i.dod.d_od, e_tr=om.e_tr, e_tr_measured=i.e_tr_measured, r_obst=i.r_obst,
+            thrust_ratio=i.thrust_ratio, v_max=om.v_max, tilt_deg=math.degrees(om.tilt), v_safe=om.v_safe,
+            gamma=(d.v_cmd if d.v_cmd is not None else om.v_max) - om.v_safe,
+            gamma_flown=i.ground_speed - om.v_safe, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m)
+
+
+class Shutdown:
+    """Stop means stop: a daemon that stops while engaged in flight commands Hold (through the mode authority),
+    re-sends it every SHUTDOWN_RESEND_S until the autopilot's heartbeat shows it, SHUTDOWN_WAIT_S at most, and
+    says so; on the ground, or not engaged, it just stops. `done` once decided."""
+
+    def __init__(self, t: float):
+        self.t0 = t
+        self.hold: bool | None = None  # a Hold was needed (None: not decided yet)
+        self.confirmed = False
+        self.done = False
+        self._t_sent = -math.inf
+
+    def step(self, t: float, i: Inputs, d: Decision, authority: ModeAuthority, engaged_flying: bool, requests,
+             events, texts) -> None:
+        if self.done:
+            return
+        if self.hold is None:
+            self.hold = engaged_flying and i.link_ok
+            if not self.hold:
+                self.done = True
+                events.append(("shutdown", {"hold": False, "reason": "not engaged in flight" if i.link_ok
+                                            else "no autopilot link"}))
+                return
+            texts.append((2, "CG: stopping in flight: Hold"))
+        if i.mode == authority.hold_mode:  # the autopilot shows Hold (ours, or already someone else's)
+            self.confirmed = True
+        elif t - self.t0 < SHUTDOWN_WAIT_S:
+            if t - self._t_sent >= SHUTDOWN_RESEND_S:
+                self._t_sent = t
+                requests.append(ModeRequest(HOLD, Requester.SHUTDOWN))
+            return
+        self.done = True
+        events.append(("shutdown", {"hold": True, "confirmed": self.confirmed, "waited_s": t - self.t0}))
+        if not self.confirmed:
+            texts.append((2, f"CG: Hold not confirmed in {SHUTDOWN_WAIT_S:g} s: the autopilot's own failsafe applies"))

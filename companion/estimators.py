@@ -108,6 +108,7 @@ class DodEstimate:
     late: LateDetection | None  # a late first detection in this update, if any
     reason: str  # why d_od is what it is
     swept: bool = False  # d_od is the swept coverage: the direction of travel is outside every field of view
+    lowered: bool = False  # d_od is lowered after a late first detection (a navigation violation)
 
 
 class DodEstimator:
@@ -307,16 +308,17 @@ class DodEstimator:
             if swept > 0.0:
                 d, reason = swept, (f"direction of travel outside the field of view: {swept:.2f} m of it seen free "
                                     f"in the last {COVERAGE_S:g} s")
+        lowered = False
         if self._penalty is not None:
             if t <= self._penalty[0]:
                 if self._penalty[1] < d:
-                    d, reason = self._penalty[1], "lowered after a late first detection"
+                    d, reason, lowered = self._penalty[1], "lowered after a late first detection", True
             else:
                 self._penalty = None
         self._last_d_od = d
         late = self._pending[0] if self._pending else None
         self._pending.clear()
-        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0)
+        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered)
 
 
 # ============================================================================ E_tr

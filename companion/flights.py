@@ -13,8 +13,8 @@ the daemon and the SITL. Nothing on board imports it. `tests/lockstep.py` re-exp
 `log_dir`: the SITL writes the autopilot's own flight log there (a ULog for PX4, a DataFlash `.bin` for
 ArduPilot; `Rig.close_log()` finishes it and gives its path).
 
-`law`: a speed law that replaces the contract's Ω (a baseline flown as a governor, `companion/baselines.py`);
-`table_wrapper`: a wrapper of the contract table (the negative controls). Neither is an on-board default.
+`policy`: the speed policy flown in place of the contract's own Ω (a baseline flown as a governor, or a negative
+control: `companion/baselines.py`); `table_wrapper`: a wrapper of the contract table. Neither is an on-board default.
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ class Recorder:
 
 class Rig:
     def __init__(self, scenario: dict, personality: str = "px4", config: dict | None = None, log=None,
-                 table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None, law=None,
+                 table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None, policy=None,
                  log_dir=None):
         sc = scenario_from_dict(scenario)
         self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
@@ -89,9 +89,8 @@ class Rig:
         self.conn = MemoryMavfile(daemon_read, daemon_write, source_system=1,
                                   source_component=self.cfg.link.component_id)
         self.log = log if log is not None else Recorder()
-        self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s, planning="inline")
-        if law is not None:
-            self.daemon.cycle.sup.law = law
+        self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s, planning="inline",
+                             policy=policy)
         gread, gwrite = self._endpoint()
         self._gcs_read = gread
         self.gcs = mav.MAVLink(_W(gwrite), srcSystem=255, srcComponent=190)
@@ -149,8 +148,8 @@ class Rig:
                 out.append(text)
                 continue
             parts.setdefault(m.id, []).append(text)
-            if len(text) < 50:
-                out.append("".join(parts.pop(m.id)))
+            if len(text) < 50:  # the last chunk (the others end at a word, padded with spaces)
+                out.append(" ".join("".join(parts.pop(m.id)).split()))
         return out
 
     def command(self, cmd, *params):

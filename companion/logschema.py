@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from .states import Subsystem
+
 LOG_NAME = "events"  # the current file is events.jsonl; rotated to events.1.jsonl (newest) … events.<keep>.jsonl
 LOG_SUFFIX = ".jsonl"
 LOG_FILE = LOG_NAME + LOG_SUFFIX
@@ -60,7 +62,7 @@ STATE = {
 }
 STATE_FIELDS = tuple(STATE)
 
-SUBSYSTEMS = ("navigation", "controller", "environment", "actuators", "guidance")  # violation_start.subsystem
+SUBSYSTEMS = tuple(s.value for s in Subsystem)  # violation_start.subsystem
 
 
 class Event(NamedTuple):

@@ -10,7 +10,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from .autopilot_base import MAV_CMD_DO_SET_MODE
+from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .link import mavlink
 
 MAV_TYPE_ONBOARD_CONTROLLER = 18
@@ -32,6 +32,24 @@ STREAMS = {
     mavlink.MAVLINK_MSG_ID_DISTANCE_SENSOR: 50_000,
     mavlink.MAVLINK_MSG_ID_OBSTACLE_DISTANCE: 50_000,
 }
+
+
+STATUSTEXT_BYTES = 50  # STATUSTEXT.text (MAVLink common.xml)
+
+
+def text_chunks(text: str, n: int = STATUSTEXT_BYTES) -> list[bytes]:
+    """`text` in chunks of `n` bytes that break at spaces (a word longer than `n` is cut); every chunk but the
+    last padded with spaces to exactly `n` bytes, the last shorter than `n` (or an empty one after it)."""
+    data = text.encode()
+    if len(data) <= n:
+        return [data]
+    out, rest = [], data
+    while len(rest) >= n:
+        cut = rest.rfind(b" ", 0, n + 1)
+        cut = n if cut <= 0 else cut
+        out.append(rest[:cut].ljust(n))
+        rest = rest[cut:].lstrip(b" ")
+    return out + [rest]
 
 
 @dataclass
@@ -73,20 +91,35 @@ class MavlinkOut:
     def set_mode(self, t: float, mode: str, what: str) -> None:
         self.command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(mode, True), what)
 
-    def hold(self, t: float) -> None:
-        """Stop: the autopilot's Hold (PX4) / Brake (ArduPilot)."""
-        self.set_mode(t, self.adapter.hold_mode(), "hold")
+    def apply(self, t: float, box) -> None:
+        """One cycle's outbox (companion/outbox.py), in its order: the mode command (the only place a mode is
+        sent), the speed command, the protocols' messages, the setpoint, then the events and the texts."""
+        if box.mode is not None:
+            self.set_mode(t, box.mode.mode, box.mode.what)
+        if box.speed is not None:
+            self.command(t, MAV_CMD_DO_CHANGE_SPEED, self.adapter.speed_params(box.speed), "change_speed")
+        for msg in box.messages:
+            self.send(msg)
+        if box.end_stream:
+            self.end_stream()
+        if box.setpoint is not None:
+            self.setpoint(t, box.setpoint)
+        for name, fields in box.events:
+            self.event(t, name, **fields)
+        for severity, text in box.texts:
+            self.statustext(severity, text)
 
     def statustext(self, severity: int, text: str) -> None:
-        """STATUSTEXT; longer than 50 bytes, in chunks (MAVLink 2 `id`, `chunk_seq`; a chunk shorter
-        than 50 bytes ends the text)."""
-        data = text.encode()
-        if len(data) <= 50:
-            self.send(self.conn.mav.statustext_encode(severity, data))
+        """STATUSTEXT; longer than 50 bytes, in chunks (MAVLink 2 `id`, `chunk_seq`) that end at word boundaries:
+        each but the last padded with spaces to the full 50 bytes (a shorter chunk ends the text for a ground
+        station that joins them), so one that shows the chunks one by one never splits a word."""
+        chunks = text_chunks(text)
+        if len(chunks) == 1:
+            self.send(self.conn.mav.statustext_encode(severity, chunks[0]))
             return
         self._text_id = self._text_id % 65535 + 1
-        for k in range(len(data) // 50 + 1):
-            self.send(self.conn.mav.statustext_encode(severity, data[50 * k:50 * k + 50], self._text_id, k))
+        for k, chunk in enumerate(chunks):
+            self.send(self.conn.mav.statustext_encode(severity, chunk, self._text_id, k))
 
     def setpoint(self, t: float, sp) -> None:
         """One offboard setpoint (SET_POSITION_TARGET_LOCAL_NED: position, velocity, acceleration, yaw)."""

@@ -37,6 +37,7 @@ from contracts.online_planner import Plan, best_stop
 from contracts.stop import stop_path_budget
 
 from .guidance import OffboardGuidance, Setpoint
+from .states import STREAMING, OffboardState as S, SetpointKind
 
 
 HELD = "fail-safe Hold, held until the pilot or the ground station decides (CG_ENGAGE off and on to resume)"
@@ -57,7 +58,7 @@ END_WAIT_S = 10.0
 class OffboardActions:
     setpoint: Setpoint | None = None
     enter: bool = False  # ask the autopilot for OFFBOARD / GUIDED now
-    hold: bool = False  # ask the autopilot for Hold now (the route is complete)
+    hold: bool = False  # ask the autopilot for Hold now (the route is complete, or the braking stop is over)
     events: list[tuple[str, dict]] = field(default_factory=list)
 
 
@@ -65,7 +66,7 @@ class OffboardActions:
 class OffboardController:
     guidance: OffboardGuidance
     entry_s: float = 1.0
-    state: str = "off"
+    state: S = S.OFF
     _t_state: float = 0.0
     _hold_here: np.ndarray | None = None
     _t_last: float | None = None
@@ -80,7 +81,7 @@ class OffboardController:
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
         self.state, self._t_state = new, t
 
-    def step(self, t, *, engaged: bool, flying: bool, mode: str, by_daemon: bool, p, v, z, yaw,
+    def step(self, t, *, engaged: bool, flying: bool, mode: str, by_daemon: bool, taken_over: bool, p, v, z, yaw,
              v_max: float, a_max: float, discs, stop: bool, brake_stop: bool = False,
              a_stop: float = 0.0, stop_decel: float = 0.0, jerk: float = math.inf,
              failsafe: bool = False, track_jerk: float = math.inf) -> OffboardActions:
@@ -88,15 +89,16 @@ class OffboardController:
         (the tilt's horizontal acceleration limit), before it hands over to Hold; never longer than the
         stop contract's braking (deceleration `stop_decel`, jerk `jerk`), its acceleration turned from the last
         setpoint's at `track_jerk`. `failsafe` (with `stop`): the
-        stop is a fail-safe Hold, which is latched (`held`)."""
+        stop is a fail-safe Hold, which is latched (`held`). `taken_over`: someone else changed the mode this
+        cycle (the mode authority's judgement): offboard stands down, never fights."""
         acts = OffboardActions()
         dt = 0.02 if self._t_last is None else min(max(t - self._t_last, 1e-3), 0.2)
         self._t_last = t
-        if self.state == "braking":
-            return self._brake(t, stop and not brake_stop, mode, by_daemon, p, v, acts)
+        if self.state == S.BRAKING:
+            return self._brake(t, stop and not brake_stop, mode, taken_over, p, v, acts)
         if discs:
             self._seen = (t, list(discs))  # the obstacle is static: remembered if the sensor goes blind
-        if stop and self.state == "flying" and brake_stop and a_stop > 0:
+        if stop and self.state == S.FLYING and brake_stop and a_stop > 0:
             known = list(discs) or (self._seen[1] if self._seen is not None and t - self._seen[0] < SEEN_S else [])
             # braking at the tilt's full deceleration (the avoid contract's stop branch); a swerve off the
             # discs may lengthen it to at most 0.9 × the stop contract's braking distance (`stop_decel`, `jerk`: the rest
@@ -108,73 +110,73 @@ class OffboardController:
                                            max_path_m=budget, a0=self._a_last, jerk=track_jerk)
             self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
             self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
-            self._go(t, "braking", "fail-safe: the daemon brakes to a stop, then Hold", acts)
-            return self._brake(t, False, mode, by_daemon, p, v, acts)
-        if stop and self.state in ("entering", "flying"):
-            self._go(t, "held" if failsafe else "off", HELD if failsafe else "hold requested", acts)
+            self._go(t, S.BRAKING, "fail-safe: the daemon brakes to a stop, then Hold", acts)
+            return self._brake(t, False, mode, False, p, v, acts)
+        if stop and self.state in (S.ENTERING, S.FLYING):
+            self._go(t, S.HELD if failsafe else S.OFF, HELD if failsafe else "hold requested", acts)
             return acts
-        if self.state in ("done", "stood_down", "held"):  # until asked again (CG_ENGAGE off and on)
+        if self.state in (S.DONE, S.STOOD_DOWN, S.HELD):  # until asked again (CG_ENGAGE off and on)
             return acts
-        if self.state == "off":
+        if self.state == S.OFF:
             if engaged and flying and not stop:
                 self._hold_here = np.asarray(p, float).copy()
                 self._hold_z, self._hold_yaw = z, yaw
-                self._go(t, "entering", "engaged", acts)
+                self._go(t, S.ENTERING, "engaged", acts)
             else:
                 return acts
-        if self.state == "entering":
+        if self.state == S.ENTERING:
             if mode == "offboard" and by_daemon:
                 self.guidance.start(p, v)
                 self._done_at = None
-                self._go(t, "flying", "autopilot in offboard", acts)
+                self._go(t, S.FLYING, "autopilot in offboard", acts)
             else:
                 acts.setpoint = Setpoint(self._hold_here, np.zeros(2), np.zeros(2), self._hold_z, self._hold_yaw,
-                                         "hold")
+                                         SetpointKind.HOLD)
                 waited = t - self._t_state
                 if waited >= self.entry_s and (self._asked == 0 or waited >= self.entry_s + self._asked * 1.0):
                     acts.enter = True
                     self._asked += 1
                 if waited > self.entry_s + 5.0:
-                    self._go(t, "off", "autopilot did not enter offboard", acts)
+                    self._go(t, S.OFF, "autopilot did not enter offboard", acts)
                     acts.setpoint = None
                 return acts
-        if self.state == "flying":
-            if mode != "offboard" or not by_daemon:
-                self._go(t, "stood_down", f"{mode} set by someone else", acts)
+        if self.state == S.FLYING:
+            if taken_over:
+                self._go(t, S.STOOD_DOWN, f"{mode} set by someone else", acts)
                 return acts
             if self._done_at is not None:
                 return self._finish(t, acts)
             acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs, yaw=yaw)
-            if acts.setpoint.mode == "done" and float(np.hypot(*v)) < 0.3:
+            if acts.setpoint.mode == SetpointKind.DONE and float(np.hypot(*v)) < 0.3:
                 # the route is flown: hold the vehicle where it is for SETTLE_S, then hand over to Hold, so
                 # that the last setpoint is where it rests (PX4's Hold restarts from the last setpoint: handed
                 # over 1.5 m past it, the vehicle flew back there, 1.3 m/s backwards, unseen by its sensors)
                 self._done_at = (t, np.asarray(p, float).copy(), z, yaw)
                 return self._finish(t, acts)
-            if acts.setpoint.mode == "brake" and not self._braking:
+            if acts.setpoint.mode == SetpointKind.BRAKE and not self._braking:
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
-            self._braking = acts.setpoint.mode == "brake"
+            self._braking = acts.setpoint.mode == SetpointKind.BRAKE
             self._a_last = np.asarray(acts.setpoint.a, float)
         return acts
 
     def _finish(self, t, acts) -> OffboardActions:
         """The route's end: a setpoint at rest where the vehicle stopped, then Hold after SETTLE_S."""
         since, here, z, yaw = self._done_at
-        acts.setpoint = Setpoint(here, np.zeros(2), np.zeros(2), z, yaw, "hold")
+        acts.setpoint = Setpoint(here, np.zeros(2), np.zeros(2), z, yaw, SetpointKind.HOLD)
         if t - since >= SETTLE_S:
             acts.hold = True
-            self._go(t, "done", "route complete", acts)
+            self._go(t, S.DONE, "route complete", acts)
         return acts
 
-    def _brake(self, t, abort: bool, mode: str, by_daemon: bool, p, v, acts) -> OffboardActions:
+    def _brake(self, t, abort: bool, mode: str, taken_over: bool, p, v, acts) -> OffboardActions:
         """Stream the fail-safe stop; at rest (or well past its end) hand over to Hold (handing over while
         the vehicle still moves lets Hold carry on from its acceleration: measured, 16–18 m for 8 m)."""
-        if mode != "offboard" or not by_daemon:
-            self._go(t, "stood_down", f"{mode} set by someone else", acts)
+        if taken_over:
+            self._go(t, S.STOOD_DOWN, f"{mode} set by someone else", acts)
             return acts
         if abort:  # a fail-safe the daemon cannot fly out (its own state is not to be trusted): Hold now
             acts.hold = True
-            self._go(t, "held", HELD, acts)
+            self._go(t, S.HELD, HELD, acts)
             return acts
         tau = t - self._t_state
         plan = self._stop_plan
@@ -183,13 +185,13 @@ class OffboardController:
         self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
         if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
             acts.hold = True
-            self._go(t, "held", "stopped: " + HELD, acts)
+            self._go(t, S.HELD, "stopped: " + HELD, acts)
             return acts
         pos, vel, acc = plan.sample(tau)
-        acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, "brake")
+        acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, SetpointKind.BRAKE)
         return acts
 
     @property
     def streaming(self) -> bool:
-        return self.state in ("entering", "flying", "braking")
+        return self.state in STREAMING
 

@@ -3,20 +3,75 @@ and the contract, and the configured sensors against the direction of flight."""
 
 from __future__ import annotations
 
+import math
+
 from .config import Config
+from .outbox import EMPTY, Outbox
+
+WAIT_S = 5.0  # a parameter asked for and not answered in this long counts as missing
+RESTART_CHECK_S = 10.0  # the checks re-run after an autopilot restart at most this often
 
 
 class StartupChecks:
     """DESIGN.md §5 start-up checks: the autopilot's tilt limit and braking limits must be at least what
     the contract assumes (else its braking or swerving is weaker than the table's), a companion-only
     offboard flight needs Land or Hold as offboard-loss action, and the configured sensors must cover
-    the direction of flight. Any mismatch refuses to engage (shadow mode still runs)."""
+    the direction of flight. Any mismatch refuses to engage (shadow mode still runs).
+
+    Over time (`ok`: True, False, or None while pending): asked at link-up and after an autopilot restart
+    (`asked`, `restarted`), decided when every checked parameter is in or `WAIT_S` after asking (`finish`,
+    `deadline`), the verdict logged and said when it changes — each an `Outbox` for MAVLink-out."""
 
     def __init__(self, adapter, vehicle, cfg: Config, controller_contract: bool = True):
         """`controller_contract`: the table carries E_tr_pred."""
         self.adapter, self.vehicle, self.cfg = adapter, vehicle, cfg
         self.controller_contract = controller_contract
         self.values: dict[str, float] = {}
+        self.said: tuple[bool, str] | None = None  # the verdict last logged
+        self.t_asked: float | None = None
+        self._t_restart = -math.inf
+        why = self.static()
+        self.ok: bool | None = None if why is None else False  # refused before the autopilot is even heard
+        if why is not None:
+            self.said = (False, why)
+
+    @property
+    def reason(self) -> str:
+        return self.said[1] if self.said is not None else "the start-up checks are pending"
+
+    def asked(self, t: float) -> Outbox:
+        """The link is up (the parameters are asked for now): the deadline starts; a refusal is said again, now
+        that the ground station can hear it."""
+        if self.ok is None:
+            self.t_asked = t
+        return Outbox(texts=((3, f"CG: refusing to engage: {self.reason}"),)) if self.ok is False else EMPTY
+
+    def restarted(self, t: float) -> bool:
+        """The autopilot restarted: True when the checks run again (at most every RESTART_CHECK_S: a boot clock
+        that keeps going back is a fault, not a restart a second)."""
+        if t - self._t_restart < RESTART_CHECK_S:
+            return False
+        self._t_restart = t
+        self.values, self.t_asked, self.said = {}, t, None
+        self.ok = None if self.static() is None else False
+        return True
+
+    def deadline(self, t: float) -> Outbox:
+        """What did not answer within WAIT_S counts as missing."""
+        if self.ok is None and self.t_asked is not None and t - self.t_asked > WAIT_S:
+            return self.finish(t)
+        return EMPTY
+
+    def finish(self, t: float) -> Outbox:
+        """The verdict, logged and said when it changes (a ground station reading every parameter makes the
+        autopilot send them all again)."""
+        ok, reason = self.verdict()
+        self.ok = ok
+        if (ok, reason) == self.said:
+            return EMPTY
+        self.said = (ok, reason)
+        return Outbox(events=(("startup_check", {"ok": ok, "reason": reason}),),
+                      texts=() if ok else ((3, f"CG: refusing to engage: {reason}"),))
 
     def static(self) -> str | None:
         """What refuses at once, before the autopilot answers: the config and the table alone."""

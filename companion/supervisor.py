@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -29,7 +29,7 @@ from contracts.table import ContractTable, Omega
 
 from .estimators import DodEstimate
 from .guidance import inflated
-from .offboard import OffboardActions
+from .states import BRAKE_STOP_CAUSES, FAILSAFE_CAUSES, Cause, State, Subsystem  # noqa: F401 (re-exported)
 
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
 
@@ -46,7 +46,7 @@ class Inputs:
     in_air: bool
     mode: str  # adapter's name: mission, hold, takeoff, land, rtl, position, offboard, manual, other
     limit_applies: bool  # the autopilot applies DO_CHANGE_SPEED in this mode
-    mode_by_daemon: bool  # the current mode is one the daemon commanded
+    mode_by_daemon: bool  # the current mode is one the daemon commanded (companion/authority.py)
     ground_speed: float
     dod: DodEstimate
     e_tr_measured: float  # the worst contour error measured over the window (with its floor)
@@ -60,22 +60,61 @@ class Inputs:
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     late_s: float = 0.0  # the daemon's own worst lateness, beyond t_react's budget, of the last 10 s (Timeliness)
     late_unbudgeted_s: float = 0.0  # this cycle's lateness where it exceeds what was counted before it, else 0
+    mode_changed: bool = False  # the mode changed this cycle
+    taken_over: bool = False  # someone else changed the mode this cycle (the authority's one rule: stand down)
 
 
 @dataclass
+class _Draft:
+    """A decision while the supervisor makes it (`Decision` is what it hands on, frozen)."""
+
+    state: State
+    omega: Omega
+    v_cmd: float | None
+    send_speed: float | None = None
+    hold: bool = False
+    events: list[tuple[str, dict]] = field(default_factory=list)
+    statustext: list[tuple[int, str]] = field(default_factory=list)
+    hold_causes: list[Cause] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
 class Decision:
-    state: str
+    """One cycle's decision of the supervisor (frozen: the cycle builds its outbox from it, never rewrites it)."""
+
+    state: State
     omega: Omega
     v_cmd: float | None  # the limit in force (after hysteresis), None when nothing is commanded
     send_speed: float | None = None  # send DO_CHANGE_SPEED with this now
-    hold: bool = False  # command Hold/Brake now
-    events: list[tuple[str, dict]] = field(default_factory=list)
-    statustext: list[tuple[int, str]] = field(default_factory=list)  # (MAV_SEVERITY, text)
+    hold: bool = False  # the supervisor asks for Hold/Brake now (the mode authority's failsafe request)
+    events: tuple[tuple[str, dict], ...] = ()
+    statustext: tuple[tuple[int, str], ...] = ()  # (MAV_SEVERITY, text)
     e_tr_virtual: float = 0.0  # E_tr of the virtual obstacle (Figure 13): measured, or E_tr_pred flown if larger
-    discs: list[Disc] = field(default_factory=list)  # the keep-out discs: the obstacles grown by E_tr + r_body
-    offboard: OffboardActions | None = None  # what offboard guidance does this cycle (companion/cycle.py)
-    stream_ended: bool = False  # the offboard setpoint stream stopped this cycle
-    hold_causes: list[str] = field(default_factory=list)  # why it holds this cycle (fresh causes)
+    discs: tuple[Disc, ...] = ()  # the keep-out discs: the obstacles grown by E_tr + r_body
+    hold_causes: tuple[Cause, ...] = ()  # why it holds this cycle (fresh causes)
+
+
+class ContractSpeed:
+    """The default speed policy: the contract's own Ω, optionally scaled by `k` (k > 1 only as a negative control
+    of a campaign: companion/baselines.py `Scaled`). A speed policy (`Supervisor(policy=...)`; the baselines and
+    negative controls in companion/baselines.py) has `omega(inputs, sup) -> Omega` (`sup.contract_omega(inputs)`:
+    the contract's Ω, `sup.table`: its table), `take(sample)` (every sample the cycle takes), `stop_hold` (the
+    stop-distance Hold applies: False for a law that is its own whole answer to an obstacle) and `inflate_e_tr`
+    (the keep-out discs are grown by E_tr)."""
+
+    name = "contract"
+    stop_hold = True
+    inflate_e_tr = True
+
+    def __init__(self, k: float = 1.0):
+        self.k = k
+
+    def omega(self, i: "Inputs", sup: "Supervisor") -> Omega:
+        om = sup.contract_omega(i)
+        return om if self.k == 1.0 else replace(om, v_max=om.v_max * self.k, v_safe=om.v_safe * self.k)
+
+    def take(self, sample) -> None:
+        pass
 
 
 class OneSidedLimit:
@@ -110,9 +149,10 @@ class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
     def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
-                 loop_dt: float, late_hold_s: float = math.inf):
+                 loop_dt: float, late_hold_s: float = math.inf, policy=None):
         """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
-        `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold)."""
+        `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold); `policy`: the speed
+        policy flown (default `ContractSpeed()`; a campaign's baselines and negative controls: companion/baselines.py)."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
@@ -126,21 +166,20 @@ class Supervisor:
         self.loop_dt = loop_dt
         self.late_hold_s = late_hold_s
         self._late_counted = 0.0  # the lateness Ω counts as reaction time (last said in a `reaction_time` event)
-        self.state = "standby"
+        self.state = State.STANDBY
         self._last_sent: float | None = None
         self._last_sent_t = -math.inf
-        self._last_mode: str | None = None
         self._last_in_air = False
         self._linked = False  # an autopilot heartbeat has been seen (the first link is "up", not "restored")
         self._last_seq = -1
         self._over_since: float | None = None
-        self._suppressed: set[str] = set()  # hold causes stood down from after an override
+        self._suppressed: set[Cause] = set()  # hold causes stood down from after an override
         self._violations: dict[str, dict] = {}
         self._dod_swept = False  # the last D_od was the swept coverage (dod_coverage events)
         self._no_limit_mode_warned: str | None = None
-        self._held_for: list[str] = []  # the causes of the daemon's current Hold
+        self._held_for: list[Cause] = []  # the causes of the daemon's current Hold
         self._t_hold = -math.inf
-        self._would: tuple[str, ...] = ()
+        self._would: tuple[Cause, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
         self._omega_at: tuple[tuple, Omega] | None = None  # ((d_od, r_obst, e_tr measured, thrust), Ω)
@@ -149,16 +188,17 @@ class Supervisor:
         # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
         e_pred = getattr(table, "e_pred", None)
         self.v_covered = float(e_pred.axes[0][-1]) if e_pred is not None else math.inf
-        # a speed law flown instead of the contract's Ω (`law.omega(inputs) -> Omega`): the baselines of a
-        # campaign (companion/baselines.py); None on board
-        self.law = None
+        self.policy = policy if policy is not None else ContractSpeed()
         self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
 
-    def latch_hold(self, d: Decision, reason: str) -> None:
+    def latch_hold(self, d: Decision, reason: str) -> Decision:
         """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
-        toggled, whether or not its cause has cleared (`companion/offboard.py`, authority)."""
+        toggled, whether or not its cause has cleared (`companion/offboard.py`, authority). The decision, so said."""
         self.latched = True
-        self._set_state(d, "holding", reason)
+        draft = _Draft(d.state, d.omega, d.v_cmd)
+        self._set_state(draft, State.HOLDING, reason)
+        return replace(d, state=draft.state, events=d.events + tuple(draft.events),
+                       statustext=d.statustext + tuple(draft.statustext))
 
     @property
     def tilt_in_force(self) -> float | None:
@@ -166,14 +206,14 @@ class Supervisor:
         return self._tilt_in_force
 
     # ------------------------------------------------------------------ helpers
-    def _set_state(self, d: Decision, new: str, reason: str) -> None:
+    def _set_state(self, d: _Draft, new: State, reason: str) -> None:
         if new != self.state:
             d.events.append(("state_change", {"from": self.state, "to": new, "reason": reason}))
-            d.statustext.append((5 if new != "holding" else 2, f"CG: {new} ({reason})"))
+            d.statustext.append((5 if new != State.HOLDING else 2, f"CG: {new} ({reason})"))
             self.state = new
         d.state = new
 
-    def _violation(self, d: Decision, key: str, on: bool, **info) -> None:
+    def _violation(self, d: _Draft, key: Subsystem, on: bool, **info) -> None:
         """Track one guarantee: emit violation_start/end on transitions."""
         if on and key not in self._violations:
             self._violations[key] = info
@@ -204,10 +244,12 @@ class Supervisor:
         return self._e_pred_at[3]
 
     def omega(self, i: Inputs) -> Omega:
+        """Ω of the speed policy flown at this cycle's inputs (the contract's, `contract_omega`, by default)."""
+        return self.policy.omega(i, self)
+
+    def contract_omega(self, i: Inputs) -> Omega:
         """Ω of the contract at this cycle's inputs: one lookup per value, as `e_tr_pred_flown` (the lookup is a
         pure function of the table and these inputs, so a cycle whose inputs equal the last one's reuses its Ω)."""
-        if self.law is not None:
-            return self.law.omega(i)
         if i.late_s <= 0.0:
             return self._omega(i.dod.d_od, i)
         # the daemon's own lateness is reaction time the table's fold did not budget (DESIGN.md §2):
@@ -227,10 +269,13 @@ class Supervisor:
         return self._omega_at[1]
 
     # ------------------------------------------------------------------ the cycle
-    def e_tr_virtual(self, i: Inputs, d: Decision) -> float:
+    def e_tr_virtual(self, i: Inputs, d: _Draft) -> float:
         """E_tr of the virtual obstacle (Figure 13): the measured error, or the controller contract at the
         speed actually commanded if larger — while a higher V_max waits out its dwell, the vehicle still
-        flies the lower limit, and E_tr_pred does not decrease with speed."""
+        flies the lower limit, and E_tr_pred does not decrease with speed. (0 under a policy that does not
+        inflate the keep-out discs: a negative control.)"""
+        if not self.policy.inflate_e_tr:
+            return 0.0
         if self.table.e_pred is not None and d.v_cmd:
             e = max(i.e_tr_measured, self.e_tr_pred_flown(d.v_cmd, d.omega.tilt, i.thrust_ratio))
             if math.isfinite(e):
@@ -244,26 +289,23 @@ class Supervisor:
         """One cycle's decision, with the keep-out discs guidance plans round (the obstacles grown by the
         virtual obstacle's E_tr and the vehicle's radius)."""
         d = self._decide(i)
-        d.e_tr_virtual = self.e_tr_virtual(i, d)
-        d.discs = inflated(list(i.discs), d.e_tr_virtual, self.table.vehicle.r_body_m)
-        return d
+        e_tr_virtual = self.e_tr_virtual(i, d)
+        return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
+                        e_tr_virtual, tuple(inflated(list(i.discs), e_tr_virtual, self.table.vehicle.r_body_m)),
+                        tuple(d.hold_causes))
 
-    def _decide(self, i: Inputs) -> Decision:
+    def _decide(self, i: Inputs) -> _Draft:
         om = self.omega(i)
-        d = Decision(self.state, om, self.limit.value)
+        d = _Draft(self.state, om, self.limit.value)
         veh = self.table.vehicle
 
-        # mode bookkeeping: who changed it, and authority (with the link down the mode is unknown, not changed)
-        if i.link_ok and i.mode != self._last_mode:
-            if self._last_mode is not None:
-                by = "daemon" if i.mode_by_daemon else "other"
-                d.events.append(("mode_change", {"from": self._last_mode, "to": i.mode, "by": by}))
-                if self.state == "holding" and by == "other":
-                    self.latched = False
-                    self._suppressed |= set(self._held_for)
-                    self._set_state(d, "active", f"{i.mode} set by someone else: standing down")
-                self._last_sent = None  # re-send the limit after any mode change
-            self._last_mode = i.mode
+        # authority (the mode authority judged who changed the mode): someone else left our Hold — stand down
+        if i.mode_changed:
+            if self.state == State.HOLDING and i.taken_over:
+                self.latched = False
+                self._suppressed |= set(self._held_for)
+                self._set_state(d, State.ACTIVE, f"{i.mode} set by someone else: standing down")
+            self._last_sent = None  # re-send the limit after any mode change
         if i.in_air and not self._last_in_air or i.mission_seq != self._last_seq:
             self._last_sent = None  # and after take-off and at every new mission item
         self._last_seq = i.mission_seq
@@ -271,10 +313,10 @@ class Supervisor:
 
         # guarantees (logged in every mode, shadow included)
         lo = veh.thrust_ratio_range[0]
-        self._violation(d, "actuators", i.thrust_ratio < lo, subsystem="actuators",
+        self._violation(d, Subsystem.ACTUATORS, i.thrust_ratio < lo, subsystem=Subsystem.ACTUATORS,
                         guarantee=f"thrust_ratio >= {lo}", assumed=lo, observed=i.thrust_ratio,
                         action="no safe speed: hold")
-        self._violation(d, "environment", i.obstacle_width > i.r_obst + 0.05, subsystem="environment",
+        self._violation(d, Subsystem.ENVIRONMENT, i.obstacle_width > i.r_obst + 0.05, subsystem=Subsystem.ENVIRONMENT,
                         guarantee="no obstacle wider than R_obst", assumed=i.r_obst, observed=i.obstacle_width,
                         action="planning round the observed width")
         if i.dod.swept != self._dod_swept:  # D_od's basis: said when the swept coverage starts and ends
@@ -282,13 +324,13 @@ class Supervisor:
             basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")
             d.events.append(("dod_coverage", {"basis": basis, "d_od": i.dod.d_od, "reason": i.dod.reason}))
         late = i.dod.late
-        self._violation(d, "navigation", i.dod.reason.startswith("lowered"), subsystem="navigation",
+        self._violation(d, Subsystem.NAVIGATION, i.dod.lowered, subsystem=Subsystem.NAVIGATION,
                         guarantee="every obstacle within D_od is detected",
                         assumed=late.assumed_d_od if late else None, observed=late.range_m if late else None,
                         action=f"D_od lowered to {i.dod.d_od:.2f} m")
         # the daemon's own guarantee: broken by a cycle later than the reaction time being flown budgets; the
         # lateness then counts as reaction time for the next 10 s (`omega`), said when that changes
-        self._violation(d, "guidance", i.late_unbudgeted_s > 0.0, subsystem="guidance",
+        self._violation(d, Subsystem.GUIDANCE, i.late_unbudgeted_s > 0.0, subsystem=Subsystem.GUIDANCE,
                         guarantee=f"decides every cycle ({self.loop_dt * 1e3:.0f} ms, inside t_react)",
                         assumed=self.loop_dt + self._late_counted, observed=self.loop_dt + i.late_unbudgeted_s,
                         action="lateness counted as reaction time: a lower speed" +
@@ -300,23 +342,23 @@ class Supervisor:
             self._tilt_in_force = om.tilt
         if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
             e_pred = self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio)
-            self._violation(d, "controller", i.e_tr_measured > e_pred + 0.05, subsystem="controller",
+            self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, subsystem=Subsystem.CONTROLLER,
                             guarantee="contour error <= E_tr_pred(V_max)", assumed=e_pred,
                             observed=i.e_tr_measured, action="E_tr raised to the measured value")
 
         # failsafes, in order of what can still be done
         if not i.link_ok:
-            self._set_state(d, "failsafe", "autopilot heartbeat lost" if self._linked else "no autopilot heartbeat yet")
+            self._set_state(d, State.FAILSAFE, "autopilot heartbeat lost" if self._linked else "no autopilot heartbeat yet")
             return d
-        if self.state == "failsafe":
+        if self.state == State.FAILSAFE:
             self._last_sent = None
-            self._set_state(d, "standby", "link restored" if self._linked else "link up")
+            self._set_state(d, State.STANDBY, "link restored" if self._linked else "link up")
         self._linked = True
         flying = i.armed and i.in_air
         if not (i.engaged and flying) or self.mode == "shadow":
             self.limit.reset()
             self._over_since = None
-            self._set_state(d, "standby", "shadow mode" if self.mode == "shadow" else
+            self._set_state(d, State.STANDBY, "shadow mode" if self.mode == "shadow" else
                             ("not engaged" if not i.engaged else "not flying"))
             d.v_cmd = None
             return self._shadow(d, i) if self.mode == "shadow" else d
@@ -325,14 +367,14 @@ class Supervisor:
         # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
         causes_now = {c for c, on in causes.items() if on}
         self._suppressed = {c for c in self._suppressed if c in causes_now or
-                            (c == OBSTACLE and math.isfinite(i.dod.obstacle_m))}
+                            (c == Cause.OBSTACLE and math.isfinite(i.dod.obstacle_m))}
         fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
 
         v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
         d.v_cmd = v_limit
         if fresh:
-            unanswered = self.state == "holding" and i.mode != "hold" and i.t - self._t_hold > 1.0
-            if self.state != "holding" or unanswered:  # (re)send Hold: new, or not taken after 1 s
+            unanswered = self.state == State.HOLDING and i.mode != "hold" and i.t - self._t_hold > 1.0
+            if self.state != State.HOLDING or unanswered:  # (re)send Hold: new, or not taken after 1 s
                 d.hold = True
                 self._t_hold = i.t
                 self._held_for = list(fresh)
@@ -343,11 +385,11 @@ class Supervisor:
             for c, action in said:
                 d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger", {"cause": c, "action": action}))
             d.hold_causes = list(fresh)
-            self._set_state(d, "holding", fresh[0])
+            self._set_state(d, State.HOLDING, fresh[0])
             return d
-        if self.state == "holding" and (i.mode == "hold" and i.mode_by_daemon or self.latched and i.mode == "offboard"):
+        if self.state == State.HOLDING and (i.mode == "hold" and i.mode_by_daemon or self.latched and i.mode == "offboard"):
             return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
-        self._set_state(d, "active", "limit in force")
+        self._set_state(d, State.ACTIVE, "limit in force")
 
         # the limit: send it when it changed, after mode changes/take-off, and every 5 s
         if i.limit_applies:
@@ -372,7 +414,7 @@ class Supervisor:
             d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"))
         return d
 
-    def _causes(self, i: Inputs, om: Omega) -> dict[str, bool]:
+    def _causes(self, i: Inputs, om: Omega) -> dict[Cause, bool]:
         """Every reason to stop now (each edge-triggered after an override)."""
         isfinite = math.isfinite
         finite = (isfinite(i.ground_speed) and isfinite(i.e_tr_measured) and isfinite(i.thrust_ratio)
@@ -391,19 +433,19 @@ class Supervisor:
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
         obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
-            "non-finite telemetry": not finite,
-            "stale telemetry": not i.telemetry_ok,
-            "bad navigation estimate": not i.nav_ok,
-            "no safe speed": om.v_max < MIN_SPEED_CMD,
-            LATE: i.late_s > self.late_hold_s,
-            OBSTACLE: obstacle,
-            "speed limit not in force": self._over_since is not None and i.t - self._over_since > settle,
+            Cause.NON_FINITE: not finite,
+            Cause.STALE: not i.telemetry_ok,
+            Cause.BAD_NAV: not i.nav_ok,
+            Cause.NO_SAFE_SPEED: om.v_max < MIN_SPEED_CMD,
+            Cause.LATE: i.late_s > self.late_hold_s,
+            Cause.OBSTACLE: obstacle,
+            Cause.NOT_IN_FORCE: self._over_since is not None and i.t - self._over_since > settle,
         }
-        if self.contract == "avoid" or self.law is not None:
-            del causes[OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
+        if self.contract == "avoid" or not self.policy.stop_hold:
+            del causes[Cause.OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
         return causes
 
-    def _shadow(self, d: Decision, i: Inputs) -> Decision:
+    def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""
         causes = tuple(c for c, on in self._causes(i, d.omega).items() if on) if i.armed and i.in_air else ()
         if causes != self._would:
@@ -412,9 +454,5 @@ class Supervisor:
         return d
 
 
-OBSTACLE = "obstacle inside the stop distance"
-LATE = "companion computer late"  # a cycle later than timeouts.cycle_late_s: the autopilot's own Hold, at once
+OBSTACLE, LATE = Cause.OBSTACLE, Cause.LATE  # (the names other modules and tests know them by)
 ALREADY_HOLDING = "already holding"  # the action of a cause that arrives while the daemon already holds
-# causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
-BRAKE_STOP_CAUSES = {"no safe speed", "speed limit not in force"}
-FAILSAFE_CAUSES = {"non-finite telemetry", "stale telemetry", "bad navigation estimate", "no safe speed", LATE}

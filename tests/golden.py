@@ -88,6 +88,8 @@ def plain(v):
     if isinstance(v, (float, np.floating)):
         v = float(v)
         return v if math.isfinite(v) else repr(v)
+    if isinstance(v, str):
+        return str(v)  # an enum of the daemon's vocabulary (companion/states.py) as the log writes it
     return v
 
 

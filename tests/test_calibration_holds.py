@@ -202,9 +202,9 @@ def machine(plan):
     return m, leg, m.waypoint(leg)
 
 
-def step(m, t, wp, leg, *, dx=0.0, mode="mission", speed=2.0, active=True, safety=None):
-    return m.step(t, mode=mode, mission_seq=leg.seq_plan, x=wp[0] - dx, y=wp[1], speed=speed, telemetry_ok=True,
-                  active=active, safety=safety)
+def step(m, t, wp, leg, *, dx=0.0, mode="mission", speed=2.0, active=True, safety=None, taken_over=False):
+    return m.step(t, mode=mode, taken_over=taken_over, mission_seq=leg.seq_plan, x=wp[0] - dx, y=wp[1], speed=speed,
+                  telemetry_ok=True, active=active, safety=safety)
 
 
 def test_machine_waits_for_the_distance_and_a_safety_hold_wins(plan):

@@ -118,9 +118,9 @@ def test_the_px4_law_governs_a_real_flight_and_stops_short():
     assert rig.log.named("failsafe") + rig.log.named("hold_trigger")  # and ends held short of it
     sent = [e["v_max"] for e in rig.log.named("limit_change")]
     assert len(sent) > 3 and min(sent) < 0.5 * max(sent)  # the limit fell with the distance
-    assert rig.daemon.cycle.sup.law is not None
+    assert rig.daemon.cycle.sup.policy.name == "px4_cp"
     row, rig = cg.fly(spec, 0, keep_rig=True)  # the governor itself: no law (the on-board default)
-    assert row["arm"] == "governor" and rig.daemon.cycle.sup.law is None
+    assert row["arm"] == "governor" and rig.daemon.cycle.sup.policy.name == "contract"
 
 
 # ----------------------------------------------------------------------------- rows, re-flying, resuming

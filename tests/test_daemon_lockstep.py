@@ -55,7 +55,7 @@ def test_governor_stops_short_of_a_column_revealed_while_speeding_up(personality
 def test_negative_control_limit_raised_25_percent_collides():
     """The same flight as above at 1.25 × the contract's speed hits the column (the contract is tight there;
     from steady cruise it has slack: 1.15 × no longer hits the column of the flight at x_col 28 m)."""
-    rig = Rig(column_scenario(1, x_col=6.0), "px4", table_wrapper=lambda t: Scaled(t, 1.25))
+    rig = Rig(column_scenario(1, x_col=6.0), "px4", policy=Scaled(1.25))
     fly(rig, 15.0)
     assert rig.truth["collisions"], "the same flight faster than the contract must hit the column"
 

@@ -52,7 +52,7 @@ def flight(kind: str, personality: str):
         # campaign's governor control: since the stop contract holds from an accelerating state (issue 19 item 1)
         # × 1.3 has slack from steady cruise and no longer collides (it failed so on 2c3566f)
         return column_scenario(1, x_col=28.0, cruise=8.0), {
-            "seconds": 14.0, "rig_kwargs": {"table_wrapper": lambda table: Scaled(table, 1.7)}}
+            "seconds": 14.0, "rig_kwargs": {"policy": Scaled(1.7)}}
     # the other negative control: no guard (shadow mode) at 8 m/s, twice what the contract allows, into a column
     return column_scenario(1, x_col=28.0, cruise=8.0), {"config": {"mode": "shadow"}, "seconds": 12.0}
 

@@ -143,9 +143,10 @@ def test_the_qp_solver_loads_only_where_plans_are_made(tmp_path):
     subprocess.run([sys.executable, "-c", review], check=True, cwd=ROOT)
     offboard = ("import sys; from companion.config import Config; from companion.cycle import Cycle; "
                 "from companion.guidance import InlinePlanning; from contracts.table import load_for_vehicle; "
+                "from companion.autopilots import adapter_for; "
                 "cfg = Config(vehicle='x500', mode='offboard', route={'source': 'mission'}, "
                 "sensors=[{'kind': 'obstacle_distance', 'h_fov_deg': 60, 'max_range_m': 10}]); "
                 "assert 'osqp' not in sys.modules; "
-                "Cycle(cfg, load_for_vehicle(cfg.vehicle, cfg.table), None, 'avoid', InlinePlanning); "
+                "Cycle(cfg, load_for_vehicle(cfg.vehicle, cfg.table), adapter_for('px4'), 'avoid', InlinePlanning); "
                 "assert {'osqp', 'scipy.sparse'} <= set(sys.modules)")
     subprocess.run([sys.executable, "-c", offboard], check=True, cwd=ROOT)

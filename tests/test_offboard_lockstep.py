@@ -73,7 +73,7 @@ def test_negative_control_well_above_the_contract_touches():
     touched = []
     for seed in (1, 2, 3):
         rig = Rig(offboard_scenario(seed, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}), "px4",
-                  config=offboard_config(), table_wrapper=lambda t: Scaled(t, 1.3))
+                  config=offboard_config(), policy=Scaled(1.3))
         engage_and_fly(rig, 22.0)
         touched.append(bool(rig.truth["collisions"]))
     assert any(touched)
@@ -226,8 +226,7 @@ def test_negative_control_without_the_etr_inflation_eats_the_margin():
     clearances = []
     for seed in (1, 2, 3):
         rig = Rig(offboard_scenario(seed, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}), "px4",
-                  config=offboard_config(), table_wrapper=WithoutEtr)
-        WithoutEtr.remove_from(rig.daemon)
+                  config=offboard_config(), policy=WithoutEtr())
         discs = DiscTrace()
         engage_and_fly(rig, 14.0, discs)
         assert all(s["e_tr"] == 0.0 for s in rig.log.states if s["v_cmd"])  # the wrapper is in force: Ω …
@@ -396,7 +395,7 @@ def test_offboard_never_flies_above_the_controller_contracts_grid(personality):
     at the grid's top, every disc is finite, it plans round the column and flies on."""
     sc = offboard_scenario(1, x_col=X_FOG_COL, wind=DESIGN_WIND, personality=personality)
     sc["sensor"]["max_range_m"] = CLAIMED_M
-    rig = Rig(sc, personality, config=offboard_config(x_end=70.0), table_wrapper=lambda t: Scaled(t, 1.3))
+    rig = Rig(sc, personality, config=offboard_config(x_end=70.0), policy=Scaled(1.3))
     discs = DiscTrace()
     engage_and_fly(rig, 12.0, discs)
     top = float(rig.daemon.table.e_pred.axes[0][-1])

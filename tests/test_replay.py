@@ -31,7 +31,7 @@ def record(directory: Path, scenario, personality, config=None, outgoing=False, 
     `outgoing`, the daemon's own packets go into the tlog too (a router or MAVProxy logging both ways);
     with `log_dir`, the SITL writes the autopilot's own flight log there too (`Rig.close_log`); `keep`
     gets the rig as "rig" (for its truth); `rig_kwargs`: more `Rig` arguments (e.g. a negative control's
-    table_wrapper). Returns the config file the flight used."""
+    policy). Returns the config file the flight used."""
     box = {}
 
     def wall():

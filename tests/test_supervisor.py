@@ -10,8 +10,8 @@ from contracts.table import load_for_vehicle
 TABLE = load_for_vehicle("mambo")
 
 
-def dod(d=8.0, obstacle=math.inf, reason="sensor 0 reports range"):
-    return DodEstimate(d, (0,), obstacle, None, reason)
+def dod(d=8.0, obstacle=math.inf, reason="sensor 0 reports range", lowered=False):
+    return DodEstimate(d, (0,), obstacle, None, reason, lowered=lowered)
 
 
 BASE = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, in_air=True, mode="mission",
@@ -81,9 +81,12 @@ def test_obstacle_inside_the_stop_distance_holds_and_authority_is_respected():
     d = s.step(replace(BASE, t=1.14, mode="hold", mode_by_daemon=True, ground_speed=0.5, dod=dod(8.0, obstacle=2.0)))
     assert not d.hold and d.state == "holding"
     # the pilot resumes the mission: the daemon stands down from that cause
-    d = s.step(replace(BASE, t=1.16, mode="mission", ground_speed=0.5, dod=dod(8.0, obstacle=2.0)))
+    # (the mode authority judged the change someone else's: companion/authority.py, tests/test_authority.py)
+    d = s.step(replace(BASE, t=1.16, mode="mission", mode_changed=True, taken_over=True, ground_speed=0.5,
+                       dod=dod(8.0, obstacle=2.0)))
     assert d.state == "active" and not d.hold
-    assert ("mode_change", {"from": "hold", "to": "mission", "by": "other"}) in d.events
+    assert ("state_change", {"from": "holding", "to": "active", "reason": "mission set by someone else: standing down"}
+            ) in d.events
     d = s.step(replace(BASE, t=1.18, ground_speed=2.5, dod=dod(8.0, obstacle=1.5)))
     assert not d.hold  # same cause, not cleared: no fight
     s.step(replace(BASE, t=1.20, dod=dod(8.0)))  # clears
@@ -166,7 +169,7 @@ def test_violations_start_and_end():
     s = sup()
     d = s.step(replace(BASE, thrust_ratio=0.5))
     assert any(n == "violation_start" and f["subsystem"] == "actuators" for n, f in d.events)
-    d = s.step(replace(BASE, t=0.02, dod=dod(3.0, reason="lowered after a late first detection")))
+    d = s.step(replace(BASE, t=0.02, dod=dod(3.0, reason="lowered after a late first detection", lowered=True)))
     assert any(n == "violation_start" and f["subsystem"] == "navigation" for n, f in d.events)
     assert any(n == "violation_end" and f["subsystem"] == "actuators" for n, f in d.events)
 

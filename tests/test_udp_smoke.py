@@ -94,7 +94,9 @@ def wait_for_event(logdir, name, timeout=30.0):
         if (logdir / "events.jsonl").exists() and any(r.get("event") == name for r in read_log(logdir)):
             return
         time.sleep(0.2)
-    pytest.fail(f"the daemon never logged {name}")
+    seen = [(r.get("event"), r.get("to") or r.get("cause") or r.get("cmd")) for r in read_log(logdir) if r.get("event")
+            and r.get("event") not in ("reaction_time", "violation_end")] if (logdir / "events.jsonl").exists() else []
+    pytest.fail(f"the daemon never logged {name}; its last events: {seen[-20:]}")
 
 
 def test_daemon_governs_the_sitl_over_udp_and_stops_cleanly(world):
@@ -200,3 +202,46 @@ def test_100k_malformed_datagrams_at_the_daemon_port(world, tmp_path):
     stop = [r for r in recs if r.get("event") == "stop"][-1]
     assert stop["counters"]["bad_packets"] > 0  # (the kernel drops most of a burst this size: not all reach us)
     assert sum(1 for r in recs if r["kind"] == "state") > 10  # the loop kept running
+
+
+def test_sigterm_in_flight_holds_the_vehicle_short_of_the_column(tmp_path):
+    """Stop means stop, with real processes over UDP: `contract-guard sitl` and `contract-guard run` (governor,
+    engaged); SIGTERM to the daemon mid-mission, with the column still beyond its sensor. The daemon commands Hold,
+    sees the autopilot take it, says so, and exits 0; the vehicle then stays short of the column (the SITL's own
+    collision count), where without the Hold the mission flew into it."""
+    sc = tmp_path / "smoke.yaml"
+    sc.write_text(yaml.safe_dump(SCENARIO))
+    port = free_port()
+    sitl = cg("sitl", "--scenario", sc, "--listen", f"udp:127.0.0.1:{port}", "--speedup", "2", "--json")
+    assert "listening" in sitl.stderr.readline()
+    logdir = tmp_path / "log"
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(yaml.safe_dump({
+        "vehicle": "mambo", "mode": "governor", "engage": True,
+        "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": "px4", "clock_rate": 2.0},
+        "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}], "log": {"dir": str(logdir)}}))
+    d = cg("run", "--config", cfg)
+    try:
+        wait_for_event(logdir, "startup_check")
+        gcs_fly(port)
+        wait_for_event(logdir, "limit_change", 60.0)
+        time.sleep(3.0)  # 6 s of flight at twice real time: cruising, the column 60 m out
+        d.send_signal(signal.SIGTERM)
+        out, err = d.communicate(timeout=15)
+        assert d.returncode == 0, err
+        time.sleep(8.0)  # 16 s more of flight: long enough to have reached the column
+    finally:
+        if d.poll() is None:
+            d.kill()
+        sitl.send_signal(signal.SIGINT)
+        sout, _ = sitl.communicate(timeout=15)
+    recs = read_log(logdir)
+    [sd] = [r for r in recs if r.get("event") == "shutdown"]
+    assert sd["hold"] and sd["confirmed"], sd
+    assert any(r.get("event") == "command" and r.get("cmd") == "hold" for r in recs)
+    said = [ln.removeprefix("contract-guard: ") for ln in out.splitlines()]
+    assert any(ln.startswith("stopping (SIGTERM)") for ln in said), out
+    assert any(ln.startswith("stopping in flight: Hold commanded, the autopilot shows it") for ln in said), out
+    assert any("1 holds" in ln for ln in said if ln.startswith("stopped after")), out
+    summary = json.loads(sout.strip().splitlines()[-1])
+    assert summary["collisions"] == 0, summary

@@ -1,0 +1,73 @@
+"""The daemon's vocabulary as enums: its states, offboard's states, the kinds of setpoint guidance streams, the
+causes of a Hold and the subsystems whose guarantees the contract watches. Logic compares members, never a
+message's wording; each member's value is the string the event log has always written (a `StrEnum` is a `str`,
+so it is written, compared with a log's strings and shown unchanged)."""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+
+class State(StrEnum):
+    """The supervisor's state (companion/supervisor.py)."""
+
+    STANDBY = "standby"  # not engaged, not flying, or shadow mode
+    ACTIVE = "active"  # the speed limit is commanded and checked
+    HOLDING = "holding"  # the daemon commanded Hold
+    FAILSAFE = "failsafe"  # the link to the autopilot is lost: nothing can be commanded
+
+
+class OffboardState(StrEnum):
+    """Offboard mode's control of the autopilot (companion/offboard.py)."""
+
+    OFF = "off"
+    ENTERING = "entering"
+    FLYING = "flying"
+    BRAKING = "braking"
+    HELD = "held"
+    DONE = "done"
+    STOOD_DOWN = "stood_down"
+
+
+# offboard streams setpoints in these states
+STREAMING = frozenset((OffboardState.ENTERING, OffboardState.FLYING, OffboardState.BRAKING))
+# offboard is over until asked anew (CG_ENGAGE off and on)
+FINISHED = frozenset((OffboardState.DONE, OffboardState.STOOD_DOWN, OffboardState.HELD))
+
+
+class SetpointKind(StrEnum):
+    """What an offboard setpoint is doing (`guidance.Setpoint.mode`)."""
+
+    CRUISE = "cruise"
+    AVOID = "avoid"
+    BRAKE = "brake"
+    PLANNING = "planning"  # braking for the first plan
+    HOLD = "hold"
+    DONE = "done"
+
+
+class Cause(StrEnum):
+    """Why the supervisor stops the vehicle (each a `failsafe` or `hold_trigger` event's `cause`)."""
+
+    NON_FINITE = "non-finite telemetry"
+    STALE = "stale telemetry"
+    BAD_NAV = "bad navigation estimate"
+    NO_SAFE_SPEED = "no safe speed"
+    LATE = "companion computer late"  # a cycle later than timeouts.cycle_late_s
+    OBSTACLE = "obstacle inside the stop distance"
+    NOT_IN_FORCE = "speed limit not in force"
+
+
+FAILSAFE_CAUSES = frozenset((Cause.NON_FINITE, Cause.STALE, Cause.BAD_NAV, Cause.NO_SAFE_SPEED, Cause.LATE))
+# causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
+BRAKE_STOP_CAUSES = frozenset((Cause.NO_SAFE_SPEED, Cause.NOT_IN_FORCE))
+
+
+class Subsystem(StrEnum):
+    """Whose guarantee a violation breaks (`violation_start.subsystem`)."""
+
+    NAVIGATION = "navigation"
+    CONTROLLER = "controller"
+    ENVIRONMENT = "environment"
+    ACTUATORS = "actuators"
+    GUIDANCE = "guidance"
