@@ -269,13 +269,30 @@ def cmd_table_plot(args) -> int:
 # ----------------------------------------------------------------------------- run
 
 
+def run_config(args):
+    """`run`'s config: the file, with the command line's overrides applied to what the file states (only
+    the keys it sets, so a default never counts as stated: `route.altitude_m` with `source: mission`)."""
+    from .config import config_from_dict, load_config
+
+    cfg = load_config(args.config)
+    if not (args.mode or args.connect or args.log_dir):
+        return cfg
+    data = cfg.model_dump(mode="json", exclude_unset=True)
+    if args.mode:
+        data["mode"] = args.mode
+    if args.connect:
+        data.setdefault("link", {})["connect"] = args.connect
+    if args.log_dir:
+        data.setdefault("log", {})["dir"] = args.log_dir
+    return config_from_dict(data, f"config {args.config} with the command line's overrides")
+
+
 def cmd_run(args) -> int:
     """The daemon (what systemd starts)."""
     import signal
 
     from contracts.table import load_for_vehicle
 
-    from .config import config_from_dict, load_config
     from .console import ConsoleLog, banner
     from .cycle import controller_contract
     from .daemon import Daemon
@@ -285,19 +302,16 @@ def cmd_run(args) -> int:
 
     import faulthandler
 
-    faulthandler.enable()  # a watchdog abort prints the stack to the journal
-    cfg = load_config(args.config)
-    data = cfg.model_dump(mode="json")
-    if args.mode:
-        data["mode"] = args.mode
-    if args.connect:
-        data["link"]["connect"] = args.connect
-    if args.log_dir:
-        data["log"]["dir"] = args.log_dir
-    cfg = config_from_dict(data, f"config {args.config} with the command line's overrides")
+    cfg = run_config(args)
     table = load_for_vehicle(cfg.vehicle, cfg.table)
     if cfg.mode == "offboard" and table.avoid is None:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
+    if args.check:
+        for line in banner(cfg, table, controller_contract(cfg, table)):
+            print(line)
+        print(f"config {args.config}: valid; its table fits (--check: the link is not opened)")
+        return 0
+    faulthandler.enable()  # a watchdog abort prints the stack to the journal
     signing_clock = None
     key = load_signing_key(cfg.link.signing_key_file) if cfg.link.signing_key_file else None
     conn = open_connection(cfg.link.connect, cfg.link.baud, cfg.link.target_system, cfg.link.component_id,
@@ -532,6 +546,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--log-dir", help="override log.dir")
     r.add_argument("--mode", choices=["shadow", "governor", "offboard"], help="override mode")
     r.add_argument("--quiet", action="store_true", help="print nothing (the event log still has everything)")
+    r.add_argument("--check", action="store_true", help="validate the config, its vehicle and table, print the "
+                   "start banner and exit (the link is not opened)")
     r.set_defaults(func=cmd_run)
 
     rv = sub.add_parser("review", help="contract-violation report for a flight's event log, or for raw flight logs "
