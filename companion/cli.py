@@ -311,7 +311,8 @@ def cmd_run(args) -> int:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
     if args.check:
         for line in banner(cfg, table, controller_contract(cfg, table)):
-            print(line)
+            if not line.startswith("waiting for the autopilot"):  # it is not waited for
+                print(line)
         print(f"config {args.config}: valid; its table fits (--check: the link is not opened)")
         return 0
     faulthandler.enable()  # a watchdog abort prints the stack to the journal

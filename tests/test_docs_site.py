@@ -83,6 +83,12 @@ def test_no_reference_outside_the_repository_and_no_jargon(path):
     assert not hits, hits
 
 
+def test_the_generated_pages_carry_no_jargon_either():
+    """They are made of the code's comments and help strings."""
+    for page in (reference.config_page(), reference.cli_page()):
+        assert not [ln for ln in page.splitlines() if FORBIDDEN.search(ln)]
+
+
 REPO_PATH = re.compile(r"`((?:examples|contracts|companion|sitl_harness|benchmarks|systemd|tests|docs)/[\w./-]+)")
 
 
