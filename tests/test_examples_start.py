@@ -76,3 +76,16 @@ def test_an_override_is_validated_with_the_file(tmp_path, capsys):
     assert cli.main(["run", "--config", str(cfg), "--mode", "governor", "--check"]) == cli.EXIT_USER_ERROR
     err = capsys.readouterr().err
     assert "with the command line's overrides" in err and "sensors[0].max_range_m" in err and len(err.splitlines()) == 1
+
+
+def test_run_check_starts_the_own_vehicle_config_beside_its_table(tmp_path, capsys):
+    """examples/vehicles/quad-1600g-sitl.yaml names its vehicle file and table relative to itself; with the
+    table the guide builds (a stop-contract one here, built in seconds) it starts from any directory."""
+    vehicles = tmp_path / "vehicles"
+    shutil.copytree(ROOT / "examples" / "vehicles", vehicles)
+    assert cli.main(["table", "build", "--vehicle", str(vehicles / "quad-1600g.yaml"), "--stop-only",
+                     "--out", str(vehicles / "quad-1600g.npz")]) == 0
+    capsys.readouterr()
+    assert cli.main(["run", "--config", str(vehicles / "quad-1600g-sitl.yaml"), "--check"]) == 0
+    out = capsys.readouterr().out
+    assert f"vehicle quad-1600g, table {vehicles / 'quad-1600g.npz'}" in out and f"event log {vehicles / 'quad-1600g-log'}" in out
