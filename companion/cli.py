@@ -609,7 +609,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", action="store_true", help=JSON)
     q.set_defaults(func=cmd_table_query)
 
-    b = _command(tsub, "build", help="build a Γ table for a vehicle: the stop contract (closed form, about a second) and, unless "
+    b = _command(tsub, "build", help="build a Γ table for a vehicle: the stop contract (closed form, about a second) "
+                 "and, unless "
                  "--stop-only, the avoid contract's sweep over ρ, tilt and thrust ratio (IPOPT via CasADi)")
     b.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
     b.add_argument("--out", type=Path, required=True, help="the table file to write (.npz)")

@@ -28,6 +28,7 @@ def _vehicle_beside_config(ref: str, info: ValidationInfo) -> str:
 
 
 FilePath = Annotated[Path, AfterValidator(_beside_config)]
+VehicleRef = Annotated[str, AfterValidator(_vehicle_beside_config)]
 
 
 class _Strict(BaseModel):
@@ -111,9 +112,9 @@ class RouteConfig(_Strict):
     """The route offboard mode flies: local NED waypoints [m] at a constant altitude (`source: config`),
     or the autopilot's mission, downloaded when engaging (`source: mission`, companion/mission.py)."""
 
-    source: Literal["config", "mission"] = "config"
-    waypoints: Annotated[list[tuple[float, float]], Field(min_length=2)] | None = None
-    altitude_m: Pos = 2.0
+    source: Literal["config", "mission"] = "config"  # config: the waypoints below; mission: the autopilot's
+    waypoints: Annotated[list[tuple[float, float]], Field(min_length=2)] | None = None  # [[north, east], …] [m]
+    altitude_m: Pos = 2.0  # the flight altitude with source: config [m]
     level_tolerance_m: NonNeg = 0.5  # mission: all waypoint altitudes within this (the contract assumes level flight)
     corner_cut_m: NonNeg = 1.0  # corners flown as arcs passing this far inside the waypoint (0: stop there)
 
@@ -130,7 +131,7 @@ class CalibrationConfig(_Strict):
     """The calibration plan's hold legs, flown by the daemon in governor mode (companion/calibration_holds.py):
     `calibration-legs.json` of `contract-guard calibrate plan`, or the `.plan` / `.waypoints` it wrote."""
 
-    legs: FilePath
+    legs: FilePath  # calibration-legs.json (or the .plan / .waypoints) of `contract-guard calibrate plan`
 
     @field_validator("legs")
     @classmethod
@@ -147,15 +148,15 @@ class CalibrationConfig(_Strict):
 
 
 class LogConfig(_Strict):
-    dir: FilePath = Path("/var/log/contract-guard")
-    max_bytes: int = 50_000_000
-    keep: int = 10
-    tlog: bool = False
-    state_hz: Pos = 10.0
+    dir: FilePath = Path("/var/log/contract-guard")  # the event log's directory (events.jsonl, raw.tlog)
+    max_bytes: int = 50_000_000  # an event log file is rotated at this size
+    keep: int = 10  # rotated files kept
+    tlog: bool = False  # also write the raw MAVLink as a .tlog (raw.tlog, as MAVProxy and QGroundControl write it)
+    state_hz: Pos = 10.0  # state samples per second in the event log
 
 
 class Config(_Strict):
-    vehicle: Annotated[str, AfterValidator(_vehicle_beside_config)] | None = None  # shipped name or path to a vehicle file: which aircraft the contract is for
+    vehicle: VehicleRef | None = None  # shipped name or path to a vehicle file: which aircraft the contract is for
     table: FilePath | None = None  # default: the shipped table of the vehicle
     mode: Literal["shadow", "governor", "offboard"] = "shadow"
     engage: bool = False  # engage only when asked (also the CG_ENGAGE parameter)

@@ -127,7 +127,8 @@ def grid_from_dict(data: dict, vehicle: Vehicle) -> Grid:
     if rho[0] <= 0 or rho[-1] >= 1:
         raise ContractError("grid: rho must lie in (0, 1)")
     tilt = _axis(data["tilt_deg"], "tilt_deg", deg=True, span=span["tilt_deg"]) if "tilt_deg" in data else g.tilt
-    tr = _axis(data["thrust_ratio"], "thrust_ratio", span=span["thrust_ratio"]) if "thrust_ratio" in data else g.thrust_ratio
+    tr = (_axis(data["thrust_ratio"], "thrust_ratio", span=span["thrust_ratio"]) if "thrust_ratio" in data
+          else g.thrust_ratio)
     kw = {k: type(getattr(g, k))(data[k]) for k in ("n_intervals", "cpu_time_s", "rel_tol", "starts", "chunk") if k in data}
     return Grid(rho=rho, tilt=tilt, thrust_ratio=tr, **kw)
 

@@ -124,7 +124,8 @@ class Vehicle(_Strict):
         """Itself, or one `ContractError` line naming the optional keys `for_what` needs and the file lacks."""
         missing = [k for k in keys if getattr(self, k) is None]
         if missing:
-            raise ContractError(f"vehicle {self.name}: {', '.join(missing)} required for {for_what} (docs/vehicle-file.md)")
+            raise ContractError(f"vehicle {self.name}: {', '.join(missing)} required for {for_what} "
+                                "(docs/vehicle-file.md)")
         return self
 
     # ----- derived quantities (SI, radians) -----

@@ -221,7 +221,8 @@ def etr_grid_from_dict(data: dict, vehicle: Vehicle) -> EtrGrid:
         raise ContractError("E_tr grid: v_max must be positive")
     span = vehicle_spans(vehicle)
     tilt = axis(data["tilt_deg"], "tilt_deg", deg=True, span=span["tilt_deg"]) if "tilt_deg" in data else g.tilt
-    tr = axis(data["thrust_ratio"], "thrust_ratio", span=span["thrust_ratio"]) if "thrust_ratio" in data else g.thrust_ratio
+    tr = (axis(data["thrust_ratio"], "thrust_ratio", span=span["thrust_ratio"]) if "thrust_ratio" in data
+          else g.thrust_ratio)
     rhos = tuple(float(r) for r in axis(data["rhos"], "rhos")) if "rhos" in data else g.rhos
     seeds = tuple(int(x) for x in data["seeds"]) if "seeds" in data else g.seeds
     if not seeds:

@@ -17,7 +17,8 @@ def own_vehicle_dir(tmp_path: Path) -> Path:
     d = tmp_path / "aircraft"
     d.mkdir()
     shutil.copy(ROOT / "examples" / "vehicles" / "quad-1600g.yaml", d / "quad.yaml")
-    assert cli.main(["table", "build", "--vehicle", str(d / "quad.yaml"), "--stop-only", "--out", str(d / "quad.npz")]) == 0
+    assert cli.main(["table", "build", "--vehicle", str(d / "quad.yaml"), "--stop-only",
+                     "--out", str(d / "quad.npz")]) == 0
     assert cli.main(["calibrate", "plan", "--vehicle", "x500", "--out", str(d / "cal")]) == 0
     (d / "config.yaml").write_text(
         "vehicle: quad.yaml\ntable: quad.npz\nmode: governor\n"

@@ -111,6 +111,8 @@ def default_text(field) -> str:
         return "none" if d is None else ""
     if hasattr(d, "model_dump"):
         return "(see below)"
+    if isinstance(d, bool):
+        return f"`{str(d).lower()}`"  # as YAML spells it
     if isinstance(d, (list, tuple)):
         return f"`{list(d)}`" if d else "`[]`"
     return f"`{d}`"
