@@ -17,7 +17,7 @@ import math
 from collections import deque
 
 
-from contracts.vehicle import SITL_KEYS, G, load_vehicle
+from contracts.vehicle import G, load_vehicle
 
 from .ardupilot import ArduPilot
 from .autopilot import Autopilot, MissionItem
@@ -48,7 +48,7 @@ class Sim:
         sc = scenario if isinstance(scenario, Scenario) else (
             load_scenario(scenario) if scenario is not None else Scenario())
         self.scenario = sc
-        self.vehicle = (vehicle if vehicle is not None else load_vehicle(sc.vehicle)).require(SITL_KEYS, "the SITL")
+        self.vehicle = vehicle if vehicle is not None else load_vehicle(sc.vehicle)
         self.seed = sc.seed if seed is None else seed
         v = self.vehicle
         self.tick_dt = 1.0 / tick_hz
