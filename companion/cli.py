@@ -65,7 +65,7 @@ def need(extra: str, *modules: str) -> None:
 
 
 def table_file(path) -> Path:
-    """A table by file or by shipped name: `x500`, `x500.npz` or the README's `contracts/data/x500.npz` from
+    """A table by file or by shipped name: `x500`, `x500.npz` or the documented `contracts/data/x500.npz` from
     any directory (an installed package keeps its tables inside it)."""
     from contracts.table import shipped_table, shipped_vehicles
 
@@ -201,7 +201,10 @@ def cmd_table_build(args) -> int:
     with _interruptible():
         summary = build_avoid_table(vehicle, args.out, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                                     tilt_model=args.tilt_model or vehicle.tilt_model,
-                                    progress=show_progress(not args.json), resume=args.resume)
+                                    progress=show_progress(not args.json), resume=args.resume,
+                                    partial_grid=args.partial_grid)
+    for gap in summary["coverage_gaps"]:
+        print(f"contract-guard: warning: the grid does not cover the vehicle: {gap}", file=sys.stderr)
     _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {one_line(summary)}")
     return 0
 
@@ -269,13 +272,30 @@ def cmd_table_plot(args) -> int:
 # ----------------------------------------------------------------------------- run
 
 
+def run_config(args):
+    """`run`'s config: the file, with the command line's overrides applied to what the file states (only
+    the keys it sets, so a default never counts as stated: `route.altitude_m` with `source: mission`)."""
+    from .config import config_from_dict, load_config
+
+    cfg = load_config(args.config)
+    if not (args.mode or args.connect or args.log_dir):
+        return cfg
+    data = cfg.model_dump(mode="json", exclude_unset=True)
+    if args.mode:
+        data["mode"] = args.mode
+    if args.connect:
+        data.setdefault("link", {})["connect"] = args.connect
+    if args.log_dir:
+        data.setdefault("log", {})["dir"] = args.log_dir
+    return config_from_dict(data, f"config {args.config} with the command line's overrides")
+
+
 def cmd_run(args) -> int:
     """The daemon (what systemd starts)."""
     import signal
 
     from contracts.table import load_for_vehicle
 
-    from .config import config_from_dict, load_config
     from .console import ConsoleLog, banner
     from .cycle import controller_contract
     from .daemon import Daemon
@@ -285,19 +305,17 @@ def cmd_run(args) -> int:
 
     import faulthandler
 
-    faulthandler.enable()  # a watchdog abort prints the stack to the journal
-    cfg = load_config(args.config)
-    data = cfg.model_dump(mode="json")
-    if args.mode:
-        data["mode"] = args.mode
-    if args.connect:
-        data["link"]["connect"] = args.connect
-    if args.log_dir:
-        data["log"]["dir"] = args.log_dir
-    cfg = config_from_dict(data, f"config {args.config} with the command line's overrides")
+    cfg = run_config(args)
     table = load_for_vehicle(cfg.vehicle, cfg.table)
     if cfg.mode == "offboard" and table.avoid is None:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
+    if args.check:
+        for line in banner(cfg, table, controller_contract(cfg, table)):
+            if not line.startswith("waiting for the autopilot"):  # it is not waited for
+                print(line)
+        print(f"config {args.config}: valid; its table fits (--check: the link is not opened)")
+        return 0
+    faulthandler.enable()  # a watchdog abort prints the stack to the journal
     signing_clock = None
     key = load_signing_key(cfg.link.signing_key_file) if cfg.link.signing_key_file else None
     conn = open_connection(cfg.link.connect, cfg.link.baud, cfg.link.target_system, cfg.link.component_id,
@@ -517,33 +535,47 @@ def cmd_calibrate(args) -> int:
 # ----------------------------------------------------------------------------- parser
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = Parser(prog="contract-guard", description=__doc__.splitlines()[0])
-    sub = p.add_subparsers(dest="command", required=True)
+def _command(sub, name: str, help: str | None = None, **kw) -> argparse.ArgumentParser:
+    """A subcommand whose own `--help` page opens with what it does (its line in the command list; no
+    `help`: not listed, as `calibrate-plan`, which is spelled `calibrate plan`)."""
+    kw.setdefault("description", help)
+    return sub.add_parser(name, **({"help": help} if help else {}), **kw)
 
-    d = sub.add_parser("demo", help="fly the paper's in-flight scenario: SITL + daemon on loopback UDP")
+
+def build_parser() -> argparse.ArgumentParser:
+    p = Parser(prog="contract-guard", description=__doc__.splitlines()[0],
+               epilog="`contract-guard COMMAND --help` describes each command and its options.")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    JSON = "print the result as one JSON object on stdout"
+
+    d = _command(sub, "demo", help="fly the paper's in-flight scenario: SITL + daemon on loopback UDP")
     d.add_argument("--scenario", default="fig17", help="scenario name or file (default: fig17)")
     d.add_argument("--out", type=Path, default=Path("demo-out"), help="event log, plot and summary go here")
-    d.add_argument("--speedup", type=finite, default=2.0)
+    d.add_argument("--speedup", type=finite, default=2.0, help="simulated seconds per wall-clock second (default 2)")
     d.add_argument("--duration", type=finite, default=75.0, help="simulated seconds")
-    d.add_argument("--personality", choices=["px4", "ardupilot"], default="px4")
-    d.add_argument("--json", action="store_true")
+    d.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
+                   help="which autopilot the SITL behaves like (default px4)")
+    d.add_argument("--json", action="store_true", help=JSON)
     d.set_defaults(func=cmd_demo)
 
     # `sitl` hands its arguments to the harness's own parser (see main)
-    sub.add_parser("sitl", help="the SITL vehicle alone, for any MAVLink client: [--scenario NAME|FILE] "
+    _command(sub, "sitl", help="the SITL vehicle alone, for any MAVLink client: [--scenario NAME|FILE] "
                    "--personality px4|ardupilot --listen udp:127.0.0.1:PORT [--speedup K] (an empty world by "
                    "default; `sitl --help` names the shipped scenarios)", add_help=False)
 
-    r = sub.add_parser("run", help="the on-board daemon (what systemd starts)")
-    r.add_argument("--config", required=True, type=Path)
+    r = _command(sub, "run", help="the on-board daemon (what systemd starts): connects to the autopilot, holds its "
+                 "speed within the contract in shadow, governor or offboard mode, and writes the event log")
+    r.add_argument("--config", required=True, type=Path,
+                   help="the daemon's YAML config (relative paths in it are relative to its directory)")
     r.add_argument("--connect", help="override link.connect (pymavlink URL)")
     r.add_argument("--log-dir", help="override log.dir")
     r.add_argument("--mode", choices=["shadow", "governor", "offboard"], help="override mode")
     r.add_argument("--quiet", action="store_true", help="print nothing (the event log still has everything)")
+    r.add_argument("--check", action="store_true", help="validate the config, its vehicle and table, print the "
+                   "start banner and exit (the link is not opened)")
     r.set_defaults(func=cmd_run)
 
-    rv = sub.add_parser("review", help="contract-violation report for a flight's event log, or for raw flight logs "
+    rv = _command(sub, "review", help="contract-violation report for a flight's event log, or for raw flight logs "
                         "(.tlog, PX4 .ulg, ArduPilot .bin) replayed through the contract")
     rv.add_argument("log", nargs="+", type=Path,
                     help="log directory (its rotated set), events*.jsonl files, or raw flight logs to replay "
@@ -556,25 +588,25 @@ def build_parser() -> argparse.ArgumentParser:
     rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here "
                     "(and, for a raw log, the replayed event log replay-events.jsonl; for several, index.html and a page each)")
     rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")
-    rv.add_argument("--json", action="store_true")
+    rv.add_argument("--json", action="store_true", help=JSON)
     rv.set_defaults(func=cmd_review)
 
-    t = sub.add_parser("table", help="build, inspect, query and verify Γ tables")
+    t = _command(sub, "table", help="build, inspect, query, verify and plot Γ tables (the contract of one vehicle)")
     tsub = t.add_subparsers(dest="table_command", required=True)
 
-    s = tsub.add_parser("show", help="print a table's metadata")
-    s.add_argument("file", type=Path)
-    s.add_argument("--json", action="store_true")
+    s = _command(tsub, "show", help="print a table's metadata")
+    s.add_argument("file", type=Path, help="table file (.npz)")
+    s.add_argument("--json", action="store_true", help=JSON)
     s.set_defaults(func=cmd_table_show)
 
-    v = tsub.add_parser("verify", help="check a table (schema, hash, monotonicity, vehicle)")
-    v.add_argument("file", type=Path)
+    v = _command(tsub, "verify", help="check a table (schema, hash, monotonicity, vehicle)")
+    v.add_argument("file", type=Path, help="table file (.npz)")
     v.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
-    v.add_argument("--json", action="store_true")
+    v.add_argument("--json", action="store_true", help=JSON)
     v.set_defaults(func=cmd_table_verify)
 
-    q = tsub.add_parser("query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed")
-    q.add_argument("file", type=Path)
+    q = _command(tsub, "query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed")
+    q.add_argument("file", type=Path, help="table file (.npz)")
     q.add_argument("--d-od", type=finite, required=True, help="obstacle detection range [m]")
     q.add_argument("--r-obst", type=finite, required=True, help="expected obstacle radius [m]")
     q.add_argument("--e-tr", type=finite, required=True, help="measured tracking (contour) error [m]")
@@ -583,23 +615,30 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--v-max", type=finite, help="evaluate Γ at this speed [m/s] instead of the chosen one")
     q.add_argument("--contract", choices=["avoid", "stop"], help="default: avoid if the table has it")
     q.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
-    q.add_argument("--json", action="store_true")
+    q.add_argument("--json", action="store_true", help=JSON)
     q.set_defaults(func=cmd_table_query)
 
-    b = tsub.add_parser("build", help="build a Γ table for a vehicle")
+    b = _command(tsub, "build", help="build a Γ table for a vehicle: the stop contract (closed form, about a second) "
+                 "and, unless "
+                 "--stop-only, the avoid contract's sweep over ρ, tilt and thrust ratio (IPOPT via CasADi)")
     b.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
-    b.add_argument("--out", type=Path, required=True)
+    b.add_argument("--out", type=Path, required=True, help="the table file to write (.npz)")
     b.add_argument("--stop-only", action="store_true", help="carry the stop contract only (no sweep)")
     b.add_argument("--grid", type=Path, help="grid YAML (default: the vehicle's shipped grid)")
     b.add_argument("--workers", type=int, default=2, help="local process pool size")
     b.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
-    b.add_argument("--tilt-model", choices=["cone", "box"], default=None)
+    b.add_argument("--tilt-model", choices=["cone", "box"], default=None,
+                   help="how the autopilot limits tilt: total tilt (cone) or roll and pitch apart (box); "
+                   "default: the vehicle file's tilt_model")
+    b.add_argument("--partial-grid", action="store_true",
+                   help="build even when the grid does not cover the vehicle's thrust_ratio_range and tilt limit "
+                   "(warns; below the grid's lowest thrust ratio the daemon finds no safe speed)")
     b.add_argument("--resume", action="store_true",
                    help="continue an interrupted build from its checkpoint (OUT.partial/, kept until the table is written)")
-    b.add_argument("--json", action="store_true")
+    b.add_argument("--json", action="store_true", help=JSON)
     b.set_defaults(func=cmd_table_build)
 
-    e = tsub.add_parser("etr", help="fly the SITL and write the controller contract E_tr_pred (Figure 12) into a table")
+    e = _command(tsub, "etr", help="fly the SITL and write the controller contract E_tr_pred (Figure 12) into a table")
     e.add_argument("--table", type=Path, required=True, help="table with an avoid slot (updated in place unless --out)")
     e.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
     e.add_argument("--out", type=Path, help="write the result here instead of in place")
@@ -609,29 +648,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue an interrupted sweep from its checkpoint (DEST.partial/, kept until the table is written)")
     e.add_argument("--workers", type=int, default=2, help="local process pool size")
     e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
-    e.add_argument("--json", action="store_true")
+    e.add_argument("--json", action="store_true", help=JSON)
     e.set_defaults(func=cmd_table_etr)
 
-    fg = sub.add_parser("figures", help="Figure 12 and the demonstration flights of Figures 14-16, PNG + CSV")
-    fg.add_argument("--out", type=Path, required=True)
+    fg = _command(sub, "figures", help="Figure 12 and the demonstration flights of Figures 14-16, PNG + CSV")
+    fg.add_argument("--out", type=Path, required=True, help="directory for the PNG and CSV files")
     fg.add_argument("--table", type=Path, help="table file (default: the shipped Mambo table)")
     fg.add_argument("--seeds", type=int, default=3, help="wind seeds per flight")
-    fg.add_argument("--json", action="store_true")
+    fg.add_argument("--json", action="store_true", help=JSON)
     fg.set_defaults(func=cmd_figures)
 
-    cp = tsub.add_parser("compare", help="analytical vs numerical contract (Figures 4, 6, 7), PNG + CSV")
-    cp.add_argument("--vehicle", default="mambo")
-    cp.add_argument("--tilt-deg", type=finite, default=5.0)
-    cp.add_argument("--out", type=Path, required=True)
-    cp.add_argument("--tilt-model", choices=["box", "cone"], default="box")
+    cp = _command(tsub, "compare", help="analytical vs numerical contract (Figures 4, 6, 7), PNG + CSV")
+    cp.add_argument("--vehicle", default="mambo", help="vehicle file or shipped name (default mambo)")
+    cp.add_argument("--tilt-deg", type=finite, default=5.0, help="tilt limit of the comparison [deg] (default 5)")
+    cp.add_argument("--out", type=Path, required=True, help="directory for the PNG and CSV files")
+    cp.add_argument("--tilt-model", choices=["box", "cone"], default="box",
+                    help="tilt limit as roll and pitch apart (box, the paper's) or total tilt (cone)")
     cp.add_argument("--placement", choices=["face", "concentric"], default="face",
                     help="squares' near faces at D_od (face) or centred on the circle (concentric, Figure 5)")
     cp.add_argument("--ts", type=finite, default=0.02, help="sample time of the collision sets [s]")
-    cp.add_argument("--d-od-step", type=finite, default=0.5)
-    cp.add_argument("--json", action="store_true")
+    cp.add_argument("--d-od-step", type=finite, default=0.5, help="step of the detection-range axis [m] (default 0.5)")
+    cp.add_argument("--json", action="store_true", help=JSON)
     cp.set_defaults(func=cmd_table_compare)
 
-    cg = sub.add_parser("campaign", help="Monte Carlo lock-step flights over a scenario distribution, with the "
+    cg = _command(sub, "campaign", help="Monte Carlo lock-step flights over a scenario distribution, with the "
                         "PX4/ArduPilot laws as baselines and negative controls, on a pool or a Dask cluster; report")
     cg.add_argument("spec", type=Path, help="campaign spec (YAML)")
     cg.add_argument("--out", type=Path, help="results.jsonl and the report (an interrupted campaign resumes here)")
@@ -640,11 +680,11 @@ def build_parser() -> argparse.ArgumentParser:
     cg.add_argument("--fly", type=int, metavar="INDEX", help="re-fly one flight (with --out: its event log too)")
     cg.add_argument("--limit", type=int, help="fly at most this many more flights, then report")
     cg.add_argument("--report-only", action="store_true", help="report the results already in --out")
-    cg.add_argument("--no-progress", action="store_true")
-    cg.add_argument("--json", action="store_true")
+    cg.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    cg.add_argument("--json", action="store_true", help=JSON)
     cg.set_defaults(func=cmd_campaign)
 
-    ca = sub.add_parser("calibrate", help="calibrate the controller contract and braking from flight logs "
+    ca = _command(sub, "calibrate", help="calibrate the controller contract and braking from flight logs "
                         "(`calibrate plan` writes the calibration flight plan)")
     ca.add_argument("log", nargs="+", type=Path, help="flight logs (.tlog, .ulg, .bin) or folders of them")
     ca.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
@@ -652,23 +692,25 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--out", type=Path, required=True, help="the calibrated table (NEW.npz; NEW.yaml and the report beside)")
     ca.add_argument("--quantile", type=finite, default=0.9, help="quantile the per-cell bound covers (default 0.9)")
     ca.add_argument("--confidence", type=finite, default=0.9, help="its confidence (default 0.9)")
-    ca.add_argument("--json", action="store_true")
+    ca.add_argument("--json", action="store_true", help=JSON)
     ca.set_defaults(func=cmd_calibrate)
 
-    cpl = sub.add_parser("calibrate-plan", help=argparse.SUPPRESS)
+    cpl = _command(sub, "calibrate-plan",
+                   description="write the calibration flight plan: calibration.plan (QGroundControl), "
+                   "calibration.waypoints (Mission Planner) and calibration-legs.json (the daemon's hold legs)")
     cpl.prog = "contract-guard calibrate plan"
     cpl.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
     cpl.add_argument("--out", type=Path, required=True, help="directory for calibration.plan / .waypoints / -legs.json")
     cpl.add_argument("--table", type=Path, help="table whose E_tr_pred speed grid sets the ladder (default: shipped)")
     cpl.add_argument("--v-top", type=finite, help="top speed of the ladder [m/s] (default: the grid's top)")
     cpl.add_argument("--altitude", type=finite, default=5.0, help="altitude above home [m]")
-    cpl.add_argument("--json", action="store_true")
+    cpl.add_argument("--json", action="store_true", help=JSON)
     cpl.set_defaults(func=cmd_calibrate_plan)
 
-    pl = tsub.add_parser("plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
-    pl.add_argument("file", type=Path)
-    pl.add_argument("--out", type=Path, required=True)
-    pl.add_argument("--json", action="store_true")
+    pl = _command(tsub, "plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
+    pl.add_argument("file", type=Path, help="table file (.npz)")
+    pl.add_argument("--out", type=Path, required=True, help="directory for the PNG and CSV files")
+    pl.add_argument("--json", action="store_true", help=JSON)
     pl.set_defaults(func=cmd_table_plot)
     return p
 

@@ -6,12 +6,29 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from contracts.yamlfile import load_model, model_from_dict
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+
+
+def _beside_config(path: Path, info: ValidationInfo) -> Path:
+    """A relative path in a config file is relative to the file's directory (`load_config`), not to the
+    directory the daemon was started in."""
+    base = (info.context or {}).get("config_dir")
+    return base / path if base is not None and not path.is_absolute() else path
+
+
+def _vehicle_beside_config(ref: str, info: ValidationInfo) -> str:
+    """`vehicle:` is a shipped name (`x500`) or a vehicle file, relative to the config file's directory."""
+    p = Path(ref)
+    return str(_beside_config(p, info)) if p.suffix in (".yaml", ".yml") or len(p.parts) > 1 else ref
+
+
+FilePath = Annotated[Path, AfterValidator(_beside_config)]
+VehicleRef = Annotated[str, AfterValidator(_vehicle_beside_config)]
 
 
 class _Strict(BaseModel):
@@ -42,8 +59,8 @@ class LinkConfig(_Strict):
     # the autopilot's clock rate against the host's: 1 for a real aircraft, K for a SITL sped up K times;
     # daemon time runs at it, and an autopilot clock running otherwise is a fault
     clock_rate: Annotated[float, Field(ge=0.1, le=20)] = 1.0
-    signing_key_file: Path | None = None  # 32-byte key (raw or 64 hex chars), readable only by us
-    signing_timestamp_file: Path | None = None  # persisted across restarts (no RTC on many boards)
+    signing_key_file: FilePath | None = None  # 32-byte key (raw or 64 hex chars), readable only by us
+    signing_timestamp_file: FilePath | None = None  # persisted across restarts (no RTC on many boards)
 
     @field_validator("autopilot")
     @classmethod
@@ -66,7 +83,7 @@ class ContractConfig(_Strict):
     dwell_s: NonNeg = 2.0  # a higher limit takes effect only after holding this long
     late_detection_hold_s: NonNeg = 10.0  # how long a late first detection lowers D_od
     late_detection_tolerance_m: NonNeg = 0.3
-    # navigation margin (issue 19 item 8): the part of a sensor's claimed range not trusted, D_od = (1 − m) ×
+    # navigation margin: the part of a sensor's claimed range not trusted, D_od = (1 − m) ×
     # the claim; 0 is the paper's contract (the claim is the guarantee). m survives a hidden shortfall of up to
     # m (the sensor silently seeing only 1 − m of what it claims), at a lower speed limit
     nav_margin: Annotated[float, Field(ge=0, le=0.9, allow_inf_nan=False)] = 0.0
@@ -95,9 +112,9 @@ class RouteConfig(_Strict):
     """The route offboard mode flies: local NED waypoints [m] at a constant altitude (`source: config`),
     or the autopilot's mission, downloaded when engaging (`source: mission`, companion/mission.py)."""
 
-    source: Literal["config", "mission"] = "config"
-    waypoints: Annotated[list[tuple[float, float]], Field(min_length=2)] | None = None
-    altitude_m: Pos = 2.0
+    source: Literal["config", "mission"] = "config"  # config: the waypoints below; mission: the autopilot's
+    waypoints: Annotated[list[tuple[float, float]], Field(min_length=2)] | None = None  # [[north, east], …] [m]
+    altitude_m: Pos = 2.0  # the flight altitude with source: config [m]
     level_tolerance_m: NonNeg = 0.5  # mission: all waypoint altitudes within this (the contract assumes level flight)
     corner_cut_m: NonNeg = 1.0  # corners flown as arcs passing this far inside the waypoint (0: stop there)
 
@@ -114,7 +131,7 @@ class CalibrationConfig(_Strict):
     """The calibration plan's hold legs, flown by the daemon in governor mode (companion/calibration_holds.py):
     `calibration-legs.json` of `contract-guard calibrate plan`, or the `.plan` / `.waypoints` it wrote."""
 
-    legs: Path
+    legs: FilePath  # calibration-legs.json (or the .plan / .waypoints) of `contract-guard calibrate plan`
 
     @field_validator("legs")
     @classmethod
@@ -131,16 +148,16 @@ class CalibrationConfig(_Strict):
 
 
 class LogConfig(_Strict):
-    dir: Path = Path("/var/log/contract-guard")
-    max_bytes: int = 50_000_000
-    keep: int = 10
-    tlog: bool = False
-    state_hz: Pos = 10.0
+    dir: FilePath = Path("/var/log/contract-guard")  # the event log's directory (events.jsonl, raw.tlog)
+    max_bytes: int = 50_000_000  # an event log file is rotated at this size
+    keep: int = 10  # rotated files kept
+    tlog: bool = False  # also write the raw MAVLink as a .tlog (raw.tlog, as MAVProxy and QGroundControl write it)
+    state_hz: Pos = 10.0  # state samples per second in the event log
 
 
 class Config(_Strict):
-    vehicle: str | None = None  # shipped name or path to a vehicle file: which aircraft the contract is for
-    table: Path | None = None  # default: the shipped table of the vehicle
+    vehicle: VehicleRef | None = None  # shipped name or path to a vehicle file: which aircraft the contract is for
+    table: FilePath | None = None  # default: the shipped table of the vehicle
     mode: Literal["shadow", "governor", "offboard"] = "shadow"
     engage: bool = False  # engage only when asked (also the CG_ENGAGE parameter)
     loop_hz: Pos = 50.0
@@ -175,4 +192,6 @@ def config_from_dict(data: object, source: str = "config") -> Config:
 
 
 def load_config(path: str | Path) -> Config:
-    return load_model(Config, path, "config", empty_ok=True)
+    """A config file; the relative paths in it (vehicle file, table, log directory, calibration legs,
+    signing files) are relative to the file's own directory."""
+    return load_model(Config, path, "config", empty_ok=True, context={"config_dir": Path(path).parent})

@@ -10,12 +10,21 @@ import yaml
 from .errors import ContractError
 
 
-def axis(spec, name, deg=False) -> np.ndarray:
+def axis(spec, name, deg=False, span: tuple[float, float] | None = None) -> np.ndarray:
+    """The axis values (radians when `deg`). In a mapping, `min` and `max` default to `span` (the vehicle's
+    range for this axis, so a grid file need not repeat the vehicle file); `n: 1` is the top end."""
     if isinstance(spec, (list, tuple)):
         vals = np.asarray(spec, dtype=float)
     elif isinstance(spec, dict):
-        lo, hi = float(spec["min"]), float(spec["max"])
-        if "step" in spec:
+        known = {"min", "max", "n", "step", "spacing"}
+        if set(spec) - known or not {"n", "step"} & set(spec):
+            raise ContractError(f"grid: {name} takes min, max (default: the vehicle's) and n or step")
+        if span is None and not {"min", "max"} <= set(spec):
+            raise ContractError(f"grid: {name} needs min and max")
+        lo, hi = (float(spec[k]) if k in spec else float(d) for k, d in zip(("min", "max"), span or (0, 0)))
+        if "step" not in spec and int(spec["n"]) == 1:
+            vals = np.asarray([hi])
+        elif "step" in spec:
             vals = np.arange(lo, hi + 0.5 * float(spec["step"]), float(spec["step"]))
             vals = np.round(vals, 10)
         else:
@@ -28,6 +37,11 @@ def axis(spec, name, deg=False) -> np.ndarray:
     if vals.size == 0 or not np.all(np.isfinite(vals)) or np.any(np.diff(vals) <= 0):
         raise ContractError(f"grid: {name} must be finite and strictly increasing")
     return np.radians(vals) if deg else vals
+
+
+def vehicle_spans(vehicle) -> dict:
+    """What a grid axis given as `{n: N}` (no min/max) spans: the vehicle's thrust range, 3°…its tilt limit."""
+    return {"tilt_deg": (3.0, vehicle.tilt_max_deg), "thrust_ratio": tuple(vehicle.thrust_ratio_range)}
 
 
 def load_mapping(path, what: str = "grid file") -> dict:

@@ -65,6 +65,7 @@ class Limits:
     @classmethod
     def from_vehicle(cls, vehicle: Vehicle, tilt: float, thrust_ratio: float, v_max: float = math.inf,
                      tilt_model: str | None = None, rates: bool = False, **kw) -> "Limits":
+        vehicle.require(("inertia_kg_m2", "yaw_moment_max_nm"), "the avoid contract (build with --stop-only without them)")
         return cls(mass=vehicle.mass_kg, t_max=vehicle.t_max(thrust_ratio), tilt=tilt,
                    tilt_model=tilt_model or vehicle.tilt_model, v_max=v_max,
                    rate_max=vehicle.tilt_rate_max if rates else None,

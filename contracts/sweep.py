@@ -34,7 +34,7 @@ import numpy as np
 from .avoid_limit import policy_guess, stop_speed_kinematic
 from .errors import ContractError
 from .flat import horizontal_accel_limit, thrust_limited_accel
-from .gridspec import as_grid, load_mapping
+from .gridspec import as_grid, load_mapping, vehicle_spans
 from .gridspec import axis as _axis
 from .lookup import repair_monotone
 from .planner import Limits, check_trajectory, head_on_problem, plan
@@ -77,8 +77,31 @@ def default_grid(vehicle: Vehicle) -> Grid:
     tilts, where the conservative lookup would otherwise lose up to √(tan 3°/tan 4°) ≈ 13 % per step."""
     lo, hi = vehicle.thrust_ratio_range
     return Grid(rho=np.geomspace(0.01, 0.97, 120),
-                tilt=np.radians(np.round(np.arange(3.0, vehicle.tilt_max_deg + 0.125, 0.25), 10)),
-                thrust_ratio=np.round(np.arange(lo, hi + 0.025, 0.05), 10))
+                tilt=np.radians(_with_end(np.arange(3.0, vehicle.tilt_max_deg + 0.125, 0.25), vehicle.tilt_max_deg)),
+                thrust_ratio=_with_end(np.arange(lo, hi + 0.025, 0.05), hi))
+
+
+def _with_end(axis: np.ndarray, end: float) -> np.ndarray:
+    """A stepped axis ending exactly at `end` (the vehicle's limit), whatever the step."""
+    axis = np.round(axis[axis < end - 1e-9], 10)
+    return np.append(axis, round(end, 10))
+
+
+def grid_coverage(grid: Grid, vehicle: Vehicle) -> list[str]:
+    """Where the grid's axes fall short of the vehicle: a thrust ratio below the lowest on the axis has no safe
+    speed at all (the lookup answers NONE below a 'helps' axis); above the top, or a tilt above the top tilt,
+    the table answers for the axis end (safe, slower)."""
+    lo, hi = vehicle.thrust_ratio_range
+    tr, top = grid.thrust_ratio, math.degrees(grid.tilt[-1])
+    gaps = []
+    if tr[0] > lo + 1e-9:
+        gaps.append(f"thrust_ratio axis starts at {tr[0]:g} above the vehicle's {lo:g}: from {lo:g} to {tr[0]:g} "
+                    "(a fresh or degraded thrust estimate) the daemon finds no safe speed")
+    if tr[-1] < hi - 1e-9:
+        gaps.append(f"thrust_ratio axis ends at {tr[-1]:g} below the vehicle's {hi:g}")
+    if top < vehicle.tilt_max_deg - 1e-6:
+        gaps.append(f"tilt axis ends at {top:g}° below the vehicle's tilt limit {vehicle.tilt_max_deg:g}°")
+    return gaps
 
 
 def grid_from_dict(data: dict, vehicle: Vehicle) -> Grid:
@@ -87,6 +110,7 @@ def grid_from_dict(data: dict, vehicle: Vehicle) -> Grid:
         rho: {min: 0.01, max: 0.97, n: 120, spacing: geometric}   # or a list
         tilt_deg: {min: 3, max: 25, step: 1}                      # or a list
         thrust_ratio: {min: 0.6, max: 1.0, step: 0.05}            # or a list
+        thrust_ratio: {n: 2}     # min/max left out: the vehicle's (`vehicle_spans`); n: 1 is the top end
         n_intervals: 40      # planner intervals N
         cpu_time_s: 1.0      # IPOPT max_cpu_time per solve
         rel_tol: 0.001       # bisection bracket width
@@ -98,12 +122,13 @@ def grid_from_dict(data: dict, vehicle: Vehicle) -> Grid:
     bad = set(data) - known
     if bad:
         raise ContractError(f"grid: unknown key {sorted(bad)[0]!r}")
-    g = default_grid(vehicle)
+    g, span = default_grid(vehicle), vehicle_spans(vehicle)
     rho = _axis(data["rho"], "rho") if "rho" in data else g.rho
     if rho[0] <= 0 or rho[-1] >= 1:
         raise ContractError("grid: rho must lie in (0, 1)")
-    tilt = _axis(data["tilt_deg"], "tilt_deg", deg=True) if "tilt_deg" in data else g.tilt
-    tr = _axis(data["thrust_ratio"], "thrust_ratio") if "thrust_ratio" in data else g.thrust_ratio
+    tilt = _axis(data["tilt_deg"], "tilt_deg", deg=True, span=span["tilt_deg"]) if "tilt_deg" in data else g.tilt
+    tr = (_axis(data["thrust_ratio"], "thrust_ratio", span=span["thrust_ratio"]) if "thrust_ratio" in data
+          else g.thrust_ratio)
     kw = {k: type(getattr(g, k))(data[k]) for k in ("n_intervals", "cpu_time_s", "rel_tol", "starts", "chunk") if k in data}
     return Grid(rho=rho, tilt=tilt, thrust_ratio=tr, **kw)
 
@@ -245,19 +270,26 @@ def _scaled(w, ts, v, lam):
 
 def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str | None = None,
                       tilt_model: str = "cone", progress: bool = True, resume: bool = False,
-                      checkpoint: bool = True) -> dict:
+                      checkpoint: bool = True, partial_grid: bool = False) -> dict:
     """Build, verify and write the avoid table (plus `<out>.trajectories.npz`); returns a summary.
 
     `vehicle`: a `Vehicle`, a shipped name or a YAML path. `grid`: a `Grid`, a dict (`grid_from_dict`),
     a YAML path, or None (`default_grid`). `workers`: local process pool size (1: in-process);
     `scheduler`: a Dask distributed scheduler address (overrides `workers`).
-    Raises `ContractError` if more than 1 % of the cells need a monotonicity repair. With `checkpoint`,
+    Raises `ContractError` if the grid does not cover the vehicle's thrust range and tilt limit
+    (`grid_coverage`; `partial_grid`: the summary's `coverage_gaps` lists them instead), or if more than 1 % of the
+    cells need a monotonicity repair. With `checkpoint`,
     finished tasks are kept in `<out>.partial/` until the table is written; `resume` continues from it
     (`contracts.runner.Checkpoint`), and an existing checkpoint without `resume` is refused.
     """
     t_start = time.perf_counter()
     veh = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
+    veh.require(("inertia_kg_m2", "yaw_moment_max_nm"), "the avoid table (build with --stop-only without them)")
     grid = as_grid(grid, veh, default_grid, grid_from_dict)
+    gaps = grid_coverage(grid, veh)
+    if gaps and not partial_grid:
+        raise ContractError(f"grid does not cover vehicle {veh.name}: {'; '.join(gaps)} (widen the grid, or "
+                            "--partial-grid to build it anyway)")
     if tilt_model not in ("cone", "box"):
         raise ContractError(f"unknown tilt model {tilt_model!r} (cone or box)")
     out = Path(out)
@@ -361,7 +393,8 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
             "cells": int(F.size), "shape_classes": len(classes), "class_cells": int(len(classes) * n_rho),
             "solves": int(len(solves)), "solve_cpu_s": {"feasible": feas.tolist(), "infeasible": infeas.tolist()},
             "monotone_repairs": int(repairs), "verify_fallbacks": int(fails), "wall_s": wall,
-            "resumed_cells": ckpt.resumed_items if ckpt is not None else 0, "grid": grid.describe()}
+            "resumed_cells": ckpt.resumed_items if ckpt is not None else 0, "grid": grid.describe(),
+            "coverage_gaps": gaps}
 
 
 # ============================================================================ fresh answers (tests, note)

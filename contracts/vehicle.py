@@ -15,10 +15,13 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from .errors import ContractError
 from .yamlfile import load_model, model_from_dict, resolve_named
 
 G = 9.80665  # standard gravity [m/s²]
 DATA_DIR = Path(__file__).resolve().parent / "data"
+# keys only the SITL and the avoid sweep need: a stop-only table (`table build --stop-only`) does without them
+SITL_KEYS = ("inertia_kg_m2", "yaw_moment_max_nm", "rotor")
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -82,7 +85,8 @@ class Vehicle(_Strict):
     name: str
     description: str = ""
     mass_kg: Pos
-    inertia_kg_m2: tuple[Pos, Pos, Pos]
+    # the SITL's physics and the avoid sweep (yaw authority, eq. 7); not needed for a stop-only table
+    inertia_kg_m2: tuple[Pos, Pos, Pos] | None = None
     t_nom_n: Pos  # nominal maximum total thrust, all rotors at ω_max
     collective_max_fraction: Frac = 1.0  # share of T_max usable for translation (rest: attitude authority)
     r_body_m: Pos  # radius of the disc that holds the whole vehicle
@@ -90,11 +94,11 @@ class Vehicle(_Strict):
     tilt_max_deg: Annotated[float, Field(gt=0, lt=89)]  # the autopilot's total-tilt limit
     tilt_rate_max_deg_s: Pos
     yaw_rate_max_deg_s: Pos
-    yaw_moment_max_nm: Pos
+    yaw_moment_max_nm: Pos | None = None  # the avoid sweep's yaw authority u_ψ,max (eq. 7)
     drag_coeff_n_s2_m2: NonNeg = 0.0  # quadratic body drag, F = c·|v|·v
     thrust_ratio_range: tuple[Frac, Frac]
     braking: Braking
-    rotor: Rotor
+    rotor: Rotor | None = None  # the SITL's rotor model
     controller: Controller = Controller()
     wind: Wind = Wind()
     tilt_model: Literal["cone", "box"] = "cone"
@@ -104,7 +108,7 @@ class Vehicle(_Strict):
         lo, hi = self.thrust_ratio_range
         if not lo < hi:
             raise ValueError(f"thrust_ratio_range: lower end {lo} must be below upper end {hi}")
-        rotor_thrust = 4.0 * self.rotor.k_thrust * self.rotor.omega_max_rad_s**2
+        rotor_thrust = 4.0 * self.rotor.k_thrust * self.rotor.omega_max_rad_s**2 if self.rotor else self.t_nom_n
         if abs(rotor_thrust - self.t_nom_n) > 0.02 * self.t_nom_n:
             raise ValueError(
                 f"t_nom_n: {self.t_nom_n} N disagrees with 4·k_thrust·omega_max² = {rotor_thrust:.4g} N"
@@ -114,6 +118,14 @@ class Vehicle(_Strict):
                 f"thrust_ratio_range: at {lo} the usable thrust {self.t_max(lo):.3g} N cannot hold the "
                 f"weight {self.mass_kg * G:.3g} N with a 2 % margin"
             )
+        return self
+
+    def require(self, keys: tuple[str, ...], for_what: str) -> "Vehicle":
+        """Itself, or one `ContractError` line naming the optional keys `for_what` needs and the file lacks."""
+        missing = [k for k in keys if getattr(self, k) is None]
+        if missing:
+            raise ContractError(f"vehicle {self.name}: {', '.join(missing)} required for {for_what} "
+                                "(docs/vehicle-file.md)")
         return self
 
     # ----- derived quantities (SI, radians) -----

@@ -30,14 +30,15 @@ def one_line(err: ValidationError) -> str:
 
 
 def model_from_dict(model: type[M], data: object, source: str, error: type[Exception] = ContractError,
-                    empty_ok: bool = False) -> M:
-    """Validate a mapping; `error(f"{source}: …")` with one line if it does not fit."""
+                    empty_ok: bool = False, context: dict | None = None) -> M:
+    """Validate a mapping (`context`: pydantic's validation context); `error(f"{source}: …")` with one line
+    if it does not fit."""
     if data is None and empty_ok:
         data = {}
     if not isinstance(data, dict):
         raise error(f"{source}: expected a mapping")
     try:
-        return model.model_validate(data)
+        return model.model_validate(data, context=context)
     except ValidationError as err:
         raise error(f"{source}: {one_line(err)}") from None
 
@@ -97,7 +98,7 @@ def parse_yaml(text: str) -> object:
 
 
 def load_model(model: type[M], path: str | Path, what: str, error: type[Exception] = ContractError,
-               empty_ok: bool = False) -> M:
+               empty_ok: bool = False, context: dict | None = None) -> M:
     """Read, parse and validate a YAML file; every failure is one `error` line naming the file."""
     path = Path(path)
     raw = read_bounded(path, what, error=error)
@@ -116,4 +117,4 @@ def load_model(model: type[M], path: str | Path, what: str, error: type[Exceptio
     except (ValueError, RecursionError) as err:
         why = "nested too deeply" if isinstance(err, RecursionError) else str(err)
         raise error(f"{what} {path}: refused: {why}") from None
-    return model_from_dict(model, data, f"{what} {path.name}", error, empty_ok)
+    return model_from_dict(model, data, f"{what} {path.name}", error, empty_ok, context)

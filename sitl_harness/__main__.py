@@ -32,7 +32,8 @@ def build_parser(prog: str = "python -m sitl_harness") -> argparse.ArgumentParse
         "On SIGINT/SIGTERM it stops and prints its summary.")
     ap.add_argument("--scenario", default="empty",
                     help="scenario YAML file or shipped scenario name (default: empty, no obstacles, no route)")
-    ap.add_argument("--personality", choices=("px4", "ardupilot"), default="px4")
+    ap.add_argument("--personality", choices=("px4", "ardupilot"), default="px4",
+                    help="which autopilot it behaves like: modes, parameters, mission and offboard rules (default px4)")
     ap.add_argument("--listen", default="udp:127.0.0.1:14540", help="udp:HOST:PORT (answer senders) or udpout:HOST:PORT")
     ap.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall-clock second")
     ap.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")

@@ -58,7 +58,7 @@ import numpy as np
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
-from contracts.gridspec import as_grid, axis, load_mapping
+from contracts.gridspec import as_grid, axis, load_mapping, vehicle_spans
 from contracts.lookup import repair_monotone
 from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc
 from contracts.runner import Checkpoint, run_tasks
@@ -207,6 +207,7 @@ def etr_grid_from_dict(data: dict, vehicle: Vehicle) -> EtrGrid:
         v_max: {min: 1, max: 8, step: 0.5}     # [m/s], or a list
         tilt_deg: [5, 15, 30]                  # must lie on the avoid table's tilt axis
         thrust_ratio: [0.6, 1.0]               # must lie on the avoid table's thrust axis
+        thrust_ratio: {n: 2}                   # min/max left out: the vehicle's range; n: 1 is the top end
         rhos: [0.1, 0.35]                      # avoid geometries flown (default BUILD_RHOS)
         seeds: [0, 1]                          # wind seeds per flight
     """
@@ -218,8 +219,10 @@ def etr_grid_from_dict(data: dict, vehicle: Vehicle) -> EtrGrid:
     v = axis(data["v_max"], "v_max") if "v_max" in data else g.v
     if v[0] <= 0:
         raise ContractError("E_tr grid: v_max must be positive")
-    tilt = axis(data["tilt_deg"], "tilt_deg", deg=True) if "tilt_deg" in data else g.tilt
-    tr = axis(data["thrust_ratio"], "thrust_ratio") if "thrust_ratio" in data else g.thrust_ratio
+    span = vehicle_spans(vehicle)
+    tilt = axis(data["tilt_deg"], "tilt_deg", deg=True, span=span["tilt_deg"]) if "tilt_deg" in data else g.tilt
+    tr = (axis(data["thrust_ratio"], "thrust_ratio", span=span["thrust_ratio"]) if "thrust_ratio" in data
+          else g.thrust_ratio)
     rhos = tuple(float(r) for r in axis(data["rhos"], "rhos")) if "rhos" in data else g.rhos
     seeds = tuple(int(x) for x in data["seeds"]) if "seeds" in data else g.seeds
     if not seeds:

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from contracts.vehicle import G
+from contracts.vehicle import SITL_KEYS, G
 
 from contracts.jit import njit
 from .control import (C_ATT_P, C_DT, C_HTE_TAU, C_IDLE, C_N, C_POS_P, C_RATE_D, C_RATE_I, C_RATE_P,
@@ -68,6 +68,7 @@ class VehicleModel:
 
     def __init__(self, vehicle, physics_hz: float = 1000.0, yaw: float = 0.0, pos=(0.0, 0.0, 0.0),
                  actuator_delay_s: float = 0.0):
+        vehicle.require(SITL_KEYS, "the SITL")  # its rotor model and inertia (optional in a vehicle file)
         if physics_hz < 500.0:
             raise ValueError("physics_hz must be at least 500")
         if not (math.isfinite(actuator_delay_s) and 0.0 <= actuator_delay_s <= 1.0):

@@ -18,13 +18,16 @@ from contracts.trajectories import limiting_trajectory  # noqa: E402
 from contracts.vehicle import G, load_vehicle  # noqa: E402
 
 CI_GRID = {"rho": [0.05, 0.15, 0.3, 0.6], "tilt_deg": [5, 13], "thrust_ratio": [0.6, 1.0], "starts": 1}
+# these grids stop short of the Mambo's 25° tilt limit and thrust range on purpose (seconds, not minutes):
+# partial_grid builds them anyway (tests/test_grid_coverage.py checks the refusal without it)
 
 
 @pytest.fixture(scope="module")
 def ci_table(tmp_path_factory):
     veh = load_vehicle("mambo")
     out = tmp_path_factory.mktemp("avoid") / "ci.npz"
-    summary = sweep.build_avoid_table(veh, out, grid=CI_GRID, workers=1, progress=False)
+    summary = sweep.build_avoid_table(veh, out, grid=CI_GRID, workers=1, progress=False,
+                                     partial_grid=True)
     return veh, out, summary
 
 
@@ -104,7 +107,8 @@ def test_build_fails_when_more_than_one_percent_of_cells_need_repair(tmp_path, m
     monkeypatch.setattr(sweep, "run_tasks", fake_run)
     with pytest.raises(ContractError, match="monotonicity repair"):
         sweep.build_avoid_table(veh, tmp_path / "bad.npz", grid={"rho": [0.1, 0.2, 0.3, 0.4], "tilt_deg": [5],
-                                                               "thrust_ratio": [1.0]}, workers=1, progress=False)
+                                                               "thrust_ratio": [1.0]}, workers=1, progress=False,
+                                partial_grid=True)
     assert not (tmp_path / "bad.npz").exists() and not (tmp_path / "bad.npz.partial").exists()
 
 
@@ -114,6 +118,6 @@ def test_dask_scheduler_path(tmp_path):
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as lc:
         s = sweep.build_avoid_table(veh, tmp_path / "d.npz", grid={"rho": [0.2, 0.5], "tilt_deg": [9],
                                                                   "thrust_ratio": [1.0], "starts": 1},
-                                    scheduler=lc.scheduler_address, progress=False)
+                                    scheduler=lc.scheduler_address, progress=False, partial_grid=True)
     assert s["solves"] <= 8
     verify(tmp_path / "d.npz", veh)

@@ -72,7 +72,8 @@ def test_table_show_and_query_say_when_the_controller_contract_is_missing(no_etr
     ({"vehicle": "x500", "mode": "governor"}, "sensors: at least one obstacle sensor"),
     ({"vehicle": "x500", "mode": "offboard", "route": {"waypoints": [[0, 0], [10, 0]]},
       "sensors": [{"h_fov_deg": 60}]}, "max_range_m"),
-    ({"vehicle": "x500", "table": "contracts/data/mambo.npz", "mode": "shadow"}, "built for another vehicle"),
+    ({"vehicle": "x500", "table": str(ROOT / "contracts" / "data" / "mambo.npz"), "mode": "shadow"},
+     "built for another vehicle"),
 ])
 def test_run_refuses_what_it_would_otherwise_assume_in_one_line(config, needle, tmp_path):
     """Silent defaults are gone: no vehicle, no sensors, no rated range, another vehicle's table. A wrong

@@ -101,7 +101,7 @@ def test_the_walkthrough_runs_as_written(tmp_path):
     gcs = next(v for k, v in outputs.items() if "ground_station.py" in k)
     assert "param set CG_ENGAGE 1: echoed 1" in gcs and "1:191 says: CG: active (limit in force)" in gcs, gcs
     console = outputs["%2"]
-    for start in ("vehicle quad-1600g, table quad-1600g.npz (contracts: stop, avoid, e_tr_pred; Ω lookup",
+    for start in ("vehicle quad-1600g, table examples/vehicles/quad-1600g.npz (contracts: stop, avoid, e_tr_pred; Ω lookup",
                   "governor mode (stop contract)", "sensors: [0] distance_sensor at 0°, 60° wide, rated 8 m",
                   "autopilot link up", "start-up checks: ok", "speed limit", "HOLD: obstacle inside the stop distance",
                   "stopped after"):
@@ -116,7 +116,7 @@ def test_the_walkthrough_runs_as_written(tmp_path):
     assert "\n  collisions: 0\n" in sitl, sitl  # the SITL's summary at SIGINT
     print(console)  # -s shows the daemon's console verbatim
     # the review, as the page runs it, and its JSON: the contract was kept and the hold is there
-    rep = json.loads(subprocess.run([sys.executable, "-m", "companion.cli", "review", "quad-1600g-log", "--json"],
+    rep = json.loads(subprocess.run([sys.executable, "-m", "companion.cli", "review", "examples/vehicles/quad-1600g-log", "--json"],
                                     cwd=tmp_path, env=env, capture_output=True, text=True, check=True).stdout)
     assert set(rep["violations_by_subsystem"]) <= {"guidance"} and rep["gamma_positive_s"] == 0  # (as above)
     assert any(m.get("to") == "hold" and m.get("by") == "daemon" for m in rep["mode_changes"]), rep["mode_changes"]
