@@ -78,19 +78,29 @@ def table_file(path) -> Path:
     return p
 
 
-def _load_table(path, vehicle=None):
+def _load_table(path, vehicle=None, public_key=None):
     """The table at `path` (or a shipped one by name), verified (against `vehicle`, a shipped name or file,
-    when given)."""
+    when given; signed by the private key of `public_key`, a PEM file, when given)."""
     from contracts.table import load_for_vehicle
 
-    return load_for_vehicle(vehicle or None, table_file(path))
+    return load_for_vehicle(vehicle or None, table_file(path), public_key)
+
+
+def signature_line(t) -> str:
+    """How far a verified table is trusted: its signature's status (`table verify`, `table show`)."""
+    s = t.signature
+    if s["verified"]:
+        return f"signed, signature verified with public key {s['key_id']}"
+    if s["signed"]:
+        return f"signed by key {s['key_id']}, signature not checked (no --public-key): integrity only"
+    return "unsigned: integrity only"
 
 
 # ----------------------------------------------------------------------------- table
 
 
 def cmd_table_show(args) -> int:
-    t = _load_table(args.file)
+    t = _load_table(args.file, public_key=args.public_key)
     m = t.meta
     lines = [
         f"table {args.file}: vehicle {m['vehicle']['name']}, tilt model {m['tilt_model']}, "
@@ -99,6 +109,8 @@ def cmd_table_show(args) -> int:
     ]
     if m.get("note"):
         lines.append(f"  note: {m['note']}")
+    lines.append(f"  signature: {signature_line(t)}")
+    m = {**m, "signature": t.signature}
     lines.append("  controller contract (E_tr_pred): " + ("yes" if t.e_pred is not None else
                  "NONE — E_tr is the measured value only; the daemon refuses to engage with this table unless "
                  "the config states contract.e_tr_assumed_m (build it: contract-guard table etr)"))
@@ -115,13 +127,33 @@ def cmd_table_show(args) -> int:
 
 
 def cmd_table_verify(args) -> int:
-    t = _load_table(args.file, args.vehicle)
+    t = _load_table(args.file, args.vehicle, args.public_key)
     _emit(
-        {"ok": True, "file": str(args.file), "available": t.available, "vehicle": t.vehicle.name},
+        {"ok": True, "file": str(args.file), "available": t.available, "vehicle": t.vehicle.name,
+         "signature": t.signature},
         args.json,
-        f"ok: {args.file} verifies (vehicle {t.vehicle.name}; contracts {', '.join(t.available)})",
+        f"ok: {args.file} verifies (vehicle {t.vehicle.name}; contracts {', '.join(t.available)}); {signature_line(t)}",
     )
     return 0
+
+
+def cmd_table_sign(args) -> int:
+    from contracts.table import sign_table
+
+    sig = sign_table(table_file(args.file), args.key, args.out)
+    _emit({"ok": True, "file": str(args.out or args.file), **sig}, args.json,
+          f"signed {args.out or args.file} with key {sig['key_id']} (ed25519; check: contract-guard table verify "
+          f"{args.out or args.file} --public-key PUBLIC.pem)")
+    return 0
+
+
+def _sign_after(path, key) -> str:
+    """`--sign-key` of a command that writes a table: sign it; the text that says so ('' without a key)."""
+    if key is None:
+        return ""
+    from contracts.table import sign_table
+
+    return f"; signed with key {sign_table(path, key)['key_id']}"
 
 
 def query_table(t, d_od, r_obst, e_tr, thrust_ratio, tilt_deg=None, v_max=None, contract=None) -> dict:
@@ -192,8 +224,9 @@ def cmd_table_build(args) -> int:
     vehicle = load_vehicle(args.vehicle)
     if args.stop_only:
         meta = write_table(args.out, vehicle, tilt_model=args.tilt_model)
+        signed = _sign_after(args.out, args.sign_key)
         _emit({"ok": True, "out": str(args.out), "available": meta["available"]}, args.json,
-              f"wrote {args.out} ({meta['note']})")
+              f"wrote {args.out} ({meta['note']}){signed}")
         return 0
     from contracts.runner import show_progress
     from contracts.sweep import build_avoid_table  # offline only: imports CasADi
@@ -202,7 +235,8 @@ def cmd_table_build(args) -> int:
         summary = build_avoid_table(vehicle, args.out, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                                     tilt_model=args.tilt_model or vehicle.tilt_model,
                                     progress=show_progress(not args.json), resume=args.resume)
-    _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {one_line(summary)}")
+    signed = _sign_after(args.out, args.sign_key)
+    _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {one_line(summary)}{signed}")
     return 0
 
 
@@ -295,7 +329,7 @@ def cmd_run(args) -> int:
     if args.log_dir:
         data["log"]["dir"] = args.log_dir
     cfg = config_from_dict(data, f"config {args.config} with the command line's overrides")
-    table = load_for_vehicle(cfg.vehicle, cfg.table)
+    table = load_for_vehicle(cfg.vehicle, cfg.table, cfg.table_public_key)
     if cfg.mode == "offboard" and table.avoid is None:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
     signing_clock = None
@@ -501,7 +535,8 @@ def cmd_calibrate(args) -> int:
     if not logs:
         raise ContractError("no flight logs (.tlog, .ulg, .bin) given")
     s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence)
-    _emit(s, args.json, format_summary(s) + f"\nreport: {args.out.with_suffix('')}.report.html")
+    signed = _sign_after(args.out, args.sign_key)
+    _emit(s, args.json, format_summary(s) + signed.replace("; s", "\n  s") + f"\nreport: {args.out.with_suffix('')}.report.html")
     return 0
 
 
@@ -555,14 +590,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = tsub.add_parser("show", help="print a table's metadata")
     s.add_argument("file", type=Path)
+    s.add_argument("--public-key", type=Path, help="the table must be signed by this key's private key (PEM)")
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_table_show)
 
-    v = tsub.add_parser("verify", help="check a table (schema, hash, monotonicity, vehicle)")
+    v = tsub.add_parser("verify", help="check a table (schema, hash, monotonicity, vehicle; signature with --public-key)")
     v.add_argument("file", type=Path)
     v.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
+    v.add_argument("--public-key", type=Path, help="the table must be signed by this key's private key (PEM)")
     v.add_argument("--json", action="store_true")
     v.set_defaults(func=cmd_table_verify)
+
+    sg = tsub.add_parser("sign", help="sign a table (ed25519 over its arrays and metadata; `keys --table` makes a key)")
+    sg.add_argument("file", type=Path)
+    sg.add_argument("--key", type=Path, required=True, help="ed25519 private key (PEM)")
+    sg.add_argument("--out", type=Path, help="write the signed table here instead of in place")
+    sg.add_argument("--json", action="store_true")
+    sg.set_defaults(func=cmd_table_sign)
 
     q = tsub.add_parser("query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed")
     q.add_argument("file", type=Path)
@@ -587,6 +631,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--tilt-model", choices=["cone", "box"], default=None)
     b.add_argument("--resume", action="store_true",
                    help="continue an interrupted build from its checkpoint (OUT.partial/, kept until the table is written)")
+    b.add_argument("--sign-key", type=Path, help="sign the table with this ed25519 private key (PEM)")
     b.add_argument("--json", action="store_true")
     b.set_defaults(func=cmd_table_build)
 
@@ -643,6 +688,7 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--out", type=Path, required=True, help="the calibrated table (NEW.npz; NEW.yaml and the report beside)")
     ca.add_argument("--quantile", type=finite, default=0.9, help="quantile the per-cell bound covers (default 0.9)")
     ca.add_argument("--confidence", type=finite, default=0.9, help="its confidence (default 0.9)")
+    ca.add_argument("--sign-key", type=Path, help="sign the calibrated table with this ed25519 private key (PEM)")
     ca.add_argument("--json", action="store_true")
     ca.set_defaults(func=cmd_calibrate)
 

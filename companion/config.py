@@ -141,6 +141,9 @@ class LogConfig(_Strict):
 class Config(_Strict):
     vehicle: str | None = None  # shipped name or path to a vehicle file: which aircraft the contract is for
     table: Path | None = None  # default: the shipped table of the vehicle
+    # the table must carry an ed25519 signature by this public key's private key (PEM; `contract-guard keys
+    # --table` makes the pair, `table sign` signs): an edited and re-hashed table is refused at start
+    table_public_key: Path | None = None
     mode: Literal["shadow", "governor", "offboard"] = "shadow"
     engage: bool = False  # engage only when asked (also the CG_ENGAGE parameter)
     loop_hz: Pos = 50.0
