@@ -309,7 +309,7 @@ def cmd_run(args) -> int:
 
     from contracts.table import load_for_vehicle
 
-    from .config import config_from_dict, load_config
+    from .config import config_from_dict, load_config, weakened
     from .console import ConsoleLog, banner
     from .cycle import controller_contract
     from .daemon import Daemon
@@ -343,6 +343,8 @@ def cmd_run(args) -> int:
                      quiet=args.quiet)
     for line in banner(cfg, table, controller_contract(cfg, table)):
         log.say(line)
+    for line in weakened(cfg):  # inside its safe range but weaker than the default; unsigned on a network
+        log.say(line, 4)
     stop = {"now": False}
 
     def _stop(signum, frame):
