@@ -117,6 +117,9 @@ def cmd_table_show(args) -> int:
     from .console import controller_coverage
 
     lines.append(f"  controller contract coverage: {controller_coverage(t)}")
+    from contracts.calibrate import table_evidence
+
+    lines += table_evidence(t)
     m = {**m, "controller_contract": t.e_pred is not None, "controller_coverage": controller_coverage(t)}
     for slot_name, slot in (("avoid", t.avoid), ("e_tr_pred", t.e_pred)):
         if slot is not None:
@@ -536,9 +539,27 @@ def cmd_calibrate(args) -> int:
                                            if x.is_dir() else [x])]
     if not logs:
         raise ContractError("no flight logs (.tlog, .ulg, .bin) given")
-    s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence)
+    s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence,
+                  accept_faster=args.accept_faster)
     signed = _sign_after(args.out, args.sign_key)
     _emit(s, args.json, format_summary(s) + signed.replace("; s", "\n  s") + f"\nreport: {args.out.with_suffix('')}.report.html")
+    return 0
+
+
+# ----------------------------------------------------------------------------- keys
+
+
+def cmd_keys(args) -> int:
+    from .keys import describe, mavlink_key, table_key_pair
+
+    if args.table:
+        k = table_key_pair(args.dir)
+        _emit(k, args.json, f"{'created' if k['created'] else 'found'} table signing key {k['key_id']}: sign with "
+              f"--sign-key {k['private_key']} (keep it off the aircraft); the daemon's config: table_public_key: "
+              f"{k['public_key']}")
+        return 0
+    k = mavlink_key(args.dir, args.passphrase)
+    _emit(k, args.json, describe(k))
     return 0
 
 
@@ -691,6 +712,8 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--quantile", type=finite, default=0.9, help="quantile the per-cell bound covers (default 0.9)")
     ca.add_argument("--confidence", type=finite, default=0.9, help="its confidence (default 0.9)")
     ca.add_argument("--sign-key", type=Path, help="sign the calibrated table with this ed25519 private key (PEM)")
+    ca.add_argument("--accept-faster", action="store_true", help="accept cells that became faster than the stock "
+                    "table (E_tr_pred below the SITL's): without it calibrate refuses them (see the report's evidence)")
     ca.add_argument("--json", action="store_true")
     ca.set_defaults(func=cmd_calibrate)
 
@@ -703,6 +726,14 @@ def build_parser() -> argparse.ArgumentParser:
     cpl.add_argument("--altitude", type=finite, default=5.0, help="altitude above home [m]")
     cpl.add_argument("--json", action="store_true")
     cpl.set_defaults(func=cmd_calibrate_plan)
+
+    ky = sub.add_parser("keys", help="create or show the MAVLink signing key in the forms MAVProxy, QGroundControl, "
+                        "PX4 and ArduPilot take (--table: the key pair that signs tables)")
+    ky.add_argument("dir", type=Path, help="directory for the key files (created, mode 700)")
+    ky.add_argument("--passphrase", help="derive the key from this MAVProxy passphrase (default: a new random one)")
+    ky.add_argument("--table", action="store_true", help="an ed25519 key pair for `table sign` / --sign-key instead")
+    ky.add_argument("--json", action="store_true")
+    ky.set_defaults(func=cmd_keys)
 
     pl = tsub.add_parser("plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
     pl.add_argument("file", type=Path)
