@@ -138,6 +138,9 @@ def test_faster_than_stock_is_refused_without_the_flag_and_shown_per_cell(x500, 
                           text=True, cwd=str(ROOT), timeout=120)
     assert "calibration evidence: 3 distinct flight(s)" in show.stdout and "accepted by a person" in show.stdout
     assert "windows from 3 flight(s)" in show.stdout and "FASTER than stock" in show.stdout
+    from companion.console import controller_coverage  # the daemon's start banner
+
+    assert "FASTER than stock, accepted by a person" in controller_coverage(new)
 
 
 def test_refusal_from_the_api_is_one_contract_error(x500, tmp_path):
