@@ -234,10 +234,12 @@ def test_a_zip_bomb_is_refused_by_its_declared_size(tmp_path):
         cd += 46 + name_len + extra + comment
     (tmp_path / "declared.npz").write_bytes(bytes(raw))
     _refused_small(tmp_path / "declared.npz", "declares 2200000000 bytes")
-    # as written (declared truthfully, 50 MB): its .npy header is the stock grid's, so the data beyond it is
-    # never inflated; the member is refused as it is not what the header says (no 50 MB read)
-    msg = _refused_small(p, "unreadable|refused|hash")
-    assert "table" in msg
+    # as written (declared truthfully, 50 MB, above the bound): refused by its declared size, nothing inflated
+    _refused_small(p, "avoid_f declares 50000128 bytes")
+    # declaring the size its .npy header implies (a lie: the stream inflates to 50 MB): read no further than that
+    raw[cd + 24: cd + 28] = (128 + 120 * 23 * 9 * 8).to_bytes(4, "little")
+    (tmp_path / "lying.npz").write_bytes(bytes(raw))
+    _refused_small(tmp_path / "lying.npz", "unreadable or truncated")
 
 
 def test_unknown_members_and_non_files_are_refused(tmp_path):
@@ -247,3 +249,30 @@ def test_unknown_members_and_non_files_are_refused(tmp_path):
     _refused_small(tmp_path / "extra.npz", "not .or twice. a table member")
     with pytest.raises(ContractError, match="not a regular file"):
         verify(tmp_path)
+
+
+def test_the_daemon_starts_on_a_table_signed_by_its_configured_key(signed, tmp_path):
+    import signal
+    import socket
+
+    p, _, pub = signed
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(f"vehicle: mambo\ntable: {p}\ntable_public_key: {pub}\nlog: {{dir: {tmp_path / 'log'}}}\n"
+                   f"link: {{connect: 'udpin:127.0.0.1:{port}'}}\n")
+    d = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)], cwd=str(ROOT),
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    out = []
+    try:
+        for line in d.stdout:
+            out.append(line)
+            if "waiting for the autopilot" in line:
+                break
+        d.send_signal(signal.SIGTERM)
+        d.wait(30)
+    finally:
+        if d.poll() is None:
+            d.kill()
+    assert any("waiting for the autopilot" in x for x in out), "".join(out)
