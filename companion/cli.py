@@ -258,9 +258,10 @@ def cmd_table_etr(args) -> int:
         s = build_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                       progress=show_progress(not args.json), out=args.out, resume=args.resume)
     resumed = f", {s['resumed_cells']} from the checkpoint" if s["resumed_cells"] else ""
+    signed = _sign_after(s["path"], args.sign_key)
     _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s"
           f"{resumed}, {s['monotone_repairs_up']} repaired upward, worst raw contour error "
-          f"{s['raw_worst_max_m']:.3f} m (--json for the full record)")
+          f"{s['raw_worst_max_m']:.3f} m (--json for the full record){signed}")
     return 0
 
 
@@ -667,6 +668,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--resume", action="store_true",
                    help="continue an interrupted sweep from its checkpoint (DEST.partial/, kept until the table is written)")
     e.add_argument("--workers", type=int, default=2, help="local process pool size")
+    e.add_argument("--sign-key", type=Path, help="sign the result with this ed25519 private key (PEM)")
     e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=cmd_table_etr)

@@ -127,11 +127,15 @@ def test_faster_than_stock_is_refused_without_the_flag_and_shown_per_cell(x500, 
     rep = json.loads(out.with_suffix(".report.json").read_text())
     assert rep["faster_cells"] >= 1 and any(e["faster"] and e["flights"] == 3 for e in rep["evidence"])
     assert "FASTER than stock" in out.with_suffix(".report.html").read_text()
-    r = subprocess.run([*cmd, "--accept-faster"], capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    from companion.keys import table_key_pair
+
+    keys = table_key_pair(tmp_path / "keys")
+    r = subprocess.run([*cmd, "--accept-faster", "--sign-key", keys["private_key"]], capture_output=True, text=True,
+                       cwd=str(ROOT), timeout=300)
     assert r.returncode == 0, r.stderr
-    assert "accepted with --accept-faster" in r.stdout
+    assert "accepted with --accept-faster" in r.stdout and "signed with key" in r.stdout
     _, stock = x500
-    new = verify(out)
+    new = verify(out, public_key=keys["public_key"])  # the accepted table, signed by the person who accepted it
     assert _v_max(new) > _v_max(stock)  # what was accepted: a faster contract, by a person
     assert np.all(new.e_pred.values >= 0.5 * stock.e_pred.values - 1e-12)  # never below the floor
     show = subprocess.run([sys.executable, "-m", "companion.cli", "table", "show", str(out)], capture_output=True,

@@ -122,6 +122,11 @@ def test_cli_sign_verify_show_and_the_daemon_refuses_a_faster_table(tmp_path):
     assert _cli("table", "verify", bad).returncode == 0  # integrity only
     _one_line_refusal(_cli("table", "verify", bad, "--public-key", pub), "signature does not verify")
     _one_line_refusal(_cli("table", "show", bad, "--public-key", pub), "signature does not verify")
+    # signed as it is written (`table build --sign-key`)
+    built = tmp_path / "stop-only.npz"
+    r = _cli("table", "build", "--vehicle", "mambo", "--stop-only", "--out", built, "--sign-key", priv)
+    assert r.returncode == 0 and "signed with key" in r.stdout, r.stderr
+    assert verify(built, public_key=pub).signature["verified"]
     # the daemon: a configured public key refuses the faster table before any link is opened
     cfg = tmp_path / "cg.yaml"
     cfg.write_text(f"vehicle: mambo\ntable: {bad}\ntable_public_key: {pub}\nlog: {{dir: {tmp_path / 'log'}}}\n"
