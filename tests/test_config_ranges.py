@@ -96,32 +96,41 @@ def test_unsigned_network_link_in_governor_or_offboard_is_named():
         assert not any("unsigned" in x for x in weakened(config_from_dict(q))), q
 
 
-def test_the_start_banner_prints_the_weakened_values(tmp_path):
+def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    cfg = tmp_path / "cg.yaml"
-    cfg.write_text(yaml.safe_dump({
-        "vehicle": "mambo", "mode": "governor", "link": {"connect": f"udpin:0.0.0.0:{port}"},
-        "sensors": [{"h_fov_deg": 30, "max_range_m": 10}], "timeouts": {"obstacle_s": 1.5},
-        "log": {"dir": str(tmp_path / "log")}}))
+        return s.getsockname()[1]
+
+
+def daemon_output_until(cfg: Path, marker: str, timeout_s: float = 60.0) -> str:
+    """`contract-guard run --config cfg` until a line with `marker` (or its end), then SIGTERM: what it printed."""
     p = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)], cwd=str(ROOT),
                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     out = []
     try:
-        deadline = time.time() + 60
+        deadline = time.time() + timeout_s
         while time.time() < deadline:
             line = p.stdout.readline()
             if not line:
                 break
             out.append(line)
-            if "unsigned on a network link" in line:
+            if marker in line:
                 break
         p.send_signal(signal.SIGTERM)
         p.wait(30)
     finally:
         if p.poll() is None:
             p.kill()
-    text = "".join(out)
+    return "".join(out)
+
+
+def test_the_start_banner_prints_the_weakened_values(tmp_path):
+    port = free_udp_port()
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(yaml.safe_dump({
+        "vehicle": "mambo", "mode": "governor", "link": {"connect": f"udpin:0.0.0.0:{port}"},
+        "sensors": [{"h_fov_deg": 30, "max_range_m": 10}], "timeouts": {"obstacle_s": 1.5},
+        "log": {"dir": str(tmp_path / "log")}}))
+    text = daemon_output_until(cfg, "unsigned on a network link")
     assert "timeouts.obstacle_s 1.5 (default 0.5)" in text, text
     assert "unsigned on a network link in governor mode" in text, text

@@ -257,27 +257,11 @@ def test_unknown_members_and_non_files_are_refused(tmp_path):
 
 
 def test_the_daemon_starts_on_a_table_signed_by_its_configured_key(signed, tmp_path):
-    import signal
-    import socket
+    from tests.test_config_ranges import daemon_output_until, free_udp_port
 
     p, _, pub = signed
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
     cfg = tmp_path / "cg.yaml"
     cfg.write_text(f"vehicle: mambo\ntable: {p}\ntable_public_key: {pub}\nlog: {{dir: {tmp_path / 'log'}}}\n"
-                   f"link: {{connect: 'udpin:127.0.0.1:{port}'}}\n")
-    d = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)], cwd=str(ROOT),
-                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    out = []
-    try:
-        for line in d.stdout:
-            out.append(line)
-            if "waiting for the autopilot" in line:
-                break
-        d.send_signal(signal.SIGTERM)
-        d.wait(30)
-    finally:
-        if d.poll() is None:
-            d.kill()
-    assert any("waiting for the autopilot" in x for x in out), "".join(out)
+                   f"link: {{connect: 'udpin:127.0.0.1:{free_udp_port()}'}}\n")
+    out = daemon_output_until(cfg, "waiting for the autopilot")
+    assert "waiting for the autopilot" in out, out
