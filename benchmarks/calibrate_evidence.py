@@ -28,11 +28,11 @@ from contracts.vehicle import load_vehicle
 from sitl_harness.scenario import scenario_from_dict
 from sitl_harness.sim import Sim
 from tests.calibration_flights import (
-    EPOCH_US,
     TRUTH_DELAY_S,
     TRUTH_GAIN,
     fly_calibration,
     heldout_plan,
+    sitl_time_s,
     truth_vehicle,
 )
 
@@ -43,7 +43,7 @@ def flight_windows(tlog: Path):
     feed, cmds = read_log(tlog)
     tr = trace_of(tlog.name, feed, cmds)
     w = cal.windows(tr.t, tr.xy, np.hypot(tr.vel[:, 0], tr.vel[:, 1]), tr.tilt, tr.t_path, tr.xy_path, tr.airborne)
-    t0 = (struct.unpack(">Q", tlog.read_bytes()[:8])[0] - EPOCH_US) / 1e6
+    t0 = sitl_time_s(struct.unpack(">Q", tlog.read_bytes()[:8])[0])
     return w, tr.hover.get("median"), t0
 
 

@@ -10,6 +10,10 @@ modes, Hold commands), and hands the numbers to the pure statistics of `contract
   calibrated vehicle file beside the table (`NEW.yaml`), which the new table embeds;
 - hover throttle and its spread;
 - provenance (log SHA-256s, sample counts, the rule) in the table's metadata;
+- evidence per cell (windows, distinct flights, worst measured, calibrated/SITL ratio): identical files and logs
+  whose time spans overlap are one flight (`flights_of`); a cell may go below the SITL's E_tr_pred only on the
+  evidence `contracts/calibrate.py` states, and a table faster than stock anywhere is refused unless a person
+  accepts it (`accept_faster`, the command's `--accept-faster`);
 - a report: `NEW.report.json`, `NEW.report.html` and, with matplotlib, `NEW.report.png`.
 """
 
@@ -98,7 +102,8 @@ def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
     modes = [((t - t_first) / 1e6, _commanded_mode(ad, p)) for t, p in cmds]
     shifted = [(t - t_first, op, a) for t, op, a in ops]
     ordered, jumps = order(shifted)
-    return Feed(ordered, {"format": "MAVLink tlog", "time_jumps": jumps}, autopilot), modes
+    # a .tlog stamps each packet with the UNIX time it was logged [µs]: the log's wall clock at t = 0
+    return Feed(ordered, {"format": "MAVLink tlog", "time_jumps": jumps}, autopilot, t_first / 1e6), modes
 
 
 def _commanded_mode(ad, p) -> str:
@@ -217,9 +222,35 @@ def flight_thrust_ratio(trace: Trace, hover_nominal: float, top: float) -> float
     return None if not h else min(top, hover_nominal / h)
 
 
+def flights_of(logs: list[dict]) -> list[int | None]:
+    """Per log (`sha256`, `wall_span`: (start, end) UNIX s or None), the index of the log that stands for its
+    flight — itself, or an earlier log with identical content or an overlapping time span (one aircraft flies one
+    flight at a time: a .tlog and the autopilot's .ulg of the same flight, or a copy, are one flight); None for a
+    log that was not read. Of a group, the first log stands for it. Pure."""
+    out: list[int | None] = []
+    for n, lg in enumerate(logs):
+        if "sha256" not in lg:
+            out.append(None)
+            continue
+        rep = n
+        for m in range(n):
+            other = logs[m]
+            if out[m] is None:
+                continue
+            same = other["sha256"] == lg["sha256"]
+            a, b = lg.get("wall_span"), other.get("wall_span")
+            if same or (a and b and a[0] < b[1] and b[0] < a[1]):
+                rep = out[m]
+                break
+        out.append(rep)
+    return out
+
+
 def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUANTILE, confidence=cal.CONFIDENCE,
-              report: bool = True) -> dict:
-    """Calibrate `table` (a verified `ContractTable` for `vehicle`) from the logs; write `out` (+ .yaml, report)."""
+              report: bool = True, accept_faster: bool = False) -> dict:
+    """Calibrate `table` (a verified `ContractTable` for `vehicle`) from the logs; write `out` (+ .yaml, report).
+    A result faster than the stock table anywhere (a cell below its SITL prediction) is refused (one line, the
+    report written) unless `accept_faster`."""
     from contracts.table import Slot, write_table
     from contracts.vehicle import vehicle_from_dict
 
@@ -227,7 +258,7 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         raise ContractError(f"table {table.path}: no controller contract (E_tr_pred) to calibrate")
     axes = table.e_pred.axes
     hover_nominal = vehicle.controller.thr_hover
-    logs, samples, stops, traces = [], [], [], []
+    logs, samples, stops, traces, read = [], [], [], [], []
     for p in paths:
         p = Path(p)
         try:
@@ -243,20 +274,38 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         w = cal.windows(tr.t, tr.xy, np.hypot(tr.vel[:, 0], tr.vel[:, 1]), tr.tilt, tr.t_path, tr.xy_path, tr.airborne)
         # no hover estimate: the grid's lowest thrust_ratio (the cell that helps least, never optimistic)
         r_used = ratio if ratio is not None else float(axes[2][0])
-        samples += [(e, v, ti, r_used) for e, v, ti in zip(w.e, w.v, w.tilt)]
         flight_stops = [(src, s) for tc, src in tr.holds if (s := cal.measure_stop(tr.t, tr.vel[:, :2], tc)) is not None
                         and (src == "command" or s.v0 >= MIN_SWITCH_STOP_M_S)]
-        stops += [(p.name, src, s) for src, s in flight_stops]
-        traces.append(tr)
+        read.append((len(logs), [(e, v, ti, r_used) for e, v, ti in zip(w.e, w.v, w.tilt)],
+                     [(p.name, src, s) for src, s in flight_stops], tr))
+        wall = feed.wall0 if math.isfinite(feed.wall0) and feed.wall0 > 0 else None
         logs.append({"log": str(p), "sha256": sha256_file(p), "format": feed.info.get("format", p.suffix),
+                     "wall_span": None if wall is None or not len(tr.t) else (wall + float(tr.t[0]), wall + float(tr.t[-1])),
                      "autopilot": feed.autopilot, "span_s": float(tr.t[-1] - tr.t[0]) if len(tr.t) else 0.0,
                      "airborne_s": float(np.count_nonzero(tr.airborne) / max(len(tr.t), 1) * (tr.t[-1] - tr.t[0]))
                      if len(tr.t) > 1 else 0.0,
                      "windows": len(w.e), "path_samples": len(tr.t_path), "holds": len(tr.holds),
                      "stops_measured": len(flight_stops), "hover": tr.hover, "thrust_ratio": ratio})
-    if not traces:
+    if not read:
         raise ContractError("no log could be read: " + "; ".join(x["error"] for x in logs))
-    ec = cal.calibrate_etr(table.e_pred.values, axes, samples, quantile=quantile, confidence=confidence)
+    # one flight, one vote: a copy of a log, or a second log of the same flight (overlapping in time), adds nothing
+    rep = flights_of(logs)
+    flight_ids = []
+    for n, s_, st, tr in read:
+        lg = logs[n]
+        lg["flight"] = Path(logs[rep[n]]["log"]).name
+        if rep[n] != n:
+            same = "identical content" if logs[rep[n]]["sha256"] == lg["sha256"] else "overlapping time span"
+            lg["not_counted"] = f"the same flight as {lg['flight']} ({same}): counted once"
+            continue
+        samples += s_
+        flight_ids += [n] * len(s_)
+        stops += st
+        traces.append(tr)
+    n_flights = len(set(r for r in rep if r is not None))
+    ec = cal.calibrate_etr(table.e_pred.values, axes, samples, flights=flight_ids, quantile=quantile,
+                           confidence=confidence)
+    evidence = cal.cell_evidence(axes, table.e_pred.values, ec.values, ec.counts, ec.flights, ec.measured_max)
     b = vehicle.braking
     t_dead = b.hold_switch_s
     stop_rows = []
@@ -284,7 +333,7 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
                         "hold_switch_s": brk["hold_switch_s"]}
     # the thrust_ratio estimator's nominal: a lower nominal reads as less thrust (never optimistic), so the
     # file's value is only lowered, and only from steady hover records (≥ HOVER_MIN samples, IQR ≤ HOVER_IQR)
-    h_all = [lg["hover"]["median"] for lg in logs if (lg.get("hover") or {}).get("median")
+    h_all = [lg["hover"]["median"] for lg in logs if (lg.get("hover") or {}).get("median") and "not_counted" not in lg
              and lg["hover"]["samples"] >= HOVER_MIN and lg["hover"]["iqr"] <= HOVER_IQR]
     if h_all:
         vdict["controller"] = {**vdict["controller"], "thr_hover": min(vehicle.controller.thr_hover, float(np.median(h_all)))}
@@ -313,7 +362,16 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         "uncovered_from_neighbours": int(np.count_nonzero(ec.from_neighbours)),
         "rho_covered": [[int(i), int(j), int(k), round(float(ec.rho[i, j, k]), 4)] for i, j, k in zip(*np.nonzero(np.isfinite(ec.rho)))],
         "monotone_repairs_up": ec.repairs, "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "logs": [{k: lg.get(k) for k in ("log", "sha256", "format", "windows", "span_s", "error") if k in lg} for lg in logs],
+        "logs": [{k: lg.get(k) for k in ("log", "sha256", "format", "windows", "span_s", "flight", "not_counted", "error")
+                  if k in lg} for lg in logs],
+        "flights": n_flights,
+        # per cell: distinct flights and the worst window (-1: none), the evidence rule for going below the SITL
+        "flights_per_cell": ec.flights.tolist(),
+        "worst_m": np.where(np.isfinite(ec.measured_max), ec.measured_max, -1.0).round(4).tolist(),
+        "evidence_below_stock": {"min_flights": cal.MIN_FLIGHTS_BELOW,
+                                 "min_windows": cal.MIN_WINDOWS_BELOW_FACTOR * ec.n_min, "floor": cal.BELOW_FLOOR},
+        "faster_cells": int(np.count_nonzero(ec.faster)), "faster_accepted": bool(accept_faster and ec.faster.any()),
+        "stock_values": np.asarray(table.e_pred.values, float).tolist(),  # the SITL's E_tr_pred (the ratios' base)
         "stock_table": str(table.path), "stock_arrays_sha256": table.meta.get("arrays_sha256"),
     }
     out = Path(out)
@@ -326,8 +384,18 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
 
     new = verify(out, veh_cal)
     scen = v_max_changes(table, new)
+    faster = [r for r in evidence if r["faster"]]
+    lowest = min([r["ratio"] for r in faster if r["ratio"] is not None], default=0.0)  # 0: a cell with no SITL bound
+    up = [(row["scenario"], c, row[c]) for row in scen for c in ("avoid", "stop") if c in row
+          and row[c]["calibrated"] > row[c]["stock"] + 1e-9]
+    if faster:
+        findings.append(f"FASTER than stock: {len(faster)} cell(s) below the SITL's E_tr_pred (down to "
+                        f"{lowest:.2f} of it) on evidence from {n_flights} flight(s)"
+                        + "".join(f"; V_max {c} at {sc} {v['stock']:.2f} -> {v['calibrated']:.2f} m/s" for sc, c, v in up)
+                        + (" (accepted with --accept-faster)" if accept_faster else ""))
     summary = {
         "table": str(out), "vehicle_file": str(yaml_path), "logs": logs, "samples": len(samples),
+        "flights": n_flights, "evidence": evidence, "faster_cells": len(faster), "faster_accepted": bool(accept_faster and faster),
         "coverage": {"covered_cells": info["calibration"]["covered_cells"], "cells": n_cells,
                      "covered_fraction": info["calibration"]["covered_fraction"], "n_min": ec.n_min},
         "ratio_measured_over_predicted": ec.ratio, "monotone_repairs_up": ec.repairs,
@@ -337,6 +405,15 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
     }
     if report:
         write_report(out, summary, table, new, ec, traces)
+    if faster and not accept_faster:
+        for f in (out, yaml_path):
+            f.unlink(missing_ok=True)
+        raise ContractError(
+            f"calibrate: refused: {len(faster)} cell(s) would be faster than the stock table (E_tr_pred down to "
+            f"{lowest:.2f} of the SITL's"
+            + (f"; V_max {up[0][1]} at {up[0][0]} {up[0][2]['stock']:.2f} -> {up[0][2]['calibrated']:.2f} m/s" if up else "")
+            + f") on evidence from {n_flights} flight(s); check the per-cell evidence"
+            + (f" in {out.with_suffix('')}.report.html" if report else "") + " and accept it with --accept-faster")
     return summary
 
 
@@ -370,14 +447,16 @@ def v_max_changes(stock, new) -> list[dict]:
 
 def format_summary(s: dict) -> str:
     c = s["coverage"]
-    lines = [(f"calibrated {s['table']} from {sum(1 for x in s['logs'] if 'error' not in x)} log(s), "
-              f"{s['samples']} window samples; vehicle file {s['vehicle_file']}"),
+    lines = [(f"calibrated {s['table']} from {sum(1 for x in s['logs'] if 'error' not in x)} log(s) of "
+              f"{s['flights']} distinct flight(s), {s['samples']} window samples; vehicle file {s['vehicle_file']}"),
              (f"  controller contract measured on {c['covered_cells']} of {c['cells']} cells "
               f"({100 * c['covered_fraction']:.1f} % of the envelope; a cell needs >= {c['n_min']} windows); "
               f"measured/predicted up to {s['ratio_measured_over_predicted']:.2f}")]
     for lg in s["logs"]:
         if "error" in lg:
             lines.append(f"  {lg['log']}: skipped: {lg['error']}")
+        elif "not_counted" in lg:
+            lines.append(f"  {Path(lg['log']).name}: not counted: {lg['not_counted']}")
         else:
             h = lg["hover"]
             lines.append(f"  {Path(lg['log']).name}: {lg['format']}, {lg['span_s']:.0f} s, {lg['windows']} windows, "
@@ -392,6 +471,8 @@ def format_summary(s: dict) -> str:
         lines.append(f"  V_max at {row['scenario']}: " + ", ".join(parts))
     for f in s["findings"]:
         lines.append(f"  finding: {f}")
+    lines += ["  evidence per cell (cells with windows, or faster than stock):"] + [
+        f"    {cal.evidence_line(r)}" for r in s["evidence"]]
     return "\n".join(lines)
 
 

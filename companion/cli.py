@@ -78,19 +78,29 @@ def table_file(path) -> Path:
     return p
 
 
-def _load_table(path, vehicle=None):
+def _load_table(path, vehicle=None, public_key=None):
     """The table at `path` (or a shipped one by name), verified (against `vehicle`, a shipped name or file,
-    when given)."""
+    when given; signed by the private key of `public_key`, a PEM file, when given)."""
     from contracts.table import load_for_vehicle
 
-    return load_for_vehicle(vehicle or None, table_file(path))
+    return load_for_vehicle(vehicle or None, table_file(path), public_key)
+
+
+def signature_line(t) -> str:
+    """How far a verified table is trusted: its signature's status (`table verify`, `table show`)."""
+    s = t.signature
+    if s["verified"]:
+        return f"signed, signature verified with public key {s['key_id']}"
+    if s["signed"]:
+        return f"signed by key {s['key_id']}, signature not checked (no --public-key): integrity only"
+    return "unsigned: integrity only"
 
 
 # ----------------------------------------------------------------------------- table
 
 
 def cmd_table_show(args) -> int:
-    t = _load_table(args.file)
+    t = _load_table(args.file, public_key=args.public_key)
     m = t.meta
     lines = [
         f"table {args.file}: vehicle {m['vehicle']['name']}, tilt model {m['tilt_model']}, "
@@ -99,12 +109,17 @@ def cmd_table_show(args) -> int:
     ]
     if m.get("note"):
         lines.append(f"  note: {m['note']}")
+    lines.append(f"  signature: {signature_line(t)}")
+    m = {**m, "signature": t.signature}
     lines.append("  controller contract (E_tr_pred): " + ("yes" if t.e_pred is not None else
                  "NONE — E_tr is the measured value only; the daemon refuses to engage with this table unless "
                  "the config states contract.e_tr_assumed_m (build it: contract-guard table etr)"))
     from .console import controller_coverage
 
     lines.append(f"  controller contract coverage: {controller_coverage(t)}")
+    from contracts.calibrate import table_evidence
+
+    lines += table_evidence(t)
     m = {**m, "controller_contract": t.e_pred is not None, "controller_coverage": controller_coverage(t)}
     for slot_name, slot in (("avoid", t.avoid), ("e_tr_pred", t.e_pred)):
         if slot is not None:
@@ -115,13 +130,33 @@ def cmd_table_show(args) -> int:
 
 
 def cmd_table_verify(args) -> int:
-    t = _load_table(args.file, args.vehicle)
+    t = _load_table(args.file, args.vehicle, args.public_key)
     _emit(
-        {"ok": True, "file": str(args.file), "available": t.available, "vehicle": t.vehicle.name},
+        {"ok": True, "file": str(args.file), "available": t.available, "vehicle": t.vehicle.name,
+         "signature": t.signature},
         args.json,
-        f"ok: {args.file} verifies (vehicle {t.vehicle.name}; contracts {', '.join(t.available)})",
+        f"ok: {args.file} verifies (vehicle {t.vehicle.name}; contracts {', '.join(t.available)}); {signature_line(t)}",
     )
     return 0
+
+
+def cmd_table_sign(args) -> int:
+    from contracts.table import sign_table
+
+    sig = sign_table(table_file(args.file), args.key, args.out)
+    _emit({"ok": True, "file": str(args.out or args.file), **sig}, args.json,
+          f"signed {args.out or args.file} with key {sig['key_id']} (ed25519; check: contract-guard table verify "
+          f"{args.out or args.file} --public-key PUBLIC.pem)")
+    return 0
+
+
+def _sign_after(path, key) -> str:
+    """`--sign-key` of a command that writes a table: sign it; the text that says so ('' without a key)."""
+    if key is None:
+        return ""
+    from contracts.table import sign_table
+
+    return f"; signed with key {sign_table(path, key)['key_id']}"
 
 
 def query_table(t, d_od, r_obst, e_tr, thrust_ratio, tilt_deg=None, v_max=None, contract=None) -> dict:
@@ -192,8 +227,9 @@ def cmd_table_build(args) -> int:
     vehicle = load_vehicle(args.vehicle)
     if args.stop_only:
         meta = write_table(args.out, vehicle, tilt_model=args.tilt_model)
+        signed = _sign_after(args.out, args.sign_key)
         _emit({"ok": True, "out": str(args.out), "available": meta["available"]}, args.json,
-              f"wrote {args.out} ({meta['note']})")
+              f"wrote {args.out} ({meta['note']}){signed}")
         return 0
     from contracts.runner import show_progress
     from contracts.sweep import build_avoid_table  # offline only: imports CasADi
@@ -205,7 +241,8 @@ def cmd_table_build(args) -> int:
                                     partial_grid=args.partial_grid)
     for gap in summary["coverage_gaps"]:
         print(f"contract-guard: warning: the grid does not cover the vehicle: {gap}", file=sys.stderr)
-    _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {one_line(summary)}")
+    signed = _sign_after(args.out, args.sign_key)
+    _emit({"ok": True, "out": str(args.out), **summary}, args.json, f"wrote {args.out}: {one_line(summary)}{signed}")
     return 0
 
 
@@ -224,9 +261,10 @@ def cmd_table_etr(args) -> int:
         s = build_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                       progress=show_progress(not args.json), out=args.out, resume=args.resume)
     resumed = f", {s['resumed_cells']} from the checkpoint" if s["resumed_cells"] else ""
+    signed = _sign_after(s["path"], args.sign_key)
     _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s"
           f"{resumed}, {s['monotone_repairs_up']} repaired upward, worst raw contour error "
-          f"{s['raw_worst_max_m']:.3f} m (--json for the full record)")
+          f"{s['raw_worst_max_m']:.3f} m (--json for the full record){signed}")
     return 0
 
 
@@ -296,6 +334,7 @@ def cmd_run(args) -> int:
 
     from contracts.table import load_for_vehicle
 
+    from .config import weakened
     from .console import ConsoleLog, banner
     from .cycle import controller_contract
     from .daemon import Daemon
@@ -306,13 +345,15 @@ def cmd_run(args) -> int:
     import faulthandler
 
     cfg = run_config(args)
-    table = load_for_vehicle(cfg.vehicle, cfg.table)
+    table = load_for_vehicle(cfg.vehicle, cfg.table, cfg.table_public_key)
     if cfg.mode == "offboard" and table.avoid is None:
         raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
     if args.check:
         for line in banner(cfg, table, controller_contract(cfg, table)):
             if not line.startswith("waiting for the autopilot"):  # it is not waited for
                 print(line)
+        for line in weakened(cfg):
+            print(line)
         print(f"config {args.config}: valid; its table fits (--check: the link is not opened)")
         return 0
     faulthandler.enable()  # a watchdog abort prints the stack to the journal
@@ -327,6 +368,8 @@ def cmd_run(args) -> int:
                      quiet=args.quiet)
     for line in banner(cfg, table, controller_contract(cfg, table)):
         log.say(line)
+    for line in weakened(cfg):  # inside its safe range but weaker than the default; unsigned on a network
+        log.say(line, 4)
     stop = {"now": False}
 
     def _stop(signum, frame):
@@ -527,8 +570,27 @@ def cmd_calibrate(args) -> int:
                                            if x.is_dir() else [x])]
     if not logs:
         raise ContractError("no flight logs (.tlog, .ulg, .bin) given")
-    s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence)
-    _emit(s, args.json, format_summary(s) + f"\nreport: {args.out.with_suffix('')}.report.html")
+    s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence,
+                  accept_faster=args.accept_faster)
+    signed = _sign_after(args.out, args.sign_key)
+    _emit(s, args.json, format_summary(s) + signed.replace("; s", "\n  s") + f"\nreport: {args.out.with_suffix('')}.report.html")
+    return 0
+
+
+# ----------------------------------------------------------------------------- keys
+
+
+def cmd_keys(args) -> int:
+    from .keys import describe, mavlink_key, table_key_pair
+
+    if args.table:
+        k = table_key_pair(args.dir)
+        _emit(k, args.json, f"{'created' if k['created'] else 'found'} table signing key {k['key_id']}: sign with "
+              f"--sign-key {k['private_key']} (keep it off the aircraft); the daemon's config: table_public_key: "
+              f"{k['public_key']}")
+        return 0
+    k = mavlink_key(args.dir, args.passphrase)
+    _emit(k, args.json, describe(k))
     return 0
 
 
@@ -596,14 +658,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = _command(tsub, "show", help="print a table's metadata")
     s.add_argument("file", type=Path, help="table file (.npz)")
+    s.add_argument("--public-key", type=Path, help="the table must be signed by this key's private key (PEM)")
     s.add_argument("--json", action="store_true", help=JSON)
     s.set_defaults(func=cmd_table_show)
 
-    v = _command(tsub, "verify", help="check a table (schema, hash, monotonicity, vehicle)")
+    v = _command(tsub, "verify", help="check a table (schema, hash, monotonicity, vehicle; signature with --public-key)")
     v.add_argument("file", type=Path, help="table file (.npz)")
     v.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
+    v.add_argument("--public-key", type=Path, help="the table must be signed by this key's private key (PEM)")
     v.add_argument("--json", action="store_true", help=JSON)
     v.set_defaults(func=cmd_table_verify)
+
+    sg = _command(tsub, "sign", help="sign a table (ed25519 over its arrays and metadata; `keys --table` makes a key)")
+    sg.add_argument("file", type=Path, help="table file (.npz)")
+    sg.add_argument("--key", type=Path, required=True, help="ed25519 private key (PEM)")
+    sg.add_argument("--out", type=Path, help="write the signed table here instead of in place")
+    sg.add_argument("--json", action="store_true", help=JSON)
+    sg.set_defaults(func=cmd_table_sign)
 
     q = _command(tsub, "query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed")
     q.add_argument("file", type=Path, help="table file (.npz)")
@@ -635,6 +706,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "(warns; below the grid's lowest thrust ratio the daemon finds no safe speed)")
     b.add_argument("--resume", action="store_true",
                    help="continue an interrupted build from its checkpoint (OUT.partial/, kept until the table is written)")
+    b.add_argument("--sign-key", type=Path, help="sign the table with this ed25519 private key (PEM)")
     b.add_argument("--json", action="store_true", help=JSON)
     b.set_defaults(func=cmd_table_build)
 
@@ -647,6 +719,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--resume", action="store_true",
                    help="continue an interrupted sweep from its checkpoint (DEST.partial/, kept until the table is written)")
     e.add_argument("--workers", type=int, default=2, help="local process pool size")
+    e.add_argument("--sign-key", type=Path, help="sign the result with this ed25519 private key (PEM)")
     e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     e.add_argument("--json", action="store_true", help=JSON)
     e.set_defaults(func=cmd_table_etr)
@@ -692,6 +765,9 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--out", type=Path, required=True, help="the calibrated table (NEW.npz; NEW.yaml and the report beside)")
     ca.add_argument("--quantile", type=finite, default=0.9, help="quantile the per-cell bound covers (default 0.9)")
     ca.add_argument("--confidence", type=finite, default=0.9, help="its confidence (default 0.9)")
+    ca.add_argument("--sign-key", type=Path, help="sign the calibrated table with this ed25519 private key (PEM)")
+    ca.add_argument("--accept-faster", action="store_true", help="accept cells that became faster than the stock "
+                    "table (E_tr_pred below the SITL's): without it calibrate refuses them (see the report's evidence)")
     ca.add_argument("--json", action="store_true", help=JSON)
     ca.set_defaults(func=cmd_calibrate)
 
@@ -706,6 +782,14 @@ def build_parser() -> argparse.ArgumentParser:
     cpl.add_argument("--altitude", type=finite, default=5.0, help="altitude above home [m]")
     cpl.add_argument("--json", action="store_true", help=JSON)
     cpl.set_defaults(func=cmd_calibrate_plan)
+
+    ky = _command(sub, "keys", help="create or show the MAVLink signing key in the forms MAVProxy, QGroundControl, "
+                  "PX4 and ArduPilot take (--table: the key pair that signs tables)")
+    ky.add_argument("dir", type=Path, help="directory for the key files (created, mode 700)")
+    ky.add_argument("--passphrase", help="derive the key from this MAVProxy passphrase (default: a new random one)")
+    ky.add_argument("--table", action="store_true", help="an ed25519 key pair for `table sign` / --sign-key instead")
+    ky.add_argument("--json", action="store_true", help=JSON)
+    ky.set_defaults(func=cmd_keys)
 
     pl = _command(tsub, "plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
     pl.add_argument("file", type=Path, help="table file (.npz)")

@@ -30,6 +30,12 @@ def _vehicle_beside_config(ref: str, info: ValidationInfo) -> str:
 FilePath = Annotated[Path, AfterValidator(_beside_config)]
 VehicleRef = Annotated[str, AfterValidator(_vehicle_beside_config)]
 
+def Bounded(lo: float, hi: float, lo_open: bool = False):
+    """A finite number in its safe range: [lo, hi] (or (lo, hi] with `lo_open`). A value that weakens a guarantee
+    (a longer time-out, a shorter dwell …) is bounded where the guarantee would stop meaning anything; between the
+    default and that bound it is accepted and named in the start banner (`weakened`)."""
+    return Annotated[float, Field(**{"gt" if lo_open else "ge": lo}, le=hi, allow_inf_nan=False)]
+
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -73,39 +79,73 @@ class LinkConfig(_Strict):
 
 
 class ContractConfig(_Strict):
-    r_obst_m: NonNeg = 1.0  # expected obstacle radius (also the R_OBST parameter)
+    r_obst_m: NonNeg = 1.0  # expected obstacle radius (also the R_OBST parameter); inside r_obst_range_m
     r_obst_range_m: tuple[Pos, Pos] = (0.1, 10.0)  # what a ground station may set CG_R_OBST to
-    e_tr_floor_m: NonNeg = 0.3  # smallest tracking error ever assumed (braking overshoot included)
+    # smallest tracking error ever assumed (braking overshoot included). Up to 5 m: a larger floor only slows the
+    # aircraft (no upper bound is needed for safety; 5 m catches a unit slip, mm for m). Below the default: banner
+    e_tr_floor_m: Bounded(0.0, 5.0) = 0.3
     # the tracking error to assume when the table carries no controller contract (E_tr_pred, `table etr`):
     # without a controller contract the daemon refuses to engage unless this is stated
     e_tr_assumed_m: NonNeg | None = None
-    e_tr_window_s: Pos = 2.0  # E_tr is the worst contour error over this window
-    dwell_s: NonNeg = 2.0  # a higher limit takes effect only after holding this long
-    late_detection_hold_s: NonNeg = 10.0  # how long a late first detection lowers D_od
-    late_detection_tolerance_m: NonNeg = 0.3
+    # E_tr is the worst contour error over this window. At least 0.5 s: an avoidance manoeuvre's error peaks and
+    # settles over 1-2 s (the E_tr_pred sweep's contour window is 1 s), a shorter window forgets it mid-manoeuvre
+    e_tr_window_s: Bounded(0.5, 60.0) = 2.0
+    # a higher limit takes effect only after holding this long (limits go down at once and up slowly). At least
+    # 0.5 s: 25 cycles at 50 Hz, so one good sample between bad ones cannot raise the speed
+    dwell_s: Bounded(0.5, 600.0) = 2.0
+    # how long a late first detection lowers D_od. At least 1 s: the lowered D_od must outlast the detection
+    # that caused it by more than the sensors' time-out (timeouts.obstacle_s ≤ 1 s)
+    late_detection_hold_s: Bounded(1.0, 3600.0) = 10.0
+    # a first detection this much inside the claimed range is not late. At most 2 m: a tolerance larger than the
+    # keep-out margins it protects (r_obst + e_tr floor, about 1 m) would hide every real shortfall
+    late_detection_tolerance_m: Bounded(0.0, 2.0) = 0.3
     # navigation margin: the part of a sensor's claimed range not trusted, D_od = (1 − m) ×
     # the claim; 0 is the paper's contract (the claim is the guarantee). m survives a hidden shortfall of up to
     # m (the sensor silently seeing only 1 − m of what it claims), at a lower speed limit
     nav_margin: Annotated[float, Field(ge=0, le=0.9, allow_inf_nan=False)] = 0.0
+
+    @model_validator(mode="after")
+    def _r_obst_in_range(self):
+        lo, hi = self.r_obst_range_m
+        if lo > hi:
+            raise ValueError(f"r_obst_range_m: ({lo:g}, {hi:g}) is not a range (low above high)")
+        if not lo <= self.r_obst_m <= hi:  # else CG_R_OBST could not even be set back to the configured value
+            raise ValueError(f"r_obst_m: {self.r_obst_m:g} m is outside r_obst_range_m ({lo:g}-{hi:g} m)")
+        return self
 
 
 class ThrustConfig(_Strict):
     source: Literal["hover", "configured"] = "hover"
     value: Annotated[float, Field(gt=0, le=1)] | None = None  # configured thrust ratio (default: range bottom)
     hover_throttle_nominal: Annotated[float, Field(gt=0, lt=1)] | None = None  # default: the vehicle file's
-    tau_s: Pos = 2.0  # low-pass time constant of the hover-throttle estimate
+    # low-pass time constant of the hover-throttle estimate: a thrust loss shows after about this long. At most
+    # 10 s: slower, a motor failing over a minute's flight would never lower thrust_ratio in time to matter
+    tau_s: Bounded(0.0, 10.0, lo_open=True) = 2.0
 
 
 class Timeouts(_Strict):
-    heartbeat_s: Pos = 1.5
-    telemetry_s: Pos = 0.5
-    obstacle_s: Pos = 0.5  # PX4 collision prevention drops range data older than 0.5 s
-    nav_s: Pos = 2.0
+    """How long each input stays believed. Every one is a failsafe: longer means a silent source is trusted longer
+    (an obstacle sensor gone quiet keeps its last "free" reading), so each has a ceiling of a few seconds at most."""
+
+    # the autopilot's HEARTBEAT (1 Hz): at most 5 s, the MAVLink heartbeat protocol's "lost" time
+    # (mavlink.io/en/services/heartbeat.html: a component is lost after missing heartbeats for about 5 s)
+    heartbeat_s: Bounded(0.0, 5.0, lo_open=True) = 1.5
+    # the vehicle's position and velocity (LOCAL_POSITION_NED, ≥ 10 Hz on a companion link): at most 2 s, at
+    # 8 m/s already 16 m flown on a stale position
+    telemetry_s: Bounded(0.0, 2.0, lo_open=True) = 0.5
+    # obstacle readings: PX4 collision prevention drops range data older than 0.5 s
+    # (CollisionPrevention.cpp RANGE_STREAM_TIMEOUT_US 500 ms); at most 2 s, beyond it a silent sensor's last
+    # "free" reading would cover more than a D_od at cruise speed
+    obstacle_s: Bounded(0.0, 2.0, lo_open=True) = 0.5
+    # the autopilot's estimator health (ESTIMATOR_STATUS / EKF_STATUS_REPORT, 1-10 Hz): at most 5 s
+    nav_s: Bounded(0.0, 5.0, lo_open=True) = 2.0
     # the daemon's own cycle (companion/estimators.py Timeliness): lateness beyond one period up to this is sleep
     # jitter inside t_react's budget; beyond it, it counts as reaction time (a lower speed); a cycle this late
-    # beyond its period breaks the daemon's guarantee outright: the autopilot is handed Hold
-    cycle_jitter_s: NonNeg = 0.01
-    cycle_late_s: Pos = 0.25
+    # beyond its period breaks the daemon's guarantee outright: the autopilot is handed Hold.
+    # Jitter at most 0.05 s: the vehicle files' whole t_react is 0.10-0.15 s, so a larger uncounted lateness
+    # would be a third of it unbudgeted. Late at most 1 s: beyond that the daemon is not deciding at all.
+    cycle_jitter_s: Bounded(0.0, 0.05) = 0.01
+    cycle_late_s: Bounded(0.0, 1.0, lo_open=True) = 0.25
 
 
 class RouteConfig(_Strict):
@@ -115,7 +155,9 @@ class RouteConfig(_Strict):
     source: Literal["config", "mission"] = "config"  # config: the waypoints below; mission: the autopilot's
     waypoints: Annotated[list[tuple[float, float]], Field(min_length=2)] | None = None  # [[north, east], …] [m]
     altitude_m: Pos = 2.0  # the flight altitude with source: config [m]
-    level_tolerance_m: NonNeg = 0.5  # mission: all waypoint altitudes within this (the contract assumes level flight)
+    # mission: all waypoint altitudes within this (the contract assumes level flight). At most 2 m: more is a
+    # climbing route, which the contract (planned in the horizontal plane) does not cover
+    level_tolerance_m: Bounded(0.0, 2.0) = 0.5
     corner_cut_m: NonNeg = 1.0  # corners flown as arcs passing this far inside the waypoint (0: stop there)
 
     @model_validator(mode="after")
@@ -158,10 +200,18 @@ class LogConfig(_Strict):
 class Config(_Strict):
     vehicle: VehicleRef | None = None  # shipped name or path to a vehicle file: which aircraft the contract is for
     table: FilePath | None = None  # default: the shipped table of the vehicle
+    # the table must carry an ed25519 signature by this public key's private key (PEM; `contract-guard keys
+    # --table` makes the pair, `table sign` signs): an edited and re-hashed table is refused at start
+    table_public_key: FilePath | None = None
     mode: Literal["shadow", "governor", "offboard"] = "shadow"
     engage: bool = False  # engage only when asked (also the CG_ENGAGE parameter)
-    loop_hz: Pos = 50.0
-    speed_margin_m_s: NonNeg = 0.2  # ground speed this far above the limit counts as "not in force"
+    # the daemon's cycle: at least 20 Hz, the offboard setpoint stream's rate (PX4 needs > 2 Hz to stay in
+    # offboard; 20 Hz keeps a setpoint's age under the vehicle files' t_react). t_react budgets one 50 Hz cycle,
+    # so a slower loop is named in the banner. At most 1000 Hz (a typo would only spin the CPU)
+    loop_hz: Bounded(20.0, 1000.0) = 50.0
+    # ground speed this far above the limit still counts as the limit in force. At most 1 m/s: PX4 and ArduPilot
+    # hold a commanded speed within a few tenths; a larger margin would accept a limit that is not obeyed
+    speed_margin_m_s: Bounded(0.0, 1.0) = 0.2
     link: LinkConfig = LinkConfig()
     sensors: list[SensorConfig] = []  # the obstacle sensors as mounted (none: D_od is 0, no speed is safe)
     contract: ContractConfig = ContractConfig()
@@ -195,3 +245,60 @@ def load_config(path: str | Path) -> Config:
     """A config file; the relative paths in it (vehicle file, table, log directory, calibration legs,
     signing files) are relative to the file's own directory."""
     return load_model(Config, path, "config", empty_ok=True, context={"config_dir": Path(path).parent})
+
+
+# The values whose weaker side the start banner names: (section, key, "higher"/"lower" is weaker, what it costs).
+WEAKER = (
+    ("timeouts", "heartbeat_s", "higher", "a lost autopilot link is noticed later"),
+    ("timeouts", "telemetry_s", "higher", "a stale position is believed longer"),
+    ("timeouts", "obstacle_s", "higher", "a silent obstacle sensor's last reading is believed longer"),
+    ("timeouts", "nav_s", "higher", "a silent estimator is believed healthy longer"),
+    ("timeouts", "cycle_jitter_s", "higher", "more of the daemon's lateness goes uncounted"),
+    ("timeouts", "cycle_late_s", "higher", "a stalled daemon hands over to Hold later"),
+    ("", "loop_hz", "lower", "decisions are further apart than t_react budgets"),
+    ("", "speed_margin_m_s", "higher", "a speed limit overshot by more counts as in force"),
+    ("contract", "e_tr_floor_m", "lower", "a smaller tracking error is assumed"),
+    ("contract", "e_tr_window_s", "lower", "a tracking error is forgotten sooner"),
+    ("contract", "dwell_s", "lower", "a higher limit takes effect sooner"),
+    ("contract", "late_detection_hold_s", "lower", "a late detection lowers D_od for less time"),
+    ("contract", "late_detection_tolerance_m", "higher", "a larger range shortfall passes as on time"),
+    ("thrust", "tau_s", "higher", "a thrust loss shows later"),
+)
+
+
+def weakened(cfg: Config) -> list[str]:
+    """What in `cfg` is inside its safe range but weaker than the default, one line each (the start banner).
+    Pure: the configuration alone."""
+    out = []
+    for section, key, worse, cost in WEAKER:
+        obj = getattr(cfg, section) if section else cfg
+        value, default = getattr(obj, key), type(obj).model_fields[key].default
+        if (value > default) if worse == "higher" else (value < default):
+            out.append(f"weaker than the default: {section + '.' if section else ''}{key} {value:g} (default "
+                       f"{default:g}): {cost}")
+    lo = cfg.contract.r_obst_range_m[0]
+    if lo < ContractConfig.model_fields["r_obst_range_m"].default[0]:
+        out.append(f"weaker than the default: contract.r_obst_range_m from {lo:g} m: a ground station may set "
+                   "CG_R_OBST that small")
+    if cfg.thrust.source == "configured":
+        out.append("weaker than the default: thrust.source configured: thrust_ratio is fixed, a thrust loss is not seen")
+    for k, s in enumerate(cfg.sensors):
+        if s.min_quality < SensorConfig.model_fields["min_quality"].default:
+            out.append(f"weaker than the default: sensors[{k}].min_quality {s.min_quality} (default "
+                       f"{SensorConfig.model_fields['min_quality'].default}): poorer readings are trusted")
+    if cfg.link.clock_rate < 1.0:
+        out.append(f"weaker than the default: link.clock_rate {cfg.link.clock_rate:g}: every time-out runs "
+                   f"{1 / cfg.link.clock_rate:g} times longer in real time (1 on an aircraft)")
+    if cfg.mode != "shadow" and cfg.link.signing_key_file is None and is_network_link(cfg.link.connect):
+        out.append(f"unsigned on a network link in {cfg.mode} mode: anyone who can reach {cfg.link.connect} can "
+                   "send the daemon sensor data and commands (link.signing_key_file; contract-guard keys)")
+    return out
+
+
+def is_network_link(connect: str) -> bool:
+    """A pymavlink URL over the network (udp, udpin, udpout, udpbcast, tcp, tcpin) to or from anything but the
+    loopback interface: not a serial port, not a SITL on this host."""
+    scheme, _, rest = connect.partition(":")
+    host = rest.rpartition(":")[0].strip("[]").lower()
+    loopback = host == "localhost" or host.startswith("127.") or host == "::1"
+    return scheme.lower() in ("udp", "udpin", "udpout", "udpbcast", "tcp", "tcpin") and not loopback

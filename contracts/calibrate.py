@@ -14,12 +14,20 @@ Upper bound per cell (distribution-free order statistic): the largest of the cel
 exceeds the `quantile` q of a window's worst error with confidence 1 − qⁿ; a cell is *covered* when
 n ≥ n_min = ⌈ln(1 − confidence) / ln q⌉. The calibrated value of a covered cell is that maximum times
 (1 + margin) plus `margin_abs_m` (the SITL build's own margin rule). An uncovered cell is never
-optimistic (the issue's neighbour rule): `max(E_sitl, E_sitl · ρ_nb, its own windows' bound)`, with ρ_nb
+optimistic (the neighbour rule): `max(E_sitl, E_sitl · ρ_nb, its own windows' bound)`, with ρ_nb
 the largest measured/predicted ratio (bound / E_sitl) over the covered cells within `NEIGHBOUR_STEPS` grid
 steps of it in every axis, or, where no covered cell is that near, ρ* — the largest ratio over all covered
 cells (1 when none is covered). Never below the SITL prediction. The result is made monotone upward
 (`lookup.repair_monotone`, "up"), so a covered cell is never below a smaller speed's or tilt's calibrated
 value either.
+
+**Evidence to go below the SITL prediction** (a cell that would make the contract faster than stock). A covered
+cell takes its bound where that is above the SITL's value; below it only with at least `MIN_WINDOWS_BELOW_FACTOR`
+× n_min windows from at least `MIN_FLIGHTS_BELOW` distinct flights, and never below `BELOW_FLOOR` × the SITL's
+value (the margin: no amount of logged flight takes a cell below half of what the model predicts). Else it keeps
+max(SITL, bound). Flights are told apart by the caller (companion/calibrate.py: identical files and logs whose
+time spans overlap are one flight). Any cell left below the SITL's value is reported (`faster`): the caller
+refuses it unless a person accepts it.
 
 **Braking** (the stop contract, `contracts/stop.py`): from each logged stop (Hold/Brake commanded at
 speed) the reaction (command → braking onset), the peak deceleration, the jerk of its rise, the
@@ -54,6 +62,15 @@ MARGIN_REL = 0.25  # the SITL build's margin (its table's `e_tr_pred.margin`)
 MARGIN_ABS_M = 0.02
 ETR_DIRS = (+1, +1, -1)  # E_tr_pred grows with v_max and tilt, falls with thrust_ratio
 NEIGHBOUR_STEPS = 1  # an uncovered cell's neighbours: covered cells at most this many grid steps away per axis
+# Evidence a cell needs before its value may go below the SITL's E_tr_pred (faster than the stock contract).
+# 3 flights: one flight is one wind, one battery, one tuning; two can agree by chance; a third is the least that
+# shows the aircraft, not the day. 2 × n_min windows: the order-statistic bound needs n_min for the quantile at all;
+# below the model we ask for twice that (at q = c = 0.9: 44 windows, the bound then holds with 1 − 0.9^44 = 0.99)
+MIN_FLIGHTS_BELOW = 3
+MIN_WINDOWS_BELOW_FACTOR = 2
+# the margin: never below this fraction of the SITL's value, whatever the logs say (the SITL models the airframe's
+# dynamics; a log claiming half its tracking error more likely measured the wrong path than a better aircraft)
+BELOW_FLOOR = 0.5
 
 
 def n_min(quantile: float = QUANTILE, confidence: float = CONFIDENCE) -> int:
@@ -120,25 +137,37 @@ class EtrCalibration:
     repairs: int  # cells raised by the monotone repair
     outside: int  # samples outside the grid (not used)
     n_min: int
+    flights: np.ndarray = None  # distinct flights with a window in each cell (int)
+    below_ok: np.ndarray = None  # bool per cell: evidence enough to go below the SITL's value
+    faster: np.ndarray = None  # bool per cell: the calibrated value is below the SITL's (faster than stock)
 
 
-def calibrate_etr(stock: np.ndarray, axes, samples: list[tuple[float, float, float, float]], *,
+def calibrate_etr(stock: np.ndarray, axes, samples: list[tuple[float, float, float, float]], *, flights=None,
                   quantile=QUANTILE, confidence=CONFIDENCE, margin=MARGIN_REL, margin_abs_m=MARGIN_ABS_M) -> EtrCalibration:
-    """The calibrated E_tr_pred grid from window samples `(e, v, tilt, thrust_ratio)` (see the module)."""
+    """The calibrated E_tr_pred grid from window samples `(e, v, tilt, thrust_ratio)` (see the module). `flights`:
+    each sample's flight (any hashable, one per distinct flight); None: all from one flight."""
     stock = np.asarray(stock, float)
     counts = np.zeros(stock.shape, int)
     worst = np.full(stock.shape, np.nan)
+    seen: dict[tuple, set] = {}
     outside = 0
-    for e, v, tilt, tr in samples:
+    for n, (e, v, tilt, tr) in enumerate(samples):
         c = cell_of(axes, v, tilt, tr)
         if c is None or not math.isfinite(e):
             outside += 1
             continue
         counts[c] += 1
         worst[c] = e if not counts[c] > 1 else max(worst[c], e)
+        seen.setdefault(c, set()).add(None if flights is None else flights[n])
+    n_flights = np.zeros(stock.shape, int)
+    for c, f in seen.items():
+        n_flights[c] = len(f)
     nm = n_min(quantile, confidence)
     covered = counts >= nm
+    below_ok = covered & (counts >= MIN_WINDOWS_BELOW_FACTOR * nm) & (n_flights >= MIN_FLIGHTS_BELOW)
     bound = worst * (1.0 + margin) + margin_abs_m
+    # a covered cell's value: its bound, but not below the SITL's without the evidence, nor below the floor with it
+    measured = np.where(below_ok, np.fmax(bound, BELOW_FLOOR * stock), np.fmax(bound, stock))
     fin = covered & np.isfinite(stock) & (stock > 0)
     rho = np.where(fin, bound / np.where(fin, stock, 1.0), np.nan)  # measured/predicted per covered cell
     ratio = float(max(1.0, np.nanmax(rho))) if np.any(fin) else 1.0
@@ -147,9 +176,50 @@ def calibrate_etr(stock: np.ndarray, axes, samples: list[tuple[float, float, flo
     near &= ~covered
     # uncovered: the SITL's value scaled by its neighbours' ratio (or ρ*), never below the SITL's value nor
     # below what its own few windows showed
-    vals = np.where(covered, bound, np.fmax(np.maximum(stock, stock * np.nan_to_num(scale, nan=ratio)), bound))
+    vals = np.where(covered, measured, np.fmax(np.maximum(stock, stock * np.nan_to_num(scale, nan=ratio)), bound))
     vals, repairs = repair_monotone(vals, ETR_DIRS, "up")
-    return EtrCalibration(vals, counts, covered, worst, ratio, rho, scale, near, repairs, outside, nm)
+    faster = vals < stock
+    return EtrCalibration(vals, counts, covered, worst, ratio, rho, scale, near, repairs, outside, nm, n_flights,
+                          below_ok, faster)
+
+
+def cell_evidence(axes, stock, values, counts, flights, worst) -> list[dict]:
+    """Per cell with windows (or below the SITL's value): its grid point, windows, distinct flights, worst measured
+    contour error and calibrated/SITL ratio — what the report and `table show` print. Pure."""
+    rows = []
+    for idx in zip(*np.nonzero((np.asarray(counts) > 0) | (np.asarray(values) < np.asarray(stock)))):
+        i, j, k = (int(x) for x in idx)
+        e0, e1, w = float(stock[i, j, k]), float(values[i, j, k]), float(worst[i, j, k])
+        rows.append({"cell": [i, j, k], "v_max": float(axes[0][i]), "tilt_deg": math.degrees(float(axes[1][j])),
+                     "thrust_ratio": float(axes[2][k]), "windows": int(counts[i, j, k]), "flights": int(flights[i, j, k]),
+                     "worst_m": w if math.isfinite(w) else None, "calibrated_m": e1, "stock_m": e0,
+                     "ratio": e1 / e0 if e0 > 0 and math.isfinite(e0) else None, "faster": e1 < e0})
+    return rows
+
+
+def table_evidence(table) -> list[str]:
+    """`table show`'s lines on a calibrated table's evidence: flights, the faster-than-stock cells, and each cell
+    with windows (`cell_evidence`); [] for a table not calibrated from flight logs."""
+    c = ((table.e_pred.info or {}).get("calibration") if table.e_pred is not None else None) or {}
+    if "flights_per_cell" not in c:
+        return []
+    axes, values = table.e_pred.axes, table.e_pred.values
+    stock = np.asarray(c.get("stock_values", values), float)
+    worst = np.asarray(c["worst_m"], float)
+    rows = cell_evidence(axes, stock, values, np.asarray(c["counts"]), np.asarray(c["flights_per_cell"]),
+                         np.where(worst < 0, np.nan, worst))
+    head = (f"  calibration evidence: {c.get('flights')} distinct flight(s); {c.get('faster_cells', 0)} cell(s) faster "
+            f"than stock{' (accepted by a person: --accept-faster)' if c.get('faster_accepted') else ''}")
+    return [head] + [f"    {evidence_line(r)}" for r in rows]
+
+
+def evidence_line(r: dict) -> str:
+    """One cell's evidence, for a person."""
+    worst = "no window" if r["worst_m"] is None else f"worst {r['worst_m']:.3f} m"
+    ratio = "" if r["ratio"] is None else f", calibrated/stock {r['ratio']:.2f}"
+    return (f"cell V_max {r['v_max']:g} m/s, tilt {r['tilt_deg']:.0f}°, thrust {r['thrust_ratio']:g}: {r['windows']} "
+            f"windows from {r['flights']} flight(s), {worst}, E_tr_pred {r['stock_m']:.3f} -> {r['calibrated_m']:.3f} m"
+            f"{ratio}{' FASTER than stock' if r['faster'] else ''}")
 
 
 def neighbour_ratio(rho: np.ndarray, fallback: float, steps: int | None = None) -> tuple[np.ndarray, np.ndarray]:

@@ -169,29 +169,231 @@ def _check_slot(name: str, arrays: dict[str, np.ndarray]) -> str | None:
 # ============================================================================ reader
 
 
-def _read(path: Path) -> tuple[dict, dict[str, np.ndarray]]:
+# Bounds a table file is read within (refused before anything is read: one line, no large allocation).
+# Shipped tables: 120 × 33 × 7 avoid cells, 5 KB of metadata, 43 KB on disk.
+MAX_FILE_BYTES = 256 << 20  # the whole .npz on disk
+MAX_AXIS_POINTS = 4096  # per axis (the shipped grids have ≤ 120)
+MAX_CELLS = 1 << 22  # per value array (32 MiB of float64; the shipped tables have ≤ 28 000)
+MAX_META_BYTES = 4 << 20  # the JSON metadata record (calibration provenance included)
+MAX_JSON_DEPTH = 32  # nesting of the metadata (the writer's is ≤ 6)
+MAX_NPY_HEADER = 4096  # an .npy member's header (numpy writes 128 bytes)
+META_MEMBER, SIGNATURE_MEMBER = "metadata_json", "signature_json"
+_BYTES_MEMBERS = (META_MEMBER, SIGNATURE_MEMBER)  # 1-D uint8
+_AXIS_MEMBERS = {a for _, anames, _, _ in SLOTS.values() for a in anames}
+_VALUE_MEMBERS = {vname: anames for vname, anames, _, _ in SLOTS.values()}
+
+
+def _member_headers(zf: zipfile.ZipFile) -> dict[str, tuple]:
+    """name → (ZipInfo, shape, fortran_order, dtype, header bytes) of every member, from the zip directory and
+    the .npy headers only; a member that could not be a table's is refused here, before its data is read."""
+    out = {}
+    infos = zf.infolist()
+    if len(infos) > len(_BYTES_MEMBERS) + len(_AXIS_MEMBERS) + len(_VALUE_MEMBERS):
+        raise ValueError(f"{len(infos)} members (a table has at most "
+                         f"{len(_BYTES_MEMBERS) + len(_AXIS_MEMBERS) + len(_VALUE_MEMBERS)})")
+    for info in infos:
+        name = info.filename[:-4] if info.filename.endswith(".npy") else None
+        if name not in (*_BYTES_MEMBERS, *_AXIS_MEMBERS, *_VALUE_MEMBERS) or name in out:
+            raise ValueError(f"member {info.filename[:60]!r} is not (or twice) a table member")
+        # a zip bomb: the declared size is bounded before anything is inflated (and the reads below never take
+        # more than the .npy header states, which is bounded in turn)
+        if info.file_size > MAX_NPY_HEADER + 8 * MAX_CELLS + MAX_META_BYTES:
+            raise ValueError(f"member {name} declares {info.file_size} bytes (a zip bomb or not a table)")
+        with zf.open(info) as f:
+            version = np.lib.format.read_magic(f)
+            read_header = {(1, 0): np.lib.format.read_array_header_1_0}.get(version, np.lib.format.read_array_header_2_0)
+            shape, fortran, dtype = read_header(f, max_header_size=MAX_NPY_HEADER)
+            out[name] = (info, tuple(int(n) for n in shape), bool(fortran), dtype, f.tell())
+    for name, (_, shape, _, dtype, _) in out.items():
+        if dtype.hasobject:
+            raise ValueError(f"member {name} holds Python objects (a pickle): refused")
+        if dtype.fields is not None or dtype.kind not in "biuf" or dtype.itemsize > 8:
+            raise ValueError(f"member {name} is not numeric (dtype {dtype.str})")
+        if name in _BYTES_MEMBERS:
+            ok = dtype == np.uint8 and len(shape) == 1 and shape[0] <= MAX_META_BYTES
+        elif name in _AXIS_MEMBERS:
+            ok = dtype.kind == "f" and len(shape) == 1 and shape[0] <= MAX_AXIS_POINTS
+        else:  # a value array: exactly its axes' grid
+            axes = [out.get(a) for a in _VALUE_MEMBERS[name]]
+            ok = dtype.kind == "f" and None not in axes and shape == tuple(ax[1][0] for ax in axes if ax[1])
+            ok = ok and math.prod(shape) <= MAX_CELLS
+        if not ok:
+            raise ValueError(f"member {name} has shape {shape[:4]} and dtype {dtype.str}: larger than, or not, "
+                             "what the table's grid implies")
+    return out
+
+
+def _read_member(zf: zipfile.ZipFile, header: tuple) -> np.ndarray:
+    """The array of one member whose header `_member_headers` accepted: exactly the bytes it states."""
+    info, shape, fortran, dtype, offset = header
+    n = math.prod(shape) * dtype.itemsize
+    with zf.open(info) as f:
+        f.read(offset)
+        data = f.read(n)
+    if len(data) != n:
+        raise EOFError
+    return np.frombuffer(data, dtype).reshape(shape, order="F" if fortran else "C")
+
+
+def _json_depth(raw: bytes) -> int:
+    """The nesting depth of a JSON text, counted without parsing it (brackets outside strings)."""
+    import re
+
+    b = np.frombuffer(re.sub(rb'"(?:[^"\\]|\\.)*"', b"", raw), np.uint8)
+    step = np.isin(b, (ord("["), ord("{"))).astype(np.int64) - np.isin(b, (ord("]"), ord("}")))
+    return int(np.max(np.cumsum(step), initial=0))
+
+
+@dataclass(frozen=True)
+class _File:
+    meta: dict
+    arrays: dict[str, np.ndarray]
+    meta_raw: bytes  # the metadata record as stored (what a signature covers, with the arrays)
+    signature: dict | None  # the signature record, if signed
+
+
+def _read(path: Path) -> _File:
     try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
+        if not path.is_file():
+            raise FileNotFoundError if not path.exists() else ValueError("not a regular file")
+        if path.stat().st_size > MAX_FILE_BYTES:
+            raise ValueError(f"{path.stat().st_size} bytes (a table is at most {MAX_FILE_BYTES})")
+        with zipfile.ZipFile(path) as zf:
+            headers = _member_headers(zf)
+            arrays = {name: _read_member(zf, h) for name, h in headers.items()}
     except FileNotFoundError:
         raise ContractError(f"table {path}: no such file") from None
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as err:
+    except ValueError as err:
+        raise ContractError(f"table {path}: refused: {' '.join(str(err).split())[:200]}") from None
+    except (OSError, zipfile.BadZipFile, EOFError, KeyError, NotImplementedError, RuntimeError) as err:
         raise ContractError(f"table {path}: unreadable or truncated ({type(err).__name__})") from None
-    raw = arrays.pop("metadata_json", None)
+    raw = arrays.pop(META_MEMBER, None)
     if raw is None:
         raise ContractError(f"table {path}: no metadata record (not a contract-guard table)")
+    sig = arrays.pop(SIGNATURE_MEMBER, None)
+    meta_raw = raw.tobytes()
+    if _json_depth(meta_raw) > MAX_JSON_DEPTH:
+        raise ContractError(f"table {path}: metadata nested deeper than {MAX_JSON_DEPTH} levels (refused)")
     try:
-        meta = json.loads(raw.tobytes().decode())
+        meta = json.loads(meta_raw.decode())
         assert isinstance(meta, dict)
-    except (ValueError, AssertionError):
-        raise ContractError(f"table {path}: metadata is not valid JSON") from None
-    return meta, arrays
+        signature = None if sig is None else json.loads(sig.tobytes().decode())
+        assert signature is None or isinstance(signature, dict)
+    except (ValueError, AssertionError, RecursionError):
+        raise ContractError(f"table {path}: metadata or signature is not valid JSON") from None
+    return _File(meta, arrays, meta_raw, signature)
 
 
-def verify(path: str | Path, vehicle: Vehicle | None = None) -> "ContractTable":
-    """Load and verify a table; raise `ContractError` (one line) if anything is wrong."""
+# ============================================================================ signature
+# An ed25519 signature (RFC 8032, the `cryptography` package) over the metadata record as stored and the
+# arrays' canonical hash: a table edited and re-hashed no longer verifies against the builder's public key.
+# The hash alone (`arrays_sha256`) is integrity only.
+
+SIGNATURE_DOMAIN = b"contract-guard/gamma-table/ed25519/v1\n"
+
+
+def signed_message(meta_raw: bytes, arrays: dict[str, np.ndarray]) -> bytes:
+    """What a table's signature signs: a domain tag, SHA-256 of the metadata as stored, the arrays' hash."""
+    return SIGNATURE_DOMAIN + hashlib.sha256(meta_raw).hexdigest().encode() + b"\n" + arrays_sha256(arrays).encode()
+
+
+def _pem(path, what: str) -> bytes:
+    try:
+        data = Path(path).read_bytes()[: 1 << 16]
+    except OSError as err:
+        raise ContractError(f"{what} {path}: cannot read it ({err.strerror or type(err).__name__})") from None
+    return data
+
+
+def load_private_key(path):
+    """An ed25519 private key from a PEM file (`contract-guard keys --table` writes one)."""
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey
+    from cryptography.hazmat.primitives.serialization import load_pem_private_key
+
+    try:
+        key = load_pem_private_key(_pem(path, "table signing key"), password=None)
+    except (ValueError, TypeError):
+        key = None
+    if not isinstance(key, Ed25519PrivateKey):
+        raise ContractError(f"table signing key {path}: not an unencrypted ed25519 private key (PEM)")
+    return key
+
+
+def load_public_key(path):
+    """An ed25519 public key from a PEM file (the `.pub` that `contract-guard keys --table` writes)."""
+    from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PublicKey
+    from cryptography.hazmat.primitives.serialization import load_pem_public_key
+
+    try:
+        key = load_pem_public_key(_pem(path, "table public key"))
+    except (ValueError, TypeError):
+        key = None
+    if not isinstance(key, Ed25519PublicKey):
+        raise ContractError(f"table public key {path}: not an ed25519 public key (PEM)")
+    return key
+
+
+def key_id(public_key) -> str:
+    """A short name of a public key: the first 16 hex digits of SHA-256 of its 32 raw bytes."""
+    from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
+
+    return hashlib.sha256(public_key.public_bytes(Encoding.Raw, PublicFormat.Raw)).hexdigest()[:16]
+
+
+def sign_table(path: str | Path, private_key_path, out: str | Path | None = None) -> dict:
+    """Sign a verified table (in place, or into `out`): its arrays and metadata record are kept byte for byte,
+    a `signature_json` member is added (replacing an older one). Returns the signature record."""
+    import base64
+    import os
+
     path = Path(path)
-    meta, arrays = _read(path)
+    key = load_private_key(private_key_path)
+    verify(path)  # only a table that verifies is signed
+    f = _read(path)
+    sig = {"algorithm": "ed25519", "key_id": key_id(key.public_key()),
+           "signature": base64.b64encode(key.sign(signed_message(f.meta_raw, f.arrays))).decode(),
+           "signed_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{META_MEMBER: np.frombuffer(f.meta_raw, np.uint8),
+                                SIGNATURE_MEMBER: np.frombuffer(json.dumps(sig).encode(), np.uint8)}, **f.arrays)
+    dest = Path(out) if out is not None else path
+    tmp = dest.with_name(dest.name + ".signing")
+    tmp.write_bytes(buf.getvalue())
+    os.replace(tmp, dest)
+    return sig
+
+
+def _check_signature(path: Path, f: _File, public_key) -> dict:
+    """The table's signature status; with `public_key` (a PEM path or key) a missing or wrong signature is refused."""
+    import base64
+
+    from cryptography.exceptions import InvalidSignature
+
+    sig = f.signature
+    status = {"signed": sig is not None, "key_id": (sig or {}).get("key_id"), "verified": False}
+    if public_key is None:
+        return status
+    key = load_public_key(public_key) if isinstance(public_key, (str, Path)) else public_key
+    if sig is None:
+        raise ContractError(f"table {path}: unsigned, but a table public key is configured (key {key_id(key)}); "
+                            "sign it: contract-guard table sign")
+    try:
+        if sig.get("algorithm") != "ed25519":
+            raise InvalidSignature
+        key.verify(base64.b64decode(str(sig.get("signature", "")), validate=True),
+                   signed_message(f.meta_raw, f.arrays))
+    except (InvalidSignature, ValueError):
+        raise ContractError(f"table {path}: signature does not verify with public key {key_id(key)} (table altered "
+                            "after signing, or signed by another key)") from None
+    return {**status, "key_id": key_id(key), "verified": True}
+
+
+def verify(path: str | Path, vehicle: Vehicle | None = None, public_key=None) -> "ContractTable":
+    """Load and verify a table; raise `ContractError` (one line) if anything is wrong. With `public_key` (an
+    ed25519 public key or its PEM file) the table must carry a signature that verifies with it."""
+    path = Path(path)
+    f = _read(path)
+    meta, arrays = f.meta, f.arrays
     if meta.get("schema") != SCHEMA:
         raise ContractError(f"table {path}: not a contract-guard Γ table (schema {meta.get('schema')!r})")
     if meta.get("schema_version") != SCHEMA_VERSION:
@@ -200,6 +402,7 @@ def verify(path: str | Path, vehicle: Vehicle | None = None) -> "ContractTable":
         )
     if arrays_sha256(arrays) != meta.get("arrays_sha256"):
         raise ContractError(f"table {path}: array hash mismatch (file altered or corrupted)")
+    signature = _check_signature(path, f, public_key)
     try:
         tv = vehicle_from_dict(meta.get("vehicle"), "embedded vehicle")
     except ContractError as err:
@@ -223,7 +426,9 @@ def verify(path: str | Path, vehicle: Vehicle | None = None) -> "ContractTable":
         slots[name] = Slot(tuple(arrays[a] for a in anames), arrays[vname], contracts[name])
     if meta.get("tilt_model") not in ("cone", "box"):
         raise ContractError(f"table {path}: unknown tilt_model {meta.get('tilt_model')!r}")
-    return ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path)
+    table = ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path)
+    table.signature = signature
+    return table
 
 
 def shipped_table(name: str) -> Path:
@@ -236,16 +441,18 @@ def shipped_vehicles() -> list[str]:
     return sorted(p.stem for p in DATA_DIR.glob("*.yaml") if (DATA_DIR / f"{p.stem}.npz").exists())
 
 
-def load_for_vehicle(vehicle: str | Path | Vehicle | None, table_path: str | Path | None = None) -> "ContractTable":
+def load_for_vehicle(vehicle: str | Path | Vehicle | None, table_path: str | Path | None = None,
+                     public_key=None) -> "ContractTable":
     """The verified table for a vehicle (shipped name, vehicle file or `Vehicle`): `table_path`, else the
-    vehicle's shipped table; refused if built for another vehicle. No vehicle: `table_path` with its own."""
+    vehicle's shipped table; refused if built for another vehicle. No vehicle: `table_path` with its own.
+    `public_key`: the table must be signed by its private key (`verify`)."""
     if vehicle is None:
         if table_path is None:
             raise ContractError("which aircraft? state `vehicle:` (a vehicle file, or a shipped name: "
                                 f"{', '.join(shipped_vehicles())}) or a table")
-        return verify(table_path)
+        return verify(table_path, public_key=public_key)
     veh = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
-    return verify(shipped_table(veh.name) if table_path is None else table_path, veh)
+    return verify(shipped_table(veh.name) if table_path is None else table_path, veh, public_key)
 
 
 def _first_difference(a, b, prefix="") -> str:
@@ -277,6 +484,7 @@ class ContractTable:
 
     def __init__(self, meta: dict, vehicle: Vehicle, avoid: Slot | None, e_tr_pred: Slot | None, path=None):
         self.meta, self.vehicle, self.avoid, self.e_pred, self.path = meta, vehicle, avoid, e_tr_pred, path
+        self.signature = {"signed": False, "key_id": None, "verified": False}  # set by `verify`
         self.tilt_model = meta["tilt_model"]
         v = vehicle
         self._r_body = v.r_body_m

@@ -28,6 +28,18 @@ from companion.flights import Rig, fly_mission
 from contracts.missionfile import read_mission
 
 EPOCH_US = 1_790_000_000_000_000
+# each flight its own day (calibrate counts logs whose time spans overlap as one flight): the epoch of flight
+# (personality, seed) is EPOCH_US + FLIGHT_STEP_US × (2·seed + [ardupilot]); the SITL's own logs share it
+FLIGHT_STEP_US = 86_400_000_000
+
+
+def flight_epoch_us(personality: str, seed: int) -> int:
+    return EPOCH_US + FLIGHT_STEP_US * (2 * seed + (personality == "ardupilot"))
+
+
+def sitl_time_s(stamp_us: int) -> float:
+    """A .tlog stamp of these flights as the SITL's time [s] (the stamp less its flight's epoch)."""
+    return ((stamp_us - EPOCH_US) % FLIGHT_STEP_US) / 1e6
 TRUTH_GAIN = 0.6  # the "real aircraft": position- and velocity-loop gains −40 % …
 TRUTH_DELAY_S = 0.06  # … and a 60 ms larger actuator delay than its vehicle file's SITL (which has none),
 # with its inner loops tuned for it: the file's attitude/rate gains at 60 ms more delay diverge (checked: rolls
@@ -39,8 +51,8 @@ SENSOR_RANGE_M = 40.0  # the calibration flight's forward sensor (a lidar's rang
 class TlogTee:
     """Stamps every packet crossing the ground station's side of a lock-step link into a `.tlog`."""
 
-    def __init__(self, rig: Rig, path: Path):
-        self.rig, self.fh = rig, open(path, "wb")  # noqa: SIM115 — open for the whole flight, closed by close()
+    def __init__(self, rig: Rig, path: Path, epoch_us: int = EPOCH_US):
+        self.rig, self.fh, self.epoch_us = rig, open(path, "wb"), epoch_us  # noqa: SIM115 — closed by close()
         self.parser = mav.MAVLink(None)
         self.parser.robust_parsing = True
         link = rig.link
@@ -69,7 +81,7 @@ class TlogTee:
     def _write(self, data: bytes) -> None:
         if not data:
             return
-        stamp = struct.pack(">Q", EPOCH_US + int(self.rig.sim.time_s * 1e6))
+        stamp = struct.pack(">Q", self.epoch_us + int(self.rig.sim.time_s * 1e6))
         for m in self.parser.parse_buffer(data) or []:
             self.fh.write(stamp + bytes(m.get_msgbuf()))
 
@@ -89,7 +101,7 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
     """Fly the plan; returns the holds commanded (t, speed, seq; by the daemon: from its `calibration_hold`
     events), when each mission item became current (t, seq), the flight time, whether the plan was flown to its
     end, the daemon's events (`events`, holds="daemon"), and, with `log_dir`, the path of the autopilot's own log
-    the SITL wrote (PX4 ULog / ArduPilot DataFlash). Times are the SITL's (the `.tlog`'s stamps minus EPOCH_US).
+    the SITL wrote (PX4 ULog / ArduPilot DataFlash). Times are the SITL's (`sitl_time_s` of the `.tlog`'s stamps).
     `pilot(rig) -> bool`: called every cycle (a test's pilot: its own mode changes); True ends the flight."""
     if holds not in ("daemon", "gcs", "none"):
         raise ValueError(f"holds must be 'daemon', 'gcs' or 'none', not {holds!r}")
@@ -104,9 +116,10 @@ def fly_calibration(plan_path: Path, tlog: Path, *, truth=None, personality: str
     config = {"mode": "governor", "engage": True} if governor else {"mode": "shadow", "engage": False}
     if by_daemon:
         config["calibration"] = {"legs": str(plan_path)}
-    rig = Rig(sc, personality, config=config, seed=seed, sim_kwargs=truth_sim_kwargs(truth, actuator_delay_s),
-              log_dir=log_dir)
-    tee = TlogTee(rig, tlog)
+    epoch_us = flight_epoch_us(personality, seed)
+    rig = Rig(sc, personality, config=config, seed=seed, log_dir=log_dir,
+              sim_kwargs={**truth_sim_kwargs(truth, actuator_delay_s), "unix_epoch_s": epoch_us / 1e6})
+    tee = TlogTee(rig, tlog, epoch_us)
     ad = adapter_for(personality)
     ap = rig.sim.autopilot
     done, log, items = set(), [], []

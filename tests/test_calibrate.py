@@ -41,15 +41,24 @@ def test_n_min_is_the_order_statistic_sample_size():
 
 def test_covered_cell_gets_its_bound_and_uncovered_cells_never_go_below_stock(stock):
     axes, e0 = stock.e_pred.axes, stock.e_pred.values
-    # 30 windows at 3 m/s, 10° tilt, full thrust, all 0.2 m (the SITL says ~0.32 there): tighter
-    s = [(0.2, 3.0, math.radians(10), 1.0)] * 30
-    c = cal.calibrate_etr(e0, axes, s)
+    # 45 windows from 3 flights at 3 m/s, 10° tilt, full thrust, all 0.2 m (the SITL says ~0.41 there): tighter
+    s = [(0.2, 3.0, math.radians(10), 1.0)] * 45
+    c = cal.calibrate_etr(e0, axes, s, flights=[k % 3 for k in range(45)])
     cell = cal.cell_of(axes, 3.0, math.radians(10), 1.0)
-    assert c.covered[cell] and c.counts[cell] == 30
-    assert c.values[cell] == pytest.approx(max(0.2 * 1.25 + 0.02, 0.0)) or c.values[cell] >= 0.27
-    assert c.values[cell] < e0[cell]  # a better-tracking aircraft: tighter there
+    assert c.covered[cell] and c.counts[cell] == 45 and c.flights[cell] == 3 and c.below_ok[cell]
+    assert c.values[cell] >= max(0.2 * 1.25 + 0.02, cal.BELOW_FLOOR * e0[cell]) - 1e-12  # (monotone repair: ≥)
+    assert c.values[cell] < e0[cell] and c.faster[cell]  # a better-tracking aircraft: tighter there
     assert np.all(c.values[~c.covered] >= e0[~c.covered])
     assert c.ratio == 1.0
+    # the same windows from one flight, or 30 from three: covered, but not evidence enough to go below the SITL
+    for windows, flights in ((45, [0] * 45), (30, [k % 3 for k in range(30)]), (45, None)):
+        c1 = cal.calibrate_etr(e0, axes, s[:windows], flights=flights)
+        assert c1.covered[cell] and not c1.below_ok[cell] and c1.values[cell] == e0[cell] and not c1.faster.any()
+    # logs claiming no error at all, everywhere: never below the floor
+    lie = [(0.0, float(v), float(ti), float(k)) for v in axes[0] for ti in axes[1] for k in axes[2]] * 60
+    c0 = cal.calibrate_etr(e0, axes, lie, flights=[n * 6 // len(lie) for n in range(len(lie))])  # 6 flights
+    assert c0.covered.all() and c0.faster.all()
+    assert np.allclose(c0.values, np.maximum(cal.BELOW_FLOOR * e0, cal.MARGIN_ABS_M))
     # the same windows at 0.6 m: worse than the SITL; every uncovered cell is scaled by ρ* ≥ 1
     c2 = cal.calibrate_etr(e0, axes, [(0.6, 3.0, math.radians(10), 1.0)] * 30)
     assert c2.ratio > 1.5

@@ -1,0 +1,136 @@
+"""Config values that switch a failsafe off are refused (one line naming the key, exit 2 from `run`); a value
+inside its safe range but weaker than the default is named in the start banner."""
+
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from companion.config import config_from_dict, load_config, weakened
+from contracts.errors import ContractError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# (key path, a value outside its safe range): the review's values first
+OUTSIDE = [
+    (("timeouts", "obstacle_s"), 1e9), (("timeouts", "cycle_late_s"), 1e9), (("loop_hz",), 0.2),
+    (("timeouts", "heartbeat_s"), 60.0), (("timeouts", "telemetry_s"), 10.0), (("timeouts", "nav_s"), 30.0),
+    (("timeouts", "cycle_jitter_s"), 0.5), (("loop_hz",), 19.0), (("speed_margin_m_s",), 5.0),
+    (("contract", "dwell_s"), 0.0), (("contract", "e_tr_window_s"), 0.1), (("contract", "late_detection_hold_s"), 0.0),
+    (("contract", "late_detection_tolerance_m"), 10.0), (("contract", "e_tr_floor_m"), 1e6),
+    (("thrust", "tau_s"), 1e9), (("contract", "r_obst_m"), 0.05),
+]
+
+
+def _nest(path, value, base=None):
+    d = dict(base or {})
+    cur = d
+    for k in path[:-1]:
+        cur = cur.setdefault(k, {})
+    cur[path[-1]] = value
+    return d
+
+
+@pytest.mark.parametrize("path,value", OUTSIDE, ids=[".".join(p) for p, _ in OUTSIDE])
+def test_a_value_outside_its_safe_range_is_refused_naming_the_key(path, value):
+    with pytest.raises(ContractError) as e:
+        config_from_dict(_nest(path, value))
+    msg = str(e.value)
+    assert "\n" not in msg and path[-1] in msg, msg
+
+
+def test_r_obst_m_must_lie_inside_its_own_range():
+    with pytest.raises(ContractError, match=r"r_obst_m: 0.3 m is outside r_obst_range_m \(0.5-2 m\)"):
+        config_from_dict({"contract": {"r_obst_m": 0.3, "r_obst_range_m": [0.5, 2.0]}})
+    with pytest.raises(ContractError, match="not a range"):
+        config_from_dict({"contract": {"r_obst_m": 1.0, "r_obst_range_m": [2.0, 0.5]}})
+    config_from_dict({"contract": {"r_obst_m": 0.5, "r_obst_range_m": [0.5, 2.0]}})
+
+
+@pytest.mark.parametrize("value", ["1e9", "0.2"])
+def test_run_exits_2_with_one_line(tmp_path, value):
+    cfg = tmp_path / "cg.yaml"
+    key = "timeouts: {obstacle_s: %s}" % value if value == "1e9" else "loop_hz: %s" % value
+    cfg.write_text(f"vehicle: mambo\n{key}\nlog: {{dir: {tmp_path / 'log'}}}\n")
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)], capture_output=True,
+                       text=True, cwd=str(ROOT), timeout=60)
+    assert r.returncode == 2, r.stdout + r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert ("obstacle_s" if value == "1e9" else "loop_hz") in r.stderr
+
+
+def test_the_shipped_examples_load():
+    for f in sorted((ROOT / "examples").glob("*.yaml")):
+        if not f.name.startswith("campaign-"):
+            load_config(f)
+
+
+def test_weakened_names_each_weaker_value_and_nothing_at_the_defaults():
+    assert weakened(config_from_dict({})) == []
+    stronger = config_from_dict({"timeouts": {"obstacle_s": 0.2, "heartbeat_s": 1.0}, "loop_hz": 100,
+                                 "contract": {"dwell_s": 5.0, "e_tr_floor_m": 0.5}})
+    assert weakened(stronger) == []
+    weak = config_from_dict({"timeouts": {"obstacle_s": 1.5, "cycle_late_s": 0.8}, "loop_hz": 25,
+                             "contract": {"dwell_s": 0.5, "r_obst_range_m": [0.05, 10.0]},
+                             "thrust": {"source": "configured", "value": 0.9}})
+    lines = "\n".join(weakened(weak))
+    for key in ("timeouts.obstacle_s 1.5", "timeouts.cycle_late_s 0.8", "loop_hz 25", "contract.dwell_s 0.5",
+                "r_obst_range_m from 0.05", "thrust.source configured"):
+        assert key in lines, lines
+    assert len(weakened(weak)) == 6
+
+
+def test_unsigned_network_link_in_governor_or_offboard_is_named():
+    sensors = [{"h_fov_deg": 30, "max_range_m": 10}]
+    net = {"mode": "governor", "sensors": sensors, "link": {"connect": "udpin:0.0.0.0:14540"}}
+    assert any("unsigned on a network link in governor mode" in x for x in weakened(config_from_dict(net)))
+    quiet = [{**net, "mode": "shadow"}, {**net, "link": {"connect": "/dev/ttyAMA0"}},
+             {**net, "link": {"connect": "udpout:127.0.0.1:14540"}},
+             {**net, "link": {"connect": "udpin:0.0.0.0:14540", "signing_key_file": "/etc/cg/key"}}]
+    for q in quiet:
+        assert not any("unsigned" in x for x in weakened(config_from_dict(q))), q
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def daemon_output_until(cfg: Path, marker: str, timeout_s: float = 60.0) -> str:
+    """`contract-guard run --config cfg` until a line with `marker` (or its end), then SIGTERM: what it printed."""
+    p = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)], cwd=str(ROOT),
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    out = []
+    try:
+        deadline = time.time() + timeout_s
+        while time.time() < deadline:
+            line = p.stdout.readline()
+            if not line:
+                break
+            out.append(line)
+            if marker in line:
+                break
+        p.send_signal(signal.SIGTERM)
+        p.wait(30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    return "".join(out)
+
+
+def test_the_start_banner_prints_the_weakened_values(tmp_path):
+    port = free_udp_port()
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(yaml.safe_dump({
+        "vehicle": "mambo", "mode": "governor", "link": {"connect": f"udpin:0.0.0.0:{port}"},
+        "sensors": [{"h_fov_deg": 30, "max_range_m": 10}], "timeouts": {"obstacle_s": 1.5},
+        "log": {"dir": str(tmp_path / "log")}}))
+    text = daemon_output_until(cfg, "unsigned on a network link")
+    assert "timeouts.obstacle_s 1.5 (default 0.5)" in text, text
+    assert "unsigned on a network link in governor mode" in text, text
