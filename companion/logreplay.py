@@ -21,7 +21,7 @@ from .eventlog import EventLog, finite_copy, read_events
 from .link import MemoryMavfile
 from .loginput import Feed, LogIn
 from .logschema import LOG_FILE
-from .replay import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle
+from .replay import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, silences, stepped_silence
 from .review import Origin, fmt_value
 
 AUTOPILOT_IDS = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT
@@ -43,9 +43,9 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
     login = LogIn(cfg, daemon.tel, AUTOPILOT_IDS.get(feed.autopilot, 0))
     ops, bad = feed.ops, [0]
 
-    def take(i: int, tick: float) -> None:
-        t_us, op, args = ops[i]
-        now["t"] = min(t_us, tick) / 1e6
+    def take(i: int, t: float) -> None:
+        _, op, args = ops[i]
+        now["t"] = t / 1e6
         try:
             for s in login.apply(now["t"], op, args):
                 daemon.take(s)  # the daemon's own routing of MAVLink-in's samples
@@ -56,10 +56,10 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
         now["t"] = tick / 1e6
         daemon.step()
 
-    steps = in_log_time([o[0] for o in ops], cfg.loop_hz, take, step)
+    run = in_log_time([o[0] for o in ops], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {"steps": steps, "ops": len(ops), "refused_samples": bad[0]}
+    return {**run, "ops": len(ops), "refused_samples": bad[0]}
 
 
 class FlightLog(Origin):
@@ -77,6 +77,8 @@ class FlightLog(Origin):
             out.append(f"{info['dropouts']} logging dropout(s) ({info['dropout_s']:.1f} s of data lost)")
         if info["time_jumps"]:
             out.append(f"{len(info['time_jumps'])} clock jump(s) in the log's timestamps closed up")
+        if info.get("gaps_skipped"):
+            out.append(silences(info))
         for s in info["slow_streams"]:
             out.append(f"{s['stream']} logged at {s['rate_hz']:.1f} Hz, too slow for the daemon's {s['timeout_s']} s "
                        "staleness limit: stale-data findings may be the log's, not the flight's")
@@ -171,7 +173,7 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
             pf.append(f"the autopilot's tilt limit {name} = {v * scale:g}° is above the contract's {veh.tilt_max_deg:g}° "
                       f"(vehicle {veh.name}): the vehicle may tilt beyond what the contract assumes")
     info.update({
-        "ops": run["ops"], "steps": run["steps"], "refused_samples": run["refused_samples"],
+        "ops": run["ops"], "steps": run["steps"], "gaps_skipped": run["gaps_skipped"], "skipped_s": run["skipped_s"], "refused_samples": run["refused_samples"],
         "config": None if config is None else str(config), "vehicle_file": veh.name, "table": str(tab.path),
         "contract": contract, "loop_hz": cfg.loop_hz, "slow_streams": slow, "param_findings": pf,
         "event_log": None, "e_tr": _e_tr(log_dir),

@@ -20,6 +20,7 @@ valid CRC); a torn last packet is reported.
 from __future__ import annotations
 
 import bisect
+import math
 import re
 import struct
 from array import array
@@ -41,6 +42,9 @@ MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (cla
 MAX_GAP_US = 300_000_000  # a longer silence is taken as a clock jump and closed up
 RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie within a day of the last good one
 TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
+# a silence in a log is stepped through for the daemon's longest staleness time-out plus this (it goes stale
+# and fails safe as it would have in flight), then skipped; never longer than SILENCE_MAX_S
+SILENCE_MARGIN_S, SILENCE_MAX_S = 2.0, 30.0
 NOT_AUTOPILOT = (mavlink.MAV_AUTOPILOT_INVALID,)
 # without the flight's config: the sensors assumed, said in the report's notes
 ASSUMED_SENSORS = (SensorConfig(kind="distance_sensor", h_fov_deg=30.0),)
@@ -272,8 +276,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
 
     decode, decoded = conn.mav.decode, scan.decoded  # the daemon's own dialect (the scan's: mavutil's)
 
-    def take(i: int, tick: float) -> None:
-        now["t"], now["wall"] = min(t_us[i], tick) / 1e6, raw_us[i] / 1e6
+    def take(i: int, t: float) -> None:
+        now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
         if i < len(decoded):
             msg = decoded[i]
         else:  # past what the scan kept: decoded again (the scan kept only frames with a valid CRC)
@@ -289,25 +293,48 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         now["t"] = tick / 1e6
         daemon.step()
 
-    steps = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step)
+    run = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {"steps": steps, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
+    return {**run, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
 
 
-def in_log_time(t_us, loop_hz: float, take, step) -> int:
-    """Step a replayed daemon every loop period of log time: `take(i, tick_us)` for every entry stamped
-    by that tick (within TICK_SLACK_US), then `step(tick_us)`; returns the number of steps."""
+def stepped_silence(cfg: Config) -> float:
+    """How long a silence in a log the replay steps through before skipping the rest [s]."""
+    to = cfg.timeouts
+    return min(SILENCE_MAX_S, max(to.heartbeat_s, to.telemetry_s, to.obstacle_s, to.nav_s) + SILENCE_MARGIN_S)
+
+
+def silences(info: dict) -> str:
+    """The finding of the silences a replay skipped."""
+    return (f"{info['gaps_skipped']} silence(s) in the log ({info['skipped_s']:.0f} s in all) cut out by the replay once "
+            "the daemon had gone stale in each: no state samples there, and later times moved earlier by the cut")
+
+
+def in_log_time(t_us, loop_hz: float, take, step, silence_s: float = math.inf) -> dict:
+    """Step a replayed daemon every loop period: `take(i, t_us)` for every entry stamped by that tick
+    (within TICK_SLACK_US; `t_us` its replay time), then `step(tick_us)`. A silence in the log is stepped
+    through for `silence_s` (the daemon sees it as in flight: stale inputs, failsafe), then the rest of it
+    is cut out: later entries are replayed that much earlier (the daemon's clock runs on, as it would through
+    a clock jump closed up), so the cost grows with the log's entries, not its time span.
+    Returns {"steps", "gaps_skipped", "skipped_s"}."""
     period, n, i, k = 1e6 / loop_hz, len(t_us), 0, 0
+    hold, shift = silence_s * 1e6, 0
+    steps, gaps = 0, 0
     while True:
         tick = k * period
-        while i < n and t_us[i] <= tick + TICK_SLACK_US:
-            take(i, tick)
+        while i < n and t_us[i] - shift <= tick + TICK_SLACK_US:
+            take(i, min(t_us[i] - shift, tick))
             i += 1
         step(tick)
+        steps += 1
         if i >= n:
-            return k + 1
+            return {"steps": steps, "gaps_skipped": gaps, "skipped_s": shift / 1e6}
         k += 1
+        nxt = t_us[i] - shift
+        if i and k * period - (t_us[i - 1] - shift) > hold and nxt > (k + 1) * period:
+            shift += nxt - (k + 1) * period  # the next entry falls due at the next tick
+            gaps += 1
 
 
 # The in-flight daemon's NAMED_VALUE_FLOATs against the replay (`in_flight`). A value is stamped when the
@@ -434,6 +461,8 @@ class Replay(Origin):
                        "staleness limit: stale-data findings may be the log's, not the flight's")
         if info["time_jumps"]:
             out.append(f"{len(info['time_jumps'])} clock jump(s) in the tlog stamps closed up")
+        if info.get("gaps_skipped"):
+            out.append(silences(info))
         fl = info.get("in_flight")
         line = differs(fl) if fl else None
         if line:
@@ -507,6 +536,8 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "contract": contract,
         "loop_hz": cfg.loop_hz,
         "steps": run["steps"],
+        "gaps_skipped": run["gaps_skipped"],
+        "skipped_s": run["skipped_s"],
         "daemon_messages": run["messages"],
         "missing_streams": {k: list(v) for k, v in missing.items()},
         "slow_streams": slow,

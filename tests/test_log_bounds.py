@@ -1,0 +1,43 @@
+"""Every flight-log reader is bounded: the review's cost grows with a log's size, not the time it spans (a
+long silence is stepped through only until the daemon has gone stale, then cut out), in every format the
+review takes — PX4 ULog, ArduPilot DataFlash, MAVLink .tlog and the daemon's own event log. Bounded by
+counts (loop steps, state samples written), never by wall time."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from companion.cli import review_log
+from companion.config import Config
+from companion.replay import stepped_silence
+from crafted_logs import MAKERS, gappy_events
+
+N, GAP_S = 60, 299.0  # a 36 KB log spanning five hours
+
+
+@pytest.mark.parametrize("suffix", sorted(MAKERS))
+def test_a_long_silence_is_cut_not_stepped_through(tmp_path, suffix):
+    path = MAKERS[suffix](tmp_path / f"gappy{suffix}", N, GAP_S)
+    rep, origin = review_log(path, tmp_path / "out", vehicle="x500")
+    info = origin.info
+    cfg = Config()
+    per_gap = stepped_silence(cfg) * cfg.loop_hz + 2  # steps through one silence before it is cut
+    assert info["steps"] <= N * per_gap  # on main: 60 × 299 s × 50 Hz ≈ 900 000 steps
+    assert info["gaps_skipped"] == N - 1 and info["skipped_s"] > (N - 1) * (GAP_S - 10)
+    assert rep["state_samples"] <= N * stepped_silence(cfg) * 10 + 20  # ≤ 10 Hz of state samples while stepped
+    with open(tmp_path / "out" / "samples.csv") as fh:
+        assert sum(1 for _ in csv.reader(fh)) - 1 == rep["state_samples"]
+    assert rep["span"]["duration_s"] < N * (stepped_silence(cfg) + 1)
+    assert sum("silence(s) in the log" in f and "cut out" in f for f in rep["findings"]) == 1
+
+
+def test_an_event_log_with_long_silences_costs_its_records(tmp_path):
+    """The daemon's own log is read record by record: 60 samples 299 s apart are 60 rows, not 5 h of them."""
+    log = gappy_events(tmp_path / "run", N, GAP_S)
+    rep, origin = review_log(log.parent, tmp_path / "out")
+    assert origin is None and rep["state_samples"] == N
+    assert rep["span"]["duration_s"] == pytest.approx(1.0 + (N - 1) * GAP_S)  # from the start event at 0
+    with open(tmp_path / "out" / "samples.csv") as fh:
+        assert sum(1 for _ in csv.reader(fh)) - 1 == N
