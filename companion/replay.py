@@ -33,13 +33,16 @@ from contracts.errors import ContractError
 from .autopilots import name_for_heartbeat
 from .config import Config, SensorConfig, load_config
 from .eventlog import EventLog, finite_copy, read_events
+from .flightlogs import MAX_SAMPLES
 from .link import MemoryMavfile, mavlink
+from .loginput import not_multirotor
 from .logschema import COMMANDS, LOG_FILE, NVF
 from .review import Origin, fmt_value
 
 MAGIC = re.compile(b"[\xfd\xfe]")
 MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (clamped); more is a clock jump
 MAX_GAP_US = 300_000_000  # a longer silence is taken as a clock jump and closed up
+MAX_STAMP_US = (1 << 63) - 1  # the largest stamp a time can be (int64 µs)
 RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie within a day of the last good one
 TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
 # a silence in a log is stepped through for the daemon's longest staleness time-out plus this (it goes stale
@@ -70,6 +73,8 @@ class Scan:
     corrupt: int = 0  # stretches of bad bytes skipped (each counted once)
     skipped_bytes: int = 0
     truncated_tail: bool = False
+    bad_stamps: int = 0  # stamps too large to be a time (taken as the previous one)
+    capped: bool = False  # more than MAX_SAMPLES packets: the rest not read
     unknown: int = 0  # valid frames of messages this dialect does not know (skipped)
     counts: Counter = field(default_factory=Counter)  # (sys, comp, type) → packets
     spans: dict = field(default_factory=dict)  # (sys, comp, type) → [first, last] log time [µs]
@@ -145,6 +150,9 @@ def scan_tlog(data: bytes) -> Scan:
     s = Scan(size=len(data))
     pos, last_raw, last_t, shift = 0, None, 0, 0  # log time = stamp + shift
     while pos < len(data):
+        if len(s.offset) >= MAX_SAMPLES:
+            s.capped = True
+            break
         status, n, msg = _decode(data, pos, parser)
         if status != "ok":
             nxt = _resync(data, pos + 1, parser, last_raw)
@@ -160,6 +168,9 @@ def scan_tlog(data: bytes) -> Scan:
             pos = nxt
             continue
         raw = struct.unpack_from(">Q", data, pos)[0]
+        if raw > MAX_STAMP_US:  # a stamp past the year 2262: corrupt, taken as the last good one (a jump is said)
+            s.bad_stamps += 1
+            raw = last_raw if last_raw is not None else 0
         at, pos = pos, pos + 8 + n
         if msg.get_type().startswith("UNKNOWN"):
             s.unknown += 1
@@ -235,6 +246,8 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
         raise ContractError(f"{path}: no usable telemetry: no {' or '.join(lacking)} from the autopilot "
                             f"{target[0]}/{target[1]} in {scan.packets} packets (sources sys/comp: "
                             f"{_describe_sources(scan)}; set link.target_system/target_component in --config)")
+    if target in scan.heartbeats:  # the vehicle type its HEARTBEAT states (the last one seen)
+        not_multirotor(scan.heartbeats[target][0], path, f"the autopilot {target[0]}/{target[1]}'s HEARTBEAT")
     return (*settle(cfg, config, vehicle, table), chosen)
 
 
@@ -461,6 +474,10 @@ class Replay(Origin):
                        "staleness limit: stale-data findings may be the log's, not the flight's")
         if info["time_jumps"]:
             out.append(f"{len(info['time_jumps'])} clock jump(s) in the tlog stamps closed up")
+        if info.get("bad_stamps"):
+            out.append(f"tlog damaged: {info['bad_stamps']} packet stamp(s) too large to be a time, taken as the one before")
+        if info.get("capped"):
+            out.append(f"tlog longer than {MAX_SAMPLES} packets: only the first {MAX_SAMPLES} replayed")
         if info.get("gaps_skipped"):
             out.append(silences(info))
         fl = info.get("in_flight")
@@ -525,6 +542,8 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "corrupt_packets": scan.corrupt,
         "skipped_bytes": scan.skipped_bytes,
         "truncated_tail": scan.truncated_tail,
+        "bad_stamps": scan.bad_stamps,
+        "capped": scan.capped,
         "unknown_messages": scan.unknown,
         "t0_unix": scan.raw_us[0] / 1e6,
         "span_s": scan.t_us[-1] / 1e6,

@@ -18,7 +18,7 @@ RANGE_M = 12.0
 
 
 def gappy_ulog(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float = RANGE_M, ver_hw: str = "PX4_SITL",
-               mav_type: int = 2) -> Path:
+               mav_type: int = 2, speed: float = 0.0) -> Path:
     topics = ("vehicle_local_position", "vehicle_attitude", "vehicle_local_position_setpoint",
               "vehicle_thrust_setpoint", "vehicle_status", "vehicle_land_detected", "estimator_status",
               "distance_sensor")
@@ -31,10 +31,11 @@ def gappy_ulog(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float 
     ids = {name: w.add(name) for name in topics}
     for k in range(n):
         us = T0_US + round(k * gap_s * 1e6)
+        x = speed * k * gap_s
         w.data(ids["vehicle_local_position"], {"timestamp": us, "xy_valid": True, "z_valid": True, "v_xy_valid": True,
-                                               "v_z_valid": True, "z": -5.0})
+                                               "v_z_valid": True, "x": x, "z": -5.0, "vx": speed})
         w.data(ids["vehicle_attitude"], {"timestamp": us, "q": [1.0, 0.0, 0.0, 0.0]})
-        w.data(ids["vehicle_local_position_setpoint"], {"timestamp": us, "z": -5.0})
+        w.data(ids["vehicle_local_position_setpoint"], {"timestamp": us, "x": x, "z": -5.0})
         w.data(ids["vehicle_thrust_setpoint"], {"timestamp": us, "xyz": [0.0, 0.0, -0.45]})
         w.data(ids["vehicle_status"], {"timestamp": us, "nav_state": 3, "arming_state": 2, "vehicle_type": 1})
         w.data(ids["vehicle_land_detected"], {"timestamp": us, "landed": False})
@@ -45,7 +46,7 @@ def gappy_ulog(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float 
     return path
 
 
-def gappy_bin(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float = RANGE_M) -> Path:
+def gappy_bin(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float = RANGE_M, speed: float = 0.0) -> Path:
     with DataFlashWriter(path) as w:
         w.write("MSG", 500, "ArduCopter V4.5.7 (abc1234)")
         for name, v in {"ANGLE_MAX": 3000, "RNGFND1_MAX_CM": 4000, "RNGFND1_MIN_CM": 20}.items():
@@ -55,10 +56,11 @@ def gappy_bin(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float =
         w.write("EV", 900, 28)
         for k in range(n):
             us = T0_US + round(k * gap_s * 1e6)
-            w.write("XKF1", us, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -5.0)
+            x = speed * k * gap_s
+            w.write("XKF1", us, 0, 0.0, 0.0, 0.0, speed, 0.0, 0.0, 0.0, x, 0.0, -5.0)
             w.write("XKF4", us, 0, 1 | 2 | 4 | 8 | 16 | 32)
             w.write("ATT", us, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            w.write("PSCN", us, 0.0, 0.0, 0.0, 0.0)
+            w.write("PSCN", us, x, x, speed, speed)
             w.write("PSCE", us + 10, 0.0, 0.0, 0.0, 0.0)
             w.write("CTUN", us, 0.45, 0.45, 0.45)
             w.write("RFND", us, 0, range_m, 4, 0)
