@@ -123,12 +123,12 @@ def read(path: Path, suffix: str, full: bool):
     """The readers as review and calibrate call them, without the registry's net (which would turn a reader's
     traceback into a line), and, `full`, the replay and the review."""
     from companion.calibrate import tlog_feed
-    from companion.dataflash import read_dataflash
+    from companion.flightlogs.dataflash import read_dataflash
     from companion.eventlog import read_events
     from companion.flightlogs import FORMATS, _function
-    from companion.replay import scan_tlog
+    from companion.flightlogs.tlog import scan_tlog
     from companion.review import review, summarise
-    from companion.ulog import read_ulog
+    from companion.flightlogs.ulog import read_ulog
 
     if suffix == ".ulg":
         read_ulog(path)

@@ -1,7 +1,7 @@
 """`contract-guard calibrate LOG... --vehicle FILE --table TABLE --out NEW.npz`: the contract of this aircraft.
 
 Reads each flight log — a MAVLink `.tlog`, a PX4 ULog `.ulg`, an ArduPilot DataFlash `.bin` — into the
-ops of `companion/loginput.py` (the ULog/DataFlash readers are issue 14's; a `.tlog` is turned into the
+ops of `companion/flightlogs/loginput.py` (the ULog/DataFlash readers are issue 14's; a `.tlog` is turned into the
 same ops here), then into one `Trace` per log (position, velocity, attitude, commanded path, throttle,
 modes, Hold commands), and hands the numbers to the pure statistics of `contracts/calibrate.py`:
 - `E_tr_pred` measured per cell (window samples, order-statistic bound, coverage, the never-optimistic
@@ -29,7 +29,7 @@ from contracts import calibrate as cal
 from contracts.errors import ContractError
 
 from .autopilots import adapter_for
-from .loginput import Feed, not_multirotor, order
+from .flightlogs.loginput import Feed, not_multirotor, order
 
 IN_AIR = 2  # MAV_LANDED_STATE_IN_AIR
 POSITION_MODES = ("mission", "hold", "offboard", "position", "rtl")

@@ -249,7 +249,7 @@ def test_unreadable_dataflash_is_one_line(tmp_path):
 
 
 def test_ops_are_ordered_and_jumps_closed_up():
-    from companion.loginput import MAX_GAP_US, order, quat_euler
+    from companion.flightlogs.loginput import MAX_GAP_US, order, quat_euler
 
     ops, jumps = order([(5, "b", ()), (1, "a", ()), (1 + 2 * MAX_GAP_US, "c", ())])
     assert [o[1] for o in ops] == ["a", "b", "c"] and ops[0][0] == 0 and ops[-1][0] == 4 and len(jumps) == 1
@@ -374,7 +374,7 @@ def test_a_quadplanes_fixed_wing_phases_are_cut_and_said_once(tmp_path):
 
 
 def test_plane_fixed_wing_spans():
-    from companion.dataflash import plane_fixed_wing_spans
+    from companion.flightlogs.dataflash import plane_fixed_wing_spans
 
     s = 1_000_000
     modes = [(1 * s, 19), (10 * s, 5), (20 * s, 10), (40 * s, 20)]

@@ -11,7 +11,7 @@ import pytest
 
 from companion.cli import review_log
 from companion.config import Config
-from companion.replay import stepped_silence
+from companion.flightlogs.tlog import stepped_silence
 from crafted_logs import MAKERS, gappy_events
 
 N, GAP_S = 60, 299.0  # a 36 KB log spanning five hours

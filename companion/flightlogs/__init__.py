@@ -1,13 +1,13 @@
 """The ground side's one flight-log input: which reader takes which file, and the bounds every reader runs in.
 
-| suffix | format                     | read into                                   | replayed by                    |
-|--------|----------------------------|---------------------------------------------|--------------------------------|
-| .ulg   | PX4 ULog                   | `companion.ulog.read_ulog` → ops            | `companion.logreplay`          |
-| .bin   | ArduPilot DataFlash        | `companion.dataflash.read_dataflash` → ops  | `companion.logreplay`          |
-| .tlog  | MAVLink ground-station log | `companion.replay.scan_tlog` (packets)      | `companion.replay`             |
-| other  | contract-guard event log   | `companion.eventlog.read_events` (records)  | — (reviewed as it is)          |
+| suffix | format                     | read into (this package)            | replayed by (this package)  |
+|--------|----------------------------|-------------------------------------|-----------------------------|
+| .ulg   | PX4 ULog                   | `ulog.read_ulog` → `loginput` ops   | `logreplay.replay_ulog`     |
+| .bin   | ArduPilot DataFlash        | `dataflash.read_dataflash` → ops    | `logreplay.replay_dataflash`|
+| .tlog  | MAVLink ground-station log | `tlog.scan_tlog` (packets)          | `tlog.replay_tlog`          |
+| other  | contract-guard event log   | `companion.eventlog.read_events`    | — (reviewed as it is)       |
 
-`review`, the multi-flight review and `calibrate` all go through `replay_log` / `read_feed` here, so every
+Both replays step the shadow daemon with one loop (`tlog.in_log_time`). `review`, the multi-flight review and `calibrate` all go through `replay_log` / `read_feed` here, so every
 file is bounded alike: a regular file (not a device, a pipe or a link to one) of at most `MAX_BYTES`, at
 most `MAX_SAMPLES` samples, nested formats at most `MAX_DEPTH` deep (the ULog reader's own check), and at
 most `MAX_SECONDS` of wall time. A damaged file is one `ContractError` line — never a traceback — and
@@ -45,9 +45,10 @@ class Format:
 
 
 FORMATS = {
-    ".tlog": Format("MAVLink tlog", "companion.replay:replay_tlog", "companion.calibrate:tlog_feed"),
-    ".ulg": Format("PX4 ULog", "companion.logreplay:replay_ulog", "companion.ulog:read_ulog"),
-    ".bin": Format("ArduPilot DataFlash", "companion.logreplay:replay_dataflash", "companion.dataflash:read_dataflash"),
+    ".tlog": Format("MAVLink tlog", "companion.flightlogs.tlog:replay_tlog", "companion.calibrate:tlog_feed"),
+    ".ulg": Format("PX4 ULog", "companion.flightlogs.logreplay:replay_ulog", "companion.flightlogs.ulog:read_ulog"),
+    ".bin": Format("ArduPilot DataFlash", "companion.flightlogs.logreplay:replay_dataflash",
+                   "companion.flightlogs.dataflash:read_dataflash"),
 }
 RAW_LOGS = {suffix: f.replay for suffix, f in FORMATS.items()}
 

@@ -30,14 +30,14 @@ from pathlib import Path
 
 from contracts.errors import ContractError
 
-from .autopilots import name_for_heartbeat
-from .config import Config, SensorConfig, load_config
-from .eventlog import EventLog, finite_copy, read_events
-from .flightlogs import MAX_SAMPLES
-from .link import MemoryMavfile, mavlink
+from ..autopilots import name_for_heartbeat
+from ..config import Config, SensorConfig, load_config
+from ..eventlog import EventLog, finite_copy, read_events
+from ..link import MemoryMavfile, mavlink
+from ..logschema import COMMANDS, LOG_FILE, NVF
+from ..review import Origin, fmt_value
+from . import MAX_SAMPLES
 from .loginput import not_multirotor
-from .logschema import COMMANDS, LOG_FILE, NVF
-from .review import Origin, fmt_value
 
 MAGIC = re.compile(b"[\xfd\xfe]")
 MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (clamped); more is a clock jump
@@ -275,7 +275,7 @@ def settle(cfg: Config, config: Path | None, vehicle: str | None, table: Path | 
 def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract: str = "stop",
            source: str = "") -> dict:
     """Feed the scanned packets to a shadow `Daemon` in log time; its event log goes to `log_dir`."""
-    from .daemon import Daemon
+    from ..daemon import Daemon
 
     now = {"t": 0.0, "wall": scan.raw_us[0] / 1e6}
     conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,

@@ -1,4 +1,4 @@
-"""ArduPilot DataFlash (`.bin`) reader: `read_dataflash(path) -> Feed` of `companion/loginput.py` ops, with
+"""ArduPilot DataFlash (`.bin`) reader: `read_dataflash(path) -> Feed` of `companion/flightlogs/loginput.py` ops, with
 pymavlink's `DFReader_binary`.
 
 Message → op, fields and units from ArduPilot's log message documentation

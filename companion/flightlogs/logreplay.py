@@ -1,5 +1,5 @@
 """An autopilot's own flight log (PX4 ULog, ArduPilot DataFlash) turned into an event log, as
-`companion/replay.py` does for a `.tlog`: the reader's `Feed` (companion/loginput.py) goes, in log time, to a
+`companion/flightlogs/tlog.py` does for a `.tlog`: the reader's `Feed` (companion/flightlogs/loginput.py) goes, in log time, to a
 shadow-mode `Daemon` stepped at its loop rate with no sleeping — the same daemon, cycle, estimators and
 supervisor; only the input differs (the reader's ops become the same `Telemetry` fields and samples
 MAVLink-in produces). `companion.cli` wires `replay_ulog` / `replay_dataflash` into `review` (`RAW_LOGS`).
@@ -16,21 +16,30 @@ from pathlib import Path
 
 from contracts.errors import ContractError
 
-from .config import Config, load_config
-from .eventlog import EventLog, finite_copy, read_events
-from .link import MemoryMavfile
+from ..autopilots import adapter_for
+from ..config import Config, load_config
+from ..eventlog import EventLog, finite_copy, read_events
+from ..link import MemoryMavfile
+from ..logschema import LOG_FILE
+from ..review import Origin, fmt_value
+from . import MAX_SAMPLES
 from .loginput import Feed, LogIn
-from .logschema import LOG_FILE
-from .replay import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, silences, stepped_silence
-from .review import Origin, fmt_value
+from .tlog import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, silences, stepped_silence
 
-AUTOPILOT_IDS = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT
-TILT_PARAMS = {"MPC_TILTMAX_AIR": 1.0, "ANGLE_MAX": 0.01, "Q_ANGLE_MAX": 0.01}  # → degrees (ArduPilot: centidegrees)
+
+def tilt_params(autopilot: str) -> dict[str, float]:
+    """The autopilot's tilt-limit parameters → their scale to degrees, from its adapter's start-up checks (and
+    a quadplane's own VTOL name for ArduPilot's)."""
+    from .dataflash import QUADPLANE_PARAMS
+
+    checks = adapter_for(autopilot).param_checks
+    tilt = {c.name: c.scale for c in checks if c.what == "tilt_max_deg"}
+    return tilt | {q: tilt[c] for q, c in QUADPLANE_PARAMS.items() if c in tilt}
 
 
 def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, source: str) -> dict:
     """Feed the ops to a shadow `Daemon` in log time; its event log goes to `log_dir`."""
-    from .daemon import Daemon
+    from ..daemon import Daemon
 
     now = {"t": 0.0}
     conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
@@ -40,7 +49,7 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
     daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=wall, planning="inline", contract=contract)
     log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
               contract=contract)
-    login = LogIn(cfg, daemon.tel, AUTOPILOT_IDS.get(feed.autopilot, 0))
+    login = LogIn(cfg, daemon.tel, adapter_for(feed.autopilot).autopilot_id)
     ops, bad = feed.ops, [0]
 
     def take(i: int, t: float) -> None:
@@ -154,6 +163,10 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
     if path.is_dir():
         raise ContractError(f"{path} is a directory, not a flight log")
     feed = read(path)
+    if len(feed.ops) > MAX_SAMPLES:  # bounded: the first MAX_SAMPLES (in log time) replayed, the rest said
+        feed.info["damaged"] = [*feed.info.get("damaged", []), f"more than {MAX_SAMPLES} samples: only the first "
+                                f"{MAX_SAMPLES} ({feed.ops[MAX_SAMPLES][0] / 1e6:.0f} s) replayed"]
+        feed.ops = feed.ops[:MAX_SAMPLES]
     cfg = load_config(config) if config is not None else Config(sensors=list(ASSUMED_SENSORS))
     if config is None:
         cfg = cfg.model_copy(update={"link": cfg.link.model_copy(update={"autopilot": feed.autopilot})})
@@ -167,13 +180,14 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
         slow.append({"stream": pos_src, "rate_hz": r, "timeout_s": to.telemetry_s})
     veh = tab.vehicle
     pf = []
-    for name, scale in TILT_PARAMS.items():
+    for name, scale in tilt_params(feed.autopilot).items():
         v = info["params"].get(name)
         if v is not None and v * scale > veh.tilt_max_deg + 1e-6:
             pf.append(f"the autopilot's tilt limit {name} = {v * scale:g}° is above the contract's {veh.tilt_max_deg:g}° "
                       f"(vehicle {veh.name}): the vehicle may tilt beyond what the contract assumes")
     info.update({
-        "ops": run["ops"], "steps": run["steps"], "gaps_skipped": run["gaps_skipped"], "skipped_s": run["skipped_s"], "refused_samples": run["refused_samples"],
+        "ops": run["ops"], "steps": run["steps"], "gaps_skipped": run["gaps_skipped"], "skipped_s": run["skipped_s"],
+        "refused_samples": run["refused_samples"],
         "config": None if config is None else str(config), "vehicle_file": veh.name, "table": str(tab.path),
         "contract": contract, "loop_hz": cfg.loop_hz, "slow_streams": slow, "param_findings": pf,
         "event_log": None, "e_tr": _e_tr(log_dir),

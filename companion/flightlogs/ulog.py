@@ -1,4 +1,4 @@
-"""PX4 ULog (`.ulg`) reader: `read_ulog(path) -> Feed` of `companion/loginput.py` ops, with pyulog.
+"""PX4 ULog (`.ulg`) reader: `read_ulog(path) -> Feed` of `companion/flightlogs/loginput.py` ops, with pyulog.
 
 Topic → op, each field's meaning from PX4's `msg/*.msg` (units and frames converted here, once):
 
@@ -135,7 +135,7 @@ def nesting_refused(formats: dict) -> str | None:
     nested arrays would expand to billions of fields."""
     import pyulog
 
-    from .flightlogs import MAX_DEPTH, MAX_FIELDS
+    from . import MAX_DEPTH, MAX_FIELDS
 
     basic = pyulog.ULog._UNPACK_TYPES
     memo: dict[str, tuple[int, int]] = {}  # name → (fields flattened, depth)

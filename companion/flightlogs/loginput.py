@@ -1,11 +1,11 @@
 """A flight log's input to the daemon: what `mavlink_in.py` is for the link, this is for an autopilot's own
-log (PX4 ULog: `companion/ulog.py`; ArduPilot DataFlash: `companion/dataflash.py`).
+log (PX4 ULog: `companion/flightlogs/ulog.py`; ArduPilot DataFlash: `companion/flightlogs/dataflash.py`).
 
 A reader turns its format's topics/messages into `Op`s — `(t_us, op, args)` in SI units and the frames
 of DESIGN.md §2, converted there, once — and a `Feed` (the ops in log-time order plus what the reader saw).
 `LogIn.apply` turns one op into the daemon's `Telemetry` snapshot fields and the same typed samples
 (`companion/samples.py`) MAVLink-in makes of the equivalent MAVLink message, with the same validation
-(`mavlink_in.implausible`, `range_scan`, `bins_scan`), so one replay path (`companion/logreplay.py`)
+(`mavlink_in.implausible`, `range_scan`, `bins_scan`), so one replay path (`companion/flightlogs/logreplay.py`)
 serves `.tlog`, `.ulg` and `.bin` alike.
 
 The ops:
@@ -36,9 +36,9 @@ import math
 import numpy as np
 from dataclasses import dataclass, field
 
-from .config import Config
-from .mavlink_in import bins_scan, implausible_attitude, implausible_position, range_scan
-from .samples import (
+from ..config import Config
+from ..mavlink_in import bins_scan, implausible_attitude, implausible_position, range_scan
+from ..samples import (
     AutopilotParam,
     Heading,
     Implausible,
@@ -48,7 +48,7 @@ from .samples import (
     Scan,
     Throttle,
 )
-from .telemetry import Telemetry
+from ..telemetry import Telemetry
 
 # a silence longer than this between two ops is a clock jump (closed up, listed): a replay never steps
 # through hours of nothing, and a corrupt timestamp near 2⁶⁴ µs cannot make it hang
