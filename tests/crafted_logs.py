@@ -56,15 +56,22 @@ def gappy_bin(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float =
         w.write("EV", 900, 28)
         for k in range(n):
             us = T0_US + round(k * gap_s * 1e6)
-            x = speed * k * gap_s
-            w.write("XKF1", us, 0, 0.0, 0.0, 0.0, speed, 0.0, 0.0, 0.0, x, 0.0, -5.0)
-            w.write("XKF4", us, 0, 1 | 2 | 4 | 8 | 16 | 32)
-            w.write("ATT", us, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            w.write("PSCN", us, x, x, speed, speed)
-            w.write("PSCE", us + 10, 0.0, 0.0, 0.0, 0.0)
-            w.write("CTUN", us, 0.45, 0.45, 0.45)
-            w.write("RFND", us, 0, range_m, 4, 0)
+            copter_sample(w, us, speed * k * gap_s, speed, range_m=range_m)
     return path
+
+
+def copter_sample(w: DataFlashWriter, us: int, x: float, speed: float, y: float = 0.0, range_m: float | None = RANGE_M):
+    """One 50 Hz sample of a level Copter flight along +x at `speed`, at `x` (and `y`) 5 m up, on its commanded
+    path, healthy, in the air: EKF position, health, attitude, target, throttle and (unless None) a forward
+    rangefinder reading `range_m` (Good)."""
+    w.write("XKF1", us, 0, 0.0, 0.0, 0.0, speed, 0.0, 0.0, 0.0, x, y, -5.0)
+    w.write("XKF4", us, 0, 1 | 2 | 4 | 8 | 16 | 32)
+    w.write("ATT", us, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    w.write("PSCN", us, x, x, speed, speed)
+    w.write("PSCE", us + 10, 0.0, y, 0.0, 0.0)
+    w.write("CTUN", us, 0.45, 0.45, 0.45)
+    if range_m is not None:
+        w.write("RFND", us, 0, range_m, 4, 0)
 
 
 def gappy_tlog(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float = RANGE_M, mav_type: int = 2,
