@@ -41,3 +41,31 @@ def test_an_event_log_with_long_silences_costs_its_records(tmp_path):
     assert rep["span"]["duration_s"] == pytest.approx(1.0 + (N - 1) * GAP_S)  # from the start event at 0
     with open(tmp_path / "out" / "samples.csv") as fh:
         assert sum(1 for _ in csv.reader(fh)) - 1 == N
+
+
+def test_the_wall_time_bound_stops_a_reader_and_nests(tmp_path):
+    """A reader that never returns is stopped by the registry's bound, as one line; an inner bound leaves the
+    outer one running."""
+    import time
+
+    from companion import flightlogs
+    from companion.flightlogs import _Timeout, guarded, time_bound
+    from contracts.errors import ContractError
+
+    def forever():
+        while True:
+            time.sleep(0.01)
+
+    path = MAKERS[".bin"](tmp_path / "x.bin", 3, 0.02)
+    saved = flightlogs.MAX_SECONDS
+    flightlogs.MAX_SECONDS = 0.2
+    try:
+        with pytest.raises(ContractError, match="took longer than 0.2 s"):
+            guarded(path, "test log", forever)
+    finally:
+        flightlogs.MAX_SECONDS = saved
+    with pytest.raises(_Timeout):
+        with time_bound(0.3):
+            with time_bound(10.0):
+                pass
+            forever()  # the outer bound still fires after the inner one ended

@@ -24,6 +24,7 @@ import re
 import signal
 import stat
 import threading
+import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -111,13 +112,16 @@ def time_bound(seconds: float):
         raise _Timeout
 
     old = signal.signal(signal.SIGALRM, _alarm)
-    left, _ = signal.getitimer(signal.ITIMER_REAL)
+    left, _ = signal.getitimer(signal.ITIMER_REAL)  # an enclosing bound's time left (0: none)
+    t0 = time.monotonic()
     signal.setitimer(signal.ITIMER_REAL, seconds if not left else min(seconds, left))
     try:
         yield
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
+        if left:  # the enclosing bound runs on (at once if it has expired meanwhile)
+            signal.setitimer(signal.ITIMER_REAL, max(1e-3, left - (time.monotonic() - t0)))
 
 
 def guarded(path, what: str, fn, *args, **kw):
