@@ -69,3 +69,16 @@ def test_the_wall_time_bound_stops_a_reader_and_nests(tmp_path):
             with time_bound(10.0):
                 pass
             forever()  # the outer bound still fires after the inner one ended
+
+
+def test_the_in_flight_daemons_values_are_moved_with_the_cuts():
+    """A .tlog's in-flight NAMED_VALUE_FLOATs are compared with the replay on the replay's time axis: after a
+    silence is cut out, their log times move earlier by what was cut before them."""
+    from companion.flightlogs.tlog import cut_time, in_log_time
+
+    t = [0, 20_000, 100_000_000, 100_020_000, 400_000_000]
+    seen = []
+    run = in_log_time(t, 50.0, lambda i, at: seen.append(at), lambda tick: None, 4.0)
+    assert run["gaps_skipped"] == 2 and len(run["cuts"]) == 2
+    assert [cut_time(run["cuts"], x) for x in t] == pytest.approx(seen, abs=1)  # the replay's own times
+    assert cut_time(run["cuts"], 10_000) == 10_000

@@ -25,7 +25,7 @@ import re
 import struct
 from array import array
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from contracts.errors import ContractError
@@ -318,6 +318,12 @@ def stepped_silence(cfg: Config) -> float:
     return min(SILENCE_MAX_S, max(to.heartbeat_s, to.telemetry_s, to.obstacle_s, to.nav_s) + SILENCE_MARGIN_S)
 
 
+def cut_time(cuts: list, t_us: float) -> float:
+    """A log time [µs] as the replay's, after the silences `in_log_time` cut out before it. Pure."""
+    k = bisect.bisect_right([c[0] for c in cuts], t_us) - 1
+    return t_us - cuts[k][1] if k >= 0 else t_us
+
+
 def silences(info: dict) -> str:
     """The finding of the silences a replay skipped."""
     return (f"{info['gaps_skipped']} silence(s) in the log ({info['skipped_s']:.0f} s in all) cut out by the replay once "
@@ -330,10 +336,11 @@ def in_log_time(t_us, loop_hz: float, take, step, silence_s: float = math.inf) -
     through for `silence_s` (the daemon sees it as in flight: stale inputs, failsafe), then the rest of it
     is cut out: later entries are replayed that much earlier (the daemon's clock runs on, as it would through
     a clock jump closed up), so the cost grows with the log's entries, not its time span.
-    Returns {"steps", "gaps_skipped", "skipped_s"}."""
+    Returns {"steps", "gaps_skipped", "skipped_s", "cuts": [(log time of the entry after a cut [µs], the
+    time cut out up to there [µs])]}."""
     period, n, i, k = 1e6 / loop_hz, len(t_us), 0, 0
     hold, shift = silence_s * 1e6, 0
-    steps, gaps = 0, 0
+    steps, gaps, cuts = 0, 0, []
     while True:
         tick = k * period
         while i < n and t_us[i] - shift <= tick + TICK_SLACK_US:
@@ -342,12 +349,13 @@ def in_log_time(t_us, loop_hz: float, take, step, silence_s: float = math.inf) -
         step(tick)
         steps += 1
         if i >= n:
-            return {"steps": steps, "gaps_skipped": gaps, "skipped_s": shift / 1e6}
+            return {"steps": steps, "gaps_skipped": gaps, "skipped_s": shift / 1e6, "cuts": cuts}
         k += 1
         nxt = t_us[i] - shift
         if i and k * period - (t_us[i - 1] - shift) > hold and nxt > (k + 1) * period:
             shift += nxt - (k + 1) * period  # the next entry falls due at the next tick
             gaps += 1
+            cuts.append((t_us[i], shift))
 
 
 # The in-flight daemon's NAMED_VALUE_FLOATs against the replay (`in_flight`). A value is stamped when the
@@ -561,7 +569,10 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "missing_streams": {k: list(v) for k, v in missing.items()},
         "slow_streams": slow,
         "event_log": None,  # where the replayed event log is kept, if it is (see companion.cli)
-        "in_flight": in_flight(scan, samples, columns, target[0]),
+        "in_flight": in_flight(replace(scan, in_flight=[(cut_time(run["cuts"], t), *r) for t, *r in scan.in_flight],
+                                       texts=[(cut_time(run["cuts"], t), *r) for t, *r in scan.texts],
+                                       commands=[(cut_time(run["cuts"], t), *r) for t, *r in scan.commands]),
+                               samples, columns, target[0]),
         "notes": ["shadow replay: the controller guarantee (contour error vs E_tr_pred at the commanded limit) "
                   "is evaluated only against a commanded limit, so it is not checked here"]
         + ([ASSUMED_NOTE] if config is None else []),
