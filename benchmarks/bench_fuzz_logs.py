@@ -3,7 +3,7 @@ bounded in wall time; one JSON object on stdout.
 
     python benchmarks/bench_fuzz_logs.py [--per-format 1000] [--seed 1] [--replay-every 25] [--no-sitl]
 
-Seeds per format: PX4 ULog — the real public logs beside the repository (shared/logs/px4, their first 96 KiB:
+Seeds per format: PX4 ULog — the real public PX4 logs when present (their first 96 KiB:
 definitions and the first data) and a crafted one (tests/crafted_logs.py); ArduPilot DataFlash — the real
 ArduPlane log, a crafted Copter log and the SITL's own log of a 10 s hover; MAVLink .tlog — the real ArduPilot
 logs' first 96 KiB and a crafted one; the event log — one the replay of a crafted log wrote. The SITL's own ULog
@@ -12,7 +12,8 @@ NaN/inf floats, inserted, deleted and duplicated stretches, truncation, splices 
 
 Each mutated file goes through the readers themselves, as review and calibrate call them — `read_ulog`,
 `read_dataflash`, `scan_tlog` and calibrate's `tlog_feed`, the event-log reader and summary — and every
-`--replay-every`-th one through the whole `review` (the registry, the replay, the report). A `ContractError`
+`--replay-every`-th one also through the replay and the review (without the registry's net, which would
+turn a traceback into a line: a traceback is seen). A `ContractError`
 (one line) or a result is a pass; anything else raised, a hang past the per-file bound or a memory error
 is a failure, listed with the file's seed and mutation so it can be made again. The readers run under
 RLIMIT_AS = --mem-gib (a memory blow-up is a MemoryError, not a swapped machine).

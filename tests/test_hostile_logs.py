@@ -213,7 +213,7 @@ def test_control_characters_from_a_log_never_reach_the_terminal(tmp_path):
     assert rep["flight_log"]["vehicle"]["hardware"] == fake
 
 
-ARDUPILOT_LOGS = SHARED.parent / "ardupilot"  # the real public logs beside the repository (`test_flight_logs`)
+ARDUPILOT_LOGS = SHARED.parent / "ardupilot"  # the real public ArduPilot logs, found as `test_flight_logs` finds the PX4 ones
 VTOL_TLOG = ARDUPILOT_LOGS / "arduplane-vtol-2018.tlog"
 
 

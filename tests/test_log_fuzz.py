@@ -1,5 +1,5 @@
 """Fuzz of every flight-log reader (`benchmarks/bench_fuzz_logs.py`): mutated ULog, DataFlash, .tlog and event
-logs — from the real logs beside the repository when present, crafted logs and the SITL's own logs — each read
+logs — from real public logs when present, crafted logs and the SITL's own logs — each read
 in a memory-capped process within a per-file time bound: every file is read or refused in one line, none
 raises, hangs or runs out of memory. ~50 files per format here; the full ≥ 1 000 per format is `slow`."""
 
