@@ -30,6 +30,8 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import mmap
+import os
 from pathlib import Path
 
 import numpy as np
@@ -76,8 +78,9 @@ def _open(path: Path):
     head = read_head(path, "a ULog")
     if not head.startswith(ULOG_MAGIC[:4]):
         raise ContractError(f"{path}: not a PX4 ULog (no 'ULog' header; {_sniff(head)})")
-    data = path.read_bytes()
-    formats, loop_at = definitions(data)
+    with _mapped(path) as data:  # walked, not copied: a long log stays on disk
+        formats, loop_at = definitions(data)
+        padded = None if loop_at is None else io.BytesIO(bytes(data) + bytes(65_538))
     why = nesting_refused(formats)
     if why:
         raise ContractError(f"{path}: unreadable ULog ({why})")
@@ -88,7 +91,7 @@ def _open(path: Path):
         with contextlib.redirect_stdout(said):  # pyulog prints its warnings: kept off stdout, said as damage
             # padded past the longest message (uint16 size + header) with zeros (type 0: skipped byte by byte),
             # every read is whole and pyulog's step back over a corrupt header is one byte forward
-            source = str(path) if loop_at is None else io.BytesIO(data + bytes(65_538))
+            source = str(path) if padded is None else padded
             ulog = pyulog.ULog(source, TOPICS, disable_str_exceptions=True)
     except Exception as err:  # noqa: BLE001 — pyulog raises anything on a broken file: one line
         raise ContractError(f"{path}: unreadable ULog ({type(err).__name__}: {str(err)[:120]})") from None
@@ -175,14 +178,25 @@ ULOG_TYPES = frozenset(b"BFIMPQADLCSOR")  # the ULog message types (ULog file fo
 def torn_tail(path: Path) -> bool:
     """Whether the file ends inside a message (walks the ULog framing: uint16 size, uint8 type). A walk that
     loses the framing (a corrupt stretch) says nothing: pyulog's own recovery reports that."""
-    data = path.read_bytes()
-    pos = 16
-    while pos + 3 <= len(data):
-        size, kind = int.from_bytes(data[pos:pos + 2], "little"), data[pos + 2]
-        if kind not in ULOG_TYPES:
-            return False
-        pos += 3 + size
-    return pos != len(data)
+    with _mapped(path) as data:
+        pos = 16
+        while pos + 3 <= len(data):
+            size, kind = int.from_bytes(data[pos:pos + 2], "little"), data[pos + 2]
+            if kind not in ULOG_TYPES:
+                return False
+            pos += 3 + size
+        return pos != len(data)
+
+
+@contextlib.contextmanager
+def _mapped(path: Path):
+    """The file's bytes, memory-mapped read-only (b"" for an empty file)."""
+    with open(path, "rb") as fh:
+        if os.fstat(fh.fileno()).st_size == 0:
+            yield b""
+            return
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as m:
+            yield m
 
 
 def _sniff(head: bytes) -> str:
