@@ -506,7 +506,10 @@ def cmd_calibrate(args) -> int:
                                            if x.is_dir() else [x])]
     if not logs:
         raise ContractError("no flight logs (.tlog, .ulg, .bin) given")
-    s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence)
+    try:
+        s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence)
+    except OSError as err:  # a full disk, a read-only folder: one line, not a traceback
+        raise ContractError(f"cannot write the calibration to {args.out}: {err.strerror or err}") from None
     _emit(s, args.json, format_summary(s) + f"\nreport: {args.out.with_suffix('')}.report.html")
     return 0
 

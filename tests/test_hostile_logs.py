@@ -240,3 +240,20 @@ def test_a_tlogs_vehicle_type_decides_whether_it_is_reviewed(tmp_path):
     for mav_type in (2, 13, 22, 0):  # a quadrotor, a hexarotor, a VTOL quadplane, generic: reviewed
         rep, _ = review_log(gappy_tlog(tmp_path / f"ok{mav_type}.tlog", 50, 0.02, mav_type=mav_type), vehicle="x500")
         assert rep["state_samples"] > 5
+
+
+def test_calibrate_on_a_full_disk_is_one_line(tmp_path):
+    """On main a write that fails (here: the file-size limit, as a full disk fails it) ended in a traceback."""
+    import resource
+    import signal
+
+    def small_files():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG instead
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+
+    log = braking_bin(tmp_path / "stop.bin")
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "calibrate", str(log), "--vehicle", "x500", "--table",
+                        "contracts/data/x500.npz", "--out", str(tmp_path / "out" / "cal.npz")], capture_output=True,
+                       text=True, timeout=300, preexec_fn=small_files)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "cannot write the calibration to" in r.stderr and len(r.stderr.strip().splitlines()) == 1
