@@ -257,3 +257,24 @@ def test_calibrate_on_a_full_disk_is_one_line(tmp_path):
                        text=True, timeout=300, preexec_fn=small_files)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "cannot write the calibration to" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+
+
+def test_damage_the_fuzz_found_is_read_past(tmp_path):
+    """Two files the reader fuzz made: a ULog topic whose format has no timestamp (on main: KeyError), and a
+    DataFlash MODE stamped past int64 (on main: OverflowError). Each is reviewed, the damaged part left out."""
+    from sitl_harness.flightlog import DataFlashWriter
+
+    src = gappy_ulog(tmp_path / "ok.ulg", 200, 0.02).read_bytes()
+    (tmp_path / "notime.ulg").write_bytes(src.replace(b"vehicle_status:uint64_t timestamp;",
+                                                      b"vehicle_status:uint64_t timeXXXXX;"))
+    rep, origin = review_log(tmp_path / "notime.ulg", vehicle="x500")  # pyulog reads little past it
+    assert "vehicle_status" not in origin.info["sources"].values()
+    assert any(f.startswith("log lacks modes and arming (vehicle_status)") for f in rep["findings"])
+    src = gappy_bin(tmp_path / "ok.bin", 200, 0.02).read_bytes()
+    with DataFlashWriter(tmp_path / "probe.bin") as w:
+        mode = bytes([w.type_of("MODE")])
+    stamp = b"\xa3\x95" + mode + struct.pack("<Q", 800)
+    assert src.count(stamp) == 1
+    (tmp_path / "bigtime.bin").write_bytes(src.replace(stamp, b"\xa3\x95" + mode + struct.pack("<Q", 2**64 - 1)))
+    rep, _ = review_log(tmp_path / "bigtime.bin", vehicle="x500")
+    assert rep["state_samples"] > 10

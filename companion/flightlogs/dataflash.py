@@ -255,7 +255,10 @@ def read_dataflash(path) -> Feed:
     stopped = None
 
     def add(times, op, rows, src):
-        times = np.asarray(times, dtype=np.int64)
+        times = np.asarray(times)
+        if times.dtype.kind == "u":  # a damaged TimeUS past int64: not a time (0, dropped below)
+            times = np.where(times < MAX_T_US, times, 0)
+        times = times.astype(np.int64)
         n0 = len(ops)
         ops.extend((t, op, r) for t, r in zip(times.tolist(), rows) if 0 < t < MAX_T_US)
         if len(ops) > n0:

@@ -248,6 +248,7 @@ def read_ulog(path) -> Feed:
     top, selector_notes = _topics(ulog)
     ops: list = []
     ts = {k: np.asarray(v["timestamp"], dtype=np.int64) for k, v in top.items() if len(v.get("timestamp", ()))}
+    top = {k: v for k, v in top.items() if k in ts}  # a topic without timestamps (a damaged format): not read
     used: dict[str, str] = {}
 
     def add(topic, times, op, rows):
