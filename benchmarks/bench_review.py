@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "logs" / "px4"
 CHILD = """
 import json, os, resource, sys, time
-import companion.dataflash, companion.ulog
+import companion.flightlogs.dataflash, companion.flightlogs.ulog
 from companion.cli import review_log
 read = {"s": 0.0}
 def timed(reader):  # the replay imports the reader at call time: the timed one
@@ -37,8 +37,8 @@ def timed(reader):  # the replay imports the reader at call time: the timed one
         finally:
             read["s"] += time.perf_counter() - t0
     return r
-companion.ulog.read_ulog = timed(companion.ulog.read_ulog)
-companion.dataflash.read_dataflash = timed(companion.dataflash.read_dataflash)
+companion.flightlogs.ulog.read_ulog = timed(companion.flightlogs.ulog.read_ulog)
+companion.flightlogs.dataflash.read_dataflash = timed(companion.flightlogs.dataflash.read_dataflash)
 c0, t = os.times(), time.perf_counter()
 rep, origin = review_log(sys.argv[1], vehicle="x500")
 dt, c1 = time.perf_counter() - t, os.times()

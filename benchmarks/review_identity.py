@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -29,7 +30,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "logs" / "px4"
-WORK = Path("/tmp/contract-guard-review-identity-out")  # the one --out path of every review
+# the one --out path of every review (the same for both checkouts; CG_IDENTITY_WORK moves it, e.g. when two
+# checks share a machine)
+WORK = Path(os.environ.get("CG_IDENTITY_WORK", "/tmp/contract-guard-review-identity-out"))
 KEPT = ("stdout.json", "review.json", "samples.csv", "replay-events.jsonl")
 # what differs between any two runs of one checkout, so it is not compared: the daemon run's random id and
 # the process id (`boot`, `pid`); and the checkout's own folder in paths (the shipped table's), written as <root>

@@ -1,7 +1,7 @@
 """`contract-guard calibrate LOG... --vehicle FILE --table TABLE --out NEW.npz`: the contract of this aircraft.
 
 Reads each flight log — a MAVLink `.tlog`, a PX4 ULog `.ulg`, an ArduPilot DataFlash `.bin` — into the
-ops of `companion/loginput.py` (the ULog/DataFlash readers are issue 14's; a `.tlog` is turned into the
+ops of `companion/flightlogs/loginput.py` (the ULog/DataFlash readers are issue 14's; a `.tlog` is turned into the
 same ops here), then into one `Trace` per log (position, velocity, attitude, commanded path, throttle,
 modes, Hold commands), and hands the numbers to the pure statistics of `contracts/calibrate.py`:
 - `E_tr_pred` measured per cell (window samples, order-statistic bound, coverage, the never-optimistic
@@ -24,6 +24,7 @@ import hashlib
 import json
 import math
 from dataclasses import dataclass, field
+from html import escape as html_escape
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ from contracts import calibrate as cal
 from contracts.errors import ContractError
 
 from .autopilots import adapter_for
-from .loginput import Feed, order
+from .flightlogs.loginput import Feed, not_multirotor, order
 
 IN_AIR = 2  # MAV_LANDED_STATE_IN_AIR
 POSITION_MODES = ("mission", "hold", "offboard", "position", "rtl")
@@ -57,7 +58,7 @@ def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
         mlog = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
     except Exception as err:  # noqa: BLE001
         raise ContractError(f"{path}: not a readable .tlog ({err})") from None
-    ops, cmds, ap_sys, autopilot, t0 = [], [], None, "px4", None
+    ops, cmds, ap_sys, autopilot, t0, mav_type = [], [], None, "px4", None, 0
     bad = 0
     while bad < MAX_BAD_IN_A_ROW:
         try:
@@ -75,7 +76,7 @@ def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
         t0 = t_us if t0 is None else t0
         src = (m.get_srcSystem(), m.get_srcComponent())
         if kind == "HEARTBEAT" and m.autopilot not in (8,) and src[1] == 1:  # 8: MAV_AUTOPILOT_INVALID
-            ap_sys = src[0]
+            ap_sys, mav_type = src[0], m.type
             autopilot = "ardupilot" if m.autopilot == 3 else "px4"
             ops.append((t_us, "mode", (m.base_mode, m.custom_mode)))
             continue
@@ -96,6 +97,7 @@ def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
             ops.append((t_us, "thr", (m.throttle / 100.0,)))
         elif kind == "EXTENDED_SYS_STATE":
             ops.append((t_us, "landed", (m.landed_state,)))
+    not_multirotor(mav_type, path, "the autopilot's HEARTBEAT")
     ad = adapter_for(autopilot)
     t_first = min([o[0] for o in ops] + [c[0] for c in cmds]) if ops else 0
     # a mode command's params → the mode it asks for (base_mode, custom main/sub or ArduPilot number)
@@ -114,22 +116,11 @@ def _commanded_mode(ad, p) -> str:
 
 
 def read_log(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
-    """Any supported flight log → (Feed, mode commands). Damage is the reader's to report."""
-    path = Path(path)
-    if not path.exists():
-        raise ContractError(f"no such file: {path}")
-    suffix = path.suffix.lower()
-    if suffix == ".tlog":
-        return tlog_feed(path)
-    if suffix == ".ulg":
-        from .ulog import read_ulog
+    """Any supported flight log → (Feed, mode commands), within the readers' bounds (`companion.flightlogs`).
+    Damage is the reader's to report."""
+    from .flightlogs import read_feed
 
-        return read_ulog(path), []
-    if suffix == ".bin":
-        from .dataflash import read_dataflash
-
-        return read_dataflash(path), []
-    raise ContractError(f"{path}: calibrate reads .tlog, .ulg and .bin flight logs")
+    return read_feed(Path(path))
 
 
 @dataclass
@@ -483,18 +474,19 @@ def write_report(out: Path, summary: dict, stock, new, ec, traces) -> None:
     base = out.with_suffix("")
     Path(f"{base}.report.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
     png = _plot(Path(f"{base}.report.png"), stock, new, ec, summary)
-    rows = "".join(f"<tr><td>{r['log']}</td><td>{r['source']}</td><td>{r['v0']:.2f}</td><td>{r['reaction_s']:.3f}</td>"
+    esc = html_escape  # everything from a log (its file name above all) is text, never markup
+    rows = "".join(f"<tr><td>{esc(str(r['log']))}</td><td>{esc(str(r['source']))}</td><td>{r['v0']:.2f}</td><td>{r['reaction_s']:.3f}</td>"
                    f"<td>{r['decel_peak_m_s2']:.2f}</td><td>{r['jerk_m_s3']:.2f}</td><td>{r['distance_m']:.2f}</td>"
                    f"<td>{r['predicted_m']:.2f}</td><td>{r['overshoot_m']:+.2f}</td></tr>"
                    for r in summary["braking"]["stops"])
-    vm = "".join(f"<tr><td>{r['scenario']}</td>" + "".join(
+    vm = "".join(f"<tr><td>{esc(str(r['scenario']))}</td>" + "".join(
         f"<td>{r[k]['stock']:.2f} → {r[k]['calibrated']:.2f}</td>" if k in r else "<td>—</td>" for k in ("avoid", "stop"))
         + "</tr>" for r in summary["v_max"])
-    text = format_summary(summary).replace("&", "&amp;").replace("<", "&lt;")
-    html = f"""<!doctype html><html><head><meta charset="utf-8"><title>calibration {out.name}</title>
+    text = esc(format_summary(summary))
+    html = f"""<!doctype html><html><head><meta charset="utf-8"><title>calibration {esc(out.name)}</title>
 <style>body{{font-family:sans-serif;max-width:70em;margin:1em auto}}td,th{{padding:2px 8px;border-bottom:1px solid #ccc}}</style>
-</head><body><h1>Calibration: {out.name}</h1><pre>{text}</pre>
-{f'<img src="{Path(png).name}" style="max-width:100%">' if png else '<p>(no plot: pip install contract-guard[plot])</p>'}
+</head><body><h1>Calibration: {esc(out.name)}</h1><pre>{text}</pre>
+{f'<img src="{esc(Path(png).name)}" style="max-width:100%">' if png else '<p>(no plot: pip install contract-guard[plot])</p>'}
 <h2>Logged stops against the stop contract's closed form</h2><table><tr><th>log</th><th>from</th><th>v0 m/s</th>
 <th>reaction s</th><th>decel m/s²</th><th>jerk m/s³</th><th>distance m</th><th>closed form m</th><th>overshoot m</th></tr>{rows}</table>
 <h2>V_max, stock → calibrated [m/s]</h2><table><tr><th>scenario</th><th>avoid</th><th>stop</th></tr>{vm}</table>

@@ -41,7 +41,10 @@ def finite(text: str) -> float:
 
 
 def _emit(obj: dict, as_json: bool, text: str) -> None:
-    print(json.dumps(obj, sort_keys=True) if as_json else text)
+    """The result on stdout: JSON (its strings escaped by the encoder), or text stripped of control characters."""
+    from .flightlogs import for_terminal
+
+    print(json.dumps(obj, sort_keys=True) if as_json else for_terminal(text))
 
 
 def one_line(record: dict) -> str:
@@ -408,9 +411,8 @@ def cmd_run(args) -> int:
 
 
 # raw-log suffix → "module:function" replaying such a log into an event log in a directory and returning a
-# `review.Origin`: a MAVLink .tlog, a PX4 ULog, an ArduPilot DataFlash log
-RAW_LOGS = {".tlog": "companion.replay:replay_tlog", ".ulg": "companion.logreplay:replay_ulog",
-            ".bin": "companion.logreplay:replay_dataflash"}
+# `review.Origin`: a MAVLink .tlog, a PX4 ULog, an ArduPilot DataFlash log (the one registry of them)
+from .flightlogs import RAW_LOGS  # noqa: E402
 
 
 def raw_log_of(paths) -> Path | None:
@@ -426,10 +428,10 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
                tolerance_m_s: float = 0.2):
     """(report, origin) for event logs, or for one raw log replayed into an event log first (`origin`
     says what it was made from; None for an event log). `config`, `vehicle`, `table`: for the replay."""
-    import importlib
     import shutil
     import tempfile
 
+    from .flightlogs import check_file, guarded, replay_log
     from .logschema import LOG_FILE, REPLAY_LOG_FILE
     from .review import review
 
@@ -438,12 +440,16 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
         if config or vehicle or table:
             raise ContractError(f"--config, --vehicle and --table apply only to a {' or '.join(RAW_LOGS)} "
                                 "(an event log carries its values)")
-        return review(paths, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s), None
-    module, name = RAW_LOGS[raw.suffix.lower()].split(":")
-    to_event_log = getattr(importlib.import_module(module), name)
+        files = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
+        from .eventlog import file_set
+
+        for p in files:
+            for f in file_set(p) if p.is_dir() else [p]:
+                check_file(f, "an event log")
+        return guarded(files[0], "event log", review, paths, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s), None
     with tempfile.TemporaryDirectory(prefix="contract-guard-replay-", ignore_cleanup_errors=True) as work:
         log = Path(work) / LOG_FILE
-        origin = to_event_log(raw, Path(work), config=config, vehicle=vehicle, table=table)
+        origin = replay_log(raw, Path(work), config=config, vehicle=vehicle, table=table)
         if out_dir is not None:
             kept = Path(out_dir) / REPLAY_LOG_FILE
             try:
@@ -570,9 +576,12 @@ def cmd_calibrate(args) -> int:
                                            if x.is_dir() else [x])]
     if not logs:
         raise ContractError("no flight logs (.tlog, .ulg, .bin) given")
-    s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence,
-                  accept_faster=args.accept_faster)
-    signed = _sign_after(args.out, args.sign_key)
+    try:
+        s = calibrate(logs, veh, table, args.out, quantile=args.quantile, confidence=args.confidence,
+                      accept_faster=args.accept_faster)
+        signed = _sign_after(args.out, args.sign_key)
+    except OSError as err:  # a full disk, a read-only folder: one line, not a traceback
+        raise ContractError(f"cannot write the calibration to {args.out}: {err.strerror or err}") from None
     _emit(s, args.json, format_summary(s) + signed.replace("; s", "\n  s") + f"\nreport: {args.out.with_suffix('')}.report.html")
     return 0
 
@@ -814,7 +823,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"contract-guard: {err}", file=sys.stderr)
         return 130
     except ContractError as err:
-        print(f"contract-guard: error: {err}", file=sys.stderr)
+        from .flightlogs import for_terminal
+
+        print(f"contract-guard: error: {for_terminal(str(err))}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         return 130

@@ -1,7 +1,7 @@
 """The event log's schema, in one place: file names, the record envelope, the state sample's fields (in
 the order the daemon writes them), the events and their fields, the daemon's NAMED_VALUE_FLOATs and its
 command names (DESIGN.md §5). Written by `companion.eventlog`, read by `companion.review` and
-`companion.replay`; `tests/test_logschema.py` checks it against what the daemon really writes.
+`companion.flightlogs.tlog`; `tests/test_logschema.py` checks it against what the daemon really writes.
 
 A record is one JSON object per line (JSON Lines):
 

@@ -3,7 +3,7 @@
 `review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several),
 `summarise(records)` (pure) builds the report, `findings(report)` is what it concludes, and
 `format_report(report)` renders it for a person. This module reads event logs only: a raw log is first
-turned into one by a converter (`companion.replay` for a `.tlog`; `companion.cli` picks it), which hands
+turned into one by a converter (`companion.flightlogs.tlog` for a `.tlog`; `companion.cli` picks it), which hands
 over an `Origin` (its own report section and findings). With
 `out_dir`: `review.png` (speed limit and ground speed, Γ, `d_od`, `e_tr`, `thrust_ratio`, `r_obst` over
 time, violation spans shaded, failsafes marked), `samples.csv` and `review.json`. Bad or missing input

@@ -26,7 +26,7 @@ def expand(paths, suffixes) -> list[Path]:
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            out += sorted(q for q in p.rglob("*") if q.is_file() and q.suffix.lower() in suffixes)
+            out += sorted(q for q in p.rglob("*") if not q.is_dir() and q.suffix.lower() in suffixes)  # a device: said
         elif p.suffix.lower() in suffixes:
             out.append(p)
         elif not p.exists():
@@ -84,9 +84,10 @@ def review_set(paths, suffixes, review_one, out_dir: Path | None = None) -> dict
         sub = None if out_dir is None else Path(out_dir) / "flights" / name
         try:
             rep, origin = review_one(path, sub)
-        except ContractError as err:
-            flights.append(row(path, None, str(err)))
-            texts.append(f"contract-guard review: {path}\n  not reviewed: {err}")
+        except Exception as err:  # noqa: BLE001 — one flight's damage never stops the others: its row says why
+            why = str(err) if isinstance(err, ContractError) else f"{path}: unreadable ({type(err).__name__}: {err})"
+            flights.append(row(path, None, why))
+            texts.append(f"contract-guard review: {path}\n  not reviewed: {why}")
             continue
         flights.append({**row(path, rep, None), "page": f"flights/{name}/index.html", "report": rep})
         texts.append(format_report(rep, origin))

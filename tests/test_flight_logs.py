@@ -15,6 +15,7 @@ import pytest
 from companion.cli import review_log
 from companion.review import format_report
 from contracts.errors import ContractError
+from crafted_logs import copter_sample
 from sitl_harness.flightlog import DataFlashWriter
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "logs" / "px4"
@@ -169,15 +170,7 @@ def write_bin(path, *, speed=2.0, dur=20.0, rfnd=True, jump_at=None, version="Ar
         while t < dur:
             if jump_at is not None and t >= jump_at and not shift:
                 shift = 2_000_000_000
-            us, x = int(t * 1e6) + shift, speed * t
-            w.write("XKF1", us, 0, 0.0, 0.0, 0.0, speed, 0.0, 0.0, 0.0, x, 0.05, -5.0)
-            w.write("XKF4", us, 0, 1 | 2 | 4 | 8 | 16 | 32)
-            w.write("ATT", us, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-            w.write("PSCN", us, x, x, speed, speed)
-            w.write("PSCE", us + 10, 0.0, 0.05, 0.0, 0.0)
-            w.write("CTUN", us, 0.45, 0.45, 0.45)
-            if rfnd:
-                w.write("RFND", us, 0, 12.0, 4, 0)
+            copter_sample(w, int(t * 1e6) + shift, speed * t, speed, y=0.05, range_m=12.0 if rfnd else None)
             t += 0.02
     return path
 
@@ -249,7 +242,7 @@ def test_unreadable_dataflash_is_one_line(tmp_path):
 
 
 def test_ops_are_ordered_and_jumps_closed_up():
-    from companion.loginput import MAX_GAP_US, order, quat_euler
+    from companion.flightlogs.loginput import MAX_GAP_US, order, quat_euler
 
     ops, jumps = order([(5, "b", ()), (1, "a", ()), (1 + 2 * MAX_GAP_US, "c", ())])
     assert [o[1] for o in ops] == ["a", "b", "c"] and ops[0][0] == 0 and ops[-1][0] == 4 and len(jumps) == 1
@@ -374,7 +367,7 @@ def test_a_quadplanes_fixed_wing_phases_are_cut_and_said_once(tmp_path):
 
 
 def test_plane_fixed_wing_spans():
-    from companion.dataflash import plane_fixed_wing_spans
+    from companion.flightlogs.dataflash import plane_fixed_wing_spans
 
     s = 1_000_000
     modes = [(1 * s, 19), (10 * s, 5), (20 * s, 10), (40 * s, 20)]

@@ -107,9 +107,9 @@ def test_the_checks_can_fail():
     g = {"contracts.table": {"companion.config"}, "sitl_harness.sim": {"companion.daemon"},
          "companion.demo": {"sitl_harness.scenario"}, "companion.cli": {"sitl_harness.scenario"},
          "companion.flights": {"sitl_harness"}, "companion.campaign": {"sitl_harness.sim"},
-         "companion.review": {"companion.replay"}, "companion.replay": {"companion.review"}}
+         "companion.review": {"companion.flightlogs.tlog"}, "companion.flightlogs.tlog": {"companion.review"}}
     assert len(violations(g)) == 4
-    assert cycles(g) == [["companion.replay", "companion.review"]]
+    assert cycles(g) == [["companion.flightlogs.tlog", "companion.review"]]
     # relative imports inside functions are seen too
     src = ROOT / "companion" / "_probe_for_test.py"
     src.write_text("def f():\n    from .review import review\n    from ..sitl_harness import scenario\n")

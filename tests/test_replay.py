@@ -15,7 +15,7 @@ from companion.link import mavlink
 from contracts.table import load_for_vehicle
 from companion.cli import review_log
 from companion.logschema import REPLAY_LOG_FILE as REPLAY_LOG
-from companion.replay import scan_tlog
+from companion.flightlogs.tlog import scan_tlog
 from companion.review import review
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly

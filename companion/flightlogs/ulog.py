@@ -1,4 +1,4 @@
-"""PX4 ULog (`.ulg`) reader: `read_ulog(path) -> Feed` of `companion/loginput.py` ops, with pyulog.
+"""PX4 ULog (`.ulg`) reader: `read_ulog(path) -> Feed` of `companion/flightlogs/loginput.py` ops, with pyulog.
 
 Topic → op, each field's meaning from PX4's `msg/*.msg` (units and frames converted here, once):
 
@@ -27,7 +27,11 @@ a truncated file or a corrupt stretch is read as far as pyulog recovers, and sai
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
+import mmap
+import os
 from pathlib import Path
 
 import numpy as np
@@ -68,15 +72,104 @@ MAX_DT_US = 1 << 62
 
 
 def _open(path: Path):
+    """(pyulog's ULog, what pyulog printed while reading: its warnings about a damaged file)."""
     import pyulog
 
     head = read_head(path, "a ULog")
     if not head.startswith(ULOG_MAGIC[:4]):
         raise ContractError(f"{path}: not a PX4 ULog (no 'ULog' header; {_sniff(head)})")
+    with _mapped(path) as data:  # walked, not copied: a long log stays on disk
+        formats, loop_at = definitions(data)
+        padded = None if loop_at is None else io.BytesIO(bytes(data) + bytes(65_538))
+    why = nesting_refused(formats)
+    if why:
+        raise ContractError(f"{path}: unreadable ULog ({why})")
+    said = io.StringIO()
+    if loop_at is not None:  # pyulog would loop for ever on it: see `definitions`
+        said.write(f"a corrupt message header at byte {loop_at} runs past the end of the file\n")
     try:
-        return pyulog.ULog(str(path), TOPICS, disable_str_exceptions=True)
+        with contextlib.redirect_stdout(said):  # pyulog prints its warnings: kept off stdout, said as damage
+            # padded past the longest message (uint16 size + header) with zeros (type 0: skipped byte by byte),
+            # every read is whole and pyulog's step back over a corrupt header is one byte forward
+            source = str(path) if padded is None else padded
+            ulog = pyulog.ULog(source, TOPICS, disable_str_exceptions=True)
     except Exception as err:  # noqa: BLE001 — pyulog raises anything on a broken file: one line
         raise ContractError(f"{path}: unreadable ULog ({type(err).__name__}: {str(err)[:120]})") from None
+    return ulog, [line.strip() for line in said.getvalue().splitlines() if line.strip()]
+
+
+DEFINITION_TYPES = frozenset(b"IMFPQB")  # what pyulog's definitions reader takes; A, L, C end the section
+
+
+def definitions(data: bytes) -> tuple[dict, int | None]:
+    """({format name: [(type, array size)]}, where pyulog's definitions reader would loop for ever, or None).
+    Walks the definitions section as pyulog 1.x does (ULog spec: the messages before the first `A`, `L` or
+    `C`). pyulog steps over a header of an unknown type with size 0, type 0 or a size above 10 000 by seeking
+    back to one byte past it — relative to what it read, so a header whose size runs past the end of the file
+    sends it backwards, for ever; the walk returns that header's offset. Pure."""
+    import pyulog
+
+    formats, pos, n = {}, 16, len(data)
+    while pos + 3 <= n:
+        size, kind = int.from_bytes(data[pos:pos + 2], "little"), data[pos + 2]
+        if kind in b"ALC":
+            break
+        got = min(size, n - pos - 3)
+        if kind == ord("F") and got == size:
+            try:
+                f = pyulog.ULog.MessageFormat(data[pos + 3:pos + 3 + size], None)
+                formats[f.name] = [(t, k) for t, k, _ in f.fields]
+            except Exception:  # noqa: BLE001 — a format pyulog cannot parse: pyulog says so itself
+                pass
+        if kind not in DEFINITION_TYPES and (kind == 0 or size == 0 or size > 10_000):
+            back = pos + 3 + got - 2 - size
+            if back <= pos:
+                return formats, pos
+            pos = back
+            continue
+        pos += 3 + got
+    return formats, None
+
+
+def nesting_refused(formats: dict) -> str | None:
+    """Why the ULog's formats cannot be read within the bounds (`companion.flightlogs`: MAX_DEPTH levels of
+    nested formats, MAX_FIELDS fields of a topic flattened, no format containing itself), else None. pyulog
+    flattens every logged topic's nested formats field by field as it reads the definitions: a few kB of
+    nested arrays would expand to billions of fields."""
+    import pyulog
+
+    from . import MAX_DEPTH, MAX_FIELDS
+
+    basic = pyulog.ULog._UNPACK_TYPES
+    memo: dict[str, tuple[int, int]] = {}  # name → (fields flattened, depth)
+
+    def measure(name: str, stack: tuple) -> tuple[int, int]:
+        if name in memo:
+            return memo[name]
+        if name in stack:
+            raise ValueError(f"format {name!r} contains itself")
+        if len(stack) > MAX_DEPTH:
+            raise ValueError(f"formats nested more than {MAX_DEPTH} deep (format {name!r})")
+        fields, depth = 0, 1
+        for typ, n in formats[name]:
+            if typ in formats:
+                sub, d = measure(typ, (*stack, name))
+                fields, depth = fields + max(n, 1) * sub, max(depth, d + 1)
+            else:
+                fields += max(n, 1) if typ in basic else 1
+            if fields > MAX_FIELDS:
+                raise ValueError(f"format {name!r} flattens to more than {MAX_FIELDS} fields (nested arrays)")
+        if depth > MAX_DEPTH:
+            raise ValueError(f"formats nested more than {MAX_DEPTH} deep (format {name!r})")
+        memo[name] = (fields, depth)
+        return memo[name]
+
+    try:
+        for name in formats:
+            measure(name, ())
+    except ValueError as err:
+        return str(err)
+    return None
 
 
 ULOG_TYPES = frozenset(b"BFIMPQADLCSOR")  # the ULog message types (ULog file format, "Definitions section")
@@ -85,14 +178,25 @@ ULOG_TYPES = frozenset(b"BFIMPQADLCSOR")  # the ULog message types (ULog file fo
 def torn_tail(path: Path) -> bool:
     """Whether the file ends inside a message (walks the ULog framing: uint16 size, uint8 type). A walk that
     loses the framing (a corrupt stretch) says nothing: pyulog's own recovery reports that."""
-    data = path.read_bytes()
-    pos = 16
-    while pos + 3 <= len(data):
-        size, kind = int.from_bytes(data[pos:pos + 2], "little"), data[pos + 2]
-        if kind not in ULOG_TYPES:
-            return False
-        pos += 3 + size
-    return pos != len(data)
+    with _mapped(path) as data:
+        pos = 16
+        while pos + 3 <= len(data):
+            size, kind = int.from_bytes(data[pos:pos + 2], "little"), data[pos + 2]
+            if kind not in ULOG_TYPES:
+                return False
+            pos += 3 + size
+        return pos != len(data)
+
+
+@contextlib.contextmanager
+def _mapped(path: Path):
+    """The file's bytes, memory-mapped read-only (b"" for an empty file)."""
+    with open(path, "rb") as fh:
+        if os.fstat(fh.fileno()).st_size == 0:
+            yield b""
+            return
+        with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as m:
+            yield m
 
 
 def _sniff(head: bytes) -> str:
@@ -140,10 +244,11 @@ def read_ulog(path) -> Feed:
     path = Path(path)
     if not path.exists():
         raise ContractError(f"no such file or directory: {path}")
-    ulog = _open(path)
+    ulog, said = _open(path)
     top, selector_notes = _topics(ulog)
     ops: list = []
     ts = {k: np.asarray(v["timestamp"], dtype=np.int64) for k, v in top.items() if len(v.get("timestamp", ()))}
+    top = {k: v for k, v in top.items() if k in ts}  # a topic without timestamps (a damaged format): not read
     used: dict[str, str] = {}
 
     def add(topic, times, op, rows):
@@ -321,7 +426,9 @@ def read_ulog(path) -> Feed:
         "log_duration_s": (ulog.last_timestamp - ulog.start_timestamp) / 1e6,
         "damaged": (["corrupt data skipped by the ULog reader (file_corruption)"] if corrupt else [])
         + (["the file ends inside a message (truncated: the last message is lost)"] if torn_tail(path) else [])
-        + damaged_notes,
+        + damaged_notes
+        + ([f"the ULog reader said: {'; '.join(said[:3])}" + (f" (and {len(said) - 3} more)" if len(said) > 3 else "")]
+           if said else []),
         "estimator_notes": selector_notes,
         "time_jumps": jumps[:100],
     }

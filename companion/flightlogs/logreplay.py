@@ -1,5 +1,5 @@
 """An autopilot's own flight log (PX4 ULog, ArduPilot DataFlash) turned into an event log, as
-`companion/replay.py` does for a `.tlog`: the reader's `Feed` (companion/loginput.py) goes, in log time, to a
+`companion/flightlogs/tlog.py` does for a `.tlog`: the reader's `Feed` (companion/flightlogs/loginput.py) goes, in log time, to a
 shadow-mode `Daemon` stepped at its loop rate with no sleeping — the same daemon, cycle, estimators and
 supervisor; only the input differs (the reader's ops become the same `Telemetry` fields and samples
 MAVLink-in produces). `companion.cli` wires `replay_ulog` / `replay_dataflash` into `review` (`RAW_LOGS`).
@@ -16,21 +16,30 @@ from pathlib import Path
 
 from contracts.errors import ContractError
 
-from .config import Config, load_config
-from .eventlog import EventLog, finite_copy, read_events
-from .link import MemoryMavfile
+from ..autopilots import adapter_for
+from ..config import Config, load_config
+from ..eventlog import EventLog, finite_copy, read_events
+from ..link import MemoryMavfile
+from ..logschema import LOG_FILE
+from ..review import Origin, fmt_value
+from . import MAX_SAMPLES
 from .loginput import Feed, LogIn
-from .logschema import LOG_FILE
-from .replay import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle
-from .review import Origin, fmt_value
+from .tlog import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, silences, stepped_silence
 
-AUTOPILOT_IDS = {"px4": 12, "ardupilot": 3}  # MAV_AUTOPILOT
-TILT_PARAMS = {"MPC_TILTMAX_AIR": 1.0, "ANGLE_MAX": 0.01, "Q_ANGLE_MAX": 0.01}  # → degrees (ArduPilot: centidegrees)
+
+def tilt_params(autopilot: str) -> dict[str, float]:
+    """The autopilot's tilt-limit parameters → their scale to degrees, from its adapter's start-up checks (and
+    a quadplane's own VTOL name for ArduPilot's)."""
+    from .dataflash import QUADPLANE_PARAMS
+
+    checks = adapter_for(autopilot).param_checks
+    tilt = {c.name: c.scale for c in checks if c.what == "tilt_max_deg"}
+    return tilt | {q: tilt[c] for q, c in QUADPLANE_PARAMS.items() if c in tilt}
 
 
 def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, source: str) -> dict:
     """Feed the ops to a shadow `Daemon` in log time; its event log goes to `log_dir`."""
-    from .daemon import Daemon
+    from ..daemon import Daemon
 
     now = {"t": 0.0}
     conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
@@ -40,12 +49,12 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
     daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=wall, planning="inline", contract=contract)
     log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
               contract=contract)
-    login = LogIn(cfg, daemon.tel, AUTOPILOT_IDS.get(feed.autopilot, 0))
+    login = LogIn(cfg, daemon.tel, adapter_for(feed.autopilot).autopilot_id)
     ops, bad = feed.ops, [0]
 
-    def take(i: int, tick: float) -> None:
-        t_us, op, args = ops[i]
-        now["t"] = min(t_us, tick) / 1e6
+    def take(i: int, t: float) -> None:
+        _, op, args = ops[i]
+        now["t"] = t / 1e6
         try:
             for s in login.apply(now["t"], op, args):
                 daemon.take(s)  # the daemon's own routing of MAVLink-in's samples
@@ -56,10 +65,10 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
         now["t"] = tick / 1e6
         daemon.step()
 
-    steps = in_log_time([o[0] for o in ops], cfg.loop_hz, take, step)
+    run = in_log_time([o[0] for o in ops], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {"steps": steps, "ops": len(ops), "refused_samples": bad[0]}
+    return {**run, "ops": len(ops), "refused_samples": bad[0]}
 
 
 class FlightLog(Origin):
@@ -77,6 +86,8 @@ class FlightLog(Origin):
             out.append(f"{info['dropouts']} logging dropout(s) ({info['dropout_s']:.1f} s of data lost)")
         if info["time_jumps"]:
             out.append(f"{len(info['time_jumps'])} clock jump(s) in the log's timestamps closed up")
+        if info.get("gaps_skipped"):
+            out.append(silences(info))
         for s in info["slow_streams"]:
             out.append(f"{s['stream']} logged at {s['rate_hz']:.1f} Hz, too slow for the daemon's {s['timeout_s']} s "
                        "staleness limit: stale-data findings may be the log's, not the flight's")
@@ -152,6 +163,10 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
     if path.is_dir():
         raise ContractError(f"{path} is a directory, not a flight log")
     feed = read(path)
+    if len(feed.ops) > MAX_SAMPLES:  # bounded: the first MAX_SAMPLES (in log time) replayed, the rest said
+        feed.info["damaged"] = [*feed.info.get("damaged", []), f"more than {MAX_SAMPLES} samples: only the first "
+                                f"{MAX_SAMPLES} ({feed.ops[MAX_SAMPLES][0] / 1e6:.0f} s) replayed"]
+        feed.ops = feed.ops[:MAX_SAMPLES]
     cfg = load_config(config) if config is not None else Config(sensors=list(ASSUMED_SENSORS))
     if config is None:
         cfg = cfg.model_copy(update={"link": cfg.link.model_copy(update={"autopilot": feed.autopilot})})
@@ -165,13 +180,14 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
         slow.append({"stream": pos_src, "rate_hz": r, "timeout_s": to.telemetry_s})
     veh = tab.vehicle
     pf = []
-    for name, scale in TILT_PARAMS.items():
+    for name, scale in tilt_params(feed.autopilot).items():
         v = info["params"].get(name)
         if v is not None and v * scale > veh.tilt_max_deg + 1e-6:
             pf.append(f"the autopilot's tilt limit {name} = {v * scale:g}° is above the contract's {veh.tilt_max_deg:g}° "
                       f"(vehicle {veh.name}): the vehicle may tilt beyond what the contract assumes")
     info.update({
-        "ops": run["ops"], "steps": run["steps"], "refused_samples": run["refused_samples"],
+        "ops": run["ops"], "steps": run["steps"], "gaps_skipped": run["gaps_skipped"], "skipped_s": run["skipped_s"],
+        "refused_samples": run["refused_samples"],
         "config": None if config is None else str(config), "vehicle_file": veh.name, "table": str(tab.path),
         "contract": contract, "loop_hz": cfg.loop_hz, "slow_streams": slow, "param_findings": pf,
         "event_log": None, "e_tr": _e_tr(log_dir),

@@ -20,27 +20,34 @@ valid CRC); a torn last packet is reported.
 from __future__ import annotations
 
 import bisect
+import math
 import re
 import struct
 from array import array
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from contracts.errors import ContractError
 
-from .autopilots import name_for_heartbeat
-from .config import Config, SensorConfig, load_config
-from .eventlog import EventLog, finite_copy, read_events
-from .link import MemoryMavfile, mavlink
-from .logschema import COMMANDS, LOG_FILE, NVF
-from .review import Origin, fmt_value
+from ..autopilots import name_for_heartbeat
+from ..config import Config, SensorConfig, load_config
+from ..eventlog import EventLog, finite_copy, read_events
+from ..link import MemoryMavfile, mavlink
+from ..logschema import COMMANDS, LOG_FILE, NVF
+from ..review import Origin, fmt_value
+from . import MAX_SAMPLES
+from .loginput import not_multirotor
 
 MAGIC = re.compile(b"[\xfd\xfe]")
 MAX_BACKSTEP_US = 1_000_000  # an earlier stamp by up to this is reordering (clamped); more is a clock jump
 MAX_GAP_US = 300_000_000  # a longer silence is taken as a clock jump and closed up
+MAX_STAMP_US = (1 << 63) - 1  # the largest stamp a time can be (int64 µs)
 RESYNC_WINDOW_US = 86_400_000_000  # a packet found by resynchronising must lie within a day of the last good one
 TICK_SLACK_US = 5  # stamps written as int(float seconds · 1e6) may fall a few µs past a loop tick
+# a silence in a log is stepped through for the daemon's longest staleness time-out plus this (it goes stale
+# and fails safe as it would have in flight), then skipped; never longer than SILENCE_MAX_S
+SILENCE_MARGIN_S, SILENCE_MAX_S = 2.0, 30.0
 NOT_AUTOPILOT = (mavlink.MAV_AUTOPILOT_INVALID,)
 # without the flight's config: the sensors assumed, said in the report's notes
 ASSUMED_SENSORS = (SensorConfig(kind="distance_sensor", h_fov_deg=30.0),)
@@ -66,6 +73,8 @@ class Scan:
     corrupt: int = 0  # stretches of bad bytes skipped (each counted once)
     skipped_bytes: int = 0
     truncated_tail: bool = False
+    bad_stamps: int = 0  # stamps too large to be a time (taken as the previous one)
+    capped: bool = False  # more than MAX_SAMPLES packets: the rest not read
     unknown: int = 0  # valid frames of messages this dialect does not know (skipped)
     counts: Counter = field(default_factory=Counter)  # (sys, comp, type) → packets
     spans: dict = field(default_factory=dict)  # (sys, comp, type) → [first, last] log time [µs]
@@ -141,6 +150,9 @@ def scan_tlog(data: bytes) -> Scan:
     s = Scan(size=len(data))
     pos, last_raw, last_t, shift = 0, None, 0, 0  # log time = stamp + shift
     while pos < len(data):
+        if len(s.offset) >= MAX_SAMPLES:
+            s.capped = True
+            break
         status, n, msg = _decode(data, pos, parser)
         if status != "ok":
             nxt = _resync(data, pos + 1, parser, last_raw)
@@ -156,6 +168,9 @@ def scan_tlog(data: bytes) -> Scan:
             pos = nxt
             continue
         raw = struct.unpack_from(">Q", data, pos)[0]
+        if raw > MAX_STAMP_US:  # a stamp past the year 2262: corrupt, taken as the last good one (a jump is said)
+            s.bad_stamps += 1
+            raw = last_raw if last_raw is not None else 0
         at, pos = pos, pos + 8 + n
         if msg.get_type().startswith("UNKNOWN"):
             s.unknown += 1
@@ -231,6 +246,8 @@ def resolve(scan: Scan, path: Path, config: Path | None, vehicle: str | None, ta
         raise ContractError(f"{path}: no usable telemetry: no {' or '.join(lacking)} from the autopilot "
                             f"{target[0]}/{target[1]} in {scan.packets} packets (sources sys/comp: "
                             f"{_describe_sources(scan)}; set link.target_system/target_component in --config)")
+    if target in scan.heartbeats:  # the vehicle type its HEARTBEAT states (the last one seen)
+        not_multirotor(scan.heartbeats[target][0], path, f"the autopilot {target[0]}/{target[1]}'s HEARTBEAT")
     return (*settle(cfg, config, vehicle, table), chosen)
 
 
@@ -258,7 +275,7 @@ def settle(cfg: Config, config: Path | None, vehicle: str | None, table: Path | 
 def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract: str = "stop",
            source: str = "") -> dict:
     """Feed the scanned packets to a shadow `Daemon` in log time; its event log goes to `log_dir`."""
-    from .daemon import Daemon
+    from ..daemon import Daemon
 
     now = {"t": 0.0, "wall": scan.raw_us[0] / 1e6}
     conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
@@ -272,8 +289,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
 
     decode, decoded = conn.mav.decode, scan.decoded  # the daemon's own dialect (the scan's: mavutil's)
 
-    def take(i: int, tick: float) -> None:
-        now["t"], now["wall"] = min(t_us[i], tick) / 1e6, raw_us[i] / 1e6
+    def take(i: int, t: float) -> None:
+        now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
         if i < len(decoded):
             msg = decoded[i]
         else:  # past what the scan kept: decoded again (the scan kept only frames with a valid CRC)
@@ -289,25 +306,56 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         now["t"] = tick / 1e6
         daemon.step()
 
-    steps = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step)
+    run = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {"steps": steps, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
+    return {**run, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
 
 
-def in_log_time(t_us, loop_hz: float, take, step) -> int:
-    """Step a replayed daemon every loop period of log time: `take(i, tick_us)` for every entry stamped
-    by that tick (within TICK_SLACK_US), then `step(tick_us)`; returns the number of steps."""
+def stepped_silence(cfg: Config) -> float:
+    """How long a silence in a log the replay steps through before skipping the rest [s]."""
+    to = cfg.timeouts
+    return min(SILENCE_MAX_S, max(to.heartbeat_s, to.telemetry_s, to.obstacle_s, to.nav_s) + SILENCE_MARGIN_S)
+
+
+def cut_time(cuts: list, t_us: float) -> float:
+    """A log time [µs] as the replay's, after the silences `in_log_time` cut out before it. Pure."""
+    k = bisect.bisect_right([c[0] for c in cuts], t_us) - 1
+    return t_us - cuts[k][1] if k >= 0 else t_us
+
+
+def silences(info: dict) -> str:
+    """The finding of the silences a replay skipped."""
+    return (f"{info['gaps_skipped']} silence(s) in the log ({info['skipped_s']:.0f} s in all) cut out by the replay once "
+            "the daemon had gone stale in each: no state samples there, and later times moved earlier by the cut")
+
+
+def in_log_time(t_us, loop_hz: float, take, step, silence_s: float = math.inf) -> dict:
+    """Step a replayed daemon every loop period: `take(i, t_us)` for every entry stamped by that tick
+    (within TICK_SLACK_US; `t_us` its replay time), then `step(tick_us)`. A silence in the log is stepped
+    through for `silence_s` (the daemon sees it as in flight: stale inputs, failsafe), then the rest of it
+    is cut out: later entries are replayed that much earlier (the daemon's clock runs on, as it would through
+    a clock jump closed up), so the cost grows with the log's entries, not its time span.
+    Returns {"steps", "gaps_skipped", "skipped_s", "cuts": [(log time of the entry after a cut [µs], the
+    time cut out up to there [µs])]}."""
     period, n, i, k = 1e6 / loop_hz, len(t_us), 0, 0
+    hold, shift = silence_s * 1e6, 0
+    steps, gaps, cuts = 0, 0, []
     while True:
         tick = k * period
-        while i < n and t_us[i] <= tick + TICK_SLACK_US:
-            take(i, tick)
+        while i < n and t_us[i] - shift <= tick + TICK_SLACK_US:
+            take(i, min(t_us[i] - shift, tick))
             i += 1
         step(tick)
+        steps += 1
         if i >= n:
-            return k + 1
+            return {"steps": steps, "gaps_skipped": gaps, "skipped_s": shift / 1e6, "cuts": cuts}
         k += 1
+        nxt = t_us[i] - shift
+        if i and k * period - (t_us[i - 1] - shift) > hold and nxt > (k + 1) * period:
+            shift += nxt - (k + 1) * period  # the next entry falls due at the next tick
+            gaps += 1
+            cuts.append((t_us[i], shift))
 
 
 # The in-flight daemon's NAMED_VALUE_FLOATs against the replay (`in_flight`). A value is stamped when the
@@ -434,6 +482,12 @@ class Replay(Origin):
                        "staleness limit: stale-data findings may be the log's, not the flight's")
         if info["time_jumps"]:
             out.append(f"{len(info['time_jumps'])} clock jump(s) in the tlog stamps closed up")
+        if info.get("bad_stamps"):
+            out.append(f"tlog damaged: {info['bad_stamps']} packet stamp(s) too large to be a time, taken as the one before")
+        if info.get("capped"):
+            out.append(f"tlog longer than {MAX_SAMPLES} packets: only the first {MAX_SAMPLES} replayed")
+        if info.get("gaps_skipped"):
+            out.append(silences(info))
         fl = info.get("in_flight")
         line = differs(fl) if fl else None
         if line:
@@ -496,6 +550,8 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "corrupt_packets": scan.corrupt,
         "skipped_bytes": scan.skipped_bytes,
         "truncated_tail": scan.truncated_tail,
+        "bad_stamps": scan.bad_stamps,
+        "capped": scan.capped,
         "unknown_messages": scan.unknown,
         "t0_unix": scan.raw_us[0] / 1e6,
         "span_s": scan.t_us[-1] / 1e6,
@@ -507,11 +563,16 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "contract": contract,
         "loop_hz": cfg.loop_hz,
         "steps": run["steps"],
+        "gaps_skipped": run["gaps_skipped"],
+        "skipped_s": run["skipped_s"],
         "daemon_messages": run["messages"],
         "missing_streams": {k: list(v) for k, v in missing.items()},
         "slow_streams": slow,
         "event_log": None,  # where the replayed event log is kept, if it is (see companion.cli)
-        "in_flight": in_flight(scan, samples, columns, target[0]),
+        "in_flight": in_flight(replace(scan, in_flight=[(cut_time(run["cuts"], t), *r) for t, *r in scan.in_flight],
+                                       texts=[(cut_time(run["cuts"], t), *r) for t, *r in scan.texts],
+                                       commands=[(cut_time(run["cuts"], t), *r) for t, *r in scan.commands]),
+                               samples, columns, target[0]),
         "notes": ["shadow replay: the controller guarantee (contour error vs E_tr_pred at the commanded limit) "
                   "is evaluated only against a commanded limit, so it is not checked here"]
         + ([ASSUMED_NOTE] if config is None else []),

@@ -1,4 +1,4 @@
-"""ArduPilot DataFlash (`.bin`) reader: `read_dataflash(path) -> Feed` of `companion/loginput.py` ops, with
+"""ArduPilot DataFlash (`.bin`) reader: `read_dataflash(path) -> Feed` of `companion/flightlogs/loginput.py` ops, with
 pymavlink's `DFReader_binary`.
 
 Message → op, fields and units from ArduPilot's log message documentation
@@ -75,6 +75,14 @@ QTUN_PERIOD_US = 40_000
 QUADPLANE_PARAMS = {"Q_ANGLE_MAX": "ANGLE_MAX", "Q_WP_ACCEL": "WPNAV_ACCEL", "Q_WP_JERK": "WPNAV_JERK",
                     "Q_WP_SPEED": "WPNAV_SPEED", "Q_M_THST_HOVER": "MOT_THST_HOVER"}
 PRX_SECTORS = ("D0", "D45", "D90", "D135", "D180", "D225", "D270", "D315")
+# the columns each message must have to be read ("A|B": either); a damaged FMT entry may name others
+_EKF1 = ("TimeUS", "PN", "PE", "PD", "VN", "VE", "VD", "Roll", "Pitch", "Yaw")
+NEEDED = {"XKF1": _EKF1, "NKF1": _EKF1, "ATT": ("TimeUS", "Roll", "Pitch", "Yaw"), "PSCN": ("TimeUS", "TPN"),
+          "PSCE": ("TimeUS", "TPE"), "CTUN": ("TimeUS", "ThO"), "QTUN": ("TimeUS",), "MODE": ("TimeUS", "ModeNum|Mode"),
+          "ARM": ("TimeUS", "ArmState"), "EV": ("TimeUS", "Id"), "XKF4": ("TimeUS", "SS"), "NKF4": ("TimeUS", "SS"),
+          "RFND": ("TimeUS", "Dist", "Stat", "Orient"), "PRX": ("TimeUS", "He|Health", *PRX_SECTORS),
+          "GUIP": ("TimeUS", "pX", "pY"), "PARM": ("TimeUS", "Name", "Value"), "MSG": ("Message",), "VER": ("FWS",),
+          "GPS": ("TimeUS",)}
 # DataFlash format characters → numpy (LogStructure.h; DFReader's FORMAT_TO_STRUCT gives the multipliers)
 NP_TYPES = {"a": ("<i2", (32,)), "b": "i1", "B": "u1", "g": "<f2", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4",
             "f": "<f4", "n": "S4", "N": "S16", "Z": "S64", "c": "<i2", "C": "<u2", "e": "<i4", "E": "<u4", "L": "<i4",
@@ -159,6 +167,24 @@ def _trailing(df) -> int:
     return max(0, df.data_len - max(ends)) if ends else 0
 
 
+FMT_TYPE, FMT_LEN = 0x80, 89  # the FMT message: type 128, 3 header bytes + BBnNZ (LogStructure.h)
+
+
+def stopped_at(data, end: int) -> str | None:
+    """Why a reader that indexed messages up to byte `end` of `data` read no further, when it is not a torn
+    last message: a damaged format entry, or a whole message it could not take (None: a torn tail). Pure."""
+    rest = len(data) - end
+    if rest < 3 or data[end:end + 2] != HEAD:
+        return None if rest < FMT_LEN else f"unrecognised bytes at byte {end}"
+    kind = data[end + 2]
+    if kind == FMT_TYPE and rest >= FMT_LEN:
+        typ, length = data[end + 3], data[end + 4]
+        name = bytes(data[end + 5:end + 9]).split(b"\0")[0].decode(errors="replace")
+        return (f"a damaged format entry (FMT) at byte {end}, defining message type {typ} {name!r} with length "
+                f"{length}")
+    return None if rest < FMT_LEN else f"a message of type {kind} it cannot take at byte {end}"
+
+
 def _text(v) -> str:
     return (v if isinstance(v, str) else bytes(v).split(b"\0")[0].decode(errors="replace")).strip()
 
@@ -229,19 +255,27 @@ def read_dataflash(path) -> Feed:
     stopped = None
 
     def add(times, op, rows, src):
-        times = np.asarray(times, dtype=np.int64)
+        times = np.asarray(times)
+        if times.dtype.kind == "u":  # a damaged TimeUS past int64: not a time (0, dropped below)
+            times = np.where(times < MAX_T_US, times, 0)
+        times = times.astype(np.int64)
         n0 = len(ops)
         ops.extend((t, op, r) for t, r in zip(times.tolist(), rows) if 0 < t < MAX_T_US)
         if len(ops) > n0:
             used.setdefault(op, src)
 
     col: dict[str, dict] = {}
+    unusable = []
     try:
         for kind in TYPES:
             col[kind], tail = _columns(df, kind)
             torn = max(torn, tail)
+            lacks = [c for c in NEEDED.get(kind, ("TimeUS",)) if col[kind] and not any(a in col[kind] for a in c.split("|"))]
+            if lacks:  # its FMT entry names other columns than the message has: not read, said
+                unusable.append(f"{kind} (no {', '.join(lacks)})")
+                col[kind] = {}
             if col[kind]:
-                counts[kind] = len(col[kind]["TimeUS"])
+                counts[kind] = len(col[kind].get("TimeUS", ()))
     except Exception as err:  # noqa: BLE001 — a format DFReader accepted but numpy cannot lay out: what was read stands
         stopped = f"{type(err).__name__}: {str(err)[:80]}"
     # parameters first: RFND needs RNGFND1_MIN/MAX_CM, PRX its PRX1_MAX
@@ -359,7 +393,8 @@ def read_dataflash(path) -> Feed:
             wall0 = utc - (int(d["TimeUS"][k]) - min(t for t, _, _ in ops)) / 1e6
     if not any(op == "pos" for _, op, _ in ops):
         raise ContractError(f"{path}: no usable telemetry: the DataFlash log has no XKF1/NKF1 (EKF position) "
-                            f"(messages: {', '.join(sorted(df.name_to_id)) or 'none'})")
+                            f"(messages: {', '.join(sorted(df.name_to_id)) or 'none'}"
+                            + (f"; not read, their format entry lacking a column: {'; '.join(unusable)})" if unusable else ")"))
     cuts, fixed_wing_s = [], None
     if plane and (d := col.get("MODE")):  # a quadplane's fixed-wing phases: not the multirotor contract's
         nums = d["ModeNum"] if "ModeNum" in d else d["Mode"]
@@ -379,10 +414,18 @@ def read_dataflash(path) -> Feed:
                              "navigation health": "XKF4", "modes and arming": "MODE, ARM",
                              "landed state": "EV LAND_COMPLETE / NOT_LANDED"})
     damaged = []
+    if unusable:
+        damaged.append(f"messages whose format entry lacks a column the review reads, not read: {'; '.join(unusable)}")
     if stopped:
         damaged.append(f"the reader stopped early ({stopped}): the rest of the file is not reviewed")
-    torn = max(torn, _trailing(df))
-    if (skipped := _skipped(df) - torn) > 0:
+    tail = _trailing(df)
+    why = stopped_at(df.data_map, df.data_len - tail) if tail else None
+    if why:  # not a torn message: the reader stopped there, and everything after it is lost
+        damaged.append(f"{why} stopped the reader: the remaining {tail} bytes ({tail / max(df.data_len, 1):.0%} of "
+                       "the file) are not reviewed")
+    else:
+        torn = max(torn, tail)
+    if (skipped := _skipped(df) - torn - (tail if why else 0)) > 0:
         damaged.append(f"{skipped} bytes of corrupt data skipped (the reader resynchronised on the next message "
                        "header): the messages there are lost")
     if torn:

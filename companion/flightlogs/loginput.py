@@ -1,11 +1,11 @@
 """A flight log's input to the daemon: what `mavlink_in.py` is for the link, this is for an autopilot's own
-log (PX4 ULog: `companion/ulog.py`; ArduPilot DataFlash: `companion/dataflash.py`).
+log (PX4 ULog: `companion/flightlogs/ulog.py`; ArduPilot DataFlash: `companion/flightlogs/dataflash.py`).
 
 A reader turns its format's topics/messages into `Op`s — `(t_us, op, args)` in SI units and the frames
 of DESIGN.md §2, converted there, once — and a `Feed` (the ops in log-time order plus what the reader saw).
 `LogIn.apply` turns one op into the daemon's `Telemetry` snapshot fields and the same typed samples
 (`companion/samples.py`) MAVLink-in makes of the equivalent MAVLink message, with the same validation
-(`mavlink_in.implausible`, `range_scan`, `bins_scan`), so one replay path (`companion/logreplay.py`)
+(`mavlink_in.implausible`, `range_scan`, `bins_scan`), so one replay path (`companion/flightlogs/logreplay.py`)
 serves `.tlog`, `.ulg` and `.bin` alike.
 
 The ops:
@@ -32,20 +32,23 @@ from __future__ import annotations
 
 import bisect
 import math
+
+import numpy as np
 from dataclasses import dataclass, field
 
-from .config import Config
-from .mavlink_in import bins_scan, implausible_attitude, implausible_position, range_scan
-from .samples import (
+from ..config import Config
+from ..mavlink_in import bins_scan, implausible_attitude, implausible_position, range_scan
+from ..samples import (
     AutopilotParam,
     Heading,
     Implausible,
     NavStatus,
     PathTarget,
     Position,
+    Scan,
     Throttle,
 )
-from .telemetry import Telemetry
+from ..telemetry import Telemetry
 
 # a silence longer than this between two ops is a clock jump (closed up, listed): a replay never steps
 # through hours of nothing, and a corrupt timestamp near 2⁶⁴ µs cannot make it hang
@@ -195,6 +198,10 @@ class LogIn:
             return self._range(t, *args)
         if op == "bins":
             bearings, ranges, max_m, inc, north_aligned = args
+            known = ~np.isnan(np.asarray(ranges, dtype=float))  # a NaN bin knows nothing: not free
+            bearings, ranges = np.asarray(bearings, dtype=float)[known], np.asarray(ranges, dtype=float)[known]
+            if not (math.isfinite(max_m) and max_m > 0):
+                max_m, bearings, ranges = 0.0, bearings[:0], ranges[:0]
             if north_aligned:  # MAV_FRAME_GLOBAL bins: rotated into the body frame, as MAVLink-in does
                 bearings = bearings - tel.yaw
             return [bins_scan(t, i, bearings, ranges, max_m, inc, self.cfg.sensors[i].max_range_m) for i in self._bins]
@@ -205,10 +212,13 @@ class LogIn:
         return []
 
     def _range(self, t: float, bearing: float, current: float, lo: float, hi: float, quality: int) -> list:
-        """The configured single-beam sensor looking along `bearing` (as MAVLink-in matches orientation)."""
+        """The configured single-beam sensor looking along `bearing` (as MAVLink-in matches orientation). A
+        reading or limit that is not a number (NaN, inf) is no reading: an invalid scan, unknown, never free."""
         for i in self._ranges:
             c = self.cfg.sensors[i]
             if abs((math.degrees(bearing) - c.orientation_deg + 180) % 360 - 180) < 1:
+                if not all(math.isfinite(v) for v in (current, lo, hi)):
+                    return [Scan(t, i, (), 0.0, 1)]
                 return [range_scan(t, i, math.radians(c.orientation_deg), current, lo, hi, quality, c.max_range_m)]
         return []
 
@@ -229,3 +239,17 @@ MAV_TYPES = {0: "generic", 1: "fixed wing", 2: "quadrotor", 3: "coaxial", 4: "he
              20: "VTOL tailsitter quadrotor", 21: "VTOL tiltrotor", 22: "VTOL quadplane", 29: "dodecarotor"}
 MULTIROTOR_TYPES = {2, 3, 4, 13, 14, 15, 29}
 VTOL_TYPES = {19, 20, 21, 22, 23, 24, 25}
+
+
+def not_multirotor(mav_type: int, path, said_by: str) -> None:
+    """One `ContractError` line when the MAV_TYPE a log states (`said_by`: where) is neither a multirotor, a
+    VTOL nor generic (0): the contract is for multirotors, and a fixed wing judged as one would be flagged
+    for speeds it flies by design."""
+    if mav_type in MULTIROTOR_TYPES or mav_type in VTOL_TYPES or mav_type == 0:
+        return
+    from contracts.errors import ContractError
+
+    kind = MAV_TYPES.get(mav_type, f"MAV_TYPE {mav_type}")
+    hint = "; a quadplane's own DataFlash log says when it flew as a multirotor: review that" if mav_type == 1 else ""
+    raise ContractError(f"{path}: a {'fixed-wing' if mav_type == 1 else kind} log ({said_by} type {mav_type}, {kind}): "
+                        f"the contract is for multirotors; not reviewed{hint}")

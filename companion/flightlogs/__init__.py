@@ -1,0 +1,163 @@
+"""The ground side's one flight-log input: which reader takes which file, and the bounds every reader runs in.
+
+| suffix | format                     | read into (this package)            | replayed by (this package)  |
+|--------|----------------------------|-------------------------------------|-----------------------------|
+| .ulg   | PX4 ULog                   | `ulog.read_ulog` → `loginput` ops   | `logreplay.replay_ulog`     |
+| .bin   | ArduPilot DataFlash        | `dataflash.read_dataflash` → ops    | `logreplay.replay_dataflash`|
+| .tlog  | MAVLink ground-station log | `tlog.scan_tlog` (packets)          | `tlog.replay_tlog`          |
+| other  | contract-guard event log   | `companion.eventlog.read_events`    | — (reviewed as it is)       |
+
+Both replays step the shadow daemon with one loop (`tlog.in_log_time`). `review`, the multi-flight review and `calibrate` all go through `replay_log` / `read_feed` here, so every
+file is bounded alike: a regular file (not a device, a pipe or a link to one) of at most `MAX_BYTES`, at
+most `MAX_SAMPLES` samples, nested formats at most `MAX_DEPTH` deep (the ULog reader's own check), and at
+most `MAX_SECONDS` of wall time. A damaged file is one `ContractError` line — never a traceback — and
+nothing a reader prints reaches stdout (where `--json` writes its one JSON document).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import io
+import os
+import re
+import signal
+import stat
+import threading
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from contracts.errors import ContractError
+
+MAX_BYTES = 1 << 30  # 1 GiB: about a day of a ground station's telemetry, hours of a PX4 log at full rate
+MAX_SAMPLES = 5_000_000  # ops or packets of one log (≈ 5 h of a 250 message/s link)
+MAX_DEPTH = 8  # nesting of a ULog's formats (PX4's deepest is 2)
+MAX_FIELDS = 100_000  # fields of one ULog topic once its nested formats are flattened (PX4's largest: < 2 000)
+MAX_SECONDS = 600.0  # reading and replaying one log
+
+
+@dataclass(frozen=True)
+class Format:
+    name: str
+    replay: str  # "module:function" (path, log_dir, *, config, vehicle, table) -> review.Origin
+    feed: str  # "module:function" (path) -> Feed, or (Feed, mode commands), for calibrate
+
+
+FORMATS = {
+    ".tlog": Format("MAVLink tlog", "companion.flightlogs.tlog:replay_tlog", "companion.calibrate:tlog_feed"),
+    ".ulg": Format("PX4 ULog", "companion.flightlogs.logreplay:replay_ulog", "companion.flightlogs.ulog:read_ulog"),
+    ".bin": Format("ArduPilot DataFlash", "companion.flightlogs.logreplay:replay_dataflash",
+                   "companion.flightlogs.dataflash:read_dataflash"),
+}
+RAW_LOGS = {suffix: f.replay for suffix, f in FORMATS.items()}
+
+
+# C0 controls but tab and newline, DEL, C1 controls (ESC sequences, a carriage return overwriting a line) and
+# Unicode's bidirectional overrides (text shown in another order than it is)
+_CONTROL = re.compile("[\x00-\x08\x0b-\x1f\x7f-\x9f\u202a-\u202e\u2066-\u2069]")
+
+
+def for_terminal(text: str) -> str:
+    """`text` with every control character a log could carry to the terminal shown as "?" (a log's strings —
+    its hardware name, a status text, its file name — must not move the cursor, recolour or hide a line)."""
+    return _CONTROL.sub("?", text)
+
+
+def format_of(path) -> Format | None:
+    """The raw-log format of `path` by its suffix (None: an event log or another file)."""
+    return FORMATS.get(Path(path).suffix.lower())
+
+
+def _function(spec: str):
+    module, name = spec.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def check_file(path, what: str = "a flight log") -> Path:
+    """`path` if it is a regular file of at most MAX_BYTES; else one `ContractError` line. A device such as
+    /dev/zero, a pipe, or a link to one is refused before a byte is read (it never ends)."""
+    path = Path(path)
+    try:
+        st = os.stat(path)  # follows a link: what would be read
+    except FileNotFoundError:
+        raise ContractError(f"no such file or directory: {path}") from None
+    except OSError as err:
+        raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ContractError(f"{path} is a directory, not {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise ContractError(f"{path}: not a regular file (a device, pipe or socket), not {what}")
+    if st.st_size > MAX_BYTES:
+        raise ContractError(f"{path}: {st.st_size / 2**20:.0f} MiB, larger than the {MAX_BYTES / 2**20:.0f} MiB a "
+                            "flight log may be: not read (split it, or review the part that matters)")
+    return path
+
+
+class _Timeout(BaseException):
+    """Raised in the reading thread by the wall-time bound (a BaseException: no reader's `except
+    Exception` swallows it)."""
+
+
+@contextlib.contextmanager
+def time_bound(seconds: float):
+    """Raise `_Timeout` in the block after `seconds` of wall time (SIGALRM: only in the main thread; in
+    another thread the block runs unbounded, as there is no safe way to stop it there)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
+        yield
+        return
+
+    def _alarm(signum, frame):
+        raise _Timeout
+
+    old = signal.signal(signal.SIGALRM, _alarm)
+    left, _ = signal.getitimer(signal.ITIMER_REAL)  # an enclosing bound's time left (0: none)
+    t0 = time.monotonic()
+    signal.setitimer(signal.ITIMER_REAL, seconds if not left else min(seconds, left))
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+        if left:  # the enclosing bound runs on (at once if it has expired meanwhile)
+            signal.setitimer(signal.ITIMER_REAL, max(1e-3, left - (time.monotonic() - t0)))
+
+
+def guarded(path, what: str, fn, *args, **kw):
+    """`fn(*args, **kw)` on the log at `path` within the bounds: a file check first, MAX_SECONDS of wall
+    time, anything printed kept off stdout, and any failure one `ContractError` line naming the file."""
+    path = Path(path)
+    if not path.is_dir():  # an event log's folder: its files are checked by the caller
+        check_file(path, what)
+    try:
+        with time_bound(MAX_SECONDS), contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numpy on damaged columns: what counts is said as damage or one line
+            return fn(*args, **kw)
+    except ContractError:
+        raise
+    except _Timeout:
+        raise ContractError(f"{path}: not read: reading and replaying it took longer than {MAX_SECONDS:g} s") from None
+    except MemoryError:
+        raise ContractError(f"{path}: not read: it needs more memory than this machine has") from None
+    except (RecursionError, Exception) as err:  # noqa: BLE001 — a reader tripped on damaged bytes: one line
+        raise ContractError(f"{path}: unreadable {what} ({type(err).__name__}: {str(err)[:120]})") from None
+
+
+def replay_log(path, log_dir: Path, **kw):
+    """Replay a raw log into an event log in `log_dir` (`review.Origin` of what it was made from), by the
+    replayer `RAW_LOGS` names for its suffix."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in RAW_LOGS:
+        raise ContractError(f"{path}: not a raw flight log ({', '.join(RAW_LOGS)})")
+    what = FORMATS[suffix].name if suffix in FORMATS else f"{suffix} log"
+    return guarded(path, what, _function(RAW_LOGS[suffix]), path, log_dir, **kw)
+
+
+def read_feed(path):
+    """(Feed, mode commands) of a raw log for calibrate."""
+    fmt = format_of(path)
+    if fmt is None:
+        raise ContractError(f"{path}: calibrate reads {', '.join(FORMATS)} flight logs")
+    got = guarded(path, fmt.name, _function(fmt.feed), Path(path))
+    return got if isinstance(got, tuple) else (got, [])
