@@ -55,6 +55,9 @@ def row(path: Path, rep: dict | None, error: str | None) -> dict:
         return {"log": str(path), "ok": None, "error": error}
     src = rep.get("flight_log") or rep.get("replay") or {}
     veh, fw = src.get("vehicle"), src.get("firmware") or {}
+    if not fw and isinstance(src.get("autopilot"), dict):  # a .tlog: the autopilot family its HEARTBEAT named
+        fw = {"name": {"px4": "PX4", "ardupilot": "ArduPilot"}.get(src["autopilot"].get("kind"),
+                                                                  src["autopilot"].get("kind"))}
     e_tr = src.get("e_tr") or {}
     return {
         "log": str(path), "ok": rep["ok"], "error": None,
@@ -140,6 +143,31 @@ def _page(title: str, body: str) -> str:
             f"<style>{STYLE}</style></head><body>{body}</body></html>\n")
 
 
+PLOTS = (("plan.png", "Plan view"), ("review.png", "Over time"))
+
+
+def _flight_page(page: Path, rep: dict, text: str, name: str, back: str | None = None) -> None:
+    """One flight's page: the verdict and findings, its plots (plan view first, embedded) and the report."""
+    imgs = "".join(f"<h2>{title}</h2><img alt='{title.lower()}' src='data:image/png;base64,"
+                   f"{base64.b64encode((page.parent / png).read_bytes()).decode()}'>"
+                   for png, title in PLOTS if (page.parent / png).exists()) or "<p>no plot</p>"
+    findings = "".join(f"<li>{html.escape(x)}</li>" for x in rep["findings"]) or "<li>none</li>"
+    verdict = "<p class='ok'>contract kept</p>" if rep["ok"] else "<p class='bad'>REVIEW NEEDED</p>"
+    page.write_text(_page(f"review — {name}", (f"<p><a href='{back}'>← all flights</a></p>" if back else "")
+                          + f"<h1>{html.escape(name)}</h1>{verdict}<h2>Findings</h2><ul>{findings}</ul>{imgs}"
+                          f"<h2>Report</h2><pre>{html.escape(text)}</pre>"))
+
+
+def write_flight_page(out: Path, rep: dict, text: str, name: str) -> str:
+    """`review.html` in `out` for one flight reviewed on its own (beside its PNGs, CSV and JSON)."""
+    page = Path(out) / "review.html"
+    try:
+        _flight_page(page, rep, text, name)
+    except OSError as err:
+        raise ContractError(f"cannot write the review to {out}: {err.strerror or err}") from err
+    return str(page)
+
+
 def write_html(result: dict, texts: list[str], out: Path) -> dict:
     """`index.html` (the summary table) and one page per flight (report text and its plot, embedded)."""
     try:
@@ -150,15 +178,7 @@ def write_html(result: dict, texts: list[str], out: Path) -> dict:
             if f["error"]:
                 rows.append(f"<tr><td>{name}</td><td colspan='7' class='bad'>not reviewed: {html.escape(f['error'])}</td></tr>")
                 continue
-            page = out / f["page"]
-            png = page.parent / "review.png"
-            img = (f"<img alt='review plot' src='data:image/png;base64,{base64.b64encode(png.read_bytes()).decode()}'>"
-                   if png.exists() else "<p>no plot</p>")
-            findings = "".join(f"<li>{html.escape(x)}</li>" for x in f["report"]["findings"]) or "<li>none</li>"
-            page.write_text(_page(f"review — {Path(f['log']).name}",
-                                  f"<p><a href='../../index.html'>← all flights</a></p><h1>{name}</h1>"
-                                  f"<h2>Findings</h2><ul>{findings}</ul><h2>Plot</h2>{img}"
-                                  f"<h2>Report</h2><pre>{html.escape(text)}</pre>"))
+            _flight_page(out / f["page"], f["report"], text, Path(f["log"]).name, back="../../index.html")
             verdict = "<span class='ok'>kept</span>" if f["ok"] else "<span class='bad'>REVIEW NEEDED</span>"
             modes = ", ".join(f"{html.escape(k)} {v:g} s" for k, v in f["mode_time_s"].items())
             rows.append(f"<tr><td><a href='{f['page']}'>{name}</a></td><td>{html.escape(str(f.get('vehicle') or '?'))}<br>"
