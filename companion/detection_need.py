@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterable
 
 from contracts.errors import ContractError
 
@@ -109,10 +110,11 @@ def _num(x):
     return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) else None
 
 
-def detection_need(samples: list[tuple], columns: tuple, table, sensor: Sensor | None = None,
+def detection_need(samples: Iterable[tuple], columns: tuple, table, sensor: Sensor | None = None,
                    gap_s: float = 1.0) -> dict:
     """The required detection range over the flight (per stretch and its worst), the share of the flown time
-    the usual sensors' ranges cover, and with `sensor` the limits it would have set and their cost."""
+    the usual sensors' ranges cover, and with `sensor` the limits it would have set and their cost.
+    `samples`: rows in `columns` order, read once (a generator will do)."""
     col = {k: columns.index(k) for k in ("boot", "t", "ground_speed", "contract", "r_obst", "e_tr_measured",
                                           "thrust_ratio", "x", "y")}
     look = Lookup(table)
@@ -248,7 +250,7 @@ def _findings(out: dict) -> list[str]:
     return lines
 
 
-def for_report(rep: dict, samples: list[tuple], columns: tuple, sensor: Sensor | None, gap_s: float) -> dict | None:
+def for_report(rep: dict, samples: Iterable[tuple], columns: tuple, sensor: Sensor | None, gap_s: float) -> dict | None:
     """`detection_need` with the table the log's daemon run used (its `start` event: the table file, else the
     vehicle's shipped one); None when there is none to load (the finding says so)."""
     from contracts.table import load_for_vehicle

@@ -630,12 +630,14 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
     `origin`: what a converter made the log from (its section and findings join the report). A log without
     obstacle data gets the detection range it needed (`companion.detection_need`; `sensor`: an assumed one).
     `collisions`: a simulator's truth, [{t, x, y, what}] (the daemon cannot know them), marked on the plots."""
-    rep, samples = analyse(_log_files(paths), gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=True,
+    files = _log_files(paths)
+    rep, samples = analyse(files, gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=out_dir is not None,
                            origin=origin)
     if not rep["obstacle_data"] and rep["state_samples"]:
         from .detection_need import for_report
 
-        rep["detection_need"] = for_report(rep, samples, CSV_COLUMNS, sensor, gap_s)
+        rows = samples if samples is not None else (_row(r) for r in read_events(files) if _is_state(r))  # 2nd pass
+        rep["detection_need"] = for_report(rep, rows, CSV_COLUMNS, sensor, gap_s)
         conclude(rep, origin.findings() if origin else ())
     if collisions:
         rep["marks"]["collisions"] = [{"t": _num(c.get("t")), "x": _num(c.get("x")), "y": _num(c.get("y")),
@@ -654,8 +656,8 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2
 
     def records():
         for rec in reader:
-            if samples is not None and isinstance(rec, dict) and rec.get("kind") == "state":
-                samples.append(tuple(rec.get(k) for k in CSV_COLUMNS))  # a row, not the dict: 1 h at 50 Hz fits
+            if samples is not None and _is_state(rec):
+                samples.append(_row(rec))  # a row, not the dict: 1 h at 50 Hz fits
             yield rec
 
     try:
@@ -670,6 +672,15 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2
     if origin is not None:
         rep[origin.key] = finite_copy(origin.info)
     return conclude(rep, origin.findings() if origin else ()), samples
+
+
+def _is_state(rec) -> bool:
+    return isinstance(rec, dict) and rec.get("kind") == "state"
+
+
+def _row(rec: dict) -> tuple:
+    """A state record as a row in `CSV_COLUMNS` order."""
+    return tuple(rec.get(k) for k in CSV_COLUMNS)
 
 
 def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = "") -> dict:
