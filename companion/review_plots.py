@@ -43,6 +43,7 @@ POINT_STYLE = {
 }
 TITLE_PT = 11.0
 MIN_HALF_SPAN_M = 5.0  # the plan view shows at least 10 m × 10 m
+HEADING_SPEED = 0.5  # m/s: below this the velocity's direction is noise; the last one above it stands
 
 
 def _num(x):
@@ -287,14 +288,16 @@ def plan_figure(rep: dict, samples: list[tuple], columns: tuple, title: str) -> 
 
 
 def _obstacles(ax, rows, col, handles) -> None:
-    """The hits (`obstacle_m` along the direction of travel), and per obstacle (hits within 2 m of each other)
+    """The hits (`obstacle_m` along the direction of travel, the last one flown above `HEADING_SPEED`; the event
+    log has no heading), and per obstacle (hits within 2 m of each other)
     the obstacle (R_obst) and its keep-out disc (R_obst + E_tr) where the vehicle came closest."""
-    hits = []
+    hits, u = [], None
     for r in rows:
         ob, vx, vy = _num(r[col["obstacle_m"]]), _num(r[col["vx"]]), _num(r[col["vy"]])
-        if ob is None or vx is None or vy is None or math.hypot(vx, vy) < 0.1:
+        if vx is not None and vy is not None and math.hypot(vx, vy) >= HEADING_SPEED:
+            u = (vy / math.hypot(vx, vy), vx / math.hypot(vx, vy))  # (east, north) unit vector of travel
+        if ob is None or u is None:  # slower (braking, hovering): the last direction travelled
             continue
-        u = (vy / math.hypot(vx, vy), vx / math.hypot(vx, vy))  # (east, north) unit vector of travel
         pe, pn = float(r[col["y"]]), float(r[col["x"]])
         hits.append((ob, pe, pn, pe + ob * u[0], pn + ob * u[1], u, r))
     if not hits:

@@ -230,3 +230,55 @@ def test_the_plots_are_drawn_apart_from_the_daemon():
     code = ("import sys, companion.review, companion.daemon; "
             "assert not [m for m in sys.modules if m.startswith('matplotlib')], 'matplotlib loaded'")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+@pytest.fixture(scope="module")
+def governed(tmp_path_factory):
+    """A real lock-step governor flight (daemon, SITL, MAVLink bytes): the link drops at 8 s for 3 s (the
+    daemon holds, goes to failsafe, holds again), the ground station resumes the mission (a stand-down), and
+    the daemon holds before a column at 45 m."""
+    from companion.eventlog import read_events
+    from tests.lockstep import Rig
+    from tests.test_daemon_lockstep import column_scenario, fly
+
+    d = tmp_path_factory.mktemp("governed")
+    log = EventLog(d / "log", fsync_events=False)
+    rig = Rig(column_scenario(1, x_col=45.0, cruise=4.0, faults=[{"at_s": 8.0, "link_dropout_s": 3.0}]), "px4",
+              log=log)
+    fly(rig, 14.0)
+    rig.command(176, 1 | 128, 4, 4)  # the ground station: PX4 AUTO.MISSION
+    rig.run(25.0)
+    log.close()
+    records = list(read_events(d / "log" / "events.jsonl"))
+    rep, samples = analyse([d / "log" / "events.jsonl"], keep_samples=True)
+    return records, rep, samples
+
+
+def test_a_governed_flights_holds_failsafes_and_stand_down_are_marked_where_the_daemon_logged_them(governed):
+    records, rep, samples = governed
+    ev = [r for r in records if r.get("kind") == "event"]
+    holds = [e["t"] for e in ev if e["event"] == "command" and e.get("cmd") == "hold"]
+    lost = [e["t"] for e in ev if e["event"] == "state_change" and e["to"] == "failsafe"]
+    down = [e["t"] for e in ev if e["event"] == "link" and e["status"] == "down"]
+    others = [e["t"] for e in ev if e["event"] == "mode_change" and e["by"] == "other" and e["t"] > 12.0]
+    assert holds and lost and down and others  # the flight did what the fixture says
+    m = rep["marks"]
+    starts = [s["start_t"] for s in m["holds"]]
+    assert all(any(abs(h - s) < 0.05 for s in starts) for h in holds), (holds, starts)
+    assert [s["start_t"] for s in m["failsafe_states"]] == lost and [s["start_t"] for s in m["link_down"]] == down
+    assert [p["t"] for p in m["stand_downs"]] == others[:1]
+    # main: `failsafes` counted only the failsafe events, not the link loss
+    n_events = sum(e["event"] == "failsafe" for e in ev)
+    assert rep["failsafe_count"] == n_events + len(lost)
+    fig = rp.time_figure(rep, samples, CSV_COLUMNS, plot_title(rep))
+    for ax in [a for a in fig.axes if a.get_ylabel()]:
+        got = artists(ax)
+        for kind, t in [("hold", h) for h in starts] + [("failsafe_state", lost[0]), ("link_down", down[0]),
+                                                         ("stand_down", others[0]), ("failsafe", lost[0])]:
+            assert any(g == kind and lo == pytest.approx(t) for g, lo, _ in got), (ax.get_ylabel(), kind, t)
+    plan = rp.plan_figure(rep, samples, CSV_COLUMNS, "plan").axes[0]
+    gids = {a.get_gid() for a in [*plan.lines, *plan.patches]}
+    assert {"mark:hold", "mark:failsafe", "mark:link_down", "mark:stand_down", "mark:closest", "plan:keep_out"} <= gids
+    # the obstacle is drawn where the column is (north 45 m, on the path), not behind the braking vehicle
+    discs = [p for p in plan.patches if p.get_gid() == "plan:obstacle"]
+    assert discs and all(abs(p.center[0]) < 0.5 and 44.0 < p.center[1] < 47.0 for p in discs)
