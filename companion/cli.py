@@ -416,13 +416,7 @@ def cmd_review(args) -> int:
         return 0 if result["ok"] or not args.strict else 1
     rep, origin = review_log(args.log, args.out, config=args.config, vehicle=args.vehicle, table=args.table,
                              sensor=args.assume_sensor)
-    text = format_report(rep, origin)
-    if args.out is not None:  # one flight gets its HTML page too
-        from .reviewset import write_flight_page
-
-        rep["outputs"]["html"] = write_flight_page(args.out, rep, text, Path(args.log[0]).name)
-        text = format_report(rep, origin)
-    _emit(rep, args.json, text)
+    _emit(rep, args.json, format_report(rep, origin))
     return 0 if rep["ok"] or not args.strict else 1
 
 
@@ -562,7 +556,7 @@ def build_parser() -> argparse.ArgumentParser:
     rv.add_argument("--vehicle", help="raw log: vehicle file or shipped name (overrides the config's)")
     rv.add_argument("--table", type=Path,
                     help="raw log: Γ table (default: the config's, else the vehicle's shipped one)")
-    rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here "
+    rv.add_argument("--out", type=Path, help="write review.html, plan.png, review.png, samples.csv and review.json here "
                     "(and, for a raw log, the replayed event log replay-events.jsonl; for several, index.html and a page each)")
     rv.add_argument("--assume-sensor", metavar="RANGE_M[,FOV_DEG]", type=_sensor,
                     help="a log without obstacle data: the speed limits a forward sensor of this range (and field "

@@ -645,6 +645,9 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
         conclude(rep, origin.findings() if origin else ())
     if out_dir is not None:
         rep["outputs"] = write_outputs(rep, samples, Path(out_dir), origin.title() if origin else "")
+        from .reviewset import write_flight_page
+
+        write_flight_page(Path(out_dir), rep, format_report(rep, origin), Path(rep["files"][0]).name)
     return rep
 
 
@@ -695,7 +698,8 @@ def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = ""
                 w.writerow([_cell(v) for v in row])
         png_path = out_dir / "review.png"
         json_path = out_dir / "review.json"
-        outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path)}
+        outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path),
+                   "html": str(out_dir / "review.html")}  # the page `review` writes once the report is whole
         missing = missing_plot_extra()
         if missing:  # the report, CSV and JSON without the plot; said in one line
             png_path.unlink(missing_ok=True)

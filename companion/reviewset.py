@@ -91,7 +91,7 @@ def review_set(paths, suffixes, review_one, out_dir: Path | None = None) -> dict
             flights.append(row(path, None, str(err)))
             texts.append(f"contract-guard review: {path}\n  not reviewed: {err}")
             continue
-        flights.append({**row(path, rep, None), "page": f"flights/{name}/index.html", "report": rep})
+        flights.append({**row(path, rep, None), "page": f"flights/{name}/review.html", "report": rep})
         texts.append(format_report(rep, origin))
     result = {"schema": SCHEMA, "flights": flights, "ok": all(f["ok"] for f in flights)}
     if out_dir is not None:
@@ -178,6 +178,7 @@ def write_html(result: dict, texts: list[str], out: Path) -> dict:
             if f["error"]:
                 rows.append(f"<tr><td>{name}</td><td colspan='7' class='bad'>not reviewed: {html.escape(f['error'])}</td></tr>")
                 continue
+            # the flight's own page, again with its way back to the table
             _flight_page(out / f["page"], f["report"], text, Path(f["log"]).name, back="../../index.html")
             verdict = "<span class='ok'>kept</span>" if f["ok"] else "<span class='bad'>REVIEW NEEDED</span>"
             modes = ", ".join(f"{html.escape(k)} {v:g} s" for k, v in f["mode_time_s"].items())
