@@ -71,7 +71,19 @@ def row(path: Path, rep: dict | None, error: str | None) -> dict:
         "e_tr_measured_max_m": e_tr.get("measured_max_m", rep["ranges"]["e_tr_measured"]["max"]),
         "e_tr_contract_m": e_tr.get("used_at_max_m", rep["ranges"]["e_tr"]["max"]),
         "findings": len(rep["findings"]),
+        "obstacle_data": rep.get("obstacle_data", True),
+        # no obstacle data: the detection range the flight needed at its worst (None: faster than any range allows)
+        "d_od_needed_m": ((rep.get("detection_need") or {}).get("worst") or {}).get("d_od_m"),
     }
+
+
+def need_text(f: dict) -> str:
+    """The index's word on obstacle data: `sensed`, or the detection range the flight needed without it."""
+    if f.get("obstacle_data", True):
+        return "sensed"
+    if f.get("d_od_needed_m") is None:
+        return "no data; needed: —"
+    return f"no data; needed ≤ {f['d_od_needed_m']:.1f} m"
 
 
 def review_set(paths, suffixes, review_one, out_dir: Path | None = None) -> dict:
@@ -128,7 +140,8 @@ def summary_lines(result: dict) -> list[str]:
                      f"{f['outside_contract_s']:>6.1f} {etr:>19} {f['findings']:>8}  "
                      + ("kept" if f["ok"] else "REVIEW NEEDED"))
         modes = ", ".join(f"{k} {v:g} s" for k, v in f["mode_time_s"].items())
-        lines.append(f"{'':<44} {f.get('vehicle') or '?'}, {f.get('firmware') or '?'}; modes: {modes or '—'}")
+        lines.append(f"{'':<44} {f.get('vehicle') or '?'}, {f.get('firmware') or '?'}; modes: {modes or '—'}; "
+                     f"obstacles: {need_text(f)}")
     return lines
 
 
@@ -176,7 +189,7 @@ def write_html(result: dict, texts: list[str], out: Path) -> dict:
         for f, text in zip(result["flights"], texts):
             name = html.escape(Path(f["log"]).name)
             if f["error"]:
-                rows.append(f"<tr><td>{name}</td><td colspan='7' class='bad'>not reviewed: {html.escape(f['error'])}</td></tr>")
+                rows.append(f"<tr><td>{name}</td><td colspan='8' class='bad'>not reviewed: {html.escape(f['error'])}</td></tr>")
                 continue
             # the flight's own page, again with its way back to the table
             _flight_page(out / f["page"], f["report"], text, Path(f["log"]).name, back="../../index.html")
@@ -186,9 +199,10 @@ def write_html(result: dict, texts: list[str], out: Path) -> dict:
                         f"{html.escape(str(f.get('firmware') or '?'))}</td><td>{_fmt(f['duration_s'], ' s')}</td>"
                         f"<td>{modes}</td><td>{_fmt(f['gamma_max'])}</td><td>{f['outside_contract_s']:.1f}</td>"
                         f"<td>{_fmt(f['e_tr_measured_max_m'])} / {_fmt(f['e_tr_contract_m'])}</td>"
-                        f"<td>{f['findings']}</td><td>{verdict}</td></tr>")
+                        f"<td>{html.escape(need_text(f))}</td><td>{f['findings']}</td><td>{verdict}</td></tr>")
         head = ("<tr><th>flight</th><th>vehicle, firmware</th><th>duration</th><th>time in mode</th><th>max Γ [m/s]</th>"
-                "<th>Γ &gt; 0 [s]</th><th>E_tr measured / contract [m]</th><th>findings</th><th>verdict</th></tr>")
+                "<th>Γ &gt; 0 [s]</th><th>E_tr measured / contract [m]</th><th>obstacle data</th><th>findings</th>"
+                "<th>verdict</th></tr>")
         index = out / "index.html"
         index.write_text(_page("contract-guard review", f"<h1>contract-guard review: {len(result['flights'])} flight(s)</h1>"
                                f"<table>{head}{''.join(rows)}</table>"))

@@ -144,6 +144,12 @@ def test_the_real_arducopter_log_says_what_range_it_needed_and_what_a_sensor_cos
     text = format_report(rep, origin)
     assert "Detection range needed" in text and "stretches" in text
     assert (tmp_path / "out" / "plan.png").exists() and (tmp_path / "out" / "review.png").exists()
+    # the index of many flights says it too, with the .tlog's autopilot family as its firmware
+    from companion.reviewset import need_text, row
+
+    r = row(ARDUCOPTER, rep, None)
+    assert r["firmware"] == "ArduPilot" and r["d_od_needed_m"] == w["d_od_m"]
+    assert need_text(r) == f"no data; needed ≤ {w['d_od_m']:.1f} m"
 
 
 @needs_px4
