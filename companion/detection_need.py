@@ -75,8 +75,10 @@ class Lookup:
         self._d: dict[tuple, float] = {}
 
     def key(self, contract, r_obst, e_tr, thrust_ratio) -> tuple:
+        """The lookup's inputs rounded the safe way (thrust not below the table's lowest: `thrust_ratio` ≥ it)."""
+        lo = self.table.vehicle.thrust_ratio_range[0]
         return (contract if contract in ("stop", "avoid") else "stop", _up(r_obst, 0.05), _up(e_tr, 0.05),
-                _down(thrust_ratio, 0.02))
+                max(_down(thrust_ratio, 0.02), lo))
 
     def v_max(self, d_od: float, key: tuple) -> float:
         k = (round(d_od, 3), key)
@@ -119,6 +121,7 @@ def detection_need(samples: Iterable[tuple], columns: tuple, table, sensor: Sens
                                           "thrust_ratio", "x", "y")}
     look = Lookup(table)
     lo_thrust = table.vehicle.thrust_ratio_range[0]
+    weak = {"s": 0.0, "thrust_ratio": None}  # flown below the table's thrust range: no range suffices there
     flown_s = 0.0
     need_time: list[tuple[float, float]] = []  # (required d_od, dt) over flown time
     stretches: dict[int, dict] = {}
@@ -148,11 +151,16 @@ def detection_need(samples: Iterable[tuple], columns: tuple, table, sensor: Sens
         e_tr = _num(prow[col["e_tr_measured"]]) or 0.0
         if thrust is None or r_obst is None:
             continue
-        key = look.key(prow[col["contract"]], r_obst, e_tr, max(thrust, lo_thrust))
         flown_s += dt
-        need = look.needed(pv, key)
         t0 = p[1]
-        if math.isinf(need):
+        if thrust < lo_thrust:  # no safe speed below the table's thrust: no range suffices (never optimistic)
+            weak["s"] += dt
+            weak["thrust_ratio"] = thrust if weak["thrust_ratio"] is None else min(weak["thrust_ratio"], thrust)
+            need, key = math.inf, None
+        else:
+            key = look.key(prow[col["contract"]], r_obst, e_tr, thrust)
+            need = look.needed(pv, key)
+        if math.isinf(need) and key is not None:
             beyond["s"] += dt
             beyond["v_max"] = max(beyond["v_max"] or 0.0, pv)
         need_time.append((need, dt))
@@ -164,7 +172,7 @@ def detection_need(samples: Iterable[tuple], columns: tuple, table, sensor: Sens
         if need >= st["d_od_m"]:
             st["d_od_m"], st["ground_speed"], st["at_t"] = need, max(st["ground_speed"], pv), t0
         if sensor is not None:
-            lim = look.v_max(sensor.range_m, key)
+            lim = 0.0 if key is None else look.v_max(sensor.range_m, key)
             cost["limit_min"] = lim if cost["limit_min"] is None else min(cost["limit_min"], lim)
             cost["limit_max"] = lim if cost["limit_max"] is None else max(cost["limit_max"], lim)
             if pv > lim:
@@ -183,7 +191,8 @@ def detection_need(samples: Iterable[tuple], columns: tuple, table, sensor: Sens
         "flown_s": flown_s, "min_speed_m_s": MIN_SPEED, "stretch_s": STRETCH_S,
         "table": str(getattr(table, "path", "") or ""), "vehicle": table.vehicle.name,
         "worst": _finite(worst), "quantiles_m": {}, "coverage": [], "beyond_table_s": beyond["s"],
-        "beyond_table_speed_m_s": beyond["v_max"], "table_top_speed_m_s": look.v_max(D_MAX, look.key("stop", 0, 0, 1)),
+        "beyond_table_speed_m_s": beyond["v_max"], "below_thrust_s": weak["s"],
+        "below_thrust_ratio": weak["thrust_ratio"], "thrust_ratio_min": lo_thrust, "table_top_speed_m_s": look.v_max(D_MAX, look.key("stop", 0, 0, 1)),
         "stretches": [_finite(s) for s in sorted(stretches.values(), key=lambda s: s["start_t"])],
     }
     if need_time:
@@ -220,10 +229,10 @@ def _findings(out: dict) -> list[str]:
     q = out["quantiles_m"]
 
     def m(x):
-        return "more than any range (faster than the table's speeds)" if x is None else f"{x:.1f} m"
+        return "more than any range" if x is None else f"{x:.1f} m"
 
     cover = ", ".join(f"{c['range_m']:g} m covers {100 * c['share']:.0f} %" for c in out["coverage"])
-    worst = "no range: faster than the table's top speed" if w["d_od_m"] is None else f"{w['d_od_m']:.1f} m"
+    worst = "more than any range (see below)" if w["d_od_m"] is None else f"{w['d_od_m']:.1f} m"
     lines.append(f"detection range this flight needed under the {out['vehicle']} contract: median {m(q.get('0.5'))}, "
                  f"90 % of the {out['flown_s']:.0f} s flown {m(q.get('0.9'))}, worst {worst} at t = {w['t']:.1f} s "
                  f"({w['ground_speed']:.2f} m/s); of the flown time {cover}")
@@ -231,6 +240,10 @@ def _findings(out: dict) -> list[str]:
         lines.append(f"{out['beyond_table_s']:.1f} s flown faster (up to {out['beyond_table_speed_m_s']:.2f} m/s) than "
                      f"the table's top speed {out['table_top_speed_m_s']:.2f} m/s: no sensor makes that inside "
                      "this table's contract")
+    if out["below_thrust_s"] > 0:
+        lines.append(f"{out['below_thrust_s']:.1f} s flown with thrust_ratio down to {out['below_thrust_ratio']:.2f}, "
+                     f"below the table's {out['thrust_ratio_min']:.2f}: the contract has no safe speed there, with any "
+                     "sensor")
     s = out.get("sensor")
     if s is not None:
         what = Sensor(s["range_m"], s["fov_deg"]).describe()

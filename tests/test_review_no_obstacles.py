@@ -30,7 +30,7 @@ TABLE = load_for_vehicle("x500")
 R_OBST, E_TR, THRUST = 0.5, 0.3, 1.0
 
 
-def blind_flight(directory: Path, legs=((20.0, 3.0), (10.0, 6.0), (5.0, 0.0))) -> None:
+def blind_flight(directory: Path, legs=((20.0, 3.0), (10.0, 6.0), (5.0, 0.0)), thrust=THRUST) -> None:
     """Legs of (seconds, ground speed) at 10 Hz, D_od 0 and no obstacle (no sensor), as the daemon writes it."""
     log = EventLog(directory, fsync_events=False)
     log.event(0.0, "start", mode="shadow", vehicle="x500", table=str(TABLE.path))
@@ -39,7 +39,7 @@ def blind_flight(directory: Path, legs=((20.0, 3.0), (10.0, 6.0), (5.0, 0.0))) -
         for _ in range(int(round(dur * 10))):
             log.state(round(t, 3), state="standby", mode="mission", contract="stop", engaged=False, x=x, y=0.0,
                       z=-10.0, vx=v, vy=0.0, vz=0.0, ground_speed=v, d_od=0.0, e_tr=E_TR, e_tr_measured=E_TR,
-                      r_obst=R_OBST, thrust_ratio=THRUST, v_max=0.0, tilt_deg=35.0, v_safe=0.0, gamma=0.0,
+                      r_obst=R_OBST, thrust_ratio=thrust, v_max=0.0, tilt_deg=35.0, v_safe=0.0, gamma=0.0,
                       gamma_flown=v, v_cmd=None, obstacle_m=None)
             t, x = t + 0.1, x + 0.1 * v
     log.event(round(t, 3), "stop")
@@ -95,6 +95,16 @@ def test_an_assumed_sensor_gives_the_limits_and_the_time_they_cost(blind):
     assert s["extra_s"] == pytest.approx(10.0 * (6.0 / limit - 1.0), rel=0.02)
     line = next(x for x in rep["findings"] if x.startswith("with a 8 m / 60° field of view sensor"))
     assert f"{limit:.2f} m/s" in line and f"added {s['extra_s']:.0f} s" in line
+
+
+def test_thrust_below_the_tables_range_needs_more_than_any_range(tmp_path):
+    lo = TABLE.vehicle.thrust_ratio_range[0]
+    blind_flight(tmp_path, legs=((10.0, 2.0),), thrust=lo - 0.05)
+    need = review(tmp_path, sensor=Sensor(20.0))["detection_need"]
+    # never optimistic: no d_od gives a safe speed there, and an assumed sensor's limit is 0 (a hold)
+    assert need["below_thrust_s"] == pytest.approx(10.0, abs=0.15) and need["worst"]["d_od_m"] is None
+    assert need["sensor"]["limit_max"] == 0.0 and need["sensor"]["no_speed_s"] == pytest.approx(10.0, abs=0.15)
+    assert any("below the table's" in f for f in need["findings"])
 
 
 def test_a_log_with_obstacle_data_is_judged_as_before(tmp_path):
