@@ -126,10 +126,16 @@ def test_every_time_panel_carries_every_mark_where_it_happened(scripted):
 
 
 def title_inside(fig) -> bool:
+    """The title and the legend of marks inside the figure, and the title above every panel."""
     renderer = fig.canvas.get_renderer()
     fig.canvas.draw()
-    box, whole = fig._suptitle.get_window_extent(renderer), fig.bbox
-    return box.x0 >= whole.x0 and box.x1 <= whole.x1 and box.y1 <= whole.y1 and box.y0 >= whole.y0
+    whole = fig.bbox
+    for artist in [fig._suptitle, *fig.legends]:
+        box = artist.get_window_extent(renderer)
+        if not (box.x0 >= whole.x0 and box.x1 <= whole.x1 and box.y1 <= whole.y1 and box.y0 >= whole.y0):
+            return False
+    top = max(ax.get_tightbbox(renderer).y1 for ax in fig.axes)
+    return fig._suptitle.get_window_extent(renderer).y0 >= top - 1
 
 
 def test_titles_fit_inside_their_figures(scripted):
