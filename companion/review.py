@@ -35,11 +35,11 @@ from contracts.errors import ContractError
 
 from .eventlog import file_set, finite_copy, read_events
 from .logschema import LOG_FILE, STATE_FIELDS, SUBSYSTEMS
+from .review_html import PAGE, write_flight_page
 
 SCHEMA = "contract-guard/review"
 SCHEMA_VERSION = 1
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
-COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "e_tr", "e_tr_measured",
                 "thrust_ratio", "r_obst", "tilt_deg")
 OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
@@ -645,8 +645,6 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
         conclude(rep, origin.findings() if origin else ())
     if out_dir is not None:
         rep["outputs"] = write_outputs(rep, samples, Path(out_dir), origin.title() if origin else "")
-        from .reviewset import write_flight_page
-
         write_flight_page(Path(out_dir), rep, format_report(rep, origin), Path(rep["files"][0]).name)
     return rep
 
@@ -699,7 +697,7 @@ def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = ""
         png_path = out_dir / "review.png"
         json_path = out_dir / "review.json"
         outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path),
-                   "html": str(out_dir / "review.html")}  # the page `review` writes once the report is whole
+                   "html": str(out_dir / PAGE)}  # the page `review` writes once the report is whole
         missing = missing_plot_extra()
         if missing:  # the report, CSV and JSON without the plot; said in one line
             png_path.unlink(missing_ok=True)

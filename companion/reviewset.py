@@ -10,13 +10,14 @@ are still reviewed.
 
 from __future__ import annotations
 
-import base64
 import html
 import json
 import re
 from pathlib import Path
 
 from contracts.errors import ContractError
+
+from .review_html import PAGE, flight_page, page
 
 SCHEMA = "contract-guard/review-set"
 
@@ -103,7 +104,7 @@ def review_set(paths, suffixes, review_one, out_dir: Path | None = None) -> dict
             flights.append(row(path, None, str(err)))
             texts.append(f"contract-guard review: {path}\n  not reviewed: {err}")
             continue
-        flights.append({**row(path, rep, None), "page": f"flights/{name}/review.html", "report": rep})
+        flights.append({**row(path, rep, None), "page": f"flights/{name}/{PAGE}", "report": rep})
         texts.append(format_report(rep, origin))
     result = {"schema": SCHEMA, "flights": flights, "ok": all(f["ok"] for f in flights)}
     if out_dir is not None:
@@ -145,42 +146,6 @@ def summary_lines(result: dict) -> list[str]:
     return lines
 
 
-STYLE = ("body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse}"
-         "td,th{border:1px solid #bbb;padding:4px 8px;font-size:14px}th{background:#eee}.bad{color:#b00;font-weight:bold}"
-         ".ok{color:#070;font-weight:bold}pre{background:#f6f6f6;padding:1em;white-space:pre-wrap;font-size:13px}"
-         "img{max-width:100%;border:1px solid #ccc}")
-
-
-def _page(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{STYLE}</style></head><body>{body}</body></html>\n")
-
-
-PLOTS = (("plan.png", "Plan view"), ("review.png", "Over time"))
-
-
-def _flight_page(page: Path, rep: dict, text: str, name: str, back: str | None = None) -> None:
-    """One flight's page: the verdict and findings, its plots (plan view first, embedded) and the report."""
-    imgs = "".join(f"<h2>{title}</h2><img alt='{title.lower()}' src='data:image/png;base64,"
-                   f"{base64.b64encode((page.parent / png).read_bytes()).decode()}'>"
-                   for png, title in PLOTS if (page.parent / png).exists()) or "<p>no plot</p>"
-    findings = "".join(f"<li>{html.escape(x)}</li>" for x in rep["findings"]) or "<li>none</li>"
-    verdict = "<p class='ok'>contract kept</p>" if rep["ok"] else "<p class='bad'>REVIEW NEEDED</p>"
-    page.write_text(_page(f"review — {name}", (f"<p><a href='{back}'>← all flights</a></p>" if back else "")
-                          + f"<h1>{html.escape(name)}</h1>{verdict}<h2>Findings</h2><ul>{findings}</ul>{imgs}"
-                          f"<h2>Report</h2><pre>{html.escape(text)}</pre>"))
-
-
-def write_flight_page(out: Path, rep: dict, text: str, name: str) -> str:
-    """`review.html` in `out` for one flight reviewed on its own (beside its PNGs, CSV and JSON)."""
-    page = Path(out) / "review.html"
-    try:
-        _flight_page(page, rep, text, name)
-    except OSError as err:
-        raise ContractError(f"cannot write the review to {out}: {err.strerror or err}") from err
-    return str(page)
-
-
 def write_html(result: dict, texts: list[str], out: Path) -> dict:
     """`index.html` (the summary table) and one page per flight (report text and its plot, embedded)."""
     try:
@@ -192,7 +157,7 @@ def write_html(result: dict, texts: list[str], out: Path) -> dict:
                 rows.append(f"<tr><td>{name}</td><td colspan='8' class='bad'>not reviewed: {html.escape(f['error'])}</td></tr>")
                 continue
             # the flight's own page, again with its way back to the table
-            _flight_page(out / f["page"], f["report"], text, Path(f["log"]).name, back="../../index.html")
+            flight_page(out / f["page"], f["report"], text, Path(f["log"]).name, back="../../index.html")
             verdict = "<span class='ok'>kept</span>" if f["ok"] else "<span class='bad'>REVIEW NEEDED</span>"
             modes = ", ".join(f"{html.escape(k)} {v:g} s" for k, v in f["mode_time_s"].items())
             rows.append(f"<tr><td><a href='{f['page']}'>{name}</a></td><td>{html.escape(str(f.get('vehicle') or '?'))}<br>"
@@ -204,7 +169,7 @@ def write_html(result: dict, texts: list[str], out: Path) -> dict:
                 "<th>Γ &gt; 0 [s]</th><th>E_tr measured / contract [m]</th><th>obstacle data</th><th>findings</th>"
                 "<th>verdict</th></tr>")
         index = out / "index.html"
-        index.write_text(_page("contract-guard review", f"<h1>contract-guard review: {len(result['flights'])} flight(s)</h1>"
+        index.write_text(page("contract-guard review", f"<h1>contract-guard review: {len(result['flights'])} flight(s)</h1>"
                                f"<table>{head}{''.join(rows)}</table>"))
         js = out / "review-set.json"
         js.write_text(json.dumps(result, indent=1, default=str, allow_nan=False))

@@ -5,7 +5,6 @@ contract" everywhere. A scripted flight of known speeds, then the real ArduCopte
 
 from __future__ import annotations
 
-import math
 import subprocess
 import sys
 from pathlib import Path

@@ -6,8 +6,6 @@ HTML page for one log, the firmware of a .tlog, and failsafes counted where they
 
 from __future__ import annotations
 
-import json
-import math
 import subprocess
 import sys
 from pathlib import Path
@@ -15,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from companion.eventlog import EventLog
-from companion.review import CSV_COLUMNS, analyse, format_report, plot_title, review, summarise
+from companion.review import CSV_COLUMNS, analyse, format_report, plot_title, summarise
 
 mpl = pytest.importorskip("matplotlib")
 from companion import review_plots as rp  # noqa: E402
