@@ -40,6 +40,16 @@ def finite(text: str) -> float:
     return v
 
 
+def _sensor(text: str):
+    """An argparse type: `RANGE_M[,FOV_DEG]` (`companion.detection_need.Sensor`), one line when wrong."""
+    from .detection_need import Sensor
+
+    try:
+        return Sensor.parse(text)
+    except ContractError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
 def _emit(obj: dict, as_json: bool, text: str) -> None:
     """The result on stdout: JSON (its strings escaped by the encoder), or text stripped of control characters."""
     from .flightlogs import for_terminal
@@ -425,7 +435,7 @@ def raw_log_of(paths) -> Path | None:
 
 
 def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, gap_s: float = 1.0,
-               tolerance_m_s: float = 0.2):
+               tolerance_m_s: float = 0.2, sensor=None):
     """(report, origin) for event logs, or for one raw log replayed into an event log first (`origin`
     says what it was made from; None for an event log). `config`, `vehicle`, `table`: for the replay."""
     import shutil
@@ -446,7 +456,8 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
         for p in files:
             for f in file_set(p) if p.is_dir() else [p]:
                 check_file(f, "an event log")
-        return guarded(files[0], "event log", review, paths, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s), None
+        return guarded(files[0], "event log", review, paths, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s,
+                       sensor=sensor), None
     with tempfile.TemporaryDirectory(prefix="contract-guard-replay-", ignore_cleanup_errors=True) as work:
         log = Path(work) / LOG_FILE
         origin = replay_log(raw, Path(work), config=config, vehicle=vehicle, table=table)
@@ -458,7 +469,7 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
             except OSError as err:
                 raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
             origin.info["event_log"] = str(kept)
-        rep = review(log, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s, origin=origin)
+        rep = review(log, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s, origin=origin, sensor=sensor)
     return rep, origin
 
 
@@ -474,12 +485,14 @@ def cmd_review(args) -> int:
     raw = [] if event_logs else expand(args.log, RAW_LOGS)
     if len(raw) > 1 or (raw and any(Path(p).is_dir() for p in args.log)):
         result, texts = review_set(args.log, RAW_LOGS, lambda path, out: review_log(
-            path, out, config=args.config, vehicle=args.vehicle, table=args.table), args.out)
+            path, out, config=args.config, vehicle=args.vehicle, table=args.table, sensor=args.assume_sensor),
+            args.out)
         text = "\n".join(summary_lines(result) + [""] + texts
                           + [f"  wrote {k}: {v}" for k, v in result.get("outputs", {}).items()])
         _emit(result, args.json, text)
         return 0 if result["ok"] or not args.strict else 1
-    rep, origin = review_log(args.log, args.out, config=args.config, vehicle=args.vehicle, table=args.table)
+    rep, origin = review_log(args.log, args.out, config=args.config, vehicle=args.vehicle, table=args.table,
+                             sensor=args.assume_sensor)
     _emit(rep, args.json, format_report(rep, origin))
     return 0 if rep["ok"] or not args.strict else 1
 
@@ -656,8 +669,11 @@ def build_parser() -> argparse.ArgumentParser:
     rv.add_argument("--vehicle", help="raw log: vehicle file or shipped name (overrides the config's)")
     rv.add_argument("--table", type=Path,
                     help="raw log: Γ table (default: the config's, else the vehicle's shipped one)")
-    rv.add_argument("--out", type=Path, help="write review.png, samples.csv and review.json here "
+    rv.add_argument("--out", type=Path, help="write review.html, plan.png, review.png, samples.csv and review.json here "
                     "(and, for a raw log, the replayed event log replay-events.jsonl; for several, index.html and a page each)")
+    rv.add_argument("--assume-sensor", metavar="RANGE_M[,FOV_DEG]", type=_sensor,
+                    help="a log without obstacle data: the speed limits a forward sensor of this range (and field "
+                    "of view) would have set, and the time they would have cost (e.g. 10,60)")
     rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")
     rv.add_argument("--json", action="store_true", help=JSON)
     rv.set_defaults(func=cmd_review)

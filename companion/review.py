@@ -6,8 +6,10 @@
 turned into one by a converter (`companion.flightlogs.tlog` for a `.tlog`; `companion.cli` picks it), which hands
 over an `Origin` (its own report section and findings). With
 `out_dir`: `review.png` (speed limit and ground speed, Γ, `d_od`, `e_tr`, `thrust_ratio`, `r_obst` over
-time, violation spans shaded, failsafes marked), `samples.csv` and `review.json`. Bad or missing input
-ends in one `ContractError` line.
+time) and `plan.png` (the track from above), both drawn by `companion.review_plots` with holds, failsafes,
+stand-downs, link-down spans, collisions and violations marked, `samples.csv` and `review.json`. A log
+without obstacle data (D_od 0 throughout) is judged by the detection range it needed
+(`companion.detection_need`). Bad or missing input ends in one `ContractError` line.
 
 The record schema (state fields with units, events with their fields) is `companion.logschema`. The
 reader also takes what today's daemon does not write: `failsafe_clear` (cause, optional: clears that
@@ -33,11 +35,11 @@ from contracts.errors import ContractError
 
 from .eventlog import file_set, finite_copy, read_events
 from .logschema import LOG_FILE, STATE_FIELDS, SUBSYSTEMS
+from .review_html import PAGE, write_flight_page
 
 SCHEMA = "contract-guard/review"
 SCHEMA_VERSION = 1
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
-COL_BOOT, COL_T = CSV_COLUMNS.index("boot"), CSV_COLUMNS.index("t")
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "e_tr", "e_tr_measured",
                 "thrust_ratio", "r_obst", "tilt_deg")
 OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
@@ -163,6 +165,15 @@ class _Summary:
         self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0}
         self.link_down_at = None
         self.link_down_s = 0.0
+        # marks for the plots: spans {start_t, end_t, what} and points {t, what}
+        self.marks = {k: [] for k in ("holds", "failsafe_states", "link_down", "calibration_holds")}
+        self.points = {k: [] for k in ("stand_downs", "collisions")}
+        self.open_marks: dict[str, dict] = {}
+        self.failsafe_entries = 0  # state changes into `failsafe` (the link lost: no failsafe event is written)
+        self.obstacle_seen = False  # any finite obstacle_m, or any d_od > 0: the log has obstacle data
+        self.dod_seen = False  # any d_od recorded (a log with none says nothing of its obstacle data)
+        self.route = None  # the commanded route (a `mission` event's waypoints, local NED)
+        self.tables: list[dict] = []  # the `start` events' vehicle and table
         self.other_events: dict[str, int] = {}
         self.unknown_subsystems = 0
         self.last_t_of_boot = None
@@ -220,6 +231,10 @@ class _Summary:
                                    "limit_source": source, "allowed_m_s": self.tol + OVERSHOOT * limit}
         if gs is not None and v_max is not None and (self.excess_vmax is None or gs - v_max > self.excess_vmax["excess_m_s"]):
             self.excess_vmax = {"excess_m_s": gs - v_max, "t": t, "ground_speed": gs, "v_max": v_max}
+        if not self.obstacle_seen:
+            ob, dod = _num(rec.get("obstacle_m")), _num(rec.get("d_od"))
+            self.obstacle_seen = ob is not None or (dod is not None and dod > 0)
+            self.dod_seen = self.dod_seen or dod is not None
         gf = _num(rec.get("gamma_flown"))
         # above the limit by more than a tracking overshoot (the supervisor's own rule: 5 % + tolerance)
         over_far = over is not None and over > self.tol + OVERSHOOT * limit
@@ -281,6 +296,21 @@ class _Summary:
             self._keep(self.lists["mode_changes"], {"t": t, "from": g("from"), "to": g("to"), "by": g("by")})
         elif name == "state_change":
             self._keep(self.lists["state_changes"], {"t": t, "from": g("from"), "to": g("to"), "reason": g("reason")})
+            to, why = g("to"), g("reason")
+            yet = why == "no autopilot heartbeat yet"  # not linked yet: no failsafe
+            for state, kind in (("holding", "holds"), ("failsafe", "failsafe_states")):
+                self._mark(kind, t, to == state and not (yet and kind == "failsafe_states"), why)
+            if to == "failsafe" and not yet:
+                self.failsafe_entries += 1
+            if isinstance(why, str) and "standing down" in why:
+                self._keep(self.points["stand_downs"], {"t": t, "what": why})
+        elif name == "calibration_hold":
+            st = g("status")
+            self._mark("calibration_holds", t, st == "commanded", f"calibration hold leg {g('leg')}: {st}"
+                       + (f" ({g('reason')})" if g("reason") else ""))
+        elif name == "mission" and g("status") == "ready" and isinstance(g("waypoints"), list):
+            self.route = [p for p in g("waypoints") if isinstance(p, list) and len(p) == 2
+                          and all(_num(c) is not None for c in p)]
         elif name == "limit_change":
             self.counts["limit_changes"] += 1
         elif name == "command":  # sent; its result, if any, comes with it or in a later command_ack
@@ -294,6 +324,7 @@ class _Summary:
         elif name == "link":
             status = g("status")
             self._keep(self.lists["link"], {"t": t, "status": status})
+            self._mark("link_down", t, status == "down", "link down")
             if status == "down" and self.link_down_at is None:
                 self.link_down_at = t
             elif status in ("up", "reconnect") and self.link_down_at is not None:
@@ -317,6 +348,8 @@ class _Summary:
             if isinstance(mode, str):
                 self.modes[mode] = self.modes.get(mode, 0) + 1
             self._keep(self.lists["starts"], {"t": t, "wall": _num(g("wall")), "boot": self.boot})
+            if isinstance(g("vehicle"), str):
+                self.tables.append({"vehicle": g("vehicle"), "table": g("table") if isinstance(g("table"), str) else None})
         elif name == "stop":
             b["clean_stop"] = True
             self._keep(self.lists["stops"], {"t": t, "wall": _num(g("wall")), "boot": self.boot})
@@ -341,6 +374,15 @@ class _Summary:
         else:
             self.other_events["(not listed: over the list limit)"] = self.other_events.get("(not listed: over the list limit)", 0) + 1
 
+    def _mark(self, kind: str, t, on: bool, what) -> None:
+        """Open a span of `kind` (a hold, the failsafe state, the link down, a calibration hold) or close it."""
+        if on and kind not in self.open_marks:
+            self.open_marks[kind] = {"start_t": t, "end_t": None, "what": str(what)}
+        elif not on and kind in self.open_marks:
+            sp = self.open_marks.pop(kind)
+            sp["end_t"] = t
+            self._keep(self.marks[kind], sp)
+
     def _close_would(self, t, why: str) -> None:
         w, self.would_open = self.would_open, None
         w.update(end_t=t, ended_by=why)
@@ -360,6 +402,8 @@ class _Summary:
             self._close_violation(v)
         self.open_viol = {}
         self.open_fs = []
+        for kind in list(self.open_marks):
+            self._mark(kind, self.last_t_of_boot, False, why)
         if self.link_down_at is not None and self.last_t_of_boot is not None:
             self.link_down_s += max(self.last_t_of_boot - self.link_down_at, 0.0)
         self.link_down_at = None
@@ -415,7 +459,16 @@ class _Summary:
             "violations_by_subsystem": self.by_sub,
             "unknown_subsystems": self.unknown_subsystems,
             "failsafes": self.failsafes,
-            "failsafe_count": self.counts["failsafes"],
+            # where they happened: failsafe events (a cause made the daemon hold) and entries into the failsafe
+            # state (the link lost: nothing can be commanded, and no failsafe event is written)
+            "failsafe_count": self.counts["failsafes"] + self.failsafe_entries,
+            "failsafe_events": self.counts["failsafes"],
+            "failsafe_state_entries": self.failsafe_entries,
+            "marks": {**self.marks, **self.points},
+            # False: D_od 0 throughout and no obstacle ever seen (a log without an obstacle sensor)
+            "obstacle_data": self.obstacle_seen or not self.dod_seen,
+            "route": self.route,
+            "tables": self.tables,
             "mode_changes": self.lists["mode_changes"],
             "state_changes": self.lists["state_changes"],
             "link": {"events": self.lists["link"], "down_s": self.link_down_s},
@@ -473,13 +526,21 @@ def findings(rep: dict) -> list[str]:
         out.append(f"Γ unknown (null/NaN) for {rep['gamma_unknown_s']:.2f} s")
     oc = rep.get("outside_contract") or {}
     wf = oc.get("worst_gamma_flown")
-    if oc.get("flown_above_v_safe"):
+    blind = not rep.get("obstacle_data", True) and rep["state_samples"] > 0
+    if blind and (oc.get("flown_above_v_safe") or rep["over_limit"].get("worst_beyond_allowed")):
+        # D_od 0 throughout: the contract allows no speed, so "outside it" is true of every metre and says nothing
+        out.append(f"no obstacle data: D_od 0 throughout, where the contract allows no speed — the "
+                   f"{oc.get('flown_above_v_safe_s', 0.0):.0f} s flown above V_safe are not judged; judged instead: "
+                   "the detection range each stretch needed" + ("" if rep.get("detection_need") else
+                                                              " (not computed: no table for this vehicle)"))
+        out += (rep.get("detection_need") or {}).get("findings", [])
+    elif oc.get("flown_above_v_safe"):
         n = len(oc["flown_above_v_safe"])
         out.append(f"flown outside the contract: ground speed above V_safe by up to {wf['gamma_flown']:.2f} m/s at "
                    f"t = {_fmt_t(wf['t'])}; {oc['flown_above_v_safe_s']:.2f} s above V_safe + "
                    f"{oc['tolerance_m_s']:.2f} m/s in {n} span(s)")
     w = rep["over_limit"].get("worst_beyond_allowed")
-    if w:
+    if w and not (blind and w["limit_source"] == "v_max"):
         src = w["limit_source"] + (", the limit it would have commanded" if w["limit_source"] == "v_max" else "")
         out.append(f"ground speed above the limit ({src}) by up to {w['excess_m_s']:.2f} m/s "
                    f"at t = {_fmt_t(w['t'])}; {rep['over_limit']['time_over_limit_s']:.2f} s above limit × "
@@ -488,8 +549,14 @@ def findings(rep: dict) -> list[str]:
         causes = sorted({c for wh in rep["would_hold"] for c in wh["causes"]})
         out.append(f"shadow mode: the daemon would have held {rep['would_hold_count']}× "
                    f"(first at t = {_fmt_t(rep['would_hold'][0]['start_t'])}; {'; '.join(causes)})")
+    cols = (rep.get("marks") or {}).get("collisions")
+    if cols:
+        out.append(f"{len(cols)} collision(s) (simulator truth), first at t = {_fmt_t(cols[0]['t'])}")
     if rep["failsafe_count"]:
-        out.append(f"{rep['failsafe_count']} failsafe(s)")
+        parts = [f"{n} {what}" for n, what in ((rep.get("failsafe_events", rep["failsafe_count"]), "failsafe event(s)"),
+                                               (rep.get("failsafe_state_entries", 0), "× into the failsafe state "
+                                                "(link lost)")) if n]
+        out.append(f"{rep['failsafe_count']} failsafe(s): {', '.join(parts)}")
     if rep["link"]["down_s"] > 0 or any(e["status"] == "down" for e in rep["link"]["events"]):
         out.append(f"autopilot link down for {rep['link']['down_s']:.1f} s")
     bad_checks = [c for c in rep["startup_checks"] if c["ok"] is not True]
@@ -558,13 +625,27 @@ def _log_files(paths) -> list[Path]:
 
 
 def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
-           origin: Origin | None = None) -> dict:
+           origin: Origin | None = None, sensor=None, collisions=None) -> dict:
     """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON.
-    `origin`: what a converter made the log from (its section and findings join the report)."""
-    rep, samples = analyse(_log_files(paths), gap_s=gap_s, tolerance_m_s=tolerance_m_s,
-                           keep_samples=out_dir is not None, origin=origin)
+    `origin`: what a converter made the log from (its section and findings join the report). A log without
+    obstacle data gets the detection range it needed (`companion.detection_need`; `sensor`: an assumed one).
+    `collisions`: a simulator's truth, [{t, x, y, what}] (the daemon cannot know them), marked on the plots."""
+    files = _log_files(paths)
+    rep, samples = analyse(files, gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=out_dir is not None,
+                           origin=origin)
+    if not rep["obstacle_data"] and rep["state_samples"]:
+        from .detection_need import for_report
+
+        rows = samples if samples is not None else (_row(r) for r in read_events(files) if _is_state(r))  # 2nd pass
+        rep["detection_need"] = for_report(rep, rows, CSV_COLUMNS, sensor, gap_s)
+        conclude(rep, origin.findings() if origin else ())
+    if collisions:
+        rep["marks"]["collisions"] = [{"t": _num(c.get("t")), "x": _num(c.get("x")), "y": _num(c.get("y")),
+                                       "what": str(c.get("what") or "collision")} for c in collisions][:MAX_LISTED]
+        conclude(rep, origin.findings() if origin else ())
     if out_dir is not None:
         rep["outputs"] = write_outputs(rep, samples, Path(out_dir), origin.title() if origin else "")
+        write_flight_page(Path(out_dir), rep, format_report(rep, origin), Path(rep["files"][0]).name)
     return rep
 
 
@@ -576,8 +657,8 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2
 
     def records():
         for rec in reader:
-            if samples is not None and isinstance(rec, dict) and rec.get("kind") == "state":
-                samples.append(tuple(rec.get(k) for k in CSV_COLUMNS))  # a row, not the dict: 1 h at 50 Hz fits
+            if samples is not None and _is_state(rec):
+                samples.append(_row(rec))  # a row, not the dict: 1 h at 50 Hz fits
             yield rec
 
     try:
@@ -594,6 +675,15 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2
     return conclude(rep, origin.findings() if origin else ()), samples
 
 
+def _is_state(rec) -> bool:
+    return isinstance(rec, dict) and rec.get("kind") == "state"
+
+
+def _row(rec: dict) -> tuple:
+    """A state record as a row in `CSV_COLUMNS` order."""
+    return tuple(rec.get(k) for k in CSV_COLUMNS)
+
+
 def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = "") -> dict:
     """`samples.csv`, `review.json` and `review.png` in `out_dir`; returns their paths."""
     try:
@@ -606,14 +696,15 @@ def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = ""
                 w.writerow([_cell(v) for v in row])
         png_path = out_dir / "review.png"
         json_path = out_dir / "review.json"
-        outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path)}
+        outputs = {"csv": str(csv_path), "png": str(png_path), "json": str(json_path),
+                   "html": str(out_dir / PAGE)}  # the page `review` writes once the report is whole
         missing = missing_plot_extra()
         if missing:  # the report, CSV and JSON without the plot; said in one line
             png_path.unlink(missing_ok=True)
-            outputs["png"] = None
+            outputs["png"] = outputs["plan"] = None
             outputs["png_skipped"] = missing
         else:
-            plot(rep, samples, png_path, note)
+            outputs["plan"] = str(plot(rep, samples, png_path, note))
         json_path.write_text(json.dumps({**rep, "outputs": outputs}, indent=1, default=str, allow_nan=False))
     except OSError as err:
         raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
@@ -640,92 +731,19 @@ def _cell(v):
     return v
 
 
-SUBSYSTEM_COLOURS = {"navigation": "tab:blue", "controller": "tab:orange", "environment": "tab:green",
-                     "actuators": "tab:red", "guidance": "tab:purple"}
-
-
-def plot(rep: dict, samples: list[tuple], path: Path, note: str = "") -> None:
-    """One PNG, panels sharing the time axis; violation spans shaded by subsystem, failsafes as red lines;
-    `note` goes into the title (e.g. "replayed from FLIGHT.tlog")."""
+def plot(rep: dict, samples: list[tuple], path: Path, note: str = "") -> Path:
+    """`path` (the time series) and `plan.png` beside it (the plan view): `companion.review_plots`, with
+    every hold, failsafe, stand-down, link-down span, collision and violation marked; `note` goes into the
+    title (e.g. "replayed from FLIGHT.tlog"). Returns the plan view's path."""
     try:
-        import matplotlib
-
-        matplotlib.use("Agg", force=True)
-        import matplotlib.pyplot as plt
+        from . import review_plots as rp
     except ImportError as err:
         raise ContractError("plots need matplotlib (pip install 'contract-guard[plot]')") from err
-
-    def series(key):
-        # NaN breaks the line between daemon runs (t may jump) and where a value is missing
-        col = CSV_COLUMNS.index(key)
-        xs, ys, last_boot = [], [], None
-        for row in samples:
-            t, boot = _num(row[COL_T]), row[COL_BOOT]
-            if t is None:
-                continue
-            if last_boot is not None and boot != last_boot:
-                xs.append(math.nan)
-                ys.append(math.nan)
-            last_boot = boot
-            v = _num(row[col])
-            xs.append(t)
-            ys.append(math.nan if v is None else v)
-        return xs, ys
-
-    panels = [
-        ("speed [m/s]", [("ground_speed", "ground speed"), ("v_max", "V_max"), ("v_cmd", "commanded"), ("v_safe", "V_safe")]),
-        ("Γ [m/s]", [("gamma", "Γ = V_max − V_safe"), ("gamma_flown", "ground speed − V_safe")]),
-        ("d_od [m]", [("d_od", "D_od")]),
-        ("e_tr [m]", [("e_tr", "E_tr (used)"), ("e_tr_measured", "E_tr measured")]),
-        ("thrust ratio", [("thrust_ratio", "T_max / T_nom")]),
-        ("r_obst [m]", [("r_obst", "R_obst")]),
-    ]
-    outside = [sp for sp in (rep.get("outside_contract") or {}).get("flown_above_v_safe", [])
-               if sp["start_t"] is not None and sp["end_t"] is not None]
-    would = [wh for wh in rep.get("would_hold", []) if wh["start_t"] is not None and wh["end_t"] is not None]
-    fig, axes = plt.subplots(len(panels), 1, sharex=True, figsize=(11, 2.0 * len(panels) + 1))
-    try:
-        for ax, (label, keys) in zip(axes, panels):
-            for key, name in keys:
-                xs, ys = series(key)
-                if any(not math.isnan(y) for y in ys):
-                    ax.plot(xs, ys, label=name, lw=1.0, ls="--" if key in ("v_cmd", "v_safe") else "-")
-            ax.set_ylabel(label)
-            ax.grid(alpha=0.3)
-            if len(keys) > 1:
-                ax.legend(loc="upper right", fontsize="small")
-            for v in rep["violations"]:
-                if v["start_t"] is not None and v["end_t"] is not None:
-                    ax.axvspan(v["start_t"], v["end_t"], alpha=0.2, lw=0,
-                               color=SUBSYSTEM_COLOURS.get(str(v["subsystem"]), "grey"))
-            for fs in rep["failsafes"]:
-                if fs["t"] is not None:
-                    ax.axvline(fs["t"], color="red", lw=0.8)
-            for sp in outside:
-                ax.axvspan(sp["start_t"], sp["end_t"], alpha=0.15, lw=0, color="black", hatch="//", fill=False)
-            for wh in would:
-                ax.axvspan(wh["start_t"], wh["end_t"], alpha=0.25, lw=0, color="tab:red")
-        axes[1].axhline(0.0, color="black", lw=0.8)
-        from matplotlib.lines import Line2D
-        from matplotlib.patches import Patch
-
-        subs = sorted({str(v["subsystem"]) for v in rep["violations"]})
-        keys = [Patch(color=SUBSYSTEM_COLOURS.get(sub, "grey"), alpha=0.3, label=f"violation: {sub}") for sub in subs]
-        if rep["failsafes"]:
-            keys.append(Line2D([], [], color="red", lw=0.8, label="failsafe"))
-        if outside:
-            keys.append(Patch(fill=False, hatch="//", alpha=0.5, label="flown above V_safe"))
-        if would:
-            keys.append(Patch(color="tab:red", alpha=0.25, label="would hold (shadow)"))
-        if keys:
-            fig.legend(handles=keys, loc="lower center", ncol=len(keys), fontsize="small")
-        axes[-1].set_xlabel("t [s] (daemon clock, at the vehicle's rate)")
-        title = plot_title(rep, note)
-        axes[0].set_title(title)
-        fig.tight_layout(rect=(0, 0.03 if keys else 0, 1, 1))
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
+    title = plot_title(rep, note)
+    rp.save(rp.time_figure(rep, samples, CSV_COLUMNS, title), path)
+    plan = path.with_name("plan.png")
+    rp.save(rp.plan_figure(rep, samples, CSV_COLUMNS, "plan view — " + title), plan)
+    return plan
 
 
 def plot_title(rep: dict, note: str = "") -> str:
@@ -733,7 +751,11 @@ def plot_title(rep: dict, note: str = "") -> str:
     above V_safe are there, not only the daemon's own violations)."""
     title = f"contract-guard review — {rep['state_samples']} samples, {rep['violation_count']} violation(s)"
     oc = rep.get("outside_contract") or {}
-    if oc.get("flown_above_v_safe"):
+    need = rep.get("detection_need") or {}
+    if not rep.get("obstacle_data", True) and need.get("worst"):
+        w = need["worst"]["d_od_m"]
+        title += ", no obstacle data: detection range needed up to " + ("more than any" if w is None else f"{w:.1f} m")
+    elif oc.get("flown_above_v_safe"):
         title += f", {oc['flown_above_v_safe_s']:.1f} s above V_safe"
     if rep.get("would_hold"):
         title += f", would hold {rep['would_hold_count']}×"
@@ -760,6 +782,35 @@ def fmt_value(v, unit="") -> str:
     return f"{v}{unit}"
 
 
+def _need_lines(need: dict | None) -> list[str]:
+    """A log without obstacle data: the detection range it needed, per stretch, and an assumed sensor's cost."""
+    if not need:
+        return ["  no obstacle data: time above V_safe not judged; no table to compute the detection range needed"]
+    q = need["quantiles_m"]
+    if need["worst"] is None:
+        return [f"  no obstacle data; nothing flown above {need['min_speed_m_s']:g} m/s: no detection range needed"]
+    lines = [f"  no obstacle data: time above V_safe not judged. Detection range needed under the {need['vehicle']} "
+             f"contract over the {need['flown_s']:.0f} s flown above {need['min_speed_m_s']:g} m/s: "
+             + ", ".join(f"{100 * float(k):g} % ≤ {fmt_value(v, ' m')}" for k, v in q.items())
+             + ("; " + ", ".join(f"{c['range_m']:g} m covers {100 * c['share']:.0f} %" for c in need["coverage"])
+                if need["coverage"] else "")]
+    st = [x for x in need["stretches"] if x.get("d_od_m") is not None or x.get("at_t") is not None]
+    worst = sorted(st, key=lambda x: -(x["d_od_m"] if x["d_od_m"] is not None else float("inf")))[:5]
+    if worst:
+        lines.append(f"    worst {len(worst)} of {len(st)} stretches ({need['stretch_s']:g} s each):")
+        for x in sorted(worst, key=lambda x: x["start_t"]):
+            lines.append(f"    {_fmt_t(x['start_t'])} … {_fmt_t(x['end_t'])}  needs {fmt_value(x['d_od_m'], ' m')} "
+                         f"(up to {x['ground_speed']:.2f} m/s)")
+    s = need.get("sensor")
+    if s and s.get("spans"):
+        lines.append(f"    with the assumed sensor ({s['range_m']:g} m): faster than its limit in {s['spans_count']} "
+                     f"stretch(es), the longest:")
+        for x in sorted(s["spans"], key=lambda x: x["start_t"] - x["end_t"])[:5]:
+            lines.append(f"    {_fmt_t(x['start_t'])} … {_fmt_t(x['end_t'])}  up to {x['worst_m_s']:.2f} m/s "
+                         f"against {x['limit_m_s']:.2f} m/s")
+    return lines
+
+
 def format_report(rep: dict, origin: Origin | None = None) -> str:
     """The report as text for a person (the CLI prints it; `--json` prints the dict instead)."""
     sp = rep["span"]
@@ -778,7 +829,9 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
                      + ("  (commanded nothing: what it would have done is below)" if set(modes) == {"shadow"} else ""))
     lines.append(f"  Γ > 0 for {rep['gamma_positive_s']:.2f} s (limit in force − V_safe)")
     oc = rep.get("outside_contract")
-    if oc is not None:
+    if not rep.get("obstacle_data", True) and rep["state_samples"]:
+        lines += _need_lines(rep.get("detection_need"))
+    elif oc is not None:
         lines.append(f"  flown outside the contract (ground speed − V_safe > {oc['tolerance_m_s']:.2f} m/s): "
                      f"{oc['flown_above_v_safe_s']:.2f} s in {len(oc['flown_above_v_safe'])} span(s)")
         for sp in oc["flown_above_v_safe"]:
@@ -808,7 +861,9 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         lines.append(f"    {_fmt_t(v['start_t'])} … {end}  {fmt_value(v['duration_s'], ' s')}  {v['subsystem']}: "
                      f"{v['guarantee']}; assumed {fmt_value(v['assumed'])}, observed {fmt_value(v['observed'])}; "
                      f"action {fmt_value(v['action'])}")
-    lines.append(f"  failsafes: {rep['failsafe_count']}")
+    lines.append(f"  failsafes: {rep['failsafe_count']}" + (
+        f" ({rep.get('failsafe_events', 0)} event(s), {rep['failsafe_state_entries']}× into the failsafe state)"
+        if rep.get("failsafe_state_entries") else ""))
     for fs in rep["failsafes"]:
         cleared = f", cleared at {_fmt_t(fs['cleared_t'])}" if fs["cleared_t"] is not None else ", not cleared"
         lines.append(f"    {_fmt_t(fs['t'])}  {fs['cause']} → {fs['action']}{cleared}")

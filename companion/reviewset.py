@@ -10,13 +10,14 @@ are still reviewed.
 
 from __future__ import annotations
 
-import base64
 import html
 import json
 import re
 from pathlib import Path
 
 from contracts.errors import ContractError
+
+from .review_html import PAGE, flight_page, page
 
 SCHEMA = "contract-guard/review-set"
 
@@ -55,6 +56,9 @@ def row(path: Path, rep: dict | None, error: str | None) -> dict:
         return {"log": str(path), "ok": None, "error": error}
     src = rep.get("flight_log") or rep.get("replay") or {}
     veh, fw = src.get("vehicle"), src.get("firmware") or {}
+    if not fw and isinstance(src.get("autopilot"), dict):  # a .tlog: the autopilot family its HEARTBEAT named
+        fw = {"name": {"px4": "PX4", "ardupilot": "ArduPilot"}.get(src["autopilot"].get("kind"),
+                                                                  src["autopilot"].get("kind"))}
     e_tr = src.get("e_tr") or {}
     return {
         "log": str(path), "ok": rep["ok"], "error": None,
@@ -68,7 +72,19 @@ def row(path: Path, rep: dict | None, error: str | None) -> dict:
         "e_tr_measured_max_m": e_tr.get("measured_max_m", rep["ranges"]["e_tr_measured"]["max"]),
         "e_tr_contract_m": e_tr.get("used_at_max_m", rep["ranges"]["e_tr"]["max"]),
         "findings": len(rep["findings"]),
+        "obstacle_data": rep.get("obstacle_data", True),
+        # no obstacle data: the detection range the flight needed at its worst (None: faster than any range allows)
+        "d_od_needed_m": ((rep.get("detection_need") or {}).get("worst") or {}).get("d_od_m"),
     }
+
+
+def need_text(f: dict) -> str:
+    """The index's word on obstacle data: `sensed`, or the detection range the flight needed without it."""
+    if f.get("obstacle_data", True):
+        return "sensed"
+    if f.get("d_od_needed_m") is None:
+        return "no data; needed: —"
+    return f"no data; needed ≤ {f['d_od_needed_m']:.1f} m"
 
 
 def review_set(paths, suffixes, review_one, out_dir: Path | None = None) -> dict:
@@ -89,7 +105,7 @@ def review_set(paths, suffixes, review_one, out_dir: Path | None = None) -> dict
             flights.append(row(path, None, why))
             texts.append(f"contract-guard review: {path}\n  not reviewed: {why}")
             continue
-        flights.append({**row(path, rep, None), "page": f"flights/{name}/index.html", "report": rep})
+        flights.append({**row(path, rep, None), "page": f"flights/{name}/{PAGE}", "report": rep})
         texts.append(format_report(rep, origin))
     result = {"schema": SCHEMA, "flights": flights, "ok": all(f["ok"] for f in flights)}
     if out_dir is not None:
@@ -126,19 +142,9 @@ def summary_lines(result: dict) -> list[str]:
                      f"{f['outside_contract_s']:>6.1f} {etr:>19} {f['findings']:>8}  "
                      + ("kept" if f["ok"] else "REVIEW NEEDED"))
         modes = ", ".join(f"{k} {v:g} s" for k, v in f["mode_time_s"].items())
-        lines.append(f"{'':<44} {f.get('vehicle') or '?'}, {f.get('firmware') or '?'}; modes: {modes or '—'}")
+        lines.append(f"{'':<44} {f.get('vehicle') or '?'}, {f.get('firmware') or '?'}; modes: {modes or '—'}; "
+                     f"obstacles: {need_text(f)}")
     return lines
-
-
-STYLE = ("body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse}"
-         "td,th{border:1px solid #bbb;padding:4px 8px;font-size:14px}th{background:#eee}.bad{color:#b00;font-weight:bold}"
-         ".ok{color:#070;font-weight:bold}pre{background:#f6f6f6;padding:1em;white-space:pre-wrap;font-size:13px}"
-         "img{max-width:100%;border:1px solid #ccc}")
-
-
-def _page(title: str, body: str) -> str:
-    return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{STYLE}</style></head><body>{body}</body></html>\n")
 
 
 def write_html(result: dict, texts: list[str], out: Path) -> dict:
@@ -149,28 +155,22 @@ def write_html(result: dict, texts: list[str], out: Path) -> dict:
         for f, text in zip(result["flights"], texts):
             name = html.escape(Path(f["log"]).name)
             if f["error"]:
-                rows.append(f"<tr><td>{name}</td><td colspan='7' class='bad'>not reviewed: {html.escape(f['error'])}</td></tr>")
+                rows.append(f"<tr><td>{name}</td><td colspan='8' class='bad'>not reviewed: {html.escape(f['error'])}</td></tr>")
                 continue
-            page = out / f["page"]
-            png = page.parent / "review.png"
-            img = (f"<img alt='review plot' src='data:image/png;base64,{base64.b64encode(png.read_bytes()).decode()}'>"
-                   if png.exists() else "<p>no plot</p>")
-            findings = "".join(f"<li>{html.escape(x)}</li>" for x in f["report"]["findings"]) or "<li>none</li>"
-            page.write_text(_page(f"review — {Path(f['log']).name}",
-                                  f"<p><a href='../../index.html'>← all flights</a></p><h1>{name}</h1>"
-                                  f"<h2>Findings</h2><ul>{findings}</ul><h2>Plot</h2>{img}"
-                                  f"<h2>Report</h2><pre>{html.escape(text)}</pre>"))
+            # the flight's own page, again with its way back to the table
+            flight_page(out / f["page"], f["report"], text, Path(f["log"]).name, back="../../index.html")
             verdict = "<span class='ok'>kept</span>" if f["ok"] else "<span class='bad'>REVIEW NEEDED</span>"
             modes = ", ".join(f"{html.escape(k)} {v:g} s" for k, v in f["mode_time_s"].items())
             rows.append(f"<tr><td><a href='{f['page']}'>{name}</a></td><td>{html.escape(str(f.get('vehicle') or '?'))}<br>"
                         f"{html.escape(str(f.get('firmware') or '?'))}</td><td>{_fmt(f['duration_s'], ' s')}</td>"
                         f"<td>{modes}</td><td>{_fmt(f['gamma_max'])}</td><td>{f['outside_contract_s']:.1f}</td>"
                         f"<td>{_fmt(f['e_tr_measured_max_m'])} / {_fmt(f['e_tr_contract_m'])}</td>"
-                        f"<td>{f['findings']}</td><td>{verdict}</td></tr>")
+                        f"<td>{html.escape(need_text(f))}</td><td>{f['findings']}</td><td>{verdict}</td></tr>")
         head = ("<tr><th>flight</th><th>vehicle, firmware</th><th>duration</th><th>time in mode</th><th>max Γ [m/s]</th>"
-                "<th>Γ &gt; 0 [s]</th><th>E_tr measured / contract [m]</th><th>findings</th><th>verdict</th></tr>")
+                "<th>Γ &gt; 0 [s]</th><th>E_tr measured / contract [m]</th><th>obstacle data</th><th>findings</th>"
+                "<th>verdict</th></tr>")
         index = out / "index.html"
-        index.write_text(_page("contract-guard review", f"<h1>contract-guard review: {len(result['flights'])} flight(s)</h1>"
+        index.write_text(page("contract-guard review", f"<h1>contract-guard review: {len(result['flights'])} flight(s)</h1>"
                                f"<table>{head}{''.join(rows)}</table>"))
         js = out / "review-set.json"
         js.write_text(json.dumps(result, indent=1, default=str, allow_nan=False))

@@ -289,7 +289,8 @@ def test_cli_replays_a_tlog(fog, tmp_path):
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["replay"]["event_log"] == str(out / REPLAY_LOG) and rep["violations_by_subsystem"]["navigation"]
-    assert {p.name for p in out.iterdir()} == {REPLAY_LOG, "review.png", "review.json", "samples.csv"}
+    assert {p.name for p in out.iterdir()} == {REPLAY_LOG, "review.png", "plan.png", "review.html", "review.json",
+                                              "samples.csv"}
     # the kept replay log reviews on its own, to the same violations
     again = review(out / REPLAY_LOG)
     assert violations(again) == violations(rep)

@@ -175,7 +175,8 @@ def test_outputs_plot_csv_json(flight, tmp_path):
         rows = list(csv.DictReader(fh))
     assert len(rows) == 700 and float(rows[100]["gamma"]) == 0.4 and rows[-1]["v_cmd"] == ""
     assert json.loads((out / "review.json").read_text())["gamma_positive_s"] == pytest.approx(2.0)
-    assert set(rep["outputs"]) == {"csv", "png", "json"}
+    assert set(rep["outputs"]) == {"csv", "png", "plan", "json", "html"} and (out / "plan.png").exists()
+    assert (out / "review.html").exists()
 
 
 def one_line_error(fn, *args):
