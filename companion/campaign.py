@@ -347,12 +347,20 @@ class _Trace:
 
 
 def _law(arm: str, s: dict, spec: CampaignSpec):
-    from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention
+    """The baseline law of `arm` as a function of the daemon's Config (its sensors' mounts), or None. The PX4
+    law brakes at the autopilot's auto-mode settings (MPC_ACC_HOR, MPC_JERK_AUTO: the vehicle's braking);
+    AC_Avoid is not limited above the mission's cruise speed."""
+    from contracts.vehicle import load_vehicle
+
+    from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention, mounts
 
     if arm == "px4_cp":
-        return Px4CollisionPrevention(cp_dist_m=spec.px4_cp_dist_m)
+        brk = load_vehicle(s["vehicle"]).braking
+        return lambda cfg: Px4CollisionPrevention(sensors=mounts(cfg.sensors), cp_dist_m=spec.px4_cp_dist_m,
+                                                  acc_hor=brk.accel_max_m_s2, jerk=brk.jerk_max_m_s3,
+                                                  cruise_m_s=s["cruise_m_s"])
     if arm == "ac_avoid":
-        return ArduPilotAcAvoid(cruise_m_s=s["cruise_m_s"])
+        return lambda cfg: ArduPilotAcAvoid(cruise_m_s=s["cruise_m_s"], sensors=mounts(cfg.sensors))
     return None
 
 

@@ -13,8 +13,10 @@ the daemon and the SITL. Nothing on board imports it. `tests/lockstep.py` re-exp
 `log_dir`: the SITL writes the autopilot's own flight log there (a ULog for PX4, a DataFlash `.bin` for
 ArduPilot; `Rig.close_log()` finishes it and gives its path).
 
-`law`: a speed law that replaces the contract's Ω (a baseline flown as a governor, `companion/baselines.py`);
-`table_wrapper`: a wrapper of the contract table (the negative controls). Neither is an on-board default.
+`law`: a function of the daemon's `Config` that makes a speed law to replace the contract's Ω (a baseline
+flown as a governor, `companion/baselines.py`); the law is fed every sample the daemon's cycle takes (it
+builds its own obstacle map). `table_wrapper`: a wrapper of the contract table (the negative controls).
+Neither is an on-board default.
 """
 
 from __future__ import annotations
@@ -90,8 +92,10 @@ class Rig:
                                   source_component=self.cfg.link.component_id)
         self.log = log if log is not None else Recorder()
         self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s, planning="inline")
+        self.law = None
         if law is not None:
-            self.daemon.cycle.sup.law = law
+            self.law = self.daemon.cycle.sup.law = law(self.cfg)
+            self.daemon.cycle.take = _feeding(self.law, self.daemon.cycle.take)
         gread, gwrite = self._endpoint()
         self._gcs_read = gread
         self.gcs = mav.MAVLink(_W(gwrite), srcSystem=255, srcComponent=190)
@@ -175,6 +179,14 @@ class Rig:
 class _W:
     def __init__(self, write):
         self.write = write
+
+
+def _feeding(law, take):
+    """The cycle's `take`, also handing each sample to the law (its own obstacle map)."""
+    def both(s):
+        law.take(s)
+        take(s)
+    return both
 
 
 # ----------------------------------------------------------------------------- the flights the tests and campaigns fly
