@@ -43,7 +43,8 @@ def test_px4_law_per_bin_with_the_data_age_and_the_auto_jerk():
     """A 6 m reading at t = 0 (range 8 m), flying 3 m/s, asked at t = 0.1 s; CP_DIST 1, CP_DELAY 0.4,
     MPC_ACC_HOR 3, MPC_JERK_AUTO 4. Bin 0: v∥ = 3, delay = 3·0.4 + 3·0.1 (age, in range) = 1.5,
     s = 6 − max(0.1, 1) − 1.5 = 3.5 → 1.92261 (above). Bin 1 (10°): v∥ = 2.95442, delay = 1.47721, s = 3.52279:
-    b = 9, c = −21.1367, v = (−9 + sqrt(165.1367))/2 = 1.92526, over cos 10° = 1.95497 — looser. Limit 1.92261."""
+    b = 9, c = −21.1367, v = (−9 + sqrt(165.1367))/2 = 1.92526, over cos 10° = 1.95497 — looser.
+    Limit 1.92261."""
     law = bl.Px4CollisionPrevention(cp_dist_m=1.0, acc_hor=3.0, jerk=4.0)
     law.take(beam(0.0, 6.0))
     assert law.dist_cm[34:] + law.dist_cm[:4] == [600] * 6 and law.dist_cm[4] == bl.UINT16_MAX
