@@ -235,8 +235,10 @@ class Px4CollisionPrevention:
             if now - self.t_bin[k] > PX4_RANGE_STREAM_TIMEOUT_S:  # stale: the bin is reset
                 self.dist_cm[k] = UINT16_MAX
         present = any(d < UINT16_MAX for d in self.dist_cm) and now - self.t_map < PX4_RANGE_STREAM_TIMEOUT_S
-        if not present or not math.isfinite(i.ground_speed):
+        if not present:
             return _omega(0.0, self.tilt, "px4 collision prevention: no obstacle data, not moving")
+        if not math.isfinite(i.ground_speed):  # no velocity for the delay terms: the slower answer
+            return _omega(0.0, self.tilt, "px4 collision prevention: no velocity")
         if self.dist_cm[0] == UINT16_MAX and not self.go_no_data:  # the setpoint's bin has no data
             return _omega(0.0, self.tilt, "px4 collision prevention: no data ahead")
         min_cm = int(self.min_distance_m * 100.0)
