@@ -18,6 +18,10 @@ References at each point (c = D_od + R_obst, r_k = R_obst + E_tr + r_body):
 And the lookup's own loss in r_k/c: `rho_interp`, the same table column interpolated linearly in log ρ
 between its grid points (optimistic: only a measure of what the worst corner in ρ costs), where tilt and
 thrust are grid points. Ratio goal: table / rate_limited ≥ 0.95, never above 1.01.
+
+`etr_fixed_point`: what Ω's E_tr fixed point on E_tr_pred's speed grid costs — Ω's V_max against the
+fixed point V = v_safe(max(E_tr measured, E_tr_pred(V))) with E_tr_pred interpolated linearly in speed
+(optimistic), at Ω's own tilt, over 200 random points (no planner: seconds).
 """
 
 from __future__ import annotations
@@ -105,18 +109,44 @@ def summary(rows, ref):
             "below_0.95": int(np.sum(r < 0.95)), "above_1.01": int(np.sum(r > 1.01))}
 
 
+def etr_fixed_point(t, veh, n=200, seed=5):
+    """Ω's V_max / the fixed point with E_tr_pred interpolated in speed (see the module docstring)."""
+    ev, et, er = t.e_pred.axes
+    rng = np.random.default_rng(seed)
+    r = []
+    for _ in range(n):
+        d, ro, em = rng.uniform(2.0, 12.0), rng.uniform(0.1, 2.0), rng.uniform(0.0, 0.3)
+        tr = rng.uniform(*veh.thrust_ratio_range)
+        om = t.omega(d, ro, em, tr, contract="avoid")
+        if om.v_max <= 0:
+            continue
+        col = t.e_pred.values[:, min(np.searchsorted(et, om.tilt), len(et) - 1),
+                              max(np.searchsorted(er, tr, side="right") - 1, 0)]
+        gap = lambda v: v - t.v_safe(d, ro, max(em, float(np.interp(v, ev, col))), om.tilt, tr)  # noqa: E731
+        lo, hi = 0.0, 1.5 * om.v_max
+        if gap(hi) < 0:
+            continue
+        for _ in range(50):
+            m = 0.5 * (lo + hi)
+            lo, hi = (m, hi) if gap(m) < 0 else (lo, m)
+        r.append(om.v_max / lo)
+    r = np.array(r)
+    return {"n": int(len(r)), "min": round(float(r.min()), 4), "median": round(float(np.median(r)), 4),
+            "max": round(float(r.max()), 4), "speed_grid_m_s": [float(ev[0]), float(ev[-1]), int(len(ev))]}
+
+
 def vehicle_run(name, n, seed, cache, n_rate):
     veh = load_vehicle(name)
     t = load_for_vehicle(veh)
     t0 = time.perf_counter()
-    named = [one(veh, t, p, cache, ["offgrid-named", name, list(p)], True) for p in NAMED.get(name, [])]
+    named = [one(veh, t, p, cache, ["offgrid-named", name, list(p)], n_rate > 0) for p in NAMED.get(name, [])]
     rows = []
     for idx, p in enumerate(points(veh, n, seed)):
         rows.append(one(veh, t, p, cache, ["offgrid", name, seed, idx, list(p)], idx < n_rate))
     return {"vehicle": name, "points": n, "seed": seed, "named": named,
             "table/fresh": summary(rows, "fresh"), "table/rate_limited": summary(rows, "rate_limited"),
             "table/instant_tilt": summary(rows, "instant_tilt"), "table/rho_interp": summary(rows, "rho_interp"),
-            "rows": rows,
+            "etr_fixed_point": etr_fixed_point(t, veh), "rows": rows,
             "wall_s": round(time.perf_counter() - t0, 1)}
 
 
