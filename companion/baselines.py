@@ -198,8 +198,8 @@ class Px4CollisionPrevention:
         self.dist_cm[i], self.range_cm[i], self.t_bin[i] = cm, int(100.0 * sensor_range + 0.5), t
 
     def _add_distance_sensor(self, s: Scan) -> None:
-        if s.quality == 1 or s.sensor >= len(self.sensors):  # below min range (or no range): discarded
-            return
+        if s.sensor >= len(self.sensors):
+            return  # (signal_quality is not read: only a reading below min_distance is discarded, below)
         m = self.sensors[s.sensor]
         reading = min(s.hits[0][1], s.max_m) if s.hits else s.max_m  # "clamp at maximum sensor range"
         if reading <= self.min_distance_m:
@@ -337,7 +337,7 @@ class ArduPilotAcAvoid:
         if s.sensor >= len(self.sensors):
             return
         face = ap_face(45.0 * round(self.sensors[s.sensor].orientation_deg / 45.0))  # the orientation's sector
-        if s.hits and s.quality != 1:  # within [min, max]
+        if s.hits:  # within [min, max] (signal_quality is not read)
             self._set(face, s.hits[0][1], s.t)
         else:  # beyond the maximum, below the minimum: "reset distance for this face"
             self._reset(face)

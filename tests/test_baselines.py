@@ -77,6 +77,8 @@ def test_px4_no_data_allows_no_motion_and_bins_go_stale_after_half_a_second():
     assert law.omega(inputs(1.51, 0.0)).v_max == 0.0  # RANGE_STREAM_TIMEOUT_US 500 ms: the bins are reset
     law.take(Scan(2.0, 0, (), 0.0, 1))  # below min range: discarded, the bins stay empty
     assert law.omega(inputs(2.05, 0.0)).v_max == 0.0
+    law.take(Scan(3.0, 0, ((0.0, 6.0),), 8.0, 1))  # signal_quality 1 but a reading in range: PX4 does not read it
+    assert law.dist_cm[0] == 600
 
 
 def test_px4_direction_without_data_is_not_flown_and_the_pitch_shortens_a_reading():
@@ -144,7 +146,7 @@ def test_ac_avoid_filters_drops_beyond_max_and_fails_open():
     assert law.filt[0] == pytest.approx(5.92718, abs=1e-5)
     law.take(beam(0.1, None, max_m=3.0))  # honest fog: nothing within 3 m — dropped, not an obstacle at 3 m
     assert law.omega(inputs(0.1, 3.0)).v_max == 8.0
-    law.take(beam(0.2, 6.0))
+    law.take(Scan(0.2, 0, ((0.0, 6.0),), 8.0, 1))  # signal_quality is not read either
     assert law.omega(inputs(1.1, 3.0)).v_max < 8.0  # 0.9 s without news: the face still stands
     assert law.omega(inputs(1.25, 3.0)).v_max == 8.0  # 1.05 s: reset, fail-open at the mission's speed
     assert not law.healthy(1.25)
