@@ -94,6 +94,13 @@ def one(veh, t, point, cache, key, rate_limited):
         lim = _cell_limits(veh, tilt, tr, t.tilt_model)
         c, r_k = d_od + r_obst, r_obst + e_tr + veh.r_body_m
         row["instant_tilt"] = solve_cell(lim, r_k / c, n=40, cpu_time=2.0, starts=3, c=c, lead_time=veh.t_react_s).lo
+    if rate_limited and row["rate_limited"] < row["table"] * 0.999:
+        # its first interval is held level (w(1) = w_0): a coast of a whole sample time, longer than the tilt
+        # time the contract folds in slow manoeuvres — checked again with 3× the intervals
+        rl = rate_limit_check(veh, row["table"], d_od, r_obst, e_tr, tilt, tr, n=120, cpu_time=20.0)
+        row["rate_limited_40_intervals"] = row["rate_limited"]
+        row["rate_limited_ok_at_table"] = rl["ok"]
+        row["rate_limited"] = max(rl["v_rate_limited_max"], row["table"] if rl["ok"] else 0.0)
     for ref in ("fresh", "rate_limited", "instant_tilt", "rho_interp"):
         if row.get(ref):
             row[f"table/{ref}"] = round(row["table"] / row[ref], 4)
