@@ -135,7 +135,7 @@ class CampaignSpec(_Strict):
     scenario: ScenarioDims = ScenarioDims()
     faults: list[FaultDist] = []
     px4_cp_dist_m: Annotated[float, Field(ge=0)] = 1.0  # CP_DIST for the PX4 baseline (PX4's −1 disables it)
-    nav_margin: Annotated[float, Field(ge=0, le=0.9)] = 0.0  # our arms' contract.nav_margin (issue 19 item 8)
+    nav_margin: Annotated[float, Field(ge=0, le=0.9)] = 0.0  # our arms' contract.nav_margin
 
     @field_validator("arms")
     @classmethod
@@ -347,13 +347,20 @@ class _Trace:
 
 
 def _policy(arm: str, s: dict, spec: CampaignSpec):
-    """The speed policy an arm flies (None: the contract's own): a baseline law, or a negative control."""
-    from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention, Scaled, WithoutEtr
+    """The speed policy an arm flies (None: the contract's own): a baseline law, as a function of the daemon's
+    Config (its sensors' mounts), or a negative control. The PX4 law brakes at the autopilot's auto-mode settings
+    (MPC_ACC_HOR, MPC_JERK_AUTO: the vehicle's braking); AC_Avoid is not limited above the mission's cruise speed."""
+    from contracts.vehicle import load_vehicle
+
+    from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention, Scaled, WithoutEtr, mounts
 
     if arm == "px4_cp":
-        return Px4CollisionPrevention(cp_dist_m=spec.px4_cp_dist_m)
+        brk = load_vehicle(s["vehicle"]).braking
+        return lambda cfg: Px4CollisionPrevention(sensors=mounts(cfg.sensors), cp_dist_m=spec.px4_cp_dist_m,
+                                                  acc_hor=brk.accel_max_m_s2, jerk=brk.jerk_max_m_s3,
+                                                  cruise_m_s=s["cruise_m_s"])
     if arm == "ac_avoid":
-        return ArduPilotAcAvoid(cruise_m_s=s["cruise_m_s"])
+        return lambda cfg: ArduPilotAcAvoid(cruise_m_s=s["cruise_m_s"], sensors=mounts(cfg.sensors))
     m = ARM_RE.match(arm)
     if m is None or m.group(2) is None:
         return None
@@ -369,7 +376,7 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     rig = Rig(scenario_dict(s, arm), s["personality"], config=daemon_config(s, arm, spec.nav_margin),
               policy=_policy(arm, s, spec))
     # a fault shortly before or after the arrival is still given FAULT_WINDOW_S to be detected (the flight
-    # hovers at the end): ending at arrival counted 0.1–2 s-old faults as missed (issue 16's fault matrix)
+    # hovers at the end): ending at arrival counted 0.1–2 s-old faults as missed
     trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
     if arm == "no_guard":
         rig.daemon_on = False

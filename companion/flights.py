@@ -14,7 +14,9 @@ the daemon and the SITL. Nothing on board imports it. `tests/lockstep.py` re-exp
 ArduPilot; `Rig.close_log()` finishes it and gives its path).
 
 `policy`: the speed policy flown in place of the contract's own Ω (a baseline flown as a governor, or a negative
-control: `companion/baselines.py`); `table_wrapper`: a wrapper of the contract table. Neither is an on-board default.
+control: `companion/baselines.py`), or a function of the daemon's `Config` that makes one (a baseline law needs
+the sensors' mounts: it builds its own obstacle map from every sample the daemon's cycle takes);
+`table_wrapper`: a wrapper of the contract table. Neither is an on-board default.
 """
 
 from __future__ import annotations
@@ -89,6 +91,8 @@ class Rig:
         self.conn = MemoryMavfile(daemon_read, daemon_write, source_system=1,
                                   source_component=self.cfg.link.component_id)
         self.log = log if log is not None else Recorder()
+        if policy is not None and not hasattr(policy, "omega"):  # a factory of the daemon's Config
+            policy = policy(self.cfg)
         self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s, planning="inline",
                              policy=policy)
         gread, gwrite = self._endpoint()

@@ -7,7 +7,6 @@ import math
 
 import pytest
 
-from companion import baselines as bl
 from companion import campaign as cg
 from companion.campaign_report import clopper_pearson, summarize, write_report
 from companion.cli import main
@@ -63,51 +62,7 @@ def test_sampling_is_a_function_of_seed_and_index():
 
 # ----------------------------------------------------------------------------- the laws, against their sources
 
-def test_px4_max_speed_from_distance_is_trajmath_algebra():
-    """TrajMath.hpp: v_f² = v² − 2a(x − v·2a/J); with v_f = 0, v = −2a²/J + sqrt(4a⁴/J² + 2a·x)."""
-    a, j = 3.0, 8.0
-    for s in (0.0, 0.5, 2.0, 7.3):
-        v = bl.px4_max_speed_from_distance(j, a, s)
-        assert v == pytest.approx(-2 * a * a / j + math.sqrt(4 * a**4 / j**2 + 2 * a * s))
-        assert v * v == pytest.approx(2 * a * (s - v * 2 * a / j), abs=1e-9)
-    assert bl.px4_max_speed_from_distance(j, a, 0.0, 1.5) == 1.5  # never below the final speed
-
-
-def test_px4_cp_speed_stop_distance_and_position_loop():
-    # s = max(0, d − max(min distance, CP_DIST) − v·(CP_DELAY + age)); v_max = min(MPC_XY_P·s, smooth)
-    v = bl.px4_cp_speed(6.0, 2.0, cp_dist=1.0, min_distance=0.1, age=0.1)
-    s = 6.0 - 1.0 - 2.0 * 0.5
-    assert v == pytest.approx(min(0.95 * s, bl.px4_max_speed_from_distance(8.0, 3.0, s)))
-    assert bl.px4_cp_speed(6.0, 2.0, cp_dist=1.0, min_distance=0.1, age=0.1, in_range=False) > v  # no age term
-    assert bl.px4_cp_speed(1.0, 0.0, cp_dist=1.0, min_distance=0.1) == 0.0  # at CP_DIST: no motion
-    assert bl.px4_cp_speed(0.5, 0.0, cp_dist=0.2, min_distance=0.6) == 0.0  # D is at least the sensor minimum
-
-
-def test_ac_avoid_sqrt_controller():
-    """AP_Math sqrt_controller: kP·e up to a/kP², then sqrt(2a(e − a/(2kP²))); continuous; a capped at 1 m/s²."""
-    kp, a = 1.0, 1.0
-    lin = a / kp**2
-    assert bl.sqrt_controller(lin, kp, a) == pytest.approx(kp * lin)
-    assert bl.sqrt_controller(lin + 1e-9, kp, a) == pytest.approx(kp * lin, abs=1e-6)
-    assert bl.sqrt_controller(5.0, kp, a) == pytest.approx(math.sqrt(2 * a * (5.0 - lin / 2)))
-    assert bl.ac_avoid_speed(7.0) == pytest.approx(math.sqrt(2 * (5.0 - 0.5)))  # e = d − AVOID_MARGIN (2 m)
-    assert bl.ac_avoid_speed(7.0, accel=3.0) == bl.ac_avoid_speed(7.0)  # AC_AVOID_ACCEL_CMSS_MAX
-    assert bl.ac_avoid_speed(1.5) == 0.0
-
-
-def test_the_laws_fail_as_their_sources_do():
-    from companion.estimators import DodEstimate
-
-    class I:  # the fields of Inputs a law reads
-        ground_speed = 3.0
-        dod = DodEstimate(0.0, (), math.inf, None, "stale")
-
-    assert bl.Px4CollisionPrevention().omega(I).v_max == 0.0  # no data: no motion
-    assert bl.ArduPilotAcAvoid(cruise_m_s=8.0).omega(I).v_max == 8.0  # proximity unhealthy: fail-open
-    I.dod = DodEstimate(6.0, (0,), 4.0, None, "ok")
-    assert bl.ArduPilotAcAvoid(cruise_m_s=8.0).omega(I).v_max == pytest.approx(bl.ac_avoid_speed(4.0))
-    assert bl.Px4CollisionPrevention(cp_dist_m=1.0).omega(I).v_max == pytest.approx(
-        bl.px4_cp_speed(4.0, 3.0, cp_dist=1.0, min_distance=0.1))
+# (the laws' algebra and maps against their sources: tests/test_baselines.py)
 
 
 def test_the_px4_law_governs_a_real_flight_and_stops_short():
