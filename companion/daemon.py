@@ -24,10 +24,11 @@ from .config import Config
 from .cycle import CYCLE_SAMPLES, Cycle
 from .guidance import InlinePlanning, ThreadedPlanning
 from .logschema import NVF, STATE_FIELDS
-from .mavlink_in import MavlinkIn, VehicleClock
+from .mavlink_in import MavlinkIn, VehicleClock, refusal_text
 from .mavlink_out import Counters, MavlinkOut, ParamServer
 from .mission import Home, MissionSource, home_request
-from .samples import AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest
+from .samples import (AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest,
+                      SourceRefused)
 from .startup import StartupChecks
 from .supervisor import Decision, Inputs
 
@@ -51,14 +52,14 @@ class Daemon:
         self.clock = clock or self.vclock
         self.adapter = adapter_for(cfg.link.autopilot)
         self.counters = Counters()
-        self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock)
+        self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock, self.counters)
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
         self.param_server = ParamServer(
             self.out, cfg.link.component_id,
             {"CG_ENGAGE": float(cfg.engage), "CG_MODE": float(ParamServer.MODES.index(cfg.mode)),
              "CG_R_OBST": cfg.contract.r_obst_m},
             ranges={"CG_ENGAGE": frozenset({0.0, 1.0}), "CG_R_OBST": tuple(cfg.contract.r_obst_range_m)},
-            setters=tuple(cfg.link.gcs_system_ids))
+            setters=tuple(cfg.link.gcs_system_ids), unsigned_refused=cfg.link.unsigned_param_refusal)
         self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
                            ThreadedPlanning if planning == "thread" else InlinePlanning)
         self.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
@@ -121,6 +122,8 @@ class Daemon:
                 break
             n += 1
             self._dispatch(msg)
+        for s in self.mav_in.from_link(self.conn):  # the link's counts, and whom it refused
+            self.take(s)
         return n
 
     def feed(self, msg) -> None:
@@ -158,6 +161,8 @@ class Daemon:
             self._autopilot_restarted(s)
         elif isinstance(s, CommandAck):
             self._event(s.t, "command_ack", command=s.command, result=s.result)
+        elif isinstance(s, SourceRefused):
+            self._source_refused(s)
         elif isinstance(s, AutopilotParam):
             self._cruise_param(s)
             if self.checks.take(s.name, s.value):
@@ -171,6 +176,15 @@ class Daemon:
             if isinstance(s, Implausible):
                 self._implausible(s)
             self.cycle.take(s)
+
+    def _source_refused(self, s: SourceRefused) -> None:
+        """Whom MAVLink-in or the link refused, in the event log; a pinned source's ids from another address (a
+        second autopilot, a spoofed sensor) or a move also to the ground station and the console."""
+        fields = dict(what=s.what, system=s.ids[0], component=s.ids[1], autopilot=s.autopilot, address=s.address,
+                      pinned=s.pinned, count=s.count)
+        self._event(s.t, "source_refused", **fields)
+        if s.what != "unknown":
+            self.out.statustext(2 if s.what == "refused" else 4, "CG: " + refusal_text(fields))
 
     def _cruise_param(self, s: AutopilotParam) -> None:
         """The autopilot's cruise speed, logged when it changes: a governor's limit is never sent above it."""
