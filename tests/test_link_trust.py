@@ -293,3 +293,119 @@ def test_an_impostor_heard_first_without_a_configured_address_is_never_silent(tm
     refused = [r for r in log if r.get("event") == "source_refused" and r["what"] == "refused"]
     assert refused and refused[0]["address"] == flight.ap.address and refused[0]["pinned"] == impostor.address
     assert f"a second autopilot 1/1 from {flight.ap.address} REFUSED" in flight.console
+
+
+# ------------------------------------------------------------------ the pieces: the link and MAVLink-in
+def link_and_peers(pins=None, **peers):
+    """A listening UdpLink on a free loopback port and named `Peer`s ((system, component) each)."""
+    from companion.link import open_connection
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    link = open_connection(f"udpin:127.0.0.1:{port}", 0, 1, 191, (1, 1), pins)
+    return link, ("127.0.0.1", port), {k: Peer(*ids) for k, ids in peers.items()}
+
+
+def read_all(link, tries=20) -> list:
+    got = []
+    for _ in range(tries):
+        m = link.recv_msg()
+        while m is not None:
+            got.append(m)
+            m = link.recv_msg()
+        time.sleep(0.005)
+    return got
+
+
+def test_a_sensor_with_ids_of_its_own_is_taken_from_its_first_address_only():
+    link, target, p = link_and_peers({(1, 1): None, (1, 158): None}, ap=(1, 1), lidar=(1, 158), spoof=(1, 158))
+    try:
+        p["ap"].send(p["ap"].enc.heartbeat_encode(2, 12, 0, 0, 4), target)
+        p["lidar"].send(p["lidar"].enc.distance_sensor_encode(0, 20, 600, 300, 0, 0, 0, 255), target)
+        read_all(link)
+        for _ in range(20):
+            p["spoof"].send(p["spoof"].enc.distance_sensor_encode(0, 20, 600, 601, 0, 0, 0, 255), target)
+        p["lidar"].send(p["lidar"].enc.distance_sensor_encode(0, 20, 600, 300, 0, 0, 0, 255), target)
+        got = [m for m in read_all(link) if m.get_type() == "DISTANCE_SENSOR"]
+        assert [m.current_distance for m in got] == [300]
+        assert link.stats["foreign_source"] == 20
+        [r] = link.take_refusals()  # reported once, with the first of them
+        assert (r["what"], r["ids"], r["address"], r["pinned"]) == ("refused", (1, 158), p["spoof"].address,
+                                                                    p["lidar"].address)
+    finally:
+        link.close()
+        for peer in p.values():
+            peer.sock.close()
+
+
+def test_an_autopilot_on_its_first_address_moves_only_after_silence_and_says_so(monkeypatch):
+    import companion.link as lk
+
+    monkeypatch.setattr(lk, "CLIENT_TIMEOUT_S", 0.3)
+    link, target, p = link_and_peers(None, old=(1, 1), new=(1, 1))
+    hb = p["old"].enc.heartbeat_encode(2, 12, 0, 0, 4)
+    try:
+        p["old"].send(hb, target)
+        read_all(link)
+        p["new"].send(hb, target)
+        read_all(link)
+        assert link.autopilot_addr == ("127.0.0.1", p["old"].sock.getsockname()[1])
+        assert [r["what"] for r in link.take_refusals()] == ["refused"]
+        time.sleep(0.4)  # the old address falls silent
+        p["new"].send(hb, target)
+        read_all(link)
+        assert link.autopilot_addr == ("127.0.0.1", p["new"].sock.getsockname()[1])
+        [r] = link.take_refusals()
+        assert (r["what"], r["address"], r["pinned"]) == ("moved", p["new"].address, p["old"].address)
+    finally:
+        link.close()
+        for peer in p.values():
+            peer.sock.close()
+
+
+def test_a_configured_autopilot_address_is_never_left(monkeypatch):
+    import companion.link as lk
+
+    monkeypatch.setattr(lk, "CLIENT_TIMEOUT_S", 0.1)
+    ap = udp_socket()
+    link, target, p = link_and_peers({(1, 1): ap.getsockname()}, impostor=(1, 1))
+    try:
+        time.sleep(0.2)  # the autopilot silent for longer than the time-out
+        p["impostor"].send(p["impostor"].enc.heartbeat_encode(2, 12, 0, 0, 4), target)
+        assert not read_all(link)
+        assert link.autopilot_addr == ap.getsockname() and link.stats["foreign_autopilot"] == 1
+    finally:
+        link.close()
+        ap.close()
+        p["impostor"].sock.close()
+
+
+def test_mavlink_in_takes_each_sensor_from_its_configured_source_only():
+    from companion.config import config_from_dict
+    from companion.mavlink_in import MavlinkIn
+    from companion.mavlink_out import Counters
+    from companion.samples import Scan, SourceRefused
+
+    cfg = config_from_dict({"mode": "shadow", "sensors": [
+        {"h_fov_deg": 30, "max_range_m": 6},  # the autopilot's forward sensor (1/1)
+        {"h_fov_deg": 30, "orientation_deg": 90, "component_id": 158, "max_range_m": 6}]})  # a peripheral, right
+    c = Counters()
+    inp = MavlinkIn(cfg, None, lambda: 0.0, None, c)
+
+    def msg(ids, orientation=0, id_=0):
+        enc = mav.MAVLink(None, srcSystem=ids[0], srcComponent=ids[1])
+        return enc.decode(bytearray(enc.distance_sensor_encode(0, 20, 600, 300, 0, id_, orientation, 255).pack(enc)))
+
+    right = 6  # MAV_SENSOR_ROTATION_YAW_270: facing right
+    [fwd] = inp.accept(msg((1, 1)))
+    [side] = inp.accept(msg((1, 158), right))
+    assert (fwd.sensor, fwd.source, side.sensor, side.source) == (0, (1, 1, 0), 1, (1, 158, 0))
+    assert isinstance(fwd, Scan) and inp.accept(msg((1, 158))) == []  # the peripheral has no forward sensor
+    first = inp.accept(msg((1, 200)))
+    assert [type(s) for s in first] == [SourceRefused] and first[0].ids == (1, 200)
+    assert inp.accept(msg((1, 200))) == []  # reported once; counted always
+    assert [s.ids for s in inp.accept(msg((2, 1)))] == [(2, 1)]  # another system's autopilot ids
+    assert c.unknown_source == 3
+    gcs = mav.MAVLink(None, srcSystem=255, srcComponent=190)
+    assert inp.accept(gcs.decode(bytearray(gcs.heartbeat_encode(6, 8, 0, 0, 4).pack(gcs)))) == [] and c.unknown_source == 3
