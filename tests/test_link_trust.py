@@ -7,6 +7,7 @@ another address or the autopilot's own address). N2: an unsigned PARAM_SET CG_EN
 disengaged the daemon. N3: whoever sent the first autopilot HEARTBEAT became the autopilot; a second one
 was dropped without a word."""
 
+import contextlib
 import signal
 import socket
 import subprocess
@@ -296,15 +297,22 @@ def test_an_impostor_heard_first_without_a_configured_address_is_never_silent(tm
 
 
 # ------------------------------------------------------------------ the pieces: the link and MAVLink-in
+@contextlib.contextmanager
 def link_and_peers(pins=None, **peers):
-    """A listening UdpLink on a free loopback port and named `Peer`s ((system, component) each)."""
+    """A listening UdpLink on a free loopback port and named `Peer`s ((system, component) each); closed after."""
     from companion.link import open_connection
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     link = open_connection(f"udpin:127.0.0.1:{port}", 0, 1, 191, (1, 1), pins)
-    return link, ("127.0.0.1", port), {k: Peer(*ids) for k, ids in peers.items()}
+    made = {k: Peer(*ids) for k, ids in peers.items()}
+    try:
+        yield link, ("127.0.0.1", port), made
+    finally:
+        link.close()
+        for peer in made.values():
+            peer.sock.close()
 
 
 def read_all(link, tries=20) -> list:
@@ -319,8 +327,7 @@ def read_all(link, tries=20) -> list:
 
 
 def test_a_sensor_with_ids_of_its_own_is_taken_from_its_first_address_only():
-    link, target, p = link_and_peers({(1, 1): None, (1, 158): None}, ap=(1, 1), lidar=(1, 158), spoof=(1, 158))
-    try:
+    with link_and_peers({(1, 1): None, (1, 158): None}, ap=(1, 1), lidar=(1, 158), spoof=(1, 158)) as (link, target, p):
         p["ap"].send(p["ap"].enc.heartbeat_encode(2, 12, 0, 0, 4), target)
         p["lidar"].send(p["lidar"].enc.distance_sensor_encode(0, 20, 600, 300, 0, 0, 0, 255), target)
         read_all(link)
@@ -333,52 +340,40 @@ def test_a_sensor_with_ids_of_its_own_is_taken_from_its_first_address_only():
         [r] = link.take_refusals()  # reported once, with the first of them
         assert (r["what"], r["ids"], r["address"], r["pinned"]) == ("refused", (1, 158), p["spoof"].address,
                                                                     p["lidar"].address)
-    finally:
-        link.close()
-        for peer in p.values():
-            peer.sock.close()
 
 
 def test_an_autopilot_on_its_first_address_moves_only_after_silence_and_says_so(monkeypatch):
     import companion.link as lk
 
     monkeypatch.setattr(lk, "CLIENT_TIMEOUT_S", 0.3)
-    link, target, p = link_and_peers(None, old=(1, 1), new=(1, 1))
-    hb = p["old"].enc.heartbeat_encode(2, 12, 0, 0, 4)
-    try:
+    with link_and_peers(None, old=(1, 1), new=(1, 1)) as (link, target, p):
+        hb = p["old"].enc.heartbeat_encode(2, 12, 0, 0, 4)
         p["old"].send(hb, target)
         read_all(link)
         p["new"].send(hb, target)
         read_all(link)
-        assert link.autopilot_addr == ("127.0.0.1", p["old"].sock.getsockname()[1])
+        assert link.autopilot_addr == p["old"].sock.getsockname()
         assert [r["what"] for r in link.take_refusals()] == ["refused"]
         time.sleep(0.4)  # the old address falls silent
         p["new"].send(hb, target)
         read_all(link)
-        assert link.autopilot_addr == ("127.0.0.1", p["new"].sock.getsockname()[1])
+        assert link.autopilot_addr == p["new"].sock.getsockname()
         [r] = link.take_refusals()
         assert (r["what"], r["address"], r["pinned"]) == ("moved", p["new"].address, p["old"].address)
-    finally:
-        link.close()
-        for peer in p.values():
-            peer.sock.close()
 
 
 def test_a_configured_autopilot_address_is_never_left(monkeypatch):
     import companion.link as lk
 
     monkeypatch.setattr(lk, "CLIENT_TIMEOUT_S", 0.1)
-    ap = udp_socket()
-    link, target, p = link_and_peers({(1, 1): ap.getsockname()}, impostor=(1, 1))
-    try:
+    ap = Peer(1, 1)
+    with link_and_peers({(1, 1): ap.sock.getsockname()}, impostor=(1, 1)) as (link, target, p):
+        ap.sock.close()
         time.sleep(0.2)  # the autopilot silent for longer than the time-out
         p["impostor"].send(p["impostor"].enc.heartbeat_encode(2, 12, 0, 0, 4), target)
         assert not read_all(link)
-        assert link.autopilot_addr == ap.getsockname() and link.stats["foreign_autopilot"] == 1
-    finally:
-        link.close()
-        ap.close()
-        p["impostor"].sock.close()
+        assert "%s:%d" % link.autopilot_addr == ap.address
+        assert link.stats["foreign_autopilot"] == 1 and link.take_refusals()[0]["pinned"] == ap.address
 
 
 def test_mavlink_in_takes_each_sensor_from_its_configured_source_only():
