@@ -225,9 +225,9 @@ class MavlinkIn:
         if kind in PARAM_MSGS:
             return [ParamRequest(msg)]  # the parameter server checks the ground station (and its signature)
         src = (msg.get_srcSystem(), msg.get_srcComponent())
-        if kind in SENSOR_MSGS and src in self._sensors_of:
-            return self.samples(self.clock(), kind, msg, src)
         if src != self.autopilot:
+            if kind in SENSOR_MSGS and src in self._sensors_of:  # a sensor with ids of its own
+                return self.samples(self.clock(), kind, msg, src)
             return self._unknown_source(src)
         t = self.clock()
         out = self.samples(t, kind, msg)
