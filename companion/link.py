@@ -59,7 +59,7 @@ MAX_DATAGRAMS_PER_READ = 256
 READ_BUDGET_S = 0.005  # one recv_msg reads datagrams for at most this long looking for a message
 PORT_DATAGRAMS_PER_POLL = 256  # udpin, autopilot pinned: the shared port's datagrams read per poll at most
 REPORT_EVERY_S = 10.0  # a refused address is reported at its first datagram, then at most this often
-MAX_REPORTED = 64  # refused addresses remembered at most (the one reported longest ago is forgotten first)
+MAX_REPORTED = 64  # refused addresses remembered at most (the first heard of them is forgotten first)
 REPORTS_PER_WINDOW = 16  # reports per REPORT_EVERY_S at most, whatever the number of addresses (then counted only)
 
 
@@ -167,7 +167,7 @@ class UdpLink(mavutil.mavfile):
         rec = self._reported.get(key)
         if rec is None:
             if len(self._reported) >= MAX_REPORTED:
-                del self._reported[min(self._reported, key=lambda k: self._reported[k][1])]
+                del self._reported[next(iter(self._reported))]  # the first heard of them: O(1) under a flood
             rec = self._reported[key] = [0, -math.inf]
         rec[0] += 1
         if now - self._window[0] >= REPORT_EVERY_S:
