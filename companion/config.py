@@ -133,6 +133,18 @@ class LinkConfig(_Strict):
         """The (system, component) a configured sensor's messages come from."""
         return (s.system_id or self.target_system, s.component_id or self.target_component)
 
+    def pins(self, sensors: list[SensorConfig]) -> dict[tuple[int, int], tuple[str, int] | None]:
+        """The sources a UDP link (udpin) takes from one address only: the autopilot, and each sensor with ids of
+        its own — (system, component) → the configured address, or None (the first heard). A sensor with the
+        autopilot's ids comes from the autopilot's address."""
+        ap = (self.target_system, self.target_component)
+        pins = {ap: udp_address(self.autopilot_address)}
+        for s in sensors:
+            ids = self.sensor_source(s)
+            if ids != ap and pins.get(ids) is None:
+                pins[ids] = udp_address(s.address)
+        return pins
+
 
 class ContractConfig(_Strict):
     r_obst_m: NonNeg = 1.0  # expected obstacle radius (also the R_OBST parameter)

@@ -333,20 +333,6 @@ def _fmt_addr(addr: tuple | None) -> str | None:
     return None if addr is None else f"{addr[0]}:{addr[1]}"
 
 
-def pinned_sources(cfg) -> dict[tuple[int, int], tuple | None]:
-    """The sources a UDP link takes from one address only (a `Config`): the autopilot, and each sensor with
-    ids of its own — (system, component) → the configured address, or None (the first heard)."""
-    from .config import udp_address
-
-    lk = cfg.link
-    pins = {(lk.target_system, lk.target_component): udp_address(lk.autopilot_address)}
-    for s in cfg.sensors:
-        ids = lk.sensor_source(s)
-        if ids != (lk.target_system, lk.target_component) and pins.get(ids) is None:
-            pins[ids] = udp_address(s.address)  # a sensor with the autopilot's ids comes from the autopilot's address
-    return pins
-
-
 def _udp_socket(bind: tuple | None = None, connect: tuple | None = None, reuse: bool = False) -> socket.socket:
     """A non-blocking UDP socket with a large receive buffer and the kernel's drop count on each datagram."""
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -389,7 +375,7 @@ def open_connection(url: str, baud: int, system: int, component: int, autopilot:
                     pins: dict | None = None):
     """A MAVLink connection for a config URL: `UdpLink` for udpin:/udpout:, pymavlink for tcp: and serial
     (`autopilot`: its system and component ids, which a UDP link accepts from one address only; `pins`: the
-    sources taken from one address only, `pinned_sources`)."""
+    sources taken from one address only, `LinkConfig.pins`)."""
     if url.startswith(("udpin:", "udpout:")):
         return UdpLink(url, system, component, autopilot, pins)
     try:
