@@ -196,7 +196,8 @@ class UdpLink(mavutil.mavfile):
         if addr == pinned:
             return True
         # the autopilot is pinned by its HEARTBEAT (what makes it the autopilot), a sensor by any message
-        if (ids != self.autopilot_ids or msg.get_type() == "HEARTBEAT") and (pinned is None or self._may_move(ids, now)):
+        pins_here = ids != self.autopilot_ids or msg.get_type() == "HEARTBEAT"
+        if pins_here and (pinned is None or self._may_move(ids, now)):
             if pinned is not None and ids == self.autopilot_ids:
                 self.stats["autopilot_moves"] += 1  # the old address fell silent: follow the new one
             self._pin(ids, addr, now)

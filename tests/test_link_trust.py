@@ -2,10 +2,10 @@
 `udpin`): the autopilot is its ids and the address it is pinned to, each sensor its configured source, and
 only a configured ground station's *signed* message sets the daemon's parameters over a network link.
 
-N1: a spoofed DISTANCE_SENSOR "free to 6 m" at 200 Hz hid a real obstacle at 3 m (from another component,
-another address or the autopilot's own address). N2: an unsigned PARAM_SET CG_ENGAGE 0 from a new address
-disengaged the daemon. N3: whoever sent the first autopilot HEARTBEAT became the autopilot; a second one
-was dropped without a word."""
+Before these checks, a spoofed DISTANCE_SENSOR "free to 6 m" at 200 Hz hid a real obstacle at 3 m (from
+another component, another address or the autopilot's own address); an unsigned PARAM_SET CG_ENGAGE 0 from
+a new address disengaged the daemon; whoever sent the first autopilot HEARTBEAT became the autopilot, and a
+second one was dropped without a word."""
 
 import contextlib
 import signal
@@ -113,7 +113,8 @@ class Flight:
                 if speaking:
                     e = self.ap.enc
                     for msg in (e.heartbeat_encode(2, 12, 1 | 128, 4 << 16 | 4 << 24, 4),
-                                e.attitude_encode(tb, 0, 0, 0, 0, 0, 0), e.local_position_ned_encode(tb, 1.0, 2.0, -2, 0, 0, 0),
+                                e.attitude_encode(tb, 0, 0, 0, 0, 0, 0),
+                                e.local_position_ned_encode(tb, 1.0, 2.0, -2, 0, 0, 0),
                                 e.distance_sensor_encode(tb, 20, MAX_CM, OBSTACLE_CM, 0, 0, 0, 255)):
                         self.ap.send(msg, self.target)
                 self.ap.drain()
@@ -140,16 +141,16 @@ def counters(log) -> dict:
     return next(r["counters"] for r in log if r.get("event") == "stop")
 
 
-# ------------------------------------------------------------------ N1: a spoofed sensor
-FREE = dict(current=MAX_CM + 1)  # "free to 6 m": nothing within the maximum
+# ------------------------------------------------------------------ a spoofed sensor
+FREE_CM = MAX_CM + 1  # "free to 6 m": nothing within the maximum
 
 
 @pytest.mark.parametrize("via", ["another address, component 200", "the autopilot's address, component 200",
                                  "another address, the autopilot's ids"])
 def test_a_spoofed_free_reading_at_200_hz_does_not_hide_the_obstacle(tmp_path, via):
     """The autopilot's DISTANCE_SENSOR sees an obstacle 3 m ahead at 50 Hz; a spoofer says "free to 6 m" at
-    200 Hz with the same sensor id and orientation. Today's main took it (any component, any address, the
-    latest sample wins): most state samples saw no obstacle."""
+    200 Hz with the same sensor id and orientation. Without the source checks it was taken (any component, any
+    address, the latest sample wins) and the state samples saw no obstacle."""
     flight = Flight(tmp_path)
     spoofer = {"another address, component 200": Peer(1, 200),
                "the autopilot's address, component 200": Peer(1, 200, flight.ap.sock),
@@ -158,7 +159,7 @@ def test_a_spoofed_free_reading_at_200_hz_does_not_hide_the_obstacle(tmp_path, v
 
     def spoof(t):
         for _ in range(4):  # 4 per 20 ms cycle: 200 Hz
-            spoofer.send(spoofer.enc.distance_sensor_encode(0, 20, MAX_CM, FREE["current"], 0, 0, 0, 255), flight.target)
+            spoofer.send(spoofer.enc.distance_sensor_encode(0, 20, MAX_CM, FREE_CM, 0, 0, 0, 255), flight.target)
             sent["n"] += 1
 
     log = flight.fly(5.0, spoof)
@@ -179,11 +180,11 @@ def test_a_spoofed_free_reading_at_200_hz_does_not_hide_the_obstacle(tmp_path, v
     assert "link: " in flight.console and "from unknown sources" in flight.console  # the exit summary
 
 
-# ------------------------------------------------------------------ N2: a spoofed ground station
+# ------------------------------------------------------------------ a spoofed ground station
 def test_an_unsigned_parameter_set_from_a_new_address_is_refused_and_echoed(tmp_path):
     """System 255 from an address never heard before, unsigned: CG_ENGAGE 0 and CG_R_OBST 0.1 are refused
     (over a network link the daemon's parameters take signed sets only), each answered with PARAM_VALUE of
-    the value kept. Today's main took both."""
+    the value kept. Without the signing check both were taken."""
     flight = Flight(tmp_path, engage=True)
     gcs = Peer(255, 190)
     asked = {"n": 0}
@@ -223,7 +224,7 @@ def test_unsigned_parameter_sets_allowed_by_config_are_taken_and_the_banner_says
     assert "WEAKENED link.unsigned_params" in flight.console
 
 
-# ------------------------------------------------------------------ N3: a second autopilot
+# ------------------------------------------------------------------ a second autopilot
 def impostor_flight(tmp_path, configured: bool, first: bool):
     """The real autopilot (x = 1 m) and an impostor claiming its ids (x = 1000 m) from another address; the
     impostor speaks first (`first`) or from 1 s after the daemon answered; `configured`: the real one's
@@ -260,8 +261,8 @@ def impostor_flight(tmp_path, configured: bool, first: bool):
 @pytest.mark.parametrize("configured", [True, False], ids=["address configured", "first heard"])
 def test_a_second_autopilot_is_refused_and_said_the_real_one_keeps_the_link(tmp_path, configured):
     """The impostor speaks after the real autopilot: refused (its position never taken), said in the event
-    log, a STATUSTEXT and the console, and the real autopilot keeps hearing the daemon. Today's main dropped
-    it without a word."""
+    log, a STATUSTEXT and the console, and the real autopilot keeps hearing the daemon (it used to be dropped
+    without a word)."""
     flight, impostor, log, t0 = impostor_flight(tmp_path, configured, first=False)
     assert t0 is not None
     assert states(log) and all(s["x"] == 1.0 for s in states(log))
@@ -276,8 +277,9 @@ def test_a_second_autopilot_is_refused_and_said_the_real_one_keeps_the_link(tmp_
 
 
 def test_an_impostor_heard_first_is_refused_where_the_autopilot_address_is_configured(tmp_path):
-    """Today's main pinned whoever sent the first autopilot HEARTBEAT: the real autopilot then got no command
-    at all. With link.autopilot_address, the real one gets the link-up commands and the impostor nothing."""
+    """Whoever sends the first autopilot HEARTBEAT is pinned unless the address is configured (the real
+    autopilot then got no command at all). With link.autopilot_address, the real one gets the link-up commands
+    and the impostor nothing."""
     flight, impostor, log, _ = impostor_flight(tmp_path, configured=True, first=True)
     assert states(log) and all(s["x"] == 1.0 for s in states(log))
     asked = flight.ap.received("COMMAND_LONG")
@@ -403,4 +405,5 @@ def test_mavlink_in_takes_each_sensor_from_its_configured_source_only():
     assert [s.ids for s in inp.accept(msg((2, 1)))] == [(2, 1)]  # another system's autopilot ids
     assert c.unknown_source == 3
     gcs = mav.MAVLink(None, srcSystem=255, srcComponent=190)
-    assert inp.accept(gcs.decode(bytearray(gcs.heartbeat_encode(6, 8, 0, 0, 4).pack(gcs)))) == [] and c.unknown_source == 3
+    assert inp.accept(gcs.decode(bytearray(gcs.heartbeat_encode(6, 8, 0, 0, 4).pack(gcs)))) == []
+    assert c.unknown_source == 3  # a ground station's other messages are not an unknown source
