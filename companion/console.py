@@ -127,9 +127,9 @@ class ConsoleLog:
         return (f"stopped after {self.clock() - self.t0:.0f} s: {c.messages} messages ({c.bad_packets} malformed, "
                 f"{c.implausible} implausible), {c.commands_sent} commands, "
                 f"{self.counts['failsafe'] + self.counts['hold_trigger']} holds, violations: {by or 'none'}, "
-                f"{c.loop_errors} loop errors, {c.log_errors} log errors; link: {c.unknown_source} from unknown sources, "
-                f"{c.refused_address} from refused addresses, {c.rejected_signature} badly signed, {c.link_dropped} "
-                f"not MAVLink, {c.kernel_drops} dropped by the kernel")
+                f"{c.loop_errors} loop errors, {c.log_errors} log errors; link: {c.unknown_source} from unknown "
+                f"sources, {c.refused_address} from refused addresses, {c.rejected_signature} badly signed, "
+                f"{c.link_dropped} not MAVLink, {c.kernel_drops} dropped by the kernel")
 
 
 def controller_coverage(table) -> str:
