@@ -373,7 +373,7 @@ def cmd_run(args) -> int:
     signing_clock = None
     key = load_signing_key(cfg.link.signing_key_file) if cfg.link.signing_key_file else None
     conn = open_connection(cfg.link.connect, cfg.link.baud, cfg.link.target_system, cfg.link.component_id,
-                           (cfg.link.target_system, cfg.link.target_component))
+                           (cfg.link.target_system, cfg.link.target_component), cfg.link.pins(cfg.sensors))
     if key is not None:
         signing_clock = SigningClock(cfg.link.signing_timestamp_file)
         setup_signing(conn, key, signing_clock)

@@ -41,17 +41,53 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+MavId = Annotated[int, Field(ge=1, le=255)]
+
+
+def udp_address(text: str | None) -> tuple[str, int] | None:
+    """`HOST:PORT` → (IPv4 address, port); raises ValueError naming what is wrong."""
+    if text is None:
+        return None
+    import socket
+
+    host, _, port = text.rpartition(":")
+    try:
+        addr = (socket.gethostbyname(host), int(port))
+    except (ValueError, OSError):
+        raise ValueError(f"{text!r} is not HOST:PORT") from None
+    if not 0 < addr[1] < 65536:
+        raise ValueError(f"{text!r}: port outside 1–65535")
+    return addr
+
+
 class SensorConfig(_Strict):
-    """One obstacle sensor as mounted: which messages are its, where it looks, how wide."""
+    """One obstacle sensor as mounted: which messages are its (the source: system, component, sensor id,
+    orientation), where it looks, how wide. A message from any other source is counted and dropped."""
 
     kind: Literal["distance_sensor", "obstacle_distance"] = "distance_sensor"
     id: int | None = None  # DISTANCE_SENSOR.id to match (None: any id with this orientation)
+    # the MAVLink source of its messages (None: the autopilot's, as PX4 and ArduPilot forward their range sensors
+    # as DISTANCE_SENSOR / OBSTACLE_DISTANCE of their own component)
+    system_id: MavId | None = None
+    component_id: MavId | None = None
+    # over UDP (udpin), the address its messages come from (None: the first heard; a sensor with the autopilot's
+    # ids is the autopilot's address)
+    address: str | None = None
     orientation_deg: float = 0.0  # sensor axis yaw in the body frame, clockwise from forward
     h_fov_deg: Annotated[float, Field(gt=0, le=360)]
     min_quality: Annotated[int, Field(ge=0, le=100)] = 50  # signal_quality below this: not trusted
     # the sensor's rated range [m]: what its messages may claim (max_distance) is capped by it; required
     # in governor and offboard mode (a sensor's word is not taken for its range)
     max_range_m: Pos | None = None
+
+    @field_validator("address")
+    @classmethod
+    def _address(cls, text: str | None) -> str | None:
+        udp_address(text)
+        return text
+
+
+NETWORK_LINKS = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")  # pymavlink URLs of a network
 
 
 class LinkConfig(_Strict):
@@ -62,6 +98,12 @@ class LinkConfig(_Strict):
     target_component: int = 1
     component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
     gcs_system_ids: list[Annotated[int, Field(ge=1, le=255)]] = [255]  # ground stations that may set CG_* parameters
+    # over UDP (udpin), the address the autopilot sends from (HOST:PORT; None: the first address its HEARTBEAT
+    # comes from). Another address claiming its ids is refused, and said
+    autopilot_address: str | None = None
+    # over a network link the daemon's parameters are set only by signed messages; true accepts unsigned
+    # ones (weaker: anyone who can reach the link as a ground station's system id can disengage the guard)
+    unsigned_params: bool = False
     # the autopilot's clock rate against the host's: 1 for a real aircraft, K for a SITL sped up K times;
     # daemon time runs at it, and an autopilot clock running otherwise is a fault
     clock_rate: Annotated[float, Field(ge=0.1, le=20)] = 1.0
@@ -76,6 +118,55 @@ class LinkConfig(_Strict):
         if name not in ADAPTERS:
             raise ValueError(f"unknown autopilot {name!r} (known: {', '.join(ADAPTERS)})")
         return name
+
+    @field_validator("autopilot_address")
+    @classmethod
+    def _address(cls, text: str | None) -> str | None:
+        udp_address(text)
+        return text
+
+    @property
+    def network(self) -> bool:
+        """Whether the link is a network (UDP, TCP): anyone who can reach it can send."""
+        return self.connect.startswith(NETWORK_LINKS)
+
+    @property
+    def unsigned_param_refusal(self) -> str | None:
+        """Why an unsigned set of the daemon's parameters is refused on this link, or None when it is not: over
+        a network link, unless `unsigned_params` (weaker) — with a signing key the link itself takes only
+        signed messages, so what reaches the parameter server was signed (or is a replay of what was)."""
+        if not self.network or self.unsigned_params or self.signing_key_file is not None:
+            return None
+        return ("unsigned over a network link (sign the ground station's messages: link.signing_key_file; or "
+                "accept unsigned sets, weaker: link.unsigned_params)")
+
+    def trust(self) -> list[str]:
+        """Who the daemon takes its parameters from, in words (for the banner); WEAKENED where it is weaker
+        than the default."""
+        ids = "/".join(map(str, self.gcs_system_ids))
+        if self.network and self.unsigned_params:
+            return [f"WEAKENED link.unsigned_params: CG_* parameters accept UNSIGNED sets from system {ids} over "
+                    f"{self.connect} (anyone who can reach the link can disengage the guard)"]
+        if self.unsigned_param_refusal is not None:
+            return [f"CG_* parameters: signed sets only over {self.connect}, and no signing key is configured: "
+                    "they cannot be set over the link"]
+        return []
+
+    def sensor_source(self, s: "SensorConfig") -> tuple[int, int]:
+        """The (system, component) a configured sensor's messages come from."""
+        return (s.system_id or self.target_system, s.component_id or self.target_component)
+
+    def pins(self, sensors: list[SensorConfig]) -> dict[tuple[int, int], tuple[str, int] | None]:
+        """The sources a UDP link (udpin) takes from one address only: the autopilot, and each sensor with ids of
+        its own — (system, component) → the configured address, or None (the first heard). A sensor with the
+        autopilot's ids comes from the autopilot's address."""
+        ap = (self.target_system, self.target_component)
+        pins = {ap: udp_address(self.autopilot_address)}
+        for s in sensors:
+            ids = self.sensor_source(s)
+            if ids != ap and pins.get(ids) is None:
+                pins[ids] = udp_address(s.address)
+        return pins
 
 
 class ContractConfig(_Strict):

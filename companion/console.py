@@ -18,6 +18,7 @@ from collections import Counter
 from contracts.lookup import kernel_name
 
 from .estimators import LATE_WINDOW_S
+from .mavlink_in import refusal_text
 
 ERR, WARNING, NOTICE, INFO = 3, 4, 5, 6
 
@@ -72,6 +73,8 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
     if name == "mission" and f["status"] in ("ready", "refused"):
         return (INFO, f"mission route ready: {f.get('waypoints')} waypoints") if f["status"] == "ready" else \
             (ERR, f"mission refused: {f.get('reason')}")
+    if name == "source_refused":
+        return (NOTICE if f["what"] == "unknown" else ERR if f["what"] == "refused" else WARNING), refusal_text(f)
     if name == "log_failing":
         return ERR, f"EVENT LOG FAILING: {f['error']} (records are kept in memory and written when it can)"
     if name in ("loop_error", "implausible_input", "autopilot_restart", "log_recovered", "log_writing"):
@@ -132,8 +135,11 @@ class ConsoleLog:
         by = ", ".join(f"{k.split(':', 1)[1]} {n}" for k, n in sorted(self.counts.items()) if k.startswith("violation:"))
         return (f"stopped after {self.clock() - self.t0:.0f} s: {c.messages} messages ({c.bad_packets} malformed, "
                 f"{c.implausible} implausible), {c.commands_sent} commands, "
-                f"{self.counts['failsafe'] + self.counts['hold_trigger'] + self.counts['shutdown_hold']} holds, violations: {by or 'none'}, "
-                f"{c.loop_errors} loop errors, {c.log_errors} log errors")
+                f"{self.counts['failsafe'] + self.counts['hold_trigger'] + self.counts['shutdown_hold']} holds, "
+                f"violations: {by or 'none'}, {c.loop_errors} loop errors, {c.log_errors} log errors; link: "
+                f"{c.unknown_source} from unknown sources, {c.refused_address} from refused addresses, "
+                f"{c.rejected_signature} badly signed, {c.link_dropped} not MAVLink, {c.kernel_drops} dropped by "
+                "the kernel")
 
 
 def controller_coverage(table) -> str:
@@ -167,6 +173,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "
         f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, navigation margin {ct.nav_margin:g} of each sensor's claimed "
         f"range{'' if ct.nav_margin else ' (claims trusted in full)'}, loop {cfg.loop_hz:g} Hz, event log {cfg.log.dir}",
+        *lk.trust(),
         f"waiting for the autopilot ({lk.autopilot}, system {lk.target_system} component {lk.target_component}) "
-        f"on {lk.connect}",
+        f"on {lk.connect}{f' from {lk.autopilot_address}' if lk.autopilot_address else ''}",
     ]

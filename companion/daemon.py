@@ -59,7 +59,7 @@ class Daemon:
         self.clock = clock or self.vclock
         self.adapter = adapter_for(cfg.link.autopilot)
         self.counters = Counters()
-        self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock)
+        self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock, self.counters)
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
         self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
                            ThreadedPlanning if planning == "thread" else InlinePlanning, policy)
@@ -109,6 +109,8 @@ class Daemon:
                 break
             n += 1
             self._dispatch(msg)
+        for s in self.mav_in.from_link(self.conn):  # the link's counts, and whom it refused
+            self.take(s)
         return n
 
     def feed(self, msg) -> None:

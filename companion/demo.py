@@ -133,7 +133,9 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
     port = _free_port()
     cfg = {
         "vehicle": sc.vehicle, "mode": "offboard", "engage": True,
-        "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": personality, "clock_rate": speedup},
+        # the scenario's ground station on this machine sets CG_* unsigned (weaker; the banner says so)
+        "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": personality, "clock_rate": speedup,
+                 "unsigned_params": True},
         "sensors": [{"kind": "obstacle_distance", "h_fov_deg": sc.sensor.fov_deg, "max_range_m": sc.sensor.max_range_m}],
         "contract": {"r_obst_m": max((c.radius_m for c in sc.world.columns), default=1.0)},
         "route": {"waypoints": [list(w) for w in sc.route.waypoints], "altitude_m": sc.route.altitude_m},

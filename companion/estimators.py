@@ -42,6 +42,9 @@ class _SensorState:
     increment: float = 0.0
     period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
     swept: deque = field(default_factory=deque)  # `_Seen` samples of the last COVERAGE_S
+    # each source's last sample (t, hits, claimed range, trusted): a sensor matching several DISTANCE_SENSOR ids
+    # sees what any of them saw within the time-out (a "free" reading never erases another source's obstacle)
+    sources: dict = field(default_factory=dict)
 
 
 @dataclass(slots=True)
@@ -158,9 +161,11 @@ class DodEstimator:
         s = self.sensors[scan.sensor]
         if scan.increment is not None:  # bins: which report, and their width
             s.known, s.increment = scan.known, scan.increment
-        self._update(scan.sensor, scan.t, scan.max_m, scan.quality, list(scan.hits))
+        self._update(scan.sensor, scan.t, scan.max_m, scan.quality, list(scan.hits), scan.source)
 
-    def _update(self, i, t, max_m, quality, seen) -> None:
+    def _update(self, i, t, max_m, quality, seen, source=None) -> None:
+        """One sample of sensor i from `source`. The sensor's state is its fresh sources' together: every hit
+        any of them saw (the nearest wins), the smallest range claimed, trusted only if each of them is."""
         s = self.sensors[i]
         fresh = t - s.t <= self.stale_s
         before = s.hits if fresh else []
@@ -169,10 +174,15 @@ class DodEstimator:
             s.period = gap if s.period == 0 else 0.9 * s.period + 0.1 * gap
         # samples delivered in a burst were still taken one interval apart
         tolerance = self.contract.late_detection_tolerance_m + self._speed * max(gap, s.period if fresh else 0.0)
-        s.t, s.max_m = t, max(max_m, 0.0)
-        s.trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
+        trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
+        s.sources[source] = (t, seen, max(max_m, 0.0), trusted)
+        s.sources = {k: v for k, v in s.sources.items() if t - v[0] <= self.stale_s}
+        s.t = t
+        s.max_m = min(v[2] for v in s.sources.values())
+        s.trusted = all(v[3] for v in s.sources.values())
+        view = seen if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
         placed = self._placed(i, t, seen)
-        self._sweep(i, t, seen)
+        self._sweep(i, t, view)  # free only short of every fresh source's hits
         for k, (bearing, r) in enumerate(seen):
             if any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
                 continue  # the same obstacle as before
@@ -184,7 +194,7 @@ class DodEstimator:
         for p in placed:
             if p is not None:
                 self._tracked.append((t, *p[:2]))
-        s.hits = seen
+        s.hits = view
 
     def _placed(self, i: int, t: float, seen) -> list[tuple[float, float, float] | None]:
         """Each hit in the local frame: (x, y, uncertainty ±) from the last position and heading (None when

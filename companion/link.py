@@ -10,6 +10,7 @@ from __future__ import annotations
 import errno
 import hashlib
 import json
+import math
 import os
 import socket
 import struct
@@ -57,6 +58,9 @@ CLIENT_TIMEOUT_S = 10.0  # a client silent this long is forgotten
 MAX_DATAGRAMS_PER_READ = 256
 READ_BUDGET_S = 0.005  # one recv_msg reads datagrams for at most this long looking for a message
 PORT_DATAGRAMS_PER_POLL = 256  # udpin, autopilot pinned: the shared port's datagrams read per poll at most
+REPORT_EVERY_S = 10.0  # a refused address is reported at its first datagram, then at most this often
+MAX_REPORTED = 64  # refused addresses remembered at most (the first heard of them is forgotten first)
+REPORTS_PER_WINDOW = 16  # reports per REPORT_EVERY_S at most, whatever the number of addresses (then counted only)
 
 
 class UdpLink(mavutil.mavfile):
@@ -67,14 +71,18 @@ class UdpLink(mavutil.mavfile):
       a datagram that cannot hold a MAVLink frame is dropped unread (`not_mavlink`);
     - `udpout:HOST:PORT` connects the socket, so the kernel delivers only that peer's datagrams and the
       local side is bound to the interface that reaches it;
-    - `udpin:HOST:PORT` binds (a second daemon on the port is refused) and accepts the autopilot
-      (`autopilot` = (system, component) of its HEARTBEAT) only from the address it was first heard from:
-      from then on a second socket on the same port, connected to that address, receives the autopilot's
-      datagrams in a buffer of their own, so no flood on the port can crowd them out; another address
-      claiming its ids is dropped unread (`foreign_autopilot`) until the autopilot has been silent for
-      CLIENT_TIMEOUT_S, then followed (`autopilot_moves`). Other senders of well-formed MAVLink are
-      clients (answered too), at most MAX_CLIENTS, forgotten after CLIENT_TIMEOUT_S of silence; new
-      senders beyond that are dropped unread (`refused_sources`);
+    - `udpin:HOST:PORT` binds (a second daemon on the port is refused) and takes each pinned source — the
+      autopilot (`autopilot` = (system, component) of its HEARTBEAT) and the sensors with ids of their own
+      (`pins`: (system, component) → configured address or None) — from one address only: the configured
+      one, or the first heard (for the autopilot, its first HEARTBEAT's). From then on a second socket on
+      the same port, connected to the autopilot's address, receives its datagrams in a buffer of their own,
+      so no flood on the port can crowd them out. Another address claiming a pinned source's ids is
+      refused (`foreign_autopilot`, `foreign_source`: dropped unread) and reported (`refusals`, at the first
+      datagram of each address and then at most every REPORT_EVERY_S); a source pinned to the first address
+      heard follows a new one only after CLIENT_TIMEOUT_S of silence (`autopilot_moves`, reported too), a
+      configured address never. Other senders of well-formed MAVLink are clients (answered too), at most
+      MAX_CLIENTS, forgotten after CLIENT_TIMEOUT_S of silence; new senders beyond that are dropped unread
+      (`refused_sources`);
     - reading drains the sockets in batches (`recv_msg` returns one message at a time; the daemon bounds
       what it takes per cycle); once the autopilot has its own socket, the shared port (ground stations,
       and whatever a flood sends) is read for at most PORT_DATAGRAMS_PER_POLL datagrams between two
@@ -82,14 +90,15 @@ class UdpLink(mavutil.mavfile):
       waits or is dropped by the kernel, which is counted (SO_RXQ_OVFL, `kernel_drops`).
     """
 
-    def __init__(self, url: str, source_system: int, source_component: int, autopilot: tuple[int, int]):
+    def __init__(self, url: str, source_system: int, source_component: int, autopilot: tuple[int, int],
+                 pins: dict[tuple[int, int], tuple | None] | None = None):
         mode, _, address = url.partition(":")
         host, _, port = address.rpartition(":")
         try:
             self.local = (socket.gethostbyname(host or "0.0.0.0"), int(port))
         except (ValueError, OSError) as err:
             raise ContractError(f"cannot open link {url}: {err}") from None
-        self.listening, self.autopilot_ids = mode == "udpin", autopilot
+        self.listening, self.autopilot_ids = mode == "udpin", tuple(autopilot)
         try:
             if self.listening:
                 _refuse_a_taken_port(self.local)
@@ -99,11 +108,19 @@ class UdpLink(mavutil.mavfile):
         except OSError as err:
             raise ContractError(f"cannot open link {url}: {err.strerror or err}") from None
         self.ap_sock: socket.socket | None = None  # udpin: connected to the autopilot once it is heard
-        self.autopilot_addr: tuple | None = None if self.listening else self.local
-        self._autopilot_seen = 0.0
+        pins = dict(pins or {})
+        pins.setdefault(self.autopilot_ids, None)
+        # udpin: (system, component) → the address its messages are taken from (None: not heard yet)
+        self.pinned: dict[tuple[int, int], tuple | None] = dict(pins) if self.listening else {}
+        self.fixed = {ids for ids, a in pins.items() if a is not None} if self.listening else set()
+        self._seen: dict[tuple[int, int], float] = {}  # pinned source → when last heard from its address
+        self.refusals: list[dict] = []  # what the daemon should say (`take_refusals`)
+        self._reported: dict[tuple, list] = {}  # (ids, address, what) → [refused since reported, when reported]
+        self._window = [-math.inf, 0]  # [start, reports in it]: at most REPORTS_PER_WINDOW per REPORT_EVERY_S
         self.clients: dict[tuple, float] = {}
         self.stats = {"datagrams": 0, "not_mavlink": 0, "refused_sources": 0, "foreign_autopilot": 0,
-                      "autopilot_moves": 0, "truncated_datagrams": 0, "kernel_drops": 0, "send_errors": 0}
+                      "foreign_source": 0, "autopilot_moves": 0, "truncated_datagrams": 0, "kernel_drops": 0,
+                      "send_errors": 0}
         self._drops: dict[int, int] = {}
         self._queue: list = []
         self._q = 0
@@ -112,36 +129,86 @@ class UdpLink(mavutil.mavfile):
                                  source_component=source_component)
         self.robust_parsing = True
         self.mav.robust_parsing = True
+        if self.listening and self.pinned[self.autopilot_ids] is not None:
+            self._pin(self.autopilot_ids, self.pinned[self.autopilot_ids], time.monotonic())
 
-    # ---- the autopilot's address
-    def _pin_autopilot(self, addr: tuple, now: float) -> None:
-        """Take the autopilot from `addr` from now on, on a socket of its own."""
+    @property
+    def autopilot_addr(self) -> tuple | None:
+        """The address the autopilot is taken from (udpout: the peer; udpin: pinned, or None before it is heard)."""
+        return self.pinned.get(self.autopilot_ids) if self.listening else self.local
+
+    # ---- who sends from where
+    def _pin(self, ids: tuple[int, int], addr: tuple, now: float) -> None:
+        """Take `ids` from `addr` from now on; the autopilot on a socket of its own."""
+        before = self.pinned.get(ids)
+        self.pinned[ids], self._seen[ids] = addr, now
+        if before is not None and before != addr:
+            self._report(ids, addr, before, "moved", now)
+        if ids != self.autopilot_ids:
+            return
         if self.ap_sock is not None:
             self.ap_sock.close()
             self.ap_sock = None
-        self.autopilot_addr, self._autopilot_seen = addr, now
         self.clients.pop(addr, None)
         try:
             self.ap_sock = _udp_socket(bind=self.local, connect=addr, reuse=True)
         except OSError:
             self.ap_sock = None  # the shared socket still serves (without the flood protection)
 
-    def _from_autopilot(self, msg, addr: tuple, now: float) -> bool:
-        """Whether a message claiming the autopilot's ids may be taken from `addr`."""
-        if addr == self.autopilot_addr:
+    def _refuse(self, ids: tuple[int, int], addr: tuple, now: float) -> None:
+        self.stats["foreign_autopilot" if ids == self.autopilot_ids else "foreign_source"] += 1
+        self._report(ids, addr, self.pinned.get(ids), "refused", now)
+
+    def _report(self, ids, addr, pinned, what: str, now: float) -> None:
+        """A refusal (or a move) for the daemon to say: the first of each address, then at most every
+        REPORT_EVERY_S with the number refused since (`count`); at most MAX_REPORTED addresses remembered and
+        REPORTS_PER_WINDOW reports per REPORT_EVERY_S, so that no spoofer can flood the log through it."""
+        key = (ids, addr, what)
+        rec = self._reported.get(key)
+        if rec is None:
+            if len(self._reported) >= MAX_REPORTED:
+                del self._reported[next(iter(self._reported))]  # the first heard of them: O(1) under a flood
+            rec = self._reported[key] = [0, -math.inf]
+        rec[0] += 1
+        if now - self._window[0] >= REPORT_EVERY_S:
+            self._window = [now, 0]
+        if now - rec[1] >= REPORT_EVERY_S and self._window[1] < REPORTS_PER_WINDOW:
+            self._window[1] += 1
+            self.refusals.append({"what": what, "autopilot": ids == self.autopilot_ids, "ids": ids,
+                                  "address": _fmt_addr(addr), "pinned": _fmt_addr(pinned), "count": rec[0]})
+            rec[0], rec[1] = 0, now
+
+    def take_refusals(self) -> list[dict]:
+        """The refusals and moves to report since the last call (see `_report`)."""
+        out, self.refusals = self.refusals, []
+        return out
+
+    def _may_move(self, ids: tuple[int, int], now: float) -> bool:
+        """Whether a source pinned to the first address heard may follow a new one: silent for CLIENT_TIMEOUT_S."""
+        return ids not in self.fixed and now - self._seen.get(ids, -math.inf) > CLIENT_TIMEOUT_S
+
+    def _accept_from(self, msg, addr: tuple, now: float) -> bool:
+        """Whether a message claiming a pinned source's ids may be taken from `addr` (not pinned: yes)."""
+        ids = (msg.get_srcSystem(), msg.get_srcComponent())
+        if ids not in self.pinned:
             return True
-        if msg.get_type() == "HEARTBEAT" and (self.autopilot_addr is None or now - self._autopilot_seen > CLIENT_TIMEOUT_S):
-            if self.autopilot_addr is not None:
+        pinned = self.pinned[ids]
+        if addr == pinned:
+            return True
+        # the autopilot is pinned by its HEARTBEAT (what makes it the autopilot), a sensor by any message
+        pins_here = ids != self.autopilot_ids or msg.get_type() == "HEARTBEAT"
+        if pins_here and (pinned is None or self._may_move(ids, now)):
+            if pinned is not None and ids == self.autopilot_ids:
                 self.stats["autopilot_moves"] += 1  # the old address fell silent: follow the new one
-            self._pin_autopilot(addr, now)
+            self._pin(ids, addr, now)
             return True
-        self.stats["foreign_autopilot"] += 1
+        self._refuse(ids, addr, now)
         return False
 
-    def _claims_autopilot(self, data: bytes) -> bool:
-        """The first frame's header names the autopilot's system and component (read without parsing)."""
+    def _claimed_ids(self, data: bytes) -> tuple[int, int] | None:
+        """The first frame's (system, component), read from its header without parsing."""
         at = 5 if data[0] == 0xFD else 3
-        return len(data) > at + 1 and (data[at], data[at + 1]) == self.autopilot_ids
+        return (data[at], data[at + 1]) if len(data) > at + 1 else None
 
     def _admit(self, addr: tuple, now: float) -> bool:
         if addr in self.clients:
@@ -189,25 +256,26 @@ class UdpLink(mavutil.mavfile):
             if len(data) < 8 or data[0] not in (0xFD, 0xFE):
                 self.stats["not_mavlink"] += 1  # MAVLink over UDP: every datagram starts with a frame
                 continue
-            pinned = self.listening and self.autopilot_addr is not None and addr != self.autopilot_addr
-            if pinned and self._claims_autopilot(data) and now - self._autopilot_seen <= CLIENT_TIMEOUT_S:
-                self.stats["foreign_autopilot"] += 1
-                continue
-            if self.listening and addr != self.autopilot_addr and not self._admit(addr, now):
-                continue
+            if self.listening:
+                ids = self._claimed_ids(data)
+                pinned = self.pinned.get(ids, addr)
+                if pinned is not None and pinned != addr and not self._may_move(ids, now):
+                    self._refuse(ids, addr, now)  # cheap: a flood claiming the autopilot's ids is not parsed
+                    continue
+                if addr != self.autopilot_addr and not self._admit(addr, now):
+                    continue
             valid = False
             for m in self._parse(data):
                 if m.get_type() != "BAD_DATA":
-                    if self.listening and m.get_srcSystem() == self.autopilot_ids[0] \
-                            and m.get_srcComponent() == self.autopilot_ids[1] and not self._from_autopilot(m, addr, now):
+                    if self.listening and not self._accept_from(m, addr, now):
                         continue
                     valid = True
+                    if self.listening and (m.get_srcSystem(), m.get_srcComponent()) in self.pinned:
+                        self._seen[(m.get_srcSystem(), m.get_srcComponent())] = now
                 self.post_message(m)
                 self._queue.append(m)
-            if addr == self.autopilot_addr:
-                self._autopilot_seen = now
-            elif valid and self.listening:  # a sender is a client once it has said something well-formed
-                self.clients[addr] = now
+            if valid and self.listening and addr != self.autopilot_addr:
+                self.clients[addr] = now  # a sender is a client once it has said something well-formed
         return limit
 
     def _read_port(self) -> int:
@@ -262,6 +330,10 @@ class UdpLink(mavutil.mavfile):
                 s.close()
 
 
+def _fmt_addr(addr: tuple | None) -> str | None:
+    return None if addr is None else f"{addr[0]}:{addr[1]}"
+
+
 def _udp_socket(bind: tuple | None = None, connect: tuple | None = None, reuse: bool = False) -> socket.socket:
     """A non-blocking UDP socket with a large receive buffer and the kernel's drop count on each datagram."""
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -300,11 +372,13 @@ def _refuse_a_taken_port(local: tuple) -> None:
             raise
 
 
-def open_connection(url: str, baud: int, system: int, component: int, autopilot: tuple[int, int] = (1, 1)):
+def open_connection(url: str, baud: int, system: int, component: int, autopilot: tuple[int, int] = (1, 1),
+                    pins: dict | None = None):
     """A MAVLink connection for a config URL: `UdpLink` for udpin:/udpout:, pymavlink for tcp: and serial
-    (`autopilot`: its system and component ids, which a UDP link accepts from one address only)."""
+    (`autopilot`: its system and component ids, which a UDP link accepts from one address only; `pins`: the
+    sources taken from one address only, `LinkConfig.pins`)."""
     if url.startswith(("udpin:", "udpout:")):
-        return UdpLink(url, system, component, autopilot)
+        return UdpLink(url, system, component, autopilot, pins)
     try:
         conn = mavutil.mavlink_connection(url, baud=baud, source_system=system, source_component=component,
                                           autoreconnect=True, dialect="ardupilotmega")

@@ -9,6 +9,7 @@ message contradicts itself) and one entry in `SENSOR_KINDS`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 
@@ -28,6 +29,7 @@ from .samples import (
     PathTarget,
     Position,
     Scan,
+    SourceRefused,
     Throttle,
 )
 from .telemetry import Telemetry
@@ -36,7 +38,8 @@ UINT16_MAX = 65535
 MAV_FRAME_BODY_FRD = 12
 PARAM_MSGS = ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
 MISSION_MSGS = ("MISSION_COUNT", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", "HOME_POSITION")
-SENSOR_MSGS = ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")  # accepted from any component of the vehicle
+SENSOR_MSGS = ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")  # accepted from the configured sensors' sources
+MAX_UNKNOWN_REPORTED = 32  # unknown sources reported (once each) at most; the rest are counted only
 RESTART_BACK_MS = 2000  # the autopilot's boot clock going back by more than this: it restarted
 PLAUSIBLE_XY_M = 1e6  # |x|, |y| of a local position (1000 km from its origin)
 PLAUSIBLE_Z_M = 1e5
@@ -107,9 +110,11 @@ def bins_scan(t: float, sensor: int, bearings: np.ndarray, ranges_m: np.ndarray,
 
 
 def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> list:
-    """DISTANCE_SENSOR: the configured sensor of this id (or any id) whose orientation matches; cm → m."""
-    i = sensor_of.get(("distance_sensor", msg.id), sensor_of.get(("distance_sensor", None)))
-    if i is None or msg.orientation != sensor_orientation(cfg.sensors[i].orientation_deg):
+    """DISTANCE_SENSOR: the configured sensor of this source (`sensor_of`), id (or any id) and orientation;
+    cm → m."""
+    i = sensor_of.get(("distance_sensor", msg.id, msg.orientation),
+                      sensor_of.get(("distance_sensor", None, msg.orientation)))
+    if i is None:
         return []
     c = cfg.sensors[i]
     scan = range_scan(t, i, math.radians(c.orientation_deg), msg.current_distance / 100, msg.min_distance / 100,
@@ -122,7 +127,7 @@ def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemet
     """OBSTACLE_DISTANCE: bin k at angle_offset + k·increment (clockwise; MAV_FRAME_GLOBAL is north-aligned,
     rotated into the body frame here); UINT16_MAX is a bin that knows nothing, beyond max_distance is
     free; cm → m. Bins wider than a circle, or a minimum above the maximum: an invalid scan."""
-    i = sensor_of.get(("obstacle_distance", None))
+    i = sensor_of.get(("obstacle_distance", None, None))
     if i is None:
         return []
     inc = msg.increment_f if getattr(msg, "increment_f", 0) else float(msg.increment)
@@ -179,33 +184,55 @@ def implausible(kind: str, msg) -> str | None:
     return None
 
 
+def refusal_text(f: dict) -> str:
+    """One line for a `source_refused` event's fields (STATUSTEXT and the console say the same)."""
+    who = "autopilot" if f["autopilot"] else "source"
+    ids = f"{f['system']}/{f['component']}"
+    if f["what"] == "unknown":
+        return f"messages from {ids}, not a configured autopilot, sensor or ground station: dropped"
+    if f["what"] == "moved":
+        return f"{who} {ids} now taken from {f['address']} (was {f['pinned']}, silent)"
+    return f"a second {who} {ids} from {f['address']} REFUSED ({f['count']}): it is {f['pinned']}"
+
+
 SENSOR_KINDS = {"DISTANCE_SENSOR": _distance_sensor, "OBSTACLE_DISTANCE": _obstacle_distance}
 
 
 class MavlinkIn:
-    """Accepts the autopilot's (and its sensors') messages, keeps the `Telemetry` snapshot, and turns each
-    message into samples. `clock` is the daemon's clock; `vclock` (if any) follows `time_boot_ms`."""
+    """Accepts the autopilot's, its sensors' and the ground stations' messages — each from the ids the config
+    gives it (`link.target_system`/`target_component`, `sensors[k].system_id`/`component_id`, `link.gcs_system_ids`)
+    — keeps the `Telemetry` snapshot, and turns each message into samples. A message from any other source is
+    counted (`counters.unknown_source`) and dropped; the first of each such source is reported (SourceRefused).
+    `clock` is the daemon's clock; `vclock` (if any) follows `time_boot_ms`."""
 
-    def __init__(self, cfg: Config, adapter, clock, vclock: VehicleClock | None):
-        self.cfg, self.adapter, self.clock, self.vclock = cfg, adapter, clock, vclock
+    def __init__(self, cfg: Config, adapter, clock, vclock: VehicleClock | None, counters=None):
+        self.cfg, self.adapter, self.clock, self.vclock, self.counters = cfg, adapter, clock, vclock, counters
         self.tel = Telemetry()
         self._last_boot_ms: int | None = None  # the autopilot's time_boot_ms last seen
-        self._sensor_of = {(s.kind, s.id): i for i, s in enumerate(cfg.sensors)}
+        lk = cfg.link
+        self.autopilot = (lk.target_system, lk.target_component)
+        # sensor source (system, component) → {(kind, DISTANCE_SENSOR id or None, MAV_SENSOR_ORIENTATION or None):
+        # index in cfg.sensors}
+        self._sensors_of: dict[tuple[int, int], dict] = {}
+        for i, s in enumerate(cfg.sensors):
+            orientation = sensor_orientation(s.orientation_deg) if s.kind == "distance_sensor" else None
+            self._sensors_of.setdefault(lk.sensor_source(s), {}).setdefault((s.kind, s.id, orientation), i)
+        self._unknown: set[tuple[int, int]] = set()  # unknown sources reported
 
     def accept(self, msg) -> list:
         """Samples of one decoded message from the link (BAD_DATA is the caller's to count)."""
         kind = msg.get_type()
         if kind in PARAM_MSGS:
-            return [ParamRequest(msg)]  # from any ground station; the parameter server checks the address
-        src_sys, src_comp = msg.get_srcSystem(), msg.get_srcComponent()
-        if src_sys != self.cfg.link.target_system:
-            return []
-        if src_comp != self.cfg.link.target_component and kind not in SENSOR_MSGS:
-            return []
+            return [ParamRequest(msg)]  # the parameter server checks the ground station (and its signature)
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if src != self.autopilot:
+            if kind in SENSOR_MSGS and src in self._sensors_of:  # a sensor with ids of its own
+                return self.samples(self.clock(), kind, msg, src)
+            return self._unknown_source(src)
         t = self.clock()
         out = self.samples(t, kind, msg)
         tb = getattr(msg, "time_boot_ms", None)
-        if tb is not None and src_comp == self.cfg.link.target_component:  # the autopilot's clock, no one else's
+        if tb is not None:  # the autopilot's clock, no one else's
             last, self._last_boot_ms = self._last_boot_ms, tb
             if last is not None and tb + RESTART_BACK_MS < last:
                 out.insert(0, AutopilotRestart(t, last / 1000, tb / 1000))
@@ -215,8 +242,36 @@ class MavlinkIn:
                     out.append(Implausible(t, "time_boot_ms", self.vclock.fault))
         return out
 
-    def samples(self, t: float, kind: str, msg) -> list:
-        """The samples of one accepted message at daemon time t (may raise on nonsense: the caller counts it)."""
+    def _unknown_source(self, src: tuple[int, int]) -> list:
+        """A message from none of the configured sources (a ground station's other messages are not for us)."""
+        if src in self._sensors_of or src[0] in self.cfg.link.gcs_system_ids:
+            return []
+        if self.counters is not None:
+            self.counters.unknown_source += 1
+        if src in self._unknown or len(self._unknown) >= MAX_UNKNOWN_REPORTED:
+            return []
+        self._unknown.add(src)
+        return [SourceRefused(self.clock(), "unknown", src, False)]
+
+    def from_link(self, conn) -> list:
+        """After a poll: the link's counts into the counters, and what it refused as samples (a UDP link's;
+        other links have neither)."""
+        stats = getattr(conn, "stats", None)
+        if not isinstance(stats, dict):
+            return []
+        c = self.counters
+        if c is not None:
+            c.refused_address = stats.get("foreign_autopilot", 0) + stats.get("foreign_source", 0) \
+                + stats.get("refused_sources", 0)
+            c.link_dropped = stats.get("not_mavlink", 0) + stats.get("truncated_datagrams", 0)
+            c.kernel_drops = stats.get("kernel_drops", 0)
+        refusals = conn.take_refusals() if hasattr(conn, "take_refusals") else ()
+        return [SourceRefused(self.clock(), r["what"], tuple(r["ids"]), r["autopilot"], r["address"], r["pinned"],
+                              r["count"]) for r in refusals]
+
+    def samples(self, t: float, kind: str, msg, src: tuple[int, int] | None = None) -> list:
+        """The samples of one accepted message at daemon time t (may raise on nonsense: the caller counts it);
+        `src`: a sensor message's (system, component), None: the autopilot's."""
         why = implausible(kind, msg)
         if kind == "HEARTBEAT" and msg.autopilot != self.adapter.autopilot_id:
             why = f"HEARTBEAT of autopilot type {msg.autopilot}, not the configured {self.adapter.name}"
@@ -236,7 +291,10 @@ class MavlinkIn:
         if kind in ("ESTIMATOR_STATUS", "EKF_STATUS_REPORT"):
             return [NavStatus(t, kind, msg.flags)]
         if kind in SENSOR_KINDS:
-            return SENSOR_KINDS[kind](self.cfg, self._sensor_of, t, msg, tel)
+            src = src or self.autopilot
+            out = SENSOR_KINDS[kind](self.cfg, self._sensors_of.get(src, {}), t, msg, tel)
+            key = (*src, getattr(msg, "id", None))  # the scan's source: per source the estimator keeps its state
+            return [dataclasses.replace(x, source=key) if isinstance(x, Scan) else x for x in out]
         if kind == "COMMAND_ACK":
             return [CommandAck(t, msg.command, msg.result)] \
                 if msg.command in (MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE) else []

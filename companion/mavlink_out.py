@@ -57,7 +57,11 @@ class Counters:
     messages: int = 0  # decoded messages of the dialect
     unknown_messages: int = 0  # well-framed messages of an id the dialect does not define
     bad_packets: int = 0
-    rejected_signature: int = 0
+    rejected_signature: int = 0  # unsigned or wrongly signed, where signing is on
+    unknown_source: int = 0  # messages from ids no configured autopilot, sensor or ground station has
+    refused_address: int = 0  # UDP datagrams claiming a pinned source's ids from another address, or beyond the clients
+    link_dropped: int = 0  # UDP datagrams dropped unread: not MAVLink, or a frame cut at the datagram's end
+    kernel_drops: int = 0  # UDP datagrams the kernel dropped (receive buffer full), where it says
     commands_sent: int = 0
     log_errors: int = 0
     loop_errors: int = 0
@@ -159,22 +163,27 @@ class MavlinkOut:
 class ParamServer:
     """The daemon's parameters over the MAVLink parameter protocol. Anyone addressing the daemon (its
     system, or broadcast; its component, or broadcast) may read them; only the configured ground
-    stations may set them, each within its range (`ranges`: name → (lo, hi) or a set of values; a name
-    without one is read-only, such as CG_MODE, which reports the mode the daemon runs in). A refused set
-    is answered with the current value (PARAM_VALUE: the protocol's acknowledgement) and reported."""
+    stations may set them — over a network link only with a signed message (`unsigned_refused`: why an
+    unsigned one is refused, None where it is not; MAVLink 2 signing is verified by the link, and pymavlink
+    marks such a message `get_signed()`) — each within its range
+    (`ranges`: name → (lo, hi) or a set of values; a name without one is read-only, such as CG_MODE, which
+    reports the mode the daemon runs in). A refused set is answered with the current value (PARAM_VALUE:
+    the protocol's acknowledgement) and reported."""
 
     NAMES = ("CG_ENGAGE", "CG_MODE", "CG_R_OBST")
     MODES = ("shadow", "governor", "offboard")  # CG_MODE's values
 
     def __init__(self, out: MavlinkOut, component_id: int, values: dict[str, float], ranges: dict,
-                 setters: tuple[int, ...]):
+                 setters: tuple[int, ...], unsigned_refused: str | None = None):
         self.out, self.component_id, self.values = out, component_id, values
-        self.ranges, self.setters = ranges, setters
+        self.ranges, self.setters, self.unsigned_refused = ranges, setters, unsigned_refused
         self.refused: list[tuple[str, float, int, str]] = []  # (name, value, source system, why) since read
 
     def _refusal(self, msg, v: float) -> str | None:
         if msg.get_srcSystem() not in self.setters:
             return f"system {msg.get_srcSystem()} is not a configured ground station"
+        if self.unsigned_refused is not None and not msg.get_signed():
+            return self.unsigned_refused
         allowed = self.ranges.get(msg.param_id)
         if allowed is None:
             return "read-only"

@@ -11,7 +11,9 @@ import math
 from .mavlink_out import ParamServer
 from .mission import MissionSource
 from .outbox import EMPTY, Outbox
-from .samples import AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest
+from .mavlink_in import refusal_text
+from .samples import (AutopilotParam, AutopilotRestart, CommandAck, Implausible, MissionMessage, ParamRequest,
+                      SourceRefused)
 
 
 def _outbox(acts) -> Outbox:
@@ -29,7 +31,7 @@ class Protocols:
             {"CG_ENGAGE": float(cfg.engage), "CG_MODE": float(ParamServer.MODES.index(cfg.mode)),
              "CG_R_OBST": cfg.contract.r_obst_m},
             ranges={"CG_ENGAGE": frozenset({0.0, 1.0}), "CG_R_OBST": tuple(cfg.contract.r_obst_range_m)},
-            setters=tuple(cfg.link.gcs_system_ids))
+            setters=tuple(cfg.link.gcs_system_ids), unsigned_refused=cfg.link.unsigned_param_refusal)
         self.mission: MissionSource | None = None  # route.source: mission — the route comes from the autopilot
         if cfg.mode == "offboard" and cfg.route.source == "mission":
             lk = cfg.link
@@ -48,6 +50,8 @@ class Protocols:
             return Outbox(events=(("command_ack", {"command": s.command, "result": s.result}),))
         if isinstance(s, AutopilotParam):
             return self._autopilot_param(s)
+        if isinstance(s, SourceRefused):
+            return _source_refused(s)
         self.cycle.take(s)
         if isinstance(s, MissionMessage):
             return _outbox(self.mission.take(s.t, s.msg)) if self.mission is not None else EMPTY
@@ -112,3 +116,12 @@ class Protocols:
         ps.send(name)
         self.save_signing()  # a set taken is never taken again, even after a kill -9
         return Outbox(messages=box.messages, events=box.events + tuple(events), texts=box.texts + tuple(texts))
+
+
+def _source_refused(s: SourceRefused) -> Outbox:
+    """Whom MAVLink-in or the link refused, in the event log; a pinned source's ids from another address (a second
+    autopilot, a spoofed sensor) or a move also to the ground station and the console."""
+    fields = dict(what=s.what, system=s.ids[0], component=s.ids[1], autopilot=s.autopilot, address=s.address,
+                  pinned=s.pinned, count=s.count)
+    texts = () if s.what == "unknown" else ((2 if s.what == "refused" else 4, "CG: " + refusal_text(fields)),)
+    return Outbox(events=(("source_refused", fields),), texts=texts)

@@ -75,6 +75,22 @@ class Scan:
     quality: int  # 0 unknown, 1 invalid, 2–100 (MAVLink signal_quality)
     known: tuple[float, ...] | None = None
     increment: float | None = None
+    source: tuple | None = None  # who sent it: (system, component, DISTANCE_SENSOR id); None: the sensor's only source
+
+
+@dataclass(frozen=True, slots=True)
+class SourceRefused:
+    """Messages refused for who sent them: ids no configured autopilot, sensor or ground station has
+    (`what` "unknown"), or a pinned source's ids from another address (`what` "refused": a second autopilot,
+    a spoofed sensor) or a pinned source that followed a new address after falling silent ("moved")."""
+
+    t: float
+    what: str
+    ids: tuple[int, int]
+    autopilot: bool  # the ids are the autopilot's
+    address: str | None = None  # where the refused messages came from (a UDP link's; None: not known)
+    pinned: str | None = None  # the address the source is taken from
+    count: int = 1  # refused since the last report
 
 
 @dataclass(frozen=True, slots=True)

@@ -21,7 +21,7 @@ DECODED = {
     "VFR_HUD": (1, 1), "EXTENDED_SYS_STATE": (1, 1), "ESTIMATOR_STATUS": (1, 1), "EKF_STATUS_REPORT": (1, 1),
     "SYSTEM_TIME": (1, 1), "MISSION_CURRENT": (1, 1), "COMMAND_ACK": (1, 1), "PARAM_VALUE": (1, 1),
     "MISSION_COUNT": (1, 1), "MISSION_ITEM_INT": (1, 1), "HOME_POSITION": (1, 1),
-    "DISTANCE_SENSOR": (1, 158), "OBSTACLE_DISTANCE": (1, 158),
+    "DISTANCE_SENSOR": (1, 1), "OBSTACLE_DISTANCE": (1, 1),  # as PX4 and ArduPilot forward them: the configured source
     "PARAM_SET": (255, 190), "PARAM_REQUEST_READ": (255, 190), "PARAM_REQUEST_LIST": (255, 190),
 }
 # fields whose non-finite value MAVLink-in must find implausible (the vehicle's state)

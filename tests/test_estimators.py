@@ -357,3 +357,50 @@ def test_the_swept_wedges_are_made_only_when_the_swept_coverage_is_asked_for(mon
     assert 1.0 < outside.d_od < 6.0 and len(made) == 41  # each scan of the last COVERAGE_S, once
     again = e.estimate(2.0, math.radians(40.0))
     assert again.d_od == outside.d_od and len(made) == 41  # asked again: reused
+
+
+# ------------------------------------------------------------------ one sensor, several sources
+def add_from(e, source, t, current_m, max_m=6.0, quality=100):
+    """A DISTANCE_SENSOR sample of sensor 0 from `source` ((system, component, id), as MAVLink-in tags it)."""
+    s = range_scan(t, 0, 0.0, current_m, 0.2, max_m, quality)
+    e.add_scan(type(s)(s.t, s.sensor, s.hits, s.max_m, s.quality, s.known, s.increment, source))
+
+
+def test_a_free_reading_from_one_source_never_erases_another_sources_obstacle():
+    """Sensor 0 matches any DISTANCE_SENSOR id: id 0 sees an obstacle at 3 m at 20 Hz, id 1 says "free to
+    6 m" at 200 Hz. Within the time-out the nearest fresh reading wins; after it, the silent source is gone."""
+    e = dod()
+    a, b = (1, 1, 0), (1, 1, 1)
+    t = 0.0
+    for k in range(200):  # 1 s
+        t = k * 0.005
+        if k % 10 == 0:
+            add_from(e, a, t, 3.0)
+        add_from(e, b, t, 6.01)
+        assert e.estimate(t, 0.0).obstacle_m == 3.0
+    t_last_a = 0.95
+    for k in range(1, 200):
+        t = 1.0 + k * 0.005
+        add_from(e, b, t, 6.01)
+        seen = e.estimate(t, 0.0).obstacle_m
+        assert seen == (3.0 if t - t_last_a <= 0.5 else math.inf), t  # the obstacle times out with its source
+
+
+def test_each_source_keeps_its_own_state_and_the_sensor_is_as_good_as_its_worst_fresh_source():
+    e = dod()
+    add_from(e, (1, 1, 0), 0.0, 6.01, max_m=6.0)
+    add_from(e, (1, 1, 1), 0.01, 6.01, max_m=4.0)  # a second source claiming less: the smaller claim
+    assert e.estimate(0.02, 0.0).d_od == 4.0
+    add_from(e, (1, 1, 1), 0.02, 6.01, max_m=4.0, quality=1)  # invalid: unknown is never free
+    assert e.estimate(0.03, 0.0).d_od == 0.0
+    add_from(e, (1, 1, 0), 0.6, 6.01, max_m=6.0)  # the others are stale now: this source alone
+    assert e.estimate(0.6, 0.0).d_od == 6.0
+
+
+def test_one_source_behaves_as_before():
+    """The same source (the autopilot's sensor) seeing an obstacle and then free space: it is gone at once."""
+    e = dod()
+    add_from(e, (1, 1, 0), 0.0, 3.0)
+    assert e.estimate(0.0, 0.0).obstacle_m == 3.0
+    add_from(e, (1, 1, 0), 0.05, 6.01)
+    assert e.estimate(0.05, 0.0).obstacle_m == math.inf

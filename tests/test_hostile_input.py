@@ -46,7 +46,7 @@ def bins(inc_f=5.0, offset=-30.0, dist=None, min_cm=20, max_cm=600, frame=12):
 @pytest.mark.parametrize("inc_f", [math.inf, -math.inf, math.nan])
 def test_a_non_finite_bin_increment_is_dropped_and_the_loop_goes_on(inc_f):
     rig = cruising(sensors=[{"kind": "distance_sensor", "h_fov_deg": 30},
-                            {"kind": "obstacle_distance", "h_fov_deg": 60}])
+                            {"kind": "obstacle_distance", "h_fov_deg": 60, "component_id": 158}])
     t0 = rig.sim.time_s
     rig.to_daemon(bins(inc_f=inc_f), PERIPHERAL)
     rig.run(3.0)  # lock-step: a cycle that raised would end this test
@@ -83,7 +83,7 @@ def lying_range(rig):
 
 def test_a_sensor_claiming_655_m_does_not_raise_dod_or_the_speed():
     rig = cruising(sensors=[{"kind": "distance_sensor", "id": 0, "h_fov_deg": 30},
-                            {"kind": "distance_sensor", "id": 5, "h_fov_deg": 30}])
+                            {"kind": "distance_sensor", "id": 5, "h_fov_deg": 30, "component_id": 158}])
     t0 = rig.sim.time_s
     v_before = rig.log.states[-1]["v_cmd"]
     inject(rig, lying_range, 4.0)
@@ -98,7 +98,7 @@ def test_a_sensor_claiming_655_m_does_not_raise_dod_or_the_speed():
 def test_min_above_max_is_a_navigation_fault_and_the_daemon_holds():
     rig = cruising()
     t0 = rig.sim.time_s
-    inject(rig, lambda r: PERIPHERAL.distance_sensor_encode(0, 1000, 500, 300, 0, 0, 0, 100), 1.0)
+    inject(rig, lambda r: AUTOPILOT.distance_sensor_encode(0, 1000, 500, 300, 0, 0, 0, 100), 1.0, enc=AUTOPILOT)
     assert [e for e in rig.log.named("implausible_input") if e["t"] >= t0]
     assert [e for e in rig.log.named("failsafe") + rig.log.named("hold_trigger") if e["t"] >= t0]
 
