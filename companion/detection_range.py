@@ -8,9 +8,10 @@ is the physics of the medium (contracts/lidar.py: Koschmieder's extinction α, t
 of evidence and turns each into an upper bound on the range at which the reference target (reflectivity
 `reference_reflectivity`: the darkest obstacle the contract is to see) is still detected:
 
-1. backscatter rate — the fraction of shots (bins × frames) with a short return (< `near_m`) that no other
-   frame of the window confirms as a surface: the medium's return near the sensor. Inverted to α by
-   p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the sensor's, measured on one fog flight);
+1. backscatter rate — the fraction of shots (bins × frames) with a short return (< `near_m`) that no
+   tracked target accounts for (a surface near the sensor was first seen farther away and followed in): the
+   medium's return near the sensor. Its rate, one standard error up (when unsure, the thicker fog), is
+   inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the sensor's, measured on one fog flight);
 2. signal-quality trend — a single beam's quality is the strength of the return it reports; while one
    tracked target is approached, ln(margin) + 2 ln R falls linearly with R at slope −2α in a medium and is
    flat in clear air, whatever the target's reflectivity (it cancels). The margin is read from the quality
@@ -38,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -58,8 +59,9 @@ class DetectionRangeParams:
     window_s: float = 1.0  # evidence window (backscatter rate, quality trend)
     recover_s: float = 3.0  # a bound below the stated range is held this long after its evidence clears
     near_m: float = 2.0  # returns nearer than this are checked for the medium's (backscatter)
-    confirm_m: float = 0.3  # a short return within this of one in half the window's other frames: a surface
-    min_shots: int = 40  # shots in the window before the backscatter rate counts
+    confirm_m: float = 0.08  # a short return within this (+ its bin's width) of one in each of the last frames...
+    confirm_frames: int = 4  # ... of this many in a row: a surface
+    min_shots: int = 20  # shots in the window before the backscatter rate counts (a single beam at 20 Hz: 1 s)
     min_spurious: int = 3  # spurious short returns in the window before the rate counts
     backscatter_length_m: float = BACKSCATTER_LENGTH_M  # the sensor's L_bs (contracts/lidar.py)
     rated_reflectivity: float = RATED_REFLECTIVITY  # the target its stated range is rated at
@@ -96,6 +98,7 @@ class _Track:
     y: float
     t_first: float
     t_last: float
+    reach: float = 0.0  # a return this close is on it (0: the parameters' track_m)
     samples: deque = field(default_factory=lambda: deque(maxlen=40))  # (range, margin) from quality
 
 
@@ -115,6 +118,7 @@ class DetectionRange:
         self._bounds: deque[tuple[float, float, str]] = deque()  # (t, bound m, why): first detections, disagreements
         self._last_hits: dict[int, tuple[float, float, list]] = {}  # sensor → (t, its stated m, [(x, y, r)])
         self._stated: dict[int, float] = {}
+        self._near_hist: dict[int, deque] = {}  # sensor → the short returns (x, y) of its last frames
 
     # ---------------------------------------------------------------- inputs
     def add_position(self, t: float, x: float, y: float) -> None:
@@ -134,23 +138,35 @@ class DetectionRange:
         a = self._yaw[1] + bearing
         return self._pos[1] + r * math.cos(a), self._pos[2] + r * math.sin(a)
 
-    def add_scan(self, scan: Scan) -> None:
-        """One sensor's sample (companion/samples.py). An invalid scan (quality 1) adds nothing."""
+    def add_scan(self, scan: Scan) -> Scan:
+        """One sensor's sample (companion/samples.py). Returns it without the medium's returns: the short
+        returns that neither a tracked target accounts for nor `confirm_frames` consecutive frames confirm at
+        the same place (what the obstacle logic should take; the bin keeps reporting, as a shot that saw no
+        surface: a surface behind a medium return is seen in a later shot, p/(1 − p) frames later on average,
+        and the medium's share of the range is in `D_od`). An invalid scan (quality 1) adds nothing."""
         p, i, t = self.p, scan.sensor, scan.t
         if scan.quality == 1 or scan.max_m <= 0.0:
-            return
+            return scan
         stated = scan.max_m
         self._stated[i] = stated
         shots = len(scan.known) if scan.known is not None else 1
         placed = [(*self._place(t, b, r), b, r) for b, r in scan.hits]
-        near = []
-        for x, y, _, r in placed:
-            if r < p.near_m:
-                tr = self._nearest_track(x, y)
-                if tr is None:
-                    near.append((x, y))
-                else:  # a tracked target come close (not moved: the medium's returns near it must not drag it)
-                    tr.t_last = t
+        near, medium, now = [], set(), []
+        hist = self._near_hist.setdefault(i, deque(maxlen=max(p.confirm_frames - 1, 0)))
+        for k, (x, y, _, r) in enumerate(placed):
+            if r >= p.near_m:
+                continue
+            tr = self._nearest_track(x, y)
+            reach = p.confirm_m + r * (scan.increment or 0.0)
+            now.append((x, y))
+            if tr is not None:  # a tracked target come close (not moved: the medium's returns near it must not drag it)
+                tr.t_last = t
+            elif len(hist) == hist.maxlen and all(any(math.hypot(x - a, y - b) <= reach for a, b in pts) for pts in hist):
+                self._tracks.append(_Track(x, y, t, t, 2.0 * reach))  # a surface close by, seen frame after frame
+            else:
+                near.append((x, y))
+                medium.add(k)
+        hist.append(now)
         self._frames.append(_Frame(t, i, shots, near))
         if scan.known is None and placed and 2 <= scan.quality < 100:  # a single beam: its quality is its return's
             x, y, _, r = min(placed, key=lambda h: h[3])
@@ -160,11 +176,17 @@ class DetectionRange:
         if scan.known is not None:
             self._first_detections(t, i, scan, placed, stated)
         self._disagreements(t, i, scan, placed, stated)
-        self._last_hits[i] = (t, stated, [(x, y, r) for x, y, _, r in placed])
+        self._last_hits[i] = (t, stated, [(x, y, r) for k, (x, y, _, r) in enumerate(placed) if k not in medium])
+        if not medium:
+            return scan
+        hits = tuple(h for k, h in enumerate(scan.hits) if k not in medium)
+        # a single beam's quality was its (medium) return's strength: for what lies behind, unknown (MAVLink 0)
+        return replace(scan, hits=hits, quality=0 if scan.known is None else scan.quality)
 
     def _nearest_track(self, x: float, y: float) -> _Track | None:
-        best = min(self._tracks, key=lambda tr: math.hypot(x - tr.x, y - tr.y), default=None)
-        return best if best is not None and math.hypot(x - best.x, y - best.y) <= self.p.track_m else None
+        near = [(math.hypot(x - tr.x, y - tr.y), k) for k, tr in enumerate(self._tracks)]
+        near = [(d, k) for d, k in near if d <= (self._tracks[k].reach or self.p.track_m)]
+        return self._tracks[min(near)[1]] if near else None
 
     def _track(self, t: float, x: float, y: float, r: float, increment: float | None) -> _Track:
         reach = self.p.track_m + (r * (increment or 0.0) if increment else 0.0)
@@ -231,10 +253,12 @@ class DetectionRange:
         spurious = sum(1 for f in frames for x, y in f.near if not self._on_track(x, y))
         if shots < self.p.min_shots or spurious < self.p.min_spurious:
             return 0.0, spurious, shots
-        return extinction_from_backscatter(spurious / shots, self.p.backscatter_length_m), spurious, shots
+        rate = spurious / shots
+        rate += math.sqrt(rate * (1.0 - rate) / shots)  # one standard error up: when unsure, the thicker fog
+        return extinction_from_backscatter(rate, self.p.backscatter_length_m), spurious, shots
 
     def _on_track(self, x: float, y: float) -> bool:
-        return any(math.hypot(x - tr.x, y - tr.y) <= self.p.track_m for tr in self._tracks)
+        return self._nearest_track(x, y) is not None
 
     def _alpha_trend(self, t: float) -> float:
         """α from the quality of tracked targets as they were approached (the largest recent fit)."""

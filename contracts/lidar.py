@@ -1,10 +1,10 @@
 """A time-of-flight range sensor in an obscurant (fog, haze, dust): the few laws the SITL's sensor and the
 on-board detection-range estimator share. Pure maths, SI units.
 
-- Extinction: Koschmieder's law, the meteorological visibility V_met (5 % contrast threshold) and the
-  extinction coefficient α are related by α = −ln(0.05) / V_met ≈ 3.912 / V_met [1/m]
-  (H. Koschmieder, Beiträge zur Physik der freien Atmosphäre 12, 1924; WMO-No. 8, Guide to
-  Instruments and Methods of Observation, vol. I, ch. 9).
+- Extinction: Koschmieder's law, the visibility V_met (the distance at which a black target's contrast
+  falls to the 2 % threshold) and the extinction coefficient α are related by α = −ln(0.02) / V_met ≈
+  3.912 / V_met [1/m] (H. Koschmieder, Beiträge zur Physik der freien Atmosphäre 12, 1924; the WMO's
+  meteorological optical range takes 5 % instead, α = 2.996 / MOR: WMO-No. 8, vol. I, ch. 9).
 - Return strength: the lidar equation for an extended diffuse (Lambertian) target filling the beam,
   P(R) ∝ ρ · e^(−2αR) / R² (two-way transmission of the medium; e.g. Weitkamp (ed.), Lidar, Springer 2005,
   ch. 1). A return is detected when P reaches the receiver's threshold. We normalise the threshold by the
@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-KOSCHMIEDER = -math.log(0.05)  # 3.912: α · V_met at the 5 % contrast threshold
+KOSCHMIEDER = -math.log(0.02)  # 3.912: α · V_met at the 2 % contrast threshold
 RATED_REFLECTIVITY = 0.1  # the target the stated range is rated at (datasheets: ~10 %, a dark target)
 REFERENCE_REFLECTIVITY = 0.5  # the default world obstacle (a grey surface); the fog's visibility is its range
 BACKSCATTER_LENGTH_M = 0.3  # L_bs: p = 1 − e^(−α L_bs) per shot

@@ -174,18 +174,49 @@ def test_an_estimator_that_never_recovers_fails_the_recovery_check():
         recovers(stuck, 26.0)
 
 
-def test_single_beam_sees_the_fog_from_its_quality_trend():
+@pytest.mark.parametrize("rho", [0.5, 0.9])
+def test_single_beam_sees_the_fog_from_its_quality_trend(rho):
     """DISTANCE_SENSOR only (one range, one quality per frame): the quality of a column as it is approached
-    through hidden fog gives α whatever the column's reflectivity; the estimate falls to within FACTOR of
-    the reference target's range before the column is reached."""
-    world = World([Column(20.0, 0.6, 0.4, reflectivity=0.9)])
-    trace = fly(world, 11.0, [(0.0, 5.0)], DetectionRange([BEAM]), beam=True, speed=1.5)
+    through hidden fog gives α whatever the column's reflectivity (it cancels), and with the beam's medium
+    returns the estimate falls to within FACTOR of the reference target's range before the column is reached."""
+    world = World([Column(20.0, 0.6, 0.4, reflectivity=rho)])
+    est = DetectionRange([BEAM])
+    trace = fly(world, 11.0, [(0.0, 5.0)], est, beam=True, speed=1.5)
     truth = 5.0
     never_above_the_claim(trace)
-    late = [d for t, d, _, _ in trace if t >= 10.5]  # the column is ~3.8 m away: its trend is measured by then
+    assert est.estimate(11.0, R_MAX).evidence["alpha_trend"] == pytest.approx(extinction_for_range(5.0, 0.5, R_MAX),
+                                                                               rel=0.25)
+    late = [d for t, d, _, _ in trace if t >= 10.5]  # the column is ~3.8 m away
     assert late and max(late) <= FACTOR * truth
     neg = fly(world, 11.0, [(0.0, 5.0)], TrustTheClaim(), beam=True, speed=1.5)
     assert max(d for t, d, _, _ in neg if t >= 10.5) > FACTOR * truth
+
+
+def test_the_medium_returns_are_taken_out_of_the_scan_and_a_close_surface_is_kept():
+    """`add_scan` returns what the obstacle logic should take: a short return that no tracked target accounts
+    for and that does not stay put is the medium's (dropped; a single beam's quality becomes unknown), a
+    surface close by is kept once seen in `confirm_frames` frames in a row."""
+    est = DetectionRange([BINS, BEAM])
+    bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
+    rng = np.random.default_rng(0)
+    wall = (1.2 * math.cos(bearings[6]), 1.2 * math.sin(bearings[6]))
+    dropped = 0
+    for k in range(40):  # hovering at the origin; the fog's returns at random ranges, a post 1.2 m ahead in bin 6
+        t = k / RATE_HZ
+        est.add_position(t, 0.0, 0.0)
+        est.add_heading(t, 0.0)
+        ranges = np.where(rng.random(12) < 0.3, rng.uniform(0.5, 1.5, 12), np.inf)
+        ranges[6] = 1.2 + 0.01 * rng.standard_normal()
+        out = est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
+        kept = dict(out.hits)
+        dropped += int(np.isfinite(ranges).sum()) - len(kept)
+        if k >= 3:  # the post from its 4th frame on; a fog return right beside it is taken for it (kept)
+            assert bearings[6] in kept
+            assert all(math.hypot(r * math.cos(b) - wall[0], r * math.sin(b) - wall[1]) < 0.45 for b, r in kept.items())
+        assert out.known == tuple(bearings)  # every bin still reports
+    assert dropped > 60  # most of the fog's ~140 returns
+    beam = est.add_scan(range_scan(2.0, 1, 0.0, 0.6, 0.1, R_MAX, 5, R_MAX))  # 0.6 m from the post
+    assert beam.hits == () and beam.quality == 0
 
 
 def test_a_dark_column_first_seen_late_in_clear_air_lowers_d_od():
