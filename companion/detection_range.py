@@ -8,10 +8,13 @@ is the physics of the medium (contracts/lidar.py: Koschmieder's extinction α, t
 of evidence and turns each into an upper bound on the range at which the reference target (reflectivity
 `reference_reflectivity`: the darkest obstacle the contract is to see) is still detected:
 
-1. backscatter rate — the fraction of shots (bins × frames) with a short return (< `near_m`) that no
-   tracked target accounts for (a surface near the sensor was first seen farther away and followed in): the
-   medium's return near the sensor. Its rate, one standard error up (when unsure, the thicker fog), is
-   inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the sensor's, measured on one fog flight);
+1. backscatter rate — the fraction of shots (bins × frames; a single beam's frame is one shot, which
+   over-states α for a beam that gathers several) with a short return (< `near_m`) that is the medium's:
+   no tracked target accounts for it (a surface near the sensor was first seen farther away and followed
+   in) and it does not stay put for `confirm_frames` frames in a row. Its rate, one standard error up (when
+   unsure, the thicker fog), is inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the
+   sensor's, measured on one fog flight). `add_scan` returns the scan without these returns, for the
+   obstacle logic;
 2. signal-quality trend — a single beam's quality is the strength of the return it reports; while one
    tracked target is approached, ln(margin) + 2 ln R falls linearly with R at slope −2α in a medium and is
    flat in clear air, whatever the target's reflectivity (it cancels). The margin is read from the quality
@@ -29,7 +32,7 @@ config's cap.
 
 Timing (the defaults): a fog is taken into account within `window_s` (1 s) of its onset once its
 backscatter gives `min_spurious` (3) short returns in a window (a 12-bin sensor at 20 Hz: any fog with
-α ≥ 0.05/m, i.e. every fog that shortens a 10 m sensor's reference range at all); a late first detection at
+α ≥ 0.04/m, and a 10 m sensor's reference range shortens only from α = 0.08/m); a late first detection at
 once. The estimate recovers `window_s + recover_s` (4 s) after the evidence clears. What it cannot see: a
 medium that thickens faster than that (from clear to dense between two windows) is seen one window late, and
 between two targets nothing but backscatter and quality tell of the medium (docs/detection-range.md).
