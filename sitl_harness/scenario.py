@@ -10,7 +10,7 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
     actuator_delay_s: 0.0                 # extra rotor-command latency of the simulated aircraft
     start: {x_m: 0, y_m: 0, yaw_deg: 0}   # add alt_m: 2 to start armed and hovering
     world:
-      columns: [{x_m: 12, y_m: 0, radius_m: 0.5}]
+      columns: [{x_m: 12, y_m: 0, radius_m: 0.5, reflectivity: 0.1}]   # a dark column (default 0.5)
       boxes: [{x_m: 20, y_m: 5, length_m: 2, width_m: 1, yaw_deg: 30}]
     sensor: {fov_deg: 60, max_range_m: 8}
     wind: {mean_m_s: 1.0, from_deg: 90, gust_m_s: 0.3}
@@ -36,6 +36,7 @@ from typing import Annotated, Literal
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contracts.errors import ContractError
+from contracts.lidar import REFERENCE_REFLECTIVITY
 from contracts.yamlfile import load_model, model_from_dict, resolve_named
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -69,12 +70,16 @@ class Home(_Strict):
     alt_m: Num = 488.0
 
 
+Reflectivity = Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)]
+
+
 class ColumnSpec(_Strict):
     x_m: Num
     y_m: Num
     radius_m: Pos
     height_m: Pos | None = None
     name: str = ""
+    reflectivity: Reflectivity = REFERENCE_REFLECTIVITY  # diffuse, at the range sensor's wavelength (world.py)
 
 
 class BoxSpec(_Strict):
@@ -85,6 +90,7 @@ class BoxSpec(_Strict):
     yaw_deg: Num = 0.0
     height_m: Pos | None = None
     name: str = ""
+    reflectivity: Reflectivity = REFERENCE_REFLECTIVITY
 
 
 class WorldSpec(_Strict):
@@ -126,6 +132,11 @@ class Route(_Strict):
 
 
 class Fog(_Strict):
+    """A medium of extinction α in front of the range sensor. `visibility_m` is the range to which the default
+    target (reflectivity 0.5) is still seen; the sensor model derives α from it by the lidar equation, so
+    darker targets are seen less far and brighter ones farther (sitl_harness/sensors.py, contracts/lidar.py).
+    `honest`: the sensor lowers its stated range to it; `hidden`: it keeps stating its nominal range."""
+
     visibility_m: Pos
     report: Literal["honest", "hidden"] = "honest"
 

@@ -61,9 +61,10 @@ class Sim:
                                    home=(sc.home.lat_deg, sc.home.lon_deg, sc.home.alt_m),
                                    cruise_speed=sc.route.cruise_speed_m_s)
         self.world = World(
-            [Column(c.x_m, c.y_m, c.radius_m, c.height_m or math.inf, c.name) for c in sc.world.columns],
-            [Box(b.x_m, b.y_m, b.length_m, b.width_m, math.radians(b.yaw_deg), b.height_m or math.inf, b.name)
-             for b in sc.world.boxes])
+            [Column(c.x_m, c.y_m, c.radius_m, c.height_m or math.inf, c.name, c.reflectivity)
+             for c in sc.world.columns],
+            [Box(b.x_m, b.y_m, b.length_m, b.width_m, math.radians(b.yaw_deg), b.height_m or math.inf, b.name,
+                 b.reflectivity) for b in sc.world.boxes])
         s = sc.sensor
         self.sensor = RangeSensor(RangeSensorConfig(s.fov_deg, s.increment_deg, s.min_range_m, s.max_range_m,
                                                     s.noise_sd_m, s.noise_rel, s.rate_hz), seed=self.seed)

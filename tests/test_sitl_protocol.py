@@ -434,7 +434,8 @@ def test_sensor_on_the_wire_with_fog_and_dropout():
     assert od.max_distance == 300 and 301 in od.distances
     c.pump(2.0)  # t ≈ 5.5: hidden fog
     ds = c.last["DISTANCE_SENSOR"]
-    assert ds.max_distance == 800 and ds.current_distance == 801 and ds.signal_quality == 100
+    # its full range stated; the column at 5 m unseen: nothing (801) or the fog's own return near the sensor
+    assert ds.max_distance == 800 and (ds.current_distance == 801 or ds.current_distance <= 150)
     c.pump(1.0)  # clear
     assert c.last["DISTANCE_SENSOR"].current_distance == 500
     c.pump(1.2)  # t ≈ 7.7: drop-out
