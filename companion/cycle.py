@@ -11,6 +11,7 @@ in flight never engages until asked anew), and the shutdown's progress (stop mea
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
@@ -21,6 +22,7 @@ from contracts.table import ContractTable
 from .authority import HOLD, ModeAuthority, ModeRequest, Requester
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
+from .detection_range import DetectionRange
 from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
@@ -68,6 +70,7 @@ class Cycle:
         self.cfg, self.table, self.adapter, self._planning = cfg, table, adapter, planning
         veh = table.vehicle
         self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s)
+        self.truth = DetectionRange(cfg.sensors)  # D_od from evidence: what the sensors' claim cannot say
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
         self.thrust = ThrustEstimator(cfg.thrust, hover, veh.thrust_ratio_range[0], veh.thrust_ratio_range[1])
@@ -102,8 +105,10 @@ class Cycle:
         if isinstance(s, Position):
             self.etr.measure(s.t, s.x, s.y)
             self.dod.add_position(s.t, s.x, s.y)
+            self.truth.add_position(s.t, s.x, s.y)
         elif isinstance(s, Heading):
             self.dod.add_heading(s.t, s.yaw)
+            self.truth.add_heading(s.t, s.yaw)
             self.dod.set_speed(s.ground_speed)
         elif isinstance(s, PathTarget):
             if self.offboard is None or not self.offboard.streaming:  # offboard: our own setpoints are the path
@@ -112,8 +117,8 @@ class Cycle:
             self.thrust.add(s.t, s.throttle, s.roll, s.pitch, s.vz_down, s.in_air)
         elif isinstance(s, NavStatus):
             self.nav.update(s.t, s.source, s.flags)
-        elif isinstance(s, Scan):
-            self.dod.add_scan(s)
+        elif isinstance(s, Scan):  # without the medium's own returns (backscatter is evidence, not an obstacle)
+            self.dod.add_scan(self.truth.add_scan(s))
         elif isinstance(s, AutopilotParam) and self.adapter.cruise_param and s.name == self.adapter.cruise_param[0]:
             v = s.value * self.adapter.cruise_param[1]
             self.v_cruise = v if 0 < v < 100 else math.nan  # nonsense is not a cruise speed
@@ -121,7 +126,7 @@ class Cycle:
             self.nav.fault(s.t, f"{s.kind}: {s.why}")
         elif isinstance(s, MissionMessage) and self.calibration is not None and s.msg.get_type() == "HOME_POSITION":
             self.calibration.take_home(Home.from_msg(s.msg))  # the hold legs' waypoints are placed from it
-        self.sup.policy.take(s)
+        self.sup.policy.take(s)  # as received: a baseline law builds its own map, as its firmware does
 
     def engage_requested(self) -> None:
         """CG_ENGAGE set anew: a restart in flight may engage now, and offboard may be entered again."""
@@ -158,6 +163,10 @@ class Cycle:
         corridor = 2 * r_obst + e_tr + self.table.vehicle.r_body_m
         self.dod.r_obst = r_obst
         dod = self.dod.estimate(t, beta, corridor)
+        truth = self.truth.estimate(t, dod.d_od)
+        if truth.d_od < dod.d_od:  # the evidence allows less than the claim (fog that hides, not tells)
+            dod = replace(dod, d_od=truth.d_od, lowered=True,
+                          reason=f"detection range from evidence ({truth.confidence:.0%} confidence): {truth.reason}")
         thrust_ratio, _ = self.thrust.value(t)
         discs, width = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, r_obst)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
@@ -283,7 +292,7 @@ class Cycle:
         return dict(
             state=d.state, mode=i.mode, contract=self.sup.contract, engaged=i.engaged,
             x=tel.x, y=tel.y, z=tel.z, vx=tel.vx, vy=tel.vy, vz=tel.vz, ground_speed=i.ground_speed,
-            d_od=i.dod.d_od, e_tr=om.e_tr, e_tr_measured=i.e_tr_measured, r_obst=i.r_obst,
+            d_od=i.dod.d_od, d_od_stated=i.dod.stated_m, e_tr=om.e_tr, e_tr_measured=i.e_tr_measured, r_obst=i.r_obst,
             thrust_ratio=i.thrust_ratio, v_max=om.v_max, tilt_deg=math.degrees(om.tilt), v_safe=om.v_safe,
             gamma=(d.v_cmd if d.v_cmd is not None else om.v_max) - om.v_safe,
             gamma_flown=i.ground_speed - om.v_safe, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m)

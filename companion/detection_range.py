@@ -171,11 +171,12 @@ class DetectionRange:
                 medium.add(k)
         hist.append(now)
         self._frames.append(_Frame(t, i, shots, near))
-        if scan.known is None and placed and 2 <= scan.quality < 100:  # a single beam: its quality is its return's
+        if scan.known is None and placed:  # a single beam: the target it follows in (and its quality, the return's)
             x, y, _, r = min(placed, key=lambda h: h[3])
             if r >= p.near_m:
-                m = 1.0 + scan.quality / 100.0 * (p.quality_full_margin - 1.0)
-                self._track(t, x, y, r, scan.increment).samples.append((r, m))
+                tr = self._track(t, x, y, r, scan.increment)
+                if 2 <= scan.quality < 100:
+                    tr.samples.append((r, 1.0 + scan.quality / 100.0 * (p.quality_full_margin - 1.0)))
         if scan.known is not None:
             self._first_detections(t, i, scan, placed, stated)
         self._disagreements(t, i, scan, placed, stated)
@@ -194,8 +195,11 @@ class DetectionRange:
     def _track(self, t: float, x: float, y: float, r: float, increment: float | None) -> _Track:
         reach = self.p.track_m + (r * (increment or 0.0) if increment else 0.0)
         for tr in self._tracks:
-            if math.hypot(x - tr.x, y - tr.y) <= reach:
-                tr.x, tr.y, tr.t_last = x, y, t
+            d = math.hypot(x - tr.x, y - tr.y)
+            if d <= reach:  # the same static target: its points stay where they were seen (a wide one is not
+                tr.t_last = t  # dragged to its last hit, away from its other side), and its extent is added
+                if d > self.p.track_m / 2.0:
+                    self._tracks.append(_Track(x, y, t, t))
                 return tr
         tr = _Track(x, y, t, t)
         self._tracks.append(tr)

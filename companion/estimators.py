@@ -111,7 +111,8 @@ class DodEstimate:
     late: LateDetection | None  # a late first detection in this update, if any
     reason: str  # why d_od is what it is
     swept: bool = False  # d_od is the swept coverage: the direction of travel is outside every field of view
-    lowered: bool = False  # d_od is lowered after a late first detection (a navigation violation)
+    lowered: bool = False  # d_od is below the sensors' claim: a late first detection, or the evidence (a violation)
+    stated_m: float = math.nan  # the D_od the sensors' claim gives (before any lowering)
 
 
 class DodEstimator:
@@ -318,7 +319,7 @@ class DodEstimator:
             if swept > 0.0:
                 d, reason = swept, (f"direction of travel outside the field of view: {swept:.2f} m of it seen free "
                                     f"in the last {COVERAGE_S:g} s")
-        lowered = False
+        lowered, stated = False, d
         if self._penalty is not None:
             if t <= self._penalty[0]:
                 if self._penalty[1] < d:
@@ -328,7 +329,7 @@ class DodEstimator:
         self._last_d_od = d
         late = self._pending[0] if self._pending else None
         self._pending.clear()
-        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered)
+        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated)
 
 
 # ============================================================================ E_tr

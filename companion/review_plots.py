@@ -129,7 +129,7 @@ def time_figure(rep: dict, samples: list[tuple], columns: tuple, title: str) -> 
     panels = [
         ("speed [m/s]", [("ground_speed", "ground speed"), ("v_max", "V_max"), ("v_cmd", "commanded"), ("v_safe", "V_safe")]),
         ("Γ [m/s]", [("gamma", "Γ = V_max − V_safe"), ("gamma_flown", "ground speed − V_safe")]),
-        ("d_od [m]", [("d_od", "D_od")]),
+        ("d_od [m]", [("d_od", "D_od (used: the evidence's)"), ("d_od_stated", "D_od the sensors state")]),
         ("e_tr [m]", [("e_tr", "E_tr (used)"), ("e_tr_measured", "E_tr measured")]),
         ("thrust ratio", [("thrust_ratio", "T_max / T_nom")]),
         ("r_obst [m]", [("r_obst", "R_obst")]),
@@ -145,7 +145,7 @@ def time_figure(rep: dict, samples: list[tuple], columns: tuple, title: str) -> 
         for key, name in keys:
             xs, ys = _series(samples, columns, key)
             if any(not math.isnan(y) for y in ys):
-                ax.plot(xs, ys, label=name, lw=1.0, ls="--" if key in ("v_cmd", "v_safe") else "-")
+                ax.plot(xs, ys, label=name, lw=1.0, ls="--" if key in ("v_cmd", "v_safe", "d_od_stated") else "-")
         first = keys[0][0]  # the panel's main series
         if first == "ground_speed" and (need.get("sensor") or {}).get("limit_min") is not None:
             ax.axhline(need["sensor"]["limit_min"], color="tab:green", ls="--", lw=1, label="assumed sensor's limit")

@@ -326,8 +326,9 @@ class Supervisor:
         late = i.dod.late
         self._violation(d, Subsystem.NAVIGATION, i.dod.lowered, subsystem=Subsystem.NAVIGATION,
                         guarantee="every obstacle within D_od is detected",
-                        assumed=late.assumed_d_od if late else None, observed=late.range_m if late else None,
-                        action=f"D_od lowered to {i.dod.d_od:.2f} m")
+                        assumed=late.assumed_d_od if late else i.dod.stated_m,
+                        observed=late.range_m if late else i.dod.d_od,
+                        action=f"D_od lowered to {i.dod.d_od:.2f} m" + ("" if late else f": {i.dod.reason}"))
         # the daemon's own guarantee: broken by a cycle later than the reaction time being flown budgets; the
         # lateness then counts as reaction time for the next 10 s (`omega`), said when that changes
         self._violation(d, Subsystem.GUIDANCE, i.late_unbudgeted_s > 0.0, subsystem=Subsystem.GUIDANCE,
