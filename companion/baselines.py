@@ -76,8 +76,9 @@ PX4-Autopilot (the stored version 001d722; the older 970e500 has the same law on
 - The rate limit `limit_accel` (AVOID_ACCEL_MAX) on the avoidance's velocity change is the autopilot's
   response, not the limit: left out, as is backing away (`BACKUP_SPD`).
 
-Negative controls: the contract's speed × k (`Scaled`, 1.15 and 1.3), and the contract without the E_tr
-inflation (`WithoutEtr`). **no guard**: the daemon off, the mission at its cruise speed.
+Negative controls: the contract's speed × k (`Scaled`, 1.15 and 1.3), the contract without the E_tr
+inflation (`WithoutEtr`), and the contract believing the sensor's stated range (`TrustTheClaim`: D_od without
+the evidence of companion/detection_range.py). **no guard**: the daemon off, the mission at its cruise speed.
 """
 
 from __future__ import annotations
@@ -88,6 +89,7 @@ from dataclasses import dataclass, replace
 
 from contracts.table import Omega
 
+from .detection_range import DetectionRange
 from .samples import AutopilotParam, Scan, Throttle
 from .supervisor import ContractSpeed
 
@@ -437,3 +439,11 @@ class WithoutEtr(ContractSpeed):
             self._bare = copy.copy(sup.table)
             self._bare.e_pred = None  # only in this copy: Ω without E_tr_pred
         return self._bare.omega(i.dod.d_od, i.r_obst, 0.0, i.thrust_ratio, contract=sup.contract)
+
+
+class TrustTheClaim(DetectionRange):
+    """The detection-range estimator that believes the sensor's stated range (a negative control only; flown as
+    the `_claim` arms): it still keeps the medium's own returns from the obstacle logic, but D_od is the claim."""
+
+    def estimate(self, t, stated_m):
+        return replace(super().estimate(t, stated_m), d_od=stated_m)

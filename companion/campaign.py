@@ -66,7 +66,7 @@ Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "ac_avoid", "no_guard")
-ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr)?$")
+ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$")
 FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav")
 ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
@@ -143,7 +143,7 @@ class CampaignSpec(_Strict):
         for a in v:
             if a not in BASELINES and not ARM_RE.match(a):
                 raise ValueError(f"unknown arm {a!r}: governor, offboard, {', '.join(BASELINES)}, "
-                                 "<mode>_x<k> or <mode>_no_etr")
+                                 "<mode>_x<k>, <mode>_no_etr or <mode>_claim")
         if len(set(v)) != len(v) or not v:
             raise ValueError("arms must be distinct and at least one")
         return v
@@ -364,11 +364,14 @@ def _policy(arm: str, s: dict, spec: CampaignSpec):
     m = ARM_RE.match(arm)
     if m is None or m.group(2) is None:
         return None
+    if m.group(2) == "_claim":  # the contract's own speed; its D_od the sensor's claim (`fly`)
+        return None
     return WithoutEtr() if m.group(2) == "_no_etr" else Scaled(float(m.group(3)))
 
 
 def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     """Fly flight `i`; its result row (and the rig, when asked)."""
+    from .baselines import TrustTheClaim
     from .flights import Rig, engage_and_fly, fly_mission
 
     s, arm = flight_of(spec, i)
@@ -380,6 +383,8 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
     if arm == "no_guard":
         rig.daemon_on = False
+    if arm.endswith("_claim"):  # negative control: no detection range from evidence
+        rig.daemon.cycle.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     seconds = spec.duration_s
     if mode == "offboard":
         engage_and_fly(rig, seconds, trace)

@@ -13,8 +13,7 @@ from contracts.flat import horizontal_accel_limit
 from contracts.vehicle import G
 from tests.lockstep import Rig
 from tests.lockstep import engage_and_fly  # noqa: F401  (companion/flights.py; other tests import it from here)
-from companion.baselines import Scaled, WithoutEtr
-from companion.detection_range import DetectionRange
+from companion.baselines import Scaled, TrustTheClaim, WithoutEtr
 
 D_SENSOR = 6.0
 R_OBST = 1.0
@@ -105,14 +104,6 @@ class Trace:
 
     def first_plan_after(self, t: float):
         return next((r for r in self.rows if r[0] >= t - 1e-9 and r[4] is not None), None)
-
-
-class TrustTheClaim(DetectionRange):
-    """Negative control: the detection-range estimator that believes the sensor's stated range (what the daemon
-    did before it weighed the evidence). It still keeps the medium's own returns from the obstacle logic."""
-
-    def estimate(self, t, stated_m):
-        return replace(super().estimate(t, stated_m), d_od=stated_m)
 
 
 def fog_flight(personality, seed, visibility_m, seconds, trust_claim=False):
