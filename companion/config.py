@@ -8,6 +8,7 @@ from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
+from contracts.lidar import BACKSCATTER_LENGTH_M, RATED_REFLECTIVITY, REFERENCE_REFLECTIVITY
 from contracts.yamlfile import load_model, model_from_dict
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -214,6 +215,20 @@ class ThrustConfig(_Strict):
     tau_s: Bounded(0.0, 10.0, lo_open=True) = 2.0
 
 
+class DetectionConfig(_Strict):
+    """D_od from evidence (companion/detection_range.py, docs/detection-range.md): what the estimator needs to
+    know of the sensors and the obstacles. The defaults are the SITL's sensors'."""
+
+    # the darkest obstacle D_od is to guarantee (diffuse reflectivity at the sensor's wavelength: a dark
+    # column 0.1, grey 0.5, a white wall 0.9). Higher is weaker: a darker obstacle is then seen later than D_od
+    reference_reflectivity: Bounded(0.01, 1.0) = REFERENCE_REFLECTIVITY
+    # the target the sensors' stated range is rated at (datasheets: 10 %, a dark target)
+    rated_reflectivity: Bounded(0.01, 1.0) = RATED_REFLECTIVITY
+    # the sensor's backscatter length L_bs [m]: a shot sees the medium with p = 1 − e^(−α·L_bs); measure it on one
+    # fog flight. Higher is weaker: a larger L_bs reads a thinner fog from the same backscatter
+    backscatter_length_m: Bounded(0.01, 10.0) = BACKSCATTER_LENGTH_M
+
+
 class Timeouts(_Strict):
     """How long each input stays believed. Every one is a failsafe: longer means a silent source is trusted longer
     (an obstacle sensor gone quiet keeps its last "free" reading), so each has a ceiling of a few seconds at most."""
@@ -307,6 +322,7 @@ class Config(_Strict):
     sensors: list[SensorConfig] = []  # the obstacle sensors as mounted (none: D_od is 0, no speed is safe)
     contract: ContractConfig = ContractConfig()
     thrust: ThrustConfig = ThrustConfig()
+    detection: DetectionConfig = DetectionConfig()
     timeouts: Timeouts = Timeouts()
     log: LogConfig = LogConfig()
     route: RouteConfig | None = None  # offboard mode: the route to fly
@@ -354,6 +370,8 @@ WEAKER = (
     ("contract", "late_detection_hold_s", "lower", "a late detection lowers D_od for less time"),
     ("contract", "late_detection_tolerance_m", "higher", "a larger range shortfall passes as on time"),
     ("thrust", "tau_s", "higher", "a thrust loss shows later"),
+    ("detection", "reference_reflectivity", "higher", "a darker obstacle than this is seen later than D_od"),
+    ("detection", "backscatter_length_m", "higher", "the same backscatter reads as thinner fog"),
 )
 
 

@@ -22,7 +22,7 @@ from contracts.table import ContractTable
 from .authority import HOLD, ModeAuthority, ModeRequest, Requester
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
-from .detection_range import DetectionRange
+from .detection_range import DetectionRange, DetectionRangeParams
 from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
@@ -70,7 +70,8 @@ class Cycle:
         self.cfg, self.table, self.adapter, self._planning = cfg, table, adapter, planning
         veh = table.vehicle
         self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s)
-        self.truth = DetectionRange(cfg.sensors)  # D_od from evidence: what the sensors' claim cannot say
+        # D_od from evidence: what the sensors' claim cannot say
+        self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
         self.thrust = ThrustEstimator(cfg.thrust, hover, veh.thrust_ratio_range[0], veh.thrust_ratio_range[1])

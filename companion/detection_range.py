@@ -76,6 +76,13 @@ class DetectionRangeParams:
     first_tolerance_m: float = 0.3  # first seen this much inside the stated range (+ one frame's travel): late
     fresh_s: float = 0.5  # a sensor silent longer adds nothing (staleness is the other estimator's)
 
+    @classmethod
+    def of(cls, detection) -> "DetectionRangeParams":
+        """The parameters a config's `detection:` section sets (companion/config.py DetectionConfig)."""
+        return cls(reference_reflectivity=detection.reference_reflectivity,
+                   rated_reflectivity=detection.rated_reflectivity,
+                   backscatter_length_m=detection.backscatter_length_m)
+
 
 @dataclass(frozen=True)
 class DetectionRangeEstimate:
@@ -111,6 +118,7 @@ class DetectionRange:
 
     def __init__(self, sensors: list[SensorConfig], cap_m: float | None = None,
                  params: DetectionRangeParams = DetectionRangeParams()):
+        """`params`: `DetectionRangeParams.of(cfg.detection)` for a config's."""
         self.sensors, self.cap_m, self.p = sensors, cap_m, params
         self._pos: tuple[float, float, float] | None = None  # (t, x, y)
         self._speed = 0.0

@@ -50,7 +50,7 @@ def test_the_configuration_reference_has_every_key_with_its_default():
     for key in keys:
         assert f"| `{key}` |" in page, key
     # a default and a constraint read from the model, not written by hand
-    assert f"| `contract.dwell_s` | float (≥ 0) | `{ContractConfig.model_fields['dwell_s'].default}` |" in page
+    assert f"| `contract.dwell_s` | float (≥ 0.5, ≤ 600.0) | `{ContractConfig.model_fields['dwell_s'].default}` |" in page
     assert "| `sensors[k].h_fov_deg` | float (> 0, ≤ 360) | **required** |" in page
 
 
