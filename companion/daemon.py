@@ -18,7 +18,7 @@ from .autopilots import adapter_for
 from .config import Config
 from .cycle import CYCLE_SAMPLES, Cycle
 from .guidance import InlinePlanning, ThreadedPlanning
-from .logschema import NVF, STATE_FIELDS
+from .logschema import LINK_COUNTERS, NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut
 from .mission import home_request
@@ -251,6 +251,7 @@ class Daemon:
     def _state_record(self) -> dict:
         if self._record is None:  # made once a cycle, for NAMED_VALUE_FLOAT and the state sample
             self._record = self.cycle.state_record(self._last_in, self.last, self.tel)
+            self._record.update({k: getattr(self.counters, k) for k in LINK_COUNTERS})
         return self._record
 
     # ------------------------------------------------------------------ stopping and real time

@@ -61,6 +61,16 @@ STATE = {
     "v_cmd": ("m/s", "speed limit actually commanded (null when none: shadow, not engaged)"),
     "obstacle_m": ("m", "nearest obstacle seen near the path (inf/null: none)"),
 }
+# what the link did not believe, counted since the daemon started (companion/mavlink_out.py Counters)
+LINK_COUNTERS = {
+    "bad_packets": ("count", "malformed packets (bad CRC, torn frames)"),
+    "rejected_signature": ("count", "unsigned or wrongly signed packets, where signing is on"),
+    "unknown_source": ("count", "messages from ids no configured autopilot, sensor or ground station has"),
+    "refused_address": ("count", "datagrams claiming a pinned source's ids from another address"),
+    "link_dropped": ("count", "datagrams dropped unread: not MAVLink, or a frame cut at the datagram's end"),
+    "kernel_drops": ("count", "datagrams the kernel dropped (receive buffer full), where it says"),
+}
+STATE.update(LINK_COUNTERS)
 STATE_FIELDS = tuple(STATE)
 
 SUBSYSTEMS = tuple(s.value for s in Subsystem)  # violation_start.subsystem

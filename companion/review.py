@@ -34,14 +34,14 @@ from typing import Iterable
 from contracts.errors import ContractError
 
 from .eventlog import file_set, finite_copy, read_events
-from .logschema import LOG_FILE, STATE_FIELDS, SUBSYSTEMS
+from .logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
 from .review_html import PAGE, write_flight_page
 
 SCHEMA = "contract-guard/review"
 SCHEMA_VERSION = 1
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
-RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "e_tr", "e_tr_measured",
-                "thrust_ratio", "r_obst", "tilt_deg")
+RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "d_od_stated", "e_tr",
+                "e_tr_measured", "thrust_ratio", "r_obst", "tilt_deg", *LINK_COUNTERS)
 OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
 # ground speed above the limit by up to this fraction of it (plus `tolerance_m_s`) is a tracking overshoot, the
 # controller's business (covered by E_tr), not a broken limit: the supervisor's own rule ("speed limit not in
@@ -854,6 +854,9 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         r = rep["ranges"][k]
         miss = f"  ({r['missing']} null)" if r["missing"] else ""
         lines.append(f"    {k:<13} {fmt_value(r['min'])} … {fmt_value(r['max'])}{miss}")
+    link = {k: rep["ranges"][k]["max"] for k in LINK_COUNTERS if (rep["ranges"].get(k) or {}).get("max")}
+    if link:  # cumulative counts: the last is the flight's
+        lines.append("  link, not believed: " + ", ".join(f"{int(n)} {k.replace('_', ' ')}" for k, n in link.items()))
     lines.append(f"  violations: {rep['violation_count']}" + (f" (first {len(rep['violations'])} listed)"
                  if rep["violation_count"] > len(rep["violations"]) else ""))
     for v in rep["violations"]:

@@ -169,6 +169,9 @@ def test_a_spoofed_free_reading_at_200_hz_does_not_hide_the_obstacle(tmp_path, v
     assert sent["n"] > 500 and len(seen) > 20
     assert all(m == pytest.approx(OBSTACLE_CM / 100) for m in seen), seen  # the obstacle, in every sample
     c = counters(log)
+    key = "refused_address" if via == "another address, the autopilot's ids" else "unknown_source"
+    in_samples = [s[key] for s in states(log)]  # the state samples carry the count as it grows
+    assert in_samples[-1] >= sent["n"] * 0.5 and in_samples == sorted(in_samples) and in_samples[0] < in_samples[-1]
     if via == "another address, the autopilot's ids":  # refused by the link for its address, and said
         assert c["refused_address"] >= sent["n"] * 0.9
         refused = [r for r in log if r.get("event") == "source_refused" and r["what"] == "refused"]
