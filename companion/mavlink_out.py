@@ -38,17 +38,18 @@ STATUSTEXT_BYTES = 50  # STATUSTEXT.text (MAVLink common.xml)
 
 
 def text_chunks(text: str, n: int = STATUSTEXT_BYTES) -> list[bytes]:
-    """`text` in chunks of `n` bytes that break at spaces (a word longer than `n` is cut); every chunk but the
-    last padded with spaces to exactly `n` bytes, the last shorter than `n` (or an empty one after it)."""
+    """`text` in chunks of `n` bytes that break after a space (a word longer than `n` is cut); every chunk but
+    the last padded with spaces to exactly `n` bytes, the last shorter than `n` (or an empty one after it). The
+    space stays in the chunk it ends, so a receiver that joins the chunks as they are reads the words apart."""
     data = text.encode()
     if len(data) <= n:
         return [data]
     out, rest = [], data
     while len(rest) >= n:
-        cut = rest.rfind(b" ", 0, n + 1)
+        cut = rest.rfind(b" ", 0, n) + 1  # after the last space that fits
         cut = n if cut <= 0 else cut
         out.append(rest[:cut].ljust(n))
-        rest = rest[cut:].lstrip(b" ")
+        rest = rest[cut:]
     return out + [rest]
 
 

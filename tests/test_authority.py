@@ -75,6 +75,8 @@ def test_statustext_chunks_end_at_words():
         assert all(w in words for w in c.decode().split()), c
     assert " ".join(b"".join(chunks).decode().split()) == text  # joined, the whole text
     assert text_chunks("short") == [b"short"]
+    exact = "CG: refusing to engage: no configured sensor looks forward"  # a word ends at byte 50 exactly
+    assert b"".join(text_chunks(exact)).decode().split() == exact.split()  # joined as they come: no glued words
 
 
 # ----------------------------------------------------------------------------- stop means stop

@@ -114,7 +114,10 @@ def test_a_second_daemon_on_the_same_udp_port_is_refused(tmp_path):
     first = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(p)],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        assert "waiting for the autopilot" in "".join(first.stdout.readline() for _ in range(6))
+        banner = []
+        while len(banner) < 20 and not any("waiting for the autopilot" in ln for ln in banner):
+            banner.append(first.stdout.readline())
+        assert any("waiting for the autopilot" in ln for ln in banner), banner
         time.sleep(0.5)
         second = cg("run", "--config", p, stdin=subprocess.DEVNULL)
         lines = [ln for ln in second.stderr.splitlines() if ln.strip()]

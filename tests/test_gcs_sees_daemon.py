@@ -45,7 +45,7 @@ def test_the_daemons_statustext_reaches_a_ground_station_through_the_sitl(tmp_pa
             d.wait(15)
             gcs.close()
     mine = [(m, t) for m, t in texts if (m.get_srcSystem(), m.get_srcComponent()) == (1, 191)]
-    joined = "".join(t for _, t in mine)
+    joined = " ".join("".join(t for _, t in mine).split())  # chunks end at words, padded to 50 bytes with spaces
     assert "CG: refusing to engage: no configured sensor looks forward" in joined
     refusal = next(m for m, t in mine if "refusing" in t)
     assert refusal.severity <= mavutil.mavlink.MAV_SEVERITY_ERROR  # shown in red by ground stations
