@@ -107,10 +107,12 @@ def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
     assert 0.0 <= off <= 0.05  # the first poll of the flight
 
     lv, rv = violations(live), violations(rep, off)
-    assert [v[0] for v in lv] == ["navigation"], "the flight must break the navigation guarantee"
+    # the fog, read from its evidence, lowers D_od below the claim (once or in spells as the evidence comes and goes)
+    assert lv and {v[0] for v in lv} == {"navigation"}, "the flight must break the navigation guarantee"
     assert [v[0] for v in rv] == [v[0] for v in lv]
     for (_, t_live, obs_live), (_, t_rep, obs_rep) in zip(lv, rv):
-        assert t_rep == pytest.approx(t_live, abs=0.005) and obs_rep == pytest.approx(obs_live, abs=0.01)
+        # observed: the evidence's estimate, whose 1 s window ends a poll apart in the replay: within 5 cm
+        assert t_rep == pytest.approx(t_live, abs=0.005) and obs_rep == pytest.approx(obs_live, abs=0.05)
 
     live_s, rep_s = states(d), states(tmp_path / REPLAY_LOG)
     assert len(rep_s) == pytest.approx(len(live_s), abs=5)
@@ -125,6 +127,13 @@ def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
             # samples only, and few of them
             assert all(v_at[t] is not None and min(abs(speeds - v_at[t])) < 0.005 for t in bad), bad
             assert len(bad) <= 0.05 * len(live_s), bad
+        elif key in ("d_od", "v_max"):  # (V_max follows D_od)
+            # D_od from evidence: the medium's backscatter counted over a 1 s window of frames that the replay
+            # steps at log time, a poll apart from the live daemon's: samples lowered by the evidence may differ,
+            # those at the sensors' claim may not
+            lowered = {s["t"] for s in live_s if s["d_od"] < s["d_od_stated"] - 1e-9}
+            assert [t for t in bad if t not in lowered] == [], key
+            assert len(bad) <= 0.25 * len(live_s), (len(bad), len(live_s))
         else:
             assert bad == [], key
     assert {s["contract"] for s in rep_s} == {"stop"} and all(s["v_cmd"] is None for s in rep_s)  # shadow
@@ -218,7 +227,7 @@ def test_corrupt_and_truncated_tlog_is_replayed_with_the_damage_counted(fog, tmp
     assert rp["corrupt_packets"] == 4 and rp["truncated_tail"] is True
     assert rp["packets"] == len(fr) - 3 - 1
     assert rp["skipped_bytes"] == sum(fr[k][1] for k in flipped) + 37 + fr[-1][1] - 5
-    assert [v[0] for v in violations(rep)] == ["navigation"]  # the flight is still there
+    assert violations(rep) and {v[0] for v in violations(rep)} == {"navigation"}  # the flight is still there
     assert any("tlog damaged: 4 corrupt stretch(es) skipped and last packet torn" in f for f in rep["findings"])
 
 
