@@ -46,8 +46,7 @@ class NoSpeed:
             return (f"once {self.needs}, set CG_ENGAGE 0 then 1 to fly the route again, or change the flight mode "
                     "(the fail-safe Hold is kept until then)")
         return (f"once {self.needs}, change the flight mode (e.g. back to the mission): the daemon keeps its Hold "
-                f"until the pilot or a ground station does; changed earlier, it sends its least limit "
-                f"({MIN_SPEED_CMD:g} m/s) until then")
+                "until the pilot or a ground station does (not before: until then no speed is safe)")
 
     def fields(self, mode: str) -> dict:
         """The hold event's fields."""
