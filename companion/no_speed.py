@@ -23,7 +23,7 @@ from .estimators import LATE_WINDOW_S, SETTLE_S
 from .supervisor import MIN_SPEED_CMD, Inputs
 
 D_OD_TOP_M = 1000.0  # [m] no D_od beyond this is looked at: none up to it gives a speed ⇒ the table has none
-RESOLUTION = 0.005  # [m] of the thresholds said (rounded to cm, towards the safe side)
+RESOLUTION = 0.01  # [m] of the thresholds said (then rounded to cm, towards the safe side)
 
 
 @dataclass(frozen=True)
@@ -122,13 +122,12 @@ def diagnose(table: ContractTable, contract: str, i: Inputs, *, e_tr_floor: floa
         return NoSpeed("table", f"the table has no speed at any D_od at E_tr {e:.2f} m and thrust_ratio {thr:.2f} "
                        "(its tilt or controller-contract axes do not reach the vehicle's)",
                        "a table that covers the vehicle", "table has none", "a covering table")
-    d_ok = math.ceil(_edge(lambda x: speed(d_od=x), top, d) * 100.0) / 100.0
     if e > e_tr_floor + 1e-9 and speed(e_tr=e_tr_floor):
         e_ok = max(math.floor(_edge(lambda x: speed(e_tr=x), e_tr_floor, e) * 100.0) / 100.0, e_tr_floor)
         return NoSpeed("e_tr", f"E_tr {e:.2f} m (the tracking error measured) leaves no safe speed at D_od "
-                       f"{d:.2f} m: at most {e_ok:.2f} m would, or D_od {d_ok:.2f} m",
-                       f"E_tr ≤ {e_ok:.2f} m or D_od ≥ {d_ok:.2f} m", f"E_tr {e:.2f} m > {e_ok:.2f} m",
-                       f"E_tr <= {e_ok:.2f} m")
+                       f"{d:.2f} m: at most {e_ok:.2f} m would", f"E_tr ≤ {e_ok:.2f} m (or a longer D_od)",
+                       f"E_tr {e:.2f} m > {e_ok:.2f} m", f"E_tr <= {e_ok:.2f} m")
+    d_ok = math.ceil(_edge(lambda x: speed(d_od=x), top, d) * 100.0) / 100.0
     return NoSpeed("d_od", f"D_od {d:.2f} m, below the {d_ok:.2f} m any safe speed needs; D_od is what it is "
                    f"because: {i.dod.reason}",
                    f"D_od ≥ {d_ok:.2f} m", f"D_od {d:.2f} m < {d_ok:.2f} m", f"D_od >= {d_ok:.2f} m")
