@@ -94,7 +94,7 @@ class Cycle:
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
         start, self._thrust_start = start_thrust(table, contract)
         self.thrust = ThrustEstimator(cfg.thrust, hover, start, veh.thrust_ratio_range[1])
-        self._thrust_said = False  # the start value was said in this airborne stretch (`thrust_start`)
+        self._thrust_said = False  # the start value in force in the air has been said (`thrust_start`)
         self.nav = NavHealth(cfg.timeouts.nav_s)
         self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
         self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
@@ -257,13 +257,13 @@ class Cycle:
         return i, d, Outbox(cmd, speed, tuple(messages), sp, ended, tuple(events), tuple(texts))
 
     def _say(self, t: float, tel: Telemetry, i: Inputs, events: list, texts: list) -> None:
-        """Say what the contract took and why it stops: the start thrust ratio once per airborne stretch
-        (`thrust_start`), and for a `no safe speed` Hold (or a shadow flight's would-be Hold) the input that caused
+        """Say what the contract took and why it stops: the start thrust ratio when it is in force in the air
+        (`thrust_start`: once per flight, and again if the hover estimate goes stale), and for a `no safe speed` Hold (or a shadow flight's would-be Hold) the input that caused
         it and how the flight resumes (companion/no_speed.py), on the hold event and in a STATUSTEXT."""
         basis = self.thrust.basis(t)
-        if not tel.in_air:
+        if not tel.in_air or basis != "start":  # said again after a landing, or an estimate lost in flight
             self._thrust_said = False
-        elif basis == "start" and not self._thrust_said:
+        elif not self._thrust_said:
             self._thrust_said = True
             events.insert(0, ("thrust_start", dict(self._thrust_start)))  # before what it explains
         why = None

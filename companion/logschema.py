@@ -119,7 +119,8 @@ EVENTS = {
     "would_hold": Event(("causes", *_NO_SPEED), "supervisor", "shadow mode: the causes a governor would hold for "
                         "now (with `no safe speed`: its input, as `failsafe`)"),
     "thrust_start": Event(("thrust_ratio", "vehicle_min", "table_min", "covered", "reason"), "cycle",
-                          "airborne before the hover estimate of thrust_ratio settles (once per flight): the value the "
+                          "airborne before the hover estimate of thrust_ratio settles (once per flight; again when the "
+                          "estimate goes stale in flight): the value the "
                           "contract takes until then — the vehicle's lowest (`vehicle_min`) where the table covers "
                           "it (`covered`), else no safe speed (the table's lowest is `table_min`)"),
     "command": Event(("cmd", "params"), "daemon", "a COMMAND_LONG sent (cmd ∈ COMMANDS)"),

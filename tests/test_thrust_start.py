@@ -198,3 +198,36 @@ def test_the_start_banner_says_so_before_the_first_flight(partial, partial_table
     said = [x for x in banner(cfg, partial_table, "E_tr_pred") if "thrust_ratio" in x]
     assert said and "covers thrust_ratio 0.65 and up" in said[0] and "starts at 0.6" in said[0]
     assert not [x for x in banner(cfg, MAMBO, "E_tr_pred") if "thrust_ratio" in x]  # a table that covers it: quiet
+
+
+def test_thrust_start_is_said_once_airborne_and_again_when_the_estimate_is_lost():
+    """Through the cycle's own `_say`: on the ground nothing; airborne on the start value once; the hover estimate
+    settles (quiet); its samples stop for more than 2 s (the start value again, said again); after a landing, anew."""
+    from companion.samples import Throttle
+    from companion.telemetry import Telemetry
+
+    cfg = config_from_dict({"vehicle": "mambo", "mode": "governor", "link": {"connect": "memory"},
+                            "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}]})
+    cycle = Cycle(cfg, MAMBO, adapter_for("px4"), "stop", None)
+    tel, said = Telemetry(), []
+
+    def at(t, landed_state):
+        tel.landed_state = landed_state
+        events = []
+        cycle._say(t, tel, inputs(), events, [])
+        said.extend(round(t, 2) for name, _ in events if name == "thrust_start")
+
+    cycle.take(Throttle(0.0, 0.1, 0.0, 0.0, 0.0, False))
+    at(0.0, 1)  # on the ground
+    for k in range(50):  # lift-off at 1 s; steady hover samples from then on
+        t = 1.0 + 0.1 * k
+        cycle.take(Throttle(t, MAMBO.vehicle.controller.thr_hover, 0.0, 0.0, 0.0, True))
+        at(t, 2)
+    assert said == [1.0] and cycle.thrust.basis(5.9) == "hover"
+    at(8.5, 2)  # no throttle sample for 2.6 s: the start value again
+    at(8.6, 2)
+    assert said == [1.0, 8.5]
+    cycle.take(Throttle(9.0, 0.1, 0.0, 0.0, 0.0, False))
+    at(9.0, 1)  # landed
+    at(9.1, 2)  # and off again
+    assert said == [1.0, 8.5, 9.1]
