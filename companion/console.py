@@ -35,8 +35,10 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return (INFO, "start-up checks: ok") if f["ok"] else (ERR, f"start-up checks: REFUSING TO ENGAGE: {f['reason']}")
     if name == "state_change":
         return (NOTICE if f["to"] != "holding" else WARNING, f"state {f['from']} → {f['to']} ({f['reason']})")
-    if name in ("failsafe", "hold_trigger"):
-        return WARNING, f"HOLD: {f['cause']}"
+    if name in ("failsafe", "hold_trigger"):  # a "no safe speed" names its input and how to resume
+        return WARNING, f"HOLD: {f['cause']}" + (f": {f['why']}; resume: {f['resume']}" if f.get("why") else "")
+    if name == "thrust_start":
+        return (INFO if f["covered"] else WARNING), f["reason"]
     if name == "violation_start":
         return ERR, (f"VIOLATION {f['subsystem']}: {f['guarantee']} (assumed {_fmt(f.get('assumed'))}, observed "
                      f"{_fmt(f.get('observed'))}); {f['action']}")
@@ -47,7 +49,7 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
             (WARNING, f"the daemon's cycles run late: reaction time {f['t_react_s']:.2f} s (+{f['late_s'] * 1e3:.0f} ms) "
                       f"for the next {LATE_WINDOW_S:.0f} s, a lower speed")
     if name == "would_hold" and f["causes"]:
-        return WARNING, f"shadow: would HOLD: {', '.join(f['causes'])}"
+        return WARNING, f"shadow: would HOLD: {', '.join(f['causes'])}" + (f" ({f['why']})" if f.get("why") else "")
     if name == "limit_change" and "sent" in f:
         return INFO, f"speed limit {f['v_max']:.2f} m/s; sent {f['sent']:.2f} m/s, the autopilot's own cruise"
     if name == "limit_change":
@@ -163,11 +165,19 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
                         f"rated {'(none: claims trusted, shadow only)' if s.max_range_m is None else f'{s.max_range_m:g} m'}"
                         for k, s in enumerate(cfg.sensors)) or "none (D_od is 0: no speed is safe)"
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
+    from .cycle import start_thrust  # (here: `table show` reads this module without the cycle)
+
+    _, thrust = start_thrust(table, "avoid" if cfg.mode == "offboard" else "stop")
+    short = [] if thrust["covered"] else [  # a --partial-grid table: said before the first flight
+        f"WARNING: the table covers thrust_ratio {thrust['table_min']:g} and up, the vehicle's range starts at "
+        f"{thrust['vehicle_min']:g}: in flight no speed is safe until the hover estimate settles (airborne and "
+        "steady); engage after that, or build the table over the whole thrust_ratio_range"]
     return [
         f"vehicle {table.vehicle.name}, table {table.path} (contracts: {', '.join(table.available)}; "
         f"Ω lookup {kernel_name()})",
         f"controller contract: {controller_contract}; {controller_coverage(table)}",
         f"{cfg.mode} mode ({'stop' if cfg.mode != 'offboard' else 'avoid'} contract), {engage}",
+        *short,
         f"sensors: {sensors}",
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "

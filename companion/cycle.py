@@ -17,21 +17,22 @@ from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
 from contracts.online_planner import load_solver, offboard_cap
 from contracts.stop import braking_decel, stop_jerk
-from contracts.table import ContractTable
+from contracts.table import THRUST_AXIS_TOL, ContractTable
 
 from .authority import HOLD, ModeAuthority, ModeRequest, Requester
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
 from .detection_range import DetectionRange, DetectionRangeParams
-from .estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
+from .estimators import SETTLE_S, DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
 from .mission import Home
+from .no_speed import diagnose
 from .offboard import OffboardActions, OffboardController
 from .outbox import Outbox
 from .samples import (AutopilotParam, Heading, Implausible, MissionMessage, NavStatus, PathTarget, Position, Scan,
                       Throttle)
-from .states import BRAKE_STOP_CAUSES, FINISHED, OffboardState, State
+from .states import BRAKE_STOP_CAUSES, FINISHED, Cause, OffboardState, State
 from .supervisor import Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
@@ -59,6 +60,23 @@ def controller_contract(cfg: Config, table: ContractTable) -> str:
     return "no E_tr_pred in the table and no contract.e_tr_assumed_m: refuses to engage"
 
 
+def start_thrust(table: ContractTable, contract: str) -> tuple[float, dict]:
+    """The thrust ratio the contract takes before the hover estimate settles, and the `thrust_start` event's fields.
+    The bottom of the vehicle's `thrust_ratio_range` is what it may have until measured (a tired battery, a
+    damaged propeller); where the table covers it, the start is the lowest thrust the table's lookup answers for
+    (`ContractTable.thrust_floor`: the axis' own first value, never NONE at the start). A table whose thrust axis
+    starts above that bottom (`table build --partial-grid`) cannot vouch for the vehicle until it is measured: the
+    start stays at the bottom, where there is no safe speed, and says so."""
+    lo, floor = table.vehicle.thrust_ratio_range[0], table.thrust_floor(contract)
+    covered = floor <= lo + THRUST_AXIS_TOL
+    start = floor if covered else lo
+    until = f"until the hover estimate settles (airborne and steady for {SETTLE_S:g} s)"
+    reason = (f"thrust_ratio taken as {start:.2f} {until}: the lowest the vehicle may have" if covered else
+              f"thrust_ratio not yet estimated: the vehicle may have {lo:.2f} (its thrust_ratio_range) and the table "
+              f"covers {floor:.2f} and up: no safe speed {until} at {floor:.2f} or more")
+    return start, {"thrust_ratio": start, "vehicle_min": lo, "table_min": floor, "covered": covered, "reason": reason}
+
+
 # the samples only the estimators take (by type: `Daemon.take` sends them here first, the others by isinstance)
 CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, Scan))
 
@@ -74,7 +92,9 @@ class Cycle:
         self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
-        self.thrust = ThrustEstimator(cfg.thrust, hover, veh.thrust_ratio_range[0], veh.thrust_ratio_range[1])
+        start, self._thrust_start = start_thrust(table, contract)
+        self.thrust = ThrustEstimator(cfg.thrust, hover, start, veh.thrust_ratio_range[1])
+        self._thrust_said = False  # the start value in force in the air has been said (`thrust_start`)
         self.nav = NavHealth(cfg.timeouts.nav_s)
         self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
         self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
@@ -228,12 +248,35 @@ class Cycle:
             self.shutdown.step(t, i, d, self.authority, engaged_flying, requests, events, texts)
         if fail_hold:
             requests.append(ModeRequest(HOLD, Requester.FAILSAFE))
+        self._say(t, tel, i, events, texts)
         cmd = self.authority.arbitrate(t, requests)
         sp = acts.setpoint if acts is not None else None
         if sp is not None:
             self.etr.command(t, float(sp.p[0]), float(sp.p[1]))
         speed = d.send_speed if self.cfg.mode == "governor" else None
         return i, d, Outbox(cmd, speed, tuple(messages), sp, ended, tuple(events), tuple(texts))
+
+    def _say(self, t: float, tel: Telemetry, i: Inputs, events: list, texts: list) -> None:
+        """Say what the contract took and why it stops: the start thrust ratio when it is in force in the air
+        (`thrust_start`: once per flight, and again if the hover estimate goes stale), and for a `no safe speed` Hold (or a shadow flight's would-be Hold) the input that caused
+        it and how the flight resumes (companion/no_speed.py), on the hold event and in a STATUSTEXT."""
+        basis = self.thrust.basis(t)
+        if not tel.in_air or basis != "start":  # said again after a landing, or an estimate lost in flight
+            self._thrust_said = False
+        elif not self._thrust_said:
+            self._thrust_said = True
+            events.insert(0, ("thrust_start", dict(self._thrust_start)))  # before what it explains
+        why = None
+        for k, (name, f) in enumerate(events):
+            if not (name == "failsafe" and f.get("cause") == Cause.NO_SAFE_SPEED
+                    or name == "would_hold" and Cause.NO_SAFE_SPEED in f.get("causes", ())):
+                continue
+            if why is None:
+                why = diagnose(self.table, self.sup.contract, i, e_tr_floor=self.etr.floor, thrust_basis=basis,
+                               policy=getattr(self.sup.policy, "name", "contract"))
+            events[k] = (name, {**f, **why.fields(self.cfg.mode)})
+            if name == "failsafe" and f.get("action") == "hold":
+                texts.append((2, why.statustext(self.cfg.mode)))
 
     def _calibration(self, t: float, tel: Telemetry, i: Inputs, d: Decision, requests, events, texts) -> None:
         """The calibration plan's hold legs (companion/calibration_holds.py): Hold, at rest `rest_s`, the mission.

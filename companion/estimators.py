@@ -369,7 +369,8 @@ SETTLED_A_UP = 1.0  # [m/s²] and once the vertical acceleration has come within
 class ThrustEstimator:
     """thrust_ratio = nominal hover throttle / measured hover throttle, the latter from the collective
     throttle corrected for tilt and vertical acceleration: h = throttle·cosφ·cosθ·g/(g + a_up),
-    low-passed. Falls back to the configured value (default: the vehicle's lowest) when unknown.
+    low-passed. Until it is known, `fallback`: the start value (`companion.cycle.start_thrust`: the lowest the
+    vehicle may have, where the table answers).
 
     Valid only airborne and settled (issue 19 item 5): on the ground and during spin-up the throttle holds
     the vehicle against nothing (PX4's spin-up read 0.678 for a true 0.700). A sample counts once the
@@ -415,11 +416,19 @@ class ThrustEstimator:
             self._h += min(1.0, (t - self._t) / self.cfg.tau_s) * (h - self._h)
         self._t = t
 
-    def value(self, t: float) -> tuple[float, str]:
+    def basis(self, t: float) -> str:
+        """What `value` is now: "configured" (thrust.source), "hover" (the hover estimate, airborne and settled) or
+        "start" (no estimate yet, or none for 2 s: the start value `fallback`)."""
         if self.cfg.source == "configured":
+            return "configured"
+        return "start" if self._h is None or t - self._t > 2.0 else "hover"
+
+    def value(self, t: float) -> tuple[float, str]:
+        basis = self.basis(t)
+        if basis == "configured":
             return (self.cfg.value or self.fallback), "configured"
-        if self._h is None or t - self._t > 2.0:
-            return self.fallback, "not airborne and settled: vehicle's lowest thrust ratio"
+        if basis == "start":
+            return self.fallback, "not airborne and settled: the start value"
         return min(self.top, self.h_nom / self._h), f"hover throttle {self._h:.3f} vs nominal {self.h_nom:.3f}"
 
 

@@ -82,6 +82,7 @@ class Event(NamedTuple):
     meaning: str
 
 
+_NO_SPEED = ("input", "why", "resume")  # a `no safe speed` Hold's cause (companion/no_speed.py)
 _MISSION_STATS = ("resent", "duplicates", "out_of_order", "malformed")
 EVENTS = {
     "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract", "nav_margin"),
@@ -104,7 +105,9 @@ EVENTS = {
     "violation_end": Event(("subsystem", "guarantee"), "supervisor", "that guarantee holds again"),
     "state_change": Event(("from", "to", "reason"), "supervisor", "supervisor state changed"),
     "mode_change": Event(("from", "to", "by"), "supervisor", "autopilot mode changed (by: daemon | other)"),
-    "failsafe": Event(("cause", "action"), "supervisor", "a failsafe cause made the daemon hold"),
+    "failsafe": Event(("cause", "action", *_NO_SPEED), "supervisor", "a failsafe cause made the daemon hold (a "
+                      "`no safe speed`: `input` that caused it — thrust_ratio, d_od, e_tr, late_s, policy, table, "
+                      "non-finite —, `why` in words, how the flight resumes)"),
     "hold_trigger": Event(("cause", "action"), "supervisor", "a non-failsafe cause (obstacle, limit not in force) "
                           "made the daemon hold"),
     "limit_change": Event(("v_max", "reason"), "supervisor", "a new speed limit is sent (`sent`, `cruise`: a "
@@ -113,7 +116,13 @@ EVENTS = {
     "cruise_speed": Event(("param", "v"), "daemon", "the autopilot's cruise-speed parameter (NaN: unusable); a "
                           "governor never sends a limit above it"),
     "limit_not_applicable": Event(("mode", "v_max"), "supervisor", "the autopilot's mode ignores the speed limit"),
-    "would_hold": Event(("causes",), "supervisor", "shadow mode: the causes a governor would hold for now"),
+    "would_hold": Event(("causes", *_NO_SPEED), "supervisor", "shadow mode: the causes a governor would hold for "
+                        "now (with `no safe speed`: its input, as `failsafe`)"),
+    "thrust_start": Event(("thrust_ratio", "vehicle_min", "table_min", "covered", "reason"), "cycle",
+                          "airborne before the hover estimate of thrust_ratio settles (once per flight; again when the "
+                          "estimate goes stale in flight): the value the "
+                          "contract takes until then — the vehicle's lowest (`vehicle_min`) where the table covers "
+                          "it (`covered`), else no safe speed (the table's lowest is `table_min`)"),
     "command": Event(("cmd", "params"), "daemon", "a COMMAND_LONG sent (cmd ∈ COMMANDS)"),
     "command_ack": Event(("command", "result"), "daemon", "the autopilot's answer to a speed or mode command"),
     "link": Event(("status",), "daemon", "autopilot heartbeat: up | down"),

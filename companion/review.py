@@ -160,6 +160,7 @@ class _Summary:
         self.by_sub: dict[str, dict] = {}
         self.open_fs: list[dict] = []
         self.failsafes: list[dict] = []
+        self.thrust_starts: list[dict] = []  # `thrust_start`: the thrust ratio taken before the estimate settled
         self.lists = {k: [] for k in ("mode_changes", "state_changes", "link", "startup_checks", "commands_failed",
                                       "log_gaps", "starts", "stops")}
         self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0}
@@ -285,6 +286,7 @@ class _Summary:
         elif name == "failsafe":
             self.counts["failsafes"] += 1
             fs = {"t": t, "cause": g("cause"), "action": g("action"), "cleared_t": None, "boot": self.boot}
+            fs.update({k: str(g(k)) for k in ("input", "why", "resume") if g(k) is not None})  # no safe speed: why
             self.open_fs.append(fs)
             self._keep(self.failsafes, fs)
         elif name == "failsafe_clear":
@@ -343,6 +345,12 @@ class _Summary:
             elif self.would_open is None:
                 self.would_open = {"start_t": t, "causes": causes, "end_t": None, "duration_s": None,
                                    "ended_by": None, "boot": self.boot}
+                if g("why") is not None:
+                    self.would_open["why"] = str(g("why"))
+        elif name == "thrust_start":
+            self._keep(self.thrust_starts, {"t": t, "thrust_ratio": _num(g("thrust_ratio")), "covered": g("covered"),
+                                            "vehicle_min": _num(g("vehicle_min")), "table_min": _num(g("table_min")),
+                                            "reason": str(g("reason"))})
         elif name == "start":
             mode = g("mode")
             if isinstance(mode, str):
@@ -459,6 +467,7 @@ class _Summary:
             "violations_by_subsystem": self.by_sub,
             "unknown_subsystems": self.unknown_subsystems,
             "failsafes": self.failsafes,
+            "thrust_starts": self.thrust_starts,
             # where they happened: failsafe events (a cause made the daemon hold) and entries into the failsafe
             # state (the link lost: nothing can be commanded, and no failsafe event is written)
             "failsafe_count": self.counts["failsafes"] + self.failsafe_entries,
@@ -559,6 +568,12 @@ def findings(rep: dict) -> list[str]:
         out.append(f"{rep['failsafe_count']} failsafe(s): {', '.join(parts)}")
     if rep["link"]["down_s"] > 0 or any(e["status"] == "down" for e in rep["link"]["events"]):
         out.append(f"autopilot link down for {rep['link']['down_s']:.1f} s")
+    short = [s for s in rep.get("thrust_starts", []) if s["covered"] is False]
+    if short:
+        s = short[0]
+        out.append(f"the table's thrust axis starts at {fmt_value(s['table_min'])}, above the vehicle's lowest "
+                   f"{fmt_value(s['vehicle_min'])}: no safe speed after take-off until the thrust estimate settled "
+                   f"({len(short)} flight(s)); build the table over the whole thrust_ratio_range")
     bad_checks = [c for c in rep["startup_checks"] if c["ok"] is not True]
     if bad_checks:
         out.append(f"{len(bad_checks)} failed start-up check(s): {bad_checks[0]['reason']}")
@@ -844,7 +859,7 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         lines.append(f"  would have held (shadow mode): {rep['would_hold_count']}")
         for wh in rep["would_hold"]:
             lines.append(f"    {_fmt_t(wh['start_t'])} … {_fmt_t(wh['end_t'])} ({wh['ended_by']})  "
-                         f"{'; '.join(wh['causes'])}")
+                         f"{'; '.join(wh['causes'])}" + (f" ({wh['why']})" if wh.get("why") else ""))
     w = rep["over_limit"]["worst"]
     if w:
         lines.append(f"  ground speed − limit: max {w['excess_m_s']:+.2f} m/s at t = {_fmt_t(w['t'])} "
@@ -870,6 +885,10 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
     for fs in rep["failsafes"]:
         cleared = f", cleared at {_fmt_t(fs['cleared_t'])}" if fs["cleared_t"] is not None else ", not cleared"
         lines.append(f"    {_fmt_t(fs['t'])}  {fs['cause']} → {fs['action']}{cleared}")
+        if fs.get("why"):  # a no safe speed: the input that caused it, and how the flight resumes
+            lines.append(f"      {fs['why']}; resume: {fs.get('resume', '?')}")
+    for ts in rep.get("thrust_starts", []):
+        lines.append(f"  thrust ratio before the estimate settled (t = {_fmt_t(ts['t'])}): {ts['reason']}")
     lines.append(f"  mode changes: {len(rep['mode_changes'])}")
     for m in rep["mode_changes"]:
         lines.append(f"    {_fmt_t(m['t'])}  {m['from']} → {m['to']} (by {m['by']})")

@@ -39,7 +39,7 @@ from .gridspec import axis as _axis
 from .lookup import repair_monotone
 from .planner import Limits, check_trajectory, head_on_problem, plan
 from .runner import ONE_THREAD, Checkpoint, run_tasks
-from .table import MAX_REPAIR_FRACTION, Slot, verify, write_table
+from .table import MAX_REPAIR_FRACTION, THRUST_AXIS_TOL, Slot, verify, write_table
 from .trajectories import trajectories_path, write_trajectories
 from .vehicle import G, Vehicle, load_vehicle
 
@@ -98,7 +98,7 @@ def grid_coverage(grid: Grid, vehicle: Vehicle) -> list[str]:
     lo, hi = vehicle.thrust_ratio_range
     tr, top = grid.thrust_ratio, math.degrees(grid.tilt[-1])
     gaps = []
-    if tr[0] > lo + 1e-9:
+    if tr[0] > lo + THRUST_AXIS_TOL:
         gaps.append(f"thrust_ratio axis starts at {tr[0]:g} above the vehicle's {lo:g}: from {lo:g} to {tr[0]:g} "
                     "(a fresh or degraded thrust estimate) the daemon finds no safe speed")
     if tr[-1] < hi - 1e-9:

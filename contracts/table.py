@@ -479,6 +479,11 @@ class Omega:
     reason: str = "ok"  # why the answer is what it is, for the event log
 
 
+# a thrust axis that starts this little above the vehicle's range bottom covers it (`sweep.grid_coverage`); the
+# daemon's thrust estimate then starts at the axis' own first value (`thrust_floor`), where the lookup answers
+THRUST_AXIS_TOL = 1e-9
+
+
 class ContractTable:
     """A verified table with the conservative lookups of DESIGN.md §2, precomputed for its vehicle."""
 
@@ -583,6 +588,15 @@ class ContractTable:
             return None
         cap = ((self.e_pred.info.get("grid") or {}).get("online") or {}).get("offboard_cap")
         return float(cap) if isinstance(cap, (int, float)) and math.isfinite(cap) and 0 < cap <= 1 else None
+
+    def thrust_floor(self, contract: str = "avoid") -> float:
+        """The lowest thrust_ratio the lookups of `contract` answer for: the vehicle's range bottom (`_bad_inputs`),
+        raised to the bottom of each thrust axis the lookup reads — the avoid table's (avoid contract) and
+        E_tr_pred's (both). Below it Ω has no safe speed (`helps_index` answers NONE)."""
+        axes = [self._er_l[0]] if self.e_pred is not None else []
+        if contract == "avoid" and self.avoid is not None:
+            axes.append(self._tr_list[0])
+        return max([self._tr_lo, *axes])
 
     @property
     def available(self) -> list[str]:

@@ -228,7 +228,7 @@ def test_thrust_ratio_is_only_measured_airborne_and_settled():
     for _ in range(90):  # just airborne (1.8 s), throttle high: not yet valid
         est.add(t, 0.75, 0.0, 0.0, 0.0, True)
         t += 0.02
-    assert est.value(t) == (0.7, "not airborne and settled: vehicle's lowest thrust ratio")
+    assert est.value(t) == (0.7, "not airborne and settled: the start value") and est.basis(t) == "start"
     for _ in range(200):  # settled in hover at 0.47/0.9
         est.add(t, 0.47 / 0.9, 0.0, 0.0, 0.0, True)
         t += 0.02

@@ -66,6 +66,12 @@ def test_a_failsafe_hold_in_offboard_is_latched_until_cg_engage_is_toggled(perso
     assert held and held[0]["t"] < 12.0, off
     assert not [e for e in off if e["t"] > held[0]["t"]], off  # no re-entry by itself
     assert rig.log.named("mode_change")[-1]["to"] == "hold" and rig.daemon.cycle.sup.state == "holding"
+    # the Hold names its input (the sensor gone stale: D_od 0) and this way to resume
+    fs = [e for e in rig.log.named("failsafe") if e["cause"] == "no safe speed"]
+    assert fs and fs[0]["input"] == "d_od" and fs[0]["why"].startswith("D_od 0.00 m")
+    assert "no fresh, trusted sensor" in fs[0]["why"] and "set CG_ENGAGE 0 then 1" in fs[0]["resume"]
+    assert any(t.startswith("CG: no safe speed: D_od 0.00 m") and t.endswith("then CG_ENGAGE 0, 1")
+               for t in rig.daemon_texts())
     x_held = float(rig.sim.model.pos[0])
     rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
     rig.run(0.2)
