@@ -79,7 +79,8 @@ class Cycle:
         self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
         self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
-                              late_hold_s=cfg.timeouts.cycle_late_s, policy=policy)
+                              late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
+                              policy=policy)
         self.authority = ModeAuthority(adapter.hold_mode())
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":
@@ -154,8 +155,8 @@ class Cycle:
     def inputs(self, t: float, tel: Telemetry, r_obst: float, engage: bool, startup_ok: bool | None,
                route_ready: bool) -> Inputs:
         to = self.cfg.timeouts
-        late = self.timing.tick(t)
         link_ok = t - tel.t_heartbeat <= to.heartbeat_s
+        late = self.timing.tick(t, link_ok)
         telemetry_ok = t - tel.t_local <= to.telemetry_s
         speed = tel.ground_speed if telemetry_ok else math.nan
         # along the velocity; below 1 m/s (drift, stopping within ~0.3 m, inside the E_tr floor) along the heading
@@ -184,6 +185,7 @@ class Cycle:
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
                       v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s,
+                      late_within_s=self.timing.within_s,
                       v_mission=self.mission_speed(tel.mission_seq) if self.mission_speed is not None else math.nan)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
