@@ -65,7 +65,7 @@ CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, S
 
 class Cycle:
     def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str, planning, policy=None):
-        """`planning`: a factory of the planning runner (one per guidance: inline or on a worker thread);
+        """`planning`: a factory of the planning runner (one per guidance: inline, in a worker process or on a worker thread);
         `policy`: the speed policy flown (companion/supervisor.py ContractSpeed by default)."""
         self.cfg, self.table, self.adapter, self._planning = cfg, table, adapter, planning
         veh = table.vehicle
@@ -136,6 +136,11 @@ class Cycle:
         if self.offboard is not None and self.offboard.state in FINISHED:
             self.offboard.state = OffboardState.OFF
         self.sup.latched = False
+
+    def close(self) -> None:
+        """The daemon ends: the planning worker too."""
+        if self.offboard is not None and self.offboard.guidance is not None:
+            self.offboard.guidance.planning.close()
 
     def stop(self, t: float) -> None:
         """The daemon is stopping: from the next cycle on, stop flying (a shutdown Hold if engaged in flight)."""
@@ -259,6 +264,8 @@ class Cycle:
         off, veh = self.offboard, self.table.vehicle
         if mission_route is not None and not off.streaming and \
                 (off.guidance is None or off.guidance.route is not mission_route):
+            if off.guidance is not None:
+                off.guidance.planning.close()
             off.guidance = OffboardGuidance(mission_route, planning=self._planning())  # from the next entry
         lo, hi = veh.thrust_ratio_range
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, hi)), veh.mass_kg)
