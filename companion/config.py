@@ -246,7 +246,7 @@ class Timeouts(_Strict):
     # the autopilot's estimator health (ESTIMATOR_STATUS / EKF_STATUS_REPORT, 1-10 Hz): at most 5 s
     nav_s: Bounded(0.0, 5.0, lo_open=True) = 2.0
     # the daemon's own cycle (companion/estimators.py Timeliness). cycle_jitter_s is the jitter allowance: the
-    # vehicle file's t_react holds one loop period of decision time plus this (DESIGN.md §2), so a cycle up to this
+    # vehicle file's t_react holds one loop period of decision time plus this (docs/daemon.md, Timeliness), so a cycle up to this
     # much later than its period is inside the budget (an event, `cycle_jitter`); a later one is a guidance
     # violation and counts as reaction time for 10 s (a lower speed); a cycle cycle_late_s late breaks the daemon's
     # guarantee outright: the autopilot is handed Hold. Default 20 ms: on a 2-core host with two busy processes

@@ -158,7 +158,7 @@ def controller_coverage(table) -> str:
 
 def reaction_budget(cfg, vehicle) -> str:
     """The decision part of the vehicle's t_react, in words (the start banner): one loop period and the stated jitter
-    allowance (DESIGN.md §2), and what happens to a cycle later than that."""
+    allowance (docs/daemon.md, Timeliness), and what happens to a cycle later than that."""
     to, period = cfg.timeouts, 1.0 / cfg.loop_hz
     line = (f"reaction time: t_react {vehicle.t_react_s:.2f} s holds one {period * 1e3:.0f} ms cycle and a "
             f"{to.cycle_jitter_s * 1e3:.0f} ms jitter allowance (timeouts.cycle_jitter_s); a later cycle is a guidance "

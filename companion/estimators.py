@@ -465,7 +465,7 @@ LATE_NOTE_S = 0.005  # [s] lateness inside the allowance is said (an event) from
 class Timeliness:
     """Guidance's own guarantee: the daemon decides once every cycle, 1/loop_hz, give or take a stated jitter
     allowance — the "decision" part of the vehicle file's `t_react` (sensor latency + one cycle + the allowance +
-    the autopilot's response; DESIGN.md §2). A cycle that comes later than its period by no more than `allowance_s`
+    the autopilot's response; docs/daemon.md, Timeliness). A cycle that comes later than its period by no more than `allowance_s`
     is inside that budget: said (`within_s`, an event), not counted. One later than that is reaction time the
     contract did not budget: until `LATE_WINDOW_S` has passed, `late_s` is the worst such lateness (all of it, the
     allowance included: the safe side), which the supervisor adds to t_react (V ≤ V_safe(d_od − V·(t_react +

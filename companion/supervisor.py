@@ -333,7 +333,7 @@ class Supervisor:
                         observed=late.range_m if late else i.dod.d_od,
                         action=f"D_od lowered to {i.dod.d_od:.2f} m" + ("" if late else f": {i.dod.reason}"))
         # the daemon's own guarantee: one decision per loop period, give or take the jitter allowance t_react
-        # budgets (DESIGN.md §2). Lateness inside the allowance is said; a cycle later than the reaction time being
+        # budgets (docs/daemon.md, Timeliness). Lateness inside the allowance is said; a cycle later than the reaction time being
         # flown budgets breaks it, and its lateness then counts as reaction time for the next 10 s (`omega`)
         if i.late_within_s > 0.0:
             d.events.append(("cycle_jitter", {"late_s": i.late_within_s, "allowance_s": self.late_allowance_s}))
