@@ -13,6 +13,12 @@ claiming the autopilot's ids (telemetry). Goal (issue 17): loop period p99 < 25 
 the loop, and `cycle_cpu_ms` the same in CPU time (what a busy machine's preemption cannot inflate);
 `load_average_1min` says how busy the machine was. The daemon runs at the service unit's `Nice=` (as
 installed; `BENCH_NICE=0` for the default priority); `nice` says which it got.
+
+`cycle_lateness_ms` is each cycle's lateness as the daemon judges its own timeliness (companion/estimators.py
+`Timeliness`: how much later than one loop period after the previous cycle it started), with the share of cycles
+beyond each candidate jitter allowance (`timeouts.cycle_jitter_s`), from 2 s after start (the daemon does not judge
+its start-up). `BENCH_BUSY=N` starts N busy processes
+(`while True: pass`) beside the daemon for the run, stopped afterwards: a loaded host.
 """
 
 from __future__ import annotations
@@ -117,6 +123,30 @@ def flood(port: int, kind: str, rate_hz: float, seconds: float) -> None:
         time.sleep(0.001)
 
 
+def busy() -> None:
+    """A process that only burns CPU (`BENCH_BUSY`: a loaded host)."""
+    while True:
+        pass
+
+
+ALLOWANCES_MS = (5, 10, 20, 30, 40, 50)  # candidate jitter allowances the lateness is counted against
+
+
+JUDGED_FROM_S = 2.0  # the daemon judges its cycles from 1 s after the autopilot's first heartbeat (≈ 0.5 s here)
+
+
+def lateness(starts: list[float], period_s: float) -> dict:
+    """Each cycle's lateness [ms] as `Timeliness` judges it: its start later than one period after the last's,
+    from `JUDGED_FROM_S` after the first cycle (start-up is not judged)."""
+    import numpy as np
+
+    t = np.asarray(starts)
+    late = np.maximum(np.diff(t) - period_s, 0.0)[t[1:] - t[0] >= JUDGED_FROM_S] * 1e3
+    return {"p50": float(np.percentile(late, 50)), "p99": float(np.percentile(late, 99)),
+            "p99_9": float(np.percentile(late, 99.9)), "max": float(np.max(late)), "cycles": int(late.size),
+            "beyond_allowance": {str(a): int(np.sum(late > a)) for a in ALLOWANCES_MS}}
+
+
 def main() -> None:
     from companion.config import config_from_dict
     from companion.daemon import Daemon
@@ -162,6 +192,9 @@ def main() -> None:
     t0, c0 = time.monotonic(), time.process_time()
     if flooder is not None:
         flooder.start()
+    busies = [mp.Process(target=busy, daemon=True) for _ in range(int(os.environ.get("BENCH_BUSY", "0")))]
+    for b in busies:
+        b.start()
     nice = 0
     if NICE:  # the daemon's own priority, as the systemd unit sets it (Nice=); the children keep theirs
         try:
@@ -172,6 +205,9 @@ def main() -> None:
     load = os.getloadavg()[0]
     daemon.run(lambda: time.monotonic() - t0 > DURATION_S)
     wall, cpu = time.monotonic() - t0, time.process_time() - c0
+    for b in busies:
+        b.terminate()
+        b.join(5)
     log.close()
     lat = sorted(q.get(timeout=10))
     child.join(5)
@@ -183,6 +219,7 @@ def main() -> None:
         "cpu_percent_of_one_core": round(100 * cpu / wall, 2),
         "loop_period_ms": {"mean": float(np.mean(gaps)), "p99": float(np.percentile(gaps, 99)),
                            "max": float(np.max(gaps)), "jitter_sd": float(np.std(gaps))},
+        "cycle_lateness_ms": lateness(starts, 1.0 / cfg.loop_hz), "busy_processes": len(busies),
         "cycle_work_ms": {"p50": float(np.percentile(work, 50) * 1e3), "p99": float(np.percentile(work, 99) * 1e3),
                           "max": float(np.max(work) * 1e3)},
         "cycle_cpu_ms": {"p50": float(np.percentile(work_cpu, 50) * 1e3),

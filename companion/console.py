@@ -158,6 +158,20 @@ def controller_coverage(table) -> str:
             + (f"; {c['faster_cells']} cell(s) FASTER than stock, accepted by a person" if c.get("faster_cells") else ""))
 
 
+def reaction_budget(cfg, vehicle) -> str:
+    """The decision part of the vehicle's t_react, in words (the start banner): one loop period and the stated jitter
+    allowance (docs/daemon.md, Timeliness), and what happens to a cycle later than that."""
+    to, period = cfg.timeouts, 1.0 / cfg.loop_hz
+    line = (f"reaction time: t_react {vehicle.t_react_s:.2f} s holds one {period * 1e3:.0f} ms cycle and a "
+            f"{to.cycle_jitter_s * 1e3:.0f} ms jitter allowance (timeouts.cycle_jitter_s); a later cycle is a guidance "
+            f"violation and counts as reaction time for {LATE_WINDOW_S:.0f} s, {to.cycle_late_s * 1e3:.0f} ms late "
+            "hands over to Hold")
+    if period + to.cycle_jitter_s >= vehicle.t_react_s:
+        line += (f"; WARNING: one cycle and the allowance ({(period + to.cycle_jitter_s) * 1e3:.0f} ms) fill the whole "
+                 "t_react: the vehicle file's t_react leaves nothing for the sensor and the autopilot")
+    return line
+
+
 def banner(cfg, table, controller_contract: str) -> list[str]:
     """The start banner: what the daemon will enforce, on what, and the defaults that shape it."""
     lk, ct = cfg.link, cfg.contract
@@ -183,6 +197,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "
         f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, navigation margin {ct.nav_margin:g} of each sensor's claimed "
         f"range{'' if ct.nav_margin else ' (claims trusted in full)'}, loop {cfg.loop_hz:g} Hz, event log {cfg.log.dir}",
+        reaction_budget(cfg, table.vehicle),
         *lk.trust(),
         f"waiting for the autopilot ({lk.autopilot}, system {lk.target_system} component {lk.target_component}) "
         f"on {lk.connect}{f' from {lk.autopilot_address}' if lk.autopilot_address else ''}",

@@ -83,7 +83,7 @@ CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, S
 
 class Cycle:
     def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str, planning, policy=None):
-        """`planning`: a factory of the planning runner (one per guidance: inline or on a worker thread);
+        """`planning`: a factory of the planning runner (one per guidance: inline, in a worker process or on a worker thread);
         `policy`: the speed policy flown (companion/supervisor.py ContractSpeed by default)."""
         self.cfg, self.table, self.adapter, self._planning = cfg, table, adapter, planning
         veh = table.vehicle
@@ -99,7 +99,8 @@ class Cycle:
         self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
         self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
-                              late_hold_s=cfg.timeouts.cycle_late_s, policy=policy)
+                              late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
+                              policy=policy)
         self.authority = ModeAuthority(adapter.hold_mode())
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":
@@ -156,6 +157,11 @@ class Cycle:
             self.offboard.state = OffboardState.OFF
         self.sup.latched = False
 
+    def close(self) -> None:
+        """The daemon ends: the planning worker too."""
+        if self.offboard is not None and self.offboard.guidance is not None:
+            self.offboard.guidance.planning.close()
+
     def stop(self, t: float) -> None:
         """The daemon is stopping: from the next cycle on, stop flying (a shutdown Hold if engaged in flight)."""
         if self.shutdown is None:
@@ -174,8 +180,8 @@ class Cycle:
     def inputs(self, t: float, tel: Telemetry, r_obst: float, engage: bool, startup_ok: bool | None,
                route_ready: bool) -> Inputs:
         to = self.cfg.timeouts
-        late = self.timing.tick(t)
         link_ok = t - tel.t_heartbeat <= to.heartbeat_s
+        late = self.timing.tick(t, link_ok)
         telemetry_ok = t - tel.t_local <= to.telemetry_s
         speed = tel.ground_speed if telemetry_ok else math.nan
         # along the velocity; below 1 m/s (drift, stopping within ~0.3 m, inside the E_tr floor) along the heading
@@ -204,6 +210,7 @@ class Cycle:
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
                       v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s,
+                      late_within_s=self.timing.within_s,
                       v_mission=self.mission_speed(tel.mission_seq) if self.mission_speed is not None else math.nan)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
@@ -300,6 +307,8 @@ class Cycle:
         off, veh = self.offboard, self.table.vehicle
         if mission_route is not None and not off.streaming and \
                 (off.guidance is None or off.guidance.route is not mission_route):
+            if off.guidance is not None:
+                off.guidance.planning.close()
             off.guidance = OffboardGuidance(mission_route, planning=self._planning())  # from the next entry
         lo, hi = veh.thrust_ratio_range
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, hi)), veh.mass_kg)

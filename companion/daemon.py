@@ -17,7 +17,7 @@ from contracts.table import ContractTable
 from .autopilots import adapter_for
 from .config import Config
 from .cycle import CYCLE_SAMPLES, Cycle
-from .guidance import InlinePlanning, ThreadedPlanning
+from .guidance import InlinePlanning, ProcessPlanning, ThreadedPlanning
 from .logschema import LINK_COUNTERS, NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut
@@ -46,13 +46,15 @@ PERIODIC = (
 
 class Daemon:
     def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
-                 planning: str = "thread", contract: str | None = None, policy=None):
-        """`planning`: "thread" (the avoidance planner beside the loop, so the setpoint stream keeps its
-        rate) or "inline" (in the loop: deterministic lock-step tests). `contract`: the one to enforce
+                 planning: str = "process", contract: str | None = None, policy=None):
+        """`planning`: "process" (the avoidance planner in a worker process beside the loop, so the setpoint
+        stream keeps its rate and no planning work holds the loop's interpreter lock), "thread" (on a worker
+        thread) or "inline" (in the loop: deterministic lock-step tests). `contract`: the one to enforce
         (default: "avoid" in offboard mode, else "stop"; a replay names the one the flight flew under).
         `policy`: the speed policy (the contract's Ω by default; a campaign's baselines: companion/baselines.py)."""
-        if planning not in ("thread", "inline"):
-            raise ValueError(f"planning must be 'thread' or 'inline', not {planning!r}")
+        runners = {"process": ProcessPlanning, "thread": ThreadedPlanning, "inline": InlinePlanning}
+        if planning not in runners:
+            raise ValueError(f"planning must be one of {', '.join(runners)}, not {planning!r}")
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
         self.signing_clock = signing_clock
         self.vclock = VehicleClock(rate=cfg.link.clock_rate) if clock is None else None
@@ -62,7 +64,7 @@ class Daemon:
         self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock, self.counters)
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
         self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
-                           ThreadedPlanning if planning == "thread" else InlinePlanning, policy)
+                           runners[planning], policy)
         self.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
         self.protocols = Protocols(cfg, self.adapter, self.cycle, self.checks, self.out, self.counters,
                                    lambda: self._save_signing(None))
@@ -261,8 +263,9 @@ class Daemon:
         self.cycle.stop(self.clock())
 
     def finish(self) -> None:
-        """After the shutdown: persist the signing timestamp; say so."""
+        """After the shutdown: persist the signing timestamp; say so; the planning worker ends."""
         self._save_signing(None)
+        self.cycle.close()
         self.out.statustext(5, "CG: contract-guard stopping")
 
     def run(self, should_stop, notifier=None) -> None:

@@ -234,11 +234,18 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
     collisions = int(sitl_summary.get("collisions", 0))
     result = {
         "scenario": sc.name, "collisions": collisions, "min_clearance_m": round(clear, 3),
-        "violations": rep.get("violation_count", 0), "failsafes": len(rep.get("failsafes", [])),
+        # failsafes where they happened: failsafe events and entries into the failsafe state (the link lost)
+        "violations": rep.get("violation_count", 0), "failsafes": rep.get("failsafe_count", 0),
         "mean_speed_m_s": round(sum(speeds) / len(speeds), 2) if speeds else 0.0,
         "max_speed_m_s": round(max(speeds), 2) if speeds else 0.0,
         "v_max_steps": steps, "route_progress_m": round(max((s["x"] for s in states), default=0.0), 1),
+        "route_length_m": round(max((w[0] for w in sc.route.waypoints), default=math.nan), 1),
+        "flight_end": rep.get("flight_end"),
         "gcs_actions": gcs_actions, "forwarded": int(sitl_summary.get("forwarded", 0)),
+        # how far the SITL's ticks started behind their schedule (wall-clock ms): a SITL that cannot keep its
+        # speed-up flies its vehicle slower than the daemon's clock runs
+        "sitl_behind_ms": {k: round(float(sitl_summary[f"jitter_ms_{k}"]), 1) for k in ("p99", "max")
+                           if sitl_summary.get(f"jitter_ms_{k}") is not None},
         "setpoints": _stream_figures(records),
         "event_log": str(out / "log" / LOG_FILE), "autopilot_log": sitl_summary.get("flight_log"), "plot": (rep.get("outputs") or {}).get("png"),
         "plot_note": (rep.get("outputs") or {}).get("png_skipped"),
@@ -264,7 +271,13 @@ def format_summary(r: dict) -> str:
              f"  collisions: {r['collisions']}   minimum clearance: {r['min_clearance_m']:.2f} m   "
              f"violations: {r['violations']}   failsafes: {r['failsafes']}",
              f"  speed: mean {r['mean_speed_m_s']:.2f} m/s, max {r['max_speed_m_s']:.2f} m/s; "
-             f"route flown to x = {r['route_progress_m']:.0f} m"]
+             f"route flown to x = {r['route_progress_m']:.0f} m of {r.get('route_length_m', math.nan):.0f} m"]
+    if r.get("flight_end"):
+        lines.append(f"  flight ended: {r['flight_end']['why']}")
+    behind = r.get("sitl_behind_ms") or {}
+    if behind:
+        lines.append(f"  SITL ticks behind their schedule: p99 {behind.get('p99', math.nan):.0f} ms, max "
+                     f"{behind.get('max', math.nan):.0f} ms (wall clock)")
     sp = r.get("setpoints") or {}
     if sp.get("sent"):
         lines.append(f"  setpoints: {sp['sent']} sent, longest gap {1e3 * sp['gap_max_s']:.0f} ms (vehicle time)")

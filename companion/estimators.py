@@ -467,36 +467,67 @@ class NavHealth:
 # ============================================================================ the daemon's own timeliness
 
 LATE_WINDOW_S = 10.0  # [s] a late cycle counts this long: a loaded computer is likely to be late again
+JUDGED_AFTER_S = 1.0  # [s] after the autopilot's first heartbeat before the cycles' timeliness is judged
+LATE_NOTE_S = 0.005  # [s] lateness inside the allowance is said (an event) from this much on
 
 
 class Timeliness:
-    """Guidance's own guarantee: the daemon decides once every cycle, 1/loop_hz — the "decision" part of the
-    vehicle file's `t_react` (sensor latency + one cycle + the autopilot's response). A cycle that comes later
-    than its period by more than `jitter_s` (sleep jitter, inside that budget) is reaction time the contract did
-    not budget: until `LATE_WINDOW_S` has passed, `late_s` is the worst such lateness, which the supervisor adds
-    to t_react (V ≤ V_safe(d_od − V·(t_react + late_s)), DESIGN.md §2). Measured in daemon time (the vehicle's
-    clock rate), so a SITL sped up k times sees k times the host's lateness; in lock-step and replays the cycles
-    are on time by construction. `unbudgeted_s`: this cycle's lateness where it exceeds what was counted before it
-    (the contract was flying a smaller reaction time than happened: the guarantee broken), else 0."""
+    """Guidance's own guarantee: the daemon decides once every cycle, 1/loop_hz, give or take a stated jitter
+    allowance — the "decision" part of the vehicle file's `t_react` (sensor latency + one cycle + the allowance +
+    the autopilot's response; docs/daemon.md, Timeliness). A cycle that comes later than its period by no more than `allowance_s`
+    is inside that budget: said (`within_s`, an event), not counted. One later than that is reaction time the
+    contract did not budget: until `LATE_WINDOW_S` has passed, `late_s` is the worst such lateness (all of it, the
+    allowance included: the safe side), which the supervisor adds to t_react (V ≤ V_safe(d_od − V·(t_react +
+    late_s))). Measured in daemon time (the vehicle's clock rate), so a SITL sped up k times sees k times the
+    host's lateness; in lock-step and replays the cycles are on time by construction.
 
-    def __init__(self, period_s: float, jitter_s: float, window_s: float = LATE_WINDOW_S):
-        self.period, self.jitter, self.window = period_s, jitter_s, window_s
+    Not judged before the autopilot's first heartbeat and for `JUDGED_AFTER_S` after it (`tick(t, linked)`):
+    start-up (imports, the table, the first checks and plans) is no flight, and nothing is commanded before the
+    link is up. `unbudgeted_s`: this cycle's lateness where it exceeds what was counted before it (the contract
+    was flying a smaller reaction time than happened: the guarantee broken), else 0; `within_s`: this cycle's
+    lateness inside the allowance when it is at least `LATE_NOTE_S` and more than any said in the window, else 0."""
+
+    def __init__(self, period_s: float, allowance_s: float, window_s: float = LATE_WINDOW_S):
+        self.period, self.allowance, self.window = period_s, allowance_s, window_s
         self._t: float | None = None
+        self._t_linked: float | None = None  # the first cycle with the autopilot's heartbeat fresh
         self._late: deque[tuple[float, float]] = deque()  # (t, lateness), lateness decreasing (a max queue)
-        self.last_late_s = 0.0  # this cycle's own lateness (0 when on time)
+        self._within: deque[tuple[float, float]] = deque()  # the same for lateness inside the allowance
+        self.last_late_s = 0.0  # this cycle's own lateness beyond the allowance (0 when inside it)
         self.unbudgeted_s = 0.0
+        self.within_s = 0.0
 
-    def tick(self, t: float) -> float:
-        """One cycle at daemon time t; returns the worst counted lateness of the window [s] (0: on time)."""
-        late = 0.0 if self._t is None or t < self._t else t - self._t - self.period
+    @staticmethod
+    def _worst(q: deque, t: float, window: float) -> float:
+        while q and q[0][0] < t - window:
+            q.popleft()
+        return q[0][1] if q else 0.0
+
+    @staticmethod
+    def _push(q: deque, t: float, late: float) -> None:
+        while q and q[-1][1] <= late:
+            q.pop()
+        q.append((t, late))
+
+    def judged(self, t: float) -> bool:
+        """Whether a cycle at t is judged: `JUDGED_AFTER_S` or more after the first with the link up."""
+        return self._t_linked is not None and t - self._t_linked >= JUDGED_AFTER_S
+
+    def tick(self, t: float, linked: bool = True) -> float:
+        """One cycle at daemon time t (`linked`: the autopilot's heartbeat is fresh); returns the worst counted
+        lateness of the window [s] (0: on time)."""
+        if linked and self._t_linked is None:
+            self._t_linked = t
+        late = 0.0 if self._t is None or t < self._t or not self.judged(t) else t - self._t - self.period
         self._t = t
-        self.last_late_s = late if late > self.jitter else 0.0
-        while self._late and self._late[0][0] < t - self.window:
-            self._late.popleft()
-        counted = self._late[0][1] if self._late else 0.0
+        self.last_late_s = late if late > self.allowance else 0.0
+        inside = late if LATE_NOTE_S <= late <= self.allowance else 0.0
+        said = self._worst(self._within, t, self.window)
+        self.within_s = inside if inside > said else 0.0
+        if self.within_s > 0.0:
+            self._push(self._within, t, inside)
+        counted = self._worst(self._late, t, self.window)
         self.unbudgeted_s = self.last_late_s if self.last_late_s > counted else 0.0
         if self.last_late_s > 0.0:
-            while self._late and self._late[-1][1] <= late:
-                self._late.pop()
-            self._late.append((t, late))
+            self._push(self._late, t, late)
         return self._late[0][1] if self._late else 0.0

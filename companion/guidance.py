@@ -1,5 +1,6 @@
 """Offboard guidance: the daemon as the paper's guidance subsystem (Figure 1). No I/O; planning runs
-inline (lock-step) or on one worker thread (`ThreadedPlanning`, in flight).
+inline (lock-step), in a worker process of its own (`ProcessPlanning`, in flight) or on a worker thread
+(`ThreadedPlanning`).
 
 - `Route`: the path to fly at constant altitude (NED): the waypoints with an arc at each corner, with
   along-track progress and the cruise speed profile (arcs, stops, the end).
@@ -16,13 +17,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 
-from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan
+from contracts.online_planner import (REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan,
+                                     load_solver)
 
 from contracts.geometry import wrap
 
@@ -247,6 +249,14 @@ class Setpoint:
     mode: str  # "cruise", "avoid", "brake", "planning" (braking for the first plan), "hold", "done"
 
 
+def plan_job(planner, epoch, t_req, omega, *args, **kw):
+    """One planning job, whoever runs it: (epoch, t_req, Ω, the plan — or the exception, which means brake)."""
+    try:
+        return epoch, t_req, omega, planner.plan(*args, **kw)
+    except Exception as e:  # noqa: BLE001 — any planner failure means: brake
+        return epoch, t_req, omega, e
+
+
 class InlinePlanning:
     """Plans at once in the caller's thread (lock-step tests: deterministic in vehicle time, so no
     wall-clock budget either)."""
@@ -257,36 +267,91 @@ class InlinePlanning:
     def __init__(self):
         self._out = None
 
-    def submit(self, fn, *args, **kw) -> None:
-        self._out = fn(*args, **kw)
+    def submit(self, planner, *args, **kw) -> None:
+        self._out = plan_job(planner, *args, **kw)
 
     def poll(self):
         out, self._out = self._out, None
         return out
 
+    def close(self) -> None:
+        pass
+
 
 class ThreadedPlanning:
     """One planning job at a time on a worker thread, so the setpoint stream keeps its rate while OSQP
-    solves (OSQP releases the GIL: the loop's thread is delayed by a few ms at most)."""
+    solves. The planner's own Python work (the QP's assembly, the exact check) holds the interpreter lock,
+    though: on a busy host the loop waits for it (`ProcessPlanning` does not)."""
 
     budget_s = PLAN_BUDGET_S
 
     def __init__(self):
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cg-planner")
         self._job: Future | None = None
+        self._meta: tuple = ()
 
     @property
     def busy(self) -> bool:
         return self._job is not None and not self._job.done()
 
-    def submit(self, fn, *args, **kw) -> None:
-        self._job = self._pool.submit(fn, *args, **kw)
+    def submit(self, planner, *args, **kw) -> None:
+        self._meta = args[:3]
+        self._job = self._pool.submit(plan_job, planner, *args, **kw)
+
+    def close(self) -> None:
+        """No more jobs: the worker ends (a job in progress is dropped)."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
 
     def poll(self):
         if self._job is None or not self._job.done():
             return None
         job, self._job = self._job, None
-        return job.result()  # the job itself turns a planner failure into its answer
+        try:
+            return job.result()  # the job itself turns a planner failure into its answer
+        except Exception as e:  # noqa: BLE001 — the runner failed (a worker process died): brake
+            return (*self._meta, e)
+
+
+_WORKER_PLANNERS: dict = {}  # in a planning process: its planners, by their parameters
+
+
+def _plan_in_worker(key, *args, **kw):
+    """`plan_job` in the planning process, with its own planner of these parameters (kept: its solvers warm)."""
+    planner = _WORKER_PLANNERS.get(key)
+    if planner is None:
+        planner = _WORKER_PLANNERS[key] = AvoidancePlanner(*key)
+    return plan_job(planner, *args, **kw)
+
+
+class ProcessPlanning(ThreadedPlanning):
+    """One planning job at a time in a worker process of its own (started at once, its solver loaded), so no
+    planning work shares the loop's interpreter lock. On a thread, the planner's Python work held that lock
+    while the host descheduled it, and the loop's cycles came late exactly while it avoided an obstacle (two
+    busy processes beside a 50 Hz loop and a planning thread: 72-177 of ~1000 cycles more than 20 ms late,
+    none or 4 without the thread). The worker plans with an `AvoidancePlanner` of the same parameters; a worker
+    that dies is a failed plan (brake), and the next job starts a new one."""
+
+    def __init__(self):
+        import multiprocessing
+
+        self._ctx = multiprocessing.get_context("spawn")  # never fork a process that has threads
+        self._pool = self._start()
+        self._job = None
+        self._meta = ()
+
+    def _start(self) -> ProcessPoolExecutor:
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=self._ctx, initializer=load_solver)
+        pool.submit(load_solver)  # start the worker now, not at the first obstacle
+        return pool
+
+    def submit(self, planner, *args, **kw) -> None:
+        self._meta = args[:3]
+        key = (planner.n, planner.scp_iters, (planner.w_v, planner.w_y, planner.w_vy, planner.w_a))
+        try:
+            self._job = self._pool.submit(_plan_in_worker, key, *args, **kw)
+        except RuntimeError:  # the worker died (BrokenProcessPool): a new one
+            self._pool = self._start()
+            self._job = self._pool.submit(_plan_in_worker, key, *args, **kw)
 
 
 @dataclass
@@ -440,7 +505,7 @@ class OffboardGuidance:
             _, u = self.route.point(self.route.project(p))
             warm = self.plan if self.plan is not None and self.plan.kind in ("pass", "stop") else None
             self.plan_t_try = t
-            self.planning.submit(self._plan_job, self.epoch, t, omega, np.array(p, float), np.array(v, float), u,
+            self.planning.submit(self.planner, self.epoch, t, omega, np.array(p, float), np.array(v, float), u,
                                  list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
                                  warm=warm, elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
             self._adopt(self.planning.poll())
@@ -465,12 +530,6 @@ class OffboardGuidance:
         sensor's view (issue 19 item 3)."""
         s_far = max(self.route.project((d.x, d.y)) + d.r for d in discs)
         return float(self.route.speed_limit(s_far, v_max, 0.5 * a_max))
-
-    def _plan_job(self, epoch, t_req, omega, *args, **kw):
-        try:
-            return epoch, t_req, omega, self.planner.plan(*args, **kw)
-        except Exception as e:  # noqa: BLE001 — any planner failure means: brake
-            return epoch, t_req, omega, e
 
     def _adopt(self, done) -> None:
         """Take a finished plan of the current obstacle situation; a failed one never replaces a

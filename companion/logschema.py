@@ -99,6 +99,9 @@ EVENTS = {
     "reaction_time": Event(("late_s", "t_react_s"), "supervisor",
                            "the daemon's own lateness counted as reaction time changed (a late cycle, or 10 s on "
                            "time since): Ω flies V ≤ V_safe(d_od − V·(t_react + late_s)); 0 when on time"),
+    "cycle_jitter": Event(("late_s", "allowance_s"), "supervisor",
+                          "a cycle later than its period by late_s, inside the jitter allowance t_react budgets "
+                          "(timeouts.cycle_jitter_s): no violation; said when it is the worst of the last 10 s"),
     "dod_coverage": Event(("basis", "d_od", "reason"), "supervisor",
                           "D_od's basis changed to or from `swept`: the direction of travel outside every field of "
                           "view, D_od the distance along it seen free recently (else `field of view` or `none`: 0)"),

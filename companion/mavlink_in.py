@@ -50,12 +50,18 @@ class VehicleClock:
     """Daemon time: the host's monotonic clock at the vehicle's configured rate (`rate`: 1 for a real
     aircraft, K for a SITL sped up K times), so it never jumps, never runs backwards and judges staleness
     in host time whatever any message says. The autopilot's `time_boot_ms` is only *checked* against it:
-    over each window of ≥ 1 s of host time, a boot clock advancing at other than `rate` (by more than
-    RATE_TOLERANCE) or jumping is a fault (`fault`, the reason, until a window is right again); going back
-    is the autopilot restarting (reported by MAVLink-in, not here)."""
+    over a window of host time D (judged from `MIN_S` on, a new window every `WINDOW_S`), the boot clock must
+    advance rate·D within rate·(RATE_TOLERANCE·D + LAG_S). `LAG_S` is a simulator's own tick jitter: a SITL
+    paces its ticks to the host's clock, starts them late when the host is busy and catches up afterwards (it
+    gives up catching up beyond about a second), so its clock lags by up to that much and then runs fast back
+    to its schedule — no fault. A clock at the wrong rate drifts out of any fixed allowance (×0.01 within
+    ~1.1 s) and a jump leaves it at once: a fault (`fault`, the reason, until a window is right again); going
+    back is the autopilot restarting (reported by MAVLink-in, not here)."""
 
-    RATE_TOLERANCE = 0.25
-    WINDOW_S = 1.0
+    RATE_TOLERANCE = 0.1  # a rate off by more (×0.5, ×2: a wrong link.clock_rate) shows within 1-3 s
+    LAG_S = 1.0  # [s of host time] a simulator's clock may lag its schedule this much and catch up (tick jitter)
+    MIN_S = 1.0
+    WINDOW_S = 10.0
 
     def __init__(self, local=time.monotonic, rate: float = 1.0):
         self.local, self.rate = local, rate
@@ -69,11 +75,16 @@ class VehicleClock:
             self._ref = (tv, tl)
             return
         dl = tl - self._ref[1]
-        if dl >= self.WINDOW_S:
-            r = (tv - self._ref[0]) / dl
-            off = abs(r / self.rate - 1.0) > self.RATE_TOLERANCE
-            self.fault = (f"the autopilot's clock runs at {r:.3g}× the host's, expected {self.rate:g}×"
-                          if off else None)
+        if dl < self.MIN_S:
+            return
+        dv = tv - self._ref[0]
+        off = abs(dv - self.rate * dl) > self.rate * (self.RATE_TOLERANCE * dl + self.LAG_S)
+        if off:
+            self.fault = (f"the autopilot's clock runs at {dv / dl:.3g}× the host's, expected {self.rate:g}× "
+                          f"(over {dl:.1f} s, beyond {self.LAG_S:g} s of a simulator's tick jitter)")
+        elif dl >= self.WINDOW_S:
+            self.fault = None
+        if off or dl >= self.WINDOW_S:
             self._ref = (tv, tl)
 
     def __call__(self) -> float:

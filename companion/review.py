@@ -171,6 +171,8 @@ class _Summary:
         self.points = {k: [] for k in ("stand_downs", "collisions")}
         self.open_marks: dict[str, dict] = {}
         self.failsafe_entries = 0  # state changes into `failsafe` (the link lost: no failsafe event is written)
+        self.flight_end: dict | None = None  # why the flight stopped flying on: the last cause not resumed from
+        self._cause: tuple | None = None  # the last hold or failsafe cause (t, cause), for the Hold it led to
         self.obstacle_seen = False  # any finite obstacle_m, or any d_od > 0: the log has obstacle data
         self.dod_seen = False  # any d_od recorded (a log with none says nothing of its obstacle data)
         self.route = None  # the commanded route (a `mission` event's waypoints, local NED)
@@ -259,10 +261,34 @@ class _Summary:
         if t is not None:
             self.prev = (t, gamma, over_far, gf)
 
+    def _ending(self, name: str, t, g) -> None:
+        """Why the flight ended (`flight_end`): the last event that stopped it — the route done, a fail-safe Hold
+        (with the cause that led to it), a stand-down, the link lost, the daemon stopping — unless flying resumed."""
+        why = None
+        if name in ("failsafe", "hold_trigger"):
+            self._cause = (t, g("cause"))
+            why = f"{'failsafe' if name == 'failsafe' else 'hold'}: {g('cause')}"
+        elif name == "offboard" and g("to") == "flying" or name == "state_change" and g("to") == "active":
+            self.flight_end = None
+        elif name == "offboard" and g("to") == "done":
+            why = "route complete"
+        elif name == "offboard" and g("to") in ("held", "stood_down"):
+            after = f" after {self._cause[1]} at t = {_fmt_t(self._cause[0])}" if self._cause else ""
+            why = f"offboard {g('to')}{after}: {g('reason')}"
+        elif name == "state_change" and g("to") == "failsafe" and g("reason") != "no autopilot heartbeat yet":
+            why = f"failsafe: {g('reason')}"
+        elif name == "link" and g("status") == "down":
+            why = "autopilot link down"
+        elif name == "shutdown" and g("hold"):
+            why = "the daemon stopped in flight (Hold)"
+        if why is not None:
+            self.flight_end = {"t": t, "why": why}
+
     def _event(self, rec, t, b) -> None:
         name = rec.get("event")
         name = name if isinstance(name, str) else str(name)
         g = rec.get
+        self._ending(name, t, g)
         if name == "violation_start":
             key = (self.boot, _hashable(g("subsystem")), _hashable(g("guarantee")))
             if key not in self.open_viol:
@@ -473,6 +499,7 @@ class _Summary:
             "failsafe_count": self.counts["failsafes"] + self.failsafe_entries,
             "failsafe_events": self.counts["failsafes"],
             "failsafe_state_entries": self.failsafe_entries,
+            "flight_end": self.flight_end,
             "marks": {**self.marks, **self.points},
             # False: D_od 0 throughout and no obstacle ever seen (a log without an obstacle sensor)
             "obstacle_data": self.obstacle_seen or not self.dod_seen,
@@ -879,6 +906,8 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         lines.append(f"    {_fmt_t(v['start_t'])} … {end}  {fmt_value(v['duration_s'], ' s')}  {v['subsystem']}: "
                      f"{v['guarantee']}; assumed {fmt_value(v['assumed'])}, observed {fmt_value(v['observed'])}; "
                      f"action {fmt_value(v['action'])}")
+    if rep.get("flight_end"):
+        lines.append(f"  flight ended: {rep['flight_end']['why']} (t = {_fmt_t(rep['flight_end']['t'])})")
     lines.append(f"  failsafes: {rep['failsafe_count']}" + (
         f" ({rep.get('failsafe_events', 0)} event(s), {rep['failsafe_state_entries']}× into the failsafe state)"
         if rep.get("failsafe_state_entries") else ""))

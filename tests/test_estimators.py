@@ -319,7 +319,7 @@ def test_negative_control_behind_a_hit_or_with_the_sensor_stale_is_not_covered()
 def test_timeliness_counts_a_late_cycle_for_its_window_and_ignores_jitter():
     from companion.estimators import Timeliness
 
-    tm = Timeliness(0.02, jitter_s=0.01, window_s=10.0)
+    tm = Timeliness(0.02, allowance_s=0.01, window_s=10.0)
     t = 0.0
     assert tm.tick(t) == 0.0  # the first cycle has nothing to be late against
     for _ in range(50):
@@ -342,6 +342,43 @@ def test_timeliness_counts_a_late_cycle_for_its_window_and_ignores_jitter():
         tm.tick(t)
     assert tm.tick(t + 0.02) == 0.0  # both have left the window
     assert tm.tick(1.0) == 0.0  # a clock that goes back (a restart) is not lateness
+
+def test_timeliness_says_lateness_inside_the_allowance_and_counts_only_beyond_it():
+    """The jitter allowance is a stated part of t_react: a cycle late by up to it is said (`within_s`), not counted
+    and no violation (`unbudgeted_s` 0); only beyond it does the lateness count as reaction time."""
+    from companion.estimators import Timeliness
+
+    tm = Timeliness(0.02, allowance_s=0.03)
+    t = 0.0
+    for _ in range(60):  # linked from the first cycle; judged from 1 s on
+        t += 0.02
+        tm.tick(t)
+    t += 0.02 + 0.025  # 25 ms late: inside the 30 ms allowance
+    assert tm.tick(t) == 0.0 and tm.unbudgeted_s == 0.0 and tm.within_s == pytest.approx(0.025)
+    t += 0.02 + 0.012  # less than already said in the window: not said again
+    assert tm.tick(t) == 0.0 and tm.within_s == 0.0
+    t += 0.02 + 0.002  # below the note threshold: sleep jitter, nothing to say
+    assert tm.tick(t) == 0.0 and tm.within_s == 0.0
+    t += 0.02 + 0.04  # 40 ms late: beyond the allowance, counted whole (the safe side) and a broken guarantee
+    assert tm.tick(t) == pytest.approx(0.04) and tm.unbudgeted_s == pytest.approx(0.04) and tm.within_s == 0.0
+
+
+def test_timeliness_is_not_judged_before_the_first_heartbeat_nor_in_the_second_after_it():
+    """Start-up is no flight: before the autopilot's first heartbeat, and for a second after it, a late cycle is
+    neither counted nor a violation (nearly every start printed a guidance violation in its first second)."""
+    from companion.estimators import JUDGED_AFTER_S, Timeliness
+
+    tm = Timeliness(0.02, allowance_s=0.01)
+    assert tm.tick(0.0, linked=False) == 0.0
+    assert tm.tick(0.5, linked=False) == 0.0 and tm.unbudgeted_s == 0.0  # 480 ms late, no autopilot yet
+    assert tm.tick(0.54, linked=True) == 0.0  # the first heartbeat
+    assert tm.tick(0.54 + 0.02 + 0.3, linked=True) == 0.0 and tm.unbudgeted_s == 0.0  # its first second
+    t = 0.86
+    while t < 0.54 + JUDGED_AFTER_S:
+        t += 0.02
+        tm.tick(t)
+    assert tm.tick(t + 0.02 + 0.3) == pytest.approx(0.3) and tm.unbudgeted_s == pytest.approx(0.3)  # judged now
+
 
 def test_the_swept_wedges_are_made_only_when_the_swept_coverage_is_asked_for(monkeypatch):
     """Issue 14 (review speed): a scan keeps what it saw; its wedges are made when the direction of travel is

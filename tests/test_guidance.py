@@ -288,3 +288,48 @@ def test_a_closed_route_is_flown_once_round():
     s = np.array([r[0] for r in rows])
     assert rows[-1][2].mode == "done" and s[-1] == pytest.approx(route.length)
     assert np.all(np.diff(s) >= 0)  # never jumps back to the start it passes again
+
+
+def test_process_planning_plans_as_inline_in_a_worker_process_and_survives_its_death():
+    """The daemon plans in a worker process (no planning work holds the loop's interpreter lock): the same plan
+    as inline for the same job; a worker that dies is a failed plan (brake), and the next job gets a new one."""
+    import math
+    import os
+    import signal
+    import time
+
+    from companion.guidance import InlinePlanning, ProcessPlanning
+    from contracts.online_planner import AvoidancePlanner, Disc
+
+    job = (7, 1.5, None, np.array([0.0, 0.0]), np.array([4.0, 0.0]), np.array([1.0, 0.0]), [Disc(7.3, 0.2, 1.3)])
+    kw = {"v_max": 4.0, "a_max": 9.81 * math.tan(math.radians(25.0))}
+    inline = InlinePlanning()
+    inline.submit(AvoidancePlanner(), *job, **kw)
+    want = inline.poll()
+
+    def wait(runner):
+        deadline = time.monotonic() + 60
+        while (out := runner.poll()) is None:
+            assert time.monotonic() < deadline
+            time.sleep(0.01)
+        return out
+
+    runner = ProcessPlanning()
+    try:
+        runner.submit(AvoidancePlanner(), *job, **kw)
+        got = wait(runner)
+        assert got[:3] == want[:3] and got[3].kind == want[3].kind and got[3].ok
+        assert np.allclose(got[3].p, want[3].p)
+        (pid,) = list(runner._pool._processes)
+        assert pid != os.getpid()
+        os.kill(pid, signal.SIGKILL)  # the worker dies
+        time.sleep(0.5)
+        runner.submit(AvoidancePlanner(), *job, **kw)
+        dead = wait(runner)
+        if isinstance(dead[3], BaseException):  # the job went to the dead worker: a failed plan, said as such
+            assert dead[:3] == want[:3]
+            runner.submit(AvoidancePlanner(), *job, **kw)
+            dead = wait(runner)
+        assert dead[3].ok  # a new worker plans again
+    finally:
+        runner.close()

@@ -409,6 +409,58 @@ def test_an_autopilot_clock_at_the_wrong_rate_or_jumping_is_a_fault_not_our_time
     assert len(beats) >= 4 and max(gaps) < 1.6 and min(gaps) > 0.6  # our heartbeat: 1 Hz of host time
 
 
+def sitl_clock(rate: float, stall_s: float, catch_up: float, seconds: float = 30.0, every_s: float = 2.0):
+    """(host s, time_boot_ms) of a SITL paced to the host's clock at `rate` (as sitl_harness/serve.py paces its
+    ticks): every `every_s` the host starves it for `stall_s` (its clock creeps at 0.45× its rate), then it
+    catches up at `catch_up`× its rate until back on its schedule. Messages every 20 ms of host time."""
+    out, tv, th = [], 0.0, 0.0
+    starved_until = -1.0
+    while th < seconds:
+        th += 0.02
+        if th % every_s < 0.02:
+            starved_until = th + stall_s
+        behind = rate * th - tv
+        step = rate * 0.02 * (0.45 if th < starved_until else catch_up)
+        tv += step if th < starved_until else min(step, behind)
+        out.append((th, int(tv * 1000)))
+    return out
+
+
+@pytest.mark.parametrize("rate", [1.0, 2.0])
+def test_a_sitl_that_runs_behind_and_catches_up_is_not_a_clock_fault(rate):
+    """A SITL on a loaded host starts its ticks late and catches up (its own tick jitter): its clock read over one
+    second ran at 0.45× its rate ("runs at 0.952× the host's, expected 2×"), which was a navigation fault — a
+    would-Hold in a shadow flight — though its clock keeps its rate."""
+    from companion.mavlink_in import VehicleClock
+
+    host = [0.0]
+    clock = VehicleClock(lambda: host[0], rate=rate)
+    faults = []
+    for th, tb in sitl_clock(rate, stall_s=0.8, catch_up=3.0):
+        host[0] = th
+        clock.observe(tb)
+        faults.append(clock.fault)
+    assert not any(faults), next(f for f in faults if f)
+
+
+@pytest.mark.parametrize("rate,ratio,within_s", [(1.0, 0.5, 3.0), (2.0, 0.476, 3.0), (1.0, 2.0, 1.5),
+                                                 (1.0, 0.7, 6.0), (2.0, 0.01, 1.5)])
+def test_a_clock_at_the_wrong_rate_is_a_fault_whatever_the_tick_jitter_allowance(rate, ratio, within_s):
+    """The control: a steady wrong rate (a wrong link.clock_rate, a SITL starved for good) drifts out of the tick
+    jitter's allowance and is a fault within a few seconds, and stays one."""
+    from companion.mavlink_in import VehicleClock
+
+    host = [0.0]
+    clock = VehicleClock(lambda: host[0], rate=rate)
+    seen = []
+    for k in range(1, 1500):
+        host[0] = 0.02 * k
+        clock.observe(int(5000 + 1000 * rate * ratio * host[0]))
+        seen.append((host[0], clock.fault))
+    first = next(t for t, f in seen if f)
+    assert first <= within_s and all(f for t, f in seen if t > first + 0.1)
+
+
 def test_another_components_boot_clock_is_not_the_autopilots(tmp_path):
     peripheral = mav.MAVLink(None, srcSystem=1, srcComponent=158)
 

@@ -253,7 +253,7 @@ def test_lateness_beyond_the_hard_limit_holds_at_once_and_only_unbudgeted_latene
     assert not d.hold and d.state == "active"  # only slower
     assert [n for n, _ in d.events].count("violation_start") == 1
     d = s.step(replace(BASE, t=0.04, late_s=0.1))  # counted, on time: the guarantee holds at the longer t_react
-    assert ("violation_end", {"subsystem": "guidance", "guarantee": "decides every cycle (20 ms, inside t_react)"}) \
+    assert ("violation_end", {"subsystem": "guidance", "guarantee": "decides every cycle (20 ms + 0 ms jitter allowance, inside t_react)"}) \
         in d.events
     d = s.step(replace(BASE, t=0.06, late_s=0.3, late_unbudgeted_s=0.3))
     assert d.hold and d.state == "holding" and "companion computer late" in d.hold_causes
@@ -262,3 +262,18 @@ def test_lateness_beyond_the_hard_limit_holds_at_once_and_only_unbudgeted_latene
     assert start["assumed"] == pytest.approx(0.12) and start["observed"] == pytest.approx(0.32)
     d = s.step(replace(BASE, t=0.08, late_s=0.0))  # 10 s later (Timeliness's window): on time again
     assert ("reaction_time", {"late_s": 0.0, "t_react_s": TABLE.vehicle.t_react_s}) in d.events
+
+
+def test_lateness_inside_the_jitter_allowance_is_an_event_not_a_violation():
+    """t_react budgets one loop period plus a stated jitter allowance: a cycle late within it is said, the guarantee
+    holds; beyond it the violation names the allowance it assumed."""
+    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02,
+                   late_allowance_s=0.03)
+    s.step(BASE)
+    d = s.step(replace(BASE, t=0.02, late_within_s=0.025))
+    assert ("cycle_jitter", {"late_s": 0.025, "allowance_s": 0.03}) in d.events
+    assert not [n for n, _ in d.events if n.startswith("violation")] and d.omega == s.step(BASE).omega
+    d = s.step(replace(BASE, t=0.04, late_s=0.04, late_unbudgeted_s=0.04))
+    (start,) = [f for n, f in d.events if n == "violation_start"]
+    assert start["subsystem"] == "guidance" and "30 ms jitter allowance" in start["guarantee"]
+    assert start["assumed"] == pytest.approx(0.05) and start["observed"] == pytest.approx(0.06)

@@ -1,0 +1,32 @@
+"""`make demo` (`contract-guard demo`) on a loaded computer: the SITL and the daemon as real processes on loopback
+UDP with two busy processes beside them (`python -c "while True: pass"` ×2). It exits 0 when the flight was safe and
+within the contract, and says why it ended (about 50 s of wall time on a 2-core host).
+
+Not yet always: on the shared 2-core build host it passed in 2 of 7 flights (docs/evidence.md, the daemon's
+timeliness on a loaded computer): single cycles 44 ms apart in the SITL's 2× time, and the first avoidance in fog
+flown from a plan that starts before the braking while it was computed (a controller violation)."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="a loaded host: a late cycle or the first fog avoidance's controller "
+                   "violation in some flights (docs/evidence.md)")
+def test_the_demo_is_safe_and_within_the_contract_with_two_busy_processes_beside_it(tmp_path):
+    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+    try:
+        run = subprocess.run([sys.executable, "-m", "companion.cli", "demo", "--out", str(tmp_path / "demo"), "--json"],
+                             capture_output=True, text=True, timeout=900)
+    finally:
+        for b in busy:
+            b.kill()
+            b.wait()
+    r = json.loads(run.stdout)
+    assert r["safe"] and r["collisions"] == 0
+    assert r["flight_end"] is not None and r["flight_end"]["why"] == "route complete", r["flight_end"]
+    assert r["route_progress_m"] >= r["route_length_m"] - 1.0
+    assert run.returncode == 0, r["review_findings"]
