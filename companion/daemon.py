@@ -47,9 +47,8 @@ PERIODIC = (
 class Daemon:
     def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
                  planning: str = "process", contract: str | None = None, policy=None):
-        """`planning`: "process" (the avoidance planner in a worker process beside the loop, so the setpoint
-        stream keeps its rate and no planning work holds the loop's interpreter lock), "thread" (on a worker
-        thread) or "inline" (in the loop: deterministic lock-step tests). `contract`: the one to enforce
+        """`planning`: "process" (the avoidance planner in a worker process: no planning holds the loop's
+        interpreter lock), "thread" or "inline" (in the loop: lock-step tests). `contract`: the one to enforce
         (default: "avoid" in offboard mode, else "stop"; a replay names the one the flight flew under).
         `policy`: the speed policy (the contract's Ω by default; a campaign's baselines: companion/baselines.py)."""
         runners = {"process": ProcessPlanning, "thread": ThreadedPlanning, "inline": InlinePlanning}
