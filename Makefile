@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: test demo venv bench clean
+.PHONY: test test-all demo venv bench clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV) || python3 -m venv $(VENV)
@@ -16,6 +16,9 @@ venv: $(STAMP)
 
 test: $(STAMP)
 	$(PY) -m pytest -q
+
+test-all: $(STAMP)  # the slow campaigns and flights too
+	$(PY) -m pytest -q -m "slow or not slow"
 
 demo: $(STAMP)
 	$(VENV)/bin/contract-guard demo
