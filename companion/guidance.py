@@ -31,6 +31,7 @@ from contracts.geometry import wrap
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
+WORKER_START_S = 60.0  # [s] the planning process's start-up waited for before the loop runs, at most
 PLAN_LEAD_S = (0.3, 1.0)  # [s] the lead a plan asked for while braking starts at: at least, at most (its answer's
 # latency as the guidance measured it, in its own time: the SITL's 2× clock doubles a wall-clock solve)
 
@@ -340,10 +341,17 @@ class ProcessPlanning(ThreadedPlanning):
         self._pool = self._start()
         self._job = None
         self._meta = ()
+        # the worker's start-up (its own interpreter, numpy, scipy, OSQP: seconds of CPU on a busy 2-core host) is
+        # waited for here, before the loop runs: started beside a running loop it made the loop's first judged
+        # cycles 50-110 ms late (guidance violations at every demo's take-off with two busy processes beside it)
+        try:
+            self._warm.result(timeout=WORKER_START_S)
+        except Exception:  # noqa: BLE001 — not ready or broken: the first job finds out (a failed plan: brake)
+            pass
 
     def _start(self) -> ProcessPoolExecutor:
         pool = ProcessPoolExecutor(max_workers=1, mp_context=self._ctx, initializer=load_solver)
-        pool.submit(load_solver)  # start the worker now, not at the first obstacle
+        self._warm = pool.submit(load_solver)  # start the worker now, not at the first obstacle
         return pool
 
     def submit(self, planner, *args, **kw) -> None:
@@ -377,6 +385,7 @@ class OffboardGuidance:
     epoch: int = 0  # bumped whenever the obstacle situation ends: older planning jobs are not flown
     planner_failed: bool = False  # the last job raised: braking is not "awaiting" but the answer
     latency: list = field(default_factory=list)  # how long the last answers took, request to poll [s]
+    lead_s: tuple[float, float] = PLAN_LEAD_S  # (0, 0): plans start at the state measured at the request
     _pending: tuple | None = None  # an answer that starts later than now (asked for while braking)
     _asked_t: float = 0.0
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
@@ -532,11 +541,11 @@ class OffboardGuidance:
         """How far ahead a plan asked for while braking starts: the slowest of the last answers' latencies,
         within PLAN_LEAD_S (an answer later than its start is flown from its start: the vehicle then lags it
         by the braking since, as before)."""
-        return min(max([PLAN_LEAD_S[0], *self.latency[-5:]]), PLAN_LEAD_S[1])
+        return min(max([self.lead_s[0], *self.latency[-5:]]), self.lead_s[1])
 
     def _take(self, t: float, done) -> None:
         """An answer from the planning, or the one held until its start time has come."""
-        if done is not None and self.planning.budget_s is not None:
+        if done is not None and done[0] == self.epoch and self.planning.budget_s is not None:
             self.latency = [*self.latency[-9:], t - self._asked_t]
         if done is not None and done[1] > t:
             self._pending = done  # asked for while braking: fly it from where the braking leaves the vehicle
