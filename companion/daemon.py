@@ -48,11 +48,11 @@ class Daemon:
     def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
                  planning: str = "process", contract: str | None = None, policy=None):
         """`planning`: "process" (the avoidance planner in a worker process: no planning holds the loop's
-        interpreter lock), "thread" or "inline" (in the loop: lock-step tests). `contract`: the one to enforce
+        interpreter lock), "thread" or "inline" (in the loop: lock-step tests), or a factory of a runner. `contract`: the one to enforce
         (default: "avoid" in offboard mode, else "stop"; a replay names the one the flight flew under).
         `policy`: the speed policy (the contract's Ω by default; a campaign's baselines: companion/baselines.py)."""
         runners = {"process": ProcessPlanning, "thread": ThreadedPlanning, "inline": InlinePlanning}
-        if planning not in runners:
+        if isinstance(planning, str) and planning not in runners:
             raise ValueError(f"planning must be one of {', '.join(runners)}, not {planning!r}")
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
         self.signing_clock = signing_clock
@@ -63,7 +63,7 @@ class Daemon:
         self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock, self.counters)
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
         self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
-                           runners[planning], policy)
+                           runners.get(planning, planning), policy)
         self.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
         self.protocols = Protocols(cfg, self.adapter, self.cycle, self.checks, self.out, self.counters,
                                    lambda: self._save_signing(None))

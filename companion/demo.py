@@ -144,10 +144,12 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
     cfg_path = out / "daemon.yaml"
     cfg_path.write_text(yaml.safe_dump(cfg))
     py = sys.executable
-    # the demo ends the flight at `duration_s` of vehicle time; the SITL's own --duration is a backstop
+    # the demo ends the flight `duration_s` of vehicle time after the take-off (not after the SITL's start: on a
+    # busy host the daemon's start-up alone took 20 s of the SITL's 2× time, and the flight was cut 22 m short of
+    # the route's end); the SITL's own --duration is a backstop covering the minute the daemon may take to start
     sitl = subprocess.Popen([py, "-m", "sitl_harness", "--scenario", str(scenario_path),
                              "--personality", personality, "--listen", f"udp:127.0.0.1:{port}",
-                             "--speedup", str(speedup), "--duration", str(duration_s + 60.0), "--json",
+                             "--speedup", str(speedup), "--duration", str(duration_s + 60.0 * (1.0 + speedup)), "--json",
                              "--log-dir", str(ap_log_dir)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     daemon = gcs = gs = None
@@ -172,8 +174,8 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
             if k:
                 gs.poll(0.3)
             gcs.mav.command_long_send(1, 1, cmd, 0, *params)
-        deadline = time.time() + duration_s / speedup + 120
-        while sitl.poll() is None and time.time() < deadline and (gs.t_vehicle or 0.0) < duration_s:
+        t_end, deadline = (gs.t_vehicle or 0.0) + duration_s, time.time() + duration_s / speedup + 120
+        while sitl.poll() is None and time.time() < deadline and (gs.t_vehicle or 0.0) < t_end:
             gs.poll(0.2)
         # the end of the flight: the daemon first (offboard hands over to Hold, the log says "stop"), then
         # the SITL, which prints its summary on SIGTERM; the other order logged "autopilot link down" at

@@ -332,6 +332,29 @@ class DodEstimator:
         return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated)
 
 
+# ============================================================================ windows
+
+
+class SlidingMax:
+    """The largest value pushed in the last `window_s` seconds (0 when none): a monotone queue, O(1) amortised."""
+
+    def __init__(self, window_s: float):
+        self.window = window_s
+        self._q: deque[tuple[float, float]] = deque()  # (t, value), values decreasing
+
+    def value(self, t: float) -> float:
+        while self._q and self._q[0][0] < t - self.window:
+            self._q.popleft()
+        return self._q[0][1] if self._q else 0.0
+
+    def push(self, t: float, x: float) -> float:
+        """Add x at t; the largest in the window, x included."""
+        while self._q and self._q[-1][1] <= x:
+            self._q.pop()
+        self._q.append((t, x))
+        return self.value(t)
+
+
 # ============================================================================ E_tr
 
 
@@ -491,23 +514,11 @@ class Timeliness:
         self.period, self.allowance, self.window = period_s, allowance_s, window_s
         self._t: float | None = None
         self._t_linked: float | None = None  # the first cycle with the autopilot's heartbeat fresh
-        self._late: deque[tuple[float, float]] = deque()  # (t, lateness), lateness decreasing (a max queue)
-        self._within: deque[tuple[float, float]] = deque()  # the same for lateness inside the allowance
+        self._late = SlidingMax(window_s)  # lateness beyond the allowance
+        self._within = SlidingMax(window_s)  # lateness inside it
         self.last_late_s = 0.0  # this cycle's own lateness beyond the allowance (0 when inside it)
         self.unbudgeted_s = 0.0
         self.within_s = 0.0
-
-    @staticmethod
-    def _worst(q: deque, t: float, window: float) -> float:
-        while q and q[0][0] < t - window:
-            q.popleft()
-        return q[0][1] if q else 0.0
-
-    @staticmethod
-    def _push(q: deque, t: float, late: float) -> None:
-        while q and q[-1][1] <= late:
-            q.pop()
-        q.append((t, late))
 
     def judged(self, t: float) -> bool:
         """Whether a cycle at t is judged: `JUDGED_AFTER_S` or more after the first with the link up."""
@@ -522,12 +533,10 @@ class Timeliness:
         self._t = t
         self.last_late_s = late if late > self.allowance else 0.0
         inside = late if LATE_NOTE_S <= late <= self.allowance else 0.0
-        said = self._worst(self._within, t, self.window)
-        self.within_s = inside if inside > said else 0.0
+        self.within_s = inside if inside > self._within.value(t) else 0.0
         if self.within_s > 0.0:
-            self._push(self._within, t, inside)
-        counted = self._worst(self._late, t, self.window)
-        self.unbudgeted_s = self.last_late_s if self.last_late_s > counted else 0.0
+            self._within.push(t, inside)
+        self.unbudgeted_s = self.last_late_s if self.last_late_s > self._late.value(t) else 0.0
         if self.last_late_s > 0.0:
-            self._push(self._late, t, late)
-        return self._late[0][1] if self._late else 0.0
+            self._late.push(t, late)
+        return self._late.value(t)

@@ -21,6 +21,7 @@ the sensors' mounts: it builds its own obstacle map from every sample the daemon
 
 from __future__ import annotations
 
+import math
 import os
 from collections import deque
 
@@ -34,7 +35,30 @@ from sitl_harness.scenario import scenario_from_dict  # noqa: E402
 
 from .config import config_from_dict  # noqa: E402
 from .daemon import Daemon  # noqa: E402
+from .guidance import PLAN_BUDGET_S, InlinePlanning  # noqa: E402
 from .link import MemoryMavfile  # noqa: E402
+
+
+class DelayedPlanning(InlinePlanning):
+    """Plans at once but answers `delay_s` of vehicle time later, with a planner's time budget, as a worker on a
+    busy host does (deterministic: lock-step flights of the planning's latency, benchmarks/bench_plan_latency.py)."""
+
+    budget_s = PLAN_BUDGET_S
+
+    def __init__(self, delay_s: float, clock):
+        super().__init__()
+        self.delay_s, self.clock, self._due = delay_s, clock, math.inf
+
+    @property
+    def busy(self) -> bool:
+        return self._out is not None
+
+    def submit(self, planner, *args, **kw) -> None:
+        super().submit(planner, *args, **{**kw, "budget_s": None})  # the delay is the latency, not the host
+        self._due = self.clock() + self.delay_s
+
+    def poll(self):
+        return super().poll() if self.clock() >= self._due - 1e-9 else None
 
 
 class Recorder:
@@ -57,7 +81,7 @@ class Recorder:
 class Rig:
     def __init__(self, scenario: dict, personality: str = "px4", config: dict | None = None, log=None,
                  table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None, policy=None,
-                 log_dir=None):
+                 log_dir=None, planning_delay_s: float | None = None):
         sc = scenario_from_dict(scenario)
         self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
         if log_dir is not None:  # the autopilot's own flight log (.ulg / .bin); `close_log()` finishes it
@@ -93,8 +117,10 @@ class Rig:
         self.log = log if log is not None else Recorder()
         if policy is not None and not hasattr(policy, "omega"):  # a factory of the daemon's Config
             policy = policy(self.cfg)
-        self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=lambda: self.sim.time_s, planning="inline",
-                             policy=policy)
+        clock = lambda: self.sim.time_s  # noqa: E731
+        self.daemon = Daemon(self.cfg, table, self.conn, self.log, clock=clock, policy=policy,
+                             planning="inline" if planning_delay_s is None else
+                             lambda: DelayedPlanning(planning_delay_s, clock))
         gread, gwrite = self._endpoint()
         self._gcs_read = gread
         self.gcs = mav.MAVLink(_W(gwrite), srcSystem=255, srcComponent=190)
@@ -198,3 +224,30 @@ def engage_and_fly(rig: Rig, seconds: float, until=None) -> None:
     rig.run(0.2, until)
     rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
     rig.run(seconds, until)
+
+
+def fly_offboard_scenario(scenario, seconds: float = 62.0, setup=None, **rig_kw) -> Rig:
+    """Fly an in-flight scenario (Figures 17, 18) in offboard mode at 2 m; the ground station performs its `gcs`
+    actions at their times (through the rig's router to the daemon, as over UDP through the SITL). `setup(rig)`
+    runs before the flight; `rig_kw` go to the `Rig`."""
+    sc = scenario.model_dump(mode="json")
+    sc["start"]["alt_m"] = 2.0
+    cfg = {"mode": "offboard", "engage": True, "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
+           "route": {"waypoints": sc["route"]["waypoints"], "altitude_m": 2.0}, "contract": {"r_obst_m": 1.0}}
+    rig = Rig(sc, "px4", config=cfg, **rig_kw)
+    if setup is not None:
+        setup(rig)
+    rig.run(1.0)
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
+    rig.run(0.2)
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
+    for a in sorted(scenario.gcs, key=lambda a: a.at_s):
+        rig.run(max(0.0, a.at_s - rig.sim.time_s))
+        p = a.param_set
+        msg = rig.gcs.param_set_encode(1, p.component_id, p.name.encode(), p.value, 9)
+        if p.component == "daemon":
+            rig.to_daemon(msg)
+        else:
+            rig.gcs.send(msg)
+    rig.run(seconds - rig.sim.time_s)
+    return rig

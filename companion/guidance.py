@@ -31,6 +31,9 @@ from contracts.geometry import wrap
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
+WORKER_START_S = 60.0  # [s] the planning process's start-up waited for before the loop runs, at most
+PLAN_LEAD_S = (0.3, 1.0)  # [s] the lead a plan asked for while braking starts at: at least, at most (its answer's
+# latency as the guidance measured it, in its own time: the SITL's 2× clock doubles a wall-clock solve)
 
 
 A_LAT = 0.5  # fraction of a_max an arc's centripetal acceleration may use (the rest is for tracking)
@@ -338,10 +341,17 @@ class ProcessPlanning(ThreadedPlanning):
         self._pool = self._start()
         self._job = None
         self._meta = ()
+        # the worker's start-up (its own interpreter, numpy, scipy, OSQP: seconds of CPU on a busy 2-core host) is
+        # waited for here, before the loop runs: started beside a running loop it made the loop's first judged
+        # cycles 50-110 ms late (guidance violations at every demo's take-off with two busy processes beside it)
+        try:
+            self._warm.result(timeout=WORKER_START_S)
+        except Exception:  # noqa: BLE001 — not ready or broken: the first job finds out (a failed plan: brake)
+            pass
 
     def _start(self) -> ProcessPoolExecutor:
         pool = ProcessPoolExecutor(max_workers=1, mp_context=self._ctx, initializer=load_solver)
-        pool.submit(load_solver)  # start the worker now, not at the first obstacle
+        self._warm = pool.submit(load_solver)  # start the worker now, not at the first obstacle
         return pool
 
     def submit(self, planner, *args, **kw) -> None:
@@ -374,6 +384,10 @@ class OffboardGuidance:
     last_notes: list = field(default_factory=list)
     epoch: int = 0  # bumped whenever the obstacle situation ends: older planning jobs are not flown
     planner_failed: bool = False  # the last job raised: braking is not "awaiting" but the answer
+    latency: list = field(default_factory=list)  # how long the last answers took, request to poll [s]
+    lead_s: tuple[float, float] = PLAN_LEAD_S  # (0, 0): plans start at the state measured at the request
+    _pending: tuple | None = None  # an answer that starts later than now (asked for while braking)
+    _asked_t: float = 0.0
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
 
     def start(self, p, v) -> None:
@@ -492,29 +506,53 @@ class OffboardGuidance:
     def _avoid(self, t, p, v, v_max, a_max, discs, z) -> Setpoint:
         """Replan when an obstacle appears (no plan), every REPLAN_S, and — at most every REPLAN_MIN_S —
         when Ω changes, the vehicle drifts from the plan or it is braking. A plan starts at the state
-        measured when it was asked for, so it is followed from its request time; while the first plan
-        is being computed the vehicle brakes."""
-        self._adopt(self.planning.poll())
+        measured when it was asked for, so it is followed from its request time. While the first plan is
+        computed the vehicle brakes, and a plan asked for while braking starts where that braking will have
+        taken the vehicle when the answer is due (`_lead`), flown from then: a plan from the state before the
+        braking, flown from its request, left the vehicle behind it by the braking's lost speed (a controller
+        violation at the demo's first obstacle in fog on a loaded host)."""
+        self._take(t, self.planning.poll())
         omega = (round(v_max, 3), round(a_max, 3))
         since = t - max(self.plan_t, self.plan_t_try)
         urgent = False
-        if self.plan is not None:
-            drift = float(np.hypot(*(self.plan.sample(t - self.plan_t)[0] - p)))
-            urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
-        if (self.plan is None or since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
-            _, u = self.route.point(self.route.project(p))
-            warm = self.plan if self.plan is not None and self.plan.kind in ("pass", "stop") else None
-            self.plan_t_try = t
-            self.planning.submit(self.planner, self.epoch, t, omega, np.array(p, float), np.array(v, float), u,
-                                 list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
-                                 warm=warm, elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
-            self._adopt(self.planning.poll())
-        if self.plan is None:  # asked, not answered yet: start braking now (the slower choice)
+        if self.plan is None:  # no plan yet: start braking now (the slower choice)
             bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, discs, self.planner.n)
             kind = "brake" if self.planner_failed else "await"  # a planner that fails is not awaited
             self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
-            self.plan_t, self.plan_omega = t, omega
+            self.plan_t, self.plan_omega, since = t, omega, math.inf
+        else:
+            drift = float(np.hypot(*(self.plan.sample(t - self.plan_t)[0] - p)))
+            urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
+        if (since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
+            t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
+            if self.plan.kind in ("brake", "await") and self.planning.budget_s is not None:
+                t_req = t + self._lead()
+                p_req, v_req, _ = self.plan.sample(t_req - self.plan_t)
+            _, u = self.route.point(self.route.project(p_req))
+            warm = self.plan if self.plan.kind in ("pass", "stop") else None
+            self.plan_t_try, self._asked_t = t_req, t
+            self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
+                                 list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 warm=warm, elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
+            self._take(t, self.planning.poll())
         return self._follow(t, z)
+
+    def _lead(self) -> float:
+        """How far ahead a plan asked for while braking starts: the slowest of the last answers' latencies,
+        within PLAN_LEAD_S (an answer later than its start is flown from its start: the vehicle then lags it
+        by the braking since, as before)."""
+        return min(max([self.lead_s[0], *self.latency[-5:]]), self.lead_s[1])
+
+    def _take(self, t: float, done) -> None:
+        """An answer from the planning, or the one held until its start time has come."""
+        if done is not None and done[0] == self.epoch and self.planning.budget_s is not None:
+            self.latency = [*self.latency[-9:], t - self._asked_t]
+        if done is not None and done[1] > t:
+            self._pending = done  # asked for while braking: fly it from where the braking leaves the vehicle
+            return
+        if done is None and self._pending is not None and self._pending[1] <= t:
+            done, self._pending = self._pending, None
+        self._adopt(done)
 
     def _past_the_profile(self, t: float, v_max: float, a_max: float) -> bool:
         """Whether the pass being finished (its obstacle behind) flies faster than the route's speed profile

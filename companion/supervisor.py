@@ -27,7 +27,7 @@ from contracts.online_planner import Disc, offboard_cap
 from contracts.stop import approach_stopping_distance, braking_decel, stop_dead_time
 from contracts.table import ContractTable, Omega
 
-from .estimators import DodEstimate
+from .estimators import DodEstimate, SlidingMax
 from .guidance import inflated
 from .states import BRAKE_STOP_CAUSES, FAILSAFE_CAUSES, Cause, State, Subsystem  # noqa: F401 (re-exported)
 
@@ -150,11 +150,14 @@ class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
     def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
-                 loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None):
+                 loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
+                 e_tr_window_s: float = 2.0):
         """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
         `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold); `late_allowance_s`: the
         jitter allowance t_react budgets beside one loop period (`timeouts.cycle_jitter_s`); `policy`: the speed
-        policy flown (default `ContractSpeed()`; a campaign's baselines and negative controls: companion/baselines.py)."""
+        policy flown (default `ContractSpeed()`; a campaign's baselines and negative controls: companion/baselines.py);
+        `e_tr_window_s`: the window E_tr is measured over (`contract.e_tr_window_s`), so also the one its
+        prediction is judged over."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
@@ -185,6 +188,7 @@ class Supervisor:
         self._would: tuple[Cause, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
+        self._e_pred_window = SlidingMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
         self._omega_at: tuple[tuple, Omega] | None = None  # ((d_od, r_obst, e_tr measured, thrust), Ω)
         self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
         # never fly a speed the controller contract does not cover: the top of E_tr_pred's speed axis
@@ -351,7 +355,10 @@ class Supervisor:
         if om.v_max >= MIN_SPEED_CMD:
             self._tilt_in_force = om.tilt
         if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
-            e_pred = self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio)
+            # the measured error is the worst of a window, so it is judged against the prediction at the fastest
+            # speed commanded in that window: an error flown at 6.5 m/s was judged against E_tr_pred at the 2.1 m/s
+            # a shorter D_od had set a moment later (a controller violation of a contract that held)
+            e_pred = self._e_pred_window.push(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
             self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, subsystem=Subsystem.CONTROLLER,
                             guarantee="contour error <= E_tr_pred(V_max)", assumed=e_pred,
                             observed=i.e_tr_measured, action="E_tr raised to the measured value")

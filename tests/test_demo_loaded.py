@@ -2,9 +2,9 @@
 UDP with two busy processes beside them (`python -c "while True: pass"` ×2). It exits 0 when the flight was safe and
 within the contract, and says why it ended (about 50 s of wall time on a 2-core host).
 
-Not yet always: on the shared 2-core build host it passed in 2 of 7 flights (docs/evidence.md, the daemon's
-timeliness on a loaded computer): single cycles 44 ms apart in the SITL's 2× time, and the first avoidance in fog
-flown from a plan that starts before the braking while it was computed (a controller violation)."""
+Not yet always: on the shared 2-core build host (load 4-6 before the two busy processes) the flights are safe and
+complete the route, but single cycles 50-60 ms apart in the SITL's 2× time are `guidance` violations (docs/evidence.md,
+the daemon's timeliness on a loaded computer)."""
 
 import json
 import subprocess
@@ -14,8 +14,8 @@ import pytest
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="a loaded host: a late cycle or the first fog avoidance's controller "
-                   "violation in some flights (docs/evidence.md)")
+@pytest.mark.xfail(strict=False, reason="a loaded host: late cycles are guidance violations in some flights "
+                   "(docs/evidence.md)")
 def test_the_demo_is_safe_and_within_the_contract_with_two_busy_processes_beside_it(tmp_path):
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
     try:

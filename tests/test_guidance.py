@@ -110,15 +110,25 @@ def _until(cond, g, t0, seconds=20.0):
     raise AssertionError("the worker did not answer in time")
 
 
-def test_threaded_planning_brakes_until_the_plan_arrives_then_follows_it_from_its_request_time(gated):
+def test_threaded_planning_brakes_until_the_plan_is_due_then_flies_it_from_where_the_braking_left_the_vehicle(gated):
+    from companion.guidance import PLAN_LEAD_S
+
     g, planner = gated()
     first = _threat_step(g, 0.0)
+    braking = g.plan
     assert first.mode == "planning" and first.a @ [1, 0] < 0  # braking meanwhile
     assert _threat_step(g, 0.02).mode == "planning"  # the loop goes on while the worker is busy
     planner.gate.set()
-    sp = _until(lambda sp: sp.mode != "planning", g, 0.04)
-    assert sp.mode == "avoid" and g.plan.ok and g.plan_t == 0.0  # the plan starts at the state asked for
-    assert g.replans == 1
+    while g.planning.busy:
+        time.sleep(0.002)
+    assert _threat_step(g, 0.04).mode == "planning"  # answered, but its start has not come: still braking
+    sp = _until(lambda sp: sp.mode != "planning", g, 0.06)
+    lead = PLAN_LEAD_S[0]
+    assert sp.mode == "avoid" and g.plan.ok and g.plan_t == pytest.approx(lead)  # flown from its start
+    p_due, v_due, _ = braking.sample(lead)
+    assert np.allclose(g.plan.p[0], p_due) and np.allclose(g.plan.v[0], v_due)  # where the braking leaves it
+    assert np.hypot(*v_due) < 5.0 - 0.5  # (slower than when it was asked: the braking's lost speed)
+    assert g.replans == 1 and g.latency and g.latency[0] > 0.0
 
 
 def test_a_planner_error_is_noted_and_the_vehicle_brakes(gated):

@@ -4,32 +4,11 @@ import pytest
 
 from contracts.online_planner import OFFBOARD_CAP, offboard_cap
 from sitl_harness.scenario import load_scenario
-from tests.lockstep import Rig
+from companion.flights import fly_offboard_scenario
 
 
 def fly_scenario(name):
-    """Fly a scenario; the ground station performs its `gcs` actions at their times (through the rig's
-    router to the daemon, as over UDP through the SITL)."""
-    scenario = load_scenario(name)
-    sc = scenario.model_dump(mode="json")
-    sc["start"]["alt_m"] = 2.0
-    cfg = {"mode": "offboard", "engage": True, "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
-           "route": {"waypoints": sc["route"]["waypoints"], "altitude_m": 2.0}, "contract": {"r_obst_m": 1.0}}
-    rig = Rig(sc, "px4", config=cfg)
-    rig.run(1.0)
-    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 0.0, 9))
-    rig.run(0.2)
-    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
-    for a in sorted(scenario.gcs, key=lambda a: a.at_s):
-        rig.run(max(0.0, a.at_s - rig.sim.time_s))
-        p = a.param_set
-        msg = rig.gcs.param_set_encode(1, p.component_id, p.name.encode(), p.value, 9)
-        if p.component == "daemon":
-            rig.to_daemon(msg)
-        else:
-            rig.gcs.send(msg)
-    rig.run(62.0 - rig.sim.time_s)
-    return rig
+    return fly_offboard_scenario(load_scenario(name))
 
 
 def acked(rig, name, value):

@@ -196,6 +196,31 @@ def test_controller_guarantee_is_checked_at_the_tilt_being_flown():
     assert [e for e in over.events if e[0] == "violation_start" and e[1]["subsystem"] == "controller"]
 
 
+def _controller_started(d) -> bool:
+    return any(e[0] == "violation_start" and e[1]["subsystem"] == "controller" for e in d.events)
+
+
+def test_the_worst_error_of_a_window_is_judged_against_the_fastest_prediction_of_that_window():
+    """E_tr measured is the worst of its window (2 s): an error flown at a high V_max is judged against E_tr_pred at
+    that speed while it is in the window, not against the lower one a shorter D_od sets a moment later (a false
+    controller violation in the demo's fog); past the window the lower prediction is the one."""
+    s = sup("offboard")
+    fast = replace(BASE, mode="offboard", ground_speed=5.0, dod=dod(7.0), e_tr_measured=0.3)
+    d_fast = s.step(fast)
+    e_fast = TABLE.e_tr_pred(d_fast.v_cmd, d_fast.omega.tilt, 1.0)
+    slow = replace(fast, dod=dod(3.0))
+    d_slow = s.step(replace(slow, t=0.02))
+    e_slow = TABLE.e_tr_pred(d_slow.v_cmd, d_fast.omega.tilt, 1.0)
+    assert d_slow.v_cmd < d_fast.v_cmd - 1.0 and e_slow + 0.1 < e_fast  # the prediction fell with the speed
+    e_meas = e_fast - 0.02  # flown within the fast prediction
+    assert not _controller_started(s.step(replace(slow, t=0.04, e_tr_measured=e_meas)))
+    assert _controller_started(s.step(replace(slow, t=0.06, e_tr_measured=e_fast + 0.1)))  # above even the fast one
+    s2 = sup("offboard")
+    s2.step(fast)
+    s2.step(replace(slow, t=0.02))
+    assert _controller_started(s2.step(replace(slow, t=2.5, e_tr_measured=e_meas)))  # the fast speed left the window
+
+
 def test_a_fault_that_arrives_while_already_holding_is_logged_once_without_another_hold():
     """Issue 16: bad navigation while the daemon already held for another cause wrote no event (the
     campaign detected it in 63 % / 89 % of flights). It is logged now, once, with its own action."""
