@@ -170,6 +170,7 @@ def _lines(out):
     return sorted((out / "results.jsonl").read_text().splitlines(), key=lambda x: json.loads(x)["index"])
 
 
+@pytest.mark.slow  # campaign-grade: make test-all
 def test_a_process_pool_and_a_dask_cluster_give_the_same_rows_bit_for_bit(tmp_path):
     from distributed import LocalCluster
 

@@ -31,9 +31,10 @@ def check(res: dict, per_format: int) -> None:
     assert res["failures"] == 0
 
 
-def test_every_reader_survives_mutated_logs():
-    res = fuzz(48, 3, "--replay-every", "12")
-    check(res, 48)
+@pytest.mark.parametrize("per_format", [pytest.param(48, marks=pytest.mark.slow), 16])
+def test_every_reader_survives_mutated_logs(per_format):
+    res = fuzz(per_format, 3, "--replay-every", "12")
+    check(res, per_format)
     assert any("sitl-" in s for s in res["formats"][".ulg"]["seeds"])  # the SITL's own log among the seeds
 
 

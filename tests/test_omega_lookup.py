@@ -9,6 +9,7 @@ through the reference solver at the point's reaction time."""
 import math
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_table import MAMBO, avoid_tables, etr_tables, make
@@ -244,10 +245,11 @@ def test_fast_omega_equals_the_reference_on_random_tables(tmp_path, a, e, querie
             assert t.v_safe(d_od, r_obst, e_meas, tilt, tr) == v_safe_reference(t, d_od, r_obst, e_meas, tilt, tr)
 
 
-def test_fast_omega_equals_the_reference_on_a_dense_random_sweep():
-    """20 000 queries over the benchmark's ranges and beyond, every tilt cap: the same answers."""
+@pytest.mark.parametrize("n", [pytest.param(20000, marks=pytest.mark.slow), 2000])
+def test_fast_omega_equals_the_reference_on_a_dense_random_sweep(n):
+    """20 000 queries (2 000 in the default run) over the benchmark's ranges and beyond, every tilt cap: the same
+    answers."""
     rng = np.random.default_rng(7)
-    n = 20000
     lo, hi = MAMBO.thrust_ratio_range
     q = np.column_stack([rng.uniform(0, 20, n), rng.uniform(0, 2.5, n), rng.uniform(0, 2, n),
                          rng.uniform(lo - 0.05, hi + 0.05, n), rng.uniform(0.0, 0.5, n)])

@@ -57,6 +57,7 @@ def test_the_page_names_every_key_of_the_vehicle_file():
         assert word in text, word
 
 
+@pytest.mark.slow  # campaign-grade: make test-all
 def test_the_walkthrough_runs_as_written(tmp_path):
     commands = walkthrough_commands(PAGE.read_text())
     assert [c.split()[1] for c in commands if c.startswith("contract-guard")] == [
