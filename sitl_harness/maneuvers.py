@@ -194,6 +194,22 @@ def speed_step_reference(name: str, v_from: float, v_to: float, a_max: float, co
     return zoh_reference(name, (0.0, v_from, 0.0, 0.0), np.array([[a, 0.0]]), t_acc, coast_s)
 
 
+def hold_reference(v: float, a: float, j: float, coast_s: float = COAST_S) -> Reference:
+    """``hold``: the autopilot's own braking stop along +x from `v` (its Hold under the governor): the jerk-limited
+    S-curve of `contracts.stop.braking_distance` (decel ≤ a, jerk ≤ j), as ZOH accelerations on DT_NAV that meet
+    its speed at every node and end at rest, then `coast_s` at rest."""
+    a_p = min(a, math.sqrt(j * v))  # the peak deceleration (a, or where the ramps meet)
+    t_end = v / a_p + a_p / j
+    n = max(int(math.ceil(t_end / DT_NAV)), 1)
+    fine = np.linspace(0.0, n * DT_NAV, 64 * n + 1)
+    decel = np.clip(np.minimum(j * fine, j * (t_end - fine)), 0.0, a_p)
+    speed = v - np.concatenate([[0.0], np.cumsum(0.5 * (decel[1:] + decel[:-1]) * np.diff(fine))])
+    nodes = np.maximum(speed[::64], 0.0)
+    nodes[-1] = 0.0
+    w = np.column_stack([np.diff(nodes) / DT_NAV, np.zeros(n)])
+    return zoh_reference("hold", (0.0, v, 0.0, 0.0), w, DT_NAV, coast_s)
+
+
 @dataclass(frozen=True)
 class OnlineReference:
     """``online@ρ`` (Figure 12 over what offboard mode flies): the online planner's first plan around

@@ -1,0 +1,55 @@
+"""Issue 28 item 2: the governor's E_tr_pred flown on what a governed vehicle flies (cruise, speed steps, the
+autopilot's own braking stop), never a swerve — on a small grid."""
+
+import math
+
+import numpy as np
+import pytest
+
+from contracts.stop import braking_decel, braking_distance
+from contracts.table import load_for_vehicle
+from contracts.vehicle import load_vehicle
+from sitl_harness import etr_sweep as es
+from sitl_harness.maneuvers import DT_NAV, hold_reference
+
+MAMBO = load_vehicle("mambo")
+
+
+@pytest.mark.parametrize("v", [0.5, 2.0, 6.0])
+def test_hold_is_the_autopilots_jerk_limited_stop(v):
+    a, j = 3.0, 4.0
+    ref = hold_reference(v, a, j)
+    assert np.all(ref.v[-1] == 0.0) and ref.p[-1, 1] == 0.0
+    assert ref.p[-1, 0] == pytest.approx(braking_distance(v, a, j), rel=2e-3)
+    assert np.max(-ref.a[:, 0]) <= a * (1 + 1e-9) and np.all(ref.a[:, 0] <= 1e-12)
+    assert np.max(np.abs(np.diff(ref.a[:, 0]))) <= 2 * j * DT_NAV * 1.01  # no step (ZOH of a jerk-limited stop)
+
+
+@pytest.fixture(scope="module")
+def governor_cells():
+    grid = es.EtrGrid(v=np.array([2.0, 4.0]), tilt=np.radians([25.0]), thrust_ratio=np.array([1.0]), seeds=(0,))
+    return grid, es.governor_surface(MAMBO, grid, workers=1, progress=False)
+
+
+def test_the_governor_surface_flies_no_swerve_and_keeps_the_margin(governor_cells):
+    grid, (e, per, repairs) = governor_cells
+    assert set(per) == set(es.GOVERNOR_MANEUVERS) and "avoid" not in per and "online" not in per
+    worst = np.max(np.stack(list(per.values())), axis=0)
+    assert np.all(worst > 0) and np.all(np.isfinite(e))
+    assert np.all(e >= worst * (1 + es.MARGIN_REL) + es.MARGIN_ABS - 1e-12)
+    assert np.all(np.diff(e[:, 0, 0]) >= 0) and repairs >= 0
+
+
+def test_the_governor_surface_is_below_the_offboard_one(governor_cells):
+    """What the governor buys: the shipped surface bounds swerves a governed vehicle never flies."""
+    grid, (e, _, _) = governor_cells
+    t = load_for_vehicle(MAMBO)
+    for i, v in enumerate(grid.v):
+        assert e[i, 0, 0] < t.e_tr_pred(float(v), math.radians(25.0), 1.0)
+
+
+def test_the_governors_stop_brakes_at_the_autopilots_deceleration():
+    refs = es.cell_references(None, MAMBO, 3.0, math.radians(25.0), 1.0, (0, 0), governor=True)
+    assert [r.name for r in refs] == list(es.GOVERNOR_MANEUVERS)
+    hold = refs[-1]
+    assert np.max(-hold.a[:, 0]) == pytest.approx(braking_decel(MAMBO, 1.0, math.radians(25.0)), rel=1e-6)
