@@ -129,12 +129,22 @@ def approach_stopping_distance(v: float, a: float, j: float, t_r: float) -> floa
     return v * t_r + braking_distance(v, a, j) + hold_start_gain(v, worst_hold_accel(v, a, j, t_r), j, t_r)
 
 
+def measured_stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
+    """A stop bound for a *measured* speed v (the supervisor's obstacle trigger), not a limit kept throughout: the
+    dead time at v and the worst Hold-start acceleration a_up = min(a, √(2jv)) at v taken separately (the stop
+    contract before issue 28 item 3). A vehicle measured at v may still be speeding up, which the joint bound's
+    history (speed ≤ v throughout) does not cover, so the trigger keeps this, the slower answer."""
+    v = max(v, 0.0)
+    a_up = min(a, math.sqrt(2.0 * j * v))
+    return v * t_r + braking_distance_from(v - a_up * a_up / (2.0 * j), a_up, a, j)
+
+
 def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float:
     """Largest v with approach_stopping_distance(v) ≤ d_avail (0 where d_avail ≤ 0): Γ = V_max − V_safe ≤ 0 of the
     paper's eq. (6) for the stop contract. Where the worst Hold starts at a0 = a with the dead time on the rising
     arc and the stop reaches a (v ≥ (a + j·t_r)²/(2j), v ≥ a²/j, 2a ≥ j·t_r) the distance is
     v²/(2a) + (t_r + 3a/(2j))·v − a³/(6j²) − a²t_r/(2j) − a·t_r²/2 + j·t_r³/6: `stop_speed` with dead time
-    t_r + a/j. Elsewhere a bisection below the plain `stop_speed` (which the approach can only shorten)."""
+    t_r + a/j. Elsewhere a bracketed root search below the plain `stop_speed` (the approach only shortens it)."""
     if not d_avail > 0.0:
         return 0.0
     jt = j * t_r
@@ -145,15 +155,23 @@ def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float
     hi = stop_speed(d_avail, a, j, t_r)
     if not hi > 0.0 or hi == math.inf:
         return hi if hi == math.inf else 0.0
-    lo = 0.0
-    while True:
-        mid = 0.5 * (lo + hi)
-        if mid in (lo, hi):
+    f_lo, f_hi = -d_avail, approach_stopping_distance(hi, a, j, t_r) - d_avail
+    if f_hi <= 0.0:  # no gain from the approach (hi keeps stop_speed's round-off margin)
+        return hi
+    lo, side = 0.0, 0
+    for _ in range(200):  # Illinois regula falsi: lo always within d_avail
+        if hi - lo <= 1e-12 * hi:
             break
-        if approach_stopping_distance(mid, a, j, t_r) <= d_avail:
-            lo = mid
+        mid = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        if not lo < mid < hi:
+            mid = 0.5 * (lo + hi)
+        f = approach_stopping_distance(mid, a, j, t_r) - d_avail
+        if f <= 0.0:
+            lo, f_lo = mid, f
+            f_hi, side = (0.5 * f_hi if side == -1 else f_hi), -1
         else:
-            hi = mid
+            hi, f_hi = mid, f
+            f_lo, side = (0.5 * f_lo if side == 1 else f_lo), 1
     return lo * (1.0 - 1e-9)
 
 

@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from contracts.stop import approach_stop_speed, approach_stopping_distance, stopping_distance, worst_hold_accel
+from contracts.stop import (approach_stop_speed, approach_stopping_distance, measured_stopping_distance, stopping_distance,
+                            worst_hold_accel)
 
 DT = 1e-3
 
@@ -93,6 +94,8 @@ def test_the_joint_bound_is_shorter_than_the_separate_one_and_longer_than_the_pl
         a_up = min(a, math.sqrt(2 * j * v))
         separate = stopping_distance(v, a, j, t_r) + v * a_up / j - a_up**3 / (6 * j * j)
         assert stopping_distance(v, a, j, t_r) < approach_stopping_distance(v, a, j, t_r) < separate
+        # the supervisor's trigger on a measured speed keeps the separate (slower) bound
+        assert measured_stopping_distance(v, a, j, t_r) == pytest.approx(separate, rel=1e-12)
 
 
 @pytest.mark.parametrize("d", [1e-3, 0.05, 0.4, 1.5, 3.0, 9.0, 40.0])
