@@ -14,6 +14,11 @@ histories and Hold times are sampled, so the limit can only come out high (the r
 Ratios: `v_max` (Ω of the stop contract: e_tr = max(E_tr, E_tr_pred(V_max))) and `v_stop` (the stop contract at
 the grid's E_tr, no E_tr_pred) over the limit. Goal: v_max ≥ 0.95 of the limit at every point, never above 1.
 To compare with the code before a change, run this file with PYTHONPATH pointing at an export of the old tree.
+
+`--governor-etr`: also `v_max_governor_etr`, Ω with E_tr_pred replaced at the vehicle's tilt limit (the tilt the
+stop contract brakes at) by the governor's surface (issue 28 item 2: `sitl_harness.etr_sweep.governor_surface`,
+cruise, speed steps and the autopilot's Hold, the build's seeds and margin) flown here on the shipped speed and
+thrust axes — what a table carrying that surface would answer (no shipped table carries it yet).
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ import numpy as np
 sys.path.insert(0, os.environ.get("PYTHONPATH", "").split(os.pathsep)[0] or str(Path(__file__).resolve().parents[1]))
 
 from contracts.stop import braking_decel, braking_distance_from, stop_dead_time  # noqa: E402
-from contracts.table import load_for_vehicle  # noqa: E402
+from contracts.table import ContractTable, Slot, load_for_vehicle  # noqa: E402
 
 D_OD = np.linspace(3.0, 12.0, 10)
 R_OBST = (0.5, 1.0, 1.5, 2.0)
@@ -87,9 +92,23 @@ def _stats(x):
     return {"median": round(float(np.median(x)), 4), "min": round(float(np.min(x)), 4), "max": round(float(np.max(x)), 4)}
 
 
-def tightness(name):
+def governor_table(t):
+    """The table's stop contract with the governor's E_tr_pred flown at the vehicle's tilt limit (other tilts kept)."""
+    from sitl_harness.etr_sweep import BUILD_SEEDS, EtrGrid, governor_surface
+
+    v, tilts, trs = t.e_pred.axes
+    col = int(np.searchsorted(tilts, t.vehicle.tilt_max - 1e-9))
+    e, _, _ = governor_surface(t.vehicle, EtrGrid(v=v, tilt=tilts[col:col + 1], thrust_ratio=trs, seeds=BUILD_SEEDS),
+                               workers=1, progress=False)
+    values = t.e_pred.values.copy()
+    values[:, col, :] = e[:, 0, :]
+    return ContractTable(t.meta, t.vehicle, None, Slot(t.e_pred.axes, values), t.path)
+
+
+def tightness(name, governor_etr=False):
     t = load_for_vehicle(name)
     veh, t0 = t.vehicle, time.perf_counter()
+    tg = governor_table(t) if governor_etr else None
     j, t_r, cache, rows = veh.braking.jerk_max_m_s3, stop_dead_time(veh), {}, []
     for d_od in D_OD:
         for e_tr in E_TR:
@@ -101,20 +120,24 @@ def tightness(name):
                     cache[key] = limit(float(d_od - e_tr) - veh.r_body_m, a, j, t_r, max(v_stop[0], 0.1))
                 for r, vs in zip(R_OBST, v_stop):
                     om = t.omega(float(d_od), r, float(e_tr), thrust, "stop")
-                    rows.append((om.v_max / cache[key], vs / cache[key]))
+                    og = tg.omega(float(d_od), r, float(e_tr), thrust, "stop").v_max if tg is not None else np.nan
+                    rows.append((om.v_max / cache[key], vs / cache[key], og / cache[key]))
     r = np.array(rows)
-    return {"vehicle": name, "points": len(rows), "v_max/limit": _stats(r[:, 0]), "v_stop/limit": _stats(r[:, 1]),
-            "v_max_below_0.95": int(np.sum(r[:, 0] < 0.95)), "above_1": int(np.sum(r > 1.0)),
-            "wall_s": round(time.perf_counter() - t0, 1)}
+    out = {"vehicle": name, "points": len(rows), "v_max/limit": _stats(r[:, 0]), "v_stop/limit": _stats(r[:, 1]),
+           "v_max_below_0.95": int(np.sum(r[:, 0] < 0.95)), "above_1": int(np.sum(r[:, :2] > 1.0))}
+    if tg is not None:
+        out |= {"v_max_governor_etr/limit": _stats(r[:, 2]), "v_max_governor_etr_below_0.95": int(np.sum(r[:, 2] < 0.95))}
+    return out | {"wall_s": round(time.perf_counter() - t0, 1)}
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--vehicles", default="mambo,x500")
+    ap.add_argument("--governor-etr", action="store_true", help="also V_max with the governor's E_tr_pred (flown here)")
     args = ap.parse_args(argv)
     load = os.getloadavg()[0]
     out = {"benchmark": "governor_tightness", "goal": {"min": 0.95, "max": 1.0},
-           "vehicles": [tightness(v) for v in args.vehicles.split(",")], "loadavg_1min": [load, os.getloadavg()[0]]}
+           "vehicles": [tightness(v, args.governor_etr) for v in args.vehicles.split(",")], "loadavg_1min": [load, os.getloadavg()[0]]}
     print(json.dumps(out))
 
 

@@ -68,7 +68,7 @@ from contracts.trajectories import limiting_trajectory, pass_branches
 from contracts.vehicle import Vehicle, load_vehicle
 
 from .maneuvers import (COAST_S, DT_NAV, SETTLE_S, WINDOW_S, Z_REF, OnlineReference, Reference, cruise_reference,
-                        hold_reference, speed_step_reference, worst_contour_error, zoh_reference)
+                        smooth_step_reference, speed_step_reference, worst_contour_error, zoh_reference)
 
 MARGIN_REL = 0.25  # stated margin: E_tr_pred = worst·(1 + MARGIN_REL) + MARGIN_ABS
 MARGIN_ABS = 0.02  # [m]
@@ -78,8 +78,9 @@ HELD_OUT_RHOS = (0.05, 0.15, 0.27, 0.42, 0.6, 0.85)  # … and only to validate 
 BUILD_SEEDS = (0, 1)
 HELD_OUT_SEEDS = (101, 102)
 MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online", "failsafe", "drop")
-# what a governed vehicle flies (issue 28 item 2): the autopilot's own mission, straight, its speed steps and its Hold
-GOVERNOR_MANEUVERS = ("cruise", "step_down", "step_up", "hold")
+# what a governed vehicle flies (issue 28 item 2): the autopilot's own mission, straight, its speed steps and its Hold,
+# each through its velocity smoothing (MPC_ACC_HOR / MPC_JERK_AUTO: the vehicle file's braking settings)
+GOVERNOR_MANEUVERS = ("cruise", "smooth_up", "hold")
 ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured state, warm-started
 FAILSAFE_FRAC = 0.5  # ``failsafe@ρ``: the fail-safe stop starts at this fraction of the first plan
 
@@ -121,14 +122,17 @@ def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_
                     avoid_index: tuple[int, int], rhos=BUILD_RHOS,
                     skipped: list | None = None, governor: bool = False) -> list[Reference | OnlineReference]:
     """The named manoeuvre set of one cell (module docstring); the names of ``online@ρ`` geometries
-    without a verified plan are appended to `skipped`. `governor`: `GOVERNOR_MANEUVERS` only — no swerve,
-    and the autopilot's Hold (``hold``: its jerk-limited stop at `braking_decel` and its jerk)."""
+    without a verified plan are appended to `skipped`. `governor`: `GOVERNOR_MANEUVERS` only — no swerve, and
+    the autopilot's own speed steps v/2 → v (``smooth_up``) and Hold v → 0 (``hold``), jerk-limited at
+    `braking_decel` and its jerk, as its velocity smoothing flies them."""
     a_h = horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
     a_top = horizontal_accel_limit(tilt, vehicle.t_max(vehicle.thrust_ratio_range[1]), vehicle.mass_kg)
+    if governor:
+        a, j = braking_decel(vehicle, thrust_ratio, tilt), vehicle.braking.jerk_max_m_s3
+        return [cruise_reference(v), smooth_step_reference("smooth_up", 0.5 * v, v, a, j),
+                smooth_step_reference("hold", v, 0.0, a, j)]
     refs = [cruise_reference(v), speed_step_reference("step_down", v, 0.0, a_h),
             speed_step_reference("step_up", 0.5 * v, v, a_h)]
-    if governor:
-        return refs + [hold_reference(v, braking_decel(vehicle, thrust_ratio, tilt), vehicle.braking.jerk_max_m_s3)]
     if table_path is not None:
         grid_rho, passes = pass_branches(table_path, *avoid_index)
         for rho in rhos:

@@ -10,7 +10,7 @@ from contracts.stop import braking_decel, braking_distance
 from contracts.table import load_for_vehicle
 from contracts.vehicle import load_vehicle
 from sitl_harness import etr_sweep as es
-from sitl_harness.maneuvers import DT_NAV, hold_reference
+from sitl_harness.maneuvers import DT_NAV, smooth_step_reference
 
 MAMBO = load_vehicle("mambo")
 
@@ -18,11 +18,13 @@ MAMBO = load_vehicle("mambo")
 @pytest.mark.parametrize("v", [0.5, 2.0, 6.0])
 def test_hold_is_the_autopilots_jerk_limited_stop(v):
     a, j = 3.0, 4.0
-    ref = hold_reference(v, a, j)
+    ref = smooth_step_reference("hold", v, 0.0, a, j)
     assert np.all(ref.v[-1] == 0.0) and ref.p[-1, 1] == 0.0
     assert ref.p[-1, 0] == pytest.approx(braking_distance(v, a, j), rel=2e-3)
     assert np.max(-ref.a[:, 0]) <= a * (1 + 1e-9) and np.all(ref.a[:, 0] <= 1e-12)
     assert np.max(np.abs(np.diff(ref.a[:, 0]))) <= 2 * j * DT_NAV * 1.01  # no step (ZOH of a jerk-limited stop)
+    up = smooth_step_reference("smooth_up", 0.5 * v, v, a, j)
+    assert up.v[-1, 0] == pytest.approx(v) and np.min(up.a[:, 0]) >= 0.0 and np.max(up.a[:, 0]) <= a * (1 + 1e-9)
 
 
 @pytest.fixture(scope="module")
