@@ -243,7 +243,7 @@ class Supervisor:
         being flown (a Ω with no speed — D_od lost, say — has no tilt of its own), one lookup per value."""
         tilt = self._tilt_in_force if self._tilt_in_force is not None else tilt
         if self._e_pred_at is None or self._e_pred_at[:3] != (v, tilt, thrust_ratio):
-            self._e_pred_at = (v, tilt, thrust_ratio, self.table.e_tr_pred(v, tilt, thrust_ratio))
+            self._e_pred_at = (v, tilt, thrust_ratio, self.table.e_tr_pred(v, tilt, thrust_ratio, self.contract))
         return self._e_pred_at[3]
 
     def omega(self, i: Inputs) -> Omega:

@@ -299,6 +299,32 @@ def governor_surface(vehicle: Vehicle, grid: EtrGrid, workers: int = 2, schedule
     return e, per, repairs
 
 
+def build_governor_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: int = 2,
+                       scheduler: str | None = None, progress: bool = True, out=None) -> dict:
+    """Fly `governor_surface` on `grid` (default: the E_tr grid's) and write it as the table's `e_tr_pred_stop` slot
+    (the stop contract's E_tr_pred), keeping its other slots exactly; returns a summary."""
+    t0 = time.perf_counter()
+    veh = vehicle if isinstance(vehicle, Vehicle) else (load_vehicle(vehicle) if vehicle else None)
+    table = verify(table_path, veh)
+    veh = table.vehicle
+    grid = as_grid(grid, veh, default_etr_grid, etr_grid_from_dict, "E_tr grid file")
+    e, per, repairs = governor_surface(veh, grid, workers, scheduler, progress)
+    info = {"method": "controller contract (Figure 12) flown on what a governed vehicle flies: "
+                      + ", ".join(GOVERNOR_MANEUVERS) + " (speed steps and Hold jerk-limited at braking_decel and "
+                      "the vehicle's braking jerk, as the autopilot's velocity smoothing flies them); no swerve",
+            "margin": {"relative": MARGIN_REL, "absolute_m": MARGIN_ABS,
+                       "rule": "E_tr_pred = worst * (1 + relative) + absolute"},
+            "grid": grid.describe(), "monotone_repairs_up": int(repairs),
+            "build_wall_s": round(time.perf_counter() - t0, 1)}
+    method = dict(table.meta.get("method") or {}) | {"e_tr_pred_stop": "sitl_harness.etr_sweep.build_governor_etr"}
+    dest = Path(out) if out is not None else Path(table_path)
+    write_table(dest, veh, tilt_model=table.tilt_model, avoid=table.avoid, e_tr_pred=table.e_pred, method=method,
+                e_tr_pred_stop=Slot((grid.v, grid.tilt, grid.thrust_ratio), e, info))
+    verify(dest, veh)
+    return {"path": str(dest), "vehicle": veh.name, "cells": int(e.size), "monotone_repairs_up": int(repairs),
+            "wall_s": round(time.perf_counter() - t0, 1)}
+
+
 def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: int = 2, scheduler: str | None = None,
               progress: bool = True, out=None, resume: bool = False, checkpoint: bool = True) -> dict:
     """Fly the sweep, add the margin, repair upward and write E_tr_pred into the table (in place, or
@@ -346,7 +372,8 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
     method = dict(table.meta.get("method") or {})
     method["e_tr_pred"] = "sitl_harness.etr_sweep.build_etr"
     write_table(dest, veh, tilt_model=table.tilt_model, avoid=table.avoid,
-                e_tr_pred=Slot((grid.v, grid.tilt, grid.thrust_ratio), e_rep, info), method=method)
+                e_tr_pred=Slot((grid.v, grid.tilt, grid.thrust_ratio), e_rep, info), method=method,
+                e_tr_pred_stop=table.e_pred_stop)
     verify(dest, veh)
     if ckpt is not None:
         ckpt.remove()

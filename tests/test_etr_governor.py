@@ -55,3 +55,25 @@ def test_the_governors_stop_brakes_at_the_autopilots_deceleration():
     assert [r.name for r in refs] == list(es.GOVERNOR_MANEUVERS)
     hold = refs[-1]
     assert np.max(-hold.a[:, 0]) == pytest.approx(braking_decel(MAMBO, 1.0, math.radians(25.0)), rel=1e-6)
+
+
+def test_a_table_carrying_the_governor_surface_answers_the_stop_contract_with_it(tmp_path):
+    """`build_governor_etr` writes the `e_tr_pred_stop` slot next to the others (kept exactly); the stop contract's
+    Ω and Γ then use it, the avoid contract keeps the general surface, and V_max never exceeds v_stop."""
+    from contracts.table import shipped_table, verify
+
+    out = tmp_path / "mambo_gov.npz"
+    grid = {"v_max": [1.0, 2.0, 3.0, 4.0, 5.0], "tilt_deg": [25.0], "thrust_ratio": [0.6, 1.0], "seeds": [0]}
+    es.build_governor_etr(shipped_table("mambo"), MAMBO, grid, workers=1, progress=False, out=out)
+    stock, gov = load_for_vehicle(MAMBO), verify(out, MAMBO)
+    assert "e_tr_pred_stop" in gov.available and "e_tr_pred_stop" not in stock.available
+    assert np.array_equal(gov.e_pred.values, stock.e_pred.values) and np.array_equal(gov.avoid.values, stock.avoid.values)
+    tilt = math.radians(25.0)
+    for d_od in (4.0, 8.0):
+        s, g = stock.omega(d_od, 1.0, 0.1, 1.0, "stop"), gov.omega(d_od, 1.0, 0.1, 1.0, "stop")
+        assert s.v_max <= g.v_max <= gov.v_stop(d_od, 1.0, g.e_tr, 1.0) + 1e-12
+        assert g.e_tr == pytest.approx(max(0.1, gov.e_tr_pred(g.v_max, tilt, 1.0, "stop")))
+        assert gov.gamma(g.v_max, d_od, 1.0, 0.1, 1.0, contract="stop") <= 1e-12
+        assert gov.omega(d_od, 1.0, 0.1, 1.0, "avoid").v_max == stock.omega(d_od, 1.0, 0.1, 1.0, "avoid").v_max
+    assert gov.e_tr_pred(2.0, tilt, 1.0, "stop") < gov.e_tr_pred(2.0, tilt, 1.0) == stock.e_tr_pred(2.0, tilt, 1.0)
+    assert gov.e_tr_pred(5.5, tilt, 1.0, "stop") == math.inf  # above the governor grid: no bound
