@@ -24,7 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from contracts.online_planner import Disc, offboard_cap
-from contracts.stop import approach_stopping_distance, braking_decel, stop_dead_time
+from contracts.stop import braking_decel, measured_stopping_distance, stop_dead_time
 from contracts.table import ContractTable, Omega
 
 from .estimators import DodEstimate, SlidingMax
@@ -240,14 +240,14 @@ class Supervisor:
     def _stop_distance(self, v: float, thrust_ratio: float) -> float:
         veh = self.table.vehicle
         a = self._braking_decel(min(thrust_ratio, veh.thrust_ratio_range[1]))
-        return approach_stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
+        return measured_stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
 
     def e_tr_pred_flown(self, v: float, tilt: float, thrust_ratio: float) -> float:
         """E_tr_pred (Figure 12) of the controller contract at speed v, at the tilt of the operating point
         being flown (a Ω with no speed — D_od lost, say — has no tilt of its own), one lookup per value."""
         tilt = self._tilt_in_force if self._tilt_in_force is not None else tilt
         if self._e_pred_at is None or self._e_pred_at[:3] != (v, tilt, thrust_ratio):
-            self._e_pred_at = (v, tilt, thrust_ratio, self.table.e_tr_pred(v, tilt, thrust_ratio))
+            self._e_pred_at = (v, tilt, thrust_ratio, self.table.e_tr_pred(v, tilt, thrust_ratio, self.contract))
         return self._e_pred_at[3]
 
     def omega(self, i: Inputs) -> Omega:

@@ -85,70 +85,93 @@ def stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float:
     return v * (1.0 - 1e-9)  # round-off must never make the answer optimistic
 
 
+def hold_start_gain(v: float, a0: float, j: float, t_r: float) -> float:
+    """How much longer than `stopping_distance(v)` the stop is when the autopilot's approach to the limit v reaches
+    the end of the dead time (the Hold's start) at acceleration a0 ≥ 0, jointly over dead time and approach state.
+
+    The approach never overshoots v, so the Hold starts at speed ≤ v − a0²/(2j), whence the stop is
+    `braking_distance_from` = braking_distance(v) + v·a0/j − a0³/(6j²). Over the dead time before it the speed
+    was at most U(s) (s back from the Hold's start: the speed rising back in time at jerk j from −a0, turning at
+    jerk −j so that it never exceeds v: U + U′²/(2j) ≤ v), so it flew v·t_r less ∫₀^t_r (v − U) — the deficit
+    v − U = a0²/(2j) + a0·s − j·s²/2 to s = 2a0/j, (3a0 − j·s)²/(2j) to 3a0/j, 0 after. Bounding the dead time
+    by v and the state by the worst a0 separately (the old `approach_stopping_distance`) forgot this deficit."""
+    ramp = v * a0 / j - a0**3 / (6.0 * j * j)
+    jt = j * t_r
+    if 2.0 * a0 >= jt:  # the whole dead time on the rising arc
+        short = a0 * a0 * t_r / (2.0 * j) + a0 * t_r * t_r / 2.0 - jt * t_r * t_r / 6.0
+    elif 3.0 * a0 >= jt:
+        short = (11.0 * a0**3 - (3.0 * a0 - jt) ** 3) / (6.0 * j * j)
+    else:
+        short = 11.0 * a0**3 / (6.0 * j * j)
+    return ramp - short
+
+
+def worst_hold_accel(v: float, a: float, j: float, t_r: float) -> float:
+    """The a0 ∈ [0, min(a, √(2jv))] maximising `hold_start_gain` (concave in a0 and C¹, so its stationary point
+    clipped): √(2jv) − j·t_r where the dead time lies on the rising arc (v ≥ 9j·t_r²/8), √(jv/6) where it
+    covers the whole dip (v ≤ 2j·t_r²/3), the smaller root of 15a0² − 18j·t_r·a0 + 3j²t_r² + 2jv between."""
+    jt = j * t_r
+    if v >= 9.0 * jt * t_r / 8.0:
+        a0 = math.sqrt(2.0 * j * v) - jt
+    elif v >= 2.0 * jt * t_r / 3.0:
+        a0 = (9.0 * jt - math.sqrt(max(36.0 * jt * jt - 30.0 * v * j, 0.0))) / 15.0
+    else:
+        a0 = math.sqrt(j * v / 6.0)
+    return min(max(a0, 0.0), a, math.sqrt(2.0 * j * v))
+
+
 def approach_stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
-    """The longest stop from any state of the autopilot's jerk-limited approach to speed v (acceleration ≤ a
-    along the velocity, speed + a0²/(2j) ≤ v, as its velocity smoothing keeps it) when Hold comes: the dead
-    time at ≤ v, then `braking_distance_from`. Ramping a0 out costs v·a0/j − a0³/(6j²) beyond the stop from
-    v, largest at a0 = min(a, √(2jv)): the stop contract holds from a state with acceleration."""
+    """The longest stop when Hold comes at any moment of the autopilot's jerk-limited approach to speed v
+    (speed ≤ v throughout, acceleration ≤ a, jerk ≤ j — its velocity smoothing), one bound over the dead time
+    and the approach state jointly (issue 28 item 3; DESIGN.md §1 stop contract): the dead time flown on the
+    approach, then the stop from the state it reached (`hold_start_gain` at `worst_hold_accel`)."""
+    v = max(v, 0.0)
+    return v * t_r + braking_distance(v, a, j) + hold_start_gain(v, worst_hold_accel(v, a, j, t_r), j, t_r)
+
+
+def measured_stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
+    """A stop bound for a *measured* speed v (the supervisor's obstacle trigger), not a limit kept throughout: the
+    dead time at v and the worst Hold-start acceleration a_up = min(a, √(2jv)) at v taken separately (the stop
+    contract before issue 28 item 3). A vehicle measured at v may still be speeding up, which the joint bound's
+    history (speed ≤ v throughout) does not cover, so the trigger keeps this, the slower answer."""
     v = max(v, 0.0)
     a_up = min(a, math.sqrt(2.0 * j * v))
-    return v * t_r + v * a_up / j - a_up**3 / (6.0 * j * j) + braking_distance(v, a, j)
-
-
-KAPPA = 1.0 + 2.0 * math.sqrt(2.0) / 3.0  # below the knee: approach_stopping_distance = t_r·v + KAPPA·v^{3/2}/√j
-EVAL_TOL = 5e-15  # bound on the relative round-off of approach_stopping_distance (≈ 15 roundings, 3× spared)
-ZONE = 6e-14  # relative half-width about the closed-form root inside which the bisection's steps are evaluated
-
-
-def _approach_root(d_avail: float, j: float, t_r: float) -> float:
-    """The v with t_r·v + KAPPA·v^{3/2}/√j = d_avail (the approach stopping distance where a_up = √(2jv) < a:
-    v·a_up/j − a_up³/(6j²) + v·√(v/j) = KAPPA·v^{3/2}/√j): with s = √v, s³ + (t_r√j/KAPPA)·s² − d√j/KAPPA = 0,
-    Cardano (`_positive_root_cubic`), then Newton steps (Cardano cancels where t_r is large and d small)."""
-    sj = math.sqrt(j)
-    b, k = t_r * sj / KAPPA, d_avail * sj / KAPPA
-    s_up = min(math.sqrt(k / b) if b > 0.0 else math.inf, math.cbrt(k))  # b·s² ≤ k and s³ ≤ k
-    s = _positive_root_cubic(b, k)
-    if not 0.0 < s <= s_up:  # q² or the cubes under- or overflowed
-        s = s_up
-    if not 0.0 < s < math.inf:
-        return math.nan  # degenerate (k underflowed, t_r infinite …): the caller bisects as before
-    for _ in range(40):  # the cubic is convex for s > 0: from above, Newton falls monotonically
-        step = ((s + b) * s * s - k) / (s * (3.0 * s + 2.0 * b))
-        s -= step
-        if not abs(step) > 1e-16 * s:
-            break
-    return s * s
+    return v * t_r + braking_distance_from(v - a_up * a_up / (2.0 * j), a_up, a, j)
 
 
 def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float:
-    """Largest v with approach_stopping_distance(v) ≤ d_avail (0 where d_avail ≤ 0). Where the approach
-    reaches a (v ≥ a²/(2j)) it is `stop_speed` with dead time t_r + a/j and d_avail + a³/(6j²).
-
-    Below, the 60-step bisection on [0, a²/(2j)] it always was, to the bit, but its steps are decided by the
-    closed-form root v_c (`_approach_root`) wherever they fall outside v_c·(1 ± ZONE): the distance is evaluated
-    only inside, and at the zone's ends, which must bracket the root by 3·EVAL_TOL (else every step is evaluated,
-    as before): the distance rises with v and is computed to within EVAL_TOL, so a step outside the zone would
-    have been decided the same way. The bisection stops where its bracket no longer moves."""
+    """Largest v with approach_stopping_distance(v) ≤ d_avail (0 where d_avail ≤ 0): Γ = V_max − V_safe ≤ 0 of the
+    paper's eq. (6) for the stop contract. Where the worst Hold starts at a0 = a with the dead time on the rising
+    arc and the stop reaches a (v ≥ (a + j·t_r)²/(2j), v ≥ a²/j, 2a ≥ j·t_r) the distance is
+    v²/(2a) + (t_r + 3a/(2j))·v − a³/(6j²) − a²t_r/(2j) − a·t_r²/2 + j·t_r³/6: `stop_speed` with dead time
+    t_r + a/j. Elsewhere a bracketed root search below the plain `stop_speed` (the approach only shortens it)."""
     if not d_avail > 0.0:
         return 0.0
-    v = stop_speed(d_avail + a**3 / (6.0 * j * j), a, j, t_r + a / j)
-    top = a * a / (2.0 * j)
-    if v >= top:
+    jt = j * t_r
+    v = stop_speed(d_avail + a**3 / (6.0 * j * j) + a * a * t_r / (2.0 * j) + a * t_r * t_r / 2.0 - jt * t_r * t_r / 6.0,
+                   a, j, t_r + a / j)
+    if 2.0 * a >= jt and v >= max((a + jt) ** 2 / (2.0 * j), a * a / j):
         return v
-    v_c = _approach_root(d_avail, j, t_r) if j > 0.0 else math.nan
-    x_lo, x_hi = v_c * (1.0 - ZONE), v_c * (1.0 + ZONE)
-    if not (approach_stopping_distance(x_lo, a, j, t_r) * (1.0 + 3.0 * EVAL_TOL) <= d_avail
-            < approach_stopping_distance(x_hi, a, j, t_r) * (1.0 - 3.0 * EVAL_TOL)):
-        x_lo, x_hi = -math.inf, math.inf  # no certified bracket: evaluate every step
-    lo, hi = 0.0, top
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        if mid == lo or (mid == hi and hi != top):
-            break  # the bracket no longer moves (lo and hi were decided already)
-        if mid < x_lo or (mid <= x_hi and approach_stopping_distance(mid, a, j, t_r) <= d_avail):
-            lo = mid
+    hi = stop_speed(d_avail, a, j, t_r)
+    if not hi > 0.0 or hi == math.inf:
+        return hi if hi == math.inf else 0.0
+    f_lo, f_hi = -d_avail, approach_stopping_distance(hi, a, j, t_r) - d_avail
+    if f_hi <= 0.0:  # no gain from the approach (hi keeps stop_speed's round-off margin)
+        return hi
+    lo, side = 0.0, 0
+    for _ in range(200):  # Illinois regula falsi: lo always within d_avail
+        if hi - lo <= 1e-12 * hi:
+            break
+        mid = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        if not lo < mid < hi:
+            mid = 0.5 * (lo + hi)
+        f = approach_stopping_distance(mid, a, j, t_r) - d_avail
+        if f <= 0.0:
+            lo, f_lo = mid, f
+            f_hi, side = (0.5 * f_hi if side == -1 else f_hi), -1
         else:
-            hi = mid
+            hi, f_hi = mid, f
+            f_lo, side = (0.5 * f_lo if side == 1 else f_lo), 1
     return lo * (1.0 - 1e-9)
 
 

@@ -56,6 +56,8 @@ LAW_MARGIN = 1.0 - 2e-3
 SLOTS = {
     "avoid": ("avoid_f", ("avoid_rho", "avoid_tilt", "avoid_thrust_ratio"), (-1, +1, +1), "down"),
     "e_tr_pred": ("etr_e", ("etr_v", "etr_tilt", "etr_thrust_ratio"), (+1, +1, -1), "up"),
+    # the governor's (issue 28 item 2): flown on what a governed vehicle flies, no swerve; the stop contract's if present
+    "e_tr_pred_stop": ("etrs_e", ("etrs_v", "etrs_tilt", "etrs_thrust_ratio"), (+1, +1, -1), "up"),
 }
 AXIS_INFO = {
     "avoid": [
@@ -69,6 +71,7 @@ AXIS_INFO = {
         {"name": "thrust_ratio", "unit": "1", "effect": "helps"},
     ],
 }
+AXIS_INFO["e_tr_pred_stop"] = AXIS_INFO["e_tr_pred"]
 
 
 @dataclass(frozen=True)
@@ -101,6 +104,7 @@ def write_table(
     avoid: Slot | None = None,
     e_tr_pred: Slot | None = None,
     method: dict | None = None,
+    e_tr_pred_stop: Slot | None = None,
 ) -> dict:
     """Write a table; refuses slots that are not monotone (repair them first, `lookup.repair_monotone`)."""
     arrays: dict[str, np.ndarray] = {}
@@ -110,7 +114,7 @@ def write_table(
             "braking": vehicle.braking.model_dump(),
         }
     }
-    for name, slot in (("avoid", avoid), ("e_tr_pred", e_tr_pred)):
+    for name, slot in (("avoid", avoid), ("e_tr_pred", e_tr_pred), ("e_tr_pred_stop", e_tr_pred_stop)):
         if slot is None:
             contracts[name] = None
             continue
@@ -426,7 +430,7 @@ def verify(path: str | Path, vehicle: Vehicle | None = None, public_key=None) ->
         slots[name] = Slot(tuple(arrays[a] for a in anames), arrays[vname], contracts[name])
     if meta.get("tilt_model") not in ("cone", "box"):
         raise ContractError(f"table {path}: unknown tilt_model {meta.get('tilt_model')!r}")
-    table = ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path)
+    table = ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path, slots.get("e_tr_pred_stop"))
     table.signature = signature
     return table
 
@@ -487,8 +491,16 @@ THRUST_AXIS_TOL = 1e-9
 class ContractTable:
     """A verified table with the conservative lookups of DESIGN.md §2, precomputed for its vehicle."""
 
-    def __init__(self, meta: dict, vehicle: Vehicle, avoid: Slot | None, e_tr_pred: Slot | None, path=None):
+    def __init__(self, meta: dict, vehicle: Vehicle, avoid: Slot | None, e_tr_pred: Slot | None, path=None,
+                 e_tr_pred_stop: Slot | None = None):
         self.meta, self.vehicle, self.avoid, self.e_pred, self.path = meta, vehicle, avoid, e_tr_pred, path
+        # the stop contract's E_tr_pred: the governor's surface where the table has one, else the general one
+        self.e_pred_stop = e_tr_pred_stop
+        self._stop_slot = e_tr_pred_stop if e_tr_pred_stop is not None else e_tr_pred
+        if self._stop_slot is not None:
+            self._sv_l, self._st_l, self._sr_l = (a.tolist() for a in self._stop_slot.axes)
+            self._s_lists = [[self._stop_slot.values[:, i, kk].tolist() for kk in range(len(self._sr_l))]
+                             for i in range(len(self._st_l))]
         self.signature = {"signed": False, "key_id": None, "verified": False}  # set by `verify`
         self.tilt_model = meta["tilt_model"]
         v = vehicle
@@ -600,7 +612,8 @@ class ContractTable:
 
     @property
     def available(self) -> list[str]:
-        return ["stop"] + [n for n, s in (("avoid", self.avoid), ("e_tr_pred", self.e_pred)) if s is not None]
+        return ["stop"] + [n for n, s in (("avoid", self.avoid), ("e_tr_pred", self.e_pred),
+                                          ("e_tr_pred_stop", self.e_pred_stop)) if s is not None]
 
     # ---- raw conservative lookups
     def f_lookup(self, rho: float, tilt: float, thrust_ratio: float) -> float:
@@ -610,12 +623,15 @@ class ContractTable:
         i, j, k = hurts_index(self._rho, rho), helps_index(self._tilts, tilt), helps_index(self._trs, thrust_ratio)
         return 0.0 if NONE in (i, j, k) else float(self._f[i, j, k])
 
-    def e_tr_pred(self, v: float, tilt: float, thrust_ratio: float) -> float:
-        """E_tr_pred at the worst grid corner (inf where the grid has no answer; 0 if no slot)."""
-        if self.e_pred is None:
+    def e_tr_pred(self, v: float, tilt: float, thrust_ratio: float, contract: str = "avoid") -> float:
+        """E_tr_pred at the worst grid corner (inf where the grid has no answer; 0 if no slot); `contract` "stop":
+        the governor's surface where the table has one."""
+        slot = self._stop_slot if contract == "stop" else self.e_pred
+        if slot is None:
             return 0.0
-        i, j, k = hurts_index(self._ev, v), hurts_index(self._et, tilt), helps_index(self._er, thrust_ratio)
-        return math.inf if NONE in (i, j, k) else float(self.e_pred.values[i, j, k])
+        ev, et, er = slot.axes
+        i, j, k = hurts_index(ev, v), hurts_index(et, tilt), helps_index(er, thrust_ratio)
+        return math.inf if NONE in (i, j, k) else float(slot.values[i, j, k])
 
     # ---- contract speeds
     def _bad_inputs(self, d_od, r_obst, e_tr, thrust_ratio, tilt=0.0) -> str | None:
@@ -663,10 +679,12 @@ class ContractTable:
     def _stop(self, d_od: float, e_tr: float, a: float) -> float:
         return approach_stop_speed(d_od - e_tr - self._r_body, a, self.vehicle.braking.jerk_max_m_s3, self._t_dead)
 
-    def _e_list(self, tilt, thrust_ratio):
-        """E_tr_pred over the speed grid at the worst corner of (tilt, thrust), a list; None: no bound (∞)."""
-        i, kk = bisect_left(self._et_l, tilt), bisect_right(self._er_l, thrust_ratio) - 1
-        return None if i == len(self._et_l) or kk == NONE else self._e_lists[i][kk]
+    def _e_list(self, tilt, thrust_ratio, stop=False):
+        """E_tr_pred over the speed grid at the worst corner of (tilt, thrust), a list; None: no bound (∞).
+        `stop`: of the stop contract's surface (the governor's where the table has one)."""
+        et, er, lists = (self._st_l, self._sr_l, self._s_lists) if stop else (self._et_l, self._er_l, self._e_lists)
+        i, kk = bisect_left(et, tilt), bisect_right(er, thrust_ratio) - 1
+        return None if i == len(et) or kk == NONE else lists[i][kk]
 
     # ---- operating point Ω
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None) -> Omega:
@@ -743,16 +761,16 @@ class ContractTable:
     def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt) -> Omega:
         tilt = min(tilt, self._tilt_max)
         a = braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt)
-        if self.e_pred is None:
+        if self._stop_slot is None:
             v = self._stop(d_od, e_meas, a)
             v_max, e_b, v_s = v, e_meas, v
         else:
-            col = self._e_list(tilt, thrust_ratio)
+            col = self._e_list(tilt, thrust_ratio, stop=True)
             if col is None:  # no E_tr bound at this tilt or thrust: no safe speed
                 v_max, e_b, v_s = 0.0, math.inf, 0.0
             else:
                 lim = lambda j: self._stop(d_od, max(col[j], e_meas), a)  # noqa: E731
-                v_max, j, v_s = crossing_fixed_point(self._ev_l, lim)
+                v_max, j, v_s = crossing_fixed_point(self._sv_l, lim)
                 e_b = max(col[j], e_meas)
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
         return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)
@@ -760,7 +778,7 @@ class ContractTable:
     def gamma(self, v_max, d_od, r_obst, e_tr_meas, thrust_ratio, tilt=None, contract="avoid") -> float:
         """Γ = V_max − V_safe at a proposed V_max (e_tr = max(measured, E_tr_pred(V_max)))."""
         tilt = self._tilt_max if tilt is None else tilt
-        e = max(e_tr_meas, self.e_tr_pred(v_max, tilt, thrust_ratio))
+        e = max(e_tr_meas, self.e_tr_pred(v_max, tilt, thrust_ratio, contract))
         if not math.isfinite(e):
             return math.inf
         if contract == "avoid":

@@ -68,7 +68,7 @@ from contracts.trajectories import limiting_trajectory, pass_branches
 from contracts.vehicle import Vehicle, load_vehicle
 
 from .maneuvers import (COAST_S, DT_NAV, SETTLE_S, WINDOW_S, Z_REF, OnlineReference, Reference, cruise_reference,
-                        speed_step_reference, worst_contour_error, zoh_reference)
+                        smooth_step_reference, speed_step_reference, worst_contour_error, zoh_reference)
 
 MARGIN_REL = 0.25  # stated margin: E_tr_pred = worst·(1 + MARGIN_REL) + MARGIN_ABS
 MARGIN_ABS = 0.02  # [m]
@@ -78,6 +78,9 @@ HELD_OUT_RHOS = (0.05, 0.15, 0.27, 0.42, 0.6, 0.85)  # … and only to validate 
 BUILD_SEEDS = (0, 1)
 HELD_OUT_SEEDS = (101, 102)
 MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online", "failsafe", "drop")
+# what a governed vehicle flies (issue 28 item 2): the autopilot's own mission, straight, its speed steps and its Hold,
+# each through its velocity smoothing (MPC_ACC_HOR / MPC_JERK_AUTO: the vehicle file's braking settings)
+GOVERNOR_MANEUVERS = ("cruise", "smooth_up", "hold")
 ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured state, warm-started
 FAILSAFE_FRAC = 0.5  # ``failsafe@ρ``: the fail-safe stop starts at this fraction of the first plan
 
@@ -117,11 +120,17 @@ def online_reference(table_path, rho_index: int, tilt_index: int, thrust_index: 
 
 def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_ratio: float,
                     avoid_index: tuple[int, int], rhos=BUILD_RHOS,
-                    skipped: list | None = None) -> list[Reference | OnlineReference]:
+                    skipped: list | None = None, governor: bool = False) -> list[Reference | OnlineReference]:
     """The named manoeuvre set of one cell (module docstring); the names of ``online@ρ`` geometries
-    without a verified plan are appended to `skipped`."""
+    without a verified plan are appended to `skipped`. `governor`: `GOVERNOR_MANEUVERS` only — no swerve, and
+    the autopilot's own speed steps v/2 → v (``smooth_up``) and Hold v → 0 (``hold``), jerk-limited at
+    `braking_decel` and its jerk, as its velocity smoothing flies them."""
     a_h = horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
     a_top = horizontal_accel_limit(tilt, vehicle.t_max(vehicle.thrust_ratio_range[1]), vehicle.mass_kg)
+    if governor:
+        a, j = braking_decel(vehicle, thrust_ratio, tilt), vehicle.braking.jerk_max_m_s3
+        return [cruise_reference(v), smooth_step_reference("smooth_up", 0.5 * v, v, a, j),
+                smooth_step_reference("hold", v, 0.0, a, j)]
     refs = [cruise_reference(v), speed_step_reference("step_down", v, 0.0, a_h),
             speed_step_reference("step_up", 0.5 * v, v, a_h)]
     if table_path is not None:
@@ -154,7 +163,7 @@ def _etr_column(task: dict) -> list[dict]:
     for v in task["v"]:
         skipped: list[str] = []
         refs = cell_references(task["table"], veh, v, task["tilt"], task["thrust_ratio"], task["avoid_index"],
-                               task["rhos"], skipped)
+                               task["rhos"], skipped, task.get("governor", False))
         per = {}
         for ref in refs:
             kind = ref.name.split("@")[0]
@@ -245,22 +254,24 @@ def _avoid_index(table, tilt: float, thrust_ratio: float) -> tuple[int, int]:
 
 
 def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 2, scheduler: str | None = None,
-                    progress: bool = True, checkpoint=None) -> tuple[np.ndarray, dict, np.ndarray]:
+                    progress: bool = True, checkpoint=None, governor: bool = False) -> tuple[np.ndarray, dict, np.ndarray]:
     """Worst contour error per cell (no margin, no repair) → (values (n_v, n_tilt, n_tr), per-manoeuvre
     worst, number of ``online@ρ`` geometries skipped for want of a verified plan). `checkpoint`: a
-    `contracts.runner.Checkpoint` keeping the finished columns."""
-    table = verify(table_path, vehicle) if table_path is not None else None
+    `contracts.runner.Checkpoint` keeping the finished columns. `governor`: `GOVERNOR_MANEUVERS` only (no
+    avoid table needed)."""
+    table = verify(table_path, vehicle) if table_path is not None and not governor else None
     tasks = []
     for j, tilt in enumerate(grid.tilt):
         for k, tr in enumerate(grid.thrust_ratio):
             idx = _avoid_index(table, float(tilt), float(tr)) if table is not None else (0, 0)
             tasks.append({"vehicle": vehicle, "table": str(table_path) if table_path is not None else None,
                           "v": [float(x) for x in grid.v], "tilt": float(tilt), "thrust_ratio": float(tr),
-                          "avoid_index": idx, "rhos": tuple(grid.rhos), "seeds": tuple(grid.seeds), "jk": (j, k)})
+                          "avoid_index": idx, "rhos": tuple(grid.rhos), "seeds": tuple(grid.seeds), "jk": (j, k),
+                          "governor": governor})
     results = run_tasks(tasks, workers, scheduler, progress, len(tasks) * len(grid.v), fn=_etr_column,
                         desc="E_tr cells", checkpoint=checkpoint)
     worst = np.zeros((len(grid.v), len(grid.tilt), len(grid.thrust_ratio)))
-    per = {m: np.zeros_like(worst) for m in MANEUVERS}
+    per = {m: np.zeros_like(worst) for m in (GOVERNOR_MANEUVERS if governor else MANEUVERS)}
     skipped = np.zeros(worst.shape, dtype=int)
     for task, res in zip(tasks, results):
         j, k = task["jk"]
@@ -270,6 +281,48 @@ def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 
             for m, e in r["per_maneuver"].items():
                 per[m][i, j, k] = e
     return worst, per, skipped
+
+
+def with_margin(worst: np.ndarray) -> tuple[np.ndarray, int]:
+    """E_tr_pred from the worst contour errors: the stated margin (NaN/inf: no bound), repaired monotone upward."""
+    e = np.where(np.isfinite(worst), worst * (1.0 + MARGIN_REL) + MARGIN_ABS, np.inf)
+    return repair_monotone(e, SLOTS["e_tr_pred"][2], "up")
+
+
+def governor_surface(vehicle: Vehicle, grid: EtrGrid, workers: int = 2, scheduler: str | None = None,
+                     progress: bool = True) -> tuple[np.ndarray, dict, int]:
+    """The governor's E_tr_pred (issue 28 item 2): the controller contract (Figure 12) flown on what a governed
+    vehicle flies — cruise, speed steps and the autopilot's braking stop, no swerve — with the build's margin and
+    upward repair → (values (n_v, n_tilt, n_tr), per-manoeuvre worst, repairs). Its rows need no avoid table."""
+    worst, per, _ = measure_surface(None, vehicle, grid, workers, scheduler, progress, governor=True)
+    e, repairs = with_margin(worst)
+    return e, per, repairs
+
+
+def build_governor_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: int = 2,
+                       scheduler: str | None = None, progress: bool = True, out=None) -> dict:
+    """Fly `governor_surface` on `grid` (default: the E_tr grid's) and write it as the table's `e_tr_pred_stop` slot
+    (the stop contract's E_tr_pred), keeping its other slots exactly; returns a summary."""
+    t0 = time.perf_counter()
+    veh = vehicle if isinstance(vehicle, Vehicle) else (load_vehicle(vehicle) if vehicle else None)
+    table = verify(table_path, veh)
+    veh = table.vehicle
+    grid = as_grid(grid, veh, default_etr_grid, etr_grid_from_dict, "E_tr grid file")
+    e, per, repairs = governor_surface(veh, grid, workers, scheduler, progress)
+    info = {"method": "controller contract (Figure 12) flown on what a governed vehicle flies: "
+                      + ", ".join(GOVERNOR_MANEUVERS) + " (speed steps and Hold jerk-limited at braking_decel and "
+                      "the vehicle's braking jerk, as the autopilot's velocity smoothing flies them); no swerve",
+            "margin": {"relative": MARGIN_REL, "absolute_m": MARGIN_ABS,
+                       "rule": "E_tr_pred = worst * (1 + relative) + absolute"},
+            "grid": grid.describe(), "monotone_repairs_up": int(repairs),
+            "build_wall_s": round(time.perf_counter() - t0, 1)}
+    method = dict(table.meta.get("method") or {}) | {"e_tr_pred_stop": "sitl_harness.etr_sweep.build_governor_etr"}
+    dest = Path(out) if out is not None else Path(table_path)
+    write_table(dest, veh, tilt_model=table.tilt_model, avoid=table.avoid, e_tr_pred=table.e_pred, method=method,
+                e_tr_pred_stop=Slot((grid.v, grid.tilt, grid.thrust_ratio), e, info))
+    verify(dest, veh)
+    return {"path": str(dest), "vehicle": veh.name, "cells": int(e.size), "monotone_repairs_up": int(repairs),
+            "wall_s": round(time.perf_counter() - t0, 1)}
 
 
 def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: int = 2, scheduler: str | None = None,
@@ -292,8 +345,7 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
                "grid": grid.describe(), "margin": [MARGIN_REL, MARGIN_ABS], "maneuvers": list(MANEUVERS)}
         ckpt = Checkpoint(dest, key, resume, "contract-guard table etr")
     worst, per, skipped = measure_surface(table_path, veh, grid, workers, scheduler, progress, ckpt)
-    e = np.where(np.isfinite(worst), worst * (1.0 + MARGIN_REL) + MARGIN_ABS, np.inf)
-    e_rep, repairs = repair_monotone(e, SLOTS["e_tr_pred"][2], "up")
+    e_rep, repairs = with_margin(worst)
     wall = time.perf_counter() - t0
     info = {
         "method": "controller contract (paper: 'Contract: Controller subsystem', Figures 8, 11, 12): worst "
@@ -320,11 +372,12 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
     method = dict(table.meta.get("method") or {})
     method["e_tr_pred"] = "sitl_harness.etr_sweep.build_etr"
     write_table(dest, veh, tilt_model=table.tilt_model, avoid=table.avoid,
-                e_tr_pred=Slot((grid.v, grid.tilt, grid.thrust_ratio), e_rep, info), method=method)
+                e_tr_pred=Slot((grid.v, grid.tilt, grid.thrust_ratio), e_rep, info), method=method,
+                e_tr_pred_stop=table.e_pred_stop)
     verify(dest, veh)
     if ckpt is not None:
         ckpt.remove()
-    return {"path": str(dest), "vehicle": veh.name, "cells": int(e.size), "wall_s": round(time.perf_counter() - t0, 1),
+    return {"path": str(dest), "vehicle": veh.name, "cells": int(e_rep.size), "wall_s": round(time.perf_counter() - t0, 1),
             "resumed_cells": ckpt.resumed_items if ckpt is not None else 0,
             "monotone_repairs_up": int(repairs), "unbounded_cells": info["unbounded_cells"],
             "online_skipped": info["online_skipped"], "online_flown": info["online_flown"],

@@ -194,6 +194,24 @@ def speed_step_reference(name: str, v_from: float, v_to: float, a_max: float, co
     return zoh_reference(name, (0.0, v_from, 0.0, 0.0), np.array([[a, 0.0]]), t_acc, coast_s)
 
 
+def smooth_step_reference(name: str, v_from: float, v_to: float, a: float, j: float,
+                          coast_s: float = COAST_S) -> Reference:
+    """A speed change along +x as the autopilot's velocity smoothing flies it: the jerk-limited S-curve of
+    `contracts.stop.braking_distance` (|acceleration| ≤ a, jerk ≤ j), as ZOH accelerations on DT_NAV that meet its
+    speed at every node and end at `v_to`, then `coast_s` at `v_to`. ``hold`` is the one to rest (its Hold)."""
+    dv = abs(v_to - v_from)
+    a_p = min(a, math.sqrt(j * dv))  # the peak acceleration (a, or where the ramps meet)
+    t_end = dv / a_p + a_p / j if dv > 0 else 0.0
+    n = max(int(math.ceil(t_end / DT_NAV)), 1)
+    fine = np.linspace(0.0, n * DT_NAV, 64 * n + 1)
+    acc = np.clip(np.minimum(j * fine, j * (t_end - fine)), 0.0, a_p)
+    gain = np.concatenate([[0.0], np.cumsum(0.5 * (acc[1:] + acc[:-1]) * np.diff(fine))])
+    nodes = v_from + math.copysign(1.0, v_to - v_from) * np.minimum(gain[::64], dv)
+    nodes[-1] = v_to
+    w = np.column_stack([np.diff(nodes) / DT_NAV, np.zeros(n)])
+    return zoh_reference(name, (0.0, v_from, 0.0, 0.0), w, DT_NAV, coast_s)
+
+
 @dataclass(frozen=True)
 class OnlineReference:
     """``online@ρ`` (Figure 12 over what offboard mode flies): the online planner's first plan around
