@@ -5,8 +5,8 @@ under 10 s and under 1 GiB). Prints one JSON object.
 
 The DataFlash log is written by the harness's writer (a straight flight at the DataFlash rates of
 `tests/test_flight_logs.py`, 50 Hz EKF/attitude/controller, rangefinder); `tlog` is the same flight as a
-ground station's MAVLink `.tlog` (`write_tlog`); `ulog` is the largest real PX4 log
-in ../shared/logs/px4 when present; `sitl_ulog` / `sitl_dataflash` are the SITL's own logs of a `--minutes`
+ground station's MAVLink `.tlog` (`write_tlog`); `ulog` is the largest real PX4 log in ../shared/logs/px4 (or
+`--px4-logs`) when present; `sitl_ulog` / `sitl_dataflash` are the SITL's own logs of a `--minutes`
 hover (sitl_harness/flightlog.py, the PX4 SITL's topic rates; skip with --no-sitl). Each review runs in a
 fresh process (peak RSS is its own); `s` is wall time, `cpu_s` the process's CPU time (on a shared machine
 the CPU time is the fairer figure), `read_s` the reader alone, `replay_s` the rest (the shadow daemon at its

@@ -8,8 +8,8 @@ checkouts must give the same report, field by field, and the same replayed event
 The logs: the bench's DataFlash log and `.tlog` (`bench_review.py`'s straight flight, `--minutes` long), the
 SITL's own ULog and DataFlash of a hover by a column, lock-step SITL flights recorded as the daemon's `.tlog` plus the
 autopilot's own log (a hidden-fog flight on PX4, an offboard flight on PX4, an unguarded one on ArduPilot;
-each with the flight's config), and the real PX4 logs in ../shared/logs/px4 when present. `snapshot` runs
-`contract-guard review LOG --json --out D` in a fresh process per log, with D at one fixed path (so the
+each with the flight's config), and the real PX4 logs in ../shared/logs/px4 (or `--px4-logs`) when present.
+`snapshot` runs `contract-guard review LOG --json --out D` in a fresh process per log, with D at one fixed path (so the
 paths in the report agree between checkouts), and keeps stdout, review.json, samples.csv and the replayed
 event log. Compared: every field and value exactly (a float by its every bit; the JSON text is parsed, so
 key order and spacing are not compared), less what differs between any two runs (`PER_RUN`). Each review

@@ -110,8 +110,9 @@ def encode_record(rec: dict) -> str:
 
     Fast path: `json.dumps(allow_nan=False)`; only a record that holds NaN/inf (or an object json cannot
     encode) takes the slow path that writes them as null and lists them in `"nonfinite"`. A flat record (str
-    keys; str, int, float, bool or None values, or theirs such as a `State`: every state sample) holding NaN/inf — a state sample with no
-    obstacle in sight has `obstacle_m` inf — is cleaned in one pass and encoded once, to the same line.
+    keys; str, int, float, bool or None values, or of their subclasses such as a `State`: every state sample)
+    holding NaN/inf — a state sample with no obstacle in sight has `obstacle_m` inf — is cleaned in one pass and
+    encoded once, to the same line.
     """
     nonfinite = [k for k, v in rec.items() if isinstance(v, float) and not math.isfinite(v)]
     if nonfinite and all(type(k) is str and isinstance(v, _FLAT) for k, v in rec.items()):
