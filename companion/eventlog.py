@@ -55,6 +55,7 @@ import struct
 import threading
 import time
 import uuid
+from itertools import repeat
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -115,7 +116,7 @@ def encode_record(rec: dict) -> str:
     encoded once, to the same line.
     """
     nonfinite = [k for k, v in rec.items() if isinstance(v, float) and not math.isfinite(v)]
-    if nonfinite and all(type(k) is str and isinstance(v, _FLAT) for k, v in rec.items()):
+    if nonfinite and set(map(type, rec)) == {str} and all(map(isinstance, rec.values(), repeat(_FLAT))):
         clean = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in rec.items()}
         clean["nonfinite"] = nonfinite
         return json.dumps(clean, allow_nan=False, separators=_SEP) + "\n"
