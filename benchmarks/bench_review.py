@@ -1,12 +1,12 @@
 """Review time per flight-hour and peak memory for each raw-log format (issue 14; goal: a 20-minute log in
 under 10 s and under 1 GiB). Prints one JSON object.
 
-    python benchmarks/bench_review.py [--minutes 20] [--no-sitl]
+    python benchmarks/bench_review.py [--minutes 20] [--no-sitl] [--px4-logs DIR]
 
 The DataFlash log is written by the harness's writer (a straight flight at the DataFlash rates of
 `tests/test_flight_logs.py`, 50 Hz EKF/attitude/controller, rangefinder); `tlog` is the same flight as a
-ground station's MAVLink `.tlog` (`write_tlog`); `ulog` is the largest real PX4 log
-in ../shared/logs/px4 when present; `sitl_ulog` / `sitl_dataflash` are the SITL's own logs of a `--minutes`
+ground station's MAVLink `.tlog` (`write_tlog`); `ulog` is the largest real PX4 log in ../shared/logs/px4 (or
+`--px4-logs`) when present; `sitl_ulog` / `sitl_dataflash` are the SITL's own logs of a `--minutes`
 hover (sitl_harness/flightlog.py, the PX4 SITL's topic rates; skip with --no-sitl). Each review runs in a
 fresh process (peak RSS is its own); `s` is wall time, `cpu_s` the process's CPU time (on a shared machine
 the CPU time is the fairer figure), `read_s` the reader alone, `replay_s` the rest (the shadow daemon at its
@@ -103,6 +103,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--minutes", type=float, default=20.0)
     ap.add_argument("--no-sitl", action="store_true", help="skip the SITL's own ULog / DataFlash logs")
+    ap.add_argument("--px4-logs", type=Path, default=SHARED, help=f"the real PX4 logs (default {SHARED})")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "tests"))
@@ -120,7 +121,7 @@ def main() -> None:
                 t = time.perf_counter()
                 log = sitl_log(Path(tmp) / personality, personality, args.minutes * 60)
                 res[key] = run(log) | {"write_s": time.perf_counter() - t}
-    ulogs = sorted(SHARED.glob("*.ulg"), key=lambda p: p.stat().st_size) if SHARED.is_dir() else []
+    ulogs = sorted(args.px4_logs.glob("*.ulg"), key=lambda p: p.stat().st_size) if args.px4_logs.is_dir() else []
     res["ulog"] = run(ulogs[-1]) | {"file": ulogs[-1].name} if ulogs else None
     res["goal"] = "20-minute log < 10 s and < 1 GiB"
     print(json.dumps(res))

@@ -1,15 +1,15 @@
 """Before/after check for a speed-up of `contract-guard review` (issue 14): the same logs reviewed by two
 checkouts must give the same report, field by field, and the same replayed event log, record by record.
 
-    python benchmarks/review_identity.py logs DIR [--minutes 20]   # write the logs once (any checkout)
+    python benchmarks/review_identity.py logs DIR [--minutes 20] [--px4-logs D]  # write the logs once (any checkout)
     python benchmarks/review_identity.py snapshot DIR OUT          # review each with this process's code
     python benchmarks/review_identity.py compare OUT_A OUT_B       # field-by-field differences (exit 1 if any)
 
 The logs: the bench's DataFlash log and `.tlog` (`bench_review.py`'s straight flight, `--minutes` long), the
 SITL's own ULog and DataFlash of a hover by a column, lock-step SITL flights recorded as the daemon's `.tlog` plus the
 autopilot's own log (a hidden-fog flight on PX4, an offboard flight on PX4, an unguarded one on ArduPilot;
-each with the flight's config), and the real PX4 logs in ../shared/logs/px4 when present. `snapshot` runs
-`contract-guard review LOG --json --out D` in a fresh process per log, with D at one fixed path (so the
+each with the flight's config), and the real PX4 logs in ../shared/logs/px4 (or `--px4-logs`) when present.
+`snapshot` runs `contract-guard review LOG --json --out D` in a fresh process per log, with D at one fixed path (so the
 paths in the report agree between checkouts), and keeps stdout, review.json, samples.csv and the replayed
 event log. Compared: every field and value exactly (a float by its every bit; the JSON text is parsed, so
 key order and spacing are not compared), less what differs between any two runs (`PER_RUN`). Each review
@@ -39,7 +39,7 @@ KEPT = ("stdout.json", "review.json", "samples.csv", "replay-events.jsonl")
 PER_RUN = ("boot", "pid")
 
 
-def write_logs(where: Path, minutes: float) -> None:
+def write_logs(where: Path, minutes: float, px4_logs: Path = SHARED) -> None:
     """Every log of the check, with a `logs.json` manifest: name → (path, extra review arguments)."""
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "tests"))
@@ -74,7 +74,7 @@ def write_logs(where: Path, minutes: float) -> None:
         logs[f"{name}_tlog"] = [str(d / "raw.tlog"), ["--config", str(cfg)]]
         own = sorted((d / "autopilot").iterdir())
         logs[f"{name}_own"] = [str(own[0]), ["--config", str(cfg)]]
-    for p in sorted(SHARED.glob("*.ulg")) if SHARED.is_dir() else []:
+    for p in sorted(px4_logs.glob("*.ulg")) if px4_logs.is_dir() else []:
         logs[f"shared_{p.stem}"] = [str(p), ["--vehicle", "x500"]]
     (where / "logs.json").write_text(json.dumps(logs, indent=1))
 
@@ -174,6 +174,7 @@ def main() -> int:
     lg = sub.add_parser("logs")
     lg.add_argument("dir", type=Path)
     lg.add_argument("--minutes", type=float, default=20.0)
+    lg.add_argument("--px4-logs", type=Path, default=SHARED, help=f"the real PX4 logs (default {SHARED})")
     sn = sub.add_parser("snapshot")
     sn.add_argument("dir", type=Path)
     sn.add_argument("out", type=Path)
@@ -182,7 +183,7 @@ def main() -> int:
     cp.add_argument("b", type=Path)
     args = ap.parse_args()
     if args.cmd == "logs":
-        write_logs(args.dir, args.minutes)
+        write_logs(args.dir, args.minutes, args.px4_logs)
         return 0
     if args.cmd == "snapshot":
         snapshot(args.dir, args.out)

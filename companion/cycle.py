@@ -121,34 +121,50 @@ class Cycle:
         self.shutdown: Shutdown | None = None  # the daemon is stopping (`stop`)
         self._was_streaming = False
         self._engaged_in_flight = False  # last cycle: engaged, flying, not shadow (a failed re-check then holds)
+        self._takers = {Position: self._position, Heading: self._heading, PathTarget: self._path_target,
+                        Throttle: self._throttle, NavStatus: self._nav_status, Scan: self._scan}
 
     # ------------------------------------------------------------------ samples
     def take(self, s) -> None:
-        if isinstance(s, Position):
-            self.etr.measure(s.t, s.x, s.y)
-            self.dod.add_position(s.t, s.x, s.y)
-            self.truth.add_position(s.t, s.x, s.y)
-        elif isinstance(s, Heading):
-            self.dod.add_heading(s.t, s.yaw)
-            self.truth.add_heading(s.t, s.yaw)
-            self.dod.set_speed(s.ground_speed)
-        elif isinstance(s, PathTarget):
-            if self.offboard is None or not self.offboard.streaming:  # offboard: our own setpoints are the path
-                self.etr.command(s.t, s.x, s.y)
-        elif isinstance(s, Throttle):
-            self.thrust.add(s.t, s.throttle, s.roll, s.pitch, s.vz_down, s.in_air)
-        elif isinstance(s, NavStatus):
-            self.nav.update(s.t, s.source, s.flags)
-        elif isinstance(s, Scan):  # without the medium's own returns (backscatter is evidence, not an obstacle)
-            self.dod.add_scan(self.truth.add_scan(s))
-        elif isinstance(s, AutopilotParam) and self.adapter.cruise_param and s.name == self.adapter.cruise_param[0]:
+        """One sample to the estimators that take it (the 50 Hz kinds by their type, the rest in `_take_other`)."""
+        own = self._takers.get(type(s))
+        if own is not None:
+            own(s)
+        else:
+            self._take_other(s)
+        self.sup.policy.take(s)  # as received: a baseline law builds its own map, as its firmware does
+
+    def _position(self, s: Position) -> None:
+        self.etr.measure(s.t, s.x, s.y)
+        self.dod.add_position(s.t, s.x, s.y)
+        self.truth.add_position(s.t, s.x, s.y)
+
+    def _heading(self, s: Heading) -> None:
+        self.dod.add_heading(s.t, s.yaw)
+        self.truth.add_heading(s.t, s.yaw)
+        self.dod.set_speed(s.ground_speed)
+
+    def _path_target(self, s: PathTarget) -> None:
+        if self.offboard is None or not self.offboard.streaming:  # offboard: our own setpoints are the path
+            self.etr.command(s.t, s.x, s.y)
+
+    def _throttle(self, s: Throttle) -> None:
+        self.thrust.add(s.t, s.throttle, s.roll, s.pitch, s.vz_down, s.in_air)
+
+    def _nav_status(self, s: NavStatus) -> None:
+        self.nav.update(s.t, s.source, s.flags)
+
+    def _scan(self, s: Scan) -> None:  # without the medium's own returns (backscatter is evidence, not an obstacle)
+        self.dod.add_scan(self.truth.add_scan(s))
+
+    def _take_other(self, s) -> None:
+        if isinstance(s, AutopilotParam) and self.adapter.cruise_param and s.name == self.adapter.cruise_param[0]:
             v = s.value * self.adapter.cruise_param[1]
             self.v_cruise = v if 0 < v < 100 else math.nan  # nonsense is not a cruise speed
         elif isinstance(s, Implausible) and s.kind not in SENSOR_MSGS:  # a sensor's: its scan covers nothing
             self.nav.fault(s.t, f"{s.kind}: {s.why}")
         elif isinstance(s, MissionMessage) and self.calibration is not None and s.msg.get_type() == "HOME_POSITION":
             self.calibration.take_home(Home.from_msg(s.msg))  # the hold legs' waypoints are placed from it
-        self.sup.policy.take(s)  # as received: a baseline law builds its own map, as its firmware does
 
     def engage_requested(self) -> None:
         """CG_ENGAGE set anew: a restart in flight may engage now, and offboard may be entered again."""

@@ -49,6 +49,7 @@ import numpy as np
 from contracts.geometry import wrap
 from contracts.lidar import (BACKSCATTER_LENGTH_M, QUALITY_FULL_MARGIN, RATED_REFLECTIVITY, REFERENCE_REFLECTIVITY,
                              detection_range, extinction_from_backscatter)
+from contracts.window import WindowMax
 
 from .config import SensorConfig
 from .samples import Scan
@@ -123,9 +124,11 @@ class DetectionRange:
         self._pos: tuple[float, float, float] | None = None  # (t, x, y)
         self._speed = 0.0
         self._yaw: tuple[float, float] | None = None  # (t, yaw)
-        self._frames: deque[_Frame] = deque()
+        self._frames: deque[_Frame] = deque()  # the evidence window's (`_window`)
+        self._shots = 0  # the window's shots (a running sum)
+        self._near_frames: deque[_Frame] = deque()  # those of them with short returns, in the same order
         self._tracks: list[_Track] = []
-        self._alphas: deque[tuple[float, float]] = deque()  # (t, α̂) of the last recover_s
+        self._alphas = WindowMax(params.recover_s)  # α̂ of the last recover_s
         self._bounds: deque[tuple[float, float, str]] = deque()  # (t, bound m, why): first detections, disagreements
         self._last_hits: dict[int, tuple[float, float, list]] = {}  # sensor → (t, its stated m, [(x, y, r)])
         self._stated: dict[int, float] = {}
@@ -178,7 +181,11 @@ class DetectionRange:
                 near.append((x, y))
                 medium.add(k)
         hist.append(now)
-        self._frames.append(_Frame(t, i, shots, near))
+        frame = _Frame(t, i, shots, near)
+        self._frames.append(frame)
+        self._shots += shots
+        if near:
+            self._near_frames.append(frame)
         if scan.known is None and placed:  # a single beam: the target it follows in (and its quality, the return's)
             x, y, _, r = min(placed, key=lambda h: h[3])
             if r >= p.near_m:
@@ -256,16 +263,20 @@ class DetectionRange:
                     self._bounds.append((t, r, f"sensor {j} sees a target at {r:.2f} m that sensor {i} does not"))
 
     # ---------------------------------------------------------------- evidence
-    def _window(self, t: float) -> list[_Frame]:
-        while self._frames and self._frames[0].t < t - self.p.window_s:
-            self._frames.popleft()
-        return list(self._frames)
+    def _window(self, t: float) -> None:
+        """Drop the frames older than the evidence window."""
+        start = t - self.p.window_s
+        while self._frames and self._frames[0].t < start:
+            old = self._frames.popleft()
+            self._shots -= old.shots
+            if self._near_frames and self._near_frames[0] is old:
+                self._near_frames.popleft()
 
-    def _alpha_backscatter(self, frames: list[_Frame]) -> tuple[float, int, int]:
+    def _alpha_backscatter(self) -> tuple[float, int, int]:
         """α from the window's spurious short returns; (α, spurious, shots). A short return on a tracked target
         (one first seen farther away and followed in) is a surface, not the medium."""
-        shots = sum(f.shots for f in frames)
-        spurious = sum(1 for f in frames for x, y in f.near if not self._on_track(x, y))
+        shots = self._shots
+        spurious = sum(1 for f in self._near_frames for x, y in f.near if not self._on_track(x, y))
         if shots < self.p.min_shots or spurious < self.p.min_spurious:
             return 0.0, spurious, shots
         rate = spurious / shots
@@ -298,13 +309,11 @@ class DetectionRange:
         p = self.p
         stated = max(stated_m, 0.0) if math.isfinite(stated_m) else 0.0
         top = stated if self.cap_m is None else min(stated, self.cap_m)
-        frames = self._window(t)
-        a_bs, spurious, shots = self._alpha_backscatter(frames)
+        self._window(t)
+        a_bs, spurious, shots = self._alpha_backscatter()
         a_tr = self._alpha_trend(t)
-        self._alphas.append((t, max(a_bs, a_tr)))
-        while self._alphas and self._alphas[0][0] < t - p.recover_s:
-            self._alphas.popleft()
-        alpha = max(a for _, a in self._alphas)
+        self._alphas.add(t, max(a_bs, a_tr))
+        alpha = self._alphas.max
         while self._bounds and self._bounds[0][0] < t - p.recover_s:
             self._bounds.popleft()
         r_max = max(self._stated.values(), default=stated)

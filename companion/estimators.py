@@ -19,6 +19,7 @@ import numpy as np
 from contracts.contour import ContourWindow
 from contracts.coverage import covered_distance, sample_sectors
 from contracts.geometry import wrap
+from contracts.window import WindowMax
 from contracts.vehicle import G
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
@@ -332,29 +333,6 @@ class DodEstimator:
         return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated)
 
 
-# ============================================================================ windows
-
-
-class SlidingMax:
-    """The largest value pushed in the last `window_s` seconds (0 when none): a monotone queue, O(1) amortised."""
-
-    def __init__(self, window_s: float):
-        self.window = window_s
-        self._q: deque[tuple[float, float]] = deque()  # (t, value), values decreasing
-
-    def value(self, t: float) -> float:
-        while self._q and self._q[0][0] < t - self.window:
-            self._q.popleft()
-        return self._q[0][1] if self._q else 0.0
-
-    def push(self, t: float, x: float) -> float:
-        """Add x at t; the largest in the window, x included."""
-        while self._q and self._q[-1][1] <= x:
-            self._q.pop()
-        self._q.append((t, x))
-        return self.value(t)
-
-
 # ============================================================================ E_tr
 
 
@@ -514,8 +492,8 @@ class Timeliness:
         self.period, self.allowance, self.window = period_s, allowance_s, window_s
         self._t: float | None = None
         self._t_linked: float | None = None  # the first cycle with the autopilot's heartbeat fresh
-        self._late = SlidingMax(window_s)  # lateness beyond the allowance
-        self._within = SlidingMax(window_s)  # lateness inside it
+        self._late = WindowMax(window_s)  # lateness beyond the allowance
+        self._within = WindowMax(window_s)  # lateness inside it
         self.last_late_s = 0.0  # this cycle's own lateness beyond the allowance (0 when inside it)
         self.unbudgeted_s = 0.0
         self.within_s = 0.0
@@ -535,8 +513,8 @@ class Timeliness:
         inside = late if LATE_NOTE_S <= late <= self.allowance else 0.0
         self.within_s = inside if inside > self._within.value(t) else 0.0
         if self.within_s > 0.0:
-            self._within.push(t, inside)
+            self._within.add(t, inside)
         self.unbudgeted_s = self.last_late_s if self.last_late_s > self._late.value(t) else 0.0
         if self.last_late_s > 0.0:
-            self._late.push(t, late)
+            self._late.add(t, late)
         return self._late.value(t)

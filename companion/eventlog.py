@@ -55,6 +55,7 @@ import struct
 import threading
 import time
 import uuid
+from itertools import repeat
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
@@ -64,7 +65,7 @@ TLOG_NAME = "raw"
 TLOG_SUFFIX = ".tlog"
 RESERVED = frozenset(RECORD_KEYS)
 _SEP = (",", ":")
-_FLAT = frozenset((str, int, float, bool, type(None)))  # the value types of a flat record (`encode_record`)
+_FLAT = (str, int, float, type(None))  # a flat record's value types, subclasses too (a StrEnum, bool; `encode_record`)
 
 
 # ============================================================================ encoding (pure)
@@ -110,12 +111,13 @@ def encode_record(rec: dict) -> str:
 
     Fast path: `json.dumps(allow_nan=False)`; only a record that holds NaN/inf (or an object json cannot
     encode) takes the slow path that writes them as null and lists them in `"nonfinite"`. A flat record (str
-    keys; str, int, float, bool or None values: every state sample) holding NaN/inf — a state sample with no
-    obstacle in sight has `obstacle_m` inf — is cleaned in one pass and encoded once, to the same line.
+    keys; str, int, float, bool or None values, or of their subclasses such as a `State`: every state sample)
+    holding NaN/inf — a state sample with no obstacle in sight has `obstacle_m` inf — is cleaned in one pass and
+    encoded once, to the same line.
     """
-    nonfinite = [k for k, v in rec.items() if type(v) is float and not math.isfinite(v)]
-    if nonfinite and all(type(k) is str and type(v) in _FLAT for k, v in rec.items()):
-        clean = {k: None if type(v) is float and not math.isfinite(v) else v for k, v in rec.items()}
+    nonfinite = [k for k, v in rec.items() if isinstance(v, float) and not math.isfinite(v)]
+    if nonfinite and set(map(type, rec)) == {str} and all(map(isinstance, rec.values(), repeat(_FLAT))):
+        clean = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in rec.items()}
         clean["nonfinite"] = nonfinite
         return json.dumps(clean, allow_nan=False, separators=_SEP) + "\n"
     try:

@@ -9,7 +9,6 @@ message contradicts itself) and one entry in `SENSOR_KINDS`.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 
@@ -305,7 +304,7 @@ class MavlinkIn:
             src = src or self.autopilot
             out = SENSOR_KINDS[kind](self.cfg, self._sensors_of.get(src, {}), t, msg, tel)
             key = (*src, getattr(msg, "id", None))  # the scan's source: per source the estimator keeps its state
-            return [dataclasses.replace(x, source=key) if isinstance(x, Scan) else x for x in out]
+            return [x.with_source(key) if isinstance(x, Scan) else x for x in out]
         if kind == "COMMAND_ACK":
             return [CommandAck(t, msg.command, msg.result)] \
                 if msg.command in (MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE) else []

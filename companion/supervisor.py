@@ -26,8 +26,9 @@ import numpy as np
 from contracts.online_planner import Disc, offboard_cap
 from contracts.stop import braking_decel, measured_stopping_distance, stop_dead_time
 from contracts.table import ContractTable, Omega
+from contracts.window import WindowMax
 
-from .estimators import DodEstimate, SlidingMax
+from .estimators import DodEstimate
 from .guidance import inflated
 from .states import BRAKE_STOP_CAUSES, FAILSAFE_CAUSES, Cause, State, Subsystem  # noqa: F401 (re-exported)
 
@@ -188,9 +189,10 @@ class Supervisor:
         self._would: tuple[Cause, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
-        self._e_pred_window = SlidingMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
+        self._e_pred_window = WindowMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
         self._omega_at: tuple[tuple, Omega] | None = None  # ((d_od, r_obst, e_tr measured, thrust), Ω)
         self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
+        self._stop_at: tuple[float, float, float] | None = None  # (speed, thrust ratio, stopping distance)
         # never fly a speed the controller contract does not cover: the top of E_tr_pred's speed axis
         # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
         e_pred = getattr(table, "e_pred", None)
@@ -220,10 +222,11 @@ class Supervisor:
             self.state = new
         d.state = new
 
-    def _violation(self, d: _Draft, key: Subsystem, on: bool, **info) -> None:
-        """Track one guarantee: emit violation_start/end on transitions."""
+    def _violation(self, d: _Draft, key: Subsystem, on: bool, info) -> None:
+        """Track one guarantee: emit violation_start/end on transitions (`info()`: the start's fields, made
+        only then)."""
         if on and key not in self._violations:
-            self._violations[key] = info
+            self._violations[key] = info = info()
             d.events.append(("violation_start", info))
             d.statustext.append((3, f"CG: {info['subsystem']} violation"))
         elif not on and key in self._violations:
@@ -238,9 +241,13 @@ class Supervisor:
         return self._decel_at[1]
 
     def _stop_distance(self, v: float, thrust_ratio: float) -> float:
-        veh = self.table.vehicle
-        a = self._braking_decel(min(thrust_ratio, veh.thrust_ratio_range[1]))
-        return measured_stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
+        """The stopping distance from a measured speed v: one evaluation per value, as `_braking_decel`."""
+        if self._stop_at is None or self._stop_at[:2] != (v, thrust_ratio):
+            veh = self.table.vehicle
+            a = self._braking_decel(min(thrust_ratio, veh.thrust_ratio_range[1]))
+            d = measured_stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
+            self._stop_at = (v, thrust_ratio, d)
+        return self._stop_at[2]
 
     def e_tr_pred_flown(self, v: float, tilt: float, thrust_ratio: float) -> float:
         """E_tr_pred (Figure 12) of the controller contract at speed v, at the tilt of the operating point
@@ -320,35 +327,36 @@ class Supervisor:
 
         # guarantees (logged in every mode, shadow included)
         lo = veh.thrust_ratio_range[0]
-        self._violation(d, Subsystem.ACTUATORS, i.thrust_ratio < lo, subsystem=Subsystem.ACTUATORS,
-                        guarantee=f"thrust_ratio >= {lo}", assumed=lo, observed=i.thrust_ratio,
-                        action="no safe speed: hold")
-        self._violation(d, Subsystem.ENVIRONMENT, i.obstacle_width > i.r_obst + 0.05, subsystem=Subsystem.ENVIRONMENT,
-                        guarantee="no obstacle wider than R_obst", assumed=i.r_obst, observed=i.obstacle_width,
-                        action="planning round the observed width")
+        self._violation(d, Subsystem.ACTUATORS, i.thrust_ratio < lo, lambda: dict(
+                        subsystem=Subsystem.ACTUATORS, guarantee=f"thrust_ratio >= {lo}", assumed=lo,
+                        observed=i.thrust_ratio, action="no safe speed: hold"))
+        self._violation(d, Subsystem.ENVIRONMENT, i.obstacle_width > i.r_obst + 0.05, lambda: dict(
+                        subsystem=Subsystem.ENVIRONMENT, guarantee="no obstacle wider than R_obst", assumed=i.r_obst,
+                        observed=i.obstacle_width, action="planning round the observed width"))
         if i.dod.swept != self._dod_swept:  # D_od's basis: said when the swept coverage starts and ends
             self._dod_swept = i.dod.swept
             basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")
             d.events.append(("dod_coverage", {"basis": basis, "d_od": i.dod.d_od, "reason": i.dod.reason}))
         late = i.dod.late
-        self._violation(d, Subsystem.NAVIGATION, i.dod.lowered, subsystem=Subsystem.NAVIGATION,
-                        guarantee="every obstacle within D_od is detected",
+        self._violation(d, Subsystem.NAVIGATION, i.dod.lowered, lambda: dict(
+                        subsystem=Subsystem.NAVIGATION, guarantee="every obstacle within D_od is detected",
                         assumed=late.assumed_d_od if late else i.dod.stated_m,
                         observed=late.range_m if late else i.dod.d_od,
-                        action=f"D_od lowered to {i.dod.d_od:.2f} m" + ("" if late else f": {i.dod.reason}"))
+                        action=f"D_od lowered to {i.dod.d_od:.2f} m" + ("" if late else f": {i.dod.reason}")))
         # the daemon's own guarantee: one decision per loop period, give or take the jitter allowance t_react
         # budgets (docs/daemon.md, Timeliness). Lateness inside the allowance is said; a cycle later than the reaction time being
         # flown budgets breaks it, and its lateness then counts as reaction time for the next 10 s (`omega`)
         if i.late_within_s > 0.0:
             d.events.append(("cycle_jitter", {"late_s": i.late_within_s, "allowance_s": self.late_allowance_s}))
         allowance = self.late_allowance_s
-        self._violation(d, Subsystem.GUIDANCE, i.late_unbudgeted_s > 0.0, subsystem=Subsystem.GUIDANCE,
+        self._violation(d, Subsystem.GUIDANCE, i.late_unbudgeted_s > 0.0, lambda: dict(
+                        subsystem=Subsystem.GUIDANCE,
                         guarantee=f"decides every cycle ({self.loop_dt * 1e3:.0f} ms + {allowance * 1e3:.0f} ms jitter "
                                   "allowance, inside t_react)",
                         assumed=self.loop_dt + max(allowance, self._late_counted),
                         observed=self.loop_dt + i.late_unbudgeted_s,
                         action="lateness counted as reaction time: a lower speed" +
-                               (", hold" if i.late_s > self.late_hold_s else ""))
+                               (", hold" if i.late_s > self.late_hold_s else "")))
         if abs(i.late_s - self._late_counted) > 0.005 or (i.late_s == 0.0) != (self._late_counted == 0.0):
             self._late_counted = i.late_s
             d.events.append(("reaction_time", {"late_s": i.late_s, "t_react_s": veh.t_react_s + i.late_s}))
@@ -358,10 +366,11 @@ class Supervisor:
             # the measured error is the worst of a window, so it is judged against the prediction at the fastest
             # speed commanded in that window: an error flown at 6.5 m/s was judged against E_tr_pred at the 2.1 m/s
             # a shorter D_od had set a moment later (a controller violation of a contract that held)
-            e_pred = self._e_pred_window.push(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
-            self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, subsystem=Subsystem.CONTROLLER,
-                            guarantee="contour error <= E_tr_pred(V_max)", assumed=e_pred,
-                            observed=i.e_tr_measured, action="E_tr raised to the measured value")
+            self._e_pred_window.add(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
+            e_pred = self._e_pred_window.max
+            self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
+                            subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
+                            assumed=e_pred, observed=i.e_tr_measured, action="E_tr raised to the measured value"))
 
         # failsafes, in order of what can still be done
         if not i.link_ok:

@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import math
 from bisect import bisect_left, bisect_right
-from collections import deque
 
 import numpy as np
+
+from .jit import HAVE_NUMBA, njit
+from .window import WindowMax
 
 
 def distance_to_polyline(p, pts) -> float:
@@ -20,6 +22,8 @@ def distance_to_polyline(p, pts) -> float:
     p = np.asarray(p, dtype=float)
     if len(pts) == 1:
         return float(np.linalg.norm(p - pts[0]))
+    if compiled_2d(p, pts):
+        return _polyline_2d(float(p[0]), float(p[1]), pts)
     ab = pts[1:] - pts[:-1]
     return distance_to_segments(p, pts[:-1], ab, segment_norms(ab))
 
@@ -28,6 +32,36 @@ def segment_norms(ab: np.ndarray) -> np.ndarray:
     """|ab|² of each segment, 1 for a zero-length one (its foot-point fraction ap·ab / 1 is then 0)."""
     den = np.einsum("ij,ij->i", ab, ab)
     return np.where(den > 0, den, 1.0)
+
+
+@njit
+def _polyline_2d(px: float, py: float, pts: np.ndarray) -> float:
+    """`distance_to_polyline` of the point (px, py) to `pts` (n, 2), n ≥ 2, compiled: `distance_to_segments`'
+    operations in its order (the same bits; NaN as numpy's `min`)."""
+    best = math.inf
+    for k in range(pts.shape[0] - 1):
+        abx, aby = pts[k + 1, 0] - pts[k, 0], pts[k + 1, 1] - pts[k, 1]
+        den = abx * abx + aby * aby
+        if not den > 0:
+            den = 1.0
+        apx, apy = px - pts[k, 0], py - pts[k, 1]
+        s = (apx * abx + apy * aby) / den
+        if s < 0.0:
+            s = 0.0
+        elif s > 1.0:
+            s = 1.0
+        fx, fy = apx - s * abx, apy - s * aby
+        d = fx * fx + fy * fy
+        if d != d:  # NaN: numpy's min is NaN too
+            return math.nan
+        if d < best:
+            best = d
+    return math.sqrt(best)
+
+
+def compiled_2d(p: np.ndarray, pts: np.ndarray) -> bool:
+    """Whether `_polyline_2d` measures `p` against `pts` (numba there, points in the plane)."""
+    return HAVE_NUMBA and p.shape[0] == 2 and pts.shape[1] == 2
 
 
 def distance_to_segments(p: np.ndarray, a: np.ndarray, ab: np.ndarray, den: np.ndarray) -> float:
@@ -67,8 +101,9 @@ class ContourWindow:
     measured positions with `measure(t, p)`; `worst` is the largest error in the window. The path is kept
     in a growing array (times non-decreasing; a sample earlier than the last starts a new plan), so a
     measurement slices it instead of re-stacking every sample (at 50 Hz, per cycle); each segment's
-    direction and |ab|² are computed once, when first measured against (`_segments`), not every cycle; the
-    times are a list, searched with `bisect` (as `np.searchsorted`, without an array call per search).
+    direction and |ab|² are computed once, when first measured against (`_segments`), not every cycle (with
+    numba, in the plane, `_polyline_2d` makes them on the fly, cheaper than one numpy call); the times are a
+    list, searched with `bisect` (as `np.searchsorted`, without an array call per search).
     """
 
     def __init__(self, window_s: float = 2.0, path_span_s: float = 2.0):
@@ -79,7 +114,9 @@ class ContourWindow:
         self._lo = self._hi = 0  # the live path is [_lo, _hi) of the arrays
         self._ab, self._den = np.empty((0, 0)), np.empty(0)  # segment k: from point k to k + 1
         self._seg = 0  # segments [_lo, _seg) are computed
-        self._errors: deque[tuple[float, float]] = deque()  # decreasing in error (monotonic max queue)
+        self._errors = WindowMax(window_s)
+        if HAVE_NUMBA:  # compile (or load numba's cache) now, not in the first cycle that measures
+            _polyline_2d(0.0, 0.0, np.zeros((2, 2)))
 
     def command(self, t: float, p) -> None:
         p = np.asarray(p, dtype=float)
@@ -123,20 +160,19 @@ class ContourWindow:
         p = np.asarray(p, dtype=float)
         if n <= 1:
             e = float(np.linalg.norm(p - self._p[lo]))
+        elif compiled_2d(p, self._p):  # the segments' directions are made on the fly
+            e = _polyline_2d(float(p[0]), float(p[1]), self._p[lo:lo + n])
         else:
             end = lo + n - 1
             self._segments(end)
             e = distance_to_segments(p, self._p[lo:end], self._ab[lo:end], self._den[lo:end])
-        while self._errors and self._errors[-1][1] <= e:
-            self._errors.pop()
-        self._errors.append((t, e))
-        while self._errors[0][0] < t - self.window_s:
-            self._errors.popleft()
+        self._errors.add(t, e)
         return e
 
     @property
     def worst(self) -> float:
-        return self._errors[0][1] if self._errors else 0.0
+        worst = self._errors.max
+        return 0.0 if worst is None else worst
 
     def reset(self) -> None:
         self._lo = self._hi = self._seg = 0

@@ -155,72 +155,97 @@ class LogIn:
     def __init__(self, cfg: Config, tel: Telemetry, autopilot_id: int):
         self.cfg, self.tel, self.autopilot_id = cfg, tel, autopilot_id
         self._ranges = [i for i, s in enumerate(cfg.sensors) if s.kind == "distance_sensor"]
-        self._bins = [i for i, s in enumerate(cfg.sensors) if s.kind == "obstacle_distance"]
+        self._bins_of = [i for i, s in enumerate(cfg.sensors) if s.kind == "obstacle_distance"]
+        self._beam_of: dict[float, int | None] = {}  # a `range` op's bearing → its configured sensor (`_beam`)
+        self._ops = {"pos": self._pos, "att": self._att, "target": self._target, "thr": self._thr, "mode": self._mode,
+                     "landed": self._landed, "nav": self._nav, "range": self._range, "bins": self._bins,
+                     "param": self._param, "seq": self._seq}
 
     def apply(self, t: float, op: str, args: tuple) -> list:
         tel = self.tel
         tel.t_heartbeat, tel.autopilot = t, self.autopilot_id
-        if op == "pos":
-            why = implausible_position(*args)
-            if why is not None:
-                return [Implausible(t, "LOCAL_POSITION_NED", why)]
-            tel.t_local = t
-            tel.x, tel.y, tel.z, tel.vx, tel.vy, tel.vz = args
-            return [Position(t, tel.x, tel.y)]
-        if op == "att":
-            why = implausible_attitude(*args)
-            if why is not None:
-                return [Implausible(t, "ATTITUDE", why)]
-            tel.roll, tel.pitch, tel.yaw = args
-            return [Heading(t, tel.yaw, tel.ground_speed)]
-        if op == "target":
-            x, y = args
-            if not (math.isfinite(x) and math.isfinite(y)):
-                return []  # not position-controlled now (PX4 publishes NaN), as POSITION_TARGET's IGNORE_XY
-            tel.target, tel.t_target = (x, y), t
-            return [PathTarget(t, x, y)]
-        if op == "thr":
-            thr = args[0]
-            if not (math.isfinite(thr) and 0.0 <= thr <= 1.0):
-                return [Implausible(t, "VFR_HUD", "throttle outside 0–100 %")]
-            tel.throttle = thr
-            air = tel.in_air if tel.landed_state else None  # UNDEFINED: not said
-            return [Throttle(t, thr, tel.roll, tel.pitch, tel.vz, air)] if math.isfinite(tel.vz) else []
-        if op == "mode":
-            tel.base_mode, tel.custom_mode = args
-            return []
-        if op == "landed":
-            tel.landed_state = args[0]
-            return []
-        if op == "nav":
-            return [NavStatus(t, args[0], int(args[1]))]
-        if op == "range":
-            return self._range(t, *args)
-        if op == "bins":
-            bearings, ranges, max_m, inc, north_aligned = args
-            known = ~np.isnan(np.asarray(ranges, dtype=float))  # a NaN bin knows nothing: not free
-            bearings, ranges = np.asarray(bearings, dtype=float)[known], np.asarray(ranges, dtype=float)[known]
-            if not (math.isfinite(max_m) and max_m > 0):
-                max_m, bearings, ranges = 0.0, bearings[:0], ranges[:0]
-            if north_aligned:  # MAV_FRAME_GLOBAL bins: rotated into the body frame, as MAVLink-in does
-                bearings = bearings - tel.yaw
-            return [bins_scan(t, i, bearings, ranges, max_m, inc, self.cfg.sensors[i].max_range_m) for i in self._bins]
-        if op == "param":
-            return [AutopilotParam(t, args[0], float(args[1]))]
-        if op == "seq":
-            tel.mission_seq = int(args[0])
+        do = self._ops.get(op)
+        return do(t, *args) if do is not None else []
+
+    def _pos(self, t: float, *args) -> list:
+        why = implausible_position(*args)
+        if why is not None:
+            return [Implausible(t, "LOCAL_POSITION_NED", why)]
+        tel = self.tel
+        tel.t_local = t
+        tel.x, tel.y, tel.z, tel.vx, tel.vy, tel.vz = args
+        return [Position(t, tel.x, tel.y)]
+
+    def _att(self, t: float, *args) -> list:
+        why = implausible_attitude(*args)
+        if why is not None:
+            return [Implausible(t, "ATTITUDE", why)]
+        tel = self.tel
+        tel.roll, tel.pitch, tel.yaw = args
+        return [Heading(t, tel.yaw, tel.ground_speed)]
+
+    def _target(self, t: float, *args) -> list:
+        x, y = args
+        if not (math.isfinite(x) and math.isfinite(y)):
+            return []  # not position-controlled now (PX4 publishes NaN), as POSITION_TARGET's IGNORE_XY
+        self.tel.target, self.tel.t_target = (x, y), t
+        return [PathTarget(t, x, y)]
+
+    def _thr(self, t: float, *args) -> list:
+        thr = args[0]
+        if not (math.isfinite(thr) and 0.0 <= thr <= 1.0):
+            return [Implausible(t, "VFR_HUD", "throttle outside 0–100 %")]
+        tel = self.tel
+        tel.throttle = thr
+        air = tel.in_air if tel.landed_state else None  # UNDEFINED: not said
+        return [Throttle(t, thr, tel.roll, tel.pitch, tel.vz, air)] if math.isfinite(tel.vz) else []
+
+    def _mode(self, t: float, *args) -> list:
+        self.tel.base_mode, self.tel.custom_mode = args
+        return []
+
+    def _landed(self, t: float, *args) -> list:
+        self.tel.landed_state = args[0]
+        return []
+
+    def _nav(self, t: float, *args) -> list:
+        return [NavStatus(t, args[0], int(args[1]))]
+
+    def _bins(self, t: float, *args) -> list:
+        bearings, ranges, max_m, inc, north_aligned = args
+        known = ~np.isnan(np.asarray(ranges, dtype=float))  # a NaN bin knows nothing: not free
+        bearings, ranges = np.asarray(bearings, dtype=float)[known], np.asarray(ranges, dtype=float)[known]
+        if not (math.isfinite(max_m) and max_m > 0):
+            max_m, bearings, ranges = 0.0, bearings[:0], ranges[:0]
+        if north_aligned:  # MAV_FRAME_GLOBAL bins: rotated into the body frame, as MAVLink-in does
+            bearings = bearings - self.tel.yaw
+        return [bins_scan(t, i, bearings, ranges, max_m, inc, self.cfg.sensors[i].max_range_m) for i in self._bins_of]
+
+    def _param(self, t: float, *args) -> list:
+        return [AutopilotParam(t, args[0], float(args[1]))]
+
+    def _seq(self, t: float, *args) -> list:
+        self.tel.mission_seq = int(args[0])
         return []
 
     def _range(self, t: float, bearing: float, current: float, lo: float, hi: float, quality: int) -> list:
         """The configured single-beam sensor looking along `bearing` (as MAVLink-in matches orientation). A
         reading or limit that is not a number (NaN, inf) is no reading: an invalid scan, unknown, never free."""
-        for i in self._ranges:
-            c = self.cfg.sensors[i]
-            if abs((math.degrees(bearing) - c.orientation_deg + 180) % 360 - 180) < 1:
-                if not all(math.isfinite(v) for v in (current, lo, hi)):
-                    return [Scan(t, i, (), 0.0, 1)]
-                return [range_scan(t, i, math.radians(c.orientation_deg), current, lo, hi, quality, c.max_range_m)]
-        return []
+        i = self._beam_of[bearing] if bearing in self._beam_of else self._beam(bearing)
+        if i is None:
+            return []
+        if not (math.isfinite(current) and math.isfinite(lo) and math.isfinite(hi)):
+            return [Scan(t, i, (), 0.0, 1)]
+        c = self.cfg.sensors[i]
+        return [range_scan(t, i, math.radians(c.orientation_deg), current, lo, hi, quality, c.max_range_m)]
+
+    def _beam(self, bearing: float) -> int | None:
+        """The first configured single beam within 1° of `bearing` (remembered for the first few bearings)."""
+        i = next((i for i in self._ranges
+                  if abs((math.degrees(bearing) - self.cfg.sensors[i].orientation_deg + 180) % 360 - 180) < 1), None)
+        if len(self._beam_of) < 64:
+            self._beam_of[bearing] = i
+        return i
 
 
 def firmware_release(v: int | None) -> str | None:

@@ -120,10 +120,56 @@ def _decode(data: bytes, pos: int, parser):
         return "bad", None, None
     if n < 0 or pos + 8 + n > len(data):
         return "short", n, None
+    buf = bytearray(data[pos + 8:pos + 8 + n])
     try:
-        return "ok", n, parser.decode(bytearray(data[pos + 8:pos + 8 + n]))
+        msg = _plain_v2(buf, parser)
+        return "ok", n, msg if msg is not None else parser.decode(buf)
     except Exception:  # noqa: BLE001 — pymavlink raises MAVError, struct.error, …: a bad packet either way
         return "bad", n, None
+
+
+_V2_HEADER = struct.Struct("<BBBBBBBHB")  # pymavlink's MAVLink 2 header (magic as a number)
+_CRC = struct.Struct("<H")
+_SHAPES: dict = {}  # message class → (no arrays, has strings), `_plain_v2`'s
+mcrf4xx = getattr(mavlink, "mcrf4xx", None)  # pymavlink's CRC (fastcrc's), when it has it
+
+
+def _plain_v2(buf: bytearray, parser):
+    """`MAVLink.decode(buf)`'s message — the same object, field for field — for the common frame: MAVLink 2,
+    unsigned, of a known message, its length and CRC right; None for any other (pymavlink decodes those, and
+    raises for the bad). pymavlink's own steps without its per-call generality (the frames of a tlog are ~all
+    of this kind, and decoding is most of reading one)."""
+    if mcrf4xx is None or buf[0] != 0xFD or buf[2] or len(buf) < 12 or parser.signing.secret_key is not None:
+        return None
+    _, mlen, _, compat, seq, sys_id, comp, lo, hi = _V2_HEADER.unpack_from(buf)
+    msg_id = lo | hi << 16
+    cls = mavlink.mavlink_map.get(msg_id)
+    if cls is None or mlen != len(buf) - 12 or mavlink.MAVLINK_IGNORE_CRC:
+        return None
+    crc = _CRC.unpack_from(buf, len(buf) - 2)[0]
+    if mcrf4xx(bytes(buf[1:-2]) + bytes((cls.crc_extra,)), 0xFFFF) != crc:
+        return None  # pymavlink raises "invalid MAVLink CRC"
+    shape = _SHAPES.get(cls)
+    if shape is None:
+        shape = _SHAPES[cls] = (sum(cls.lengths) == len(cls.lengths), "s" in cls.unpacker.format)
+    size = cls.unpacker.size
+    payload = buf[10:-2]
+    if len(payload) < size:
+        payload.extend(bytes(size - len(payload)))
+    t = cls.unpacker.unpack(payload[:size])
+    if shape[0]:
+        fields = [t[k] for k in cls.orders]
+    else:  # arrays: each a list, a char array a string
+        fields, lengths = [], cls.lengths
+        for k in cls.orders:
+            at, n = sum(lengths[:k]), lengths[k]
+            fields.append(t[at] if n == 1 or isinstance(t[at], bytes) else list(t[at:at + n]))
+    if shape[1]:
+        fields = [f.rstrip(b"\x00") if isinstance(f, bytes) else f for f in fields]
+    m = cls(*fields)
+    m._msgbuf, m._payload, m._crc = buf, buf[6:-2], crc
+    m._header = mavlink.MAVLink_header(msg_id, 0, compat, mlen, seq, sys_id, comp)
+    return m
 
 
 def _resync(data: bytes, start: int, parser, last_raw: int | None) -> int | None:
