@@ -18,7 +18,8 @@ To compare with the code before a change, run this file with PYTHONPATH pointing
 `--governor-etr`: also `v_max_governor_etr`, Ω with E_tr_pred replaced at the vehicle's tilt limit (the tilt the
 stop contract brakes at) by the governor's surface (issue 28 item 2: `sitl_harness.etr_sweep.governor_surface`,
 cruise, speed steps and the autopilot's Hold, the build's seeds and margin) flown here on the shipped speed and
-thrust axes — what a table carrying that surface would answer (no shipped table carries it yet).
+thrust axes — what a table carrying that surface answers (the shipped tables carry it: their `e_tr_pred_stop` slot,
+which the plain run uses).
 """
 
 from __future__ import annotations

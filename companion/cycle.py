@@ -100,7 +100,8 @@ class Cycle:
         self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
-                              policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s)
+                              policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
+                              e_tr_floor_m=self.etr.floor)
         self.authority = ModeAuthority(adapter.hold_mode())
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":

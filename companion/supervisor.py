@@ -152,13 +152,13 @@ class Supervisor:
 
     def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
                  loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
-                 e_tr_window_s: float = 2.0):
+                 e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0):
         """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
         `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold); `late_allowance_s`: the
         jitter allowance t_react budgets beside one loop period (`timeouts.cycle_jitter_s`); `policy`: the speed
         policy flown (default `ContractSpeed()`; a campaign's baselines and negative controls: companion/baselines.py);
-        `e_tr_window_s`: the window E_tr is measured over (`contract.e_tr_window_s`), so also the one its
-        prediction is judged over."""
+        `e_tr_window_s`, `e_tr_floor_m`: the window E_tr is measured over and the floor it never reads below
+        (`contract.e_tr_window_s`, `contract.e_tr_floor_m`), so also what its prediction is judged over."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
@@ -190,6 +190,7 @@ class Supervisor:
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
         self._e_pred_window = WindowMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
+        self.e_tr_floor = e_tr_floor_m
         self._omega_at: tuple[tuple, Omega] | None = None  # ((d_od, r_obst, e_tr measured, thrust), Ω)
         self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
         self._stop_at: tuple[float, float, float] | None = None  # (speed, thrust ratio, stopping distance)
@@ -366,8 +367,10 @@ class Supervisor:
             # the measured error is the worst of a window, so it is judged against the prediction at the fastest
             # speed commanded in that window: an error flown at 6.5 m/s was judged against E_tr_pred at the 2.1 m/s
             # a shorter D_od had set a moment later (a controller violation of a contract that held)
+            # (and never below the floor the measurement reads at least: the governor's E_tr_pred at a crawl is
+            # 0.16 m, under the 0.3 m floor, and a vehicle at rest would have "broken" it)
             self._e_pred_window.add(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
-            e_pred = self._e_pred_window.max
+            e_pred = max(self._e_pred_window.max, self.e_tr_floor)
             self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
                             subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
                             assumed=e_pred, observed=i.e_tr_measured, action="E_tr raised to the measured value"))

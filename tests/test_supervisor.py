@@ -221,6 +221,17 @@ def test_the_worst_error_of_a_window_is_judged_against_the_fastest_prediction_of
     assert _controller_started(s2.step(replace(slow, t=2.5, e_tr_measured=e_meas)))  # the fast speed left the window
 
 
+def test_a_prediction_below_the_measurements_floor_is_judged_at_the_floor():
+    """The measured E_tr never reads below its floor (0.3 m): a prediction under it (the governor's at a crawl) is
+    judged at the floor, not broken by a vehicle at rest; above the floor the prediction is the bound again."""
+    s = Supervisor(TABLE, "offboard", contract="avoid", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02,
+                   e_tr_floor_m=0.3)
+    s.e_tr_pred_flown = lambda v, tilt, thrust: 0.16  # noqa: E731 (a prediction under the floor)
+    crawl = replace(BASE, mode="offboard", ground_speed=0.3, dod=dod(7.0), e_tr_measured=0.3)
+    assert not _controller_started(s.step(crawl))
+    assert _controller_started(s.step(replace(crawl, t=0.02, e_tr_measured=0.4)))
+
+
 def test_a_fault_that_arrives_while_already_holding_is_logged_once_without_another_hold():
     """Issue 16: bad navigation while the daemon already held for another cause wrote no event (the
     campaign detected it in 63 % / 89 % of flights). It is logged now, once, with its own action."""
