@@ -2,7 +2,8 @@
 PNG; matplotlib is imported here only — offline, never on the daemon's path).
 
 Per arm and per group of scenarios (all, in assumption, nominal = in assumption without faults, and each
-stress: hidden fog, thrust loss, wind beyond design): the collision rate with its exact Clopper–Pearson 95 %
+stress: hidden fog, thrust loss, wind beyond design; and each named stress of a spec's `stresses`,
+`stress_markdown`): the collision rate with its exact Clopper–Pearson 95 %
 interval (two-sided; its upper end is the bound quoted), the distribution of the minimum clearance to the
 true surface, the mean speed while moving and the time to destination, and the route completion. Ratios:
 each arm against each baseline over the same scenarios (paired: the mean speed over the scenarios both
