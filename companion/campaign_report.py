@@ -229,6 +229,9 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
            _f(c["latency_s"]["p50"]), _f(c["latency_s"]["p95"]), _f(c["latency_s"]["max"])] for c in s["fault_matrix"]]
     vp = [[a, k, st["flights"], st["collisions"], _f(st["cp95_high"], "{:.4f}"), _f(st["mean_speed_m_s"])]
           for a, d in s["in_assumption_by_vehicle_personality"].items() for k, st in d.items() if st["flights"]]
+    ps = [[st, a, x["flights"], x["collisions"], _f(x["cp95_high"], "{:.4f}"), _f(x["mean_speed_m_s"]),
+           _f(x["time_to_destination_s"]), _f(x["route_completion"], "{:.0%}")]
+          for a, d in s["per_stress"].items() for st, x in d.items()]
     wf = [[w["arm"], w["index"], w["collided"], _f(w["min_clearance_m"]), w["vehicle"], w["personality"],
            ",".join(w["stresses"]), w["refly"]] for w in s["worst"]]
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>contract-guard campaign</title>
@@ -236,6 +239,8 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
 </head><body><h1>Campaign: {s['flights']} flights</h1>
 <h2>Per arm and group</h2>{_table(per, ["arm", "group", "flights", "collisions", "CP 95 % upper", "min clearance",
                                           "median clearance", "mean speed", "time to destination", "completion"])}
+<h2>Per named stress</h2>{_table(ps, ["stress", "arm", "flights", "collisions", "CP 95 % upper", "mean speed",
+                                     "time to destination", "completion"])}
 <h2>In assumption, by vehicle and personality</h2>{_table(vp, ["arm", "vehicle/personality", "flights",
                                                                   "collisions", "CP 95 % upper", "mean speed"])}
 <img src="clearance.png"><img src="speed.png">
