@@ -32,6 +32,15 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
       cruise_m_s: 8               # the mission's cruise speed (governor arms, no guard)
       sensor_latency_s: [0, 0.05]
       noise_sd_m: [0.0, 0.03]
+      # optional (unset: not drawn, the scenario as before): the autopilot's braking, set in the SITL and
+      # stated in the vehicle file the daemon flies (a vehicle file calibrated to the user's setting)
+      accel_hor_m_s2: [1, 5]      # PX4 MPC_ACC_HOR, ArduPilot WPNAV_ACCEL / 100
+      jerk_auto_m_s3: [1, 8]      # PX4 MPC_JERK_AUTO, ArduPilot WPNAV_JERK
+      reveal_in_speedup: [0.1, 0.9]  # the first column first seen at this fraction of the speed-up to cruise
+      wind_from_deg: 270          # the wind's direction (unset: any); the route flies north, +y is east
+    stresses:                     # optional: scenario k flies stress k mod len(stresses), its own dims and faults
+      - {name: fog, faults: [{kind: fog_honest, p: 1}]}
+      - {name: crosswind, scenario: {wind_from_deg: 270, lateral_offset_m: [1.5, 2.5]}}
     faults:                       # each kind occurs with probability p, at at_s, with its own parameters
       - {kind: fog_hidden, p: 0.2, at_s: [4, 10], visibility_m: [3, 5]}
       - {kind: fog_honest, p: 0.2, at_s: [4, 10], visibility_m: [3, 5]}
@@ -56,7 +65,7 @@ from pathlib import Path
 from typing import Annotated, Literal, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from contracts.errors import ContractError
 from contracts.yamlfile import load_model, model_from_dict
@@ -102,6 +111,11 @@ class ScenarioDims(_Strict):
     cruise_m_s: Range = 8.0
     sensor_latency_s: Range = (0.0, 0.05)
     noise_sd_m: Range = (0.0, 0.03)
+    # drawn only when set, from their own stream (`_extra`): an existing spec's scenarios stay as they were
+    accel_hor_m_s2: Range | None = None  # the autopilot's MPC_ACC_HOR (WPNAV_ACCEL / 100), the vehicle's braking
+    jerk_auto_m_s3: Range | None = None  # MPC_JERK_AUTO (WPNAV_JERK)
+    reveal_in_speedup: Range | None = None  # the first column seen at this fraction of the speed-up (not x_obst_m)
+    wind_from_deg: Range | None = None  # the wind's direction (unset: uniform)
 
     @field_validator("*")
     @classmethod
@@ -124,6 +138,14 @@ class FaultDist(_Strict):
         return _check_range(v)
 
 
+class Stress(_Strict):
+    """A named condition: its overrides of the spec's scenario dimensions, and its faults (None: the spec's)."""
+
+    name: Annotated[str, Field(min_length=1)]
+    scenario: dict[str, object] = {}
+    faults: list[FaultDist] | None = None
+
+
 class CampaignSpec(_Strict):
     name: str = "campaign"
     seed: int = 0
@@ -136,6 +158,26 @@ class CampaignSpec(_Strict):
     faults: list[FaultDist] = []
     px4_cp_dist_m: Annotated[float, Field(ge=0)] = 1.0  # CP_DIST for the PX4 baseline (PX4's −1 disables it)
     nav_margin: Annotated[float, Field(ge=0, le=0.9)] = 0.0  # our arms' contract.nav_margin
+    stresses: list[Stress] = []  # scenario k flies stresses[k mod len]; none: every scenario the spec's own
+
+    @model_validator(mode="after")
+    def _stress_dims(self):
+        for j, st in enumerate(self.stresses):
+            try:
+                ScenarioDims(**{**self.scenario.model_dump(), **st.scenario})
+            except ValueError as e:
+                raise ValueError(f"stresses.{j}.scenario: {e.errors()[0]['loc'][0]}: {e.errors()[0]['msg']}") from None
+        if len({st.name for st in self.stresses}) != len(self.stresses):
+            raise ValueError("stresses: names must be distinct")
+        return self
+
+    def conditions(self, k: int) -> tuple[str | None, ScenarioDims, list[FaultDist]]:
+        """Scenario `k`'s stress name (None without stresses), its scenario dimensions and its faults."""
+        if not self.stresses:
+            return None, self.scenario, self.faults
+        st = self.stresses[k % len(self.stresses)]
+        dims = ScenarioDims(**{**self.scenario.model_dump(), **st.scenario})
+        return st.name, dims, self.faults if st.faults is None else st.faults
 
     @field_validator("arms")
     @classmethod
@@ -175,8 +217,12 @@ def spec_hash(spec: CampaignSpec) -> str:
 # ----------------------------------------------------------------------------- sampling
 
 def _u(rng, r) -> float:
+    return _u_at(rng.random(), r)  # always one draw: the stream does not depend on the spec's ranges
+
+
+def _u_at(u: float, r) -> float:
     lo, hi = r if isinstance(r, tuple) else (r, r)
-    return float(lo + (hi - lo) * rng.random())  # always one draw: the stream does not depend on the spec's ranges
+    return float(lo + (hi - lo) * u)
 
 
 def _i(rng, r) -> int:
@@ -187,7 +233,7 @@ def _i(rng, r) -> int:
 def sample_scenario(spec: CampaignSpec, k: int) -> dict:
     """Scenario `k`'s parameters, from (seed, k) alone (the same for every arm)."""
     rng = np.random.default_rng([spec.seed & 0xFFFFFFFF, k])
-    d = spec.scenario
+    stress, d, fault_dists = spec.conditions(k)
     s = {"scenario": k,
          "vehicle": spec.vehicles[int(rng.random() * len(spec.vehicles))],
          "personality": spec.personalities[int(rng.random() * len(spec.personalities))],
@@ -203,8 +249,11 @@ def sample_scenario(spec: CampaignSpec, k: int) -> dict:
     s["columns"] = [[s["x_obst_m"], s["lateral_offset_m"]]]
     for g, o in zip(gaps, offs):
         s["columns"].append([s["columns"][-1][0] + g, o])
+    _sample_extra(spec.seed, k, d, s)
+    if stress is not None:
+        s["stress"] = stress
     faults = []
-    for f in spec.faults:
+    for f in fault_dists:
         u, at = rng.random(), _u(rng, f.at_s)
         vis, tr, dur = _u(rng, f.visibility_m if f.visibility_frac is None else f.visibility_frac), \
             _u(rng, f.thrust_ratio), _u(rng, f.duration_s)
@@ -223,6 +272,42 @@ def sample_scenario(spec: CampaignSpec, k: int) -> dict:
     s["route_end_m"] = s["columns"][-1][0] + 15.0
     s["in_assumption"], s["stresses"] = classify(s)
     return s
+
+
+def speedup_distance(v: float, a: float, j: float) -> float:
+    """The distance a jerk-limited speed-up from rest to `v` takes (acceleration limit `a`, jerk `j`): its mean
+    speed is v/2 over v/a + a/j (or 2·√(v/j) when `a` is never reached)."""
+    return 0.5 * v * (v / a + a / j if v >= a * a / j else 2.0 * math.sqrt(v / j))
+
+
+def _sample_extra(seed: int, k: int, d: ScenarioDims, s: dict) -> None:
+    """The optional dimensions, from their own stream (seed, k, 1): four draws whichever are set."""
+    dims = (d.accel_hor_m_s2, d.jerk_auto_m_s3, d.reveal_in_speedup, d.wind_from_deg)
+    if all(r is None for r in dims):
+        return
+    u = np.random.default_rng([seed & 0xFFFFFFFF, k, 1]).random(4)
+    a, j, frac, wind = (None if r is None else _u_at(x, r) for x, r in zip(u, dims))
+    if a is not None or j is not None:
+        s["braking"] = {"accel_max_m_s2": a, "jerk_max_m_s3": j}
+        brk = _braking(s)
+        s["braking"] = {"accel_max_m_s2": brk.accel_max_m_s2, "jerk_max_m_s3": brk.jerk_max_m_s3}
+    if frac is not None:  # the first column's surface reaches the sensor's range `frac` into the speed-up
+        brk = _braking(s)
+        x = s["sensor_range_m"] + s["r_obst_true_m"] + frac * speedup_distance(
+            s["cruise_m_s"], brk.accel_max_m_s2, brk.jerk_max_m_s3)
+        s["columns"] = [[c[0] - s["x_obst_m"] + x, c[1]] for c in s["columns"]]
+        s["x_obst_m"] = x
+    if wind is not None:
+        s["wind_from_deg"] = wind % 360.0
+
+
+def _braking(s: dict):
+    """The autopilot's braking in scenario `s`: the vehicle file's, with what the scenario drew."""
+    from contracts.vehicle import load_vehicle
+
+    brk = load_vehicle(s["vehicle"]).braking
+    drawn = {k: v for k, v in (s.get("braking") or {}).items() if v is not None}
+    return brk.model_copy(update=drawn)
 
 
 # faults whose only answer is a Hold that the contract does not budget for: the daemon cannot command the
@@ -297,6 +382,10 @@ def scenario_dict(s: dict, arm: str) -> dict:
     else:
         sc["route"] = {"altitude_m": ALT_M, "cruise_speed_m_s": s["cruise_m_s"],
                        "waypoints": [[0, 0], [s["route_end_m"], 0]]}
+    if "braking" in s:  # the autopilot's own settings (wire units)
+        a, j = s["braking"]["accel_max_m_s2"], s["braking"]["jerk_max_m_s3"]
+        sc["params"] = {**sc.get("params", {}), **({"MPC_ACC_HOR": a, "MPC_JERK_AUTO": j} if s["personality"] == "px4"
+                                                   else {"WPNAV_ACCEL": 100.0 * a, "WPNAV_JERK": j})}
     return sc
 
 
@@ -349,13 +438,11 @@ class _Trace:
 def _policy(arm: str, s: dict, spec: CampaignSpec):
     """The speed policy an arm flies (None: the contract's own): a baseline law, as a function of the daemon's
     Config (its sensors' mounts), or a negative control. The PX4 law brakes at the autopilot's auto-mode settings
-    (MPC_ACC_HOR, MPC_JERK_AUTO: the vehicle's braking); AC_Avoid is not limited above the mission's cruise speed."""
-    from contracts.vehicle import load_vehicle
-
+    (MPC_ACC_HOR, MPC_JERK_AUTO: the scenario's braking); AC_Avoid is not limited above the mission's cruise speed."""
     from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention, Scaled, WithoutEtr, mounts
 
     if arm == "px4_cp":
-        brk = load_vehicle(s["vehicle"]).braking
+        brk = _braking(s)
         return lambda cfg: Px4CollisionPrevention(sensors=mounts(cfg.sensors), cp_dist_m=spec.px4_cp_dist_m,
                                                   acc_hor=brk.accel_max_m_s2, jerk=brk.jerk_max_m_s3,
                                                   cruise_m_s=s["cruise_m_s"])
@@ -369,6 +456,21 @@ def _policy(arm: str, s: dict, spec: CampaignSpec):
     return WithoutEtr() if m.group(2) == "_no_etr" else Scaled(float(m.group(3)))
 
 
+def _with_braking(s: dict):
+    """The table's vehicle with the scenario's drawn braking (None: none drawn) — the vehicle file a user
+    calibrates to their autopilot's settings; the stop contract is computed from it in closed form."""
+    if "braking" not in s:
+        return None
+    from contracts.table import ContractTable
+
+    def wrap(t):
+        veh = t.vehicle.model_copy(update={"braking": _braking(s)})
+        out = ContractTable(t.meta, veh, t.avoid, t.e_pred, t.path, t.e_pred_stop)
+        out.signature = t.signature
+        return out
+    return wrap
+
+
 def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     """Fly flight `i`; its result row (and the rig, when asked)."""
     from .baselines import TrustTheClaim
@@ -377,7 +479,7 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     s, arm = flight_of(spec, i)
     mode = arm_mode(arm)
     rig = Rig(scenario_dict(s, arm), s["personality"], config=daemon_config(s, arm, spec.nav_margin),
-              policy=_policy(arm, s, spec))
+              policy=_policy(arm, s, spec), table_wrapper=_with_braking(s))
     # a fault shortly before or after the arrival is still given FAULT_WINDOW_S to be detected (the flight
     # hovers at the end): ending at arrival counted 0.1–2 s-old faults as missed
     trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)

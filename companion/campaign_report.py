@@ -2,7 +2,8 @@
 PNG; matplotlib is imported here only — offline, never on the daemon's path).
 
 Per arm and per group of scenarios (all, in assumption, nominal = in assumption without faults, and each
-stress: hidden fog, thrust loss, wind beyond design): the collision rate with its exact Clopper–Pearson 95 %
+stress: hidden fog, thrust loss, wind beyond design; and each named stress of a spec's `stresses`,
+`stress_markdown`): the collision rate with its exact Clopper–Pearson 95 %
 interval (two-sided; its upper end is the bound quoted), the distribution of the minimum clearance to the
 true surface, the mean speed while moving and the time to destination, and the route completion. Ratios:
 each arm against each baseline over the same scenarios (paired: the mean speed over the scenarios both
@@ -134,7 +135,10 @@ def summarize(rows: list[dict], spec_path: str = "SPEC.yaml") -> dict:
                                        and r["vehicle"] == v and r["personality"] == p])
                  for v in sorted({r["vehicle"] for r in rows}) for p in sorted({r["personality"] for r in rows})}
              for a in arms}
-    return {"flights": len(rows), "arms": arms, "per_arm": per, "in_assumption_by_vehicle_personality": by_vp, "ratios": ratios(rows, arms),
+    stresses = list(dict.fromkeys(r["stress"] for r in rows if "stress" in r))
+    per_stress = {a: {st: arm_stats([r for r in rows if r["arm"] == a and r.get("stress") == st]) for st in stresses}
+                  for a in arms}
+    return {"flights": len(rows), "arms": arms, "per_arm": per, "per_stress": per_stress, "in_assumption_by_vehicle_personality": by_vp, "ratios": ratios(rows, arms),
             "ratios_in_assumption": ratios([r for r in rows if r["in_assumption"]], arms),
             "fault_matrix": fault_matrix(rows), "worst": worst(rows, spec_path)}
 
@@ -153,12 +157,28 @@ def format_summary(s: dict) -> str:
                              f"(95 % CP upper {_f(st['cp95_high'], '{:.4f}')}), mean speed {_f(st['mean_speed_m_s'])} m/s, "
                              f"completion {_f(st['route_completion'], '{:.0%}')}, min clearance "
                              f"{_f(st['clearance_m']['min'], '{:.2f}')} m")
+    if any(s["per_stress"].values()):
+        lines.append(stress_markdown(s))
     for a, rs in s["ratios"].items():
         if a in BASELINES:
             continue
         for b, q in rs.items():
             lines.append(f"  {a} / {b}: speed ×{_f(q['speed_ratio'])}, time ×{_f(q['time_ratio'])} "
                          f"({q['scenarios']} scenarios, {q['both_completed']} both completed)")
+    return "\n".join(lines)
+
+
+def stress_markdown(s: dict) -> str:
+    """Per named stress and arm (a spec's `stresses`): collisions, their 95 % upper bound, speed, time, routes."""
+    lines = ["| stress | arm | flights | collisions | 95 % upper | mean speed [m/s] | time to destination [s] "
+             "| routes completed |", "|---|---|---|---|---|---|---|---|"]
+    for st in dict.fromkeys(k for d in s["per_stress"].values() for k in d):
+        for a in s["arms"]:
+            x = s["per_stress"][a][st]
+            done = round(x["route_completion"] * x["flights"]) if x["flights"] else 0
+            lines.append(f"| {st} | {a} | {x['flights']} | {x['collisions']} | {_f(x['cp95_high'], '{:.2f}')} | "
+                         f"{_f(x['mean_speed_m_s'], '{:.2f}')} | {_f(x['time_to_destination_s'], '{:.1f}')} | "
+                         f"{done}/{x['flights']} |")
     return "\n".join(lines)
 
 
@@ -209,6 +229,9 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
            _f(c["latency_s"]["p50"]), _f(c["latency_s"]["p95"]), _f(c["latency_s"]["max"])] for c in s["fault_matrix"]]
     vp = [[a, k, st["flights"], st["collisions"], _f(st["cp95_high"], "{:.4f}"), _f(st["mean_speed_m_s"])]
           for a, d in s["in_assumption_by_vehicle_personality"].items() for k, st in d.items() if st["flights"]]
+    ps = [[st, a, x["flights"], x["collisions"], _f(x["cp95_high"], "{:.4f}"), _f(x["mean_speed_m_s"]),
+           _f(x["time_to_destination_s"]), _f(x["route_completion"], "{:.0%}")]
+          for a, d in s["per_stress"].items() for st, x in d.items()]
     wf = [[w["arm"], w["index"], w["collided"], _f(w["min_clearance_m"]), w["vehicle"], w["personality"],
            ",".join(w["stresses"]), w["refly"]] for w in s["worst"]]
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>contract-guard campaign</title>
@@ -216,6 +239,8 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
 </head><body><h1>Campaign: {s['flights']} flights</h1>
 <h2>Per arm and group</h2>{_table(per, ["arm", "group", "flights", "collisions", "CP 95 % upper", "min clearance",
                                           "median clearance", "mean speed", "time to destination", "completion"])}
+<h2>Per named stress</h2>{_table(ps, ["stress", "arm", "flights", "collisions", "CP 95 % upper", "mean speed",
+                                     "time to destination", "completion"])}
 <h2>In assumption, by vehicle and personality</h2>{_table(vp, ["arm", "vehicle/personality", "flights",
                                                                   "collisions", "CP 95 % upper", "mean speed"])}
 <img src="clearance.png"><img src="speed.png">

@@ -1,0 +1,73 @@
+"""The stress comparison's sampler dimensions (companion/campaign.py, examples/campaign-stress.yaml): drawn
+autopilot braking reaches the SITL, the daemon's vehicle and the PX4 law; columns revealed during the speed-up;
+the wind's direction; named stresses — and an existing spec's scenarios stay as they were."""
+
+import math
+
+import pytest
+
+from companion import campaign as cg
+from companion.campaign_report import stress_markdown, summarize
+
+BASE = {"name": "t", "seed": 5, "scenarios": 4, "vehicles": ["mambo"], "personalities": ["px4"],
+        "arms": ["px4_cp", "governor"], "duration_s": 20,
+        "scenario": {"sensor_range_m": 6.0, "r_obst_true_m": 0.5, "lateral_offset_m": 0.0, "x_obst_m": 25.0,
+                     "wind_factor": 0.3, "gust_factor": 0.3}}
+
+
+def _with(**dims):
+    return cg.spec_from_dict({**BASE, "scenario": {**BASE["scenario"], **dims}})
+
+
+def test_the_new_dimensions_leave_the_other_draws_as_they_were():
+    plain = cg.spec_from_dict(BASE)
+    drawn = _with(accel_hor_m_s2=[1, 5], jerk_auto_m_s3=[1, 8], wind_from_deg=270)
+    named = cg.spec_from_dict({**BASE, "stresses": [{"name": "a"}, {"name": "b"}]})
+    for k in range(4):
+        a, b, c = cg.sample_scenario(plain, k), cg.sample_scenario(drawn, k), cg.sample_scenario(named, k)
+        assert "braking" not in a and "stress" not in a
+        assert 1 <= b["braking"]["accel_max_m_s2"] <= 5 and 1 <= b["braking"]["jerk_max_m_s3"] <= 8
+        assert b["wind_from_deg"] == 270.0
+        assert {x: v for x, v in b.items() if x not in ("braking", "wind_from_deg")} == \
+            {x: v for x, v in a.items() if x != "wind_from_deg"}
+        assert c.pop("stress") == "ab"[k % 2] and c == a
+
+
+def test_a_column_revealed_during_the_speed_up_is_first_seen_there():
+    spec = _with(accel_hor_m_s2=2.0, jerk_auto_m_s3=1.0, reveal_in_speedup=0.5)
+    s = cg.sample_scenario(spec, 0)
+    d_up = 0.5 * 8.0 * (8.0 / 2.0 + 2.0 / 1.0)  # from rest to 8 m/s at 2 m/s², 1 m/s³: mean speed 4 m/s for 6 s
+    assert cg.speedup_distance(8.0, 2.0, 1.0) == pytest.approx(d_up)
+    assert s["x_obst_m"] == pytest.approx(6.0 + 0.5 + 0.5 * d_up) and s["columns"][0][0] == s["x_obst_m"]
+
+
+def test_a_stress_is_checked_like_the_spec():
+    with pytest.raises(cg.CampaignError, match="stresses.0.scenario: x_obst_m"):
+        cg.spec_from_dict({**BASE, "stresses": [{"name": "x", "scenario": {"x_obst_m": [30, 20]}}]})
+
+
+def test_drawn_braking_is_what_the_sitl_brakes_with_and_the_px4_law_and_the_daemon_use():
+    spec = _with(accel_hor_m_s2=[1, 5], jerk_auto_m_s3=[1, 8])
+    s = cg.sample_scenario(spec, 0)
+    a, j = s["braking"]["accel_max_m_s2"], s["braking"]["jerk_max_m_s3"]
+    ap = cg.scenario_dict({**s, "personality": "ardupilot"}, "governor")["params"]
+    assert ap == {"WPNAV_ACCEL": 100.0 * a, "WPNAV_JERK": j}
+    row, rig = cg.fly(spec, 0, keep_rig=True)  # scenario 0 flown by px4_cp
+    assert row["arm"] == "px4_cp" and row["braking"] == s["braking"]
+    assert (rig.sim.autopilot.traj.acc_hor, rig.sim.autopilot.traj.jerk) == (pytest.approx(a, rel=1e-6),
+                                                                            pytest.approx(j, rel=1e-6))
+    law = rig.daemon.cycle.sup.policy
+    assert (law.acc_hor, law.jerk) == (pytest.approx(a, rel=1e-6), pytest.approx(j, rel=1e-6))  # as reported
+    assert rig.daemon.table.vehicle.braking.jerk_max_m_s3 == j  # the vehicle file the daemon checks and flies
+    assert [e["ok"] for e in rig.log.events if e["event"] == "startup_check"][-1]
+    assert row["sim_time_s"] > 5 and math.isfinite(row["mean_speed_m_s"])
+
+
+def test_the_report_has_a_row_per_stress_and_arm():
+    rows = [{"index": i, "arm": arm, "scenario": i // 2, "stress": st, "collided": c, "min_clearance_m": 1.0,
+             "mean_speed_m_s": 2.0, "time_to_destination_s": None, "route_completed": False, "in_assumption": True,
+             "faults": [], "stresses": [], "fault_outcomes": [], "contact_speed_m_s": None, "vehicle": "mambo",
+             "personality": "px4"}
+            for i, (arm, st, c) in enumerate([("governor", "fog", False), ("px4_cp", "fog", True)])]
+    md = stress_markdown(summarize(rows))
+    assert "| fog | px4_cp | 1 | 1 | 1.00 | 2.00 | – | 0/1 |" in md and "| fog | governor | 1 | 0 | 0.97 |" in md
