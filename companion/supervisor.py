@@ -200,6 +200,9 @@ class Supervisor:
         self.v_covered = float(e_pred.axes[0][-1]) if e_pred is not None else math.inf
         self.policy = policy if policy is not None else ContractSpeed()
         self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
+        # the stop contract's brake: None, the autopilot's Hold; the loop period, the daemon's recovery brake
+        # (issue 28 item 4: set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
+        self.recovery_dt: float | None = None
 
     def latch_hold(self, d: Decision, reason: str) -> Decision:
         """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
@@ -278,9 +281,9 @@ class Supervisor:
         return om
 
     def _omega(self, d_od: float, i: Inputs) -> Omega:
-        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio)
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, self.recovery_dt)
         if self._omega_at is None or self._omega_at[0] != key:
-            self._omega_at = (key, self.table.omega(*key, contract=self.contract))
+            self._omega_at = (key, self.table.omega(*key[:4], contract=self.contract, recovery_dt=key[4]))
         return self._omega_at[1]
 
     # ------------------------------------------------------------------ the cycle
