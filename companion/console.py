@@ -192,6 +192,10 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"controller contract: {controller_contract}; {controller_coverage(table)}",
         f"{cfg.mode} mode ({'stop' if cfg.mode != 'offboard' else 'avoid'} contract), {engage}",
         *short,
+        *([] if not cfg.governor.recovery_brake else [
+            "recovery brake on: a stop is flown by the daemon in offboard at the airframe's braking, then Hold, and the "
+            "limit is its own stop contract's while its start-up checks pass (offboard mode, offboard-loss action Hold "
+            "or Land); else, or once the autopilot refuses the switch, the autopilot's Hold's limit"]),
         f"sensors: {sensors}",
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "

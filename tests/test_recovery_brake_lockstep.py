@@ -168,3 +168,19 @@ def test_the_switch_refused_or_not_shown_holds(how):
         acts = _recover(ctl, 10.02 + RECOVERY_TAKE_S + 0.02)
         assert "not shown" in ctl.refused
     assert acts.hold and acts.setpoint is None and ctl.state == OffboardState.HELD
+
+
+def test_the_key_is_off_by_default_governor_only_and_in_the_banner():
+    from companion.config import config_from_dict
+    from companion.console import banner
+    from contracts.errors import ContractError
+
+    table = load_for_vehicle("mambo")
+    base = {"vehicle": "mambo", "mode": "governor", "sensors": [{"kind": "distance_sensor", "h_fov_deg": 30, "max_range_m": 6.0}]}
+    assert config_from_dict(base).governor.recovery_brake is False
+    assert not any("recovery brake" in ln for ln in banner(config_from_dict(base), table, "x"))
+    on = config_from_dict({**base, "governor": {"recovery_brake": True}})
+    assert any(ln.startswith("recovery brake on") for ln in banner(on, table, "x"))
+    with pytest.raises((ContractError, ValueError), match="governor mode only"):
+        config_from_dict({**base, "mode": "offboard", "route": {"waypoints": [[0, 0], [10, 0]]},
+                          "governor": {"recovery_brake": True}})
