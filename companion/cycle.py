@@ -11,7 +11,10 @@ in flight never engages until asked anew), and the shutdown's progress (stop mea
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import replace
+
+import numpy as np
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
@@ -39,6 +42,7 @@ from .telemetry import Telemetry
 
 SHUTDOWN_WAIT_S = 1.0  # stop means stop: the shutdown Hold is re-sent until the autopilot shows it, this long at most
 SHUTDOWN_RESEND_S = 0.25
+A0_S = 0.1  # [s] the recovery brake's stop starts from the acceleration measured over this long (Δv/Δt)
 ACCEPTED_RESULTS = (0, 5)  # MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS
 RECHECK_FAILED = "start-up checks failed in flight"  # a failed re-check while engaged in flight: Hold
 
@@ -121,6 +125,7 @@ class Cycle:
         self.brake = OffboardController(None) if cfg.mode == "governor" and cfg.governor.recovery_brake else None
         self.checks = None
         self._brake_said: tuple[bool, str] | None = None
+        self._v_seen: deque = deque()  # (t, vx, vy) of the last A0_S: the recovery brake's measured acceleration
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
         # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
@@ -405,9 +410,16 @@ class Cycle:
         sound = self.shutdown is None and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
         lo, hi = veh.thrust_ratio_range
         tr = min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
+        if not self._v_seen or tel.t_local > self._v_seen[-1][0]:  # the measured acceleration: Δv over ≥ A0_S
+            self._v_seen.append((tel.t_local, tel.vx, tel.vy))
+        while len(self._v_seen) > 2 and self._v_seen[1][0] <= tel.t_local - A0_S:
+            self._v_seen.popleft()
+        (_, vx0, vy0), dt = self._v_seen[0], tel.t_local - self._v_seen[0][0]
+        a0 = np.array([tel.vx - vx0, tel.vy - vy0]) / dt if dt >= A0_S else None
+        a_stop = airframe_decel(veh, tr)
         acts = br.recover(t, start=d.hold and sound and self.sup.recovery_dt is not None, abort=not sound,
                           mode=i.mode, taken_over=i.taken_over, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z,
-                          yaw=tel.yaw, a_stop=airframe_decel(veh, tr), jerk=stop_jerk(veh))
+                          yaw=tel.yaw, a_stop=a_stop, jerk=stop_jerk(veh), a0=a0)
         braking = br.state == OffboardState.BRAKING
         if braking and not self.sup.latched:
             d = self.sup.latch_hold(d, "recovery brake: held until the pilot or CG_ENGAGE decides")

@@ -169,10 +169,10 @@ class OffboardController:
         self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
 
     def recover(self, t, *, start: bool, abort: bool, mode: str, taken_over: bool, p, v, z, yaw, a_stop: float,
-                jerk: float) -> OffboardActions:
+                jerk: float, a0=None) -> OffboardActions:
         """Governor mode's recovery brake (issue 28 item 4; ASTM F3269's recovery function, the stop contract its
         monitor). `start`: the stop contract calls for a stop: the straight jerk-limited stop at `a_stop` (the
-        airframe's braking) from the measured state, streamed from this cycle, OFFBOARD / GUIDED asked the next
+        airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD / GUIDED asked the next
         (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop (`_brake`: at rest, Hold).
         The switch refused (`refuse`: COMMAND_ACK denied) or not seen within RECOVERY_TAKE_S: Hold at once, and
         `refused` says why. `abort`: a cause the daemon cannot fly out (its state not to be trusted): Hold now."""
@@ -181,7 +181,7 @@ class OffboardController:
         if self.state == S.BRAKING:
             return self._brake(t, abort, mode, taken_over, p, v, acts)
         if start and not abort:
-            self._plan_stop(p, v, z, yaw, a_stop, [], math.inf, None, jerk)
+            self._plan_stop(p, v, z, yaw, a_stop, [], math.inf, a0, jerk)
             self._switch = (None, None)
             self._go(t, S.BRAKING, "recovery brake: the daemon brakes to a stop, then Hold", acts)
             return self._brake(t, False, mode, False, p, v, acts)

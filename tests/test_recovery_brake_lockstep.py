@@ -184,3 +184,12 @@ def test_the_key_is_off_by_default_governor_only_and_in_the_banner():
     with pytest.raises((ContractError, ValueError), match="governor mode only"):
         config_from_dict({**base, "mode": "offboard", "route": {"waypoints": [[0, 0], [10, 0]]},
                           "governor": {"recovery_brake": True}})
+
+
+def test_a_cause_it_cannot_fly_out_while_braking_holds_now():
+    ctl = OffboardController(None)
+    _recover(ctl, 10.0, start=True)
+    _recover(ctl, 10.02, mode="offboard")
+    acts = _recover(ctl, 10.04, mode="offboard", abort=True)  # stale state, Ctrl-C: Hold at once
+    assert acts.hold and acts.setpoint is None and ctl.state == OffboardState.HELD and ctl.refused is None
+    assert not _recover(ctl, 10.06, start=False).setpoint  # held: nothing streamed until resumed
