@@ -85,6 +85,18 @@ def test_the_brake_stops_shorter_from_a_higher_limit(personality):
 
 
 @pytest.mark.parametrize("personality", PERSONALITIES)
+def test_the_brake_stops_short_of_a_column_seen_while_speeding_up(personality):
+    """The column at 8 m enters the sensor's range while the mission still speeds up to the brake's higher limit
+    (where the autopilot's Hold from the same state hits it: the refused-switch case, docs/daemon.md)."""
+    sc = gov.column_scenario(2, x_col=8.0, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5})
+    sc["params"] = {"COM_OBL_RC_ACT": 5} if personality == "px4" else {}
+    rig = Rig(sc, personality, config={"governor": {"recovery_brake": True}})
+    gov.fly(rig, 15.0)
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    assert [c["cmd"] for c in commands(rig)] == ["offboard", "hold"]
+
+
+@pytest.mark.parametrize("personality", PERSONALITIES)
 def test_the_switch_refused_holds_at_once_and_the_limit_falls_back(personality):
     """The mission's cruise (3 m/s) is below both limits, so the autopilot's Hold still stops short: a refusal
     while flying above the autopilot's Hold's limit is what the brake's start-up checks must exclude
