@@ -422,7 +422,7 @@ class Cycle:
                           yaw=tel.yaw, a_stop=a_stop, jerk=stop_jerk(veh), a0=a0)
         braking = br.state == OffboardState.BRAKING
         if braking and not self.sup.latched:
-            d = self.sup.latch_hold(d, "recovery brake: held until the pilot or CG_ENGAGE decides")
+            d = self.sup.latch_hold(d, "recovery brake: held until the pilot or the ground station changes the mode")
         return acts, d, braking
 
     def state_record(self, i: Inputs, d: Decision, tel: Telemetry) -> dict:

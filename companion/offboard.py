@@ -41,6 +41,7 @@ from .states import STREAMING, OffboardState as S, SetpointKind
 
 
 HELD = "fail-safe Hold, held until the pilot or the ground station decides (CG_ENGAGE off and on to resume)"
+RECOVERED = "the recovery brake's Hold, held until the pilot or the ground station changes the mode"
 SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop when the sensor sees none now
 # [s] a fail-safe stop hands over to Hold once the vehicle has stayed below 0.3 m/s this long at the stop's end:
 # a vehicle that overran the stop is still accelerating back at ~g·tan(tilt) as its speed crosses zero, and
@@ -81,6 +82,7 @@ class OffboardController:
     _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
     _switch: tuple | None = None  # the recovery brake's switch to offboard: (asked at, refused why), None: not awaited
     refused: str | None = None  # why the recovery brake's switch was refused (it is then unavailable)
+    held: str = HELD  # what the Hold at the end of the braking stop waits for
 
     def _go(self, t, new, why, acts):
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
@@ -182,7 +184,7 @@ class OffboardController:
             return self._brake(t, abort, mode, taken_over, p, v, acts)
         if start and not abort:
             self._plan_stop(p, v, z, yaw, a_stop, [], math.inf, a0, jerk)
-            self._switch = (None, None)
+            self._switch, self.held = (None, None), RECOVERED
             self._go(t, S.BRAKING, "recovery brake: the daemon brakes to a stop, then Hold", acts)
             return self._brake(t, False, mode, False, p, v, acts)
         return acts
@@ -235,7 +237,7 @@ class OffboardController:
         self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
         if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
             acts.hold = True
-            self._go(t, S.HELD, "stopped: " + HELD, acts)
+            self._go(t, S.HELD, "stopped: " + self.held, acts)
             return acts
         pos, vel, acc = plan.sample(tau)
         acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, SetpointKind.BRAKE)

@@ -205,3 +205,13 @@ def test_a_cause_it_cannot_fly_out_while_braking_holds_now():
     acts = _recover(ctl, 10.04, mode="offboard", abort=True)  # stale state, Ctrl-C: Hold at once
     assert acts.hold and acts.setpoint is None and ctl.state == OffboardState.HELD and ctl.refused is None
     assert not _recover(ctl, 10.06, start=False).setpoint  # held: nothing streamed until resumed
+
+
+def test_the_brakes_records_are_in_the_log_schema():
+    from companion.logschema import EVENTS
+
+    for rig in (flight("px4", True), flight("px4", True, refuse=True, cruise=3.0), flight("px4", True, obl=0)):
+        for e in rig.log.events:
+            if e["event"] not in ("recovery_brake", "offboard"):  # (the others: tests/test_logschema.py)
+                continue
+            assert e["event"] in EVENTS and set(e) - {"t", "event"} <= set(EVENTS[e["event"]].fields), e
