@@ -215,3 +215,21 @@ def test_the_brakes_records_are_in_the_log_schema():
             if e["event"] not in ("recovery_brake", "offboard"):  # (the others: tests/test_logschema.py)
                 continue
             assert e["event"] in EVENTS and set(e) - {"t", "event"} <= set(EVENTS[e["event"]].fields), e
+
+
+def test_after_its_hold_the_pilots_mode_change_resumes_and_the_brake_is_ready_again():
+    """The brake's Hold holds until someone else changes the mode; then the governor stands down from that stop
+    (authority) and the brake is ready for the next one, the limit still its own."""
+    from companion.px4 import PX4
+
+    sc = gov.column_scenario(1)
+    sc["params"] = {"COM_OBL_RC_ACT": 5}
+    rig = Rig(sc, "px4", config={"governor": {"recovery_brake": True}})
+    gov.fly(rig, 25.0)
+    assert rig.daemon.cycle.brake.state == OffboardState.HELD and rig.log.states[-1]["mode"] == "hold"
+    rig.command(176, *PX4().set_mode_params("mission", True))  # the ground station: the mission again
+    rig.run(1.0)
+    last = rig.log.named("mode_change")[-1]
+    assert (last["to"], last["by"]) == ("mission", "other")
+    assert rig.daemon.cycle.brake.state == OffboardState.OFF and rig.daemon.cycle.sup.recovery_dt is not None
+    assert rig.log.named("recovery_brake")[-1]["available"]
