@@ -174,8 +174,9 @@ class OffboardController:
                 jerk: float, a0=None) -> OffboardActions:
         """Governor mode's recovery brake (issue 28 item 4; ASTM F3269's recovery function, the stop contract its
         monitor). `start`: the stop contract calls for a stop: the straight jerk-limited stop at `a_stop` (the
-        airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD / GUIDED asked the next
-        (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop (`_brake`: at rest, Hold).
+        airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD /
+        GUIDED asked the next (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop
+        (`_brake`: at rest, Hold).
         The switch refused (`refuse`: COMMAND_ACK denied) or not seen within RECOVERY_TAKE_S: Hold at once, and
         `refused` says why. `abort`: a cause the daemon cannot fly out (its state not to be trusted): Hold now."""
         acts = OffboardActions()

@@ -188,7 +188,8 @@ def test_the_key_is_off_by_default_governor_only_and_in_the_banner():
     from contracts.errors import ContractError
 
     table = load_for_vehicle("mambo")
-    base = {"vehicle": "mambo", "mode": "governor", "sensors": [{"kind": "distance_sensor", "h_fov_deg": 30, "max_range_m": 6.0}]}
+    base = {"vehicle": "mambo", "mode": "governor",
+            "sensors": [{"kind": "distance_sensor", "h_fov_deg": 30, "max_range_m": 6.0}]}
     assert config_from_dict(base).governor.recovery_brake is False
     assert not any("recovery brake" in ln for ln in banner(config_from_dict(base), table, "x"))
     on = config_from_dict({**base, "governor": {"recovery_brake": True}})
