@@ -417,12 +417,15 @@ class Cycle:
         (_, vx0, vy0), dt = self._v_seen[0], tel.t_local - self._v_seen[0][0]
         a0 = np.array([tel.vx - vx0, tel.vy - vy0]) / dt if dt >= A0_S else None
         a_stop = airframe_decel(veh, tr)
+        was_refused = br.refused is not None
         acts = br.recover(t, start=d.hold and sound and self.sup.recovery_dt is not None, abort=not sound,
                           mode=i.mode, taken_over=i.taken_over, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z,
                           yaw=tel.yaw, a_stop=a_stop, jerk=stop_jerk(veh), a0=a0)
         braking = br.state == OffboardState.BRAKING
         if braking and not self.sup.latched:
             d = self.sup.latch_hold(d, "recovery brake: held until the pilot or the ground station changes the mode")
+        # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it
+        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused)
         return acts, d, braking
 
     def state_record(self, i: Inputs, d: Decision, tel: Telemetry) -> dict:

@@ -151,7 +151,8 @@ EVENTS = {
                       "recovery brake's)"),
     "recovery_brake": Event(("available", "reason", "limit"), "cycle",
                             "governor.recovery_brake: the brake's availability changed (its start-up checks, the "
-                            "switch to offboard refused) and the stop contract the limit is flown under"),
+                            "switch to offboard refused) and the stop contract the limit is flown under (a refusal "
+                            "above the autopilot's Hold's limit is also the autopilot's violation_start)"),
     "no_avoiding_plan": Event(("notes",), "offboard", "no avoiding plan: braking"),
     "calibration_hold": Event(("status", "leg", "seq", "leg_speed_m_s", "speed_m_s", "distance_m", "hold_before_m",
                                "rest_s", "at_rest", "reason"), "daemon",

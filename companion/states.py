@@ -72,3 +72,4 @@ class Subsystem(StrEnum):
     ENVIRONMENT = "environment"
     ACTUATORS = "actuators"
     GUIDANCE = "guidance"
+    AUTOPILOT = "autopilot"  # governor.recovery_brake: the autopilot accepts the brake's switch to offboard

@@ -9,12 +9,14 @@ import functools
 import numpy as np
 import pytest
 
+from companion.console import event_line
 from companion.offboard import RECOVERY_TAKE_S, OffboardController
+from companion.review import format_report, plot_title, summarise
 from companion.states import OffboardState
 from contracts.stop import (approach_stopping_distance, braking_decel, recovery_brake, stop_dead_time,
                             stopping_distance)
 from contracts.table import load_for_vehicle
-from sitl_harness.autopilot import DENIED
+from sitl_harness.autopilot import ACCEPTED, DENIED
 from tests import test_daemon_lockstep as gov
 from tests.lockstep import Rig
 
@@ -22,14 +24,20 @@ PERSONALITIES = ["px4", "ardupilot"]
 
 
 @functools.cache
-def flight(personality: str, brake: bool, obl: int | None = 5, refuse: bool = False, cruise: float = 8.0) -> Rig:
+def flight(personality: str, brake: bool, obl: int | None = 5, refuse: bool | str = False, cruise: float = 8.0
+           ) -> Rig:
     """The column flight of tests/test_daemon_lockstep.py (sensor 6 m, column at 28 m); `obl`: PX4's offboard-loss
-    action (COM_OBL_RC_ACT), `refuse`: the autopilot refuses OFFBOARD / GUIDED."""
+    action (COM_OBL_RC_ACT), `refuse`: the autopilot refuses OFFBOARD / GUIDED (True: its answer says so;
+    "silently": it answers accepted and never shows the mode)."""
     sc = gov.column_scenario(1, cruise=cruise)
     sc["params"] = {"COM_OBL_RC_ACT": obl} if personality == "px4" and obl is not None else {}
     rig = Rig(sc, personality, config={"governor": {"recovery_brake": brake}})
-    if refuse:
-        rig.sim.autopilot.pers.can_enter_offboard = lambda ap: DENIED
+    ap = rig.sim.autopilot
+    if refuse == "silently":
+        enter = ap._enter
+        ap._enter = lambda mode, custom: ACCEPTED if mode == "offboard" else enter(mode, custom)
+    elif refuse:
+        ap.pers.can_enter_offboard = lambda ap: DENIED
     gov.fly(rig, 25.0)
     return rig
 
@@ -98,9 +106,8 @@ def test_the_brake_stops_short_of_a_column_seen_while_speeding_up(personality):
 
 @pytest.mark.parametrize("personality", PERSONALITIES)
 def test_the_switch_refused_holds_at_once_and_the_limit_falls_back(personality):
-    """The mission's cruise (3 m/s) is below both limits, so the autopilot's Hold still stops short: a refusal
-    while flying above the autopilot's Hold's limit is what the brake's start-up checks must exclude
-    (docs/daemon.md)."""
+    """The mission's cruise (3 m/s) is below both limits, so the autopilot's Hold still stops short: the refusal
+    makes the brake unavailable, and is no violation (one above the Hold's limit is: the next test)."""
     rig = flight(personality, True, refuse=True, cruise=3.0)
     assert not rig.truth["collisions"], rig.truth["collisions"]
     offb, hold = commands(rig)[:2]
@@ -111,12 +118,62 @@ def test_the_switch_refused_holds_at_once_and_the_limit_falls_back(personality):
     said = rig.log.named("recovery_brake")[-1]
     assert not said["available"] and "refused" in said["reason"] and "Hold's" in said["limit"]
     assert any("recovery brake unavailable" in t for t in rig.daemon_texts())
+    assert not rig.log.named("violation_start") and not any("REFUSED" in t for t in rig.daemon_texts())
+    assert "autopilot" not in review_of(rig)["violations_by_subsystem"]
     # the limit: the brake's before, the autopilot's Hold's from the refusal on
     table = rig.daemon.table
     before = [s["v_max"] for s in rig.log.states if s["t"] < offb["t"] and s["v_max"]]
     after = [s["v_max"] for s in rig.log.states if s["t"] > said["t"]]
     assert max(before) == pytest.approx(table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", recovery_dt=0.02).v_max)
     assert max(after) <= table.omega(6.0, 1.0, 0.3, 1.0, contract="stop").v_max + 1e-9
+
+
+def review_of(rig: Rig) -> dict:
+    """`contract-guard review`'s report of the flight's log."""
+    recs = [{"kind": "event", **e} for e in rig.log.events] + [{"kind": "state", **s} for s in rig.log.states]
+    return summarise(sorted(recs, key=lambda r: r["t"]))
+
+
+@pytest.mark.parametrize("personality,refuse", [("px4", True), ("ardupilot", True), ("px4", "silently")])
+def test_a_refusal_above_the_holds_limit_is_the_autopilot_breaking_the_brakes_assumption(personality, refuse):
+    """At the mission's 8 m/s the governor flies the brake's higher limit; refused there (its answer, or the mode
+    never shown), the daemon holds at once from above the autopilot's Hold's limit: that stop is not guaranteed
+    (the column is hit), and the log, the ground station, the console and the review say the autopilot broke
+    the brake's assumption."""
+    rig = flight(personality, True, refuse=refuse)
+    held = rig.log.named("offboard")[-1]
+    assert held["to"] == OffboardState.HELD and "recovery brake refused" in held["reason"]
+    hold = commands(rig)[1]
+    assert hold["cmd"] == "hold" and hold["t"] == held["t"]  # Hold at once, in the cycle of the refusal
+    (v,) = [e for e in rig.log.named("violation_start") if e["subsystem"] == "autopilot"]
+    assert v["t"] == hold["t"] and v["guarantee"] == "accepts the recovery brake's switch" and v["action"] == "Hold"
+    # assumed: the autopilot's Hold's limit at that moment (the supervisor's, without the brake); observed: the
+    # speed measured, above it
+    speed = next(s["ground_speed"] for s in reversed(rig.log.states) if s["t"] <= v["t"])
+    assert v["observed"] == pytest.approx(speed, abs=0.3) and v["observed"] > v["assumed"] > 0.5
+    assert v["assumed"] <= rig.daemon.table.omega(6.0, 1.0, 0.3, 1.0, contract="stop").v_max + 1e-9
+    end = next(e for e in rig.log.named("violation_end") if e["subsystem"] == "autopilot")  # the stop is over
+    assert end["t"] > v["t"] and next(s for s in rig.log.states if s["t"] >= end["t"])["ground_speed"] < 0.35
+    assert rig.truth["collisions"]  # what the violation warns of: the Hold from that speed does not stop short
+    # the ground station: a critical STATUSTEXT, in chunks of at most 50 bytes
+    crit = [m for m in rig.daemon_messages() if m.get_type() == "STATUSTEXT" and m.severity == 2 and m.id]
+    assert crit and all(len(m.text.encode() if isinstance(m.text, str) else m.text) <= 50 for m in crit)
+    assert "CG: recovery brake REFUSED above the Hold's limit: stop not guaranteed" in rig.daemon_texts()
+    # the console
+    prio, line = event_line("violation_start", v)
+    assert prio == 2 and "REFUSED" in line and "NOT guaranteed" in line and f"{v['observed']:.2f} m/s" in line
+    # the review: a violation of the autopilot's, said in the verdict, never "contract kept"
+    rep = review_of(rig)
+    assert rep["ok"] is False and rep["violations_by_subsystem"]["autopilot"]["count"] == 1
+    text = format_report(rep)
+    verdict_line = next(ln for ln in text.splitlines() if "verdict:" in ln)
+    assert "contract kept" not in text and "autopilot refused the recovery brake's switch" in verdict_line
+    assert "autopilot refused the recovery brake's switch" in plot_title(rep)
+
+
+def test_an_accepted_brake_is_no_autopilot_violation():
+    rep = review_of(flight("px4", True))
+    assert rep["ok"] and "autopilot" not in rep["violations_by_subsystem"] and "refused" not in format_report(rep)
 
 
 def test_the_start_up_check_failing_leaves_the_governor_as_before():
@@ -211,11 +268,15 @@ def test_a_cause_it_cannot_fly_out_while_braking_holds_now():
 def test_the_brakes_records_are_in_the_log_schema():
     from companion.logschema import EVENTS
 
-    for rig in (flight("px4", True), flight("px4", True, refuse=True, cruise=3.0), flight("px4", True, obl=0)):
+    from companion.logschema import SUBSYSTEMS
+
+    for rig in (flight("px4", True), flight("px4", True, refuse=True, cruise=3.0), flight("px4", True, obl=0),
+                flight("px4", True, refuse=True)):
         for e in rig.log.events:
-            if e["event"] not in ("recovery_brake", "offboard"):  # (the others: tests/test_logschema.py)
-                continue
+            if e["event"] not in ("recovery_brake", "offboard", "violation_start", "violation_end"):  # (the others:
+                continue  # tests/test_logschema.py)
             assert e["event"] in EVENTS and set(e) - {"t", "event"} <= set(EVENTS[e["event"]].fields), e
+            assert e.get("subsystem", "autopilot") in SUBSYSTEMS
 
 
 def test_after_its_hold_the_pilots_mode_change_resumes_and_the_brake_is_ready_again():
