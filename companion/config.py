@@ -285,7 +285,9 @@ class GovernorConfig(_Strict):
     # stop, the daemon switches to OFFBOARD / GUIDED and flies a jerk-limited stop at the airframe's own braking
     # (its tilt limit, the thrust left), then hands over to Hold. The speed limit is then the brake's own stop
     # contract (higher); when the brake is unavailable (its start-up checks, the switch refused) it is the
-    # autopilot's Hold's, at once
+    # autopilot's Hold's, at once. The gain assumes the autopilot accepts the switch: refused above the Hold's
+    # limit, that Hold's stop is not guaranteed (logged as the autopilot's violation); off where that is not
+    # acceptable
     recovery_brake: bool = False
 
 
