@@ -125,6 +125,7 @@ class Cycle:
         self.brake = OffboardController(None) if cfg.mode == "governor" and cfg.governor.recovery_brake else None
         self.checks = None
         self._brake_said: tuple[bool, str] | None = None
+        self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
         self._v_seen: deque = deque()  # (t, vx, vy) of the last A0_S: the recovery brake's measured acceleration
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
@@ -417,15 +418,20 @@ class Cycle:
         (_, vx0, vy0), dt = self._v_seen[0], tel.t_local - self._v_seen[0][0]
         a0 = np.array([tel.vx - vx0, tel.vy - vy0]) / dt if dt >= A0_S else None
         a_stop = airframe_decel(veh, tr)
-        was_refused = br.refused is not None
+        was_refused, was_braking = br.refused is not None, br.state == OffboardState.BRAKING
         acts = br.recover(t, start=d.hold and sound and self.sup.recovery_dt is not None, abort=not sound,
                           mode=i.mode, taken_over=i.taken_over, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z,
                           yaw=tel.yaw, a_stop=a_stop, jerk=stop_jerk(veh), a0=a0)
         braking = br.state == OffboardState.BRAKING
+        if braking and not was_braking:  # the speed the brake was called at: a refusal judged on it too
+            self._brake_v0 = i.ground_speed
         if braking and not self.sup.latched:
             d = self.sup.latch_hold(d, "recovery brake: held until the pilot or the ground station changes the mode")
         # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it
-        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused)
+        # (an unknown speed counts as above it; judged at the speed when called as well: a switch never shown is found refused RECOVERY_TAKE_S later,
+        # by when a vehicle stopped by a collision reads no speed)
+        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused,
+                                    speed=max(_or_inf(i.ground_speed), _or_inf(self._brake_v0)))
         return acts, d, braking
 
     def state_record(self, i: Inputs, d: Decision, tel: Telemetry) -> dict:
@@ -475,3 +481,8 @@ class Shutdown:
         events.append(("shutdown", {"hold": True, "confirmed": self.confirmed, "waited_s": t - self.t0}))
         if not self.confirmed:
             texts.append((2, f"CG: Hold not confirmed in {SHUTDOWN_WAIT_S:g} s: the autopilot's own failsafe applies"))
+
+
+def _or_inf(v: float) -> float:
+    """A speed, an unknown one (NaN) as faster than any limit."""
+    return v if math.isfinite(v) else math.inf

@@ -213,17 +213,17 @@ class Supervisor:
         self._set_state(draft, State.HOLDING, reason)
         return self._amended(d, draft)
 
-    def switch_refused(self, d: Decision, i: Inputs, refused: bool) -> Decision:
+    def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float) -> Decision:
         """The recovery brake's assumption: the autopilot accepts its switch to offboard when called. `refused`:
-        the autopilot refused it this cycle (its answer, or the mode not shown in time). Refused while the vehicle
-        flies faster than the autopilot's Hold's stop contract allows here (`hold_omega`: the limit a refusal
+        the autopilot refused it this cycle (its answer, or the mode not shown in time); `speed`: the ground speed
+        it is judged at (the larger of now and when the brake was called). Refused while the vehicle flew faster than the autopilot's Hold's stop contract allows here (`hold_omega`: the limit a refusal
         falls back to), the autopilot broke that assumption: the daemon holds at once (the cycle) and that stop
         is not guaranteed. Logged as the autopilot's violation (a critical STATUSTEXT) until the vehicle is at
         rest. Refused below that limit: nothing here (the Hold's own contract covers the stop). The decision, so
         amended."""
-        key, speed = Subsystem.AUTOPILOT, i.ground_speed
+        key = Subsystem.AUTOPILOT
         if key in self._violations:
-            on, v_hold = not speed < STOPPED_M_S, math.nan  # (an unknown speed: not at rest)
+            on, v_hold = not i.ground_speed < STOPPED_M_S, math.nan  # (an unknown speed: not at rest)
         elif refused:
             v_hold = self.hold_omega(i).v_max
             on = speed > v_hold
