@@ -24,10 +24,10 @@ class Requester(IntEnum):
     """Who asks for a mode, in order of priority (the lower value wins)."""
 
     FAILSAFE = 0  # the supervisor's Hold: a fail-safe, or a stop it cannot fly out
-    OFFBOARD_STOP = 1  # offboard's own Hold: at the end of its braking stop, or of the route
+    OFFBOARD_STOP = 1  # offboard's own Hold (and the recovery brake's): at the end of its braking stop, or of the route
     SHUTDOWN = 2  # the daemon stops while engaged in flight
     CALIBRATION = 3  # the calibration plan's hold legs: Hold, then the mission again
-    OFFBOARD_ENTRY = 4  # offboard asks for OFFBOARD / GUIDED
+    OFFBOARD_ENTRY = 4  # offboard (or the recovery brake) asks for OFFBOARD / GUIDED
 
 
 HOLD = "hold"  # a request's mode for the autopilot's Hold (PX4 Hold, ArduPilot Brake: the adapter's name)

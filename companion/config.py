@@ -278,6 +278,19 @@ class RouteConfig(_Strict):
         return self
 
 
+class GovernorConfig(_Strict):
+    """Governor mode's own settings."""
+
+    # the recovery brake (docs/daemon.md, "The recovery brake"): when the stop contract calls for a
+    # stop, the daemon switches to OFFBOARD / GUIDED and flies a jerk-limited stop at the airframe's own braking
+    # (its tilt limit, the thrust left), then hands over to Hold. The speed limit is then the brake's own stop
+    # contract (higher); when the brake is unavailable (its start-up checks, the switch refused) it is the
+    # autopilot's Hold's, at once. The gain assumes the autopilot accepts the switch: refused above the Hold's
+    # limit, that Hold's stop is not guaranteed (logged as the autopilot's violation); off where that is not
+    # acceptable
+    recovery_brake: bool = False
+
+
 class CalibrationConfig(_Strict):
     """The calibration plan's hold legs, flown by the daemon in governor mode (companion/calibration_holds.py):
     `calibration-legs.json` of `contract-guard calibrate plan`, or the `.plan` / `.waypoints` it wrote."""
@@ -331,6 +344,7 @@ class Config(_Strict):
     route: RouteConfig | None = None  # offboard mode: the route to fly
     offboard_entry_s: Pos = 1.0  # setpoints streamed before asking for OFFBOARD (PX4 needs > 0.5 s)
     calibration: CalibrationConfig | None = None  # governor mode: the daemon flies the calibration plan's hold legs
+    governor: GovernorConfig = GovernorConfig()
 
     @model_validator(mode="after")
     def _sensors_rated(self):
@@ -341,6 +355,8 @@ class Config(_Strict):
                 if s.max_range_m is None:
                     raise ValueError(f"sensors[{k}].max_range_m (the sensor's rated range) is required in {self.mode} "
                                      "mode: a message's max_distance is capped by it")
+        if self.governor.recovery_brake and self.mode != "governor":
+            raise ValueError(f"governor.recovery_brake: governor mode only (mode is {self.mode})")
         if self.calibration is not None and self.mode != "governor":
             raise ValueError(f"calibration.legs: the daemon flies the hold legs in governor mode only (mode is "
                              f"{self.mode})")

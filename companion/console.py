@@ -1,7 +1,7 @@
 """What `contract-guard run` says on stdout: a start banner (vehicle, table and its contracts, mode, link,
 sensors, the defaults that shape the contract), then one line per thing a person watching wants to
 know — link up/down, start-up verdict, engaging, holds, violations, parameter sets, errors — and a summary
-at exit. Under systemd (`$JOURNAL_STREAM` set) each line carries its syslog priority (`<3>` … `<6>`), as
+at exit. Under systemd (`$JOURNAL_STREAM` set) each line carries its syslog priority (`<2>` … `<6>`), as
 journald reads it; `--quiet` says nothing.
 
 `ConsoleLog` wraps the event log: every record still goes to the log; the console only reads events.
@@ -20,7 +20,7 @@ from contracts.lookup import kernel_name
 from .estimators import LATE_WINDOW_S
 from .mavlink_in import refusal_text
 
-ERR, WARNING, NOTICE, INFO = 3, 4, 5, 6
+CRIT, ERR, WARNING, NOTICE, INFO = 2, 3, 4, 5, 6
 
 
 def _fmt(v) -> str:
@@ -39,6 +39,10 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return WARNING, f"HOLD: {f['cause']}" + (f": {f['why']}; resume: {f['resume']}" if f.get("why") else "")
     if name == "thrust_start":
         return (INFO if f["covered"] else WARNING), f["reason"]
+    if name == "violation_start" and f["subsystem"] == "autopilot":  # the recovery brake's switch refused
+        return CRIT, (f"VIOLATION autopilot: the recovery brake's switch REFUSED at {_fmt(f.get('observed'))} m/s, "
+                      f"above the Hold's limit {_fmt(f.get('assumed'))} m/s; {f['action']}: the stop is NOT "
+                      "guaranteed")
     if name == "violation_start":
         return ERR, (f"VIOLATION {f['subsystem']}: {f['guarantee']} (assumed {_fmt(f.get('assumed'))}, observed "
                      f"{_fmt(f.get('observed'))}); {f['action']}")
@@ -192,6 +196,12 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"controller contract: {controller_contract}; {controller_coverage(table)}",
         f"{cfg.mode} mode ({'stop' if cfg.mode != 'offboard' else 'avoid'} contract), {engage}",
         *short,
+        *([] if not cfg.governor.recovery_brake else [
+            "recovery brake on: a stop is flown by the daemon in offboard at the airframe's braking, then Hold, and the "
+            "limit is its own stop contract's while its start-up checks pass (offboard mode, offboard-loss action Hold "
+            "or Land); else, or once the autopilot refuses the switch, the autopilot's Hold's limit. It assumes the "
+            "autopilot accepts the switch: refused above the Hold's limit, the stop is not guaranteed (logged as the "
+            "autopilot's violation)"]),
         f"sensors: {sensors}",
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "

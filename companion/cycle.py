@@ -11,15 +11,19 @@ in flight never engages until asked anew), and the shutdown's progress (stop mea
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import replace
+
+import numpy as np
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
 from contracts.online_planner import load_solver, offboard_cap
-from contracts.stop import braking_decel, stop_jerk
+from contracts.stop import airframe_decel, braking_decel, stop_jerk
 from contracts.table import THRUST_AXIS_TOL, ContractTable
 
 from .authority import HOLD, ModeAuthority, ModeRequest, Requester
+from .autopilot_base import MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
 from .detection_range import DetectionRange, DetectionRangeParams
@@ -38,6 +42,8 @@ from .telemetry import Telemetry
 
 SHUTDOWN_WAIT_S = 1.0  # stop means stop: the shutdown Hold is re-sent until the autopilot shows it, this long at most
 SHUTDOWN_RESEND_S = 0.25
+A0_S = 0.1  # [s] the recovery brake's stop starts from the acceleration measured over this long (Δv/Δt)
+ACCEPTED_RESULTS = (0, 5)  # MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS
 RECHECK_FAILED = "start-up checks failed in flight"  # a failed re-check while engaged in flight: Hold
 
 
@@ -113,6 +119,14 @@ class Cycle:
                 route = Route(cfg.route.waypoints, cfg.route.altitude_m, cfg.route.corner_cut_m)
                 guidance = OffboardGuidance(route, planning=planning())
             self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
+        # governor.recovery_brake: the daemon's own stop (issue 28 item 4), offboard's braking stop flown from the
+        # mission; available while its start-up checks (`checks.brake`: the daemon's StartupChecks) pass and the
+        # autopilot has not refused its switch
+        self.brake = OffboardController(None) if cfg.mode == "governor" and cfg.governor.recovery_brake else None
+        self.checks = None
+        self._brake_said: tuple[bool, str] | None = None
+        self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
+        self._v_seen: deque = deque()  # (t, vx, vy) of the last A0_S: the recovery brake's measured acceleration
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
         # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
@@ -146,7 +160,7 @@ class Cycle:
         self.dod.set_speed(s.ground_speed)
 
     def _path_target(self, s: PathTarget) -> None:
-        if self.offboard is None or not self.offboard.streaming:  # offboard: our own setpoints are the path
+        if not self.streaming:  # offboard (or the recovery brake): our own setpoints are the path
             self.etr.command(s.t, s.x, s.y)
 
     def _throttle(self, s: Throttle) -> None:
@@ -236,8 +250,10 @@ class Cycle:
         """`mission_route`: the route downloaded from the autopilot, if the route comes from its mission;
         `protocol`: what the daemon's protocols want sent this cycle (companion/mission.py `Actions`)."""
         i = self.inputs(t, tel, r_obst, engage, startup_ok, route_ready)
-        d = self.sup.step(i)
         requests, events, texts = [], [], []
+        if self.brake is not None:
+            self._recovery_available(events, texts)
+        d = self.sup.step(i)
         messages = list(protocol.send) if protocol is not None else []
         if protocol is not None:
             events += protocol.events
@@ -245,15 +261,17 @@ class Cycle:
         if self.view.event is not None:
             events.append(self.view.event)
         acts, ended, fail_hold = None, False, d.hold
-        if self.offboard is not None and i.link_ok:
-            acts, d, braking = self._fly_offboard(t, tel, i, d, startup_ok, mission_route)
+        ctl = self.offboard if self.offboard is not None else self.brake
+        if ctl is not None and i.link_ok:
+            fly = self._fly_offboard if self.offboard is not None else self._recover
+            acts, d, braking = fly(t, tel, i, d, startup_ok, mission_route)
             fail_hold = d.hold and not braking  # a fail-safe the daemon flies out itself: its Hold comes at rest
             if acts.hold:
                 requests.append(ModeRequest(HOLD, Requester.OFFBOARD_STOP))
             if acts.enter:
                 requests.append(ModeRequest("offboard", Requester.OFFBOARD_ENTRY))
-            ended = not self.offboard.streaming and self._was_streaming
-            self._was_streaming = self.offboard.streaming
+            ended = not ctl.streaming and self._was_streaming
+            self._was_streaming = ctl.streaming
             if ended:
                 self.etr.reset()  # our setpoints are no longer the commanded path
         events += d.events
@@ -356,6 +374,66 @@ class Cycle:
         return acts, d, braking
 
 
+    @property
+    def streaming(self) -> bool:
+        """The daemon streams setpoints (offboard, or the recovery brake): they are the commanded path."""
+        ctl = self.offboard if self.offboard is not None else self.brake
+        return ctl is not None and ctl.streaming
+
+    def command_ack(self, command: int, result: int) -> None:
+        """A COMMAND_ACK: a refused DO_SET_MODE while the recovery brake awaits offboard refuses the brake."""
+        if self.brake is not None and command == MAV_CMD_DO_SET_MODE and result not in ACCEPTED_RESULTS:
+            self.brake.refuse(f"DO_SET_MODE answered {result}")
+
+    def _recovery_available(self, events: list, texts: list) -> None:
+        """The recovery brake's availability, set on the supervisor (its stop contract, or the autopilot's Hold's at
+        once) and said when it changes (DESIGN.md §5: the brake's own start-up checks and fallback)."""
+        checks = self.checks.brake if self.checks is not None else None
+        now = (False, f"the switch to offboard was refused: {self.brake.refused}") if self.brake.refused else \
+            (False, "its start-up checks are pending") if checks is None else checks
+        self.sup.recovery_dt = 1.0 / self.cfg.loop_hz if now[0] else None
+        if now != self._brake_said:
+            self._brake_said = now
+            limit = "its own stop contract" if now[0] else "the autopilot's Hold's stop contract"
+            events.append(("recovery_brake", {"available": now[0], "reason": now[1], "limit": limit}))
+            texts.append((5, "CG: recovery brake available") if now[0] else
+                         (4, f"CG: recovery brake unavailable: {now[1]}"))
+
+    def _recover(self, t: float, tel: Telemetry, i: Inputs, d: Decision, startup_ok, mission_route
+                 ) -> tuple[OffboardActions, Decision, bool]:
+        """Governor mode's recovery brake (issue 28 item 4): a stop the stop contract calls for, flown by the
+        daemon in offboard at the airframe's braking from the measured state, then Hold (`OffboardController.
+        recover`); a cause it cannot fly out, or the shutdown, holds at once. Its actions, the decision (latched
+        while it brakes: the supervisor holds in offboard) and whether it brakes (the Hold then comes at rest)."""
+        br, veh = self.brake, self.table.vehicle
+        if br.state in FINISHED and d.state == State.ACTIVE:  # someone else resumed: ready for the next stop
+            br.state = OffboardState.OFF
+        sound = self.shutdown is None and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
+        lo, hi = veh.thrust_ratio_range
+        tr = min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
+        if not self._v_seen or tel.t_local > self._v_seen[-1][0]:  # the measured acceleration: Δv over ≥ A0_S
+            self._v_seen.append((tel.t_local, tel.vx, tel.vy))
+        while len(self._v_seen) > 2 and self._v_seen[1][0] <= tel.t_local - A0_S:
+            self._v_seen.popleft()
+        (_, vx0, vy0), dt = self._v_seen[0], tel.t_local - self._v_seen[0][0]
+        a0 = np.array([tel.vx - vx0, tel.vy - vy0]) / dt if dt >= A0_S else None
+        a_stop = airframe_decel(veh, tr)
+        was_refused, was_braking = br.refused is not None, br.state == OffboardState.BRAKING
+        acts = br.recover(t, start=d.hold and sound and self.sup.recovery_dt is not None, abort=not sound,
+                          mode=i.mode, taken_over=i.taken_over, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z,
+                          yaw=tel.yaw, a_stop=a_stop, jerk=stop_jerk(veh), a0=a0)
+        braking = br.state == OffboardState.BRAKING
+        if braking and not was_braking:  # the speed the brake was called at: a refusal judged on it too
+            self._brake_v0 = i.ground_speed
+        if braking and not self.sup.latched:
+            d = self.sup.latch_hold(d, "recovery brake: held until the pilot or the ground station changes the mode")
+        # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it
+        # (an unknown speed counts as above it; judged at the speed when called as well: a switch never shown is found refused RECOVERY_TAKE_S later,
+        # by when a vehicle stopped by a collision reads no speed)
+        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused,
+                                    speed=max(_or_inf(i.ground_speed), _or_inf(self._brake_v0)))
+        return acts, d, braking
+
     def state_record(self, i: Inputs, d: Decision, tel: Telemetry) -> dict:
         """The cycle's state sample (companion/logschema.py: STATE says what each value means)."""
         om = d.omega
@@ -403,3 +481,8 @@ class Shutdown:
         events.append(("shutdown", {"hold": True, "confirmed": self.confirmed, "waited_s": t - self.t0}))
         if not self.confirmed:
             texts.append((2, f"CG: Hold not confirmed in {SHUTDOWN_WAIT_S:g} s: the autopilot's own failsafe applies"))
+
+
+def _or_inf(v: float) -> float:
+    """A speed, an unknown one (NaN) as faster than any limit."""
+    return v if math.isfinite(v) else math.inf

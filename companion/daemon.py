@@ -64,7 +64,7 @@ class Daemon:
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
         self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
                            runners.get(planning, planning), policy)
-        self.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
+        self.checks = self.cycle.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
         self.protocols = Protocols(cfg, self.adapter, self.cycle, self.checks, self.out, self.counters,
                                    lambda: self._save_signing(None))
         self.param_server, self.mission = self.protocols.params, self.protocols.mission

@@ -147,7 +147,12 @@ EVENTS = {
                                "autopilot's clock; count: of this type since the last such record)"),
     "loop_error": Event(("error", "consecutive", "action"), "daemon",
                         "an exception inside a cycle (logged, not fatal; action: the safe action taken)"),
-    "offboard": Event(("from", "to", "reason"), "offboard", "offboard controller state changed"),
+    "offboard": Event(("from", "to", "reason"), "offboard", "offboard controller state changed (governor mode: the "
+                      "recovery brake's)"),
+    "recovery_brake": Event(("available", "reason", "limit"), "cycle",
+                            "governor.recovery_brake: the brake's availability changed (its start-up checks, the "
+                            "switch to offboard refused) and the stop contract the limit is flown under (a refusal "
+                            "above the autopilot's Hold's limit is also the autopilot's violation_start)"),
     "no_avoiding_plan": Event(("notes",), "offboard", "no avoiding plan: braking"),
     "calibration_hold": Event(("status", "leg", "seq", "leg_speed_m_s", "speed_m_s", "distance_m", "hold_before_m",
                                "rest_s", "at_rest", "reason"), "daemon",

@@ -41,6 +41,7 @@ from .states import STREAMING, OffboardState as S, SetpointKind
 
 
 HELD = "fail-safe Hold, held until the pilot or the ground station decides (CG_ENGAGE off and on to resume)"
+RECOVERED = "the recovery brake's Hold, held until the pilot or the ground station changes the mode"
 SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop when the sensor sees none now
 # [s] a fail-safe stop hands over to Hold once the vehicle has stayed below 0.3 m/s this long at the stop's end:
 # a vehicle that overran the stop is still accelerating back at ~g·tan(tilt) as its speed crosses zero, and
@@ -52,6 +53,9 @@ SETTLE_S = 0.5
 # on another 0.45 m into the column; held at the end point, the integrator bleeds off); at most END_WAIT_S
 AT_END_M = 0.2
 END_WAIT_S = 10.0
+# [s] the recovery brake's OFFBOARD / GUIDED not shown in a heartbeat this long after asking: refused (heartbeats
+# come at 1 Hz and at once on a mode change)
+RECOVERY_TAKE_S = 1.2
 
 
 @dataclass
@@ -76,6 +80,9 @@ class OffboardController:
     _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
     _a_last: np.ndarray | None = None  # the acceleration of the last setpoint streamed while flying
     _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
+    _switch: tuple | None = None  # the recovery brake's switch to offboard: (asked at, refused why), None: not awaited
+    refused: str | None = None  # why the recovery brake's switch was refused (it is then unavailable)
+    held: str = HELD  # what the Hold at the end of the braking stop waits for
 
     def _go(self, t, new, why, acts):
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
@@ -106,10 +113,7 @@ class OffboardController:
             budget = stop_path_budget(float(np.hypot(*v)), stop_decel, jerk)
             # from the acceleration last commanded (what the vehicle is turning to; PX4's Hold restarts from it
             # too), turned onto the stop at `track_jerk`: a stop the vehicle can track (issue 19 item 1)
-            bp, bv, ba, bts, _ = best_stop(np.asarray(p, float), np.asarray(v, float), a_stop, known, 40,
-                                           max_path_m=budget, a0=self._a_last, jerk=track_jerk)
-            self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
-            self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
+            self._plan_stop(p, v, z, yaw, a_stop, known, budget, self._a_last, track_jerk)
             self._go(t, S.BRAKING, "fail-safe: the daemon brakes to a stop, then Hold", acts)
             return self._brake(t, False, mode, False, p, v, acts)
         if stop and self.state in (S.ENTERING, S.FLYING):
@@ -159,6 +163,53 @@ class OffboardController:
             self._a_last = np.asarray(acts.setpoint.a, float)
         return acts
 
+    def _plan_stop(self, p, v, z, yaw, a_stop, known, budget, a0, jerk) -> None:
+        """The stop to stream: `best_stop` from the measured state at `a_stop`, its acceleration from `a0` at `jerk`."""
+        bp, bv, ba, bts, _ = best_stop(np.asarray(p, float), np.asarray(v, float), a_stop, known, 40,
+                                       max_path_m=budget, a0=a0, jerk=jerk)
+        self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
+        self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
+
+    def recover(self, t, *, start: bool, abort: bool, mode: str, taken_over: bool, p, v, z, yaw, a_stop: float,
+                jerk: float, a0=None) -> OffboardActions:
+        """Governor mode's recovery brake (issue 28 item 4; ASTM F3269's recovery function, the stop contract its
+        monitor). `start`: the stop contract calls for a stop: the straight jerk-limited stop at `a_stop` (the
+        airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD /
+        GUIDED asked the next (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop
+        (`_brake`: at rest, Hold).
+        The switch refused (`refuse`: COMMAND_ACK denied) or not seen within RECOVERY_TAKE_S: Hold at once, and
+        `refused` says why. `abort`: a cause the daemon cannot fly out (its state not to be trusted): Hold now."""
+        acts = OffboardActions()
+        self._t_last = t
+        if self.state == S.BRAKING:
+            return self._brake(t, abort, mode, taken_over, p, v, acts)
+        if start and not abort:
+            self._plan_stop(p, v, z, yaw, a_stop, [], math.inf, a0, jerk)
+            self._switch, self.held = (None, None), RECOVERED
+            self._go(t, S.BRAKING, "recovery brake: the daemon brakes to a stop, then Hold", acts)
+            return self._brake(t, False, mode, False, p, v, acts)
+        return acts
+
+    def refuse(self, why: str) -> None:
+        """The autopilot refused the recovery brake's switch (a COMMAND_ACK): Hold at the next cycle."""
+        if self.state == S.BRAKING and self._switch is not None and self._switch[0] is not None:
+            self._switch = (self._switch[0], why)
+
+    def _switched(self, t, mode: str, acts) -> bool:
+        """The recovery brake's switch to offboard: asked once, then seen, refused or timed out (False: Hold now)."""
+        asked, why = self._switch
+        if mode == "offboard":
+            self._switch = None
+        elif asked is None:  # the first setpoint streamed the cycle before
+            if t > self._t_state:
+                acts.enter, self._switch = True, (t, None)
+        elif why is not None or t - asked > RECOVERY_TAKE_S:
+            self.refused = why or f"offboard not shown within {RECOVERY_TAKE_S:g} s of asking"
+            acts.hold = True
+            self._go(t, S.HELD, f"recovery brake refused ({self.refused}): Hold", acts)
+            return False
+        return True
+
     def _finish(self, t, acts) -> OffboardActions:
         """The route's end: a setpoint at rest where the vehicle stopped, then Hold after SETTLE_S."""
         since, here, z, yaw = self._done_at
@@ -178,6 +229,8 @@ class OffboardController:
             acts.hold = True
             self._go(t, S.HELD, HELD, acts)
             return acts
+        if self._switch is not None and not self._switched(t, mode, acts):
+            return acts
         tau = t - self._t_state
         plan = self._stop_plan
         near = float(np.hypot(*(np.asarray(p, float) - plan.p[-1]))) <= AT_END_M
@@ -185,7 +238,7 @@ class OffboardController:
         self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
         if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
             acts.hold = True
-            self._go(t, S.HELD, "stopped: " + HELD, acts)
+            self._go(t, S.HELD, "stopped: " + self.held, acts)
             return acts
         pos, vel, acc = plan.sample(tau)
         acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, SetpointKind.BRAKE)

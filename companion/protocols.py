@@ -47,6 +47,7 @@ class Protocols:
         if isinstance(s, AutopilotRestart):
             return self._restarted(s)
         if isinstance(s, CommandAck):
+            self.cycle.command_ack(s.command, s.result)
             return Outbox(events=(("command_ack", {"command": s.command, "result": s.result}),))
         if isinstance(s, AutopilotParam):
             return self._autopilot_param(s)

@@ -542,11 +542,26 @@ def conclude(rep: dict, extra: Iterable[str] = ()) -> dict:
     return rep
 
 
+REFUSED = "the autopilot refused the recovery brake's switch above the Hold's limit: the stop was not guaranteed"
+
+
 def _worst(subsystem: str, v: dict) -> str:
-    """What the worst violation of a subsystem means, where a number says it plainly (the daemon's own cycle)."""
+    """What the worst violation of a subsystem means, where a number says it plainly (the daemon's own cycle, the
+    autopilot refusing the recovery brake)."""
     if subsystem == "guidance" and "worst_observed" in v:
         return f"; cycles up to {v['worst_observed'] * 1e3:.0f} ms apart: the companion computer was late"
+    if subsystem == "autopilot":  # observed: the speed it was refused at
+        at = f" at {v['worst_observed']:.2f} m/s" if "worst_observed" in v else ""
+        return f"; the recovery brake's switch refused{at}, above the Hold's limit: the stop was not guaranteed"
     return ""
+
+
+def verdict(rep: dict) -> str:
+    """The report's verdict in a few words; one that names what must not be missed (the autopilot refusing the
+    recovery brake above the Hold's limit)."""
+    if rep["ok"]:
+        return "contract kept (no findings)"
+    return "REVIEW NEEDED" + (f": {REFUSED}" if "autopilot" in rep["violations_by_subsystem"] else "")
 
 
 def findings(rep: dict) -> list[str]:
@@ -805,7 +820,7 @@ def plot_title(rep: dict, note: str = "") -> str:
         title += f", from {rep['span']['utc_first']}"
     if note:
         title += f" ({note})"
-    return title + ("" if rep["ok"] else " — REVIEW NEEDED")
+    return title + ("" if rep["ok"] else " — " + verdict(rep))
 
 
 # ============================================================================ text
@@ -862,7 +877,7 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
     lines.append(f"  {rep['records']} records, {rep['state_samples']} state samples covering {rep['sampled_s']:.1f} s, "
                  f"{len(rep['boots'])} daemon run(s)")
     lines += origin.lines() if origin else []
-    lines.append("  verdict: " + ("contract kept (no findings)" if rep["ok"] else "REVIEW NEEDED"))
+    lines.append("  verdict: " + verdict(rep))
     for f in rep["findings"]:
         lines.append(f"    - {f}")
     modes = rep.get("modes") or {}

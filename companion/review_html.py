@@ -31,7 +31,9 @@ def flight_page(path: Path, rep: dict, text: str, name: str, back: str | None = 
                    f"{base64.b64encode((path.parent / png).read_bytes()).decode()}'>"
                    for png, title in PLOTS if (path.parent / png).exists()) or "<p>no plot</p>"
     findings = "".join(f"<li>{html.escape(x)}</li>" for x in rep["findings"]) or "<li>none</li>"
-    verdict = "<p class='ok'>contract kept</p>" if rep["ok"] else "<p class='bad'>REVIEW NEEDED</p>"
+    from .review import verdict as say  # (review imports this module)
+
+    verdict = "<p class='ok'>contract kept</p>" if rep["ok"] else f"<p class='bad'>{html.escape(say(rep))}</p>"
     path.write_text(page(f"review — {name}", (f"<p><a href='{html.escape(back)}'>← all flights</a></p>" if back else "")
                          + f"<h1>{html.escape(name)}</h1>{verdict}<h2>Findings</h2><ul>{findings}</ul>{imgs}"
                          f"<h2>Report</h2><pre>{html.escape(text)}</pre>"))

@@ -27,7 +27,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Patch
 
 SUBSYSTEM_COLOURS = {"navigation": "tab:blue", "controller": "tab:orange", "environment": "tab:green",
-                     "actuators": "tab:red", "guidance": "tab:purple"}
+                     "actuators": "tab:red", "guidance": "tab:purple", "autopilot": "tab:brown"}
 # mark kind → (colour, alpha, legend label); spans are shaded, points are vertical lines
 SPAN_STYLE = {
     "hold": ("tab:red", 0.25, "hold (daemon)"),

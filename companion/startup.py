@@ -27,6 +27,8 @@ class StartupChecks:
         self.adapter, self.vehicle, self.cfg = adapter, vehicle, cfg
         self.controller_contract = controller_contract
         self.values: dict[str, float] = {}
+        # the recovery brake's own checks (governor.recovery_brake): (ok, why), None while pending or not asked for
+        self.brake: tuple[bool, str] | None = None
         self.said: tuple[bool, str] | None = None  # the verdict last logged
         self.t_asked: float | None = None
         self._t_restart = -math.inf
@@ -52,7 +54,7 @@ class StartupChecks:
         if t - self._t_restart < RESTART_CHECK_S:
             return False
         self._t_restart = t
-        self.values, self.t_asked, self.said = {}, t, None
+        self.values, self.t_asked, self.said, self.brake = {}, t, None, None
         self.ok = None if self.static() is None else False
         return True
 
@@ -67,6 +69,8 @@ class StartupChecks:
         autopilot send them all again)."""
         ok, reason = self.verdict()
         self.ok = ok
+        if self.cfg.governor.recovery_brake:
+            self.brake = self.brake_verdict(ok, reason)
         if (ok, reason) == self.said:
             return EMPTY
         self.said = (ok, reason)
@@ -105,6 +109,29 @@ class StartupChecks:
             got = self.values[c.name] * c.scale
             if c.what in needs and got < needs[c.what] * 0.999:
                 return False, f"{c.name} = {got:g} below the vehicle file's {c.what} = {needs[c.what]:g}"
-            if c.offboard_allowed and self.cfg.mode == "offboard" and int(got) not in c.offboard_allowed:
-                return False, f"{c.name} = {int(got)}: a companion-only aircraft needs {c.offboard_need}"
+        return (True, "ok") if self.cfg.mode != "offboard" else self._offboard_checks()
+
+    def _offboard_checks(self) -> tuple[bool, str]:
+        """What flying in offboard needs: the autopilot has an offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) and,
+        for a companion-only aircraft, Land or Hold as its offboard-loss action (the parameters reported)."""
+        try:
+            self.adapter.set_mode_params("offboard", True)
+        except Exception:
+            return False, "the autopilot reports no offboard mode"
+        for c in self.adapter.param_checks:
+            if not c.offboard_allowed:
+                continue
+            if c.name not in self.values:
+                return False, f"autopilot did not report {c.name}"
+            got = int(self.values[c.name] * c.scale)
+            if got not in c.offboard_allowed:
+                return False, f"{c.name} = {got}: a companion-only aircraft needs {c.offboard_need}"
         return True, "ok"
+
+    def brake_verdict(self, ok: bool, reason: str) -> tuple[bool, str]:
+        """The recovery brake's own start-up checks (issue 28 item 4): the daemon's checks pass, and offboard's
+        (`_offboard_checks`); failing, the governor flies the autopilot's Hold's stop contract."""
+        if not ok:
+            return False, f"the start-up checks refuse: {reason}"
+        ok, why = self._offboard_checks()
+        return (True, "ok: offboard allowed and the offboard-loss action is Hold or Land") if ok else (False, why)

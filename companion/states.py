@@ -59,8 +59,9 @@ class Cause(StrEnum):
 
 
 FAILSAFE_CAUSES = frozenset((Cause.NON_FINITE, Cause.STALE, Cause.BAD_NAV, Cause.NO_SAFE_SPEED, Cause.LATE))
-# causes the daemon can fly out itself in offboard (its state estimate is sound): a braking stop, then Hold
-BRAKE_STOP_CAUSES = frozenset((Cause.NO_SAFE_SPEED, Cause.NOT_IN_FORCE))
+# causes the daemon can fly out itself (its state estimate is sound): a braking stop, then Hold — offboard's fail-safe
+# stop, and governor mode's recovery brake (the obstacle inside the stop distance: governor mode's alone)
+BRAKE_STOP_CAUSES = frozenset((Cause.NO_SAFE_SPEED, Cause.NOT_IN_FORCE, Cause.OBSTACLE))
 
 
 class Subsystem(StrEnum):
@@ -71,3 +72,4 @@ class Subsystem(StrEnum):
     ENVIRONMENT = "environment"
     ACTUATORS = "actuators"
     GUIDANCE = "guidance"
+    AUTOPILOT = "autopilot"  # governor.recovery_brake: the autopilot accepts the brake's switch to offboard

@@ -33,6 +33,7 @@ from .guidance import inflated
 from .states import BRAKE_STOP_CAUSES, FAILSAFE_CAUSES, Cause, State, Subsystem  # noqa: F401 (re-exported)
 
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
+STOPPED_M_S = 0.3  # [m/s] at rest below this ground speed: a stop is over (as offboard's braking stop's end)
 
 
 @dataclass(frozen=True)
@@ -200,6 +201,9 @@ class Supervisor:
         self.v_covered = float(e_pred.axes[0][-1]) if e_pred is not None else math.inf
         self.policy = policy if policy is not None else ContractSpeed()
         self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
+        # the stop contract's brake: None, the autopilot's Hold; the loop period, the daemon's recovery brake
+        # (issue 28 item 4: set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
+        self.recovery_dt: float | None = None
 
     def latch_hold(self, d: Decision, reason: str) -> Decision:
         """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
@@ -207,6 +211,34 @@ class Supervisor:
         self.latched = True
         draft = _Draft(d.state, d.omega, d.v_cmd)
         self._set_state(draft, State.HOLDING, reason)
+        return self._amended(d, draft)
+
+    def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float) -> Decision:
+        """The recovery brake's assumption: the autopilot accepts its switch to offboard when called. `refused`:
+        the autopilot refused it this cycle (its answer, or the mode not shown in time); `speed`: the ground speed
+        it is judged at (the larger of now and when the brake was called). Refused while the vehicle flew faster than the autopilot's Hold's stop contract allows here (`hold_omega`: the limit a refusal
+        falls back to), the autopilot broke that assumption: the daemon holds at once (the cycle) and that stop
+        is not guaranteed. Logged as the autopilot's violation (a critical STATUSTEXT) until the vehicle is at
+        rest. Refused below that limit: nothing here (the Hold's own contract covers the stop). The decision, so
+        amended."""
+        key = Subsystem.AUTOPILOT
+        if key in self._violations:
+            on, v_hold = not i.ground_speed < STOPPED_M_S, math.nan  # (an unknown speed: not at rest)
+        elif refused:
+            v_hold = self.hold_omega(i).v_max
+            on = speed > v_hold
+        else:
+            return d
+        draft = _Draft(d.state, d.omega, d.v_cmd)
+        self._violation(draft, key, on, lambda: dict(
+                        subsystem=key, guarantee="accepts the recovery brake's switch", assumed=v_hold, observed=speed,
+                        action="Hold"), text=(2, "CG: recovery brake REFUSED above the Hold's limit: stop not "
+                                                 "guaranteed"))
+        return self._amended(d, draft)
+
+    @staticmethod
+    def _amended(d: Decision, draft: _Draft) -> Decision:
+        """`d` after a draft made from it: its state, and its events and STATUSTEXTs added."""
         return replace(d, state=draft.state, events=d.events + tuple(draft.events),
                        statustext=d.statustext + tuple(draft.statustext))
 
@@ -223,13 +255,13 @@ class Supervisor:
             self.state = new
         d.state = new
 
-    def _violation(self, d: _Draft, key: Subsystem, on: bool, info) -> None:
+    def _violation(self, d: _Draft, key: Subsystem, on: bool, info, text: tuple[int, str] | None = None) -> None:
         """Track one guarantee: emit violation_start/end on transitions (`info()`: the start's fields, made
-        only then)."""
+        only then; `text`: its STATUSTEXT, by default an error naming the subsystem)."""
         if on and key not in self._violations:
             self._violations[key] = info = info()
             d.events.append(("violation_start", info))
-            d.statustext.append((3, f"CG: {info['subsystem']} violation"))
+            d.statustext.append(text or (3, f"CG: {info['subsystem']} violation"))
         elif not on and key in self._violations:
             info0 = self._violations.pop(key)
             d.events.append(("violation_end", {k: info0[k] for k in ("subsystem", "guarantee")}))
@@ -265,22 +297,30 @@ class Supervisor:
     def contract_omega(self, i: Inputs) -> Omega:
         """Ω of the contract at this cycle's inputs: one lookup per value, as `e_tr_pred_flown` (the lookup is a
         pure function of the table and these inputs, so a cycle whose inputs equal the last one's reuses its Ω)."""
+        return self._contract_omega(i, self.recovery_dt)
+
+    def hold_omega(self, i: Inputs) -> Omega:
+        """Ω of the contract at this cycle's inputs with the autopilot's Hold as the stop (`recovery_dt` None),
+        whether or not the recovery brake is available: the limit its refusal falls back to."""
+        return self._contract_omega(i, None)
+
+    def _contract_omega(self, i: Inputs, recovery_dt: float | None) -> Omega:
         if i.late_s <= 0.0:
-            return self._omega(i.dod.d_od, i)
+            return self._omega(i.dod.d_od, i, recovery_dt)
         # the daemon's own lateness is reaction time the table's fold did not budget (DESIGN.md §2):
         # V ≤ V_safe(d_od − V·late_s − V·t_react), with V·late_s taken at the speed flown (measured or commanded,
         # the larger) — and again at Ω's own speed when that is higher: a shorter D_od never gives a higher V_max,
         # so that answer is safe at its own speed
         v_ref = max(i.ground_speed if math.isfinite(i.ground_speed) else 0.0, self.limit.value or 0.0)
-        om = self._omega(i.dod.d_od - v_ref * i.late_s, i)
+        om = self._omega(i.dod.d_od - v_ref * i.late_s, i, recovery_dt)
         if om.v_max > v_ref:
-            om = self._omega(i.dod.d_od - om.v_max * i.late_s, i)
+            om = self._omega(i.dod.d_od - om.v_max * i.late_s, i, recovery_dt)
         return om
 
-    def _omega(self, d_od: float, i: Inputs) -> Omega:
-        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio)
+    def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None) -> Omega:
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt)
         if self._omega_at is None or self._omega_at[0] != key:
-            self._omega_at = (key, self.table.omega(*key, contract=self.contract))
+            self._omega_at = (key, self.table.omega(*key[:4], contract=self.contract, recovery_dt=key[4]))
         return self._omega_at[1]
 
     # ------------------------------------------------------------------ the cycle

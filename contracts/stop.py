@@ -175,12 +175,16 @@ def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float
     return lo * (1.0 - 1e-9)
 
 
-def braking_decel(vehicle: Vehicle, thrust_ratio: float, tilt: float | None = None) -> float:
-    """The autopilot's braking deceleration, degraded by thrust: min(MPC_ACC_HOR-like limit,
-    g·tan(tilt), √((T_max/m)² − g²)) with T_max the thrust left at `thrust_ratio`."""
+def airframe_decel(vehicle: Vehicle, thrust_ratio: float, tilt: float | None = None) -> float:
+    """The airframe's own braking deceleration: min(g·tan(tilt), √((T_max/m)² − g²)) with T_max the thrust left
+    at `thrust_ratio` (eq. (14)'s cone, level flight), the tilt at most the vehicle's limit."""
     tilt = vehicle.tilt_max if tilt is None else min(tilt, vehicle.tilt_max)
-    a_phys = horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
-    return min(vehicle.braking.accel_max_m_s2, a_phys)
+    return horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
+
+
+def braking_decel(vehicle: Vehicle, thrust_ratio: float, tilt: float | None = None) -> float:
+    """The autopilot's braking deceleration, degraded by thrust: min(MPC_ACC_HOR-like limit, `airframe_decel`)."""
+    return min(vehicle.braking.accel_max_m_s2, airframe_decel(vehicle, thrust_ratio, tilt))
 
 
 def stop_jerk(vehicle: Vehicle) -> float:
@@ -200,6 +204,26 @@ def stop_path_budget(v: float, stop_decel: float, jerk: float) -> float:
 def stop_dead_time(vehicle: Vehicle) -> float:
     """Reaction time plus the switch to Hold/Brake."""
     return vehicle.t_react_s + vehicle.braking.hold_switch_s
+
+
+# The recovery brake's stop contract (issue 28 item 4; DESIGN.md §1 stop contract): the daemon flies the stop itself
+# in offboard at the airframe's deceleration and `stop_jerk`; its contract takes RECOVERY_SHARE of both, the rest
+# for the vehicle's lag behind the stop it streams (the offboard fail-safe stop's pattern: it plans harder than its
+# contract assumes)
+RECOVERY_SHARE = 0.7
+
+
+def recovery_brake(vehicle: Vehicle, thrust_ratio: float, loop_dt: float, tilt: float | None = None
+                   ) -> tuple[float, float, float]:
+    """(a, j, t_r) of the recovery brake's stop contract, for `approach_stop_speed`: RECOVERY_SHARE of the airframe's
+    deceleration and of `stop_jerk` (never below the autopilot's own, `braking_decel` and its jerk: a brake that
+    flies no harder is not flown), and its dead time: reaction, one loop period (the first setpoint goes out a cycle
+    before OFFBOARD / GUIDED is asked: PX4 refuses offboard without a stream) and the switch (`hold_switch_s`:
+    command round trip and mode switch). The joint bound's approach (speed ≤ V_max, acceleration ≤ a, jerk ≤ j)
+    covers the autopilot's own approach, whose acceleration and jerk are no larger."""
+    a = max(RECOVERY_SHARE * airframe_decel(vehicle, thrust_ratio, tilt), braking_decel(vehicle, thrust_ratio, tilt))
+    j = max(RECOVERY_SHARE * stop_jerk(vehicle), vehicle.braking.jerk_max_m_s3)
+    return a, j, stop_dead_time(vehicle) + loop_dt
 
 
 def v_stop(vehicle: Vehicle, d_od: float, r_obst: float, e_tr: float, thrust_ratio: float,

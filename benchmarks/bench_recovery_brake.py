@@ -1,0 +1,88 @@
+"""The recovery brake's speed gain (governor.recovery_brake; docs/daemon.md, "The recovery brake"): the governor's
+V_max from the shipped tables under the autopilot's Hold's stop contract and under the brake's own (contracts/stop.py
+`recovery_brake`, 50 Hz loop), at a few D_od for both vehicles (R_obst 1 m, measured E_tr 0.3 m, thrust ratio 1.0
+and 0.7); with `--fly`, the lock-step SITL column flights of tests/test_recovery_brake_lockstep.py (Mambo, sensor
+6 m), both personalities: the speed at the stop command and the braking distance from it; with `--sweep`, the brake
+on both vehicles and personalities at columns from 6 m (first seen while speeding up) to 28 m, in wind: collisions
+and the least clearance. Prints one JSON object.
+
+    PYTHONPATH=. python benchmarks/bench_recovery_brake.py [--fly] [--sweep]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from contracts.table import load_for_vehicle  # noqa: E402
+
+D_OD = (3.0, 4.0, 6.0, 9.0, 12.0)
+LOOP_DT = 0.02
+
+
+def limits(vehicle: str, thrust_ratio: float) -> list[dict]:
+    table = load_for_vehicle(vehicle)
+    out = []
+    for d in D_OD:
+        hold = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop").v_max
+        brake = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", recovery_dt=LOOP_DT).v_max
+        out.append({"d_od_m": d, "v_max_hold": round(hold, 3), "v_max_brake": round(brake, 3),
+                    "gain": round(brake / hold, 3) if hold > 0 else None})
+    return out
+
+
+def flights() -> dict:
+    from tests.test_recovery_brake_lockstep import flight, stop, v_max
+
+    out = {}
+    for personality in ("px4", "ardupilot"):
+        for brake in (False, True):
+            rig = flight(personality, brake)
+            _, v, d = stop(rig)
+            out[f"{personality}_{'brake' if brake else 'hold'}"] = {
+                "v_max": round(v_max(rig), 3), "speed_at_stop_command": round(v, 3), "braking_distance_m": round(d, 3),
+                "min_clearance_m": round(rig.truth["min_clearance_m"], 3), "collisions": len(rig.truth["collisions"])}
+    return out
+
+
+def sweep() -> dict:
+    from tests import test_daemon_lockstep as gov
+    from tests.lockstep import Rig
+
+    wind, out = {"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}, []
+    for vehicle in ("mambo", "x500"):
+        for personality in ("px4", "ardupilot"):
+            for x_col in (6.0, 8.0, 10.0, 14.0, 28.0):
+                sc = gov.column_scenario(2, x_col=x_col, wind=wind, vehicle=vehicle)
+                sc["params"] = {"COM_OBL_RC_ACT": 5} if personality == "px4" else {}
+                rig = Rig(sc, personality, config={"governor": {"recovery_brake": True}})
+                gov.fly(rig, 15.0 if x_col < 20 else 25.0)
+                braked = any(e["cmd"] == "offboard" for e in rig.log.named("command"))
+                out.append({"vehicle": vehicle, "autopilot": personality, "x_col_m": x_col, "braked": braked,
+                            "v_max": round(max(s["v_max"] or 0.0 for s in rig.log.states), 3),
+                            "min_clearance_m": round(rig.truth["min_clearance_m"], 3),
+                            "collisions": len(rig.truth["collisions"])})
+    return {"flights": out, "collisions": sum(f["collisions"] for f in out),
+            "least_clearance_m": min(f["min_clearance_m"] for f in out), "all_braked": all(f["braked"] for f in out)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fly", action="store_true", help="also fly the lock-step SITL column flights (about a minute)")
+    ap.add_argument("--sweep", action="store_true", help="also fly the brake at columns from 6 to 28 m (20 flights)")
+    args = ap.parse_args()
+    res = {"settings": {"r_obst_m": 1.0, "e_tr_measured_m": 0.3, "loop_hz": 1.0 / LOOP_DT},
+           "v_max": {v: {str(tr): limits(v, tr) for tr in (1.0, 0.7)} for v in ("mambo", "x500")}}
+    if args.fly:
+        res["flights"] = flights()
+    if args.sweep:
+        res["sweep"] = sweep()
+    print(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    main()

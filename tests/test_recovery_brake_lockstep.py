@@ -1,0 +1,297 @@
+"""The governor's optional recovery brake (`governor.recovery_brake`; docs/daemon.md, "The recovery brake"): real
+lock-step SITL flights of both personalities at a column, and the brake's pieces on their own (its stop contract,
+its switch and fallback in companion/offboard.py)."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import pytest
+
+from companion.console import event_line
+from companion.offboard import RECOVERY_TAKE_S, OffboardController
+from companion.review import format_report, plot_title, summarise
+from companion.states import OffboardState
+from contracts.stop import (approach_stopping_distance, braking_decel, recovery_brake, stop_dead_time,
+                            stopping_distance)
+from contracts.table import load_for_vehicle
+from sitl_harness.autopilot import ACCEPTED, DENIED
+from tests import test_daemon_lockstep as gov
+from tests.lockstep import Rig
+
+PERSONALITIES = ["px4", "ardupilot"]
+
+
+@functools.cache
+def flight(personality: str, brake: bool, obl: int | None = 5, refuse: bool | str = False, cruise: float = 8.0
+           ) -> Rig:
+    """The column flight of tests/test_daemon_lockstep.py (sensor 6 m, column at 28 m); `obl`: PX4's offboard-loss
+    action (COM_OBL_RC_ACT), `refuse`: the autopilot refuses OFFBOARD / GUIDED (True: its answer says so;
+    "silently": it answers accepted and never shows the mode)."""
+    sc = gov.column_scenario(1, cruise=cruise)
+    sc["params"] = {"COM_OBL_RC_ACT": obl} if personality == "px4" and obl is not None else {}
+    rig = Rig(sc, personality, config={"governor": {"recovery_brake": brake}})
+    ap = rig.sim.autopilot
+    if refuse == "silently":
+        enter = ap._enter
+        ap._enter = lambda mode, custom: ACCEPTED if mode == "offboard" else enter(mode, custom)
+    elif refuse:
+        ap.pers.can_enter_offboard = lambda ap: DENIED
+    gov.fly(rig, 25.0)
+    return rig
+
+
+def commands(rig: Rig) -> list[dict]:
+    return [e for e in rig.log.named("command") if e["cmd"] in ("hold", "offboard")]
+
+
+def stop(rig: Rig) -> tuple[float, float, float]:
+    """(time, speed, braking distance) of the stop: from the stop command (the first hold trigger) to the furthest
+    point along the route (+x) after it."""
+    t0 = rig.log.named("hold_trigger")[0]["t"]
+    s0 = next(s for s in rig.log.states if s["t"] >= t0)
+    return t0, s0["ground_speed"], max(s["x"] for s in rig.log.states if s["t"] >= t0) - s0["x"]
+
+
+def v_max(rig: Rig) -> float:
+    return max(s["v_max"] or 0.0 for s in rig.log.states)
+
+
+@pytest.mark.parametrize("personality", PERSONALITIES)
+def test_the_brake_stops_shorter_from_a_higher_limit(personality):
+    off, on = flight(personality, False), flight(personality, True)
+    for rig in (off, on):
+        assert not rig.truth["collisions"], rig.truth["collisions"]
+        assert rig.log.named("hold_trigger")[0]["cause"] == "obstacle inside the stop distance"
+    assert [e["available"] for e in on.log.named("recovery_brake")] == [False, True]  # pending, then its checks pass
+    assert not off.log.named("recovery_brake")
+    # its own stop contract: the limit the governor flies is the brake's, higher than the autopilot's Hold's
+    table, veh = on.daemon.table, on.daemon.table.vehicle
+    assert v_max(off) == pytest.approx(table.omega(6.0, 1.0, 0.3, 1.0, contract="stop").v_max, rel=1e-6)
+    assert v_max(on) == pytest.approx(table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", recovery_dt=0.02).v_max,
+                                      rel=1e-6)
+    assert v_max(on) > 1.3 * v_max(off)
+    # the stop: offboard asked one cycle after the stop command (its first setpoint streamed before), shown, then
+    # Hold at rest; the brake-off flight holds at once
+    t0, v_on, d_on = stop(on)
+    cmd = commands(on)
+    assert [c["cmd"] for c in cmd] == ["offboard", "hold"] and cmd[0]["t"] == pytest.approx(t0 + 0.02, abs=1e-6)
+    assert any(e["to"] == "offboard" and e["by"] == "daemon" for e in on.log.named("mode_change"))
+    assert [e["to"] for e in on.log.named("offboard")] == [OffboardState.BRAKING, OffboardState.HELD]
+    assert on.daemon.tel.armed and on.log.states[-1]["mode"] == "hold"
+    assert [c["cmd"] for c in commands(off)] == ["hold"]
+    _, v_off, d_off = stop(off)
+    # from a higher speed it stops in less than the autopilot's Hold does from a lower one, and in less than the
+    # autopilot's Hold would from its own speed (dead time and jerk-limited stop, starting with no acceleration:
+    # the Hold's shortest)
+    assert v_on > 1.3 * v_off and d_on < d_off
+    hold_from_v_on = stopping_distance(v_on, braking_decel(veh, 1.0), veh.braking.jerk_max_m_s3, stop_dead_time(veh))
+    assert d_on < 0.8 * hold_from_v_on
+    print(personality, {"v_max_hold": v_max(off), "v_max_brake": v_max(on), "v_stop_hold": v_off, "d_hold": d_off,
+                        "v_stop_brake": v_on, "d_brake": d_on, "d_hold_from_v_brake": hold_from_v_on})
+
+
+@pytest.mark.parametrize("personality", PERSONALITIES)
+def test_the_brake_stops_short_of_a_column_seen_while_speeding_up(personality):
+    """The column at 8 m enters the sensor's range while the mission still speeds up to the brake's higher limit
+    (where the autopilot's Hold from the same state hits it: the refused-switch case, docs/daemon.md)."""
+    sc = gov.column_scenario(2, x_col=8.0, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5})
+    sc["params"] = {"COM_OBL_RC_ACT": 5} if personality == "px4" else {}
+    rig = Rig(sc, personality, config={"governor": {"recovery_brake": True}})
+    gov.fly(rig, 15.0)
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    assert [c["cmd"] for c in commands(rig)] == ["offboard", "hold"]
+
+
+@pytest.mark.parametrize("personality", PERSONALITIES)
+def test_the_switch_refused_holds_at_once_and_the_limit_falls_back(personality):
+    """The mission's cruise (3 m/s) is below both limits, so the autopilot's Hold still stops short: the refusal
+    makes the brake unavailable, and is no violation (one above the Hold's limit is: the next test)."""
+    rig = flight(personality, True, refuse=True, cruise=3.0)
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    offb, hold = commands(rig)[:2]
+    assert (offb["cmd"], hold["cmd"]) == ("offboard", "hold")
+    assert hold["t"] - offb["t"] <= 0.04 + 1e-9  # the ACK's round trip, then Hold at once
+    held = rig.log.named("offboard")[-1]
+    assert held["to"] == OffboardState.HELD and "recovery brake refused" in held["reason"]
+    said = rig.log.named("recovery_brake")[-1]
+    assert not said["available"] and "refused" in said["reason"] and "Hold's" in said["limit"]
+    assert any("recovery brake unavailable" in t for t in rig.daemon_texts())
+    assert not rig.log.named("violation_start") and not any("REFUSED" in t for t in rig.daemon_texts())
+    assert "autopilot" not in review_of(rig)["violations_by_subsystem"]
+    # the limit: the brake's before, the autopilot's Hold's from the refusal on
+    table = rig.daemon.table
+    before = [s["v_max"] for s in rig.log.states if s["t"] < offb["t"] and s["v_max"]]
+    after = [s["v_max"] for s in rig.log.states if s["t"] > said["t"]]
+    assert max(before) == pytest.approx(table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", recovery_dt=0.02).v_max)
+    assert max(after) <= table.omega(6.0, 1.0, 0.3, 1.0, contract="stop").v_max + 1e-9
+
+
+def review_of(rig: Rig) -> dict:
+    """`contract-guard review`'s report of the flight's log."""
+    recs = [{"kind": "event", **e} for e in rig.log.events] + [{"kind": "state", **s} for s in rig.log.states]
+    return summarise(sorted(recs, key=lambda r: r["t"]))
+
+
+@pytest.mark.parametrize("personality,refuse", [("px4", True), ("ardupilot", True), ("px4", "silently")])
+def test_a_refusal_above_the_holds_limit_is_the_autopilot_breaking_the_brakes_assumption(personality, refuse):
+    """At the mission's 8 m/s the governor flies the brake's higher limit; refused there (its answer, or the mode
+    never shown), the daemon holds at once from above the autopilot's Hold's limit: that stop is not guaranteed
+    (the column is hit), and the log, the ground station, the console and the review say the autopilot broke
+    the brake's assumption."""
+    rig = flight(personality, True, refuse=refuse)
+    held = rig.log.named("offboard")[-1]
+    assert held["to"] == OffboardState.HELD and "recovery brake refused" in held["reason"]
+    hold = commands(rig)[1]
+    assert hold["cmd"] == "hold" and hold["t"] == held["t"]  # Hold at once, in the cycle of the refusal
+    (v,) = [e for e in rig.log.named("violation_start") if e["subsystem"] == "autopilot"]
+    assert v["t"] == hold["t"] and v["guarantee"] == "accepts the recovery brake's switch" and v["action"] == "Hold"
+    # assumed: the autopilot's Hold's limit at that moment (the supervisor's, without the brake); observed: the
+    # speed measured, above it
+    speed = next(s["ground_speed"] for s in reversed(rig.log.states) if s["t"] <= v["t"])
+    assert v["observed"] == pytest.approx(speed, abs=0.3) and v["observed"] > v["assumed"] > 0.5
+    assert v["assumed"] <= rig.daemon.table.omega(6.0, 1.0, 0.3, 1.0, contract="stop").v_max + 1e-9
+    end = next(e for e in rig.log.named("violation_end") if e["subsystem"] == "autopilot")  # the stop is over
+    assert end["t"] > v["t"] and next(s for s in rig.log.states if s["t"] >= end["t"])["ground_speed"] < 0.35
+    assert rig.truth["collisions"]  # what the violation warns of: the Hold from that speed does not stop short
+    # the ground station: a critical STATUSTEXT, in chunks of at most 50 bytes
+    crit = [m for m in rig.daemon_messages() if m.get_type() == "STATUSTEXT" and m.severity == 2 and m.id]
+    assert crit and all(len(m.text.encode() if isinstance(m.text, str) else m.text) <= 50 for m in crit)
+    assert "CG: recovery brake REFUSED above the Hold's limit: stop not guaranteed" in rig.daemon_texts()
+    # the console
+    prio, line = event_line("violation_start", v)
+    assert prio == 2 and "REFUSED" in line and "NOT guaranteed" in line and f"{v['observed']:.2f} m/s" in line
+    # the review: a violation of the autopilot's, said in the verdict, never "contract kept"
+    rep = review_of(rig)
+    assert rep["ok"] is False and rep["violations_by_subsystem"]["autopilot"]["count"] == 1
+    text = format_report(rep)
+    verdict_line = next(ln for ln in text.splitlines() if "verdict:" in ln)
+    assert "contract kept" not in text and "autopilot refused the recovery brake's switch" in verdict_line
+    assert "autopilot refused the recovery brake's switch" in plot_title(rep)
+
+
+def test_an_accepted_brake_is_no_autopilot_violation():
+    rep = review_of(flight("px4", True))
+    assert rep["ok"] and "autopilot" not in rep["violations_by_subsystem"] and "refused" not in format_report(rep)
+
+
+def test_the_start_up_check_failing_leaves_the_governor_as_before():
+    """PX4 with COM_OBL_RC_ACT 0 (Position): offboard's start-up check fails, the brake is unavailable (said), the
+    governor flies the autopilot's Hold's limit and stops with Hold, as with the brake off."""
+    off, rig = flight("px4", False, obl=0), flight("px4", True, obl=0)
+    said = rig.log.named("recovery_brake")
+    assert [e["available"] for e in said] == [False, False] and "COM_OBL_RC_ACT = 0" in said[-1]["reason"]
+    assert any("recovery brake unavailable: COM_OBL_RC_ACT" in t for t in rig.daemon_texts())
+    assert [c["cmd"] for c in commands(rig)] == ["hold"] and not rig.log.named("offboard")
+    assert [s["v_max"] for s in rig.log.states] == [s["v_max"] for s in off.log.states]
+    assert [(s["x"], s["y"]) for s in rig.log.states] == [(s["x"], s["y"]) for s in off.log.states]
+    assert not rig.truth["collisions"]
+
+
+# ----------------------------------------------------------------------------- the pieces, without a flight
+
+@pytest.mark.parametrize("vehicle", ["mambo", "x500"])
+def test_the_brakes_contract_is_the_joint_bound_at_its_own_braking(vehicle):
+    table = load_for_vehicle(vehicle)
+    veh = table.vehicle
+    for tr in (0.7, 1.0):
+        a, j, t_r = recovery_brake(veh, tr, 0.02)
+        assert a >= braking_decel(veh, tr) and j >= veh.braking.jerk_max_m_s3 and t_r > stop_dead_time(veh)
+        for d_od in (3.0, 6.0, 9.0, 12.0):
+            om = table.omega(d_od, 1.0, 0.3, tr, contract="stop", recovery_dt=0.02)
+            assert om.v_max >= table.omega(d_od, 1.0, 0.3, tr, contract="stop").v_max
+            # never faster than safe: the joint bound's stop at V_safe fits the near edge of the keep-out disc
+            assert approach_stopping_distance(om.v_safe, a, j, t_r) <= d_od - om.e_tr - veh.r_body_m + 1e-9
+
+
+def _recover(ctl, t, mode="mission", start=False, abort=False):
+    return ctl.recover(t, start=start, abort=abort, mode=mode, taken_over=False, p=(0.0, 0.0), v=(4.0, 0.0),
+                       z=-2.0, yaw=0.0, a_stop=4.0, jerk=30.0)
+
+
+def test_the_switch_asked_after_one_setpoint_then_seen_streams_the_stop():
+    ctl = OffboardController(None)
+    first = _recover(ctl, 10.0, start=True)
+    assert first.setpoint is not None and not first.enter and not first.hold
+    second = _recover(ctl, 10.02)
+    assert second.enter and second.setpoint is not None
+    third = _recover(ctl, 10.04, mode="offboard")
+    assert not third.enter and not third.hold and third.setpoint is not None
+    assert float(np.hypot(*third.setpoint.v)) < 4.0  # braking
+    late = _recover(ctl, 10.04 + 2 * RECOVERY_TAKE_S, mode="offboard")  # shown: no time-out any more
+    assert not late.hold and ctl.state == OffboardState.BRAKING and ctl.refused is None
+
+
+@pytest.mark.parametrize("how", ["ack", "timeout"])
+def test_the_switch_refused_or_not_shown_holds(how):
+    ctl = OffboardController(None)
+    _recover(ctl, 10.0, start=True)
+    _recover(ctl, 10.02)  # asked
+    if how == "ack":
+        ctl.refuse("DO_SET_MODE answered 4")
+        acts = _recover(ctl, 10.04)
+        assert ctl.refused == "DO_SET_MODE answered 4"
+    else:
+        assert not _recover(ctl, 10.02 + RECOVERY_TAKE_S).hold  # waits its time-out
+        acts = _recover(ctl, 10.02 + RECOVERY_TAKE_S + 0.02)
+        assert "not shown" in ctl.refused
+    assert acts.hold and acts.setpoint is None and ctl.state == OffboardState.HELD
+
+
+def test_the_key_is_off_by_default_governor_only_and_in_the_banner():
+    from companion.config import config_from_dict
+    from companion.console import banner
+    from contracts.errors import ContractError
+
+    table = load_for_vehicle("mambo")
+    base = {"vehicle": "mambo", "mode": "governor",
+            "sensors": [{"kind": "distance_sensor", "h_fov_deg": 30, "max_range_m": 6.0}]}
+    assert config_from_dict(base).governor.recovery_brake is False
+    assert not any("recovery brake" in ln for ln in banner(config_from_dict(base), table, "x"))
+    on = config_from_dict({**base, "governor": {"recovery_brake": True}})
+    assert any(ln.startswith("recovery brake on") for ln in banner(on, table, "x"))
+    with pytest.raises((ContractError, ValueError), match="governor mode only"):
+        config_from_dict({**base, "mode": "offboard", "route": {"waypoints": [[0, 0], [10, 0]]},
+                          "governor": {"recovery_brake": True}})
+
+
+def test_a_cause_it_cannot_fly_out_while_braking_holds_now():
+    ctl = OffboardController(None)
+    _recover(ctl, 10.0, start=True)
+    _recover(ctl, 10.02, mode="offboard")
+    acts = _recover(ctl, 10.04, mode="offboard", abort=True)  # stale state, Ctrl-C: Hold at once
+    assert acts.hold and acts.setpoint is None and ctl.state == OffboardState.HELD and ctl.refused is None
+    assert not _recover(ctl, 10.06, start=False).setpoint  # held: nothing streamed until resumed
+
+
+def test_the_brakes_records_are_in_the_log_schema():
+    from companion.logschema import EVENTS
+
+    from companion.logschema import SUBSYSTEMS
+
+    for rig in (flight("px4", True), flight("px4", True, refuse=True, cruise=3.0), flight("px4", True, obl=0),
+                flight("px4", True, refuse=True)):
+        for e in rig.log.events:
+            if e["event"] not in ("recovery_brake", "offboard", "violation_start", "violation_end"):  # (the others:
+                continue  # tests/test_logschema.py)
+            assert e["event"] in EVENTS and set(e) - {"t", "event"} <= set(EVENTS[e["event"]].fields), e
+            assert e.get("subsystem", "autopilot") in SUBSYSTEMS
+
+
+def test_after_its_hold_the_pilots_mode_change_resumes_and_the_brake_is_ready_again():
+    """The brake's Hold holds until someone else changes the mode; then the governor stands down from that stop
+    (authority) and the brake is ready for the next one, the limit still its own."""
+    from companion.px4 import PX4
+
+    sc = gov.column_scenario(1)
+    sc["params"] = {"COM_OBL_RC_ACT": 5}
+    rig = Rig(sc, "px4", config={"governor": {"recovery_brake": True}})
+    gov.fly(rig, 25.0)
+    assert rig.daemon.cycle.brake.state == OffboardState.HELD and rig.log.states[-1]["mode"] == "hold"
+    rig.command(176, *PX4().set_mode_params("mission", True))  # the ground station: the mission again
+    rig.run(1.0)
+    last = rig.log.named("mode_change")[-1]
+    assert (last["to"], last["by"]) == ("mission", "other")
+    assert rig.daemon.cycle.brake.state == OffboardState.OFF and rig.daemon.cycle.sup.recovery_dt is not None
+    assert rig.log.named("recovery_brake")[-1]["available"]
