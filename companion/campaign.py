@@ -51,7 +51,8 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
 
 Arms: `governor` and `offboard` (ours), `px4_cp` and `ac_avoid` (the autopilots' laws as governors),
 `no_guard` (daemon off), and the negative controls `<mode>_x<k>` (the contract's speed × k) and
-`<mode>_no_etr` (the contract without the E_tr inflation).
+`<mode>_no_etr` (the contract without the E_tr inflation); `governor_brake` is the governor with its recovery brake
+(`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking).
 """
 
 from __future__ import annotations
@@ -75,7 +76,7 @@ Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "ac_avoid", "no_guard")
-ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$")
+ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim|_brake)?$")
 FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav")
 ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
@@ -183,9 +184,9 @@ class CampaignSpec(_Strict):
     @classmethod
     def _arms(cls, v):
         for a in v:
-            if a not in BASELINES and not ARM_RE.match(a):
+            if a not in BASELINES and not ARM_RE.match(a) or a == "offboard_brake":
                 raise ValueError(f"unknown arm {a!r}: governor, offboard, {', '.join(BASELINES)}, "
-                                 "<mode>_x<k>, <mode>_no_etr or <mode>_claim")
+                                 "<mode>_x<k>, <mode>_no_etr, <mode>_claim or governor_brake")
         if len(set(v)) != len(v) or not v:
             raise ValueError("arms must be distinct and at least one")
         return v
@@ -376,9 +377,10 @@ def scenario_dict(s: dict, arm: str) -> dict:
           "wind": {"mean_m_s": veh.wind.mean_m_s * s["wind_factor"], "from_deg": s["wind_from_deg"],
                    "gust_m_s": veh.wind.gust_m_s * s["gust_factor"]},
           "faults": faults}
+    if off or arm == "governor_brake":  # a companion-only aircraft's offboard-loss action: Hold (the start-up check)
+        sc["params"] = {"COM_OBL_RC_ACT": 5} if s["personality"] == "px4" else {}
     if off:
         sc["start"] = {"alt_m": ALT_M}
-        sc["params"] = {"COM_OBL_RC_ACT": 5} if s["personality"] == "px4" else {}
     else:
         sc["route"] = {"altitude_m": ALT_M, "cruise_speed_m_s": s["cruise_m_s"],
                        "waypoints": [[0, 0], [s["route_end_m"], 0]]}
@@ -396,6 +398,8 @@ def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
                     "route": {"waypoints": [[0, 0], [s["route_end_m"], 0]], "altitude_m": ALT_M}})
     else:
         cfg["mode"] = "governor"
+        if arm == "governor_brake":
+            cfg["governor"] = {"recovery_brake": True}
     return cfg
 
 
@@ -451,7 +455,7 @@ def _policy(arm: str, s: dict, spec: CampaignSpec):
     m = ARM_RE.match(arm)
     if m is None or m.group(2) is None:
         return None
-    if m.group(2) == "_claim":  # the contract's own speed; its D_od the sensor's claim (`fly`)
+    if m.group(2) in ("_claim", "_brake"):  # the contract's own speed (its D_od the sensor's claim: `fly`)
         return None
     return WithoutEtr() if m.group(2) == "_no_etr" else Scaled(float(m.group(3)))
 

@@ -71,3 +71,19 @@ def test_the_report_has_a_row_per_stress_and_arm():
             for i, (arm, st, c) in enumerate([("governor", "fog", False), ("px4_cp", "fog", True)])]
     md = stress_markdown(summarize(rows))
     assert "| fog | px4_cp | 1 | 1 | 1.00 | 2.00 | – | 0/1 |" in md and "| fog | governor | 1 | 0 | 0.97 |" in md
+
+
+def test_the_governor_brake_arm_flies_the_governor_with_its_recovery_brake_armed():
+    spec = cg.spec_from_dict({**BASE, "arms": ["governor", "governor_brake"]})
+    s = cg.sample_scenario(spec, 0)
+    assert cg.daemon_config(s, "governor_brake")["governor"] == {"recovery_brake": True}
+    assert "governor" not in cg.daemon_config(s, "governor")
+    # its start-up check needs PX4's offboard-loss action to be Hold (a companion-only aircraft)
+    assert cg.scenario_dict(s, "governor_brake")["params"]["COM_OBL_RC_ACT"] == 5
+    assert "COM_OBL_RC_ACT" not in cg.scenario_dict(s, "governor").get("params", {})
+    row, rig = cg.fly(spec, 1, keep_rig=True)  # scenario 0 flown by governor_brake
+    assert row["arm"] == "governor_brake" and rig.daemon.cycle.brake is not None
+    said = rig.log.named("recovery_brake")
+    assert said and said[-1]["available"], said
+    with pytest.raises(cg.CampaignError, match="unknown arm 'offboard_brake'"):
+        cg.spec_from_dict({**BASE, "arms": ["offboard_brake"]})
