@@ -14,11 +14,14 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+# one pytest worker per core (pytest-xdist); a test file's tests stay on one worker (its module fixtures built once)
+XDIST  := -n auto --dist loadfile
+
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q $(XDIST)
 
 test-all: $(STAMP)  # the slow campaigns and flights too
-	$(PY) -m pytest -q -m "slow or not slow"
+	$(PY) -m pytest -q $(XDIST) -m "slow or not slow"
 
 demo: $(STAMP)
 	$(VENV)/bin/contract-guard demo

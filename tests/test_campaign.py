@@ -129,6 +129,7 @@ SMALL_CAMPAIGN = {
                {"kind": "thrust_loss", "p": 0.3, "at_s": [4, 10], "thrust_ratio": [0.75, 0.95]}]}
 
 
+@pytest.mark.slow  # campaign-grade (30 flights): make test-all
 def test_a_small_campaign_is_safe_in_assumption_and_its_controls_collide(tmp_path):
     """30 lock-step flights: head-on columns (offset ≤ 0.5 m), design wind, honest fog and thrust losses.
     Stated shares (measured at this commit): no guard collides in 6/6, the governor at 1.7 × the contract's
