@@ -36,7 +36,7 @@ from ..eventlog import EventLog, finite_copy, read_events
 from ..link import MemoryMavfile, mavlink
 from ..logschema import COMMANDS, LOG_FILE, NVF
 from ..review import Origin, fmt_value
-from . import MAX_SAMPLES
+from . import MAX_SAMPLES, gc_frozen, gc_paused
 from .loginput import not_multirotor
 
 MAGIC = re.compile(b"[\xfd\xfe]")
@@ -384,6 +384,11 @@ def in_log_time(t_us, loop_hz: float, take, step, silence_s: float = math.inf) -
     a clock jump closed up), so the cost grows with the log's entries, not its time span.
     Returns {"steps", "gaps_skipped", "skipped_s", "cuts": [(log time of the entry after a cut [µs], the
     time cut out up to there [µs])]}."""
+    with gc_frozen():  # the read log: not walked again by every full collection
+        return _in_log_time(t_us, loop_hz, take, step, silence_s)
+
+
+def _in_log_time(t_us, loop_hz: float, take, step, silence_s: float) -> dict:
     period, n, i, k = 1e6 / loop_hz, len(t_us), 0, 0
     hold, shift = silence_s * 1e6, 0
     steps, gaps, cuts = 0, 0, []
@@ -569,7 +574,8 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
     if not data:
         raise ContractError(f"{path}: empty .tlog")
-    scan = scan_tlog(data)
+    with gc_paused():
+        scan = scan_tlog(data)
     if not scan.packets:
         raise ContractError(f"{path}: no MAVLink packets in {len(data)} bytes (not a .tlog?)")
     cfg, tab, contract, chosen = resolve(scan, path, config, vehicle, table)
