@@ -88,6 +88,7 @@ def snapshot(logs_dir: Path, out: Path) -> None:
         cli = "import sys; from companion.cli import main; sys.exit(main())"
         r = subprocess.run([sys.executable, "-c", cli, "review", path, "--json", "--out", str(WORK), *extra],
                            capture_output=True, text=True, cwd=ROOT)
+        WORK.mkdir(parents=True, exist_ok=True)  # a log refused in one line writes nothing there
         (WORK / "stdout.json").write_text(r.stdout)
         (WORK / "stderr.txt").write_text(r.stderr + f"\nexit {r.returncode}\n")
         dest = out / name

@@ -17,6 +17,7 @@ nothing a reader prints reaches stdout (where `--json` writes its one JSON docum
 from __future__ import annotations
 
 import contextlib
+import gc
 import importlib
 import io
 import os
@@ -122,6 +123,30 @@ def time_bound(seconds: float):
         signal.signal(signal.SIGALRM, old)
         if left:  # the enclosing bound runs on (at once if it has expired meanwhile)
             signal.setitimer(signal.ITIMER_REAL, max(1e-3, left - (time.monotonic() - t0)))
+
+
+@contextlib.contextmanager
+def gc_paused():
+    """The block without the cyclic garbage collector: a reader builds a log's hundreds of thousands of
+    long-lived objects (no cycles among them), which each full pass would walk again. Collected as usual after."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+@contextlib.contextmanager
+def gc_frozen():
+    """What is alive when the block starts (the read log) left out of the cyclic garbage collector's passes
+    in it (`gc.freeze`); what the block makes is collected as usual."""
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
 
 
 def guarded(path, what: str, fn, *args, **kw):

@@ -22,7 +22,7 @@ from ..eventlog import EventLog, finite_copy, read_events
 from ..link import MemoryMavfile
 from ..logschema import LOG_FILE
 from ..review import Origin, fmt_value
-from . import MAX_SAMPLES
+from . import MAX_SAMPLES, gc_paused
 from .loginput import Feed, LogIn
 from .tlog import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, silences, stepped_silence
 
@@ -162,7 +162,8 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
         raise ContractError(f"no such file or directory: {path}")
     if path.is_dir():
         raise ContractError(f"{path} is a directory, not a flight log")
-    feed = read(path)
+    with gc_paused():
+        feed = read(path)
     if len(feed.ops) > MAX_SAMPLES:  # bounded: the first MAX_SAMPLES (in log time) replayed, the rest said
         feed.info["damaged"] = [*feed.info.get("damaged", []), f"more than {MAX_SAMPLES} samples: only the first "
                                 f"{MAX_SAMPLES} ({feed.ops[MAX_SAMPLES][0] / 1e6:.0f} s) replayed"]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import operator
 import re
 import struct
 from array import array
@@ -36,7 +37,7 @@ from ..eventlog import EventLog, finite_copy, read_events
 from ..link import MemoryMavfile, mavlink
 from ..logschema import COMMANDS, LOG_FILE, NVF
 from ..review import Origin, fmt_value
-from . import MAX_SAMPLES
+from . import MAX_SAMPLES, gc_frozen, gc_paused
 from .loginput import not_multirotor
 
 MAGIC = re.compile(b"[\xfd\xfe]")
@@ -130,8 +131,23 @@ def _decode(data: bytes, pos: int, parser):
 
 _V2_HEADER = struct.Struct("<BBBBBBBHB")  # pymavlink's MAVLink 2 header (magic as a number)
 _CRC = struct.Struct("<H")
-_SHAPES: dict = {}  # message class → (no arrays, has strings), `_plain_v2`'s
+_PLAIN: dict = {}  # message class → what `_plain_v2` decodes it with (`_plain_of`)
 mcrf4xx = getattr(mavlink, "mcrf4xx", None)  # pymavlink's CRC (fastcrc's), when it has it
+
+
+def _plain_of(cls) -> tuple:
+    """(CRC_EXTRA as bytes, unpacker, its size, the fields in order from the unpacked tuple, has strings) of a
+    message class: `MAVLink.decode`'s per-message steps, once per class."""
+    lengths, orders = cls.lengths, cls.orders
+    if sum(lengths) == len(lengths):  # no arrays: the fields are single items of the tuple
+        pick = (lambda t, k=orders[0]: [t[k]]) if len(orders) == 1 else operator.itemgetter(*orders)
+    else:  # arrays: each a list, a char array a string
+        at = [sum(lengths[:k]) for k in range(len(lengths))]
+
+        def pick(t):
+            return [t[at[k]] if lengths[k] == 1 or isinstance(t[at[k]], bytes) else list(t[at[k]:at[k] + lengths[k]])
+                    for k in orders]
+    return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format
 
 
 def _plain_v2(buf: bytearray, parser):
@@ -146,25 +162,16 @@ def _plain_v2(buf: bytearray, parser):
     cls = mavlink.mavlink_map.get(msg_id)
     if cls is None or mlen != len(buf) - 12 or mavlink.MAVLINK_IGNORE_CRC:
         return None
+    plain = _PLAIN.get(cls)
+    if plain is None:
+        plain = _PLAIN[cls] = _plain_of(cls)
+    extra, unpacker, size, pick, strings = plain
     crc = _CRC.unpack_from(buf, len(buf) - 2)[0]
-    if mcrf4xx(bytes(buf[1:-2]) + bytes((cls.crc_extra,)), 0xFFFF) != crc:
+    if mcrf4xx(extra, mcrf4xx(buf[1:-2], 0xFFFF)) != crc:
         return None  # pymavlink raises "invalid MAVLink CRC"
-    shape = _SHAPES.get(cls)
-    if shape is None:
-        shape = _SHAPES[cls] = (sum(cls.lengths) == len(cls.lengths), "s" in cls.unpacker.format)
-    size = cls.unpacker.size
-    payload = buf[10:-2]
-    if len(payload) < size:
-        payload.extend(bytes(size - len(payload)))
-    t = cls.unpacker.unpack(payload[:size])
-    if shape[0]:
-        fields = [t[k] for k in cls.orders]
-    else:  # arrays: each a list, a char array a string
-        fields, lengths = [], cls.lengths
-        for k in cls.orders:
-            at, n = sum(lengths[:k]), lengths[k]
-            fields.append(t[at] if n == 1 or isinstance(t[at], bytes) else list(t[at:at + n]))
-    if shape[1]:
+    t = unpacker.unpack_from(buf, 10) if mlen >= size else unpacker.unpack(bytes(buf[10:-2]) + bytes(size - mlen))
+    fields = pick(t)
+    if strings:
         fields = [f.rstrip(b"\x00") if isinstance(f, bytes) else f for f in fields]
     m = cls(*fields)
     m._msgbuf, m._payload, m._crc = buf, buf[6:-2], crc
@@ -384,6 +391,11 @@ def in_log_time(t_us, loop_hz: float, take, step, silence_s: float = math.inf) -
     a clock jump closed up), so the cost grows with the log's entries, not its time span.
     Returns {"steps", "gaps_skipped", "skipped_s", "cuts": [(log time of the entry after a cut [µs], the
     time cut out up to there [µs])]}."""
+    with gc_frozen():  # the read log: not walked again by every full collection
+        return _in_log_time(t_us, loop_hz, take, step, silence_s)
+
+
+def _in_log_time(t_us, loop_hz: float, take, step, silence_s: float) -> dict:
     period, n, i, k = 1e6 / loop_hz, len(t_us), 0, 0
     hold, shift = silence_s * 1e6, 0
     steps, gaps, cuts = 0, 0, []
@@ -569,7 +581,8 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         raise ContractError(f"cannot read {path}: {err.strerror or err}") from None
     if not data:
         raise ContractError(f"{path}: empty .tlog")
-    scan = scan_tlog(data)
+    with gc_paused():
+        scan = scan_tlog(data)
     if not scan.packets:
         raise ContractError(f"{path}: no MAVLink packets in {len(data)} bytes (not a .tlog?)")
     cfg, tab, contract, chosen = resolve(scan, path, config, vehicle, table)
