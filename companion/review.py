@@ -35,7 +35,7 @@ from contracts.errors import ContractError
 
 from .eventlog import file_set, finite_copy, read_events
 from .logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
-from .review_html import PAGE, write_flight_page
+from .review_html import PAGE, verdict, write_flight_page
 
 SCHEMA = "contract-guard/review"
 SCHEMA_VERSION = 1
@@ -542,9 +542,6 @@ def conclude(rep: dict, extra: Iterable[str] = ()) -> dict:
     return rep
 
 
-REFUSED = "the autopilot refused the recovery brake's switch above the Hold's limit: the stop was not guaranteed"
-
-
 def _worst(subsystem: str, v: dict) -> str:
     """What the worst violation of a subsystem means, where a number says it plainly (the daemon's own cycle, the
     autopilot refusing the recovery brake)."""
@@ -554,14 +551,6 @@ def _worst(subsystem: str, v: dict) -> str:
         at = f" at {v['worst_observed']:.2f} m/s" if "worst_observed" in v else ""
         return f"; the recovery brake's switch refused{at}, above the Hold's limit: the stop was not guaranteed"
     return ""
-
-
-def verdict(rep: dict) -> str:
-    """The report's verdict in a few words; one that names what must not be missed (the autopilot refusing the
-    recovery brake above the Hold's limit)."""
-    if rep["ok"]:
-        return "contract kept (no findings)"
-    return "REVIEW NEEDED" + (f": {REFUSED}" if "autopilot" in rep["violations_by_subsystem"] else "")
 
 
 def findings(rep: dict) -> list[str]:

@@ -24,6 +24,17 @@ def page(title: str, body: str) -> str:
             f"<style>{STYLE}</style></head><body>{body}</body></html>\n")
 
 
+REFUSED = "the autopilot refused the recovery brake's switch above the Hold's limit: the stop was not guaranteed"
+
+
+def verdict(rep: dict) -> str:
+    """A review report's verdict in a few words; one that names what must not be missed (the autopilot refusing
+    the recovery brake above the Hold's limit)."""
+    if rep["ok"]:
+        return "contract kept (no findings)"
+    return "REVIEW NEEDED" + (f": {REFUSED}" if "autopilot" in rep["violations_by_subsystem"] else "")
+
+
 def flight_page(path: Path, rep: dict, text: str, name: str, back: str | None = None) -> None:
     """One flight's page at `path`: the verdict and findings, its plots (plan view first, embedded: one file to
     send) and the text report; `back`: a link to the index of many flights."""
@@ -31,11 +42,9 @@ def flight_page(path: Path, rep: dict, text: str, name: str, back: str | None = 
                    f"{base64.b64encode((path.parent / png).read_bytes()).decode()}'>"
                    for png, title in PLOTS if (path.parent / png).exists()) or "<p>no plot</p>"
     findings = "".join(f"<li>{html.escape(x)}</li>" for x in rep["findings"]) or "<li>none</li>"
-    from .review import verdict as say  # (review imports this module)
-
-    verdict = "<p class='ok'>contract kept</p>" if rep["ok"] else f"<p class='bad'>{html.escape(say(rep))}</p>"
+    said = "<p class='ok'>contract kept</p>" if rep["ok"] else f"<p class='bad'>{html.escape(verdict(rep))}</p>"
     path.write_text(page(f"review — {name}", (f"<p><a href='{html.escape(back)}'>← all flights</a></p>" if back else "")
-                         + f"<h1>{html.escape(name)}</h1>{verdict}<h2>Findings</h2><ul>{findings}</ul>{imgs}"
+                         + f"<h1>{html.escape(name)}</h1>{said}<h2>Findings</h2><ul>{findings}</ul>{imgs}"
                          f"<h2>Report</h2><pre>{html.escape(text)}</pre>"))
 
 
