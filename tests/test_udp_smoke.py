@@ -168,7 +168,10 @@ def test_kill9_and_restart_keep_the_log(world):
     first = read_log(logdir)
     assert len(first) > 10
     d2 = cg("run", "--config", cfg)
-    time.sleep(3.0)
+    deadline = time.time() + 60  # its start-up (imports, the table) takes seconds on a loaded host
+    while time.time() < deadline and d2.poll() is None and len({r["boot"] for r in read_log(logdir)}) < 2:
+        time.sleep(0.2)
+    time.sleep(2.0)  # the restarted daemon at work a while
     d2.send_signal(signal.SIGTERM)
     d2.wait(10)
     after = read_log(logdir)
