@@ -14,8 +14,9 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
-# one pytest worker per core (pytest-xdist); a test file's tests stay on one worker (its module fixtures built once)
-XDIST  := -n auto --dist loadfile
+# pytest-xdist: one worker more than the cores (a third of the suite waits on real time: UDP, real processes);
+# a test file's tests stay on one worker (its module fixtures built once)
+XDIST  := -n $(shell echo $$(( $$(nproc 2>/dev/null || echo 1) + 1 ))) --dist loadfile
 
 test: $(STAMP)
 	$(PY) -m pytest -q $(XDIST)

@@ -345,7 +345,8 @@ def calibrated(flown, tmp_path_factory):
     return verify(out)
 
 
-@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+# the second personality is the same evidence again: make test-all
+@pytest.mark.parametrize("personality", ["px4", pytest.param("ardupilot", marks=pytest.mark.slow)])
 def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_under_the_calibrated(calibrated,
                                                                                                  personality):
     """The modified X500 (gains −40 %, +60 ms actuator delay, 5 m/s side wind) in governor mode at up to 8 m/s

@@ -129,6 +129,7 @@ def held_out_ratios(cells, seeds):
     return out
 
 
+@pytest.mark.slow  # held-out flights, a small campaign (test_held_out_validation_campaign is the large one)
 def test_held_out_manoeuvres_and_seeds_never_exceed_the_prediction():
     assert not set(es.HELD_OUT_SEEDS) & set(TABLE.e_pred.info["grid"]["seeds"])
     assert not set(es.HELD_OUT_RHOS) & set(TABLE.e_pred.info["grid"]["avoid_rhos"])
@@ -171,6 +172,7 @@ def stop_branch_covers(f) -> bool:
     return f.v_max * veh.reaction_time(tilt) + f.v_max ** 2 / (2 * a) <= f.d_od - f.e_tr - veh.r_body_m
 
 
+@pytest.mark.slow  # 18 demonstration flights (the paper's Figures 14-16, `contract-guard figures`): make test-all
 def test_demonstration_flights_never_touch_and_stay_within_the_assumed_etr(demo):
     contract = [f for f in demo if f.variant == "contract"]
     assert len(contract) == 6  # three scenarios × (paper tilt, chosen tilt)
@@ -187,6 +189,7 @@ def test_demonstration_flights_never_touch_and_stay_within_the_assumed_etr(demo)
         assert f.v_flown == f.v_max  # at full V_max
 
 
+@pytest.mark.slow  # the same 18 flights
 def test_negative_controls_come_closer_than_the_contract_and_touch_without_inflation(demo):
     """The test can fail: without E_tr inflation the plan grazes R_obst + r_body and the tracking error
     carries the vehicle into the obstacle; entering 1.15 × V_max with the same manoeuvre cuts the

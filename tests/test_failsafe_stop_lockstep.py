@@ -29,8 +29,10 @@ def check(r):
     assert rig.log.named("mode_change")[-1]["to"] == "hold"  # handed over to Hold at rest
 
 
-@pytest.mark.parametrize("vehicle", ["mambo", "x500"])
-@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+# each personality and each vehicle once by default; the other two pairs: make test-all
+@pytest.mark.parametrize("personality, vehicle", [
+    ("px4", "mambo"), ("ardupilot", "x500"),
+    pytest.param("px4", "x500", marks=pytest.mark.slow), pytest.param("ardupilot", "mambo", marks=pytest.mark.slow)])
 def test_a_failsafe_mid_swerve_is_a_stop_within_the_stop_contract(personality, vehicle):
     for seed in (1, 2):
         check(fly(seed, personality, vehicle))
