@@ -2,9 +2,10 @@
 UDP with two busy processes beside them (`python -c "while True: pass"` ×2). It exits 0 when the flight was safe and
 within the contract, and says why it ended (about 50 s of wall time on a 2-core host).
 
-Not yet always: on the shared 2-core build host (load 4-6 before the two busy processes) the flights are safe and
-complete the route, but single cycles 50-60 ms apart in the SITL's 2× time are `guidance` violations (docs/evidence.md,
-the daemon's timeliness on a loaded computer)."""
+On an otherwise idle 2-core host (load about 2 with the two busy processes) it passed 3 times in 3; on a host
+already loaded by other jobs (load 4-6 before the two busy processes) single cycles 50-60 ms apart in the SITL's 2×
+time are `guidance` violations and it fails, as it should (docs/evidence.md, the daemon's timeliness on a loaded
+computer). Hence `-m slow`: the suite itself runs on every core, which is not the load this test names."""
 
 import json
 import subprocess
@@ -14,8 +15,6 @@ import pytest
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="a loaded host: late cycles are guidance violations in some flights "
-                   "(docs/evidence.md)")
 def test_the_demo_is_safe_and_within_the_contract_with_two_busy_processes_beside_it(tmp_path):
     busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
     try:
