@@ -87,3 +87,13 @@ def test_the_governor_brake_arm_flies_the_governor_with_its_recovery_brake_armed
     assert said and said[-1]["available"], said
     with pytest.raises(cg.CampaignError, match="unknown arm 'offboard_brake'"):
         cg.spec_from_dict({**BASE, "arms": ["offboard_brake"]})
+
+
+def test_every_shipped_campaign_spec_loads():
+    from pathlib import Path
+
+    specs = sorted((Path(__file__).resolve().parents[1] / "examples").glob("campaign-*.yaml"))
+    assert len(specs) >= 6
+    loaded = {p.name: cg.load_spec(p) for p in specs}  # a bad one raises CampaignError with its one line
+    big = loaded["campaign-evidence-10k.yaml"]
+    assert big.arms == ["governor", "governor_brake", "offboard"] and big.flights == 43500
