@@ -27,6 +27,7 @@ def _as_foreground_job():
     ignored keeps ignoring it (POSIX; Python then installs no KeyboardInterrupt), and a pytest worker of the
     suite on several workers was seen to pass an ignored SIGINT on."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # (a blocked signal mask is inherited too)
 
 
 def cg(*args, **kw):
