@@ -76,7 +76,7 @@ Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "ac_avoid", "no_guard")
-ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim|_brake)?$")
+ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_brake$")
 FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav")
 ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
@@ -184,7 +184,7 @@ class CampaignSpec(_Strict):
     @classmethod
     def _arms(cls, v):
         for a in v:
-            if a not in BASELINES and not ARM_RE.match(a) or a == "offboard_brake":
+            if a not in BASELINES and not ARM_RE.match(a):
                 raise ValueError(f"unknown arm {a!r}: governor, offboard, {', '.join(BASELINES)}, "
                                  "<mode>_x<k>, <mode>_no_etr, <mode>_claim or governor_brake")
         if len(set(v)) != len(v) or not v:
@@ -455,7 +455,7 @@ def _policy(arm: str, s: dict, spec: CampaignSpec):
     m = ARM_RE.match(arm)
     if m is None or m.group(2) is None:
         return None
-    if m.group(2) in ("_claim", "_brake"):  # the contract's own speed (its D_od the sensor's claim: `fly`)
+    if m.group(2) == "_claim":  # the contract's own speed; its D_od the sensor's claim (`fly`)
         return None
     return WithoutEtr() if m.group(2) == "_no_etr" else Scaled(float(m.group(3)))
 

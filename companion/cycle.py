@@ -261,7 +261,7 @@ class Cycle:
         if self.view.event is not None:
             events.append(self.view.event)
         acts, ended, fail_hold = None, False, d.hold
-        ctl = self.offboard if self.offboard is not None else self.brake
+        ctl = self._controller
         if ctl is not None and i.link_ok:
             fly = self._fly_offboard if self.offboard is not None else self._recover
             acts, d, braking = fly(t, tel, i, d, startup_ok, mission_route)
@@ -345,18 +345,18 @@ class Cycle:
             if off.guidance is not None:
                 off.guidance.planning.close()
             off.guidance = OffboardGuidance(mission_route, planning=self._planning())  # from the next entry
-        lo, hi = veh.thrust_ratio_range
+        hi = veh.thrust_ratio_range[1]
         a_max = horizontal_accel_limit(d.omega.tilt, veh.t_max(min(i.thrust_ratio, hi)), veh.mass_kg)
         # a fail-safe the daemon can fly out itself: it streams a braking stop (the stop contract's
         # deceleration, from the measured state) and hands over to Hold at rest
         # (another cause — stale or bad state, Ctrl-C — ends it in Hold at once)
         stopping = self.shutdown is not None
-        brakeable = not stopping and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
+        brakeable = self._brakeable(i, d)
         brake_stop = brakeable and (bool(d.hold_causes) or off.state == OffboardState.BRAKING)
         braking = brake_stop and off.state in (OffboardState.FLYING, OffboardState.BRAKING)
         # the stop brakes at the tilt flown (Ω's of the last cycle with a speed: a Ω with none has no tilt of
         # its own), and at least as hard as the autopilot's own braking would (the stop contract's)
-        tr = min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
+        tr = self._thrust_in_range(i)
         tilt = self.sup.tilt_in_force if self.sup.tilt_in_force is not None else veh.tilt_max
         stop_decel = braking_decel(veh, tr)
         a_stop = max(horizontal_accel_limit(tilt, veh.t_max(tr), veh.mass_kg), stop_decel)
@@ -375,10 +375,25 @@ class Cycle:
 
 
     @property
+    def _controller(self) -> OffboardController | None:
+        """What streams the daemon's setpoints: offboard's controller, or the recovery brake's (governor mode)."""
+        return self.offboard if self.offboard is not None else self.brake
+
+    @property
     def streaming(self) -> bool:
         """The daemon streams setpoints (offboard, or the recovery brake): they are the commanded path."""
-        ctl = self.offboard if self.offboard is not None else self.brake
+        ctl = self._controller
         return ctl is not None and ctl.streaming
+
+    def _brakeable(self, i: Inputs, d: Decision) -> bool:
+        """The daemon can fly this Hold out itself as a braking stop (its state sound, not stopping, every cause
+        one of BRAKE_STOP_CAUSES): offboard's fail-safe stop and the recovery brake."""
+        return self.shutdown is None and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
+
+    def _thrust_in_range(self, i: Inputs) -> float:
+        """The thrust estimate within the vehicle file's range (its lowest while unknown): what a stop brakes on."""
+        lo, hi = self.table.vehicle.thrust_ratio_range
+        return min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
 
     def command_ack(self, command: int, result: int) -> None:
         """A COMMAND_ACK: a refused DO_SET_MODE while the recovery brake awaits offboard refuses the brake."""
@@ -408,9 +423,7 @@ class Cycle:
         br, veh = self.brake, self.table.vehicle
         if br.state in FINISHED and d.state == State.ACTIVE:  # someone else resumed: ready for the next stop
             br.state = OffboardState.OFF
-        sound = self.shutdown is None and i.telemetry_ok and all(c in BRAKE_STOP_CAUSES for c in d.hold_causes)
-        lo, hi = veh.thrust_ratio_range
-        tr = min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
+        sound, tr = self._brakeable(i, d), self._thrust_in_range(i)
         if not self._v_seen or tel.t_local > self._v_seen[-1][0]:  # the measured acceleration: Δv over ≥ A0_S
             self._v_seen.append((tel.t_local, tel.vx, tel.vy))
         while len(self._v_seen) > 2 and self._v_seen[1][0] <= tel.t_local - A0_S:
@@ -427,9 +440,9 @@ class Cycle:
             self._brake_v0 = i.ground_speed
         if braking and not self.sup.latched:
             d = self.sup.latch_hold(d, "recovery brake: held until the pilot or the ground station changes the mode")
-        # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it
-        # (an unknown speed counts as above it; judged at the speed when called as well: a switch never shown is found refused RECOVERY_TAKE_S later,
-        # by when a vehicle stopped by a collision reads no speed)
+        # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it (an
+        # unknown speed counts as above it; judged at the speed when called as well: a switch never shown is found
+        # refused RECOVERY_TAKE_S later, by when a vehicle stopped by a collision reads no speed)
         d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused,
                                     speed=max(_or_inf(i.ground_speed), _or_inf(self._brake_v0)))
         return acts, d, braking

@@ -37,7 +37,7 @@ from contracts.online_planner import Plan, best_stop
 from contracts.stop import stop_path_budget
 
 from .guidance import OffboardGuidance, Setpoint
-from .states import STREAMING, OffboardState as S, SetpointKind
+from .states import AT_REST_M_S, STREAMING, OffboardState as S, SetpointKind
 
 
 HELD = "fail-safe Hold, held until the pilot or the ground station decides (CG_ENGAGE off and on to resume)"
@@ -151,7 +151,7 @@ class OffboardController:
             if self._done_at is not None:
                 return self._finish(t, acts)
             acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs, yaw=yaw)
-            if acts.setpoint.mode == SetpointKind.DONE and float(np.hypot(*v)) < 0.3:
+            if acts.setpoint.mode == SetpointKind.DONE and float(np.hypot(*v)) < AT_REST_M_S:
                 # the route is flown: hold the vehicle where it is for SETTLE_S, then hand over to Hold, so
                 # that the last setpoint is where it rests (PX4's Hold restarts from the last setpoint: handed
                 # over 1.5 m past it, the vehicle flew back there, 1.3 m/s backwards, unseen by its sensors)
@@ -234,7 +234,7 @@ class OffboardController:
         tau = t - self._t_state
         plan = self._stop_plan
         near = float(np.hypot(*(np.asarray(p, float) - plan.p[-1]))) <= AT_END_M
-        slow = tau >= plan.t[-1] and float(np.hypot(*v)) < 0.3 and near
+        slow = tau >= plan.t[-1] and float(np.hypot(*v)) < AT_REST_M_S and near
         self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
         if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
             acts.hold = True

@@ -58,6 +58,8 @@ class Cause(StrEnum):
     NOT_IN_FORCE = "speed limit not in force"
 
 
+AT_REST_M_S = 0.3  # [m/s] below this ground speed a stop is over (offboard's braking stop, the recovery brake's)
+
 FAILSAFE_CAUSES = frozenset((Cause.NON_FINITE, Cause.STALE, Cause.BAD_NAV, Cause.NO_SAFE_SPEED, Cause.LATE))
 # causes the daemon can fly out itself (its state estimate is sound): a braking stop, then Hold — offboard's fail-safe
 # stop, and governor mode's recovery brake (the obstacle inside the stop distance: governor mode's alone)

@@ -30,10 +30,9 @@ from contracts.window import WindowMax
 
 from .estimators import DodEstimate
 from .guidance import inflated
-from .states import BRAKE_STOP_CAUSES, FAILSAFE_CAUSES, Cause, State, Subsystem  # noqa: F401 (re-exported)
+from .states import AT_REST_M_S, BRAKE_STOP_CAUSES, FAILSAFE_CAUSES, Cause, State, Subsystem  # noqa: F401 (re-exported)
 
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
-STOPPED_M_S = 0.3  # [m/s] at rest below this ground speed: a stop is over (as offboard's braking stop's end)
 
 
 @dataclass(frozen=True)
@@ -216,14 +215,15 @@ class Supervisor:
     def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float) -> Decision:
         """The recovery brake's assumption: the autopilot accepts its switch to offboard when called. `refused`:
         the autopilot refused it this cycle (its answer, or the mode not shown in time); `speed`: the ground speed
-        it is judged at (the larger of now and when the brake was called). Refused while the vehicle flew faster than the autopilot's Hold's stop contract allows here (`hold_omega`: the limit a refusal
-        falls back to), the autopilot broke that assumption: the daemon holds at once (the cycle) and that stop
+        it is judged at (the larger of now and when the brake was called). Refused while the vehicle flew faster
+        than the autopilot's Hold's stop contract allows here (`hold_omega`: the limit a refusal falls back to), the
+        autopilot broke that assumption: the daemon holds at once (the cycle) and that stop
         is not guaranteed. Logged as the autopilot's violation (a critical STATUSTEXT) until the vehicle is at
         rest. Refused below that limit: nothing here (the Hold's own contract covers the stop). The decision, so
         amended."""
         key = Subsystem.AUTOPILOT
         if key in self._violations:
-            on, v_hold = not i.ground_speed < STOPPED_M_S, math.nan  # (an unknown speed: not at rest)
+            on, v_hold = not i.ground_speed < AT_REST_M_S, math.nan  # (an unknown speed: not at rest)
         elif refused:
             v_hold = self.hold_omega(i).v_max
             on = speed > v_hold
