@@ -93,9 +93,22 @@ def plain(v):
     return v
 
 
-def record(name: str) -> dict:
-    rig = FLIGHTS[name]()
+# flown by their own test file, which compares them here (`difference`) instead of flying them twice
+FLOWN_ELSEWHERE = {"figure_17": "tests/test_inflight_figures.py", "figure_18": "tests/test_inflight_figures.py"}
+
+
+def logged(rig: Rig) -> dict:
+    """What a flight logged, as recorded: every state sample and every event."""
     return {"states": plain(rig.log.states), "events": plain(rig.log.events)}
+
+
+def record(name: str) -> dict:
+    return logged(FLIGHTS[name]())
+
+
+def difference(name: str, rig: Rig) -> str | None:
+    """Where the flight `rig` (the recorded flight `name`, flown) logged other than recorded, or None."""
+    return first_difference(load(name), logged(rig))
 
 
 def first_difference(want, got, path: str = "") -> str | None:

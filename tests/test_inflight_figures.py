@@ -7,7 +7,14 @@ from sitl_harness.scenario import load_scenario
 from companion.flights import fly_offboard_scenario
 
 
+def _golden():
+    from tests import golden  # (golden imports this module for its flights)
+
+    return golden
+
+
 def fly_scenario(name):
+    """One of the paper's flights (its golden log: tests/golden.py, compared by the tests below)."""
     return fly_offboard_scenario(load_scenario(name))
 
 
@@ -32,6 +39,7 @@ def test_figure_17_fog_clears_then_thrust_drops():
     agree — the contract's answer at the seen thrust, checked here, not a miss."""
     rig = fly_scenario("fig17")
     assert not rig.truth["collisions"]
+    assert _golden().difference("figure_17", rig) is None  # and logs what it logged when recorded
     fog, clear, thrust = level(rig, 6, 24), level(rig, 30, 44), level(rig, 50, 60)
     assert fog and clear and clear > fog + 1.0  # up when the fog clears
     assert thrust is not None and thrust <= clear + 1e-9  # never up when thrust drops
@@ -49,5 +57,6 @@ def test_figure_17_fog_clears_then_thrust_drops():
 def test_figure_18_fog_clears_then_the_expected_obstacle_shrinks():
     rig = fly_scenario("fig18")
     assert not rig.truth["collisions"] and acked(rig, "CG_R_OBST", 0.6)
+    assert _golden().difference("figure_18", rig) is None  # and logs what it logged when recorded
     fog, clear, small = level(rig, 6, 24), level(rig, 30, 44), level(rig, 50, 60)
     assert fog and clear and small and fog < clear < small  # up, then up again
