@@ -52,7 +52,8 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
 Arms: `governor` and `offboard` (ours), `px4_cp` and `ac_avoid` (the autopilots' laws as governors),
 `no_guard` (daemon off), and the negative controls `<mode>_x<k>` (the contract's speed × k) and
 `<mode>_no_etr` (the contract without the E_tr inflation); `governor_brake` is the governor with its recovery brake
-(`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking).
+(`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking); `governor_ramp` the
+governor with its approach ramp (`governor.approach_ramp_m_s` RAMP_ARM_M_S).
 """
 
 from __future__ import annotations
@@ -76,7 +77,8 @@ Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "ac_avoid", "no_guard")
-ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_brake$")
+ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|ramp)$")
+RAMP_ARM_M_S = 0.3  # the approach ramp of the `governor_ramp` arm
 FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav")
 ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
@@ -186,7 +188,7 @@ class CampaignSpec(_Strict):
         for a in v:
             if a not in BASELINES and not ARM_RE.match(a):
                 raise ValueError(f"unknown arm {a!r}: governor, offboard, {', '.join(BASELINES)}, "
-                                 "<mode>_x<k>, <mode>_no_etr, <mode>_claim or governor_brake")
+                                 "<mode>_x<k>, <mode>_no_etr, <mode>_claim, governor_brake or governor_ramp")
         if len(set(v)) != len(v) or not v:
             raise ValueError("arms must be distinct and at least one")
         return v
@@ -400,6 +402,8 @@ def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
         cfg["mode"] = "governor"
         if arm == "governor_brake":
             cfg["governor"] = {"recovery_brake": True}
+        elif arm == "governor_ramp":
+            cfg["governor"] = {"approach_ramp_m_s": RAMP_ARM_M_S}
     return cfg
 
 

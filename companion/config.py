@@ -289,6 +289,11 @@ class GovernorConfig(_Strict):
     # limit, that Hold's stop is not guaranteed (logged as the autopilot's violation); off where that is not
     # acceptable
     recovery_brake: bool = False
+    # the approach ramp (docs/daemon.md, "The approach ramp") [m/s]: the speed command is raised at most this far
+    # above the speed flown, so the autopilot speeds up gently and a Hold never finds it accelerating hard; the
+    # stop contract then allows a higher limit (checked: an autopilot that accelerates harder than the ramp allows
+    # loses it at once, the autopilot's violation). Slower speed-ups; off (null) by default
+    approach_ramp_m_s: Bounded(0.2, 2.0) | None = None
 
 
 class CalibrationConfig(_Strict):

@@ -19,6 +19,7 @@ from contracts.lookup import kernel_name
 
 from .estimators import LATE_WINDOW_S
 from .mavlink_in import refusal_text
+from .states import BRAKE_SWITCH
 
 CRIT, ERR, WARNING, NOTICE, INFO = 2, 3, 4, 5, 6
 
@@ -39,7 +40,7 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return WARNING, f"HOLD: {f['cause']}" + (f": {f['why']}; resume: {f['resume']}" if f.get("why") else "")
     if name == "thrust_start":
         return (INFO if f["covered"] else WARNING), f["reason"]
-    if name == "violation_start" and f["subsystem"] == "autopilot":  # the recovery brake's switch refused
+    if name == "violation_start" and f["guarantee"] == BRAKE_SWITCH:  # the recovery brake's switch refused
         return CRIT, (f"VIOLATION autopilot: the recovery brake's switch REFUSED at {_fmt(f.get('observed'))} m/s, "
                       f"above the Hold's limit {_fmt(f.get('assumed'))} m/s; {f['action']}: the stop is NOT "
                       "guaranteed")

@@ -11,10 +11,7 @@ in flight never engages until asked anew), and the shutdown's progress (stop mea
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import replace
-
-import numpy as np
 
 from contracts.errors import ContractError
 from contracts.flat import horizontal_accel_limit
@@ -27,7 +24,7 @@ from .autopilot_base import MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
 from .detection_range import DetectionRange, DetectionRangeParams
-from .estimators import SETTLE_S, DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
+from .estimators import SETTLE_S, AccelEstimator, DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .mavlink_in import SENSOR_MSGS
 from .mission import Home
@@ -37,7 +34,7 @@ from .outbox import Outbox
 from .samples import (AutopilotParam, Heading, Implausible, MissionMessage, NavStatus, PathTarget, Position, Scan,
                       Throttle)
 from .states import BRAKE_STOP_CAUSES, FINISHED, Cause, OffboardState, State
-from .supervisor import Decision, Inputs, Supervisor
+from .supervisor import RAMP_WINDOW_S, Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
 SHUTDOWN_WAIT_S = 1.0  # stop means stop: the shutdown Hold is re-sent until the autopilot shows it, this long at most
@@ -107,7 +104,8 @@ class Cycle:
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
-                              e_tr_floor_m=self.etr.floor)
+                              e_tr_floor_m=self.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s)
+        self._accel = AccelEstimator(RAMP_WINDOW_S)  # the acceleration flown, the approach ramp's check
         self.authority = ModeAuthority(adapter.hold_mode())
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":
@@ -126,7 +124,7 @@ class Cycle:
         self.checks = None
         self._brake_said: tuple[bool, str] | None = None
         self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
-        self._v_seen: deque = deque()  # (t, vx, vy) of the last A0_S: the recovery brake's measured acceleration
+        self._a0 = AccelEstimator(A0_S)  # the recovery brake's measured acceleration
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
         # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
@@ -226,6 +224,11 @@ class Cycle:
             dod = replace(dod, d_od=truth.d_od, lowered=True,
                           reason=f"detection range from evidence ({truth.confidence:.0%} confidence): {truth.reason}")
         thrust_ratio, _ = self.thrust.value(t)
+        accel = self._accel.update(tel.t_local, tel.vx, tel.vy) if telemetry_ok else None
+        if accel is None:
+            accel_along = math.nan
+        else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)
+            accel_along = float(accel @ (tel.vx, tel.vy)) / speed if speed > 0.5 else float(math.hypot(*accel))
         discs, width = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, r_obst)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
         self.view = view = self.authority.observe(t, mode, link_ok)
@@ -241,7 +244,7 @@ class Cycle:
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
                       v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s,
-                      late_within_s=self.timing.within_s,
+                      late_within_s=self.timing.within_s, accel_along=accel_along,
                       v_mission=self.mission_speed(tel.mission_seq) if self.mission_speed is not None else math.nan)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
@@ -249,6 +252,8 @@ class Cycle:
              ) -> tuple[Inputs, Decision, Outbox]:
         """`mission_route`: the route downloaded from the autopilot, if the route comes from its mission;
         `protocol`: what the daemon's protocols want sent this cycle (companion/mission.py `Actions`)."""
+        if self.sup.ramp is not None:
+            self.sup.ramp.autopilot_jerk(self._autopilot_jerk())
         i = self.inputs(t, tel, r_obst, engage, startup_ok, route_ready)
         requests, events, texts = [], [], []
         if self.brake is not None:
@@ -424,12 +429,7 @@ class Cycle:
         if br.state in FINISHED and d.state == State.ACTIVE:  # someone else resumed: ready for the next stop
             br.state = OffboardState.OFF
         sound, tr = self._brakeable(i, d), self._thrust_in_range(i)
-        if not self._v_seen or tel.t_local > self._v_seen[-1][0]:  # the measured acceleration: Δv over ≥ A0_S
-            self._v_seen.append((tel.t_local, tel.vx, tel.vy))
-        while len(self._v_seen) > 2 and self._v_seen[1][0] <= tel.t_local - A0_S:
-            self._v_seen.popleft()
-        (_, vx0, vy0), dt = self._v_seen[0], tel.t_local - self._v_seen[0][0]
-        a0 = np.array([tel.vx - vx0, tel.vy - vy0]) / dt if dt >= A0_S else None
+        a0 = self._a0.update(tel.t_local, tel.vx, tel.vy)  # the measured acceleration: Δv over ≥ A0_S
         a_stop = airframe_decel(veh, tr)
         was_refused, was_braking = br.refused is not None, br.state == OffboardState.BRAKING
         acts = br.recover(t, start=d.hold and sound and self.sup.recovery_dt is not None, abort=not sound,
@@ -446,6 +446,14 @@ class Cycle:
         d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused,
                                     speed=max(_or_inf(i.ground_speed), _or_inf(self._brake_v0)))
         return acts, d, braking
+
+    def _autopilot_jerk(self) -> float | None:
+        """The jerk of the autopilot's approach smoothing as it reported it (the start-up checks' parameter for
+        braking.jerk_max_m_s3) [m/s³], None until reported."""
+        for c in self.adapter.param_checks if self.checks is not None else ():
+            if c.what == "braking.jerk_max_m_s3" and c.name in self.checks.values:
+                return self.checks.values[c.name] * c.scale
+        return None
 
     def state_record(self, i: Inputs, d: Decision, tel: Telemetry) -> dict:
         """The cycle's state sample (companion/logschema.py: STATE says what each value means)."""

@@ -4,7 +4,8 @@ Pure classes, no I/O and no simulator truth (a test checks the import graph):
 - `DodEstimator`: the navigation guarantee `D_od` along the direction of travel (DESIGN.md §1);
 - `EtrEstimator`: the controller guarantee `E_tr`, the worst contour error over a window (Figure 11);
 - `ThrustEstimator`: the actuators' `thrust_ratio` from hover throttle;
-- `NavHealth`: the autopilot's estimator flags.
+- `NavHealth`: the autopilot's estimator flags;
+- `AccelEstimator`: the horizontal acceleration the autopilot flies, from its velocity.
 Angles in radians; body yaw angles clockwise from forward (FRD), as MAVLink.
 """
 
@@ -463,6 +464,26 @@ class NavHealth:
 
     def healthy(self, t: float) -> bool:
         return self._ok and t - self._t <= self.stale_s and t - self._t_fault > self.stale_s
+
+
+class AccelEstimator:
+    """The horizontal acceleration flown, Δv/Δt of the reported velocity over at least `window_s` (the newest sample
+    against the oldest kept): the recovery brake's starting state, the approach ramp's check."""
+
+    def __init__(self, window_s: float):
+        self.window_s = window_s
+        self._seen: deque = deque()  # (t, vx, vy), the oldest at least window_s before the newest
+
+    def update(self, t: float, vx: float, vy: float) -> np.ndarray | None:
+        """Take a velocity sample (a repeated time is ignored); the acceleration, None before window_s of them."""
+        seen = self._seen
+        if not seen or t > seen[-1][0]:
+            seen.append((t, vx, vy))
+        while len(seen) > 2 and seen[1][0] <= t - self.window_s:
+            seen.popleft()
+        t0, vx0, vy0 = seen[0]
+        dt = seen[-1][0] - t0
+        return np.array([seen[-1][1] - vx0, seen[-1][2] - vy0]) / dt if dt >= self.window_s else None
 
 
 # ============================================================================ the daemon's own timeliness

@@ -115,7 +115,8 @@ EVENTS = {
                           "made the daemon hold"),
     "limit_change": Event(("v_max", "reason"), "supervisor", "a new speed limit is sent (`sent`, `cruise`: a "
                           "governor sent the autopilot's lower cruise speed instead; `mission_speed`: the mission's "
-                          "own speed item's, with calibration.legs)"),
+                          "own speed item's, with calibration.legs; with the approach ramp: the speed the ramp's "
+                          "commands climb to changed)"),
     "cruise_speed": Event(("param", "v"), "daemon", "the autopilot's cruise-speed parameter (NaN: unusable); a "
                           "governor never sends a limit above it"),
     "limit_not_applicable": Event(("mode", "v_max"), "supervisor", "the autopilot's mode ignores the speed limit"),
@@ -153,6 +154,11 @@ EVENTS = {
                             "governor.recovery_brake: the brake's availability changed (its start-up checks, the "
                             "switch to offboard refused) and the stop contract the limit is flown under (a refusal "
                             "above the autopilot's Hold's limit is also the autopilot's violation_start)"),
+    "approach_ramp": Event(("in_force", "a0_max", "accel", "why"), "supervisor",
+                           "governor.approach_ramp_m_s: the ramp's bound on the Hold-start acceleration (a0_max, "
+                           "m/s²) came into force (the ramp followed 3 s, measured: accel) or went out of it (its "
+                           "commands no longer reach the autopilot; `why`: the autopilot accelerated harder than it "
+                           "allows, also the autopilot's violation_start)"),
     "no_avoiding_plan": Event(("notes",), "offboard", "no avoiding plan: braking"),
     "calibration_hold": Event(("status", "leg", "seq", "leg_speed_m_s", "speed_m_s", "distance_m", "hold_before_m",
                                "rest_s", "at_rest", "reason"), "daemon",

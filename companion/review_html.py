@@ -10,6 +10,8 @@ from pathlib import Path
 
 from contracts.errors import ContractError
 
+from .states import BRAKE_SWITCH, RAMP_FOLLOWED
+
 STYLE = ("body{font-family:sans-serif;margin:1.5em;max-width:1200px}table{border-collapse:collapse}"
          "td,th{border:1px solid #bbb;padding:4px 8px;font-size:14px}th{background:#eee}.bad{color:#b00;font-weight:bold}"
          ".ok{color:#070;font-weight:bold}pre{background:#f6f6f6;padding:1em;white-space:pre-wrap;font-size:13px}"
@@ -25,14 +27,22 @@ def page(title: str, body: str) -> str:
 
 
 REFUSED = "the autopilot refused the recovery brake's switch above the Hold's limit: the stop was not guaranteed"
+RAMP_BROKEN = ("the autopilot accelerated harder than the approach ramp allows: the stop was not guaranteed while it "
+               "did")
+AUTOPILOT_BROKE = {BRAKE_SWITCH: REFUSED, RAMP_FOLLOWED: RAMP_BROKEN}
 
 
 def verdict(rep: dict) -> str:
-    """A review report's verdict in a few words; one that names what must not be missed (the autopilot refusing
-    the recovery brake above the Hold's limit)."""
+    """A review report's verdict in a few words; one that names what must not be missed (the autopilot breaking an
+    assumption a faster governor limit rests on: refusing the recovery brake above the Hold's limit, accelerating
+    harder than the approach ramp allows)."""
     if rep["ok"]:
         return "contract kept (no findings)"
-    return "REVIEW NEEDED" + (f": {REFUSED}" if "autopilot" in rep["violations_by_subsystem"] else "")
+    if "autopilot" not in rep["violations_by_subsystem"]:
+        return "REVIEW NEEDED"
+    said = dict.fromkeys(AUTOPILOT_BROKE.get(v.get("guarantee"), "the autopilot broke an assumption the limit rests on")
+                         for v in rep["violations"] if v.get("subsystem") == "autopilot")
+    return "REVIEW NEEDED: " + ("; ".join(said) or "the autopilot broke an assumption the limit rests on")
 
 
 def flight_page(path: Path, rep: dict, text: str, name: str, back: str | None = None) -> None:

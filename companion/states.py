@@ -74,4 +74,10 @@ class Subsystem(StrEnum):
     ENVIRONMENT = "environment"
     ACTUATORS = "actuators"
     GUIDANCE = "guidance"
-    AUTOPILOT = "autopilot"  # governor.recovery_brake: the autopilot accepts the brake's switch to offboard
+    AUTOPILOT = "autopilot"  # the autopilot accepts the recovery brake's switch (BRAKE_SWITCH), follows the
+    # governor's approach ramp (RAMP_FOLLOWED)
+
+
+# the autopilot's guarantees the governor's faster limits rest on (violation_start.guarantee of Subsystem.AUTOPILOT)
+BRAKE_SWITCH = "accepts the recovery brake's switch"
+RAMP_FOLLOWED = "follows the governor's approach ramp"

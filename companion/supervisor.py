@@ -24,15 +24,23 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from contracts.online_planner import Disc, offboard_cap
-from contracts.stop import braking_decel, measured_stopping_distance, stop_dead_time
+from contracts.stop import braking_decel, measured_stopping_distance, ramp_accel, stop_dead_time
 from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
 from .estimators import DodEstimate
 from .guidance import inflated
-from .states import AT_REST_M_S, BRAKE_STOP_CAUSES, FAILSAFE_CAUSES, Cause, State, Subsystem  # noqa: F401 (re-exported)
+from .states import (AT_REST_M_S, BRAKE_STOP_CAUSES, BRAKE_SWITCH, RAMP_FOLLOWED, FAILSAFE_CAUSES, Cause, State,  # noqa: F401 (re-exported)
+                     Subsystem)
 
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
+# the approach ramp (`ApproachRamp`): a ramp command standing this far above speed + ramp is lowered at once …
+RAMP_SLACK_M_S = 0.05
+RAMP_A_TOL = 0.3  # [m/s²] … and the stop contract's Hold-start acceleration allows this beside `ramp_accel`, for the
+# measured acceleration's noise and lag (the check judges the measurement against the contract's own bound)
+RAMP_WINDOW_S = 0.3  # [s] the acceleration the check judges is Δv/Δt over this long
+RAMP_REARM_S = 3.0  # [s] the ramp followed this long (measured) before its bound is in force, at first and again
+RAMP_V_TOL = (1.03, 0.15)  # the speed flown is never above 1.03 × the speed commanded + 0.15 m/s (tracking, wind)
 
 
 @dataclass(frozen=True)
@@ -64,6 +72,8 @@ class Inputs:
     late_within_s: float = 0.0  # this cycle's lateness inside the jitter allowance, to be said (an event), else 0
     mode_changed: bool = False  # the mode changed this cycle
     taken_over: bool = False  # someone else changed the mode this cycle (the authority's one rule: stand down)
+    accel_along: float = math.nan  # the horizontal acceleration flown along the velocity over RAMP_WINDOW_S (its
+    # magnitude below 0.5 m/s) [m/s²], NaN: not measured yet
 
 
 @dataclass
@@ -147,18 +157,82 @@ class OneSidedLimit:
         return self.value
 
 
+class ApproachRamp:
+    """Governor mode's approach ramp (DESIGN.md §1 stop contract). Up to the contract's limit for any approach
+    (`free`) the autopilot speeds up as it likes (that contract covers a Hold in any state of it); above it the
+    speed command is raised no more than `gap` above the speed flown, so an autopilot whose velocity smoothing never
+    overshoots its target accelerates there at most `ramp_accel(jerk, gap + RAMP_SLACK_M_S)` (also where it passes
+    `free − gap`: it was approaching `free` without overshooting). The stop contract then takes the Hold-start
+    acceleration at most `a0_max` (that plus RAMP_A_TOL) instead of the worst of any approach — a higher V_max.
+    The assumption is checked: in force only once the autopilot has reported its jerk and after RAMP_REARM_S flown
+    on the ramp (at least `free − gap`, judged once the measurement's window lies on it) with the measured
+    acceleration ≤ a0_max; the speed flown never above
+    RAMP_V_TOL of the command. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
+    or overshoots the command), it is out of force at once and for the rest of the flight (until on the ground),
+    the limit falls to the any-approach contract's, and the autopilot's violation lasts while the excess does."""
+
+    def __init__(self, gap_m_s: float, jerk: float):
+        self.gap = gap_m_s
+        self.jerk_file = jerk  # the vehicle file's (braking.jerk_max_m_s3)
+        self.a0_max = math.inf  # not in force before the autopilot reports its own jerk (`autopilot_jerk`)
+        self.free = 0.0  # [m/s] the last command's any-approach limit (`command`)
+        self.in_force = False
+        self.broken = False  # broken this flight: not in force again until on the ground
+        self._since: float | None = None  # followed on the ramp since
+        self._ramp_t: float | None = None  # on the ramp (at least free − gap) since
+        self.excess: tuple[str, str, float, float] | None = None  # (what, unit, allowed, measured) above the ramp
+
+    def autopilot_jerk(self, jerk: float | None) -> None:
+        """The jerk the autopilot reports it smooths its approach with (MPC_JERK_AUTO, WPNAV_JERK; None: not
+        reported): the bound takes the larger of it and the vehicle file's (the start-up checks refuse a smaller)."""
+        ok = jerk is not None and math.isfinite(jerk) and jerk > 0
+        self.a0_max = ramp_accel(max(jerk, self.jerk_file), self.gap + RAMP_SLACK_M_S) + RAMP_A_TOL if ok else math.inf
+
+    def judge(self, t: float, ramping: bool, accel: float, speed: float, v_sent: float | None, in_air: bool
+              ) -> tuple[bool, bool]:
+        """One cycle: `ramping`, the daemon's commands reach the autopilot; `accel`, the acceleration measured along
+        the velocity (NaN: unknown); `speed` the ground speed and `v_sent` the last speed commanded. (changed,
+        over): whether `in_force` changed, and whether the measured acceleration (on the ramp) or speed is above
+        what the ramp allows (with `changed`: it broke the ramp in force)."""
+        was = self.in_force
+        # on the ramp (at least free − gap) for the measurement's whole window: its acceleration is judged
+        self._ramp_t = (self._ramp_t if self._ramp_t is not None else t) if speed >= self.free - self.gap else None
+        on_ramp = self._ramp_t is not None and t - self._ramp_t >= RAMP_WINDOW_S
+        v_top = RAMP_V_TOL[0] * v_sent + RAMP_V_TOL[1] if v_sent is not None else math.inf
+        self.excess = (("acceleration", "m/s²", self.a0_max, accel) if on_ramp and accel > self.a0_max else
+                       ("speed", "m/s", v_top, speed) if speed > v_top else None)
+        over = ramping and self.excess is not None
+        if not in_air:
+            self.broken = False
+        if over and was:
+            self.broken = True
+        if self.broken or not ramping or over or not math.isfinite(accel) or self.a0_max == math.inf:
+            self._since, self.in_force = None, False
+        elif on_ramp:
+            self._since = t if self._since is None else self._since
+            self.in_force = self.in_force or t - self._since >= RAMP_REARM_S
+        return self.in_force != was, over
+
+    def command(self, v_target: float, v_flown: float, free: float) -> float:
+        """The speed to command toward `v_target`: the any-approach limit `free`, above it at most `gap` above
+        the speed flown."""
+        self.free = min(free, v_target)
+        return min(v_target, max(self.free, max(v_flown, 0.0) + self.gap))
+
+
 class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
     def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
                  loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
-                 e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0):
+                 e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None):
         """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
         `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold); `late_allowance_s`: the
         jitter allowance t_react budgets beside one loop period (`timeouts.cycle_jitter_s`); `policy`: the speed
         policy flown (default `ContractSpeed()`; a campaign's baselines and negative controls: companion/baselines.py);
         `e_tr_window_s`, `e_tr_floor_m`: the window E_tr is measured over and the floor it never reads below
-        (`contract.e_tr_window_s`, `contract.e_tr_floor_m`), so also what its prediction is judged over."""
+        (`contract.e_tr_window_s`, `contract.e_tr_floor_m`), so also what its prediction is judged over;
+        `ramp_m_s`: governor mode's approach ramp (`governor.approach_ramp_m_s`, `ApproachRamp`), None: none."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
@@ -176,6 +250,7 @@ class Supervisor:
         self.state = State.STANDBY
         self._last_sent: float | None = None
         self._last_sent_t = -math.inf
+        self._target_sent = math.nan  # what the last command sent was toward (the limit, or the autopilot's own speed)
         self._last_in_air = False
         self._linked = False  # an autopilot heartbeat has been seen (the first link is "up", not "restored")
         self._last_seq = -1
@@ -191,7 +266,7 @@ class Supervisor:
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
         self._e_pred_window = WindowMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
         self.e_tr_floor = e_tr_floor_m
-        self._omega_at: tuple[tuple, Omega] | None = None  # ((d_od, r_obst, e_tr measured, thrust), Ω)
+        self._omega_at: dict[tuple, Omega] = {}  # (d_od, r_obst, e_tr measured, thrust, brake, ramp) → Ω
         self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
         self._stop_at: tuple[float, float, float] | None = None  # (speed, thrust ratio, stopping distance)
         # never fly a speed the controller contract does not cover: the top of E_tr_pred's speed axis
@@ -203,6 +278,8 @@ class Supervisor:
         # the stop contract's brake: None, the autopilot's Hold; the loop period, the daemon's recovery brake
         # (issue 28 item 4: set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
         self.recovery_dt: float | None = None
+        self.ramp = ApproachRamp(ramp_m_s, table.vehicle.braking.jerk_max_m_s3) \
+            if ramp_m_s is not None and mode == "governor" else None
 
     def latch_hold(self, d: Decision, reason: str) -> Decision:
         """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
@@ -231,7 +308,7 @@ class Supervisor:
             return d
         draft = _Draft(d.state, d.omega, d.v_cmd)
         self._violation(draft, key, on, lambda: dict(
-                        subsystem=key, guarantee="accepts the recovery brake's switch", assumed=v_hold, observed=speed,
+                        subsystem=key, guarantee=BRAKE_SWITCH, assumed=v_hold, observed=speed,
                         action="Hold"), text=(2, "CG: recovery brake REFUSED above the Hold's limit: stop not "
                                                  "guaranteed"))
         return self._amended(d, draft)
@@ -297,31 +374,45 @@ class Supervisor:
     def contract_omega(self, i: Inputs) -> Omega:
         """Ω of the contract at this cycle's inputs: one lookup per value, as `e_tr_pred_flown` (the lookup is a
         pure function of the table and these inputs, so a cycle whose inputs equal the last one's reuses its Ω)."""
-        return self._contract_omega(i, self.recovery_dt)
+        return self._contract_omega(i, self.recovery_dt, self.a0_max)
 
     def hold_omega(self, i: Inputs) -> Omega:
         """Ω of the contract at this cycle's inputs with the autopilot's Hold as the stop (`recovery_dt` None),
         whether or not the recovery brake is available: the limit its refusal falls back to."""
-        return self._contract_omega(i, None)
+        return self._contract_omega(i, None, self.a0_max)
 
-    def _contract_omega(self, i: Inputs, recovery_dt: float | None) -> Omega:
+    def any_approach_omega(self, i: Inputs) -> Omega:
+        """Ω of the contract at this cycle's inputs for any approach (without the approach ramp's bound): the speed
+        the ramp lets the autopilot reach at its own acceleration."""
+        return self._contract_omega(i, self.recovery_dt, None)
+
+    @property
+    def a0_max(self) -> float | None:
+        """The approach's acceleration bound the stop contract takes now: the approach ramp's while in force."""
+        return self.ramp.a0_max if self.ramp is not None and self.ramp.in_force else None
+
+    def _contract_omega(self, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
         if i.late_s <= 0.0:
-            return self._omega(i.dod.d_od, i, recovery_dt)
+            return self._omega(i.dod.d_od, i, recovery_dt, a0_max)
         # the daemon's own lateness is reaction time the table's fold did not budget (DESIGN.md §2):
         # V ≤ V_safe(d_od − V·late_s − V·t_react), with V·late_s taken at the speed flown (measured or commanded,
         # the larger) — and again at Ω's own speed when that is higher: a shorter D_od never gives a higher V_max,
         # so that answer is safe at its own speed
         v_ref = max(i.ground_speed if math.isfinite(i.ground_speed) else 0.0, self.limit.value or 0.0)
-        om = self._omega(i.dod.d_od - v_ref * i.late_s, i, recovery_dt)
+        om = self._omega(i.dod.d_od - v_ref * i.late_s, i, recovery_dt, a0_max)
         if om.v_max > v_ref:
-            om = self._omega(i.dod.d_od - om.v_max * i.late_s, i, recovery_dt)
+            om = self._omega(i.dod.d_od - om.v_max * i.late_s, i, recovery_dt, a0_max)
         return om
 
-    def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None) -> Omega:
-        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt)
-        if self._omega_at is None or self._omega_at[0] != key:
-            self._omega_at = (key, self.table.omega(*key[:4], contract=self.contract, recovery_dt=key[4]))
-        return self._omega_at[1]
+    def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max)
+        om = self._omega_at.get(key)
+        if om is None:
+            if len(self._omega_at) >= 4:  # this cycle's few lookups (with and without the brake, the ramp)
+                self._omega_at.clear()
+            om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
+                                                        a0_max=a0_max)
+        return om
 
     # ------------------------------------------------------------------ the cycle
     def e_tr_virtual(self, i: Inputs, d: _Draft) -> float:
@@ -350,9 +441,12 @@ class Supervisor:
                         tuple(d.hold_causes))
 
     def _decide(self, i: Inputs) -> _Draft:
+        ramp = self._judge_ramp(i) if self.ramp is not None else None
         om = self.omega(i)
         d = _Draft(self.state, om, self.limit.value)
         veh = self.table.vehicle
+        if ramp is not None:
+            self._ramp_events(d, i, *ramp)
 
         # authority (the mode authority judged who changed the mode): someone else left our Hold — stand down
         if i.mode_changed:
@@ -469,19 +563,45 @@ class Supervisor:
             v_own = i.v_mission if i.v_mission > 0 else i.v_cruise  # (NaN: not known)
             capped = self.mode == "governor" and 0 < v_own < v_limit
             v_send = v_own if capped else v_limit
-            changed = self._last_sent is None or abs(v_send - self._last_sent) > max(0.05, 0.02 * v_send)
+            last, target, tol = self._last_sent, v_send, max(0.05, 0.02 * v_send)
+            tol_up = tol_down = tol
+            if self.ramp is not None:  # the approach ramp: on it up by half the ramp at a time; down at once
+                v_send = self.ramp.command(target, i.ground_speed, self.any_approach_omega(i).v_max * self.cap)
+                tol_up, tol_down = (0.5 * self.ramp.gap if self.ramp.free < v_send < target else tol), RAMP_SLACK_M_S
+            changed = last is None or v_send - last > tol_up or last - v_send > tol_down
             if changed or i.t - self._last_sent_t > 5.0:
                 d.send_speed = max(v_send, MIN_SPEED_CMD)
-                if changed:
+                # said when the target changes (the limit, or the autopilot's own speed); the ramp's steps are not
+                if last is None or abs(target - self._target_sent) > tol:
                     d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason} |
-                                     ({"sent": v_send, "cruise": i.v_cruise} if capped else {}) |
+                                     ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
                                      ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
-                self._last_sent, self._last_sent_t = v_send, i.t
+                self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
         elif self._no_limit_mode_warned != i.mode:
             self._no_limit_mode_warned = i.mode
             d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))
             d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"))
         return d
+
+    def _judge_ramp(self, i: Inputs) -> tuple[bool, bool]:
+        """The approach ramp's check, before this cycle's Ω (which takes its bound while in force): its commands
+        reach the autopilot while the limit is in force in a mode that applies it (the last cycle's state)."""
+        ramping = (self.state == State.ACTIVE and i.link_ok and i.engaged and i.armed and i.in_air
+                   and i.limit_applies and self._last_sent is not None)
+        return self.ramp.judge(i.t, ramping, i.accel_along, i.ground_speed, self._last_sent, i.in_air)
+
+    def _ramp_events(self, d: _Draft, i: Inputs, changed: bool, over: bool) -> None:
+        ramp = self.ramp
+        if changed:
+            d.events.append(("approach_ramp", {"in_force": ramp.in_force, "a0_max": ramp.a0_max, "accel": i.accel_along}
+                             | ({"why": "the autopilot flew faster or accelerated harder than the ramp allows: off "
+                                        "until landed"} if ramp.broken else {})))
+        on = over and (changed or "approach_ramp" in self._violations)  # from the break while the excess lasts
+        what, unit, allowed, measured = ramp.excess or ("acceleration", "m/s²", ramp.a0_max, i.accel_along)
+        self._violation(d, "approach_ramp", on, lambda: dict(
+                        subsystem=Subsystem.AUTOPILOT, guarantee=RAMP_FOLLOWED, assumed=allowed, observed=measured,
+                        action=f"{what} {measured:.2f} {unit} above the ramp's {allowed:.2f}: the stop contract for "
+                               "any approach for the rest of the flight, a lower limit"))
 
     def _causes(self, i: Inputs, om: Omega) -> dict[Cause, bool]:
         """Every reason to stop now (each edge-triggered after an override)."""

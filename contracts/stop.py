@@ -106,10 +106,17 @@ def hold_start_gain(v: float, a0: float, j: float, t_r: float) -> float:
     return ramp - short
 
 
-def worst_hold_accel(v: float, a: float, j: float, t_r: float) -> float:
-    """The a0 ∈ [0, min(a, √(2jv))] maximising `hold_start_gain` (concave in a0 and C¹, so its stationary point
-    clipped): √(2jv) − j·t_r where the dead time lies on the rising arc (v ≥ 9j·t_r²/8), √(jv/6) where it
-    covers the whole dip (v ≤ 2j·t_r²/3), the smaller root of 15a0² − 18j·t_r·a0 + 3j²t_r² + 2jv between."""
+def ramp_accel(j: float, gap: float) -> float:
+    """The largest acceleration of an approach that never overshoots its target and turns its acceleration out at
+    jerk ≤ j, when the target is at most `gap` above the speed: a²/(2j) ≤ gap (the governor's approach ramp)."""
+    return math.sqrt(2.0 * j * max(gap, 0.0))
+
+
+def worst_hold_accel(v: float, a: float, j: float, t_r: float, a0_max: float = math.inf) -> float:
+    """The a0 ∈ [0, min(a, √(2jv), a0_max)] maximising `hold_start_gain` (concave in a0 and C¹, so its stationary
+    point clipped): √(2jv) − j·t_r where the dead time lies on the rising arc (v ≥ 9j·t_r²/8), √(jv/6) where it
+    covers the whole dip (v ≤ 2j·t_r²/3), the smaller root of 15a0² − 18j·t_r·a0 + 3j²t_r² + 2jv between.
+    `a0_max`: the approach's acceleration is known to stay below it (the governor's ramp, `ramp_accel`)."""
     jt = j * t_r
     if v >= 9.0 * jt * t_r / 8.0:
         a0 = math.sqrt(2.0 * j * v) - jt
@@ -117,16 +124,16 @@ def worst_hold_accel(v: float, a: float, j: float, t_r: float) -> float:
         a0 = (9.0 * jt - math.sqrt(max(36.0 * jt * jt - 30.0 * v * j, 0.0))) / 15.0
     else:
         a0 = math.sqrt(j * v / 6.0)
-    return min(max(a0, 0.0), a, math.sqrt(2.0 * j * v))
+    return min(max(a0, 0.0), a, math.sqrt(2.0 * j * v), a0_max)
 
 
-def approach_stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
+def approach_stopping_distance(v: float, a: float, j: float, t_r: float, a0_max: float = math.inf) -> float:
     """The longest stop when Hold comes at any moment of the autopilot's jerk-limited approach to speed v
-    (speed ≤ v throughout, acceleration ≤ a, jerk ≤ j — its velocity smoothing), one bound over the dead time
-    and the approach state jointly (issue 28 item 3; DESIGN.md §1 stop contract): the dead time flown on the
-    approach, then the stop from the state it reached (`hold_start_gain` at `worst_hold_accel`)."""
+    (speed ≤ v throughout, acceleration ≤ min(a, a0_max), jerk ≤ j — its velocity smoothing), one bound over the
+    dead time and the approach state jointly (DESIGN.md §1 stop contract): the dead time flown on the approach,
+    then the stop from the state it reached (`hold_start_gain` at `worst_hold_accel`)."""
     v = max(v, 0.0)
-    return v * t_r + braking_distance(v, a, j) + hold_start_gain(v, worst_hold_accel(v, a, j, t_r), j, t_r)
+    return v * t_r + braking_distance(v, a, j) + hold_start_gain(v, worst_hold_accel(v, a, j, t_r, a0_max), j, t_r)
 
 
 def measured_stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
@@ -139,23 +146,25 @@ def measured_stopping_distance(v: float, a: float, j: float, t_r: float) -> floa
     return v * t_r + braking_distance_from(v - a_up * a_up / (2.0 * j), a_up, a, j)
 
 
-def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float:
+def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float, a0_max: float = math.inf) -> float:
     """Largest v with approach_stopping_distance(v) ≤ d_avail (0 where d_avail ≤ 0): Γ = V_max − V_safe ≤ 0 of the
     paper's eq. (6) for the stop contract. Where the worst Hold starts at a0 = a with the dead time on the rising
     arc and the stop reaches a (v ≥ (a + j·t_r)²/(2j), v ≥ a²/j, 2a ≥ j·t_r) the distance is
     v²/(2a) + (t_r + 3a/(2j))·v − a³/(6j²) − a²t_r/(2j) − a·t_r²/2 + j·t_r³/6: `stop_speed` with dead time
-    t_r + a/j. Elsewhere a bracketed root search below the plain `stop_speed` (the approach only shortens it)."""
+    t_r + a/j. Elsewhere (and under an `a0_max` below a: the governor's ramp) a bracketed root search below the
+    plain `stop_speed` (the approach only shortens it)."""
     if not d_avail > 0.0:
         return 0.0
     jt = j * t_r
-    v = stop_speed(d_avail + a**3 / (6.0 * j * j) + a * a * t_r / (2.0 * j) + a * t_r * t_r / 2.0 - jt * t_r * t_r / 6.0,
-                   a, j, t_r + a / j)
-    if 2.0 * a >= jt and v >= max((a + jt) ** 2 / (2.0 * j), a * a / j):
-        return v
+    if a0_max >= a:
+        v = stop_speed(d_avail + a**3 / (6.0 * j * j) + a * a * t_r / (2.0 * j) + a * t_r * t_r / 2.0
+                       - jt * t_r * t_r / 6.0, a, j, t_r + a / j)
+        if 2.0 * a >= jt and v >= max((a + jt) ** 2 / (2.0 * j), a * a / j):
+            return v
     hi = stop_speed(d_avail, a, j, t_r)
     if not hi > 0.0 or hi == math.inf:
         return hi if hi == math.inf else 0.0
-    f_lo, f_hi = -d_avail, approach_stopping_distance(hi, a, j, t_r) - d_avail
+    f_lo, f_hi = -d_avail, approach_stopping_distance(hi, a, j, t_r, a0_max) - d_avail
     if f_hi <= 0.0:  # no gain from the approach (hi keeps stop_speed's round-off margin)
         return hi
     lo, side = 0.0, 0
@@ -165,7 +174,7 @@ def approach_stop_speed(d_avail: float, a: float, j: float, t_r: float) -> float
         mid = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
         if not lo < mid < hi:
             mid = 0.5 * (lo + hi)
-        f = approach_stopping_distance(mid, a, j, t_r) - d_avail
+        f = approach_stopping_distance(mid, a, j, t_r, a0_max) - d_avail
         if f <= 0.0:
             lo, f_lo = mid, f
             f_hi, side = (0.5 * f_hi if side == -1 else f_hi), -1

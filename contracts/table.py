@@ -674,12 +674,18 @@ class ContractTable:
         tilt = self._tilt_max if tilt is None else tilt
         if self._bad_inputs(d_od, r_obst, e_tr, thrust_ratio, tilt):
             return 0.0
-        return self._stop(d_od, e_tr, braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt))
+        return self._stop(d_od, e_tr, self._hold_brake(thrust_ratio, tilt))
 
-    def _stop(self, d_od: float, e_tr: float, a: float, j: float | None = None, t_r: float | None = None) -> float:
-        """The joint bound's speed (`approach_stop_speed`) at (a, j, t_r), by default the autopilot's Hold's."""
-        j, t_r = (self.vehicle.braking.jerk_max_m_s3, self._t_dead) if j is None else (j, t_r)
-        return approach_stop_speed(d_od - e_tr - self._r_body, a, j, t_r)
+    def _hold_brake(self, thrust_ratio: float, tilt: float) -> tuple[float, float, float]:
+        """(a, j, t_r) of the autopilot's Hold: its braking deceleration at this thrust and tilt, its jerk, the
+        dead time (contracts/stop.py)."""
+        return (braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt), self.vehicle.braking.jerk_max_m_s3,
+                self._t_dead)
+
+    def _stop(self, d_od: float, e_tr: float, brake: tuple[float, float, float], a0_max: float = math.inf) -> float:
+        """The joint bound's speed (`approach_stop_speed`) for the stop `brake` = (a, j, t_r), the approach's
+        acceleration at most `a0_max`."""
+        return approach_stop_speed(d_od - e_tr - self._r_body, *brake, a0_max)
 
     def _e_list(self, tilt, thrust_ratio, stop=False):
         """E_tr_pred over the speed grid at the worst corner of (tilt, thrust), a list; None: no bound (∞).
@@ -689,12 +695,15 @@ class ContractTable:
         return None if i == len(et) or kk == NONE else lists[i][kk]
 
     # ---- operating point Ω
-    def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None, recovery_dt=None) -> Omega:
+    def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None, recovery_dt=None,
+              a0_max=None) -> Omega:
         """Ω = (V_max, tilt) maximising V_max subject to Γ ≤ 0, with e_tr = max(measured, E_tr_pred(V_max)).
 
         `tilt` caps the tilt (default: the vehicle's limit); the avoid contract picks the best grid tilt
         up to it, the stop contract brakes at it. `recovery_dt` (the stop contract): the daemon's recovery brake
         stops, its loop period that [s] (contracts/stop.py `recovery_brake`); None: the autopilot's Hold.
+        `a0_max` (the stop contract): the approach's acceleration is held below it (the governor's approach ramp,
+        contracts/stop.py `ramp_accel`); None: any approach the autopilot's smoothing flies.
         Safe-first: any doubt → 0.
         """
         tilt = self._tilt_max if tilt is None else tilt
@@ -705,7 +714,7 @@ class ContractTable:
             return Omega(contract, 0.0, tilt if math.isfinite(tilt) else 0.0, e_tr_meas, 0.0, 0.0, bad)
         if contract == "avoid":
             return self._omega_avoid(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
-        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt)
+        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max)
 
     def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt) -> Omega:
         top, k = self._avoid_cells(tilt, thrust_ratio)
@@ -762,19 +771,19 @@ class ContractTable:
         v, j, lim_j = crossing_fixed_point(ev, lim, decide)
         return v, max(col[j], e_meas), lim_j
 
-    def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt, recovery_dt=None) -> Omega:
+    def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt, recovery_dt=None, a0_max=None) -> Omega:
         tilt, tr = min(tilt, self._tilt_max), min(thrust_ratio, self._tr_hi)
-        a, j, t_r = (braking_decel(self.vehicle, tr, tilt), None, None) if recovery_dt is None else \
-            recovery_brake(self.vehicle, tr, recovery_dt, tilt)
+        brake = self._hold_brake(tr, tilt) if recovery_dt is None else recovery_brake(self.vehicle, tr, recovery_dt, tilt)
+        a0_max = math.inf if a0_max is None else a0_max
         if self._stop_slot is None:
-            v = self._stop(d_od, e_meas, a, j, t_r)
+            v = self._stop(d_od, e_meas, brake, a0_max)
             v_max, e_b, v_s = v, e_meas, v
         else:
             col = self._e_list(tilt, thrust_ratio, stop=True)
             if col is None:  # no E_tr bound at this tilt or thrust: no safe speed
                 v_max, e_b, v_s = 0.0, math.inf, 0.0
             else:
-                lim = lambda k: self._stop(d_od, max(col[k], e_meas), a, j, t_r)  # noqa: E731
+                lim = lambda k: self._stop(d_od, max(col[k], e_meas), brake, a0_max)  # noqa: E731
                 v_max, k, v_s = crossing_fixed_point(self._sv_l, lim)
                 e_b = max(col[k], e_meas)
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"

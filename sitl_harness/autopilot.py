@@ -158,6 +158,7 @@ class Autopilot:
         self.custom = personality.default_custom(self.mode)
         self.time = 0.0
         self.cruise = self.settings.cruise_default  # current auto-mode speed (DO_CHANGE_SPEED)
+        self.speed_commands_ignored = False  # the scenario's fault: DO_CHANGE_SPEED accepted, not applied
         self.speed_up: float | None = None  # ArduPilot climb/descent overrides
         self.speed_down: float | None = None
         self.target: np.ndarray | None = None  # goto target of hold/guided navigation
@@ -346,7 +347,7 @@ class Autopilot:
         if cmd == mav.MAV_CMD_DO_SET_MODE:
             return self.request_mode(p[0], p[1], p[2])
         if cmd == mav.MAV_CMD_DO_CHANGE_SPEED:
-            return self.pers.change_speed(self, p)
+            return ACCEPTED if self.speed_commands_ignored else self.pers.change_speed(self, p)
         if cmd == mav.MAV_CMD_MISSION_START:
             if not self.mission:
                 return DENIED

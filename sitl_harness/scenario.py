@@ -147,7 +147,8 @@ class Gust(_Strict):
     from_deg: Num = 0.0
 
 
-FAULT_KINDS = ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "nav_fault_s", "gust")
+FAULT_KINDS = ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "nav_fault_s", "gust",
+               "speed_commands_ignored")
 
 
 class Fault(_Strict):
@@ -160,6 +161,9 @@ class Fault(_Strict):
     link_dropout_s: Pos | None = None
     nav_fault_s: Pos | None = None  # estimator reports a bad position/velocity estimate (flags only)
     gust: Gust | None = None
+    # the autopilot from now on accepts DO_CHANGE_SPEED but ignores it, back at its own cruise speed (a misbehaving
+    # autopilot: the governor's limit and approach ramp not followed)
+    speed_commands_ignored: Literal[True] | None = None
 
     @model_validator(mode="after")
     def _one(self) -> "Fault":

@@ -249,6 +249,9 @@ class Sim:
                 self.nav_fault_until = t + f.nav_fault_s
             elif f.gust is not None:
                 self.wind.add_gust(t, f.gust.duration_s, f.gust.peak_m_s, f.gust.from_deg)
+            elif f.speed_commands_ignored:
+                self.autopilot.speed_commands_ignored = True
+                self.autopilot.cruise = self.autopilot.settings.cruise_default
 
     # ------------------------------------------------------------------ battery (simple)
     def _battery_update(self) -> None:

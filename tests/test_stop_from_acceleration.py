@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from contracts.stop import (approach_stopping_distance, braking_distance, braking_distance_from, stopping_distance,
-                            stopping_distance_from)
+from contracts.stop import (approach_stop_speed, approach_stopping_distance, braking_distance, braking_distance_from,
+                            ramp_accel, stopping_distance, stopping_distance_from)
 from sitl_harness.scenario import Scenario
 from sitl_harness.sim import Sim
 from sitl_harness.trajectory import AutoTrajectory
@@ -114,26 +114,64 @@ def test_a_hold_from_an_accelerating_state_starts_where_the_source_says_and_stop
     assert path > braking_distance(v0, s.acc_hor, s.jerk)  # longer than a stop from zero acceleration
 
 
-@pytest.mark.parametrize("v_lim", [1.0, 3.0, 6.0])
-def test_every_state_of_the_approach_to_the_limit_stops_within_the_approach_distance(v_lim):
-    """The autopilot speeding up to v_lim along its jerk-limited law (the SITL's reference: PX4's and ArduPilot's
-    velocity smoothing); a Hold at any moment of it stops within approach_stopping_distance(v_lim) (dead time 0.25 s
-    flown on the approach, then the stop from that state)."""
-    a, j, t_r, dt = 3.0, 4.0, 0.25, 0.005
+def _holds_along_the_approach(v_lim, a, j, t_r, seconds, command, dt=0.005):
+    """The autopilot speeding up along its jerk-limited law (the SITL's reference: PX4's and ArduPilot's velocity
+    smoothing) toward `command(speed)` (asked every 50 ms); a Hold every 50 ms of it, after the dead time t_r flown
+    on the approach. (the longest stop, the peak acceleration, the speed reached)."""
     tj = AutoTrajectory(a, j)
     tj.reset((0, 0, -2), (0, 0, 0))
-    worst = 0.0
-    for k in range(int(6.0 / dt)):
-        tj.step(dt, (1e4, 0, -2), v_lim, 3.0, 1.5)
+    worst, a_peak, cmd = 0.0, 0.0, 0.0
+    for k in range(int(seconds / dt)):
+        if k % 10 == 0:
+            cmd = command(tj.speed_xy)
+        tj.step(dt, (1e4, 0, -2), cmd, 3.0, 1.5)
+        a_peak = max(a_peak, float(tj.a[0]))
         if k % 10:
             continue
         probe = AutoTrajectory(a, j)
         probe.reset(tj.p, tj.v, tj.a)
         for _ in range(int(t_r / dt)):
-            probe.step(dt, (1e4, 0, -2), v_lim, 3.0, 1.5)
+            probe.step(dt, (1e4, 0, -2), cmd, 3.0, 1.5)
         for _ in range(2000):
             probe.step(dt, None, v_lim, 3.0, 1.5)
         worst = max(worst, float(probe.p[0] - tj.p[0]))
+    return worst, a_peak, tj.speed_xy
+
+
+@pytest.mark.parametrize("v_lim", [1.0, 3.0, 6.0])
+def test_every_state_of_the_approach_to_the_limit_stops_within_the_approach_distance(v_lim):
+    """The autopilot speeding up to v_lim; a Hold at any moment of it stops within approach_stopping_distance(v_lim)
+    (dead time 0.25 s flown on the approach, then the stop from that state)."""
+    a, j, t_r = 3.0, 4.0, 0.25
+    worst, _, _ = _holds_along_the_approach(v_lim, a, j, t_r, 6.0, lambda v: v_lim)
     # the SITL's law is up to 8 % longer than the time-optimal stop (see above)
     assert worst <= 1.08 * approach_stopping_distance(v_lim, a, j, t_r)
     assert worst > 1.02 * stopping_distance(v_lim, a, j, t_r)  # the plain stop contract does not hold here
+
+
+@pytest.mark.parametrize("v_lim", [3.0, 6.0])
+def test_a_ramped_approach_keeps_its_acceleration_and_stops_within_the_shaped_distance(v_lim):
+    """The governor's approach ramp: every 50 ms the speed command is raised to at most `gap` above the speed flown.
+    The acceleration stays ≤ ramp_accel(j, gap), and a Hold at any moment stops within the joint bound with the
+    Hold-start acceleration capped there — shorter than the bound for any approach (what the ramp buys), longer
+    than the plain stop."""
+    a, j, t_r, gap = 3.0, 4.0, 0.25, 0.35
+    cap = ramp_accel(j, gap)
+    worst, a_peak, reached = _holds_along_the_approach(v_lim, a, j, t_r, 8.0, lambda v: min(v_lim, v + gap))
+    assert reached == pytest.approx(v_lim, abs=0.01)  # it got there
+    assert a_peak <= cap + 1e-6
+    shaped = approach_stopping_distance(v_lim, a, j, t_r, a0_max=cap)
+    assert worst <= 1.08 * shaped
+    assert shaped < approach_stopping_distance(v_lim, a, j, t_r) - 0.1
+    assert worst > stopping_distance(v_lim, a, j, t_r)
+
+
+@pytest.mark.parametrize("d", [0.5, 2.0, 6.0, 15.0])
+@pytest.mark.parametrize("a0_max", [0.5, 1.5, 2.9])
+def test_the_capped_speed_is_the_largest_within_the_capped_distance(d, a0_max):
+    a, j, t_r = 3.0, 4.0, 0.2
+    v = approach_stop_speed(d, a, j, t_r, a0_max)
+    assert approach_stopping_distance(v, a, j, t_r, a0_max) <= d
+    assert approach_stopping_distance(v * 1.001 + 1e-6, a, j, t_r, a0_max) > d
+    assert v >= approach_stop_speed(d, a, j, t_r)  # a cap never lowers the speed …
+    assert approach_stop_speed(d, a, j, t_r, a0_max=a) == approach_stop_speed(d, a, j, t_r)  # … nor does one at a
