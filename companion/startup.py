@@ -116,7 +116,7 @@ class StartupChecks:
         for a companion-only aircraft, Land or Hold as its offboard-loss action (the parameters reported)."""
         try:
             self.adapter.set_mode_params("offboard", True)
-        except Exception:
+        except (KeyError, NotImplementedError):  # no such mode in the adapter's table; the generic adapter has none
             return False, "the autopilot reports no offboard mode"
         for c in self.adapter.param_checks:
             if not c.offboard_allowed:

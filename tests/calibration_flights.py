@@ -48,6 +48,21 @@ TRUTH_INNER = {"att_p": 0.6, "rate_p": 0.5}
 SENSOR_RANGE_M = 40.0  # the calibration flight's forward sensor (a lidar's range): V_stop covers 8 m/s at E_tr 3 m
 
 
+def split_frames(data: bytes) -> list[bytes] | None:
+    """The MAVLink frames `data` is made of, whole (MAVLink 1: 8 bytes + payload; 2: 12 + payload, + 13 signed),
+    without decoding them; None when it is not a sequence of whole frames."""
+    out, pos = [], 0
+    while pos < len(data):
+        if len(data) - pos < 3 or data[pos] not in (0xFD, 0xFE):
+            return None
+        n = 8 + data[pos + 1] if data[pos] == 0xFE else 12 + data[pos + 1] + (13 if data[pos + 2] & 1 else 0)
+        if pos + n > len(data):
+            return None
+        out.append(bytes(data[pos:pos + n]))
+        pos += n
+    return out
+
+
 class TlogTee:
     """Stamps every packet crossing the ground station's side of a lock-step link into a `.tlog`."""
 
@@ -82,8 +97,11 @@ class TlogTee:
         if not data:
             return
         stamp = struct.pack(">Q", self.epoch_us + int(self.rig.sim.time_s * 1e6))
-        for m in self.parser.parse_buffer(data) or []:
-            self.fh.write(stamp + bytes(m.get_msgbuf()))
+        frames = split_frames(data)
+        if frames is None:  # not whole frames: what the parser makes of it
+            frames = [bytes(m.get_msgbuf()) for m in self.parser.parse_buffer(data) or []]
+        for f in frames:
+            self.fh.write(stamp + f)
 
     def close(self) -> None:
         self.fh.close()

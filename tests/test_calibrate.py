@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
 from pathlib import Path
@@ -257,13 +259,23 @@ def test_sitl_flies_the_plan_from_either_file(flown):
         assert [src for _, src in tr.holds] == ["command", "command"]
 
 
-def test_calibrated_table_is_never_optimistic_for_a_worse_aircraft(flown, stock, tmp_path, capsys):
+@pytest.fixture(scope="module")
+def tlog_calibration(flown, tmp_path_factory):
+    """`contract-guard calibrate` of the two flights' .tlogs, once for the tests below: (its --json summary, the
+    directory of new.npz, new.yaml and new.report.html)."""
+    d, _ = flown
+    out = tmp_path_factory.mktemp("caltab")
+    with contextlib.redirect_stdout(io.StringIO()) as said:
+        assert main(["calibrate", str(d / "px4.tlog"), str(d / "ardupilot.tlog"), "--vehicle", "x500", "--table",
+                     "x500", "--out", str(out / "new.npz"), "--json"]) == 0
+    return json.loads(said.getvalue()), out
+
+
+def test_calibrated_table_is_never_optimistic_for_a_worse_aircraft(flown, tlog_calibration, stock, capsys):
     d, _ = flown
     logs = [d / "px4.tlog", d / "ardupilot.tlog"]
-    assert main(["calibrate", *map(str, logs), "--vehicle", "x500", "--table", "x500",
-                 "--out", str(tmp_path / "new.npz"), "--json"]) == 0
-    s = json.loads(capsys.readouterr().out)
-    new = verify(tmp_path / "new.npz", load_vehicle(tmp_path / "new.yaml"))
+    s, cal_dir = tlog_calibration
+    new = verify(cal_dir / "new.npz", load_vehicle(cal_dir / "new.yaml"))
     c = new.e_pred.info["calibration"]
     assert c["covered_cells"] >= 1 and len(c["logs"]) == 2 and all(len(lg["sha256"]) == 64 for lg in c["logs"])
     # every window flown is bounded by the calibrated E_tr_pred of its cell
@@ -284,26 +296,25 @@ def test_calibrated_table_is_never_optimistic_for_a_worse_aircraft(flown, stock,
     assert b["stops"] == 4
     for r in s["braking"]["stops"]:
         assert cal.predicted_stop(r["v0"], b["accel_max_m_s2"], b["jerk_max_m_s3"], b["hold_switch_s"]) >= r["distance_m"]
-    assert (tmp_path / "new.report.html").exists()
+    assert (cal_dir / "new.report.html").exists()
     # coverage is shown by `table show` and in the daemon's start-up banner
-    assert main(["table", "show", str(tmp_path / "new.npz")]) == 0
+    assert main(["table", "show", str(cal_dir / "new.npz")]) == 0
     assert f"measured on {c['covered_cells']} of {c['cells']} cells" in capsys.readouterr().out
     from companion.config import config_from_dict
     from companion.console import banner
 
-    lines = banner(config_from_dict({"vehicle": str(tmp_path / "new.yaml"), "table": str(tmp_path / "new.npz")}),
+    lines = banner(config_from_dict({"vehicle": str(cal_dir / "new.yaml"), "table": str(cal_dir / "new.npz")}),
                    new, "E_tr_pred")
     assert any("of the envelope" in x for x in lines)
 
 
-def test_the_autopilots_own_logs_calibrate_like_the_tlog(flown, stock, tmp_path):
+def test_the_autopilots_own_logs_calibrate_like_the_tlog(flown, tlog_calibration, stock, tmp_path):
     """The same flights' PX4 ULog and ArduPilot DataFlash (written by the SITL) give the tlog's answer."""
     d, out = flown
     own = [Path(out["px4"]["autopilot_log"]), Path(out["ardupilot"]["autopilot_log"])]
     assert [p.suffix for p in own] == [".ulg", ".bin"]
-    veh = load_vehicle("x500")
-    a = calibrate([d / "px4.tlog", d / "ardupilot.tlog"], veh, stock, tmp_path / "a.npz", report=False)
-    b = calibrate(own, veh, stock, tmp_path / "b.npz", report=False)
+    a, a_dir = tlog_calibration
+    b = calibrate(own, load_vehicle("x500"), stock, tmp_path / "b.npz", report=False)
     assert [lg["format"] for lg in b["logs"]] == ["PX4 ULog", "ArduPilot DataFlash"]
     assert b["samples"] == pytest.approx(a["samples"], rel=0.05)
     assert b["ratio_measured_over_predicted"] == pytest.approx(a["ratio_measured_over_predicted"], rel=0.1)
@@ -315,7 +326,7 @@ def test_the_autopilots_own_logs_calibrate_like_the_tlog(flown, stock, tmp_path)
     # samples (measured; the 4 m/s stops agree within 10 %)
     assert bb["jerk_max_m_s3"] == pytest.approx(ba["jerk_max_m_s3"], rel=0.25)
     assert bb["hold_switch_s"] == pytest.approx(ba["hold_switch_s"], abs=0.1)
-    ea, eb = verify(tmp_path / "a.npz").e_pred.values, verify(tmp_path / "b.npz").e_pred.values
+    ea, eb = verify(a_dir / "new.npz").e_pred.values, verify(tmp_path / "b.npz").e_pred.values
     # the same answer but at a cell's edge: a window whose tilt sits on a tilt edge is charged to the next tilt cell
     # from one log and not the other (attitude sampled at other rates), and the monotone repair carries that
     # upward. Measured with the E_tr_pred rebuilt for issue 19 item 9: 48 of 450 cells differ (1-3 m/s), by
@@ -338,11 +349,8 @@ def test_public_px4_logs_run_through_calibrate(tmp_path, stock):
 
 
 @pytest.fixture(scope="module")
-def calibrated(flown, tmp_path_factory):
-    d, _ = flown
-    out = tmp_path_factory.mktemp("caltab") / "new.npz"
-    calibrate([d / "px4.tlog", d / "ardupilot.tlog"], load_vehicle("x500"), load_for_vehicle("x500"), out, report=False)
-    return verify(out)
+def calibrated(tlog_calibration):
+    return verify(tlog_calibration[1] / "new.npz")
 
 
 # the second personality is the same evidence again: make test-all

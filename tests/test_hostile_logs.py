@@ -225,9 +225,8 @@ def test_a_real_arduplane_tlog_is_recognised_as_a_fixed_wing():
     contract … by up to 27.78 m/s', 120 spans."""
     with pytest.raises(ContractError, match=r"a fixed-wing log \(.*HEARTBEAT type 1, fixed wing\).*not reviewed"):
         review_log(VTOL_TLOG, vehicle="x500")
-    copter = ARDUPILOT_LOGS / "arducopter-2015-23min.tlog"  # the control: a real quadrotor's is still reviewed
-    rep, origin = review_log(copter, vehicle="x500")
-    assert origin.info["packets"] > 10_000 and rep["state_samples"] > 1000
+    # the control, a real quadrotor's .tlog still reviewed: tests/test_review_no_obstacles.py reviews the 23-minute
+    # ArduCopter log in full; a .tlog of each multirotor type: the test below
 
 
 def test_a_tlogs_vehicle_type_decides_whether_it_is_reviewed(tmp_path):

@@ -134,6 +134,8 @@ def _holds_along_the_approach(v_lim, a, j, t_r, seconds, command, dt=0.005):
             probe.step(dt, (1e4, 0, -2), cmd, 3.0, 1.5)
         for _ in range(2000):
             probe.step(dt, None, v_lim, 3.0, 1.5)
+            if not probe.v[0] and not probe.a[0]:  # at rest (the reference settles exactly)
+                break
         worst = max(worst, float(probe.p[0] - tj.p[0]))
     return worst, a_peak, tj.speed_xy
 
