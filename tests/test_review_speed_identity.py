@@ -71,7 +71,9 @@ def test_a_written_tlog_reviews_the_same_along_the_straightforward_path(tmp_path
     same_review(path, tmp_path / "out", monkeypatch)
 
 
-@pytest.mark.parametrize("name, part", [("px4/sample_px4_events.ulg", slice(None)), ("px4/sample.ulg", slice(None)),
+# the second real ULog is the same evidence again: make test-all
+@pytest.mark.parametrize("name, part", [pytest.param("px4/sample_px4_events.ulg", slice(None), marks=pytest.mark.slow),
+                                        ("px4/sample.ulg", slice(None)),
                                         ("ardupilot/arducopter-2015-23min.tlog", slice(1_100_000, 1_500_000))])
 def test_a_real_log_reviews_the_same_along_the_straightforward_path(name, part, tmp_path, monkeypatch):
     src = SHARED / name
