@@ -166,8 +166,7 @@ class ApproachRamp:
     acceleration at most `a0_max` (that plus RAMP_A_TOL) instead of the worst of any approach — a higher V_max.
     The assumption is checked: in force only once the autopilot has reported its jerk and after RAMP_REARM_S flown
     on the ramp (at least `free − gap`, judged once the measurement's window lies on it) with the measured
-    acceleration ≤ a0_max; the speed flown never above
-    RAMP_V_TOL of the command. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
+    acceleration ≤ a0_max; the speed flown never above RAMP_V_TOL of the command while speeding up. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
     or overshoots the command), it is out of force at once and for the rest of the flight (until on the ground),
     the limit falls to the any-approach contract's, and the autopilot's violation lasts while the excess does."""
 
@@ -199,8 +198,10 @@ class ApproachRamp:
         self._ramp_t = (self._ramp_t if self._ramp_t is not None else t) if speed >= self.free - self.gap else None
         on_ramp = self._ramp_t is not None and t - self._ramp_t >= RAMP_WINDOW_S
         v_top = RAMP_V_TOL[0] * v_sent + RAMP_V_TOL[1] if v_sent is not None else math.inf
+        # (above the command while still speeding up: a command just lowered — fog, a nearer obstacle — is not
+        # overshot by a vehicle slowing down to it)
         self.excess = (("acceleration", "m/s²", self.a0_max, accel) if on_ramp and accel > self.a0_max else
-                       ("speed", "m/s", v_top, speed) if speed > v_top else None)
+                       ("speed", "m/s", v_top, speed) if speed > v_top and accel > RAMP_A_TOL else None)
         over = ramping and self.excess is not None
         if not in_air:
             self.broken = False

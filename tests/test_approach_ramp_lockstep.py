@@ -119,7 +119,8 @@ def test_the_ramp_is_in_force_only_when_followed_and_once_broken_not_again_this_
     assert ramp.command(5.0, 2.0, 1.0) == pytest.approx(2.3) and ramp.command(2.1, 2.0, 1.0) == 2.1
     assert ramp.command(5.0, 0.5, 3.0) == 3.0  # up to the any-approach limit the autopilot speeds up as it likes …
     assert ramp.judge(t, True, 2.5, 0.5, 3.0, True) == (False, False)  # … however hard
-    assert ramp.judge(t + 5.0, True, 1.0, 3.3, 3.0, True) == (True, True) and ramp.broken  # faster than commanded
+    assert ramp.judge(t + 4.0, True, -1.0, 3.3, 3.0, True) == (False, False)  # slowing to a command just lowered
+    assert ramp.judge(t + 5.0, True, 1.0, 3.3, 3.0, True) == (True, True) and ramp.broken  # faster, speeding up
     assert ramp.excess[0] == "speed" and ramp.excess[2] == pytest.approx(1.03 * 3.0 + 0.15)
     ramp.command(5.0, 2.0, 0.0)
     for k in range(200):  # followed again: not in force this flight
@@ -127,3 +128,16 @@ def test_the_ramp_is_in_force_only_when_followed_and_once_broken_not_again_this_
     ramp.judge(t + 20.0, False, 0.0, 0.0, None, False)  # landed
     _follow(ramp, t + 30.0, RAMP_WINDOW_S + RAMP_REARM_S + 0.1)
     assert ramp.in_force
+
+
+def test_a_limit_lowered_while_the_ramp_is_in_force_is_no_autopilot_violation():
+    """Honest fog at 14 s (the ramp in force, its limit flown) lowers the limit at once; the vehicle slowing down
+    to it is above the new command for a while, which is not the autopilot overshooting it."""
+    rig = flight("px4", 80.0, 22.0, faults=[{"at_s": 14.0, "fog": {"visibility_m": 3.0, "report": "honest"}}])
+    assert not rig.truth["collisions"]
+    on = [e["t"] for e in rig.log.named("approach_ramp") if e["in_force"]]
+    assert on and on[0] < 14.0
+    fast = [s["v_cmd"] for s in rig.log.states if 13.0 < s["t"] < 14.0 and s["v_cmd"]]
+    slow = [s["v_cmd"] for s in rig.log.states if 15.0 < s["t"] < 16.0 and s["v_cmd"]]
+    assert min(slow) < max(fast) - 0.5  # the limit really fell
+    assert not [e for e in rig.log.named("violation_start") if e["subsystem"] == "autopilot"]
