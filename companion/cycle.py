@@ -224,7 +224,8 @@ class Cycle:
             dod = replace(dod, d_od=truth.d_od, lowered=True,
                           reason=f"detection range from evidence ({truth.confidence:.0%} confidence): {truth.reason}")
         thrust_ratio, _ = self.thrust.value(t)
-        accel = self._accel.update(tel.t_local, tel.vx, tel.vy) if telemetry_ok else None
+        # the approach ramp's check only (not measured in any other mode: the loop and a log's replay stay as fast)
+        accel = self._accel.update(tel.t_local, tel.vx, tel.vy) if telemetry_ok and self.sup.ramp is not None else None
         if accel is None:
             accel_along = math.nan
         else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)
