@@ -55,6 +55,7 @@ class Daemon:
         if isinstance(planning, str) and planning not in runners:
             raise ValueError(f"planning must be one of {', '.join(runners)}, not {planning!r}")
         self.cfg, self.table, self.conn, self.log, self.wall = cfg, table, conn, log, wall
+        table.warm()  # the compiled lookup now, not in the first cycle
         self.signing_clock = signing_clock
         self.vclock = VehicleClock(rate=cfg.link.clock_rate) if clock is None else None
         self.clock = clock or self.vclock

@@ -42,7 +42,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import maximum_filter
 
 from .contour import contour_errors
 from .lookup import NONE, helps_index, hurts_index, repair_monotone
@@ -226,6 +225,8 @@ def neighbour_ratio(rho: np.ndarray, fallback: float, steps: int | None = None) 
     """Per cell, the largest of `rho` (measured/predicted of the covered cells, NaN elsewhere) over the cells at
     most `steps` grid steps away in every axis (itself included), and whether there was any; `fallback` where
     there was none (`steps` default: `NEIGHBOUR_STEPS`). Pure."""
+    from scipy.ndimage import maximum_filter  # here, not at import: `table show` reads this module (0.3 s)
+
     steps = NEIGHBOUR_STEPS if steps is None else steps
     src = np.where(np.isfinite(rho), rho, -np.inf)
     best = maximum_filter(src, size=2 * steps + 1, mode="constant", cval=-np.inf)

@@ -95,8 +95,12 @@ class ReactLookup:
             w = self._v / MARGIN
             self._w2 = np.where(w > 0, w * w, -np.inf)  # v ≤ 0 is always reached
             self._wt = self.t_r * w  # (k, m)
-            if USE_KERNEL:  # compile (or load numba's cache) now, at table load, not in the daemon's first cycle
-                self.step_fixed_point(1.0, np.full((self.k, len(self._v)), 0.5))
+
+    def warm(self) -> None:
+        """Compile the fixed point's kernel (or load numba's cache, ≈ 1 s) now: the daemon calls it at start,
+        not in its first cycle; a tool that only reads the table never pays it."""
+        if USE_KERNEL and hasattr(self, "_v"):
+            self.step_fixed_point(1.0, np.full((self.k, len(self._v)), 0.5))
 
     def __call__(self, c0: float, r_k, rows=slice(None), lam=None) -> np.ndarray:
         """Speeds for finite keep-out radii `r_k` (k, m) ≥ 0, over columns `rows` (a slice or indices);

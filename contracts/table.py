@@ -531,6 +531,11 @@ class ContractTable:
                 self._e_rows = [e_tr_pred.values[:, cells, kk].T.copy() for kk in range(len(self._er))]
                 self._er_list = self._er.tolist()
 
+    def warm(self) -> None:
+        """Ready the compiled lookup (`ReactLookup.warm`): the daemon's start, not its first cycle."""
+        for react in getattr(self, "_react", ()):
+            react.warm()
+
     def _scaling_law(self, avoid: Slot):
         """Between grid points, the cone build's own law F = √(a_h/g)·G(ρ) (issue 18): where the table states it
         and every corner of a cell obeys it (`lookup.law_cells`, checked here at load over every cell), the

@@ -145,10 +145,11 @@ def test_lookup_below_fresh_bisection_20_points(name):
     _lookup_vs_fresh(name, _random_points(2024, 20, load_vehicle(name)))
 
 
+# one point by default (a planner solve each); the other two: make test-all
 @pytest.mark.parametrize("point", [
     dict(d_od=6.0, r_obst=1.0, e_tr=0.85, tilt_deg=7.03, thrust_ratio=0.6),
-    dict(d_od=3.0, r_obst=0.6, e_tr=0.24, tilt_deg=9.0, thrust_ratio=1.0),
-    dict(d_od=12.0, r_obst=0.3, e_tr=0.2, tilt_deg=20.0, thrust_ratio=0.8),
+    pytest.param(dict(d_od=3.0, r_obst=0.6, e_tr=0.24, tilt_deg=9.0, thrust_ratio=1.0), marks=pytest.mark.slow),
+    pytest.param(dict(d_od=12.0, r_obst=0.3, e_tr=0.2, tilt_deg=20.0, thrust_ratio=0.8), marks=pytest.mark.slow),
 ])
 def test_rate_limits_folded_into_reaction_time_are_conservative(point):
     """At the table's speed (folded reaction t_react + tilt/rate), the full eq. (14) planner with

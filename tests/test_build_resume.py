@@ -19,7 +19,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 ENV = dict(os.environ, PYTHONPATH=str(ROOT))
 VEHICLE = ROOT / "examples" / "vehicles" / "quad-1600g.yaml"
-GRID = ROOT / "examples" / "vehicles" / "grid-small.yaml"
+# the shipped small grid (examples/vehicles/grid-small.yaml) at half its ρ cells and two tilts: 16 cells, 8 tasks
+GRID_YAML = ("rho: {min: 0.02, max: 0.9, n: 4, spacing: geometric}\ntilt_deg: {min: 10, n: 2}\n"
+             "thrust_ratio: {n: 2}\nn_intervals: 20\nstarts: 1\nchunk: 2\n")
 
 
 def _as_foreground_job():
@@ -69,8 +71,9 @@ def finished(args) -> dict:
 
 
 def test_interrupted_avoid_build_resumes_to_the_same_table(tmp_path):
-    out = tmp_path / "quad.npz"
-    build = ["table", "build", "--vehicle", VEHICLE, "--grid", GRID, "--out", out, "--workers", "2"]
+    out, grid = tmp_path / "quad.npz", tmp_path / "grid.yaml"
+    grid.write_text(GRID_YAML)
+    build = ["table", "build", "--vehicle", VEHICLE, "--grid", grid, "--out", out, "--workers", "2"]
     rc, err = interrupt_when_checkpointed(build, tmp_path / "quad.npz.partial", signal.SIGINT)
     assert rc == 130, err
     lines = [ln for ln in err.splitlines() if ln.strip()]
@@ -85,7 +88,7 @@ def test_interrupted_avoid_build_resumes_to_the_same_table(tmp_path):
     assert resumed["resumed_cells"] > 0
     assert not (tmp_path / "quad.npz.partial").exists()  # removed once the table is written
     ref = tmp_path / "ref.npz"
-    fresh = finished(["table", "build", "--vehicle", VEHICLE, "--grid", GRID, "--out", ref, "--workers", "2"])
+    fresh = finished(["table", "build", "--vehicle", VEHICLE, "--grid", grid, "--out", ref, "--workers", "2"])
     assert fresh["resumed_cells"] == 0
     assert_same_arrays(out, ref)
 

@@ -359,8 +359,8 @@ def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_unde
                                                                                                  personality):
     """The modified X500 (gains −40 %, +60 ms actuator delay, 5 m/s side wind) in governor mode at up to 8 m/s
     toward a column revealed at the sensor's 10 m: under the stock table, at least one seed of four breaks its controller contract
-    (measured contour error above the E_tr_pred in force) or hits the column; under the calibrated table none
-    does, over the same seeds."""
+    (measured contour error above the E_tr_pred in force) or hits the column (flown until one does); under the
+    calibrated table none does, over all four seeds."""
     from companion.flights import Rig, fly_mission
     from tests.calibration_flights import truth_sim_kwargs, truth_vehicle
     from tests.test_daemon_lockstep import column_scenario
@@ -370,6 +370,8 @@ def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_unde
     broke = {"stock": [], "calibrated": []}
     for seed in range(1, 5):
         for name, tab in (("stock", stock), ("calibrated", calibrated)):
+            if name == "stock" and broke["stock"]:  # the negative control needs one seed; every seed is calibrated
+                continue
             sc = column_scenario(seed, x_col=40.0, cruise=8.0, vehicle="x500",
                                  wind={"mean_m_s": 5.0, "from_deg": 90, "gust_m_s": 1.0})
             sc["sensor"]["max_range_m"] = 10.0

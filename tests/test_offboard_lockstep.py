@@ -70,13 +70,15 @@ def test_negative_control_well_above_the_contract_touches():
     is conservative in this SITL (it budgets 0.21 s of reaction, the lock-step loop reacts in ~0.07 s,
     and the bins' angular padding widens the obstacle), so at 1.15 × the flights still clear it by
     0.66–0.84 m (seeds 1–3, measured at 993d0ff); at 1.3 × the planner finds no avoiding plan, brakes
-    straight and touches on all three seeds (at ~4 m/s)."""
+    straight and touches on all three seeds (at ~4 m/s). One touch shows it: the seeds are flown until one does."""
     touched = []
     for seed in (1, 2, 3):
         rig = Rig(offboard_scenario(seed, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}), "px4",
                   config=offboard_config(), policy=Scaled(1.3))
         engage_and_fly(rig, 22.0)
         touched.append(bool(rig.truth["collisions"]))
+        if touched[-1]:
+            break
     assert any(touched)
 
 
@@ -161,7 +163,8 @@ def test_offboard_hidden_fog_is_seen_from_its_evidence_before_the_column(persona
 VIS_HARSH = 3.0
 
 
-@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+# the second personality is the same evidence again: make test-all
+@pytest.mark.parametrize("personality", ["px4", pytest.param("ardupilot", marks=pytest.mark.slow)])
 def test_offboard_dense_hidden_fog_no_longer_collides_and_trusting_the_claim_does(personality):
     """Hidden fog at 3 m: at the claim's speed (~7.5 m/s) nothing can avoid the column once it appears (the
     avoid contract at c = 3 m + R_obst allows ≈ 5.7 m/s even with no reaction time and no tracking error). From

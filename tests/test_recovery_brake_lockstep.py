@@ -58,7 +58,8 @@ def v_max(rig: Rig) -> float:
     return max(s["v_max"] or 0.0 for s in rig.log.states)
 
 
-@pytest.mark.parametrize("personality", PERSONALITIES)
+# the second personality is the same evidence again (its switch and refusal are flown below): make test-all
+@pytest.mark.parametrize("personality", ["px4", pytest.param("ardupilot", marks=pytest.mark.slow)])
 def test_the_brake_stops_shorter_from_a_higher_limit(personality):
     off, on = flight(personality, False), flight(personality, True)
     for rig in (off, on):
