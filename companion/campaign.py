@@ -684,7 +684,7 @@ def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = No
     `limit`: stop after that many new flights (benchmarks, tests of resuming)."""
     from tqdm import tqdm
 
-    from contracts.runner import run_tasks
+    from contracts.runner import BuildInterrupted, run_tasks
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -707,14 +707,21 @@ def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = No
     # afresh for each chunk (process spawn + the SITL kernel's JIT compile per worker, a few seconds)
     chunk = 8 if workers <= 1 and not scheduler else max(32, 16 * max(workers, 1))
     bar = tqdm(total=spec.flights, initial=len(done), desc=spec.name, unit="flight", disable=not progress)
-    with open(out / "results.jsonl", "a") as f:
-        for c in range(0, len(todo), chunk):
-            part = todo[c:c + chunk]
-            lines = run_tasks([(data, i) for i in part], workers, scheduler, False, len(part), _task)
-            for (line,) in lines:
-                f.write(line + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-            bar.update(len(part))
+    flown = len(done)
+    try:
+        with open(out / "results.jsonl", "a") as f:
+            for c in range(0, len(todo), chunk):
+                part = todo[c:c + chunk]
+                lines = run_tasks([(data, i) for i in part], workers, scheduler, False, len(part), _task)
+                for (line,) in lines:
+                    f.write(line + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+                flown += len(part)
+                bar.update(len(part))
+    except (BuildInterrupted, KeyboardInterrupt):  # Ctrl-C, or SIGTERM through the CLI: the chunks written stay
+        bar.close()
+        raise BuildInterrupted(f"interrupted after {flown} of {spec.flights} flights, kept in {out / 'results.jsonl'}: "
+                               "run the same command to continue") from None
     bar.close()
     return [r for r in read_rows(out) if r["index"] < spec.flights]

@@ -546,8 +546,9 @@ def cmd_campaign(args) -> int:
     from .campaign_report import format_summary, write_report
 
     if not args.report_only:
-        rows = cg.run(spec, args.out, workers=args.workers, scheduler=args.scheduler,
-                      progress=not args.no_progress and not args.json, spec_path=str(args.spec), limit=args.limit)
+        with _interruptible():
+            rows = cg.run(spec, args.out, workers=args.workers, scheduler=args.scheduler,
+                          progress=not args.no_progress and not args.json, spec_path=str(args.spec), limit=args.limit)
     else:
         rows = cg.read_rows(args.out)
     summary = write_report(rows, args.out, spec_path=str(args.spec))
