@@ -105,7 +105,6 @@ class Cycle:
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
                               e_tr_floor_m=self.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s)
-        self._accel = AccelEstimator(RAMP_WINDOW_S)  # the acceleration flown, the approach ramp's check
         self.authority = ModeAuthority(adapter.hold_mode())
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":
@@ -124,7 +123,10 @@ class Cycle:
         self.checks = None
         self._brake_said: tuple[bool, str] | None = None
         self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
-        self._a0 = AccelEstimator(A0_S)  # the recovery brake's measured acceleration
+        # the acceleration flown: the approach ramp's check and the recovery brake's start (measured only for them)
+        windows = [w for w, on in ((RAMP_WINDOW_S, self.sup.ramp is not None), (A0_S, self.brake is not None)) if on]
+        self._accel = AccelEstimator(max(windows)) if windows else None
+        self._jerk_heard: float | None = None  # the autopilot's jerk last given to the approach ramp
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
         # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
@@ -224,8 +226,9 @@ class Cycle:
             dod = replace(dod, d_od=truth.d_od, lowered=True,
                           reason=f"detection range from evidence ({truth.confidence:.0%} confidence): {truth.reason}")
         thrust_ratio, _ = self.thrust.value(t)
-        # the approach ramp's check only (not measured in any other mode: the loop and a log's replay stay as fast)
-        accel = self._accel.update(tel.t_local, tel.vx, tel.vy) if telemetry_ok and self.sup.ramp is not None else None
+        if self._accel is not None:  # (not measured where nothing reads it: the loop and a log's replay stay as fast)
+            self._accel.add(tel.t_local, tel.vx, tel.vy)
+        accel = self._accel.over(RAMP_WINDOW_S) if telemetry_ok and self.sup.ramp is not None else None
         if accel is None:
             accel_along = math.nan
         else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)
@@ -253,8 +256,9 @@ class Cycle:
              ) -> tuple[Inputs, Decision, Outbox]:
         """`mission_route`: the route downloaded from the autopilot, if the route comes from its mission;
         `protocol`: what the daemon's protocols want sent this cycle (companion/mission.py `Actions`)."""
-        if self.sup.ramp is not None:
-            self.sup.ramp.autopilot_jerk(self._autopilot_jerk())
+        if self.sup.ramp is not None and (jerk := self._autopilot_jerk()) != self._jerk_heard:
+            self._jerk_heard = jerk  # (the bound changes only when the parameter arrives)
+            self.sup.ramp.autopilot_jerk(jerk)
         i = self.inputs(t, tel, r_obst, engage, startup_ok, route_ready)
         requests, events, texts = [], [], []
         if self.brake is not None:
@@ -430,7 +434,7 @@ class Cycle:
         if br.state in FINISHED and d.state == State.ACTIVE:  # someone else resumed: ready for the next stop
             br.state = OffboardState.OFF
         sound, tr = self._brakeable(i, d), self._thrust_in_range(i)
-        a0 = self._a0.update(tel.t_local, tel.vx, tel.vy)  # the measured acceleration: Δv over ≥ A0_S
+        a0 = self._accel.over(A0_S)  # the measured acceleration: Δv over ≥ A0_S
         a_stop = airframe_decel(veh, tr)
         was_refused, was_braking = br.refused is not None, br.state == OffboardState.BRAKING
         acts = br.recover(t, start=d.hold and sound and self.sup.recovery_dt is not None, abort=not sound,

@@ -467,23 +467,35 @@ class NavHealth:
 
 
 class AccelEstimator:
-    """The horizontal acceleration flown, Δv/Δt of the reported velocity over at least `window_s` (the newest sample
-    against the oldest kept): the recovery brake's starting state, the approach ramp's check."""
+    """The horizontal acceleration flown, Δv/Δt of the reported velocity over at least a window (the newest sample
+    against the newest one at least that much older), for windows up to `keep_s`: the recovery brake's starting
+    state (0.1 s) and the approach ramp's check (0.3 s), from one set of samples."""
 
-    def __init__(self, window_s: float):
-        self.window_s = window_s
-        self._seen: deque = deque()  # (t, vx, vy), the oldest at least window_s before the newest
+    def __init__(self, keep_s: float):
+        self.keep_s = keep_s
+        self._seen: deque = deque()  # (t, vx, vy), the oldest the newest at least keep_s before the newest
 
-    def update(self, t: float, vx: float, vy: float) -> np.ndarray | None:
-        """Take a velocity sample (a repeated time is ignored); the acceleration, None before window_s of them."""
+    def add(self, t: float, vx: float, vy: float) -> None:
+        """Take a velocity sample (a repeated or non-finite time is ignored)."""
         seen = self._seen
-        if not seen or t > seen[-1][0]:
-            seen.append((t, vx, vy))
-        while len(seen) > 2 and seen[1][0] <= t - self.window_s:
+        if not math.isfinite(t) or (seen and t <= seen[-1][0]):
+            return
+        seen.append((t, vx, vy))
+        while len(seen) > 2 and t - seen[1][0] >= self.keep_s:
             seen.popleft()
-        t0, vx0, vy0 = seen[0]
-        dt = seen[-1][0] - t0
-        return np.array([seen[-1][1] - vx0, seen[-1][2] - vy0]) / dt if dt >= self.window_s else None
+
+    def over(self, window_s: float) -> np.ndarray | None:
+        """The acceleration over at least `window_s` (≤ keep_s); None before window_s of samples."""
+        seen = self._seen
+        if not seen:
+            return None
+        t, vx, vy = seen[-1]
+        k = len(seen) - 1
+        while k > 0 and t - seen[k][0] < window_s:  # (the difference itself: no sample lost to round-off)
+            k -= 1
+        t0, vx0, vy0 = seen[k]
+        dt = t - t0
+        return np.array([vx - vx0, vy - vy0]) / dt if dt >= window_s else None
 
 
 # ============================================================================ the daemon's own timeliness

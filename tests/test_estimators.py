@@ -441,3 +441,26 @@ def test_one_source_behaves_as_before():
     assert e.estimate(0.0, 0.0).obstacle_m == 3.0
     add_from(e, (1, 1, 0), 0.05, 6.01)
     assert e.estimate(0.05, 0.0).obstacle_m == math.inf
+
+
+def test_one_acceleration_estimator_answers_each_window_from_the_same_samples():
+    """Δv/Δt against the newest sample at least the window older: 0.1 s and 0.3 s from one set of 50 Hz samples,
+    each as an estimator of that window alone would say, at every sample once a window has passed (exact 20 ms
+    steps whose sum rounds below the window included); None before; no time, no sample."""
+    from companion.estimators import AccelEstimator
+
+    both, short, long_ = AccelEstimator(0.3), AccelEstimator(0.1), AccelEstimator(0.3)
+    both.add(-math.inf, 0.0, 0.0)  # telemetry not yet heard
+    assert both.over(0.1) is None
+    for k in range(60):  # 1 m/s² along x for 0.4 s, then 2 m/s² along y
+        t = 0.02 * k
+        v = (min(t, 0.4), 2.0 * max(t - 0.4, 0.0))
+        for e in (both, short, long_):
+            e.add(t, *v)
+            e.add(t, 99.0, 99.0)  # a repeated time: ignored
+        for w, alone in ((0.1, short), (0.3, long_)):
+            a, b = both.over(w), alone.over(w)
+            assert (a is None) == (b is None) and (a is None or np.array_equal(a, b))
+            assert (a is None) == (t < w - 1e-9), (t, w)
+            if t >= 0.4 + w + 0.02:  # the window wholly in the second part
+                assert a == pytest.approx([0.0, 2.0])
