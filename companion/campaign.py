@@ -63,6 +63,7 @@ import json
 import math
 import os
 import re
+import time
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
@@ -84,6 +85,7 @@ ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
 STILL_S = 5.0  # stood still this long after setting off: the flight is over
 FAULT_WINDOW_S = 5.0  # an arrived flight still flies this long after its last fault (≥ the thrust estimate's p95)
+SYNC_ROWS, SYNC_S = 32, 10.0  # results.jsonl is fsync'd at least every this many rows or seconds
 LATENCY_BUDGET_S = 0.05  # part of the vehicles' t_react (sensor latency + decision + response)
 
 
@@ -680,7 +682,7 @@ def _drop_torn_line(p: Path) -> None:
 
 def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = None, progress: bool = True,
         spec_path: str = "SPEC.yaml", limit: int | None = None) -> list[dict]:
-    """Fly every flight not yet in `OUT/results.jsonl` (resume), in chunks; returns all rows by index.
+    """Fly every flight not yet in `OUT/results.jsonl` (resume); returns all rows by index.
     `limit`: stop after that many new flights (benchmarks, tests of resuming)."""
     from tqdm import tqdm
 
@@ -703,25 +705,29 @@ def run(spec: CampaignSpec, out, *, workers: int = 1, scheduler: str | None = No
     if limit is not None:
         todo = todo[:limit]
     data = spec.model_dump(mode="json")
-    # rows are written (fsync'd) per chunk: small in-process; larger on a pool, which contracts/runner.py starts
-    # afresh for each chunk (process spawn + the SITL kernel's JIT compile per worker, a few seconds)
-    chunk = 8 if workers <= 1 and not scheduler else max(32, 16 * max(workers, 1))
+    # one pool (or the in-process loop, or the cluster) for the whole run: a row is written as its flight ends, in
+    # any order, and fsync'd every SYNC_ROWS rows or SYNC_S seconds (a kill loses at most those: flown again)
     bar = tqdm(total=spec.flights, initial=len(done), desc=spec.name, unit="flight", disable=not progress)
-    flown = len(done)
+    flown, synced = [len(done)], [len(done), time.monotonic()]
     try:
         with open(out / "results.jsonl", "a") as f:
-            for c in range(0, len(todo), chunk):
-                part = todo[c:c + chunk]
-                lines = run_tasks([(data, i) for i in part], workers, scheduler, False, len(part), _task)
-                for (line,) in lines:
-                    f.write(line + "\n")
+            def row(_, lines) -> None:
+                f.write(lines[0] + "\n")
+                flown[0] += 1
+                bar.update(1)
+                if flown[0] - synced[0] >= SYNC_ROWS or time.monotonic() - synced[1] >= SYNC_S:
+                    f.flush()
+                    os.fsync(f.fileno())
+                    synced[:] = [flown[0], time.monotonic()]
+
+            try:
+                run_tasks([(data, i) for i in todo], workers, scheduler, False, len(todo), _task, on_result=row)
+            finally:  # also when interrupted: every row handed over is on disk
                 f.flush()
                 os.fsync(f.fileno())
-                flown += len(part)
-                bar.update(len(part))
-    except (BuildInterrupted, KeyboardInterrupt):  # Ctrl-C, or SIGTERM through the CLI: the chunks written stay
+    except (BuildInterrupted, KeyboardInterrupt):  # Ctrl-C, or SIGTERM through the CLI: the rows written stay
         bar.close()
-        raise BuildInterrupted(f"interrupted after {flown} of {spec.flights} flights, kept in {out / 'results.jsonl'}: "
-                               "run the same command to continue") from None
+        raise BuildInterrupted(f"interrupted after {flown[0]} of {spec.flights} flights, kept in "
+                               f"{out / 'results.jsonl'}: run the same command to continue") from None
     bar.close()
     return [r for r in read_rows(out) if r["index"] < spec.flights]

@@ -107,13 +107,15 @@ def show_progress(requested: bool = True) -> bool:
     return bool(requested) and sys.stderr.isatty()
 
 
-def run_tasks(tasks, workers, scheduler, progress, total, fn, desc="tasks", checkpoint: Checkpoint | None = None):
+def run_tasks(tasks, workers, scheduler, progress, total, fn, desc="tasks", checkpoint: Checkpoint | None = None,
+              on_result=None):
     """Run `fn(task) -> list` over `tasks` on a local process pool (`workers` > 1), in-process
     (`workers` ≤ 1) or on a Dask distributed cluster (`scheduler` address); a tqdm bar counts the
     items of the returned lists up to `total`. `fn` must be a module-level function (picklable).
     Results come back in task order. With a `checkpoint`, finished tasks are skipped and each new
     result is saved as it arrives; an interrupt (KeyboardInterrupt) stops the workers and raises
-    `BuildInterrupted` with one line saying what is kept."""
+    `BuildInterrupted` with one line saying what is kept. With `on_result(i, result)`, each result is
+    handed over as it arrives (in any order) and not kept: None is returned (a campaign's rows)."""
     from tqdm import tqdm
 
     results = [None] * len(tasks)
@@ -123,11 +125,16 @@ def run_tasks(tasks, workers, scheduler, progress, total, fn, desc="tasks", chec
     todo = [i for i in range(len(tasks)) if results[i] is None]
     bar = tqdm(total=total, initial=sum(len(r) for r in results if r is not None), desc=desc, unit="cell",
                disable=not progress, dynamic_ncols=True)
+    n_done = [sum(len(r) for r in results if r is not None)]  # items finished (a result handed on is not kept)
 
     def finished(i, r):
-        results[i] = r
+        if on_result is not None:
+            on_result(i, r)
+        else:
+            results[i] = r
         if checkpoint is not None:
             checkpoint.save(i, r)
+        n_done[0] += len(r)
         bar.update(len(r))
 
     pool = None
@@ -161,9 +168,8 @@ def run_tasks(tasks, workers, scheduler, progress, total, fn, desc="tasks", chec
             for p in procs:
                 p.terminate()
         bar.close()
-        n_done = sum(len(r) for r in results if r is not None)
         where = (f"the finished ones are checkpointed in {checkpoint.dir}: run the same command with --resume "
                  f"to continue") if checkpoint is not None else "nothing was kept"
-        raise BuildInterrupted(f"interrupted after {n_done} of {total} cells; {where}") from None
+        raise BuildInterrupted(f"interrupted after {n_done[0]} of {total} cells; {where}") from None
     bar.close()
-    return results
+    return None if on_result is not None else results

@@ -112,29 +112,22 @@ def test_a_campaign_resumes_and_a_flight_refies_to_its_row(tmp_path, capsys):
 
 
 def test_an_interrupted_campaign_says_what_it_kept_in_one_line(tmp_path, capsys, monkeypatch):
-    """Ctrl-C (or SIGTERM, which the CLI turns into it) during a chunk: exit 130, one line naming the flights
-    kept and how to continue; the chunks already written stay (the next run resumes from them)."""
-    import contracts.runner as runner
-
-    real, calls = runner.run_tasks, []
-
-    def interrupted_second_chunk(*a, **kw):
-        calls.append(1)
-        if len(calls) == 2:
+    """Ctrl-C (or SIGTERM, which the CLI turns into it) during a flight: exit 130, one line naming the flights
+    kept and how to continue; every row written before it stays (the next run resumes from them)."""
+    def ninth_interrupted(args):
+        if args[1] == 8:
             raise KeyboardInterrupt
-        return real(*a, **kw)
+        return [json.dumps({"index": args[1], "arm": "stub"})]  # no flight
 
-    monkeypatch.setattr(runner, "run_tasks", interrupted_second_chunk)
+    monkeypatch.setattr(cg, "_task", ninth_interrupted)
     spec_file = tmp_path / "spec.yaml"
-    spec_file.write_text(json.dumps({**SMALL, "scenarios": 6}))  # 18 flights: chunks of 8 in-process
+    spec_file.write_text(json.dumps({**SMALL, "scenarios": 6}))  # 18 flights
     out = tmp_path / "c"
-    monkeypatch.setattr(cg, "_task", lambda args: [json.dumps({"index": args[1], "arm": "stub"})])  # no flight
     assert main(["campaign", str(spec_file), "--out", str(out), "--no-progress"]) == 130
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
-    kept = len(cg.read_rows(out))
-    assert kept == 8 and len(err) == 1, err  # the first chunk of the in-process run (8 flights)
-    assert err[0] == (f"contract-guard: interrupted after 8 of 18 flights, kept in "
-                      f"{out / 'results.jsonl'}: run the same command to continue")
+    assert [r["index"] for r in cg.read_rows(out)] == list(range(8)) and len(err) == 1, err
+    assert err[0] == (f"contract-guard: interrupted after 8 of 18 flights, kept in {out / 'results.jsonl'}: run the "
+                      "same command to continue")
 
 
 def test_clopper_pearson_exact():
