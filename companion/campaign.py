@@ -6,8 +6,8 @@ distribution, with the autopilots' own laws and negative controls flown over the
 Determinism: scenario `k` is sampled from `numpy.random.default_rng([seed, k])` alone, and flight `i`
 is scenario `i // len(arms)` flown by arm `arms[i % len(arms)]`; a flight's row depends on (spec, i) and
 nothing else, so any flight can be re-flown (`--fly i`) and a pool and a Dask cluster give the same rows.
-Results: `OUT/results.jsonl`, one JSON object per flight, appended as each flight ends (fsync'd every SYNC_ROWS rows or SYNC_S s), so an
-interrupted campaign resumes where it stopped. The report is `companion/campaign_report.py`.
+Results: `OUT/results.jsonl`, one JSON object per flight, appended as each flight ends (fsync'd every SYNC_ROWS
+rows or SYNC_S s), so an interrupted campaign resumes where it stopped. The report is `companion/campaign_report.py`.
 
 Spec (YAML, validated like every file here; a range is a number or `[low, high]`, sampled uniformly)::
 
