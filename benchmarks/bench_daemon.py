@@ -23,6 +23,7 @@ its start-up). `BENCH_BUSY=N` starts N busy processes
 
 from __future__ import annotations
 
+import gc
 import json
 import multiprocessing as mp
 import os
@@ -147,6 +148,13 @@ def lateness(starts: list[float], period_s: float) -> dict:
             "beyond_allowance": {str(a): int(np.sum(late > a)) for a in ALLOWANCES_MS}}
 
 
+def _full_gc_ms() -> float:
+    """One full cyclic collection's wall time [ms]: the stall it puts in whichever cycle it falls."""
+    t = time.perf_counter()
+    gc.collect()
+    return round((time.perf_counter() - t) * 1e3, 2)
+
+
 def main() -> None:
     from companion.config import config_from_dict
     from companion.daemon import Daemon
@@ -203,7 +211,9 @@ def main() -> None:
         except OSError:
             print(f"bench_daemon: cannot set nice {NICE} (not root): measured at 0", file=sys.stderr)
     load = os.getloadavg()[0]
-    daemon.run(lambda: time.monotonic() - t0 > DURATION_S)
+    gc_ms = {"objects_at_start": len(gc.get_objects()), "before_freeze": _full_gc_ms()}
+    daemon.run(lambda: time.monotonic() - t0 > DURATION_S)  # (it freezes start-up's objects: `freeze_startup`)
+    gc_ms["in_the_loop"] = _full_gc_ms()  # what a full collection costs once the loop has run
     wall, cpu = time.monotonic() - t0, time.process_time() - c0
     for b in busies:
         b.terminate()
@@ -216,7 +226,7 @@ def main() -> None:
     gaps = np.diff(starts) * 1e3
     print(json.dumps({
         "benchmark": "daemon", "duration_s": round(wall, 2), "loop_hz": cfg.loop_hz,
-        "cpu_percent_of_one_core": round(100 * cpu / wall, 2),
+        "cpu_percent_of_one_core": round(100 * cpu / wall, 2), "full_gc_ms": gc_ms,
         "loop_period_ms": {"mean": float(np.mean(gaps)), "p99": float(np.percentile(gaps, 99)),
                            "max": float(np.max(gaps)), "jitter_sd": float(np.std(gaps))},
         "cycle_lateness_ms": lateness(starts, 1.0 / cfg.loop_hz), "busy_processes": len(busies),

@@ -117,6 +117,21 @@ class GroundStation:
               "value": a.param_set.value, "t_sent": None, "t_acked": None} for a in self.todo]
 
 
+def daemon_config(sc, port: int, speedup: float, personality: str, log_dir: Path) -> dict:
+    """The daemon's config for the demo's flight of `sc` (written beside its log, read by `contract-guard run`). The
+    log directory is absolute: a relative path in a config is the config file's directory's, not the demo's."""
+    return {
+        "vehicle": sc.vehicle, "mode": "offboard", "engage": True,
+        # the scenario's ground station on this machine sets CG_* unsigned (weaker; the banner says so)
+        "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": personality, "clock_rate": speedup,
+                 "unsigned_params": True},
+        "sensors": [{"kind": "obstacle_distance", "h_fov_deg": sc.sensor.fov_deg, "max_range_m": sc.sensor.max_range_m}],
+        "contract": {"r_obst_m": max((c.radius_m for c in sc.world.columns), default=1.0)},
+        "route": {"waypoints": [list(w) for w in sc.route.waypoints], "altitude_m": sc.route.altitude_m},
+        "log": {"dir": str(Path(log_dir).resolve())},
+    }
+
+
 def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: float = 2.0,
              duration_s: float = 75.0, personality: str = "px4") -> dict:
     """Fly scenario `sc` (loaded from `scenario_path` by the CLI, which wires the harness in)."""
@@ -131,16 +146,7 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
         for old in d.glob("*") if d.exists() else []:
             old.unlink()
     port = _free_port()
-    cfg = {
-        "vehicle": sc.vehicle, "mode": "offboard", "engage": True,
-        # the scenario's ground station on this machine sets CG_* unsigned (weaker; the banner says so)
-        "link": {"connect": f"udpout:127.0.0.1:{port}", "autopilot": personality, "clock_rate": speedup,
-                 "unsigned_params": True},
-        "sensors": [{"kind": "obstacle_distance", "h_fov_deg": sc.sensor.fov_deg, "max_range_m": sc.sensor.max_range_m}],
-        "contract": {"r_obst_m": max((c.radius_m for c in sc.world.columns), default=1.0)},
-        "route": {"waypoints": [list(w) for w in sc.route.waypoints], "altitude_m": sc.route.altitude_m},
-        "log": {"dir": str(log_dir)},
-    }
+    cfg = daemon_config(sc, port, speedup, personality, log_dir)
     cfg_path = out / "daemon.yaml"
     cfg_path.write_text(yaml.safe_dump(cfg))
     py = sys.executable
@@ -160,8 +166,13 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         deadline = time.time() + 60
         while not any(e.get("event") == "startup_check" for e in _events(log_dir)):
-            if time.time() > deadline or daemon.poll() is not None:
-                raise ContractError("the daemon did not connect to the SITL")
+            if daemon.poll() is not None:
+                said = [x for x in daemon.stderr.read().splitlines() if x.strip()]
+                raise ContractError("the daemon stopped before it connected to the SITL"
+                                    + (f": {said[-1].strip()}" if said else ""))
+            if time.time() > deadline:
+                raise ContractError(f"the daemon did not connect to the SITL within a minute (no start-up check in "
+                                    f"{log_dir})")
             time.sleep(0.2)
         gcs = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
         gs = GroundStation(gcs, sc.gcs)

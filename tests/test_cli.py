@@ -64,6 +64,24 @@ def test_user_errors_are_one_line_and_non_zero(args, needle):
     assert len(lines) == 1 and needle in lines[0]
 
 
+def test_the_demos_daemon_logs_where_the_demo_reads_it_from_a_relative_out(tmp_path, monkeypatch):
+    """`make demo` writes to ./demo-out: the daemon's config there must name the log the demo watches (a relative
+    path in a config is the config file's directory's; the daemon once logged to demo-out/demo-out/log and the demo
+    ended in "the daemon did not connect to the SITL")."""
+    import yaml
+
+    from companion.config import load_config
+    from companion.demo import daemon_config
+    from sitl_harness.scenario import load_scenario
+
+    monkeypatch.chdir(tmp_path)
+    out = Path("demo-out")
+    out.mkdir()
+    (out / "daemon.yaml").write_text(yaml.safe_dump(daemon_config(load_scenario("fig17"), 14550, 2.0, "px4",
+                                                                  out / "log")))
+    assert Path(load_config(out / "daemon.yaml").log.dir) == tmp_path / "demo-out" / "log"
+
+
 @pytest.mark.slow
 def test_demo_flies_the_in_flight_scenario_safely(tmp_path):
     """`contract-guard demo`: SITL and daemon as processes on loopback UDP (about a minute)."""
