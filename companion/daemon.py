@@ -54,6 +54,36 @@ def freeze_startup() -> None:
     gc.freeze()
 
 
+class LoopTiming:
+    """How the real-time loop kept its schedule, for the `loop_timing` event at its end: per cycle the wake-up's
+    lateness (the host's: it woke the loop late) and the cycle's own work (poll, step: wall time), their
+    largest, how many cycles took over 10 / 20 / 40 ms in all, and the WORST cycles by that sum (at vehicle time)."""
+
+    WORST = 5
+
+    def __init__(self):
+        self.cycles, self.over = 0, {10: 0, 20: 0, 40: 0}
+        self.work_max = self.wake_max = 0.0
+        self.worst: list[tuple] = []  # (wake + poll + step, t, wake, poll, step), the largest sums
+
+    def add(self, t: float, wake_s: float, poll_s: float, step_s: float) -> None:
+        self.cycles += 1
+        total = wake_s + poll_s + step_s
+        self.work_max, self.wake_max = max(self.work_max, poll_s + step_s), max(self.wake_max, wake_s)
+        for ms in self.over:
+            if total * 1e3 > ms:
+                self.over[ms] += 1
+        if len(self.worst) < self.WORST or total > self.worst[-1][0]:
+            self.worst = sorted([*self.worst, (total, t, wake_s, poll_s, step_s)], reverse=True)[:self.WORST]
+
+    def summary(self) -> dict:
+        ms = lambda x: round(1e3 * x, 2)  # noqa: E731
+        return {"cycles": self.cycles, "work_ms_max": ms(self.work_max), "wake_late_ms_max": ms(self.wake_max),
+                "cycles_over_ms": {str(k): v for k, v in self.over.items()},
+                "worst": [{"t": t, "wake_late_ms": ms(w), "poll_ms": ms(p), "step_ms": ms(k)}
+                          for _, t, w, p, k in self.worst]}
+
+
 class Daemon:
     def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
                  planning: str = "process", contract: str | None = None, policy=None):
@@ -287,17 +317,20 @@ class Daemon:
         feeder = WatchdogFeeder(notifier, time.monotonic) if notifier is not None else None
         period = 1.0 / self.cfg.loop_hz
         freeze_startup()
+        timing = LoopTiming()
         next_t, t_stop = time.monotonic(), None
         while not self.stopped and (t_stop is None or time.monotonic() - t_stop < STOP_LIMIT_S):
             if t_stop is None and should_stop():
                 t_stop = time.monotonic()
                 self.stop()
-            started = time.monotonic()
+            started = polled = time.monotonic()
             try:
                 self.poll()
+                polled = time.monotonic()
                 self.step()
             except Exception as err:  # a bug must not take the loop down: the safe action, logged; retried
                 self._cycle_failed(self.clock(), err)
+            timing.add(self.clock(), started - next_t, polled - started, time.monotonic() - polled)
             if feeder is not None:
                 feeder.tick(self._bad_cycles < 10 and time.monotonic() - started < 5 * period)
             if hasattr(self.log, "tick"):
@@ -310,3 +343,4 @@ class Daemon:
                 time.sleep(delay)
             else:
                 next_t = time.monotonic()
+        self._event(self.clock(), "loop_timing", **timing.summary())
