@@ -343,4 +343,6 @@ class Daemon:
                 time.sleep(delay)
             else:
                 next_t = time.monotonic()
-        self._event(self.clock(), "loop_timing", **timing.summary())
+        fsync = getattr(self.log, "max_fsync_s", None)  # the event log's slowest fsync, inside some cycle's work
+        self._event(self.clock(), "loop_timing", **timing.summary(),
+                    event_log_max_fsync_ms=None if fsync is None else round(1e3 * fsync, 2))
