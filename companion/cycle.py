@@ -257,7 +257,7 @@ class Cycle:
         """`mission_route`: the route downloaded from the autopilot, if the route comes from its mission;
         `protocol`: what the daemon's protocols want sent this cycle (companion/mission.py `Actions`)."""
         if self.sup.ramp is not None and (jerk := self._autopilot_jerk()) != self._jerk_heard:
-            self._jerk_heard = jerk  # (the bound changes only when the parameter arrives)
+            self._jerk_heard = jerk  # (looked up every cycle; the bound recomputed only when it changes)
             self.sup.ramp.autopilot_jerk(jerk)
         i = self.inputs(t, tel, r_obst, engage, startup_ok, route_ready)
         requests, events, texts = [], [], []
