@@ -55,32 +55,35 @@ def freeze_startup() -> None:
 
 class LoopTiming:
     """How the real-time loop kept its schedule, for the `loop_timing` event at its end: per cycle the wake-up's
-    lateness (the host's: it woke the loop late) and the cycle's own work (poll, step: wall time), their
-    largest, how many cycles took over 10 / 20 / 40 ms in all, and the WORST cycles by that sum (at vehicle time)."""
+    lateness (the host's: it woke the loop late) and the cycle's own work (poll, step, and the commit of its events
+    to the disk: wall time), their largest, how many cycles took over 10 / 20 / 40 ms in all, and the WORST cycles by
+    that sum (at vehicle time)."""
 
     WORST = 5
 
     def __init__(self):
         self.cycles, self.over = 0, {10: 0, 20: 0, 40: 0}
         self.work_max = self.wake_max = 0.0
-        self.worst: list[tuple] = []  # (wake + poll + step, t, wake, poll, step), the largest sums
+        self.worst: list[tuple] = []  # (wake + poll + step + commit, t, wake, poll, step, commit), the largest sums
 
-    def add(self, t: float, wake_s: float, poll_s: float, step_s: float) -> None:
+    def add(self, t: float, wake_s: float, poll_s: float, step_s: float, commit_s: float = 0.0) -> None:
         self.cycles += 1
-        total = wake_s + poll_s + step_s
-        self.work_max, self.wake_max = max(self.work_max, poll_s + step_s), max(self.wake_max, wake_s)
+        work = poll_s + step_s + commit_s
+        total = wake_s + work
+        self.work_max, self.wake_max = max(self.work_max, work), max(self.wake_max, wake_s)
         for ms in self.over:
             if total * 1e3 > ms:
                 self.over[ms] += 1
         if len(self.worst) < self.WORST or total > self.worst[-1][0]:
-            self.worst = sorted([*self.worst, (total, t, wake_s, poll_s, step_s)], reverse=True)[:self.WORST]
+            self.worst = sorted([*self.worst, (total, t, wake_s, poll_s, step_s, commit_s)],
+                                reverse=True)[:self.WORST]
 
     def summary(self) -> dict:
         ms = lambda x: round(1e3 * x, 2)  # noqa: E731
         return {"cycles": self.cycles, "work_ms_max": ms(self.work_max), "wake_late_ms_max": ms(self.wake_max),
                 "cycles_over_ms": {str(k): v for k, v in self.over.items()},
-                "worst": [{"t": t, "wake_late_ms": ms(w), "poll_ms": ms(p), "step_ms": ms(k)}
-                          for _, t, w, p, k in self.worst]}
+                "worst": [{"t": t, "wake_late_ms": ms(w), "poll_ms": ms(p), "step_ms": ms(k), "commit_ms": ms(c)}
+                          for _, t, w, p, k, c in self.worst]}
 
 
 class Daemon:
@@ -329,11 +332,12 @@ class Daemon:
                 self.step()
             except Exception as err:  # a bug must not take the loop down: the safe action, logged; retried
                 self._cycle_failed(self.clock(), err)
-            timing.add(self.clock(), started - next_t, polled - started, time.monotonic() - polled)
+            stepped = time.monotonic()
+            if hasattr(self.log, "tick"):
+                self.log.tick()  # the cycle's events to the disk: one fsync for all of them (group commit)
+            timing.add(self.clock(), started - next_t, polled - started, stepped - polled, time.monotonic() - stepped)
             if feeder is not None:
                 feeder.tick(self._bad_cycles < 10 and time.monotonic() - started < 5 * period)
-            if hasattr(self.log, "tick"):
-                self.log.tick()
             # the loop rate is in vehicle time: against a SITL sped up k times, cycle k times as often
             rate = self.vclock.rate if self.vclock is not None else 1.0
             next_t += period / rate
@@ -342,6 +346,6 @@ class Daemon:
                 time.sleep(delay)
             else:
                 next_t = time.monotonic()
-        fsync = getattr(self.log, "max_fsync_s", None)  # the event log's slowest fsync, inside some cycle's work
+        fsync = getattr(self.log, "max_fsync_s", None)  # the event log's slowest fsync (a commit, or a rotation)
         self._event(self.clock(), "loop_timing", **timing.summary(),
                     event_log_max_fsync_ms=None if fsync is None else round(1e3 * fsync, 2))

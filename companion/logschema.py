@@ -92,8 +92,8 @@ EVENTS = {
     "loop_timing": Event(("cycles", "work_ms_max", "wake_late_ms_max", "cycles_over_ms", "worst",
                           "event_log_max_fsync_ms"), "daemon",
                          "how the real-time loop kept its schedule: a cycle's wake-up lateness (the host woke it "
-                         "late) and its own work (poll and step), largest, cycles over 10/20/40 ms, the worst five; "
-                         "the event log's slowest fsync (an event is fsync'd inside the cycle that logs it)"),
+                         "late) and its own work (poll, step, the commit of its events), largest, cycles over "
+                         "10/20/40 ms, the worst five; the event log's slowest fsync (one commit a cycle)"),
     "log_open": Event(("pid", "torn_tail"), "eventlog", "log opened (torn_tail: the previous run's last line was cut)"),
     "log_failing": Event(("error",), "daemon", "the event log cannot write (said by STATUSTEXT and on the console)"),
     "log_writing": Event(("error",), "daemon", "the event log writes again"),

@@ -381,6 +381,36 @@ def test_failed_fsync_is_reported_not_raised(tmp_path, monkeypatch):
     assert [r.get("event") for r in read_events(tmp_path)][-3:] == ["failsafe", "failsafe_clear", "log_recovered"]
 
 
+def test_group_commit_hands_each_event_to_the_os_at_once_and_fsyncs_a_cycles_events_once(tmp_path, monkeypatch):
+    """The daemon's log: a cycle's events are in the file (they survive a kill) as each is logged, and one fsync at
+    the cycle's end (`tick`) makes them all durable; a failed commit is retried at the next tick."""
+    log = EventLog(tmp_path, group_commit=True)
+    log.tick()  # log_open
+    synced = []
+    real_fsync = el.os.fsync
+    monkeypatch.setattr(el.os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
+    for k in range(5):
+        assert log.event(1.0, "state_change", to=f"s{k}") is True
+        assert sum('"state_change"' in x for x in lines_of(log.path)) == k + 1  # in the file at once
+    assert synced == []
+    log.tick()
+    assert len(synced) == 1
+    log.tick()  # nothing new: no fsync
+    assert len(synced) == 1
+
+    def bad_fsync(fd):
+        raise OSError(errno.EIO, "Input/output error")
+
+    log.event(2.0, "failsafe", cause="x", action="hold")
+    monkeypatch.setattr(el.os, "fsync", bad_fsync)
+    log.tick()
+    assert not log.healthy and log.write_errors == 1
+    monkeypatch.setattr(el.os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
+    log.tick()  # the failed commit again
+    assert len(synced) == 2 and log.healthy
+    log.close()
+
+
 def test_vanished_directory_is_recreated(tmp_path):
     d = tmp_path / "logs"
     log = EventLog(d)

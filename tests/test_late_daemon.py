@@ -79,18 +79,19 @@ def test_the_console_says_when_the_daemon_runs_late_and_when_it_is_on_time_again
 
 def test_the_loop_timing_tells_the_hosts_lateness_from_the_daemons_own_work():
     """`loop_timing` (the real-time loop's end): the largest wake-up lateness and work, the cycles over 10/20/40 ms
-    in all, and the five worst cycles by that sum, each split into wake-up, poll and step."""
+    in all, and the five worst cycles by that sum, each split into wake-up, poll, step and commit."""
     from companion.daemon import LoopTiming
 
     lt = LoopTiming()
     cycles = [(0.02 * k, 0.0002, 0.001, 0.002) for k in range(100)]
     cycles[30] = (0.6, 0.030, 0.001, 0.002)  # woken 30 ms late: the host's
     cycles[60] = (1.2, 0.0002, 0.004, 0.017)  # 21 ms of its own work: the daemon's
-    cycles[61] = (1.22, 0.0002, 0.001, 0.012)
+    cycles[61] = (1.22, 0.0002, 0.001, 0.004, 0.008)  # 8 ms of it the commit of its events
     for c in cycles:
         lt.add(*c)
     s = lt.summary()
     assert s["cycles"] == 100 and s["wake_late_ms_max"] == 30.0 and s["work_ms_max"] == 21.0
     assert s["cycles_over_ms"] == {"10": 3, "20": 2, "40": 0}
     assert [w["t"] for w in s["worst"][:3]] == [0.6, 1.2, 1.22] and len(s["worst"]) == LoopTiming.WORST
-    assert s["worst"][1] == {"t": 1.2, "wake_late_ms": 0.2, "poll_ms": 4.0, "step_ms": 17.0}
+    assert s["worst"][1] == {"t": 1.2, "wake_late_ms": 0.2, "poll_ms": 4.0, "step_ms": 17.0, "commit_ms": 0.0}
+    assert s["worst"][2]["commit_ms"] == 8.0
