@@ -129,7 +129,7 @@ def time_figure(rep: dict, samples: list[tuple], columns: tuple, title: str) -> 
     panels = [
         ("speed [m/s]", [("ground_speed", "ground speed"), ("v_max", "V_max"), ("v_cmd", "commanded"), ("v_safe", "V_safe")]),
         ("Γ [m/s]", [("gamma", "Γ = V_max − V_safe"), ("gamma_flown", "ground speed − V_safe")]),
-        ("d_od [m]", [("d_od", "D_od (used: the evidence's)"), ("d_od_stated", "D_od the sensors state")]),
+        ("d_od [m]", [("d_od", "D_od (used: the evidence's)"), ("d_od_stated", "D_od as the sensors state it")]),
         ("e_tr [m]", [("e_tr", "E_tr (used)"), ("e_tr_measured", "E_tr measured")]),
         ("thrust ratio", [("thrust_ratio", "T_max / T_nom")]),
         ("r_obst [m]", [("r_obst", "R_obst")]),
