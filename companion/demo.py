@@ -17,7 +17,9 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
+from collections import deque
 from pathlib import Path
 
 import yaml
@@ -34,6 +36,26 @@ def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+class _Tail:
+    """The last `keep` lines of a child's output, read on a thread as they come: a child that writes more than a
+    pipe holds (64 KiB) is never blocked by a demo that would read only at the end."""
+
+    def __init__(self, stream, keep: int = 20):
+        self.lines: deque[str] = deque(maxlen=keep)
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            if line.strip():
+                self.lines.append(line.rstrip())
+
+    def last(self, timeout_s: float = 5.0) -> str | None:
+        """The last line, once the child has closed its end (or `timeout_s` has passed)."""
+        self._thread.join(timeout_s)
+        return self.lines[-1] if self.lines else None
 
 
 def _events(log_dir: Path) -> list[dict]:
@@ -162,14 +184,17 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
     try:
         if "listening" not in (sitl.stderr.readline() or ""):
             raise ContractError("the SITL did not start")
+        sitl_out = _Tail(sitl.stdout)  # its summary, the last line; its stderr drained beside it
+        _Tail(sitl.stderr)
         daemon = subprocess.Popen([py, "-m", "companion.cli", "run", "--config", str(cfg_path)],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        daemon_err = _Tail(daemon.stderr)
         deadline = time.time() + 60
         while not any(e.get("event") == "startup_check" for e in _events(log_dir)):
             if daemon.poll() is not None:
-                said = [x for x in daemon.stderr.read().splitlines() if x.strip()]
+                said = daemon_err.last()
                 raise ContractError("the daemon stopped before it connected to the SITL"
-                                    + (f": {said[-1].strip()}" if said else ""))
+                                    + (f": {said.strip()}" if said else ""))
             if time.time() > deadline:
                 raise ContractError(f"the daemon did not connect to the SITL within a minute (no start-up check in "
                                     f"{log_dir})")
@@ -195,7 +220,8 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
         daemon = None
         if sitl.poll() is None:
             sitl.send_signal(signal.SIGTERM)
-        summary_line, _ = sitl.communicate(timeout=30)
+        sitl.wait(timeout=30)
+        summary_line = sitl_out.last() or ""
     finally:
         if gcs is not None:
             gcs.close()

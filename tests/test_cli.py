@@ -82,6 +82,22 @@ def test_the_demos_daemon_logs_where_the_demo_reads_it_from_a_relative_out(tmp_p
     assert Path(load_config(out / "daemon.yaml").log.dir) == tmp_path / "demo-out" / "log"
 
 
+def test_the_demo_reads_its_childrens_output_as_it_comes():
+    """A child that writes more than a pipe holds (64 KiB) before it ends is not blocked by the demo, which keeps
+    its last line (the SITL's summary, the daemon's reason for stopping)."""
+    import subprocess
+    import sys
+
+    from companion.demo import _Tail
+
+    child = subprocess.Popen([sys.executable, "-c", "import sys\nfor k in range(4000): print('x' * 60, k, "
+                              "file=sys.stderr)\nprint('the last word', file=sys.stderr)"],
+                             stderr=subprocess.PIPE, text=True)
+    tail = _Tail(child.stderr)
+    assert child.wait(timeout=30) == 0  # blocked for ever on a full pipe if nothing read it
+    assert tail.last() == "the last word"
+
+
 @pytest.mark.slow
 def test_demo_flies_the_in_flight_scenario_safely(tmp_path):
     """`contract-guard demo`: SITL and daemon as processes on loopback UDP (about a minute)."""
