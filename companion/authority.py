@@ -17,6 +17,8 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+from .frozen import quick_init
+
 TAKE_S = 3.0  # a mode commanded and not seen in a heartbeat this long after was not taken (heartbeats are 1 Hz)
 
 
@@ -48,6 +50,7 @@ class ModeCommand:
     by: Requester
 
 
+@quick_init
 @dataclass(frozen=True)
 class ModeView:
     """What the autopilot's mode says this cycle, judged once for every part of the daemon."""

@@ -52,6 +52,7 @@ from contracts.lidar import (BACKSCATTER_LENGTH_M, QUALITY_FULL_MARGIN, RATED_RE
 from contracts.window import WindowMax
 
 from .config import SensorConfig
+from .frozen import quick_init
 from .samples import Scan
 
 
@@ -85,6 +86,7 @@ class DetectionRangeParams:
                    backscatter_length_m=detection.backscatter_length_m)
 
 
+@quick_init
 @dataclass(frozen=True)
 class DetectionRangeEstimate:
     d_od: float  # the detection range the evidence allows [m] (≤ stated, ≤ cap)
@@ -166,7 +168,9 @@ class DetectionRange:
         shots = len(scan.known) if scan.known is not None else 1
         placed = [(*self._place(t, b, r), b, r) for b, r in scan.hits]
         near, medium, now = [], set(), []
-        hist = self._near_hist.setdefault(i, deque(maxlen=max(p.confirm_frames - 1, 0)))
+        hist = self._near_hist.get(i)
+        if hist is None:
+            hist = self._near_hist[i] = deque(maxlen=max(p.confirm_frames - 1, 0))
         for k, (x, y, _, r) in enumerate(placed):
             if r >= p.near_m:
                 continue
@@ -289,7 +293,8 @@ class DetectionRange:
     def _alpha_trend(self, t: float) -> float:
         """α from the quality of tracked targets as they were approached (the largest recent fit)."""
         p, best = self.p, 0.0
-        self._tracks = [tr for tr in self._tracks if tr.t_last >= t - p.recover_s - p.window_s]
+        if self._tracks:
+            self._tracks = [tr for tr in self._tracks if tr.t_last >= t - p.recover_s - p.window_s]
         for tr in self._tracks:
             s = [(r, m) for r, m in tr.samples]
             if len(s) < p.trend_samples or tr.t_last < t - p.window_s:

@@ -24,6 +24,7 @@ from contracts.window import WindowMax
 from contracts.vehicle import G
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
+from .frozen import quick_init
 from .samples import Scan
 
 # ============================================================================ D_od
@@ -105,6 +106,7 @@ class LateDetection:
     assumed_d_od: float  # what the estimate promised just before
 
 
+@quick_init
 @dataclass(frozen=True)
 class DodEstimate:
     d_od: float  # guaranteed detection range along the direction of travel [m]
@@ -178,11 +180,15 @@ class DodEstimator:
         # samples delivered in a burst were still taken one interval apart
         tolerance = self.contract.late_detection_tolerance_m + self._speed * max(gap, s.period if fresh else 0.0)
         trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
-        s.sources[source] = (t, seen, max(max_m, 0.0), trusted)
-        s.sources = {k: v for k, v in s.sources.items() if t - v[0] <= self.stale_s}
+        claim = max(max_m, 0.0)
+        s.sources[source] = (t, seen, claim, trusted)
         s.t = t
-        s.max_m = min(v[2] for v in s.sources.values())
-        s.trusted = all(v[3] for v in s.sources.values())
+        if len(s.sources) == 1:  # the one source is this sample's (the most of sensors): fresh, its values
+            s.max_m, s.trusted = claim, trusted
+        else:
+            s.sources = {k: v for k, v in s.sources.items() if t - v[0] <= self.stale_s}
+            s.max_m = min(v[2] for v in s.sources.values())
+            s.trusted = all(v[3] for v in s.sources.values())
         view = seen if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
         placed = self._placed(i, t, seen)
         self._sweep(i, t, view)  # free only short of every fresh source's hits

@@ -7,8 +7,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from .authority import ModeCommand
+from .frozen import quick_init
 
 
+@quick_init
 @dataclass(frozen=True)
 class Outbox:
     mode: ModeCommand | None = None  # DO_SET_MODE (companion/authority.py: the one winner of the cycle)

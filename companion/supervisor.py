@@ -29,6 +29,7 @@ from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
 from .estimators import DodEstimate
+from .frozen import quick_init
 from .guidance import inflated
 from .states import (AT_REST_M_S, BRAKE_STOP_CAUSES, BRAKE_SWITCH, RAMP_FOLLOWED, FAILSAFE_CAUSES, Cause, State,  # noqa: F401 (re-exported)
                      Subsystem)
@@ -43,6 +44,7 @@ RAMP_REARM_S = 3.0  # [s] the ramp followed this long (measured) before its boun
 RAMP_V_TOL = (1.03, 0.15)  # the speed flown is never above 1.03 × the speed commanded + 0.15 m/s (tracking, wind)
 
 
+@quick_init
 @dataclass(frozen=True)
 class Inputs:
     """Everything the supervisor may look at, all derived from MAVLink samples."""
@@ -90,6 +92,7 @@ class _Draft:
     hold_causes: list[Cause] = field(default_factory=list)
 
 
+@quick_init
 @dataclass(frozen=True)
 class Decision:
     """One cycle's decision of the supervisor (frozen: the cycle builds its outbox from it, never rewrites it)."""

@@ -116,21 +116,21 @@ def _frame_len(data: bytes, pos: int) -> int | None:
 
 def _decode(data: bytes, pos: int, parser):
     """(status, frame length, message) for the packet at `pos`; status "ok", "bad" or "short"."""
+    plain = _plain_v2(data, pos + 8, parser)
+    if plain is not None:
+        return "ok", plain[0], plain[1]
     n = _frame_len(data, pos)
     if n is None:
         return "bad", None, None
     if n < 0 or pos + 8 + n > len(data):
         return "short", n, None
-    buf = bytearray(data[pos + 8:pos + 8 + n])
     try:
-        msg = _plain_v2(buf, parser)
-        return "ok", n, msg if msg is not None else parser.decode(buf)
+        return "ok", n, parser.decode(bytearray(data[pos + 8:pos + 8 + n]))
     except Exception:  # noqa: BLE001 — pymavlink raises MAVError, struct.error, …: a bad packet either way
         return "bad", n, None
 
 
 _V2_HEADER = struct.Struct("<BBBBBBBHB")  # pymavlink's MAVLink 2 header (magic as a number)
-_CRC = struct.Struct("<H")
 _PLAIN: dict = {}  # message class → what `_plain_v2` decodes it with (`_plain_of`)
 mcrf4xx = getattr(mavlink, "mcrf4xx", None)  # pymavlink's CRC (fastcrc's), when it has it
 
@@ -150,33 +150,36 @@ def _plain_of(cls) -> tuple:
     return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format
 
 
-def _plain_v2(buf: bytearray, parser):
-    """`MAVLink.decode(buf)`'s message — the same object, field for field — for the common frame: MAVLink 2,
-    unsigned, of a known message, its length and CRC right; None for any other (pymavlink decodes those, and
-    raises for the bad). pymavlink's own steps without its per-call generality (the frames of a tlog are ~all
-    of this kind, and decoding is most of reading one)."""
-    if mcrf4xx is None or buf[0] != 0xFD or buf[2] or len(buf) < 12 or parser.signing.secret_key is not None:
+def _plain_v2(data: bytes, at: int, parser):
+    """(frame length, `MAVLink.decode`'s message — the same object, field for field) of the frame starting at
+    `at` in `data` when it is the common kind: MAVLink 2, unsigned, of a known message, whole, its CRC right;
+    None for any other (pymavlink decodes those, and raises for the bad). pymavlink's own steps without its
+    per-call generality (the frames of a tlog are ~all of this kind, and decoding is most of reading one)."""
+    if mcrf4xx is None or len(data) - at < 12 or data[at] != 0xFD or data[at + 2] \
+            or parser.signing.secret_key is not None:
         return None
-    _, mlen, _, compat, seq, sys_id, comp, lo, hi = _V2_HEADER.unpack_from(buf)
+    _, mlen, _, compat, seq, sys_id, comp, lo, hi = _V2_HEADER.unpack_from(data, at)
+    end = at + 12 + mlen
     msg_id = lo | hi << 16
     cls = mavlink.mavlink_map.get(msg_id)
-    if cls is None or mlen != len(buf) - 12 or mavlink.MAVLINK_IGNORE_CRC:
+    if cls is None or end > len(data) or mavlink.MAVLINK_IGNORE_CRC:
         return None
     plain = _PLAIN.get(cls)
     if plain is None:
         plain = _PLAIN[cls] = _plain_of(cls)
     extra, unpacker, size, pick, strings = plain
-    crc = _CRC.unpack_from(buf, len(buf) - 2)[0]
-    if mcrf4xx(extra, mcrf4xx(buf[1:-2], 0xFFFF)) != crc:
+    crc = data[end - 2] | data[end - 1] << 8
+    if mcrf4xx(extra, mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != crc:
         return None  # pymavlink raises "invalid MAVLink CRC"
-    t = unpacker.unpack_from(buf, 10) if mlen >= size else unpacker.unpack(bytes(buf[10:-2]) + bytes(size - mlen))
+    buf = bytearray(data[at:end])
+    t = unpacker.unpack_from(data, at + 10) if mlen >= size else unpacker.unpack(data[at + 10:end - 2] + bytes(size - mlen))
     fields = pick(t)
     if strings:
         fields = [f.rstrip(b"\x00") if isinstance(f, bytes) else f for f in fields]
     m = cls(*fields)
     m._msgbuf, m._payload, m._crc = buf, buf[6:-2], crc
     m._header = mavlink.MAVLink_header(msg_id, 0, compat, mlen, seq, sys_id, comp)
-    return m
+    return 12 + mlen, m
 
 
 def _resync(data: bytes, start: int, parser, last_raw: int | None) -> int | None:
@@ -201,31 +204,39 @@ def scan_tlog(data: bytes) -> Scan:
     """Index the good packets of a tlog (pure; never raises on bad bytes)."""
     parser = mavlink.MAVLink(None)
     s = Scan(size=len(data))
+    size, stamp, plain_v2 = len(data), _STAMP.unpack_from, _plain_v2
+    offset, length, t_us, raw_us, decoded = s.offset, s.length, s.t_us, s.raw_us, s.decoded
+    counts, spans = s.counts, s.spans
     pos, last_raw, last_t, shift = 0, None, 0, 0  # log time = stamp + shift
-    while pos < len(data):
-        if len(s.offset) >= MAX_SAMPLES:
+    while pos < size:
+        if len(offset) >= MAX_SAMPLES:
             s.capped = True
             break
-        status, n, msg = _decode(data, pos, parser)
-        if status != "ok":
-            nxt = _resync(data, pos + 1, parser, last_raw)
-            if nxt is None:
-                s.skipped_bytes += len(data) - pos
-                if status == "short":
-                    s.truncated_tail = True
-                else:
-                    s.corrupt += 1
-                break
-            s.corrupt += 1
-            s.skipped_bytes += nxt - pos
-            pos = nxt
-            continue
-        raw = struct.unpack_from(">Q", data, pos)[0]
+        plain = plain_v2(data, pos + 8, parser)  # the common frame (what `_decode` tries first)
+        if plain is not None:
+            n, msg = plain
+        else:
+            status, n, msg = _decode(data, pos, parser)
+            if status != "ok":
+                nxt = _resync(data, pos + 1, parser, last_raw)
+                if nxt is None:
+                    s.skipped_bytes += size - pos
+                    if status == "short":
+                        s.truncated_tail = True
+                    else:
+                        s.corrupt += 1
+                    break
+                s.corrupt += 1
+                s.skipped_bytes += nxt - pos
+                pos = nxt
+                continue
+        raw = stamp(data, pos)[0]
         if raw > MAX_STAMP_US:  # a stamp past the year 2262: corrupt, taken as the last good one (a jump is said)
             s.bad_stamps += 1
             raw = last_raw if last_raw is not None else 0
         at, pos = pos, pos + 8 + n
-        if msg.get_type().startswith("UNKNOWN"):
+        kind = msg.get_type()
+        if kind.startswith("UNKNOWN"):
             s.unknown += 1
             continue
         if last_raw is None:
@@ -235,24 +246,35 @@ def scan_tlog(data: bytes) -> Scan:
             if step < -MAX_BACKSTEP_US or step > MAX_GAP_US:
                 s.time_jumps.append({"t": last_t / 1e6, "jump_s": step / 1e6})
                 shift = last_t - raw
-        t = max(raw + shift, last_t)
+        t = raw + shift
+        if t < last_t:
+            t = last_t
         last_raw, last_t = raw, t
-        s.offset.append(at)
-        s.length.append(n)
-        s.t_us.append(t)
-        s.raw_us.append(raw)
-        if len(s.decoded) < KEEP_DECODED:
-            s.decoded.append(msg)
-        _note(s, t, msg)
+        offset.append(at)
+        length.append(n)
+        t_us.append(t)
+        raw_us.append(raw)
+        if len(decoded) < KEEP_DECODED:
+            decoded.append(msg)
+        header = msg._header
+        key = (header.srcSystem, header.srcComponent, kind)  # (get_srcSystem, get_srcComponent: the header's)
+        counts[key] += 1
+        span = spans.get(key)
+        if span is None:
+            spans[key] = [t, t]
+        else:
+            span[1] = t
+        if kind in NOTED:
+            _note(s, t, msg, kind, key[:2])
     return s
 
 
-def _note(s: Scan, t: int, msg) -> None:
-    """Keep the per-source counts and what the reviewer may want of a few messages."""
-    kind, src = msg.get_type(), (msg.get_srcSystem(), msg.get_srcComponent())
-    key = (*src, kind)
-    s.counts[key] += 1
-    s.spans.setdefault(key, [t, t])[1] = t
+_STAMP = struct.Struct(">Q")
+NOTED = frozenset(("HEARTBEAT", "NAMED_VALUE_FLOAT", "STATUSTEXT", "COMMAND_LONG"))  # what `_note` keeps of
+
+
+def _note(s: Scan, t: int, msg, kind: str, src: tuple[int, int]) -> None:
+    """Keep what the reviewer may want of a few messages (`NOTED`)."""
     if kind == "HEARTBEAT":
         s.heartbeats[src] = (msg.type, msg.autopilot)
     elif kind == "NAMED_VALUE_FLOAT" and msg.name in IN_FLIGHT:
