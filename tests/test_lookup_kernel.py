@@ -4,6 +4,10 @@ synthetic ones, every field of Ω compared with `==`, out-of-range and edge inpu
 source run as plain Python (`py_func`) gives the compiled answers: `fastmath=False` keeps IEEE order."""
 
 import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +18,8 @@ from test_table import MAMBO, PROP, avoid_tables, etr_tables, make
 import contracts.lookup as lookup
 from contracts.jit import HAVE_NUMBA
 from contracts.table import load_for_vehicle
+
+ROOT = Path(__file__).resolve().parents[1]
 
 pytestmark = pytest.mark.skipif(not HAVE_NUMBA, reason="numba is not installed (the `fast` extra): no kernel")
 
@@ -110,3 +116,27 @@ def test_no_executable_memory_falls_back_to_numpy_and_still_answers():
     assert kernel == "False" and "numpy" in " ".join(name)
     ref = omegas(load_for_vehicle("x500"), [[8.0, 0.5, 0.3, 1.0]], True)[0]
     assert float(v) == pytest.approx(ref.v_max, rel=0, abs=1e-9) and ref.v_max > 0
+
+
+@pytest.mark.skipif(not lookup.USE_KERNEL, reason="numba is not installed: the lookup has no kernel to compile")
+def test_the_daemon_compiles_the_kernel_at_its_start_and_a_tool_that_reads_a_table_never_does(tmp_path):
+    """In a fresh process: loading a table leaves the kernel uncompiled (`table show` never pays for it); the
+    daemon's construction compiles it (or loads numba's cache), before its first cycle."""
+    child = textwrap.dedent(f"""
+        from companion.config import config_from_dict
+        from companion.daemon import Daemon
+        from companion.link import MemoryMavfile
+        from contracts.lookup import _fixed_point_kernel
+        from contracts.table import load_for_vehicle
+
+        cfg = config_from_dict({{"vehicle": "mambo", "mode": "governor", "link": {{"connect": "memory"}},
+                                 "sensors": [{{"kind": "distance_sensor", "h_fov_deg": 30, "max_range_m": 6}}],
+                                 "log": {{"dir": {str(tmp_path)!r}}}}})
+        table = load_for_vehicle(cfg.vehicle)
+        print(len(_fixed_point_kernel.signatures))
+        Daemon(cfg, table, MemoryMavfile(lambda: b"", lambda b: None), None, clock=lambda: 0.0, planning="inline")
+        print(len(_fixed_point_kernel.signatures))
+    """)
+    run = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert run.stdout.split() == ["0", "1"]
