@@ -296,13 +296,11 @@ class _AppendFile:
         except OSError as err:
             raise WriteFailed(done, err) from err
         if sync:
-            t0 = time.perf_counter()
             try:
-                os.fsync(self.fd)
+                self.sync()
             except OSError as err:
                 # The bytes are in the file but may never reach the disk; say so, do not re-send them.
                 raise WriteFailed(done, err) from err
-            self._timed(time.perf_counter() - t0)
 
     def _append(self, chunk: bytes) -> None:
         """One chunk, all or nothing: a short or failed write is cut back (raises OSError)."""
@@ -335,10 +333,8 @@ class _AppendFile:
         if self.fd is not None:
             t0 = time.perf_counter()
             os.fsync(self.fd)
-            self._timed(time.perf_counter() - t0)
-
-    def _timed(self, dt: float) -> None:
-        self.last_fsync_s, self.max_fsync_s = dt, max(self.max_fsync_s, dt)
+            dt = time.perf_counter() - t0
+            self.last_fsync_s, self.max_fsync_s = dt, max(self.max_fsync_s, dt)
 
 
 CHUNK_BYTES = 16 * 1024  # a backlog goes to the file in chunks of whole lines, each all or nothing
