@@ -8,7 +8,8 @@ checkouts must give the same report, field by field, and the same replayed event
 The logs: the bench's DataFlash log and `.tlog` (`bench_review.py`'s straight flight, `--minutes` long), the
 SITL's own ULog and DataFlash of a hover by a column, lock-step SITL flights recorded as the daemon's `.tlog` plus the
 autopilot's own log (a hidden-fog flight on PX4, an offboard flight on PX4, an unguarded one on ArduPilot;
-each with the flight's config), and the real PX4 logs in ../shared/logs/px4 (or `--px4-logs`) when present.
+each with the flight's config), the real PX4 logs in ../shared/logs/px4 (or `--px4-logs`) and the real ArduPilot ones in
+../shared/logs/ardupilot (or `--ardupilot-logs`) when present.
 `snapshot` runs `contract-guard review LOG --json --out D` in a fresh process per log, with D at one fixed path (so the
 paths in the report agree between checkouts), and keeps stdout, review.json, samples.csv and the replayed
 event log. Compared: every field and value exactly (a float by its every bit; the JSON text is parsed, so
@@ -30,6 +31,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "logs" / "px4"
+SHARED_ARDUPILOT = ROOT.parent / "shared" / "logs" / "ardupilot"
 # the one --out path of every review (the same for both checkouts; CG_IDENTITY_WORK moves it, e.g. when two
 # checks share a machine)
 WORK = Path(os.environ.get("CG_IDENTITY_WORK", "/tmp/contract-guard-review-identity-out"))
@@ -39,7 +41,7 @@ KEPT = ("stdout.json", "review.json", "samples.csv", "replay-events.jsonl")
 PER_RUN = ("boot", "pid")
 
 
-def write_logs(where: Path, minutes: float, px4_logs: Path = SHARED) -> None:
+def write_logs(where: Path, minutes: float, px4_logs: Path = SHARED, ardupilot_logs: Path = SHARED_ARDUPILOT) -> None:
     """Every log of the check, with a `logs.json` manifest: name → (path, extra review arguments)."""
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "tests"))
@@ -76,6 +78,8 @@ def write_logs(where: Path, minutes: float, px4_logs: Path = SHARED) -> None:
         logs[f"{name}_own"] = [str(own[0]), ["--config", str(cfg)]]
     for p in sorted(px4_logs.glob("*.ulg")) if px4_logs.is_dir() else []:
         logs[f"shared_{p.stem}"] = [str(p), ["--vehicle", "x500"]]
+    for p in sorted((*ardupilot_logs.glob("*.tlog"), *ardupilot_logs.glob("*.bin"))) if ardupilot_logs.is_dir() else []:
+        logs[f"shared_{p.stem}"] = [str(p), ["--vehicle", "x500"]]  # (a fixed wing among them: refused in one line)
     (where / "logs.json").write_text(json.dumps(logs, indent=1))
 
 
@@ -176,6 +180,8 @@ def main() -> int:
     lg.add_argument("dir", type=Path)
     lg.add_argument("--minutes", type=float, default=20.0)
     lg.add_argument("--px4-logs", type=Path, default=SHARED, help=f"the real PX4 logs (default {SHARED})")
+    lg.add_argument("--ardupilot-logs", type=Path, default=SHARED_ARDUPILOT,
+                    help=f"the real ArduPilot logs (default {SHARED_ARDUPILOT})")
     sn = sub.add_parser("snapshot")
     sn.add_argument("dir", type=Path)
     sn.add_argument("out", type=Path)
@@ -184,7 +190,7 @@ def main() -> int:
     cp.add_argument("b", type=Path)
     args = ap.parse_args()
     if args.cmd == "logs":
-        write_logs(args.dir, args.minutes, args.px4_logs)
+        write_logs(args.dir, args.minutes, args.px4_logs, args.ardupilot_logs)
         return 0
     if args.cmd == "snapshot":
         snapshot(args.dir, args.out)

@@ -378,7 +378,7 @@ def cmd_run(args) -> int:
         signing_clock = SigningClock(cfg.link.signing_timestamp_file)
         setup_signing(conn, key, signing_clock)
     log = ConsoleLog(EventLog(cfg.log.dir, max_bytes=cfg.log.max_bytes, keep=cfg.log.keep, tlog=cfg.log.tlog,
-                              group_commit=True),
+                              commit="cycle"),
                      quiet=args.quiet)
     for line in banner(cfg, table, controller_contract(cfg, table)):
         log.say(line)

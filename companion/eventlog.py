@@ -27,14 +27,14 @@ The log writes two events of its own: `log_open` (pid, `torn_tail` when the prev
 was cut, which is then ended with a newline so the new run starts on a fresh line) and `log_recovered`
 (after a write failure: how many records were dropped and the first error).
 
-Durability: `event()` writes and fsyncs at once (with any buffered state samples before it) and returns
-True only when the record is on disk (with `fsync_events=False`: handed to the OS). With `group_commit=True`
-(the daemon's log) `event()` hands the record to the OS at once and `tick()`, once a cycle, fsyncs all of the
-cycle's events together: a cycle that logs five events pays one fsync, not five (each took 2–5 ms on a loaded
+Durability, by `commit`: `"event"` (the default) — `event()` writes and fsyncs at once (with any buffered state
+samples before it) and returns True only when the record is on disk; `"none"` — handed to the OS, never fsync'd
+(a log replay's); `"cycle"` (the daemon's log) — `event()` hands the record to the OS at once and `tick()`, once a
+cycle, fsyncs all of the cycle's events together: a cycle that logs five events pays one fsync, not five (each took 2–5 ms on a loaded
 2-core host, enough together to make the next cycle late). `state()` only encodes and buffers; the buffer goes
 to the OS at least every `flush_s` (default 1 s, checked on each call), on the next event, or when it holds
 `buffer_bytes`. After `kill -9` everything handed to the OS survives; after a power cut, everything up
-to the last fsync (the last event, or with group commit the last cycle's events, or the last rotation/close).
+to the last fsync (the last event, or with `commit="cycle"` the last cycle's events, or the last rotation/close).
 
 Failure handling: no method raises. A full disk (ENOSPC), a read-only or vanished directory or a failed
 fsync is counted (`write_errors`), the unwritten records stay pending (up to `pending_bytes`; beyond
@@ -365,6 +365,9 @@ def _fsync_dir(directory: Path) -> None:
 # ============================================================================ the log
 
 
+COMMITS = ("event", "cycle", "none")  # when an event is fsync'd: at once, at the cycle's `tick()`, never
+
+
 class EventLog:
     """Append-only JSON Lines event log with optional raw MAVLink `.tlog`; see the module docstring."""
 
@@ -376,8 +379,7 @@ class EventLog:
         keep: int = 10,
         clock: Callable[[], float] = time.time,
         monotonic: Callable[[], float] = time.monotonic,
-        fsync_events: bool = True,
-        group_commit: bool = False,
+        commit: str = "event",
         tlog: bool = False,
         flush_s: float = 1.0,
         buffer_bytes: int = 256_000,
@@ -385,9 +387,10 @@ class EventLog:
     ):
         self.directory = Path(directory)
         self.clock, self.monotonic = clock, monotonic
-        self.fsync_events = fsync_events
-        self.group_commit = group_commit and fsync_events
-        self._uncommitted = False  # with group commit: an event handed to the OS and not yet fsynced
+        if commit not in COMMITS:
+            raise ValueError(f"commit must be one of {', '.join(COMMITS)}, not {commit!r}")
+        self.commit = commit
+        self._uncommitted = False  # with `commit="cycle"`: an event handed to the OS and not yet fsynced
         self.flush_s, self.buffer_bytes, self.pending_bytes = flush_s, buffer_bytes, pending_bytes
         self.boot = uuid.uuid4().hex[:12]
         self.seq = -1  # the seq of the last record made
@@ -456,10 +459,10 @@ class EventLog:
                 line = encode_record(_record("event", t, self.clock(), self.seq, self.boot, str(name), fields))
                 self._pending.append((line, True))
                 self._pending_size += len(line)
-                if self.group_commit:
+                if self.commit == "cycle":
                     self._uncommitted = True
                     return self._flush(sync=False)
-                return self._flush(sync=self.fsync_events)
+                return self._flush(sync=self.commit == "event")
             except Exception as err:  # noqa: BLE001
                 self._fail(err)
                 return False
@@ -491,7 +494,7 @@ class EventLog:
                 return False
 
     def tick(self) -> None:
-        """Call from the loop once a cycle: with group commit, fsyncs the cycle's events (one fsync for all of
+        """Call from the loop once a cycle: with `commit="cycle"`, fsyncs the cycle's events (one fsync for all of
         them); honours the `flush_s` deadline."""
         if self._uncommitted:
             self._uncommitted = False  # (an event logged by the flush itself, log_recovered, sets it again)

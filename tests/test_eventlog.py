@@ -381,10 +381,10 @@ def test_failed_fsync_is_reported_not_raised(tmp_path, monkeypatch):
     assert [r.get("event") for r in read_events(tmp_path)][-3:] == ["failsafe", "failsafe_clear", "log_recovered"]
 
 
-def test_group_commit_hands_each_event_to_the_os_at_once_and_fsyncs_a_cycles_events_once(tmp_path, monkeypatch):
+def test_a_cycle_commit_hands_each_event_to_the_os_at_once_and_fsyncs_a_cycles_events_once(tmp_path, monkeypatch):
     """The daemon's log: a cycle's events are in the file (they survive a kill) as each is logged, and one fsync at
     the cycle's end (`tick`) makes them all durable; a failed commit is retried at the next tick."""
-    log = EventLog(tmp_path, group_commit=True)
+    log = EventLog(tmp_path, commit="cycle")
     log.tick()  # log_open
     synced = []
     real_fsync = el.os.fsync
@@ -409,6 +409,19 @@ def test_group_commit_hands_each_event_to_the_os_at_once_and_fsyncs_a_cycles_eve
     log.tick()  # the failed commit again
     assert len(synced) == 2 and log.healthy
     log.close()
+
+
+def test_commit_none_never_fsyncs_and_an_unknown_commit_is_refused(tmp_path, monkeypatch):
+    synced = []
+    real_fsync = el.os.fsync
+    monkeypatch.setattr(el.os, "fsync", lambda fd: synced.append(fd) or real_fsync(fd))
+    log = EventLog(tmp_path / "a", commit="none")
+    assert log.event(1.0, "state_change", to="s") is True
+    log.tick()
+    assert synced == [] and sum('"state_change"' in x for x in lines_of(log.path)) == 1
+    log.close()
+    with pytest.raises(ValueError, match="commit must be one of event, cycle, none"):
+        EventLog(tmp_path / "b", commit="group")
 
 
 def test_vanished_directory_is_recreated(tmp_path):

@@ -34,7 +34,7 @@ def test_every_state_field_has_a_unit_and_a_meaning():
 
 
 def test_a_live_flight_writes_the_schema_and_sends_its_nvfs_and_commands(tmp_path):
-    log = EventLog(tmp_path, fsync_events=False)
+    log = EventLog(tmp_path, commit="none")
     rig = Rig(column_scenario(1), "px4", log=log)
     fly(rig, 6.0)
     log.close()

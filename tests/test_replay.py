@@ -37,7 +37,7 @@ def record(directory: Path, scenario, personality, config=None, outgoing=False, 
     def wall():
         return T0 + box["rig"].sim.time_s
 
-    log = EventLog(directory, tlog=True, clock=wall, fsync_events=False)
+    log = EventLog(directory, tlog=True, clock=wall, commit="none")
     rig = box["rig"] = Rig(scenario, personality, config={**(config or {}), "log": {"tlog": True}}, log=log,
                            log_dir=log_dir, **(rig_kwargs or {}))
     rig.daemon.wall = wall

@@ -273,7 +273,7 @@ class _Fake(Origin):
 
 def fake_to_event_log(path, log_dir, *, config, vehicle, table):
     """A stand-in raw-log reader (the shape a .ulg or .bin reader takes): writes an event log, names its origin."""
-    log = EventLog(log_dir, fsync_events=False)
+    log = EventLog(log_dir, commit="none")
     for i in range(40):
         put(log, i)
     log.close()

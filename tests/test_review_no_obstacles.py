@@ -31,7 +31,7 @@ R_OBST, E_TR, THRUST = 0.5, 0.3, 1.0
 
 def blind_flight(directory: Path, legs=((20.0, 3.0), (10.0, 6.0), (5.0, 0.0)), thrust=THRUST) -> None:
     """Legs of (seconds, ground speed) at 10 Hz, D_od 0 and no obstacle (no sensor), as the daemon writes it."""
-    log = EventLog(directory, fsync_events=False)
+    log = EventLog(directory, commit="none")
     log.event(0.0, "start", mode="shadow", vehicle="x500", table=str(TABLE.path))
     t, x = 0.0, 0.0
     for dur, v in legs:
@@ -107,7 +107,7 @@ def test_thrust_below_the_tables_range_needs_more_than_any_range(tmp_path):
 
 
 def test_a_log_with_obstacle_data_is_judged_as_before(tmp_path):
-    log = EventLog(tmp_path, fsync_events=False)
+    log = EventLog(tmp_path, commit="none")
     for i in range(50):
         log.state(i * 0.1, ground_speed=5.0, d_od=4.0, v_max=2.0, v_safe=2.0, gamma=0.0, gamma_flown=3.0,
                   obstacle_m=None, x=0.0, y=0.0)

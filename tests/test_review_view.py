@@ -29,7 +29,7 @@ POINTS = {"failsafe": 50.0, "stand_down": 13.0, "collision": 55.0}
 
 def scripted_flight(directory: Path) -> None:
     """60 s eastwards at 2 m/s with every kind of mark, through the real EventLog (as the daemon writes it)."""
-    log = EventLog(directory, fsync_events=False)
+    log = EventLog(directory, commit="none")
     log.event(0.0, "start", mode="governor", vehicle="x500", table="")
     log.event(0.0, "link", status="up")
     log.event(0.5, "mission", status="ready", waypoints=[[0.0, 0.0], [0.0, 120.0]], altitude_m=10.0)
@@ -246,7 +246,7 @@ def governed(tmp_path_factory):
     from tests.test_daemon_lockstep import column_scenario, fly
 
     d = tmp_path_factory.mktemp("governed")
-    log = EventLog(d / "log", fsync_events=False)
+    log = EventLog(d / "log", commit="none")
     rig = Rig(column_scenario(1, x_col=45.0, cruise=4.0, faults=[{"at_s": 8.0, "link_dropout_s": 3.0}]), "px4",
               log=log)
     fly(rig, 14.0)

@@ -17,7 +17,7 @@ from tests.test_daemon_lockstep import column_scenario, fly
 def shadow_crash(tmp_path_factory):
     """The Mambo in shadow mode cruising at 8 m/s (the contract allows about 4) into a column."""
     d = tmp_path_factory.mktemp("shadow")
-    log = EventLog(d / "log", fsync_events=False)
+    log = EventLog(d / "log", commit="none")
     rig = Rig(column_scenario(1, x_col=28.0, cruise=8.0), "px4", config={"mode": "shadow"}, log=log)
     fly(rig, 12.0)
     log.close()

@@ -45,7 +45,7 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
     conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
                          source_component=cfg.link.component_id)
     wall = lambda: feed.wall0 + now["t"]  # noqa: E731
-    log = EventLog(log_dir, clock=wall, fsync_events=False, max_bytes=1 << 62)
+    log = EventLog(log_dir, clock=wall, commit="none", max_bytes=1 << 62)
     daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=wall, planning="inline", contract=contract)
     log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
               contract=contract)

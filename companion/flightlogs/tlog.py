@@ -58,8 +58,6 @@ IN_FLIGHT = {name: f for name, (f, _, _) in NVF.items() if f}  # the daemon's NA
 # its COMMAND_LONGs counted: the speed limit and the mode (a hold or an offboard entry, alike on the wire)
 DAEMON_COMMANDS = {getattr(mavlink, COMMANDS["change_speed"]): "change_speed", getattr(mavlink, COMMANDS["hold"]): "set_mode"}
 LISTED = 100
-KEEP_DECODED = 400_000  # packets kept decoded for the replay (≈ 0.9 KiB each: a 20-minute 250 msg/s log ≈ 270 MiB);
-# beyond, the replay decodes again (memory stays bounded for a long log)
 
 
 @dataclass
@@ -84,7 +82,6 @@ class Scan:
     in_flight: list = field(default_factory=list)  # (t_us, sys, comp, name, value): our daemon's values
     texts: list = field(default_factory=list)  # (t_us, sys, comp, text): "CG: …" status texts
     commands: list = field(default_factory=list)  # (t_us, sys, comp, name, param1, param2)
-    decoded: list = field(default_factory=list)  # the first KEEP_DECODED packets' messages (the replay's, decoded once)
 
     @property
     def packets(self) -> int:
@@ -150,36 +147,49 @@ def _plain_of(cls) -> tuple:
     return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format
 
 
-def _plain_v2(data: bytes, at: int, parser):
-    """(frame length, `MAVLink.decode`'s message — the same object, field for field) of the frame starting at
-    `at` in `data` when it is the common kind: MAVLink 2, unsigned, of a known message, whole, its CRC right;
-    None for any other (pymavlink decodes those, and raises for the bad). pymavlink's own steps without its
-    per-call generality (the frames of a tlog are ~all of this kind, and decoding is most of reading one)."""
+def _plain_frame(data: bytes, at: int, parser):
+    """(frame length, message class, its `_plain_of`, the header's fields) of the frame starting at `at` in `data`
+    when it is the common kind: MAVLink 2, unsigned, of a known message, whole, its CRC right; None for any other
+    (pymavlink decodes those, and raises for the bad). The frame is checked, not decoded: the scan needs only
+    this of most frames."""
     if mcrf4xx is None or len(data) - at < 12 or data[at] != 0xFD or data[at + 2] \
             or parser.signing.secret_key is not None:
         return None
-    _, mlen, _, compat, seq, sys_id, comp, lo, hi = _V2_HEADER.unpack_from(data, at)
+    header = _V2_HEADER.unpack_from(data, at)
+    mlen = header[1]
     end = at + 12 + mlen
-    msg_id = lo | hi << 16
-    cls = mavlink.mavlink_map.get(msg_id)
+    cls = mavlink.mavlink_map.get(header[7] | header[8] << 16)
     if cls is None or end > len(data) or mavlink.MAVLINK_IGNORE_CRC:
         return None
     plain = _PLAIN.get(cls)
     if plain is None:
         plain = _PLAIN[cls] = _plain_of(cls)
-    extra, unpacker, size, pick, strings = plain
-    crc = data[end - 2] | data[end - 1] << 8
-    if mcrf4xx(extra, mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != crc:
+    if mcrf4xx(plain[0], mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != data[end - 2] | data[end - 1] << 8:
         return None  # pymavlink raises "invalid MAVLink CRC"
+    return 12 + mlen, cls, plain, header
+
+
+def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tuple):
+    """`MAVLink.decode`'s message (the same object, field for field) of a frame `_plain_frame` checked:
+    pymavlink's own steps without its per-call generality."""
+    _, mlen, _, compat, seq, sys_id, comp, lo, hi = header
+    end = at + n
+    _, unpacker, size, pick, strings = plain
     buf = bytearray(data[at:end])
     t = unpacker.unpack_from(data, at + 10) if mlen >= size else unpacker.unpack(data[at + 10:end - 2] + bytes(size - mlen))
     fields = pick(t)
     if strings:
         fields = [f.rstrip(b"\x00") if isinstance(f, bytes) else f for f in fields]
     m = cls(*fields)
-    m._msgbuf, m._payload, m._crc = buf, buf[6:-2], crc
-    m._header = mavlink.MAVLink_header(msg_id, 0, compat, mlen, seq, sys_id, comp)
-    return 12 + mlen, m
+    m._msgbuf, m._payload, m._crc = buf, buf[6:-2], data[end - 2] | data[end - 1] << 8
+    m._header = mavlink.MAVLink_header(lo | hi << 16, 0, compat, mlen, seq, sys_id, comp)
+    return m
+
+
+def _plain_v2(data: bytes, at: int, parser):
+    """(frame length, `MAVLink.decode`'s message) of a frame of the common kind (`_plain_frame`), else None."""
+    frame = _plain_frame(data, at, parser)
+    return None if frame is None else (frame[0], _plain_message(data, at, *frame))
 
 
 def _resync(data: bytes, start: int, parser, last_raw: int | None) -> int | None:
@@ -201,20 +211,24 @@ def _resync(data: bytes, start: int, parser, last_raw: int | None) -> int | None
 
 
 def scan_tlog(data: bytes) -> Scan:
-    """Index the good packets of a tlog (pure; never raises on bad bytes)."""
+    """Index the good packets of a tlog (pure; never raises on bad bytes). A frame of the common kind is
+    checked, not decoded (`_plain_frame`), unless it is one the scan keeps something of (`NOTED`): the replay
+    decodes each packet as it feeds it, so no log's messages are all held at once."""
     parser = mavlink.MAVLink(None)
     s = Scan(size=len(data))
-    size, stamp, plain_v2 = len(data), _STAMP.unpack_from, _plain_v2
-    offset, length, t_us, raw_us, decoded = s.offset, s.length, s.t_us, s.raw_us, s.decoded
+    size, stamp, plain_frame = len(data), _STAMP.unpack_from, _plain_frame
+    offset, length, t_us, raw_us = s.offset, s.length, s.t_us, s.raw_us
     counts, spans = s.counts, s.spans
     pos, last_raw, last_t, shift = 0, None, 0, 0  # log time = stamp + shift
     while pos < size:
         if len(offset) >= MAX_SAMPLES:
             s.capped = True
             break
-        plain = plain_v2(data, pos + 8, parser)  # the common frame (what `_decode` tries first)
-        if plain is not None:
-            n, msg = plain
+        frame = plain_frame(data, pos + 8, parser)  # the common frame (what `_decode` tries first)
+        if frame is not None:
+            n, cls, _, header = frame
+            kind, key = cls.msgname, (header[5], header[6], cls.msgname)
+            msg = _plain_message(data, pos + 8, *frame) if kind in NOTED else None
         else:
             status, n, msg = _decode(data, pos, parser)
             if status != "ok":
@@ -230,12 +244,13 @@ def scan_tlog(data: bytes) -> Scan:
                 s.skipped_bytes += nxt - pos
                 pos = nxt
                 continue
+            kind = msg.get_type()
+            key = (msg._header.srcSystem, msg._header.srcComponent, kind)  # (get_srcSystem, get_srcComponent)
         raw = stamp(data, pos)[0]
         if raw > MAX_STAMP_US:  # a stamp past the year 2262: corrupt, taken as the last good one (a jump is said)
             s.bad_stamps += 1
             raw = last_raw if last_raw is not None else 0
         at, pos = pos, pos + 8 + n
-        kind = msg.get_type()
         if kind.startswith("UNKNOWN"):
             s.unknown += 1
             continue
@@ -254,10 +269,6 @@ def scan_tlog(data: bytes) -> Scan:
         length.append(n)
         t_us.append(t)
         raw_us.append(raw)
-        if len(decoded) < KEEP_DECODED:
-            decoded.append(msg)
-        header = msg._header
-        key = (header.srcSystem, header.srcComponent, kind)  # (get_srcSystem, get_srcComponent: the header's)
         counts[key] += 1
         span = spans.get(key)
         if span is None:
@@ -355,25 +366,24 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     now = {"t": 0.0, "wall": scan.raw_us[0] / 1e6}
     conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
                          source_component=cfg.link.component_id)
-    log = EventLog(log_dir, clock=lambda: now["wall"], fsync_events=False, max_bytes=1 << 62)
+    log = EventLog(log_dir, clock=lambda: now["wall"], commit="none", max_bytes=1 << 62)
     daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=lambda: now["wall"], planning="inline",
                     contract=contract)  # the contract the flight flew under (shadow alone would say "stop")
     log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
               contract=contract)
     off, length, t_us, raw_us = scan.offset, scan.length, scan.t_us, scan.raw_us
 
-    decode, decoded = conn.mav.decode, scan.decoded  # the daemon's own dialect (the scan's: mavutil's)
+    mav = conn.mav  # the daemon's own dialect (the scan's: mavutil's)
 
     def take(i: int, t: float) -> None:
         now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
-        if i < len(decoded):
-            msg = decoded[i]
-        else:  # past what the scan kept: decoded again (the scan kept only frames with a valid CRC)
-            try:
-                msg = decode(bytearray(data[off[i] + 8:off[i] + 8 + length[i]]))
-            except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
-                daemon.counters.bad_packets += 1
-                return
+        at = off[i] + 8
+        try:  # (the scan kept only frames with a valid CRC: a failure here is a dialect's complaint)
+            plain = _plain_v2(data, at, mav)
+            msg = plain[1] if plain is not None else mav.decode(bytearray(data[at:at + length[i]]))
+        except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
+            daemon.counters.bad_packets += 1
+            return
         daemon.feed(msg)
 
     def step(tick: float) -> None:
