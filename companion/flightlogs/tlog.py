@@ -147,11 +147,11 @@ def _plain_of(cls) -> tuple:
     return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format
 
 
-def _plain_frame(data: bytes, at: int, parser):
+def _plain_frame(data: bytes, at: int, parser, crc: bool = True):
     """(frame length, message class, its `_plain_of`, the header's fields) of the frame starting at `at` in `data`
     when it is the common kind: MAVLink 2, unsigned, of a known message, whole, its CRC right; None for any other
     (pymavlink decodes those, and raises for the bad). The frame is checked, not decoded: the scan needs only
-    this of most frames."""
+    this of most frames. `crc=False`: a frame the scan has checked (its CRC is not computed again)."""
     if mcrf4xx is None or len(data) - at < 12 or data[at] != 0xFD or data[at + 2] \
             or parser.signing.secret_key is not None:
         return None
@@ -164,7 +164,7 @@ def _plain_frame(data: bytes, at: int, parser):
     plain = _PLAIN.get(cls)
     if plain is None:
         plain = _PLAIN[cls] = _plain_of(cls)
-    if mcrf4xx(plain[0], mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != data[end - 2] | data[end - 1] << 8:
+    if crc and mcrf4xx(plain[0], mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != data[end - 2] | data[end - 1] << 8:
         return None  # pymavlink raises "invalid MAVLink CRC"
     return 12 + mlen, cls, plain, header
 
@@ -172,7 +172,7 @@ def _plain_frame(data: bytes, at: int, parser):
 def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tuple):
     """`MAVLink.decode`'s message (the same object, field for field) of a frame `_plain_frame` checked:
     pymavlink's own steps without its per-call generality."""
-    _, mlen, _, compat, seq, sys_id, comp, lo, hi = header
+    _, mlen, _, compat, seq, sys_id, comp, _, _ = header
     end = at + n
     _, unpacker, size, pick, strings = plain
     buf = bytearray(data[at:end])
@@ -182,7 +182,8 @@ def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tupl
         fields = [f.rstrip(b"\x00") if isinstance(f, bytes) else f for f in fields]
     m = cls(*fields)
     m._msgbuf, m._payload, m._crc = buf, buf[6:-2], data[end - 2] | data[end - 1] << 8
-    m._header = mavlink.MAVLink_header(lo | hi << 16, 0, compat, mlen, seq, sys_id, comp)
+    h = m._header  # the header `cls.__init__` made (msgId set, incompat_flags 0): given the frame's other fields, as
+    h.mlen, h.seq, h.srcSystem, h.srcComponent, h.compat_flags = mlen, seq, sys_id, comp, compat  # decode's new one
     return m
 
 
@@ -379,8 +380,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
         at = off[i] + 8
         try:  # (the scan kept only frames with a valid CRC: a failure here is a dialect's complaint)
-            plain = _plain_v2(data, at, mav)
-            msg = plain[1] if plain is not None else mav.decode(bytearray(data[at:at + length[i]]))
+            frame = _plain_frame(data, at, mav, crc=False)
+            msg = _plain_message(data, at, *frame) if frame is not None else mav.decode(bytearray(data[at:at + length[i]]))
         except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
             daemon.counters.bad_packets += 1
             return
