@@ -140,7 +140,8 @@ def main() -> None:
                 res[key] = run(log) | {"write_s": time.perf_counter() - t}
     ulogs = sorted(args.px4_logs.glob("*.ulg"), key=lambda p: p.stat().st_size) if args.px4_logs.is_dir() else []
     res["ulog"] = run(ulogs[-1]) | {"file": ulogs[-1].name} if ulogs else None
-    tlogs = sorted(args.ardupilot_logs.glob("*.tlog"), key=lambda p: p.stat().st_size) if args.ardupilot_logs.is_dir() else []
+    tlogs = sorted(args.ardupilot_logs.glob("*.tlog"), key=lambda p: p.stat().st_size) \
+        if args.ardupilot_logs.is_dir() else []
     res["real_tlog"] = run(tlogs[-1]) | {"file": tlogs[-1].name} if tlogs else None
     res["goal"] = "20-minute log < 10 s and < 1 GiB"
     print(json.dumps(res))

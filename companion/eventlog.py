@@ -30,11 +30,11 @@ was cut, which is then ended with a newline so the new run starts on a fresh lin
 Durability, by `commit`: `"event"` (the default) — `event()` writes and fsyncs at once (with any buffered state
 samples before it) and returns True only when the record is on disk; `"none"` — handed to the OS, never fsync'd
 (a log replay's); `"cycle"` (the daemon's log) — `event()` hands the record to the OS at once and `tick()`, once a
-cycle, fsyncs all of the cycle's events together: a cycle that logs five events pays one fsync, not five (each took 2–5 ms on a loaded
-2-core host, enough together to make the next cycle late). `state()` only encodes and buffers; the buffer goes
-to the OS at least every `flush_s` (default 1 s, checked on each call), on the next event, or when it holds
-`buffer_bytes`. After `kill -9` everything handed to the OS survives; after a power cut, everything up
-to the last fsync (the last event, or with `commit="cycle"` the last cycle's events, or the last rotation/close).
+cycle, fsyncs all of the cycle's events together: a cycle that logs five events pays one fsync, not five (each
+took 2–5 ms on a loaded 2-core host, enough together to make the next cycle late). `state()` only encodes and
+buffers; the buffer goes to the OS at least every `flush_s` (default 1 s, checked on each call), on the next event,
+or when it holds `buffer_bytes`. After `kill -9` everything handed to the OS survives; after a power cut, everything
+up to the last fsync (the last event, or with `commit="cycle"` the last cycle's events, or the last rotation/close).
 
 Failure handling: no method raises. A full disk (ENOSPC), a read-only or vanished directory or a failed
 fsync is counted (`write_errors`), the unwritten records stay pending (up to `pending_bytes`; beyond

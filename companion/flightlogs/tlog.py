@@ -381,7 +381,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         at = off[i] + 8
         try:  # (the scan kept only frames with a valid CRC: a failure here is a dialect's complaint)
             frame = _plain_frame(data, at, mav, crc=False)
-            msg = _plain_message(data, at, *frame) if frame is not None else mav.decode(bytearray(data[at:at + length[i]]))
+            msg = _plain_message(data, at, *frame) if frame is not None \
+                else mav.decode(bytearray(data[at:at + length[i]]))
         except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
             daemon.counters.bad_packets += 1
             return
