@@ -51,13 +51,11 @@ print(json.dumps({"s": dt, "cpu_s": (c1.user - c0.user) + (c1.system - c0.system
 """
 
 
-REPEAT = 1  # reviews of each log (--repeat): on a shared host one run's time says little
-
-
-def run(path: Path) -> dict:
-    """The fastest of REPEAT reviews of `path` (`s`, `cpu_s`, … its own), and every run's (s, cpu_s) in `runs`."""
+def run(path: Path, repeat: int = 1) -> dict:
+    """The fastest of `repeat` reviews of `path` (`s`, `cpu_s`, … its own), and every run's (s, cpu_s) in `runs`: on
+    a shared host one run's time says little."""
     runs = []
-    for _ in range(REPEAT):
+    for _ in range(max(repeat, 1)):
         out = subprocess.run([sys.executable, "-c", CHILD, str(path)], capture_output=True, text=True, cwd=ROOT,
                              check=True)
         runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
@@ -120,8 +118,6 @@ def main() -> None:
                     help=f"the real ArduPilot logs (default {SHARED_ARDUPILOT}): the largest .tlog is reviewed")
     ap.add_argument("--repeat", type=int, default=1, help="reviews of each log; the fastest is reported, all in runs")
     args = ap.parse_args()
-    global REPEAT
-    REPEAT = max(args.repeat, 1)
     sys.path.insert(0, str(ROOT))
     sys.path.insert(0, str(ROOT / "tests"))
     from test_flight_logs import write_bin
@@ -131,18 +127,18 @@ def main() -> None:
         t = time.perf_counter()
         path = write_bin(Path(tmp) / "long.bin", speed=3.0, dur=args.minutes * 60)
         res["write_bin_s"] = time.perf_counter() - t
-        res["dataflash"] = run(path)
-        res["tlog"] = run(write_tlog(Path(tmp) / "long.tlog", args.minutes * 60))
+        res["dataflash"] = run(path, args.repeat)
+        res["tlog"] = run(write_tlog(Path(tmp) / "long.tlog", args.minutes * 60), args.repeat)
         if not args.no_sitl:
             for personality, key in (("px4", "sitl_ulog"), ("ardupilot", "sitl_dataflash")):
                 t = time.perf_counter()
                 log = sitl_log(Path(tmp) / personality, personality, args.minutes * 60)
-                res[key] = run(log) | {"write_s": time.perf_counter() - t}
+                res[key] = run(log, args.repeat) | {"write_s": time.perf_counter() - t}
     ulogs = sorted(args.px4_logs.glob("*.ulg"), key=lambda p: p.stat().st_size) if args.px4_logs.is_dir() else []
-    res["ulog"] = run(ulogs[-1]) | {"file": ulogs[-1].name} if ulogs else None
+    res["ulog"] = run(ulogs[-1], args.repeat) | {"file": ulogs[-1].name} if ulogs else None
     tlogs = sorted(args.ardupilot_logs.glob("*.tlog"), key=lambda p: p.stat().st_size) \
         if args.ardupilot_logs.is_dir() else []
-    res["real_tlog"] = run(tlogs[-1]) | {"file": tlogs[-1].name} if tlogs else None
+    res["real_tlog"] = run(tlogs[-1], args.repeat) | {"file": tlogs[-1].name} if tlogs else None
     res["goal"] = "20-minute log < 10 s and < 1 GiB"
     print(json.dumps(res))
 

@@ -47,7 +47,8 @@ def part_lines(directory: Path) -> dict[int, str]:
 
 
 def save(out: Path, into: Path) -> int:
-    rows = part_lines(into) | read_lines(out / "results.jsonl") if into.is_dir() else read_lines(out / "results.jsonl")
+    rows = part_lines(into) if into.is_dir() else {}
+    rows |= read_lines(out / "results.jsonl")  # the run's rows over the parts' (the same flight)
     if not rows:
         raise SystemExit(f"evidence_rows: no rows in {out / 'results.jsonl'}")
     into.mkdir(parents=True, exist_ok=True)
