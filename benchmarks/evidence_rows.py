@@ -22,20 +22,16 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from companion import campaign as cg  # noqa: E402
 DEFAULT = ROOT / "benchmarks" / "evidence-10k"
 PART_FLIGHTS = 3000  # flights per part (1 000 scenarios of three arms)
 
 
-def read_lines(path: Path) -> dict[int, str]:
-    """flight index → its row's line (without the newline); a torn or unparsable line is left out."""
-    rows: dict[int, str] = {}
-    if path.exists():
-        for line in path.read_text().splitlines():
-            try:
-                rows[int(json.loads(line)["index"])] = line
-            except (ValueError, KeyError, TypeError):
-                continue
-    return rows
+def run_lines(out: Path) -> dict[int, str]:
+    """flight index → its row's line, of a campaign's OUT/results.jsonl (the campaign's own reader: a torn line is
+    left out; `row_json` gives back the line as the campaign wrote it)."""
+    return {r["index"]: cg.row_json(r) for r in cg.read_rows(out)}
 
 
 def part_lines(directory: Path) -> dict[int, str]:
@@ -48,7 +44,7 @@ def part_lines(directory: Path) -> dict[int, str]:
 
 def save(out: Path, into: Path) -> int:
     rows = part_lines(into) if into.is_dir() else {}
-    rows |= read_lines(out / "results.jsonl")  # the run's rows over the parts' (the same flight)
+    rows |= run_lines(out)  # the run's rows over the parts' (the same flight)
     if not rows:
         raise SystemExit(f"evidence_rows: no rows in {out / 'results.jsonl'}")
     into.mkdir(parents=True, exist_ok=True)
@@ -69,7 +65,7 @@ def restore(out: Path, source: Path) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if not (out / "campaign.json").exists():
         shutil.copyfile(source / "campaign.json", out / "campaign.json")
-    rows |= read_lines(out / "results.jsonl")  # the run's own rows win (the same flight, flown here)
+    rows |= run_lines(out)  # the run's own rows win (the same flight, flown here)
     tmp = out / "results.jsonl.tmp"
     tmp.write_text("".join(rows[i] + "\n" for i in sorted(rows)))
     tmp.replace(out / "results.jsonl")

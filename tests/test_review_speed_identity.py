@@ -25,7 +25,7 @@ from companion.flightlogs import logreplay, tlog
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("CG_SHARED_LOGS", ROOT.parent / "shared" / "logs"))
 # what each speed-up replaced, put back (module, name, the straightforward stand-in)
-STRAIGHT = [(tlog, "_plain_v2", lambda data, at, parser: None),
+STRAIGHT = [(tlog, "_plain_v2", lambda data, at, parser, crc=True: None),
             (tlog, "_plain_frame", lambda data, at, parser, crc=True: None),
             (tlog, "gc_paused", contextlib.nullcontext), (tlog, "gc_frozen", contextlib.nullcontext),
             (logreplay, "gc_paused", contextlib.nullcontext)]

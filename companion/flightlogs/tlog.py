@@ -187,9 +187,9 @@ def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tupl
     return m
 
 
-def _plain_v2(data: bytes, at: int, parser):
+def _plain_v2(data: bytes, at: int, parser, crc: bool = True):
     """(frame length, `MAVLink.decode`'s message) of a frame of the common kind (`_plain_frame`), else None."""
-    frame = _plain_frame(data, at, parser)
+    frame = _plain_frame(data, at, parser, crc)
     return None if frame is None else (frame[0], _plain_message(data, at, *frame))
 
 
@@ -380,9 +380,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
         at = off[i] + 8
         try:  # (the scan kept only frames with a valid CRC: a failure here is a dialect's complaint)
-            frame = _plain_frame(data, at, mav, crc=False)
-            msg = _plain_message(data, at, *frame) if frame is not None \
-                else mav.decode(bytearray(data[at:at + length[i]]))
+            plain = _plain_v2(data, at, mav, crc=False)
+            msg = plain[1] if plain is not None else mav.decode(bytearray(data[at:at + length[i]]))
         except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
             daemon.counters.bad_packets += 1
             return
