@@ -3,8 +3,8 @@ nothing. Here, and only here: which sources are accepted, the daemon's clock fol
 the autopilot's state snapshot (`Telemetry`), sensor matching, unit and frame conversion (every sensor
 kind normalised into one `Scan`), and counting what is malformed. No decisions.
 
-A new sensor kind is one decoder here (a function returning its `Scan`, and an `Implausible` when the
-message contradicts itself) and one entry in `SENSOR_KINDS`.
+A new sensor kind is one decoder here (a function returning its `Scan` from the message's source, and an
+`Implausible` when the message contradicts itself) and one entry in `SENSOR_KINDS`.
 """
 
 from __future__ import annotations
@@ -97,29 +97,29 @@ def sensor_orientation(yaw_deg_clockwise: float) -> int:
 
 
 def range_scan(t: float, sensor: int, bearing: float, current_m: float, min_m: float, max_m: float,
-               quality: int, rated_m: float | None = None) -> Scan:
+               quality: int, rated_m: float | None = None, source: tuple | None = None) -> Scan:
     """A single range beam along body bearing `bearing`. PX4's convention: a reading at or beyond the
     maximum sees nothing within it; a reading below the minimum is unknown, never free (the scan is
     invalid: quality 1), and so is a message whose minimum exceeds its maximum. The claimed maximum is
-    capped by the sensor's rated range."""
+    capped by the sensor's rated range. `source`: who sent it (`Scan.source`)."""
     if min_m > max_m or current_m < min_m:
-        return Scan(t, sensor, (), 0.0, 1)
+        return Scan(t, sensor, (), 0.0, 1, None, None, source)
     cap = max_m if rated_m is None else min(max_m, rated_m)
     hits = ((bearing, current_m),) if min_m < current_m < max_m - 0.01 and current_m < cap else ()
-    return Scan(t, sensor, hits, cap, quality)
+    return Scan(t, sensor, hits, cap, quality, None, None, source)
 
 
 def bins_scan(t: float, sensor: int, bearings: np.ndarray, ranges_m: np.ndarray, max_m: float,
-              increment: float, rated_m: float | None = None) -> Scan:
+              increment: float, rated_m: float | None = None, source: tuple | None = None) -> Scan:
     """Bins of a sector sensor: body bearings of the bins that report and their ranges (inf: nothing
     within max; the caller leaves out the bins that report nothing known). The claimed maximum is capped
     by the sensor's rated range."""
     cap = max_m if rated_m is None else min(max_m, rated_m)
     hits = tuple((float(b), float(r)) for b, r in zip(bearings, ranges_m) if r < cap)
-    return Scan(t, sensor, hits, cap, 0, tuple(float(b) for b in bearings), increment)
+    return Scan(t, sensor, hits, cap, 0, tuple(float(b) for b in bearings), increment, source)
 
 
-def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> list:
+def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry, source: tuple) -> list:
     """DISTANCE_SENSOR: the configured sensor of this source (`sensor_of`), id (or any id) and orientation;
     cm → m."""
     i = sensor_of.get(("distance_sensor", msg.id, msg.orientation),
@@ -128,12 +128,12 @@ def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry
         return []
     c = cfg.sensors[i]
     scan = range_scan(t, i, math.radians(c.orientation_deg), msg.current_distance / 100, msg.min_distance / 100,
-                      msg.max_distance / 100, getattr(msg, "signal_quality", 0), c.max_range_m)
+                      msg.max_distance / 100, getattr(msg, "signal_quality", 0), c.max_range_m, source)
     bad = msg.min_distance > msg.max_distance
     return [scan, Implausible(t, "DISTANCE_SENSOR", "min_distance above max_distance")] if bad else [scan]
 
 
-def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry) -> list:
+def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry, source: tuple) -> list:
     """OBSTACLE_DISTANCE: bin k at angle_offset + k·increment (clockwise; MAV_FRAME_GLOBAL is north-aligned,
     rotated into the body frame here); UINT16_MAX is a bin that knows nothing, beyond max_distance is
     free; cm → m. Bins wider than a circle, or a minimum above the maximum: an invalid scan."""
@@ -145,7 +145,7 @@ def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemet
     if not (math.isfinite(inc) and math.isfinite(offset)) or inc < 0 or msg.min_distance > msg.max_distance \
             or inc * len(msg.distances) > 360.0 + 1e-6:
         why = "increment or angle_offset not finite, bins past a circle, or min_distance above max_distance"
-        return [Scan(t, i, (), 0.0, 1, (), 0.0), Implausible(t, "OBSTACLE_DISTANCE", why)]
+        return [Scan(t, i, (), 0.0, 1, (), 0.0, source), Implausible(t, "OBSTACLE_DISTANCE", why)]
     if inc == 0:
         return []  # PX4 ignores increment 0 too
     d = np.asarray(msg.distances, dtype=float)
@@ -155,7 +155,7 @@ def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemet
         ang = ang - tel.yaw
     rng = np.where(d > msg.max_distance, np.inf, d / 100.0)
     return [bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc),
-                      cfg.sensors[i].max_range_m)]
+                      cfg.sensors[i].max_range_m, source)]
 
 
 def implausible_position(x: float, y: float, z: float, vx: float, vy: float, vz: float) -> str | None:
@@ -302,9 +302,8 @@ class MavlinkIn:
             return [NavStatus(t, kind, msg.flags)]
         if kind in SENSOR_KINDS:
             src = src or self.autopilot
-            out = SENSOR_KINDS[kind](self.cfg, self._sensors_of.get(src, {}), t, msg, tel)
             key = (*src, getattr(msg, "id", None))  # the scan's source: per source the estimator keeps its state
-            return [x.with_source(key) if isinstance(x, Scan) else x for x in out]
+            return SENSOR_KINDS[kind](self.cfg, self._sensors_of.get(src, {}), t, msg, tel, key)
         if kind == "COMMAND_ACK":
             return [CommandAck(t, msg.command, msg.result)] \
                 if msg.command in (MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE) else []

@@ -77,10 +77,6 @@ class Scan:
     increment: float | None = None
     source: tuple | None = None  # who sent it: (system, component, DISTANCE_SENSOR id); None: the sensor's only source
 
-    def with_source(self, source: tuple) -> "Scan":
-        """This scan from `source` (`dataclasses.replace`'s answer, without its per-call field inspection)."""
-        return Scan(self.t, self.sensor, self.hits, self.max_m, self.quality, self.known, self.increment, source)
-
 
 @dataclass(frozen=True, slots=True)
 class SourceRefused:

@@ -27,6 +27,7 @@ SHARED = Path(os.environ.get("CG_SHARED_LOGS", ROOT.parent / "shared" / "logs"))
 # what each speed-up replaced, put back (module, name, the straightforward stand-in)
 STRAIGHT = [(tlog, "_plain_v2", lambda data, at, parser, crc=True: None),
             (tlog, "_plain_frame", lambda data, at, parser, crc=True: None),
+            (tlog, "_message", lambda data, at, n, msg_id, parser: parser.decode(bytearray(data[at:at + n]))),
             (tlog, "gc_paused", contextlib.nullcontext), (tlog, "gc_frozen", contextlib.nullcontext),
             (logreplay, "gc_paused", contextlib.nullcontext)]
 
@@ -133,3 +134,29 @@ def test_a_plain_frame_decodes_to_pymavlinks_own_message_attribute_for_attribute
         assert {k: v for k, v in mine.items() if k != "_header"} == {k: v for k, v in theirs.items() if k != "_header"}
         assert list(vars(mine["_header"]).items()) == list(vars(theirs["_header"]).items())
     assert plain > 100 and len(kinds) >= 5
+
+
+@pytest.mark.parametrize("source", ["bench", "crafted"])
+def test_the_replays_light_message_reads_as_pymavlinks_own(source, tmp_path):
+    """What the replay feeds the daemon of a frame (`_message`: a `Light` of the kinds the daemon reads field by
+    field) against `MAVLink.decode`'s message: every field, the type, the source's ids, `id`, the frame's bytes."""
+    if source == "bench":
+        data = _bench("bench_review").write_tlog(tmp_path / "f.tlog", 2.0).read_bytes()
+    else:
+        data = _crafted_tlog()
+    scan, parser = tlog.scan_tlog(data), tlog.mavlink.MAVLink(None)
+    light = set()
+    for at, n, msg_id in zip(scan.offset, scan.length, scan.common):
+        mine = tlog._message(data, at + 8, n, msg_id, parser)
+        ref = parser.decode(bytearray(data[at + 8:at + 8 + n]))
+        if not isinstance(mine, tlog.Light):
+            assert vars(mine).keys() == vars(ref).keys() and mine.get_type() == ref.get_type()
+            continue
+        light.add(ref.get_type())
+        assert {f: getattr(mine, f) for f in ref.get_fieldnames()} == {f: getattr(ref, f) for f in ref.get_fieldnames()}
+        assert (mine.get_type(), mine.get_srcSystem(), mine.get_srcComponent(), mine.id, mine.get_msgbuf()) == \
+            (ref.get_type(), ref.get_srcSystem(), ref.get_srcComponent(), ref.id, ref.get_msgbuf())
+        assert getattr(mine, "time_boot_ms", None) == getattr(ref, "time_boot_ms", None)
+    assert light == ({"HEARTBEAT", "OBSTACLE_DISTANCE", "DISTANCE_SENSOR"} if source == "crafted" else
+                     {"HEARTBEAT", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "ATTITUDE",
+                      "POSITION_TARGET_LOCAL_NED", "VFR_HUD", "DISTANCE_SENSOR"})

@@ -18,13 +18,12 @@ from contracts.errors import ContractError
 
 from ..autopilots import adapter_for
 from ..config import Config, load_config
-from ..eventlog import EventLog, finite_copy, read_events
-from ..link import MemoryMavfile
+from ..eventlog import finite_copy, read_events
 from ..logschema import LOG_FILE
 from ..review import Origin, fmt_value
 from . import MAX_SAMPLES, gc_paused
 from .loginput import Feed, LogIn
-from .tlog import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, silences, stepped_silence
+from .tlog import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, shadow_daemon, silences, stepped_silence
 
 
 def tilt_params(autopilot: str) -> dict[str, float]:
@@ -39,16 +38,9 @@ def tilt_params(autopilot: str) -> dict[str, float]:
 
 def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, source: str) -> dict:
     """Feed the ops to a shadow `Daemon` in log time; its event log goes to `log_dir`."""
-    from ..daemon import Daemon
-
     now = {"t": 0.0}
-    conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
-                         source_component=cfg.link.component_id)
     wall = lambda: feed.wall0 + now["t"]  # noqa: E731
-    log = EventLog(log_dir, clock=wall, commit="none", max_bytes=1 << 62)
-    daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=wall, planning="inline", contract=contract)
-    log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
-              contract=contract)
+    daemon, log = shadow_daemon(cfg, table, log_dir, contract, source, lambda: now["t"], wall)
     login = LogIn(cfg, daemon.tel, adapter_for(feed.autopilot).autopilot_id)
     ops, bad = feed.ops, [0]
 

@@ -69,6 +69,8 @@ class Scan:
     length: array = field(default_factory=lambda: array("l"))  # MAVLink frame bytes after the stamp
     t_us: array = field(default_factory=lambda: array("q"))  # log time [µs] from the first good packet
     raw_us: array = field(default_factory=lambda: array("q"))  # the stamp as written (UNIX µs)
+    common: array = field(default_factory=lambda: array("l"))  # the message id of a frame of the common kind
+    # (`_plain_frame`: checked), else -1
     corrupt: int = 0  # stretches of bad bytes skipped (each counted once)
     skipped_bytes: int = 0
     truncated_tail: bool = False
@@ -133,8 +135,8 @@ mcrf4xx = getattr(mavlink, "mcrf4xx", None)  # pymavlink's CRC (fastcrc's), when
 
 
 def _plain_of(cls) -> tuple:
-    """(CRC_EXTRA as bytes, unpacker, its size, the fields in order from the unpacked tuple, has strings) of a
-    message class: `MAVLink.decode`'s per-message steps, once per class."""
+    """(CRC_EXTRA as bytes, unpacker, its size, the fields in order from the unpacked tuple, has strings, its `Light`
+    class or None, has arrays) of a message class: `MAVLink.decode`'s per-message steps, once per class."""
     lengths, orders = cls.lengths, cls.orders
     if sum(lengths) == len(lengths):  # no arrays: the fields are single items of the tuple
         pick = (lambda t, k=orders[0]: [t[k]]) if len(orders) == 1 else operator.itemgetter(*orders)
@@ -144,7 +146,12 @@ def _plain_of(cls) -> tuple:
         def pick(t):
             return [t[at[k]] if lengths[k] == 1 or isinstance(t[at[k]], bytes) else list(t[at[k]:at[k] + lengths[k]])
                     for k in orders]
-    return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format
+    light, arrays = None, sum(lengths) != len(lengths)
+    if cls.msgname in LIGHT:  # its fields by name: where pymavlink's unpacked tuple has them (no arrays), else `pick`'s
+        names = cls.fieldnames if arrays else cls.ordered_fieldnames
+        light = type(f"Light_{cls.msgname}", (Light,), {"__slots__": (), "msgname": cls.msgname, "id": cls.id}
+                     | {f: property(operator.itemgetter(k)) for k, f in enumerate(names)})
+    return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format, light, arrays
 
 
 def _plain_frame(data: bytes, at: int, parser, crc: bool = True):
@@ -174,7 +181,7 @@ def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tupl
     pymavlink's own steps without its per-call generality."""
     _, mlen, _, compat, seq, sys_id, comp, _, _ = header
     end = at + n
-    _, unpacker, size, pick, strings = plain
+    _, unpacker, size, pick, strings = plain[:5]
     buf = bytearray(data[at:end])
     t = unpacker.unpack_from(data, at + 10) if mlen >= size else unpacker.unpack(data[at + 10:end - 2] + bytes(size - mlen))
     fields = pick(t)
@@ -185,6 +192,54 @@ def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tupl
     h = m._header  # the header `cls.__init__` made (msgId set, incompat_flags 0): given the frame's other fields, as
     h.mlen, h.seq, h.srcSystem, h.srcComponent, h.compat_flags = mlen, seq, sys_id, comp, compat  # decode's new one
     return m
+
+
+# The kinds the daemon reads only field by field (Telemetry.update, MavlinkIn.samples, the sensors' decoders), the
+# most of a log: the replay hands them on as a `Light` tuple, not as pymavlink's message object (whose making was
+# two thirds of a dense .tlog's decoding). No strings among them (`_message` does not strip them).
+LIGHT = frozenset(("HEARTBEAT", "LOCAL_POSITION_NED", "ATTITUDE", "VFR_HUD", "EXTENDED_SYS_STATE",
+                   "POSITION_TARGET_LOCAL_NED", "DISTANCE_SENSOR", "OBSTACLE_DISTANCE", "ESTIMATOR_STATUS",
+                   "EKF_STATUS_REPORT"))
+
+
+class Light(tuple):
+    """A frame of a kind in `LIGHT` decoded as the daemon reads it: pymavlink's message's fields (by name; a
+    property of each kind's subclass), `get_type`, `get_srcSystem`/`get_srcComponent` and `get_msgbuf`, and the
+    class's `id` (the message id, unless a field is so named). The tuple: the fields, then the source's system and
+    component, then the frame's bytes."""
+
+    __slots__ = ()
+    msgname = ""
+
+    def get_type(self) -> str:
+        return self.msgname
+
+    def get_srcSystem(self) -> int:
+        return self[-3]
+
+    def get_srcComponent(self) -> int:
+        return self[-2]
+
+    def get_msgbuf(self) -> bytearray:
+        return bytearray(self[-1])
+
+
+def _message(data: bytes, at: int, n: int, msg_id: int, parser):
+    """The message the daemon is fed of the `n`-byte frame at `at` that the scan kept: `msg_id` ≥ 0, a frame of the
+    common kind (the scan checked it, `_plain_frame`), its kind in `LIGHT`: a `Light`, else `MAVLink.decode`'s
+    message (made as `_plain_message` makes it when common). The frame's CRC is not computed again."""
+    if msg_id < 0 or parser.signing.secret_key is not None:  # (signing: pymavlink judges every frame)
+        return parser.decode(bytearray(data[at:at + n]))
+    cls = mavlink.mavlink_map[msg_id]
+    plain = _PLAIN[cls]
+    if plain[5] is None:
+        return _plain_message(data, at, n, cls, plain, _V2_HEADER.unpack_from(data, at))
+    mlen, end = data[at + 1], at + n
+    unpacker, size = plain[1], plain[2]
+    t = unpacker.unpack_from(data, at + 10) if mlen >= size else unpacker.unpack(data[at + 10:end - 2] + bytes(size - mlen))
+    if plain[6]:  # arrays: the fields as `pick` makes them
+        t = tuple(plain[3](t))
+    return tuple.__new__(plain[5], (*t, data[at + 5], data[at + 6], data[at:end]))
 
 
 def _plain_v2(data: bytes, at: int, parser, crc: bool = True):
@@ -212,24 +267,26 @@ def _resync(data: bytes, start: int, parser, last_raw: int | None) -> int | None
 
 
 def scan_tlog(data: bytes) -> Scan:
-    """Index the good packets of a tlog (pure; never raises on bad bytes). A frame of the common kind is
-    checked, not decoded (`_plain_frame`), unless it is one the scan keeps something of (`NOTED`): the replay
-    decodes each packet as it feeds it, so no log's messages are all held at once."""
+    """Index the good packets of a tlog (pure; never raises on bad bytes). A frame of the common kind
+    (`_plain_frame`) is checked, not decoded, unless it is one the scan keeps something
+    of (`NOTED`): the replay decodes each packet as it feeds it, so no log's messages are all held at once."""
     parser = mavlink.MAVLink(None)
     s = Scan(size=len(data))
     size, stamp, plain_frame = len(data), _STAMP.unpack_from, _plain_frame
-    offset, length, t_us, raw_us = s.offset, s.length, s.t_us, s.raw_us
-    counts, spans = s.counts, s.spans
+    offset, length, t_us, raw_us, common = s.offset, s.length, s.t_us, s.raw_us, s.common
+    per: dict = {}  # msg id << 16 | sys << 8 | comp → [type, packets, first, last log time]
     pos, last_raw, last_t, shift = 0, None, 0, 0  # log time = stamp + shift
     while pos < size:
         if len(offset) >= MAX_SAMPLES:
             s.capped = True
             break
-        frame = plain_frame(data, pos + 8, parser)  # the common frame (what `_decode` tries first)
+        at = pos + 8
+        frame = plain_frame(data, at, parser)  # the common frame (what `_decode` tries first)
         if frame is not None:
-            n, cls, _, header = frame
-            kind, key = cls.msgname, (header[5], header[6], cls.msgname)
-            msg = _plain_message(data, pos + 8, *frame) if kind in NOTED else None
+            n, cls = frame[0], frame[1]
+            kind, mid = cls.msgname, cls.id
+            key = mid << 16 | data[at + 5] << 8 | data[at + 6]
+            msg = _plain_message(data, at, *frame) if kind in NOTED else None
         else:
             status, n, msg = _decode(data, pos, parser)
             if status != "ok":
@@ -245,13 +302,14 @@ def scan_tlog(data: bytes) -> Scan:
                 s.skipped_bytes += nxt - pos
                 pos = nxt
                 continue
-            kind = msg.get_type()
-            key = (msg._header.srcSystem, msg._header.srcComponent, kind)  # (get_srcSystem, get_srcComponent)
+            kind, mid = msg.get_type(), -1
+            h = msg._header  # (get_srcSystem, get_srcComponent)
+            key = msg.get_msgId() << 16 | h.srcSystem << 8 | h.srcComponent
         raw = stamp(data, pos)[0]
         if raw > MAX_STAMP_US:  # a stamp past the year 2262: corrupt, taken as the last good one (a jump is said)
             s.bad_stamps += 1
             raw = last_raw if last_raw is not None else 0
-        at, pos = pos, pos + 8 + n
+        pos = at + n
         if kind.startswith("UNKNOWN"):
             s.unknown += 1
             continue
@@ -266,18 +324,23 @@ def scan_tlog(data: bytes) -> Scan:
         if t < last_t:
             t = last_t
         last_raw, last_t = raw, t
-        offset.append(at)
+        offset.append(at - 8)
         length.append(n)
         t_us.append(t)
         raw_us.append(raw)
-        counts[key] += 1
-        span = spans.get(key)
-        if span is None:
-            spans[key] = [t, t]
+        common.append(mid)
+        seen = per.get(key)
+        if seen is None:
+            per[key] = [kind, 1, t, t]
         else:
-            span[1] = t
+            seen[1] += 1
+            seen[3] = t
         if kind in NOTED:
-            _note(s, t, msg, kind, key[:2])
+            _note(s, t, msg, kind, (key >> 8 & 0xFF, key & 0xFF))
+    for key, (kind, count, first, last) in per.items():
+        src = (key >> 8 & 0xFF, key & 0xFF, kind)
+        s.counts[src] = count
+        s.spans[src] = [first, last]
     return s
 
 
@@ -359,29 +422,39 @@ def settle(cfg: Config, config: Path | None, vehicle: str | None, table: Path | 
 # ============================================================================ the replay
 
 
+def _discard(msg, force_mavlink1: bool = False) -> None:
+    """A replay's `MAVLink.send`: nothing leaves a replay, so nothing is packed either."""
+
+
+def shadow_daemon(cfg: Config, table, log_dir: Path, contract: str, source: str, clock, wall):
+    """(the shadow `Daemon` a log is replayed into, its event log in `log_dir`, started): its link reads nothing,
+    and what it would send is discarded unpacked. `contract`: the one the flight flew under (shadow alone would say
+    "stop"); `clock`, `wall`: the replay's log time and UNIX time [s]."""
+    from ..daemon import Daemon
+
+    conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
+                         source_component=cfg.link.component_id)
+    conn.mav.send = _discard
+    log = EventLog(log_dir, clock=wall, commit="none", max_bytes=1 << 62)
+    daemon = Daemon(cfg, table, conn, log, clock=clock, wall=wall, planning="inline", contract=contract)
+    log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
+              contract=contract)
+    return daemon, log
+
+
 def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract: str = "stop",
            source: str = "") -> dict:
     """Feed the scanned packets to a shadow `Daemon` in log time; its event log goes to `log_dir`."""
-    from ..daemon import Daemon
-
     now = {"t": 0.0, "wall": scan.raw_us[0] / 1e6}
-    conn = MemoryMavfile(lambda: b"", lambda buf: None, source_system=cfg.link.target_system,
-                         source_component=cfg.link.component_id)
-    log = EventLog(log_dir, clock=lambda: now["wall"], commit="none", max_bytes=1 << 62)
-    daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], wall=lambda: now["wall"], planning="inline",
-                    contract=contract)  # the contract the flight flew under (shadow alone would say "stop")
-    log.event(0.0, "start", mode="shadow", replay_of=source, vehicle=table.vehicle.name, table=str(table.path),
-              contract=contract)
-    off, length, t_us, raw_us = scan.offset, scan.length, scan.t_us, scan.raw_us
+    daemon, log = shadow_daemon(cfg, table, log_dir, contract, source, lambda: now["t"], lambda: now["wall"])
+    off, length, t_us, raw_us, common = scan.offset, scan.length, scan.t_us, scan.raw_us, scan.common
 
-    mav = conn.mav  # the daemon's own dialect (the scan's: mavutil's)
+    mav = daemon.conn.mav  # the daemon's own dialect (the scan's: mavutil's)
 
     def take(i: int, t: float) -> None:
         now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
-        at = off[i] + 8
         try:  # (the scan kept only frames with a valid CRC: a failure here is a dialect's complaint)
-            plain = _plain_v2(data, at, mav, crc=False)
-            msg = plain[1] if plain is not None else mav.decode(bytearray(data[at:at + length[i]]))
+            msg = _message(data, off[i] + 8, length[i], common[i], mav)
         except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
             daemon.counters.bad_packets += 1
             return
@@ -488,16 +561,17 @@ def engaged_spans(texts, srcs, t_end_s: float) -> tuple[list[tuple[float, float]
     return spans, "engaged"
 
 
-def in_flight(scan: Scan, samples: list[tuple], columns: tuple, target_system: int) -> dict | None:
+def in_flight(scan: Scan, samples, columns: tuple, target_system: int) -> dict | None:
     """The in-flight daemon's values (NAMED_VALUE_FLOAT, STATUSTEXT, commands) against the replay, aligned
     in time (see ALIGN_BEFORE_S) and over the part of the flight in which it was engaged (its STATUSTEXTs
-    say when; a flight it never engaged in is compared after its warm-up)."""
+    say when; a flight it never engaged in is compared after its warm-up). `samples()`: the replay's state
+    samples as rows of `columns` (read only when the tlog holds the in-flight daemon's values)."""
     srcs = {(sy, cp) for _, sy, cp, _, _ in scan.in_flight} | {(sy, cp) for _, sy, cp, _ in scan.texts}
     srcs = {s for s in srcs if s[0] == target_system}
     if not srcs:
         return None
     ti = columns.index("t")
-    rows = [r for r in samples if isinstance(r[ti], (int, float))]
+    rows = [r for r in samples() if isinstance(r[ti], (int, float))]
     times = [r[ti] for r in rows]
     mine = [(t / 1e6, name, value) for t, sy, cp, name, value in scan.in_flight if (sy, cp) in srcs]
     spans, part = engaged_spans(scan.texts, srcs, scan.t_us[-1] / 1e6 if len(scan.t_us) else 0.0)
@@ -621,7 +695,8 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
     cfg, tab, contract, chosen = resolve(scan, path, config, vehicle, table)
     run = replay(data, scan, cfg, tab, log_dir, contract, str(path))
     columns = ("t", *IN_FLIGHT.values())
-    samples = [tuple(r.get(k) for k in columns) for r in read_events(log_dir / LOG_FILE) if r.get("kind") == "state"]
+    samples = lambda: [tuple(r.get(k) for k in columns) for r in read_events(log_dir / LOG_FILE)  # noqa: E731
+                       if r.get("kind") == "state"]
     target = (cfg.link.target_system, cfg.link.target_component)
     kinds = sorted({s.kind.upper() for s in cfg.sensors})
     to = cfg.timeouts
