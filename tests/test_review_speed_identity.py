@@ -1,6 +1,6 @@
 """A speed-up of `contract-guard review` must not change a review: each log reviewed as shipped and along the
 straightforward path (`STRAIGHT`: the cyclic GC as usual, every `.tlog` frame decoded by pymavlink's own
-`MAVLink.decode`) gives the same report, samples and replayed event log, field by field, a float by its every
+`MAVLink.decode`, a `.tlog` scanned frame by frame) gives the same report, samples and replayed event log, field by field, a float by its every
 bit (`benchmarks/review_identity.py`'s comparison; it compares two checkouts on 20-minute logs the same way).
 
 Logs: a DataFlash log and a `.tlog` of the bench's straight flight (a minute each), and real ones from
@@ -24,8 +24,10 @@ from companion.flightlogs import logreplay, tlog
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("CG_SHARED_LOGS", ROOT.parent / "shared" / "logs"))
+SCAN = tlog.scan_tlog
 # what each speed-up replaced, put back (module, name, the straightforward stand-in)
-STRAIGHT = [(tlog, "_plain_v2", lambda data, at, parser, crc=True: None),
+STRAIGHT = [(tlog, "scan_tlog", lambda data, runs=True: SCAN(data, runs=False)),
+            (tlog, "_plain_v2", lambda data, at, parser, crc=True: None),
             (tlog, "_plain_frame", lambda data, at, parser, crc=True: None),
             (tlog, "_message", lambda data, at, n, msg_id, parser: parser.decode(bytearray(data[at:at + n]))),
             (tlog, "gc_paused", contextlib.nullcontext), (tlog, "gc_frozen", contextlib.nullcontext),
@@ -137,9 +139,11 @@ def test_a_plain_frame_decodes_to_pymavlinks_own_message_attribute_for_attribute
 
 
 @pytest.mark.parametrize("source", ["bench", "crafted"])
-def test_the_replays_light_message_reads_as_pymavlinks_own(source, tmp_path):
+def test_the_replays_light_message_reads_as_pymavlinks_own(source, tmp_path, monkeypatch):
     """What the replay feeds the daemon of a frame (`_message`: a `Light` of the kinds the daemon reads field by
-    field) against `MAVLink.decode`'s message: every field, the type, the source's ids, `id`, the frame's bytes."""
+    field) against `MAVLink.decode`'s message: every field, the type, the source's ids, `id`, the frame's bytes.
+    From a fresh process's state (no message class decoded before the scan)."""
+    monkeypatch.setattr(tlog, "_PLAIN", {})
     if source == "bench":
         data = _bench("bench_review").write_tlog(tmp_path / "f.tlog", 2.0).read_bytes()
     else:
@@ -160,3 +164,57 @@ def test_the_replays_light_message_reads_as_pymavlinks_own(source, tmp_path):
     assert light == ({"HEARTBEAT", "OBSTACLE_DISTANCE", "DISTANCE_SENSOR"} if source == "crafted" else
                      {"HEARTBEAT", "ESTIMATOR_STATUS", "EXTENDED_SYS_STATE", "LOCAL_POSITION_NED", "ATTITUDE",
                       "POSITION_TARGET_LOCAL_NED", "VFR_HUD", "DISTANCE_SENSOR"})
+
+
+def _same_scan(data: bytes) -> list[str]:
+    """The fields in which the scan by runs (`_clean_run`) differs from the scan frame by frame (order included)."""
+    a, b = vars(tlog.scan_tlog(data, runs=False)), vars(tlog.scan_tlog(data))
+    return [k for k in a if a[k] != b[k] or isinstance(a[k], dict) and list(a[k].items()) != list(b[k].items())]
+
+
+def test_a_tlog_scanned_by_runs_is_indexed_as_frame_by_frame_through_damage_jumps_and_caps(tmp_path, monkeypatch):
+    """The vectorised scan against the frame-by-frame one on mutated tlogs (the fuzz benchmark's mutations), on
+    stamps set back, forward, past 2⁶³ (clock jumps, reordering, bad stamps inside a run), and with small run
+    chunks and sample caps: every field of the index the same."""
+    import random
+    import struct
+
+    from crafted_logs import gappy_tlog
+
+    mutate = _bench("bench_fuzz_logs").mutate
+    seeds = [_bench("bench_review").write_tlog(tmp_path / "b.tlog", 20.0).read_bytes(),
+             gappy_tlog(tmp_path / "c.tlog", 200, 0.02).read_bytes()]
+    seeds += [p.read_bytes()[:96 * 1024] for p in sorted((SHARED / "ardupilot").glob("*.tlog"))]
+    rng, runs = random.Random(5), []
+    monkeypatch.setattr(tlog, "_clean_run", lambda *a, f=tlog._clean_run: runs.append(r := f(*a)) or r)
+    for _ in range(200):
+        data, what = mutate(rng.choice(seeds), rng, rng.choice(seeds))
+        assert not _same_scan(data), what
+    for k in range(120):
+        data = bytearray(rng.choice(seeds[:2]))
+        offsets = list(tlog.scan_tlog(bytes(data), runs=False).offset)
+        for j in range(rng.randint(1, 6)):
+            at = offsets[0] if j == 0 and k % 3 == 0 else rng.choice(offsets)  # (the first: no time to jump from)
+            raw = struct.unpack_from(">Q", data, at)[0]
+            struct.pack_into(">Q", data, at, rng.choice([raw - 500_000, raw - 1_000_000, raw - 1_000_001, raw - 2_000_000,
+                                                        raw + 299_000_000, raw + 400_000_000, 2**63 - 1, 2**63, 0]))
+        with monkeypatch.context() as m:
+            if k % 2:
+                m.setattr(tlog, "RUN_CHUNK", rng.choice([256, 300, 1000]))
+                m.setattr(tlog, "MAX_SAMPLES", rng.choice([300, 1000, 4000]))
+            assert not _same_scan(bytes(data))
+    assert sum(r[1] for r in runs) > 100_000 and any(0 < r[1] < 1000 for r in runs)  # runs taken, some cut short
+
+
+def test_the_crc_of_many_frames_at_once_is_mavlinks():
+    """`x25_frames` against pymavlink's own CRC (fastcrc's MCRF4XX) on random byte ranges and CRC_EXTRAs."""
+    import numpy as np
+
+    rng = np.random.default_rng(3)
+    u8 = rng.integers(0, 256, 5000, dtype=np.uint8)
+    start, length = rng.integers(0, 4700, 400), rng.integers(0, 265, 400)
+    extra = rng.integers(0, 256, 400)
+    crc = tlog.x25_frames(u8, start, length, extra)
+    for k in range(400):
+        ref = tlog.mcrf4xx(bytes([int(extra[k])]), tlog.mcrf4xx(u8[start[k]:start[k] + length[k]].tobytes(), 0xFFFF))
+        assert crc[k] == ref

@@ -29,6 +29,8 @@ from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
+
 from contracts.errors import ContractError
 
 from ..autopilots import name_for_heartbeat
@@ -154,6 +156,12 @@ def _plain_of(cls) -> tuple:
     return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format, light, arrays
 
 
+def _plain_for(cls) -> tuple:
+    """`_plain_of(cls)`, made once."""
+    plain = _PLAIN[cls] = _plain_of(cls)
+    return plain
+
+
 def _plain_frame(data: bytes, at: int, parser, crc: bool = True):
     """(frame length, message class, its `_plain_of`, the header's fields) of the frame starting at `at` in `data`
     when it is the common kind: MAVLink 2, unsigned, of a known message, whole, its CRC right; None for any other
@@ -168,9 +176,7 @@ def _plain_frame(data: bytes, at: int, parser, crc: bool = True):
     cls = mavlink.mavlink_map.get(header[7] | header[8] << 16)
     if cls is None or end > len(data) or mavlink.MAVLINK_IGNORE_CRC:
         return None
-    plain = _PLAIN.get(cls)
-    if plain is None:
-        plain = _PLAIN[cls] = _plain_of(cls)
+    plain = _PLAIN.get(cls) or _plain_for(cls)
     if crc and mcrf4xx(plain[0], mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != data[end - 2] | data[end - 1] << 8:
         return None  # pymavlink raises "invalid MAVLink CRC"
     return 12 + mlen, cls, plain, header
@@ -231,7 +237,7 @@ def _message(data: bytes, at: int, n: int, msg_id: int, parser):
     if msg_id < 0 or parser.signing.secret_key is not None:  # (signing: pymavlink judges every frame)
         return parser.decode(bytearray(data[at:at + n]))
     cls = mavlink.mavlink_map[msg_id]
-    plain = _PLAIN[cls]
+    plain = _PLAIN.get(cls) or _plain_for(cls)
     if plain[5] is None:
         return _plain_message(data, at, n, cls, plain, _V2_HEADER.unpack_from(data, at))
     mlen, end = data[at + 1], at + n
@@ -266,20 +272,37 @@ def _resync(data: bytes, start: int, parser, last_raw: int | None) -> int | None
     return None
 
 
-def scan_tlog(data: bytes) -> Scan:
+@dataclass
+class _Clock:
+    """The scan's log time so far: a stamp + `shift`; the last stamp and log time (`scan_tlog`)."""
+
+    last_raw: int | None = None
+    last_t: int = 0
+    shift: int = 0
+
+
+def scan_tlog(data: bytes, runs: bool = True) -> Scan:
     """Index the good packets of a tlog (pure; never raises on bad bytes). A frame of the common kind
-    (`_plain_frame`) is checked, not decoded, unless it is one the scan keeps something
-    of (`NOTED`): the replay decodes each packet as it feeds it, so no log's messages are all held at once."""
+    (`_plain_frame`) is checked, not decoded, unless it is one the scan keeps something of (`NOTED`): the replay
+    decodes each packet as it feeds it, so no log's messages are all held at once. `runs`: stretches of common
+    frames with nothing to say of them are indexed at once (`_clean_run`, the same index as frame by frame)."""
     parser = mavlink.MAVLink(None)
     s = Scan(size=len(data))
     size, stamp, plain_frame = len(data), _STAMP.unpack_from, _plain_frame
     offset, length, t_us, raw_us, common = s.offset, s.length, s.t_us, s.raw_us, s.common
     per: dict = {}  # msg id << 16 | sys << 8 | comp → [type, packets, first, last log time]
-    pos, last_raw, last_t, shift = 0, None, 0, 0  # log time = stamp + shift
+    clock = _Clock()
+    u8 = np.frombuffer(data, np.uint8) if runs and mcrf4xx is not None and not mavlink.MAVLINK_IGNORE_CRC else None
+    pos, by_frame = 0, 0  # by_frame: frames taken one by one before a run is tried again
     while pos < size:
         if len(offset) >= MAX_SAMPLES:
             s.capped = True
             break
+        if u8 is not None and not by_frame:
+            pos, done, whole = _clean_run(data, u8, pos, s, clock, per, parser)
+            by_frame = 0 if whole else 1 if done >= RUN_MIN else BY_FRAME_AFTER_SHORT_RUN
+            continue
+        by_frame = max(by_frame - 1, 0)
         at = pos + 8
         frame = plain_frame(data, at, parser)  # the common frame (what `_decode` tries first)
         if frame is not None:
@@ -290,7 +313,7 @@ def scan_tlog(data: bytes) -> Scan:
         else:
             status, n, msg = _decode(data, pos, parser)
             if status != "ok":
-                nxt = _resync(data, pos + 1, parser, last_raw)
+                nxt = _resync(data, pos + 1, parser, clock.last_raw)
                 if nxt is None:
                     s.skipped_bytes += size - pos
                     if status == "short":
@@ -308,22 +331,20 @@ def scan_tlog(data: bytes) -> Scan:
         raw = stamp(data, pos)[0]
         if raw > MAX_STAMP_US:  # a stamp past the year 2262: corrupt, taken as the last good one (a jump is said)
             s.bad_stamps += 1
-            raw = last_raw if last_raw is not None else 0
+            raw = clock.last_raw if clock.last_raw is not None else 0
         pos = at + n
         if kind.startswith("UNKNOWN"):
             s.unknown += 1
             continue
-        if last_raw is None:
-            shift = -raw
+        if clock.last_raw is None:
+            clock.shift = -raw
         else:
-            step = raw + shift - last_t
+            step = raw + clock.shift - clock.last_t
             if step < -MAX_BACKSTEP_US or step > MAX_GAP_US:
-                s.time_jumps.append({"t": last_t / 1e6, "jump_s": step / 1e6})
-                shift = last_t - raw
-        t = raw + shift
-        if t < last_t:
-            t = last_t
-        last_raw, last_t = raw, t
+                s.time_jumps.append({"t": clock.last_t / 1e6, "jump_s": step / 1e6})
+                clock.shift = clock.last_t - raw
+        t = max(raw + clock.shift, clock.last_t)
+        clock.last_raw, clock.last_t = raw, t
         offset.append(at - 8)
         length.append(n)
         t_us.append(t)
@@ -344,8 +365,103 @@ def scan_tlog(data: bytes) -> Scan:
     return s
 
 
+RUN_CHUNK = 1 << 16  # frames one `_clean_run` takes at most (its memory bounded)
+# a run shorter than this (odd frames close together) is followed by this many frames taken one by one: a
+# damaged log costs at most a few times the frame-by-frame scan, never a run's fixed cost per frame
+RUN_MIN, BY_FRAME_AFTER_SHORT_RUN = 256, 1024
+
+
+def _clean_run(data: bytes, u8: np.ndarray, pos: int, s: Scan, clock: _Clock, per: dict, parser
+               ) -> tuple[int, int, bool]:
+    """The frame-by-frame scan's bookkeeping, at once (numpy), for the stretch of frames from `pos` that it would
+    take as common (`_plain_frame`: MAVLink 2, unsigned, known, whole, CRC right) with a plausible stamp and no
+    clock jump. Returns (the position after them, how many, whether the stretch ended only at RUN_CHUNK frames);
+    a frame there that ended it is the frame-by-frame path's."""
+    size, limit = len(data), min(RUN_CHUNK, MAX_SAMPLES - len(s.offset))
+    walk, p = [], pos
+    while len(walk) < limit and p + 20 <= size and data[p + 8] == 0xFD and not data[p + 10]:
+        e = p + 20 + data[p + 9]
+        if e > size:
+            break
+        walk.append(p)
+        p = e
+    if len(walk) < min(RUN_MIN, limit):  # a short stretch: frame by frame is cheaper than the run's fixed cost
+        return pos, 0, False
+    stamp_at = np.array(walk, np.int64)
+    at = stamp_at + 8
+    mlen = u8[at + 1].astype(np.int64)
+    mid = u8[at + 7].astype(np.int64) | u8[at + 8].astype(np.int64) << 8 | u8[at + 9].astype(np.int64) << 16
+    ids, which = np.unique(mid, return_inverse=True)
+    classes = [mavlink.mavlink_map.get(int(i)) for i in ids]
+    extra = np.array([-1 if c is None else c.crc_extra for c in classes], np.int64)[which]
+    end = at + 12 + mlen
+    ok = (extra >= 0) & (x25_frames(u8, at + 1, mlen + 9, extra) == (u8[end - 2] | u8[end - 1].astype(np.int64) << 8))
+    raw = u8[stamp_at[:, None] + np.arange(8)].view(">u8").ravel()
+    ok &= raw <= MAX_STAMP_US
+    m = len(walk) if ok.all() else int(np.argmin(ok))
+    raw = raw[:m].astype(np.int64)
+    if m:  # log time, as frame by frame: t_k = max(stamp_k + shift, t_k-1); up to the first clock jump
+        first = clock.last_raw is None
+        shift = -int(raw[0]) if first else clock.shift
+        t = np.maximum.accumulate(np.concatenate(([clock.last_t], raw + shift)))
+        step = raw + shift - t[:-1]
+        jump = (step < -MAX_BACKSTEP_US) | (step > MAX_GAP_US)
+        jump[0] &= not first
+        if jump.any():
+            m = int(np.argmax(jump))
+        t = t[1:m + 1]
+    if not m:
+        return pos, 0, False
+    whole = m == len(walk) == limit
+    stamp_at, at, n, mid, raw = stamp_at[:m], at[:m], 12 + mlen[:m], mid[:m], raw[:m]
+    for arr, values in ((s.offset, stamp_at), (s.length, n), (s.t_us, t), (s.raw_us, raw), (s.common, mid)):
+        arr.frombytes(values.astype(f"i{arr.itemsize}").tobytes())
+    clock.last_raw, clock.last_t, clock.shift = int(raw[-1]), int(t[-1]), shift
+    key = mid << 16 | u8[at + 5].astype(np.int64) << 8 | u8[at + 6]
+    keys, first_k, which, count = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
+    last_k = np.zeros(len(keys), np.int64)
+    np.maximum.at(last_k, which, np.arange(m))
+    for j in np.argsort(first_k):  # in the order the frame-by-frame scan first met them
+        k, c, t_last = int(keys[j]), int(count[j]), int(t[last_k[j]])
+        seen = per.get(k)
+        if seen is None:
+            per[k] = [mavlink.mavlink_map[k >> 16].msgname, c, int(t[first_k[j]]), t_last]
+        else:
+            seen[1] += c
+            seen[3] = t_last
+    for k in np.nonzero(np.isin(mid, NOTED_IDS))[0]:
+        a = int(at[k])
+        msg = _plain_message(data, a, *_plain_frame(data, a, parser, crc=False))
+        _note(s, int(t[k]), msg, msg.msgname, (data[a + 5], data[a + 6]))
+    return int(stamp_at[-1] + 8 + n[-1]), m, whole
+
+
+def _x25(crc: np.ndarray, byte: np.ndarray) -> np.ndarray:
+    """One byte into CRC-16/MCRF4XX, MAVLink's X.25 checksum (pymavlink's `x25crc.accumulate`), element-wise."""
+    tmp = (byte ^ crc) & 0xFF
+    tmp = (tmp ^ (tmp << 4)) & 0xFF
+    return (crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)
+
+
+def x25_frames(u8: np.ndarray, start: np.ndarray, length: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """The MAVLink CRC of many frames at once: of the bytes [start, start + length) of `u8` each, then its
+    CRC_EXTRA (`extra`), byte position by byte position, the longest frames first. Pure."""
+    order = np.argsort(-length, kind="stable")
+    start, length = start[order], length[order]
+    crc = np.full(len(start), 0xFFFF, np.int64)
+    longest = int(length[0]) if len(length) else 0
+    active = np.searchsorted(-length, -np.arange(longest), side="left")  # frames longer than each position
+    for k in range(longest):
+        a = active[k]
+        crc[:a] = _x25(crc[:a], u8[start[:a] + k])
+    out = np.empty_like(crc)
+    out[order] = _x25(crc, extra[order])
+    return out
+
+
 _STAMP = struct.Struct(">Q")
 NOTED = frozenset(("HEARTBEAT", "NAMED_VALUE_FLOAT", "STATUSTEXT", "COMMAND_LONG"))  # what `_note` keeps of
+NOTED_IDS = np.array(sorted(c.id for c in mavlink.mavlink_map.values() if c.msgname in NOTED), np.int64)
 
 
 def _note(s: Scan, t: int, msg, kind: str, src: tuple[int, int]) -> None:
