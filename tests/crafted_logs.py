@@ -46,10 +46,12 @@ def gappy_ulog(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float 
     return path
 
 
-def gappy_bin(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float = RANGE_M, speed: float = 0.0) -> Path:
+def gappy_bin(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float = RANGE_M, speed: float = 0.0,
+              params: dict | None = None) -> Path:
+    """`params`: more PARM entries (name → value) after the usual three."""
     with DataFlashWriter(path) as w:
         w.write("MSG", 500, "ArduCopter V4.5.7 (abc1234)")
-        for name, v in {"ANGLE_MAX": 3000, "RNGFND1_MAX_CM": 4000, "RNGFND1_MIN_CM": 20}.items():
+        for name, v in {"ANGLE_MAX": 3000, "RNGFND1_MAX_CM": 4000, "RNGFND1_MIN_CM": 20, **(params or {})}.items():
             w.write("PARM", 600, name, float(v))
         w.write("ARM", 700, 1, 0, 0)
         w.write("MODE", 800, 5, 5, 0)  # LOITER

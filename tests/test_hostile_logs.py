@@ -278,3 +278,24 @@ def test_damage_the_fuzz_found_is_read_past(tmp_path):
     (tmp_path / "bigtime.bin").write_bytes(src.replace(stamp, b"\xa3\x95" + mode + struct.pack("<Q", 2**64 - 1)))
     rep, _ = review_log(tmp_path / "bigtime.bin", vehicle="x500")
     assert rep["state_samples"] > 10
+
+
+def test_a_ulog_parameter_that_is_not_a_number_is_a_finding(tmp_path):
+    """A ULog parameter whose type the fuzz changed to characters (`char[4] MAV_TYPE`: its value is text, not a
+    number; on 7bd4f49 the reader raised ValueError, and the log was one error line, not reviewed) is left out and
+    said, the rest of the log reviewed."""
+    src = gappy_ulog(tmp_path / "ok.ulg", 200, 0.02).read_bytes()
+    assert src.count(b"int32_t MAV_TYPE") == 1
+    (tmp_path / "textparam.ulg").write_bytes(src.replace(b"int32_t MAV_TYPE", b"char[4] MAV_TYPE"))
+    rep, origin = review_log(tmp_path / "textparam.ulg", vehicle="x500")
+    assert "log damaged: 1 parameter(s) not a finite number, ignored: 'MAV_TYPE'" in rep["findings"]
+    assert rep["state_samples"] > 10 and "MAV_TYPE" not in origin.info["params"]
+
+
+def test_a_dataflash_parameter_that_is_not_finite_is_a_finding(tmp_path):
+    """A PARM value the fuzz made infinite or NaN (FRAME_CLASS inf; on 7bd4f49: OverflowError from `int`, the log one
+    error line) is no setting of the autopilot's: left out and said, the rest of the log reviewed."""
+    path = gappy_bin(tmp_path / "inf.bin", 200, 0.02, params={"FRAME_CLASS": math.inf, "ANGLE_MAX": math.nan})
+    rep, origin = review_log(path, vehicle="x500")
+    assert "log damaged: 2 parameter(s) not a finite number, ignored: 'ANGLE_MAX', 'FRAME_CLASS'" in rep["findings"]
+    assert rep["state_samples"] > 10 and origin.info["vehicle"]["airframe"] == "copter"

@@ -47,7 +47,7 @@ import numpy as np
 
 from contracts.errors import ContractError
 
-from .loginput import Feed, exclude, lacking, order, read_head
+from .loginput import Feed, exclude, finite_param, lacking, order, read_head, unreadable_params
 
 HEAD = b"\xa3\x95"
 TYPES = ["XKF1", "NKF1", "ATT", "PSCN", "PSCE", "CTUN", "MODE", "ARM", "EV", "XKF4", "NKF4", "RFND", "PRX", "GUIP",
@@ -279,13 +279,16 @@ def read_dataflash(path) -> Feed:
     except Exception as err:  # noqa: BLE001 — a format DFReader accepted but numpy cannot lay out: what was read stands
         stopped = f"{type(err).__name__}: {str(err)[:80]}"
     # parameters first: RFND needs RNGFND1_MIN/MAX_CM, PRX its PRX1_MAX
-    parms = []
+    parms, unreadable = [], []
     if (d := col.get("PARM")):
         for t, name, value in zip(d["TimeUS"].tolist(), d["Name"].tolist(), d["Value"].tolist()):
             name = _text(name)
             if name in PARAMS or name in QUADPLANE_PARAMS:
-                params[name] = float(value)
-                parms.append((max(int(t), 1), name, float(value)))
+                if (v := finite_param(value)) is None:
+                    unreadable.append(name)
+                    continue
+                params[name] = v
+                parms.append((max(int(t), 1), name, v))
     texts = [_text(m) for m in (col.get("VER") or {}).get("FWS", [])[:1]]
     texts += [_text(m) for m in (col.get("MSG") or {}).get("Message", [])[:20]]
     fw = next((x for x in texts if x.startswith(("ArduCopter", "ArduPlane", "ArduRover", "APM:"))), None)
@@ -413,7 +416,7 @@ def read_dataflash(path) -> Feed:
                              "thrust": "QTUN" if plane else "CTUN",
                              "navigation health": "XKF4", "modes and arming": "MODE, ARM",
                              "landed state": "EV LAND_COMPLETE / NOT_LANDED"})
-    damaged = []
+    damaged = [unreadable_params(unreadable)] if unreadable else []
     if unusable:
         damaged.append(f"messages whose format entry lacks a column the review reads, not read: {'; '.join(unusable)}")
     if stopped:

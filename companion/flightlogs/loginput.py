@@ -92,6 +92,23 @@ LACKING = (
 )
 
 
+def finite_param(value) -> float | None:
+    """A logged parameter's value as a finite float; None when the log's entry is not one (damaged: text, NaN,
+    infinite), which is then no setting of the autopilot's."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def unreadable_params(names) -> str:
+    """The damage finding of the parameters whose logged value is not a finite number (`finite_param`)."""
+    bad = sorted(set(map(str, names)))
+    return (f"{len(bad)} parameter(s) not a finite number, ignored: {', '.join(map(repr, bad[:5]))}"
+            + (" …" if len(bad) > 5 else ""))
+
+
 def lacking(used: dict, sources: dict[str, str]) -> dict[str, str]:
     """{"obstacle sensing (distance_sensor, …)": what it means} for each input no op came from;
     `sources`: the input's name → the format's topics/messages for it."""

@@ -44,11 +44,13 @@ from .loginput import (
     VTOL_TYPES,
     Feed,
     exclude,
+    finite_param,
     firmware_release,
     lacking,
     order,
     quat_euler,
     read_head,
+    unreadable_params,
 )
 
 ULOG_MAGIC = b"ULog\x01\x12\x35"
@@ -362,14 +364,26 @@ def read_ulog(path) -> Feed:
     if (d := top.get("mission_result")) is not None and (c := _col(d, "seq_current")) is not None:
         add("mission_result", ts["mission_result"], "seq", [(v,) for v in c.tolist()])
 
-    params = dict(ulog.initial_parameters)
+    params, unreadable = {}, []  # the parameters read (a number each; one that is not is damage, said)
+    for name, value in ulog.initial_parameters.items():
+        if name not in PARAMS:
+            continue
+        if (v := finite_param(value)) is None:
+            unreadable.append(name)
+        else:
+            params[name] = v
     t_first = min((t for t, _, _ in ops), default=0)
     for name in PARAMS:
         if name in params:
-            ops.append((max(t_first, 1), "param", (name, float(params[name]))))
+            ops.append((max(t_first, 1), "param", (name, params[name])))
     for t, name, value in ulog.changed_parameters:
         if name in PARAMS and 0 < t < MAX_DT_US:
-            ops.append((t, "param", (name, float(value))))
+            if (v := finite_param(value)) is None:
+                unreadable.append(name)
+            else:
+                ops.append((t, "param", (name, v)))
+    if unreadable:
+        damaged_notes.append(unreadable_params(unreadable))
     if not any(op == "pos" for _, op, _ in ops):
         raise ContractError(f"{path}: no usable telemetry: the ULog has no vehicle_local_position "
                             f"(topics: {', '.join(sorted(d.name for d in ulog.data_list)[:12]) or 'none'})")
@@ -420,7 +434,7 @@ def read_ulog(path) -> Feed:
         "sources": used,
         "lacking": missing,
         "rates_hz": {k: round(v, 2) for k, v in sorted(rates.items())},
-        "params": {k: float(params[k]) for k in PARAMS if k in params},
+        "params": {k: params[k] for k in PARAMS if k in params},
         "dropouts": len(ulog.dropouts),
         "dropout_s": float(sum(d.duration for d in ulog.dropouts) / 1000.0),
         "log_duration_s": (ulog.last_timestamp - ulog.start_timestamp) / 1e6,
