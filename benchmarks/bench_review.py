@@ -10,8 +10,8 @@ ground station's MAVLink `.tlog` (`write_tlog`); `ulog` is the largest real PX4 
 `--ardupilot-logs`) when present; `sitl_ulog` / `sitl_dataflash` are the SITL's own logs of a `--minutes`
 hover (sitl_harness/flightlog.py, the PX4 SITL's topic rates; skip with --no-sitl). Each review runs in a
 fresh process (peak RSS is its own); `s` is wall time, `cpu_s` the process's CPU time (on a shared machine
-the CPU time is the fairer figure), `read_s` the reader alone, `replay_s` the rest (the shadow daemon at its
-loop rate and the review). With `--repeat N` each log is reviewed N times and the fastest run is reported, every
+the CPU time is the fairer figure), `read_s` the reader alone (a `.tlog`'s: its scan), `replay_s` the rest (the
+shadow daemon at its loop rate and the review). With `--repeat N` each log is reviewed N times and the fastest run is reported, every
 run's (s, cpu_s) in `runs`: a shared VM's speed drifts by a third from one minute to the next. The package's
 modules are byte-compiled first, as an installed package's are (with PYTHONDONTWRITEBYTECODE set, as on some
 build machines, every review would otherwise compile them again: ≈ 0.2 s of each)."""
@@ -32,7 +32,7 @@ SHARED = ROOT.parent / "shared" / "logs" / "px4"
 SHARED_ARDUPILOT = ROOT.parent / "shared" / "logs" / "ardupilot"
 CHILD = """
 import json, os, resource, sys, time
-import companion.flightlogs.dataflash, companion.flightlogs.ulog
+import companion.flightlogs.dataflash, companion.flightlogs.tlog, companion.flightlogs.ulog
 from companion.cli import review_log
 read = {"s": 0.0}
 def timed(reader):  # the replay imports the reader at call time: the timed one
@@ -45,6 +45,7 @@ def timed(reader):  # the replay imports the reader at call time: the timed one
     return r
 companion.flightlogs.ulog.read_ulog = timed(companion.flightlogs.ulog.read_ulog)
 companion.flightlogs.dataflash.read_dataflash = timed(companion.flightlogs.dataflash.read_dataflash)
+companion.flightlogs.tlog.scan_tlog = timed(companion.flightlogs.tlog.scan_tlog)
 c0, t = os.times(), time.perf_counter()
 rep, origin = review_log(sys.argv[1], vehicle="x500")
 dt, c1 = time.perf_counter() - t, os.times()

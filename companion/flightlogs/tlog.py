@@ -28,6 +28,7 @@ from array import array
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -132,15 +133,30 @@ def _decode(data: bytes, pos: int, parser):
 
 
 _V2_HEADER = struct.Struct("<BBBBBBBHB")  # pymavlink's MAVLink 2 header (magic as a number)
-_PLAIN: dict = {}  # message class → what `_plain_v2` decodes it with (`_plain_of`)
+_PLAIN: dict = {}  # message class → what `_plain_message` / `_message` decode it with (`_plain_for`)
 mcrf4xx = getattr(mavlink, "mcrf4xx", None)  # pymavlink's CRC (fastcrc's), when it has it
 
 
-def _plain_of(cls) -> tuple:
-    """(CRC_EXTRA as bytes, unpacker, its size, the fields in order from the unpacked tuple, has strings, its `Light`
-    class or None, has arrays) of a message class: `MAVLink.decode`'s per-message steps, once per class."""
+class _Plain(NamedTuple):
+    """`MAVLink.decode`'s per-message steps for one message class, made once (`_plain_for`)."""
+
+    crc_extra: bytes  # CRC_EXTRA as one byte
+    unpacker: struct.Struct
+    size: int  # the unpacker's: a MAVLink 2 payload cut short by its trailing zeros is padded to it
+    pick: Callable  # the unpacked tuple → the fields in the class's order (an array a list)
+    strings: bool  # has char arrays (their trailing NULs stripped)
+    light: type | None  # its `Light` class, for a kind in LIGHT
+    arrays: bool
+
+
+def _plain_for(cls) -> _Plain:
+    """The `_Plain` of a message class, made at its first frame."""
+    plain = _PLAIN.get(cls)
+    if plain is not None:
+        return plain
     lengths, orders = cls.lengths, cls.orders
-    if sum(lengths) == len(lengths):  # no arrays: the fields are single items of the tuple
+    arrays = sum(lengths) != len(lengths)
+    if not arrays:  # the fields are single items of the tuple
         pick = (lambda t, k=orders[0]: [t[k]]) if len(orders) == 1 else operator.itemgetter(*orders)
     else:  # arrays: each a list, a char array a string
         at = [sum(lengths[:k]) for k in range(len(lengths))]
@@ -148,22 +164,25 @@ def _plain_of(cls) -> tuple:
         def pick(t):
             return [t[at[k]] if lengths[k] == 1 or isinstance(t[at[k]], bytes) else list(t[at[k]:at[k] + lengths[k]])
                     for k in orders]
-    light, arrays = None, sum(lengths) != len(lengths)
+    light = None
     if cls.msgname in LIGHT:  # its fields by name: where pymavlink's unpacked tuple has them (no arrays), else `pick`'s
         names = cls.fieldnames if arrays else cls.ordered_fieldnames
         light = type(f"Light_{cls.msgname}", (Light,), {"__slots__": (), "msgname": cls.msgname, "id": cls.id}
                      | {f: property(operator.itemgetter(k)) for k, f in enumerate(names)})
-    return bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick, "s" in cls.unpacker.format, light, arrays
-
-
-def _plain_for(cls) -> tuple:
-    """`_plain_of(cls)`, made once."""
-    plain = _PLAIN[cls] = _plain_of(cls)
+    plain = _PLAIN[cls] = _Plain(bytes((cls.crc_extra,)), cls.unpacker, cls.unpacker.size, pick,
+                                 "s" in cls.unpacker.format, light, arrays)
     return plain
 
 
+def _unpacked(data: bytes, at: int, end: int, plain: _Plain) -> tuple:
+    """The payload of the frame [at, end) as `plain.unpacker` unpacks it (MAVLink 2's trailing zeros put back)."""
+    mlen, size = data[at + 1], plain.size
+    return plain.unpacker.unpack_from(data, at + 10) if mlen >= size else \
+        plain.unpacker.unpack(data[at + 10:end - 2] + bytes(size - mlen))
+
+
 def _plain_frame(data: bytes, at: int, parser, crc: bool = True):
-    """(frame length, message class, its `_plain_of`, the header's fields) of the frame starting at `at` in `data`
+    """(frame length, message class, its `_Plain`, the header's fields) of the frame starting at `at` in `data`
     when it is the common kind: MAVLink 2, unsigned, of a known message, whole, its CRC right; None for any other
     (pymavlink decodes those, and raises for the bad). The frame is checked, not decoded: the scan needs only
     this of most frames. `crc=False`: a frame the scan has checked (its CRC is not computed again)."""
@@ -176,22 +195,20 @@ def _plain_frame(data: bytes, at: int, parser, crc: bool = True):
     cls = mavlink.mavlink_map.get(header[7] | header[8] << 16)
     if cls is None or end > len(data) or mavlink.MAVLINK_IGNORE_CRC:
         return None
-    plain = _PLAIN.get(cls) or _plain_for(cls)
-    if crc and mcrf4xx(plain[0], mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != data[end - 2] | data[end - 1] << 8:
+    plain = _plain_for(cls)
+    if crc and mcrf4xx(plain.crc_extra, mcrf4xx(data[at + 1:end - 2], 0xFFFF)) != data[end - 2] | data[end - 1] << 8:
         return None  # pymavlink raises "invalid MAVLink CRC"
     return 12 + mlen, cls, plain, header
 
 
-def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tuple):
+def _plain_message(data: bytes, at: int, n: int, cls, plain: _Plain, header: tuple):
     """`MAVLink.decode`'s message (the same object, field for field) of a frame `_plain_frame` checked:
     pymavlink's own steps without its per-call generality."""
     _, mlen, _, compat, seq, sys_id, comp, _, _ = header
     end = at + n
-    _, unpacker, size, pick, strings = plain[:5]
     buf = bytearray(data[at:end])
-    t = unpacker.unpack_from(data, at + 10) if mlen >= size else unpacker.unpack(data[at + 10:end - 2] + bytes(size - mlen))
-    fields = pick(t)
-    if strings:
+    fields = plain.pick(_unpacked(data, at, end, plain))
+    if plain.strings:
         fields = [f.rstrip(b"\x00") if isinstance(f, bytes) else f for f in fields]
     m = cls(*fields)
     m._msgbuf, m._payload, m._crc = buf, buf[6:-2], data[end - 2] | data[end - 1] << 8
@@ -202,7 +219,7 @@ def _plain_message(data: bytes, at: int, n: int, cls, plain: tuple, header: tupl
 
 # The kinds the daemon reads only field by field (Telemetry.update, MavlinkIn.samples, the sensors' decoders), the
 # most of a log: the replay hands them on as a `Light` tuple, not as pymavlink's message object (whose making was
-# two thirds of a dense .tlog's decoding). No strings among them (`_message` does not strip them).
+# more than half of a dense .tlog's decoding). No strings among them (`_message` does not strip them).
 LIGHT = frozenset(("HEARTBEAT", "LOCAL_POSITION_NED", "ATTITUDE", "VFR_HUD", "EXTENDED_SYS_STATE",
                    "POSITION_TARGET_LOCAL_NED", "DISTANCE_SENSOR", "OBSTACLE_DISTANCE", "ESTIMATOR_STATUS",
                    "EKF_STATUS_REPORT"))
@@ -237,20 +254,18 @@ def _message(data: bytes, at: int, n: int, msg_id: int, parser):
     if msg_id < 0 or parser.signing.secret_key is not None:  # (signing: pymavlink judges every frame)
         return parser.decode(bytearray(data[at:at + n]))
     cls = mavlink.mavlink_map[msg_id]
-    plain = _PLAIN.get(cls) or _plain_for(cls)
-    if plain[5] is None:
+    plain = _plain_for(cls)
+    if plain.light is None:
         return _plain_message(data, at, n, cls, plain, _V2_HEADER.unpack_from(data, at))
-    mlen, end = data[at + 1], at + n
-    unpacker, size = plain[1], plain[2]
-    t = unpacker.unpack_from(data, at + 10) if mlen >= size else unpacker.unpack(data[at + 10:end - 2] + bytes(size - mlen))
-    if plain[6]:  # arrays: the fields as `pick` makes them
-        t = tuple(plain[3](t))
-    return tuple.__new__(plain[5], (*t, data[at + 5], data[at + 6], data[at:end]))
+    t = _unpacked(data, at, at + n, plain)
+    if plain.arrays:  # the fields as `pick` makes them
+        t = tuple(plain.pick(t))
+    return tuple.__new__(plain.light, (*t, data[at + 5], data[at + 6], data[at:at + n]))
 
 
-def _plain_v2(data: bytes, at: int, parser, crc: bool = True):
+def _plain_v2(data: bytes, at: int, parser):
     """(frame length, `MAVLink.decode`'s message) of a frame of the common kind (`_plain_frame`), else None."""
-    frame = _plain_frame(data, at, parser, crc)
+    frame = _plain_frame(data, at, parser)
     return None if frame is None else (frame[0], _plain_message(data, at, *frame))
 
 
@@ -391,9 +406,9 @@ def _clean_run(data: bytes, u8: np.ndarray, pos: int, s: Scan, clock: _Clock, pe
     at = stamp_at + 8
     mlen = u8[at + 1].astype(np.int64)
     mid = u8[at + 7].astype(np.int64) | u8[at + 8].astype(np.int64) << 8 | u8[at + 9].astype(np.int64) << 16
-    ids, which = np.unique(mid, return_inverse=True)
+    ids, id_of = np.unique(mid, return_inverse=True)
     classes = [mavlink.mavlink_map.get(int(i)) for i in ids]
-    extra = np.array([-1 if c is None else c.crc_extra for c in classes], np.int64)[which]
+    extra = np.array([-1 if c is None else c.crc_extra for c in classes], np.int64)[id_of]
     end = at + 12 + mlen
     ok = (extra >= 0) & (x25_frames(u8, at + 1, mlen + 9, extra) == (u8[end - 2] | u8[end - 1].astype(np.int64) << 8))
     raw = u8[stamp_at[:, None] + np.arange(8)].view(">u8").ravel()
