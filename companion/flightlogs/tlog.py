@@ -218,8 +218,8 @@ def _plain_message(data: bytes, at: int, n: int, cls, plain: _Plain, header: tup
 
 
 # The kinds the daemon reads only field by field (Telemetry.update, MavlinkIn.samples, the sensors' decoders), the
-# most of a log: the replay hands them on as a `Light` tuple, not as pymavlink's message object (whose making was
-# more than half of a dense .tlog's decoding). No strings among them (`_message` does not strip them).
+# most of a log: the replay hands them on as a `Light` tuple, not as pymavlink's message object (the decoding of a
+# dense 20-minute .tlog's frames: 1.6 s → 0.9 s). No strings among them (`_message` does not strip them).
 LIGHT = frozenset(("HEARTBEAT", "LOCAL_POSITION_NED", "ATTITUDE", "VFR_HUD", "EXTENDED_SYS_STATE",
                    "POSITION_TARGET_LOCAL_NED", "DISTANCE_SENSOR", "OBSTACLE_DISTANCE", "ESTIMATOR_STATUS",
                    "EKF_STATUS_REPORT"))
