@@ -2,24 +2,30 @@
 
 Pure, no I/O. It keeps the one record of what the daemon commanded and when; it applies the one rule of
 authority — someone else changed the mode: log it and stand down, never fight — once a cycle, in `observe`,
-for every part of the daemon at once (`ModeView.taken_over`); and it arbitrates the cycle's mode requests by
+for every part of the daemon at once (`ModeView.taken_over`); it arbitrates the cycle's mode requests by
 priority (`Requester`: the lower value wins):
 
     failsafe Hold > offboard's own stop (braking stop, route done) > shutdown Hold > calibration legs > offboard entry
 
-Every part that wants a mode asks here (a `ModeRequest` in the cycle's requests); nothing else sends or
-records one. The winner goes into the cycle's outbox (companion/outbox.py), which MAVLink-out applies.
+and it owns their delivery, the command-delivery subsystem's guarantee (docs/guarantee.md): a requested mode is
+re-sent every cycle until the autopilot answers it (COMMAND_ACK) or shows it (HEARTBEAT) — past the delivery
+budget `t_cmd_s` every RESEND_LATE_S, so a link that is down is not flooded —; it is shown within
+`t_mode_s` of the first send. A Hold refused, or not shown in time, takes the adapter's next way to stop
+(`Adapter.hold_fallbacks`: e.g. Land); any other mode is given up. Every part that wants a mode asks here (a
+`ModeRequest` in the cycle's requests) and learns the outcome here (`ModeView.settled`); nothing else sends,
+re-sends or times one. The winner goes into the cycle's outbox (companion/outbox.py), which MAVLink-out applies.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import IntEnum
+from enum import IntEnum, StrEnum
 
 from .frozen import quick_init
 
-TAKE_S = 3.0  # a mode commanded and not seen in a heartbeat this long after was not taken (heartbeats are 1 Hz)
+ACCEPTED_RESULTS = (0, 5)  # MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS
+RESEND_LATE_S = 0.2  # [s] a command past its delivery budget is re-sent this often (within it: every cycle)
 
 
 class Requester(IntEnum):
@@ -30,6 +36,16 @@ class Requester(IntEnum):
     SHUTDOWN = 2  # the daemon stops while engaged in flight
     CALIBRATION = 3  # the calibration plan's hold legs: Hold, then the mission again
     OFFBOARD_ENTRY = 4  # offboard (or the recovery brake) asks for OFFBOARD / GUIDED
+
+
+class Delivery(StrEnum):
+    """Where a mode command is on its way (`delivery` events' `outcome`)."""
+
+    SENDING = "sending"  # sent every cycle, not answered yet
+    ACCEPTED = "accepted"  # answered ACCEPTED, not shown yet
+    SHOWN = "shown"  # the autopilot's HEARTBEAT shows it
+    REFUSED = "refused"  # answered with a refusal (no fallback left)
+    NOT_SHOWN = "not shown"  # not shown within t_mode_s (no fallback left)
 
 
 HOLD = "hold"  # a request's mode for the autopilot's Hold (PX4 Hold, ArduPilot Brake: the adapter's name)
@@ -45,9 +61,32 @@ class ModeRequest:
 class ModeCommand:
     """The arbitrated request, as MAVLink-out sends it: the adapter's mode name and what the command record says."""
 
-    mode: str  # the autopilot's mode (the adapter's name: "hold" / "brake", "mission", "offboard")
-    what: str  # the `command` event's `cmd`: "hold", "mission", "offboard"
+    mode: str  # the autopilot's mode (the adapter's name: "hold" / "brake", "mission", "offboard", "land")
+    what: str  # the `command` event's `cmd`: "hold", "mission", "offboard", "land"
     by: Requester
+    send: int = 1  # 1: the first send, more: a re-send of the same command
+
+
+@dataclass(frozen=True)
+class Settled:
+    """A mode request's delivery that ended this cycle, as its requester learns it."""
+
+    what: str  # the request's mode (HOLD, "mission", "offboard")
+    by: Requester
+    outcome: Delivery  # SHOWN, REFUSED or NOT_SHOWN
+    mode: str  # the mode it ended in (a Hold's fallback: "land", say)
+    why: str = ""  # for a refusal or a time-out, in words
+    waited_s: float = 0.0  # from the request's first send to its end
+
+
+@dataclass(frozen=True)
+class Late:
+    """A command past its delivery budget: the subsystem's broken guarantee (`violation_start` fields)."""
+
+    guarantee: str
+    assumed: float  # [s] the budget
+    observed: float  # [s] how long it has been on its way
+    action: str
 
 
 @quick_init
@@ -59,49 +98,139 @@ class ModeView:
     by_daemon: bool  # the current mode is one the daemon commanded
     taken_over: bool  # someone else changed the mode this cycle: stand down, never fight
     event: tuple[str, dict] | None = None  # the `mode_change` record, when the mode changed
+    settled: Settled | None = None  # a delivery that ended this cycle
+    late: Late | None = None  # the command on its way is past its budget (None: on time, or none)
+    events: tuple[tuple[str, dict], ...] = ()  # `delivery` records: a fallback taken, a delivery ended
+
+
+class _Pending:
+    """A mode command on its way: sent every cycle until answered or shown."""
+
+    def __init__(self, t: float, mode: str, what: str, by: Requester, asked: str, chain: tuple[str, ...]):
+        self.t0, self.mode, self.what, self.by, self.asked = t, mode, what, by, asked
+        self.t_asked = t  # when the request itself was first sent (a fallback keeps its request's)
+        self.t_heard = t  # the mode-shown clock's start: the first send, or the link's return after a loss
+        self.chain = chain  # the ways to stop still left after this one (a Hold's fallbacks)
+        self.state = Delivery.SENDING
+        self.sends = 0
+        self.t_sent = -math.inf
+        self.refusal: str | None = None  # the autopilot's answer, when it refused
+
+
+GUARANTEE_ANSWERED = "a command reaches the autopilot within t_cmd (re-sent every cycle)"
+GUARANTEE_SHOWN = "a requested mode is shown within t_mode"
 
 
 class ModeAuthority:
-    def __init__(self, hold_mode: str):
-        """`hold_mode`: the adapter's name of the autopilot's Hold (PX4 Hold, ArduPilot Brake)."""
-        self.hold_mode = hold_mode
-        self.commanded: tuple[str, float, bool] | None = None  # (mode, when, seen in a heartbeat yet)
-        self.last: ModeCommand | None = None  # the last command granted
+    def __init__(self, hold_mode: str, t_cmd_s: float = 0.1, t_mode_s: float = 1.2,
+                 hold_fallbacks: tuple[str, ...] = ()):
+        """`hold_mode`: the adapter's name of the autopilot's Hold (PX4 Hold, ArduPilot Brake); `t_cmd_s`: the time
+        within which a command reaches the autopilot (answered or shown; the stop contract budgets it);
+        `t_mode_s`: within which a requested mode is shown; `hold_fallbacks`: the adapter's next ways to stop when
+        Hold is refused or not shown (in order)."""
+        self.hold_mode, self.t_cmd_s, self.t_mode_s = hold_mode, t_cmd_s, t_mode_s
+        self.hold_fallbacks = tuple(hold_fallbacks)
+        self.pending: _Pending | None = None  # the command on its way, or the last one delivered
+        self.last: ModeCommand | None = None  # the last command sent
         self._mode: str | None = None  # the mode last seen with the link up
 
+    # ------------------------------------------------------------------ the autopilot's side
+    def answer(self, result: int) -> None:
+        """A COMMAND_ACK of DO_SET_MODE: the command on its way is accepted, or refused."""
+        p = self.pending
+        if p is None or p.state != Delivery.SENDING:
+            return
+        if result in ACCEPTED_RESULTS:
+            p.state = Delivery.ACCEPTED
+        else:
+            p.refusal = f"DO_SET_MODE answered {result}"
+
     def observe(self, t: float, mode: str, link_ok: bool) -> ModeView:
-        """This cycle's mode: whether the daemon commanded it, and whether someone else just changed it (with the
-        link down the mode is unknown, not changed)."""
-        by_daemon = False
-        if self.commanded is not None:
-            want, t_cmd, seen = self.commanded
-            if mode == want:
-                self.commanded, by_daemon = (want, t_cmd, True), True
-            elif seen or t - t_cmd > TAKE_S:  # left it since, or never took it
-                self.commanded = None
+        """This cycle's mode: whether the daemon commanded it, whether someone else just changed it (with the
+        link down the mode is unknown, not changed), and how the command on its way fares."""
+        p, settled, events = self.pending, None, []
+        if p is not None and p.state in (Delivery.SENDING, Delivery.ACCEPTED) and not link_ok:
+            p.t_heard = t  # the mode is unknown: not judged until the link is back
+        elif p is not None and p.state in (Delivery.SENDING, Delivery.ACCEPTED):
+            if mode == p.mode:
+                p.state = Delivery.SHOWN
+                settled = Settled(p.asked, p.by, Delivery.SHOWN, p.mode, waited_s=t - p.t_asked)
+            elif p.refusal is not None or t - p.t_heard > self.t_mode_s:
+                why = p.refusal or f"{p.what} not shown within {self.t_mode_s:g} s"
+                settled = self._failed(t, p, why, events)
+            if settled is not None:
+                events.append(("delivery", {"cmd": p.what, "outcome": settled.outcome, "sends": p.sends,
+                                            "waited_s": t - p.t0, "by": p.by.name.lower()}
+                               | ({"why": settled.why} if settled.why else {})))
+        p = self.pending
+        changed = link_ok and mode != self._mode and self._mode is not None
+        if p is not None and p.state == Delivery.SHOWN and mode != p.mode and link_ok:
+            self.pending = p = None  # left it since: a later return to that mode is not ours
+        by_daemon = p is not None and p.state == Delivery.SHOWN
         event, taken_over = None, False
         if link_ok and mode != self._mode:
-            if self._mode is not None:
+            if changed:
                 taken_over = not by_daemon
                 event = ("mode_change", {"from": self._mode, "to": mode, "by": "other" if taken_over else "daemon"})
+                if taken_over:
+                    self.pending = None  # someone else decided: what was on its way is not sent again
             self._mode = mode
-        return ModeView(mode, by_daemon, taken_over, event)
+        return ModeView(mode, by_daemon, taken_over, event, settled, self._late(t), tuple(events))
 
-    def arbitrate(self, t: float, requests) -> ModeCommand | None:
-        """The request that wins this cycle (None: none asked), recorded as the daemon's command."""
-        if not requests:
+    def _failed(self, t: float, p: _Pending, why: str, events: list) -> Settled | None:
+        """A command refused or not shown in time: a Hold takes its next fallback (None: still on its way), any
+        other mode is given up."""
+        if p.chain:
+            nxt = _Pending(t, p.chain[0], p.chain[0], p.by, p.asked, p.chain[1:])
+            nxt.t_asked = p.t_asked
+            events.append(("delivery", {"cmd": p.what, "outcome": "fallback", "why": why, "next": nxt.what,
+                                        "sends": p.sends, "waited_s": t - p.t0, "by": p.by.name.lower()}))
+            self.pending = nxt
             return None
-        r = min(requests, key=lambda q: q.by)
-        mode = self.hold_mode if r.mode == HOLD else r.mode
-        self.commanded = (mode, t, False)
-        self.last = ModeCommand(mode, r.mode, r.by)
+        p.state = Delivery.REFUSED if p.refusal is not None else Delivery.NOT_SHOWN
+        return Settled(p.asked, p.by, p.state, p.mode, why, t - p.t_asked)
+
+    def _late(self, t: float) -> Late | None:
+        """The delivery guarantee broken now: a command neither answered nor shown within t_cmd_s; a Hold refused or
+        not shown within t_mode_s (from then until someone else decides: its fallback flies meanwhile). Another
+        mode refused is its requester's to judge (the recovery brake's switch, offboard's entry)."""
+        p = self.pending
+        if p is None:
+            return None
+        waited = t - p.t0
+        if p.asked == HOLD and (p.what != HOLD or p.state in (Delivery.REFUSED, Delivery.NOT_SHOWN)):
+            now = f"{p.what} {p.state}" if p.what != HOLD else f"Hold {p.state}: given up"
+            return Late(GUARANTEE_SHOWN, self.t_mode_s, t - p.t_asked, f"Hold not taken: {now}")
+        if p.state == Delivery.SENDING and waited > self.t_cmd_s:
+            action = f"re-sending {p.what}" + (f", then {', '.join(p.chain)}" if p.chain else "")
+            return Late(GUARANTEE_ANSWERED, self.t_cmd_s, waited, action)
+        return None
+
+    # ------------------------------------------------------------------ the daemon's side
+    def arbitrate(self, t: float, requests) -> ModeCommand | None:
+        """The command to send this cycle (None: none): the request that wins, or the one on its way, re-sent
+        every cycle until the autopilot answers or shows it. A request never displaces one of higher priority
+        that is still on its way; the same mode asked again continues its delivery (its clock keeps running)."""
+        p = self.pending
+        on_way = p is not None and p.state in (Delivery.SENDING, Delivery.ACCEPTED)
+        if requests:
+            r = min(requests, key=lambda q: q.by)
+            mode = self.hold_mode if r.mode == HOLD else r.mode
+            same = on_way and p.asked == r.mode
+            if not same and (not on_way or r.by <= p.by):
+                chain = self.hold_fallbacks if r.mode == HOLD else ()
+                p = self.pending = _Pending(t, mode, r.mode, r.by, r.mode, chain)
+        if p is None or p.state != Delivery.SENDING:
+            return None
+        if t - p.t0 > self.t_cmd_s and t - p.t_sent < RESEND_LATE_S:  # past its budget: a link that is down is
+            return None  # not flooded; within it, every cycle
+        p.sends += 1
+        p.t_sent = t
+        self.last = ModeCommand(p.mode, p.what, p.by, p.sends)
         return self.last
 
     def shows(self, mode: str) -> bool:
         """The autopilot's heartbeat shows `mode` (HOLD: its Hold), commanded by the daemon."""
         want = self.hold_mode if mode == HOLD else mode
-        return self.commanded is not None and self.commanded[0] == want and self.commanded[2]
-
-    def since(self, t: float) -> float:
-        """How long ago the last command was sent (inf: never)."""
-        return t - self.commanded[1] if self.commanded is not None else math.inf
+        p = self.pending
+        return p is not None and p.mode == want and p.state == Delivery.SHOWN

@@ -57,6 +57,11 @@ class Adapter:
         """The mode the daemon uses to stop (PX4 Hold, ArduPilot Brake)."""
         return "hold"
 
+    # the next way to stop when Hold is refused or not shown in time (companion/authority.py): Land, which both
+    # autopilots accept in flight in every state a Hold may be refused in (it needs no position estimate) and
+    # which holds the horizontal position while it descends where it has one
+    hold_fallbacks: tuple[str, ...] = ("land",)
+
     def speed_params(self, v: float) -> tuple[float, ...]:
         """MAV_CMD_DO_CHANGE_SPEED: ground speed v (> 0 always), throttle unchanged."""
         if not v > 0:

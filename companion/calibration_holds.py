@@ -33,7 +33,6 @@ from .mission import Home
 
 REST_SPEED_M_S = 0.1  # at rest below this ground speed
 REST_TIMEOUT_S = 20.0  # not at rest this long after Hold was seen: the mission is resumed anyway (said so)
-TAKE_S = 3.0  # a mode command not seen in a HEARTBEAT this long after it was sent was not taken
 MAX_LEGS_BYTES = 16 << 20
 MAV_CMD_DO_CHANGE_SPEED = 178
 
@@ -196,17 +195,18 @@ class CalibrationHolds:
         self.leg, self.phase, self._t_rest = None, "waiting", None
 
     def step(self, t: float, *, mode: str, taken_over: bool, mission_seq: int, x: float, y: float, speed: float,
-             telemetry_ok: bool, active: bool, safety: str | None) -> Actions:
+             telemetry_ok: bool, active: bool, safety: str | None, undelivered: str | None = None) -> Actions:
         """One cycle. `active`: the supervisor is active (engaged, flying, commanding limits); `safety`: why the
         daemon itself holds or is in failsafe this cycle (None: it does not); `taken_over`: someone else changed
-        the mode this cycle (the mode authority's judgement): the leg is abandoned, never fought."""
+        the mode this cycle (the mode authority's judgement): the leg is abandoned, never fought; `undelivered`:
+        why the leg's last mode command failed this cycle (the mode authority's delivery), None: it did not."""
         acts = Actions()
         if self.leg is not None:
             if safety is not None or not active:
                 self._end(acts, "abandoned", reason=f"the daemon's own {'hold' if safety else 'stand-by'}: "
                                                     f"{safety or 'not active'}")
             else:
-                self._fly(t, acts, mode, taken_over, speed)
+                self._fly(t, acts, mode, taken_over, speed, undelivered)
             return acts
         leg = self.by_seq.get(mission_seq)
         if leg is None or leg.number in self.done or not active or safety is not None or mode != "mission" \
@@ -222,17 +222,19 @@ class CalibrationHolds:
             self._event(acts, "commanded", speed_m_s=speed, distance_m=d, hold_before_m=leg.hold_before_m)
         return acts
 
-    def _fly(self, t: float, acts: Actions, mode: str, taken_over: bool, speed: float) -> None:
+    def _fly(self, t: float, acts: Actions, mode: str, taken_over: bool, speed: float, undelivered: str | None
+             ) -> None:
         if taken_over:
             self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")
             return
+        if undelivered is not None and self.phase in ("commanded", "resuming"):
+            what = "Hold" if self.phase == "commanded" else "the mission"
+            self._end(acts, "abandoned", reason=f"the autopilot did not take {what}: {undelivered}")
+            return
         if self.phase == "commanded":
-            if mode == "hold":
-                self.phase, self._t = "holding", t  # (and at rest from now, if it is)
-            else:
-                if t - self._t > TAKE_S:
-                    self._end(acts, "abandoned", reason=f"the autopilot did not take Hold in {TAKE_S:g} s")
+            if mode != "hold":
                 return
+            self.phase, self._t = "holding", t  # (and at rest from now, if it is)
         if self.phase == "holding":
             if self._t_rest is None and speed < REST_SPEED_M_S:
                 self._t_rest = t
@@ -247,5 +249,3 @@ class CalibrationHolds:
             rested = self._rested
             self._end(acts, "resumed", rest_s=rested, at_rest=rested is not None,
                       **({} if rested is not None else {"reason": f"not at rest within {REST_TIMEOUT_S:g} s"}))
-        elif t - self._t > TAKE_S:
-            self._end(acts, "abandoned", reason=f"the autopilot did not take the mission in {TAKE_S:g} s")

@@ -395,7 +395,8 @@ def cmd_run(args) -> int:
     daemon = Daemon(cfg, table, conn, log, signing_clock=signing_clock)
     notifier = Notifier()
     log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect,
-              controller_contract=controller_contract(cfg, table), nav_margin=cfg.contract.nav_margin)
+              controller_contract=controller_contract(cfg, table), nav_margin=cfg.contract.nav_margin,
+              delivery=cfg.delivery.model_dump())
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
 
     def should_stop() -> bool:  # said once, before the shutdown's own Hold (stop means stop: daemon.py)

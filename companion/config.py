@@ -257,6 +257,23 @@ class Timeouts(_Strict):
     cycle_late_s: Bounded(0.0, 1.0, lo_open=True) = 0.25
 
 
+class DeliveryConfig(_Strict):
+    """What the link and the autopilot guarantee of the daemon's commands: the command-delivery subsystem
+    (docs/guarantee.md). A mode command is re-sent every cycle until the autopilot answers it (COMMAND_ACK) or
+    shows it (HEARTBEAT); the stop contract's dead time includes `t_cmd_s`, so a Hold lost on the link, or delayed,
+    for up to that long still stops short. Beyond either budget the daemon says so (a `delivery` violation) and a
+    Hold takes the autopilot's next way to stop (Land)."""
+
+    # [s] a command reaches the autopilot within this of its first send. Default 0.1 s: five 50 Hz cycles lost in
+    # a row, or a 100 ms delay; it costs the governor 1.6-2.1 % of its limit, 4-9 % with the recovery brake
+    # (benchmarks/bench_delivery_cost.py); 0 budgets no loss at all. At most 1 s
+    t_cmd_s: Bounded(0.0, 1.0) = 0.1
+    # [s] a requested mode is shown in the autopilot's HEARTBEAT within this of the first send. PX4 and ArduPilot
+    # send HEARTBEAT at 1 Hz, so one period and the switch (hold_switch_s, 0.1 s) with a margin: 1.2 s. Refused, or
+    # not shown by then: a Hold's fallback, any other mode given up. At most 5 s
+    t_mode_s: Bounded(0.2, 5.0) = 1.2
+
+
 class RouteConfig(_Strict):
     """The route offboard mode flies: local NED waypoints [m] at a constant altitude (`source: config`),
     or the autopilot's mission, downloaded when engaging (`source: mission`, companion/mission.py)."""
@@ -345,6 +362,7 @@ class Config(_Strict):
     thrust: ThrustConfig = ThrustConfig()
     detection: DetectionConfig = DetectionConfig()
     timeouts: Timeouts = Timeouts()
+    delivery: DeliveryConfig = DeliveryConfig()
     log: LogConfig = LogConfig()
     route: RouteConfig | None = None  # offboard mode: the route to fly
     offboard_entry_s: Pos = 1.0  # setpoints streamed before asking for OFFBOARD (PX4 needs > 0.5 s)
@@ -393,6 +411,8 @@ WEAKER = (
     ("contract", "dwell_s", "lower", "a higher limit takes effect sooner"),
     ("contract", "late_detection_hold_s", "lower", "a late detection lowers D_od for less time"),
     ("contract", "late_detection_tolerance_m", "higher", "a larger range shortfall passes as on time"),
+    ("delivery", "t_cmd_s", "lower", "a command lost or delayed for a shorter time is outside the contract"),
+    ("delivery", "t_mode_s", "higher", "a mode the autopilot does not show is given up on later"),
     ("thrust", "tau_s", "higher", "a thrust loss shows later"),
     ("detection", "reference_reflectivity", "higher", "a darker obstacle than this is seen later than D_od"),
     ("detection", "backscatter_length_m", "higher", "the same backscatter reads as thinner fog"),

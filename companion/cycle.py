@@ -19,7 +19,7 @@ from contracts.online_planner import load_solver, offboard_cap
 from contracts.stop import airframe_decel, braking_decel, stop_jerk
 from contracts.table import THRUST_AXIS_TOL, ContractTable
 
-from .authority import HOLD, ModeAuthority, ModeRequest, Requester
+from .authority import HOLD, Delivery, ModeAuthority, ModeRequest, Requester
 from .autopilot_base import MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
@@ -37,10 +37,8 @@ from .states import BRAKE_STOP_CAUSES, FINISHED, Cause, OffboardState, State
 from .supervisor import RAMP_WINDOW_S, Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 
-SHUTDOWN_WAIT_S = 1.0  # stop means stop: the shutdown Hold is re-sent until the autopilot shows it, this long at most
-SHUTDOWN_RESEND_S = 0.25
+SHUTDOWN_WAIT_S = 1.0  # stop means stop: the shutdown waits this long at most for the autopilot to show its Hold
 A0_S = 0.1  # [s] the recovery brake's stop starts from the acceleration measured over this long (Δv/Δt)
-ACCEPTED_RESULTS = (0, 5)  # MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS
 RECHECK_FAILED = "start-up checks failed in flight"  # a failed re-check while engaged in flight: Hold
 
 
@@ -104,8 +102,10 @@ class Cycle:
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
-                              e_tr_floor_m=self.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s)
-        self.authority = ModeAuthority(adapter.hold_mode())
+                              e_tr_floor_m=self.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s,
+                              t_cmd_s=cfg.delivery.t_cmd_s)
+        self.authority = ModeAuthority(adapter.hold_mode(), cfg.delivery.t_cmd_s, cfg.delivery.t_mode_s,
+                                       adapter.hold_fallbacks)
         self.offboard: OffboardController | None = None
         if cfg.mode == "offboard":
             if cfg.route is None:
@@ -123,8 +123,9 @@ class Cycle:
         self.checks = None
         self._brake_said: tuple[bool, str] | None = None
         self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
-        # the acceleration flown: the approach ramp's check and the recovery brake's start (measured only for them)
-        windows = [w for w, on in ((RAMP_WINDOW_S, self.sup.ramp is not None), (A0_S, self.brake is not None)) if on]
+        # the acceleration flown: the speed limit's check (its slow-down starts from it), the approach ramp's, and the
+        # recovery brake's start (offboard flies its own setpoints: not measured there)
+        windows = [w for w, on in ((RAMP_WINDOW_S, cfg.mode != "offboard"), (A0_S, self.brake is not None)) if on]
         self._accel = AccelEstimator(max(windows)) if windows else None
         self._jerk_heard: float | None = None  # the autopilot's jerk last given to the approach ramp
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
@@ -228,7 +229,7 @@ class Cycle:
         thrust_ratio, _ = self.thrust.value(t)
         if self._accel is not None:  # (not measured where nothing reads it: the loop and a log's replay stay as fast)
             self._accel.add(tel.t_local, tel.vx, tel.vy)
-        accel = self._accel.over(RAMP_WINDOW_S) if telemetry_ok and self.sup.ramp is not None else None
+        accel = self._accel.over(RAMP_WINDOW_S) if telemetry_ok and self._accel is not None else None
         if accel is None:
             accel_along = math.nan
         else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)
@@ -248,7 +249,7 @@ class Cycle:
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
                       v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s,
-                      late_within_s=self.timing.within_s, accel_along=accel_along,
+                      late_within_s=self.timing.within_s, accel_along=accel_along, delivery_late=view.late,
                       v_mission=self.mission_speed(tel.mission_seq) if self.mission_speed is not None else math.nan)
 
     def step(self, t: float, tel: Telemetry, *, r_obst: float, engage: bool, startup_ok: bool | None,
@@ -270,8 +271,16 @@ class Cycle:
             texts += protocol.texts
         if self.view.event is not None:
             events.append(self.view.event)
+        events += self.view.events
         acts, ended, fail_hold = None, False, d.hold
         ctl = self._controller
+        settled = self.view.settled
+        if ctl is not None and settled is not None and settled.by == Requester.OFFBOARD_ENTRY:
+            if settled.outcome != Delivery.SHOWN:
+                ctl.refuse(settled.why)
+            elif self.brake is not None and settled.waited_s > self._switch_budget:  # shown, later than budgeted
+                self.brake.late = (f"offboard shown {settled.waited_s:.2f} s after asking, beyond the "
+                                   f"{self._switch_budget:.2f} s its stop contract budgets")
         if ctl is not None and i.link_ok:
             fly = self._fly_offboard if self.offboard is not None else self._recover
             acts, d, braking = fly(t, tel, i, d, startup_ok, mission_route)
@@ -325,7 +334,7 @@ class Cycle:
                 continue
             if why is None:
                 why = diagnose(self.table, self.sup.contract, i, e_tr_floor=self.etr.floor, thrust_basis=basis,
-                               policy=getattr(self.sup.policy, "name", "contract"))
+                               policy=getattr(self.sup.policy, "name", "contract"), t_cmd=self.sup.t_cmd)
             events[k] = (name, {**f, **why.fields(self.cfg.mode)})
             if name == "failsafe" and f.get("action") == "hold":
                 texts.append((2, why.statustext(self.cfg.mode)))
@@ -336,9 +345,11 @@ class Cycle:
         cal = self.calibration
         safety = (d.hold_causes[0] if d.hold_causes else "hold") if d.hold else \
             (f"state {d.state}" if d.state in (State.HOLDING, State.FAILSAFE) else None)
+        settled = self.view.settled
         acts = cal.step(t, mode=i.mode, taken_over=i.taken_over, mission_seq=tel.mission_seq, x=tel.x, y=tel.y,
                         speed=i.ground_speed, telemetry_ok=i.telemetry_ok, active=d.state == State.ACTIVE,
-                        safety=safety)
+                        safety=safety, undelivered=settled.why if settled is not None and settled.by ==
+                        Requester.CALIBRATION and settled.outcome != Delivery.SHOWN else None)
         if acts.command is not None:
             requests.append(ModeRequest(HOLD if acts.command == "hold" else acts.command, Requester.CALIBRATION))
         events += acts.events
@@ -406,15 +417,16 @@ class Cycle:
         return min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
 
     def command_ack(self, command: int, result: int) -> None:
-        """A COMMAND_ACK: a refused DO_SET_MODE while the recovery brake awaits offboard refuses the brake."""
-        if self.brake is not None and command == MAV_CMD_DO_SET_MODE and result not in ACCEPTED_RESULTS:
-            self.brake.refuse(f"DO_SET_MODE answered {result}")
+        """A COMMAND_ACK: DO_SET_MODE's answer goes to the mode authority (its delivery)."""
+        if command == MAV_CMD_DO_SET_MODE:
+            self.authority.answer(result)
 
     def _recovery_available(self, events: list, texts: list) -> None:
         """The recovery brake's availability, set on the supervisor (its stop contract, or the autopilot's Hold's at
         once) and said when it changes (DESIGN.md §5: the brake's own start-up checks and fallback)."""
         checks = self.checks.brake if self.checks is not None else None
         now = (False, f"the switch to offboard was refused: {self.brake.refused}") if self.brake.refused else \
+            (False, self.brake.late) if self.brake.late else \
             (False, "its start-up checks are pending") if checks is None else checks
         self.sup.recovery_dt = 1.0 / self.cfg.loop_hz if now[0] else None
         if now != self._brake_said:
@@ -447,10 +459,16 @@ class Cycle:
             d = self.sup.latch_hold(d, "recovery brake: held until the pilot or the ground station changes the mode")
         # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it (an
         # unknown speed counts as above it; judged at the speed when called as well: a switch never shown is found
-        # refused RECOVERY_TAKE_S later, by when a vehicle stopped by a collision reads no speed)
+        # refused `delivery.t_mode_s` later, by when a vehicle stopped by a collision reads no speed)
         d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused,
                                     speed=max(_or_inf(i.ground_speed), _or_inf(self._brake_v0)))
         return acts, d, braking
+
+    @property
+    def _switch_budget(self) -> float:
+        """[s] how long after asking the recovery brake's stop contract allows its switch to show: the switch
+        (`hold_switch_s`), one cycle and the delivery budget (contracts/stop.py `recovery_brake`)."""
+        return self.table.vehicle.braking.hold_switch_s + 1.0 / self.cfg.loop_hz + self.cfg.delivery.t_cmd_s
 
     def _autopilot_jerk(self) -> float | None:
         """The jerk of the autopilot's approach smoothing as it reported it (the start-up checks' parameter for
@@ -473,16 +491,15 @@ class Cycle:
 
 
 class Shutdown:
-    """Stop means stop: a daemon that stops while engaged in flight commands Hold (through the mode authority),
-    re-sends it every SHUTDOWN_RESEND_S until the autopilot's heartbeat shows it, SHUTDOWN_WAIT_S at most, and
-    says so; on the ground, or not engaged, it just stops. `done` once decided."""
+    """Stop means stop: a daemon that stops while engaged in flight asks for Hold (the mode authority delivers it),
+    waits until the autopilot shows it, SHUTDOWN_WAIT_S at most, and says so; on the ground, or not engaged, it
+    just stops. `done` once decided."""
 
     def __init__(self, t: float):
         self.t0 = t
         self.hold: bool | None = None  # a Hold was needed (None: not decided yet)
         self.confirmed = False
         self.done = False
-        self._t_sent = -math.inf
 
     def step(self, t: float, i: Inputs, d: Decision, authority: ModeAuthority, engaged_flying: bool, requests,
              events, texts) -> None:
@@ -496,12 +513,10 @@ class Shutdown:
                                             else "no autopilot link"}))
                 return
             texts.append((2, "CG: stopping in flight: Hold"))
+            requests.append(ModeRequest(HOLD, Requester.SHUTDOWN))
         if i.mode == authority.hold_mode:  # the autopilot shows Hold (ours, or already someone else's)
             self.confirmed = True
         elif t - self.t0 < SHUTDOWN_WAIT_S:
-            if t - self._t_sent >= SHUTDOWN_RESEND_S:
-                self._t_sent = t
-                requests.append(ModeRequest(HOLD, Requester.SHUTDOWN))
             return
         self.done = True
         events.append(("shutdown", {"hold": True, "confirmed": self.confirmed, "waited_s": t - self.t0}))

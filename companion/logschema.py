@@ -85,7 +85,8 @@ class Event(NamedTuple):
 _NO_SPEED = ("input", "why", "resume")  # a `no safe speed` Hold's cause (companion/no_speed.py)
 _MISSION_STATS = ("resent", "duplicates", "out_of_order", "malformed")
 EVENTS = {
-    "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract", "nav_margin"),
+    "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract", "nav_margin",
+                    "delivery"),
                    "cli run, replay",
                    "daemon run starts (connect: the live link; replay_of: the raw log replayed)"),
     "stop": Event(("counters",), "cli run, replay", "daemon run ends cleanly (the daemon's counters)"),
@@ -132,8 +133,13 @@ EVENTS = {
                           "estimate goes stale in flight): the value the "
                           "contract takes until then — the vehicle's lowest (`vehicle_min`) where the table covers "
                           "it (`covered`), else no safe speed (the table's lowest is `table_min`)"),
-    "command": Event(("cmd", "params"), "daemon", "a COMMAND_LONG sent (cmd ∈ COMMANDS)"),
+    "command": Event(("cmd", "params", "send"), "daemon", "a COMMAND_LONG sent (cmd ∈ COMMANDS; `send` > 1: the mode "
+                     "authority's re-send of the same command, every cycle until answered or shown)"),
     "command_ack": Event(("command", "result"), "daemon", "the autopilot's answer to a speed or mode command"),
+    "delivery": Event(("cmd", "outcome", "sends", "waited_s", "by", "why", "next"), "authority",
+                      "a mode command's delivery ended (outcome: shown | refused | not shown; `why` for the last two) "
+                      "or took its fallback (outcome: fallback, `next`: the mode asked instead, `why`): re-sent "
+                      "every cycle until answered or shown, `sends` times, `waited_s` since the first"),
     "link": Event(("status",), "daemon", "autopilot heartbeat: up | down"),
     "startup_check": Event(("ok", "reason"), "daemon", "verdict of the start-up checks"),
     "autopilot_restart": Event(("boot_s_before", "boot_s_now"), "daemon",
@@ -190,5 +196,6 @@ COMMANDS = {
     "change_speed": "MAV_CMD_DO_CHANGE_SPEED",
     "offboard": "MAV_CMD_DO_SET_MODE",
     "mission": "MAV_CMD_DO_SET_MODE",  # a calibration hold leg resumes the mission
+    "land": "MAV_CMD_DO_SET_MODE",  # a Hold refused or not shown: the next way to stop
     "set_message_interval": "MAV_CMD_SET_MESSAGE_INTERVAL",
 }

@@ -87,20 +87,22 @@ class MavlinkOut:
         except Exception:
             pass  # the link is down; the supervisor sees the heartbeat time out
 
-    def command(self, t: float, cmd: int, params: tuple[float, ...], what: str) -> None:
+    def command(self, t: float, cmd: int, params: tuple[float, ...], what: str, send: int = 1) -> None:
+        """One COMMAND_LONG, logged (`send` > 1: the mode authority's re-send of the same command)."""
         self.counters.commands_sent += 1
         self.send(self.conn.mav.command_long_encode(self.link.target_system, self.link.target_component, cmd, 0,
                                                     *params))
-        self.event(t, "command", cmd=what, params=[p if math.isfinite(p) else None for p in params])
+        self.event(t, "command", cmd=what, params=[p if math.isfinite(p) else None for p in params],
+                   **({"send": send} if send > 1 else {}))
 
-    def set_mode(self, t: float, mode: str, what: str) -> None:
-        self.command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(mode, True), what)
+    def set_mode(self, t: float, mode: str, what: str, send: int = 1) -> None:
+        self.command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(mode, True), what, send)
 
     def apply(self, t: float, box) -> None:
         """One cycle's outbox (companion/outbox.py), in its order: the mode command (the only place a mode is
         sent), the speed command, the protocols' messages, the setpoint, then the events and the texts."""
         if box.mode is not None:
-            self.set_mode(t, box.mode.mode, box.mode.what)
+            self.set_mode(t, box.mode.mode, box.mode.what, box.mode.send)
         if box.speed is not None:
             self.command(t, MAV_CMD_DO_CHANGE_SPEED, self.adapter.speed_params(box.speed), "change_speed")
         for msg in box.messages:

@@ -80,10 +80,10 @@ def _edge(speed, good: float, bad: float) -> float:
 
 
 def diagnose(table: ContractTable, contract: str, i: Inputs, *, e_tr_floor: float, thrust_basis: str,
-             policy: str = "contract") -> NoSpeed:
+             policy: str = "contract", t_cmd: float = 0.0) -> NoSpeed:
     """Which input put Ω at no safe speed (< MIN_SPEED_CMD) at the cycle's inputs `i`; `e_tr_floor`: the smallest
     E_tr the contract uses; `thrust_basis`: what the thrust ratio is (`ThrustEstimator.basis`); `policy`: the
-    speed policy's name."""
+    speed policy's name; `t_cmd`: the command-delivery budget the stop contract takes."""
     names = ("d_od", "r_obst", "e_tr", "thrust_ratio")
     vals = (i.dod.d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio)
     bad = [n for n, v in zip(names, vals) if not math.isfinite(v)]
@@ -105,7 +105,7 @@ def diagnose(table: ContractTable, contract: str, i: Inputs, *, e_tr_floor: floa
         return NoSpeed("thrust_ratio", why, needs, f"thrust_ratio {now} < {lowest}", f"thrust_ratio >= {lowest}")
 
     def speed(d_od: float = d, e_tr: float = e) -> bool:
-        return table.omega(d_od, r, e_tr, thr, contract=contract).v_max >= MIN_SPEED_CMD
+        return table.omega(d_od, r, e_tr, thr, contract=contract, t_cmd=t_cmd).v_max >= MIN_SPEED_CMD
 
     if speed():  # the contract has a speed at these inputs: the daemon's lateness, or the policy flown, took it
         if i.late_s > 0.0:

@@ -53,9 +53,6 @@ SETTLE_S = 0.5
 # on another 0.45 m into the column; held at the end point, the integrator bleeds off); at most END_WAIT_S
 AT_END_M = 0.2
 END_WAIT_S = 10.0
-# [s] the recovery brake's OFFBOARD / GUIDED not shown in a heartbeat this long after asking: refused (heartbeats
-# come at 1 Hz and at once on a mode change)
-RECOVERY_TAKE_S = 1.2
 
 
 @dataclass
@@ -74,14 +71,15 @@ class OffboardController:
     _t_state: float = 0.0
     _hold_here: np.ndarray | None = None
     _t_last: float | None = None
-    _asked: int = 0
+    _refusal: str | None = None  # the autopilot refused, or did not show, the OFFBOARD / GUIDED asked (`refuse`)
     _braking: bool = False
     _seen: tuple | None = None  # (t, the keep-out discs last seen)
     _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
     _a_last: np.ndarray | None = None  # the acceleration of the last setpoint streamed while flying
     _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
-    _switch: tuple | None = None  # the recovery brake's switch to offboard: (asked at, refused why), None: not awaited
+    _switch: bool = False  # the recovery brake awaits its switch to offboard
     refused: str | None = None  # why the recovery brake's switch was refused (it is then unavailable)
+    late: str | None = None  # the recovery brake's switch was shown later than its contract budgets (unavailable)
     held: str = HELD  # what the Hold at the end of the braking stop waits for
 
     def _go(self, t, new, why, acts):
@@ -123,6 +121,7 @@ class OffboardController:
             return acts
         if self.state == S.OFF:
             if engaged and flying and not stop:
+                self._refusal = None
                 self._hold_here = np.asarray(p, float).copy()
                 self._hold_z, self._hold_yaw = z, yaw
                 self._go(t, S.ENTERING, "engaged", acts)
@@ -136,13 +135,11 @@ class OffboardController:
             else:
                 acts.setpoint = Setpoint(self._hold_here, np.zeros(2), np.zeros(2), self._hold_z, self._hold_yaw,
                                          SetpointKind.HOLD)
-                waited = t - self._t_state
-                if waited >= self.entry_s and (self._asked == 0 or waited >= self.entry_s + self._asked * 1.0):
-                    acts.enter = True
-                    self._asked += 1
-                if waited > self.entry_s + 5.0:
-                    self._go(t, S.OFF, "autopilot did not enter offboard", acts)
-                    acts.setpoint = None
+                # asked every cycle from entry_s on: the mode authority delivers it, and says when it failed
+                acts.enter = t - self._t_state >= self.entry_s
+                if self._refusal is not None:
+                    self._go(t, S.OFF, f"autopilot did not enter offboard: {self._refusal}", acts)
+                    acts.setpoint, acts.enter = None, False
                 return acts
         if self.state == S.FLYING:
             if taken_over:
@@ -177,7 +174,7 @@ class OffboardController:
         airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD /
         GUIDED asked the next (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop
         (`_brake`: at rest, Hold).
-        The switch refused (`refuse`: COMMAND_ACK denied) or not seen within RECOVERY_TAKE_S: Hold at once, and
+        The switch refused or not shown in time (`refuse`: the mode authority's delivery): Hold at once, and
         `refused` says why. `abort`: a cause the daemon cannot fly out (its state not to be trusted): Hold now."""
         acts = OffboardActions()
         self._t_last = t
@@ -185,29 +182,28 @@ class OffboardController:
             return self._brake(t, abort, mode, taken_over, p, v, acts)
         if start and not abort:
             self._plan_stop(p, v, z, yaw, a_stop, [], math.inf, a0, jerk)
-            self._switch, self.held = (None, None), RECOVERED
+            self._switch, self._refusal, self.held = True, None, RECOVERED
             self._go(t, S.BRAKING, "recovery brake: the daemon brakes to a stop, then Hold", acts)
             return self._brake(t, False, mode, False, p, v, acts)
         return acts
 
     def refuse(self, why: str) -> None:
-        """The autopilot refused the recovery brake's switch (a COMMAND_ACK): Hold at the next cycle."""
-        if self.state == S.BRAKING and self._switch is not None and self._switch[0] is not None:
-            self._switch = (self._switch[0], why)
+        """The autopilot refused the OFFBOARD / GUIDED asked, or did not show it in time (the mode authority's
+        delivery): entering, offboard is not entered; braking, the recovery brake holds at the next cycle."""
+        self._refusal = why
 
     def _switched(self, t, mode: str, acts) -> bool:
-        """The recovery brake's switch to offboard: asked once, then seen, refused or timed out (False: Hold now)."""
-        asked, why = self._switch
+        """The recovery brake's switch to offboard: asked from the cycle after the first setpoint until shown, or
+        refused / not shown in time (False: Hold now)."""
         if mode == "offboard":
-            self._switch = None
-        elif asked is None:  # the first setpoint streamed the cycle before
-            if t > self._t_state:
-                acts.enter, self._switch = True, (t, None)
-        elif why is not None or t - asked > RECOVERY_TAKE_S:
-            self.refused = why or f"offboard not shown within {RECOVERY_TAKE_S:g} s of asking"
+            self._switch = False
+        elif self._refusal is not None:
+            self.refused = self._refusal
             acts.hold = True
             self._go(t, S.HELD, f"recovery brake refused ({self.refused}): Hold", acts)
             return False
+        else:
+            acts.enter = t > self._t_state  # (the first setpoint streamed the cycle before)
         return True
 
     def _finish(self, t, acts) -> OffboardActions:
@@ -229,7 +225,7 @@ class OffboardController:
             acts.hold = True
             self._go(t, S.HELD, HELD, acts)
             return acts
-        if self._switch is not None and not self._switched(t, mode, acts):
+        if self._switch and not self._switched(t, mode, acts):
             return acts
         tau = t - self._t_state
         plan = self._stop_plan

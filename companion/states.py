@@ -76,6 +76,7 @@ class Subsystem(StrEnum):
     GUIDANCE = "guidance"
     AUTOPILOT = "autopilot"  # the autopilot accepts the recovery brake's switch (BRAKE_SWITCH), follows the
     # governor's approach ramp (RAMP_FOLLOWED)
+    DELIVERY = "delivery"  # the link and the autopilot: a command reaches the autopilot and takes effect in time
 
 
 # the autopilot's guarantees the governor's faster limits rest on (violation_start.guarantee of Subsystem.AUTOPILOT)

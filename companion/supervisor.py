@@ -24,16 +24,18 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from contracts.online_planner import Disc, offboard_cap
-from contracts.stop import braking_decel, measured_stopping_distance, ramp_accel, stop_dead_time
+from contracts.stop import braking_decel, measured_stopping_distance, ramp_accel, slowdown_speed, stop_dead_time
 from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
+from .authority import Late
 from .estimators import DodEstimate
 from .frozen import quick_init
 from .guidance import inflated
 from .states import (AT_REST_M_S, BRAKE_STOP_CAUSES, BRAKE_SWITCH, RAMP_FOLLOWED, FAILSAFE_CAUSES, Cause, State,  # noqa: F401 (re-exported)
                      Subsystem)
 
+STOP_MODES = ("hold", "land")  # the daemon's Hold, and its fallback where Hold is refused (companion/authority.py)
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
 # the approach ramp (`ApproachRamp`): a ramp command standing this far above speed + ramp is lowered at once …
 RAMP_SLACK_M_S = 0.05
@@ -42,6 +44,11 @@ RAMP_A_TOL = 0.3  # [m/s²] … and the stop contract's Hold-start acceleration 
 RAMP_WINDOW_S = 0.3  # [s] the acceleration the check judges is Δv/Δt over this long
 RAMP_REARM_S = 3.0  # [s] the ramp followed this long (measured) before its bound is in force, at first and again
 RAMP_V_TOL = (1.03, 0.15)  # the speed flown is never above 1.03 × the speed commanded + 0.15 m/s (tracking, wind)
+# [s] a lower limit is flown within the autopilot's slow-down (`slowdown_speed`) from its dead time plus this: the
+# vehicle's velocity lags its autopilot's smooth slow-down by its velocity loop (PX4 MPC_XY_VEL_P_ACC 1.8/s: ~0.5 s)
+SLOWDOWN_LAG_S = 0.6
+SLOWDOWN_NEAR_M_S = 0.3  # [m/s] flying within this of the old limit's tolerance when a lower one comes: complying
+LIMIT_FLOWN = "a speed limit is flown within the autopilot's slow-down"  # the delivery subsystem's guarantee
 
 
 @quick_init
@@ -76,6 +83,7 @@ class Inputs:
     taken_over: bool = False  # someone else changed the mode this cycle (the authority's one rule: stand down)
     accel_along: float = math.nan  # the horizontal acceleration flown along the velocity over RAMP_WINDOW_S (its
     # magnitude below 0.5 m/s) [m/s²], NaN: not measured yet
+    delivery_late: Late | None = None  # a mode command past its delivery budget (companion/authority.py)
 
 
 @dataclass
@@ -229,14 +237,16 @@ class Supervisor:
 
     def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
                  loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
-                 e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None):
+                 e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None,
+                 t_cmd_s: float = 0.0):
         """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
         `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold); `late_allowance_s`: the
         jitter allowance t_react budgets beside one loop period (`timeouts.cycle_jitter_s`); `policy`: the speed
         policy flown (default `ContractSpeed()`; a campaign's baselines and negative controls: companion/baselines.py);
         `e_tr_window_s`, `e_tr_floor_m`: the window E_tr is measured over and the floor it never reads below
         (`contract.e_tr_window_s`, `contract.e_tr_floor_m`), so also what its prediction is judged over;
-        `ramp_m_s`: governor mode's approach ramp (`governor.approach_ramp_m_s`, `ApproachRamp`), None: none."""
+        `ramp_m_s`: governor mode's approach ramp (`governor.approach_ramp_m_s`, `ApproachRamp`), None: none;
+        `t_cmd_s`: the command-delivery budget the stop contract adds to its dead time (`delivery.t_cmd_s`)."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
@@ -258,13 +268,16 @@ class Supervisor:
         self._last_in_air = False
         self._linked = False  # an autopilot heartbeat has been seen (the first link is "up", not "restored")
         self._last_seq = -1
-        self._over_since: float | None = None
+        # above the limit since: (when, speed, limit, acceleration, the most it may fly) then
+        self._over_since: tuple[float, float, float, float, float] | None = None
+        self._recent_limits: deque[tuple[float, float]] = deque()  # (t, limit): the limits of the last dead time
+        self._not_flown: tuple[float, float] | None = None  # (allowed, flown): the limit not flown this cycle
+        self.t_cmd = t_cmd_s
         self._suppressed: set[Cause] = set()  # hold causes stood down from after an override
         self._violations: dict[str, dict] = {}
         self._dod_swept = False  # the last D_od was the swept coverage (dod_coverage events)
         self._no_limit_mode_warned: str | None = None
         self._held_for: list[Cause] = []  # the causes of the daemon's current Hold
-        self._t_hold = -math.inf
         self._would: tuple[Cause, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
@@ -347,6 +360,12 @@ class Supervisor:
             info0 = self._violations.pop(key)
             d.events.append(("violation_end", {k: info0[k] for k in ("subsystem", "guarantee")}))
 
+    @property
+    def _limit_dead_time(self) -> float:
+        """[s] from a speed command sent to the vehicle's speed following the autopilot's slow-down: reaction, the
+        switch, the delivery budget and the velocity loop's lag (SLOWDOWN_LAG_S)."""
+        return stop_dead_time(self.table.vehicle) + self.t_cmd + SLOWDOWN_LAG_S
+
     def _braking_decel(self, thrust_ratio: float) -> float:
         """The autopilot's braking deceleration at this thrust ratio (`contracts.stop.braking_decel` of the
         table's vehicle, a pure function of it): one evaluation per value, as `e_tr_pred_flown`."""
@@ -359,7 +378,8 @@ class Supervisor:
         if self._stop_at is None or self._stop_at[:2] != (v, thrust_ratio):
             veh = self.table.vehicle
             a = self._braking_decel(min(thrust_ratio, veh.thrust_ratio_range[1]))
-            d = measured_stopping_distance(v, a, veh.braking.jerk_max_m_s3, stop_dead_time(veh)) if a > 0 else math.inf
+            t_dead = stop_dead_time(veh) + self.t_cmd
+            d = measured_stopping_distance(v, a, veh.braking.jerk_max_m_s3, t_dead) if a > 0 else math.inf
             self._stop_at = (v, thrust_ratio, d)
         return self._stop_at[2]
 
@@ -415,7 +435,7 @@ class Supervisor:
             if len(self._omega_at) >= 4:  # this cycle's few lookups (with and without the brake, the ramp)
                 self._omega_at.clear()
             om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
-                                                        a0_max=a0_max)
+                                                        a0_max=a0_max, t_cmd=self.t_cmd)
         return om
 
     # ------------------------------------------------------------------ the cycle
@@ -513,6 +533,13 @@ class Supervisor:
                             subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
                             assumed=e_pred, observed=i.e_tr_measured, action="E_tr raised to the measured value"))
 
+        # command delivery: a mode command past its budget (the mode authority's judgement)
+        late_cmd = i.delivery_late
+        self._violation(d, Subsystem.DELIVERY, late_cmd is not None, lambda: dict(
+                        subsystem=Subsystem.DELIVERY, guarantee=late_cmd.guarantee, assumed=late_cmd.assumed,
+                        observed=late_cmd.observed, action=late_cmd.action),
+                        text=(2, f"CG: delivery violation: {late_cmd.action}") if late_cmd is not None else None)
+
         # failsafes, in order of what can still be done
         if not i.link_ok:
             self._set_state(d, State.FAILSAFE, "autopilot heartbeat lost" if self._linked else "no autopilot heartbeat yet")
@@ -525,12 +552,17 @@ class Supervisor:
         if not (i.engaged and flying) or self.mode == "shadow":
             self.limit.reset()
             self._over_since = None
+            self._recent_limits.clear()
             self._set_state(d, State.STANDBY, "shadow mode" if self.mode == "shadow" else
                             ("not engaged" if not i.engaged else "not flying"))
             d.v_cmd = None
             return self._shadow(d, i) if self.mode == "shadow" else d
 
         causes = self._causes(i, om)
+        flown = self._not_flown
+        self._violation(d, "limit_flown", flown is not None, lambda: dict(
+                        subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
+                        action="hold"))
         # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
         causes_now = {c for c, on in causes.items() if on}
         self._suppressed = {c for c in self._suppressed if c in causes_now or
@@ -538,12 +570,13 @@ class Supervisor:
         fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
 
         v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
+        self._recent_limits.append((i.t, v_limit))
+        while i.t - self._recent_limits[0][0] > self._limit_dead_time:
+            self._recent_limits.popleft()
         d.v_cmd = v_limit
         if fresh:
-            unanswered = self.state == State.HOLDING and i.mode != "hold" and i.t - self._t_hold > 1.0
-            if self.state != State.HOLDING or unanswered:  # (re)send Hold: new, or not taken after 1 s
+            if self.state != State.HOLDING:  # Hold, once: the mode authority delivers it
                 d.hold = True
-                self._t_hold = i.t
                 self._held_for = list(fresh)
                 said = [(c, "hold") for c in fresh]
             else:  # a cause that arrives while already holding is logged too (issue 16: it was silent)
@@ -554,7 +587,7 @@ class Supervisor:
             d.hold_causes = list(fresh)
             self._set_state(d, State.HOLDING, fresh[0])
             return d
-        if self.state == State.HOLDING and (i.mode == "hold" and i.mode_by_daemon or self.latched and i.mode == "offboard"):
+        if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
             return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
         self._set_state(d, State.ACTIVE, "limit in force")
 
@@ -607,6 +640,30 @@ class Supervisor:
                         action=f"{what} {measured:.2f} {unit} above the ramp's {allowed:.2f}: the stop contract for "
                                "any approach for the rest of the flight, a lower limit"))
 
+    def _judge_limit(self, i: Inputs, over: bool) -> tuple[float, float] | None:
+        """The speed limit flown (DESIGN.md §1, delivery): (allowed, flown) when the vehicle flies faster than a
+        compliant autopilot could after the limit was sent (`slowdown_speed` from when it was first seen above
+        it), None when it does not."""
+        if not over:
+            self._over_since = None
+            return None
+        # the slow-down starts when the vehicle is first seen above the limit, and again when the limit drops
+        # below the one it was still about flying (a compliant autopilot starts a new slow-down); never while it
+        # was well above the old limit (one that ignores the limits would never be caught)
+        since = self._over_since
+        if since is None or self.limit.value < since[2] - 0.05 and \
+                i.ground_speed <= 1.05 * since[2] + self.margin + SLOWDOWN_NEAR_M_S:
+            # from the speed and acceleration flown then, never above the highest limit it may still be acting
+            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target)
+            a0 = i.accel_along if math.isfinite(i.accel_along) else 0.0
+            cap = max([i.ground_speed] + [v for _, v in self._recent_limits])
+            self._over_since = (i.t, i.ground_speed, self.limit.value, a0, cap)
+        t0, v0, _, a0, cap = self._over_since
+        a = max(self._braking_decel(min(i.thrust_ratio, 1.0)), 0.1)
+        allowed = min(cap, slowdown_speed(v0, self.limit.value, a, self.table.vehicle.braking.jerk_max_m_s3,
+                                          self._limit_dead_time, i.t - t0, a0))
+        return (allowed, i.ground_speed) if i.ground_speed > 1.05 * allowed + self.margin else None
+
     def _causes(self, i: Inputs, om: Omega) -> dict[Cause, bool]:
         """Every reason to stop now (each edge-triggered after an override)."""
         isfinite = math.isfinite
@@ -615,14 +672,7 @@ class Supervisor:
         # a tracking overshoot of a few per cent is the controller's business (E_tr), not a broken limit
         over = (finite and self.limit.value is not None
                 and i.ground_speed > 1.05 * self.limit.value + self.margin)
-        if over and i.limit_applies:
-            self._over_since = i.t if self._over_since is None else self._over_since
-        else:
-            self._over_since = None
-        settle = 0.0
-        if self._over_since is not None:  # time a compliant autopilot needs to slow to the limit
-            a = self._braking_decel(min(i.thrust_ratio, 1.0)) if finite else 1.0
-            settle = (i.ground_speed - self.limit.value) / max(a, 0.1) + stop_dead_time(self.table.vehicle) + 1.0
+        self._not_flown = self._judge_limit(i, over and i.limit_applies)
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
         obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
@@ -632,7 +682,7 @@ class Supervisor:
             Cause.NO_SAFE_SPEED: om.v_max < MIN_SPEED_CMD,
             Cause.LATE: i.late_s > self.late_hold_s,
             Cause.OBSTACLE: obstacle,
-            Cause.NOT_IN_FORCE: self._over_since is not None and i.t - self._over_since > settle,
+            Cause.NOT_IN_FORCE: self._not_flown is not None,
         }
         if self.contract == "avoid" or not self.policy.stop_hold:
             del causes[Cause.OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed

@@ -210,6 +210,19 @@ def stop_path_budget(v: float, stop_decel: float, jerk: float) -> float:
     return STOP_BUDGET * braking_distance(v, stop_decel, jerk) if stop_decel > 0 else 0.0
 
 
+def slowdown_speed(v0: float, v_lim: float, a: float, j: float, t_dead: float, tau: float, a0: float = 0.0) -> float:
+    """The fastest speed an autopilot that obeys a lower speed limit `v_lim` may still fly `tau` after it was seen
+    at speed `v0` accelerating at `a0` (≥ 0): through the dead time still accelerating, then its acceleration turned
+    at jerk `j` down to the deceleration `a` (a jerk-limited slow-down, the stop contract's model of the autopilot's
+    braking, contracts/stop.py `braking_distance_from`); never below `v_lim`."""
+    a0 = max(a0, 0.0)
+    if tau <= t_dead:
+        return max(v0 + a0 * max(tau, 0.0), v_lim)
+    s, s1 = tau - t_dead, (a0 + a) / j  # s1: the time to turn the acceleration from a0 to −a
+    v = v0 + a0 * t_dead + (a0 * s - 0.5 * j * s * s if s <= s1 else a0 * s1 - 0.5 * j * s1 * s1 - a * (s - s1))
+    return max(v, v_lim)
+
+
 def stop_dead_time(vehicle: Vehicle) -> float:
     """Reaction time plus the switch to Hold/Brake."""
     return vehicle.t_react_s + vehicle.braking.hold_switch_s
@@ -222,17 +235,17 @@ def stop_dead_time(vehicle: Vehicle) -> float:
 RECOVERY_SHARE = 0.7
 
 
-def recovery_brake(vehicle: Vehicle, thrust_ratio: float, loop_dt: float, tilt: float | None = None
-                   ) -> tuple[float, float, float]:
+def recovery_brake(vehicle: Vehicle, thrust_ratio: float, loop_dt: float, tilt: float | None = None,
+                   t_cmd: float = 0.0) -> tuple[float, float, float]:
     """(a, j, t_r) of the recovery brake's stop contract, for `approach_stop_speed`: RECOVERY_SHARE of the airframe's
     deceleration and of `stop_jerk` (never below the autopilot's own, `braking_decel` and its jerk: a brake that
     flies no harder is not flown), and its dead time: reaction, one loop period (the first setpoint goes out a cycle
     before OFFBOARD / GUIDED is asked: PX4 refuses offboard without a stream) and the switch (`hold_switch_s`:
-    command round trip and mode switch). The joint bound's approach (speed ≤ V_max, acceleration ≤ a, jerk ≤ j)
+    command round trip and mode switch; `t_cmd`: the command-delivery budget). The joint bound's approach (speed ≤ V_max, acceleration ≤ a, jerk ≤ j)
     covers the autopilot's own approach, whose acceleration and jerk are no larger."""
     a = max(RECOVERY_SHARE * airframe_decel(vehicle, thrust_ratio, tilt), braking_decel(vehicle, thrust_ratio, tilt))
     j = max(RECOVERY_SHARE * stop_jerk(vehicle), vehicle.braking.jerk_max_m_s3)
-    return a, j, stop_dead_time(vehicle) + loop_dt
+    return a, j, stop_dead_time(vehicle) + loop_dt + t_cmd
 
 
 def v_stop(vehicle: Vehicle, d_od: float, r_obst: float, e_tr: float, thrust_ratio: float,

@@ -674,18 +674,19 @@ class ContractTable:
             return react.best(c0, r_k, top + 1, self._law_speed(row, k, c0, r_k), lam)
         return react.best(c0, r_k, top, react.at(c0, r_k, top, 1.0 if lam is None else float(lam[top])), lam)
 
-    def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None) -> float:
-        """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given."""
+    def v_stop(self, d_od, r_obst, e_tr, thrust_ratio, tilt=None, t_cmd=0.0) -> float:
+        """Stop-contract speed (closed form, contracts/stop.py), at the autopilot's tilt unless given; `t_cmd`: the
+        command-delivery budget [s] added to the dead time (the Hold re-sent until it arrives)."""
         tilt = self._tilt_max if tilt is None else tilt
         if self._bad_inputs(d_od, r_obst, e_tr, thrust_ratio, tilt):
             return 0.0
-        return self._stop(d_od, e_tr, self._hold_brake(thrust_ratio, tilt))
+        return self._stop(d_od, e_tr, self._hold_brake(thrust_ratio, tilt, t_cmd))
 
-    def _hold_brake(self, thrust_ratio: float, tilt: float) -> tuple[float, float, float]:
+    def _hold_brake(self, thrust_ratio: float, tilt: float, t_cmd: float = 0.0) -> tuple[float, float, float]:
         """(a, j, t_r) of the autopilot's Hold: its braking deceleration at this thrust and tilt, its jerk, the
-        dead time (contracts/stop.py)."""
+        dead time (contracts/stop.py) with the command-delivery budget `t_cmd`."""
         return (braking_decel(self.vehicle, min(thrust_ratio, self._tr_hi), tilt), self.vehicle.braking.jerk_max_m_s3,
-                self._t_dead)
+                self._t_dead + t_cmd)
 
     def _stop(self, d_od: float, e_tr: float, brake: tuple[float, float, float], a0_max: float = math.inf) -> float:
         """The joint bound's speed (`approach_stop_speed`) for the stop `brake` = (a, j, t_r), the approach's
@@ -701,14 +702,15 @@ class ContractTable:
 
     # ---- operating point Ω
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None, recovery_dt=None,
-              a0_max=None) -> Omega:
+              a0_max=None, t_cmd=0.0) -> Omega:
         """Ω = (V_max, tilt) maximising V_max subject to Γ ≤ 0, with e_tr = max(measured, E_tr_pred(V_max)).
 
         `tilt` caps the tilt (default: the vehicle's limit); the avoid contract picks the best grid tilt
         up to it, the stop contract brakes at it. `recovery_dt` (the stop contract): the daemon's recovery brake
         stops, its loop period that [s] (contracts/stop.py `recovery_brake`); None: the autopilot's Hold.
         `a0_max` (the stop contract): the approach's acceleration is held below it (the governor's approach ramp,
-        contracts/stop.py `ramp_accel`); None: any approach the autopilot's smoothing flies.
+        contracts/stop.py `ramp_accel`); None: any approach the autopilot's smoothing flies. `t_cmd` (the stop
+        contract): the command-delivery budget [s], added to the stop's dead time.
         Safe-first: any doubt → 0.
         """
         tilt = self._tilt_max if tilt is None else tilt
@@ -719,7 +721,7 @@ class ContractTable:
             return Omega(contract, 0.0, tilt if math.isfinite(tilt) else 0.0, e_tr_meas, 0.0, 0.0, bad)
         if contract == "avoid":
             return self._omega_avoid(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
-        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max)
+        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max, t_cmd)
 
     def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt) -> Omega:
         top, k = self._avoid_cells(tilt, thrust_ratio)
@@ -776,9 +778,10 @@ class ContractTable:
         v, j, lim_j = crossing_fixed_point(ev, lim, decide)
         return v, max(col[j], e_meas), lim_j
 
-    def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt, recovery_dt=None, a0_max=None) -> Omega:
+    def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt, recovery_dt=None, a0_max=None, t_cmd=0.0) -> Omega:
         tilt, tr = min(tilt, self._tilt_max), min(thrust_ratio, self._tr_hi)
-        brake = self._hold_brake(tr, tilt) if recovery_dt is None else recovery_brake(self.vehicle, tr, recovery_dt, tilt)
+        brake = self._hold_brake(tr, tilt, t_cmd) if recovery_dt is None else \
+            recovery_brake(self.vehicle, tr, recovery_dt, tilt, t_cmd)
         a0_max = math.inf if a0_max is None else a0_max
         if self._stop_slot is None:
             v = self._stop(d_od, e_meas, brake, a0_max)
@@ -794,7 +797,7 @@ class ContractTable:
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
         return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)
 
-    def gamma(self, v_max, d_od, r_obst, e_tr_meas, thrust_ratio, tilt=None, contract="avoid") -> float:
+    def gamma(self, v_max, d_od, r_obst, e_tr_meas, thrust_ratio, tilt=None, contract="avoid", t_cmd=0.0) -> float:
         """Γ = V_max − V_safe at a proposed V_max (e_tr = max(measured, E_tr_pred(V_max)))."""
         tilt = self._tilt_max if tilt is None else tilt
         e = max(e_tr_meas, self.e_tr_pred(v_max, tilt, thrust_ratio, contract))
@@ -802,4 +805,4 @@ class ContractTable:
             return math.inf
         if contract == "avoid":
             return float(v_max - self.v_safe(d_od, r_obst, e, tilt, thrust_ratio))
-        return float(v_max - self.v_stop(d_od, r_obst, e, thrust_ratio, tilt))
+        return float(v_max - self.v_stop(d_od, r_obst, e, thrust_ratio, tilt, t_cmd))

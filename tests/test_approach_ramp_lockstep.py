@@ -33,8 +33,9 @@ def limits(rig: Rig) -> tuple[float, float]:
     full thrust: the open-air cruise before the column is seen)."""
     t, e = rig.daemon.table, rig.daemon.cfg.contract.e_tr_floor_m
     a0 = ramp_accel(rig.daemon.table.vehicle.braking.jerk_max_m_s3, RAMP + RAMP_SLACK_M_S) + RAMP_A_TOL
-    return (t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop").v_max,
-            t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", a0_max=a0).v_max)
+    t_cmd = rig.daemon.cfg.delivery.t_cmd_s
+    return (t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", t_cmd=t_cmd).v_max,
+            t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", a0_max=a0, t_cmd=t_cmd).v_max)
 
 
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])

@@ -11,7 +11,8 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-from companion.authority import HOLD, ModeAuthority, ModeRequest, Requester  # noqa: E402
+from companion.authority import (GUARANTEE_ANSWERED, HOLD, Delivery, ModeAuthority, ModeRequest,  # noqa: E402
+                                 Requester)
 from companion.console import ConsoleLog  # noqa: E402
 from companion.flights import Recorder  # noqa: E402
 from companion.mavlink_out import text_chunks  # noqa: E402
@@ -39,16 +40,88 @@ def test_the_daemons_own_mode_is_told_apart_from_someone_elses():
     assert v.event is None and not v.taken_over
 
 
-def test_a_command_never_taken_expires():
-    a = ModeAuthority("brake")
+def test_a_command_is_re_sent_every_cycle_until_the_autopilot_answers_it():
+    a = ModeAuthority("hold", t_cmd_s=0.1, t_mode_s=1.2)
+    a.observe(0.0, "mission", True)
+    sends = [a.arbitrate(0.0, [ModeRequest(HOLD, Requester.FAILSAFE)])]
+    for k in range(1, 4):  # lost on the link: nothing answers, so every cycle sends it again
+        v = a.observe(0.02 * k, "mission", True)
+        assert v.late is None and v.settled is None
+        sends.append(a.arbitrate(0.02 * k, [ModeRequest(HOLD, Requester.FAILSAFE)]))  # asked again: the same one
+    assert all(c is not None and c.mode == "hold" for c in sends)
+    a.answer(0)  # MAV_RESULT_ACCEPTED: delivered, so no more sends while the mode is awaited
+    assert a.observe(0.08, "mission", True).settled is None and a.arbitrate(0.08, []) is None
+    v = a.observe(0.10, "hold", True)
+    assert v.by_daemon and v.settled.outcome == Delivery.SHOWN and v.late is None
+    assert v.events[0][1]["sends"] == 4 and v.events[0][1]["outcome"] == "shown"
+
+
+def test_a_command_unanswered_past_t_cmd_breaks_the_delivery_guarantee():
+    a = ModeAuthority("hold", t_cmd_s=0.1, t_mode_s=1.2)
     a.observe(0.0, "mission", True)
     a.arbitrate(0.0, [ModeRequest(HOLD, Requester.FAILSAFE)])
-    assert a.commanded[0] == "brake"  # the adapter's name of Hold
-    assert not a.observe(2.9, "mission", True).by_daemon and a.commanded is not None
-    a.observe(3.1, "mission", True)
-    assert a.commanded is None
-    v = a.observe(4.0, "brake", True)  # Brake long after: not ours any more
-    assert v.taken_over
+    assert a.observe(0.1, "mission", True).late is None  # within its budget
+    late = a.observe(0.12, "mission", True).late
+    assert late.guarantee == GUARANTEE_ANSWERED and late.assumed == 0.1 and late.observed > 0.1
+    assert a.arbitrate(0.12, []) is None  # past its budget: re-sent every RESEND_LATE_S, not every cycle
+    assert a.arbitrate(0.2, []).send == 2 and a.arbitrate(0.22, []) is None and a.arbitrate(0.4, []).send == 3
+    assert a.observe(0.42, "hold", True).late is None  # shown: on time again
+
+
+def test_a_refused_hold_takes_land_and_a_refused_land_is_given_up():
+    a = ModeAuthority("brake", hold_fallbacks=("land",))
+    a.observe(0.0, "mission", True)
+    a.arbitrate(0.0, [ModeRequest(HOLD, Requester.FAILSAFE)])
+    a.answer(4)  # MAV_RESULT_FAILED
+    v = a.observe(0.02, "mission", True)
+    assert v.settled is None and v.events[0][1]["outcome"] == "fallback" and v.events[0][1]["next"] == "land"
+    cmd = a.arbitrate(0.02, [])
+    assert (cmd.mode, cmd.what, cmd.by) == ("land", "land", Requester.FAILSAFE)
+    a.answer(2)  # MAV_RESULT_DENIED
+    v = a.observe(0.04, "mission", True)
+    assert v.settled.outcome == Delivery.REFUSED and v.settled.what == HOLD and "answered 2" in v.settled.why
+    assert v.late is not None and a.arbitrate(0.04, []) is None  # given up, and said until someone decides
+    assert a.observe(0.5, "position", True).late is None  # the pilot took over
+
+
+def test_a_mode_not_shown_in_t_mode_is_not_the_daemons_when_it_comes_later():
+    a = ModeAuthority("hold", t_mode_s=1.2, hold_fallbacks=())
+    a.observe(0.0, "mission", True)
+    a.arbitrate(0.0, [ModeRequest(HOLD, Requester.SHUTDOWN)])
+    a.answer(0)
+    assert a.observe(1.2, "mission", True).settled is None
+    v = a.observe(1.22, "mission", True)
+    assert v.settled.outcome == Delivery.NOT_SHOWN and "not shown within 1.2 s" in v.settled.why
+    assert a.observe(4.0, "hold", True).taken_over  # Hold long after: not ours any more
+
+
+def test_a_mode_is_not_judged_while_the_link_is_down():
+    a = ModeAuthority("hold", t_mode_s=1.2)
+    a.observe(0.0, "mission", True)
+    a.arbitrate(0.0, [ModeRequest(HOLD, Requester.FAILSAFE)])
+    assert a.observe(2.0, "other", False).settled is None  # the link is lost: the mode is unknown
+    assert a.observe(2.02, "mission", True).settled is None  # back: 1.2 s from now to show it
+    assert a.observe(3.24, "mission", True).settled.outcome == Delivery.NOT_SHOWN
+
+
+def test_a_lower_priority_never_displaces_a_command_on_its_way_and_the_same_one_keeps_its_clock():
+    a = ModeAuthority("hold", t_cmd_s=0.1)
+    a.observe(0.0, "mission", True)
+    a.arbitrate(0.0, [ModeRequest(HOLD, Requester.FAILSAFE)])
+    a.observe(0.02, "mission", True)
+    assert a.arbitrate(0.02, [ModeRequest("offboard", Requester.OFFBOARD_ENTRY)]).mode == "hold"
+    a.observe(0.04, "mission", True)
+    assert a.arbitrate(0.04, [ModeRequest(HOLD, Requester.SHUTDOWN)]).by == Requester.FAILSAFE
+    assert a.observe(0.12, "mission", True).late is not None  # 0.12 s since the first send, not since the last ask
+
+
+def test_someone_elses_mode_change_ends_a_delivery_never_fought():
+    a = ModeAuthority("hold")
+    a.observe(0.0, "mission", True)
+    a.arbitrate(0.0, [ModeRequest(HOLD, Requester.FAILSAFE)])
+    v = a.observe(0.02, "position", True)
+    assert v.taken_over and v.late is None
+    assert a.arbitrate(0.04, []) is None
 
 
 @pytest.mark.parametrize("winner,losers", [
@@ -62,7 +135,9 @@ def test_arbitration_by_priority(winner, losers):
     reqs = [ModeRequest(modes.get(r, HOLD), r) for r in losers] + [ModeRequest(modes.get(winner, HOLD), winner)]
     a = ModeAuthority("hold")
     assert a.arbitrate(1.0, reqs).by == winner
-    assert a.arbitrate(1.0, []) is None
+    assert a.arbitrate(1.02, []).by == winner  # on its way: re-sent
+    a.answer(0)
+    assert a.arbitrate(1.04, []) is None  # answered: nothing more to send
 
 
 def test_statustext_chunks_end_at_words():

@@ -202,9 +202,10 @@ def machine(plan):
     return m, leg, m.waypoint(leg)
 
 
-def step(m, t, wp, leg, *, dx=0.0, mode="mission", speed=2.0, active=True, safety=None, taken_over=False):
+def step(m, t, wp, leg, *, dx=0.0, mode="mission", speed=2.0, active=True, safety=None, taken_over=False,
+         undelivered=None):
     return m.step(t, mode=mode, taken_over=taken_over, mission_seq=leg.seq_plan, x=wp[0] - dx, y=wp[1], speed=speed,
-                  telemetry_ok=True, active=active, safety=safety)
+                  telemetry_ok=True, active=active, safety=safety, undelivered=undelivered)
 
 
 def test_machine_waits_for_the_distance_and_a_safety_hold_wins(plan):
@@ -231,7 +232,8 @@ def test_machine_rest_then_mission_and_a_refused_hold(plan):
     assert a.events[0][1]["status"] == "resumed" and a.events[0][1]["at_rest"]
     m2, leg2, wp2 = machine(plan)
     assert step(m2, 0.0, wp2, leg2, dx=0.5).command == "hold"
-    a = step(m2, 3.5, wp2, leg2, dx=0.1)  # the autopilot never took Hold
+    assert not step(m2, 3.5, wp2, leg2, dx=0.1).events  # not shown yet: the mode authority's to judge
+    a = step(m2, 3.52, wp2, leg2, dx=0.1, undelivered="hold not shown within 1.2 s")  # the autopilot never took Hold
     assert a.events and a.events[0][1]["status"] == "abandoned" and "did not take Hold" in a.events[0][1]["reason"]
 
 

@@ -34,7 +34,8 @@ def test_governor_stops_short_of_a_column_revealed_at_sensor_range(personality, 
     holds = [e for e in rig.log.named("hold_trigger")]
     assert holds and holds[0]["cause"] == "obstacle inside the stop distance"
     # it really cruised at the contract's limit before the obstacle appeared
-    v_lim = rig.daemon.table.v_stop(D_SENSOR, 1.0, rig.daemon.cfg.contract.e_tr_floor_m, 1.0)
+    v_lim = rig.daemon.table.v_stop(D_SENSOR, 1.0, rig.daemon.cfg.contract.e_tr_floor_m, 1.0,
+                                    t_cmd=rig.daemon.cfg.delivery.t_cmd_s)
     fast = max(s["ground_speed"] for s in rig.log.states if s["t"] < holds[0]["t"])
     assert fast > 0.85 * v_lim
     assert fast <= max(s["v_cmd"] or 0 for s in rig.log.states) + 0.3
@@ -101,7 +102,7 @@ def test_hidden_fog_is_a_navigation_violation_that_lowers_dod():
     v = [e for e in rig.log.named("violation_start") if e["subsystem"] == "navigation"]
     assert v, "a late first detection must be logged as a broken navigation guarantee"
     assert v[0]["assumed"] == pytest.approx(D_SENSOR, abs=0.05) and v[0]["observed"] < 3.2
-    assert rig.log.named("hold_trigger")  # and it still brakes
+    assert rig.log.named("hold_trigger") or rig.log.named("failsafe")  # and it still brakes
     dods = [s["d_od"] for s in rig.log.states if s["t"] > v[0]["t"] + 0.1][:20]
     assert max(dods) < 3.2
 

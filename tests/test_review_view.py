@@ -261,7 +261,7 @@ def governed(tmp_path_factory):
 def test_a_governed_flights_holds_failsafes_and_stand_down_are_marked_where_the_daemon_logged_them(governed):
     records, rep, samples = governed
     ev = [r for r in records if r.get("kind") == "event"]
-    holds = [e["t"] for e in ev if e["event"] == "command" and e.get("cmd") == "hold"]
+    holds = [e["t"] for e in ev if e["event"] == "command" and e.get("cmd") == "hold" and "send" not in e]
     lost = [e["t"] for e in ev if e["event"] == "state_change" and e["to"] == "failsafe"]
     down = [e["t"] for e in ev if e["event"] == "link" and e["status"] == "down"]
     others = [e["t"] for e in ev if e["event"] == "mode_change" and e["by"] == "other" and e["t"] > 12.0]

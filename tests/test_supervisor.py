@@ -74,9 +74,9 @@ def test_obstacle_inside_the_stop_distance_holds_and_authority_is_respected():
     d = s.step(replace(BASE, t=0.02, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
     assert d.hold and d.state == "holding"
     assert any(n == "hold_trigger" and f["cause"] == "obstacle inside the stop distance" for n, f in d.events)
-    # not taken within 1 s: sent again
+    # not taken within 1 s: asked once only (the mode authority re-sends it: companion/authority.py)
     d = s.step(replace(BASE, t=1.1, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
-    assert d.hold and d.state == "holding"
+    assert not d.hold and d.state == "holding"
     # while in the daemon's Hold nothing more is commanded
     d = s.step(replace(BASE, t=1.14, mode="hold", mode_by_daemon=True, ground_speed=0.5, dod=dod(8.0, obstacle=2.0)))
     assert not d.hold and d.state == "holding"

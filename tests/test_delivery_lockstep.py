@@ -1,0 +1,165 @@
+"""Command delivery as a contracted subsystem, flown in lock-step against the SITL (real MAVLink bytes): the mode
+authority re-sends a Hold every cycle until the autopilot answers or shows it, the stop contract budgets that time
+(`delivery.t_cmd_s`), a speed limit that is not flown is caught by the autopilot's own slow-down, and a Hold
+refused takes Land. Each case has a negative control that collides: the test can fail."""
+
+from __future__ import annotations
+
+import functools
+import os
+
+import pytest
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
+
+from companion import supervisor as supervisor_module  # noqa: E402
+from companion.authority import GUARANTEE_ANSWERED, GUARANTEE_SHOWN, Delivery, ModeAuthority  # noqa: E402
+from companion.supervisor import LIMIT_FLOWN  # noqa: E402
+from sitl_harness.autopilot import DENIED  # noqa: E402
+from tests import test_daemon_lockstep as gov  # noqa: E402
+from tests.lockstep import Rig  # noqa: E402
+
+CELLS = [(v, p) for v in ("mambo", "x500") for p in ("px4", "ardupilot")]
+
+
+def drop_holds(rig: Rig, k: int) -> list[float]:
+    """The daemon's first `k` DO_SET_MODE commands that ask for its Hold are lost on the link (the datagram never
+    reaches the autopilot); the times they were sent."""
+    hold = rig.daemon.adapter.set_mode_params(rig.daemon.adapter.hold_mode(), True)[1:3]
+    parser = mav.MAVLink(None)
+    parser.robust_parsing = True
+    write, dropped = rig.conn._write, []
+
+    def lossy(data: bytes) -> None:
+        msgs = parser.parse_buffer(data) or []
+        if len(dropped) < k and any(m.get_type() == "COMMAND_LONG" and m.command == mav.MAV_CMD_DO_SET_MODE
+                                    and (m.param2, m.param3) == hold
+                                    for m in msgs):
+            dropped.append(rig.sim.time_s)
+            return
+        write(data)
+
+    rig.conn._write = lossy
+    return dropped
+
+
+class ResendAfterOneSecond(ModeAuthority):
+    """The negative control: a mode command on its way re-sent only a second after the last (before the mode
+    authority owned delivery, the supervisor re-sent an unanswered Hold after 1 s)."""
+
+    def arbitrate(self, t, requests):
+        p = self.pending
+        if p is not None and p.state == Delivery.SENDING and p.sends and t - p.t_sent < 1.0 and \
+                all(r.mode == p.asked for r in requests):
+            return None
+        return super().arbitrate(t, requests)
+
+
+def column_flight(vehicle: str, personality: str, lost: int = 0, config: dict | None = None, faults=(),
+                  authority=None) -> tuple[Rig, list[float]]:
+    """The column flight of tests/test_daemon_lockstep.py (cruise 8 m/s, sensor 6 m, column at 28 m), its first
+    `lost` Holds lost on the link."""
+    rig = Rig(gov.column_scenario(1, vehicle=vehicle, faults=list(faults)), personality, config=config)
+    if authority is not None:
+        cyc = rig.daemon.cycle
+        cyc.authority = authority(cyc.authority.hold_mode, cyc.authority.t_cmd_s, cyc.authority.t_mode_s,
+                                  cyc.authority.hold_fallbacks)
+    dropped = drop_holds(rig, lost)
+    gov.fly(rig, 25.0)
+    return rig, dropped
+
+
+@functools.cache
+def lost_holds(vehicle: str, personality: str, lost: int) -> tuple[Rig, list[float]]:
+    return column_flight(vehicle, personality, lost)
+
+
+@pytest.mark.parametrize("lost", [1, 2, 3])
+@pytest.mark.parametrize("vehicle,personality", CELLS)
+def test_holds_lost_on_the_link_are_re_sent_and_the_vehicle_stops_short(vehicle, personality, lost):
+    rig, dropped = lost_holds(vehicle, personality, lost)
+    assert len(dropped) == lost  # the faults happened
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    holds = [e for e in rig.log.named("command") if e["cmd"] == "hold"]
+    assert holds[0]["t"] == dropped[0]  # the first Hold was the one lost
+    # re-sent every cycle: the one that arrived went out `lost` cycles after the first
+    delivery = [e for e in rig.log.named("delivery") if e["cmd"] == "hold"][0]
+    assert delivery["outcome"] == "shown" and delivery["sends"] == lost + 1
+    assert delivery["waited_s"] <= rig.daemon.cfg.delivery.t_cmd_s + 0.02 + 1e-9
+    # inside the budget: no delivery violation
+    assert not [e for e in rig.log.named("violation_start") if e["subsystem"] == "delivery"]
+
+
+@pytest.mark.parametrize("vehicle,personality", CELLS)
+def test_negative_control_one_lost_hold_re_sent_a_second_later_collides(vehicle, personality):
+    """Today's behaviour before the mode authority owned delivery: the contract budgeting no loss, a lost Hold
+    re-sent a second later. It hits the column."""
+    rig, dropped = column_flight(vehicle, personality, 1, config={"delivery": {"t_cmd_s": 0.0}},
+                                 authority=ResendAfterOneSecond)
+    holds = [e["t"] for e in rig.log.named("command") if e["cmd"] == "hold"]
+    assert dropped and holds[1] - holds[0] >= 1.0
+    assert rig.truth["collisions"], "a Hold lost and re-sent a second later must reach the column"
+
+
+def test_holds_lost_beyond_the_budget_are_the_delivery_subsystems_violation():
+    """Six Holds lost in a row (0.12 s > t_cmd_s 0.1 s): outside the contract, and said as such, with the
+    assumed budget and the time observed."""
+    rig, dropped = column_flight("mambo", "px4", 6)
+    assert len(dropped) == 6
+    [v] = [e for e in rig.log.named("violation_start") if e["subsystem"] == "delivery"]
+    assert v["guarantee"] == GUARANTEE_ANSWERED and v["assumed"] == 0.1 and v["observed"] > 0.1
+    assert v["t"] - dropped[0] == pytest.approx(0.12, abs=0.011)
+    assert any("delivery violation" in t for t in rig.daemon_texts())
+    assert [e for e in rig.log.named("violation_end") if e["subsystem"] == "delivery"]  # the 7th arrived
+
+
+@functools.cache
+def ignored_limit(personality: str, judged: bool = True) -> Rig:
+    """DO_CHANGE_SPEED accepted and never applied from the start: the autopilot flies its own 8 m/s. `judged`:
+    False, the speed flown is never judged against the limit (a negative control)."""
+    with pytest.MonkeyPatch.context() as mp:
+        if not judged:
+            mp.setattr(supervisor_module.Supervisor, "_judge_limit", lambda self, i, over: None)
+        rig, _ = column_flight("mambo", personality, faults=[{"at_s": 0.0, "speed_commands_ignored": True}])
+    return rig
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_a_limit_acknowledged_and_not_flown_is_caught_by_the_autopilots_own_slow_down(personality):
+    rig = ignored_limit(personality)
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    [v] = [e for e in rig.log.named("violation_start") if e.get("guarantee") == LIMIT_FLOWN]
+    assert v["subsystem"] == "delivery" and v["observed"] > v["assumed"]
+    hold = rig.log.named("hold_trigger")[0]
+    assert hold["cause"] == "speed limit not in force" and hold["t"] == v["t"]
+    # caught while speeding up past the limit, well before the column's stop distance
+    at = next(s for s in rig.log.states if s["t"] >= hold["t"])
+    assert at["ground_speed"] < 1.3 * at["v_cmd"] + 0.5
+    assert max(s["x"] for s in rig.log.states) < 28.0 - 0.5 - 2.0
+
+
+def test_negative_control_a_limit_not_flown_and_not_caught_collides():
+    """The same flight where the speed flown is never judged against the limit: the autopilot's own 8 m/s meets the
+    column, whose stop distance at that speed is about twice the sensor's range."""
+    rig = ignored_limit("px4", judged=False)
+    assert rig.truth["collisions"], "a limit not flown, held for too late, must reach the column"
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_a_hold_refused_takes_land_and_is_said(personality):
+    """The autopilot refuses Hold (PX4 Hold, ArduPilot Brake): the mode authority asks for Land at once, and the
+    Hold refused is the delivery subsystem's violation."""
+    rig = Rig(gov.column_scenario(1), personality)
+    ap, enter = rig.sim.autopilot, rig.sim.autopilot._enter
+    ap._enter = lambda mode, custom: DENIED if mode == "hold" else enter(mode, custom)
+    gov.fly(rig, 25.0)
+    cmds = [e["cmd"] for e in rig.log.named("command") if e["cmd"] in ("hold", "land")]
+    assert cmds[:2] == ["hold", "land"]
+    fb = [e for e in rig.log.named("delivery") if e["outcome"] == "fallback"][0]
+    assert fb["cmd"] == "hold" and fb["next"] == "land" and "answered" in fb["why"]
+    [v] = [e for e in rig.log.named("violation_start") if e["subsystem"] == "delivery"]
+    assert v["guarantee"] == GUARANTEE_SHOWN and "land" in v["action"]
+    assert any(e["to"] == "land" and e["by"] == "daemon" for e in rig.log.named("mode_change"))
+    assert len([e for e in rig.log.named("command") if e["cmd"] == "hold"]) == 1  # landing is the daemon's stop
+    assert not rig.truth["collisions"], rig.truth["collisions"]
