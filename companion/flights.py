@@ -199,8 +199,9 @@ class OutboundFaults:
 
 
 def _active(windows, t: float) -> float:
-    """The largest value of the windows (start, end, value) that contain `t` (0: none)."""
-    return max((v for a, b, v in windows if a <= t < b), default=0.0)
+    """The largest value of the windows (start, end, value) that contain `t` (0: none; the rig's clock is a sum of
+    ticks, so a time is taken 1 ns late)."""
+    return max((v for a, b, v in windows if a <= t + 1e-9 < b), default=0.0)
 
 
 class Recorder:
