@@ -48,6 +48,11 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
       - {kind: sensor_dropout, p: 0.1, at_s: [4, 10], duration_s: [0.5, 2]}
       - {kind: link_loss, p: 0.1, at_s: [4, 10], duration_s: [2, 4]}
       - {kind: bad_nav, p: 0.1, at_s: [4, 10], duration_s: [1, 3]}
+      # the daemon's outbound link, from at_s (companion/flights.py OutboundFaults): each datagram lost at `rate` to
+      # the end of the flight; everything lost for duration_s; each delayed up to max_s to the end of the flight
+      - {kind: cmd_loss, p: 1, at_s: 1, rate: [0.01, 0.05]}
+      - {kind: cmd_burst, p: 0.5, at_s: [4, 10], duration_s: 0.5}
+      - {kind: cmd_jitter, p: 0.5, at_s: 1, max_s: 0.1}
 
 Arms: `governor` and `offboard` (ours), `px4_cp` and `ac_avoid` (the autopilots' laws as governors),
 `no_guard` (daemon off), and the negative controls `<mode>_x<k>` (the contract's speed × k) and
@@ -80,7 +85,8 @@ OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "ac_avoid", "no_guard")
 ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|ramp)$")
 RAMP_ARM_M_S = 0.3  # the approach ramp of the `governor_ramp` arm
-FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav")
+LINK_FAULTS = ("cmd_loss", "cmd_burst", "cmd_jitter")  # the daemon's outbound datagrams (flights.OutboundFaults)
+FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav", *LINK_FAULTS)
 ARRIVE_M = 1.0  # within this of the last waypoint: the route is complete
 ALT_M = 2.0
 STILL_S = 5.0  # stood still this long after setting off: the flight is over
@@ -135,12 +141,22 @@ class FaultDist(_Strict):
     visibility_m: Range = (3.0, 5.0)  # fog
     visibility_frac: Range | None = None  # fog: the visibility as a fraction of the sensor's range (instead of _m)
     thrust_ratio: Range = (0.65, 0.9)  # thrust_loss
-    duration_s: Range = (0.5, 2.0)  # sensor_dropout, link_loss, bad_nav
+    duration_s: Range = (0.5, 2.0)  # sensor_dropout, link_loss, bad_nav, cmd_burst
+    rate: Range = 0.01  # cmd_loss: each datagram's probability of loss
+    max_s: Range = 0.1  # cmd_jitter: each datagram's delay, uniform up to this
 
-    @field_validator("at_s", "visibility_m", "visibility_frac", "thrust_ratio", "duration_s")
+    @field_validator("at_s", "visibility_m", "visibility_frac", "thrust_ratio", "duration_s", "rate", "max_s")
     @classmethod
     def _ranges(cls, v):
         return _check_range(v)
+
+    @field_validator("rate", "max_s")
+    @classmethod
+    def _link(cls, v, info):
+        hi = 1.0 if info.field_name == "rate" else 10.0
+        if not all(0.0 <= x <= hi for x in (v if isinstance(v, tuple) else (v,))):
+            raise ValueError(f"must lie in [0, {hi:g}]")
+        return v
 
 
 class Stress(_Strict):
@@ -264,12 +280,18 @@ def sample_scenario(spec: CampaignSpec, k: int) -> dict:
             _u(rng, f.thrust_ratio), _u(rng, f.duration_s)
         if f.visibility_frac is not None:
             vis *= s["sensor_range_m"]
+        # a link fault's size is one more draw, for those kinds only (the other kinds' streams stay as they were)
+        size = _u(rng, f.rate if f.kind == "cmd_loss" else f.max_s) if f.kind in ("cmd_loss", "cmd_jitter") else None
         if u < f.p:
             fault = {"kind": f.kind, "at_s": at}
             if f.kind.startswith("fog"):
                 fault["visibility_m"] = min(vis, 0.95 * s["sensor_range_m"])
             elif f.kind == "thrust_loss":
                 fault["thrust_ratio"] = tr
+            elif f.kind == "cmd_loss":
+                fault["rate"] = size
+            elif f.kind == "cmd_jitter":
+                fault["max_s"] = size
             else:
                 fault["duration_s"] = dur
             faults.append(fault)
@@ -324,8 +346,10 @@ HOLD_ONLY_FAULTS = ("link_loss", "sensor_dropout", "bad_nav")
 def classify(s: dict) -> tuple[bool, list[str]]:
     """(in assumption, stresses) of a sampled scenario. In assumption: obstacles no wider than R_obst,
     wind and gusts within the vehicle's design, sensor latency within its budget, one obstacle at a time in
-    the sensed corridor (gaps at least the sensor's range), and only faults the contract answers: honest fog,
-    thrust losses within the vehicle's range."""
+    the sensed corridor (gaps at least the sensor's range), only faults the contract answers: honest fog,
+    thrust losses within the vehicle's range — and every command delivered within its budget. Link faults are
+    judged by the flight's own delivery (`s["delivery"]`, `delivery_of`: the rig's ground truth); before the
+    flight it is unknown, and unknown is not in assumption (stress `delivery`)."""
     from contracts.vehicle import load_vehicle
 
     lo = load_vehicle(s["vehicle"]).thrust_ratio_range[0]
@@ -336,13 +360,16 @@ def classify(s: dict) -> tuple[bool, list[str]]:
             stresses.add("hidden_fog")
         elif f["kind"] == "thrust_loss":
             stresses.add("thrust_loss" if f["thrust_ratio"] >= lo else "thrust_below_range")
-        elif f["kind"] in HOLD_ONLY_FAULTS:
+        elif f["kind"] in HOLD_ONLY_FAULTS or f["kind"] in LINK_FAULTS:
             stresses.add(f["kind"])
+    delivery = s.get("delivery")
+    if any(f["kind"] in LINK_FAULTS for f in s["faults"]) if delivery is None else delivery["late"] > 0:
+        stresses.add("delivery")
     if s["wind_factor"] > 1.0 or s["gust_factor"] > 1.0:
         stresses.add("wind_beyond_design")
     if s["r_obst_true_m"] > s["r_obst_m"]:
         stresses.add("obstacle_wider_than_r_obst")
-    breaks = stresses - {"thrust_loss"}
+    breaks = stresses - {"thrust_loss", *LINK_FAULTS}  # a link fault breaks the assumption only through `delivery`
     ok = not breaks and s["sensor_latency_s"] <= LATENCY_BUDGET_S and all(g >= s["sensor_range_m"] for g in gaps)
     return bool(ok), sorted(stresses)
 
@@ -370,6 +397,8 @@ def scenario_dict(s: dict, arm: str) -> dict:
                                                       "report": f["kind"].removeprefix("fog_")}})
         elif f["kind"] == "thrust_loss":
             faults.append({"at_s": f["at_s"], "thrust_ratio": f["thrust_ratio"]})
+        elif f["kind"] in LINK_FAULTS:
+            continue  # the rig's, not the SITL's (`outbound_faults`)
         else:
             key = {"sensor_dropout": "sensor_dropout_s", "link_loss": "link_dropout_s", "bad_nav": "nav_fault_s"}
             faults.append({"at_s": f["at_s"], key[f["kind"]]: f["duration_s"]})
@@ -393,6 +422,29 @@ def scenario_dict(s: dict, arm: str) -> dict:
         sc["params"] = {**sc.get("params", {}), **({"MPC_ACC_HOR": a, "MPC_JERK_AUTO": j} if s["personality"] == "px4"
                                                    else {"WPNAV_ACCEL": 100.0 * a, "WPNAV_JERK": j})}
     return sc
+
+
+def outbound_faults(s: dict) -> dict | None:
+    """The rig's faults of the daemon's outbound link (`flights.OutboundFaults`) in scenario `s` (None: none): a loss
+    and a jitter last from their time to the end of the flight, a burst its duration."""
+    losses = [(f["at_s"], math.inf, f["rate"]) for f in s["faults"] if f["kind"] == "cmd_loss"] + \
+        [(f["at_s"], f["at_s"] + f["duration_s"], 1.0) for f in s["faults"] if f["kind"] == "cmd_burst"]
+    jitter = [(f["at_s"], math.inf, f["max_s"]) for f in s["faults"] if f["kind"] == "cmd_jitter"]
+    return {"losses": losses, "jitter": jitter} if losses or jitter else None
+
+
+def delivery_of(rig) -> dict:
+    """The flight's command delivery, from the rig's ground truth (not the daemon's view): the budget (the daemon
+    config's `t_cmd_s`), the contracted requests, how many reached the autopilot later than it, the worst latency,
+    the requests whose own copies never arrived, and how many datagrams the faults dropped and delayed."""
+    from .flights import t_cmd_s
+
+    budget, out = t_cmd_s(rig.cfg), rig.outbound
+    lat = out.latencies(rig.sim.time_s)
+    return {"t_cmd_s": budget, "requests": len(lat), "late": sum(x > budget + 1e-9 for _, x in lat),
+            "worst_s": round(max((x for _, x in lat), default=0.0), 6),
+            "undelivered": sum(r.delivered_s is None for r, _ in lat),
+            "dropped": len(out.dropped), "delayed": len(out.delayed)}
 
 
 def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
@@ -489,7 +541,7 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     s, arm = flight_of(spec, i)
     mode = arm_mode(arm)
     rig = Rig(scenario_dict(s, arm), s["personality"], config=daemon_config(s, arm, spec.nav_margin),
-              policy=_policy(arm, s, spec), table_wrapper=_with_braking(s))
+              policy=_policy(arm, s, spec), table_wrapper=_with_braking(s), outbound=outbound_faults(s))
     # a fault shortly before or after the arrival is still given FAULT_WINDOW_S to be detected (the flight
     # hovers at the end): ending at arrival counted 0.1–2 s-old faults as missed
     trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
@@ -502,6 +554,9 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
         engage_and_fly(rig, seconds, trace)
     else:
         fly_mission(rig, seconds, trace)
+    if rig.outbound is not None:  # classified by its own delivery
+        s = {**s, "delivery": delivery_of(rig)}
+        s["in_assumption"], s["stresses"] = classify(s)
     row = result_row(spec, i, s, arm, rig, trace)
     return (row, rig) if keep_rig else row
 
@@ -572,6 +627,10 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
         elif kind == "bad_nav":
             e = _first(after, lambda e: e["event"] == "failsafe" and e["cause"] == "bad navigation estimate")
             det, subsystem = (e["t"], "navigation (estimator)") if e else (None, None)
+        elif kind in LINK_FAULTS:  # it occurs where a command came late (the ground truth); the daemon's word on it
+            occurs = occurs and s["delivery"]["late"] > 0
+            e = _first(after, lambda e: e["event"] == "violation_start" and e["subsystem"] == "delivery")
+            det, subsystem = (e["t"], "delivery") if e else (None, None)
         occurs = occurs and (det is not None or not masked_by_link_loss(f, s["faults"]))  # unseen: not a miss
         action = None
         if det is not None:

@@ -2,10 +2,10 @@
 PNG; matplotlib is imported here only — offline, never on the daemon's path).
 
 Per arm and per group of scenarios (all, in assumption, nominal = in assumption without faults, and each
-stress: hidden fog, thrust loss, wind beyond design; and each named stress of a spec's `stresses`,
-`stress_markdown`): the collision rate with its exact Clopper–Pearson 95 %
-interval (two-sided; its upper end is the bound quoted), the distribution of the minimum clearance to the
-true surface, the mean speed while moving and the time to destination, and the route completion. Ratios:
+stress: hidden fog, thrust loss, wind beyond design, a link fault, a command delivered late; and each named stress
+of a spec's `stresses`, `stress_markdown`): the flights in assumption, the collision rate with its exact
+Clopper–Pearson 95 % interval (two-sided; its upper end is the bound quoted), the distribution of the minimum
+clearance to the true surface, the mean speed while moving and the time to destination, and the route completion. Ratios:
 each arm against each baseline over the same scenarios (paired: the mean speed over the scenarios both
 flew; the time to destination over those both completed). The fault matrix: fault kind × subsystem
 attributed × action → occurrences, detections, latency. The worst flights, with the command that re-flies
@@ -25,7 +25,8 @@ import numpy as np
 from .campaign import BASELINES, refly_command
 
 GROUPS = ("all", "in_assumption", "nominal", "hidden_fog", "thrust_loss", "thrust_below_range", "wind_beyond_design",
-          "obstacle_wider_than_r_obst", "link_loss", "sensor_dropout", "bad_nav")
+          "obstacle_wider_than_r_obst", "link_loss", "sensor_dropout", "bad_nav", "cmd_loss", "cmd_burst", "cmd_jitter",
+          "delivery")
 
 
 def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
@@ -61,7 +62,8 @@ def arm_stats(rows: list[dict]) -> dict:
              for r in rows if r["min_clearance_m"] is not None]
     times = [r["time_to_destination_s"] for r in rows if r["time_to_destination_s"] is not None]
     lo, hi = clopper_pearson(k, n)
-    return {"flights": n, "collisions": k, "rate": k / n if n else None, "cp95_low": lo, "cp95_high": hi,
+    return {"flights": n, "in_assumption": sum(r["in_assumption"] for r in rows), "collisions": k,
+            "rate": k / n if n else None, "cp95_low": lo, "cp95_high": hi,
             "clearance_m": {"min": min(clear) if clear else None, "p5": _pct(clear, 5), "p50": _pct(clear, 50),
                             "p95": _pct(clear, 95)},
             "mean_speed_m_s": float(np.mean([r["mean_speed_m_s"] for r in rows])) if rows else None,
@@ -169,14 +171,16 @@ def format_summary(s: dict) -> str:
 
 
 def stress_markdown(s: dict) -> str:
-    """Per named stress and arm (a spec's `stresses`): collisions, their 95 % upper bound, speed, time, routes."""
-    lines = ["| stress | arm | flights | collisions | 95 % upper | mean speed [m/s] | time to destination [s] "
-             "| routes completed |", "|---|---|---|---|---|---|---|---|"]
+    """Per named stress and arm (a spec's `stresses`): flights in assumption, collisions, their 95 % upper bound,
+    speed, time, routes."""
+    lines = ["| stress | arm | flights | in assumption | collisions | 95 % upper | mean speed [m/s] "
+             "| time to destination [s] | routes completed |", "|---|---|---|---|---|---|---|---|---|"]
     for st in dict.fromkeys(k for d in s["per_stress"].values() for k in d):
         for a in s["arms"]:
             x = s["per_stress"][a][st]
             done = round(x["route_completion"] * x["flights"]) if x["flights"] else 0
-            lines.append(f"| {st} | {a} | {x['flights']} | {x['collisions']} | {_f(x['cp95_high'], '{:.2f}')} | "
+            lines.append(f"| {st} | {a} | {x['flights']} | {x['in_assumption']} | {x['collisions']} | "
+                         f"{_f(x['cp95_high'], '{:.2f}')} | "
                          f"{_f(x['mean_speed_m_s'], '{:.2f}')} | {_f(x['time_to_destination_s'], '{:.1f}')} | "
                          f"{done}/{x['flights']} |")
     return "\n".join(lines)
@@ -229,8 +233,8 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
            _f(c["latency_s"]["p50"]), _f(c["latency_s"]["p95"]), _f(c["latency_s"]["max"])] for c in s["fault_matrix"]]
     vp = [[a, k, st["flights"], st["collisions"], _f(st["cp95_high"], "{:.4f}"), _f(st["mean_speed_m_s"])]
           for a, d in s["in_assumption_by_vehicle_personality"].items() for k, st in d.items() if st["flights"]]
-    ps = [[st, a, x["flights"], x["collisions"], _f(x["cp95_high"], "{:.4f}"), _f(x["mean_speed_m_s"]),
-           _f(x["time_to_destination_s"]), _f(x["route_completion"], "{:.0%}")]
+    ps = [[st, a, x["flights"], x["in_assumption"], x["collisions"], _f(x["cp95_high"], "{:.4f}"),
+           _f(x["mean_speed_m_s"]), _f(x["time_to_destination_s"]), _f(x["route_completion"], "{:.0%}")]
           for a, d in s["per_stress"].items() for st, x in d.items()]
     wf = [[w["arm"], w["index"], w["collided"], _f(w["min_clearance_m"]), w["vehicle"], w["personality"],
            ",".join(w["stresses"]), w["refly"]] for w in s["worst"]]
@@ -239,8 +243,8 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
 </head><body><h1>Campaign: {s['flights']} flights</h1>
 <h2>Per arm and group</h2>{_table(per, ["arm", "group", "flights", "collisions", "CP 95 % upper", "min clearance",
                                           "median clearance", "mean speed", "time to destination", "completion"])}
-<h2>Per named stress</h2>{_table(ps, ["stress", "arm", "flights", "collisions", "CP 95 % upper", "mean speed",
-                                     "time to destination", "completion"])}
+<h2>Per named stress</h2>{_table(ps, ["stress", "arm", "flights", "in assumption", "collisions", "CP 95 % upper",
+                                     "mean speed", "time to destination", "completion"])}
 <h2>In assumption, by vehicle and personality</h2>{_table(vp, ["arm", "vehicle/personality", "flights",
                                                                   "collisions", "CP 95 % upper", "mean speed"])}
 <img src="clearance.png"><img src="speed.png">

@@ -13,6 +13,10 @@ the daemon and the SITL. Nothing on board imports it. `tests/lockstep.py` re-exp
 `log_dir`: the SITL writes the autopilot's own flight log there (a ULog for PX4, a DataFlash `.bin` for
 ArduPilot; `Rig.close_log()` finishes it and gives its path).
 
+`outbound`: faults of the daemon's outbound link (`OutboundFaults`' keywords; its seed the flight's): every datagram
+the daemon sends passes `daemon_write`, where the faults drop or delay it, and `rig.outbound` keeps the ground truth of
+what reached the autopilot when. The inbound direction (autopilot → daemon) is not faulted.
+
 `policy`: the speed policy flown in place of the contract's own Ω (a baseline flown as a governor, or a negative
 control: `companion/baselines.py`), or a function of the daemon's `Config` that makes one (a baseline law needs
 the sensors' mounts: it builds its own obstacle map from every sample the daemon's cycle takes);
@@ -21,9 +25,13 @@ the sensors' mounts: it builds its own obstacle map from every sample the daemon
 
 from __future__ import annotations
 
+import heapq
 import math
 import os
+import random
+import struct
 from collections import deque
+from dataclasses import dataclass, field
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -61,6 +69,141 @@ class DelayedPlanning(InlinePlanning):
         return super().poll() if self.clock() >= self._due - 1e-9 else None
 
 
+# the delivery contract's commands: mode requests, speed limits, offboard setpoints (DESIGN.md §1, link and autopilot)
+CONTRACTED = ("DO_SET_MODE", "DO_CHANGE_SPEED", "SET_POSITION_TARGET_LOCAL_NED")
+STREAMS = ("SET_POSITION_TARGET_LOCAL_NED",)  # each message a new request, none a re-send of another
+RESEND_GAP_S = 0.25  # copies of a command this close are re-sends of one request; after a longer silence, a new one
+T_CMD_DEFAULT_S = 0.1  # the delivery budget where the daemon's config states none
+_COMMAND_PARAMS = {mav.MAVLINK_MSG_ID_COMMAND_LONG: tuple(f"param{k}" for k in range(1, 8)),
+                   mav.MAVLINK_MSG_ID_COMMAND_INT: ("param1", "param2", "param3", "param4", "x", "y", "z")}
+
+
+def t_cmd_s(cfg) -> float:
+    """The delivery budget of a daemon config: its `delivery.t_cmd_s`, T_CMD_DEFAULT_S where it has none."""
+    return float(getattr(getattr(cfg, "delivery", None), "t_cmd_s", T_CMD_DEFAULT_S))
+
+
+def asks_for_hold(personality: str, p2: float, p3: float) -> bool:
+    """A DO_SET_MODE's custom mode (param2, param3) is the personality's Hold: PX4 AUTO.LOITER (main 4, sub 3),
+    ArduPilot BRAKE (17) or LOITER (5)."""
+    return (p2, p3) == (4.0, 3.0) if personality == "px4" else p2 in (5.0, 17.0)
+
+
+@dataclass
+class Request:
+    """One command as the daemon meant it on its channel (a MAV_CMD, or a stream's message): the times its copies
+    were sent, and when the first copy reached the autopilot (None: none did)."""
+
+    channel: str
+    key: bytes | None  # what makes a copy the same command (None: every message is its own, a stream's)
+    hold: bool
+    sends: list[float] = field(default_factory=list)
+    delivered_s: float | None = None
+
+
+class OutboundFaults:
+    """Seeded faults on the datagrams the daemon sends, in the lock-step rig (whose clock is the simulator's).
+
+    `losses`: windows (start_s, end_s, p) in which each datagram is dropped with probability p (p = 1: a burst);
+    `jitter`: windows (start_s, end_s, max_s) in which each is held back U(0, max_s) and delivered in order of due
+    time at the rig's next ticks; `drop_holds`: the first k DO_SET_MODE copies that ask for the personality's Hold
+    are dropped. Overlapping windows: the largest p, the largest max_s.
+
+    Ground truth, from the bytes (decoded with pymavlink): `dropped` (time sent, message), `delayed` (sent,
+    delivered, message), and `requests`, one `Request` per command the daemon meant; `latencies` measures them."""
+
+    def __init__(self, personality: str, losses=(), jitter=(), drop_holds: int = 0, seed: int = 0):
+        self.personality = personality
+        self.losses = [tuple(map(float, w)) for w in losses]
+        self.jitter = [tuple(map(float, w)) for w in jitter]
+        self.holds_to_drop = int(drop_holds)
+        self._rng = random.Random(seed)
+        self._parser = mav.MAVLink(None)
+        self._parser.robust_parsing = True
+        self._queue: list = []  # heap of (due, n, sent, data, message, request)
+        self._n = 0
+        self._latest: dict[str, Request] = {}  # channel → its latest request
+        self.requests: list[Request] = []
+        self.dropped: list[tuple[float, str]] = []
+        self.delayed: list[tuple[float, float, str]] = []
+
+    def send(self, t: float, data: bytes, deliver) -> None:
+        """The daemon sent `data` at `t`: drop it, hold it back, or hand it to `deliver` now."""
+        msgs = self._parser.parse_buffer(data) or []
+        name = msgs[0].get_type() if msgs else "?"
+        req = self._request(t, msgs[0]) if msgs else None
+        u, v = self._rng.random(), self._rng.random()  # two draws a datagram: the stream does not depend on the faults
+        drop_hold = req is not None and req.hold and self.holds_to_drop > 0
+        self.holds_to_drop -= drop_hold
+        if drop_hold or u < _active(self.losses, t):
+            self.dropped.append((t, name))
+            return
+        delay = v * _active(self.jitter, t)
+        if delay > 0.0:
+            heapq.heappush(self._queue, (t + delay, self._n, t, data, name, req))
+            self._n += 1
+            return
+        self._deliver(t, t, data, name, req, deliver)
+
+    def release(self, t: float, deliver) -> None:
+        """Hand every held-back datagram due by `t` to `deliver`, in order of due time."""
+        while self._queue and self._queue[0][0] <= t + 1e-9:
+            _, _, sent, data, name, req = heapq.heappop(self._queue)
+            self._deliver(sent, t, data, name, req, deliver)
+
+    def _deliver(self, sent: float, t: float, data: bytes, name: str, req: Request | None, deliver) -> None:
+        deliver(data)
+        if t > sent:
+            self.delayed.append((sent, t, name))
+        if req is not None and req.delivered_s is None:
+            req.delivered_s = t
+
+    def _request(self, t: float, msg) -> Request | None:
+        mid = msg.get_msgId()
+        if mid in _COMMAND_PARAMS:
+            cmd = msg.command
+            entry = mav.enums["MAV_CMD"].get(cmd)
+            channel = entry.name.removeprefix("MAV_CMD_") if entry is not None else f"COMMAND_{cmd}"
+            params = [float(getattr(msg, f)) for f in _COMMAND_PARAMS[mid]]
+            key = struct.pack("<I7d", cmd, *params)  # bytes: a NaN parameter equals itself
+            hold = cmd == mav.MAV_CMD_DO_SET_MODE and asks_for_hold(self.personality, params[1], params[2])
+        elif msg.get_type() in STREAMS:
+            channel, key, hold = msg.get_type(), None, False
+        else:
+            return None
+        last = self._latest.get(channel)
+        if key is not None and last is not None and last.key == key and t - last.sends[-1] <= RESEND_GAP_S:
+            last.sends.append(t)
+            return last
+        req = Request(channel, key, hold, [t])
+        self.requests.append(req)
+        self._latest[channel] = req
+        return req
+
+    def latencies(self, t_end: float, channels=CONTRACTED) -> list[tuple[Request, float]]:
+        """Per request on `channels`: the time from its first send until it, or a later request of its channel,
+        first reached the autopilot (a newer command replaces it); `t_end` where none did. A stream's message is
+        also covered by the end of its stream (its last send before a silence of RESEND_GAP_S)."""
+        out = []
+        for channel in dict.fromkeys(r.channel for r in self.requests if r.channel in channels):
+            rs = [r for r in self.requests if r.channel == channel]
+            cover = stream_end = math.inf
+            for k in range(len(rs) - 1, -1, -1):
+                r = rs[k]
+                if channel in STREAMS and (k == len(rs) - 1 or rs[k + 1].sends[0] - r.sends[-1] > RESEND_GAP_S):
+                    stream_end = r.sends[-1]
+                if r.delivered_s is not None:
+                    cover = min(cover, r.delivered_s)
+                out.append((r, max(0.0, min(cover, stream_end, t_end) - r.sends[0])))
+        return sorted(out, key=lambda x: x[0].sends[0])
+
+
+def _active(windows, t: float) -> float:
+    """The largest value of the windows (start, end, value) that contain `t` (0: none; the rig's clock is a sum of
+    ticks, so a time is taken 1 ns late)."""
+    return max((v for a, b, v in windows if a <= t + 1e-9 < b), default=0.0)
+
+
 class Recorder:
     """Keeps what the daemon logs, for assertions (the real event log is tested on its own)."""
 
@@ -81,9 +224,10 @@ class Recorder:
 class Rig:
     def __init__(self, scenario: dict, personality: str = "px4", config: dict | None = None, log=None,
                  table_wrapper=None, seed: int | None = None, sim_kwargs: dict | None = None, policy=None,
-                 log_dir=None, planning_delay_s: float | None = None):
+                 log_dir=None, planning_delay_s: float | None = None, outbound: dict | None = None):
         sc = scenario_from_dict(scenario)
         self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
+        self.outbound = None if outbound is None else OutboundFaults(personality, **{"seed": self.sim.seed, **outbound})
         if log_dir is not None:  # the autopilot's own flight log (.ulg / .bin); `close_log()` finishes it
             self.sim.start_log(log_dir)
         self.link = LockstepLink(self.sim)
@@ -110,7 +254,10 @@ class Rig:
 
         def daemon_write(data):
             self.daemon_out.append(data)
-            write(data)
+            if self.outbound is None:
+                write(data)
+            else:
+                self.outbound.send(self.sim.time_s, data, write)
 
         self.conn = MemoryMavfile(daemon_read, daemon_write, source_system=1,
                                   source_component=self.cfg.link.component_id)
@@ -149,7 +296,11 @@ class Rig:
         dt = 1.0 / self.cfg.loop_hz
         end = self.sim.time_s + seconds
         while self.sim.time_s < end - 1e-9:
-            self.link.step(dt)
+            step_end = self.sim.time_s + dt - 1e-9
+            while self.sim.time_s < step_end:  # the link's ticks; held-back datagrams are delivered between them
+                if self.outbound is not None:
+                    self.outbound.release(self.sim.time_s, self.link.client_send)
+                self.link.tick()
             self._pump()
             if self.daemon_on:
                 self.daemon.poll()

@@ -158,7 +158,14 @@ class Autopilot:
         self.custom = personality.default_custom(self.mode)
         self.time = 0.0
         self.cruise = self.settings.cruise_default  # current auto-mode speed (DO_CHANGE_SPEED)
-        self.speed_commands_ignored = False  # the scenario's fault: DO_CHANGE_SPEED accepted, not applied
+        # misbehaviours (scenario faults, or set by a test): DO_CHANGE_SPEED accepted, not applied; a requested mode
+        # accepted at once and entered `mode_delay_s` later (`mode_delay_only`: only "offboard" or only "hold"; None:
+        # every mode); OFFBOARD / GUIDED refused ("denied": the answer says so; "silently": accepted, never entered)
+        self.speed_commands_ignored = False
+        self.mode_delay_s = 0.0
+        self.mode_delay_only: str | None = None
+        self.offboard_refused: str | None = None
+        self.pending_mode: tuple[str, int, float] | None = None  # (mode, custom, when it is entered)
         self.speed_up: float | None = None  # ArduPilot climb/descent overrides
         self.speed_down: float | None = None
         self.target: np.ndarray | None = None  # goto target of hold/guided navigation
@@ -270,7 +277,12 @@ class Autopilot:
     def _enter(self, mode: str, custom: int) -> int:
         """A mode change asked for over MAVLink (it also ends a reported failsafe state)."""
         self.failsafe = ""
+        self.pending_mode = None  # a newer request replaces one not yet entered
         if mode == "offboard":
+            if self.offboard_refused == "denied":
+                return DENIED
+            if self.offboard_refused == "silently":
+                return ACCEPTED
             res = self.pers.can_enter_offboard(self)
             if res != ACCEPTED:
                 return res
@@ -284,6 +296,9 @@ class Autopilot:
                 self.set_mode("hold")
                 return ACCEPTED
             return self.takeoff_to(-self.pos[2] + self.settings.takeoff_alt)
+        if self.mode_delay_s > 0.0 and self.mode_delay_only in (None, mode):
+            self.pending_mode = (mode, custom, self.time + self.mode_delay_s)
+            return ACCEPTED
         self.set_mode(mode, custom)
         return ACCEPTED
 
@@ -400,6 +415,11 @@ class Autopilot:
     def update(self, t: float, dt: float) -> None:
         """Advance the autopilot by one navigation tick and write the cascade's setpoint."""
         self.time = t
+        # `time` at a request is the tick before the one it arrived in: entered `mode_delay_s` after its arrival
+        if self.pending_mode is not None and t > self.pending_mode[2] + 1e-9:
+            mode, custom, _ = self.pending_mode
+            self.pending_mode = None
+            self.set_mode(mode, custom)
         m = self.model
         sp = m.sp
         if m.resting:

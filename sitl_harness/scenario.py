@@ -24,6 +24,9 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
       - {at_s: 25, link_dropout_s: 2.0}
       - {at_s: 28, nav_fault_s: 3.0}
       - {at_s: 30, gust: {peak_m_s: 3, duration_s: 2, from_deg: 0}}
+      - {at_s: 5, speed_commands_ignored: true}
+      - {at_s: 5, mode_delay: {delay_s: 0.3, only: hold}}
+      - {at_s: 5, offboard_refused: silently}
     gcs:                                # the ground station's actions (the SITL ignores them)
       - {at_s: 45, param_set: {component: daemon, name: CG_R_OBST, value: 0.6}}
 """
@@ -147,8 +150,15 @@ class Gust(_Strict):
     from_deg: Num = 0.0
 
 
+class ModeDelay(_Strict):
+    """A requested mode accepted at once and entered `delay_s` later; `only` that mode (None: every mode)."""
+
+    delay_s: Pos
+    only: Literal["offboard", "hold"] | None = None
+
+
 FAULT_KINDS = ("thrust_ratio", "fog", "sensor_dropout_s", "link_dropout_s", "nav_fault_s", "gust",
-               "speed_commands_ignored")
+               "speed_commands_ignored", "mode_delay", "offboard_refused")
 
 
 class Fault(_Strict):
@@ -164,6 +174,10 @@ class Fault(_Strict):
     # the autopilot from now on accepts DO_CHANGE_SPEED but ignores it, back at its own cruise speed (a misbehaving
     # autopilot: the governor's limit and approach ramp not followed)
     speed_commands_ignored: Literal[True] | None = None
+    # from now on: requested modes entered late; OFFBOARD / GUIDED refused (`denied`: the answer says so, `silently`:
+    # accepted and never entered)
+    mode_delay: ModeDelay | None = None
+    offboard_refused: Literal["denied", "silently"] | None = None
 
     @model_validator(mode="after")
     def _one(self) -> "Fault":

@@ -252,6 +252,10 @@ class Sim:
             elif f.speed_commands_ignored:
                 self.autopilot.speed_commands_ignored = True
                 self.autopilot.cruise = self.autopilot.settings.cruise_default
+            elif f.mode_delay is not None:
+                self.autopilot.mode_delay_s, self.autopilot.mode_delay_only = f.mode_delay.delay_s, f.mode_delay.only
+            elif f.offboard_refused is not None:
+                self.autopilot.offboard_refused = f.offboard_refused
 
     # ------------------------------------------------------------------ battery (simple)
     def _battery_update(self) -> None:

@@ -70,7 +70,7 @@ def test_the_report_has_a_row_per_stress_and_arm():
              "personality": "px4"}
             for i, (arm, st, c) in enumerate([("governor", "fog", False), ("px4_cp", "fog", True)])]
     md = stress_markdown(summarize(rows))
-    assert "| fog | px4_cp | 1 | 1 | 1.00 | 2.00 | – | 0/1 |" in md and "| fog | governor | 1 | 0 | 0.97 |" in md
+    assert "| fog | px4_cp | 1 | 1 | 1 | 1.00 | 2.00 | – | 0/1 |" in md and "| fog | governor | 1 | 1 | 0 | 0.97 |" in md
 
 
 def test_the_governor_brake_arm_flies_the_governor_with_its_recovery_brake_armed():

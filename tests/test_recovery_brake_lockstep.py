@@ -17,7 +17,6 @@ from companion.states import OffboardState
 from contracts.stop import (approach_stopping_distance, braking_decel, recovery_brake, stop_dead_time,
                             stopping_distance)
 from contracts.table import load_for_vehicle
-from sitl_harness.autopilot import ACCEPTED, DENIED
 from tests import test_daemon_lockstep as gov
 from tests.lockstep import Rig
 
@@ -33,13 +32,9 @@ def flight(personality: str, brake: bool, obl: int | None = 5, refuse: bool | st
     "silently": it answers accepted and never shows the mode)."""
     sc = gov.column_scenario(1, cruise=cruise)
     sc["params"] = {"COM_OBL_RC_ACT": obl} if personality == "px4" and obl is not None else {}
+    if refuse:
+        sc["faults"] = [{"at_s": 0.0, "offboard_refused": "denied" if refuse is True else refuse}]
     rig = Rig(sc, personality, config={"governor": {"recovery_brake": brake}})
-    ap = rig.sim.autopilot
-    if refuse == "silently":
-        enter = ap._enter
-        ap._enter = lambda mode, custom: ACCEPTED if mode == "offboard" else enter(mode, custom)
-    elif refuse:
-        ap.pers.can_enter_offboard = lambda ap: DENIED
     gov.fly(rig, 25.0)
     return rig
 
