@@ -437,9 +437,8 @@ def delivery_of(rig) -> dict:
     """The flight's command delivery, from the rig's ground truth (not the daemon's view): the budget (the daemon
     config's `t_cmd_s`), the contracted requests, how many reached the autopilot later than it, the worst latency,
     the requests whose own copies never arrived, and how many datagrams the faults dropped and delayed."""
-    from .flights import t_cmd_s
 
-    budget, out = t_cmd_s(rig.cfg), rig.outbound
+    budget, out = rig.cfg.delivery.t_cmd_s, rig.outbound
     lat = out.latencies(rig.sim.time_s)
     return {"t_cmd_s": budget, "requests": len(lat), "late": sum(x > budget + 1e-9 for _, x in lat),
             "worst_s": round(max((x for _, x in lat), default=0.0), 6),

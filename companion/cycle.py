@@ -19,7 +19,7 @@ from contracts.online_planner import load_solver, offboard_cap
 from contracts.stop import airframe_decel, braking_decel, stop_jerk
 from contracts.table import THRUST_AXIS_TOL, ContractTable
 
-from .authority import HOLD, Delivery, ModeAuthority, ModeRequest, Requester
+from .authority import HOLD, Delivery, ModeAuthority, ModeRequest, ModeView, Requester
 from .autopilot_base import MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
@@ -104,6 +104,7 @@ class Cycle:
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
                               e_tr_floor_m=self.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s,
                               t_cmd_s=cfg.delivery.t_cmd_s)
+        self.view: ModeView | None = None  # this cycle's mode, as the authority judged it
         self.authority = ModeAuthority(adapter.hold_mode(), cfg.delivery.t_cmd_s, cfg.delivery.t_mode_s,
                                        adapter.hold_fallbacks)
         self.offboard: OffboardController | None = None
@@ -123,6 +124,7 @@ class Cycle:
         self.checks = None
         self._brake_said: tuple[bool, str] | None = None
         self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
+        self._late_judged = False  # the recovery brake's switch shown late has been judged (`Supervisor.switch_refused`)
         # the acceleration flown: the speed limit's check (its slow-down starts from it), the approach ramp's, and the
         # recovery brake's start (offboard flies its own setpoints: not measured there)
         windows = [w for w, on in ((RAMP_WINDOW_S, cfg.mode != "offboard"), (A0_S, self.brake is not None)) if on]
@@ -161,7 +163,7 @@ class Cycle:
         self.dod.set_speed(s.ground_speed)
 
     def _path_target(self, s: PathTarget) -> None:
-        if not self.streaming:  # offboard (or the recovery brake): our own setpoints are the path
+        if not self._flying_ours:  # offboard (or the recovery brake) shown: our own setpoints are the path
             self.etr.command(s.t, s.x, s.y)
 
     def _throttle(self, s: Throttle) -> None:
@@ -312,7 +314,7 @@ class Cycle:
         self._say(t, tel, i, events, texts)
         cmd = self.authority.arbitrate(t, requests)
         sp = acts.setpoint if acts is not None else None
-        if sp is not None:
+        if sp is not None and self._flying_ours:
             self.etr.command(t, float(sp.p[0]), float(sp.p[1]))
         speed = d.send_speed if self.cfg.mode == "governor" else None
         return i, d, Outbox(cmd, speed, tuple(messages), sp, ended, tuple(events), tuple(texts))
@@ -406,6 +408,12 @@ class Cycle:
         ctl = self._controller
         return ctl is not None and ctl.streaming
 
+    @property
+    def _flying_ours(self) -> bool:
+        """The autopilot flies the daemon's setpoints: they stream and it shows OFFBOARD / GUIDED (until it does,
+        it flies its own path, and the contour error is measured against that)."""
+        return self.streaming and self.view is not None and self.view.mode == "offboard"
+
     def _brakeable(self, i: Inputs, d: Decision) -> bool:
         """The daemon can fly this Hold out itself as a braking stop (its state sound, not stopping, every cause
         one of BRAKE_STOP_CAUSES): offboard's fail-safe stop and the recovery brake."""
@@ -460,7 +468,9 @@ class Cycle:
         # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it (an
         # unknown speed counts as above it; judged at the speed when called as well: a switch never shown is found
         # refused `delivery.t_mode_s` later, by when a vehicle stopped by a collision reads no speed)
-        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused,
+        late = br.late is not None and not self._late_judged
+        self._late_judged |= late
+        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused, late=late,
                                     speed=max(_or_inf(i.ground_speed), _or_inf(self._brake_v0)))
         return acts, d, braking
 

@@ -73,14 +73,8 @@ class DelayedPlanning(InlinePlanning):
 CONTRACTED = ("DO_SET_MODE", "DO_CHANGE_SPEED", "SET_POSITION_TARGET_LOCAL_NED")
 STREAMS = ("SET_POSITION_TARGET_LOCAL_NED",)  # each message a new request, none a re-send of another
 RESEND_GAP_S = 0.25  # copies of a command this close are re-sends of one request; after a longer silence, a new one
-T_CMD_DEFAULT_S = 0.1  # the delivery budget where the daemon's config states none
 _COMMAND_PARAMS = {mav.MAVLINK_MSG_ID_COMMAND_LONG: tuple(f"param{k}" for k in range(1, 8)),
                    mav.MAVLINK_MSG_ID_COMMAND_INT: ("param1", "param2", "param3", "param4", "x", "y", "z")}
-
-
-def t_cmd_s(cfg) -> float:
-    """The delivery budget of a daemon config: its `delivery.t_cmd_s`, T_CMD_DEFAULT_S where it has none."""
-    return float(getattr(getattr(cfg, "delivery", None), "t_cmd_s", T_CMD_DEFAULT_S))
 
 
 def asks_for_hold(personality: str, p2: float, p3: float) -> bool:

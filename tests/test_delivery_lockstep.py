@@ -6,42 +6,17 @@ refused takes Land. Each case has a negative control that collides: the test can
 from __future__ import annotations
 
 import functools
-import os
 
 import pytest
 
-os.environ.setdefault("MAVLINK20", "1")
-from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
-
-from companion import supervisor as supervisor_module  # noqa: E402
-from companion.authority import GUARANTEE_ANSWERED, GUARANTEE_SHOWN, Delivery, ModeAuthority  # noqa: E402
-from companion.supervisor import LIMIT_FLOWN  # noqa: E402
-from sitl_harness.autopilot import DENIED  # noqa: E402
-from tests import test_daemon_lockstep as gov  # noqa: E402
-from tests.lockstep import Rig  # noqa: E402
+from companion import supervisor as supervisor_module
+from companion.authority import GUARANTEE_ANSWERED, GUARANTEE_SHOWN, Delivery, ModeAuthority
+from companion.supervisor import LIMIT_FLOWN
+from sitl_harness.autopilot import DENIED
+from tests import test_daemon_lockstep as gov
+from tests.lockstep import Rig
 
 CELLS = [(v, p) for v in ("mambo", "x500") for p in ("px4", "ardupilot")]
-
-
-def drop_holds(rig: Rig, k: int) -> list[float]:
-    """The daemon's first `k` DO_SET_MODE commands that ask for its Hold are lost on the link (the datagram never
-    reaches the autopilot); the times they were sent."""
-    hold = rig.daemon.adapter.set_mode_params(rig.daemon.adapter.hold_mode(), True)[1:3]
-    parser = mav.MAVLink(None)
-    parser.robust_parsing = True
-    write, dropped = rig.conn._write, []
-
-    def lossy(data: bytes) -> None:
-        msgs = parser.parse_buffer(data) or []
-        if len(dropped) < k and any(m.get_type() == "COMMAND_LONG" and m.command == mav.MAV_CMD_DO_SET_MODE
-                                    and (m.param2, m.param3) == hold
-                                    for m in msgs):
-            dropped.append(rig.sim.time_s)
-            return
-        write(data)
-
-    rig.conn._write = lossy
-    return dropped
 
 
 class ResendAfterOneSecond(ModeAuthority):
@@ -60,14 +35,14 @@ def column_flight(vehicle: str, personality: str, lost: int = 0, config: dict | 
                   authority=None) -> tuple[Rig, list[float]]:
     """The column flight of tests/test_daemon_lockstep.py (cruise 8 m/s, sensor 6 m, column at 28 m), its first
     `lost` Holds lost on the link."""
-    rig = Rig(gov.column_scenario(1, vehicle=vehicle, faults=list(faults)), personality, config=config)
+    rig = Rig(gov.column_scenario(1, vehicle=vehicle, faults=list(faults)), personality, config=config,
+              outbound={"drop_holds": lost} if lost else None)
     if authority is not None:
         cyc = rig.daemon.cycle
         cyc.authority = authority(cyc.authority.hold_mode, cyc.authority.t_cmd_s, cyc.authority.t_mode_s,
                                   cyc.authority.hold_fallbacks)
-    dropped = drop_holds(rig, lost)
     gov.fly(rig, 25.0)
-    return rig, dropped
+    return rig, [t for t, name in rig.outbound.dropped] if lost else []
 
 
 @functools.cache
