@@ -169,8 +169,9 @@ class Cycle:
     def _nav_status(self, s: NavStatus) -> None:
         self.nav.update(s.t, s.source, s.flags)
 
-    def _scan(self, s: Scan) -> None:  # without the medium's own returns (backscatter is evidence, not an obstacle)
-        self.dod.add_scan(self.truth.add_scan(s))
+    def _scan(self, s: Scan) -> None:  # every return to the obstacle logic; the medium's are D_od's evidence as well
+        self.truth.add_scan(s)
+        self.dod.add_scan(s)
 
     def _take_other(self, s) -> None:
         if isinstance(s, AutopilotParam) and self.adapter.cruise_param and s.name == self.adapter.cruise_param[0]:
