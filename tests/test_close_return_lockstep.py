@@ -52,8 +52,9 @@ def test_governor_holds_short_of_a_column_appearing_close_ahead(personality, rev
 
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])
 def test_negative_control_withholding_the_medium_returns_collides(personality):
-    """The same flight, 2 m ahead at 2 m/s, with the medium's returns withheld from the obstacle logic (the rule
-    before): the column reaches it 3 frames late, the Hold comes too late, and the vehicle hits the column."""
+    """The same flight, 2 m ahead at 2 m/s, with the returns counted as the medium's withheld from the obstacle
+    logic until `confirm_frames` frames confirm them: the column reaches it 3 frames late, the Hold comes too late,
+    and the vehicle hits the column."""
     rig = fly_to_the_column(personality, 2.0, 2.0, withhold_the_medium=True)
     assert rig.truth["collisions"]
     with pytest.raises(AssertionError):

@@ -234,8 +234,9 @@ def governor_cycle(sensors=(BINS, BEAM)):
 
 
 def hide_the_medium(cycle) -> None:
-    """The rule this estimator no longer follows (a negative control only): the returns `add_scan` counts as
-    the medium's withheld from the obstacle logic, and a single beam's quality then unknown."""
+    """A negative control only: the returns `add_scan` counts as the medium's withheld from the obstacle logic
+    (a surface first seen close by reaches it once `confirm_frames` frames confirm it), and a single beam's
+    quality then unknown."""
     def scan(s):
         medium = cycle.truth.add_scan(s)
         if medium:
@@ -291,9 +292,8 @@ def test_a_close_return_reaches_the_obstacle_logic_on_its_first_frame():
 
 
 def test_negative_control_withholding_the_medium_returns_hides_the_close_post():
-    """The same frames through the rule before (the returns counted as the medium's withheld until
-    `confirm_frames` frames confirm them): the post reaches the obstacle logic 3 frames late, and the check
-    above fails."""
+    """The same frames with the returns counted as the medium's withheld from the obstacle logic
+    (`hide_the_medium`): the post reaches it 3 frames late, and the check above fails."""
     cycle = governor_cycle()
     hide_the_medium(cycle)
     hits = approach(cycle, 20, a_post_from(2.3, 0.5 - 1e-9))
