@@ -443,7 +443,7 @@ class WithoutEtr(ContractSpeed):
 
 class TrustTheClaim(DetectionRange):
     """The detection-range estimator that believes the sensor's stated range (a negative control only; flown as
-    the `_claim` arms): it still keeps the medium's own returns from the obstacle logic, but D_od is the claim."""
+    the `_claim` arms): D_od is the claim."""
 
     def estimate(self, t, stated_m):
         return replace(super().estimate(t, stated_m), d_od=stated_m)

@@ -126,9 +126,8 @@ class Cycle:
         self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
         self._late_judged = False  # the recovery brake's switch shown late has been judged (`Supervisor.switch_refused`)
         # the acceleration flown: the speed limit's check (its slow-down starts from it), the approach ramp's, and the
-        # recovery brake's start (offboard flies its own setpoints: not measured there)
-        windows = [w for w, on in ((RAMP_WINDOW_S, cfg.mode != "offboard"), (A0_S, self.brake is not None)) if on]
-        self._accel = AccelEstimator(max(windows)) if windows else None
+        # recovery brake's start
+        self._accel = AccelEstimator(max(RAMP_WINDOW_S, A0_S))
         self._jerk_heard: float | None = None  # the autopilot's jerk last given to the approach ramp
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
@@ -172,8 +171,9 @@ class Cycle:
     def _nav_status(self, s: NavStatus) -> None:
         self.nav.update(s.t, s.source, s.flags)
 
-    def _scan(self, s: Scan) -> None:  # without the medium's own returns (backscatter is evidence, not an obstacle)
-        self.dod.add_scan(self.truth.add_scan(s))
+    def _scan(self, s: Scan) -> None:  # every return to the obstacle logic; the medium's are D_od's evidence as well
+        self.truth.add_scan(s)
+        self.dod.add_scan(s)
 
     def _take_other(self, s) -> None:
         if isinstance(s, AutopilotParam) and self.adapter.cruise_param and s.name == self.adapter.cruise_param[0]:
@@ -229,9 +229,8 @@ class Cycle:
             dod = replace(dod, d_od=truth.d_od, lowered=True,
                           reason=f"detection range from evidence ({truth.confidence:.0%} confidence): {truth.reason}")
         thrust_ratio, _ = self.thrust.value(t)
-        if self._accel is not None:  # (not measured where nothing reads it: the loop and a log's replay stay as fast)
-            self._accel.add(tel.t_local, tel.vx, tel.vy)
-        accel = self._accel.over(RAMP_WINDOW_S) if telemetry_ok and self._accel is not None else None
+        self._accel.add(tel.t_local, tel.vx, tel.vy)
+        accel = self._accel.over(RAMP_WINDOW_S) if telemetry_ok else None
         if accel is None:
             accel_along = math.nan
         else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)

@@ -10,7 +10,8 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
     actuator_delay_s: 0.0                 # extra rotor-command latency of the simulated aircraft
     start: {x_m: 0, y_m: 0, yaw_deg: 0}   # add alt_m: 2 to start armed and hovering
     world:
-      columns: [{x_m: 12, y_m: 0, radius_m: 0.5, reflectivity: 0.1}]   # a dark column (default 0.5)
+      columns: [{x_m: 12, y_m: 0, radius_m: 0.5, reflectivity: 0.1},   # a dark column (default 0.5)
+                {x_m: 30, y_m: 0, radius_m: 0.3, appears_within_m: 1.8}]  # revealed 1.8 m ahead
       boxes: [{x_m: 20, y_m: 5, length_m: 2, width_m: 1, yaw_deg: 30}]
     sensor: {fov_deg: 60, max_range_m: 8}
     wind: {mean_m_s: 1.0, from_deg: 90, gust_m_s: 0.3}
@@ -83,6 +84,9 @@ class ColumnSpec(_Strict):
     height_m: Pos | None = None
     name: str = ""
     reflectivity: Reflectivity = REFERENCE_REFLECTIVITY  # diffuse, at the range sensor's wavelength (world.py)
+    # absent until the vehicle comes within this distance of its surface (an obstacle revealed close by: a door
+    # opening, something moved into the way); None: there from the start
+    appears_within_m: Pos | None = None
 
 
 class BoxSpec(_Strict):

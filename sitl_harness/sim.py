@@ -6,7 +6,7 @@ the fault timeline and the MAVLink endpoint. `sim.tick()` advances one navigatio
 (`1 / tick_hz`, default 10 ms: inbound bytes already delivered → autopilot → wind → physics at
 `physics_hz` → collisions → sensor → telemetry); `sim.step(dt)` runs whole ticks.
 
-Truth (true state, world, collisions) is for tests and summaries only: `sim.collisions`,
+Truth (true state, world, collisions) is for tests and summaries only: `sim.collisions`, `sim.revealed`,
 `sim.truth()`. Anything acting as the companion computer must use MAVLink (`lockstep.LockstepLink`
 or `serve.serve`).
 """
@@ -60,9 +60,13 @@ class Sim:
         self.autopilot = Autopilot(self.model, make_personality(personality),
                                    home=(sc.home.lat_deg, sc.home.lon_deg, sc.home.alt_m),
                                    cruise_speed=sc.route.cruise_speed_m_s)
+        columns = [(Column(c.x_m, c.y_m, c.radius_m, c.height_m or math.inf, c.name, c.reflectivity),
+                    c.appears_within_m) for c in sc.world.columns]
+        # columns absent until the vehicle comes within their distance of them (`_reveal`)
+        self._unrevealed = [(c, within) for c, within in columns if within is not None]
+        self.revealed: list[tuple[float, Column]] = []  # (time, column) of each that appeared (truth)
         self.world = World(
-            [Column(c.x_m, c.y_m, c.radius_m, c.height_m or math.inf, c.name, c.reflectivity)
-             for c in sc.world.columns],
+            [c for c, within in columns if within is None],
             [Box(b.x_m, b.y_m, b.length_m, b.width_m, math.radians(b.yaw_deg), b.height_m or math.inf, b.name,
                  b.reflectivity) for b in sc.world.boxes])
         s = sc.sensor
@@ -206,6 +210,8 @@ class Sim:
         self.model.step(self.n_phys)
         self.time_s = t = t + self.tick_dt
         self._battery_update()
+        if self._unrevealed:
+            self._reveal()
         hit = self.monitor.update(t, self.model.pos)
         if hit is not None:
             p = hit.position
@@ -223,6 +229,16 @@ class Sim:
         if self.flight_log is not None:
             self.flight_log.tick(self)
         self.endpoint.emit()
+
+    def _reveal(self) -> None:
+        """Put into the world each column whose surface the vehicle has come within `appears_within_m` of
+        (horizontally)."""
+        x, y = float(self.model.pos[0]), float(self.model.pos[1])
+        near = [(c, w) for c, w in self._unrevealed if math.hypot(x - c.x, y - c.y) - c.radius <= w]
+        for c, w in near:
+            self.world.add(c)
+            self.revealed.append((self.time_s, c))
+        self._unrevealed = [u for u in self._unrevealed if u not in near]
 
     @property
     def nav_fault(self) -> bool:

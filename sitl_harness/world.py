@@ -49,6 +49,11 @@ class World:
     def __post_init__(self):
         self.obstacles = [*self.columns, *self.boxes]
 
+    def add(self, obstacle: Column | Box) -> None:
+        """An obstacle that appears now; appended last to `obstacles`, so earlier indices keep their meaning."""
+        (self.columns if isinstance(obstacle, Column) else self.boxes).append(obstacle)
+        self.obstacles.append(obstacle)
+
     def ray_cast(self, px: float, py: float, alt: float, angles: np.ndarray,
                  max_range: float, reflectivity: bool = False):
         """Distance along horizontal rays from (px, py) at compass `angles` (rad) to the first

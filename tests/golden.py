@@ -22,13 +22,16 @@ from tests import test_inflight_figures as figs
 from tests import test_mission as mission
 from tests import test_offboard_lockstep as off
 from tests.lockstep import Rig
+from tests.test_detection_range import hide_the_medium
 
 DIR = Path(__file__).resolve().parent / "data" / "golden"
 WIND = {"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}
 
 
-def _governor(scenario: dict, personality: str, seconds: float, config: dict | None = None) -> Rig:
+def _governor(scenario: dict, personality: str, seconds: float, config: dict | None = None, setup=None) -> Rig:
     rig = Rig(scenario, personality, config=config)
+    if setup is not None:
+        setup(rig)
     gov.fly(rig, seconds)
     return rig
 
@@ -36,6 +39,12 @@ def _governor(scenario: dict, personality: str, seconds: float, config: dict | N
 def _offboard(scenario: dict, personality: str, seconds: float, config: dict | None = None) -> Rig:
     rig = Rig(scenario, personality, config=config or off.offboard_config())
     off.engage_and_fly(rig, seconds)
+    return rig
+
+
+def _medium_withheld(rig: Rig) -> Rig:
+    """A rig whose obstacle logic does not get the returns counted as the medium's (a negative control only)."""
+    hide_the_medium(rig.daemon.cycle)
     return rig
 
 
@@ -68,6 +77,13 @@ FLIGHTS = {
         off.offboard_scenario(1, wind={"mean_m_s": 3.0, "from_deg": 90, "gust_m_s": 1.0}, vehicle="x500"),
         "px4", 22.0),
     "offboard_px4_hidden_fog": lambda: off.fog_flight("px4", 1, off.VIS_AVOIDABLE, 12.0)[0],
+    # the negative control `hide_the_medium`: the same hidden-fog flights, the medium's returns withheld from the
+    # obstacle logic
+    "governor_ardupilot_hidden_fog_medium_withheld": lambda: _governor(gov.column_scenario(
+        1, x_col=40.0, faults=[{"at_s": 5.0, "fog": {"visibility_m": 3.0, "report": "hidden"}}]), "ardupilot", 20.0,
+        setup=_medium_withheld),
+    "offboard_px4_hidden_fog_medium_withheld": lambda: off.fog_flight("px4", 1, off.VIS_AVOIDABLE, 12.0,
+                                                                      withhold_the_medium=True)[0],
     "offboard_ardupilot_corner_90": lambda: _corner("ardupilot", "90deg"),
     "offboard_ardupilot_mission_square": _mission_flight,
     "figure_17": lambda: figs.fly_scenario("fig17"),

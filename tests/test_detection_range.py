@@ -8,14 +8,20 @@ same helpers and must fail them (the negative control)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from companion.config import SensorConfig
+from companion.autopilots import adapter_for
+from companion.config import Config, SensorConfig
+from companion.cycle import Cycle
 from companion.detection_range import DetectionRange, DetectionRangeEstimate
+from companion.guidance import InlinePlanning
 from companion.mavlink_in import UINT16_MAX, bins_scan, range_scan
+from companion.samples import Heading, Position, Scan
 from contracts.lidar import detection_range, extinction_for_range
+from contracts.table import load_for_vehicle
 from sitl_harness.sensors import RangeSensor, RangeSensorConfig
 from sitl_harness.world import Column, World
 
@@ -192,31 +198,108 @@ def test_single_beam_sees_the_fog_from_its_quality_trend(rho):
     assert max(d for t, d, _, _ in neg if t >= 10.5) > FACTOR * truth
 
 
-def test_the_medium_returns_are_taken_out_of_the_scan_and_a_close_surface_is_kept():
-    """`add_scan` returns what the obstacle logic should take: a short return that no tracked target accounts
-    for and that does not stay put is the medium's (dropped; a single beam's quality becomes unknown), a
-    surface close by is kept once seen in `confirm_frames` frames in a row."""
+def test_the_medium_returns_are_counted_and_a_close_surface_is_told_from_them():
+    """`add_scan` names the returns it counts as the medium's (backscatter evidence): a short return that no
+    tracked target accounts for and that does not stay put; a surface close by is told from them once seen in
+    `confirm_frames` frames in a row. It takes nothing out of the scan (the tests below)."""
     est = DetectionRange([BINS, BEAM])
     bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
     rng = np.random.default_rng(0)
     wall = (1.2 * math.cos(bearings[6]), 1.2 * math.sin(bearings[6]))
-    dropped = 0
+    counted = 0
     for k in range(40):  # hovering at the origin; the fog's returns at random ranges, a post 1.2 m ahead in bin 6
         t = k / RATE_HZ
         est.add_position(t, 0.0, 0.0)
         est.add_heading(t, 0.0)
         ranges = np.where(rng.random(12) < 0.3, rng.uniform(0.5, 1.5, 12), np.inf)
         ranges[6] = 1.2 + 0.01 * rng.standard_normal()
-        out = est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
-        kept = dict(out.hits)
-        dropped += int(np.isfinite(ranges).sum()) - len(kept)
-        if k >= 3:  # the post from its 4th frame on; a fog return right beside it is taken for it (kept)
-            assert bearings[6] in kept
-            assert all(math.hypot(r * math.cos(b) - wall[0], r * math.sin(b) - wall[1]) < 0.45 for b, r in kept.items())
-        assert out.known == tuple(bearings)  # every bin still reports
-    assert dropped > 60  # most of the fog's ~140 returns
-    beam = est.add_scan(range_scan(2.0, 1, 0.0, 0.6, 0.1, R_MAX, 5, R_MAX))  # 0.6 m from the post
-    assert beam.hits == () and beam.quality == 0
+        scan = bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX)
+        medium = est.add_scan(scan)
+        counted += len(medium)
+        if k >= 3:  # the post from its 4th frame on; a fog return right beside it is taken for it
+            post = [j for j, (b, _) in enumerate(scan.hits) if b == bearings[6]]
+            assert post and post[0] not in medium
+            for j, (b, r) in enumerate(scan.hits):
+                if j not in medium:
+                    assert math.hypot(r * math.cos(b) - wall[0], r * math.sin(b) - wall[1]) < 0.45
+    assert counted > 60  # most of the fog's ~140 returns
+    assert est.add_scan(range_scan(2.0, 1, 0.0, 0.6, 0.1, R_MAX, 5, R_MAX)) == (0,)  # 0.6 m from the post
+    assert est.estimate(2.0, R_MAX).alpha > 0.0  # and they are the medium's evidence
+
+
+def governor_cycle(sensors=(BINS, BEAM)):
+    """The daemon's cycle (governor mode, PX4), fed its samples directly: no link, no vehicle."""
+    cfg = Config(vehicle="mambo", mode="governor", sensors=[s.model_dump() for s in sensors])
+    return Cycle(cfg, load_for_vehicle(cfg.vehicle, cfg.table), adapter_for("px4"), "stop", InlinePlanning)
+
+
+def hide_the_medium(cycle) -> None:
+    """A negative control only: the returns `add_scan` counts as the medium's withheld from the obstacle logic
+    (a surface first seen close by reaches it once `confirm_frames` frames confirm it), and a single beam's
+    quality then unknown."""
+    def scan(s):
+        medium = cycle.truth.add_scan(s)
+        if medium:
+            s = replace(s, hits=tuple(h for k, h in enumerate(s.hits) if k not in medium),
+                        quality=0 if s.known is None else s.quality)
+        cycle.dod.add_scan(s)
+    cycle._takers[Scan] = scan
+
+
+def approach(cycle, frames: int, seen):
+    """Fly +x at 2 m/s for `frames` sensor frames (20 Hz), each frame's scans from `seen(t, x)`; the obstacle
+    logic's hits (body bearing, range) after each frame."""
+    out = []
+    for k in range(frames):
+        t = k / RATE_HZ
+        x = 2.0 * t
+        cycle.take(Position(t, x, 0.0))
+        cycle.take(Heading(t, 0.0, 2.0))
+        for s in seen(t, x):
+            cycle.take(s)
+        out.append([(b, r) for b, r, *_ in cycle.dod.fresh_hits(t)])
+    return out
+
+
+def a_post_from(x_post: float, x_from: float):
+    """Frames of both sensors: clear, until the vehicle is past `x_from`; then a post at `x_post` straight ahead."""
+    bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
+
+    def seen(t, x):
+        r = x_post - x if x >= x_from else np.inf
+        ranges = np.where(np.abs(bearings - bearings[6]) < 1e-9, r, np.inf)
+        return [bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX),
+                range_scan(t, 1, 0.0, r if math.isfinite(r) else R_MAX + 0.01, 0.1, R_MAX, 100, R_MAX)]
+    return seen
+
+
+def reached_on_its_first_frame(hits_per_frame, first: int, r_first: float):
+    """The frames before `first` see nothing; on frame `first` both sensors' hit at `r_first` is in the obstacle
+    logic, and on every frame after."""
+    assert all(not h for h in hits_per_frame[:first])
+    assert [r for _, r in hits_per_frame[first]] == pytest.approx([r_first, r_first])
+    assert all(len(h) == 2 for h in hits_per_frame[first:])
+
+
+def test_a_close_return_reaches_the_obstacle_logic_on_its_first_frame():
+    """A post first seen 1.8 m ahead at 2 m/s (inside `near_m`, on no tracked target: on its first frame the
+    estimator counts it as the medium's) is in the obstacle logic from that frame on, from the sector sensor and
+    the single beam alike; the beam's quality is the one it sent."""
+    cycle = governor_cycle()
+    hits = approach(cycle, 20, a_post_from(2.3, 0.5 - 1e-9))  # seen from frame 5 (x = 0.5 m) on
+    reached_on_its_first_frame(hits, 5, 1.8)
+    assert cycle.dod.sensors[1].trusted  # quality 100, as sent
+
+
+def test_negative_control_withholding_the_medium_returns_hides_the_close_post():
+    """The same frames with the returns counted as the medium's withheld from the obstacle logic
+    (`hide_the_medium`): the post reaches it 3 frames late, and the check above fails."""
+    cycle = governor_cycle()
+    hide_the_medium(cycle)
+    hits = approach(cycle, 20, a_post_from(2.3, 0.5 - 1e-9))
+    with pytest.raises(AssertionError):
+        reached_on_its_first_frame(hits, 5, 1.8)
+    assert all(not h for h in hits[:8]) and len(hits[8]) == 2  # seen on frame 5, in the obstacle logic from 8
 
 
 def test_a_dark_column_first_seen_late_in_clear_air_lowers_d_od():

@@ -14,6 +14,7 @@ from contracts.vehicle import G
 from tests.lockstep import Rig
 from tests.lockstep import engage_and_fly  # noqa: F401  (companion/flights.py; other tests import it from here)
 from companion.baselines import Scaled, TrustTheClaim, WithoutEtr
+from tests.test_detection_range import hide_the_medium
 
 D_SENSOR = 6.0
 R_OBST = 1.0
@@ -109,10 +110,12 @@ class Trace:
         return next((r for r in self.rows if r[0] >= t - 1e-9 and r[4] is not None), None)
 
 
-def fog_flight(personality, seed, visibility_m, seconds, trust_claim=False):
+def fog_flight(personality, seed, visibility_m, seconds, trust_claim=False, withhold_the_medium=False):
     """Head-on column at 40 m, design wind, a sensor claiming 12 m and fog hiding everything beyond
     `visibility_m` from take-off on (hidden: the sensor still reports 12 m at full quality; the lidar model of
-    the SITL gives the medium's backscatter and no return from a target beyond what the fog lets through)."""
+    the SITL gives the medium's backscatter and no return from a target beyond what the fog lets through).
+    `trust_claim`: D_od the sensor's claim; `withhold_the_medium`: the medium's returns kept from the obstacle
+    logic (tests/test_detection_range.py `hide_the_medium`): D_od's evidence alone."""
     sc = offboard_scenario(seed, x_col=X_FOG_COL, wind={"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5},
                            faults=[{"at_s": 0, "fog": {"visibility_m": visibility_m, "report": "hidden"}}],
                            personality=personality)
@@ -120,22 +123,28 @@ def fog_flight(personality, seed, visibility_m, seconds, trust_claim=False):
     rig = Rig(sc, personality, config=offboard_config(x_end=70.0))
     if trust_claim:
         rig.daemon.cycle.truth = TrustTheClaim(rig.daemon.cfg.sensors)
+    if withhold_the_medium:
+        hide_the_medium(rig.daemon.cycle)
     trace = Trace()
     engage_and_fly(rig, seconds, trace)
     return rig, trace
 
 
 def fog_seen(rig, visibility_m):
-    """The navigation violation of the hidden fog, from its evidence before the column is in range: assumed
-    D_od the claimed range, observed the estimate (below the visibility); D_od stays below it, and so does V_max."""
+    """The navigation violation of the hidden fog, before the column is in range: assumed D_od the claimed range,
+    observed below the visibility (the evidence's estimate, or a medium return taken for an obstacle first seen
+    inside the claimed range: a late first detection); while the vehicle flies the route, D_od stays below the
+    visibility, and so does V_max."""
     v = [e for e in rig.log.named("violation_start") if e["subsystem"] == "navigation"]
     assert v, "hidden fog must be logged as a broken navigation guarantee"
     assert v[0]["assumed"] == pytest.approx(CLAIMED_M, abs=0.05)
     assert v[0]["observed"] < visibility_m
-    assert "D_od lowered" in v[0]["action"] and "evidence" in v[0]["action"]
+    assert "D_od lowered" in v[0]["action"]
     flown = [s for s in rig.log.states if s["v_cmd"] is not None]
     assert flown and v[0]["t"] <= flown[0]["t"]  # seen before the flight began: the fog is there from take-off
-    far = [s for s in flown if s["x"] < X_FOG_COL - CLAIMED_M - 2.0]  # the column not yet in its stated range
+    stop = min((e["t"] for e in rig.log.named("failsafe")), default=math.inf)
+    # flying the route (before a fail-safe stop), the column not yet in its stated range
+    far = [s for s in flown if s["x"] < X_FOG_COL - CLAIMED_M - 2.0 and s["t"] < stop]
     assert far and all(s["d_od_stated"] == pytest.approx(CLAIMED_M) for s in far)  # the sensor never said so
     assert max(s["d_od"] for s in far) < visibility_m
     return v[0], flown
@@ -146,18 +155,17 @@ VIS_AVOIDABLE = 9.2
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])
-def test_offboard_hidden_fog_is_seen_from_its_evidence_before_the_column(personality, seed):
+def test_offboard_hidden_fog_is_seen_from_its_evidence_and_its_returns_stop_the_flight(personality, seed):
     """Hidden fog: the sensor promises 12 m but sees the column only from ~9.2 m. The backscatter of the medium
-    tells of it before the column is in range: D_od is the reference target's detection range through the
-    estimated extinction (below 9.2 m), V_max with it, and the column is passed with room to spare."""
+    tells of it from take-off: D_od is the reference target's detection range through the estimated extinction
+    (below 9.2 m). Its returns, 0.5–1.5 m ahead, are obstacles until shown otherwise: the daemon does not fly
+    into the fog (a fail-safe Hold short of where the column could be seen), and nothing is hit."""
     rig, trace = fog_flight(personality, seed, VIS_AVOIDABLE, 12.0)
-    v, flown = fog_seen(rig, VIS_AVOIDABLE)
-    claimed = rig.daemon.table.omega(CLAIMED_M, R_OBST, rig.daemon.cfg.contract.e_tr_floor_m, 1.0)
-    assert max(s["v_cmd"] for s in flown) < claimed.v_max  # slower than the claim would have flown
-    truth = rig.truth
-    assert not truth["collisions"], truth["collisions"]
-    assert truth["min_clearance_m"] > 0.0
-    assert truth["pos"][0] > X_FOG_COL + 10.0  # round it and on along the route
+    fog_seen(rig, VIS_AVOIDABLE)
+    fs = rig.log.named("failsafe")
+    assert fs and fs[0]["cause"] == "no safe speed" and fs[0]["action"] == "hold"
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    assert max(r[1] for r in trace.rows) < X_FOG_COL - CLAIMED_M
 
 
 VIS_HARSH = 3.0
@@ -167,16 +175,22 @@ VIS_HARSH = 3.0
 @pytest.mark.parametrize("personality", ["px4", pytest.param("ardupilot", marks=pytest.mark.slow)])
 def test_offboard_dense_hidden_fog_no_longer_collides_and_trusting_the_claim_does(personality):
     """Hidden fog at 3 m: at the claim's speed (~7.5 m/s) nothing can avoid the column once it appears (the
-    avoid contract at c = 3 m + R_obst allows ≈ 5.7 m/s even with no reaction time and no tracking error). From
-    the evidence the daemon flies for D_od ≤ 3 m and stops or passes short of the column; the negative control,
-    an estimator that believes the claim, flies at the claim's speed and hits it."""
+    avoid contract at c = 3 m + R_obst allows ≈ 5.7 m/s even with no reaction time and no tracking error). The
+    daemon holds in the fog's own returns. D_od's evidence alone (the medium's returns withheld from the obstacle
+    logic) keeps it off the column too: it flies for D_od ≤ 3 m and stops or passes short of it; the negative
+    control, an estimator that believes the claim with the medium's returns withheld, flies at the claim's speed
+    and hits it."""
     rig, trace = fog_flight(personality, 1, VIS_HARSH, 24.0)
     fog_seen(rig, VIS_HARSH)
     assert not rig.truth["collisions"], rig.truth["collisions"]
-    assert rig.truth["min_clearance_m"] > 0.0
-    assert max(r[1] for r in trace.rows) > X_FOG_COL - 8.0  # it did fly up to the column, not hover far off
 
-    blind, blind_trace = fog_flight(personality, 1, VIS_HARSH, 12.0, trust_claim=True)
+    evidence, ev_trace = fog_flight(personality, 1, VIS_HARSH, 24.0, withhold_the_medium=True)
+    assert "evidence" in fog_seen(evidence, VIS_HARSH)[0]["action"]
+    assert not evidence.truth["collisions"], evidence.truth["collisions"]
+    assert evidence.truth["min_clearance_m"] > 0.0
+    assert max(r[1] for r in ev_trace.rows) > X_FOG_COL - 8.0  # it did fly up to the column, not hover far off
+
+    blind, blind_trace = fog_flight(personality, 1, VIS_HARSH, 12.0, trust_claim=True, withhold_the_medium=True)
     assert blind.truth["collisions"]  # the control must fail: believing the claim flies into the column
 
 

@@ -130,8 +130,9 @@ def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
         elif key in ("d_od", "v_max"):  # (V_max follows D_od)
             # D_od from evidence: the medium's backscatter counted over a 1 s window of frames that the replay
             # steps at log time, a poll apart from the live daemon's: samples lowered by the evidence may differ,
-            # those at the sensors' claim may not
-            lowered = {s["t"] for s in live_s if s["d_od"] < s["d_od_stated"] - 1e-9}
+            # and so may those where the beam was untrusted (claim 0: its nearest return the medium's, too weak
+            # for its min_quality, in one frame and not the next); those at a trusted claim may not
+            lowered = {s["t"] for s in live_s if s["d_od"] < s["d_od_stated"] - 1e-9 or s["d_od_stated"] == 0.0}
             assert [t for t in bad if t not in lowered] == [], key
             assert len(bad) <= 0.25 * len(live_s), (len(bad), len(live_s))
         else:

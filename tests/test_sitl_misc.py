@@ -194,6 +194,32 @@ def test_detect_and_hold_loop_over_mavlink_positive_and_negative_control():
     assert len(fast.collisions) == 1 and fast.collisions[0].obstacle_name == "pole"
 
 
+def test_a_column_appears_once_the_vehicle_comes_within_its_distance():
+    """`appears_within_m`: absent (not sensed, not hit) until the vehicle's centre comes within that distance of
+    its surface, then there for good, in the world the sensor and the collision monitor share."""
+    sim = Sim(scenario_from_dict({"start": {"alt_m": 2.0}, "wind": {"mean_m_s": 0, "gust_m_s": 0},
+                                  "world": {"columns": [{"x_m": 12.0, "y_m": 0.0, "radius_m": 0.5, "name": "door",
+                                                         "appears_within_m": 1.8}]},
+                                  "sensor": {"max_range_m": 6.0, "noise_sd_m": 0.0, "noise_rel": 0.0}}), "px4")
+    c = lockstep_client(sim)
+    for _ in range(10):
+        c.position_target(0x09C7, vel=(2.0, 0.0, 0.0))
+        c.pump(0.05)
+    assert c.set_mode(6) == mav.MAV_RESULT_ACCEPTED
+    ranges = []  # (vehicle x, nearest range reported) per frame
+    while not sim.revealed or sim.time_s < sim.revealed[0][0] + 0.2:
+        c.position_target(0x09C7, vel=(2.0, 0.0, 0.0))
+        for m in c.pump(0.05):
+            if m.get_type() == "DISTANCE_SENSOR":
+                ranges.append((c.pos[0], m.current_distance / 100 if m.current_distance <= m.max_distance else None))
+    (t, col), = sim.revealed
+    assert col.name == "door" and sim.world.columns == [col]
+    seen = [(xv, r) for xv, r in ranges if r is not None]
+    assert seen and all(r is None for xv, r in ranges if xv < 11.5 - 1.8 - 0.05)  # not sensed from 6 m
+    assert seen[0][0] >= 11.5 - 1.8 - 0.02 and seen[0][1] == pytest.approx(11.5 - seen[0][0], abs=0.1)
+    assert not sim.collisions
+
+
 @pytest.mark.parametrize("pers", ["px4", "ardupilot"])
 def test_nav_fault_shows_in_estimator_flags_and_blocks_arming(pers):
     sim = Sim(scenario_from_dict({"faults": [{"at_s": 1.0, "nav_fault_s": 3.0}]}), pers)

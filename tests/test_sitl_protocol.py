@@ -497,6 +497,8 @@ def test_shipped_scenarios_load_and_run():
 @pytest.mark.parametrize("data,needle", [
     ({"bogus": 1}, "bogus: unknown key"),
     ({"world": {"columns": [{"x_m": 1, "y_m": 0, "radius_m": -1}]}}, "world.columns.0.radius_m"),
+    ({"world": {"columns": [{"x_m": 1, "y_m": 0, "radius_m": 1, "appears_within_m": 0}]}},
+     "world.columns.0.appears_within_m"),
     ({"faults": [{"at_s": 1, "thrust_ratio": 0.5, "link_dropout_s": 1}]}, "exactly one"),
     ({"faults": [{"at_s": 1, "fog": {"visibility_m": 2, "report": "maybe"}}]}, "faults.0.fog"),
 ])
