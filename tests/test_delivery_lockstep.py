@@ -90,19 +90,19 @@ def test_holds_lost_beyond_the_budget_are_the_delivery_subsystems_violation():
 
 
 @functools.cache
-def ignored_limit(personality: str, judged: bool = True) -> Rig:
+def ignored_limit(vehicle: str, personality: str, judged: bool = True) -> Rig:
     """DO_CHANGE_SPEED accepted and never applied from the start: the autopilot flies its own 8 m/s. `judged`:
     False, the speed flown is never judged against the limit (a negative control)."""
     with pytest.MonkeyPatch.context() as mp:
         if not judged:
             mp.setattr(supervisor_module.Supervisor, "_judge_limit", lambda self, i, over: None)
-        rig, _ = column_flight("mambo", personality, faults=[{"at_s": 0.0, "speed_commands_ignored": True}])
+        rig, _ = column_flight(vehicle, personality, faults=[{"at_s": 0.0, "speed_commands_ignored": True}])
     return rig
 
 
-@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
-def test_a_limit_acknowledged_and_not_flown_is_caught_by_the_autopilots_own_slow_down(personality):
-    rig = ignored_limit(personality)
+@pytest.mark.parametrize("vehicle,personality", CELLS)
+def test_a_limit_acknowledged_and_not_flown_is_caught_by_the_autopilots_own_slow_down(vehicle, personality):
+    rig = ignored_limit(vehicle, personality)
     assert not rig.truth["collisions"], rig.truth["collisions"]
     [v] = [e for e in rig.log.named("violation_start") if e.get("guarantee") == LIMIT_FLOWN]
     assert v["subsystem"] == "delivery" and v["observed"] > v["assumed"]
@@ -117,7 +117,7 @@ def test_a_limit_acknowledged_and_not_flown_is_caught_by_the_autopilots_own_slow
 def test_negative_control_a_limit_not_flown_and_not_caught_collides():
     """The same flight where the speed flown is never judged against the limit: the autopilot's own 8 m/s meets the
     column, whose stop distance at that speed is about twice the sensor's range."""
-    rig = ignored_limit("px4", judged=False)
+    rig = ignored_limit("mambo", "px4", judged=False)
     assert rig.truth["collisions"], "a limit not flown, held for too late, must reach the column"
 
 
@@ -138,3 +138,54 @@ def test_a_hold_refused_takes_land_and_is_said(personality):
     assert any(e["to"] == "land" and e["by"] == "daemon" for e in rig.log.named("mode_change"))
     assert len([e for e in rig.log.named("command") if e["cmd"] == "hold"]) == 1  # landing is the daemon's stop
     assert not rig.truth["collisions"], rig.truth["collisions"]
+
+
+@functools.cache
+def late_switch(vehicle: str, personality: str, delay_s: float, t_cmd_s: float = 0.1) -> Rig:
+    """The column flight with the recovery brake, the autopilot answering its OFFBOARD / GUIDED at once and
+    showing it `delay_s` later (it flies its mission meanwhile)."""
+    sc = gov.column_scenario(1, vehicle=vehicle,
+                             faults=[{"at_s": 0.0, "mode_delay": {"delay_s": delay_s, "only": "offboard"}}])
+    sc["params"] = {"COM_OBL_RC_ACT": 5} if personality == "px4" else {}
+    rig = Rig(sc, personality, config={"governor": {"recovery_brake": True}, "delivery": {"t_cmd_s": t_cmd_s}})
+    gov.fly(rig, 25.0)
+    return rig
+
+
+def brake_violations(rig: Rig) -> list[dict]:
+    return [e for e in rig.log.named("violation_start") if e["subsystem"] == "autopilot"]
+
+
+@pytest.mark.parametrize("vehicle,personality", CELLS)
+def test_a_brake_switch_shown_late_stops_short_and_turns_the_brake_off(vehicle, personality):
+    """Shown 0.3 s late, later than the 0.22 s the brake's contract budgets for its switch (the switch, a cycle and
+    the delivery budget): the autopilot's violation, and the brake off from then on; the stop still comes short."""
+    rig = late_switch(vehicle, personality, 0.3)
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    [v] = brake_violations(rig)
+    assert "brake off" in v["action"] and v["observed"] > v["assumed"]
+    off = rig.log.named("recovery_brake")[-1]
+    assert not off["available"] and "shown 0.3" in off["reason"] and off["t"] <= v["t"] + 0.02
+    switch = [e for e in rig.log.named("delivery") if e["cmd"] == "offboard"][0]
+    assert switch["outcome"] == "shown" and switch["waited_s"] == pytest.approx(0.3, abs=0.03)
+    after = [s["v_max"] for s in rig.log.states if s["t"] > off["t"] and s["v_max"]]
+    assert max(after) < max(s["v_max"] for s in rig.log.states if s["t"] < v["t"])  # the Hold's lower limit
+
+
+@pytest.mark.parametrize("personality", ["px4", "ardupilot"])
+def test_a_brake_switch_shown_0_6_s_late_stops_short_with_the_delivery_budget_and_collides_without(personality):
+    """The Mambo's brake, its switch shown 0.6 s late: the delivery budget in its dead time (and its slack) stops
+    it short; the same flight under the contract without the budget (the negative control) hits the column."""
+    assert not late_switch("mambo", personality, 0.6).truth["collisions"]
+    assert late_switch("mambo", personality, 0.6, t_cmd_s=0.0).truth["collisions"], \
+        "a brake switch shown 0.6 s late must reach the column without the budget"
+
+
+@pytest.mark.parametrize("vehicle,delay_s", [("x500", 0.6), ("mambo", 1.0)])
+def test_a_brake_switch_shown_later_still_is_outside_the_contract_and_said(vehicle, delay_s):
+    """Later still, the stop cannot come in time (these flights collide): outside the contract, and said as the
+    autopilot's broken guarantee (a critical STATUSTEXT), never as a flight within it."""
+    rig = late_switch(vehicle, "px4", delay_s)
+    assert rig.truth["collisions"]  # (the premise: the test shows what is said of a flight that collides)
+    [v] = brake_violations(rig)
+    assert v["observed"] > v["assumed"] and any("SHOWN LATE" in t for t in rig.daemon_texts())
