@@ -2,7 +2,9 @@
 
 `review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several),
 `summarise(records)` (pure) builds the report, `findings(report)` is what it concludes, and
-`format_report(report)` renders it for a person. This module reads event logs only: a raw log is first
+`format_report(report)` renders it for a person. The same pass checks where the vehicle went and what the
+autopilot did with the daemon's commands (`companion.review_checks`: keep-out entries, collisions as far as the
+log tells, mode commands and speed limits not taken in time). This module reads event logs only: a raw log is first
 turned into one by a converter (`companion.flightlogs.tlog` for a `.tlog`; `companion.cli` picks it), which hands
 over an `Origin` (its own report section and findings). With
 `out_dir`: `review.png` (speed limit and ground speed, Γ, `d_od`, `e_tr`, `thrust_ratio`, `r_obst` over
@@ -34,8 +36,8 @@ from typing import Iterable
 
 from contracts.errors import ContractError
 
-from .eventlog import file_set, finite_copy, read_events
 from . import review_checks
+from .eventlog import file_set, finite_copy, read_events
 from .logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
 from .review_checks import Checks, RunFacts, command_text, facts_of_start, refused
 from .review_html import PAGE, verdict, write_flight_page
