@@ -7,9 +7,10 @@ Keep-out. A state sample's `obstacle_m` is the nearest obstacle surface a sensor
 the vehicle's centre. The keep-out disc is R_obst + E_tr + r_body around the obstacle's centre, and that centre
 is at most R_obst behind the surface seen, so a return closer than E_tr + r_body puts the vehicle inside the
 disc whatever the obstacle's size (up to R_obst). What the log can say of a collision: a return at or inside
-r_body (the surface at the body), or a stop faster than a multirotor can brake with a return within the
-distance flown meanwhile. A sensor says nothing below its minimum range, so a vehicle that flies into an
-obstacle may show only a return closing in and then gone: that is a keep-out entry, its closest return said.
+r_body (the surface at the body); a return closing in so fast, so near, that not even braking at
+`ABRUPT_STOP_M_S2` stops the body short of it; or a stop faster than that with a return within the distance flown
+meanwhile. A sensor says nothing below its minimum range, so a vehicle that flies into an obstacle may show only
+a return closing in and then gone.
 
 Delivery. A mode command (`command` hold / offboard / mission) is taken when the autopilot shows that mode (a
 `mode_change` to it, or a state sample's `mode`) within the run's mode budget (`start.delivery.t_mode_s`, else
@@ -30,6 +31,10 @@ SPEED_MARGIN_M_S = 0.3
 SPEED_SLACK_S = 1.0  # [s] on top of the braking time: the autopilot's jerk ramp and its reaction
 BRAKE_FALLBACK_M_S2 = 1.0  # braking assumed where the log names no vehicle (a slow one: the longer budget)
 ABRUPT_STOP_M_S2 = 2 * 9.81  # faster than any multirotor brakes (1 g at 45° of tilt): it hit something
+# a return closing faster than the ground speed by more than this (× 1.2 + 0.5 m/s) is another obstacle taking over
+# as the nearest, not one approached
+CLOSING_RATIO, CLOSING_SLACK_M_S = 1.2, 0.5
+COLLISION_GAP_S = 2.0  # samples showing a collision no further apart than this are one collision
 MAX_LISTED = 1000
 
 
@@ -82,6 +87,16 @@ def abrupt_stop(gs0: float, gs1: float, dt: float, obstacle0: float | None, r_bo
             and obstacle0 <= gs0 * dt + (r_body_m or 0.0))
 
 
+def closing_too_fast(ob0: float, ob1: float, dt: float, gs: float, r_body_m: float | None) -> float | None:
+    """The closing speed of a return that came from ob0 to ob1 in dt, where even braking at `ABRUPT_STOP_M_S2`
+    cannot stop the body short of it (closing no faster than ground speed `gs` allows: one static obstacle
+    approached); None otherwise."""
+    closing = (ob0 - ob1) / dt if dt > 0 else 0.0
+    if not 0 < closing <= gs * CLOSING_RATIO + CLOSING_SLACK_M_S:
+        return None
+    return closing if ob1 - (r_body_m or 0.0) < closing * closing / (2 * ABRUPT_STOP_M_S2) else None
+
+
 def speed_ceiling(v_cmd: float) -> float:
     """The most ground speed that still flies a limit of v_cmd."""
     return v_cmd * (1 + SPEED_OVERSHOOT) + SPEED_MARGIN_M_S
@@ -118,6 +133,7 @@ class Checks:
         self.entry_count = 0
         self.open_entry: dict | None = None
         self.collisions: list[dict] = []
+        self.hit_t = None  # the run's last sample that showed a collision
         self.prev = None  # (t, ground speed, obstacle_m) of the run's previous sample
         self.mode = None  # the autopilot mode last shown
         self.modes: list[dict] = []  # every mode command, judged
@@ -161,22 +177,25 @@ class Checks:
             if e is None:
                 self.entry_count += 1
                 e = self.open_entry = {"start_t": t, "end_t": t, "closest_m": ob, "t": t, "margin_m": margin,
-                                       "x": _num(rec.get("x")), "y": _num(rec.get("y")), "contact": False,
-                                       "boot": self.boot, "shadow": self.shadow}
+                                       "x": _num(rec.get("x")), "y": _num(rec.get("y")), "boot": self.boot,
+                                       "shadow": self.shadow}
             e["end_t"] = t
             if ob < e["closest_m"]:
                 e.update(closest_m=ob, t=t, margin_m=margin, x=_num(rec.get("x")), y=_num(rec.get("y")))
-            if r_body is not None and ob <= r_body and not e["contact"]:
-                e["contact"] = True
-                self._collision(t, rec, f"a return at {ob:.2f} m, at or inside the vehicle's radius {r_body:.2f} m")
         else:
             self._close_entry()
-        if self.prev is not None and gs is not None:
-            t0, gs0, ob0 = self.prev
-            if 0 < t - t0 <= self.gap_s and abrupt_stop(gs0, gs, t - t0, ob0, r_body):
+        if ob is not None and r_body is not None and ob <= r_body:
+            self._collision(t, rec, f"a return at {ob:.2f} m, at or inside the vehicle's radius {r_body:.2f} m")
+        t0, gs0, ob0 = self.prev if self.prev is not None else (None, None, None)
+        if t0 is not None and 0 < t - t0 <= self.gap_s and gs is not None and gs0 is not None:
+            closing = None if ob0 is None or ob is None else closing_too_fast(ob0, ob, t - t0, max(gs0, gs), r_body)
+            if closing is not None:
+                self._collision(t, rec, f"a return {ob:.2f} m away closing at {closing:.2f} m/s: not even braking "
+                                        f"at {ABRUPT_STOP_M_S2 / 9.81:g} g stops the body short of it")
+            elif abrupt_stop(gs0, gs, t - t0, ob0, r_body):
                 self._collision(t, rec, f"stopped from {gs0:.2f} to {gs:.2f} m/s in {t - t0:.2f} s with a return "
                                         f"{ob0:.2f} m away")
-        self.prev = (t, gs, ob) if gs is not None else None
+        self.prev = (t, gs, ob)
         w = self.speed
         if w is not None and gs is not None:
             if w["budget_s"] is None:
@@ -195,6 +214,9 @@ class Checks:
             self.v_last = gs
 
     def _collision(self, t: float, rec: dict, how: str) -> None:
+        last, self.hit_t = self.hit_t, t
+        if last is not None and t - last < COLLISION_GAP_S:
+            return  # the same one, still in contact
         if len(self.collisions) < MAX_LISTED:
             self.collisions.append({"t": t, "x": _num(rec.get("x")), "y": _num(rec.get("y")), "how": how,
                                     "boot": self.boot, "shadow": self.shadow})
@@ -265,7 +287,7 @@ class Checks:
             late = self.last_t is not None and self.last_t > p["t"] + p["budget_s"]
             self._judge(p, "not shown" if late else "unjudged", self.last_t, "the end of the run")
         self._close_speed("the end of the run")
-        self.prev, self.mode, self.v_last, self.last_t = None, None, None, None
+        self.prev, self.mode, self.v_last, self.last_t, self.hit_t = None, None, None, None, None
         self.facts, self.shadow = RunFacts(), False
 
     # ---------------------------------------------------------------- result

@@ -100,23 +100,40 @@ def test_a_keep_out_entry_names_the_violation_open_then(tmp_path):
 
 
 def test_a_return_inside_the_body_is_a_collision(tmp_path):
-    rep = stopping(tmp_path, 0.05)
+    hover = [sample(i * DT, 19.42, 0.0, obstacle_m=0.08) for i in range(50)]  # 0.08 m: inside r_body 0.10 m
+    rep = review(write(tmp_path, hover))
+    assert not rep["ok"] and "collision as far as the log tells (1×)" in said(rep)
+    (c,) = rep["keep_out"]["collisions"]  # one, however long it stays there
+    assert c["t"] == 0.0 and "a return at 0.08 m, at or inside the vehicle's radius 0.10 m" in c["how"]
+    assert verdict(rep) == "REVIEW NEEDED: a collision, as far as the log tells"
+
+
+def test_a_return_too_near_to_stop_short_of_is_a_collision(tmp_path):
+    """0.3 m from the surface closing at 3 m/s: braking at 2 g needs 0.23 m, the body has 0.2 m. The same log
+    ending 0.6 m short (0.5 m for the body: enough at 2 g) shows none, and a nearer obstacle taking over as the
+    nearest (0.5 m, outside E_tr + r_body) is no approach at all."""
+    samples = [sample(i * DT, 3.0 * i * DT, 3.0) for i in range(64)]  # the last at 18.9 m: 0.6 m short
+    samples.append(sample(6.4, 19.2, 3.0))
+    rep = review(write(tmp_path / "a", samples))
     assert not rep["ok"] and "collision as far as the log tells (1×)" in said(rep)
     (c,) = rep["keep_out"]["collisions"]
-    assert "at or inside the vehicle's radius 0.10 m" in c["how"]
-    assert verdict(rep).startswith("REVIEW NEEDED: a collision, as far as the log tells")
+    assert c["t"] == pytest.approx(6.4) and "a return 0.30 m away closing at 3.00 m/s" in c["how"]
+    rep = review(write(tmp_path / "b", samples[:-1]))
+    assert not rep["keep_out"]["collisions"]
+    jump = [sample(i * DT, 0.0, 3.0, obstacle_m=3.0 if i < 20 else 0.5) for i in range(40)]
+    assert review(write(tmp_path / "c", jump))["ok"]
 
 
 def test_a_stop_faster_than_any_brake_against_a_return_is_a_collision(tmp_path):
-    """At 3 m/s to a standstill in one 0.1 s sample, 0.3 m from the surface: it hit the column (a sensor below
-    its minimum range then says nothing)."""
+    """At 3 m/s to a standstill in one 0.1 s sample, 0.35 m from the surface (a return far enough for 2 g to stop
+    the body short of it): it hit the column, and the sensor, below its minimum range, then says nothing."""
     samples = [sample(i * DT, 3.0 * i * DT, 3.0) for i in range(63)]  # the last at 18.6 m: 0.9 m short
-    samples += [sample(6.3, 19.2, 3.0), sample(6.4, 19.25, 0.0, obstacle_m=None)]
-    samples += [sample(6.4 + i * DT, 19.25, 0.0, obstacle_m=None) for i in range(1, 20)]
+    samples += [sample(6.3, 18.85, 3.0), sample(6.4, 19.15, 3.0)]  # 0.65 m, 0.35 m
+    samples += [sample(6.5 + i * DT, 19.2, 0.0, obstacle_m=None) for i in range(20)]
     rep = review(write(tmp_path, samples))
     assert not rep["ok"] and "collision as far as the log tells" in said(rep)
     (c,) = rep["keep_out"]["collisions"]
-    assert c["t"] == pytest.approx(6.4) and "stopped from 3.00 to 0.00 m/s in 0.10 s with a return 0.30 m" in c["how"]
+    assert c["t"] == pytest.approx(6.5) and "stopped from 3.00 to 0.00 m/s in 0.10 s with a return 0.35 m" in c["how"]
 
 
 def test_hovering_beside_a_wall_outside_the_margin_is_kept(tmp_path):
@@ -288,17 +305,23 @@ def column_flight(directory, drop: bool):
 
 
 def test_a_lost_hold_that_ends_in_the_column_is_not_kept(tmp_path):
+    """The Hold went out again 1 s later, the autopilot showed it at once, too late: the column is hit. The
+    sensor's last return (0.16 m, closing at 2.3 m/s) is inside the keep-out disc, and nearer than the body could
+    stop even at 2 g: a collision as far as the log tells."""
     rig, lost = column_flight(tmp_path / "log", drop=True)
-    assert lost and rig.truth["collisions"]  # the Hold went out again 1 s later: too late, the column is hit
+    assert lost and rig.truth["collisions"]
     rep, _ = review_log(tmp_path / "log")
     assert not rep["ok"]
     (e,) = rep["keep_out"]["entries"]
     assert e["closest_m"] < R_BODY + 0.1 and e["margin_m"] > 0.5
     last = e["last_mode_command"]
     assert last["cmd"] == "hold" and last["t"] == pytest.approx(lost[0]) and last["delay_s"] > 0.9
+    (c,) = rep["keep_out"]["collisions"]
+    assert c["t"] == pytest.approx(rig.truth["collisions"][0].time_s, abs=0.15)
     f = said(rep)
+    assert "collision as far as the log tells (1×)" in f and "not even braking at 2 g" in f
     assert "entered its keep-out disc" in f and "the last mode command before it: hold at t = " in f
-    assert "contract kept" not in format_report(rep) and "keep-out disc" in verdict(rep)
+    assert "contract kept" not in format_report(rep) and "collision" in verdict(rep)
 
 
 def test_the_same_flight_with_its_hold_delivered_is_kept(tmp_path):
