@@ -2,7 +2,9 @@
 
 `review(paths, out_dir=None) -> dict` reads the log (a directory's rotated set, a file, or several),
 `summarise(records)` (pure) builds the report, `findings(report)` is what it concludes, and
-`format_report(report)` renders it for a person. This module reads event logs only: a raw log is first
+`format_report(report)` renders it for a person. The same pass checks where the vehicle went and what the
+autopilot did with the daemon's commands (`companion.review_checks`: keep-out entries, collisions as far as the
+log tells, mode commands and speed limits not taken in time). This module reads event logs only: a raw log is first
 turned into one by a converter (`companion.flightlogs.tlog` for a `.tlog`; `companion.cli` picks it), which hands
 over an `Origin` (its own report section and findings). With
 `out_dir`: `review.png` (speed limit and ground speed, Γ, `d_od`, `e_tr`, `thrust_ratio`, `r_obst` over
@@ -26,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import datetime as _dt
+import functools
 import json
 import math
 from pathlib import Path
@@ -33,8 +36,10 @@ from typing import Iterable
 
 from contracts.errors import ContractError
 
+from . import review_checks
 from .eventlog import file_set, finite_copy, read_events
 from .logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
+from .review_checks import Checks, RunFacts, command_text, facts_of_start, refused
 from .review_html import PAGE, verdict, write_flight_page
 
 SCHEMA = "contract-guard/review"
@@ -42,7 +47,6 @@ SCHEMA_VERSION = 1
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "d_od_stated", "e_tr",
                 "e_tr_measured", "thrust_ratio", "r_obst", "tilt_deg", *LINK_COUNTERS)
-OK_RESULTS = {"accepted", "mav_result_accepted", "ok", "0", "true"}
 # ground speed above the limit by up to this fraction of it (plus `tolerance_m_s`) is a tracking overshoot, the
 # controller's business (covered by E_tr), not a broken limit: the supervisor's own rule ("speed limit not in
 # force" needs 1.05 × limit + margin). Above V_safe is always a finding (outside_contract).
@@ -131,8 +135,10 @@ class _Spans:
 class _Summary:
     """One pass over the records; `result()` is the report dict."""
 
-    def __init__(self, gap_s: float, tolerance_m_s: float):
+    def __init__(self, gap_s: float, tolerance_m_s: float, facts_of=facts_of_start):
         self.gap_s, self.tol = gap_s, tolerance_m_s
+        self.facts_of = facts_of  # a run's `start` record → its RunFacts (vehicle radius, braking, budgets)
+        self.checks = Checks(gap_s)  # keep-out and delivery (companion/review_checks.py)
         self.records = 0
         self.not_records = 0
         self.t_first = self.t_last = self.wall_first = self.wall_last = None
@@ -216,6 +222,7 @@ class _Summary:
             self._state(rec, t)
         else:
             self._event(rec, t, b)
+        self.checks.record(self.boot, t, rec)
 
     def _state(self, rec, t) -> None:
         self.states += 1
@@ -343,11 +350,11 @@ class _Summary:
             self.counts["limit_changes"] += 1
         elif name == "command":  # sent; its result, if any, comes with it or in a later command_ack
             self.counts["commands"] += 1
-            if g("result") is not None and str(g("result")).strip().lower() not in OK_RESULTS:
+            if g("result") is not None and refused(g("result")):
                 self._keep(self.lists["commands_failed"],
                            {"t": t, "name": g("cmd") or g("name"), "params": g("params"), "result": g("result")})
         elif name == "command_ack":
-            if str(g("result")).strip().lower() not in OK_RESULTS:
+            if refused(g("result")):
                 self._keep(self.lists["commands_failed"], {"t": t, "name": g("command"), "result": g("result")})
         elif name == "link":
             status = g("status")
@@ -382,8 +389,10 @@ class _Summary:
             if isinstance(mode, str):
                 self.modes[mode] = self.modes.get(mode, 0) + 1
             self._keep(self.lists["starts"], {"t": t, "wall": _num(g("wall")), "boot": self.boot})
-            if isinstance(g("vehicle"), str):
-                self.tables.append({"vehicle": g("vehicle"), "table": g("table") if isinstance(g("table"), str) else None})
+            vehicle = g("vehicle").get("name") if isinstance(g("vehicle"), dict) else g("vehicle")
+            if isinstance(vehicle, str):
+                self.tables.append({"vehicle": vehicle, "table": g("table") if isinstance(g("table"), str) else None})
+            self.checks.start(self.facts_of(rec), mode)
         elif name == "stop":
             b["clean_stop"] = True
             self._keep(self.lists["stops"], {"t": t, "wall": _num(g("wall")), "boot": self.boot})
@@ -425,6 +434,7 @@ class _Summary:
 
     def _end_boot(self, why: str) -> None:
         """Close what the ending daemon run left open."""
+        self.checks.end_run()
         if self.would_open is not None:
             self._close_would(self.last_t_of_boot, why)
         self.flown.end()
@@ -513,23 +523,26 @@ class _Summary:
             "startup_checks": self.lists["startup_checks"],
             "log_gaps": self.lists["log_gaps"],
             "other_events": self.other_events,
+            **self.checks.result(self.violations),  # keep_out, delivery
             "findings": None,  # set by conclude(), once the report is whole
             "ok": None,
         }
         return rep
 
 
-def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2) -> dict:
+def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
+              facts_of=facts_of_start) -> dict:
     """The report for a sequence of records (oldest first). Pure: no I/O; never raises on odd records.
 
     `tolerance_m_s`: ground speed above the limit by no more than this is not a finding (issue 5 accepts
-    limit + 0.2 m/s after a limit drop).
+    limit + 0.2 m/s after a limit drop). `facts_of`: a `start` record → its run's `RunFacts` (the default reads
+    the record alone; `review` also looks its vehicle up: `run_facts`).
     """
-    return conclude(_summary(records, gap_s, tolerance_m_s))
+    return conclude(_summary(records, gap_s, tolerance_m_s, facts_of))
 
 
-def _summary(records: Iterable[dict], gap_s: float, tolerance_m_s: float) -> dict:
-    s = _Summary(gap_s, tolerance_m_s)
+def _summary(records: Iterable[dict], gap_s: float, tolerance_m_s: float, facts_of=facts_of_start) -> dict:
+    s = _Summary(gap_s, tolerance_m_s, facts_of)
     for rec in records:
         s.add(rec)
     return s.result()
@@ -555,7 +568,7 @@ def _worst(subsystem: str, v: dict) -> str:
 
 def findings(rep: dict) -> list[str]:
     """One line per thing a safety reviewer must look at; empty when the flight kept its contract."""
-    out = []
+    out = review_checks.findings(rep)  # first: the vehicle where it must not be, commands not taken
     if rep["violation_count"]:
         parts = ", ".join(f"{k} ×{v['count']} ({v['total_s']:.1f} s{_worst(k, v)})"
                           for k, v in sorted(rep["violations_by_subsystem"].items()))
@@ -608,8 +621,10 @@ def findings(rep: dict) -> list[str]:
     bad_checks = [c for c in rep["startup_checks"] if c["ok"] is not True]
     if bad_checks:
         out.append(f"{len(bad_checks)} failed start-up check(s): {bad_checks[0]['reason']}")
-    if rep["commands"]["failed"]:
-        out.append(f"{len(rep['commands']['failed'])} command(s) not accepted")
+    failed = rep["commands"]["failed"]
+    if failed:
+        out.append(f"{len(failed)} command(s) not accepted by the autopilot, the first at t = "
+                   f"{_fmt_t(failed[0]['t'])}: {command_text(failed[0]['name'], failed[0]['result'])}")
     unclean = [b for b in rep["boots"][:-1] if not b["clean_stop"]]
     if unclean:
         out.append(f"daemon restarted {len(unclean)}× without a clean stop (crash, kill or power loss)")
@@ -649,6 +664,34 @@ class Origin:
     def title(self) -> str:
         """A note for the plot's title."""
         return ""
+
+
+def run_facts(rec: dict) -> RunFacts:
+    """A daemon run's `RunFacts` from its `start` record, its vehicle looked up where the record only names it:
+    the table it flew (where that file is here), else the shipped vehicle of that name."""
+    found = None if isinstance(rec.get("vehicle"), dict) else _named_vehicle(
+        rec.get("vehicle") if isinstance(rec.get("vehicle"), str) else None,
+        rec.get("table") if isinstance(rec.get("table"), str) else None)
+    return facts_of_start(rec, *found) if found else facts_of_start(rec)
+
+
+@functools.lru_cache(maxsize=16)
+def _named_vehicle(name: str | None, table: str | None) -> tuple[dict, str] | None:
+    """(the vehicle's parameters, where they came from) for a run's vehicle name and table, or None."""
+    from contracts.table import shipped_vehicles, verify
+    from contracts.vehicle import load_vehicle
+
+    try:
+        if table and Path(table).is_file():
+            return verify(table).vehicle.metadata(), f"the table {table}"
+    except (ContractError, OSError, ValueError):
+        pass
+    try:
+        if name in shipped_vehicles():  # a name only: never a path a log names
+            return load_vehicle(name).metadata(), f"the shipped vehicle {name}"
+    except (ContractError, OSError, ValueError):
+        pass
+    return None
 
 
 def _log_files(paths) -> list[Path]:
@@ -708,7 +751,7 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2
             yield rec
 
     try:
-        rep = _summary(records(), gap_s, tolerance_m_s)
+        rep = _summary(records(), gap_s, tolerance_m_s, run_facts)
     except OSError as err:
         raise ContractError(f"cannot read {err.filename or files[0]}: {err.strerror or err}") from err
     rep["files"] = origin.files if origin else [str(f) for f in files]
@@ -910,6 +953,7 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         lines.append(f"    {_fmt_t(v['start_t'])} … {end}  {fmt_value(v['duration_s'], ' s')}  {v['subsystem']}: "
                      f"{v['guarantee']}; assumed {fmt_value(v['assumed'])}, observed {fmt_value(v['observed'])}; "
                      f"action {fmt_value(v['action'])}")
+    lines += review_checks.lines(rep)
     if rep.get("flight_end"):
         lines.append(f"  flight ended: {rep['flight_end']['why']} (t = {_fmt_t(rep['flight_end']['t'])})")
     lines.append(f"  failsafes: {rep['failsafe_count']}" + (

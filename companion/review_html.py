@@ -33,16 +33,26 @@ AUTOPILOT_BROKE = {BRAKE_SWITCH: REFUSED, RAMP_FOLLOWED: RAMP_BROKEN}
 
 
 def verdict(rep: dict) -> str:
-    """A review report's verdict in a few words; one that names what must not be missed (the autopilot breaking an
-    assumption a faster governor limit rests on: refusing the recovery brake above the Hold's limit, accelerating
-    harder than the approach ramp allows)."""
+    """A review report's verdict in a few words, naming what must not be missed: a collision or the keep-out disc
+    entered, a command refused or not taken in time (the review's own checks, or a `delivery` violation the
+    daemon logged), and the autopilot breaking an assumption a faster governor limit rests on (refusing the
+    recovery brake above the Hold's limit, accelerating harder than the approach ramp allows)."""
     if rep["ok"]:
         return "contract kept (no findings)"
-    if "autopilot" not in rep["violations_by_subsystem"]:
-        return "REVIEW NEEDED"
-    said = dict.fromkeys(AUTOPILOT_BROKE.get(v.get("guarantee"), "the autopilot broke an assumption the limit rests on")
-                         for v in rep["violations"] if v.get("subsystem") == "autopilot")
-    return "REVIEW NEEDED: " + ("; ".join(said) or "the autopilot broke an assumption the limit rests on")
+    ko, dl = rep.get("keep_out") or {}, rep.get("delivery") or {}
+    said = []
+    if ko.get("collisions"):
+        said.append("a collision, as far as the log tells")
+    elif ko.get("entries"):
+        said.append("the vehicle entered its keep-out disc")
+    if (dl.get("modes_not_taken") or dl.get("limits_not_flown") or (rep.get("commands") or {}).get("failed")
+            or "delivery" in rep["violations_by_subsystem"]):
+        said.append("a command was refused or not taken in time")
+    if "autopilot" in rep["violations_by_subsystem"]:
+        broke = "the autopilot broke an assumption the limit rests on"
+        said += list(dict.fromkeys(AUTOPILOT_BROKE.get(v.get("guarantee"), broke) for v in rep["violations"]
+                                   if v.get("subsystem") == "autopilot")) or [broke]
+    return "REVIEW NEEDED" + (": " + "; ".join(said) if said else "")
 
 
 def flight_page(path: Path, rep: dict, text: str, name: str, back: str | None = None) -> None:
