@@ -24,7 +24,9 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-MODE_BUDGET_S = 1.5  # [s] a mode command is shown within this: one 1 Hz heartbeat, and half a period more
+from .config import DeliveryConfig
+
+MODE_BUDGET_S = DeliveryConfig().t_mode_s  # [s] a mode command is shown within this: the daemon's default budget
 MODE_COMMANDS = ("hold", "offboard", "mission")  # `command.cmd` asking for the autopilot mode of that name
 SPEED_OVERSHOOT = 0.05  # a limit is flown up to limit × (1 + this) + SPEED_MARGIN_M_S (the supervisor's own rule)
 SPEED_MARGIN_M_S = 0.3

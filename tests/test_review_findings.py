@@ -4,7 +4,6 @@ written through the real EventLog, each beside a clean twin that stays kept; the
 lock-step with the daemon's first mode command lost on the link."""
 
 import pytest
-from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from companion import review_checks
 from companion.cli import review_log
@@ -14,6 +13,7 @@ from companion.review_html import verdict
 from tests import golden
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
+from tests.test_delivery_lockstep import ResendAfterOneSecond
 
 DT = 0.1
 X_COL, R_COL = 20.0, 0.5  # a column ahead on the route (its surface at 19.5 m)
@@ -167,7 +167,7 @@ def test_a_hold_shown_at_once_is_kept(tmp_path):
 def test_a_hold_never_shown_is_a_finding(tmp_path):
     rep = hold_flight(tmp_path, None)
     assert not rep["ok"]
-    assert "1 mode command(s) not taken within their 1.50 s: hold at t = 5.00 s not shown" in said(rep)
+    assert "1 mode command(s) not taken within their 1.20 s: hold at t = 5.00 s not shown" in said(rep)
     (m,) = rep["delivery"]["modes_not_taken"]
     assert m["outcome"] == "not shown" and m["mode_seen"] == "mission"
     assert verdict(rep) == "REVIEW NEEDED: a command was refused or not taken in time"
@@ -261,13 +261,20 @@ def golden_records(name: str) -> list[dict]:
              "mode": "shadow" if name.startswith("shadow") else "governor"}, *recs]
 
 
+FOG_RETURNS_INSIDE = ("offboard_px4_hidden_fog",)  # held in hidden fog, the medium's returns inside the keep-out
+
+
 @pytest.mark.parametrize("name", sorted(golden.FLIGHTS))
 def test_the_golden_flights_get_no_new_finding_but_the_shadow_flight_into_the_column(name):
     """No keep-out, collision or delivery finding on the recorded flights (a Hold shown within 0.06 s, limits
     flown, the closest return 0.04 m outside E_tr + r_body in figure 17) — but the shadow flight flew through
-    the column, and says so."""
+    the column, and says so; and the offboard flight held in hidden fog has the medium's returns inside its
+    keep-out disc (every return is an obstacle until shown otherwise), said with the navigation guarantee broken."""
     rep = summarise(golden_records(name), facts_of=run_facts)
     said_here = review_checks.findings(rep)
+    if name in FOG_RETURNS_INSIDE:
+        assert said_here and all("keep-out" in f and "navigation's guarantee broken" in f for f in said_here)
+        return
     if name != "shadow_px4_column":
         assert said_here == [], said_here
         return
@@ -275,33 +282,21 @@ def test_the_golden_flights_get_no_new_finding_but_the_shadow_flight_into_the_co
     assert e["closest_m"] < 0.2 and "(shadow mode: the daemon commanded nothing)" in said_here[0]
 
 
-def drop_first_mode_command(rig: Rig) -> list[float]:
-    """Lose the daemon's first DO_SET_MODE on the link (its other datagrams pass); the times it was lost."""
-    parser = mav.MAVLink(None)
-    parser.robust_parsing = True
-    write, lost = rig.conn._write, []
-
-    def filtered(data):
-        if not lost and any(m.get_type() == "COMMAND_LONG" and m.command == mav.MAV_CMD_DO_SET_MODE
-                            for m in parser.parse_buffer(data) or []):
-            lost.append(rig.sim.time_s)
-            return
-        write(data)
-
-    rig.conn._write = filtered
-    return lost
-
-
 def column_flight(directory, drop: bool):
     """The governor's column flight (PX4, the column at 28 m) with the event log the daemon writes, headed by the
-    start record `contract-guard run` writes; the first Hold lost on the link if `drop`."""
+    start record `contract-guard run` writes; if `drop`, its first Hold lost on the link and — as before the mode
+    authority re-sent commands every cycle and the stop contract budgeted their delivery — re-sent a second later
+    (tests/test_delivery_lockstep.py's negative control): a flight that reaches the column."""
     log = EventLog(directory)
-    rig = Rig(column_scenario(1), "px4", log=log)
+    rig = Rig(column_scenario(1), "px4", log=log, config={"delivery": {"t_cmd_s": 0.0}} if drop else None,
+              outbound={"drop_holds": 1} if drop else None)
+    if drop:
+        a = rig.daemon.cycle.authority
+        rig.daemon.cycle.authority = ResendAfterOneSecond(a.hold_mode, a.t_cmd_s, a.t_mode_s, a.hold_fallbacks)
     log.event(None, "start", mode=rig.cfg.mode, vehicle=rig.daemon.table.vehicle.name, table=str(rig.daemon.table.path))
-    lost = drop_first_mode_command(rig) if drop else []
     fly(rig, 25.0)
     log.close()
-    return rig, lost
+    return rig, [t for t, _ in rig.outbound.dropped] if drop else []
 
 
 def test_a_lost_hold_that_ends_in_the_column_is_not_kept(tmp_path):
@@ -330,3 +325,16 @@ def test_the_same_flight_with_its_hold_delivered_is_kept(tmp_path):
     rep, _ = review_log(tmp_path / "log")
     assert rep["ok"], rep["findings"]
     assert rep["delivery"]["mode_commands"] == 1 and rep["delivery"]["mode_delay_max_s"] < 0.1
+
+
+def test_the_same_hold_lost_and_re_sent_every_cycle_stops_short_and_is_kept(tmp_path):
+    """With the mode authority's delivery (re-sent the next cycle) and its budget in the stop contract, the same lost
+    Hold stops short: kept, the re-send in the log."""
+    log = EventLog(tmp_path / "log")
+    rig = Rig(column_scenario(1), "px4", log=log, outbound={"drop_holds": 1})
+    log.event(None, "start", mode=rig.cfg.mode, vehicle=rig.daemon.table.vehicle.name, table=str(rig.daemon.table.path))
+    fly(rig, 25.0)
+    log.close()
+    assert rig.outbound.dropped and not rig.truth["collisions"]
+    rep, _ = review_log(tmp_path / "log")
+    assert rep["ok"], rep["findings"]
