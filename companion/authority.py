@@ -210,13 +210,15 @@ class ModeAuthority:
     def arbitrate(self, t: float, requests) -> ModeCommand | None:
         """The command to send this cycle (None: none): the request that wins, or the one on its way, re-sent
         every cycle until the autopilot answers or shows it. A request never displaces one of higher priority
-        that is still on its way; the same mode asked again continues its delivery (its clock keeps running)."""
+        that is still on its way (or shown); the same mode asked again continues its delivery (its clock keeps
+        running), or, shown, is not sent again."""
         p = self.pending
         on_way = p is not None and p.state in (Delivery.SENDING, Delivery.ACCEPTED)
         if requests:
             r = min(requests, key=lambda q: q.by)
             mode = self.hold_mode if r.mode == HOLD else r.mode
-            same = on_way and p.asked == r.mode
+            # on its way, or shown and not left since: nothing new to send
+            same = p is not None and p.asked == r.mode and (on_way or p.state == Delivery.SHOWN)
             if not same and (not on_way or r.by <= p.by):
                 chain = self.hold_fallbacks if r.mode == HOLD else ()
                 p = self.pending = _Pending(t, mode, r.mode, r.by, r.mode, chain)

@@ -118,7 +118,6 @@ class Daemon:
         period = {None: 1.0 / cfg.log.state_hz}
         self._periodic = [(period.get(p, p), getattr(self, name), [-math.inf]) for p, name in PERIODIC]
         self._link_up = False
-        self._t_error_hold = -math.inf
         self._log_healthy = True
         self._bad_cycles = 0
         if self.checks.ok is False:  # refused before the autopilot is even heard
@@ -217,14 +216,13 @@ class Daemon:
         return d
 
     def _cycle_failed(self, t: float, err: Exception) -> None:
-        """A cycle that raised: Hold (unless in shadow mode or on the ground), at most once a second; the
+        """A cycle that raised: Hold (unless in shadow mode or on the ground), delivered by the mode authority; the
         heartbeat says CRITICAL; logged at the 1st, 10th, 100th and every 1000th failure in a row."""
         self._bad_cycles += 1
         self.counters.loop_errors += 1
         flying = self.tel.armed and self.tel.in_air
         action = "none (shadow mode)" if self.cfg.mode == "shadow" else "hold" if flying else "none (not flying)"
-        if action == "hold" and t - self._t_error_hold >= 1.0:
-            self._t_error_hold = t
+        if action == "hold":  # asked every failed cycle: the mode authority delivers it (re-sent until answered)
             self.out.apply(t, self.cycle.failed_hold(t))
         if self._bad_cycles in (1, 10, 100) or self._bad_cycles % 1000 == 0:
             self._event(t, "loop_error", error=f"{type(err).__name__}: {err}"[:200], consecutive=self._bad_cycles,

@@ -95,6 +95,15 @@ def test_a_mode_not_shown_in_t_mode_is_not_the_daemons_when_it_comes_later():
     assert a.observe(4.0, "hold", True).taken_over  # Hold long after: not ours any more
 
 
+def test_a_mode_shown_is_not_sent_again_and_a_lower_priority_may_follow_it():
+    a = ModeAuthority("hold")
+    a.observe(0.0, "mission", True)
+    a.arbitrate(0.0, [ModeRequest(HOLD, Requester.FAILSAFE)])
+    a.observe(0.02, "hold", True)
+    assert a.arbitrate(0.02, [ModeRequest(HOLD, Requester.FAILSAFE)]) is None  # shown: asked again, not sent
+    assert a.arbitrate(0.04, [ModeRequest("offboard", Requester.OFFBOARD_ENTRY)]).mode == "offboard"
+
+
 def test_a_mode_is_not_judged_while_the_link_is_down():
     a = ModeAuthority("hold", t_mode_s=1.2)
     a.observe(0.0, "mission", True)
