@@ -11,6 +11,7 @@ import pytest
 
 from companion import supervisor as supervisor_module
 from companion.authority import GUARANTEE_ANSWERED, GUARANTEE_SHOWN, Delivery, ModeAuthority
+from companion.console import event_line
 from companion.supervisor import LIMIT_FLOWN
 from sitl_harness.autopilot import DENIED
 from tests import test_daemon_lockstep as gov
@@ -133,6 +134,8 @@ def test_a_hold_refused_takes_land_and_is_said(personality):
     assert cmds[:2] == ["hold", "land"]
     fb = [e for e in rig.log.named("delivery") if e["outcome"] == "fallback"][0]
     assert fb["cmd"] == "hold" and fb["next"] == "land" and "answered" in fb["why"]
+    prio, line = event_line("delivery", fb)  # the console says it
+    assert "hold fallback after" in line and "asking for land instead" in line
     [v] = [e for e in rig.log.named("violation_start") if e["subsystem"] == "delivery"]
     assert v["guarantee"] == GUARANTEE_SHOWN and "land" in v["action"]
     assert any(e["to"] == "land" and e["by"] == "daemon" for e in rig.log.named("mode_change"))
@@ -189,3 +192,4 @@ def test_a_brake_switch_shown_later_still_is_outside_the_contract_and_said(vehic
     assert rig.truth["collisions"]  # (the premise: the test shows what is said of a flight that collides)
     [v] = brake_violations(rig)
     assert v["observed"] > v["assumed"] and any("SHOWN LATE" in t for t in rig.daemon_texts())
+    assert "switch shown LATE" in event_line("violation_start", v)[1]
