@@ -1,10 +1,11 @@
 """The recovery brake's speed gain (governor.recovery_brake; docs/daemon.md, "The recovery brake"): the governor's
 V_max from the shipped tables under the autopilot's Hold's stop contract and under the brake's own (contracts/stop.py
 `recovery_brake`, 50 Hz loop), at a few D_od for both vehicles (R_obst 1 m, measured E_tr 0.3 m, thrust ratio 1.0
-and 0.7); with `--fly`, the lock-step SITL column flights of tests/test_recovery_brake_lockstep.py (Mambo, sensor
-6 m), both personalities: the speed at the stop command and the braking distance from it; with `--sweep`, the brake
-on both vehicles and personalities at columns from 6 m (first seen while speeding up) to 28 m, in wind: collisions
-and the least clearance. Prints one JSON object.
+and 0.7, the default command-delivery budget); with `--fly`, the lock-step SITL two-stop flights of
+tests/test_recovery_brake_lockstep.py (Mambo, sensor 6 m: the first stop shows the brake's switch, the second flies
+from its limit), both personalities: the speed at the second stop command and the braking distance from it; with
+`--sweep`, the brake on both vehicles and personalities at a second column 6 m (first seen while speeding up) to
+28 m past the first stop, in wind: collisions and the least clearance. Prints one JSON object.
 
     PYTHONPATH=. python benchmarks/bench_recovery_brake.py [--fly] [--sweep]
 """
@@ -18,31 +19,33 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from companion.config import DeliveryConfig  # noqa: E402
 from contracts.table import load_for_vehicle  # noqa: E402
 
 D_OD = (3.0, 4.0, 6.0, 9.0, 12.0)
 LOOP_DT = 0.02
+T_CMD = DeliveryConfig().t_cmd_s
 
 
 def limits(vehicle: str, thrust_ratio: float) -> list[dict]:
     table = load_for_vehicle(vehicle)
     out = []
     for d in D_OD:
-        hold = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop").v_max
-        brake = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", recovery_dt=LOOP_DT).v_max
+        hold = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", t_cmd=T_CMD).v_max
+        brake = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", recovery_dt=LOOP_DT, t_cmd=T_CMD).v_max
         out.append({"d_od_m": d, "v_max_hold": round(hold, 3), "v_max_brake": round(brake, 3),
                     "gain": round(brake / hold, 3) if hold > 0 else None})
     return out
 
 
 def flights() -> dict:
-    from tests.test_recovery_brake_lockstep import flight, stop, v_max
+    from tests.test_recovery_brake_lockstep import flight, second_stop, v_max
 
     out = {}
     for personality in ("px4", "ardupilot"):
         for brake in (False, True):
-            rig = flight(personality, brake)
-            _, v, d = stop(rig)
+            rig = flight(personality, brake, second=70.0)
+            _, v, d = second_stop(rig)
             out[f"{personality}_{'brake' if brake else 'hold'}"] = {
                 "v_max": round(v_max(rig), 3), "speed_at_stop_command": round(v, 3), "braking_distance_m": round(d, 3),
                 "min_clearance_m": round(rig.truth["min_clearance_m"], 3), "collisions": len(rig.truth["collisions"])}
@@ -50,18 +53,14 @@ def flights() -> dict:
 
 
 def sweep() -> dict:
-    from tests import test_daemon_lockstep as gov
-    from tests.lockstep import Rig
+    from tests.test_recovery_brake_lockstep import BESIDE, two_stops
 
     wind, out = {"mean_m_s": 1.0, "from_deg": 90, "gust_m_s": 0.5}, []
     for vehicle in ("mambo", "x500"):
         for personality in ("px4", "ardupilot"):
             for x_col in (6.0, 8.0, 10.0, 14.0, 28.0):
-                sc = gov.column_scenario(2, x_col=x_col, wind=wind, vehicle=vehicle)
-                sc["params"] = {"COM_OBL_RC_ACT": 5} if personality == "px4" else {}
-                rig = Rig(sc, personality, config={"governor": {"recovery_brake": True}})
-                gov.fly(rig, 15.0 if x_col < 20 else 25.0)
-                braked = any(e["cmd"] == "offboard" for e in rig.log.named("command"))
+                rig = two_stops(personality, True, BESIDE["x_m"] - 4.0 + x_col, vehicle=vehicle, wind=wind, seed=2)
+                braked = sum(e["cmd"] == "offboard" for e in rig.log.named("command")) == 2
                 out.append({"vehicle": vehicle, "autopilot": personality, "x_col_m": x_col, "braked": braked,
                             "v_max": round(max(s["v_max"] or 0.0 for s in rig.log.states), 3),
                             "min_clearance_m": round(rig.truth["min_clearance_m"], 3),

@@ -55,6 +55,7 @@ HOLD = "hold"  # a request's mode for the autopilot's Hold (PX4 Hold, ArduPilot 
 class ModeRequest:
     mode: str  # HOLD, "mission" or "offboard"
     by: Requester
+    within_s: float | None = None  # [s] its own budget to be shown (None: the authority's t_mode_s)
 
 
 @dataclass(frozen=True)
@@ -106,8 +107,9 @@ class ModeView:
 class _Pending:
     """A mode command on its way: sent every cycle until answered or shown."""
 
-    def __init__(self, t: float, mode: str, what: str, by: Requester, asked: str, chain: tuple[str, ...]):
-        self.t0, self.mode, self.what, self.by, self.asked = t, mode, what, by, asked
+    def __init__(self, t: float, mode: str, what: str, by: Requester, asked: str, chain: tuple[str, ...],
+                 t_mode: float):
+        self.t0, self.mode, self.what, self.by, self.asked, self.t_mode = t, mode, what, by, asked, t_mode
         self.t_asked = t  # when the request itself was first sent (a fallback keeps its request's)
         self.t_heard = t  # the mode-shown clock's start: the first send, or the link's return after a loss
         self.chain = chain  # the ways to stop still left after this one (a Hold's fallbacks)
@@ -155,8 +157,8 @@ class ModeAuthority:
             if mode == p.mode:
                 p.state = Delivery.SHOWN
                 settled = Settled(p.asked, p.by, Delivery.SHOWN, p.mode, waited_s=t - p.t_asked)
-            elif p.refusal is not None or t - p.t_heard > self.t_mode_s:
-                why = p.refusal or f"{p.what} not shown within {self.t_mode_s:g} s"
+            elif p.refusal is not None or t - p.t_heard > p.t_mode:
+                why = p.refusal or f"{p.what} not shown within {p.t_mode:g} s"
                 settled = self._failed(t, p, why, events)
             if settled is not None:
                 events.append(("delivery", {"cmd": p.what, "outcome": settled.outcome, "sends": p.sends,
@@ -181,7 +183,7 @@ class ModeAuthority:
         """A command refused or not shown in time: a Hold takes its next fallback (None: still on its way), any
         other mode is given up."""
         if p.chain:
-            nxt = _Pending(t, p.chain[0], p.chain[0], p.by, p.asked, p.chain[1:])
+            nxt = _Pending(t, p.chain[0], p.chain[0], p.by, p.asked, p.chain[1:], self.t_mode_s)
             nxt.t_asked = p.t_asked
             events.append(("delivery", {"cmd": p.what, "outcome": "fallback", "why": why, "next": nxt.what,
                                         "sends": p.sends, "waited_s": t - p.t0, "by": p.by.name.lower()}))
@@ -221,7 +223,7 @@ class ModeAuthority:
             same = p is not None and p.asked == r.mode and (on_way or p.state == Delivery.SHOWN)
             if not same and (not on_way or r.by <= p.by):
                 chain = self.hold_fallbacks if r.mode == HOLD else ()
-                p = self.pending = _Pending(t, mode, r.mode, r.by, r.mode, chain)
+                p = self.pending = _Pending(t, mode, r.mode, r.by, r.mode, chain, r.within_s or self.t_mode_s)
         if p is None or p.state != Delivery.SENDING:
             return None
         if t - p.t0 > self.t_cmd_s and t - p.t_sent < RESEND_LATE_S:  # past its budget: a link that is down is

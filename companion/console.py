@@ -40,9 +40,8 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return WARNING, f"HOLD: {f['cause']}" + (f": {f['why']}; resume: {f['resume']}" if f.get("why") else "")
     if name == "thrust_start":
         return (INFO if f["covered"] else WARNING), f["reason"]
-    if name == "violation_start" and f["guarantee"] == BRAKE_SWITCH:  # the recovery brake's switch refused, or late
-        what = "shown LATE" if "brake off" in f["action"] else "REFUSED"
-        return CRIT, (f"VIOLATION autopilot: the recovery brake's switch {what} at {_fmt(f.get('observed'))} m/s, "
+    if name == "violation_start" and f["guarantee"] == BRAKE_SWITCH:  # the recovery brake's switch refused
+        return CRIT, (f"VIOLATION autopilot: the recovery brake's switch REFUSED at {_fmt(f.get('observed'))} m/s, "
                       f"above the Hold's limit {_fmt(f.get('assumed'))} m/s; {f['action']}: the stop is NOT "
                       "guaranteed")
     if name == "delivery" and f["outcome"] != "shown":  # a mode refused or not shown: its fallback, or given up

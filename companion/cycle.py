@@ -122,9 +122,9 @@ class Cycle:
         # autopilot has not refused its switch
         self.brake = OffboardController(None) if cfg.mode == "governor" and cfg.governor.recovery_brake else None
         self.checks = None
-        self._brake_said: tuple[bool, str] | None = None
+        self._brake_said: tuple[bool, bool, str] | None = None
+        self._brake_ready = False  # the recovery brake flies a stop the stop contract calls for
         self._brake_v0 = 0.0  # [m/s] the ground speed when the recovery brake was last called
-        self._late_judged = False  # the recovery brake's switch shown late has been judged (`Supervisor.switch_refused`)
         # the acceleration flown: the speed limit's check (its slow-down starts from it), the approach ramp's, and the
         # recovery brake's start
         self._accel = AccelEstimator(max(RAMP_WINDOW_S, A0_S))
@@ -279,17 +279,17 @@ class Cycle:
         if ctl is not None and settled is not None and settled.by == Requester.OFFBOARD_ENTRY:
             if settled.outcome != Delivery.SHOWN:
                 ctl.refuse(settled.why)
-            elif self.brake is not None and settled.waited_s > self._switch_budget:  # shown, later than budgeted
-                self.brake.late = (f"offboard shown {settled.waited_s:.2f} s after asking, beyond the "
-                                   f"{self._switch_budget:.2f} s its stop contract budgets")
+            elif self.brake is not None:  # shown within its budget: the brake's own contract may set the limit
+                self.brake.proven = True
         if ctl is not None and i.link_ok:
             fly = self._fly_offboard if self.offboard is not None else self._recover
             acts, d, braking = fly(t, tel, i, d, startup_ok, mission_route)
             fail_hold = d.hold and not braking  # a fail-safe the daemon flies out itself: its Hold comes at rest
             if acts.hold:
                 requests.append(ModeRequest(HOLD, Requester.OFFBOARD_STOP))
-            if acts.enter:
-                requests.append(ModeRequest("offboard", Requester.OFFBOARD_ENTRY))
+            if acts.enter:  # the recovery brake's switch is shown within its contract's budget, or it is refused
+                requests.append(ModeRequest("offboard", Requester.OFFBOARD_ENTRY,
+                                            self._switch_budget if self.brake is not None else None))
             ended = not ctl.streaming and self._was_streaming
             self._was_streaming = ctl.streaming
             if ended:
@@ -429,19 +429,27 @@ class Cycle:
             self.authority.answer(result)
 
     def _recovery_available(self, events: list, texts: list) -> None:
-        """The recovery brake's availability, set on the supervisor (its stop contract, or the autopilot's Hold's at
-        once) and said when it changes (DESIGN.md §5: the brake's own start-up checks and fallback)."""
+        """The recovery brake's availability, said when it changes (DESIGN.md §5: the brake's own start-up checks
+        and fallback). It flies a stop once its start-up checks pass, until the autopilot refuses its switch or does
+        not show it within the brake's contract's budget. Its own (higher) stop contract sets the limit only once
+        its switch has been shown within that budget in this flight; before, the autopilot's Hold's does, so a
+        first switch refused or late still stops from within the Hold's limit."""
+        br = self.brake
         checks = self.checks.brake if self.checks is not None else None
-        now = (False, f"the switch to offboard was refused: {self.brake.refused}") if self.brake.refused else \
-            (False, self.brake.late) if self.brake.late else \
+        ready, why = (False, f"the switch to offboard was refused: {br.refused}") if br.refused else \
             (False, "its start-up checks are pending") if checks is None else checks
-        self.sup.recovery_dt = 1.0 / self.cfg.loop_hz if now[0] else None
+        proven = ready and br.proven
+        self._brake_ready = ready
+        self.sup.recovery_dt = 1.0 / self.cfg.loop_hz if proven else None
+        now = (ready, proven, why)
         if now != self._brake_said:
             self._brake_said = now
-            limit = "its own stop contract" if now[0] else "the autopilot's Hold's stop contract"
-            events.append(("recovery_brake", {"available": now[0], "reason": now[1], "limit": limit}))
-            texts.append((5, "CG: recovery brake available") if now[0] else
-                         (4, f"CG: recovery brake unavailable: {now[1]}"))
+            limit = "its own stop contract" if proven else "the autopilot's Hold's stop contract" + \
+                (" until its switch is shown in time in this flight" if ready else "")
+            events.append(("recovery_brake", {"available": ready, "proven": proven, "reason": why, "limit": limit}))
+            texts.append((5, "CG: recovery brake available" + ("" if proven else ": Hold's limit until its switch "
+                                                               "is shown")) if ready else
+                         (4, f"CG: recovery brake unavailable: {why}"))
 
     def _recover(self, t: float, tel: Telemetry, i: Inputs, d: Decision, startup_ok, mission_route
                  ) -> tuple[OffboardActions, Decision, bool]:
@@ -456,7 +464,7 @@ class Cycle:
         a0 = self._accel.over(A0_S)  # the measured acceleration: Δv over ≥ A0_S
         a_stop = airframe_decel(veh, tr)
         was_refused, was_braking = br.refused is not None, br.state == OffboardState.BRAKING
-        acts = br.recover(t, start=d.hold and sound and self.sup.recovery_dt is not None, abort=not sound,
+        acts = br.recover(t, start=d.hold and sound and self._brake_ready, abort=not sound,
                           mode=i.mode, taken_over=i.taken_over, p=(tel.x, tel.y), v=(tel.vx, tel.vy), z=tel.z,
                           yaw=tel.yaw, a_stop=a_stop, jerk=stop_jerk(veh), a0=a0)
         braking = br.state == OffboardState.BRAKING
@@ -467,9 +475,7 @@ class Cycle:
         # the brake's assumption, checked: refused above the autopilot's Hold's limit, the autopilot broke it (an
         # unknown speed counts as above it; judged at the speed when called as well: a switch never shown is found
         # refused `delivery.t_mode_s` later, by when a vehicle stopped by a collision reads no speed)
-        late = br.late is not None and not self._late_judged
-        self._late_judged |= late
-        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused, late=late,
+        d = self.sup.switch_refused(d, i, refused=br.refused is not None and not was_refused,
                                     speed=max(_or_inf(i.ground_speed), _or_inf(self._brake_v0)))
         return acts, d, braking
 

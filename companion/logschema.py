@@ -161,10 +161,12 @@ EVENTS = {
                         "an exception inside a cycle (logged, not fatal; action: the safe action taken)"),
     "offboard": Event(("from", "to", "reason"), "offboard", "offboard controller state changed (governor mode: the "
                       "recovery brake's)"),
-    "recovery_brake": Event(("available", "reason", "limit"), "cycle",
+    "recovery_brake": Event(("available", "proven", "reason", "limit"), "cycle",
                             "governor.recovery_brake: the brake's availability changed (its start-up checks, the "
-                            "switch to offboard refused) and the stop contract the limit is flown under (a refusal "
-                            "above the autopilot's Hold's limit is also the autopilot's violation_start)"),
+                            "switch to offboard refused or shown late), whether its switch has been shown in time in "
+                            "this flight (proven: only then is its own stop contract the limit's), and the stop "
+                            "contract the limit is flown under (a refusal above the autopilot's Hold's limit is also "
+                            "the autopilot's violation_start)"),
     "approach_ramp": Event(("in_force", "a0_max", "accel", "why"), "supervisor",
                            "governor.approach_ramp_m_s: the ramp's bound on the Hold-start acceleration (a0_max, "
                            "m/s²) came into force (the ramp followed 3 s, measured: accel) or went out of it (its "

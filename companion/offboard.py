@@ -79,7 +79,7 @@ class OffboardController:
     _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
     _switch: bool = False  # the recovery brake awaits its switch to offboard
     refused: str | None = None  # why the recovery brake's switch was refused (it is then unavailable)
-    late: str | None = None  # the recovery brake's switch was shown later than its contract budgets (unavailable)
+    proven: bool = False  # the recovery brake's switch was shown within its contract's budget in this flight
     held: str = HELD  # what the Hold at the end of the braking stop waits for
 
     def _go(self, t, new, why, acts):

@@ -306,12 +306,11 @@ class Supervisor:
         self._set_state(draft, State.HOLDING, reason)
         return self._amended(d, draft)
 
-    def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float, late: bool = False) -> Decision:
+    def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float) -> Decision:
         """The recovery brake's assumption: the autopilot accepts its switch to offboard when called, within the
         time the brake's contract budgets. `refused`: the autopilot refused it this cycle (its answer, or the mode
-        not shown in time); `late`: it was shown this cycle, later than budgeted (the stop flies on; the brake is
-        off from now on); `speed`: the ground speed it is judged at (the larger of now and when the brake was
-        called). Refused while the vehicle flew faster
+        not shown within that budget); `speed`: the ground speed it is judged at (the larger of now and when the
+        brake was called). Refused while the vehicle flew faster
         than the autopilot's Hold's stop contract allows here (`hold_omega`: the limit a refusal falls back to), the
         autopilot broke that assumption: the daemon holds at once (the cycle) and that stop
         is not guaranteed. Logged as the autopilot's violation (a critical STATUSTEXT) until the vehicle is at
@@ -320,17 +319,15 @@ class Supervisor:
         key = Subsystem.AUTOPILOT
         if key in self._violations:
             on, v_hold = not i.ground_speed < AT_REST_M_S, math.nan  # (an unknown speed: not at rest)
-        elif refused or late:
+        elif refused:  # above the Hold's limit as the limit itself is judged flown (`_judge_limit`)
             v_hold = self.hold_omega(i).v_max
-            on = speed > v_hold
+            on = speed > 1.05 * v_hold + self.margin
         else:
             return d
         draft = _Draft(d.state, d.omega, d.v_cmd)
-        what = "SHOWN LATE" if late else "REFUSED"
         self._violation(draft, key, on, lambda: dict(
-                        subsystem=key, guarantee=BRAKE_SWITCH, assumed=v_hold, observed=speed,
-                        action="the stop flown on, the brake off for the flight" if late else "Hold"),
-                        text=(2, f"CG: recovery brake {what} above the Hold's limit: stop not guaranteed"))
+                        subsystem=key, guarantee=BRAKE_SWITCH, assumed=v_hold, observed=speed, action="Hold"),
+                        text=(2, "CG: recovery brake REFUSED above the Hold's limit: stop not guaranteed"))
         return self._amended(d, draft)
 
     @staticmethod
