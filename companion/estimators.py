@@ -24,7 +24,6 @@ from contracts.window import WindowMax
 from contracts.vehicle import G
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
-from .frozen import quick_init
 from .samples import Scan
 
 # ============================================================================ D_od
@@ -106,8 +105,7 @@ class LateDetection:
     assumed_d_od: float  # what the estimate promised just before
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class DodEstimate:
     d_od: float  # guaranteed detection range along the direction of travel [m]
     covered_by: tuple[int, ...]  # sensors covering that direction, fresh and trusted

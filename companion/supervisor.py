@@ -30,7 +30,6 @@ from contracts.window import WindowMax
 
 from .authority import Late
 from .estimators import DodEstimate
-from .frozen import quick_init
 from .guidance import inflated
 from .states import (AT_REST_M_S, BRAKE_STOP_CAUSES, BRAKE_SWITCH, RAMP_FOLLOWED, FAILSAFE_CAUSES, Cause, State,  # noqa: F401 (re-exported)
                      Subsystem)
@@ -51,8 +50,7 @@ SLOWDOWN_NEAR_M_S = 0.3  # [m/s] flying within this of the old limit's tolerance
 LIMIT_FLOWN = "a speed limit is flown within the autopilot's slow-down"  # the delivery subsystem's guarantee
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Inputs:
     """Everything the supervisor may look at, all derived from MAVLink samples."""
 
@@ -100,8 +98,7 @@ class _Draft:
     hold_causes: list[Cause] = field(default_factory=list)
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Decision:
     """One cycle's decision of the supervisor (frozen: the cycle builds its outbox from it, never rewrites it)."""
 
