@@ -265,7 +265,8 @@ class InlinePlanning:
     wall-clock budget either)."""
 
     busy = False
-    budget_s = None
+    deferred = False  # the answer is there when `submit` returns
+    budget_s = None  # no wall-clock budget for the planner
 
     def __init__(self):
         self._out = None
@@ -286,7 +287,8 @@ class ThreadedPlanning:
     solves. The planner's own Python work (the QP's assembly, the exact check) holds the interpreter lock,
     though: on a busy host the loop waits for it (`ProcessPlanning` does not)."""
 
-    budget_s = PLAN_BUDGET_S
+    deferred = True  # the answer comes later than asked (`poll` once it is done)
+    budget_s = PLAN_BUDGET_S  # the planner's wall-clock budget per job
 
     def __init__(self):
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cg-planner")
@@ -525,7 +527,7 @@ class OffboardGuidance:
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
         if (since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
-            if self.plan.kind in ("brake", "await") and self.planning.budget_s is not None:
+            if self.plan.kind in ("brake", "await") and self.planning.deferred:
                 t_req = t + self._lead()
                 p_req, v_req, _ = self.plan.sample(t_req - self.plan_t)
             _, u = self.route.point(self.route.project(p_req))
@@ -545,7 +547,7 @@ class OffboardGuidance:
 
     def _take(self, t: float, done) -> None:
         """An answer from the planning, or the one held until its start time has come."""
-        if done is not None and done[0] == self.epoch and self.planning.budget_s is not None:
+        if done is not None and done[0] == self.epoch and self.planning.deferred:
             self.latency = [*self.latency[-4:], t - self._asked_t]
         if done is not None and done[1] > t:
             self._pending = done  # asked for while braking: fly it from where the braking leaves the vehicle
