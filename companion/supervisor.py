@@ -290,7 +290,7 @@ class Supervisor:
         self.policy = policy if policy is not None else ContractSpeed()
         self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
         # the stop contract's brake: None, the autopilot's Hold; the loop period, the daemon's recovery brake
-        # (issue 28 item 4: set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
+        # (set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
         self.recovery_dt: float | None = None
         self.ramp = ApproachRamp(ramp_m_s, table.vehicle.braking.jerk_max_m_s3) \
             if ramp_m_s is not None and mode == "governor" else None
@@ -579,7 +579,7 @@ class Supervisor:
                 d.hold = True
                 self._held_for = list(fresh)
                 said = [(c, "hold") for c in fresh]
-            else:  # a cause that arrives while already holding is logged too (issue 16: it was silent)
+            else:  # a cause that arrives while already holding is logged too: no cause goes unsaid
                 said = [(c, ALREADY_HOLDING) for c in fresh if c not in self._held_for]
                 self._held_for += [c for c, _ in said]
             for c, action in said:
