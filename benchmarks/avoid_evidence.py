@@ -1,4 +1,4 @@
-"""Evidence for the avoid contract (issue 4), printed as one JSON object.
+"""Evidence for the avoid contract, printed as one JSON object.
 
     PYTHONPATH=. python benchmarks/avoid_evidence.py [--cells 50] [--rebuild-box]
 

@@ -3,12 +3,12 @@
 One JSON object on stdout. The daemon runs in this process exactly as `contract-guard run` runs it
 (`Daemon.run`, real pymavlink UDP socket); a scripted autopilot in a child process streams the usual
 telemetry and, every second, a DISTANCE_SENSOR reading of an obstacle inside the stop distance, and
-times the daemon's Hold command from the moment that datagram left. Goals (issue 5): CPU < 5 % of one
+times the daemon's Hold command from the moment that datagram left. Goals: CPU < 5 % of one
 core, latency p95 < 25 ms.
 
 `BENCH_FLOOD=junk|telemetry` adds a third process flooding the daemon's port at `BENCH_FLOOD_HZ`
 (default 100 000 datagrams/s) from another socket: two bytes `fd ff` (junk), or well-formed ATTITUDE
-claiming the autopilot's ids (telemetry). Goal (issue 17): loop period p99 < 25 ms and no failsafe.
+claiming the autopilot's ids (telemetry). Goal under a flood: loop period p99 < 25 ms and no failsafe.
 `cycle_work_ms` is one cycle's own work (poll and step) in wall time, apart from how late the OS wakes
 the loop, and `cycle_cpu_ms` the same in CPU time (what a busy machine's preemption cannot inflate);
 `load_average_1min` says how busy the machine was. The daemon runs at the service unit's `Nice=` (as

@@ -1,4 +1,4 @@
-"""Which manoeuvres the shipped controller contract does not cover (issue 19 item 9): at a seeded sample of
+"""Which manoeuvres the shipped controller contract does not cover: at a seeded sample of
 E_tr_pred grid cells, fly every manoeuvre of the sweep (`sitl_harness.etr_sweep.cell_references`: cruise,
 speed steps, the avoid table's limiting trajectories, the online planner's plans, and the new
 ``failsafe@ρ`` — the daemon's braking stop mid-swerve — and ``drop@ρ`` — a plan made at the top thrust's

@@ -1,6 +1,6 @@
 """Event-log cost per call and review throughput (one JSON object on stdout).
 
-Goal (issue 5): `EventLog.state()` well under 50 µs per call (it runs in the 50 Hz control loop; the 1 s
+Goal: `EventLog.state()` well under 50 µs per call (it runs in the 50 Hz control loop; the 1 s
 buffer flush is included in the figures, amortised as it happens). `event()` includes an fsync, so
 its cost is the disk's: measure it on the companion computer's own storage (`--dir` on the SD card/eMMC).
 """

@@ -63,6 +63,9 @@ def main() -> None:
         def state(self, t, **fields):
             self.v_cmd = fields.get("v_cmd")
 
+        def tick(self):
+            pass
+
     log = Quiet()
     daemon = Daemon(cfg, table, conn, log, clock=lambda: now["t"], planning="inline")
     rng, encoders, names = np.random.default_rng(seed), {}, list(DECODED)

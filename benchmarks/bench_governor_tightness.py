@@ -1,4 +1,4 @@
-"""How tight the governor's V_max is (issue 28): the table's stop-contract answer against the same braking model's
+"""How tight the governor's V_max is: the table's stop-contract answer against the same braking model's
 limit found by flying approach histories, on a grid of 960 points per vehicle (D_od 3–12 m, R_obst 0.5–2 m,
 E_tr 0.1–0.8 m, thrust 0.7–1.0). One JSON object on stdout.
 
@@ -16,7 +16,7 @@ the grid's E_tr, no E_tr_pred) over the limit. Goal: v_max ≥ 0.95 of the limit
 To compare with the code before a change, run this file with PYTHONPATH pointing at an export of the old tree.
 
 `--governor-etr`: also `v_max_governor_etr`, Ω with E_tr_pred replaced at the vehicle's tilt limit (the tilt the
-stop contract brakes at) by the governor's surface (issue 28 item 2: `sitl_harness.etr_sweep.governor_surface`,
+stop contract brakes at) by the governor's surface (`sitl_harness.etr_sweep.governor_surface`:
 cruise, speed steps and the autopilot's Hold, the build's seeds and margin) flown here on the shipped speed and
 thrust axes — what a table carrying that surface answers (the shipped tables carry it: their `e_tr_pred_stop` slot,
 which the plain run uses).

@@ -1,8 +1,8 @@
 """Lookup and Ω-selection time per call (one JSON object on stdout).
 
-Goal (issue 18): Ω and v_safe median ≤ 20 µs, p99 ≤ 200 µs at low load (issue 2's was 50 µs / 1 ms).
+Goal: Ω and v_safe median ≤ 20 µs, p99 ≤ 200 µs at low load (the first goal was 50 µs / 1 ms).
 `v_safe` at tilt 0.2 rad (between grid tilts) and `v_safe_any_tilt` at random tilts 3°–tilt_max (the law's row
-between grid points, issue 18). Uses the shipped table if it carries the avoid contract,
+between grid points). Uses the shipped table if it carries the avoid contract,
 otherwise a synthetic avoid + E_tr_pred table of the shipped tables' size on the same vehicle.
 Records the 1-minute load average before and after: on a shared machine the figures move with it; the
 `cpu_` figures (the thread's CPU time per call) move less. Ω avoid runs the compiled kernel where numba can

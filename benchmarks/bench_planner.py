@@ -6,7 +6,7 @@
    cells per vehicle; the notes of the failed cells are counted by cause.
 2. Replanning: closed loop at 50 Hz with perfect tracking — every cycle the vehicle moves along the
    plan and the guidance replans as it would in flight (warm-started from the last plan); time per
-   replan p50/p95 and how often the exact check rejected a QP plan. Goal (issue 7): p95 < 20 ms.
+   replan p50/p95 and how often the exact check rejected a QP plan. Goal: p95 < 20 ms.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Review time per flight-hour and peak memory for each raw-log format (issue 14; goal: a 20-minute log in
+"""Review time per flight-hour and peak memory for each raw-log format (goal: a 20-minute log in
 under 10 s and under 1 GiB). Prints one JSON object.
 
     python benchmarks/bench_review.py [--minutes 20] [--no-sitl] [--px4-logs DIR] [--ardupilot-logs DIR] [--repeat N]

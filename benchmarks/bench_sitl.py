@@ -13,7 +13,7 @@
 - `step_overshoot`: Mambo cascade step responses.
 - `closed_form_rel_err`: hover throttle vs m·g/(thrust_ratio·T_nom), held 20° tilt vs g·tanθ,
   saturated climb vs 0.92·thrust_ratio·T_nom/m − g, free fall vs g·t²/2 (relative errors).
-Goals (issue 3): rtf_vehicle ≥ 50, rtf_mavlink ≥ 20. Never asserted in tests.
+Goals: rtf_vehicle ≥ 50, rtf_mavlink ≥ 20. Never asserted in tests.
 """
 
 from __future__ import annotations

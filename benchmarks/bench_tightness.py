@@ -1,4 +1,4 @@
-"""How tight the shipped avoid tables are (issue 18): the table's answer `v_safe` against a fresh, densely
+"""How tight the shipped avoid tables are: the table's answer `v_safe` against a fresh, densely
 verified planner bisection (`contracts.sweep.fresh_v_safe`: the offline IPOPT planner with its exact
 dense check, the reaction time as a coast) at random off-grid points. One JSON object on stdout.
 

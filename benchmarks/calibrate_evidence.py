@@ -1,4 +1,4 @@
-"""Issue 15 evidence: a "real aircraft" that differs from its vehicle file (the X500 with its position- and
+"""Calibration evidence: a "real aircraft" that differs from its vehicle file (the X500 with its position- and
 velocity-loop gains × GAIN, an actuator delay of DELAY s, wind WIND m/s against the file's 3 m/s) flies the
 calibration plan in the lock-step SITL (both personalities, .tlog as a ground station writes it); `calibrate`
 builds its table; held-out flights (a zig-zag mission at 3, 5, 7 m/s, other seeds) are scored window by window: measured

@@ -1,4 +1,4 @@
-"""Before/after check for a speed-up of `contract-guard review` (issue 14): the same logs reviewed by two
+"""Before/after check for a speed-up of `contract-guard review`: the same logs reviewed by two
 checkouts must give the same report, field by field, and the same replayed event log, record by record.
 
     python benchmarks/review_identity.py logs DIR [--minutes 20] [--px4-logs D]  # write the logs once (any checkout)

@@ -22,7 +22,6 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum, StrEnum
 
-from .frozen import quick_init
 
 ACCEPTED_RESULTS = (0, 5)  # MAV_RESULT_ACCEPTED, MAV_RESULT_IN_PROGRESS
 RESEND_LATE_S = 0.2  # [s] a command past its delivery budget is re-sent this often (within it: every cycle)
@@ -90,8 +89,7 @@ class Late:
     action: str
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class ModeView:
     """What the autopilot's mode says this cycle, judged once for every part of the daemon."""
 

@@ -1,4 +1,4 @@
-"""The calibration plan's hold legs, flown by the daemon in governor mode (issue 15, config `calibration.legs`).
+"""The calibration plan's hold legs, flown by the daemon in governor mode (config `calibration.legs`).
 
 `contract-guard calibrate plan` marks the legs the daemon commands itself (companion/calibrate_plan.py): at
 `hold_before_m` before a hold leg's waypoint, while at the leg's speed, Hold (PX4 Hold / ArduPilot Brake); at

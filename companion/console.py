@@ -132,8 +132,7 @@ class ConsoleLog:
         if not self.counts["link"] and self.clock() - self.t0 >= self._next_reminder:
             self.say(f"still no autopilot heartbeat after {self._next_reminder:.0f} s", WARNING)
             self._next_reminder *= 3
-        if hasattr(self.log, "tick"):
-            self.log.tick()
+        self.log.tick()
 
     _next_reminder = 10.0
 

@@ -117,7 +117,7 @@ class Cycle:
                 route = Route(cfg.route.waypoints, cfg.route.altitude_m, cfg.route.corner_cut_m)
                 guidance = OffboardGuidance(route, planning=planning())
             self.offboard = OffboardController(guidance, cfg.offboard_entry_s)
-        # governor.recovery_brake: the daemon's own stop (issue 28 item 4), offboard's braking stop flown from the
+        # governor.recovery_brake: the daemon's own stop, offboard's braking stop flown from the
         # mission; available while its start-up checks (`checks.brake`: the daemon's StartupChecks) pass and the
         # autopilot has not refused its switch
         self.brake = OffboardController(None) if cfg.mode == "governor" and cfg.governor.recovery_brake else None
@@ -453,7 +453,7 @@ class Cycle:
 
     def _recover(self, t: float, tel: Telemetry, i: Inputs, d: Decision, startup_ok, mission_route
                  ) -> tuple[OffboardActions, Decision, bool]:
-        """Governor mode's recovery brake (issue 28 item 4): a stop the stop contract calls for, flown by the
+        """Governor mode's recovery brake: a stop the stop contract calls for, flown by the
         daemon in offboard at the airframe's braking from the measured state, then Hold (`OffboardController.
         recover`); a cause it cannot fly out, or the shutdown, holds at once. Its actions, the decision (latched
         while it brakes: the supervisor holds in offboard) and whether it brakes (the Hold then comes at rest)."""

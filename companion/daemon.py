@@ -331,8 +331,7 @@ class Daemon:
             except Exception as err:  # a bug must not take the loop down: the safe action, logged; retried
                 self._cycle_failed(self.clock(), err)
             stepped = time.monotonic()
-            if hasattr(self.log, "tick"):
-                self.log.tick()  # the cycle's events to the disk: one fsync for all of them (group commit)
+            self.log.tick()  # the cycle's events to the disk: one fsync for all of them (group commit)
             timing.add(self.clock(), started - next_t, polled - started, stepped - polled, time.monotonic() - stepped)
             if feeder is not None:
                 feeder.tick(self._bad_cycles < 10 and time.monotonic() - started < 5 * period)

@@ -52,7 +52,6 @@ from contracts.lidar import (BACKSCATTER_LENGTH_M, QUALITY_FULL_MARGIN, RATED_RE
 from contracts.window import WindowMax
 
 from .config import SensorConfig
-from .frozen import quick_init
 from .samples import Scan
 
 
@@ -86,8 +85,7 @@ class DetectionRangeParams:
                    backscatter_length_m=detection.backscatter_length_m)
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class DetectionRangeEstimate:
     d_od: float  # the detection range the evidence allows [m] (≤ stated, ≤ cap)
     stated_m: float  # the range the sensors claim (the input)

@@ -24,7 +24,6 @@ from contracts.window import WindowMax
 from contracts.vehicle import G
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
-from .frozen import quick_init
 from .samples import Scan
 
 # ============================================================================ D_od
@@ -56,7 +55,7 @@ class _Seen:
     increment and claimed range then, the last position (t, x, y) and the one `SENSOR_LAG_S` before it, the
     last two headings (t, yaw). Its wedges in the local frame (`sectors`) and the travel in the lag (`shift`)
     are made only when the swept coverage is asked for — the direction of travel outside every field of view,
-    rare — and then once (issue 14: not at every sample)."""
+    rare — and then once, not at every sample."""
 
     t: float
     pos: tuple[float, float, float]
@@ -106,8 +105,7 @@ class LateDetection:
     assumed_d_od: float  # what the estimate promised just before
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class DodEstimate:
     d_od: float  # guaranteed detection range along the direction of travel [m]
     covered_by: tuple[int, ...]  # sensors covering that direction, fresh and trusted
@@ -124,7 +122,7 @@ class DodEstimator:
     their reported range limits and signal quality, staleness (stale ⇒ 0), coverage and late first
     detections (which lower the estimate for a hold time). A direction outside every field of view gets
     the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the swept
-    coverage, `contracts.coverage`; never more than was seen; none ⇒ 0; issue 19 item 2)."""
+    coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
 
     def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float):
         self.sensors = [_SensorState(c) for c in sensors]
@@ -154,7 +152,7 @@ class DodEstimator:
 
     def add_position(self, t: float, x: float, y: float) -> None:
         """The vehicle's horizontal position, to place hits and the swept coverage in the local frame
-        (issue 19 items 4 and 2); its velocity from the last two."""
+        (the obstacles tracked, the swept coverage); its velocity from the last two."""
         if math.isfinite(x) and math.isfinite(y):
             self._pos = (t, x, y)
             self._pos_hist.append(self._pos)
@@ -223,11 +221,11 @@ class DodEstimator:
 
     def _sweep(self, i: int, t: float, seen) -> None:
         """Keep what this sample saw free (a `_Seen`; its wedges are made when first needed) for `COVERAGE_S`:
-        the swept coverage `estimate` falls back on when the direction of travel is outside every field of view
-        (issue 19 item 2). The sample is placed at the last position and heading, but was taken up to
-        `SENSOR_LAG_S` before: each wedge is narrowed by the heading's turn in that time and keeps the travel in
-        it as its apex's uncertainty (`covered_distance`'s shift). An untrusted sample, or one whose position or
-        heading is unknown or stale, adds nothing."""
+        the swept coverage `estimate` falls back on when the direction of travel is outside every field of view.
+        The sample is placed at the last position and heading, but was taken up to `SENSOR_LAG_S` before: each
+        wedge is narrowed by the heading's turn in that time and keeps the travel in it as its apex's uncertainty
+        (`covered_distance`'s shift). An untrusted sample, or one whose position or heading is unknown or stale,
+        adds nothing."""
         s = self.sensors[i]
         while s.swept and s.swept[0].t < t - COVERAGE_S:
             s.swept.popleft()
@@ -260,7 +258,7 @@ class DodEstimator:
         return max(d - SWEPT_MARGIN_M, 0.0)
 
     def _tracked_already(self, t: float, p, tolerance: float) -> bool:
-        """Whether a hit is on an obstacle already tracked (issue 19 item 4): within 2·R_obst (two points of one
+        """Whether a hit is on an obstacle already tracked: within 2·R_obst (two points of one
         obstacle no wider than R_obst) plus the bearing's uncertainty and the tolerance of a point seen within
         the late-detection hold time. A column that leaves the field of view during a pass, or that a fast yaw
         sweeps across several bins between two samples, is not a new late detection."""
@@ -380,7 +378,7 @@ class ThrustEstimator:
     low-passed. Until it is known, `fallback`: the start value (`companion.cycle.start_thrust`: the lowest the
     vehicle may have, where the table answers).
 
-    Valid only airborne and settled (issue 19 item 5): on the ground and during spin-up the throttle holds
+    Valid only airborne and settled: on the ground and during spin-up the throttle holds
     the vehicle against nothing (PX4's spin-up read 0.678 for a true 0.700). A sample counts once the
     autopilot says the vehicle is in the air, its last sample on the ground is `SETTLE_S` or more before, and
     its vertical acceleration has come within `SETTLED_A_UP` (then every sample counts until the next landing:

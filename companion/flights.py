@@ -43,15 +43,16 @@ from sitl_harness.scenario import scenario_from_dict  # noqa: E402
 
 from .config import config_from_dict  # noqa: E402
 from .daemon import Daemon  # noqa: E402
-from .guidance import PLAN_BUDGET_S, InlinePlanning  # noqa: E402
+from .guidance import InlinePlanning  # noqa: E402
 from .link import MemoryMavfile  # noqa: E402
 
 
 class DelayedPlanning(InlinePlanning):
-    """Plans at once but answers `delay_s` of vehicle time later, with a planner's time budget, as a worker on a
-    busy host does (deterministic: lock-step flights of the planning's latency, benchmarks/bench_plan_latency.py)."""
+    """Plans at once but answers `delay_s` of vehicle time later, as a worker on a busy host does (deterministic:
+    lock-step flights of the planning's latency, benchmarks/bench_plan_latency.py). The planner has no wall-clock
+    budget (`budget_s` None, as inline): the delay is the latency, not the host."""
 
-    budget_s = PLAN_BUDGET_S
+    deferred = True  # the answer comes `delay_s` after it was asked for
 
     def __init__(self, delay_s: float, clock):
         super().__init__()
@@ -62,7 +63,7 @@ class DelayedPlanning(InlinePlanning):
         return self._out is not None
 
     def submit(self, planner, *args, **kw) -> None:
-        super().submit(planner, *args, **{**kw, "budget_s": None})  # the delay is the latency, not the host
+        super().submit(planner, *args, **kw)
         self._due = self.clock() + self.delay_s
 
     def poll(self):
@@ -210,6 +211,9 @@ class Recorder:
 
     def state(self, t, **fields):
         self.states.append({"t": t, **fields})
+
+    def tick(self) -> None:
+        """Once a cycle (as the event log commits its events): nothing to commit, the records are in memory."""
 
     def named(self, name):
         return [e for e in self.events if e["event"] == name]

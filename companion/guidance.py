@@ -265,7 +265,8 @@ class InlinePlanning:
     wall-clock budget either)."""
 
     busy = False
-    budget_s = None
+    deferred = False  # the answer is there when `submit` returns
+    budget_s = None  # no wall-clock budget for the planner
 
     def __init__(self):
         self._out = None
@@ -286,7 +287,8 @@ class ThreadedPlanning:
     solves. The planner's own Python work (the QP's assembly, the exact check) holds the interpreter lock,
     though: on a busy host the loop waits for it (`ProcessPlanning` does not)."""
 
-    budget_s = PLAN_BUDGET_S
+    deferred = True  # the answer comes later than asked (`poll` once it is done)
+    budget_s = PLAN_BUDGET_S  # the planner's wall-clock budget per job
 
     def __init__(self):
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cg-planner")
@@ -436,7 +438,7 @@ class OffboardGuidance:
         ay = -2.0 * w * self.vy_off - w * w * self.y_off
         # sideways no faster than keeps the reference's direction within SIDE_DEG of the route, or its whole
         # speed below SIDE_SLOW: slow and sideways (rejoining at a route's end) the track left the sensor's
-        # view (issue 19 items 2, 3). A floor on the sideways speed alone (0.7 m/s) let the along-track
+        # view. A floor on the sideways speed alone (0.7 m/s) let the along-track
         # speed fall to 0 under it: the track swung 40° → 80° off the heading at 1.1 m/s, faster than the
         # yaw (≈ 45°/s flown) could follow, where the sensor had seen under a metre free: no safe speed.
         cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)), math.sqrt(max(SIDE_SLOW ** 2 - self.v_ref ** 2, 0.0)))
@@ -451,7 +453,7 @@ class OffboardGuidance:
         limit = min(route.speed_limit(self.s_ref, v_max, a_max),
                     route.speed_limit(self.s_ref + self.v_ref * dt, v_max, a_max))
         if abs(self.y_off) > REJOIN_OPEN_M:  # still beside the route: slow gently for the stop ahead, so the
-            # vehicle does not overshoot it and come back outside the sensor's view (issue 19 item 2)
+            # vehicle does not overshoot it and come back outside the sensor's view
             limit = min(limit, math.sqrt(2 * A_REJOIN_STOP * a_max * max(route.next_stop(self.s_ref) - self.s_ref, 0.0)))
         target = min(math.sqrt(max(v_max * v_max - self.vy_off * self.vy_off, 0.0)) / max(stretch, 1.0), limit)
         up = 0.5 * a_max * dt
@@ -481,7 +483,7 @@ class OffboardGuidance:
         ahead. The sensor looks where the vehicle goes (the contract's D_od is along the measured velocity)
         and where it is told to go. The commanded velocity alone let a slow vehicle's track run 30° and more
         off the heading while it lagged a slow reference (overshooting a route's end after a pass, drifting
-        back: D_od 0, no safe speed; issue 19 items 2, 3); the measured one at speed made the X500 lag its
+        back: D_od 0, no safe speed); the measured one at speed made the X500 lag its
         avoidance pass beyond E_tr_pred."""
         vel = np.asarray(vel, float)
         d = vel + max(0.0, 1.0 - float(np.hypot(*vel)) / YAW_MEAS_BELOW) * self._v_meas
@@ -525,7 +527,7 @@ class OffboardGuidance:
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
         if (since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
-            if self.plan.kind in ("brake", "await") and self.planning.budget_s is not None:
+            if self.plan.kind in ("brake", "await") and self.planning.deferred:
                 t_req = t + self._lead()
                 p_req, v_req, _ = self.plan.sample(t_req - self.plan_t)
             _, u = self.route.point(self.route.project(p_req))
@@ -545,7 +547,7 @@ class OffboardGuidance:
 
     def _take(self, t: float, done) -> None:
         """An answer from the planning, or the one held until its start time has come."""
-        if done is not None and done[0] == self.epoch and self.planning.budget_s is not None:
+        if done is not None and done[0] == self.epoch and self.planning.deferred:
             self.latency = [*self.latency[-4:], t - self._asked_t]
         if done is not None and done[1] > t:
             self._pending = done  # asked for while braking: fly it from where the braking leaves the vehicle
@@ -557,7 +559,7 @@ class OffboardGuidance:
     def _past_the_profile(self, t: float, v_max: float, a_max: float) -> bool:
         """Whether the pass being finished (its obstacle behind) flies faster than the route's speed profile
         at half its braking allows — then the vehicle rejoins now and slows for what is ahead (the route's end,
-        a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it (issue 19 item 3)."""
+        a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it."""
         pos, vel, _ = self.plan.sample(t - self.plan_t)
         return float(np.hypot(*vel)) > float(self.route.speed_limit(self.route.project(pos), v_max, 0.5 * a_max))
 
@@ -565,7 +567,7 @@ class OffboardGuidance:
         """The speed a pass ends at: what the route's speed profile allows beyond the farthest disc, at half
         the braking the cruise reference uses (the rest is for rejoining the route sideways). A pass that
         ended at V_max 2 m before the route's end overshot it by 2–5 m and drifted back outside the
-        sensor's view (issue 19 item 3)."""
+        sensor's view."""
         s_far = max(self.route.project((d.x, d.y)) + d.r for d in discs)
         return float(self.route.speed_limit(s_far, v_max, 0.5 * a_max))
 

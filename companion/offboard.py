@@ -14,12 +14,12 @@
         entering / flying ──stop asked otherwise (not engaged, Ctrl-C)──▶ off
         held ──CG_ENGAGE off and on (`Cycle.engage_requested`)──▶ off
 
-Authority after a fail-safe (issue 16, "seen but left alone"): a fail-safe Hold is latched. The daemon never
-re-enters offboard by itself after it (it did, 2–5 s later, as soon as the cause had cleared: repeated
-Hold/re-enter cycles); the pilot or the ground station decides — another mode, or CG_ENGAGE toggled to
+Authority after a fail-safe (its cause seen to clear, the vehicle left alone): a fail-safe Hold is latched.
+The daemon never re-enters offboard by itself after it (it did, 2–5 s later, as soon as the cause had cleared:
+repeated Hold/re-enter cycles); the pilot or the ground station decides — another mode, or CG_ENGAGE toggled to
 resume the route. A cause that clears is no evidence that the next pass will not raise it again.
 
-Why the daemon brakes itself before handing over (issue 19 item 1): PX4's Hold (FlightTaskAuto::activate
+Why the daemon brakes itself before handing over: PX4's Hold (FlightTaskAuto::activate
 resets its jerk-limited position smoothing to the last setpoint's acceleration and velocity) and
 ArduPilot's Brake (AC_PosControl::init_xy_controller starts from the current velocity and lean angles)
 both begin from the acceleration the vehicle has and ramp it out at the jerk limit, so a Hold commanded
@@ -47,7 +47,7 @@ SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop whe
 # a vehicle that overran the stop is still accelerating back at ~g·tan(tilt) as its speed crosses zero, and
 # ArduPilot's Brake (AC_PosControl::init_xy_controller: the current lean angles) carries that acceleration on
 SETTLE_S = 0.5
-# ... and within AT_END_M of the stop's end point (issue 19 item 1: after a hard stop the autopilot's velocity
+# ... and within AT_END_M of the stop's end point (after a hard stop the autopilot's velocity
 # integrator still holds the drag it learnt at speed, ~1.3 m/s² on the Mambo at 5.3 m/s; it holds the vehicle
 # ~0.7 m past the end against the position loop, and Hold, which restarts at the current position, let it push
 # on another 0.45 m into the column; held at the end point, the integrator bleeds off); at most END_WAIT_S
@@ -110,7 +110,7 @@ class OffboardController:
             # is for the vehicle's lag behind the stop it is given)
             budget = stop_path_budget(float(np.hypot(*v)), stop_decel, jerk)
             # from the acceleration last commanded (what the vehicle is turning to; PX4's Hold restarts from it
-            # too), turned onto the stop at `track_jerk`: a stop the vehicle can track (issue 19 item 1)
+            # too), turned onto the stop at `track_jerk`: a stop the vehicle can track
             self._plan_stop(p, v, z, yaw, a_stop, known, budget, self._a_last, track_jerk)
             self._go(t, S.BRAKING, "fail-safe: the daemon brakes to a stop, then Hold", acts)
             return self._brake(t, False, mode, False, p, v, acts)
@@ -169,7 +169,7 @@ class OffboardController:
 
     def recover(self, t, *, start: bool, abort: bool, mode: str, taken_over: bool, p, v, z, yaw, a_stop: float,
                 jerk: float, a0=None) -> OffboardActions:
-        """Governor mode's recovery brake (issue 28 item 4; ASTM F3269's recovery function, the stop contract its
+        """Governor mode's recovery brake (ASTM F3269's recovery function, the stop contract its
         monitor). `start`: the stop contract calls for a stop: the straight jerk-limited stop at `a_stop` (the
         airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD /
         GUIDED asked the next (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop

@@ -7,11 +7,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from .authority import ModeCommand
-from .frozen import quick_init
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Outbox:
     mode: ModeCommand | None = None  # DO_SET_MODE (companion/authority.py: the one winner of the cycle)
     speed: float | None = None  # DO_CHANGE_SPEED [m/s] (governor mode)

@@ -5,7 +5,7 @@ leading `@` names an abstract socket), so it is spoken directly with no dependen
 no-op when `$NOTIFY_SOCKET` is unset (not started by systemd, tests, `contract-guard demo`) and none
 raises: a failed send is counted in `Notifier.errors` and returns False.
 
-The daemon's duty (issue 5, item 8): call `ready()` once it is running (table loaded, loop started;
+The daemon's duty: call `ready()` once it is running (table loaded, loop started;
 the autopilot link may still be connecting), then `watchdog()` from the loop **only while the loop is
 healthy** — at least every `watchdog_interval_s()` (`WatchdogFeeder` does the rate limiting) — so that
 systemd restarts a daemon whose loop hangs or keeps failing (`WatchdogSec=` in the unit). `status(text)` shows a one-line state in

@@ -129,7 +129,7 @@ class StartupChecks:
         return True, "ok"
 
     def brake_verdict(self, ok: bool, reason: str) -> tuple[bool, str]:
-        """The recovery brake's own start-up checks (issue 28 item 4): the daemon's checks pass, and offboard's
+        """The recovery brake's own start-up checks: the daemon's checks pass, and offboard's
         (`_offboard_checks`); failing, the governor flies the autopilot's Hold's stop contract."""
         if not ok:
             return False, f"the start-up checks refuse: {reason}"

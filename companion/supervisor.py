@@ -30,7 +30,6 @@ from contracts.window import WindowMax
 
 from .authority import Late
 from .estimators import DodEstimate
-from .frozen import quick_init
 from .guidance import inflated
 from .states import (AT_REST_M_S, BRAKE_STOP_CAUSES, BRAKE_SWITCH, RAMP_FOLLOWED, FAILSAFE_CAUSES, Cause, State,  # noqa: F401 (re-exported)
                      Subsystem)
@@ -51,8 +50,7 @@ SLOWDOWN_NEAR_M_S = 0.3  # [m/s] flying within this of the old limit's tolerance
 LIMIT_FLOWN = "a speed limit is flown within the autopilot's slow-down"  # the delivery subsystem's guarantee
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Inputs:
     """Everything the supervisor may look at, all derived from MAVLink samples."""
 
@@ -100,8 +98,7 @@ class _Draft:
     hold_causes: list[Cause] = field(default_factory=list)
 
 
-@quick_init
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Decision:
     """One cycle's decision of the supervisor (frozen: the cycle builds its outbox from it, never rewrites it)."""
 
@@ -293,7 +290,7 @@ class Supervisor:
         self.policy = policy if policy is not None else ContractSpeed()
         self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
         # the stop contract's brake: None, the autopilot's Hold; the loop period, the daemon's recovery brake
-        # (issue 28 item 4: set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
+        # (set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
         self.recovery_dt: float | None = None
         self.ramp = ApproachRamp(ramp_m_s, table.vehicle.braking.jerk_max_m_s3) \
             if ramp_m_s is not None and mode == "governor" else None
@@ -579,7 +576,7 @@ class Supervisor:
                 d.hold = True
                 self._held_for = list(fresh)
                 said = [(c, "hold") for c in fresh]
-            else:  # a cause that arrives while already holding is logged too (issue 16: it was silent)
+            else:  # a cause that arrives while already holding is logged too: no cause goes unsaid
                 said = [(c, ALREADY_HOLDING) for c in fresh if c not in self._held_for]
                 self._held_for += [c for c, _ in said]
             for c, action in said:

@@ -9,10 +9,10 @@ the CasADi planner through `contracts.sweep`, imported lazily).
   and circumscribed (side 2·r_obst) squares, met face-on.
 
 Placement of the squares along the flight line (`placement`):
-- "face" (the issue's definition): each obstacle's own near surface is D_od ahead — the squares'
-  near faces and the circle's nearest point all at D_od. The inscribed square is then *not* inside the
-  circle (its front corners stick out ahead of the circle's arc), so nothing forces the circle's curve
-  below the inscribed square's.
+- "face" (D_od as the contract measures it, to the obstacle's surface): each obstacle's own near surface is
+  D_od ahead — the squares' near faces and the circle's nearest point all at D_od. The inscribed square is
+  then *not* inside the circle (its front corners stick out ahead of the circle's arc), so nothing forces the
+  circle's curve below the inscribed square's.
 - "concentric" (the paper's Figure 5 nesting, inscribed ⊂ circle ⊂ circumscribed): all three share
   the centre D_od + r_obst; the inscribed square's face is r_obst·(1 − 1/√2) farther than D_od.
 """

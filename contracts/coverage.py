@@ -1,4 +1,4 @@
-"""Swept sensor coverage: how far along a ray the sensors have seen free space (issue 19 item 2).
+"""Swept sensor coverage: how far along a ray the sensors have seen free space.
 
 The navigation guarantee `D_od` says that every obstacle within D_od along the direction of travel is
 detected. Inside a sensor's field of view that is its claimed range. When the direction of travel leaves

@@ -47,17 +47,17 @@ def load_solver() -> None:
 N_POLY = 16
 # The factor on the avoid contract's speed at which this planner is shown to find a verified avoiding
 # trajectory on 100 % of a seeded sample of table cells (tests/test_online_planner.py,
-# benchmarks/bench_planner.py): the offboard contract flies at OFFBOARD_CAP × V_safe. Issue 18: 200/200 seeded
+# benchmarks/bench_planner.py): the offboard contract flies at OFFBOARD_CAP × V_safe. Measured: 200/200 seeded
 # cells per vehicle at 0.92–0.98 on two samples (seeds 0, 7), 199/200 at 0.99; 0.97 keeps one step below the
 # largest value that held (the slower when unsure). The E_tr sweep flies its online plans at this cap.
 OFFBOARD_CAP = 0.97
-UNRECORDED_CAP = 0.92  # the cap before issue 18: for a contract whose E_tr_pred records no cap it was flown at
+UNRECORDED_CAP = 0.92  # the cap a table whose E_tr_pred records none was flown at (built before the record)
 REPLAN_S = 0.5  # [s] the offboard guidance refreshes an active plan this often (the E_tr sweep models it)
 SUB_STEPS = 20  # dense re-simulation per interval for the exact check
 MARGIN_M = 0.01  # kept from the discs in the QP, so solver tolerance never fails the exact check
 SLACK_COST = 1e2  # per metre of keep-out violation in the first SCP iteration (×10 per iteration)
 QP_TIGHTEN = 1e-3  # the QP's speed and acceleration polygons are shrunk by this fraction, so a solution within
-# OSQP's tolerance still satisfies the exact limits (issue 18: most failures near V_safe were a converged-to-ε
+# OSQP's tolerance still satisfies the exact limits (most failures near V_safe were a converged-to-ε
 # brake-and-swerve sitting just outside the tilt limit)
 
 
@@ -213,7 +213,7 @@ def best_stop(p0, v0, a_max, discs=(), n=40, max_path_m: float = math.inf, a0=No
     rest (|a| ≤ √(2·j·speed) per axis). θ = 0 is straight braking; |θ| ≤ 45° never flies faster than the start
     (the speed is convex in time and ends at s·tan θ ≤ s; a swerve that does, from a0, is not a candidate). In STOP_SWERVE_DEG's order (straight first), the
     first θ whose dense path keeps out of every disc wins; else the one with the largest clearance (a
-    straight stop that only clears the never-entered core lost to a swerve off it: issue 19 item 1). A
+    straight stop that only clears the never-entered core lost to a swerve off it). A
     swerving stop whose path is longer than `max_path_m` is not a candidate (the stop contract's distance).
     Returns positions, velocities, accelerations, the sampling time and the clearance to the full discs [m]."""
     p0, v0 = np.asarray(p0, float), np.asarray(v0, float)
@@ -634,7 +634,7 @@ class AvoidancePlanner:
 
 def _vertex_turns(a, v):
     """Rotations of the N acceleration and N speed polygons that put a vertex on the last iterate's
-    direction (issue 18): the inscribed 16-gon is then exact where the limiting brake-and-swerve sits,
+    direction: the inscribed 16-gon is then exact where the limiting brake-and-swerve sits,
     instead of losing up to 1 − cos(π/16) = 1.9 % of the tilt's acceleration between vertices."""
     return np.concatenate([np.arctan2(a[:, 1], a[:, 0]), np.arctan2(v[:, 1], v[:, 0])])
 

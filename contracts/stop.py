@@ -139,8 +139,9 @@ def approach_stopping_distance(v: float, a: float, j: float, t_r: float, a0_max:
 def measured_stopping_distance(v: float, a: float, j: float, t_r: float) -> float:
     """A stop bound for a *measured* speed v (the supervisor's obstacle trigger), not a limit kept throughout: the
     dead time at v and the worst Hold-start acceleration a_up = min(a, √(2jv)) at v taken separately (the stop
-    contract before issue 28 item 3). A vehicle measured at v may still be speeding up, which the joint bound's
-    history (speed ≤ v throughout) does not cover, so the trigger keeps this, the slower answer."""
+    contract's form before its joint bound, `approach_stopping_distance`). A vehicle measured at v may still be
+    speeding up, which the joint bound's history (speed ≤ v throughout) does not cover, so the trigger keeps this,
+    the slower answer."""
     v = max(v, 0.0)
     a_up = min(a, math.sqrt(2.0 * j * v))
     return v * t_r + braking_distance_from(v - a_up * a_up / (2.0 * j), a_up, a, j)
@@ -199,7 +200,7 @@ def braking_decel(vehicle: Vehicle, thrust_ratio: float, tilt: float | None = No
 def stop_jerk(vehicle: Vehicle) -> float:
     """The jerk of the daemon's own fail-safe stop [m/s³]: g times the attitude-rate limit, the fastest the
     horizontal acceleration g·tan(tilt) can turn near level (d/dt g·tan θ ≥ g·θ̇). A stop whose acceleration
-    steps (as the full-tilt stop did) is one the vehicle cannot track (issue 19 item 1)."""
+    steps (as the full-tilt stop did) is one the vehicle cannot track."""
     return G * vehicle.tilt_rate_max
 
 
@@ -228,7 +229,7 @@ def stop_dead_time(vehicle: Vehicle) -> float:
     return vehicle.t_react_s + vehicle.braking.hold_switch_s
 
 
-# The recovery brake's stop contract (issue 28 item 4; DESIGN.md §1 stop contract): the daemon flies the stop itself
+# The recovery brake's stop contract (DESIGN.md §1 stop contract): the daemon flies the stop itself
 # in offboard at the airframe's deceleration and `stop_jerk`; its contract takes RECOVERY_SHARE of both, the rest
 # for the vehicle's lag behind the stop it streams (the offboard fail-safe stop's pattern: it plans harder than its
 # contract assumes)
@@ -251,7 +252,7 @@ def recovery_brake(vehicle: Vehicle, thrust_ratio: float, loop_dt: float, tilt: 
 def v_stop(vehicle: Vehicle, d_od: float, r_obst: float, e_tr: float, thrust_ratio: float,
            tilt: float | None = None) -> float:
     """Stop-contract speed limit [m/s]; 0 where no speed is safe. It holds from any state of the autopilot's
-    approach to it (issue 19 item 1: a Hold while speeding up first ramps the acceleration out).
+    approach to it (a Hold while speeding up first ramps the acceleration out).
 
     `r_obst` only sets the disc's centre: for a head-on stop only its near edge matters.
     """

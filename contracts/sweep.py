@@ -418,7 +418,7 @@ def fresh_v_safe(vehicle: Vehicle, d_od: float, r_obst: float, e_tr: float, tilt
 
 def rate_limit_check(vehicle: Vehicle, v: float, d_od: float, r_obst: float, e_tr: float, tilt: float,
                      thrust_ratio: float, tilt_model: str = "cone", n: int = 40, cpu_time: float = 5.0) -> dict:
-    """Issue 4, item 3: is the folded reaction time conservative at this point?
+    """Is the folded reaction time conservative at this point?
 
     `v` is the table's answer (reaction folded as t_react + tilt/rate). The full eq. (14) planner with
     roll/pitch-rate limits, w(1) = w_0 = 0 (level cruise) and only the pure latency t_react (a coast of

@@ -48,7 +48,7 @@ MAX_REPAIR_FRACTION = 0.01  # the build fails if more cells than this needed a m
 LAW_CLAIM = "cone: F = sqrt(a_h/g)*G(rho)"  # how a cone build states its scaling law (contracts/sweep.py)
 # The law's row answers between grid tilts, at points no planner checked with the folded reaction time
 # t_react + tilt/rate (DESIGN.md §2). Against the rate-limited planner that folding holds only to within
-# the planners' 1e-3 brackets (measured, issue 18: at 7° it is 0.07 % above it), so the law's row keeps
+# the planners' 1e-3 brackets (measured: at 7° it is 0.07 % above it), so the law's row keeps
 # two brackets of margin (0.2 %); the worst corner it replaces loses up to 13 % a degree at small tilts.
 LAW_MARGIN = 1.0 - 2e-3
 
@@ -56,7 +56,7 @@ LAW_MARGIN = 1.0 - 2e-3
 SLOTS = {
     "avoid": ("avoid_f", ("avoid_rho", "avoid_tilt", "avoid_thrust_ratio"), (-1, +1, +1), "down"),
     "e_tr_pred": ("etr_e", ("etr_v", "etr_tilt", "etr_thrust_ratio"), (+1, +1, -1), "up"),
-    # the governor's (issue 28 item 2): flown on what a governed vehicle flies, no swerve; the stop contract's if present
+    # the governor's: flown on what a governed vehicle flies, no swerve; the stop contract's if present
     "e_tr_pred_stop": ("etrs_e", ("etrs_v", "etrs_tilt", "etrs_thrust_ratio"), (+1, +1, -1), "up"),
 }
 AXIS_INFO = {
@@ -537,7 +537,7 @@ class ContractTable:
             react.warm()
 
     def _scaling_law(self, avoid: Slot):
-        """Between grid points, the cone build's own law F = √(a_h/g)·G(ρ) (issue 18): where the table states it
+        """Between grid points, the cone build's own law F = √(a_h/g)·G(ρ): where the table states it
         and every corner of a cell obeys it (`lookup.law_cells`, checked here at load over every cell), the
         answer at (tilt, thrust) scales the cell's corners to that point's a_h. Derived at load from the
         hashed arrays and the verified vehicle (nothing stored). None: worst corner only (box tables, …)."""
@@ -600,7 +600,7 @@ class ContractTable:
     def etr_offboard_cap(self) -> float | None:
         """The factor on V_safe at which the E_tr sweep flew the online planner's plans (`online@ρ`, recorded
         in the E_tr_pred slot); None without an E_tr_pred slot or an older record. Offboard must not fly a
-        larger factor than its controller contract was flown at (issue 18)."""
+        larger factor than its controller contract was flown at."""
         if self.e_pred is None:
             return None
         cap = ((self.e_pred.info.get("grid") or {}).get("online") or {}).get("offboard_cap")

@@ -26,10 +26,10 @@ several seeds:
   state, warm-started, adopted as the guidance adopts it (`contracts.online_planner.keeps_plan`); after the plan's last interval the reference
   coasts (pass) or holds (stop). Geometries where the planner finds no verified plan are skipped and
   counted (the daemon brakes there: that is `step_down`);
-- ``failsafe@ρ`` (issue 19 item 9): the same plan interrupted halfway (`FAILSAFE_FRAC`), mid-swerve, by
+- ``failsafe@ρ``: the same plan interrupted halfway (`FAILSAFE_FRAC`), mid-swerve, by
   the braking stop the daemon streams itself on an offboard fail-safe (`best_stop` from the measured
   state at a_h, straight or swerving, then rest);
-- ``drop@ρ`` (issue 19 item 9, a thrust drop): the first plan made at the acceleration of the top of
+- ``drop@ρ`` (a thrust drop): the first plan made at the acceleration of the top of
   the vehicle's thrust range (`a_h(tilt, thrust_max)`), flown with the cell's thrust; the replans (the
   thrust estimate has caught up by then) use the cell's a_h. Only for cells below the top;
 - ``cruise``: straight and level at v_max;
@@ -78,7 +78,7 @@ HELD_OUT_RHOS = (0.05, 0.15, 0.27, 0.42, 0.6, 0.85)  # … and only to validate 
 BUILD_SEEDS = (0, 1)
 HELD_OUT_SEEDS = (101, 102)
 MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online", "failsafe", "drop")
-# what a governed vehicle flies (issue 28 item 2): the autopilot's own mission, straight, its speed steps and its Hold,
+# what a governed vehicle flies: the autopilot's own mission, straight, its speed steps and its Hold,
 # each through its velocity smoothing (MPC_ACC_HOR / MPC_JERK_AUTO: the vehicle file's braking settings)
 GOVERNOR_MANEUVERS = ("cruise", "smooth_up", "hold")
 ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured state, warm-started
@@ -291,7 +291,7 @@ def with_margin(worst: np.ndarray) -> tuple[np.ndarray, int]:
 
 def governor_surface(vehicle: Vehicle, grid: EtrGrid, workers: int = 2, scheduler: str | None = None,
                      progress: bool = True) -> tuple[np.ndarray, dict, int]:
-    """The governor's E_tr_pred (issue 28 item 2): the controller contract (Figure 12) flown on what a governed
+    """The governor's E_tr_pred: the controller contract (Figure 12) flown on what a governed
     vehicle flies — cruise, speed steps and the autopilot's braking stop, no swerve — with the build's margin and
     upward repair → (values (n_v, n_tilt, n_tr), per-manoeuvre worst, repairs). Its rows need no avoid table."""
     worst, per, _ = measure_surface(None, vehicle, grid, workers, scheduler, progress, governor=True)

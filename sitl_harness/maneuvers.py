@@ -255,7 +255,7 @@ class OnlineFlight:
     error, Figure 11, as the on-board estimator sees it) and the replans — from the measured state,
     every REPLAN_S while the disc is still ahead, warm-started from the plan in progress, which a
     failed replan does not replace. With `failsafe_frac` the flight ends as the daemon's offboard
-    fail-safe does (issue 19 items 1, 9): at that fraction of the plan, a braking stop from the measured
+    fail-safe does: at that fraction of the plan, a braking stop from the measured
     state at the cell's a_h (`contracts.online_planner.best_stop`, straight or swerving ≤ 45°, off the
     disc), then rest."""
 
