@@ -20,7 +20,7 @@ from contracts.stop import airframe_decel, braking_decel, stop_jerk
 from contracts.table import THRUST_AXIS_TOL, ContractTable
 
 from .authority import HOLD, Delivery, ModeAuthority, ModeRequest, ModeView, Requester
-from .autopilot_base import MAV_CMD_DO_SET_MODE
+from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
 from .detection_range import DetectionRange, DetectionRangeParams
@@ -424,9 +424,12 @@ class Cycle:
         return min(max(i.thrust_ratio, lo), hi) if math.isfinite(i.thrust_ratio) else lo
 
     def command_ack(self, command: int, result: int) -> None:
-        """A COMMAND_ACK: DO_SET_MODE's answer goes to the mode authority (its delivery)."""
+        """A COMMAND_ACK: DO_SET_MODE's answer goes to the mode authority, DO_CHANGE_SPEED's to the supervisor
+        (each re-sends its command every cycle until answered)."""
         if command == MAV_CMD_DO_SET_MODE:
             self.authority.answer(result)
+        elif command == MAV_CMD_DO_CHANGE_SPEED:
+            self.sup.speed_answered()
 
     def _recovery_available(self, events: list, texts: list) -> None:
         """The recovery brake's availability, said when it changes (DESIGN.md §5: the brake's own start-up checks

@@ -107,8 +107,11 @@ class OutboundFaults:
     Ground truth, from the bytes (decoded with pymavlink): `dropped` (time sent, message), `delayed` (sent,
     delivered, message), and `requests`, one `Request` per command the daemon meant; `latencies` measures them."""
 
-    def __init__(self, personality: str, losses=(), jitter=(), drop_holds: int = 0, seed: int = 0):
+    def __init__(self, personality: str, losses=(), jitter=(), drop_holds: int = 0, seed: int = 0, shown=None):
+        """`shown(msg)`: whether the autopilot already flies the mode a DO_SET_MODE asks for (its effect is then in
+        place whether or not the command arrives); None: never taken as shown."""
         self.personality = personality
+        self.shown = shown
         self.losses = [tuple(map(float, w)) for w in losses]
         self.jitter = [tuple(map(float, w)) for w in jitter]
         self.holds_to_drop = int(drop_holds)
@@ -127,6 +130,9 @@ class OutboundFaults:
         msgs = self._parser.parse_buffer(data) or []
         name = msgs[0].get_type() if msgs else "?"
         req = self._request(t, msgs[0]) if msgs else None
+        if req is not None and req.delivered_s is None and self.shown is not None and \
+                req.channel == "DO_SET_MODE" and self.shown(msgs[0]):
+            req.delivered_s = t  # the autopilot already flies that mode: nothing left to deliver
         u, v = self._rng.random(), self._rng.random()  # two draws a datagram: the stream does not depend on the faults
         drop_hold = req is not None and req.hold and self.holds_to_drop > 0
         self.holds_to_drop -= drop_hold
@@ -225,7 +231,10 @@ class Rig:
                  log_dir=None, planning_delay_s: float | None = None, outbound: dict | None = None):
         sc = scenario_from_dict(scenario)
         self.sim = Sim(sc, personality, seed=seed, **(sim_kwargs or {}))
-        self.outbound = None if outbound is None else OutboundFaults(personality, **{"seed": self.sim.seed, **outbound})
+        ap = self.sim.autopilot
+        self.outbound = None if outbound is None else OutboundFaults(
+            personality, **{"seed": self.sim.seed, **outbound},
+            shown=lambda m: (ap.pers.mode_from_request(m.param1, m.param2, m.param3) or (None, None))[1] == ap.custom)
         if log_dir is not None:  # the autopilot's own flight log (.ulg / .bin); `close_log()` finishes it
             self.sim.start_log(log_dir)
         self.link = LockstepLink(self.sim)

@@ -261,6 +261,7 @@ class Supervisor:
         self.state = State.STANDBY
         self._last_sent: float | None = None
         self._last_sent_t = -math.inf
+        self._speed_answered = True  # the autopilot answered the last speed command (COMMAND_ACK)
         self._target_sent = math.nan  # what the last command sent was toward (the limit, or the autopilot's own speed)
         self._last_in_air = False
         self._linked = False  # an autopilot heartbeat has been seen (the first link is "up", not "restored")
@@ -326,6 +327,11 @@ class Supervisor:
                         subsystem=key, guarantee=BRAKE_SWITCH, assumed=v_hold, observed=speed, action="Hold"),
                         text=(2, "CG: recovery brake REFUSED above the Hold's limit: stop not guaranteed"))
         return self._amended(d, draft)
+
+    def speed_answered(self) -> None:
+        """The autopilot answered DO_CHANGE_SPEED (its COMMAND_ACK, whatever the result: a refusal shows in the speed
+        flown, which `_judge_limit` judges): it is not sent again until it changes."""
+        self._speed_answered = True
 
     @staticmethod
     def _amended(d: Decision, draft: _Draft) -> Decision:
@@ -603,7 +609,8 @@ class Supervisor:
                 v_send = self.ramp.command(target, i.ground_speed, self.any_approach_omega(i).v_max * self.cap)
                 tol_up, tol_down = (0.5 * self.ramp.gap if self.ramp.free < v_send < target else tol), RAMP_SLACK_M_S
             changed = last is None or v_send - last > tol_up or last - v_send > tol_down
-            if changed or i.t - self._last_sent_t > 5.0:
+            # sent when it changed, every 5 s, and every cycle until the autopilot answers it (delivery: t_cmd)
+            if changed or i.t - self._last_sent_t > 5.0 or not self._speed_answered:
                 d.send_speed = max(v_send, MIN_SPEED_CMD)
                 # said when the target changes (the limit, or the autopilot's own speed); the ramp's steps are not
                 if last is None or abs(target - self._target_sent) > tol:
@@ -611,6 +618,7 @@ class Supervisor:
                                      ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
                                      ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
                 self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
+                self._speed_answered = False
         elif self._no_limit_mode_warned != i.mode:
             self._no_limit_mode_warned = i.mode
             d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))

@@ -313,3 +313,15 @@ def test_lateness_inside_the_jitter_allowance_is_an_event_not_a_violation():
     (start,) = [f for n, f in d.events if n == "violation_start"]
     assert start["subsystem"] == "guidance" and "30 ms jitter allowance" in start["guarantee"]
     assert start["assumed"] == pytest.approx(0.05) and start["observed"] == pytest.approx(0.06)
+
+
+def test_a_speed_command_is_sent_every_cycle_until_the_autopilot_answers_it():
+    """DO_CHANGE_SPEED lost on the link is sent again the next cycle (delivery), not 5 s later."""
+    s = sup()
+    first = s.step(BASE)
+    assert first.send_speed is not None
+    again = s.step(replace(BASE, t=0.02))  # no answer: sent again
+    assert again.send_speed == pytest.approx(first.send_speed)
+    s.speed_answered()
+    assert s.step(replace(BASE, t=0.04)).send_speed is None  # answered: not until it changes (or 5 s)
+    assert s.step(replace(BASE, t=5.1)).send_speed is not None
