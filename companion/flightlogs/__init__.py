@@ -4,7 +4,7 @@
 |--------|----------------------------|-------------------------------------|-----------------------------|
 | .ulg   | PX4 ULog                   | `ulog.read_ulog` → `loginput` ops   | `logreplay.replay_ulog`     |
 | .bin   | ArduPilot DataFlash        | `dataflash.read_dataflash` → ops    | `logreplay.replay_dataflash`|
-| .tlog  | MAVLink ground-station log | `tlog.scan_tlog` (packets)          | `tlog.replay_tlog`          |
+| .tlog  | MAVLink ground-station log | `tlog.read_tlog` (`scan_tlog`'s)    | `tlog.replay_tlog`          |
 | other  | contract-guard event log   | `companion.eventlog.read_events`    | — (reviewed as it is)       |
 
 Both replays step the shadow daemon with one loop (`tlog.in_log_time`). `review`, the multi-flight review and `calibrate` all go through `replay_log` / `read_feed` here, so every
@@ -43,11 +43,11 @@ MAX_SECONDS = 600.0  # reading and replaying one log
 class Format:
     name: str
     replay: str  # "module:function" (path, log_dir, *, config, vehicle, table) -> review.Origin
-    feed: str  # "module:function" (path) -> Feed, or (Feed, mode commands), for calibrate
+    feed: str  # "module:function" (path) -> Feed, for calibrate
 
 
 FORMATS = {
-    ".tlog": Format("MAVLink tlog", "companion.flightlogs.tlog:replay_tlog", "companion.calibrate:tlog_feed"),
+    ".tlog": Format("MAVLink tlog", "companion.flightlogs.tlog:replay_tlog", "companion.flightlogs.tlog:read_tlog"),
     ".ulg": Format("PX4 ULog", "companion.flightlogs.logreplay:replay_ulog", "companion.flightlogs.ulog:read_ulog"),
     ".bin": Format("ArduPilot DataFlash", "companion.flightlogs.logreplay:replay_dataflash",
                    "companion.flightlogs.dataflash:read_dataflash"),
@@ -180,9 +180,8 @@ def replay_log(path, log_dir: Path, **kw):
 
 
 def read_feed(path):
-    """(Feed, mode commands) of a raw log for calibrate."""
+    """The `loginput.Feed` of a raw log, for calibrate."""
     fmt = format_of(path)
     if fmt is None:
         raise ContractError(f"{path}: calibrate reads {', '.join(FORMATS)} flight logs")
-    got = guarded(path, fmt.name, _function(fmt.feed), Path(path))
-    return got if isinstance(got, tuple) else (got, [])
+    return guarded(path, fmt.name, _function(fmt.feed), Path(path))
