@@ -125,7 +125,7 @@ def read(path: Path, suffix: str, full: bool):
     traceback into a line), and, `full`, the replay and the review."""
     from companion.flightlogs.dataflash import read_dataflash
     from companion.eventlog import read_events
-    from companion.flightlogs import FORMATS, _function
+    from companion.flightlogs import READERS
     from companion.flightlogs.tlog import read_tlog, scan_tlog
     from companion.review import review, summarise
     from companion.flightlogs.ulog import read_ulog
@@ -146,7 +146,7 @@ def read(path: Path, suffix: str, full: bool):
         return
     out = path.parent / "replay"
     out.mkdir()
-    origin = _function(FORMATS[suffix].replay)(path, out, vehicle="x500")
+    origin = READERS[suffix].replay(path, out, vehicle="x500")
     review(out / "events.jsonl", origin=origin)
 
 
