@@ -11,7 +11,7 @@ joins the ULog seeds. Mutations (seeded, reproducible): bit flips, boundary byte
 NaN/inf floats, inserted, deleted and duplicated stretches, truncation, splices of two seeds.
 
 Each mutated file goes through the readers themselves, as review and calibrate call them — `read_ulog`,
-`read_dataflash`, `scan_tlog` and calibrate's `tlog_feed`, the event-log reader and summary — and every
+`read_dataflash`, `scan_tlog` and calibrate's `read_tlog`, the event-log reader and summary — and every
 `--replay-every`-th one also through the replay and the review (without the registry's net, which would
 turn a traceback into a line: a traceback is seen). A `ContractError`
 (one line) or a result is a pass; anything else raised, a hang past the per-file bound or a memory error
@@ -123,11 +123,10 @@ def seeds(work: Path, sitl: bool) -> dict[str, list[tuple[str, bytes]]]:
 def read(path: Path, suffix: str, full: bool):
     """The readers as review and calibrate call them, without the registry's net (which would turn a reader's
     traceback into a line), and, `full`, the replay and the review."""
-    from companion.calibrate import tlog_feed
     from companion.flightlogs.dataflash import read_dataflash
     from companion.eventlog import read_events
-    from companion.flightlogs import FORMATS, _function
-    from companion.flightlogs.tlog import scan_tlog
+    from companion.flightlogs import READERS
+    from companion.flightlogs.tlog import read_tlog, scan_tlog
     from companion.review import review, summarise
     from companion.flightlogs.ulog import read_ulog
 
@@ -137,7 +136,7 @@ def read(path: Path, suffix: str, full: bool):
         read_dataflash(path)
     elif suffix == ".tlog":
         scan_tlog(path.read_bytes())
-        tlog_feed(path)
+        read_tlog(path)
     else:
         summarise(read_events(path))
     if not full:
@@ -147,7 +146,7 @@ def read(path: Path, suffix: str, full: bool):
         return
     out = path.parent / "replay"
     out.mkdir()
-    origin = _function(FORMATS[suffix].replay)(path, out, vehicle="x500")
+    origin = READERS[suffix].replay(path, out, vehicle="x500")
     review(out / "events.jsonl", origin=origin)
 
 

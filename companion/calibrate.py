@@ -1,8 +1,8 @@
 """`contract-guard calibrate LOG... --vehicle FILE --table TABLE --out NEW.npz`: the contract of this aircraft.
 
 Reads each flight log — a MAVLink `.tlog`, a PX4 ULog `.ulg`, an ArduPilot DataFlash `.bin` — into the
-ops of `companion/flightlogs/loginput.py` (the ULog/DataFlash readers are issue 14's; a `.tlog` is turned into the
-same ops here), then into one `Trace` per log (position, velocity, attitude, commanded path, throttle,
+ops of `companion/flightlogs/loginput.py` by the readers the review replays them with (`companion.flightlogs`),
+then into one `Trace` per log (position, velocity, attitude, commanded path, throttle,
 modes, Hold commands), and hands the numbers to the pure statistics of `contracts/calibrate.py`:
 - `E_tr_pred` measured per cell (window samples, order-statistic bound, coverage, the never-optimistic
   rule for uncovered cells, monotone upward), written into a copy of the table with its avoid slot;
@@ -33,12 +33,10 @@ from contracts import calibrate as cal
 from contracts.errors import ContractError
 
 from .autopilots import adapter_for
-from .flightlogs.loginput import Feed, not_multirotor, order
+from .flightlogs.loginput import Feed
 
 IN_AIR = 2  # MAV_LANDED_STATE_IN_AIR
 POSITION_MODES = ("mission", "hold", "offboard", "position", "rtl")
-MAV_CMD_DO_SET_MODE = 176
-MAX_BAD_IN_A_ROW = 10_000  # a .tlog that raises this often in a row is not read further (never a hang)
 HOVER_MIN = 200  # hover samples a log needs before its hover throttle may lower the vehicle file's
 HOVER_IQR = 0.05
 # a switch to Hold seen only as the mode (ULog, DataFlash) from below this speed is no braking evidence: the
@@ -49,78 +47,13 @@ MIN_SWITCH_STOP_M_S = 1.0
 # ----------------------------------------------------------------------------- reading
 
 
-def tlog_feed(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
-    """A `.tlog` as the ops of `loginput` (the autopilot's messages only) and the mode commands seen on the
-    link (t [s], requested mode name) from any ground station or the daemon (any sender but the autopilot)."""
-    from pymavlink import mavutil
-
-    try:
-        mlog = mavutil.mavlink_connection(str(path), dialect="ardupilotmega", robust_parsing=True)
-    except Exception as err:  # noqa: BLE001
-        raise ContractError(f"{path}: not a readable .tlog ({err})") from None
-    ops, cmds, ap_sys, autopilot, t0, mav_type = [], [], None, "px4", None, 0
-    bad = 0
-    while bad < MAX_BAD_IN_A_ROW:
-        try:
-            m = mlog.recv_match(blocking=False)
-            bad = 0
-        except Exception:  # noqa: BLE001 — a bad packet: counted and skipped, as the replay does
-            bad += 1
-            continue
-        if m is None:
-            break
-        kind = m.get_type()
-        if kind == "BAD_DATA":
-            continue
-        t_us = int(getattr(m, "_timestamp", 0.0) * 1e6)
-        t0 = t_us if t0 is None else t0
-        src = (m.get_srcSystem(), m.get_srcComponent())
-        if kind == "HEARTBEAT" and m.autopilot not in (8,) and src[1] == 1:  # 8: MAV_AUTOPILOT_INVALID
-            ap_sys, mav_type = src[0], m.type
-            autopilot = "ardupilot" if m.autopilot == 3 else "px4"
-            ops.append((t_us, "mode", (m.base_mode, m.custom_mode)))
-            continue
-        # from a ground station, or the daemon (a component of the autopilot's system: not the autopilot itself)
-        if kind == "COMMAND_LONG" and m.command == MAV_CMD_DO_SET_MODE and src != (ap_sys, 1):
-            cmds.append((t_us, (m.param1, m.param2, m.param3)))
-            continue
-        if ap_sys is None or src[0] != ap_sys or src[1] != 1:
-            continue
-        if kind == "LOCAL_POSITION_NED":
-            ops.append((t_us, "pos", (m.x, m.y, m.z, m.vx, m.vy, m.vz)))
-        elif kind == "ATTITUDE":
-            ops.append((t_us, "att", (m.roll, m.pitch, m.yaw)))
-        elif kind == "POSITION_TARGET_LOCAL_NED":
-            ignore = m.type_mask & 0b11 != 0
-            ops.append((t_us, "target", (math.nan, math.nan) if ignore else (m.x, m.y)))
-        elif kind == "VFR_HUD":
-            ops.append((t_us, "thr", (m.throttle / 100.0,)))
-        elif kind == "EXTENDED_SYS_STATE":
-            ops.append((t_us, "landed", (m.landed_state,)))
-    not_multirotor(mav_type, path, "the autopilot's HEARTBEAT")
-    ad = adapter_for(autopilot)
-    t_first = min([o[0] for o in ops] + [c[0] for c in cmds]) if ops else 0
-    # a mode command's params → the mode it asks for (base_mode, custom main/sub or ArduPilot number)
-    modes = [((t - t_first) / 1e6, _commanded_mode(ad, p)) for t, p in cmds]
-    shifted = [(t - t_first, op, a) for t, op, a in ops]
-    ordered, jumps = order(shifted)
-    # a .tlog stamps each packet with the UNIX time it was logged [µs]: the log's wall clock at t = 0
-    return Feed(ordered, {"format": "MAVLink tlog", "time_jumps": jumps}, autopilot, t_first / 1e6), modes
-
-
-def _commanded_mode(ad, p) -> str:
-    if ad.name == "ardupilot":
-        return ad.mode_name(int(p[0]), int(p[1]))
-    custom = (int(p[1]) & 0xFF) << 16 | (int(p[2]) & 0xFF) << 24
-    return ad.mode_name(int(p[0]), custom)
-
-
 def read_log(path: Path) -> tuple[Feed, list[tuple[float, str]]]:
-    """Any supported flight log → (Feed, mode commands), within the readers' bounds (`companion.flightlogs`).
-    Damage is the reader's to report."""
+    """Any supported flight log → (Feed, the mode commands it holds), by its reader in `companion.flightlogs`
+    within the readers' bounds. Damage is the reader's to report."""
     from .flightlogs import read_feed
 
-    return read_feed(Path(path))
+    feed = read_feed(Path(path))
+    return feed, feed.commands
 
 
 @dataclass

@@ -422,15 +422,14 @@ def cmd_run(args) -> int:
 # ----------------------------------------------------------------------------- review
 
 
-# raw-log suffix → "module:function" replaying such a log into an event log in a directory and returning a
-# `review.Origin`: a MAVLink .tlog, a PX4 ULog, an ArduPilot DataFlash log (the one registry of them)
-from .flightlogs import RAW_LOGS  # noqa: E402
+# raw-log suffix → its reader (a MAVLink .tlog, a PX4 ULog, an ArduPilot DataFlash log): the one registry of them
+from .flightlogs import READERS  # noqa: E402
 
 
 def raw_log_of(paths) -> Path | None:
     """The one raw log among `paths`, if any (it is replayed, not read)."""
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
-    raw = [Path(p) for p in paths if Path(p).suffix.lower() in RAW_LOGS]
+    raw = [Path(p) for p in paths if Path(p).suffix.lower() in READERS]
     if raw and len(paths) > 1:
         raise ContractError(f"{raw[0]}: a {raw[0].suffix.lower()} is replayed on its own; review it without other logs")
     return raw[0] if raw else None
@@ -450,7 +449,7 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
     raw = raw_log_of(paths)
     if raw is None:
         if config or vehicle or table:
-            raise ContractError(f"--config, --vehicle and --table apply only to a {' or '.join(RAW_LOGS)} "
+            raise ContractError(f"--config, --vehicle and --table apply only to a {' or '.join(READERS)} "
                                 "(an event log carries its values)")
         files = [Path(p) for p in ([paths] if isinstance(paths, (str, Path)) else paths)]
         from .eventlog import file_set
@@ -476,17 +475,17 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
 
 
 def cmd_review(args) -> int:
-    """Event logs are reviewed; a raw log is replayed into an event log, then reviewed (`RAW_LOGS`)."""
+    """Event logs are reviewed; a raw log is replayed into an event log, then reviewed (`READERS`)."""
     from .review import format_report
     from .reviewset import expand, review_set, summary_lines
 
     from .eventlog import file_set
 
     # many flights (several raw logs, or folders of them, and no event log among them): one table, each reviewed
-    event_logs = any(file_set(p) if p.is_dir() else p.suffix.lower() not in RAW_LOGS for p in map(Path, args.log))
-    raw = [] if event_logs else expand(args.log, RAW_LOGS)
+    event_logs = any(file_set(p) if p.is_dir() else p.suffix.lower() not in READERS for p in map(Path, args.log))
+    raw = [] if event_logs else expand(args.log, READERS)
     if len(raw) > 1 or (raw and any(Path(p).is_dir() for p in args.log)):
-        result, texts = review_set(args.log, RAW_LOGS, lambda path, out: review_log(
+        result, texts = review_set(args.log, READERS, lambda path, out: review_log(
             path, out, config=args.config, vehicle=args.vehicle, table=args.table, sensor=args.assume_sensor),
             args.out)
         text = "\n".join(summary_lines(result) + [""] + texts

@@ -280,13 +280,13 @@ def test_many_flights_give_one_table_and_a_report_each(tmp_path):
 def test_html_report_renders_in_headless_chromium(tmp_path):
     import matplotlib.image as mpimg
 
-    from companion.cli import RAW_LOGS, review_log as one
+    from companion.cli import READERS, review_log as one
     from companion.reviewset import review_set
 
     folder = tmp_path / "flights"
     folder.mkdir()
     write_bin(folder / "fast.bin", speed=12.0, dur=6.0)
-    result, _ = review_set([folder], RAW_LOGS, lambda p, o: one(p, o, vehicle="x500"), tmp_path / "out")
+    result, _ = review_set([folder], READERS, lambda p, o: one(p, o, vehicle="x500"), tmp_path / "out")
     shots = {}
     for name, page in (("index", tmp_path / "out" / "index.html"), ("flight", tmp_path / "out" / result["flights"][0]["page"])):
         shot = tmp_path / f"{name}.png"

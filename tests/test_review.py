@@ -283,7 +283,9 @@ def fake_to_event_log(path, log_dir, *, config, vehicle, table):
 def test_the_cli_dispatches_raw_logs_to_their_reader_then_reviews_the_event_log(tmp_path, monkeypatch):
     from companion import cli
 
-    monkeypatch.setitem(cli.RAW_LOGS, ".fake", "tests.test_review:fake_to_event_log")
+    from companion.flightlogs import Reader
+
+    monkeypatch.setitem(cli.READERS, ".fake", Reader("fake log", ".fake", read=None, replay=fake_to_event_log))
     (tmp_path / "flight.fake").write_bytes(b"")
     rep, origin = cli.review_log(tmp_path / "flight.fake", tmp_path / "out")
     assert rep["files"] == [str(tmp_path / "flight.fake")] and rep["fake"]["source"] == str(tmp_path / "flight.fake")

@@ -1,24 +1,25 @@
-"""The ground side's one flight-log input: which reader takes which file, and the bounds every reader runs in.
+"""The ground side's one flight-log input: which reader takes which file (`READERS`), and the bounds every
+reader runs in.
 
-| suffix | format                     | read into (this package)            | replayed by (this package)  |
-|--------|----------------------------|-------------------------------------|-----------------------------|
-| .ulg   | PX4 ULog                   | `ulog.read_ulog` → `loginput` ops   | `logreplay.replay_ulog`     |
-| .bin   | ArduPilot DataFlash        | `dataflash.read_dataflash` → ops    | `logreplay.replay_dataflash`|
-| .tlog  | MAVLink ground-station log | `tlog.scan_tlog` (packets)          | `tlog.replay_tlog`          |
-| other  | contract-guard event log   | `companion.eventlog.read_events`    | — (reviewed as it is)       |
+| suffix | format                     | read into a `loginput.Feed` (calibrate)  | replayed into an event log (review) |
+|--------|----------------------------|------------------------------------------|-------------------------------------|
+| .tlog  | MAVLink ground-station log | `tlog.read_tlog` (from `tlog.scan_tlog`) | `tlog.replay_tlog`                  |
+| .ulg   | PX4 ULog                   | `ulog.read_ulog`                         | `logreplay.replay_flight_log`       |
+| .bin   | ArduPilot DataFlash        | `dataflash.read_dataflash`               | `logreplay.replay_flight_log`       |
+| other  | contract-guard event log   | `companion.eventlog.read_events`         | — (reviewed as it is)               |
 
-Both replays step the shadow daemon with one loop (`tlog.in_log_time`). `review`, the multi-flight review and `calibrate` all go through `replay_log` / `read_feed` here, so every
-file is bounded alike: a regular file (not a device, a pipe or a link to one) of at most `MAX_BYTES`, at
-most `MAX_SAMPLES` samples, nested formats at most `MAX_DEPTH` deep (the ULog reader's own check), and at
-most `MAX_SECONDS` of wall time. A damaged file is one `ContractError` line — never a traceback — and
-nothing a reader prints reaches stdout (where `--json` writes its one JSON document).
+Both replays step the shadow daemon with one loop (`tlog.in_log_time`). `review`, the multi-flight review and
+`calibrate` all go through `replay_log` / `read_feed` here, so every file is bounded alike: a regular file (not a
+device, a pipe or a link to one) of at most `MAX_BYTES`, at most `MAX_SAMPLES` samples, nested formats at most
+`MAX_DEPTH` deep (the ULog reader's own check), and at most `MAX_SECONDS` of wall time. A damaged file is one
+`ContractError` line — never a traceback — and nothing a reader prints reaches stdout (where `--json` writes its
+one JSON document).
 """
 
 from __future__ import annotations
 
 import contextlib
 import gc
-import importlib
 import io
 import os
 import re
@@ -27,6 +28,7 @@ import stat
 import threading
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,19 +42,60 @@ MAX_SECONDS = 600.0  # reading and replaying one log
 
 
 @dataclass(frozen=True)
-class Format:
+class Reader:
+    """A raw flight-log format: its name, the file suffix that tells it, and what reads it."""
+
     name: str
-    replay: str  # "module:function" (path, log_dir, *, config, vehicle, table) -> review.Origin
-    feed: str  # "module:function" (path) -> Feed, or (Feed, mode commands), for calibrate
+    suffix: str
+    read: Callable  # (path) -> loginput.Feed: the flight, for calibrate
+    replay: Callable  # (path, log_dir, *, config, vehicle, table) -> review.Origin: its event log, for review
 
 
-FORMATS = {
-    ".tlog": Format("MAVLink tlog", "companion.flightlogs.tlog:replay_tlog", "companion.calibrate:tlog_feed"),
-    ".ulg": Format("PX4 ULog", "companion.flightlogs.logreplay:replay_ulog", "companion.flightlogs.ulog:read_ulog"),
-    ".bin": Format("ArduPilot DataFlash", "companion.flightlogs.logreplay:replay_dataflash",
-                   "companion.flightlogs.dataflash:read_dataflash"),
-}
-RAW_LOGS = {suffix: f.replay for suffix, f in FORMATS.items()}
+# The readers import their modules when first called: importing them costs ~0.3 s (numpy, pymavlink, pydantic),
+# which every `contract-guard` command would pay at start (`companion.cli` imports this package).
+
+
+def _read_tlog(path):
+    from .tlog import read_tlog
+
+    return read_tlog(path)
+
+
+def _replay_tlog(path, log_dir, **kw):
+    from .tlog import replay_tlog
+
+    return replay_tlog(path, log_dir, **kw)
+
+
+def _read_ulog(path):
+    from .ulog import read_ulog
+
+    return read_ulog(path)
+
+
+def _replay_ulog(path, log_dir, **kw):
+    from .logreplay import replay_flight_log
+
+    return replay_flight_log(_read_ulog, path, log_dir, **kw)
+
+
+def _read_dataflash(path):
+    from .dataflash import read_dataflash
+
+    return read_dataflash(path)
+
+
+def _replay_dataflash(path, log_dir, **kw):
+    from .logreplay import replay_flight_log
+
+    return replay_flight_log(_read_dataflash, path, log_dir, **kw)
+
+
+READERS = {r.suffix: r for r in (
+    Reader("MAVLink tlog", ".tlog", _read_tlog, _replay_tlog),
+    Reader("PX4 ULog", ".ulg", _read_ulog, _replay_ulog),
+    Reader("ArduPilot DataFlash", ".bin", _read_dataflash, _replay_dataflash),
+)}
 
 
 # C0 controls but tab and newline, DEL, C1 controls (ESC sequences, a carriage return overwriting a line) and
@@ -66,14 +109,9 @@ def for_terminal(text: str) -> str:
     return _CONTROL.sub("?", text)
 
 
-def format_of(path) -> Format | None:
-    """The raw-log format of `path` by its suffix (None: an event log or another file)."""
-    return FORMATS.get(Path(path).suffix.lower())
-
-
-def _function(spec: str):
-    module, name = spec.split(":")
-    return getattr(importlib.import_module(module), name)
+def reader_of(path) -> Reader | None:
+    """The reader of `path` by its suffix (None: an event log or another file)."""
+    return READERS.get(Path(path).suffix.lower())
 
 
 def check_file(path, what: str = "a flight log") -> Path:
@@ -170,19 +208,16 @@ def guarded(path, what: str, fn, *args, **kw):
 
 
 def replay_log(path, log_dir: Path, **kw):
-    """Replay a raw log into an event log in `log_dir` (`review.Origin` of what it was made from), by the
-    replayer `RAW_LOGS` names for its suffix."""
-    suffix = Path(path).suffix.lower()
-    if suffix not in RAW_LOGS:
-        raise ContractError(f"{path}: not a raw flight log ({', '.join(RAW_LOGS)})")
-    what = FORMATS[suffix].name if suffix in FORMATS else f"{suffix} log"
-    return guarded(path, what, _function(RAW_LOGS[suffix]), path, log_dir, **kw)
+    """Replay a raw log into an event log in `log_dir` (`review.Origin` of what it was made from) by its reader."""
+    reader = reader_of(path)
+    if reader is None:
+        raise ContractError(f"{path}: not a raw flight log ({', '.join(READERS)})")
+    return guarded(path, reader.name, reader.replay, path, log_dir, **kw)
 
 
 def read_feed(path):
-    """(Feed, mode commands) of a raw log for calibrate."""
-    fmt = format_of(path)
-    if fmt is None:
-        raise ContractError(f"{path}: calibrate reads {', '.join(FORMATS)} flight logs")
-    got = guarded(path, fmt.name, _function(fmt.feed), Path(path))
-    return got if isinstance(got, tuple) else (got, [])
+    """The `loginput.Feed` of a raw log, for calibrate."""
+    reader = reader_of(path)
+    if reader is None:
+        raise ContractError(f"{path}: calibrate reads {', '.join(READERS)} flight logs")
+    return guarded(path, reader.name, reader.read, Path(path))

@@ -29,7 +29,7 @@ phases are cut out of the ops (`plane_fixed_wing_spans`, `loginput.exclude`) and
 A file DFReader cannot read (empty, another format) ends in one `ContractError` line; DFReader skips a
 corrupt stretch by searching for the next message header, and stops at a torn last message (both said).
 
-Speed (issue 14: a 20-minute log reviewed in under 10 s): DFReader's index (`offsets` per message type, its
+Speed (a 20-minute log is to be reviewed in under 10 s): DFReader's index (`offsets` per message type, its
 Cython indexer) finds the messages; the wanted types are then unpacked all at once with numpy from the
 mapped file (`_columns`, DFReader's own format table and multipliers), not message by message. DFReader's
 clock search, a walk of the whole log looking for GPS time, is skipped (`_Reader`): the ops use TimeUS.

@@ -64,6 +64,7 @@ class Feed:
     info: dict = field(default_factory=dict)
     autopilot: str = "px4"
     wall0: float = 0.0  # UNIX time of t = 0, when the log knows it (else 0)
+    commands: list = field(default_factory=list)  # (t [s], mode name) asked on the link: a .tlog's, for calibrate
 
 
 def read_head(path, what: str) -> bytes:

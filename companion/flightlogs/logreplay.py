@@ -2,7 +2,7 @@
 `companion/flightlogs/tlog.py` does for a `.tlog`: the reader's `Feed` (companion/flightlogs/loginput.py) goes, in log time, to a
 shadow-mode `Daemon` stepped at its loop rate with no sleeping — the same daemon, cycle, estimators and
 supervisor; only the input differs (the reader's ops become the same `Telemetry` fields and samples
-MAVLink-in produces). `companion.cli` wires `replay_ulog` / `replay_dataflash` into `review` (`RAW_LOGS`).
+MAVLink-in produces). `companion.flightlogs.READERS` wires `replay_flight_log` into `review`.
 
 The returned `FlightLog` (a `review.Origin`) is the report's `flight_log` section: the vehicle and firmware,
 what the log held, lacked (each said once, with what it means for the verdict), spoiled or skipped, and the
@@ -190,15 +190,3 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
     })
     info["judged"], info["not_judged"] = _judged(info)
     return FlightLog([str(path)], finite_copy(info))
-
-
-def replay_ulog(path, log_dir: Path, **kw) -> FlightLog:
-    from .ulog import read_ulog
-
-    return replay_flight_log(read_ulog, path, log_dir, **kw)
-
-
-def replay_dataflash(path, log_dir: Path, **kw) -> FlightLog:
-    from .dataflash import read_dataflash
-
-    return replay_flight_log(read_dataflash, path, log_dir, **kw)
