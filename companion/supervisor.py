@@ -28,7 +28,7 @@ from contracts.stop import braking_decel, measured_stopping_distance, ramp_accel
 from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
-from .authority import Late
+from .authority import GUARANTEE_ANSWERED, Late
 from .estimators import DodEstimate
 from .guidance import inflated
 from .states import (AT_REST_M_S, BRAKE_STOP_CAUSES, BRAKE_SWITCH, RAMP_FOLLOWED, FAILSAFE_CAUSES, Cause, State,  # noqa: F401 (re-exported)
@@ -262,6 +262,7 @@ class Supervisor:
         self._last_sent: float | None = None
         self._last_sent_t = -math.inf
         self._speed_answered = True  # the autopilot answered the last speed command (COMMAND_ACK)
+        self._speed_t0 = -math.inf  # the first send of the speed command on its way
         self._target_sent = math.nan  # what the last command sent was toward (the limit, or the autopilot's own speed)
         self._last_in_air = False
         self._linked = False  # an autopilot heartbeat has been seen (the first link is "up", not "restored")
@@ -609,16 +610,22 @@ class Supervisor:
                 v_send = self.ramp.command(target, i.ground_speed, self.any_approach_omega(i).v_max * self.cap)
                 tol_up, tol_down = (0.5 * self.ramp.gap if self.ramp.free < v_send < target else tol), RAMP_SLACK_M_S
             changed = last is None or v_send - last > tol_up or last - v_send > tol_down
+            waited = i.t - self._speed_t0  # the speed command on its way: past its delivery budget, said
+            self._violation(d, "speed_delivery", not self._speed_answered and waited > self.t_cmd, lambda: dict(
+                            subsystem=Subsystem.DELIVERY, guarantee=GUARANTEE_ANSWERED, assumed=self.t_cmd,
+                            observed=waited, action="re-sending the speed limit"))
             # sent when it changed, every 5 s, and every cycle until the autopilot answers it (delivery: t_cmd)
             if changed or i.t - self._last_sent_t > 5.0 or not self._speed_answered:
                 d.send_speed = max(v_send, MIN_SPEED_CMD)
+                if self._speed_answered:
+                    self._speed_t0 = i.t
                 # said when the target changes (the limit, or the autopilot's own speed); the ramp's steps are not
                 if last is None or abs(target - self._target_sent) > tol:
                     d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason} |
                                      ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
                                      ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
                 self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
-                self._speed_answered = False
+                self._speed_answered = self.mode != "governor"  # (offboard flies setpoints: nothing is sent)
         elif self._no_limit_mode_warned != i.mode:
             self._no_limit_mode_warned = i.mode
             d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))

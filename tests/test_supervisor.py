@@ -4,6 +4,7 @@ from dataclasses import replace
 import pytest
 
 from companion.estimators import DodEstimate
+from companion.authority import GUARANTEE_ANSWERED
 from companion.supervisor import Inputs, OneSidedLimit, Supervisor
 from contracts.table import load_for_vehicle
 
@@ -283,7 +284,8 @@ def test_lateness_counts_as_reaction_time_never_faster_and_safe_at_its_own_speed
 
 
 def test_lateness_beyond_the_hard_limit_holds_at_once_and_only_unbudgeted_lateness_is_a_violation():
-    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02, late_hold_s=0.25)
+    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02, late_hold_s=0.25,
+                   t_cmd_s=0.1)  # (its speed commands unanswered here: within their delivery budget)
     s.step(BASE)
     d = s.step(replace(BASE, t=0.02, late_s=0.1, late_unbudgeted_s=0.1))
     assert not d.hold and d.state == "active"  # only slower
@@ -304,7 +306,7 @@ def test_lateness_inside_the_jitter_allowance_is_an_event_not_a_violation():
     """t_react budgets one loop period plus a stated jitter allowance: a cycle late within it is said, the guarantee
     holds; beyond it the violation names the allowance it assumed."""
     s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02,
-                   late_allowance_s=0.03)
+                   late_allowance_s=0.03, t_cmd_s=0.1)
     s.step(BASE)
     d = s.step(replace(BASE, t=0.02, late_within_s=0.025))
     assert ("cycle_jitter", {"late_s": 0.025, "allowance_s": 0.03}) in d.events
@@ -317,11 +319,16 @@ def test_lateness_inside_the_jitter_allowance_is_an_event_not_a_violation():
 
 def test_a_speed_command_is_sent_every_cycle_until_the_autopilot_answers_it():
     """DO_CHANGE_SPEED lost on the link is sent again the next cycle (delivery), not 5 s later."""
-    s = sup()
+    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02, t_cmd_s=0.1)
     first = s.step(BASE)
     assert first.send_speed is not None
     again = s.step(replace(BASE, t=0.02))  # no answer: sent again
     assert again.send_speed == pytest.approx(first.send_speed)
+    assert not [n for n, _ in s.step(replace(BASE, t=0.1)).events if n == "violation_start"]  # within its budget
+    late = s.step(replace(BASE, t=0.12))  # unanswered past it: said
+    assert [f["guarantee"] for n, f in late.events if n == "violation_start"] == [GUARANTEE_ANSWERED]
     s.speed_answered()
-    assert s.step(replace(BASE, t=0.04)).send_speed is None  # answered: not until it changes (or 5 s)
-    assert s.step(replace(BASE, t=5.1)).send_speed is not None
+    d = s.step(replace(BASE, t=0.14))
+    assert d.send_speed is None  # answered: not until it changes (or 5 s)
+    assert any(n == "violation_end" and f["subsystem"] == "delivery" for n, f in d.events)
+    assert s.step(replace(BASE, t=5.2)).send_speed is not None
