@@ -11,7 +11,7 @@ reader runs in.
 Both replays step the shadow daemon with one loop (`tlog.in_log_time`). `review`, the multi-flight review and
 `calibrate` all go through `replay_log` / `read_feed` here, so every file is bounded alike: a regular file (not a
 device, a pipe or a link to one) of at most `MAX_BYTES`, at most `MAX_SAMPLES` samples, nested formats at most
-`MAX_DEPTH` deep (the ULog reader's own check), and at most `MAX_SECONDS` of wall time. A damaged file is one
+`MAX_DEPTH` deep (the ULog reader's own check), and at most `MAX_SECONDS` of wall time (`bounds.py`). A damaged file is one
 `ContractError` line — never a traceback — and nothing a reader prints reaches stdout (where `--json` writes its
 one JSON document).
 """
@@ -19,7 +19,6 @@ one JSON document).
 from __future__ import annotations
 
 import contextlib
-import gc
 import io
 import os
 import re
@@ -34,11 +33,8 @@ from pathlib import Path
 
 from contracts.errors import ContractError
 
-MAX_BYTES = 1 << 30  # 1 GiB: about a day of a ground station's telemetry, hours of a PX4 log at full rate
-MAX_SAMPLES = 5_000_000  # ops or packets of one log (≈ 5 h of a 250 message/s link)
-MAX_DEPTH = 8  # nesting of a ULog's formats (PX4's deepest is 2)
-MAX_FIELDS = 100_000  # fields of one ULog topic once its nested formats are flattened (PX4's largest: < 2 000)
-MAX_SECONDS = 600.0  # reading and replaying one log
+from .bounds import MAX_BYTES, MAX_SECONDS
+
 
 
 @dataclass(frozen=True)
@@ -161,30 +157,6 @@ def time_bound(seconds: float):
         signal.signal(signal.SIGALRM, old)
         if left:  # the enclosing bound runs on (at once if it has expired meanwhile)
             signal.setitimer(signal.ITIMER_REAL, max(1e-3, left - (time.monotonic() - t0)))
-
-
-@contextlib.contextmanager
-def gc_paused():
-    """The block without the cyclic garbage collector: a reader builds a log's hundreds of thousands of
-    long-lived objects (no cycles among them), which each full pass would walk again. Collected as usual after."""
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was:
-            gc.enable()
-
-
-@contextlib.contextmanager
-def gc_frozen():
-    """What is alive when the block starts (the read log) left out of the cyclic garbage collector's passes
-    in it (`gc.freeze`); what the block makes is collected as usual."""
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 def guarded(path, what: str, fn, *args, **kw):

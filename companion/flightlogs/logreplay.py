@@ -21,7 +21,7 @@ from ..config import Config, load_config
 from ..eventlog import finite_copy, read_events
 from ..logschema import LOG_FILE
 from ..review import Origin, fmt_value
-from . import MAX_SAMPLES, gc_paused
+from .bounds import MAX_SAMPLES, gc_paused
 from .loginput import Feed, LogIn
 from .tlog import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, shadow_daemon, silences, stepped_silence
 

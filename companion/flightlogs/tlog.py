@@ -40,7 +40,7 @@ from ..eventlog import EventLog, finite_copy, read_events
 from ..link import MemoryMavfile, mavlink
 from ..logschema import COMMANDS, LOG_FILE, NVF
 from ..review import Origin, fmt_value
-from . import MAX_SAMPLES, gc_frozen, gc_paused
+from .bounds import MAX_SAMPLES, gc_frozen, gc_paused
 from .loginput import Feed, not_multirotor, order
 
 MAGIC = re.compile(b"[\xfd\xfe]")

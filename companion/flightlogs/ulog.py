@@ -140,7 +140,7 @@ def nesting_refused(formats: dict) -> str | None:
     nested arrays would expand to billions of fields."""
     import pyulog
 
-    from . import MAX_DEPTH, MAX_FIELDS
+    from .bounds import MAX_DEPTH, MAX_FIELDS
 
     basic = pyulog.ULog._UNPACK_TYPES
     memo: dict[str, tuple[int, int]] = {}  # name → (fields flattened, depth)
