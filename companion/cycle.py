@@ -316,7 +316,8 @@ class Cycle:
         if sp is not None and self._flying_ours:
             self.etr.command(t, float(sp.p[0]), float(sp.p[1]))
         speed = d.send_speed if self.cfg.mode == "governor" else None
-        return i, d, Outbox(cmd, speed, tuple(messages), sp, ended, tuple(events), tuple(texts))
+        return i, d, Outbox(mode=cmd, speed=speed, messages=tuple(messages), setpoint=sp, end_stream=ended,
+                            events=tuple(events), texts=tuple(texts))
 
     def _say(self, t: float, tel: Telemetry, i: Inputs, events: list, texts: list) -> None:
         """Say what the contract took and why it stops: the start thrust ratio when it is in force in the air

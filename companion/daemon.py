@@ -1,7 +1,9 @@
 """The on-board daemon: one loop (default 50 Hz) over one MAVLink connection (DESIGN.md §5). Thin: it polls,
 steps and runs the pipeline it wires — MAVLink in (samples) → cycle (estimators → mode authority → supervisor →
 actors → one Outbox, pure) → MAVLink out (`apply(outbox)`) — plus its own protocols (companion/protocols.py) and
-its periodic work (`PERIODIC`). `poll()` drains the link, `step()` runs one cycle at the injected clock's time;
+its periodic work (`PERIODIC`). Everything sent in a cycle leaves in that cycle's one outbox: what the protocols
+and the link's events want sent since the last cycle (their events logged at once) is joined to it, and so is
+what the periodic work adds. `poll()` drains the link, `step()` runs one cycle at the injected clock's time;
 `run` calls both at `loop_hz`, lock-step tests between simulator steps. `stop()` begins the shutdown (engaged in
 flight, a Hold first), `stopped` says when it is over. Nothing here raises on bad input: a malformed message is
 counted and dropped, a failed log write is the log's problem, a missing stream leads to the safe action.
@@ -12,6 +14,7 @@ from __future__ import annotations
 import gc
 import math
 import time
+from dataclasses import replace
 
 from contracts.table import ContractTable
 
@@ -23,6 +26,7 @@ from .logschema import LINK_COUNTERS, NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
 from .mavlink_out import Counters, MavlinkOut
 from .mission import home_request
+from .outbox import EMPTY, Outbox
 from .protocols import Protocols
 from .startup import StartupChecks
 from .supervisor import Decision
@@ -32,8 +36,9 @@ STOP_LIMIT_S = 3.0  # [s, host time] the real-time loop ends this long after a s
 
 # the daemon's periodic work, as ArduPilot's scheduler_tasks[] lists its loops: (period [s], method); a period of
 # None is the state-sample rate (log.state_hz). Each runs when its period has passed since its last run (or the
-# clock went back), in this order, at the end of a cycle; a task that returns False had nothing to do yet and is
-# tried again at the next cycle.
+# clock went back), in this order, at the end of a cycle: what it returns joins the cycle's outbox (None: nothing
+# to send); a task that returns False had nothing to do yet and is tried again at the next cycle. The state sample
+# is written after the outbox is applied (after the cycle's events, as the log orders them).
 PERIODIC = (
     (0.0, "_watch_log"),
     (10.0, "_save_signing"),
@@ -41,8 +46,8 @@ PERIODIC = (
     (5.0, "_request_home"),
     (1.0, "_heartbeat"),
     (0.5, "_named_values"),
-    (None, "_state_sample"),
 )
+AFTER_OUTBOX = ((None, "_state_sample"),)
 
 
 def freeze_startup() -> None:
@@ -116,7 +121,9 @@ class Daemon:
         self._record: dict | None = None  # this cycle's state record, made once for NVF and the state sample
         self._heartbeat_state = "standby"
         period = {None: 1.0 / cfg.log.state_hz}
-        self._periodic = [(period.get(p, p), getattr(self, name), [-math.inf]) for p, name in PERIODIC]
+        self._periodic, self._after_outbox = ([(period.get(p, p), getattr(self, name), [-math.inf]) for p, name in rows]
+                                              for rows in (PERIODIC, AFTER_OUTBOX))
+        self._later = EMPTY  # what samples and the link's events want sent with the next cycle's outbox
         self._link_up = False
         self._log_healthy = True
         self._bad_cycles = 0
@@ -187,7 +194,14 @@ class Daemon:
             self.cycle.take(s)
         else:
             t = getattr(s, "t", None)  # (a PARAM_SET carries no time: the daemon's)
-            self.out.apply(self.clock() if t is None else t, self.protocols.take(s, self.clock()))
+            self._send_later(self.clock() if t is None else t, self.protocols.take(s, self.clock()))
+
+    def _send_later(self, t: float, box: Outbox) -> None:
+        """An outbox made outside the cycle (a protocol's answer, what the link coming up asks for): its events
+        logged now, the rest sent with the next cycle's outbox (a poll and its cycle follow each other at once)."""
+        for name, fields in box.events:
+            self._event(t, name, **fields)
+        self._later = self._later.then(replace(box, events=()))
 
     def _event(self, t: float, name: str, **fields) -> None:
         try:
@@ -199,6 +213,7 @@ class Daemon:
     def step(self) -> Decision | None:
         """One cycle at the clock's time; None when it failed (the safe action was taken and logged)."""
         t = self.clock()
+        self._record = None
         try:
             m = self.mission
             i, d, box = self.cycle.step(
@@ -207,8 +222,8 @@ class Daemon:
                 route_ready=m is None or m.route is not None, protocol=m.poll(t) if m is not None else None)
             self.last, self._last_in, self._heartbeat_state = d, i, d.state
             self._link_events(t, i)
-            self.out.apply(t, box)
-            self._run_periodic(t)
+            self._apply(t, box.then(self._run_periodic(t, self._periodic)))
+            self._run_periodic(t, self._after_outbox)
         except Exception as err:  # a fault of ours, in any stage, must still end in the safe action
             self._cycle_failed(t, err)
             return None
@@ -222,66 +237,76 @@ class Daemon:
         self.counters.loop_errors += 1
         flying = self.tel.armed and self.tel.in_air
         action = "none (shadow mode)" if self.cfg.mode == "shadow" else "hold" if flying else "none (not flying)"
-        if action == "hold":  # asked every failed cycle: the mode authority delivers it (re-sent until answered)
-            self.out.apply(t, self.cycle.failed_hold(t))
+        # the Hold asked every failed cycle: the mode authority delivers it (re-sent until answered)
+        box = self.cycle.failed_hold(t) if action == "hold" else EMPTY
         if self._bad_cycles in (1, 10, 100) or self._bad_cycles % 1000 == 0:
-            self._event(t, "loop_error", error=f"{type(err).__name__}: {err}"[:200], consecutive=self._bad_cycles,
-                        action=action)
-            self.out.statustext(2, "CG: internal error: holding" if action == "hold" else "CG: internal error")
+            box = box.then(Outbox(
+                events=(("loop_error", {"error": f"{type(err).__name__}: {err}"[:200],
+                                        "consecutive": self._bad_cycles, "action": action}),),
+                texts=((2, "CG: internal error: holding" if action == "hold" else "CG: internal error"),)))
         self._heartbeat_state = "failsafe"
-        self._run_periodic(t, only=self._heartbeat)
+        self._apply(t, box.then(self._run_periodic(t, self._periodic, only=self._heartbeat)))
+
+    def _apply(self, t: float, box: Outbox) -> None:
+        """The cycle's one outbox, after what was left to send with it."""
+        box, self._later = self._later.then(box), EMPTY
+        self.out.apply(t, box)
 
     def _link_events(self, t: float, i) -> None:
         if i.link_ok != self._link_up:
             self._link_up = i.link_ok
             self._event(t, "link", status="up" if i.link_ok else "down")
             if i.link_ok:
-                self.out.apply(t, self.checks.asked(t))
+                box = self.checks.asked(t)
                 if self.mission is not None and self.mission.status in ("idle", "refused"):
                     why = "start-up" if self.mission.status == "idle" else "link up"
-                    self.out.apply(t, self.protocols.mission_request(t, why))
-                self.out.request_streams(t, self.checks.wanted())
+                    box = box.then(self.protocols.mission_request(t, why))
+                self._send_later(t, box.then(self.out.stream_requests(self.checks.wanted())))
 
     # ------------------------------------------------------------------ the periodic work (PERIODIC)
-    def _run_periodic(self, t: float, only=None) -> None:
-        self._record = None
-        for period, task, last in self._periodic:
-            if (only is None or task == only) and (t - last[0] >= period or t < last[0]) and task(t) is not False:
-                last[0] = t
+    def _run_periodic(self, t: float, tasks, only=None) -> Outbox:
+        """The tasks that are due (or `only` that one, if due); what they want sent, as one outbox."""
+        box = EMPTY
+        for period, task, last in tasks:
+            if (only is None or task == only) and (t - last[0] >= period or t < last[0]):
+                said = task(t)
+                if said is not False:
+                    last[0] = t
+                    box = box if said is None else box.then(said)
+        return box
 
-    def _watch_log(self, t: float) -> None:
+    def _watch_log(self, t: float) -> Outbox | None:
         """A failing event log is said (STATUSTEXT, the console) when it starts failing and when it recovers."""
         healthy = getattr(self.log, "healthy", True)
         if healthy == self._log_healthy:
-            return
+            return None
         self._log_healthy = healthy
         error = str(getattr(self.log, "last_error", "") or "")[:120]
-        self.out.statustext(3 if not healthy else 5, f"CG: event log failing: {error}" if not healthy
-                            else "CG: event log writing again")
-        self._event(t, "log_failing" if not healthy else "log_writing", error=error)
+        return Outbox(events=(("log_failing" if not healthy else "log_writing", {"error": error}),),
+                      texts=((3, f"CG: event log failing: {error}") if not healthy
+                             else (5, "CG: event log writing again"),))
 
     def _save_signing(self, t: float | None) -> None:
         if self.signing_clock is not None:
             self.signing_clock.save(self.conn.mav.signing)
 
-    def _checks_deadline(self, t: float) -> None:
-        self.out.apply(t, self.checks.deadline(t))
+    def _checks_deadline(self, t: float) -> Outbox:
+        return self.checks.deadline(t)
 
-    def _request_home(self, t: float) -> bool:
+    def _request_home(self, t: float) -> Outbox | bool:
         """The calibration legs' waypoints are placed from HOME_POSITION: asked for until heard (once the link
         is up, every 5 s)."""
         cal = self.cycle.calibration
         if cal is None or cal.home is not None or self._last_in is None or not self._last_in.link_ok:
             return False
-        self.out.send(home_request(self.cfg.link.target_system, self.cfg.link.target_component))
-        return True
+        return Outbox(messages=(home_request(self.cfg.link.target_system, self.cfg.link.target_component),))
 
-    def _heartbeat(self, t: float) -> None:
-        self.out.heartbeat(self._heartbeat_state)
+    def _heartbeat(self, t: float) -> Outbox:
+        return Outbox(heartbeat=self._heartbeat_state)
 
-    def _named_values(self, t: float) -> None:
+    def _named_values(self, t: float) -> Outbox:
         record, gamma = self._state_record(), self.last.omega.gamma
-        self.out.named_values(t, {name: record[field] if field else gamma for name, (field, _, _) in NVF.items()})
+        return Outbox(values=tuple((name, record[field] if field else gamma) for name, (field, _, _) in NVF.items()))
 
     def _state_sample(self, t: float) -> None:
         record = self._state_record()
@@ -303,10 +328,11 @@ class Daemon:
         self.cycle.stop(self.clock())
 
     def finish(self) -> None:
-        """After the shutdown: persist the signing timestamp; say so; the planning worker ends."""
+        """After the shutdown: persist the signing timestamp; say so (the last outbox, after the last cycle's);
+        the planning worker ends."""
         self._save_signing(None)
         self.cycle.close()
-        self.out.statustext(5, "CG: contract-guard stopping")
+        self._apply(self.clock(), Outbox(texts=((5, "CG: contract-guard stopping"),)))
 
     def run(self, should_stop, notifier=None) -> None:
         """Poll and step at `loop_hz` until `should_stop()` and then until the shutdown is over (`stop`). An

@@ -1,7 +1,8 @@
-"""MAVLink out: everything the daemon sends, and nothing it decides. Commands (the Hold command in one
-place), STATUSTEXT (chunked), offboard setpoints, the daemon's own HEARTBEAT and NAMED_VALUE_FLOATs,
-stream and parameter requests to the autopilot, and the parameter server for the daemon's `CG_*`
-parameters. A send that fails is dropped (the supervisor sees the link time out).
+"""MAVLink out: everything the daemon sends, and nothing it decides, in one outbox a cycle (`apply`): commands (the
+Hold command in one place), STATUSTEXT (chunked), offboard setpoints, the daemon's own HEARTBEAT and
+NAMED_VALUE_FLOATs. It also encodes what goes into an outbox: the stream and parameter requests to the autopilot,
+and the parameter server's answers for the daemon's `CG_*` parameters. A send that fails is dropped (the
+supervisor sees the link time out).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .link import mavlink
+from .outbox import Outbox
 
 MAV_TYPE_ONBOARD_CONTROLLER = 18
 MAV_AUTOPILOT_INVALID = 8
@@ -98,15 +100,18 @@ class MavlinkOut:
     def set_mode(self, t: float, mode: str, what: str, send: int = 1) -> None:
         self.command(t, MAV_CMD_DO_SET_MODE, self.adapter.set_mode_params(mode, True), what, send)
 
-    def apply(self, t: float, box) -> None:
+    def apply(self, t: float, box: Outbox) -> None:
         """One cycle's outbox (companion/outbox.py), in its order: the mode command (the only place a mode is
-        sent), the speed command, the protocols' messages, the setpoint, then the events and the texts."""
+        sent), the speed command, the protocols' messages, the other commands, the setpoint, the events and the
+        texts, then the heartbeat and the named values."""
         if box.mode is not None:
             self.set_mode(t, box.mode.mode, box.mode.what, box.mode.send)
         if box.speed is not None:
             self.command(t, MAV_CMD_DO_CHANGE_SPEED, self.adapter.speed_params(box.speed), "change_speed")
         for msg in box.messages:
             self.send(msg)
+        for cmd, params, what in box.commands:
+            self.command(t, cmd, params, what)
         if box.end_stream:
             self.end_stream()
         if box.setpoint is not None:
@@ -115,6 +120,10 @@ class MavlinkOut:
             self.event(t, name, **fields)
         for severity, text in box.texts:
             self.statustext(severity, text)
+        if box.heartbeat is not None:
+            self.heartbeat(box.heartbeat)
+        if box.values:
+            self.named_values(t, box.values)
 
     def statustext(self, severity: int, text: str) -> None:
         """STATUSTEXT; longer than 50 bytes, in chunks (MAVLink 2 `id`, `chunk_seq`) that end at word boundaries:
@@ -143,23 +152,25 @@ class MavlinkOut:
     def end_stream(self) -> None:
         self._t_last_sp = None
 
-    def request_streams(self, t: float, param_names) -> None:
-        """On link up: the autopilot parameters the start-up checks need, and the message rates."""
-        for name in param_names:
-            self.send(self.conn.mav.param_request_read_encode(self.link.target_system, self.link.target_component,
-                                                              name.encode(), -1))
-        for msg_id, interval in STREAMS.items():
-            self.command(t, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, (float(msg_id), float(interval), 0, 0, 0, 0, 0),
-                         "set_message_interval")
+    def stream_requests(self, param_names) -> Outbox:
+        """On link up and after an autopilot restart: the autopilot parameters the start-up checks need, and the
+        message rates."""
+        lk = self.link
+        return Outbox(messages=tuple(self.conn.mav.param_request_read_encode(lk.target_system, lk.target_component,
+                                                                             name.encode(), -1)
+                                     for name in param_names),
+                      commands=tuple((mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                                      (float(msg_id), float(interval), 0, 0, 0, 0, 0), "set_message_interval")
+                                     for msg_id, interval in STREAMS.items()))
 
     def heartbeat(self, state: str) -> None:
         self.send(self.conn.mav.heartbeat_encode(MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0,
                                                  HEARTBEAT_STATE.get(state, MAV_STATE_STANDBY)))
 
-    def named_values(self, t: float, values: dict[str, float]) -> None:
-        """NAMED_VALUE_FLOAT each (−1 for a value that is not finite)."""
+    def named_values(self, t: float, values) -> None:
+        """NAMED_VALUE_FLOAT each of the (name, value) pairs (−1 for a value that is not finite)."""
         tb = int(t * 1000) & 0xFFFFFFFF
-        for name, v in values.items():
+        for name, v in values:
             self.send(self.conn.mav.named_value_float_encode(tb, name.encode(), v if math.isfinite(v) else -1.0))
 
 
@@ -198,34 +209,33 @@ class ParamServer:
             return f"not one of {sorted(allowed)}"
         return None
 
-    def handle(self, msg) -> tuple[str, float, float] | None:
-        """Answer one request; returns (name, old, new) when a PARAM_SET changed a value."""
+    def handle(self, msg) -> tuple[tuple[str, float, float] | None, tuple]:
+        """Answer one request: (name, old, new) when a PARAM_SET changed a value (else None), and the PARAM_VALUEs
+        that answer it (a set that was taken is answered by the caller, with the value that stands)."""
         link = self.out.link
         if msg.target_system not in (link.target_system, 0) or msg.target_component not in (self.component_id, 0):
-            return None
+            return None, ()
         kind = msg.get_type()
         if kind == "PARAM_REQUEST_LIST":
-            for name in self.NAMES:
-                self.send(name)
-        elif kind == "PARAM_REQUEST_READ":
+            return None, tuple(self.value(name) for name in self.NAMES)
+        if kind == "PARAM_REQUEST_READ":
             names = self.NAMES
             name = msg.param_id if msg.param_index < 0 else names[msg.param_index] if msg.param_index < len(names) \
                 else None
-            if name in self.values:
-                self.send(name)
-        elif kind == "PARAM_SET" and msg.param_id in self.values:
+            return None, (self.value(name),) if name in self.values else ()
+        if kind == "PARAM_SET" and msg.param_id in self.values:
             v = float(msg.param_value)
             why = self._refusal(msg, v)
             if why is not None:
                 self.out.counters.params_refused += 1
                 self.refused.append((msg.param_id, v, msg.get_srcSystem(), why))
-                self.send(msg.param_id)  # refused: echo the current value
-                return None
+                return None, (self.value(msg.param_id),)  # refused: echo the current value
             old = self.values[msg.param_id]
             self.values[msg.param_id] = v
-            return msg.param_id, old, v
-        return None
+            return (msg.param_id, old, v), ()
+        return None, ()
 
-    def send(self, name: str) -> None:
-        self.out.send(self.out.conn.mav.param_value_encode(name.encode(), self.values[name], MAV_PARAM_TYPE_REAL32,
-                                                           len(self.NAMES), self.NAMES.index(name)))
+    def value(self, name: str):
+        """PARAM_VALUE of one of the daemon's parameters."""
+        return self.out.conn.mav.param_value_encode(name.encode(), self.values[name], MAV_PARAM_TYPE_REAL32,
+                                                    len(self.NAMES), self.NAMES.index(name))

@@ -1,8 +1,9 @@
-"""The daemon's own protocols, answered as a sample arrives rather than once a cycle: its parameters (CG_*: a
+"""The daemon's own protocols, decided as a sample arrives rather than once a cycle: its parameters (CG_*: a
 refused engage said everywhere, each time it is asked), the start-up checks and autopilot restarts, the
 autopilot's parameters, command acknowledgements, the mission download (route source: mission), and implausible
-input (counted, logged at most once a second per kind). Each answer is an `Outbox` (companion/outbox.py) that
-MAVLink-out applies; none of them commands a mode (that is the cycle's, through the mode authority)."""
+input (counted, logged at most once a second per kind). Each answer is an `Outbox` (companion/outbox.py) that the
+daemon logs at once and sends with the next cycle's outbox; none of them commands a mode (that is the cycle's,
+through the mode authority)."""
 
 from __future__ import annotations
 
@@ -23,8 +24,8 @@ def _outbox(acts) -> Outbox:
 
 class Protocols:
     def __init__(self, cfg, adapter, cycle, checks, out, counters, save_signing):
-        """`out`: MAVLink-out (parameters and stream requests go straight out); `save_signing()`: persist the
-        signing timestamp."""
+        """`out`: MAVLink-out (it encodes the parameters' answers and the stream requests); `save_signing()`:
+        persist the signing timestamp."""
         self.cycle, self.checks, self.out, self.counters, self.save_signing = cycle, checks, out, counters, save_signing
         self.params = ParamServer(
             out, cfg.link.component_id,
@@ -89,20 +90,20 @@ class Protocols:
         if not self.checks.restarted(s.t):  # a boot clock that keeps going back is a fault
             self.cycle.take(Implausible(s.t, "time_boot_ms", "the autopilot's boot clock keeps going back"))
             return EMPTY
-        self.out.request_streams(s.t, self.checks.wanted())
-        return Outbox(events=(("autopilot_restart", {"boot_s_before": s.from_s, "boot_s_now": s.to_s}),),
-                      texts=((4, "CG: autopilot restarted: start-up checks again"),))
+        return self.out.stream_requests(self.checks.wanted()).then(Outbox(
+            events=(("autopilot_restart", {"boot_s_before": s.from_s, "boot_s_now": s.to_s}),),
+            texts=((4, "CG: autopilot restarted: start-up checks again"),)))
 
     def _param_request(self, msg, t: float) -> Outbox:
         """PARAM_REQUEST_* and PARAM_SET of the daemon's parameters. CG_ENGAGE 1 while the start-up checks refuse
         is refused: the value stays 0 (echoed so), and the refusal is logged and said with its reason."""
         ps = self.params
-        changed = ps.handle(msg)
+        changed, answers = ps.handle(msg)
         events = [("param_refused", {"param": name, "value": value, "source": source, "why": why})
                   for name, value, source, why in ps.refused]
         ps.refused.clear()
         if changed is None:
-            return Outbox(events=tuple(events))
+            return Outbox(messages=answers, events=tuple(events))
         name, old, new = changed
         texts, box = [], EMPTY
         if name == "CG_ENGAGE" and new >= 0.5 and self.checks.ok is False:
@@ -114,9 +115,8 @@ class Protocols:
                 self.cycle.engage_requested()
                 box = self.mission_request(t, "engage requested")  # the mission as it is now (it may be edited)
             events.append(("param_set", {"param": name, "old": old, "new": new}))
-        ps.send(name)
         self.save_signing()  # a set taken is never taken again, even after a kill -9
-        return Outbox(messages=box.messages, events=box.events + tuple(events), texts=box.texts + tuple(texts))
+        return Outbox(messages=(ps.value(name),)).then(box).then(Outbox(events=tuple(events), texts=tuple(texts)))
 
 
 def _source_refused(s: SourceRefused) -> Outbox:
