@@ -166,6 +166,7 @@ class DetectionRange:
         if scan.quality == 1 or scan.max_m <= 0.0:
             return ()
         stated = scan.max_m
+        before = self._stated.get(i, stated)  # the claim of the sensor's last frame
         self._stated[i] = stated
         shots = len(scan.known) if scan.known is not None else 1
         placed = [(*self._place(t, b, r), b, r) for b, r in scan.hits]
@@ -199,7 +200,9 @@ class DetectionRange:
                 if 2 <= scan.quality < 100:
                     tr.samples.append((r, 1.0 + scan.quality / 100.0 * (p.quality_full_margin - 1.0)))
         if scan.known is not None:
-            self._first_detections(t, i, scan, placed, stated)
+            # a target is late only if the last frame's claim, too, reached it (a claim that just grew, as a fog
+            # clears, does not make a target at its old edge late)
+            self._first_detections(t, i, scan, placed, min(stated, before))
         self._disagreements(t, i, scan, placed, stated)
         self._last_hits[i] = (t, stated, [(x, y, r) for k, (x, y, _, r) in enumerate(placed) if k not in medium])
         return tuple(medium)

@@ -4,9 +4,11 @@ command did not take effect on time). `companion.review` feeds `Checks` every re
 judgements themselves are the pure functions at the top. No I/O.
 
 Keep-out. A state sample's `obstacle_m` is the nearest obstacle surface a sensor saw near the path, taken from
-the vehicle's centre. The keep-out disc is R_obst + E_tr + r_body around the obstacle's centre, and that centre
-is at most R_obst behind the surface seen, so a return closer than E_tr + r_body puts the vehicle inside the
-disc whatever the obstacle's size (up to R_obst). What the log can say of a collision: a return at or inside
+the vehicle's centre. The commanded path keeps out of the keep-out disc, R_obst + E_tr + r_body around the
+obstacle's centre, and the vehicle stays within E_tr of its path (the controller's guarantee), so the vehicle keeps
+out of the obstacle grown by its own radius: a return closer than r_body is the vehicle inside its keep-out, whatever
+the obstacle's size (up to R_obst); within NEAR_MISS_M more it is a near miss, said all the same. (The E_tr band
+is the path's margin for the vehicle's tracking error: a vehicle in it is within the contract.) What the log can say of a collision: a return at or inside
 r_body (the surface at the body); a return closing in so fast, so near, that not even braking at
 `ABRUPT_STOP_M_S2` stops the body short of it; or a stop faster than that with a return within the distance flown
 meanwhile. A sensor says nothing below its minimum range, so a vehicle that flies into an obstacle may show only
@@ -28,6 +30,7 @@ from .config import DeliveryConfig
 
 MODE_BUDGET_S = DeliveryConfig().t_mode_s  # [s] a mode command is shown within this: the daemon's default budget
 MODE_COMMANDS = ("hold", "offboard", "mission")  # `command.cmd` asking for the autopilot mode of that name
+NEAR_MISS_M = 0.1  # [m] a return this close to the body is a near miss (the contract's own bound is the body)
 SPEED_OVERSHOOT = 0.05  # a limit is flown up to limit × (1 + this) + SPEED_MARGIN_M_S (the supervisor's own rule)
 SPEED_MARGIN_M_S = 0.3
 SPEED_SLACK_S = 1.0  # [s] on top of the braking time: the autopilot's jerk ramp and its reaction
@@ -74,12 +77,10 @@ def facts_of_start(rec: dict, vehicle: dict | None = None, source: str = "") -> 
                     where if r_body is not None else "no vehicle in the log")
 
 
-def keep_out_margin(e_tr, e_tr_measured, r_body_m: float | None) -> float:
-    """E_tr + r_body: how close to an obstacle's surface the vehicle may come (E_tr the contract's, else the
-    measured contour error, else 0; an unknown radius counts 0)."""
-    e = _num(e_tr)
-    e = _num(e_tr_measured) if e is None else e
-    return max(e or 0.0, 0.0) + (r_body_m or 0.0)
+def keep_out_margin(r_body_m: float | None) -> float:
+    """r_body and NEAR_MISS_M: how close to an obstacle's surface the vehicle's centre comes before the review says
+    so (an unknown radius counts 0)."""
+    return (r_body_m or 0.0) + NEAR_MISS_M
 
 
 def abrupt_stop(gs0: float, gs1: float, dt: float, obstacle0: float | None, r_body_m: float | None) -> bool:
@@ -173,7 +174,7 @@ class Checks:
         self._mode_seen(t, rec.get("mode"))
         ob, gs = _num(rec.get("obstacle_m")), _num(rec.get("ground_speed"))
         r_body = self.facts.r_body_m
-        margin = keep_out_margin(rec.get("e_tr"), rec.get("e_tr_measured"), r_body)
+        margin = keep_out_margin(r_body)
         if ob is not None and ob < margin:
             e = self.open_entry
             if e is None:
@@ -381,7 +382,7 @@ def findings(rep: dict) -> list[str]:
         known = ko["vehicles"] and all(v["r_body_m"] for v in ko["vehicles"])
         unknown = "" if known else "; vehicle radius unknown, taken as 0"
         out.append(f"the vehicle entered its keep-out disc {ko['entry_count']}×: closest {e['closest_m']:.2f} m from "
-                   f"an obstacle's surface at t = {_t(e['t'])}, inside E_tr + r_body = {e['margin_m']:.2f} m; "
+                   f"an obstacle's surface at t = {_t(e['t'])}, inside r_body + {NEAR_MISS_M:g} m = {e['margin_m']:.2f} m; "
                    f"{_why(e['explained_by'], e.get('shadow', False))}{after}{each}{unknown}")
     bad = dl["modes_not_taken"]
     if bad:
@@ -405,11 +406,11 @@ def lines(rep: dict) -> list[str]:
     radius = "; ".join(f"r_body {v['r_body_m']:.2f} m from {v['source']}" if v["r_body_m"] else
                        f"{v['source']}: r_body 0" for v in ko["vehicles"]) or "no vehicle in the log: r_body 0"
     n = ko["entry_count"]
-    out = [f"  keep-out (a return closer than E_tr + r_body; {radius}): {n} entr{'y' if n == 1 else 'ies'}, "
+    out = [f"  keep-out (a return closer than r_body + {NEAR_MISS_M:g} m; {radius}): {n} entr{'y' if n == 1 else 'ies'}, "
            f"{len(ko['collisions'])} collision(s) as far as the log tells"]
     for e in sorted(ko["entries"], key=lambda e: e["closest_m"])[:5]:
         out.append(f"    {_t(e['start_t'])} … {_t(e['end_t'])}  closest {e['closest_m']:.2f} m at {_t(e['t'])} "
-                   f"(E_tr + r_body {e['margin_m']:.2f} m)  {', '.join(e['explained_by']) or 'unexplained'}")
+                   f"(r_body + {NEAR_MISS_M:g} m: {e['margin_m']:.2f} m)  {', '.join(e['explained_by']) or 'unexplained'}")
     for c in ko["collisions"][:5]:
         out.append(f"    collision at {_t(c['t'])}: {c['how']}")
     delay = dl["mode_delay_max_s"]
