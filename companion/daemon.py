@@ -236,7 +236,8 @@ class Daemon:
         self._bad_cycles += 1
         self.counters.loop_errors += 1
         flying = self.tel.armed and self.tel.in_air
-        action = "none (shadow mode)" if not self.cfg.daemon_mode.commands else "hold" if flying else "none (not flying)"
+        action = (f"none ({self.cfg.mode} mode)" if not self.cfg.daemon_mode.commands else "hold" if flying
+                  else "none (not flying)")
         # the Hold asked every failed cycle: the mode authority delivers it (re-sent until answered)
         box = self.cycle.failed_hold(t) if action == "hold" else EMPTY
         if self._bad_cycles in (1, 10, 100) or self._bad_cycles % 1000 == 0:

@@ -558,7 +558,7 @@ class Supervisor:
             self.limit.reset()
             self._over_since = None
             self._recent_limits.clear()
-            self._set_state(d, State.STANDBY, "shadow mode" if not self.mode.commands else
+            self._set_state(d, State.STANDBY, f"{self.mode.name} mode" if not self.mode.commands else
                             ("not engaged" if not i.engaged else "not flying"))
             d.v_cmd = None
             return self._shadow(d, i) if not self.mode.commands else d
