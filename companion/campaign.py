@@ -78,6 +78,8 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from contracts.errors import ContractError
 from contracts.yamlfile import load_model, model_from_dict
 
+from .modes import mode_of
+
 Num = Annotated[float, Field(allow_inf_nan=False)]
 Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
@@ -389,7 +391,7 @@ def scenario_dict(s: dict, arm: str) -> dict:
     from contracts.vehicle import load_vehicle
 
     veh = load_vehicle(s["vehicle"])
-    off = arm_mode(arm) == "offboard"
+    off = mode_of(arm_mode(arm)).flies_route
     faults = []
     for f in s["faults"]:
         if f["kind"].startswith("fog"):
@@ -448,7 +450,7 @@ def delivery_of(rig) -> dict:
 
 def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
     cfg = {"vehicle": s["vehicle"], "contract": {"r_obst_m": s["r_obst_m"], "nav_margin": nav_margin}}
-    if arm_mode(arm) == "offboard":
+    if mode_of(arm_mode(arm)).flies_route:
         cfg.update({"mode": "offboard", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
                     "route": {"waypoints": [[0, 0], [s["route_end_m"], 0]], "altitude_m": ALT_M}})
     else:
@@ -549,7 +551,7 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     if arm.endswith("_claim"):  # negative control: no detection range from evidence
         rig.daemon.cycle.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     seconds = spec.duration_s
-    if mode == "offboard":
+    if mode_of(mode).flies_route:
         engage_and_fly(rig, seconds, trace)
     else:
         fly_mission(rig, seconds, trace)

@@ -359,8 +359,9 @@ def cmd_run(args) -> int:
 
     cfg = run_config(args)
     table = load_for_vehicle(cfg.vehicle, cfg.table, cfg.table_public_key)
-    if cfg.mode == "offboard" and table.avoid is None:
-        raise ContractError(f"mode offboard needs an avoid contract; table {table.path} carries the stop contract only")
+    if cfg.daemon_mode.contract == "avoid" and table.avoid is None:
+        raise ContractError(f"mode {cfg.mode} needs an avoid contract; table {table.path} carries the stop "
+                            "contract only")
     if args.check:
         for line in banner(cfg, table, controller_contract(cfg, table)):
             if not line.startswith("waiting for the autopilot"):  # it is not waited for

@@ -11,6 +11,8 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationInf
 from contracts.lidar import BACKSCATTER_LENGTH_M, RATED_REFLECTIVITY, REFERENCE_REFLECTIVITY
 from contracts.yamlfile import load_model, model_from_dict
 
+from .modes import Mode, mode_of
+
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 
@@ -369,18 +371,23 @@ class Config(_Strict):
     calibration: CalibrationConfig | None = None  # governor mode: the daemon flies the calibration plan's hold legs
     governor: GovernorConfig = GovernorConfig()
 
+    @property
+    def daemon_mode(self) -> Mode:
+        """The daemon's mode as its object (companion/modes.py)."""
+        return mode_of(self.mode)
+
     @model_validator(mode="after")
     def _sensors_rated(self):
-        if self.mode != "shadow" and not self.sensors:
+        if self.daemon_mode.commands and not self.sensors:
             raise ValueError(f"sensors: at least one obstacle sensor is required in {self.mode} mode")
-        if self.mode != "shadow":
+        if self.daemon_mode.commands:
             for k, s in enumerate(self.sensors):
                 if s.max_range_m is None:
                     raise ValueError(f"sensors[{k}].max_range_m (the sensor's rated range) is required in {self.mode} "
                                      "mode: a message's max_distance is capped by it")
-        if self.governor.recovery_brake and self.mode != "governor":
+        if self.governor.recovery_brake and not self.daemon_mode.governs:
             raise ValueError(f"governor.recovery_brake: governor mode only (mode is {self.mode})")
-        if self.calibration is not None and self.mode != "governor":
+        if self.calibration is not None and not self.daemon_mode.governs:
             raise ValueError(f"calibration.legs: the daemon flies the hold legs in governor mode only (mode is "
                              f"{self.mode})")
         return self
@@ -442,7 +449,7 @@ def weakened(cfg: Config) -> list[str]:
     if cfg.link.clock_rate < 1.0:
         out.append(f"weaker than the default: link.clock_rate {cfg.link.clock_rate:g}: every time-out runs "
                    f"{1 / cfg.link.clock_rate:g} times longer in real time (1 on an aircraft)")
-    if cfg.mode != "shadow" and cfg.link.signing_key_file is None and is_network_link(cfg.link.connect):
+    if cfg.daemon_mode.commands and cfg.link.signing_key_file is None and is_network_link(cfg.link.connect):
         out.append(f"unsigned on a network link in {cfg.mode} mode: anyone who can reach {cfg.link.connect} can "
                    "send the daemon sensor data and commands (link.signing_key_file; contract-guard keys)")
     return out

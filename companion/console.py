@@ -188,7 +188,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
     from .cycle import start_thrust  # (here: `table show` reads this module without the cycle)
 
-    _, thrust = start_thrust(table, "avoid" if cfg.mode == "offboard" else "stop")
+    _, thrust = start_thrust(table, cfg.daemon_mode.contract)
     short = [] if thrust["covered"] else [  # a --partial-grid table: said before the first flight
         f"WARNING: the table covers thrust_ratio {thrust['table_min']:g} and up, the vehicle's range starts at "
         f"{thrust['vehicle_min']:g}: in flight no speed is safe until the hover estimate settles (airborne and "
@@ -197,7 +197,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"vehicle {table.vehicle.name}, table {table.path} (contracts: {', '.join(table.available)}; "
         f"Ω lookup {kernel_name()})",
         f"controller contract: {controller_contract}; {controller_coverage(table)}",
-        f"{cfg.mode} mode ({'stop' if cfg.mode != 'offboard' else 'avoid'} contract), {engage}",
+        f"{cfg.mode} mode ({cfg.daemon_mode.contract} contract), {engage}",
         *short,
         *([] if not cfg.governor.recovery_brake else [
             "recovery brake on: a stop is flown by the daemon in offboard at the airframe's braking, then Hold, and the "

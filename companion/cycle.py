@@ -53,7 +53,7 @@ def controller_contract(cfg: Config, table: ContractTable) -> str:
     """In words: where the contract's E_tr comes from (the start banner, the `start` record)."""
     if table.e_pred is not None:
         flown = table.etr_offboard_cap
-        return ("E_tr_pred from the table (the controller contract)" + ("" if cfg.mode != "offboard" else
+        return ("E_tr_pred from the table (the controller contract)" + ("" if not cfg.daemon_mode.flies_route else
                 f"; offboard flies {offboard_cap(flown):.2f} x V_safe (its online plans were flown at "
                 f"{'an unrecorded cap' if flown is None else f'{flown:.2f}'} x V_safe)"))
     if cfg.contract.e_tr_assumed_m is not None:
@@ -98,7 +98,7 @@ class Cycle:
         self._thrust_said = False  # the start value in force in the air has been said (`thrust_start`)
         self.nav = NavHealth(cfg.timeouts.nav_s)
         self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
-        self.sup = Supervisor(table, cfg.mode, contract=contract, dwell_s=cfg.contract.dwell_s,
+        self.sup = Supervisor(table, cfg.daemon_mode, contract=contract, dwell_s=cfg.contract.dwell_s,
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
@@ -108,7 +108,7 @@ class Cycle:
         self.authority = ModeAuthority(adapter.hold_mode(), cfg.delivery.t_cmd_s, cfg.delivery.t_mode_s,
                                        adapter.hold_fallbacks)
         self.offboard: OffboardController | None = None
-        if cfg.mode == "offboard":
+        if cfg.daemon_mode.flies_route:
             if cfg.route is None:
                 raise ContractError("mode offboard needs a route (config key route.waypoints or route.source: mission)")
             load_solver()  # now, not at the first plan (a route from the mission makes its planner in the loop)
@@ -120,7 +120,7 @@ class Cycle:
         # governor.recovery_brake: the daemon's own stop, offboard's braking stop flown from the
         # mission; available while its start-up checks (`checks.brake`: the daemon's StartupChecks) pass and the
         # autopilot has not refused its switch
-        self.brake = OffboardController(None) if cfg.mode == "governor" and cfg.governor.recovery_brake else None
+        self.brake = OffboardController(None) if cfg.daemon_mode.governs and cfg.governor.recovery_brake else None
         self.checks = None
         self._brake_said: tuple[bool, bool, str] | None = None
         self._brake_ready = False  # the recovery brake flies a stop the stop contract calls for
@@ -298,7 +298,7 @@ class Cycle:
         texts += d.statustext
         if acts is not None:
             events += acts.events
-        engaged_flying = i.engaged and i.armed and i.in_air and self.cfg.mode != "shadow"
+        engaged_flying = i.engaged and i.armed and i.in_air and self.cfg.daemon_mode.commands
         if startup_ok is False and self._engaged_in_flight and i.link_ok:  # a failed re-check in flight: Hold
             requests.append(ModeRequest(HOLD, Requester.FAILSAFE))
             events.append(("failsafe", {"cause": RECHECK_FAILED, "action": "hold"}))
@@ -315,7 +315,7 @@ class Cycle:
         sp = acts.setpoint if acts is not None else None
         if sp is not None and self._flying_ours:
             self.etr.command(t, float(sp.p[0]), float(sp.p[1]))
-        speed = d.send_speed if self.cfg.mode == "governor" else None
+        speed = d.send_speed if self.cfg.daemon_mode.governs else None
         return i, d, Outbox(mode=cmd, speed=speed, messages=tuple(messages), setpoint=sp, end_stream=ended,
                             events=tuple(events), texts=tuple(texts))
 
@@ -337,9 +337,9 @@ class Cycle:
             if why is None:
                 why = diagnose(self.table, self.sup.contract, i, e_tr_floor=self.etr.floor, thrust_basis=basis,
                                policy=getattr(self.sup.policy, "name", "contract"), t_cmd=self.sup.t_cmd)
-            events[k] = (name, {**f, **why.fields(self.cfg.mode)})
+            events[k] = (name, {**f, **why.fields(self.cfg.daemon_mode)})
             if name == "failsafe" and f.get("action") == "hold":
-                texts.append((2, why.statustext(self.cfg.mode)))
+                texts.append((2, why.statustext(self.cfg.daemon_mode)))
 
     def _calibration(self, t: float, tel: Telemetry, i: Inputs, d: Decision, requests, events, texts) -> None:
         """The calibration plan's hold legs (companion/calibration_holds.py): Hold, at rest `rest_s`, the mission.

@@ -110,7 +110,7 @@ class Daemon:
         self.counters = Counters()
         self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock, self.counters)
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
-        self.cycle = Cycle(cfg, table, self.adapter, contract or ("avoid" if cfg.mode == "offboard" else "stop"),
+        self.cycle = Cycle(cfg, table, self.adapter, contract or cfg.daemon_mode.contract,
                            runners.get(planning, planning), policy)
         self.checks = self.cycle.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
         self.protocols = Protocols(cfg, self.adapter, self.cycle, self.checks, self.out, self.counters,
@@ -236,7 +236,8 @@ class Daemon:
         self._bad_cycles += 1
         self.counters.loop_errors += 1
         flying = self.tel.armed and self.tel.in_air
-        action = "none (shadow mode)" if self.cfg.mode == "shadow" else "hold" if flying else "none (not flying)"
+        action = (f"none ({self.cfg.mode} mode)" if not self.cfg.daemon_mode.commands else "hold" if flying
+                  else "none (not flying)")
         # the Hold asked every failed cycle: the mode authority delivers it (re-sent until answered)
         box = self.cycle.failed_hold(t) if action == "hold" else EMPTY
         if self._bad_cycles in (1, 10, 100) or self._bad_cycles % 1000 == 0:

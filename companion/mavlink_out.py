@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .link import mavlink
+from .modes import MODES as DAEMON_MODES
 from .outbox import Outbox
 
 MAV_TYPE_ONBOARD_CONTROLLER = 18
@@ -185,7 +186,7 @@ class ParamServer:
     the protocol's acknowledgement) and reported."""
 
     NAMES = ("CG_ENGAGE", "CG_MODE", "CG_R_OBST")
-    MODES = ("shadow", "governor", "offboard")  # CG_MODE's values
+    MODES = tuple(DAEMON_MODES)  # CG_MODE's values
 
     def __init__(self, out: MavlinkOut, component_id: int, values: dict[str, float], ranges: dict,
                  setters: tuple[int, ...], unsigned_refused: str | None = None):

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from contracts.table import ContractTable
 
 from .estimators import LATE_WINDOW_S, SETTLE_S
+from .modes import Mode, mode_of
 from .supervisor import MIN_SPEED_CMD, Inputs
 
 D_OD_TOP_M = 1000.0  # [m] no D_od beyond this is looked at: none up to it gives a speed ⇒ the table has none
@@ -36,24 +37,18 @@ class NoSpeed:
     short: str  # `why` in a few ASCII words (STATUSTEXT)
     needs_short: str  # `needs` likewise
 
-    def resume(self, mode: str) -> str:
-        """How the flight resumes in the daemon's `mode` (governor, offboard, shadow), as the supervisor's rules are."""
+    def resume(self, mode: str | Mode) -> str:
+        """How the flight resumes in the daemon's `mode`, as the supervisor's rules are."""
         if self.input == "table":
             return "not with this table: land, and build a table that covers the vehicle"
-        if mode == "shadow":
-            return f"no speed until {self.needs} (a governor would keep its Hold until the mode is changed)"
-        if mode == "offboard":
-            return (f"once {self.needs}, set CG_ENGAGE 0 then 1 to fly the route again, or change the flight mode "
-                    "(the fail-safe Hold is kept until then)")
-        return (f"once {self.needs}, change the flight mode (e.g. back to the mission): the daemon keeps its Hold "
-                "until the pilot or a ground station does (not before: until then no speed is safe)")
+        return mode_of(mode).resume(self.needs)
 
-    def fields(self, mode: str) -> dict:
+    def fields(self, mode: str | Mode) -> dict:
         """The hold event's fields."""
         return {"input": self.input, "why": self.why, "resume": self.resume(mode)}
 
-    def statustext(self, mode: str) -> str:
-        then = {"offboard": "CG_ENGAGE 0, 1", "shadow": ""}.get(mode, "change mode")
+    def statustext(self, mode: str | Mode) -> str:
+        then = mode_of(mode).resume_short
         if self.input == "table":
             return f"CG: no safe speed: {self.short}; land"
         return f"CG: no safe speed: {self.short}; resume when {self.needs_short}" + (f", then {then}" if then else "")

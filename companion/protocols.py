@@ -34,7 +34,7 @@ class Protocols:
             ranges={"CG_ENGAGE": frozenset({0.0, 1.0}), "CG_R_OBST": tuple(cfg.contract.r_obst_range_m)},
             setters=tuple(cfg.link.gcs_system_ids), unsigned_refused=cfg.link.unsigned_param_refusal)
         self.mission: MissionSource | None = None  # route.source: mission — the route comes from the autopilot
-        if cfg.mode == "offboard" and cfg.route.source == "mission":
+        if cfg.daemon_mode.flies_route and cfg.route.source == "mission":
             lk = cfg.link
             self.mission = MissionSource(adapter.mission_item0_is_home, lk.target_system, lk.target_component,
                                          lk.target_system, lk.component_id, cfg.route.level_tolerance_m,

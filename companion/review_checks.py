@@ -27,6 +27,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from .config import DeliveryConfig
+from .modes import MODES
 
 MODE_BUDGET_S = DeliveryConfig().t_mode_s  # [s] a mode command is shown within this: the daemon's default budget
 MODE_COMMANDS = ("hold", "offboard", "mission")  # `command.cmd` asking for the autopilot mode of that name
@@ -150,7 +151,8 @@ class Checks:
 
     def start(self, facts: RunFacts, mode) -> None:
         self.facts = facts
-        self.shadow = mode == "shadow"
+        known = MODES.get(mode) if isinstance(mode, str) else None  # the start record's mode, as logged
+        self.shadow = known is not None and not known.commands
         if facts not in self.run_facts:
             self.run_facts.append(facts)
 

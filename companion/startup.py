@@ -109,7 +109,7 @@ class StartupChecks:
             got = self.values[c.name] * c.scale
             if c.what in needs and got < needs[c.what] * 0.999:
                 return False, f"{c.name} = {got:g} below the vehicle file's {c.what} = {needs[c.what]:g}"
-        return (True, "ok") if self.cfg.mode != "offboard" else self._offboard_checks()
+        return (True, "ok") if not self.cfg.daemon_mode.flies_route else self._offboard_checks()
 
     def _offboard_checks(self) -> tuple[bool, str]:
         """What flying in offboard needs: the autopilot has an offboard mode (PX4 OFFBOARD, ArduPilot GUIDED) and,

@@ -31,6 +31,7 @@ from contracts.window import WindowMax
 from .authority import GUARANTEE_ANSWERED, Late
 from .estimators import DodEstimate
 from .guidance import inflated
+from .modes import Mode, mode_of
 from .states import (AT_REST_M_S, BRAKE_STOP_CAUSES, BRAKE_SWITCH, RAMP_FOLLOWED, FAILSAFE_CAUSES, Cause, State,  # noqa: F401 (re-exported)
                      Subsystem)
 
@@ -232,7 +233,7 @@ class ApproachRamp:
 class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
-    def __init__(self, table: ContractTable, mode: str, *, contract: str, dwell_s: float, speed_margin: float,
+    def __init__(self, table: ContractTable, mode: str | Mode, *, contract: str, dwell_s: float, speed_margin: float,
                  loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
                  e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None,
                  t_cmd_s: float = 0.0):
@@ -247,7 +248,7 @@ class Supervisor:
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
-        self.mode = mode
+        self.mode = mode_of(mode)
         self.contract = contract
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
@@ -295,7 +296,7 @@ class Supervisor:
         # (set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
         self.recovery_dt: float | None = None
         self.ramp = ApproachRamp(ramp_m_s, table.vehicle.braking.jerk_max_m_s3) \
-            if ramp_m_s is not None and mode == "governor" else None
+            if ramp_m_s is not None and self.mode.governs else None
 
     def latch_hold(self, d: Decision, reason: str) -> Decision:
         """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
@@ -553,14 +554,14 @@ class Supervisor:
             self._set_state(d, State.STANDBY, "link restored" if self._linked else "link up")
         self._linked = True
         flying = i.armed and i.in_air
-        if not (i.engaged and flying) or self.mode == "shadow":
+        if not (i.engaged and flying) or not self.mode.commands:
             self.limit.reset()
             self._over_since = None
             self._recent_limits.clear()
-            self._set_state(d, State.STANDBY, "shadow mode" if self.mode == "shadow" else
+            self._set_state(d, State.STANDBY, f"{self.mode.name} mode" if not self.mode.commands else
                             ("not engaged" if not i.engaged else "not flying"))
             d.v_cmd = None
-            return self._shadow(d, i) if self.mode == "shadow" else d
+            return self._shadow(d, i) if not self.mode.commands else d
 
         causes = self._causes(i, om)
         flown = self._not_flown
@@ -602,7 +603,7 @@ class Supervisor:
             # own speed item set at this item where the daemon knows the mission's items (calibration.legs), which
             # is the speed the autopilot flies there (PX4 Navigator, ArduPilot Auto), else the cruise parameter
             v_own = i.v_mission if i.v_mission > 0 else i.v_cruise  # (NaN: not known)
-            capped = self.mode == "governor" and 0 < v_own < v_limit
+            capped = self.mode.governs and 0 < v_own < v_limit
             v_send = v_own if capped else v_limit
             last, target, tol = self._last_sent, v_send, max(0.05, 0.02 * v_send)
             tol_up = tol_down = tol
@@ -625,7 +626,7 @@ class Supervisor:
                                      ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
                                      ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
                 self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
-                self._speed_answered = self.mode != "governor"  # (offboard flies setpoints: nothing is sent)
+                self._speed_answered = not self.mode.governs  # (offboard flies setpoints: nothing is sent)
         elif self._no_limit_mode_warned != i.mode:
             self._no_limit_mode_warned = i.mode
             d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))

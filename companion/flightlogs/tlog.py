@@ -537,15 +537,15 @@ def settle(cfg: Config, config: Path | None, vehicle: str | None, table: Path | 
     contract (offboard: avoid, else stop); `--vehicle` replaces the config's; a table alone brings its own."""
     from contracts.table import load_for_vehicle
 
-    flown = cfg.mode
+    flown = cfg.daemon_mode
     cfg = cfg.model_copy(update={"mode": "shadow", "log": cfg.log.model_copy(update={"tlog": False})})
     if vehicle is not None:
         cfg = cfg.model_copy(update={"vehicle": vehicle, "table": None})
     alone = table is not None and vehicle is None and config is None  # a table alone: its own vehicle
     tab = load_for_vehicle(None if alone else cfg.vehicle, table or cfg.table)
-    contract = "avoid" if flown == "offboard" else "stop"
+    contract = flown.contract
     if contract == "avoid" and tab.avoid is None:
-        raise ContractError(f"the flight flew offboard (avoid contract); table {tab.path} carries the stop "
+        raise ContractError(f"the flight flew {flown} (avoid contract); table {tab.path} carries the stop "
                             "contract only")
     return cfg, tab, contract
 
