@@ -230,9 +230,3 @@ class ModeAuthority:
         p.t_sent = t
         self.last = ModeCommand(p.mode, p.what, p.by, p.sends)
         return self.last
-
-    def shows(self, mode: str) -> bool:
-        """The autopilot's heartbeat shows `mode` (HOLD: its Hold), commanded by the daemon."""
-        want = self.hold_mode if mode == HOLD else mode
-        p = self.pending
-        return p is not None and p.mode == want and p.state == Delivery.SHOWN
