@@ -74,9 +74,7 @@ class Settled:
     what: str  # the request's mode (HOLD, "mission", "offboard")
     by: Requester
     outcome: Delivery  # SHOWN, REFUSED or NOT_SHOWN
-    mode: str  # the mode it ended in (a Hold's fallback: "land", say)
     why: str = ""  # for a refusal or a time-out, in words
-    waited_s: float = 0.0  # from the request's first send to its end
 
 
 @dataclass(frozen=True)
@@ -100,6 +98,11 @@ class ModeView:
     settled: Settled | None = None  # a delivery that ended this cycle
     late: Late | None = None  # the command on its way is past its budget (None: on time, or none)
     events: tuple[tuple[str, dict], ...] = ()  # `delivery` records: a fallback taken, a delivery ended
+
+    def undelivered(self, by: Requester) -> str | None:
+        """Why `by`'s mode request failed this cycle (refused, or not shown in time); None: it did not."""
+        s = self.settled
+        return s.why if s is not None and s.by == by and s.outcome != Delivery.SHOWN else None
 
 
 class _Pending:
@@ -131,7 +134,6 @@ class ModeAuthority:
         self.hold_mode, self.t_cmd_s, self.t_mode_s = hold_mode, t_cmd_s, t_mode_s
         self.hold_fallbacks = tuple(hold_fallbacks)
         self.pending: _Pending | None = None  # the command on its way, or the last one delivered
-        self.last: ModeCommand | None = None  # the last command sent
         self._mode: str | None = None  # the mode last seen with the link up
 
     # ------------------------------------------------------------------ the autopilot's side
@@ -154,7 +156,7 @@ class ModeAuthority:
         elif p is not None and p.state in (Delivery.SENDING, Delivery.ACCEPTED):
             if mode == p.mode:
                 p.state = Delivery.SHOWN
-                settled = Settled(p.asked, p.by, Delivery.SHOWN, p.mode, waited_s=t - p.t_asked)
+                settled = Settled(p.asked, p.by, Delivery.SHOWN)
             elif p.refusal is not None or t - p.t_heard > p.t_mode:
                 why = p.refusal or f"{p.what} not shown within {p.t_mode:g} s"
                 settled = self._failed(t, p, why, events)
@@ -188,7 +190,7 @@ class ModeAuthority:
             self.pending = nxt
             return None
         p.state = Delivery.REFUSED if p.refusal is not None else Delivery.NOT_SHOWN
-        return Settled(p.asked, p.by, p.state, p.mode, why, t - p.t_asked)
+        return Settled(p.asked, p.by, p.state, why)
 
     def _late(self, t: float) -> Late | None:
         """The delivery guarantee broken now: a command neither answered nor shown within t_cmd_s; a Hold refused or
@@ -228,5 +230,4 @@ class ModeAuthority:
             return None  # not flooded; within it, every cycle
         p.sends += 1
         p.t_sent = t
-        self.last = ModeCommand(p.mode, p.what, p.by, p.sends)
-        return self.last
+        return ModeCommand(p.mode, p.what, p.by, p.sends)

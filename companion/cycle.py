@@ -19,7 +19,7 @@ from contracts.online_planner import load_solver, offboard_cap
 from contracts.stop import airframe_decel, braking_decel, stop_jerk
 from contracts.table import THRUST_AXIS_TOL, ContractTable
 
-from .authority import HOLD, Delivery, ModeAuthority, ModeRequest, ModeView, Requester
+from .authority import HOLD, ModeAuthority, ModeRequest, ModeView, Requester
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
@@ -275,12 +275,11 @@ class Cycle:
         events += self.view.events
         acts, ended, fail_hold = None, False, d.hold
         ctl = self._controller
-        settled = self.view.settled
-        if ctl is not None and settled is not None and settled.by == Requester.OFFBOARD_ENTRY:
-            if settled.outcome != Delivery.SHOWN:
-                ctl.refuse(settled.why)
-            elif self.brake is not None:  # shown within its budget: the brake's own contract may set the limit
-                self.brake.proven = True
+        settled, refused = self.view.settled, self.view.undelivered(Requester.OFFBOARD_ENTRY)
+        if ctl is not None and refused is not None:
+            ctl.refuse(refused)
+        elif self.brake is not None and settled is not None and settled.by == Requester.OFFBOARD_ENTRY:
+            self.brake.proven = True  # shown within its budget: the brake's own contract may set the limit
         if ctl is not None and i.link_ok:
             fly = self._fly_offboard if self.offboard is not None else self._recover
             acts, d, braking = fly(t, tel, i, d, startup_ok, mission_route)
@@ -347,11 +346,9 @@ class Cycle:
         cal = self.calibration
         safety = (d.hold_causes[0] if d.hold_causes else "hold") if d.hold else \
             (f"state {d.state}" if d.state in (State.HOLDING, State.FAILSAFE) else None)
-        settled = self.view.settled
         acts = cal.step(t, mode=i.mode, taken_over=i.taken_over, mission_seq=tel.mission_seq, x=tel.x, y=tel.y,
                         speed=i.ground_speed, telemetry_ok=i.telemetry_ok, active=d.state == State.ACTIVE,
-                        safety=safety, undelivered=settled.why if settled is not None and settled.by ==
-                        Requester.CALIBRATION and settled.outcome != Delivery.SHOWN else None)
+                        safety=safety, undelivered=self.view.undelivered(Requester.CALIBRATION))
         if acts.command is not None:
             requests.append(ModeRequest(HOLD if acts.command == "hold" else acts.command, Requester.CALIBRATION))
         events += acts.events
