@@ -5,7 +5,7 @@ Hold-start acceleration the ramp allows against the contract for any approach. P
 
 The bound: an autopilot that approaches its commanded speed jerk-limited and never overshoots it holds
 v + a²/(2j) ≤ v_cmd; the governor keeps v_cmd ≤ v + ramp (+ its slack), so the acceleration stays ≤ `ramp_accel`,
-and the daemon's check allows RAMP_A_TOL beside it (companion/supervisor.py `ApproachRamp.a0_max`): the joint
+and the daemon's check allows RAMP_A_TOL beside it (companion/onboard/supervisor.py `ApproachRamp.a0_max`): the joint
 bound is taken with that cap (contracts/stop.py `approach_stop_speed(a0_max=...)`). Deterministic, shipped tables'
 vehicles, 320 points each (D_od 3–12 m, E_tr 0.1–0.8 m, thrust 0.7–1.0). `--fly`: the lock-step SITL column flights
 (Mambo, PX4 and ArduPilot, a column first seen at 6 m; at 28 m from steady cruise, at 6 m during the speed-up) with
@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.supervisor import RAMP_A_TOL, RAMP_SLACK_M_S  # noqa: E402
+from companion.onboard.supervisor import RAMP_A_TOL, RAMP_SLACK_M_S  # noqa: E402
 from contracts import stop as S  # noqa: E402
 from contracts.vehicle import load_vehicle  # noqa: E402
 

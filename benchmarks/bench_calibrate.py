@@ -14,7 +14,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.calibrate import calibrate
+from companion.ground.calibrate import calibrate
 from contracts.table import load_for_vehicle
 from contracts.vehicle import load_vehicle
 
@@ -25,7 +25,7 @@ def main() -> None:
     veh = load_vehicle("x500")
     table = load_for_vehicle(veh)
     if not logs:
-        from companion.calibrate_plan import speed_ladder, write_plan_files
+        from companion.ground.calibrate_plan import speed_ladder, write_plan_files
         from tests.calibration_flights import fly_calibration
 
         info = write_plan_files(veh, tmp / "plan", speed_ladder(8.0, table.e_pred.axes[0]))

@@ -23,7 +23,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion import campaign as cg  # noqa: E402
+from companion.ground import campaign as cg  # noqa: E402
 
 
 def _timed(fn):

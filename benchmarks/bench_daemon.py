@@ -14,7 +14,7 @@ the loop, and `cycle_cpu_ms` the same in CPU time (what a busy machine's preempt
 `load_average_1min` says how busy the machine was. The daemon runs at the service unit's `Nice=` (as
 installed; `BENCH_NICE=0` for the default priority); `nice` says which it got.
 
-`cycle_lateness_ms` is each cycle's lateness as the daemon judges its own timeliness (companion/estimators.py
+`cycle_lateness_ms` is each cycle's lateness as the daemon judges its own timeliness (companion/onboard/estimators.py
 `Timeliness`: how much later than one loop period after the previous cycle it started), with the share of cycles
 beyond each candidate jitter allowance (`timeouts.cycle_jitter_s`), from 2 s after start (the daemon does not judge
 its start-up). `BENCH_BUSY=N` starts N busy processes
@@ -156,10 +156,10 @@ def _full_gc_ms() -> float:
 
 
 def main() -> None:
-    from companion.config import config_from_dict
-    from companion.daemon import Daemon
-    from companion.eventlog import EventLog
-    from companion.link import open_connection
+    from companion.onboard.config import config_from_dict
+    from companion.onboard.daemon import Daemon
+    from companion.onboard.eventlog import EventLog
+    from companion.onboard.link import open_connection
     from contracts.table import load_for_vehicle
     from contracts.vehicle import load_vehicle
 
@@ -247,7 +247,7 @@ def main() -> None:
 
 
 def failsafes(log_dir) -> list[str]:
-    from companion.eventlog import read_events
+    from companion.onboard.eventlog import read_events
 
     return [f"{r.get('cause')} at {r.get('t'):.1f} s" for r in read_events(log_dir) if r.get("event") == "failsafe"]
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion import campaign as cg
+from companion.ground import campaign as cg
 from contracts.table import load_for_vehicle
 
 SPEC = Path(__file__).resolve().parents[1] / "examples" / "campaign-link.yaml"

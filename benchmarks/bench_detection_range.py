@@ -1,4 +1,4 @@
-"""The detection-range estimator (companion/detection_range.py) against the SITL's sensor model in hidden fog:
+"""The detection-range estimator (companion/onboard/detection_range.py) against the SITL's sensor model in hidden fog:
 per visibility, how soon the estimate is within 1.15 × the default target's true detection range, how close it
 then stays, how soon it recovers; and how a fog thickening over a ramp of T seconds is followed (the residual
 assumption: the worst over-estimate and how long the estimate stays above the truth). Prints one JSON object.
@@ -18,7 +18,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.detection_range import DetectionRange  # noqa: E402
+from companion.onboard.detection_range import DetectionRange  # noqa: E402
 from tests.test_detection_range import BINS, R_MAX, fly, route_world  # noqa: E402
 
 FACTOR = 1.15

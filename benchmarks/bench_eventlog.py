@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.eventlog import EventLog  # noqa: E402
-from companion.review import review  # noqa: E402
+from companion.onboard.eventlog import EventLog  # noqa: E402
+from companion.ground.review import review  # noqa: E402
 
 SAMPLE = dict(state="cruise", mode="AUTO.MISSION", contract="stop", engaged=True, x=12.3456, y=-2.3456, z=-10.0,
               vx=3.21, vy=0.12, vz=-0.01, ground_speed=3.2122, d_od=6.0, e_tr=0.31, e_tr_measured=0.25, r_obst=0.5,

@@ -25,9 +25,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from companion.config import config_from_dict  # noqa: E402
-from companion.daemon import Daemon  # noqa: E402
-from companion.link import MemoryMavfile  # noqa: E402
+from companion.onboard.config import config_from_dict  # noqa: E402
+from companion.onboard.daemon import Daemon  # noqa: E402
+from companion.onboard.link import MemoryMavfile  # noqa: E402
 from contracts.table import load_for_vehicle  # noqa: E402
 from tests.fuzz_messages import DECODED, mav, packed  # noqa: E402
 

@@ -100,7 +100,7 @@ def mutate(data: bytes, rng: random.Random, other: bytes) -> tuple[bytes, str]:
 def seeds(work: Path, sitl: bool) -> dict[str, list[tuple[str, bytes]]]:
     from crafted_logs import gappy_bin, gappy_tlog, gappy_ulog
 
-    from companion.cli import review_log
+    from companion.ground.commands import review_log
 
     out: dict[str, list[tuple[str, bytes]]] = {s: [] for s in SUFFIXES}
     for suffix, folder in ((".ulg", "px4"), (".bin", "ardupilot"), (".tlog", "ardupilot")):
@@ -123,12 +123,12 @@ def seeds(work: Path, sitl: bool) -> dict[str, list[tuple[str, bytes]]]:
 def read(path: Path, suffix: str, full: bool):
     """The readers as review and calibrate call them, without the registry's net (which would turn a reader's
     traceback into a line), and, `full`, the replay and the review."""
-    from companion.flightlogs.dataflash import read_dataflash
-    from companion.eventlog import read_events
-    from companion.flightlogs import READERS
-    from companion.flightlogs.tlog import read_tlog, scan_tlog
-    from companion.review import review, summarise
-    from companion.flightlogs.ulog import read_ulog
+    from companion.ground.flightlogs.dataflash import read_dataflash
+    from companion.onboard.eventlog import read_events
+    from companion.ground.flightlogs import READERS
+    from companion.ground.flightlogs.tlog import read_tlog, scan_tlog
+    from companion.ground.review import review, summarise
+    from companion.ground.flightlogs.ulog import read_ulog
 
     if suffix == ".ulg":
         read_ulog(path)
@@ -151,7 +151,7 @@ def read(path: Path, suffix: str, full: bool):
 
 
 def run(per_format: int, seed: int, replay_every: int, sitl: bool, mem_gib: float) -> dict:
-    from companion.flightlogs import _Timeout, time_bound
+    from companion.ground.flightlogs import _Timeout, time_bound
     from contracts.errors import ContractError
 
     res: dict = {"bench": "fuzz_logs", "per_format": per_format, "seed": seed, "replay_every": replay_every,

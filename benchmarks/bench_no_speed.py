@@ -1,4 +1,4 @@
-"""Time of one "no safe speed" diagnosis (`companion.no_speed.diagnose`: the input that caused it, by looking Ω up
+"""Time of one "no safe speed" diagnosis (`companion.onboard.no_speed.diagnose`: the input that caused it, by looking Ω up
 again), per kind of cause and contract, on the shipped Mambo table (one JSON object on stdout).
 
 It runs only in the cycle that says a `no safe speed` Hold (or a shadow flight's change of would-be causes), so
@@ -24,9 +24,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.estimators import DodEstimate  # noqa: E402
-from companion.no_speed import diagnose  # noqa: E402
-from companion.supervisor import Inputs  # noqa: E402
+from companion.onboard.estimators import DodEstimate  # noqa: E402
+from companion.onboard.no_speed import diagnose  # noqa: E402
+from companion.onboard.supervisor import Inputs  # noqa: E402
 from contracts.table import load_for_vehicle  # noqa: E402
 
 CASES = {  # (D_od, E_tr, thrust_ratio): each a different cause

@@ -14,7 +14,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.flights import fly_offboard_scenario  # noqa: E402
+from companion.ground.flights import fly_offboard_scenario  # noqa: E402
 from sitl_harness.scenario import load_scenario  # noqa: E402
 
 

@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.guidance import OffboardGuidance, Route  # noqa: E402
+from companion.onboard.guidance import OffboardGuidance, Route  # noqa: E402
 from contracts.flat import horizontal_accel_limit  # noqa: E402
 from contracts.online_planner import OFFBOARD_CAP, AvoidancePlanner, Disc  # noqa: E402
 from contracts.table import load_for_vehicle  # noqa: E402

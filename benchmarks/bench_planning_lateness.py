@@ -1,7 +1,7 @@
 """The loop's lateness while the avoidance planner works beside it: a 50 Hz loop (as the daemon's) that keeps one
 planning job running (a real `AvoidancePlanner` job round a column ahead, replanned as soon as the last is done) on a
 worker thread (`ThreadedPlanning`) or in a worker process (`ProcessPlanning`), and times its own cycles as the daemon
-judges them (companion/estimators.py `Timeliness`: lateness beyond one period). One JSON object.
+judges them (companion/onboard/estimators.py `Timeliness`: lateness beyond one period). One JSON object.
 
 `BENCH_BUSY=N` (default 2) busy processes (`while True: pass`) run beside it for the whole run, stopped afterwards;
 `BENCH_PLANNING_S` (default 20) seconds per runner, each runner measured twice, alternating. On a thread, the
@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.guidance import ProcessPlanning, ThreadedPlanning  # noqa: E402
+from companion.onboard.guidance import ProcessPlanning, ThreadedPlanning  # noqa: E402
 from contracts.online_planner import AvoidancePlanner, Disc  # noqa: E402
 
 SECONDS = float(os.environ.get("BENCH_PLANNING_S", "20"))

@@ -21,7 +21,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.config import DeliveryConfig  # noqa: E402
+from companion.onboard.config import DeliveryConfig  # noqa: E402
 from contracts.table import load_for_vehicle  # noqa: E402
 
 D_OD = (3.0, 4.0, 6.0, 9.0, 12.0)

@@ -32,8 +32,8 @@ SHARED = ROOT.parent / "shared" / "logs" / "px4"
 SHARED_ARDUPILOT = ROOT.parent / "shared" / "logs" / "ardupilot"
 CHILD = """
 import json, os, resource, sys, time
-import companion.flightlogs.dataflash, companion.flightlogs.tlog, companion.flightlogs.ulog
-from companion.cli import review_log
+import companion.ground.flightlogs.dataflash, companion.ground.flightlogs.tlog, companion.ground.flightlogs.ulog
+from companion.ground.commands import review_log
 read = {"s": 0.0}
 def timed(reader):  # the replay imports the reader at call time: the timed one
     def r(path):
@@ -43,9 +43,9 @@ def timed(reader):  # the replay imports the reader at call time: the timed one
         finally:
             read["s"] += time.perf_counter() - t0
     return r
-companion.flightlogs.ulog.read_ulog = timed(companion.flightlogs.ulog.read_ulog)
-companion.flightlogs.dataflash.read_dataflash = timed(companion.flightlogs.dataflash.read_dataflash)
-companion.flightlogs.tlog.scan_tlog = timed(companion.flightlogs.tlog.scan_tlog)
+companion.ground.flightlogs.ulog.read_ulog = timed(companion.ground.flightlogs.ulog.read_ulog)
+companion.ground.flightlogs.dataflash.read_dataflash = timed(companion.ground.flightlogs.dataflash.read_dataflash)
+companion.ground.flightlogs.tlog.scan_tlog = timed(companion.ground.flightlogs.tlog.scan_tlog)
 c0, t = os.times(), time.perf_counter()
 rep, origin = review_log(sys.argv[1], vehicle="x500")
 dt, c1 = time.perf_counter() - t, os.times()

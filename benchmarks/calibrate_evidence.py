@@ -20,8 +20,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.calibrate import calibrate, read_log, trace_of
-from companion.calibrate_plan import speed_ladder, write_plan_files
+from companion.ground.calibrate import calibrate, read_log, trace_of
+from companion.ground.calibrate_plan import speed_ladder, write_plan_files
 from contracts import calibrate as cal
 from contracts.table import load_for_vehicle, verify
 from contracts.vehicle import load_vehicle

@@ -23,7 +23,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from companion import campaign as cg  # noqa: E402
+from companion.ground import campaign as cg  # noqa: E402
 DEFAULT = ROOT / "benchmarks" / "evidence-10k"
 PART_FLIGHTS = 3000  # flights per part (1 000 scenarios of three arms)
 

@@ -1,7 +1,7 @@
 """Hidden fog: the collision rate and mean speed of the contract (D_od from evidence), of the same contract
 believing the sensor's stated range (`_claim`), and of PX4's Collision Prevention law, on the same worlds.
 
-Flies examples/campaign-hidden-fog.yaml (the campaign machinery, companion/campaign.py) once per visibility
+Flies examples/campaign-hidden-fog.yaml (the campaign machinery, companion/ground/campaign.py) once per visibility
 fraction (the fog lets the sensor see that fraction of the range it keeps stating; 1: clear air) and prints one
 JSON object: per arm and fraction the flights, collisions, route completions, Holds and mean speed, and the
 ratios the navigation guarantee is judged by (ours against the PX4 law; clear air: evidence against claim).
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from companion import campaign as cg
+from companion.ground import campaign as cg
 
 SPEC = Path(__file__).resolve().parent.parent / "examples" / "campaign-hidden-fog.yaml"
 ARMS = ("governor", "offboard", "px4_cp", "governor_claim", "offboard_claim")

@@ -1,6 +1,6 @@
 """Calibrating the contract from the aircraft's own flights: the statistics, pure (no I/O, no logs).
 
-`companion/calibrate.py` reads the logs and calls these; the daemon never imports this module.
+`companion/ground/calibrate.py` reads the logs and calls these; the daemon never imports this module.
 
 **Controller contract** (the table's `E_tr_pred` slot, Figure 12). The logged flight is cut into
 windows of `WINDOW_S`; each window gives one sample: its worst contour error `e` (the shortest distance
@@ -25,7 +25,7 @@ value either.
 cell takes its bound where that is above the SITL's value; below it only with at least `MIN_WINDOWS_BELOW_FACTOR`
 × n_min windows from at least `MIN_FLIGHTS_BELOW` distinct flights, and never below `BELOW_FLOOR` × the SITL's
 value (the margin: no amount of logged flight takes a cell below half of what the model predicts). Else it keeps
-max(SITL, bound). Flights are told apart by the caller (companion/calibrate.py: identical files and logs whose
+max(SITL, bound). Flights are told apart by the caller (companion/ground/calibrate.py: identical files and logs whose
 time spans overlap are one flight). Any cell left below the SITL's value is reported (`faster`): the caller
 refuses it unless a person accepts it.
 

@@ -1,6 +1,6 @@
 """Mission files: QGroundControl `.plan` (JSON) and the MAVLink `QGC WPL 110` text mission (`.waypoints`,
 what MAVProxy and Mission Planner load). Pure format I/O, shared by the calibration plan writer
-(`companion/calibrate_plan.py`) and the SITL's mission loading (`sitl_harness/sim.py`).
+(`companion/ground/calibrate_plan.py`) and the SITL's mission loading (`sitl_harness/sim.py`).
 
 `MissionPlan` holds home and the items in MAVLink terms (command, frame, param1–4, x = lat, y = lon,
 z = alt); NaN params are written as `null` in a `.plan` (QGC's convention) and as `nan` in a `.waypoints`

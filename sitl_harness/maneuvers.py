@@ -276,7 +276,7 @@ class OnlineFlight:
         if t < 0.0:
             p, v, a = ref.plan.p[0] + ref.plan.v[0] * t, ref.plan.v[0], np.zeros(2)
         elif self.stop is None and ref.failsafe_frac is not None and t >= ref.failsafe_frac * float(ref.plan.t[-1]):
-            # as the daemon (companion/offboard.py): from the last setpoint's acceleration at the stop's jerk,
+            # as the daemon (companion/onboard/offboard.py): from the last setpoint's acceleration at the stop's jerk,
             # a swerve no longer than the stop contract's budget
             sp_, sv, sa, sts, _ = best_stop(np.asarray(pos[:2], float), np.asarray(vel[:2], float), ref.a_max, [d],
                                             max_path_m=ref.stop_budget(float(np.hypot(*vel[:2]))),

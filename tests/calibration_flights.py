@@ -5,7 +5,7 @@ commands and the daemon's messages as a router forwards them, each packet stampe
 
 The plan's hold legs are flown as the plan says: at `hold_before_m` before the leg's waypoint Hold (PX4 Hold /
 ArduPilot Brake), `rest_s` at rest, the mission again. `holds="daemon"` (the default): the daemon commands them,
-in governor mode with `calibration.legs` (companion/calibration_holds.py), its sensor rated at `SENSOR_RANGE_M`
+in governor mode with `calibration.legs` (companion/onboard/calibration_holds.py), its sensor rated at `SENSOR_RANGE_M`
 (open space: the stop contract's limit is then the plan's top speed, and the governor flies the plan's own speeds).
 The ground station plays the operator: after a safety Hold of the daemon's own (at the plan's top speed a tail
 wind carries the ground speed past the contract's top, 8 m/s for the X500: "speed limit not in force") it resumes
@@ -23,8 +23,8 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.autopilots import adapter_for
-from companion.flights import Rig, fly_mission
+from companion.onboard.autopilots import adapter_for
+from companion.ground.flights import Rig, fly_mission
 from contracts.missionfile import read_mission
 
 EPOCH_US = 1_790_000_000_000_000

@@ -1,6 +1,6 @@
 """One recorded flight of the evidence campaign, re-flown lock-step (the regression tests of issues 16 and 19)."""
 
-from companion import campaign as cg
+from companion.ground import campaign as cg
 
 SPEC = "examples/campaign-evidence.yaml"
 

@@ -103,7 +103,7 @@ def gappy_tlog(path: Path, n: int = 60, gap_s: float = 299.0, *, range_m: float 
 
 def gappy_events(directory: Path, n: int = 60, gap_s: float = 299.0) -> Path:
     """The daemon's own event log (`events.jsonl`): a start event, then `n` state samples `gap_s` apart."""
-    from companion.logschema import LOG_FILE, STATE_FIELDS
+    from companion.onboard.logschema import LOG_FILE, STATE_FIELDS
 
     directory.mkdir(parents=True, exist_ok=True)
     wall0 = 1_790_000_000.0

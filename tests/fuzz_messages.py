@@ -15,7 +15,7 @@ import numpy as np
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-# every message type the daemon decodes (companion/mavlink_in.py), and who sends it
+# every message type the daemon decodes (companion/onboard/mavlink_in.py), and who sends it
 DECODED = {
     "HEARTBEAT": (1, 1), "LOCAL_POSITION_NED": (1, 1), "ATTITUDE": (1, 1), "POSITION_TARGET_LOCAL_NED": (1, 1),
     "VFR_HUD": (1, 1), "EXTENDED_SYS_STATE": (1, 1), "ESTIMATOR_STATUS": (1, 1), "EKF_STATUS_REPORT": (1, 1),

@@ -105,7 +105,7 @@ def plain(v):
         v = float(v)
         return v if math.isfinite(v) else repr(v)
     if isinstance(v, str):
-        return str(v)  # an enum of the daemon's vocabulary (companion/states.py) as the log writes it
+        return str(v)  # an enum of the daemon's vocabulary (companion/onboard/states.py) as the log writes it
     return v
 
 

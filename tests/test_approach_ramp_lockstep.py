@@ -8,10 +8,10 @@ import math
 
 import pytest
 
-from companion.console import event_line
-from companion.review import format_report
-from companion.states import RAMP_FOLLOWED
-from companion.supervisor import RAMP_A_TOL, RAMP_REARM_S, RAMP_SLACK_M_S, RAMP_WINDOW_S, ApproachRamp
+from companion.onboard.console import event_line
+from companion.ground.review import format_report
+from companion.onboard.states import RAMP_FOLLOWED
+from companion.onboard.supervisor import RAMP_A_TOL, RAMP_REARM_S, RAMP_SLACK_M_S, RAMP_WINDOW_S, ApproachRamp
 from contracts.stop import ramp_accel
 from tests import test_daemon_lockstep as gov
 from tests.lockstep import Rig

@@ -1,4 +1,4 @@
-"""One authority over the vehicle (companion/authority.py, companion/outbox.py): the one record of what the daemon
+"""One authority over the vehicle (companion/onboard/authority.py, companion/onboard/outbox.py): the one record of what the daemon
 commanded, the one stand-down rule, the arbitration by priority — and, flown in lock-step against the SITL in both
 personalities, a guard that stops when it stops: a shutdown in flight commands Hold, a failed re-check in flight
 commands Hold, and a refused engage is said in all four places a person looks."""
@@ -11,11 +11,11 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-from companion.authority import (GUARANTEE_ANSWERED, HOLD, Delivery, ModeAuthority, ModeRequest,  # noqa: E402
+from companion.onboard.authority import (GUARANTEE_ANSWERED, HOLD, Delivery, ModeAuthority, ModeRequest,  # noqa: E402
                                  Requester)
-from companion.console import ConsoleLog  # noqa: E402
-from companion.flights import Recorder  # noqa: E402
-from companion.mavlink_out import text_chunks  # noqa: E402
+from companion.onboard.console import ConsoleLog  # noqa: E402
+from companion.ground.flights import Recorder  # noqa: E402
+from companion.onboard.mavlink_out import text_chunks  # noqa: E402
 from tests.lockstep import Rig, engage_and_fly, fly_mission  # noqa: E402
 from tests.test_daemon_lockstep import column_scenario  # noqa: E402
 from tests.test_offboard_lockstep import offboard_config, offboard_scenario  # noqa: E402

@@ -6,8 +6,8 @@ import sys
 
 def test_onboard_and_plot_modules_do_not_import_casadi():
     code = ("import sys, contracts.table, contracts.lookup, contracts.avoid_plot, contracts.avoid_limit, "
-            "contracts.online_planner, contracts.runner, contracts.trajectories, companion.guidance, "
-            "companion.supervisor; "
+            "contracts.online_planner, contracts.runner, contracts.trajectories, companion.onboard.guidance, "
+            "companion.onboard.supervisor; "
             "assert 'casadi' not in sys.modules, 'casadi imported'")
     subprocess.run([sys.executable, "-c", code], check=True)
 

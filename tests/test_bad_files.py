@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.config import load_config
+from companion.onboard.config import load_config
 from contracts.errors import ContractError
 from contracts.vehicle import load_vehicle
 from contracts.yamlfile import parse_yaml

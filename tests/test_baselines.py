@@ -1,4 +1,4 @@
-"""The autopilots' own laws (`companion/baselines.py`) against numbers worked out by hand from their sources:
+"""The autopilots' own laws (`companion/ground/baselines.py`) against numbers worked out by hand from their sources:
 PX4 `CollisionPrevention.cpp` / `TrajMath.hpp`, ArduPilot `AC_Avoid.cpp` / `AP_Proximity_MAV.cpp` /
 `AP_Proximity_Boundary_3D.cpp` / `AP_Math/control.cpp`. Each law builds its own obstacle map from the
 sensor samples (`Scan`), never from the daemon's D_od estimate."""
@@ -8,8 +8,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from companion import baselines as bl
-from companion.samples import AutopilotParam, Heading, Scan, Throttle
+from companion.ground import baselines as bl
+from companion.onboard.samples import AutopilotParam, Heading, Scan, Throttle
 
 
 def inputs(t, v):

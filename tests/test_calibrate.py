@@ -1,4 +1,4 @@
-"""Issue 15: calibrating the contract from flight logs (contracts/calibrate.py, companion/calibrate*.py)."""
+"""Issue 15: calibrating the contract from flight logs (contracts/calibrate.py, companion/ground/calibrate*.py)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.calibrate import calibrate, read_log, trace_of
-from companion.calibrate_plan import plan_legs, speed_ladder, write_plan_files
+from companion.ground.calibrate import calibrate, read_log, trace_of
+from companion.ground.calibrate_plan import plan_legs, speed_ladder, write_plan_files
 from companion.cli import main
 from contracts import calibrate as cal
 from contracts.errors import ContractError
@@ -203,7 +203,7 @@ def test_plan_reaches_each_speed_and_stops_inside_the_leg():
 def test_plan_zigzag_turns_are_60_and_120_degrees_never_90():
     """The zig-zag's heading changes: 60° (legs at ±30°), one 30° between the sets, 120° (legs at ±60°); a 90°
     zig-zag (the evidence's held-out manoeuvre) is not in the plan; each leg is long enough to reach v."""
-    from companion.calibrate_plan import ZIGZAG_LEGS, zigzag_points
+    from companion.ground.calibrate_plan import ZIGZAG_LEGS, zigzag_points
 
     veh = load_vehicle("x500")
     for v, sign in ((2.0, 1.0), (7.0, -1.0)):
@@ -300,8 +300,8 @@ def test_calibrated_table_is_never_optimistic_for_a_worse_aircraft(flown, tlog_c
     # coverage is shown by `table show` and in the daemon's start-up banner
     assert main(["table", "show", str(cal_dir / "new.npz")]) == 0
     assert f"measured on {c['covered_cells']} of {c['cells']} cells" in capsys.readouterr().out
-    from companion.config import config_from_dict
-    from companion.console import banner
+    from companion.onboard.config import config_from_dict
+    from companion.onboard.console import banner
 
     lines = banner(config_from_dict({"vehicle": str(cal_dir / "new.yaml"), "table": str(cal_dir / "new.npz")}),
                    new, "E_tr_pred")
@@ -361,7 +361,7 @@ def test_the_worse_aircraft_breaks_its_contract_under_the_stock_table_never_unde
     toward a column revealed at the sensor's 10 m: under the stock table, at least one seed of four breaks its controller contract
     (measured contour error above the E_tr_pred in force) or hits the column (flown until one does); under the
     calibrated table none does, over all four seeds."""
-    from companion.flights import Rig, fly_mission
+    from companion.ground.flights import Rig, fly_mission
     from tests.calibration_flights import truth_sim_kwargs, truth_vehicle
     from tests.test_daemon_lockstep import column_scenario
 

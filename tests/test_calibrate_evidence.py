@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.calibrate import calibrate, flights_of
+from companion.ground.calibrate import calibrate, flights_of
 from contracts.errors import ContractError
 from contracts.table import load_for_vehicle, verify
 from contracts.vehicle import load_vehicle
@@ -127,7 +127,7 @@ def test_faster_than_stock_is_refused_without_the_flag_and_shown_per_cell(x500, 
     rep = json.loads(out.with_suffix(".report.json").read_text())
     assert rep["faster_cells"] >= 1 and any(e["faster"] and e["flights"] == 3 for e in rep["evidence"])
     assert "FASTER than stock" in out.with_suffix(".report.html").read_text()
-    from companion.keys import table_key_pair
+    from companion.ground.keys import table_key_pair
 
     keys = table_key_pair(tmp_path / "keys")
     r = subprocess.run([*cmd, "--accept-faster", "--sign-key", keys["private_key"]], capture_output=True, text=True,
@@ -142,7 +142,7 @@ def test_faster_than_stock_is_refused_without_the_flag_and_shown_per_cell(x500, 
                           text=True, cwd=str(ROOT), timeout=120)
     assert "calibration evidence: 3 distinct flight(s)" in show.stdout and "accepted by a person" in show.stdout
     assert "windows from 3 flight(s)" in show.stdout and "FASTER than stock" in show.stdout
-    from companion.console import controller_coverage  # the daemon's start banner
+    from companion.onboard.console import controller_coverage  # the daemon's start banner
 
     assert "FASTER than stock, accepted by a person" in controller_coverage(new)
 

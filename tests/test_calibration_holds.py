@@ -1,5 +1,5 @@
 """Issue 15: the daemon flies the calibration plan's hold legs in governor mode (config `calibration.legs`,
-companion/calibration_holds.py). Real SITL, real MAVLink, lock-step: a short plan (2 hold legs, 2 and 3 m/s, no
+companion/onboard/calibration_holds.py). Real SITL, real MAVLink, lock-step: a short plan (2 hold legs, 2 and 3 m/s, no
 zig-zag) flown by the "real aircraft" of the calibration evidence, both personalities; a negative control without
 the option; a pilot's mode change mid-leg; bad legs files; the state machine's safety rules on their own."""
 
@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from companion.calibrate import read_log, trace_of
-from companion.calibrate_plan import write_plan_files
-from companion.calibration_holds import REST_SPEED_M_S, CalibrationHolds, read_legs
-from companion.config import config_from_dict
-from companion.mission import Home
+from companion.ground.calibrate import read_log, trace_of
+from companion.ground.calibrate_plan import write_plan_files
+from companion.onboard.calibration_holds import REST_SPEED_M_S, CalibrationHolds, read_legs
+from companion.onboard.config import config_from_dict
+from companion.onboard.mission import Home
 from contracts.errors import ContractError
 from contracts.vehicle import load_vehicle
 from tests.calibration_flights import fly_calibration, truth_vehicle
@@ -49,7 +49,7 @@ class Track:
         cal = rig.daemon.calibration
         if self.take_over and self.t_over is None and cal is not None and cal.phase == "holding":
             self.t_over = rig.sim.time_s
-            from companion.autopilots import adapter_for
+            from companion.onboard.autopilots import adapter_for
 
             ad = adapter_for(rig.cfg.link.autopilot)
             rig.command(176, *ad.set_mode_params(self.take_over, True))  # MAV_CMD_DO_SET_MODE, the pilot's

@@ -1,4 +1,4 @@
-"""Campaigns (`companion/campaign.py`): the spec, deterministic sampling, the baselines' laws against their
+"""Campaigns (`companion/ground/campaign.py`): the spec, deterministic sampling, the baselines' laws against their
 sources' algebra, re-flying one flight, resuming, the report — and a small campaign of lock-step flights
 (0 collisions in assumption; the ×1.3 control and no guard collide in a stated share)."""
 
@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from companion import campaign as cg
-from companion.campaign_report import clopper_pearson, summarize, write_report
+from companion.ground import campaign as cg
+from companion.ground.campaign_report import clopper_pearson, summarize, write_report
 from companion.cli import main
 
 SMALL = {"name": "t", "seed": 3, "scenarios": 1, "vehicles": ["mambo"], "personalities": ["px4"],
@@ -231,7 +231,7 @@ def test_an_arrived_flight_flies_on_for_its_faults_detection_window():
 
 
 def test_a_fault_inside_a_link_loss_is_not_counted_as_missed():
-    from companion.campaign import masked_by_link_loss
+    from companion.ground.campaign import masked_by_link_loss
 
     loss = {"kind": "link_loss", "at_s": 6.4, "duration_s": 3.1}
     inside = {"kind": "bad_nav", "at_s": 8.0, "duration_s": 1.1}  # evidence flight 941

@@ -1,4 +1,4 @@
-"""The stress comparison's sampler dimensions (companion/campaign.py, examples/campaign-stress.yaml): drawn
+"""The stress comparison's sampler dimensions (companion/ground/campaign.py, examples/campaign-stress.yaml): drawn
 autopilot braking reaches the SITL, the daemon's vehicle and the PX4 law; columns revealed during the speed-up;
 the wind's direction; named stresses — and an existing spec's scenarios stay as they were."""
 
@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from companion import campaign as cg
-from companion.campaign_report import stress_markdown, summarize
+from companion.ground import campaign as cg
+from companion.ground.campaign_report import stress_markdown, summarize
 
 BASE = {"name": "t", "seed": 5, "scenarios": 4, "vehicles": ["mambo"], "personalities": ["px4"],
         "arms": ["px4_cp", "governor"], "duration_s": 20,

@@ -70,8 +70,8 @@ def test_the_demos_daemon_logs_where_the_demo_reads_it_from_a_relative_out(tmp_p
     ended in "the daemon did not connect to the SITL")."""
     import yaml
 
-    from companion.config import load_config
-    from companion.demo import daemon_config
+    from companion.onboard.config import load_config
+    from companion.ground.demo import daemon_config
     from sitl_harness.scenario import load_scenario
 
     monkeypatch.chdir(tmp_path)
@@ -88,7 +88,7 @@ def test_the_demo_reads_its_childrens_output_as_it_comes():
     import subprocess
     import sys
 
-    from companion.demo import _Tail
+    from companion.ground.demo import _Tail
 
     child = subprocess.Popen([sys.executable, "-c", "import sys\nfor k in range(4000): print('x' * 60, k, "
                               "file=sys.stderr)\nprint('the last word', file=sys.stderr)"],

@@ -2,7 +2,7 @@
 Hold comes on the first sensor frame that sees it, and the vehicle stops short of it. The column is absent
 until the vehicle comes within `appears_within_m` of its surface (sitl_harness/scenario.py), so it is first
 seen inside the detection-range estimator's `near_m` (2 m), where the medium's backscatter is too: a close
-return is an obstacle until shown otherwise (companion/detection_range.py `DetectionRange.add_scan`)."""
+return is an obstacle until shown otherwise (companion/onboard/detection_range.py `DetectionRange.add_scan`)."""
 
 import pytest
 

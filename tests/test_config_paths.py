@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 
 from companion import cli
-from companion.config import load_config
+from companion.onboard.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from companion.config import config_from_dict, load_config, weakened
+from companion.onboard.config import config_from_dict, load_config, weakened
 from contracts.errors import ContractError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -3,7 +3,7 @@
 
 import pytest
 
-from companion.baselines import Scaled  # noqa: F401  (a negative control; other tests import it from here)
+from companion.ground.baselines import Scaled  # noqa: F401  (a negative control; other tests import it from here)
 from tests.lockstep import Rig, fly_mission
 
 D_SENSOR = 6.0
@@ -20,7 +20,7 @@ def column_scenario(seed=1, x_col=28.0, cruise=8.0, wind=None, faults=(), vehicl
     }
 
 
-fly = fly_mission  # arm, start the mission, fly (companion/flights.py)
+fly = fly_mission  # arm, start the mission, fly (companion/ground/flights.py)
 
 
 # seeds 2 and 3 are the same evidence again (a small campaign): make test-all

@@ -9,11 +9,11 @@ import functools
 
 import pytest
 
-from companion import supervisor as supervisor_module
-from companion.authority import GUARANTEE_ANSWERED, GUARANTEE_SHOWN, Delivery, ModeAuthority
-from companion.console import event_line
-from companion.cycle import Cycle
-from companion.supervisor import LIMIT_FLOWN
+from companion.onboard import supervisor as supervisor_module
+from companion.onboard.authority import GUARANTEE_ANSWERED, GUARANTEE_SHOWN, Delivery, ModeAuthority
+from companion.onboard.console import event_line
+from companion.onboard.cycle import Cycle
+from companion.onboard.supervisor import LIMIT_FLOWN
 from sitl_harness.autopilot import DENIED
 from tests import test_daemon_lockstep as gov
 from tests.lockstep import Rig

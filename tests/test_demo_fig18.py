@@ -3,7 +3,7 @@ station lowering CG_R_OBST in flight through the SITL's routing (40–80 s of wa
 
 import pytest
 
-from companion.cli import demo
+from companion.ground.commands import demo
 
 
 @pytest.mark.slow

@@ -1,4 +1,4 @@
-"""The detection-range estimator (companion/detection_range.py) against the SITL's range-sensor model
+"""The detection-range estimator (companion/onboard/detection_range.py) against the SITL's range-sensor model
 (sitl_harness/sensors.py): a kinematic flight past columns, each frame the sensor's reading decoded into a
 `Scan` by MAVLink-in's own helpers (OBSTACLE_DISTANCE bins, or DISTANCE_SENSOR's single beam), no daemon.
 
@@ -13,13 +13,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from companion.autopilots import adapter_for
-from companion.config import Config, SensorConfig
-from companion.cycle import Cycle
-from companion.detection_range import DetectionRange, DetectionRangeEstimate
-from companion.guidance import InlinePlanning
-from companion.mavlink_in import UINT16_MAX, bins_scan, range_scan
-from companion.samples import Heading, Position, Scan
+from companion.onboard.autopilots import adapter_for
+from companion.onboard.config import Config, SensorConfig
+from companion.onboard.cycle import Cycle
+from companion.onboard.detection_range import DetectionRange, DetectionRangeEstimate
+from companion.onboard.guidance import InlinePlanning
+from companion.onboard.mavlink_in import UINT16_MAX, bins_scan, range_scan
+from companion.onboard.samples import Heading, Position, Scan
 from contracts.lidar import detection_range, extinction_for_range
 from contracts.table import load_for_vehicle
 from sitl_harness.sensors import RangeSensor, RangeSensorConfig

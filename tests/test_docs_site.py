@@ -42,7 +42,7 @@ def config_keys(model: type[BaseModel], prefix: str = "") -> list[str]:
 
 
 def test_the_configuration_reference_has_every_key_with_its_default():
-    from companion.config import Config, ContractConfig
+    from companion.onboard.config import Config, ContractConfig
 
     page = reference.config_page()
     keys = config_keys(Config)

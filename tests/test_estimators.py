@@ -3,9 +3,9 @@ import math
 import numpy as np
 import pytest
 
-from companion.config import ContractConfig, SensorConfig, ThrustConfig
-from companion.estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
-from companion.mavlink_in import bins_scan, range_scan
+from companion.onboard.config import ContractConfig, SensorConfig, ThrustConfig
+from companion.onboard.estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from companion.onboard.mavlink_in import bins_scan, range_scan
 from contracts.vehicle import G
 
 
@@ -317,7 +317,7 @@ def test_negative_control_behind_a_hit_or_with_the_sensor_stale_is_not_covered()
 
 
 def test_timeliness_counts_a_late_cycle_for_its_window_and_ignores_jitter():
-    from companion.estimators import Timeliness
+    from companion.onboard.estimators import Timeliness
 
     tm = Timeliness(0.02, allowance_s=0.01, window_s=10.0)
     t = 0.0
@@ -346,7 +346,7 @@ def test_timeliness_counts_a_late_cycle_for_its_window_and_ignores_jitter():
 def test_timeliness_says_lateness_inside_the_allowance_and_counts_only_beyond_it():
     """The jitter allowance is a stated part of t_react: a cycle late by up to it is said (`within_s`), not counted
     and no violation (`unbudgeted_s` 0); only beyond it does the lateness count as reaction time."""
-    from companion.estimators import Timeliness
+    from companion.onboard.estimators import Timeliness
 
     tm = Timeliness(0.02, allowance_s=0.03)
     t = 0.0
@@ -366,7 +366,7 @@ def test_timeliness_says_lateness_inside_the_allowance_and_counts_only_beyond_it
 def test_timeliness_is_not_judged_before_the_first_heartbeat_nor_in_the_second_after_it():
     """Start-up is no flight: before the autopilot's first heartbeat, and for a second after it, a late cycle is
     neither counted nor a violation (nearly every start printed a guidance violation in its first second)."""
-    from companion.estimators import JUDGED_AFTER_S, Timeliness
+    from companion.onboard.estimators import JUDGED_AFTER_S, Timeliness
 
     tm = Timeliness(0.02, allowance_s=0.01)
     assert tm.tick(0.0, linked=False) == 0.0
@@ -383,7 +383,7 @@ def test_timeliness_is_not_judged_before_the_first_heartbeat_nor_in_the_second_a
 def test_the_swept_wedges_are_made_only_when_the_swept_coverage_is_asked_for(monkeypatch):
     """Issue 14 (review speed): a scan keeps what it saw; its wedges are made when the direction of travel is
     outside every field of view — rare — and once, not at every scan."""
-    import companion.estimators as est_mod
+    import companion.onboard.estimators as est_mod
 
     made = []
     real = est_mod.sample_sectors
@@ -447,7 +447,7 @@ def test_one_acceleration_estimator_answers_each_window_from_the_same_samples():
     """Δv/Δt against the newest sample at least the window older: 0.1 s and 0.3 s from one set of 50 Hz samples,
     each as an estimator of that window alone would say, at every sample once a window has passed (exact 20 ms
     steps whose sum rounds below the window included); None before; no time, no sample."""
-    from companion.estimators import AccelEstimator
+    from companion.onboard.estimators import AccelEstimator
 
     both, short, long_ = AccelEstimator(0.3), AccelEstimator(0.1), AccelEstimator(0.3)
     both.add(-math.inf, 0.0, 0.0)  # telemetry not yet heard

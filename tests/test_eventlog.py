@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion import eventlog as el
-from companion.eventlog import EventLog, encode_record, file_set, read_events
+from companion.onboard import eventlog as el
+from companion.onboard.eventlog import EventLog, encode_record, file_set, read_events
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -210,7 +210,7 @@ def test_restart_appends_on_a_fresh_line_after_a_torn_tail(tmp_path):
 CHILD = textwrap.dedent(
     """
     import sys
-    from companion.eventlog import EventLog
+    from companion.onboard.eventlog import EventLog
     log = EventLog(sys.argv[1], max_bytes=int(sys.argv[2]), keep=100000)
     print("ready", flush=True)
     i = 0
@@ -284,7 +284,7 @@ def test_kill_9_loses_no_acknowledged_event_and_restart_keeps_the_log(tmp_path, 
 BIG_WRITER = textwrap.dedent(
     """
     import sys
-    from companion.eventlog import EventLog
+    from companion.onboard.eventlog import EventLog
     log = EventLog(sys.argv[1], buffer_bytes=16_000_000, pending_bytes=64_000_000)
     print("ready", flush=True)
     i = 0

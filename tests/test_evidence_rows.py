@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from companion import campaign as cg
+from companion.ground import campaign as cg
 from tests.golden import first_difference
 
 ROOT = Path(__file__).resolve().parents[1]

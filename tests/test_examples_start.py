@@ -12,7 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from companion import cli, link
+from companion import cli
+from companion.onboard import link
 
 ROOT = Path(__file__).resolve().parents[1]
 CAMPAIGN_KEYS = {"arms", "scenarios"}  # campaign specs live in examples/ too; they are not daemon configs

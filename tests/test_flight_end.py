@@ -5,7 +5,7 @@ its summary said `failsafes: 0` and not why the flight ended."""
 
 import pytest
 
-from companion.review import format_report, summarise
+from companion.ground.review import format_report, summarise
 
 
 def ev(t, name, **f):
@@ -55,7 +55,7 @@ def test_a_completed_route_and_a_resumed_hold_end_as_they_did():
 
 
 def test_the_demo_summary_counts_failsafes_where_they_happened_and_says_why_it_ended(tmp_path):
-    from companion.demo import format_summary, summarise_flight
+    from companion.ground.demo import format_summary, summarise_flight
     from sitl_harness.scenario import load_scenario
 
     sc = load_scenario("fig17")

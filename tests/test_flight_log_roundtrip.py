@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import pytest
 
-from companion.baselines import Scaled
-from companion.cli import review_log
-from companion.eventlog import read_events
-from companion.review import review
+from companion.ground.baselines import Scaled
+from companion.ground.commands import review_log
+from companion.onboard.eventlog import read_events
+from companion.ground.review import review
 from tests.test_daemon_lockstep import column_scenario
 from tests.test_offboard_lockstep import (
     engage_and_fly,

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.cli import review_log
-from companion.review import format_report
+from companion.ground.commands import review_log
+from companion.ground.review import format_report
 from contracts.errors import ContractError
 from crafted_logs import copter_sample
 from sitl_harness.flightlog import DataFlashWriter
@@ -242,7 +242,7 @@ def test_unreadable_dataflash_is_one_line(tmp_path):
 
 
 def test_ops_are_ordered_and_jumps_closed_up():
-    from companion.flightlogs.loginput import MAX_GAP_US, order, quat_euler
+    from companion.ground.flightlogs.loginput import MAX_GAP_US, order, quat_euler
 
     ops, jumps = order([(5, "b", ()), (1, "a", ()), (1 + 2 * MAX_GAP_US, "c", ())])
     assert [o[1] for o in ops] == ["a", "b", "c"] and ops[0][0] == 0 and ops[-1][0] == 4 and len(jumps) == 1
@@ -280,8 +280,8 @@ def test_many_flights_give_one_table_and_a_report_each(tmp_path):
 def test_html_report_renders_in_headless_chromium(tmp_path):
     import matplotlib.image as mpimg
 
-    from companion.cli import READERS, review_log as one
-    from companion.reviewset import review_set
+    from companion.ground.commands import READERS, review_log as one
+    from companion.ground.reviewset import review_set
 
     folder = tmp_path / "flights"
     folder.mkdir()
@@ -367,7 +367,7 @@ def test_a_quadplanes_fixed_wing_phases_are_cut_and_said_once(tmp_path):
 
 
 def test_plane_fixed_wing_spans():
-    from companion.flightlogs.dataflash import plane_fixed_wing_spans
+    from companion.ground.flightlogs.dataflash import plane_fixed_wing_spans
 
     s = 1_000_000
     modes = [(1 * s, 19), (10 * s, 5), (20 * s, 10), (40 * s, 20)]

@@ -8,12 +8,12 @@ import math
 
 import pytest
 
-from companion.authority import ModeView
-from companion.detection_range import DetectionRangeEstimate
-from companion.estimators import DodEstimate
-from companion.outbox import Outbox
-from companion.states import State
-from companion.supervisor import Decision, Inputs
+from companion.onboard.authority import ModeView
+from companion.onboard.detection_range import DetectionRangeEstimate
+from companion.onboard.estimators import DodEstimate
+from companion.onboard.outbox import Outbox
+from companion.onboard.states import State
+from companion.onboard.supervisor import Decision, Inputs
 from contracts.table import Omega
 
 DOD = DodEstimate(8.0, (0,), math.inf, None, "test")

@@ -55,7 +55,7 @@ def test_the_daemons_statustext_reaches_a_ground_station_through_the_sitl(tmp_pa
 
 
 def test_sitl_help_names_its_scenarios_and_the_recipe_config_matches_it():
-    from companion.config import load_config
+    from companion.onboard.config import load_config
 
     r = subprocess.run([sys.executable, "-m", "companion.cli", "sitl", "--help"], cwd=ROOT, capture_output=True,
                        text=True, timeout=60)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.geometry import wrap
-from companion.guidance import A_LAT, YAW_RATE_ARC, OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
+from companion.onboard.guidance import A_LAT, YAW_RATE_ARC, OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
 from contracts.online_planner import AvoidancePlanner, Disc
 
 
@@ -111,7 +111,7 @@ def _until(cond, g, t0, seconds=20.0):
 
 
 def test_threaded_planning_brakes_until_the_plan_is_due_then_flies_it_from_where_the_braking_left_the_vehicle(gated):
-    from companion.guidance import PLAN_LEAD_S
+    from companion.onboard.guidance import PLAN_LEAD_S
 
     g, planner = gated()
     first = _threat_step(g, 0.0)
@@ -308,7 +308,7 @@ def test_process_planning_plans_as_inline_in_a_worker_process_and_survives_its_d
     import signal
     import time
 
-    from companion.guidance import InlinePlanning, ProcessPlanning
+    from companion.onboard.guidance import InlinePlanning, ProcessPlanning
     from contracts.online_planner import AvoidancePlanner, Disc
 
     job = (7, 1.5, None, np.array([0.0, 0.0]), np.array([4.0, 0.0]), np.array([1.0, 0.0]), [Disc(7.3, 0.2, 1.3)])

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.config import ContractConfig, SensorConfig, config_from_dict
-from companion.estimators import DodEstimator
-from companion.mavlink_in import MavlinkIn, range_scan
+from companion.onboard.config import ContractConfig, SensorConfig, config_from_dict
+from companion.onboard.estimators import DodEstimator
+from companion.onboard.mavlink_in import MavlinkIn, range_scan
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
 
@@ -242,7 +242,7 @@ def test_sighup_takes_the_shutdown_path(tmp_path):
 
     import yaml
 
-    from companion.eventlog import read_events
+    from companion.onboard.eventlog import read_events
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -270,7 +270,7 @@ KEY = bytes(range(32))
 
 
 def signed_rig(clock_file, engage=False):
-    from companion.link import SigningClock, setup_signing
+    from companion.onboard.link import SigningClock, setup_signing
 
     rig = Rig(column_scenario(1, x_col=300.0), "px4", config={"engage": engage}, sim_kwargs={"signing_key": KEY})
     clock = SigningClock(clock_file)
@@ -282,7 +282,7 @@ def signed_rig(clock_file, engage=False):
 def signer(key=KEY, ts=None, src=(255, 190), link_id=0):
     m = mav.MAVLink(None, srcSystem=src[0], srcComponent=src[1])
     m.signing.secret_key, m.signing.sign_outgoing, m.signing.link_id = key, True, link_id
-    from companion.link import SIGNING_EPOCH
+    from companion.onboard.link import SIGNING_EPOCH
     import time as _time
 
     m.signing.timestamp = ts if ts is not None else int((_time.time() - SIGNING_EPOCH) * 1e5)
@@ -307,7 +307,7 @@ def test_forged_signatures_change_nothing(tmp_path):
 
 
 def test_the_signed_stream_table_is_bounded(tmp_path):
-    from companion.link import MAX_STREAMS
+    from companion.onboard.link import MAX_STREAMS
 
     rig = signed_rig(tmp_path / "signing.json")
     fly(rig, 2.0)
@@ -354,7 +354,7 @@ def fake_autopilot_flight(tmp_path, boot_ms, seconds=6.0, extra=None):
 
     import yaml
 
-    from companion.eventlog import read_events
+    from companion.onboard.eventlog import read_events
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind(("127.0.0.1", 0))
@@ -432,7 +432,7 @@ def test_a_sitl_that_runs_behind_and_catches_up_is_not_a_clock_fault(rate):
     """A SITL on a loaded host starts its ticks late and catches up (its own tick jitter): its clock read over one
     second ran at 0.45× its rate ("runs at 0.952× the host's, expected 2×"), which was a navigation fault — a
     would-Hold in a shadow flight — though its clock keeps its rate."""
-    from companion.mavlink_in import VehicleClock
+    from companion.onboard.mavlink_in import VehicleClock
 
     host = [0.0]
     clock = VehicleClock(lambda: host[0], rate=rate)
@@ -449,7 +449,7 @@ def test_a_sitl_that_runs_behind_and_catches_up_is_not_a_clock_fault(rate):
 def test_a_clock_at_the_wrong_rate_is_a_fault_whatever_the_tick_jitter_allowance(rate, ratio, within_s):
     """The control: a steady wrong rate (a wrong link.clock_rate, a SITL starved for good) drifts out of the tick
     jitter's allowance and is a fault within a few seconds, and stays one."""
-    from companion.mavlink_in import VehicleClock
+    from companion.onboard.mavlink_in import VehicleClock
 
     host = [0.0]
     clock = VehicleClock(lambda: host[0], rate=rate)
@@ -476,7 +476,7 @@ def test_another_components_boot_clock_is_not_the_autopilots(tmp_path):
 
 # ------------------------------------------------------------------ item 9: a failing log is said
 def test_a_log_that_cannot_write_is_said_to_the_ground_station(tmp_path):
-    from companion.eventlog import EventLog
+    from companion.onboard.eventlog import EventLog
 
     (tmp_path / "file").write_text("not a directory")
     log = EventLog(tmp_path / "file" / "logs")  # cannot be created: a read-only or broken log directory
@@ -500,7 +500,7 @@ def listening_daemon_flight(tmp_path, attack, seconds=6.0, key=None, run="log", 
 
     import yaml
 
-    from companion.eventlog import read_events
+    from companion.onboard.eventlog import read_events
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -566,7 +566,7 @@ def test_the_autopilot_is_taken_from_its_address_only_and_the_clients_are_bounde
     become clients that the daemon answers."""
     import socket
 
-    from companion.link import MAX_CLIENTS
+    from companion.onboard.link import MAX_CLIENTS
 
     spoof = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     fake = mav.MAVLink(None, srcSystem=1, srcComponent=1)
@@ -637,7 +637,7 @@ def test_a_flood_on_the_port_costs_each_poll_a_bounded_read_and_the_autopilot_is
     message behind a burst still comes through within a few polls."""
     import socket
 
-    from companion.link import PORT_DATAGRAMS_PER_POLL, open_connection
+    from companion.onboard.link import PORT_DATAGRAMS_PER_POLL, open_connection
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))

@@ -14,8 +14,8 @@ import sys
 
 import pytest
 
-from companion.cli import review_log
-from companion.reviewset import review_set
+from companion.ground.commands import review_log
+from companion.ground.reviewset import review_set
 from contracts.errors import ContractError
 from crafted_logs import MAKERS, gappy_bin, gappy_tlog, gappy_ulog
 from sitl_harness.ulog_writer import ULogWriter
@@ -46,7 +46,7 @@ def test_nested_ulog_formats_are_refused_in_one_line_before_they_expand(tmp_path
     r = cli("review", path, "--vehicle", "x500", "--json", timeout=60)
     assert r.returncode == 2 and r.stdout == "" and "Traceback" not in r.stderr
     assert "flattens to more than" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    from companion.calibrate import calibrate
+    from companion.ground.calibrate import calibrate
     from contracts.table import load_for_vehicle
     from contracts.vehicle import load_vehicle
 
@@ -188,7 +188,7 @@ def braking_bin(path, v=3.0, a=2.5):
 
 def test_the_calibrate_report_escapes_what_a_log_names(tmp_path):
     """On main a log named `<img src=x onerror=…>.bin` became markup in the report's table of stops."""
-    from companion.calibrate import calibrate
+    from companion.ground.calibrate import calibrate
     from contracts.table import load_for_vehicle
     from contracts.vehicle import load_vehicle
 
@@ -233,7 +233,7 @@ def test_a_tlogs_vehicle_type_decides_whether_it_is_reviewed(tmp_path):
     for mav_type, kind in ((1, "fixed-wing"), (10, "ground rover")):
         with pytest.raises(ContractError, match=f"a {kind} log .*not reviewed"):
             review_log(gappy_tlog(tmp_path / f"t{mav_type}.tlog", 50, 0.02, mav_type=mav_type), vehicle="x500")
-        from companion.calibrate import read_log
+        from companion.ground.calibrate import read_log
 
         with pytest.raises(ContractError, match=f"a {kind} log"):
             read_log(tmp_path / f"t{mav_type}.tlog")

@@ -4,7 +4,7 @@ import pytest
 
 from contracts.online_planner import OFFBOARD_CAP, offboard_cap
 from sitl_harness.scenario import load_scenario
-from companion.flights import fly_offboard_scenario
+from companion.ground.flights import fly_offboard_scenario
 
 
 def _golden():

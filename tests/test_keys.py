@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.keys import mavlink_key, passphrase_to_key, px4_key_file, signing_timestamp, table_key_pair
-from companion.link import SIGNING_EPOCH, load_signing_key
+from companion.ground.keys import mavlink_key, passphrase_to_key, px4_key_file, signing_timestamp, table_key_pair
+from companion.onboard.link import SIGNING_EPOCH, load_signing_key
 from contracts.errors import ContractError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,4 +1,4 @@
-"""The daemon's own timeliness in lock-step (guidance's guarantee, companion/estimators.py `Timeliness`): a daemon
+"""The daemon's own timeliness in lock-step (guidance's guarantee, companion/onboard/estimators.py `Timeliness`): a daemon
 that misses cycles — a loaded companion computer — says so, flies slower for it, and hands a cycle later than
 `timeouts.cycle_late_s` to the autopilot's Hold. Real MAVLink bytes, the real SITL; the stall is the daemon not
 being stepped while the SITL flies on (what a descheduled process looks like to the vehicle)."""
@@ -66,7 +66,7 @@ def test_a_cycle_later_than_the_hard_limit_hands_over_to_the_autopilots_hold(per
 
 
 def test_the_console_says_when_the_daemon_runs_late_and_when_it_is_on_time_again():
-    from companion.console import event_line
+    from companion.onboard.console import event_line
 
     late = event_line("reaction_time", {"late_s": 0.12, "t_react_s": 0.22})
     assert late[1] == ("the daemon's cycles run late: reaction time 0.22 s (+120 ms) for the next 10 s, "
@@ -80,7 +80,7 @@ def test_the_console_says_when_the_daemon_runs_late_and_when_it_is_on_time_again
 def test_the_loop_timing_tells_the_hosts_lateness_from_the_daemons_own_work():
     """`loop_timing` (the real-time loop's end): the largest wake-up lateness and work, the cycles over 10/20/40 ms
     in all, and the five worst cycles by that sum, each split into wake-up, poll, step and commit."""
-    from companion.daemon import LoopTiming
+    from companion.onboard.daemon import LoopTiming
 
     lt = LoopTiming()
     cycles = [(0.02 * k, 0.0002, 0.001, 0.002) for k in range(100)]

@@ -1,11 +1,11 @@
-"""Faults of the daemon's outbound link in the lock-step rig (companion/flights.py `OutboundFaults`): what the
+"""Faults of the daemon's outbound link in the lock-step rig (companion/ground/flights.py `OutboundFaults`): what the
 autopilot received, decoded from the bytes it was handed, against the rig's record; and the campaign's
 classification of a flight by its commands' delivery."""
 
 import pytest
 
-from companion import campaign as cg
-from companion.flights import asks_for_hold
+from companion.ground import campaign as cg
+from companion.ground.flights import asks_for_hold
 from tests.lockstep import Rig, fly_mission, mav
 from tests.test_daemon_lockstep import column_scenario
 

@@ -19,7 +19,7 @@ import pytest
 import yaml
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.eventlog import read_events
+from companion.onboard.eventlog import read_events
 
 ROOT = Path(__file__).resolve().parents[1]
 OBSTACLE_CM = 300  # the real obstacle, 3 m ahead
@@ -305,7 +305,7 @@ def test_an_impostor_heard_first_without_a_configured_address_is_never_silent(tm
 @contextlib.contextmanager
 def link_and_peers(pins=None, **peers):
     """A listening UdpLink on a free loopback port and named `Peer`s ((system, component) each); closed after."""
-    from companion.link import open_connection
+    from companion.onboard.link import open_connection
 
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -348,7 +348,7 @@ def test_a_sensor_with_ids_of_its_own_is_taken_from_its_first_address_only():
 
 
 def test_an_autopilot_on_its_first_address_moves_only_after_silence_and_says_so(monkeypatch):
-    import companion.link as lk
+    import companion.onboard.link as lk
 
     monkeypatch.setattr(lk, "CLIENT_TIMEOUT_S", 0.3)
     with link_and_peers(None, old=(1, 1), new=(1, 1)) as (link, target, p):
@@ -368,7 +368,7 @@ def test_an_autopilot_on_its_first_address_moves_only_after_silence_and_says_so(
 
 
 def test_a_configured_autopilot_address_is_never_left(monkeypatch):
-    import companion.link as lk
+    import companion.onboard.link as lk
 
     monkeypatch.setattr(lk, "CLIENT_TIMEOUT_S", 0.1)
     ap = Peer(1, 1)
@@ -382,10 +382,10 @@ def test_a_configured_autopilot_address_is_never_left(monkeypatch):
 
 
 def test_mavlink_in_takes_each_sensor_from_its_configured_source_only():
-    from companion.config import config_from_dict
-    from companion.mavlink_in import MavlinkIn
-    from companion.mavlink_out import Counters
-    from companion.samples import Scan, SourceRefused
+    from companion.onboard.config import config_from_dict
+    from companion.onboard.mavlink_in import MavlinkIn
+    from companion.onboard.mavlink_out import Counters
+    from companion.onboard.samples import Scan, SourceRefused
 
     cfg = config_from_dict({"mode": "shadow", "sensors": [
         {"h_fov_deg": 30, "max_range_m": 6},  # the autopilot's forward sensor (1/1)

@@ -9,9 +9,9 @@ import csv
 
 import pytest
 
-from companion.cli import review_log
-from companion.config import Config
-from companion.flightlogs.tlog import stepped_silence
+from companion.ground.commands import review_log
+from companion.onboard.config import Config
+from companion.ground.flightlogs.tlog import stepped_silence
 from crafted_logs import MAKERS, gappy_events
 
 N, GAP_S = 15, 299.0  # a small log spanning 70 minutes (the bound is per silence: 15 show it as 60 would)
@@ -48,8 +48,8 @@ def test_the_wall_time_bound_stops_a_reader_and_nests(tmp_path):
     outer one running."""
     import time
 
-    from companion import flightlogs
-    from companion.flightlogs import _Timeout, guarded, time_bound
+    from companion.ground import flightlogs
+    from companion.ground.flightlogs import _Timeout, guarded, time_bound
     from contracts.errors import ContractError
 
     def forever():
@@ -74,7 +74,7 @@ def test_the_wall_time_bound_stops_a_reader_and_nests(tmp_path):
 def test_the_in_flight_daemons_values_are_moved_with_the_cuts():
     """A .tlog's in-flight NAMED_VALUE_FLOATs are compared with the replay on the replay's time axis: after a
     silence is cut out, their log times move earlier by what was cut before them."""
-    from companion.flightlogs.tlog import cut_time, in_log_time
+    from companion.ground.flightlogs.tlog import cut_time, in_log_time
 
     t = [0, 20_000, 100_000_000, 100_020_000, 400_000_000]
     seen = []

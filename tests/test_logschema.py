@@ -1,10 +1,10 @@
-"""`companion.logschema` lists exactly what the daemon writes: the golden flights' logs (every kind of
+"""`companion.onboard.logschema` lists exactly what the daemon writes: the golden flights' logs (every kind of
 event), and one live flight with the real event log and the MAVLink it sends."""
 
 import pytest
 
-from companion.eventlog import EventLog, read_events
-from companion.logschema import COMMANDS, EVENTS, LOG_FILE, NVF, RECORD_KEYS, STATE, STATE_FIELDS, SUBSYSTEMS
+from companion.onboard.eventlog import EventLog, read_events
+from companion.onboard.logschema import COMMANDS, EVENTS, LOG_FILE, NVF, RECORD_KEYS, STATE, STATE_FIELDS, SUBSYSTEMS
 from tests import golden
 from tests.lockstep import Rig, mav
 from tests.test_daemon_lockstep import column_scenario, fly

@@ -123,9 +123,9 @@ def test_the_daemon_compiles_the_kernel_at_its_start_and_a_tool_that_reads_a_tab
     """In a fresh process: loading a table leaves the kernel uncompiled (`table show` never pays for it); the
     daemon's construction compiles it (or loads numba's cache), before its first cycle."""
     child = textwrap.dedent(f"""
-        from companion.config import config_from_dict
-        from companion.daemon import Daemon
-        from companion.link import MemoryMavfile
+        from companion.onboard.config import config_from_dict
+        from companion.onboard.daemon import Daemon
+        from companion.onboard.link import MemoryMavfile
         from contracts.lookup import _fixed_point_kernel
         from contracts.table import load_for_vehicle
 

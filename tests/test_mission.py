@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.config import config_from_dict, load_config
-from companion.link import mavlink as mav
-from companion.mission import (
+from companion.onboard.config import config_from_dict, load_config
+from companion.onboard.link import mavlink as mav
+from companion.onboard.mission import (
     Home,
     HomeNeeded,
     Item,

@@ -6,14 +6,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from companion import guidance
+from companion.onboard import guidance
 from contracts.geometry import wrap
-from companion.guidance import A_LAT, YAW_RATE_ARC
+from companion.onboard.guidance import A_LAT, YAW_RATE_ARC
 from contracts.flat import horizontal_accel_limit
 from contracts.vehicle import G
 from tests.lockstep import Rig
-from tests.lockstep import engage_and_fly  # noqa: F401  (companion/flights.py; other tests import it from here)
-from companion.baselines import Scaled, TrustTheClaim, WithoutEtr
+from tests.lockstep import engage_and_fly  # noqa: F401  (companion/ground/flights.py; other tests import it from here)
+from companion.ground.baselines import Scaled, TrustTheClaim, WithoutEtr
 from tests.test_detection_range import hide_the_medium
 
 D_SENSOR = 6.0
@@ -368,8 +368,8 @@ def test_the_virtual_obstacle_uses_e_tr_at_the_speed_flown_during_a_dwell():
     """When the fog clears, Ω jumps to a faster V_max with a larger E_tr_pred, but the limit rises only
     after its dwell: meanwhile the vehicle flies the old limit, so the keep-out disc is R_obst + E_tr at
     that speed (a disc suddenly grown round a slow vehicle made it swerve out of its sensor's view)."""
-    from companion.supervisor import Decision, Inputs
-    from companion.estimators import DodEstimate
+    from companion.onboard.supervisor import Decision, Inputs
+    from companion.onboard.estimators import DodEstimate
 
     rig = Rig(offboard_scenario(1), "px4", config=offboard_config())
     table = rig.daemon.table

@@ -5,7 +5,7 @@ A lock-step flight with real MAVLink bytes."""
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.outbox import EMPTY
+from companion.onboard.outbox import EMPTY
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
 

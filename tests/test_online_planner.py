@@ -179,7 +179,7 @@ def test_offboard_never_flies_a_larger_cap_than_its_controller_contract_was_flow
     """Issue 18: the E_tr sweep flies the planner's plans at OFFBOARD_CAP × V_safe and records that cap in
     the table; the offboard supervisor flies min(OFFBOARD_CAP, the recorded cap), so raising the cap takes
     effect only with tables whose E_tr_pred was flown at it. Control: a table recording 0.5 flies 0.5."""
-    from companion.supervisor import Supervisor
+    from companion.onboard.supervisor import Supervisor
 
     t = load_for_vehicle(vehicle)
     flown = t.etr_offboard_cap

@@ -49,7 +49,7 @@ def test_the_drop_in_points_at_the_pages_venv():
 
 
 def test_the_example_config_uses_only_paths_the_service_may_use():
-    from companion.config import load_config
+    from companion.onboard.config import load_config
 
     u = unit(ROOT / "systemd" / "contract-guard.service")
     cfg = load_config(ROOT / "examples" / "raspberry-pi.yaml")

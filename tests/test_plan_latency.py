@@ -6,7 +6,7 @@ before — left the vehicle behind its plan by the braking's lost speed: control
 
 import pytest
 
-from companion.flights import fly_offboard_scenario
+from companion.ground.flights import fly_offboard_scenario
 from sitl_harness.scenario import load_scenario
 
 

@@ -1,6 +1,6 @@
 """The governor's optional recovery brake (`governor.recovery_brake`; docs/daemon.md, "The recovery brake"): real
 lock-step SITL flights of both personalities at a column, and the brake's pieces on their own (its stop contract,
-its switch and fallback in companion/offboard.py)."""
+its switch and fallback in companion/onboard/offboard.py)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ import functools
 import numpy as np
 import pytest
 
-from companion.console import event_line
-from companion.config import DeliveryConfig
-from companion.offboard import OffboardController
-from companion.review import format_report, plot_title, summarise
-from companion.states import OffboardState
+from companion.onboard.console import event_line
+from companion.onboard.config import DeliveryConfig
+from companion.onboard.offboard import OffboardController
+from companion.ground.review import format_report, plot_title, summarise
+from companion.onboard.states import OffboardState
 from contracts.stop import (approach_stopping_distance, braking_decel, recovery_brake, stop_dead_time,
                             stopping_distance)
 from contracts.table import load_for_vehicle
@@ -266,7 +266,7 @@ def test_the_switch_asked_after_one_setpoint_then_seen_streams_the_stop():
 
 @pytest.mark.parametrize("why", ["DO_SET_MODE answered 4", "offboard not shown within 1.2 s"])
 def test_the_switch_refused_or_not_shown_holds(why):
-    """The mode authority judges the switch (companion/authority.py) and tells the brake (`refuse`)."""
+    """The mode authority judges the switch (companion/onboard/authority.py) and tells the brake (`refuse`)."""
     ctl = OffboardController(None)
     _recover(ctl, 10.0, start=True)
     assert _recover(ctl, 10.02).enter  # asked, and asked every cycle until the authority settles it
@@ -278,8 +278,8 @@ def test_the_switch_refused_or_not_shown_holds(why):
 
 
 def test_the_key_is_off_by_default_governor_only_and_in_the_banner():
-    from companion.config import config_from_dict
-    from companion.console import banner
+    from companion.onboard.config import config_from_dict
+    from companion.onboard.console import banner
     from contracts.errors import ContractError
 
     table = load_for_vehicle("mambo")
@@ -304,9 +304,9 @@ def test_a_cause_it_cannot_fly_out_while_braking_holds_now():
 
 
 def test_the_brakes_records_are_in_the_log_schema():
-    from companion.logschema import EVENTS
+    from companion.onboard.logschema import EVENTS
 
-    from companion.logschema import SUBSYSTEMS
+    from companion.onboard.logschema import SUBSYSTEMS
 
     for rig in (flight("px4", True), flight("px4", True, obl=0), flight("px4", True, refuse=True),
                 flight("px4", True, second=70.0, refuse_second=True)):
@@ -320,7 +320,7 @@ def test_the_brakes_records_are_in_the_log_schema():
 def test_after_its_hold_the_pilots_mode_change_resumes_and_the_brake_is_ready_again():
     """The brake's Hold holds until someone else changes the mode; then the governor stands down from that stop
     (authority) and the brake is ready for the next one, the limit still its own."""
-    from companion.px4 import PX4
+    from companion.onboard.px4 import PX4
 
     sc = gov.column_scenario(1)
     sc["params"] = {"COM_OBL_RC_ACT": 5}

@@ -10,13 +10,13 @@ from pathlib import Path
 import pytest
 import yaml
 
-from companion.eventlog import EventLog, read_events
-from companion.link import mavlink
+from companion.onboard.eventlog import EventLog, read_events
+from companion.onboard.link import mavlink
 from contracts.table import load_for_vehicle
-from companion.cli import review_log
-from companion.logschema import REPLAY_LOG_FILE as REPLAY_LOG
-from companion.flightlogs.tlog import scan_tlog
-from companion.review import review
+from companion.ground.commands import review_log
+from companion.onboard.logschema import REPLAY_LOG_FILE as REPLAY_LOG
+from companion.ground.flightlogs.tlog import scan_tlog
+from companion.ground.review import review
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
 from tests.test_offboard_lockstep import engage_and_fly, offboard_config, offboard_scenario

@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from companion.eventlog import EventLog
-from companion.logschema import REPLAY_LOG_FILE
-from companion.review import SCHEMA, Origin, format_report, review, summarise
+from companion.onboard.eventlog import EventLog
+from companion.onboard.logschema import REPLAY_LOG_FILE
+from companion.ground.review import SCHEMA, Origin, format_report, review, summarise
 from contracts.errors import ContractError
 
 DT = 0.05  # 20 Hz samples
@@ -281,26 +281,25 @@ def fake_to_event_log(path, log_dir, *, config, vehicle, table):
 
 
 def test_the_cli_dispatches_raw_logs_to_their_reader_then_reviews_the_event_log(tmp_path, monkeypatch):
-    from companion import cli
+    from companion.ground import commands
+    from companion.ground.flightlogs import Reader
 
-    from companion.flightlogs import Reader
-
-    monkeypatch.setitem(cli.READERS, ".fake", Reader("fake log", ".fake", read=None, replay=fake_to_event_log))
+    monkeypatch.setitem(commands.READERS, ".fake", Reader("fake log", ".fake", read=None, replay=fake_to_event_log))
     (tmp_path / "flight.fake").write_bytes(b"")
-    rep, origin = cli.review_log(tmp_path / "flight.fake", tmp_path / "out")
+    rep, origin = commands.review_log(tmp_path / "flight.fake", tmp_path / "out")
     assert rep["files"] == [str(tmp_path / "flight.fake")] and rep["fake"]["source"] == str(tmp_path / "flight.fake")
     assert rep["findings"] == ["fake log: no obstacle sensor"] and rep["ok"] is False
     assert rep["fake"]["event_log"] == str(tmp_path / "out" / REPLAY_LOG_FILE)
     assert "converted from a fake raw log" in format_report(rep, origin)
     with pytest.raises(ContractError, match="replayed on its own"):
-        cli.review_log([tmp_path / "flight.fake", tmp_path])
+        commands.review_log([tmp_path / "flight.fake", tmp_path])
 
 
 def test_the_review_knows_nothing_of_raw_logs():
     import subprocess
     import sys
 
-    code = "import sys, companion.review; assert not [m for m in sys.modules if m.startswith('companion.flightlogs.tlog')]"
+    code = "import sys, companion.ground.review; assert not [m for m in sys.modules if m.startswith('companion.ground.flightlogs.tlog')]"
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
 

@@ -1,15 +1,15 @@
 """The review never calls a flight "kept" where the vehicle entered its keep-out disc, hit something as far as the
-log tells, or a command did not take effect on time (companion/review_checks.py). Small governor flights
+log tells, or a command did not take effect on time (companion/ground/review_checks.py). Small governor flights
 written through the real EventLog, each beside a clean twin that stays kept; then the column flight in
 lock-step with the daemon's first mode command lost on the link."""
 
 import pytest
 
-from companion import review_checks
-from companion.cli import review_log
-from companion.eventlog import EventLog
-from companion.review import format_report, review, run_facts, summarise
-from companion.review_html import verdict
+from companion.ground import review_checks
+from companion.ground.commands import review_log
+from companion.onboard.eventlog import EventLog
+from companion.ground.review import format_report, review, run_facts, summarise
+from companion.ground.review_html import verdict
 from tests import golden
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly

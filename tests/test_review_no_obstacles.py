@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from companion.cli import review_log
-from companion.detection_need import Sensor
-from companion.eventlog import EventLog
-from companion.review import format_report, review
+from companion.ground.commands import review_log
+from companion.ground.detection_need import Sensor
+from companion.onboard.eventlog import EventLog
+from companion.ground.review import format_report, review
 from contracts.table import load_for_vehicle
 
 # the public logs beside the repository (not in a user's clone): the first ancestor holding shared/logs
@@ -154,7 +154,7 @@ def test_the_real_arducopter_log_says_what_range_it_needed_and_what_a_sensor_cos
     assert "Detection range needed" in text and "stretches" in text
     assert (tmp_path / "out" / "plan.png").exists() and (tmp_path / "out" / "review.png").exists()
     # the index of many flights says it too, with the .tlog's autopilot family as its firmware
-    from companion.reviewset import need_text, row
+    from companion.ground.reviewset import need_text, row
 
     r = row(ARDUCOPTER, rep, None)
     assert r["firmware"] == "ArduPilot" and r["d_od_needed_m"] == w["d_od_m"]

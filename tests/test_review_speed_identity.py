@@ -19,8 +19,8 @@ from pathlib import Path
 
 import pytest
 
-from companion.cli import review_log
-from companion.flightlogs import logreplay, tlog
+from companion.ground.commands import review_log
+from companion.ground.flightlogs import logreplay, tlog
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("CG_SHARED_LOGS", ROOT.parent / "shared" / "logs"))

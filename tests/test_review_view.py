@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from companion.eventlog import EventLog
-from companion.review import CSV_COLUMNS, analyse, format_report, plot_title, summarise
+from companion.onboard.eventlog import EventLog
+from companion.ground.review import CSV_COLUMNS, analyse, format_report, plot_title, summarise
 
 mpl = pytest.importorskip("matplotlib")
-from companion import review_plots as rp  # noqa: E402
+from companion.ground import review_plots as rp  # noqa: E402
 
 DT = 0.1
 CHROMIUM = Path("/usr/bin/chromium")
@@ -223,7 +223,7 @@ def test_summarise_of_a_link_loss_alone_counts_it():
 
 
 def test_a_tlog_names_its_autopilot_family_in_the_index():
-    from companion.reviewset import row
+    from companion.ground.reviewset import row
 
     rep = summarise([{"kind": "state", "t": 0.0, "boot": "b", "ground_speed": 0.0}])
     rep["replay"] = {"autopilot": {"kind": "ardupilot", "system": 1, "component": 1, "from": "detected"}}
@@ -231,7 +231,7 @@ def test_a_tlog_names_its_autopilot_family_in_the_index():
 
 
 def test_the_plots_are_drawn_apart_from_the_daemon():
-    code = ("import sys, companion.review, companion.daemon; "
+    code = ("import sys, companion.ground.review, companion.onboard.daemon; "
             "assert not [m for m in sys.modules if m.startswith('matplotlib')], 'matplotlib loaded'")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
@@ -241,7 +241,7 @@ def governed(tmp_path_factory):
     """A real lock-step governor flight (daemon, SITL, MAVLink bytes): the link drops at 8 s for 3 s (the
     daemon holds, goes to failsafe, holds again), the ground station resumes the mission (a stand-down), and
     the daemon holds before a column at 45 m."""
-    from companion.eventlog import read_events
+    from companion.onboard.eventlog import read_events
     from tests.lockstep import Rig
     from tests.test_daemon_lockstep import column_scenario, fly
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.service import Notifier, watchdog_usec_from_env
+from companion.onboard.service import Notifier, watchdog_usec_from_env
 
 ROOT = Path(__file__).resolve().parents[1]
 UNIT = ROOT / "systemd" / "contract-guard.service"
@@ -188,7 +188,7 @@ def test_sandboxing_exposure_stays_low(tmp_path, fake_exe):
 
 
 def test_watchdog_feeder_pings_at_half_the_period_and_only_while_healthy(notify_socket):
-    from companion.service import WatchdogFeeder
+    from companion.onboard.service import WatchdogFeeder
 
     path, sock = notify_socket
     clock = {"t": 0.0}

@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from companion.eventlog import EventLog
-from companion.review import format_report, plot_title, review, summarise
+from companion.onboard.eventlog import EventLog
+from companion.ground.review import format_report, plot_title, review, summarise
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
 
@@ -72,7 +72,7 @@ def test_a_tracking_overshoot_below_v_safe_is_not_a_finding_but_a_real_excess_is
 
 def test_the_demo_has_one_verdict(tmp_path):
     """`demo`'s verdict is the flight's truth and its review together; the exit status follows it (cli)."""
-    from companion.demo import format_summary, summarise_flight
+    from companion.ground.demo import format_summary, summarise_flight
     from sitl_harness.scenario import load_scenario
 
     sc = load_scenario("fig17")

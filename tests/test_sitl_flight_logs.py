@@ -86,10 +86,10 @@ def test_sitl_cli_takes_log_dir():
 
 
 def test_the_readers_take_the_sitl_logs_in_si_units(tmp_path):
-    """companion.flightlogs.ulog / companion.flightlogs.dataflash on the SITL's own logs: the same position, heading, thrust and
+    """companion.ground.flightlogs.ulog / companion.ground.flightlogs.dataflash on the SITL's own logs: the same position, heading, thrust and
     range as the truth, whatever the format's units (cm, degrees, FRD thrust, PRX sectors)."""
-    from companion.flightlogs.dataflash import read_dataflash
-    from companion.flightlogs.ulog import read_ulog
+    from companion.ground.flightlogs.dataflash import read_dataflash
+    from companion.ground.flightlogs.ulog import read_ulog
 
     for personality, read in (("px4", read_ulog), ("ardupilot", read_dataflash)):
         path, truth, _ = _fly(personality, tmp_path / personality)
@@ -111,7 +111,7 @@ def test_the_readers_take_the_sitl_logs_in_si_units(tmp_path):
 
 def test_guided_targets_are_the_commanded_path_without_pscn(tmp_path):
     """A DataFlash log with GUIDED targets (GUIP, cm, NEU) but no PSCN/PSCE: GUIP is the commanded path."""
-    from companion.flightlogs.dataflash import read_dataflash
+    from companion.ground.flightlogs.dataflash import read_dataflash
     from sitl_harness.flightlog import DataFlashWriter
 
     path = tmp_path / "guip.bin"
@@ -129,7 +129,7 @@ def test_guided_targets_are_the_commanded_path_without_pscn(tmp_path):
 
 
 def test_fixed_wing_phases_are_cut_out():
-    from companion.flightlogs.loginput import exclude
+    from companion.ground.flightlogs.loginput import exclude
 
     ops = [(t, "pos", (t,)) for t in range(0, 100, 10)]
     out, cuts = exclude(ops, [(30, 60)])
@@ -139,7 +139,7 @@ def test_fixed_wing_phases_are_cut_out():
 
 def test_the_primary_estimator_is_the_one_judged(tmp_path):
     """estimator_selector_status names instance 1 primary: its estimator_status (a bad solution) is the one read."""
-    from companion.flightlogs.ulog import read_ulog
+    from companion.ground.flightlogs.ulog import read_ulog
     from sitl_harness.ulog_writer import ULogWriter
 
     path = tmp_path / "two_ekf.ulg"
@@ -165,7 +165,7 @@ def test_the_primary_estimator_is_the_one_judged(tmp_path):
 def test_a_vtols_fixed_wing_phase_is_excluded_and_said_once(tmp_path):
     """A VTOL ULog: hover-speed multirotor flight, a 20 s fixed-wing phase at 18 m/s, multirotor again. The
     fixed-wing phase is cut out of the review (said once), so its speed is not a multirotor finding."""
-    from companion.cli import review_log
+    from companion.ground.commands import review_log
     from sitl_harness.ulog_writer import ULogWriter
 
     path = tmp_path / "vtol.ulg"
@@ -198,7 +198,7 @@ def test_a_vtols_fixed_wing_phase_is_excluded_and_said_once(tmp_path):
 
 def test_the_dataflash_log_knows_its_utc_from_gps(tmp_path):
     """GPS week and ms (less the leap seconds) give the log's wall-clock time, as the ULog's time_utc_usec."""
-    from companion.flightlogs.dataflash import read_dataflash
+    from companion.ground.flightlogs.dataflash import read_dataflash
     from sitl_harness.scenario import scenario_from_dict
 
     sim = Sim(scenario_from_dict(SCENARIO), "ardupilot", log_dir=tmp_path, unix_epoch_s=1_767_225_600.0)

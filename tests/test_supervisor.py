@@ -3,9 +3,9 @@ from dataclasses import replace
 
 import pytest
 
-from companion.estimators import DodEstimate
-from companion.authority import GUARANTEE_ANSWERED
-from companion.supervisor import Inputs, OneSidedLimit, Supervisor
+from companion.onboard.estimators import DodEstimate
+from companion.onboard.authority import GUARANTEE_ANSWERED
+from companion.onboard.supervisor import Inputs, OneSidedLimit, Supervisor
 from contracts.table import load_for_vehicle
 
 TABLE = load_for_vehicle("mambo")
@@ -75,14 +75,14 @@ def test_obstacle_inside_the_stop_distance_holds_and_authority_is_respected():
     d = s.step(replace(BASE, t=0.02, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
     assert d.hold and d.state == "holding"
     assert any(n == "hold_trigger" and f["cause"] == "obstacle inside the stop distance" for n, f in d.events)
-    # not taken within 1 s: asked once only (the mode authority re-sends it: companion/authority.py)
+    # not taken within 1 s: asked once only (the mode authority re-sends it: companion/onboard/authority.py)
     d = s.step(replace(BASE, t=1.1, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
     assert not d.hold and d.state == "holding"
     # while in the daemon's Hold nothing more is commanded
     d = s.step(replace(BASE, t=1.14, mode="hold", mode_by_daemon=True, ground_speed=0.5, dod=dod(8.0, obstacle=2.0)))
     assert not d.hold and d.state == "holding"
     # the pilot resumes the mission: the daemon stands down from that cause
-    # (the mode authority judged the change someone else's: companion/authority.py, tests/test_authority.py)
+    # (the mode authority judged the change someone else's: companion/onboard/authority.py, tests/test_authority.py)
     d = s.step(replace(BASE, t=1.16, mode="mission", mode_changed=True, taken_over=True, ground_speed=0.5,
                        dod=dod(8.0, obstacle=2.0)))
     assert d.state == "active" and not d.hold

@@ -12,13 +12,13 @@ import math
 import numpy as np
 import pytest
 
-from companion.autopilots import adapter_for
-from companion.config import config_from_dict
-from companion.console import event_line
-from companion.cycle import Cycle
-from companion.estimators import DodEstimate
-from companion.review import format_report, summarise
-from companion.supervisor import Inputs
+from companion.onboard.autopilots import adapter_for
+from companion.onboard.config import config_from_dict
+from companion.onboard.console import event_line
+from companion.onboard.cycle import Cycle
+from companion.onboard.estimators import DodEstimate
+from companion.ground.review import format_report, summarise
+from companion.onboard.supervisor import Inputs
 from contracts.table import Slot, load_for_vehicle, verify, write_table
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
@@ -139,13 +139,13 @@ def test_the_start_value_is_the_axis_own_first_value_where_the_table_covers_the_
     cycle = Cycle(cfg, table, adapter_for("px4"), "stop", None)
     start, _ = cycle.thrust.value(0.0)
     assert start == edge and table.omega(6.0, 0.5, 0.3, start, contract="stop").v_max > 1.0
-    from companion.cycle import start_thrust  # (imported here: the flights above run on older code too)
+    from companion.onboard.cycle import start_thrust  # (imported here: the flights above run on older code too)
 
     assert start_thrust(table, "stop")[1]["covered"] is True
 
 
 def test_the_start_value_on_the_shipped_and_a_partial_table(partial_table):
-    from companion.cycle import start_thrust
+    from companion.onboard.cycle import start_thrust
 
     assert start_thrust(MAMBO, "stop")[0] == 0.6 and start_thrust(MAMBO, "avoid")[0] == 0.6
     start, said = start_thrust(partial_table, "avoid")
@@ -160,7 +160,7 @@ def inputs(d_od=6.0, e_tr=0.3, thrust_ratio=1.0, late_s=0.0, reason="sensor 0 re
 
 
 def why(i, contract="stop", basis="hover", table=MAMBO, policy="contract"):
-    from companion.no_speed import diagnose
+    from companion.onboard.no_speed import diagnose
 
     return diagnose(table, contract, i, e_tr_floor=0.3, thrust_basis=basis, policy=policy)
 
@@ -191,7 +191,7 @@ def test_no_safe_speed_names_thrust_measured_below_the_table_and_lateness():
 
 
 def test_the_start_banner_says_so_before_the_first_flight(partial, partial_table):
-    from companion.console import banner
+    from companion.onboard.console import banner
 
     cfg = config_from_dict({"vehicle": "mambo", "table": str(partial), "mode": "governor",
                             "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}]})
@@ -203,8 +203,8 @@ def test_the_start_banner_says_so_before_the_first_flight(partial, partial_table
 def test_thrust_start_is_said_once_airborne_and_again_when_the_estimate_is_lost():
     """Through the cycle's own `_say`: on the ground nothing; airborne on the start value once; the hover estimate
     settles (quiet); its samples stop for more than 2 s (the start value again, said again); after a landing, anew."""
-    from companion.samples import Throttle
-    from companion.telemetry import Telemetry
+    from companion.onboard.samples import Throttle
+    from companion.onboard.telemetry import Telemetry
 
     cfg = config_from_dict({"vehicle": "mambo", "mode": "governor", "link": {"connect": "memory"},
                             "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}]})

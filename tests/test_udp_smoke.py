@@ -133,7 +133,7 @@ def test_daemon_governs_the_sitl_over_udp_and_stops_cleanly(world):
 def test_ground_station_sets_a_daemon_parameter_through_the_sitl(world):
     """The demo's ground station → the SITL's routing → the daemon's PARAM_SET, echoed back (unsigned: the
     config accepts it, weaker, as a SITL on this machine may)."""
-    from companion.demo import GroundStation
+    from companion.ground.demo import GroundStation
     from sitl_harness.scenario import GcsAction
 
     port, config, logdir = world

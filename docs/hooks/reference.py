@@ -1,7 +1,7 @@
 """MkDocs hook: the configuration and command-line reference pages, written at build time from the code
 itself, so they never go stale.
 
-- `reference/config.md` from the pydantic models of `companion/config.py`: every key with its type, default,
+- `reference/config.md` from the pydantic models of `companion/onboard/config.py`: every key with its type, default,
   allowed range and the comment beside it in the source (or above it);
 - `reference/cli.md` from the argparse parser of `companion/cli.py` (and the SITL's own parser): every
   command's `--help` page.
@@ -141,10 +141,10 @@ def anchor(key: str) -> str:
 
 
 def config_page() -> str:
-    from companion.config import Config
+    from companion.onboard.config import Config
 
     out = ["# Configuration reference", "",
-           "Generated from the pydantic models in `companion/config.py` when the site is built. The daemon's config "
+           "Generated from the pydantic models in `companion/onboard/config.py` when the site is built. The daemon's config "
            "is one YAML file (`contract-guard run --config FILE`), validated on load: an unknown key or a bad value "
            "ends the daemon with one line naming the key and exit status 2. Units are SI; degrees only where a key "
            "ends in `_deg`. Relative paths in a config are relative to the config file's own directory. Worked "

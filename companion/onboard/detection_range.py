@@ -1,0 +1,342 @@
+"""The navigation guarantee `D_od` from evidence, not from the sensor's word (the paper's C_N(t) assessed in
+flight). Pure: injected time, no I/O; fed with the samples the daemon already decodes (`Scan`, position,
+heading).
+
+A range sensor in fog, haze or dust does not lower the range it states: it stops seeing. What it cannot hide
+is the physics of the medium (contracts/lidar.py: Koschmieder's extinction α, the lidar equation's
+ρ·e^(−2αR)/R² against the receiver's threshold, the medium's own returns). The estimator reads four kinds
+of evidence and turns each into an upper bound on the range at which the reference target (reflectivity
+`reference_reflectivity`: the darkest obstacle the contract is to see) is still detected:
+
+1. backscatter rate — the fraction of shots (bins × frames; a single beam's frame is one shot, which
+   over-states α for a beam that gathers several) with a short return (< `near_m`) that is the medium's:
+   no tracked target accounts for it (a surface near the sensor was first seen farther away and followed
+   in) and it does not stay put for `confirm_frames` frames in a row. Its rate, one standard error up (when
+   unsure, the thicker fog), is inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the
+   sensor's, measured on one fog flight). This is evidence for D_od only: the obstacle logic takes every
+   return, these included (`add_scan`);
+2. signal-quality trend — a single beam's quality is the strength of the return it reports; while one
+   tracked target is approached, ln(margin) + 2 ln R falls linearly with R at slope −2α in a medium and is
+   flat in clear air, whatever the target's reflectivity (it cancels). The margin is read from the quality
+   with the driver's normalisation (`quality_full_margin`: quality 100 at that margin, 0 at threshold);
+3. first detections — a static target (placed in the local frame from position and heading) first seen
+   inside the stated range, away from the field of view's edges, was not detectable farther: D_od ≤ that
+   distance;
+4. disagreement — a point one sensor sees that another, looking the same way and claiming a longer range,
+   does not see at the same time: that one's range is at most its distance.
+
+(1) and (2) give α̂ (the larger, held for `recover_s`), and D_medium = the reference target's detection
+range through α̂ (R·e^(α̂R) = R0, R0 = stated·√(ρ_ref/ρ_rated)); (3) and (4) are held for `recover_s`.
+`D_od = min(stated, cap, D_medium, first detections, disagreements)`: never above the stated range or the
+config's cap.
+
+Timing (the defaults): a fog is taken into account within `window_s` (1 s) of its onset once its
+backscatter gives `min_spurious` (3) short returns in a window (a 12-bin sensor at 20 Hz: any fog with
+α ≥ 0.04/m, and a 10 m sensor's reference range shortens only from α = 0.08/m); a late first detection at
+once. The estimate recovers `window_s + recover_s` (4 s) after the evidence clears. What it cannot see: a
+medium that thickens faster than that (from clear to dense between two windows) is seen one window late, and
+between two targets nothing but backscatter and quality tell of the medium (docs/detection-range.md).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contracts.geometry import wrap
+from contracts.lidar import (
+    BACKSCATTER_LENGTH_M,
+    QUALITY_FULL_MARGIN,
+    RATED_REFLECTIVITY,
+    REFERENCE_REFLECTIVITY,
+    detection_range,
+    extinction_from_backscatter,
+)
+from contracts.window import WindowMax
+
+from .config import SensorConfig
+from .samples import Scan
+
+FULL_WINDOW_SHOTS_PER_S = 160.0  # shots per second behind a confidence of 1 (a 12-bin sensor at 20 Hz gives 240)
+
+
+@dataclass(frozen=True)
+class DetectionRangeParams:
+    window_s: float = 1.0  # evidence window (backscatter rate, quality trend)
+    recover_s: float = 3.0  # a bound below the stated range is held this long after its evidence clears
+    near_m: float = 2.0  # returns nearer than this are checked for the medium's (backscatter)
+    confirm_m: float = 0.08  # a short return within this (+ its bin's width) of one in each of the last frames...
+    confirm_frames: int = 4  # ... of this many in a row: a surface
+    min_shots: int = 20  # shots in the window before the backscatter rate counts (a single beam at 20 Hz: 1 s)
+    min_spurious: int = 3  # spurious short returns in the window before the rate counts
+    backscatter_length_m: float = BACKSCATTER_LENGTH_M  # the sensor's L_bs (contracts/lidar.py)
+    rated_reflectivity: float = RATED_REFLECTIVITY  # the target its stated range is rated at
+    reference_reflectivity: float = REFERENCE_REFLECTIVITY  # the darkest obstacle D_od is for
+    quality_full_margin: float = QUALITY_FULL_MARGIN  # margin over threshold at which signal quality is 100
+    trend_samples: int = 5  # quality samples of one target before its trend counts
+    trend_span_m: float = 1.0  # ... spanning at least this much range
+    track_m: float = 1.0  # a hit within this (+ the bin's width at its range) of a tracked point: the same target
+    first_tolerance_m: float = 0.3  # first seen this much inside the stated range (+ one frame's travel): late
+    fresh_s: float = 0.5  # a sensor silent longer adds nothing (staleness is the other estimator's)
+
+    @classmethod
+    def of(cls, detection) -> "DetectionRangeParams":
+        """The parameters a config's `detection:` section sets (companion/onboard/config.py DetectionConfig)."""
+        return cls(reference_reflectivity=detection.reference_reflectivity,
+                   rated_reflectivity=detection.rated_reflectivity,
+                   backscatter_length_m=detection.backscatter_length_m)
+
+
+@dataclass(frozen=True, slots=True)
+class DetectionRangeEstimate:
+    d_od: float  # the detection range the evidence allows [m] (≤ stated, ≤ cap)
+    stated_m: float  # the range the sensors claim (the input)
+    confidence: float  # 0–1: the shots of the last window behind the figure over FULL_WINDOW_SHOTS_PER_S's
+    alpha: float  # the medium's extinction α̂ [1/m] in force (0: none seen)
+    reason: str  # which evidence sets d_od
+    evidence: dict = field(default_factory=dict)  # each bound [m] (inf: none) and the counts behind them
+
+
+@dataclass
+class _Frame:
+    t: float
+    sensor: int
+    shots: int
+    near: list  # (x, y) of short returns (local frame, or body frame without a pose) on no tracked target
+
+
+@dataclass
+class _Track:
+    x: float
+    y: float
+    t_first: float
+    t_last: float
+    reach: float = 0.0  # a return this close is on it (0: the parameters' track_m)
+    samples: deque = field(default_factory=lambda: deque(maxlen=40))  # (range, margin) from quality
+
+
+class DetectionRange:
+    """D_od from evidence. Feed `add_position`, `add_heading` and `add_scan` as samples arrive; ask
+    `estimate(t, stated_m)` once per cycle with the range the sensors claim (the D_od the claim gives)."""
+
+    def __init__(self, sensors: list[SensorConfig], cap_m: float | None = None,
+                 params: DetectionRangeParams = DetectionRangeParams()):
+        """`params`: `DetectionRangeParams.of(cfg.detection)` for a config's."""
+        self.sensors, self.cap_m, self.p = sensors, cap_m, params
+        self._pos: tuple[float, float, float] | None = None  # (t, x, y)
+        self._speed = 0.0
+        self._yaw: tuple[float, float] | None = None  # (t, yaw)
+        self._frames: deque[_Frame] = deque()  # the evidence window's (`_window`)
+        self._shots = 0  # the window's shots (a running sum)
+        self._near_frames: deque[_Frame] = deque()  # those of them with short returns, in the same order
+        self._tracks: list[_Track] = []
+        self._alphas = WindowMax(params.recover_s)  # α̂ of the last recover_s
+        self._bounds: deque[tuple[float, float, str]] = deque()  # (t, bound m, why): first detections, disagreements
+        self._last_hits: dict[int, tuple[float, float, list]] = {}  # sensor → (t, its stated m, [(x, y, r)])
+        self._stated: dict[int, float] = {}
+        self._near_hist: dict[int, deque] = {}  # sensor → the short returns (x, y) of its last frames
+
+    # ---------------------------------------------------------------- inputs
+    def add_position(self, t: float, x: float, y: float) -> None:
+        if math.isfinite(x) and math.isfinite(y):
+            if self._pos is not None and t > self._pos[0]:
+                self._speed = math.hypot(x - self._pos[1], y - self._pos[2]) / (t - self._pos[0])
+            self._pos = (t, x, y)
+
+    def add_heading(self, t: float, yaw: float) -> None:
+        if math.isfinite(yaw):
+            self._yaw = (t, yaw)
+
+    def _place(self, t: float, bearing: float, r: float) -> tuple[float, float]:
+        """A hit in the local frame (the body frame when position or heading is unknown or stale)."""
+        if self._pos is None or self._yaw is None or t - self._pos[0] > self.p.fresh_s or t - self._yaw[0] > self.p.fresh_s:
+            return r * math.cos(bearing), r * math.sin(bearing)
+        a = self._yaw[1] + bearing
+        return self._pos[1] + r * math.cos(a), self._pos[2] + r * math.sin(a)
+
+    def add_scan(self, scan: Scan) -> tuple[int, ...]:
+        """One sensor's sample (companion/onboard/samples.py), as evidence. Returns the indices in `scan.hits` of the
+        returns counted as the medium's: the short returns that no tracked target accounts for and that
+        `confirm_frames` consecutive frames do not confirm at the same place.
+
+        Nothing is taken out of the scan: the obstacle logic takes it whole. A close return is an obstacle until
+        shown otherwise, and no rule can show it in its first frame: the medium's return is a new one in every
+        shot, as a surface's is in the frame it first appears, so waiting for frames to tell them apart withholds
+        that surface for those frames (3 at 20 Hz: 0.3 m at 2 m/s). The medium may lower D_od; it never hides a
+        return. An invalid scan (quality 1) adds nothing."""
+        p, i, t = self.p, scan.sensor, scan.t
+        if scan.quality == 1 or scan.max_m <= 0.0:
+            return ()
+        stated = scan.max_m
+        before = self._stated.get(i, stated)  # the claim of the sensor's last frame
+        self._stated[i] = stated
+        shots = len(scan.known) if scan.known is not None else 1
+        placed = [(*self._place(t, b, r), b, r) for b, r in scan.hits]
+        near, medium, now = [], [], []
+        hist = self._near_hist.get(i)
+        if hist is None:
+            hist = self._near_hist[i] = deque(maxlen=max(p.confirm_frames - 1, 0))
+        for k, (x, y, _, r) in enumerate(placed):
+            if r >= p.near_m:
+                continue
+            tr = self._nearest_track(x, y)
+            reach = p.confirm_m + r * (scan.increment or 0.0)
+            now.append((x, y))
+            if tr is not None:  # a tracked target come close (not moved: the medium's returns near it must not drag it)
+                tr.t_last = t
+            elif len(hist) == hist.maxlen and all(any(math.hypot(x - a, y - b) <= reach for a, b in pts) for pts in hist):
+                self._tracks.append(_Track(x, y, t, t, 2.0 * reach))  # a surface close by, seen frame after frame
+            else:
+                near.append((x, y))
+                medium.append(k)
+        hist.append(now)
+        frame = _Frame(t, i, shots, near)
+        self._frames.append(frame)
+        self._shots += shots
+        if near:
+            self._near_frames.append(frame)
+        if scan.known is None and placed:  # a single beam: the target it follows in (and its quality, the return's)
+            x, y, _, r = min(placed, key=lambda h: h[3])
+            if r >= p.near_m:
+                tr = self._track(t, x, y, r, scan.increment)
+                if 2 <= scan.quality < 100:
+                    tr.samples.append((r, 1.0 + scan.quality / 100.0 * (p.quality_full_margin - 1.0)))
+        if scan.known is not None:
+            # a target is late only if the last frame's claim, too, reached it (a claim that just grew, as a fog
+            # clears, does not make a target at its old edge late)
+            self._first_detections(t, i, scan, placed, min(stated, before))
+        self._disagreements(t, i, scan, placed, stated)
+        self._last_hits[i] = (t, stated, [(x, y, r) for k, (x, y, _, r) in enumerate(placed) if k not in medium])
+        return tuple(medium)
+
+    def _nearest_track(self, x: float, y: float) -> _Track | None:
+        near = [(math.hypot(x - tr.x, y - tr.y), k) for k, tr in enumerate(self._tracks)]
+        near = [(d, k) for d, k in near if d <= (self._tracks[k].reach or self.p.track_m)]
+        return self._tracks[min(near)[1]] if near else None
+
+    def _track(self, t: float, x: float, y: float, r: float, increment: float | None) -> _Track:
+        reach = self.p.track_m + (r * (increment or 0.0) if increment else 0.0)
+        for tr in self._tracks:
+            d = math.hypot(x - tr.x, y - tr.y)
+            if d <= reach:  # the same static target: its points stay where they were seen (a wide one is not
+                tr.t_last = t  # dragged to its last hit, away from its other side), and its extent is added
+                if d > self.p.track_m / 2.0:
+                    self._tracks.append(_Track(x, y, t, t))
+                return tr
+        tr = _Track(x, y, t, t)
+        self._tracks.append(tr)
+        return tr
+
+    def _first_detections(self, t: float, i: int, scan: Scan, placed: list, stated: float) -> None:
+        """Static targets first seen inside the stated range, away from the edges of the field of view."""
+        p = self.p
+        inc = scan.increment or 0.0
+        lo, hi = (scan.known[0], scan.known[-1]) if scan.known else (0.0, 0.0)
+        period = 1.0 / 20.0
+        if self._frames:
+            same = [f.t for f in self._frames if f.sensor == i]
+            if len(same) > 1:
+                period = max(same[-1] - same[-2], 1e-3)
+        tol = p.first_tolerance_m + self._speed * period
+        for x, y, b, r in placed:
+            if r < p.near_m:
+                continue  # the medium's returns are the backscatter evidence
+            known = any(math.hypot(x - tr.x, y - tr.y) <= p.track_m + r * inc for tr in self._tracks)
+            tr = self._track(t, x, y, r, inc)
+            edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
+            if not known and not edge and r < stated - tol:
+                self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))
+
+    def _disagreements(self, t: float, i: int, scan: Scan, placed: list, stated: float) -> None:
+        """A point another sensor sees now, inside this one's stated range and field of view, unseen here."""
+        p = self.p
+        cfg = self.sensors[i] if i < len(self.sensors) else None
+        if cfg is None or self._pos is None or self._yaw is None:
+            return
+        for j, (tj, _, hits) in self._last_hits.items():
+            if j == i or t - tj > 0.1:
+                continue
+            for x, y, _ in hits:
+                dx, dy = x - self._pos[1], y - self._pos[2]
+                r = math.hypot(dx, dy)
+                if r < p.near_m or r >= stated - p.first_tolerance_m:
+                    continue
+                bearing = wrap(math.atan2(dy, dx) - self._yaw[1])
+                if scan.known is not None:
+                    inside = any(abs(wrap(bearing - b)) <= (scan.increment or 0.0) / 2 for b in scan.known[1:-1])
+                else:
+                    inside = abs(wrap(bearing - math.radians(cfg.orientation_deg))) < math.radians(cfg.h_fov_deg) / 2
+                if inside and not any(math.hypot(x - hx, y - hy) <= p.track_m for hx, hy, _, _ in placed):
+                    self._bounds.append((t, r, f"sensor {j} sees a target at {r:.2f} m that sensor {i} does not"))
+
+    # ---------------------------------------------------------------- evidence
+    def _window(self, t: float) -> None:
+        """Drop the frames older than the evidence window."""
+        start = t - self.p.window_s
+        while self._frames and self._frames[0].t < start:
+            old = self._frames.popleft()
+            self._shots -= old.shots
+            if self._near_frames and self._near_frames[0] is old:
+                self._near_frames.popleft()
+
+    def _alpha_backscatter(self) -> tuple[float, int, int]:
+        """α from the window's spurious short returns; (α, spurious, shots). A short return on a tracked target
+        (one first seen farther away and followed in) is a surface, not the medium."""
+        shots = self._shots
+        spurious = sum(1 for f in self._near_frames for x, y in f.near if not self._on_track(x, y))
+        if shots < self.p.min_shots or spurious < self.p.min_spurious:
+            return 0.0, spurious, shots
+        rate = spurious / shots
+        rate += math.sqrt(rate * (1.0 - rate) / shots)  # one standard error up: when unsure, the thicker fog
+        return extinction_from_backscatter(rate, self.p.backscatter_length_m), spurious, shots
+
+    def _on_track(self, x: float, y: float) -> bool:
+        return self._nearest_track(x, y) is not None
+
+    def _alpha_trend(self, t: float) -> float:
+        """α from the quality of tracked targets as they were approached (the largest recent fit)."""
+        p, best = self.p, 0.0
+        if self._tracks:
+            self._tracks = [tr for tr in self._tracks if tr.t_last >= t - p.recover_s - p.window_s]
+        for tr in self._tracks:
+            s = [(r, m) for r, m in tr.samples]
+            if len(s) < p.trend_samples or tr.t_last < t - p.window_s:
+                continue
+            r = np.array([q[0] for q in s])
+            if r.max() - r.min() < p.trend_span_m:
+                continue
+            y = np.log([q[1] for q in s]) + 2.0 * np.log(r)
+            slope = float(np.polyfit(r, y, 1)[0])
+            best = max(best, -slope / 2.0)
+        return best
+
+    # ---------------------------------------------------------------- output
+    def estimate(self, t: float, stated_m: float) -> DetectionRangeEstimate:
+        """D_od now, given the range the sensors claim (`stated_m`: the claim-based D_od, already capped by the
+        sensors' ratings)."""
+        p = self.p
+        stated = max(stated_m, 0.0) if math.isfinite(stated_m) else 0.0
+        top = stated if self.cap_m is None else min(stated, self.cap_m)
+        self._window(t)
+        a_bs, spurious, shots = self._alpha_backscatter()
+        a_tr = self._alpha_trend(t)
+        self._alphas.add(t, max(a_bs, a_tr))
+        alpha = self._alphas.max
+        while self._bounds and self._bounds[0][0] < t - p.recover_s:
+            self._bounds.popleft()
+        r_max = max(self._stated.values(), default=stated)
+        d_medium = detection_range(alpha, p.reference_reflectivity, r_max, p.rated_reflectivity) if alpha > 0 else math.inf
+        d_bound, why_bound = min(((b, w) for _, b, w in self._bounds), default=(math.inf, ""))
+        d, reason = top, "the stated range" if self.cap_m is None or stated <= self.cap_m else "the configured cap"
+        if d_medium < d:
+            d, reason = d_medium, (f"the medium: extinction {alpha:.3f}/m (backscatter {spurious}/{shots} shots"
+                                   f"{f', quality trend {a_tr:.3f}/m' if a_tr > 0 else ''})")
+        if d_bound < d:
+            d, reason = d_bound, why_bound
+        confidence = min(1.0, shots / (FULL_WINDOW_SHOTS_PER_S * p.window_s))
+        return DetectionRangeEstimate(max(d, 0.0), stated, confidence, alpha, reason,
+                                      {"medium_m": d_medium, "bound_m": d_bound, "alpha_backscatter": a_bs,
+                                       "alpha_trend": a_tr, "spurious": spurious, "shots": shots})

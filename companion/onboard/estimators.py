@@ -1,0 +1,557 @@
+"""Estimators of the subsystems' guarantees, fed only with timestamped MAVLink-derived samples.
+
+Pure classes, no I/O and no simulator truth (a test checks the import graph):
+- `DodEstimator`: the navigation guarantee `D_od` along the direction of travel (DESIGN.md §1);
+- `EtrEstimator`: the controller guarantee `E_tr`, the worst contour error over a window (Figure 11);
+- `ThrustEstimator`: the actuators' `thrust_ratio` from hover throttle;
+- `NavHealth`: the autopilot's estimator flags;
+- `AccelEstimator`: the horizontal acceleration the autopilot flies, from its velocity.
+Angles in radians; body yaw angles clockwise from forward (FRD), as MAVLink.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contracts.contour import ContourWindow
+from contracts.coverage import covered_distance, sample_sectors
+from contracts.geometry import wrap
+from contracts.vehicle import G
+from contracts.window import WindowMax
+
+from .config import ContractConfig, SensorConfig, ThrustConfig
+from .samples import Scan
+
+# ============================================================================ D_od
+
+COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
+SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
+SENSOR_LAG_S = 0.1  # [s] a sample was taken up to this before it is placed (latency ≤ 0.05 s + one position interval)
+
+
+@dataclass
+class _SensorState:
+    cfg: SensorConfig
+    t: float = -math.inf  # time of the last sample
+    max_m: float = 0.0  # reported maximum range (lowered by honest degradation)
+    trusted: bool = False  # signal quality acceptable
+    hits: list[tuple[float, float]] = field(default_factory=list)  # (body bearing, range) seen now
+    known: tuple[float, ...] | None = None  # body bearings of the bins that report (None: a single beam)
+    increment: float = 0.0
+    period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
+    swept: deque = field(default_factory=deque)  # `_Seen` samples of the last COVERAGE_S
+    # each source's last sample (t, hits, claimed range, trusted): a sensor matching several DISTANCE_SENSOR ids
+    # sees what any of them saw within the time-out (a "free" reading never erases another source's obstacle)
+    sources: dict = field(default_factory=dict)
+
+
+@dataclass(slots=True)
+class _Seen:
+    """What one trusted sample saw free, as it was taken: its hits (body bearing, range), the sensor's bins,
+    increment and claimed range then, the last position (t, x, y) and the one `SENSOR_LAG_S` before it, the
+    last two headings (t, yaw). Its wedges in the local frame (`sectors`) and the travel in the lag (`shift`)
+    are made only when the swept coverage is asked for — the direction of travel outside every field of view,
+    rare — and then once, not at every sample."""
+
+    t: float
+    pos: tuple[float, float, float]
+    pos_lag: tuple[float, float, float]
+    stale_s: float
+    yaw_last: tuple[float, float]
+    yaw_prev: tuple[float, float] | None
+    known: tuple[float, ...] | None
+    increment: float
+    max_m: float
+    seen: list
+    shift: tuple[float, float] | None = None  # set by `sectors`
+    _sectors: list | None = None
+
+    def sectors(self, cfg: SensorConfig) -> list[tuple]:
+        """The free wedges (contracts.coverage rows), each narrowed by the heading's turn in the lag; sets
+        `shift`, where the vehicle was `SENSOR_LAG_S` before, from the position they are placed at."""
+        if self._sectors is None:
+            apex, yaw = self.pos[1:], self.yaw_last[1]
+            if self.known is not None:  # bins: each free to its hit, or to the claimed range
+                hit = {round(b, 9): r for b, r in self.seen}
+                ranges = [hit.get(round(b, 9), math.inf) for b in self.known]
+                sec = sample_sectors(apex, yaw, self.known, self.increment, ranges, self.max_m)
+            else:  # a single beam: its whole field of view, free to the nearest hit
+                n = 1 + int(cfg.h_fov_deg // 90)  # wedges narrower than π
+                w = math.radians(cfg.h_fov_deg) / n
+                first = math.radians(cfg.orientation_deg) - math.radians(cfg.h_fov_deg) / 2 + w / 2
+                r = min((r for _, r in self.seen), default=math.inf)
+                sec = sample_sectors(apex, yaw, [first + k * w for k in range(n)], w, [r] * n, self.max_m)
+            prev, last = self.yaw_prev, self.yaw_last  # the yaw rate from the last two headings
+            rate = 0.0 if prev is None or last[0] <= prev[0] else wrap(last[1] - prev[1]) / (last[0] - prev[0])
+            turn = abs(rate) * SENSOR_LAG_S
+            self._sectors = [(x, y, lo + turn, hi - turn, r) for x, y, lo, hi, r in sec if hi - lo > 2 * turn]
+            (t0, x0, y0), (t1, x1, y1) = self.pos_lag, self.pos
+            self.shift = (x0 - x1, y0 - y1) if t1 - t0 <= self.stale_s else (0.0, 0.0)
+        return self._sectors
+
+
+@dataclass(frozen=True)
+class LateDetection:
+    """A navigation guarantee broken: an obstacle first seen inside the assumed D_od, within the FOV."""
+
+    t: float
+    sensor: int
+    bearing: float  # body frame
+    range_m: float  # where it first appeared
+    assumed_d_od: float  # what the estimate promised just before
+
+
+@dataclass(frozen=True, slots=True)
+class DodEstimate:
+    d_od: float  # guaranteed detection range along the direction of travel [m]
+    covered_by: tuple[int, ...]  # sensors covering that direction, fresh and trusted
+    obstacle_m: float  # nearest obstacle hit near the path [m] (inf: none)
+    late: LateDetection | None  # a late first detection in this update, if any
+    reason: str  # why d_od is what it is
+    swept: bool = False  # d_od is the swept coverage: the direction of travel is outside every field of view
+    lowered: bool = False  # d_od is below the sensors' claim: a late first detection, or the evidence (a violation)
+    stated_m: float = math.nan  # the D_od the sensors' claim gives (before any lowering)
+
+
+class DodEstimator:
+    """`D_od` along the direction of travel from the sensors' configured mounting and field of view,
+    their reported range limits and signal quality, staleness (stale ⇒ 0), coverage and late first
+    detections (which lower the estimate for a hold time). A direction outside every field of view gets
+    the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the swept
+    coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
+
+    def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float):
+        self.sensors = [_SensorState(c) for c in sensors]
+        self.contract = contract
+        self.stale_s = stale_s
+        self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
+        self._last_d_od = 0.0
+        self._pending: list[LateDetection] = []
+        self._yaw_hist: deque[tuple[float, float]] = deque()
+        self._pos: tuple[float, float, float] | None = None  # (t, x, y) local NED, the last known
+        self._tracked: deque[tuple[float, float, float]] = deque(maxlen=256)  # (t seen, x, y) of obstacle hits
+        self._pos_hist: deque[tuple[float, float, float]] = deque()  # (t, x, y) over the last SENSOR_LAG_S
+        self.r_obst = contract.r_obst_m  # the R_obst in force (the cycle sets it every step)
+
+    # ---- inputs
+    def set_speed(self, speed: float) -> None:
+        """Ground speed now: an obstacle can come up to one sample interval's travel inside the range
+        before a sample sees it, which is on time (the reaction time budgets the sensor's latency)."""
+        self._speed = speed if math.isfinite(speed) else 0.0
+
+    _speed = 0.0
+
+    def add_heading(self, t: float, yaw: float) -> None:
+        self._yaw_hist.append((t, yaw))
+        while len(self._yaw_hist) > 2 and self._yaw_hist[0][0] < t - 2.0:
+            self._yaw_hist.popleft()
+
+    def add_position(self, t: float, x: float, y: float) -> None:
+        """The vehicle's horizontal position, to place hits and the swept coverage in the local frame
+        (the obstacles tracked, the swept coverage); its velocity from the last two."""
+        if math.isfinite(x) and math.isfinite(y):
+            self._pos = (t, x, y)
+            self._pos_hist.append(self._pos)
+            while len(self._pos_hist) > 2 and self._pos_hist[1][0] <= t - SENSOR_LAG_S:
+                self._pos_hist.popleft()
+
+    def add_scan(self, scan: Scan) -> None:
+        """One sensor's sample, whatever its message (DISTANCE_SENSOR, OBSTACLE_DISTANCE, …)."""
+        s = self.sensors[scan.sensor]
+        if scan.increment is not None:  # bins: which report, and their width
+            s.known, s.increment = scan.known, scan.increment
+        self._update(scan.sensor, scan.t, scan.max_m, scan.quality, list(scan.hits), scan.source)
+
+    def _update(self, i, t, max_m, quality, seen, source=None) -> None:
+        """One sample of sensor i from `source`. The sensor's state is its fresh sources' together: every hit
+        any of them saw (the nearest wins), the smallest range claimed, trusted only if each of them is."""
+        s = self.sensors[i]
+        fresh = t - s.t <= self.stale_s
+        before = s.hits if fresh else []
+        gap = t - s.t if fresh else 0.0
+        if gap > 0:
+            s.period = gap if s.period == 0 else 0.9 * s.period + 0.1 * gap
+        # samples delivered in a burst were still taken one interval apart
+        tolerance = self.contract.late_detection_tolerance_m + self._speed * max(gap, s.period if fresh else 0.0)
+        trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
+        claim = max(max_m, 0.0)
+        s.sources[source] = (t, seen, claim, trusted)
+        s.t = t
+        if len(s.sources) == 1:  # the one source is this sample's (the most of sensors): fresh, its values
+            s.max_m, s.trusted = claim, trusted
+        else:
+            s.sources = {k: v for k, v in s.sources.items() if t - v[0] <= self.stale_s}
+            s.max_m = min(v[2] for v in s.sources.values())
+            s.trusted = all(v[3] for v in s.sources.values())
+        view = seen if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
+        placed = self._placed(i, t, seen)
+        self._sweep(i, t, view)  # free only short of every fresh source's hits
+        for k, (bearing, r) in enumerate(seen):
+            if any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
+                continue  # the same obstacle as before
+            if r < self._last_d_od - tolerance and not self._side_entry(i, t, bearing) \
+                    and not self._tracked_already(t, placed[k], tolerance):
+                self._pending.append(LateDetection(t, i, bearing, r, self._last_d_od))
+                cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])
+                self._penalty = (t + self.contract.late_detection_hold_s, cap)
+        for p in placed:
+            if p is not None:
+                self._tracked.append((t, *p[:2]))
+        s.hits = view
+
+    def _placed(self, i: int, t: float, seen) -> list[tuple[float, float, float] | None]:
+        """Each hit in the local frame: (x, y, uncertainty ±) from the last position and heading (None when
+        either is unknown or older than the sensor's staleness)."""
+        s = self.sensors[i]
+        if self._pos is None or not self._yaw_hist or t - self._pos[0] > self.stale_s \
+                or t - self._yaw_hist[-1][0] > self.stale_s:
+            return [None] * len(seen)
+        _, x, y = self._pos
+        yaw = self._yaw_hist[-1][1]
+        half = s.increment / 2 if s.known is not None else math.radians(s.cfg.h_fov_deg) / 2
+        out = []
+        for bearing, r in seen:
+            a = yaw + bearing
+            out.append((x + r * math.cos(a), y + r * math.sin(a), r * math.sin(min(half, math.pi / 2))))
+        return out
+
+    def _sweep(self, i: int, t: float, seen) -> None:
+        """Keep what this sample saw free (a `_Seen`; its wedges are made when first needed) for `COVERAGE_S`:
+        the swept coverage `estimate` falls back on when the direction of travel is outside every field of view.
+        The sample is placed at the last position and heading, but was taken up to `SENSOR_LAG_S` before: each
+        wedge is narrowed by the heading's turn in that time and keeps the travel in it as its apex's uncertainty
+        (`covered_distance`'s shift). An untrusted sample, or one whose position or heading is unknown or stale,
+        adds nothing."""
+        s = self.sensors[i]
+        while s.swept and s.swept[0].t < t - COVERAGE_S:
+            s.swept.popleft()
+        if not s.trusted or s.max_m <= 0 or self._pos is None or not self._yaw_hist \
+                or t - self._pos[0] > self.stale_s or t - self._yaw_hist[-1][0] > self.stale_s:
+            return
+        yh = self._yaw_hist
+        s.swept.append(_Seen(t, self._pos, self._pos_hist[0], self.stale_s, yh[-1], yh[-2] if len(yh) > 1 else None,
+                             s.known, s.increment, s.max_m, seen))
+
+    def _swept(self, t: float, theta: float) -> float:
+        """The distance along absolute direction `theta` from the vehicle through the space the fresh, trusted
+        sensors saw free in the last `COVERAGE_S` (contracts.coverage), each wedge no farther than its sensor
+        claims now and within the navigation margin, less `SWEPT_MARGIN_M` (position noise)."""
+        if self._pos is None or t - self._pos[0] > self.stale_s:
+            return 0.0
+        rows, shifts = [], []
+        trust = 1.0 - self.contract.nav_margin
+        for s in self.sensors:
+            if t - s.t > self.stale_s or not s.trusted:
+                continue
+            for seen in s.swept:
+                if seen.t >= t - COVERAGE_S:
+                    sec = seen.sectors(s.cfg)
+                    rows.extend((*q[:4], min(q[4], s.max_m) * trust) for q in sec)
+                    shifts.extend([seen.shift] * len(sec))
+        if not rows:
+            return 0.0
+        d = covered_distance(self._pos[1:], theta, np.array(rows), np.array(shifts))
+        return max(d - SWEPT_MARGIN_M, 0.0)
+
+    def _tracked_already(self, t: float, p, tolerance: float) -> bool:
+        """Whether a hit is on an obstacle already tracked: within 2·R_obst (two points of one
+        obstacle no wider than R_obst) plus the bearing's uncertainty and the tolerance of a point seen within
+        the late-detection hold time. A column that leaves the field of view during a pass, or that a fast yaw
+        sweeps across several bins between two samples, is not a new late detection."""
+        if p is None:
+            return False
+        horizon = t - self.contract.late_detection_hold_s
+        while self._tracked and self._tracked[0][0] < horizon:
+            self._tracked.popleft()
+        reach = 2 * max(self.r_obst, 0.0) + p[2] + tolerance
+        return any(math.hypot(p[0] - qx, p[1] - qy) <= reach for _, qx, qy in self._tracked)
+
+    def _side_entry(self, i: int, t: float, bearing: float) -> bool:
+        """Whether a new hit may have come in from the side of the field of view rather than out of range."""
+        s = self.sensors[i]
+        if s.known is not None:  # bins: an edge bin is a side entry
+            lo, hi = s.known[0], s.known[-1]
+            return min(abs(wrap(bearing - lo)), abs(wrap(bearing - hi))) <= s.increment * 1.01
+        # single beam: only a turn of more than half the field of view in the last second can bring one in
+        half = math.radians(s.cfg.h_fov_deg) / 2
+        past = [y for (ty, y) in self._yaw_hist if ty >= t - 1.0]
+        return len(past) > 1 and max(abs(wrap(y - past[-1])) for y in past) > half
+
+    # ---- output
+    def fresh_hits(self, t: float) -> list[tuple[float, float, float, bool]]:
+        """Obstacle hits of the fresh sensors: (body bearing, range, bearing uncertainty ±, from bins)."""
+        out = []
+        for s in self.sensors:
+            if t - s.t <= self.stale_s:
+                bins = s.known is not None
+                half = s.increment / 2 if bins else math.radians(s.cfg.h_fov_deg) / 2
+                out.extend((b, r, half, bins) for b, r in s.hits)
+        return out
+
+    @staticmethod
+    def _covers(s: _SensorState, beta: float) -> bool:
+        """Whether the sensor looks along body bearing `beta`: a bin that reports (a bin that knows nothing
+        is not free space), or within a single beam's configured field of view."""
+        if s.known is not None:
+            return bool(s.known) and min(abs(wrap(beta - b)) for b in s.known) <= s.increment / 2 + 1e-9
+        return abs(wrap(beta - math.radians(s.cfg.orientation_deg))) <= math.radians(s.cfg.h_fov_deg) / 2 + 1e-9
+
+    def estimate(self, t: float, beta: float, corridor_m: float = math.inf) -> DodEstimate:
+        """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
+        deciding which hits are on it (single-beam hits are always taken as on it)."""
+        covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
+        obstacle = math.inf
+        for i, s in enumerate(self.sensors):
+            if t - s.t > self.stale_s:
+                continue
+            bins = s.known is not None
+            for b, r in s.hits:
+                if not bins or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
+                    obstacle = min(obstacle, r)
+            if not s.trusted or not self._covers(s, beta):
+                continue
+            covered.append(i)
+            if s.max_m > d:
+                d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
+        if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
+            d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
+        swept = 0.0
+        if not covered and self._yaw_hist:  # outside every field of view: what was seen free on the way
+            swept = self._swept(t, self._yaw_hist[-1][1] + beta)
+            if swept > 0.0:
+                d, reason = swept, (f"direction of travel outside the field of view: {swept:.2f} m of it seen free "
+                                    f"in the last {COVERAGE_S:g} s")
+        lowered, stated = False, d
+        if self._penalty is not None:
+            if t <= self._penalty[0]:
+                if self._penalty[1] < d:
+                    d, reason, lowered = self._penalty[1], "lowered after a late first detection", True
+            else:
+                self._penalty = None
+        self._last_d_od = d
+        late = self._pending[0] if self._pending else None
+        self._pending.clear()
+        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated)
+
+
+# ============================================================================ E_tr
+
+
+class EtrEstimator:
+    """Worst horizontal contour error over a window, never below the configured floor."""
+
+    def __init__(self, contract: ContractConfig, floor_m: float | None = None):
+        self.floor = contract.e_tr_floor_m if floor_m is None else floor_m
+        self.window = ContourWindow(window_s=contract.e_tr_window_s, path_span_s=contract.e_tr_window_s)
+        self.last: float | None = None
+
+    def command(self, t: float, x: float, y: float) -> None:
+        if math.isfinite(x) and math.isfinite(y):
+            self.window.command(t, (x, y))
+
+    def measure(self, t: float, x: float, y: float) -> None:
+        if math.isfinite(x) and math.isfinite(y):
+            self.last = self.window.measure(t, (x, y))
+
+    @property
+    def value(self) -> float:
+        return max(self.floor, self.window.worst)
+
+    def reset(self) -> None:
+        self.window.reset()
+
+
+# ============================================================================ thrust_ratio
+
+
+SETTLE_S = 2.0  # [s] after the last sample on the ground, before the throttle is a hover throttle (spin-up, lift-off)
+SETTLED_A_UP = 1.0  # [m/s²] and once the vertical acceleration has come within this (the correction's own error)
+
+
+class ThrustEstimator:
+    """thrust_ratio = nominal hover throttle / measured hover throttle, the latter from the collective
+    throttle corrected for tilt and vertical acceleration: h = throttle·cosφ·cosθ·g/(g + a_up),
+    low-passed. Until it is known, `fallback`: the start value (`companion.onboard.cycle.start_thrust`: the lowest the
+    vehicle may have, where the table answers).
+
+    Valid only airborne and settled: on the ground and during spin-up the throttle holds
+    the vehicle against nothing (PX4's spin-up read 0.678 for a true 0.700). A sample counts once the
+    autopilot says the vehicle is in the air, its last sample on the ground is `SETTLE_S` or more before, and
+    its vertical acceleration has come within `SETTLED_A_UP` (then every sample counts until the next landing:
+    a thrust loss in flight makes it sink, and skipping those would keep the estimate high just when it must
+    fall). A landed state not yet reported (MAV_LANDED_STATE_UNDEFINED: `in_air` None) is no ground sample, so a
+    flight first seen flying keeps the estimate, and only the samples decide: a replay of the flight's .tlog
+    decides at the same sample as the live daemon."""
+
+    def __init__(self, cfg: ThrustConfig, hover_nominal: float, fallback: float, top: float = 1.0):
+        self.cfg, self.h_nom, self.fallback, self.top = cfg, hover_nominal, fallback, top
+        self._h: float | None = None
+        self._t = None
+        self._vz = None  # (t, vz down)
+        self._a_up = 0.0
+        self._t_ground: float | None = None  # the last sample on the ground (None: none seen)
+        self._settled = False  # airborne and settled since the last sample on the ground
+
+    def add(self, t: float, throttle: float, roll: float, pitch: float, vz_down: float, in_air: bool | None) -> None:
+        """`in_air` None: the autopilot has not said (no EXTENDED_SYS_STATE yet) — neither ground nor air."""
+        if self._vz is not None and t > self._vz[0]:
+            a = -(vz_down - self._vz[1]) / (t - self._vz[0])
+            k = min(1.0, (t - self._vz[0]) / 0.2)
+            self._a_up += k * (a - self._a_up)
+        self._vz = (t, vz_down)
+        if in_air is None:
+            return
+        if not in_air:  # on the ground: what was estimated aloft is not known now
+            self._t_ground, self._h, self._settled = t, None, False
+            return
+        # 1 ms short of SETTLE_S: on a regular sample grid the wait is an exact multiple of the period, and a
+        # log's µs stamps must not move the decision by a sample (the replay decides at the live sample)
+        self._settled = self._settled or ((self._t_ground is None or t - self._t_ground >= SETTLE_S - 1e-3)
+                                          and abs(self._a_up) <= SETTLED_A_UP)
+        tilt_cos = math.cos(roll) * math.cos(pitch)
+        if not (self._settled and 0.05 < throttle <= 1.0 and tilt_cos > math.cos(math.radians(35))):
+            return
+        h = throttle * tilt_cos * G / max(G + self._a_up, 0.5 * G)
+        if self._h is None:
+            self._h = h
+        else:
+            self._h += min(1.0, (t - self._t) / self.cfg.tau_s) * (h - self._h)
+        self._t = t
+
+    def basis(self, t: float) -> str:
+        """What `value` is now: "configured" (thrust.source), "hover" (the hover estimate, airborne and settled) or
+        "start" (no estimate yet, or none for 2 s: the start value `fallback`)."""
+        if self.cfg.source == "configured":
+            return "configured"
+        return "start" if self._h is None or t - self._t > 2.0 else "hover"
+
+    def value(self, t: float) -> tuple[float, str]:
+        basis = self.basis(t)
+        if basis == "configured":
+            return (self.cfg.value or self.fallback), "configured"
+        if basis == "start":
+            return self.fallback, "not airborne and settled: the start value"
+        return min(self.top, self.h_nom / self._h), f"hover throttle {self._h:.3f} vs nominal {self.h_nom:.3f}"
+
+
+# ============================================================================ navigation health
+
+# ESTIMATOR_STATUS.flags (ESTIMATOR_STATUS_FLAGS, common.xml) and EKF_STATUS_REPORT.flags (ardupilotmega.xml)
+_NEED = 1 | 2 | 8  # attitude, horizontal velocity, relative horizontal position
+_BAD = {"ESTIMATOR_STATUS": 128 | 1024 | 2048, "EKF_STATUS_REPORT": 128 | 1024 | 32768}
+
+
+class NavHealth:
+    """Healthy when the autopilot's estimator reports attitude, horizontal velocity and relative
+    position, and no constant-position mode, glitch or accelerometer error; stale ⇒ unhealthy."""
+
+    def __init__(self, stale_s: float):
+        self.stale_s = stale_s
+        self._t = -math.inf
+        self._ok = False
+        self.reason = "no estimator status yet"
+
+    def update(self, t: float, msg_type: str, flags: int) -> None:
+        self._t = t
+        self._ok = (flags & _NEED) == _NEED and not flags & _BAD.get(msg_type, 0)
+        self.reason = "ok" if self._ok else f"{msg_type} flags 0x{flags:x}"
+
+    _t_fault = -math.inf
+
+    def fault(self, t: float, why: str) -> None:
+        """The vehicle's state as reported cannot be true (e.g. 10⁶ m/s): unhealthy for `stale_s`."""
+        self._t_fault, self.reason = t, f"implausible state: {why}"
+
+    def healthy(self, t: float) -> bool:
+        return self._ok and t - self._t <= self.stale_s and t - self._t_fault > self.stale_s
+
+
+class AccelEstimator:
+    """The horizontal acceleration flown, Δv/Δt of the reported velocity over at least a window (the newest sample
+    against the newest one at least that much older), for windows up to `keep_s`: the recovery brake's starting
+    state (0.1 s) and the approach ramp's check (0.3 s), from one set of samples."""
+
+    def __init__(self, keep_s: float):
+        self.keep_s = keep_s
+        self._seen: deque = deque()  # (t, vx, vy), the oldest the newest at least keep_s before the newest
+
+    def add(self, t: float, vx: float, vy: float) -> None:
+        """Take a velocity sample (a repeated or non-finite time is ignored)."""
+        seen = self._seen
+        if not math.isfinite(t) or (seen and t <= seen[-1][0]):
+            return
+        seen.append((t, vx, vy))
+        while len(seen) > 2 and t - seen[1][0] >= self.keep_s:
+            seen.popleft()
+
+    def over(self, window_s: float) -> np.ndarray | None:
+        """The acceleration over at least `window_s` (≤ keep_s); None before window_s of samples."""
+        seen = self._seen
+        if not seen:
+            return None
+        t, vx, vy = seen[-1]
+        k = len(seen) - 1
+        while k > 0 and t - seen[k][0] < window_s:  # (the difference itself: no sample lost to round-off)
+            k -= 1
+        t0, vx0, vy0 = seen[k]
+        dt = t - t0
+        return np.array([vx - vx0, vy - vy0]) / dt if dt >= window_s else None
+
+
+# ============================================================================ the daemon's own timeliness
+
+LATE_WINDOW_S = 10.0  # [s] a late cycle counts this long: a loaded computer is likely to be late again
+JUDGED_AFTER_S = 1.0  # [s] after the autopilot's first heartbeat before the cycles' timeliness is judged
+LATE_NOTE_S = 0.005  # [s] lateness inside the allowance is said (an event) from this much on
+
+
+class Timeliness:
+    """Guidance's own guarantee: the daemon decides once every cycle, 1/loop_hz, give or take a stated jitter
+    allowance — the "decision" part of the vehicle file's `t_react` (sensor latency + one cycle + the allowance +
+    the autopilot's response; docs/daemon.md, Timeliness). A cycle that comes later than its period by no more than `allowance_s`
+    is inside that budget: said (`within_s`, an event), not counted. One later than that is reaction time the
+    contract did not budget: until `LATE_WINDOW_S` has passed, `late_s` is the worst such lateness (all of it, the
+    allowance included: the safe side), which the supervisor adds to t_react (V ≤ V_safe(d_od − V·(t_react +
+    late_s))). Measured in daemon time (the vehicle's clock rate), so a SITL sped up k times sees k times the
+    host's lateness; in lock-step and replays the cycles are on time by construction.
+
+    Not judged before the autopilot's first heartbeat and for `JUDGED_AFTER_S` after it (`tick(t, linked)`):
+    start-up (imports, the table, the first checks and plans) is no flight, and nothing is commanded before the
+    link is up. `unbudgeted_s`: this cycle's lateness where it exceeds what was counted before it (the contract
+    was flying a smaller reaction time than happened: the guarantee broken), else 0; `within_s`: this cycle's
+    lateness inside the allowance when it is at least `LATE_NOTE_S` and more than any said in the window, else 0."""
+
+    def __init__(self, period_s: float, allowance_s: float, window_s: float = LATE_WINDOW_S):
+        self.period, self.allowance, self.window = period_s, allowance_s, window_s
+        self._t: float | None = None
+        self._t_linked: float | None = None  # the first cycle with the autopilot's heartbeat fresh
+        self._late = WindowMax(window_s)  # lateness beyond the allowance
+        self._within = WindowMax(window_s)  # lateness inside it
+        self.last_late_s = 0.0  # this cycle's own lateness beyond the allowance (0 when inside it)
+        self.unbudgeted_s = 0.0
+        self.within_s = 0.0
+
+    def judged(self, t: float) -> bool:
+        """Whether a cycle at t is judged: `JUDGED_AFTER_S` or more after the first with the link up."""
+        return self._t_linked is not None and t - self._t_linked >= JUDGED_AFTER_S
+
+    def tick(self, t: float, linked: bool = True) -> float:
+        """One cycle at daemon time t (`linked`: the autopilot's heartbeat is fresh); returns the worst counted
+        lateness of the window [s] (0: on time)."""
+        if linked and self._t_linked is None:
+            self._t_linked = t
+        late = 0.0 if self._t is None or t < self._t or not self.judged(t) else t - self._t - self.period
+        self._t = t
+        self.last_late_s = late if late > self.allowance else 0.0
+        inside = late if LATE_NOTE_S <= late <= self.allowance else 0.0
+        self.within_s = inside if inside > self._within.value(t) else 0.0
+        if self.within_s > 0.0:
+            self._within.add(t, inside)
+        self.unbudgeted_s = self.last_late_s if self.last_late_s > self._late.value(t) else 0.0
+        if self.last_late_s > 0.0:
+            self._late.add(t, late)
+        return self._late.value(t)

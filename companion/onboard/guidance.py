@@ -1,0 +1,603 @@
+"""Offboard guidance: the daemon as the paper's guidance subsystem (Figure 1). No I/O; planning runs
+inline (lock-step), in a worker process of its own (`ProcessPlanning`, in flight) or on a worker thread
+(`ThreadedPlanning`).
+
+- `Route`: the path to fly at constant altitude (NED): the waypoints with an arc at each corner, with
+  along-track progress and the cruise speed profile (arcs, stops, the end).
+- `obstacle_discs`: the keep-out discs from sensor hits — several beams of one obstacle give its
+  position and width; a single beam keeps the conservative set of positions consistent with the hit.
+- `OffboardGuidance`: each cycle a setpoint (position, velocity, acceleration feed-forward, yaw):
+  cruise along the route at up to the contract's V_max (yaw on the motion, turning before speeding
+  up); when an obstacle is on the path, fly the online avoidance plan (`contracts.online_planner`) around
+  its keep-out disc; replan when an obstacle appears, when Ω changes, when the vehicle drifts from the
+  plan, or as the plan ages; brake when nothing else is safe.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from contracts.geometry import wrap
+from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan, load_solver
+
+REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
+DRIFT_M = 0.5  # drift from the plan that asks for a replan
+PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
+WORKER_START_S = 60.0  # [s] the planning process's start-up waited for before the loop runs, at most
+PLAN_LEAD_S = (0.3, 1.0)  # [s] the lead a plan asked for while braking starts at: at least, at most (its answer's
+# latency as the guidance measured it, in its own time: the SITL's 2× clock doubles a wall-clock solve)
+
+
+A_LAT = 0.5  # fraction of a_max an arc's centripetal acceleration may use (the rest is for tracking)
+A_BRAKE = 0.8  # fraction of a_max the reference slows at, for arcs, stops and the route end
+YAW_RATE_ARC = 1.5  # [rad/s] arcs are flown no faster than turns the heading at this rate (v ≤ ω·R)
+REVERSAL_DEG = 150.0  # a corner turning more than this gets no arc: the reference stops at the vertex
+YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity, else the route
+YAW_MEAS_BELOW = 2.0  # [m/s] the measured velocity weighs in the yaw below this commanded speed (1 at rest)
+SIDE_DEG = 25.0  # [°] a rejoin's sideways speed keeps the reference this close to the route's direction…
+SIDE_SLOW = 0.7  # [m/s] …or below this (under the 1 m/s at which D_od is taken along the heading: cycle.py)
+REJOIN_OPEN_M = 0.5  # [m] a rejoin this far beside the route slows for the next stop at A_REJOIN_STOP·a_max
+A_REJOIN_STOP = 0.2
+HEADING_TOL = math.radians(20.0)  # the reference speeds up only with the heading this close to the yaw
+
+
+@dataclass
+class Route:
+    """Waypoints (x, y) [m, local NED] flown at `altitude_m` above the origin (z = −altitude).
+
+    The path is the polyline with each interior vertex replaced by a circular arc tangent to both legs,
+    passing `corner_cut_m` from the vertex (one value, or one per waypoint, ends unused), shrunk so an
+    arc takes at most half of each adjacent leg. A corner turning more than REVERSAL_DEG, or with a cut
+    of 0, stays sharp and the reference stops there. `s` is along-track distance on this path."""
+
+    waypoints: np.ndarray
+    altitude_m: float
+    corner_cut_m: float | Sequence[float] = 1.0
+
+    def __post_init__(self):
+        self.waypoints = np.asarray(self.waypoints, dtype=float).reshape(-1, 2)
+        cuts = np.broadcast_to(np.asarray(self.corner_cut_m, float), (len(self.waypoints),))
+        keep = np.concatenate([[True], np.hypot(*np.diff(self.waypoints, axis=0).T) > 1e-6])
+        w, cuts = self.waypoints[keep], cuts[keep]  # repeated points dropped
+        if len(w) == 1:
+            w, cuts = np.vstack([w, w]), np.append(cuts, cuts)  # one place: a route of length 0
+        seg = np.diff(w, axis=0)
+        ln = np.hypot(seg[:, 0], seg[:, 1])
+        u = seg / np.maximum(ln, 1e-12)[:, None]
+        tan_len, radius, turn = np.zeros(len(w)), np.zeros(len(w)), np.zeros(len(w))
+        stop = np.zeros(len(w), bool)
+        for i in range(1, len(w) - 1):
+            d = math.atan2(u[i - 1, 0] * u[i, 1] - u[i - 1, 1] * u[i, 0], float(u[i - 1] @ u[i]))
+            if abs(d) < 1e-6:
+                continue  # straight on
+            turn[i] = d  # signed: + turns towards n = (−u_y, u_x)
+            if abs(d) > math.radians(REVERSAL_DEG) or not cuts[i] > 0:
+                stop[i] = True
+                continue
+            h = abs(d) / 2
+            r = cuts[i] / (1 / math.cos(h) - 1)  # the arc passes R/cos(δ/2) − R from the vertex
+            tan_len[i] = min(r * math.tan(h), ln[i - 1] / 2, ln[i] / 2)
+            radius[i] = tan_len[i] / math.tan(h)
+        # elements in along-track order, one row each:
+        # s0, length, x0, y0, ux, uy (lines: start point, direction) | cx, cy, R, θ0, sweep (arcs; R = 0 on lines)
+        rows, stops, s = [], [], 0.0
+        for i in range(len(w) - 1):
+            a = w[i] + u[i] * tan_len[i]
+            n_line = ln[i] - tan_len[i] - tan_len[i + 1]
+            rows.append([s, n_line, *a, *u[i], 0, 0, 0, 0, 0])
+            s += n_line
+            j = i + 1
+            if radius[j] > 0:
+                b = w[j] - u[i] * tan_len[j]
+                c = b + math.copysign(radius[j], turn[j]) * np.array([-u[i, 1], u[i, 0]])
+                th0 = math.atan2(b[1] - c[1], b[0] - c[0])
+                rows.append([s, radius[j] * abs(turn[j]), *b, *u[i], *c, radius[j], th0, turn[j]])
+                s += rows[-1][1]
+            elif stop[j]:
+                stops.append(s)
+        self._el = np.array(rows, float)
+        self._is_arc = self._el[:, 8] > 0
+        self._length = s
+        # speed constraints: (from s0, until s1, radius): arcs, stops at sharp corners, rest at the end
+        arcs = self._el[self._is_arc]
+        self._con = np.vstack([np.column_stack([arcs[:, 0], arcs[:, 0] + arcs[:, 1], arcs[:, 8]]),
+                               np.array([[x, x, 0.0] for x in stops]).reshape(-1, 3),
+                               [[s, math.inf, 0.0]]])
+        self._stops = np.array(stops + [s])
+
+    @property
+    def length(self) -> float:
+        return float(self._length)
+
+    @property
+    def arcs(self) -> np.ndarray:
+        """One row per arc: along-track start, length, start point (2), start direction (2), centre (2),
+        radius, start angle, signed sweep [rad]."""
+        return self._el[self._is_arc]
+
+    def project(self, p, lo: float = -math.inf, hi: float = math.inf) -> float:
+        """Along-track distance of the route point nearest to p (among the parts between lo and hi: a
+        route that comes back near itself, e.g. a closed loop, is not confused with its other pass)."""
+        p = np.asarray(p, float)
+        e = self._el
+        rel = p - e[:, 2:4]
+        t = np.clip(np.einsum("ij,ij->i", rel, e[:, 4:6]), 0.0, e[:, 1])  # lines
+        d = np.hypot(*(rel - e[:, 4:6] * t[:, None]).T)
+        arc = self._is_arc
+        if arc.any():
+            a = e[arc]
+            sgn, sweep, r = np.sign(a[:, 10]), np.abs(a[:, 10]), a[:, 8]
+            q = p - a[:, 6:8]
+            ang = np.mod(sgn * (np.arctan2(q[:, 1], q[:, 0]) - a[:, 9]), 2 * np.pi)
+            ang = np.where((ang > sweep) & (ang - sweep > 2 * np.pi - ang), 0.0, np.minimum(ang, sweep))
+            th = a[:, 9] + sgn * ang
+            foot = a[:, 6:8] + r[:, None] * np.column_stack([np.cos(th), np.sin(th)])
+            d[arc] = np.hypot(*(p - foot).T)
+            t[arc] = r * ang
+        d[(e[:, 0] + e[:, 1] < lo) | (e[:, 0] > hi)] = math.inf
+        k = int(np.argmin(d))
+        return float(min(max(e[k, 0] + t[k], lo), hi))
+
+    def _at(self, s: float):
+        s = min(max(s, 0.0), self._length)
+        k = max(int(np.searchsorted(self._el[:, 0], s, side="right")) - 1, 0)
+        return self._el[k], s - self._el[k, 0]
+
+    def point(self, s: float):
+        """(position, unit direction) at along-track s (clamped to the route; at a vertex, the leg ahead)."""
+        e, ds = self._at(s)
+        if e[8] <= 0:
+            return e[2:4] + e[4:6] * ds, e[4:6].copy()
+        sgn = math.copysign(1.0, e[10])
+        th = e[9] + sgn * ds / e[8]
+        return e[6:8] + e[8] * np.array([math.cos(th), math.sin(th)]), sgn * np.array([-math.sin(th), math.cos(th)])
+
+    def curvature(self, s: float) -> float:
+        """Signed curvature at s: du/ds = κ·n with n = (−u_y, u_x); 0 on lines."""
+        e, _ = self._at(s)
+        return math.copysign(1.0 / e[8], e[10]) if e[8] > 0 else 0.0
+
+    def next_stop(self, s: float) -> float:
+        """Along-track position of the first stop (sharp corner or the route end) after s."""
+        return float(self._stops[np.searchsorted(self._stops, s, side="right")]) if s < self._length else self._length
+
+    def speed_limit(self, s, v_max: float, a_max: float):
+        """The cruise reference's highest speed at s (scalar or array): V_max; on an arc
+        min(sqrt(A_LAT·a_max·R), YAW_RATE_ARC·R); before each arc, stop and the route end, the speed
+        from which slowing at A_BRAKE·a_max reaches that arc's speed, or rest, where it starts."""
+        s = np.asarray(s, float)[..., None]
+        s0, s1, r = self._con.T
+        v_k = np.minimum(np.sqrt(A_LAT * a_max * r), YAW_RATE_ARC * r)
+        lim = np.where(s < s0, np.sqrt(v_k * v_k + 2 * A_BRAKE * a_max * np.maximum(s0 - s, 0.0)), v_k)
+        lim = np.where(s < s1, lim, math.inf).min(axis=-1)
+        out = np.minimum(lim, v_max)
+        return float(out) if out.ndim == 0 else out
+
+
+@lru_cache(maxsize=256)
+def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
+    """`np.linspace(lo, hi, n)` as floats, once per arc (a single beam's field of view: the same every cycle)."""
+    return tuple(np.linspace(lo, hi, n).tolist())
+
+
+def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float]:
+    """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
+
+    Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
+    R_obst through the chord's ends, on the far side (or wider, if the chord is wider than 2·R_obst —
+    reported as the observed width). A single beam only says that the surface is at that range
+    somewhere in its field of view: every disc of radius R_obst touching such a point lies within
+    2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
+    Returns the discs and the widest obstacle radius observed (0 if none measurable).
+    """
+    if not hits:  # nothing seen (most cycles): no disc
+        return [], 0.0
+    p = np.asarray(p, float)
+    discs: list[Disc] = []
+    widest = 0.0
+    bins = sorted((b, r, h) for b, r, h, is_bins in hits if is_bins)
+    singles = [(b, r, h) for b, r, h, is_bins in hits if not is_bins]
+    clusters: list[list] = []
+    for b, r, h in bins:
+        if clusters and abs(b - clusters[-1][-1][0]) <= 2.5 * h + 1e-9 and abs(r - clusters[-1][-1][1]) < 2 * r_obst + 0.5:
+            clusters[-1].append((b, r, h))
+        else:
+            clusters.append([(b, r, h)])
+    for cl in clusters:
+        pts = np.array([p + r * np.array([math.cos(yaw + b), math.sin(yaw + b)]) for b, r, _ in cl])
+        r_near = min(r for _, r, _ in cl)
+        # a bin reports the nearest return in its sector at the sector's centre bearing: every hit point
+        # may be off by up to half a bin sideways (and a little in range)
+        pad = r_near * math.tan(cl[0][2]) + 0.05
+        w2 = float(np.hypot(*(pts[-1] - pts[0]))) / 2  # half the chord the beams saw
+        mid = 0.5 * (pts[0] + pts[-1])
+        u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
+        radius = max(r_obst, w2)
+        if len(cl) > 1:
+            widest = max(widest, w2 - pad)
+        centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
+        grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
+        discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
+    px, py = float(p[0]), float(p[1])
+    for b, r, h in singles:
+        n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
+        reach = 2 * r * math.sin(h / (2 * (n - 1)))  # farthest any arc point is from its nearest sample
+        for a in _arc(b - h, b + h, n):  # each hit point p + r·(cos, sin)(yaw + a), in floats
+            # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
+            discs.append(Disc(px + r * math.cos(yaw + a), py + r * math.sin(yaw + a), 2 * r_obst + reach + inflate))
+    return discs, widest
+
+
+def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:
+    """The same discs grown by E_tr + r_body (the virtual obstacle of Figure 13); the vehicle may use
+    the E_tr part (`Disc.r_min` keeps the rest)."""
+    return [Disc(d.x, d.y, d.r + e_tr + r_body, d.r + r_body) for d in discs]
+
+
+@dataclass
+class Setpoint:
+    p: np.ndarray  # (x, y) NED [m]
+    v: np.ndarray
+    a: np.ndarray
+    z: float
+    yaw: float
+    mode: str  # "cruise", "avoid", "brake", "planning" (braking for the first plan), "hold", "done"
+
+
+def plan_job(planner, epoch, t_req, omega, *args, **kw):
+    """One planning job, whoever runs it: (epoch, t_req, Ω, the plan — or the exception, which means brake)."""
+    try:
+        return epoch, t_req, omega, planner.plan(*args, **kw)
+    except Exception as e:  # noqa: BLE001 — any planner failure means: brake
+        return epoch, t_req, omega, e
+
+
+class InlinePlanning:
+    """Plans at once in the caller's thread (lock-step tests: deterministic in vehicle time, so no
+    wall-clock budget either)."""
+
+    busy = False
+    deferred = False  # the answer is there when `submit` returns
+    budget_s = None  # no wall-clock budget for the planner
+
+    def __init__(self):
+        self._out = None
+
+    def submit(self, planner, *args, **kw) -> None:
+        self._out = plan_job(planner, *args, **kw)
+
+    def poll(self):
+        out, self._out = self._out, None
+        return out
+
+    def close(self) -> None:
+        pass
+
+
+class ThreadedPlanning:
+    """One planning job at a time on a worker thread, so the setpoint stream keeps its rate while OSQP
+    solves. The planner's own Python work (the QP's assembly, the exact check) holds the interpreter lock,
+    though: on a busy host the loop waits for it (`ProcessPlanning` does not)."""
+
+    deferred = True  # the answer comes later than asked (`poll` once it is done)
+    budget_s = PLAN_BUDGET_S  # the planner's wall-clock budget per job
+
+    def __init__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cg-planner")
+        self._job: Future | None = None
+        self._meta: tuple = ()
+
+    @property
+    def busy(self) -> bool:
+        return self._job is not None and not self._job.done()
+
+    def submit(self, planner, *args, **kw) -> None:
+        self._meta = args[:3]
+        self._job = self._pool.submit(plan_job, planner, *args, **kw)
+
+    def close(self) -> None:
+        """No more jobs: the worker ends (a job in progress is dropped)."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def poll(self):
+        if self._job is None or not self._job.done():
+            return None
+        job, self._job = self._job, None
+        try:
+            return job.result()  # the job itself turns a planner failure into its answer
+        except Exception as e:  # noqa: BLE001 — the runner failed (a worker process died): brake
+            return (*self._meta, e)
+
+
+_WORKER_PLANNERS: dict = {}  # in a planning process: its planners, by their parameters
+
+
+def _plan_in_worker(key, *args, **kw):
+    """`plan_job` in the planning process, with its own planner of these parameters (kept: its solvers warm)."""
+    planner = _WORKER_PLANNERS.get(key)
+    if planner is None:
+        planner = _WORKER_PLANNERS[key] = AvoidancePlanner(*key)
+    return plan_job(planner, *args, **kw)
+
+
+class ProcessPlanning(ThreadedPlanning):
+    """One planning job at a time in a worker process of its own (started at once, its solver loaded), so no
+    planning work shares the loop's interpreter lock. On a thread, the planner's Python work held that lock
+    while the host descheduled it, and the loop's cycles came late exactly while it avoided an obstacle (two
+    busy processes beside a 50 Hz loop and a planning thread: 72-177 of ~1000 cycles more than 20 ms late,
+    none or 4 without the thread). The worker plans with an `AvoidancePlanner` of the same parameters; a worker
+    that dies is a failed plan (brake), and the next job starts a new one."""
+
+    def __init__(self):
+        import multiprocessing
+
+        self._ctx = multiprocessing.get_context("spawn")  # never fork a process that has threads
+        self._pool = self._start()
+        self._job = None
+        self._meta = ()
+        # the worker's start-up (its own interpreter, numpy, scipy, OSQP: seconds of CPU on a busy 2-core host) is
+        # waited for here, before the loop runs: started beside a running loop it made the loop's first judged
+        # cycles 50-110 ms late (guidance violations at every demo's take-off with two busy processes beside it)
+        try:
+            self._warm.result(timeout=WORKER_START_S)
+        except Exception:  # noqa: BLE001 — not ready or broken: the first job finds out (a failed plan: brake)
+            pass
+
+    def _start(self) -> ProcessPoolExecutor:
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=self._ctx, initializer=load_solver)
+        self._warm = pool.submit(load_solver)  # start the worker now, not at the first obstacle
+        return pool
+
+    def submit(self, planner, *args, **kw) -> None:
+        self._meta = args[:3]
+        key = (planner.n, planner.scp_iters, (planner.w_v, planner.w_y, planner.w_vy, planner.w_a))
+        try:
+            self._job = self._pool.submit(_plan_in_worker, key, *args, **kw)
+        except RuntimeError:  # the worker died (BrokenProcessPool): a new one
+            self._pool = self._start()
+            self._job = self._pool.submit(_plan_in_worker, key, *args, **kw)
+
+
+@dataclass
+class OffboardGuidance:
+    route: Route
+    planner: AvoidancePlanner = field(default_factory=AvoidancePlanner)
+    planning: InlinePlanning | ThreadedPlanning = field(default_factory=InlinePlanning)
+    plan: Plan | None = None
+    plan_t: float = 0.0
+    plan_omega: tuple[float, float] | None = None
+    s_ref: float = 0.0  # along-track position of the cruise reference
+    v_ref: float = 0.0  # speed of the cruise reference
+    y_off: float = 0.0  # lateral offset of the cruise reference from the route (rejoining after a pass)
+    vy_off: float = 0.0
+    replans: int = 0
+    kept: int = 0  # replans that failed while a verified plan was still being flown
+    plan_t_try: float = -1e9
+    plan_times: list = field(default_factory=list)
+    rejected: int = 0
+    last_notes: list = field(default_factory=list)
+    epoch: int = 0  # bumped whenever the obstacle situation ends: older planning jobs are not flown
+    planner_failed: bool = False  # the last job raised: braking is not "awaiting" but the answer
+    latency: list = field(default_factory=list)  # how long the last 5 answers took, request to poll [s]
+    lead_s: tuple[float, float] = PLAN_LEAD_S  # (0, 0): plans start at the state measured at the request
+    _pending: tuple | None = None  # an answer that starts later than now (asked for while braking)
+    _asked_t: float = 0.0
+    _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
+
+    def start(self, p, v) -> None:
+        self.s_ref = self.route.project(p)
+        self.v_ref = float(np.hypot(*v))
+        self.plan = None
+        self.epoch += 1
+        self._rejoin_from(p, v)
+
+    def _rejoin_from(self, p, v) -> None:
+        """Start the cruise reference where the vehicle is, beside the route if it is beside it."""
+        base, u = self.route.point(self.route.project(p))
+        n = np.array([-u[1], u[0]])
+        self.y_off, self.vy_off = float((np.asarray(p) - base) @ n), float(np.asarray(v) @ n)
+        self.v_ref = max(float(np.asarray(v) @ u), 0.0)
+
+    def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc],
+             yaw: float | None = None) -> Setpoint:
+        """One cycle: the setpoint for now (t), given the vehicle's state (`yaw`: its measured heading,
+        if known) and Ω = (v_max, a_max)."""
+        p, v = np.asarray(p, float), np.asarray(v, float)
+        self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
+        z = -self.route.altitude_m
+        ahead = self._threats(p, v, discs)
+        if ahead:
+            return self._avoid(t, p, v, v_max, a_max, ahead, z)
+        self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
+        if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1] \
+                and not self._past_the_profile(t, v_max, a_max):
+            return self._follow(t, z)  # finish going round the obstacle before rejoining
+        if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
+            end_p, end_v, _ = self.plan.sample(t - self.plan_t)
+            self.s_ref = self.route.project(end_p)
+            self._rejoin_from(end_p, end_v)
+            self.plan = None
+        return self._cruise(dt, p, v_max, a_max, z, yaw)
+
+    # ---------------------------------------------------------------- cruising
+    def _cruise(self, dt, p, v_max, a_max, z, heading=None) -> Setpoint:
+        route = self.route
+        s_here = route.project(p, self.s_ref - 3.0, self.s_ref + 3.0)
+        if self.s_ref < s_here - 1.0 or self.s_ref > s_here + 2.0:
+            self.s_ref = s_here  # rejoin where the vehicle is
+        # lateral offset back to the route: critically damped, peak lateral acceleration ≤ a_max/2
+        w = math.sqrt(0.5 * a_max / max(abs(self.y_off), 0.2))
+        ay = -2.0 * w * self.vy_off - w * w * self.y_off
+        # sideways no faster than keeps the reference's direction within SIDE_DEG of the route, or its whole
+        # speed below SIDE_SLOW: slow and sideways (rejoining at a route's end) the track left the sensor's
+        # view. A floor on the sideways speed alone (0.7 m/s) let the along-track
+        # speed fall to 0 under it: the track swung 40° → 80° off the heading at 1.1 m/s, faster than the
+        # yaw (≈ 45°/s flown) could follow, where the sensor had seen under a metre free: no safe speed.
+        cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)), math.sqrt(max(SIDE_SLOW ** 2 - self.v_ref ** 2, 0.0)))
+        vy = min(max(self.vy_off + ay * dt, -cap), cap)
+        ay = (vy - self.vy_off) / dt if dt > 0 else 0.0
+        self.vy_off = vy
+        self.y_off += self.vy_off * dt
+        # along the path: the speed profile, and no speeding up until the heading is on the yaw wanted
+        _, u = route.point(self.s_ref)
+        n = np.array([-u[1], u[0]])
+        stretch = max(1.0 - route.curvature(self.s_ref) * self.y_off, 0.1)  # path speed at the offset / v_ref
+        limit = min(route.speed_limit(self.s_ref, v_max, a_max),
+                    route.speed_limit(self.s_ref + self.v_ref * dt, v_max, a_max))
+        if abs(self.y_off) > REJOIN_OPEN_M:  # still beside the route: slow gently for the stop ahead, so the
+            # vehicle does not overshoot it and come back outside the sensor's view
+            limit = min(limit, math.sqrt(2 * A_REJOIN_STOP * a_max * max(route.next_stop(self.s_ref) - self.s_ref, 0.0)))
+        target = min(math.sqrt(max(v_max * v_max - self.vy_off * self.vy_off, 0.0)) / max(stretch, 1.0), limit)
+        up = 0.5 * a_max * dt
+        if heading is not None and abs(wrap(heading - self._yaw(u * self.v_ref * stretch + n * self.vy_off, u))) \
+                > HEADING_TOL:
+            up = 0.0  # turn first
+        dv = max(min(target - self.v_ref, up), -a_max * dt)
+        acc = dv / dt if dt > 0 else 0.0
+        self.v_ref = max(self.v_ref + dv, 0.0)
+        stop = route.next_stop(self.s_ref)
+        self.s_ref += self.v_ref * dt
+        if self.s_ref >= stop:  # a sharp corner or the end: arrive there at rest
+            self.s_ref, self.v_ref, acc = stop, 0.0, 0.0
+        pos, u = route.point(self.s_ref)
+        n = np.array([-u[1], u[0]])
+        k = route.curvature(self.s_ref)
+        stretch = max(1.0 - k * self.y_off, 0.1)
+        vel = u * self.v_ref * stretch + n * self.vy_off
+        # exact acceleration of the offset point: tangential, Coriolis-like, centripetal (v²/R) and lateral
+        a_vec = u * (stretch * acc - 2 * k * self.vy_off * self.v_ref) + n * (stretch * k * self.v_ref ** 2 + ay)
+        arrived = self.s_ref >= route.length - 1e-9 and abs(self.y_off) <= 0.1  # at rest, on the route
+        return Setpoint(pos + n * self.y_off, vel, a_vec, z, self._yaw(vel, u), "done" if arrived else "cruise")
+
+    def _yaw(self, vel, u) -> float:
+        """The heading to fly: along the commanded velocity, plus — when that is slow — the measured one
+        (weight 1 at rest, 0 from YAW_MEAS_BELOW), when the sum is above 2·YAW_SPEED, else along the route
+        ahead. The sensor looks where the vehicle goes (the contract's D_od is along the measured velocity)
+        and where it is told to go. The commanded velocity alone let a slow vehicle's track run 30° and more
+        off the heading while it lagged a slow reference (overshooting a route's end after a pass, drifting
+        back: D_od 0, no safe speed); the measured one at speed made the X500 lag its
+        avoidance pass beyond E_tr_pred."""
+        vel = np.asarray(vel, float)
+        d = vel + max(0.0, 1.0 - float(np.hypot(*vel)) / YAW_MEAS_BELOW) * self._v_meas
+        d = d if float(np.hypot(*d)) > 2 * YAW_SPEED else u
+        return math.atan2(d[1], d[0])
+
+    # ---------------------------------------------------------------- avoiding
+    def _threats(self, p, v, discs) -> list[Disc]:
+        """Discs the route ahead (or the current motion) would run into."""
+        if not discs:
+            return []
+        _, u = self.route.point(self.route.project(p))
+        out = []
+        for d in discs:
+            rel = np.array([d.x, d.y]) - p
+            along = float(rel @ u)
+            lateral = abs(float(rel[0] * u[1] - rel[1] * u[0]))
+            if along > -d.r and lateral < d.r + 0.5:
+                out.append(d)
+        return out
+
+    def _avoid(self, t, p, v, v_max, a_max, discs, z) -> Setpoint:
+        """Replan when an obstacle appears (no plan), every REPLAN_S, and — at most every REPLAN_MIN_S —
+        when Ω changes, the vehicle drifts from the plan or it is braking. A plan starts at the state
+        measured when it was asked for, so it is followed from its request time. While the first plan is
+        computed the vehicle brakes, and a plan asked for while braking starts where that braking will have
+        taken the vehicle when the answer is due (`_lead`), flown from then: a plan from the state before the
+        braking, flown from its request, left the vehicle behind it by the braking's lost speed (a controller
+        violation at the demo's first obstacle in fog on a loaded host)."""
+        self._take(t, self.planning.poll())
+        omega = (round(v_max, 3), round(a_max, 3))
+        since = t - max(self.plan_t, self.plan_t_try)
+        urgent = False
+        if self.plan is None:  # no plan yet: start braking now (the slower choice)
+            bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, discs, self.planner.n)
+            kind = "brake" if self.planner_failed else "await"  # a planner that fails is not awaited
+            self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
+            self.plan_t, self.plan_omega, since = t, omega, math.inf
+        else:
+            drift = float(np.hypot(*(self.plan.sample(t - self.plan_t)[0] - p)))
+            urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
+        if (since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
+            t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
+            if self.plan.kind in ("brake", "await") and self.planning.deferred:
+                t_req = t + self._lead()
+                p_req, v_req, _ = self.plan.sample(t_req - self.plan_t)
+            _, u = self.route.point(self.route.project(p_req))
+            warm = self.plan if self.plan.kind in ("pass", "stop") else None
+            self.plan_t_try, self._asked_t = t_req, t
+            self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
+                                 list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 warm=warm, elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
+            self._take(t, self.planning.poll())
+        return self._follow(t, z)
+
+    def _lead(self) -> float:
+        """How far ahead a plan asked for while braking starts: the slowest of the last answers' latencies,
+        within PLAN_LEAD_S (an answer later than its start is flown from its start: the vehicle then lags it
+        by the braking since, as before)."""
+        return min(max([self.lead_s[0], *self.latency]), self.lead_s[1])
+
+    def _take(self, t: float, done) -> None:
+        """An answer from the planning, or the one held until its start time has come."""
+        if done is not None and done[0] == self.epoch and self.planning.deferred:
+            self.latency = [*self.latency[-4:], t - self._asked_t]
+        if done is not None and done[1] > t:
+            self._pending = done  # asked for while braking: fly it from where the braking leaves the vehicle
+            return
+        if done is None and self._pending is not None and self._pending[1] <= t:
+            done, self._pending = self._pending, None
+        self._adopt(done)
+
+    def _past_the_profile(self, t: float, v_max: float, a_max: float) -> bool:
+        """Whether the pass being finished (its obstacle behind) flies faster than the route's speed profile
+        at half its braking allows — then the vehicle rejoins now and slows for what is ahead (the route's end,
+        a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it."""
+        pos, vel, _ = self.plan.sample(t - self.plan_t)
+        return float(np.hypot(*vel)) > float(self.route.speed_limit(self.route.project(pos), v_max, 0.5 * a_max))
+
+    def _pass_speed(self, discs, v_max: float, a_max: float) -> float:
+        """The speed a pass ends at: what the route's speed profile allows beyond the farthest disc, at half
+        the braking the cruise reference uses (the rest is for rejoining the route sideways). A pass that
+        ended at V_max 2 m before the route's end overshot it by 2–5 m and drifted back outside the
+        sensor's view."""
+        s_far = max(self.route.project((d.x, d.y)) + d.r for d in discs)
+        return float(self.route.speed_limit(s_far, v_max, 0.5 * a_max))
+
+    def _adopt(self, done) -> None:
+        """Take a finished plan of the current obstacle situation; a failed one never replaces a
+        verified plan still in progress."""
+        if done is None or done[0] != self.epoch:
+            return
+        _, t_req, omega, new = done
+        if self.plan is not None and t_req < self.plan_t:
+            return  # older than the plan being flown
+        if isinstance(new, BaseException):
+            self.last_notes = [f"planner error: {new!r}"[:200]]
+            self.planner_failed = True
+            if self.plan is not None and self.plan.kind == "await":
+                self.plan = Plan("brake", self.plan.t, self.plan.p, self.plan.v, self.plan.a, False, -math.inf)
+            return
+        self.planner_failed = False
+        self.replans += 1
+        self.plan_times.append(new.solve_s)
+        self.rejected += new.rejected
+        self.last_notes = new.notes
+        if keeps_plan(self.plan, t_req - self.plan_t, new):  # keep flying the verified plan in progress
+            self.kept += 1
+        else:
+            self.plan, self.plan_t, self.plan_omega = new, t_req, omega
+
+    def _follow(self, t, z) -> Setpoint:
+        pos, vel, acc = self.plan.sample(t - self.plan_t)
+        s_here = self.route.project(pos)
+        _, u = self.route.point(s_here)
+        yaw = self._yaw(vel, u)
+        self.s_ref, self.v_ref = s_here, float(vel @ u)
+        mode = {"pass": "avoid", "stop": "avoid", "brake": "brake", "await": "planning"}[self.plan.kind]
+        return Setpoint(pos, vel, acc, z, yaw, mode)

@@ -1,0 +1,246 @@
+"""Offboard mode's control of the autopilot: entering, flying, leaving. Pure: returns actions.
+
+    off ──engaged, flying──▶ entering (stream setpoints at the current position for `entry_s`,
+                                        then ask for OFFBOARD / GUIDED)
+        entering ──heartbeat shows it──▶ flying (guidance setpoints every cycle, ≥ 20 Hz)
+        flying ──mode changed by someone else──▶ stood_down (stop streaming; never re-enter by itself)
+        flying ──route flown──▶ done (Hold)        done / stood_down ──disengaged──▶ off
+        flying ──fail-safe the daemon can fly out itself (no safe speed, limit not in force)──▶ braking
+        braking (stream the best stop at the tilt's full deceleration from the measured state, its
+                 acceleration turned from the last setpoint's at the attitude-rate limit: straight, or a
+                 braking swerve off the keep-out discs last seen when straight would enter one)
+                ──at rest at its end point──▶ held (Hold)         braking ──mode changed by someone else──▶ stood_down
+        entering / flying ──a fail-safe Hold (the supervisor holds)──▶ held (ask for Hold, stop streaming)
+        entering / flying ──stop asked otherwise (not engaged, Ctrl-C)──▶ off
+        held ──CG_ENGAGE off and on (`Cycle.engage_requested`)──▶ off
+
+Authority after a fail-safe (its cause seen to clear, the vehicle left alone): a fail-safe Hold is latched.
+The daemon never re-enters offboard by itself after it (it did, 2–5 s later, as soon as the cause had cleared:
+repeated Hold/re-enter cycles); the pilot or the ground station decides — another mode, or CG_ENGAGE toggled to
+resume the route. A cause that clears is no evidence that the next pass will not raise it again.
+
+Why the daemon brakes itself before handing over: PX4's Hold (FlightTaskAuto::activate
+resets its jerk-limited position smoothing to the last setpoint's acceleration and velocity) and
+ArduPilot's Brake (AC_PosControl::init_xy_controller starts from the current velocity and lean angles)
+both begin from the acceleration the vehicle has and ramp it out at the jerk limit, so a Hold commanded
+mid-swerve carries the manoeuvre on; a stop the daemon streams takes the acceleration out at once.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contracts.online_planner import Plan, best_stop
+from contracts.stop import stop_path_budget
+
+from .guidance import OffboardGuidance, Setpoint
+from .states import AT_REST_M_S, STREAMING, SetpointKind
+from .states import OffboardState as S
+
+HELD = "fail-safe Hold, held until the pilot or the ground station decides (CG_ENGAGE off and on to resume)"
+RECOVERED = "the recovery brake's Hold, held until the pilot or the ground station changes the mode"
+SEEN_S = 5.0  # [s] keep-out discs seen this recently shape a fail-safe stop when the sensor sees none now
+# [s] a fail-safe stop hands over to Hold once the vehicle has stayed below 0.3 m/s this long at the stop's end:
+# a vehicle that overran the stop is still accelerating back at ~g·tan(tilt) as its speed crosses zero, and
+# ArduPilot's Brake (AC_PosControl::init_xy_controller: the current lean angles) carries that acceleration on
+SETTLE_S = 0.5
+# ... and within AT_END_M of the stop's end point (after a hard stop the autopilot's velocity
+# integrator still holds the drag it learnt at speed, ~1.3 m/s² on the Mambo at 5.3 m/s; it holds the vehicle
+# ~0.7 m past the end against the position loop, and Hold, which restarts at the current position, let it push
+# on another 0.45 m into the column; held at the end point, the integrator bleeds off); at most END_WAIT_S
+AT_END_M = 0.2
+END_WAIT_S = 10.0
+
+
+@dataclass
+class OffboardActions:
+    setpoint: Setpoint | None = None
+    enter: bool = False  # ask the autopilot for OFFBOARD / GUIDED now
+    hold: bool = False  # ask the autopilot for Hold now (the route is complete, or the braking stop is over)
+    events: list[tuple[str, dict]] = field(default_factory=list)
+
+
+@dataclass
+class OffboardController:
+    guidance: OffboardGuidance
+    entry_s: float = 1.0
+    state: S = S.OFF
+    _t_state: float = 0.0
+    _hold_here: np.ndarray | None = None
+    _t_last: float | None = None
+    _refusal: str | None = None  # the autopilot refused, or did not show, the OFFBOARD / GUIDED asked (`refuse`)
+    _braking: bool = False
+    _seen: tuple | None = None  # (t, the keep-out discs last seen)
+    _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
+    _a_last: np.ndarray | None = None  # the acceleration of the last setpoint streamed while flying
+    _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
+    _switch: bool = False  # the recovery brake awaits its switch to offboard
+    refused: str | None = None  # why the recovery brake's switch was refused (it is then unavailable)
+    proven: bool = False  # the recovery brake's switch was shown within its contract's budget in this flight
+    held: str = HELD  # what the Hold at the end of the braking stop waits for
+
+    def _go(self, t, new, why, acts):
+        acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
+        self.state, self._t_state = new, t
+
+    def step(self, t, *, engaged: bool, flying: bool, mode: str, by_daemon: bool, taken_over: bool, p, v, z, yaw,
+             v_max: float, a_max: float, discs, stop: bool, brake_stop: bool = False,
+             a_stop: float = 0.0, stop_decel: float = 0.0, jerk: float = math.inf,
+             failsafe: bool = False, track_jerk: float = math.inf) -> OffboardActions:
+        """`brake_stop` (with `stop`): the stop may be flown by the daemon itself, braking at `a_stop`
+        (the tilt's horizontal acceleration limit), before it hands over to Hold; never longer than the
+        stop contract's braking (deceleration `stop_decel`, jerk `jerk`), its acceleration turned from the last
+        setpoint's at `track_jerk`. `failsafe` (with `stop`): the
+        stop is a fail-safe Hold, which is latched (`held`). `taken_over`: someone else changed the mode this
+        cycle (the mode authority's judgement): offboard stands down, never fights."""
+        acts = OffboardActions()
+        dt = 0.02 if self._t_last is None else min(max(t - self._t_last, 1e-3), 0.2)
+        self._t_last = t
+        if self.state == S.BRAKING:
+            return self._brake(t, stop and not brake_stop, mode, taken_over, p, v, acts)
+        if discs:
+            self._seen = (t, list(discs))  # the obstacle is static: remembered if the sensor goes blind
+        if stop and self.state == S.FLYING and brake_stop and a_stop > 0:
+            known = list(discs) or (self._seen[1] if self._seen is not None and t - self._seen[0] < SEEN_S else [])
+            # braking at the tilt's full deceleration (the avoid contract's stop branch); a swerve off the
+            # discs may lengthen it to at most 0.9 × the stop contract's braking distance (`stop_decel`, `jerk`: the rest
+            # is for the vehicle's lag behind the stop it is given)
+            budget = stop_path_budget(float(np.hypot(*v)), stop_decel, jerk)
+            # from the acceleration last commanded (what the vehicle is turning to; PX4's Hold restarts from it
+            # too), turned onto the stop at `track_jerk`: a stop the vehicle can track
+            self._plan_stop(p, v, z, yaw, a_stop, known, budget, self._a_last, track_jerk)
+            self._go(t, S.BRAKING, "fail-safe: the daemon brakes to a stop, then Hold", acts)
+            return self._brake(t, False, mode, False, p, v, acts)
+        if stop and self.state in (S.ENTERING, S.FLYING):
+            self._go(t, S.HELD if failsafe else S.OFF, HELD if failsafe else "hold requested", acts)
+            return acts
+        if self.state in (S.DONE, S.STOOD_DOWN, S.HELD):  # until asked again (CG_ENGAGE off and on)
+            return acts
+        if self.state == S.OFF:
+            if engaged and flying and not stop:
+                self._refusal = None
+                self._hold_here = np.asarray(p, float).copy()
+                self._hold_z, self._hold_yaw = z, yaw
+                self._go(t, S.ENTERING, "engaged", acts)
+            else:
+                return acts
+        if self.state == S.ENTERING:
+            if mode == "offboard" and by_daemon:
+                self.guidance.start(p, v)
+                self._done_at = None
+                self._go(t, S.FLYING, "autopilot in offboard", acts)
+            else:
+                acts.setpoint = Setpoint(self._hold_here, np.zeros(2), np.zeros(2), self._hold_z, self._hold_yaw,
+                                         SetpointKind.HOLD)
+                # asked every cycle from entry_s on: the mode authority delivers it, and says when it failed
+                acts.enter = t - self._t_state >= self.entry_s
+                if self._refusal is not None:
+                    self._go(t, S.OFF, f"autopilot did not enter offboard: {self._refusal}", acts)
+                    acts.setpoint, acts.enter = None, False
+                return acts
+        if self.state == S.FLYING:
+            if taken_over:
+                self._go(t, S.STOOD_DOWN, f"{mode} set by someone else", acts)
+                return acts
+            if self._done_at is not None:
+                return self._finish(t, acts)
+            acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs, yaw=yaw)
+            if acts.setpoint.mode == SetpointKind.DONE and float(np.hypot(*v)) < AT_REST_M_S:
+                # the route is flown: hold the vehicle where it is for SETTLE_S, then hand over to Hold, so
+                # that the last setpoint is where it rests (PX4's Hold restarts from the last setpoint: handed
+                # over 1.5 m past it, the vehicle flew back there, 1.3 m/s backwards, unseen by its sensors)
+                self._done_at = (t, np.asarray(p, float).copy(), z, yaw)
+                return self._finish(t, acts)
+            if acts.setpoint.mode == SetpointKind.BRAKE and not self._braking:
+                acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
+            self._braking = acts.setpoint.mode == SetpointKind.BRAKE
+            self._a_last = np.asarray(acts.setpoint.a, float)
+        return acts
+
+    def _plan_stop(self, p, v, z, yaw, a_stop, known, budget, a0, jerk) -> None:
+        """The stop to stream: `best_stop` from the measured state at `a_stop`, its acceleration from `a0` at `jerk`."""
+        bp, bv, ba, bts, _ = best_stop(np.asarray(p, float), np.asarray(v, float), a_stop, known, 40,
+                                       max_path_m=budget, a0=a0, jerk=jerk)
+        self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
+        self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
+
+    def recover(self, t, *, start: bool, abort: bool, mode: str, taken_over: bool, p, v, z, yaw, a_stop: float,
+                jerk: float, a0=None) -> OffboardActions:
+        """Governor mode's recovery brake (ASTM F3269's recovery function, the stop contract its
+        monitor). `start`: the stop contract calls for a stop: the straight jerk-limited stop at `a_stop` (the
+        airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD /
+        GUIDED asked the next (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop
+        (`_brake`: at rest, Hold).
+        The switch refused or not shown in time (`refuse`: the mode authority's delivery): Hold at once, and
+        `refused` says why. `abort`: a cause the daemon cannot fly out (its state not to be trusted): Hold now."""
+        acts = OffboardActions()
+        self._t_last = t
+        if self.state == S.BRAKING:
+            return self._brake(t, abort, mode, taken_over, p, v, acts)
+        if start and not abort:
+            self._plan_stop(p, v, z, yaw, a_stop, [], math.inf, a0, jerk)
+            self._switch, self._refusal, self.held = True, None, RECOVERED
+            self._go(t, S.BRAKING, "recovery brake: the daemon brakes to a stop, then Hold", acts)
+            return self._brake(t, False, mode, False, p, v, acts)
+        return acts
+
+    def refuse(self, why: str) -> None:
+        """The autopilot refused the OFFBOARD / GUIDED asked, or did not show it in time (the mode authority's
+        delivery): entering, offboard is not entered; braking, the recovery brake holds at the next cycle."""
+        self._refusal = why
+
+    def _switched(self, t, mode: str, acts) -> bool:
+        """The recovery brake's switch to offboard: asked from the cycle after the first setpoint until shown, or
+        refused / not shown in time (False: Hold now)."""
+        if mode == "offboard":
+            self._switch = False
+        elif self._refusal is not None:
+            self.refused = self._refusal
+            acts.hold = True
+            self._go(t, S.HELD, f"recovery brake refused ({self.refused}): Hold", acts)
+            return False
+        else:
+            acts.enter = t > self._t_state  # (the first setpoint streamed the cycle before)
+        return True
+
+    def _finish(self, t, acts) -> OffboardActions:
+        """The route's end: a setpoint at rest where the vehicle stopped, then Hold after SETTLE_S."""
+        since, here, z, yaw = self._done_at
+        acts.setpoint = Setpoint(here, np.zeros(2), np.zeros(2), z, yaw, SetpointKind.HOLD)
+        if t - since >= SETTLE_S:
+            acts.hold = True
+            self._go(t, S.DONE, "route complete", acts)
+        return acts
+
+    def _brake(self, t, abort: bool, mode: str, taken_over: bool, p, v, acts) -> OffboardActions:
+        """Stream the fail-safe stop; at rest (or well past its end) hand over to Hold (handing over while
+        the vehicle still moves lets Hold carry on from its acceleration: measured, 16–18 m for 8 m)."""
+        if taken_over:
+            self._go(t, S.STOOD_DOWN, f"{mode} set by someone else", acts)
+            return acts
+        if abort:  # a fail-safe the daemon cannot fly out (its own state is not to be trusted): Hold now
+            acts.hold = True
+            self._go(t, S.HELD, HELD, acts)
+            return acts
+        if self._switch and not self._switched(t, mode, acts):
+            return acts
+        tau = t - self._t_state
+        plan = self._stop_plan
+        near = float(np.hypot(*(np.asarray(p, float) - plan.p[-1]))) <= AT_END_M
+        slow = tau >= plan.t[-1] and float(np.hypot(*v)) < AT_REST_M_S and near
+        self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
+        if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
+            acts.hold = True
+            self._go(t, S.HELD, "stopped: " + self.held, acts)
+            return acts
+        pos, vel, acc = plan.sample(tau)
+        acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, SetpointKind.BRAKE)
+        return acts
+
+    @property
+    def streaming(self) -> bool:
+        return self.state in STREAMING
+

@@ -1,0 +1,722 @@
+"""The contract supervisor: each cycle, evaluate Γ, choose Ω, and decide what to tell the autopilot.
+
+Pure: `Supervisor.step(Inputs) -> Decision`, no I/O. The daemon turns decisions into MAVLink and
+event-log records. States (an explicit machine):
+
+    standby   not engaged, not flying, or shadow mode (shadow still computes and logs everything)
+    active    the speed limit is commanded and checked
+    holding   the daemon commanded Hold (obstacle inside the stop distance, limit not in force,
+              no safe speed, failsafe); it stays there until someone else changes the mode
+    failsafe  the link to the autopilot is lost: nothing can be commanded
+
+Authority (DESIGN.md §5): the pilot and the ground station outrank the daemon. It engages only when
+asked, never fights a mode change it did not make — after someone else leaves its Hold it logs it and
+stands down from that cause (a trigger must clear and fire anew before it holds again).
+Limits move one way fast: a lower limit takes effect at once, a higher one after `dwell_s`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from contracts.online_planner import Disc, offboard_cap
+from contracts.stop import braking_decel, measured_stopping_distance, ramp_accel, slowdown_speed, stop_dead_time
+from contracts.table import ContractTable, Omega
+from contracts.window import WindowMax
+
+from .authority import GUARANTEE_ANSWERED, Late
+from .estimators import DodEstimate
+from .guidance import inflated
+from .modes import Mode, mode_of
+from .states import (  # noqa: F401 (re-exported)
+    AT_REST_M_S,
+    BRAKE_STOP_CAUSES,
+    BRAKE_SWITCH,
+    FAILSAFE_CAUSES,
+    RAMP_FOLLOWED,
+    Cause,
+    State,
+    Subsystem,
+)
+
+STOP_MODES = ("hold", "land")  # the daemon's Hold, and its fallback where Hold is refused (companion/onboard/authority.py)
+MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
+# the approach ramp (`ApproachRamp`): a ramp command standing this far above speed + ramp is lowered at once …
+RAMP_SLACK_M_S = 0.05
+RAMP_A_TOL = 0.3  # [m/s²] … and the stop contract's Hold-start acceleration allows this beside `ramp_accel`, for the
+# measured acceleration's noise and lag (the check judges the measurement against the contract's own bound)
+RAMP_WINDOW_S = 0.3  # [s] the acceleration the check judges is Δv/Δt over this long
+RAMP_REARM_S = 3.0  # [s] the ramp followed this long (measured) before its bound is in force, at first and again
+RAMP_V_TOL = (1.03, 0.15)  # the speed flown is never above 1.03 × the speed commanded + 0.15 m/s (tracking, wind)
+# [s] a lower limit is flown within the autopilot's slow-down (`slowdown_speed`) from its dead time plus this: the
+# vehicle's velocity lags its autopilot's smooth slow-down by its velocity loop (PX4 MPC_XY_VEL_P_ACC 1.8/s: ~0.5 s)
+SLOWDOWN_LAG_S = 0.6
+SLOWDOWN_NEAR_M_S = 0.3  # [m/s] flying within this of the old limit's tolerance when a lower one comes: complying
+LIMIT_FLOWN = "a speed limit is flown within the autopilot's slow-down"  # the delivery subsystem's guarantee
+
+
+@dataclass(frozen=True, slots=True)
+class Inputs:
+    """Everything the supervisor may look at, all derived from MAVLink samples."""
+
+    t: float
+    link_ok: bool  # autopilot heartbeat fresh
+    telemetry_ok: bool  # position and velocity fresh
+    nav_ok: bool  # the autopilot's estimator is healthy
+    armed: bool
+    in_air: bool
+    mode: str  # adapter's name: mission, hold, takeoff, land, rtl, position, offboard, manual, other
+    limit_applies: bool  # the autopilot applies DO_CHANGE_SPEED in this mode
+    mode_by_daemon: bool  # the current mode is one the daemon commanded (companion/onboard/authority.py)
+    ground_speed: float
+    dod: DodEstimate
+    e_tr_measured: float  # the worst contour error measured over the window (with its floor)
+    thrust_ratio: float
+    r_obst: float
+    engaged: bool
+    mission_seq: int = -1  # the autopilot's current mission item (a speed item may reset the limit)
+    v_cruise: float = math.nan  # the autopilot's own auto-mode cruise speed (its parameter), NaN: not heard
+    v_mission: float = math.nan  # the speed the mission's own speed items set at this item, NaN: not known
+    obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
+    discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
+    late_s: float = 0.0  # the daemon's own worst lateness, beyond t_react's budget, of the last 10 s (Timeliness)
+    late_unbudgeted_s: float = 0.0  # this cycle's lateness where it exceeds what was counted before it, else 0
+    late_within_s: float = 0.0  # this cycle's lateness inside the jitter allowance, to be said (an event), else 0
+    mode_changed: bool = False  # the mode changed this cycle
+    taken_over: bool = False  # someone else changed the mode this cycle (the authority's one rule: stand down)
+    accel_along: float = math.nan  # the horizontal acceleration flown along the velocity over RAMP_WINDOW_S (its
+    # magnitude below 0.5 m/s) [m/s²], NaN: not measured yet
+    delivery_late: Late | None = None  # a mode command past its delivery budget (companion/onboard/authority.py)
+
+
+@dataclass
+class _Draft:
+    """A decision while the supervisor makes it (`Decision` is what it hands on, frozen)."""
+
+    state: State
+    omega: Omega
+    v_cmd: float | None
+    send_speed: float | None = None
+    hold: bool = False
+    events: list[tuple[str, dict]] = field(default_factory=list)
+    statustext: list[tuple[int, str]] = field(default_factory=list)
+    hold_causes: list[Cause] = field(default_factory=list)
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    """One cycle's decision of the supervisor (frozen: the cycle builds its outbox from it, never rewrites it)."""
+
+    state: State
+    omega: Omega
+    v_cmd: float | None  # the limit in force (after hysteresis), None when nothing is commanded
+    send_speed: float | None = None  # send DO_CHANGE_SPEED with this now
+    hold: bool = False  # the supervisor asks for Hold/Brake now (the mode authority's failsafe request)
+    events: tuple[tuple[str, dict], ...] = ()
+    statustext: tuple[tuple[int, str], ...] = ()  # (MAV_SEVERITY, text)
+    e_tr_virtual: float = 0.0  # E_tr of the virtual obstacle (Figure 13): measured, or E_tr_pred flown if larger
+    discs: tuple[Disc, ...] = ()  # the keep-out discs: the obstacles grown by E_tr + r_body
+    hold_causes: tuple[Cause, ...] = ()  # why it holds this cycle (fresh causes)
+
+
+class ContractSpeed:
+    """The default speed policy: the contract's own Ω, optionally scaled by `k` (k > 1 only as a negative control
+    of a campaign: companion/ground/baselines.py `Scaled`). A speed policy (`Supervisor(policy=...)`; the baselines and
+    negative controls in companion/ground/baselines.py) has `omega(inputs, sup) -> Omega` (`sup.contract_omega(inputs)`:
+    the contract's Ω, `sup.table`: its table), `take(sample)` (every sample the cycle takes), `stop_hold` (the
+    stop-distance Hold applies: False for a law that is its own whole answer to an obstacle) and `inflate_e_tr`
+    (the keep-out discs are grown by E_tr)."""
+
+    name = "contract"
+    stop_hold = True
+    inflate_e_tr = True
+
+    def __init__(self, k: float = 1.0):
+        self.k = k
+
+    def omega(self, i: "Inputs", sup: "Supervisor") -> Omega:
+        om = sup.contract_omega(i)
+        return om if self.k == 1.0 else replace(om, v_max=om.v_max * self.k, v_safe=om.v_safe * self.k)
+
+    def take(self, sample) -> None:
+        pass
+
+
+class OneSidedLimit:
+    """A limit that drops at once and rises only after the higher value has held for `dwell_s`:
+    value = min(now, max(current, min of the candidates over the last dwell))."""
+
+    def __init__(self, dwell_s: float):
+        self.dwell_s = dwell_s
+        self.reset()
+
+    def reset(self) -> None:
+        self.value: float | None = None
+        self._t0: float | None = None
+        self._win: deque[tuple[float, float]] = deque()  # increasing candidates (monotonic min queue)
+
+    def update(self, t: float, candidate: float) -> float:
+        if self._t0 is None:
+            self._t0 = t
+        while self._win and self._win[-1][1] >= candidate:
+            self._win.pop()
+        self._win.append((t, candidate))
+        while self._win[0][0] < t - self.dwell_s:
+            self._win.popleft()
+        if self.value is None or candidate < self.value:
+            self.value = candidate
+        elif t - self._t0 >= self.dwell_s and self._win[0][1] > self.value:
+            self.value = self._win[0][1]  # every candidate of the last dwell was at least this
+        return self.value
+
+
+class ApproachRamp:
+    """Governor mode's approach ramp (DESIGN.md §1 stop contract). Up to the contract's limit for any approach
+    (`free`) the autopilot speeds up as it likes (that contract covers a Hold in any state of it); above it the
+    speed command is raised no more than `gap` above the speed flown, so an autopilot whose velocity smoothing never
+    overshoots its target accelerates there at most `ramp_accel(jerk, gap + RAMP_SLACK_M_S)` (also where it passes
+    `free − gap`: it was approaching `free` without overshooting). The stop contract then takes the Hold-start
+    acceleration at most `a0_max` (that plus RAMP_A_TOL) instead of the worst of any approach — a higher V_max.
+    The assumption is checked: in force only once the autopilot has reported its jerk and after RAMP_REARM_S flown
+    on the ramp (at least `free − gap`, judged once the measurement's window lies on it) with the measured
+    acceleration ≤ a0_max; the speed flown never above RAMP_V_TOL of the command while speeding up. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
+    or overshoots the command), it is out of force at once and for the rest of the flight (until on the ground),
+    the limit falls to the any-approach contract's, and the autopilot's violation lasts while the excess does."""
+
+    def __init__(self, gap_m_s: float, jerk: float):
+        self.gap = gap_m_s
+        self.jerk_file = jerk  # the vehicle file's (braking.jerk_max_m_s3)
+        self.a0_max = math.inf  # not in force before the autopilot reports its own jerk (`autopilot_jerk`)
+        self.free = 0.0  # [m/s] the last command's any-approach limit (`command`)
+        self.in_force = False
+        self.broken = False  # broken this flight: not in force again until on the ground
+        self._since: float | None = None  # followed on the ramp since
+        self._ramp_t: float | None = None  # on the ramp (at least free − gap) since
+        self.excess: tuple[str, str, float, float] | None = None  # (what, unit, allowed, measured) above the ramp
+
+    def autopilot_jerk(self, jerk: float | None) -> None:
+        """The jerk the autopilot reports it smooths its approach with (MPC_JERK_AUTO, WPNAV_JERK; None: not
+        reported): the bound takes the larger of it and the vehicle file's (the start-up checks refuse a smaller)."""
+        ok = jerk is not None and math.isfinite(jerk) and jerk > 0
+        self.a0_max = ramp_accel(max(jerk, self.jerk_file), self.gap + RAMP_SLACK_M_S) + RAMP_A_TOL if ok else math.inf
+
+    def judge(self, t: float, ramping: bool, accel: float, speed: float, v_sent: float | None, in_air: bool
+              ) -> tuple[bool, bool]:
+        """One cycle: `ramping`, the daemon's commands reach the autopilot; `accel`, the acceleration measured along
+        the velocity (NaN: unknown); `speed` the ground speed and `v_sent` the last speed commanded. (changed,
+        over): whether `in_force` changed, and whether the measured acceleration (on the ramp) or speed is above
+        what the ramp allows (with `changed`: it broke the ramp in force)."""
+        was = self.in_force
+        # on the ramp (at least free − gap) for the measurement's whole window: its acceleration is judged
+        self._ramp_t = (self._ramp_t if self._ramp_t is not None else t) if speed >= self.free - self.gap else None
+        on_ramp = self._ramp_t is not None and t - self._ramp_t >= RAMP_WINDOW_S
+        v_top = RAMP_V_TOL[0] * v_sent + RAMP_V_TOL[1] if v_sent is not None else math.inf
+        # (above the command while still speeding up: a command just lowered — fog, a nearer obstacle — is not
+        # overshot by a vehicle slowing down to it)
+        self.excess = (("acceleration", "m/s²", self.a0_max, accel) if on_ramp and accel > self.a0_max else
+                       ("speed", "m/s", v_top, speed) if speed > v_top and accel > RAMP_A_TOL else None)
+        over = ramping and self.excess is not None
+        if not in_air:
+            self.broken = False
+        if over and was:
+            self.broken = True
+        if self.broken or not ramping or over or not math.isfinite(accel) or self.a0_max == math.inf:
+            self._since, self.in_force = None, False
+        elif on_ramp:
+            self._since = t if self._since is None else self._since
+            self.in_force = self.in_force or t - self._since >= RAMP_REARM_S
+        return self.in_force != was, over
+
+    def command(self, v_target: float, v_flown: float, free: float) -> float:
+        """The speed to command toward `v_target`: the any-approach limit `free`, above it at most `gap` above
+        the speed flown."""
+        self.free = min(free, v_target)
+        return min(v_target, max(self.free, max(v_flown, 0.0) + self.gap))
+
+
+class Supervisor:
+    """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
+
+    def __init__(self, table: ContractTable, mode: str | Mode, *, contract: str, dwell_s: float, speed_margin: float,
+                 loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
+                 e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None,
+                 t_cmd_s: float = 0.0):
+        """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
+        `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold); `late_allowance_s`: the
+        jitter allowance t_react budgets beside one loop period (`timeouts.cycle_jitter_s`); `policy`: the speed
+        policy flown (default `ContractSpeed()`; a campaign's baselines and negative controls: companion/ground/baselines.py);
+        `e_tr_window_s`, `e_tr_floor_m`: the window E_tr is measured over and the floor it never reads below
+        (`contract.e_tr_window_s`, `contract.e_tr_floor_m`), so also what its prediction is judged over;
+        `ramp_m_s`: governor mode's approach ramp (`governor.approach_ramp_m_s`, `ApproachRamp`), None: none;
+        `t_cmd_s`: the command-delivery budget the stop contract adds to its dead time (`delivery.t_cmd_s`)."""
+        if contract not in ("stop", "avoid"):
+            raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
+        self.table = table
+        self.mode = mode_of(mode)
+        self.contract = contract
+        # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
+        # (and never faster than the E_tr sweep flew those plans: the table records that cap)
+        self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
+        self.limit = OneSidedLimit(dwell_s)
+        self.margin = speed_margin
+        self.loop_dt = loop_dt
+        self.late_hold_s = late_hold_s
+        self.late_allowance_s = late_allowance_s
+        self._late_counted = 0.0  # the lateness Ω counts as reaction time (last said in a `reaction_time` event)
+        self.state = State.STANDBY
+        self._last_sent: float | None = None
+        self._last_sent_t = -math.inf
+        self._speed_answered = True  # the autopilot answered the last speed command (COMMAND_ACK)
+        self._speed_t0 = -math.inf  # the first send of the speed command on its way
+        self._target_sent = math.nan  # what the last command sent was toward (the limit, or the autopilot's own speed)
+        self._last_in_air = False
+        self._linked = False  # an autopilot heartbeat has been seen (the first link is "up", not "restored")
+        self._last_seq = -1
+        # above the limit since: (when, speed, limit, acceleration, the most it may fly) then
+        self._over_since: tuple[float, float, float, float, float] | None = None
+        self._recent_limits: deque[tuple[float, float]] = deque()  # (t, limit): the limits of the last dead time
+        self._not_flown: tuple[float, float] | None = None  # (allowed, flown): the limit not flown this cycle
+        self.t_cmd = t_cmd_s
+        self._suppressed: set[Cause] = set()  # hold causes stood down from after an override
+        self._violations: dict[str, dict] = {}
+        self._dod_swept = False  # the last D_od was the swept coverage (dod_coverage events)
+        self._no_limit_mode_warned: str | None = None
+        self._held_for: list[Cause] = []  # the causes of the daemon's current Hold
+        self._would: tuple[Cause, ...] = ()
+        self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
+        self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
+        self._e_pred_window = WindowMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
+        self.e_tr_floor = e_tr_floor_m
+        self._omega_at: dict[tuple, Omega] = {}  # (d_od, r_obst, e_tr measured, thrust, brake, ramp) → Ω
+        self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
+        self._stop_at: tuple[float, float, float] | None = None  # (speed, thrust ratio, stopping distance)
+        # never fly a speed the controller contract does not cover: the top of E_tr_pred's speed axis
+        # (above it E_tr_pred has no answer and the keep-out disc would be unbounded)
+        e_pred = getattr(table, "e_pred", None)
+        self.v_covered = float(e_pred.axes[0][-1]) if e_pred is not None else math.inf
+        self.policy = policy if policy is not None else ContractSpeed()
+        self.latched = False  # offboard's fail-safe Hold is latched (`latch_hold`)
+        # the stop contract's brake: None, the autopilot's Hold; the loop period, the daemon's recovery brake
+        # (set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
+        self.recovery_dt: float | None = None
+        self.ramp = ApproachRamp(ramp_m_s, table.vehicle.braking.jerk_max_m_s3) \
+            if ramp_m_s is not None and self.mode.governs else None
+
+    def latch_hold(self, d: Decision, reason: str) -> Decision:
+        """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
+        toggled, whether or not its cause has cleared (`companion/onboard/offboard.py`, authority). The decision, so said."""
+        self.latched = True
+        draft = _Draft(d.state, d.omega, d.v_cmd)
+        self._set_state(draft, State.HOLDING, reason)
+        return self._amended(d, draft)
+
+    def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float) -> Decision:
+        """The recovery brake's assumption: the autopilot accepts its switch to offboard when called, within the
+        time the brake's contract budgets. `refused`: the autopilot refused it this cycle (its answer, or the mode
+        not shown within that budget); `speed`: the ground speed it is judged at (the larger of now and when the
+        brake was called). Refused while the vehicle flew faster
+        than the autopilot's Hold's stop contract allows here (`hold_omega`: the limit a refusal falls back to), the
+        autopilot broke that assumption: the daemon holds at once (the cycle) and that stop
+        is not guaranteed. Logged as the autopilot's violation (a critical STATUSTEXT) until the vehicle is at
+        rest. Refused below that limit: nothing here (the Hold's own contract covers the stop). The decision, so
+        amended."""
+        key = Subsystem.AUTOPILOT
+        if key in self._violations:
+            on, v_hold = not i.ground_speed < AT_REST_M_S, math.nan  # (an unknown speed: not at rest)
+        elif refused:  # above the Hold's limit as the limit itself is judged flown (`_judge_limit`)
+            v_hold = self.hold_omega(i).v_max
+            on = speed > 1.05 * v_hold + self.margin
+        else:
+            return d
+        draft = _Draft(d.state, d.omega, d.v_cmd)
+        self._violation(draft, key, on, lambda: dict(
+                        subsystem=key, guarantee=BRAKE_SWITCH, assumed=v_hold, observed=speed, action="Hold"),
+                        text=(2, "CG: recovery brake REFUSED above the Hold's limit: stop not guaranteed"))
+        return self._amended(d, draft)
+
+    def speed_answered(self) -> None:
+        """The autopilot answered DO_CHANGE_SPEED (its COMMAND_ACK, whatever the result: a refusal shows in the speed
+        flown, which `_judge_limit` judges): it is not sent again until it changes."""
+        self._speed_answered = True
+
+    @staticmethod
+    def _amended(d: Decision, draft: _Draft) -> Decision:
+        """`d` after a draft made from it: its state, and its events and STATUSTEXTs added."""
+        return replace(d, state=draft.state, events=d.events + tuple(draft.events),
+                       statustext=d.statustext + tuple(draft.statustext))
+
+    @property
+    def tilt_in_force(self) -> float | None:
+        """The tilt of the last Ω with a speed to fly (the one being flown), None before the first."""
+        return self._tilt_in_force
+
+    # ------------------------------------------------------------------ helpers
+    def _set_state(self, d: _Draft, new: State, reason: str) -> None:
+        if new != self.state:
+            d.events.append(("state_change", {"from": self.state, "to": new, "reason": reason}))
+            d.statustext.append((5 if new != State.HOLDING else 2, f"CG: {new} ({reason})"))
+            self.state = new
+        d.state = new
+
+    def _violation(self, d: _Draft, key: Subsystem, on: bool, info, text: tuple[int, str] | None = None) -> None:
+        """Track one guarantee: emit violation_start/end on transitions (`info()`: the start's fields, made
+        only then; `text`: its STATUSTEXT, by default an error naming the subsystem)."""
+        if on and key not in self._violations:
+            self._violations[key] = info = info()
+            d.events.append(("violation_start", info))
+            d.statustext.append(text or (3, f"CG: {info['subsystem']} violation"))
+        elif not on and key in self._violations:
+            info0 = self._violations.pop(key)
+            d.events.append(("violation_end", {k: info0[k] for k in ("subsystem", "guarantee")}))
+
+    @property
+    def _limit_dead_time(self) -> float:
+        """[s] from a speed command sent to the vehicle's speed following the autopilot's slow-down: reaction, the
+        switch, the delivery budget and the velocity loop's lag (SLOWDOWN_LAG_S)."""
+        return stop_dead_time(self.table.vehicle) + self.t_cmd + SLOWDOWN_LAG_S
+
+    def _braking_decel(self, thrust_ratio: float) -> float:
+        """The autopilot's braking deceleration at this thrust ratio (`contracts.stop.braking_decel` of the
+        table's vehicle, a pure function of it): one evaluation per value, as `e_tr_pred_flown`."""
+        if self._decel_at is None or self._decel_at[0] != thrust_ratio:
+            self._decel_at = (thrust_ratio, braking_decel(self.table.vehicle, thrust_ratio))
+        return self._decel_at[1]
+
+    def _stop_distance(self, v: float, thrust_ratio: float) -> float:
+        """The stopping distance from a measured speed v: one evaluation per value, as `_braking_decel`."""
+        if self._stop_at is None or self._stop_at[:2] != (v, thrust_ratio):
+            veh = self.table.vehicle
+            a = self._braking_decel(min(thrust_ratio, veh.thrust_ratio_range[1]))
+            t_dead = stop_dead_time(veh) + self.t_cmd
+            d = measured_stopping_distance(v, a, veh.braking.jerk_max_m_s3, t_dead) if a > 0 else math.inf
+            self._stop_at = (v, thrust_ratio, d)
+        return self._stop_at[2]
+
+    def e_tr_pred_flown(self, v: float, tilt: float, thrust_ratio: float) -> float:
+        """E_tr_pred (Figure 12) of the controller contract at speed v, at the tilt of the operating point
+        being flown (a Ω with no speed — D_od lost, say — has no tilt of its own), one lookup per value."""
+        tilt = self._tilt_in_force if self._tilt_in_force is not None else tilt
+        if self._e_pred_at is None or self._e_pred_at[:3] != (v, tilt, thrust_ratio):
+            self._e_pred_at = (v, tilt, thrust_ratio, self.table.e_tr_pred(v, tilt, thrust_ratio, self.contract))
+        return self._e_pred_at[3]
+
+    def omega(self, i: Inputs) -> Omega:
+        """Ω of the speed policy flown at this cycle's inputs (the contract's, `contract_omega`, by default)."""
+        return self.policy.omega(i, self)
+
+    def contract_omega(self, i: Inputs) -> Omega:
+        """Ω of the contract at this cycle's inputs: one lookup per value, as `e_tr_pred_flown` (the lookup is a
+        pure function of the table and these inputs, so a cycle whose inputs equal the last one's reuses its Ω)."""
+        return self._contract_omega(i, self.recovery_dt, self.a0_max)
+
+    def hold_omega(self, i: Inputs) -> Omega:
+        """Ω of the contract at this cycle's inputs with the autopilot's Hold as the stop (`recovery_dt` None),
+        whether or not the recovery brake is available: the limit its refusal falls back to."""
+        return self._contract_omega(i, None, self.a0_max)
+
+    def any_approach_omega(self, i: Inputs) -> Omega:
+        """Ω of the contract at this cycle's inputs for any approach (without the approach ramp's bound): the speed
+        the ramp lets the autopilot reach at its own acceleration."""
+        return self._contract_omega(i, self.recovery_dt, None)
+
+    @property
+    def a0_max(self) -> float | None:
+        """The approach's acceleration bound the stop contract takes now: the approach ramp's while in force."""
+        return self.ramp.a0_max if self.ramp is not None and self.ramp.in_force else None
+
+    def _contract_omega(self, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
+        if i.late_s <= 0.0:
+            return self._omega(i.dod.d_od, i, recovery_dt, a0_max)
+        # the daemon's own lateness is reaction time the table's fold did not budget (DESIGN.md §2):
+        # V ≤ V_safe(d_od − V·late_s − V·t_react), with V·late_s taken at the speed flown (measured or commanded,
+        # the larger) — and again at Ω's own speed when that is higher: a shorter D_od never gives a higher V_max,
+        # so that answer is safe at its own speed
+        v_ref = max(i.ground_speed if math.isfinite(i.ground_speed) else 0.0, self.limit.value or 0.0)
+        om = self._omega(i.dod.d_od - v_ref * i.late_s, i, recovery_dt, a0_max)
+        if om.v_max > v_ref:
+            om = self._omega(i.dod.d_od - om.v_max * i.late_s, i, recovery_dt, a0_max)
+        return om
+
+    def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max)
+        om = self._omega_at.get(key)
+        if om is None:
+            if len(self._omega_at) >= 4:  # this cycle's few lookups (with and without the brake, the ramp)
+                self._omega_at.clear()
+            om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
+                                                        a0_max=a0_max, t_cmd=self.t_cmd)
+        return om
+
+    # ------------------------------------------------------------------ the cycle
+    def e_tr_virtual(self, i: Inputs, d: _Draft) -> float:
+        """E_tr of the virtual obstacle (Figure 13): the measured error, or the controller contract at the
+        speed actually commanded if larger — while a higher V_max waits out its dwell, the vehicle still
+        flies the lower limit, and E_tr_pred does not decrease with speed. (0 under a policy that does not
+        inflate the keep-out discs: a negative control.)"""
+        if not self.policy.inflate_e_tr:
+            return 0.0
+        if self.table.e_pred is not None and d.v_cmd:
+            e = max(i.e_tr_measured, self.e_tr_pred_flown(d.v_cmd, d.omega.tilt, i.thrust_ratio))
+            if math.isfinite(e):
+                return e
+            # no answer in the grid (tilt or thrust outside it): the largest error the contract knows —
+            # a keep-out disc is never unbounded (the planner could not plan round it, not even a stop)
+            return max(i.e_tr_measured, float(np.max(self.table.e_pred.values)))
+        return max(i.e_tr_measured, d.omega.e_tr) if math.isfinite(d.omega.e_tr) else i.e_tr_measured
+
+    def step(self, i: Inputs) -> Decision:
+        """One cycle's decision, with the keep-out discs guidance plans round (the obstacles grown by the
+        virtual obstacle's E_tr and the vehicle's radius)."""
+        d = self._decide(i)
+        e_tr_virtual = self.e_tr_virtual(i, d)
+        return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
+                        e_tr_virtual, tuple(inflated(list(i.discs), e_tr_virtual, self.table.vehicle.r_body_m)),
+                        tuple(d.hold_causes))
+
+    def _decide(self, i: Inputs) -> _Draft:
+        ramp = self._judge_ramp(i) if self.ramp is not None else None
+        om = self.omega(i)
+        d = _Draft(self.state, om, self.limit.value)
+        veh = self.table.vehicle
+        if ramp is not None:
+            self._ramp_events(d, i, *ramp)
+
+        # authority (the mode authority judged who changed the mode): someone else left our Hold — stand down
+        if i.mode_changed:
+            if self.state == State.HOLDING and i.taken_over:
+                self.latched = False
+                self._suppressed |= set(self._held_for)
+                self._set_state(d, State.ACTIVE, f"{i.mode} set by someone else: standing down")
+            self._last_sent = None  # re-send the limit after any mode change
+        if i.in_air and not self._last_in_air or i.mission_seq != self._last_seq:
+            self._last_sent = None  # and after take-off and at every new mission item
+        self._last_seq = i.mission_seq
+        self._last_in_air = i.in_air
+
+        # guarantees (logged in every mode, shadow included)
+        lo = veh.thrust_ratio_range[0]
+        self._violation(d, Subsystem.ACTUATORS, i.thrust_ratio < lo, lambda: dict(
+                        subsystem=Subsystem.ACTUATORS, guarantee=f"thrust_ratio >= {lo}", assumed=lo,
+                        observed=i.thrust_ratio, action="no safe speed: hold"))
+        self._violation(d, Subsystem.ENVIRONMENT, i.obstacle_width > i.r_obst + 0.05, lambda: dict(
+                        subsystem=Subsystem.ENVIRONMENT, guarantee="no obstacle wider than R_obst", assumed=i.r_obst,
+                        observed=i.obstacle_width, action="planning round the observed width"))
+        if i.dod.swept != self._dod_swept:  # D_od's basis: said when the swept coverage starts and ends
+            self._dod_swept = i.dod.swept
+            basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")
+            d.events.append(("dod_coverage", {"basis": basis, "d_od": i.dod.d_od, "reason": i.dod.reason}))
+        late = i.dod.late
+        self._violation(d, Subsystem.NAVIGATION, i.dod.lowered, lambda: dict(
+                        subsystem=Subsystem.NAVIGATION, guarantee="every obstacle within D_od is detected",
+                        assumed=late.assumed_d_od if late else i.dod.stated_m,
+                        observed=late.range_m if late else i.dod.d_od,
+                        action=f"D_od lowered to {i.dod.d_od:.2f} m" + ("" if late else f": {i.dod.reason}")))
+        # the daemon's own guarantee: one decision per loop period, give or take the jitter allowance t_react
+        # budgets (docs/daemon.md, Timeliness). Lateness inside the allowance is said; a cycle later than the reaction time being
+        # flown budgets breaks it, and its lateness then counts as reaction time for the next 10 s (`omega`)
+        if i.late_within_s > 0.0:
+            d.events.append(("cycle_jitter", {"late_s": i.late_within_s, "allowance_s": self.late_allowance_s}))
+        allowance = self.late_allowance_s
+        self._violation(d, Subsystem.GUIDANCE, i.late_unbudgeted_s > 0.0, lambda: dict(
+                        subsystem=Subsystem.GUIDANCE,
+                        guarantee=f"decides every cycle ({self.loop_dt * 1e3:.0f} ms + {allowance * 1e3:.0f} ms jitter "
+                                  "allowance, inside t_react)",
+                        assumed=self.loop_dt + max(allowance, self._late_counted),
+                        observed=self.loop_dt + i.late_unbudgeted_s,
+                        action="lateness counted as reaction time: a lower speed" +
+                               (", hold" if i.late_s > self.late_hold_s else "")))
+        if abs(i.late_s - self._late_counted) > 0.005 or (i.late_s == 0.0) != (self._late_counted == 0.0):
+            self._late_counted = i.late_s
+            d.events.append(("reaction_time", {"late_s": i.late_s, "t_react_s": veh.t_react_s + i.late_s}))
+        if om.v_max >= MIN_SPEED_CMD:
+            self._tilt_in_force = om.tilt
+        if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
+            # the measured error is the worst of a window, so it is judged against the prediction at the fastest
+            # speed commanded in that window: an error flown at 6.5 m/s was judged against E_tr_pred at the 2.1 m/s
+            # a shorter D_od had set a moment later (a controller violation of a contract that held)
+            # (and never below the floor the measurement reads at least: the governor's E_tr_pred at a crawl is
+            # 0.16 m, under the 0.3 m floor, and a vehicle at rest would have "broken" it)
+            self._e_pred_window.add(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
+            e_pred = max(self._e_pred_window.max, self.e_tr_floor)
+            self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
+                            subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
+                            assumed=e_pred, observed=i.e_tr_measured, action="E_tr raised to the measured value"))
+
+        # command delivery: a mode command past its budget (the mode authority's judgement)
+        late_cmd = i.delivery_late
+        self._violation(d, Subsystem.DELIVERY, late_cmd is not None, lambda: dict(
+                        subsystem=Subsystem.DELIVERY, guarantee=late_cmd.guarantee, assumed=late_cmd.assumed,
+                        observed=late_cmd.observed, action=late_cmd.action),
+                        text=(2, f"CG: delivery violation: {late_cmd.action}") if late_cmd is not None else None)
+
+        # failsafes, in order of what can still be done
+        if not i.link_ok:
+            self._set_state(d, State.FAILSAFE, "autopilot heartbeat lost" if self._linked else "no autopilot heartbeat yet")
+            return d
+        if self.state == State.FAILSAFE:
+            self._last_sent = None
+            self._set_state(d, State.STANDBY, "link restored" if self._linked else "link up")
+        self._linked = True
+        flying = i.armed and i.in_air
+        if not (i.engaged and flying) or not self.mode.commands:
+            self.limit.reset()
+            self._over_since = None
+            self._recent_limits.clear()
+            self._set_state(d, State.STANDBY, f"{self.mode.name} mode" if not self.mode.commands else
+                            ("not engaged" if not i.engaged else "not flying"))
+            d.v_cmd = None
+            return self._shadow(d, i) if not self.mode.commands else d
+
+        causes = self._causes(i, om)
+        flown = self._not_flown
+        self._violation(d, "limit_flown", flown is not None, lambda: dict(
+                        subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
+                        action="hold"))
+        # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
+        causes_now = {c for c, on in causes.items() if on}
+        self._suppressed = {c for c in self._suppressed if c in causes_now or
+                            (c == Cause.OBSTACLE and math.isfinite(i.dod.obstacle_m))}
+        fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
+
+        v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
+        self._recent_limits.append((i.t, v_limit))
+        while i.t - self._recent_limits[0][0] > self._limit_dead_time:
+            self._recent_limits.popleft()
+        d.v_cmd = v_limit
+        if fresh:
+            if self.state != State.HOLDING:  # Hold, once: the mode authority delivers it
+                d.hold = True
+                self._held_for = list(fresh)
+                said = [(c, "hold") for c in fresh]
+            else:  # a cause that arrives while already holding is logged too: no cause goes unsaid
+                said = [(c, ALREADY_HOLDING) for c in fresh if c not in self._held_for]
+                self._held_for += [c for c, _ in said]
+            for c, action in said:
+                d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger", {"cause": c, "action": action}))
+            d.hold_causes = list(fresh)
+            self._set_state(d, State.HOLDING, fresh[0])
+            return d
+        if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
+            return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
+        self._set_state(d, State.ACTIVE, "limit in force")
+
+        # the limit: send it when it changed, after mode changes/take-off, and every 5 s
+        if i.limit_applies:
+            self._no_limit_mode_warned = None
+            # DO_CHANGE_SPEED sets the speed: a governor sends no more than the mission's own speed — the speed its
+            # own speed item set at this item where the daemon knows the mission's items (calibration.legs), which
+            # is the speed the autopilot flies there (PX4 Navigator, ArduPilot Auto), else the cruise parameter
+            v_own = i.v_mission if i.v_mission > 0 else i.v_cruise  # (NaN: not known)
+            capped = self.mode.governs and 0 < v_own < v_limit
+            v_send = v_own if capped else v_limit
+            last, target, tol = self._last_sent, v_send, max(0.05, 0.02 * v_send)
+            tol_up = tol_down = tol
+            if self.ramp is not None:  # the approach ramp: on it up by half the ramp at a time; down at once
+                v_send = self.ramp.command(target, i.ground_speed, self.any_approach_omega(i).v_max * self.cap)
+                tol_up, tol_down = (0.5 * self.ramp.gap if self.ramp.free < v_send < target else tol), RAMP_SLACK_M_S
+            changed = last is None or v_send - last > tol_up or last - v_send > tol_down
+            waited = i.t - self._speed_t0  # the speed command on its way: past its delivery budget, said
+            self._violation(d, "speed_delivery", not self._speed_answered and waited > self.t_cmd, lambda: dict(
+                            subsystem=Subsystem.DELIVERY, guarantee=GUARANTEE_ANSWERED, assumed=self.t_cmd,
+                            observed=waited, action="re-sending the speed limit"))
+            # sent when it changed, every 5 s, and every cycle until the autopilot answers it (delivery: t_cmd)
+            if changed or i.t - self._last_sent_t > 5.0 or not self._speed_answered:
+                d.send_speed = max(v_send, MIN_SPEED_CMD)
+                if self._speed_answered:
+                    self._speed_t0 = i.t
+                # said when the target changes (the limit, or the autopilot's own speed); the ramp's steps are not
+                if last is None or abs(target - self._target_sent) > tol:
+                    d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason} |
+                                     ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
+                                     ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
+                self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
+                self._speed_answered = not self.mode.governs  # (offboard flies setpoints: nothing is sent)
+        elif self._no_limit_mode_warned != i.mode:
+            self._no_limit_mode_warned = i.mode
+            d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))
+            d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"))
+        return d
+
+    def _judge_ramp(self, i: Inputs) -> tuple[bool, bool]:
+        """The approach ramp's check, before this cycle's Ω (which takes its bound while in force): its commands
+        reach the autopilot while the limit is in force in a mode that applies it (the last cycle's state)."""
+        ramping = (self.state == State.ACTIVE and i.link_ok and i.engaged and i.armed and i.in_air
+                   and i.limit_applies and self._last_sent is not None)
+        return self.ramp.judge(i.t, ramping, i.accel_along, i.ground_speed, self._last_sent, i.in_air)
+
+    def _ramp_events(self, d: _Draft, i: Inputs, changed: bool, over: bool) -> None:
+        ramp = self.ramp
+        if changed:
+            d.events.append(("approach_ramp", {"in_force": ramp.in_force, "a0_max": ramp.a0_max, "accel": i.accel_along}
+                             | ({"why": "the autopilot flew faster or accelerated harder than the ramp allows: off "
+                                        "until landed"} if ramp.broken else {})))
+        on = over and (changed or "approach_ramp" in self._violations)  # from the break while the excess lasts
+        what, unit, allowed, measured = ramp.excess or ("acceleration", "m/s²", ramp.a0_max, i.accel_along)
+        self._violation(d, "approach_ramp", on, lambda: dict(
+                        subsystem=Subsystem.AUTOPILOT, guarantee=RAMP_FOLLOWED, assumed=allowed, observed=measured,
+                        action=f"{what} {measured:.2f} {unit} above the ramp's {allowed:.2f}: the stop contract for "
+                               "any approach for the rest of the flight, a lower limit"))
+
+    def _judge_limit(self, i: Inputs, over: bool) -> tuple[float, float] | None:
+        """The speed limit flown (DESIGN.md §1, delivery): (allowed, flown) when the vehicle flies faster than a
+        compliant autopilot could after the limit was sent (`slowdown_speed` from when it was first seen above
+        it), None when it does not."""
+        if not over:
+            self._over_since = None
+            return None
+        # the slow-down starts when the vehicle is first seen above the limit, and again when the limit drops
+        # below the one it was still about flying (a compliant autopilot starts a new slow-down); never while it
+        # was well above the old limit (one that ignores the limits would never be caught)
+        since = self._over_since
+        if since is None or self.limit.value < since[2] - 0.05 and \
+                i.ground_speed <= 1.05 * since[2] + self.margin + SLOWDOWN_NEAR_M_S:
+            # from the speed and acceleration flown then, never above the highest limit it may still be acting
+            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target)
+            a0 = i.accel_along if math.isfinite(i.accel_along) else 0.0
+            cap = max([i.ground_speed] + [v for _, v in self._recent_limits])
+            self._over_since = (i.t, i.ground_speed, self.limit.value, a0, cap)
+        t0, v0, _, a0, cap = self._over_since
+        a = max(self._braking_decel(min(i.thrust_ratio, 1.0)), 0.1)
+        allowed = min(cap, slowdown_speed(v0, self.limit.value, a, self.table.vehicle.braking.jerk_max_m_s3,
+                                          self._limit_dead_time, i.t - t0, a0))
+        return (allowed, i.ground_speed) if i.ground_speed > 1.05 * allowed + self.margin else None
+
+    def _causes(self, i: Inputs, om: Omega) -> dict[Cause, bool]:
+        """Every reason to stop now (each edge-triggered after an override)."""
+        isfinite = math.isfinite
+        finite = (isfinite(i.ground_speed) and isfinite(i.e_tr_measured) and isfinite(i.thrust_ratio)
+                  and isfinite(i.r_obst) and isfinite(i.dod.d_od))
+        # a tracking overshoot of a few per cent is the controller's business (E_tr), not a broken limit
+        over = (finite and self.limit.value is not None
+                and i.ground_speed > 1.05 * self.limit.value + self.margin)
+        self._not_flown = self._judge_limit(i, over and i.limit_applies)
+        margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
+        obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+        causes = {
+            Cause.NON_FINITE: not finite,
+            Cause.STALE: not i.telemetry_ok,
+            Cause.BAD_NAV: not i.nav_ok,
+            Cause.NO_SAFE_SPEED: om.v_max < MIN_SPEED_CMD,
+            Cause.LATE: i.late_s > self.late_hold_s,
+            Cause.OBSTACLE: obstacle,
+            Cause.NOT_IN_FORCE: self._not_flown is not None,
+        }
+        if self.contract == "avoid" or not self.policy.stop_hold:
+            del causes[Cause.OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
+        return causes
+
+    def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
+        """Shadow mode: what the governor would do, logged, nothing commanded."""
+        causes = tuple(c for c, on in self._causes(i, d.omega).items() if on) if i.armed and i.in_air else ()
+        if causes != self._would:
+            d.events.append(("would_hold", {"causes": list(causes)}))
+            self._would = causes
+        return d
+
+
+OBSTACLE, LATE = Cause.OBSTACLE, Cause.LATE  # (the names other modules and tests know them by)
+ALREADY_HOLDING = "already holding"  # the action of a cause that arrives while the daemon already holds
