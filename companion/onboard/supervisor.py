@@ -279,7 +279,6 @@ class Supervisor:
         # above the limit since: (when, speed, limit, acceleration, the most it may fly) then
         self._over_since: tuple[float, float, float, float, float] | None = None
         self._recent_limits: deque[tuple[float, float]] = deque()  # (t, limit): the limits of the last dead time
-        self._not_flown: tuple[float, float] | None = None  # (allowed, flown): the limit not flown this cycle
         self.t_cmd = t_cmd_s
         self._suppressed: set[Cause] = set()  # hold causes stood down from after an override
         self._violations: dict[str, dict] = {}
@@ -478,26 +477,78 @@ class Supervisor:
                         tuple(d.hold_causes))
 
     def _decide(self, i: Inputs) -> _Draft:
+        """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still
+        be done, the holds, and the limit in force."""
         ramp = self._judge_ramp(i) if self.ramp is not None else None
         om = self.omega(i)
         d = _Draft(self.state, om, self.limit.value)
-        veh = self.table.vehicle
         if ramp is not None:
             self._ramp_events(d, i, *ramp)
+        self._authority(d, i)
+        self._judge_guarantees(d, i, om)
+        if not i.link_ok:
+            self._set_state(d, State.FAILSAFE, "autopilot heartbeat lost" if self._linked else "no autopilot heartbeat yet")
+            return d
+        if self.state == State.FAILSAFE:
+            self._last_sent = None
+            self._set_state(d, State.STANDBY, "link restored" if self._linked else "link up")
+        self._linked = True
+        if not (i.engaged and i.armed and i.in_air) or not self.mode.commands:
+            self.limit.reset()
+            self._over_since = None
+            self._recent_limits.clear()
+            self._set_state(d, State.STANDBY, f"{self.mode.name} mode" if not self.mode.commands else
+                            ("not engaged" if not i.engaged else "not flying"))
+            d.v_cmd = None
+            return self._shadow(d, i) if not self.mode.commands else d
+        flown = self._judge_limit(i, self._over_limit(i) and i.limit_applies)
+        causes = self._causes(i, om, flown)
+        self._violation(d, "limit_flown", flown is not None, lambda: dict(
+                        subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
+                        action="hold"))
+        # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
+        causes_now = {c for c, on in causes.items() if on}
+        self._suppressed = {c for c in self._suppressed if c in causes_now or
+                            (c == Cause.OBSTACLE and math.isfinite(i.dod.obstacle_m))}
+        fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
+        v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
+        self._recent_limits.append((i.t, v_limit))
+        while i.t - self._recent_limits[0][0] > self._limit_dead_time:
+            self._recent_limits.popleft()
+        d.v_cmd = v_limit
+        if fresh:
+            self._hold(d, fresh)
+            return d
+        if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
+            return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
+        self._set_state(d, State.ACTIVE, "limit in force")
+        if i.limit_applies:
+            self._no_limit_mode_warned = None
+            self._send_limit(d, i, v_limit)
+        elif self._no_limit_mode_warned != i.mode:
+            self._no_limit_mode_warned = i.mode
+            d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))
+            d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"))
+        return d
 
-        # authority (the mode authority judged who changed the mode): someone else left our Hold — stand down
+    def _authority(self, d: _Draft, i: Inputs) -> None:
+        """Who changed the mode (the mode authority judged it): someone else left our Hold — stand down. The limit
+        is sent again after any mode change, after take-off and at every new mission item."""
         if i.mode_changed:
             if self.state == State.HOLDING and i.taken_over:
                 self.latched = False
                 self._suppressed |= set(self._held_for)
                 self._set_state(d, State.ACTIVE, f"{i.mode} set by someone else: standing down")
-            self._last_sent = None  # re-send the limit after any mode change
+            self._last_sent = None
         if i.in_air and not self._last_in_air or i.mission_seq != self._last_seq:
-            self._last_sent = None  # and after take-off and at every new mission item
+            self._last_sent = None
         self._last_seq = i.mission_seq
         self._last_in_air = i.in_air
 
-        # guarantees (logged in every mode, shadow included)
+    def _judge_guarantees(self, d: _Draft, i: Inputs, om: Omega) -> None:
+        """Every subsystem's guarantee, logged in every mode (shadow included): actuators, environment, navigation
+        (D_od), the daemon's own timeliness, the controller (E_tr ≤ E_tr_pred) and command delivery."""
+        veh = self.table.vehicle
         lo = veh.thrust_ratio_range[0]
         self._violation(d, Subsystem.ACTUATORS, i.thrust_ratio < lo, lambda: dict(
                         subsystem=Subsystem.ACTUATORS, guarantee=f"thrust_ratio >= {lo}", assumed=lo,
@@ -515,9 +566,28 @@ class Supervisor:
                         assumed=late.assumed_d_od if late else i.dod.stated_m,
                         observed=late.range_m if late else i.dod.d_od,
                         action=f"D_od lowered to {i.dod.d_od:.2f} m" + ("" if late else f": {i.dod.reason}")))
-        # the daemon's own guarantee: one decision per loop period, give or take the jitter allowance t_react
-        # budgets (docs/daemon.md, Timeliness). Lateness inside the allowance is said; a cycle later than the reaction time being
-        # flown budgets breaks it, and its lateness then counts as reaction time for the next 10 s (`omega`)
+        self._judge_timeliness(d, i)
+        if om.v_max >= MIN_SPEED_CMD:
+            self._tilt_in_force = om.tilt
+        if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
+            # the measured error is the worst of a window, so it is judged against the prediction at the fastest
+            # speed commanded in that window (a shorter D_od a moment later does not make the error a violation),
+            # and never below the floor the measurement reads at least (a vehicle at rest cannot break it)
+            self._e_pred_window.add(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
+            e_pred = max(self._e_pred_window.max, self.e_tr_floor)
+            self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
+                            subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
+                            assumed=e_pred, observed=i.e_tr_measured, action="E_tr raised to the measured value"))
+        late_cmd = i.delivery_late  # a mode command past its budget (the mode authority's judgement)
+        self._violation(d, Subsystem.DELIVERY, late_cmd is not None, lambda: dict(
+                        subsystem=Subsystem.DELIVERY, guarantee=late_cmd.guarantee, assumed=late_cmd.assumed,
+                        observed=late_cmd.observed, action=late_cmd.action),
+                        text=(2, f"CG: delivery violation: {late_cmd.action}") if late_cmd is not None else None)
+
+    def _judge_timeliness(self, d: _Draft, i: Inputs) -> None:
+        """The daemon's own guarantee: one decision per loop period, give or take the jitter allowance t_react
+        budgets (docs/daemon.md, Timeliness). Lateness inside the allowance is said; a cycle later than the reaction
+        time being flown budgets breaks it, and its lateness then counts as reaction time for the next 10 s."""
         if i.late_within_s > 0.0:
             d.events.append(("cycle_jitter", {"late_s": i.late_within_s, "allowance_s": self.late_allowance_s}))
         allowance = self.late_allowance_s
@@ -531,115 +601,53 @@ class Supervisor:
                                (", hold" if i.late_s > self.late_hold_s else "")))
         if abs(i.late_s - self._late_counted) > 0.005 or (i.late_s == 0.0) != (self._late_counted == 0.0):
             self._late_counted = i.late_s
-            d.events.append(("reaction_time", {"late_s": i.late_s, "t_react_s": veh.t_react_s + i.late_s}))
-        if om.v_max >= MIN_SPEED_CMD:
-            self._tilt_in_force = om.tilt
-        if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
-            # the measured error is the worst of a window, so it is judged against the prediction at the fastest
-            # speed commanded in that window: an error flown at 6.5 m/s was judged against E_tr_pred at the 2.1 m/s
-            # a shorter D_od had set a moment later (a controller violation of a contract that held)
-            # (and never below the floor the measurement reads at least: the governor's E_tr_pred at a crawl is
-            # 0.16 m, under the 0.3 m floor, and a vehicle at rest would have "broken" it)
-            self._e_pred_window.add(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
-            e_pred = max(self._e_pred_window.max, self.e_tr_floor)
-            self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
-                            subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
-                            assumed=e_pred, observed=i.e_tr_measured, action="E_tr raised to the measured value"))
+            d.events.append(("reaction_time", {"late_s": i.late_s, "t_react_s": self.table.vehicle.t_react_s + i.late_s}))
 
-        # command delivery: a mode command past its budget (the mode authority's judgement)
-        late_cmd = i.delivery_late
-        self._violation(d, Subsystem.DELIVERY, late_cmd is not None, lambda: dict(
-                        subsystem=Subsystem.DELIVERY, guarantee=late_cmd.guarantee, assumed=late_cmd.assumed,
-                        observed=late_cmd.observed, action=late_cmd.action),
-                        text=(2, f"CG: delivery violation: {late_cmd.action}") if late_cmd is not None else None)
+    def _hold(self, d: _Draft, fresh: list[Cause]) -> None:
+        """Hold, once (the mode authority delivers it); a cause that arrives while already holding is logged too:
+        no cause goes unsaid."""
+        if self.state != State.HOLDING:
+            d.hold = True
+            self._held_for = list(fresh)
+            said = [(c, "hold") for c in fresh]
+        else:
+            said = [(c, ALREADY_HOLDING) for c in fresh if c not in self._held_for]
+            self._held_for += [c for c, _ in said]
+        for c, action in said:
+            d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger", {"cause": c, "action": action}))
+        d.hold_causes = list(fresh)
+        self._set_state(d, State.HOLDING, fresh[0])
 
-        # failsafes, in order of what can still be done
-        if not i.link_ok:
-            self._set_state(d, State.FAILSAFE, "autopilot heartbeat lost" if self._linked else "no autopilot heartbeat yet")
-            return d
-        if self.state == State.FAILSAFE:
-            self._last_sent = None
-            self._set_state(d, State.STANDBY, "link restored" if self._linked else "link up")
-        self._linked = True
-        flying = i.armed and i.in_air
-        if not (i.engaged and flying) or not self.mode.commands:
-            self.limit.reset()
-            self._over_since = None
-            self._recent_limits.clear()
-            self._set_state(d, State.STANDBY, f"{self.mode.name} mode" if not self.mode.commands else
-                            ("not engaged" if not i.engaged else "not flying"))
-            d.v_cmd = None
-            return self._shadow(d, i) if not self.mode.commands else d
-
-        causes = self._causes(i, om)
-        flown = self._not_flown
-        self._violation(d, "limit_flown", flown is not None, lambda: dict(
-                        subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
-                        action="hold"))
-        # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
-        causes_now = {c for c, on in causes.items() if on}
-        self._suppressed = {c for c in self._suppressed if c in causes_now or
-                            (c == Cause.OBSTACLE and math.isfinite(i.dod.obstacle_m))}
-        fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
-
-        v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
-        self._recent_limits.append((i.t, v_limit))
-        while i.t - self._recent_limits[0][0] > self._limit_dead_time:
-            self._recent_limits.popleft()
-        d.v_cmd = v_limit
-        if fresh:
-            if self.state != State.HOLDING:  # Hold, once: the mode authority delivers it
-                d.hold = True
-                self._held_for = list(fresh)
-                said = [(c, "hold") for c in fresh]
-            else:  # a cause that arrives while already holding is logged too: no cause goes unsaid
-                said = [(c, ALREADY_HOLDING) for c in fresh if c not in self._held_for]
-                self._held_for += [c for c, _ in said]
-            for c, action in said:
-                d.events.append(("failsafe" if c in FAILSAFE_CAUSES else "hold_trigger", {"cause": c, "action": action}))
-            d.hold_causes = list(fresh)
-            self._set_state(d, State.HOLDING, fresh[0])
-            return d
-        if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
-            return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
-        self._set_state(d, State.ACTIVE, "limit in force")
-
-        # the limit: send it when it changed, after mode changes/take-off, and every 5 s
-        if i.limit_applies:
-            self._no_limit_mode_warned = None
-            # DO_CHANGE_SPEED sets the speed: a governor sends no more than the mission's own speed — the speed its
-            # own speed item set at this item where the daemon knows the mission's items (calibration.legs), which
-            # is the speed the autopilot flies there (PX4 Navigator, ArduPilot Auto), else the cruise parameter
-            v_own = i.v_mission if i.v_mission > 0 else i.v_cruise  # (NaN: not known)
-            capped = self.mode.governs and 0 < v_own < v_limit
-            v_send = v_own if capped else v_limit
-            last, target, tol = self._last_sent, v_send, max(0.05, 0.02 * v_send)
-            tol_up = tol_down = tol
-            if self.ramp is not None:  # the approach ramp: on it up by half the ramp at a time; down at once
-                v_send = self.ramp.command(target, i.ground_speed, self.any_approach_omega(i).v_max * self.cap)
-                tol_up, tol_down = (0.5 * self.ramp.gap if self.ramp.free < v_send < target else tol), RAMP_SLACK_M_S
-            changed = last is None or v_send - last > tol_up or last - v_send > tol_down
-            waited = i.t - self._speed_t0  # the speed command on its way: past its delivery budget, said
-            self._violation(d, "speed_delivery", not self._speed_answered and waited > self.t_cmd, lambda: dict(
-                            subsystem=Subsystem.DELIVERY, guarantee=GUARANTEE_ANSWERED, assumed=self.t_cmd,
-                            observed=waited, action="re-sending the speed limit"))
-            # sent when it changed, every 5 s, and every cycle until the autopilot answers it (delivery: t_cmd)
-            if changed or i.t - self._last_sent_t > 5.0 or not self._speed_answered:
-                d.send_speed = max(v_send, MIN_SPEED_CMD)
-                if self._speed_answered:
-                    self._speed_t0 = i.t
-                # said when the target changes (the limit, or the autopilot's own speed); the ramp's steps are not
-                if last is None or abs(target - self._target_sent) > tol:
-                    d.events.append(("limit_change", {"v_max": v_limit, "reason": om.reason} |
-                                     ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
-                                     ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
-                self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
-                self._speed_answered = not self.mode.governs  # (offboard flies setpoints: nothing is sent)
-        elif self._no_limit_mode_warned != i.mode:
-            self._no_limit_mode_warned = i.mode
-            d.events.append(("limit_not_applicable", {"mode": i.mode, "v_max": v_limit}))
-            d.statustext.append((4, f"CG: speed limit not applied in {i.mode}"))
-        return d
+    def _send_limit(self, d: _Draft, i: Inputs, v_limit: float) -> None:
+        """The limit sent (DO_CHANGE_SPEED) when it changed, after mode changes and take-off, every 5 s, and every
+        cycle until the autopilot answers it (delivery: t_cmd). A governor sends no more than the mission's own
+        speed — its speed item's at this item where the daemon knows the mission's items (calibration.legs), which
+        is what the autopilot flies there (PX4 Navigator, ArduPilot Auto), else the cruise parameter."""
+        v_own = i.v_mission if i.v_mission > 0 else i.v_cruise  # (NaN: not known)
+        capped = self.mode.governs and 0 < v_own < v_limit
+        v_send = v_own if capped else v_limit
+        last, target, tol = self._last_sent, v_send, max(0.05, 0.02 * v_send)
+        tol_up = tol_down = tol
+        if self.ramp is not None:  # the approach ramp: on it up by half the ramp at a time; down at once
+            v_send = self.ramp.command(target, i.ground_speed, self.any_approach_omega(i).v_max * self.cap)
+            tol_up, tol_down = (0.5 * self.ramp.gap if self.ramp.free < v_send < target else tol), RAMP_SLACK_M_S
+        changed = last is None or v_send - last > tol_up or last - v_send > tol_down
+        waited = i.t - self._speed_t0  # the speed command on its way: past its delivery budget, said
+        self._violation(d, "speed_delivery", not self._speed_answered and waited > self.t_cmd, lambda: dict(
+                        subsystem=Subsystem.DELIVERY, guarantee=GUARANTEE_ANSWERED, assumed=self.t_cmd,
+                        observed=waited, action="re-sending the speed limit"))
+        if not (changed or i.t - self._last_sent_t > 5.0 or not self._speed_answered):
+            return
+        d.send_speed = max(v_send, MIN_SPEED_CMD)
+        if self._speed_answered:
+            self._speed_t0 = i.t
+        # said when the target changes (the limit, or the autopilot's own speed); the ramp's steps are not
+        if last is None or abs(target - self._target_sent) > tol:
+            d.events.append(("limit_change", {"v_max": v_limit, "reason": d.omega.reason} |
+                             ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
+                             ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
+        self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
+        self._speed_answered = not self.mode.governs  # (offboard flies setpoints: nothing is sent)
 
     def _judge_ramp(self, i: Inputs) -> tuple[bool, bool]:
         """The approach ramp's check, before this cycle's Ω (which takes its bound while in force): its commands
@@ -685,15 +693,16 @@ class Supervisor:
                                           self._limit_dead_time, i.t - t0, a0))
         return (allowed, i.ground_speed) if i.ground_speed > 1.05 * allowed + self.margin else None
 
-    def _causes(self, i: Inputs, om: Omega) -> dict[Cause, bool]:
-        """Every reason to stop now (each edge-triggered after an override)."""
-        isfinite = math.isfinite
-        finite = (isfinite(i.ground_speed) and isfinite(i.e_tr_measured) and isfinite(i.thrust_ratio)
-                  and isfinite(i.r_obst) and isfinite(i.dod.d_od))
-        # a tracking overshoot of a few per cent is the controller's business (E_tr), not a broken limit
-        over = (finite and self.limit.value is not None
+    def _over_limit(self, i: Inputs) -> bool:
+        """The vehicle flies above the limit in force (a tracking overshoot of a few per cent is the controller's
+        business, E_tr, not a broken limit)."""
+        return (self.limit.value is not None and _finite_inputs(i)
                 and i.ground_speed > 1.05 * self.limit.value + self.margin)
-        self._not_flown = self._judge_limit(i, over and i.limit_applies)
+
+    def _causes(self, i: Inputs, om: Omega, not_flown: tuple[float, float] | None) -> dict[Cause, bool]:
+        """Every reason to stop now (each edge-triggered after an override); `not_flown`: the limit not flown
+        (`_judge_limit`)."""
+        finite = _finite_inputs(i)
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
         obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
@@ -703,7 +712,7 @@ class Supervisor:
             Cause.NO_SAFE_SPEED: om.v_max < MIN_SPEED_CMD,
             Cause.LATE: i.late_s > self.late_hold_s,
             Cause.OBSTACLE: obstacle,
-            Cause.NOT_IN_FORCE: self._not_flown is not None,
+            Cause.NOT_IN_FORCE: not_flown is not None,
         }
         if self.contract == "avoid" or not self.policy.stop_hold:
             del causes[Cause.OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
@@ -711,11 +720,22 @@ class Supervisor:
 
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""
-        causes = tuple(c for c, on in self._causes(i, d.omega).items() if on) if i.armed and i.in_air else ()
+        if i.armed and i.in_air:
+            on = self._causes(i, d.omega, self._judge_limit(i, False))
+            causes = tuple(c for c, held in on.items() if held)
+        else:
+            causes = ()
         if causes != self._would:
             d.events.append(("would_hold", {"causes": list(causes)}))
             self._would = causes
         return d
+
+
+def _finite_inputs(i: Inputs) -> bool:
+    """Every input the decision computes with is a number (NaN: unknown, stale)."""
+    isfinite = math.isfinite
+    return (isfinite(i.ground_speed) and isfinite(i.e_tr_measured) and isfinite(i.thrust_ratio)
+            and isfinite(i.r_obst) and isfinite(i.dod.d_od))
 
 
 OBSTACLE, LATE = Cause.OBSTACLE, Cause.LATE  # (the names other modules and tests know them by)
