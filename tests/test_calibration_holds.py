@@ -10,6 +10,7 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -204,8 +205,21 @@ def machine(plan):
 
 def step(m, t, wp, leg, *, dx=0.0, mode="mission", speed=2.0, active=True, safety=None, taken_over=False,
          undelivered=None):
-    return m.step(t, mode=mode, taken_over=taken_over, mission_seq=leg.seq_plan, x=wp[0] - dx, y=wp[1], speed=speed,
-                  telemetry_ok=True, active=active, safety=safety, undelivered=undelivered)
+    """One cycle of the hold legs, as the cycle hands it over (its `Turn`: the parts the legs read); the mode the
+    part asks for, its events."""
+    from companion.onboard.authority import Requester
+    from companion.onboard.states import State
+
+    decision = SimpleNamespace(hold=safety is not None, hold_causes=[safety] if safety else [],
+                               state=State.ACTIVE if active else State.STANDBY)
+    view = SimpleNamespace(undelivered=lambda by: undelivered if by == Requester.CALIBRATION else None)
+    turn = SimpleNamespace(t=t, i=SimpleNamespace(mode=mode, taken_over=taken_over, ground_speed=speed,
+                                                  telemetry_ok=True),
+                           d=decision, view=view,
+                           tel=SimpleNamespace(mission_seq=leg.seq_plan, x=wp[0] - dx, y=wp[1]))
+    part = m.step(turn)
+    return SimpleNamespace(command=part.requests[0].mode if part.requests else None, events=part.events,
+                           texts=part.texts)
 
 
 def test_machine_waits_for_the_distance_and_a_safety_hold_wins(plan):

@@ -156,8 +156,8 @@ def late_switch(vehicle: str, personality: str, delay_s: float, today: bool = Fa
     rig = Rig(sc, personality, config=config)
     with pytest.MonkeyPatch.context() as mp:
         if today:
-            rig.daemon.cycle.brake.proven = True
-            mp.setattr(Cycle, "_switch_budget", property(lambda self: self.cfg.delivery.t_mode_s))
+            rig.daemon.cycle.brake.shown()
+            mp.setattr(rig.daemon.cycle.flying, "within_s", rig.cfg.delivery.t_mode_s)
         gov.fly(rig, 25.0)
     return rig
 

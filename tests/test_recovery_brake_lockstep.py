@@ -11,7 +11,7 @@ import pytest
 
 from companion.onboard.console import event_line
 from companion.onboard.config import DeliveryConfig
-from companion.onboard.offboard import OffboardController
+from companion.onboard.offboard import Ask, OffboardController
 from companion.ground.review import format_report, plot_title, summarise
 from companion.onboard.states import OffboardState
 from contracts.stop import (approach_stopping_distance, braking_decel, recovery_brake, stop_dead_time,
@@ -247,8 +247,8 @@ def test_the_brakes_contract_is_the_joint_bound_at_its_own_braking(vehicle):
 
 
 def _recover(ctl, t, mode="mission", start=False, abort=False):
-    return ctl.recover(t, start=start, abort=abort, mode=mode, taken_over=False, p=(0.0, 0.0), v=(4.0, 0.0),
-                       z=-2.0, yaw=0.0, a_stop=4.0, jerk=30.0)
+    return ctl.recover(Ask(t=t, mode=mode, p=(0.0, 0.0), v=(4.0, 0.0), z=-2.0, yaw=0.0, start=start, abort=abort,
+                           a_stop=4.0, track_jerk=30.0))
 
 
 def test_the_switch_asked_after_one_setpoint_then_seen_streams_the_stop():

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from types import SimpleNamespace
 
 from companion.onboard.autopilots import adapter_for
 from companion.onboard.config import config_from_dict
@@ -139,13 +140,13 @@ def test_the_start_value_is_the_axis_own_first_value_where_the_table_covers_the_
     cycle = Cycle(cfg, table, adapter_for("px4"), "stop", None)
     start, _ = cycle.thrust.value(0.0)
     assert start == edge and table.omega(6.0, 0.5, 0.3, start, contract="stop").v_max > 1.0
-    from companion.onboard.cycle import start_thrust  # (imported here: the flights above run on older code too)
+    from companion.onboard.assumptions import start_thrust  # (imported here: the flights above run on older code too)
 
     assert start_thrust(table, "stop")[1]["covered"] is True
 
 
 def test_the_start_value_on_the_shipped_and_a_partial_table(partial_table):
-    from companion.onboard.cycle import start_thrust
+    from companion.onboard.assumptions import start_thrust
 
     assert start_thrust(MAMBO, "stop")[0] == 0.6 and start_thrust(MAMBO, "avoid")[0] == 0.6
     start, said = start_thrust(partial_table, "avoid")
@@ -214,7 +215,7 @@ def test_thrust_start_is_said_once_airborne_and_again_when_the_estimate_is_lost(
     def at(t, landed_state):
         tel.landed_state = landed_state
         events = []
-        cycle._say(t, tel, inputs(), events, [])
+        cycle._explain(SimpleNamespace(t=t, tel=tel, i=inputs()), events, [])
         said.extend(round(t, 2) for name, _ in events if name == "thrust_start")
 
     cycle.take(Throttle(0.0, 0.1, 0.0, 0.0, 0.0, False))

@@ -29,7 +29,10 @@ from contracts.errors import ContractError
 from contracts.geodesy import ne_from_geo
 from contracts.missionfile import WPL_HEADER, read_mission
 
+from .authority import HOLD, ModeRequest, Requester
 from .mission import Home
+from .states import State
+from .turn import Part, Turn
 
 REST_SPEED_M_S = 0.1  # at rest below this ground speed
 REST_TIMEOUT_S = 20.0  # not at rest this long after Hold was seen: the mission is resumed anyway (said so)
@@ -136,9 +139,13 @@ def read_legs(path: str | Path) -> CalibrationLegs:
 
 @dataclass
 class Actions:
-    command: str | None = None  # "hold" | "mission": the mode to send now
+    command: str | None = None  # HOLD | "mission": the mode to send now
     events: list[tuple[str, dict]] = field(default_factory=list)
     texts: list[tuple[int, str]] = field(default_factory=list)
+
+    def part(self) -> Part:
+        requests = () if self.command is None else (ModeRequest(self.command, Requester.CALIBRATION),)
+        return Part(requests=requests, events=tuple(self.events), texts=tuple(self.texts))
 
 
 class CalibrationHolds:
@@ -194,37 +201,40 @@ class CalibrationHolds:
         self.done.add(self.leg.number)
         self.leg, self.phase, self._t_rest = None, "waiting", None
 
-    def step(self, t: float, *, mode: str, taken_over: bool, mission_seq: int, x: float, y: float, speed: float,
-             telemetry_ok: bool, active: bool, safety: str | None, undelivered: str | None = None) -> Actions:
-        """One cycle. `active`: the supervisor is active (engaged, flying, commanding limits); `safety`: why the
-        daemon itself holds or is in failsafe this cycle (None: it does not); `taken_over`: someone else changed
-        the mode this cycle (the mode authority's judgement): the leg is abandoned, never fought; `undelivered`:
-        why the leg's last mode command failed this cycle (the mode authority's delivery), None: it did not."""
+    def step(self, turn: Turn) -> Part:
+        """One cycle (the cycle's actor shape: companion/onboard/turn.py). A hold or failsafe of the supervisor's own
+        this cycle wins (the leg is abandoned), as does standing by; someone else's mode change (the mode
+        authority's judgement) abandons the leg, never fought; so does the leg's last mode command not delivered."""
+        i, d, tel = turn.i, turn.d, turn.tel
+        safety = (d.hold_causes[0] if d.hold_causes else "hold") if d.hold else \
+            (f"state {d.state}" if d.state in (State.HOLDING, State.FAILSAFE) else None)
+        active = d.state == State.ACTIVE
         acts = Actions()
         if self.leg is not None:
             if safety is not None or not active:
                 self._end(acts, "abandoned", reason=f"the daemon's own {'hold' if safety else 'stand-by'}: "
                                                     f"{safety or 'not active'}")
             else:
-                self._fly(t, acts, mode, taken_over, speed, undelivered)
-            return acts
-        leg = self.by_seq.get(mission_seq)
-        if leg is None or leg.number in self.done or not active or safety is not None or mode != "mission" \
-                or not telemetry_ok:
-            return acts
+                self._fly(turn, acts)
+            return acts.part()
+        leg = self.by_seq.get(tel.mission_seq)
+        if leg is None or leg.number in self.done or not active or safety is not None or i.mode != "mission" \
+                or not i.telemetry_ok:
+            return acts.part()
         wp = self.waypoint(leg)
-        if wp is None or not (math.isfinite(x) and math.isfinite(y)):
-            return acts
-        d = math.hypot(x - wp[0], y - wp[1])
-        if d <= leg.hold_before_m:
-            self.leg, self.phase, self._t = leg, "commanded", t
-            acts.command = "hold"
-            self._event(acts, "commanded", speed_m_s=speed, distance_m=d, hold_before_m=leg.hold_before_m)
-        return acts
+        if wp is None or not (math.isfinite(tel.x) and math.isfinite(tel.y)):
+            return acts.part()
+        dist = math.hypot(tel.x - wp[0], tel.y - wp[1])
+        if dist <= leg.hold_before_m:
+            self.leg, self.phase, self._t = leg, "commanded", turn.t
+            acts.command = HOLD
+            self._event(acts, "commanded", speed_m_s=i.ground_speed, distance_m=dist, hold_before_m=leg.hold_before_m)
+        return acts.part()
 
-    def _fly(self, t: float, acts: Actions, mode: str, taken_over: bool, speed: float, undelivered: str | None
-             ) -> None:
-        if taken_over:
+    def _fly(self, turn: Turn, acts: Actions) -> None:
+        t, mode, speed = turn.t, turn.i.mode, turn.i.ground_speed
+        undelivered = turn.view.undelivered(Requester.CALIBRATION)
+        if turn.i.taken_over:
             self._end(acts, "abandoned", reason=f"mode {mode} set by someone else")
             return
         if undelivered is not None and self.phase in ("commanded", "resuming"):

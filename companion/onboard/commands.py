@@ -33,7 +33,7 @@ def cmd_run(args) -> int:
 
     from .config import weakened
     from .console import ConsoleLog, banner
-    from .cycle import controller_contract
+    from .assumptions import controller_contract
     from .daemon import Daemon
     from .eventlog import EventLog
     from .link import SigningClock, load_signing_key, open_connection, setup_signing

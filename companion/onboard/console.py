@@ -197,7 +197,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
                         f"rated {'(none: claims trusted, shadow only)' if s.max_range_m is None else f'{s.max_range_m:g} m'}"
                         for k, s in enumerate(cfg.sensors)) or "none (D_od is 0: no speed is safe)"
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
-    from .cycle import start_thrust  # (here: `table show` reads this module without the cycle)
+    from .assumptions import start_thrust
 
     _, thrust = start_thrust(table, cfg.daemon_mode.contract)
     short = [] if thrust["covered"] else [  # a --partial-grid table: said before the first flight

@@ -20,7 +20,7 @@ from contracts.table import ContractTable
 
 from .autopilots import adapter_for
 from .config import Config
-from .cycle import CYCLE_SAMPLES, Cycle
+from .cycle import CYCLE_SAMPLES, Cycle, Given
 from .guidance import InlinePlanning, ProcessPlanning, ThreadedPlanning
 from .logschema import LINK_COUNTERS, NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
@@ -28,7 +28,6 @@ from .mavlink_out import Counters, MavlinkOut
 from .mission import home_request
 from .outbox import EMPTY, Outbox
 from .protocols import Protocols
-from .startup import StartupChecks
 from .supervisor import Decision
 
 MAX_MESSAGES_PER_POLL = 2000  # messages taken per cycle at most (a 50 Hz autopilot sends ~400/s)
@@ -112,7 +111,7 @@ class Daemon:
         self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
         self.cycle = Cycle(cfg, table, self.adapter, contract or cfg.daemon_mode.contract,
                            runners.get(planning, planning), policy)
-        self.checks = self.cycle.checks = StartupChecks(self.adapter, table.vehicle, cfg, table.e_pred is not None)
+        self.checks = self.cycle.checks
         self.protocols = Protocols(cfg, self.adapter, self.cycle, self.checks, self.out, self.counters,
                                    lambda: self._save_signing(None))
         self.param_server, self.mission = self.protocols.params, self.protocols.mission
@@ -216,10 +215,10 @@ class Daemon:
         self._record = None
         try:
             m = self.mission
-            i, d, box = self.cycle.step(
+            i, d, box = self.cycle.step(Given(
                 t, self.tel, r_obst=self.params["CG_R_OBST"], engage=self.params["CG_ENGAGE"] >= 0.5,
                 startup_ok=self.startup_ok, mission_route=m.route if m is not None else None,
-                route_ready=m is None or m.route is not None, protocol=m.poll(t) if m is not None else None)
+                route_ready=m is None or m.route is not None, protocol=m.poll(t) if m is not None else None))
             self.last, self._last_in, self._heartbeat_state = d, i, d.state
             self._link_events(t, i)
             self._apply(t, box.then(self._run_periodic(t, self._periodic)))

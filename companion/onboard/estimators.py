@@ -135,7 +135,7 @@ class DodEstimator:
         self._pos: tuple[float, float, float] | None = None  # (t, x, y) local NED, the last known
         self._tracked: deque[tuple[float, float, float]] = deque(maxlen=256)  # (t seen, x, y) of obstacle hits
         self._pos_hist: deque[tuple[float, float, float]] = deque()  # (t, x, y) over the last SENSOR_LAG_S
-        self.r_obst = contract.r_obst_m  # the R_obst in force (the cycle sets it every step)
+        self.r_obst = contract.r_obst_m  # the R_obst in force (`estimate` takes it every cycle)
 
     # ---- inputs
     def set_speed(self, speed: float) -> None:
@@ -300,9 +300,13 @@ class DodEstimator:
             return bool(s.known) and min(abs(wrap(beta - b)) for b in s.known) <= s.increment / 2 + 1e-9
         return abs(wrap(beta - math.radians(s.cfg.orientation_deg))) <= math.radians(s.cfg.h_fov_deg) / 2 + 1e-9
 
-    def estimate(self, t: float, beta: float, corridor_m: float = math.inf) -> DodEstimate:
+    def estimate(self, t: float, beta: float, corridor_m: float = math.inf, r_obst: float | None = None
+                 ) -> DodEstimate:
         """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
-        deciding which hits are on it (single-beam hits are always taken as on it)."""
+        deciding which hits are on it (single-beam hits are always taken as on it); `r_obst`: the R_obst in force
+        from now on (CG_R_OBST; None: unchanged)."""
+        if r_obst is not None:
+            self.r_obst = r_obst
         covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
         obstacle = math.inf
         for i, s in enumerate(self.sensors):
@@ -375,7 +379,7 @@ SETTLED_A_UP = 1.0  # [m/s²] and once the vertical acceleration has come within
 class ThrustEstimator:
     """thrust_ratio = nominal hover throttle / measured hover throttle, the latter from the collective
     throttle corrected for tilt and vertical acceleration: h = throttle·cosφ·cosθ·g/(g + a_up),
-    low-passed. Until it is known, `fallback`: the start value (`companion.onboard.cycle.start_thrust`: the lowest the
+    low-passed. Until it is known, `fallback`: the start value (`companion.onboard.assumptions.start_thrust`: the lowest the
     vehicle may have, where the table answers).
 
     Valid only airborne and settled: on the ground and during spin-up the throttle holds

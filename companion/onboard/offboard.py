@@ -29,7 +29,7 @@ mid-swerve carries the manoeuvre on; a stop the daemon streams takes the acceler
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -37,7 +37,7 @@ from contracts.online_planner import Plan, best_stop
 from contracts.stop import stop_path_budget
 
 from .guidance import OffboardGuidance, Setpoint
-from .states import AT_REST_M_S, STREAMING, SetpointKind
+from .states import AT_REST_M_S, FINISHED, STREAMING, SetpointKind
 from .states import OffboardState as S
 
 HELD = "fail-safe Hold, held until the pilot or the ground station decides (CG_ENGAGE off and on to resume)"
@@ -53,6 +53,36 @@ SETTLE_S = 0.5
 # on another 0.45 m into the column; held at the end point, the integrator bleeds off); at most END_WAIT_S
 AT_END_M = 0.2
 END_WAIT_S = 10.0
+
+
+@dataclass(frozen=True, slots=True)
+class Ask:
+    """One cycle's input to the controller: the vehicle's state as measured, the mode as the mode authority judged
+    it, and what the decision asks of the stream."""
+
+    t: float
+    mode: str
+    p: tuple[float, float]
+    v: tuple[float, float]
+    z: float
+    yaw: float
+    taken_over: bool = False  # someone else changed the mode this cycle: stand down, never fight
+    by_daemon: bool = False  # the mode shown is one the daemon asked for
+    engaged: bool = False
+    flying: bool = False
+    v_max: float = 0.0  # the speed the route may be flown at [m/s]
+    a_max: float = 0.0  # the horizontal acceleration limit [m/s²]
+    discs: tuple = ()  # the keep-out discs seen now
+    stop: bool = False  # the decision stops the flight
+    brake_stop: bool = False  # (with `stop`) the daemon may fly the stop out itself, braking at `a_stop`
+    a_stop: float = 0.0  # [m/s²] the stop's deceleration (the tilt's horizontal acceleration limit)
+    stop_decel: float = 0.0  # [m/s²] the stop contract's braking deceleration (the stop's length budget)
+    jerk: float = math.inf  # [m/s³] the stop contract's jerk
+    track_jerk: float = math.inf  # [m/s³] the stop's acceleration turned from the last setpoint's at this
+    failsafe: bool = False  # (with `stop`) the stop is a fail-safe Hold, which is latched
+    start: bool = False  # the recovery brake: the stop contract calls for a stop
+    abort: bool = False  # the recovery brake: a cause the daemon cannot fly out: Hold now
+    a0: tuple | None = None  # the acceleration measured at the recovery brake's start [m/s²]
 
 
 @dataclass
@@ -86,73 +116,55 @@ class OffboardController:
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
         self.state, self._t_state = new, t
 
-    def step(self, t, *, engaged: bool, flying: bool, mode: str, by_daemon: bool, taken_over: bool, p, v, z, yaw,
-             v_max: float, a_max: float, discs, stop: bool, brake_stop: bool = False,
-             a_stop: float = 0.0, stop_decel: float = 0.0, jerk: float = math.inf,
-             failsafe: bool = False, track_jerk: float = math.inf) -> OffboardActions:
-        """`brake_stop` (with `stop`): the stop may be flown by the daemon itself, braking at `a_stop`
-        (the tilt's horizontal acceleration limit), before it hands over to Hold; never longer than the
-        stop contract's braking (deceleration `stop_decel`, jerk `jerk`), its acceleration turned from the last
-        setpoint's at `track_jerk`. `failsafe` (with `stop`): the
-        stop is a fail-safe Hold, which is latched (`held`). `taken_over`: someone else changed the mode this
-        cycle (the mode authority's judgement): offboard stands down, never fights."""
-        acts = OffboardActions()
+    def step(self, ask: Ask) -> OffboardActions:
+        """Offboard mode's cycle. A stop the daemon may fly itself (`ask.brake_stop`) brakes at `ask.a_stop` before
+        it hands over to Hold; never longer than the stop contract's braking (`stop_decel`, `jerk`), its acceleration
+        turned from the last setpoint's at `track_jerk`. A fail-safe stop (`ask.failsafe`) is latched (`held`).
+        Someone else's mode change (`ask.taken_over`): offboard stands down, never fights."""
+        acts, t, p, v = OffboardActions(), ask.t, ask.p, ask.v
         dt = 0.02 if self._t_last is None else min(max(t - self._t_last, 1e-3), 0.2)
         self._t_last = t
         if self.state == S.BRAKING:
-            return self._brake(t, stop and not brake_stop, mode, taken_over, p, v, acts)
-        if discs:
-            self._seen = (t, list(discs))  # the obstacle is static: remembered if the sensor goes blind
-        if stop and self.state == S.FLYING and brake_stop and a_stop > 0:
-            known = list(discs) or (self._seen[1] if self._seen is not None and t - self._seen[0] < SEEN_S else [])
+            return self._brake(ask, ask.stop and not ask.brake_stop, acts)
+        if ask.discs:
+            self._seen = (t, list(ask.discs))  # the obstacle is static: remembered if the sensor goes blind
+        if ask.stop and self.state == S.FLYING and ask.brake_stop and ask.a_stop > 0:
+            known = list(ask.discs) or (self._seen[1] if self._seen is not None and t - self._seen[0] < SEEN_S else [])
             # braking at the tilt's full deceleration (the avoid contract's stop branch); a swerve off the
-            # discs may lengthen it to at most 0.9 × the stop contract's braking distance (`stop_decel`, `jerk`: the rest
-            # is for the vehicle's lag behind the stop it is given)
-            budget = stop_path_budget(float(np.hypot(*v)), stop_decel, jerk)
-            # from the acceleration last commanded (what the vehicle is turning to; PX4's Hold restarts from it
-            # too), turned onto the stop at `track_jerk`: a stop the vehicle can track
-            self._plan_stop(p, v, z, yaw, a_stop, known, budget, self._a_last, track_jerk)
+            # discs may lengthen it to at most 0.9 × the stop contract's braking distance (the rest is for the
+            # vehicle's lag behind the stop it is given), from the acceleration last commanded (what the vehicle
+            # is turning to; PX4's Hold restarts from it too): a stop the vehicle can track
+            budget = stop_path_budget(float(np.hypot(*v)), ask.stop_decel, ask.jerk)
+            self._plan_stop(ask, known, budget, self._a_last)
             self._go(t, S.BRAKING, "fail-safe: the daemon brakes to a stop, then Hold", acts)
-            return self._brake(t, False, mode, False, p, v, acts)
-        if stop and self.state in (S.ENTERING, S.FLYING):
-            self._go(t, S.HELD if failsafe else S.OFF, HELD if failsafe else "hold requested", acts)
+            return self._brake(replace(ask, taken_over=False), False, acts)
+        if ask.stop and self.state in (S.ENTERING, S.FLYING):
+            self._go(t, S.HELD if ask.failsafe else S.OFF, HELD if ask.failsafe else "hold requested", acts)
             return acts
         if self.state in (S.DONE, S.STOOD_DOWN, S.HELD):  # until asked again (CG_ENGAGE off and on)
             return acts
         if self.state == S.OFF:
-            if engaged and flying and not stop:
+            if ask.engaged and ask.flying and not ask.stop:
                 self._refusal = None
                 self._hold_here = np.asarray(p, float).copy()
-                self._hold_z, self._hold_yaw = z, yaw
+                self._hold_z, self._hold_yaw = ask.z, ask.yaw
                 self._go(t, S.ENTERING, "engaged", acts)
             else:
                 return acts
-        if self.state == S.ENTERING:
-            if mode == "offboard" and by_daemon:
-                self.guidance.start(p, v)
-                self._done_at = None
-                self._go(t, S.FLYING, "autopilot in offboard", acts)
-            else:
-                acts.setpoint = Setpoint(self._hold_here, np.zeros(2), np.zeros(2), self._hold_z, self._hold_yaw,
-                                         SetpointKind.HOLD)
-                # asked every cycle from entry_s on: the mode authority delivers it, and says when it failed
-                acts.enter = t - self._t_state >= self.entry_s
-                if self._refusal is not None:
-                    self._go(t, S.OFF, f"autopilot did not enter offboard: {self._refusal}", acts)
-                    acts.setpoint, acts.enter = None, False
-                return acts
+        if self.state == S.ENTERING and not self._entered(ask, acts):
+            return acts
         if self.state == S.FLYING:
-            if taken_over:
-                self._go(t, S.STOOD_DOWN, f"{mode} set by someone else", acts)
+            if ask.taken_over:
+                self._go(t, S.STOOD_DOWN, f"{ask.mode} set by someone else", acts)
                 return acts
             if self._done_at is not None:
                 return self._finish(t, acts)
-            acts.setpoint = self.guidance.step(t, dt, p, v, v_max, a_max, discs, yaw=yaw)
+            acts.setpoint = self.guidance.step(t, dt, p, v, ask.v_max, ask.a_max, ask.discs, yaw=ask.yaw)
             if acts.setpoint.mode == SetpointKind.DONE and float(np.hypot(*v)) < AT_REST_M_S:
                 # the route is flown: hold the vehicle where it is for SETTLE_S, then hand over to Hold, so
                 # that the last setpoint is where it rests (PX4's Hold restarts from the last setpoint: handed
                 # over 1.5 m past it, the vehicle flew back there, 1.3 m/s backwards, unseen by its sensors)
-                self._done_at = (t, np.asarray(p, float).copy(), z, yaw)
+                self._done_at = (t, np.asarray(p, float).copy(), ask.z, ask.yaw)
                 return self._finish(t, acts)
             if acts.setpoint.mode == SetpointKind.BRAKE and not self._braking:
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
@@ -160,32 +172,72 @@ class OffboardController:
             self._a_last = np.asarray(acts.setpoint.a, float)
         return acts
 
-    def _plan_stop(self, p, v, z, yaw, a_stop, known, budget, a0, jerk) -> None:
-        """The stop to stream: `best_stop` from the measured state at `a_stop`, its acceleration from `a0` at `jerk`."""
-        bp, bv, ba, bts, _ = best_stop(np.asarray(p, float), np.asarray(v, float), a_stop, known, 40,
-                                       max_path_m=budget, a0=a0, jerk=jerk)
-        self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
-        self._stop_z, self._stop_yaw, self._slow_since = z, yaw, None
+    def _entered(self, ask: Ask, acts: OffboardActions) -> bool:
+        """Entering: a setpoint where the vehicle was when engaged, OFFBOARD / GUIDED asked every cycle from
+        `entry_s` on (the mode authority delivers it, and says when it failed); flying (True) once the autopilot
+        shows it."""
+        t = ask.t
+        if ask.mode == "offboard" and ask.by_daemon:
+            self.guidance.start(ask.p, ask.v)
+            self._done_at = None
+            self._go(t, S.FLYING, "autopilot in offboard", acts)
+            return True
+        acts.setpoint = Setpoint(self._hold_here, np.zeros(2), np.zeros(2), self._hold_z, self._hold_yaw,
+                                 SetpointKind.HOLD)
+        acts.enter = t - self._t_state >= self.entry_s
+        if self._refusal is not None:
+            self._go(t, S.OFF, f"autopilot did not enter offboard: {self._refusal}", acts)
+            acts.setpoint, acts.enter = None, False
+        return False
 
-    def recover(self, t, *, start: bool, abort: bool, mode: str, taken_over: bool, p, v, z, yaw, a_stop: float,
-                jerk: float, a0=None) -> OffboardActions:
+    def _plan_stop(self, ask: Ask, known, budget: float, a0) -> None:
+        """The stop to stream: `best_stop` from the measured state at `ask.a_stop`, its acceleration from `a0` at
+        `ask.track_jerk`."""
+        bp, bv, ba, bts, _ = best_stop(np.asarray(ask.p, float), np.asarray(ask.v, float), ask.a_stop, known, 40,
+                                       max_path_m=budget, a0=a0, jerk=ask.track_jerk)
+        self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
+        self._stop_z, self._stop_yaw, self._slow_since = ask.z, ask.yaw, None
+
+    def recover(self, ask: Ask) -> OffboardActions:
         """Governor mode's recovery brake (ASTM F3269's recovery function, the stop contract its
-        monitor). `start`: the stop contract calls for a stop: the straight jerk-limited stop at `a_stop` (the
-        airframe's braking) from the measured state (acceleration `a0`), streamed from this cycle, OFFBOARD /
-        GUIDED asked the next (PX4 refuses offboard without a stream); from there as offboard's fail-safe stop
-        (`_brake`: at rest, Hold).
+        monitor). `ask.start`: the stop contract calls for a stop: the straight jerk-limited stop at `ask.a_stop` (the
+        airframe's braking, jerk `ask.track_jerk`) from the measured state (acceleration `ask.a0`), streamed from
+        this cycle, OFFBOARD / GUIDED asked the next (PX4 refuses offboard without a stream); from there as
+        offboard's fail-safe stop (`_brake`: at rest, Hold).
         The switch refused or not shown in time (`refuse`: the mode authority's delivery): Hold at once, and
-        `refused` says why. `abort`: a cause the daemon cannot fly out (its state not to be trusted): Hold now."""
+        `refused` says why. `ask.abort`: a cause the daemon cannot fly out (its state not to be trusted): Hold now."""
         acts = OffboardActions()
-        self._t_last = t
+        self._t_last = ask.t
         if self.state == S.BRAKING:
-            return self._brake(t, abort, mode, taken_over, p, v, acts)
-        if start and not abort:
-            self._plan_stop(p, v, z, yaw, a_stop, [], math.inf, a0, jerk)
+            return self._brake(ask, ask.abort, acts)
+        if ask.start and not ask.abort:
+            self._plan_stop(ask, [], math.inf, ask.a0)
             self._switch, self._refusal, self.held = True, None, RECOVERED
-            self._go(t, S.BRAKING, "recovery brake: the daemon brakes to a stop, then Hold", acts)
-            return self._brake(t, False, mode, False, p, v, acts)
+            self._go(ask.t, S.BRAKING, "recovery brake: the daemon brakes to a stop, then Hold", acts)
+            return self._brake(replace(ask, taken_over=False), False, acts)
         return acts
+
+    def shown(self) -> None:
+        """The recovery brake's switch was shown within its contract's budget: its own stop contract may set the
+        limit from now on in this flight."""
+        self.proven = True
+
+    def rearm(self) -> None:
+        """Ready for the next stop or entry once a finished one is over (resumed by someone else, or CG_ENGAGE
+        set anew)."""
+        if self.state in FINISHED:
+            self.state = S.OFF
+
+    def follow(self, guidance: OffboardGuidance) -> None:
+        """The route to fly from the next entry on (a route downloaded anew); the old guidance's planner ends."""
+        if self.guidance is not None:
+            self.guidance.planning.close()
+        self.guidance = guidance
+
+    def close(self) -> None:
+        """The daemon ends: the planning worker too."""
+        if self.guidance is not None:
+            self.guidance.planning.close()
 
     def refuse(self, why: str) -> None:
         """The autopilot refused the OFFBOARD / GUIDED asked, or did not show it in time (the mode authority's
@@ -215,10 +267,11 @@ class OffboardController:
             self._go(t, S.DONE, "route complete", acts)
         return acts
 
-    def _brake(self, t, abort: bool, mode: str, taken_over: bool, p, v, acts) -> OffboardActions:
+    def _brake(self, ask: Ask, abort: bool, acts) -> OffboardActions:
         """Stream the fail-safe stop; at rest (or well past its end) hand over to Hold (handing over while
         the vehicle still moves lets Hold carry on from its acceleration: measured, 16–18 m for 8 m)."""
-        if taken_over:
+        t, mode, p, v = ask.t, ask.mode, ask.p, ask.v
+        if ask.taken_over:
             self._go(t, S.STOOD_DOWN, f"{mode} set by someone else", acts)
             return acts
         if abort:  # a fail-safe the daemon cannot fly out (its own state is not to be trusted): Hold now

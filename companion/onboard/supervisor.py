@@ -306,12 +306,24 @@ class Supervisor:
             if ramp_m_s is not None and self.mode.governs else None
 
     def latch_hold(self, d: Decision, reason: str) -> Decision:
-        """Offboard's fail-safe Hold is latched: holding until someone else changes the mode or CG_ENGAGE is
-        toggled, whether or not its cause has cleared (`companion/onboard/offboard.py`, authority). The decision, so said."""
+        """Offboard's fail-safe Hold (or the recovery brake's) is latched: holding until someone else changes the
+        mode or CG_ENGAGE is toggled, whether or not its cause has cleared (`companion/onboard/offboard.py`,
+        authority). The decision, so said (unchanged when already latched)."""
+        if self.latched:
+            return d
         self.latched = True
         draft = _Draft(d.state, d.omega, d.v_cmd)
         self._set_state(draft, State.HOLDING, reason)
         return self._amended(d, draft)
+
+    def unlatch(self) -> None:
+        """CG_ENGAGE set anew: a latched Hold is the pilot's to resume."""
+        self.latched = False
+
+    def use_recovery_brake(self, loop_dt: float | None) -> None:
+        """The stop contract's brake from this cycle on: the daemon's recovery brake, flown at `loop_dt` (its switch
+        shown in time in this flight), or None: the autopilot's Hold."""
+        self.recovery_dt = loop_dt
 
     def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float) -> Decision:
         """The recovery brake's assumption: the autopilot accepts its switch to offboard when called, within the
