@@ -238,12 +238,12 @@ def hide_the_medium(cycle) -> None:
     (a surface first seen close by reaches it once `confirm_frames` frames confirm it), and a single beam's
     quality then unknown."""
     def scan(s):
-        medium = cycle.truth.add_scan(s)
+        medium = cycle.sensing.truth.add_scan(s)
         if medium:
             s = replace(s, hits=tuple(h for k, h in enumerate(s.hits) if k not in medium),
                         quality=0 if s.known is None else s.quality)
-        cycle.dod.add_scan(s)
-    cycle._takers[Scan] = scan
+        cycle.sensing.dod.add_scan(s)
+    cycle.sensing._takers[Scan] = scan
 
 
 def approach(cycle, frames: int, seen):
@@ -257,7 +257,7 @@ def approach(cycle, frames: int, seen):
         cycle.take(Heading(t, 0.0, 2.0))
         for s in seen(t, x):
             cycle.take(s)
-        out.append([(b, r) for b, r, *_ in cycle.dod.fresh_hits(t)])
+        out.append([(b, r) for b, r, *_ in cycle.sensing.dod.fresh_hits(t)])
     return out
 
 
@@ -288,7 +288,7 @@ def test_a_close_return_reaches_the_obstacle_logic_on_its_first_frame():
     cycle = governor_cycle()
     hits = approach(cycle, 20, a_post_from(2.3, 0.5 - 1e-9))  # seen from frame 5 (x = 0.5 m) on
     reached_on_its_first_frame(hits, 5, 1.8)
-    assert cycle.dod.sensors[1].trusted  # quality 100, as sent
+    assert cycle.sensing.dod.sensors[1].trusted  # quality 100, as sent
 
 
 def test_negative_control_withholding_the_medium_returns_hides_the_close_post():

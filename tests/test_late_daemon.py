@@ -80,7 +80,7 @@ def test_the_console_says_when_the_daemon_runs_late_and_when_it_is_on_time_again
 def test_the_loop_timing_tells_the_hosts_lateness_from_the_daemons_own_work():
     """`loop_timing` (the real-time loop's end): the largest wake-up lateness and work, the cycles over 10/20/40 ms
     in all, and the five worst cycles by that sum, each split into wake-up, poll, step and commit."""
-    from companion.onboard.daemon import LoopTiming
+    from companion.onboard.realtime import LoopTiming
 
     lt = LoopTiming()
     cycles = [(0.02 * k, 0.0002, 0.001, 0.002) for k in range(100)]

@@ -122,7 +122,7 @@ def fog_flight(personality, seed, visibility_m, seconds, trust_claim=False, with
     sc["sensor"]["max_range_m"] = CLAIMED_M
     rig = Rig(sc, personality, config=offboard_config(x_end=70.0))
     if trust_claim:
-        rig.daemon.cycle.truth = TrustTheClaim(rig.daemon.cfg.sensors)
+        rig.daemon.cycle.sensing.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     if withhold_the_medium:
         hide_the_medium(rig.daemon.cycle)
     trace = Trace()

@@ -138,7 +138,7 @@ def test_the_start_value_is_the_axis_own_first_value_where_the_table_covers_the_
     cfg = config_from_dict({"vehicle": "mambo", "mode": "governor", "link": {"connect": "memory"},
                             "sensors": [{"h_fov_deg": 30, "max_range_m": 6.0}]})
     cycle = Cycle(cfg, table, adapter_for("px4"), "stop", None)
-    start, _ = cycle.thrust.value(0.0)
+    start, _ = cycle.sensing.thrust.value(0.0)
     assert start == edge and table.omega(6.0, 0.5, 0.3, start, contract="stop").v_max > 1.0
     from companion.onboard.assumptions import start_thrust  # (imported here: the flights above run on older code too)
 
@@ -224,7 +224,7 @@ def test_thrust_start_is_said_once_airborne_and_again_when_the_estimate_is_lost(
         t = 1.0 + 0.1 * k
         cycle.take(Throttle(t, MAMBO.vehicle.controller.thr_hover, 0.0, 0.0, 0.0, True))
         at(t, 2)
-    assert said == [1.0] and cycle.thrust.basis(5.9) == "hover"
+    assert said == [1.0] and cycle.sensing.thrust.basis(5.9) == "hover"
     at(8.5, 2)  # no throttle sample for 2.6 s: the start value again
     at(8.6, 2)
     assert said == [1.0, 8.5]

@@ -548,7 +548,7 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     if arm == "no_guard":
         rig.daemon_on = False
     if arm.endswith("_claim"):  # negative control: no detection range from evidence
-        rig.daemon.cycle.truth = TrustTheClaim(rig.daemon.cfg.sensors)
+        rig.daemon.cycle.sensing.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     seconds = spec.duration_s
     if mode_of(mode).flies_route:
         engage_and_fly(rig, seconds, trace)

@@ -18,42 +18,26 @@ from contracts.errors import ContractError
 from contracts.online_planner import load_solver
 from contracts.table import ContractTable
 
-from .assumptions import e_tr_floor, start_thrust
 from .authority import HOLD, ModeAuthority, ModeRequest, ModeView, Requester
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
 from .config import Config
-from .detection_range import DetectionRange, DetectionRangeParams
-from .estimators import AccelEstimator, DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
 from .flying import OffboardFlight, RecoveryBrake
 from .guidance import OffboardGuidance, Route, obstacle_discs
 from .holds import Recheck, Shutdown
-from .mavlink_in import SENSOR_MSGS
 from .mission import Home
 from .no_speed import diagnose
 from .offboard import OffboardController
 from .outbox import Outbox
 from .samples import (
-    AutopilotParam,
-    Heading,
-    Implausible,
     MissionMessage,
-    NavStatus,
-    PathTarget,
-    Position,
-    Scan,
-    Throttle,
 )
+from .sensing import A0_S, Sensing
 from .startup import StartupChecks
 from .states import Cause, OffboardState
 from .supervisor import RAMP_WINDOW_S, Decision, Inputs, Supervisor
 from .telemetry import Telemetry
 from .turn import Part, Turn
-
-A0_S = 0.1  # [s] the recovery brake's stop starts from the acceleration measured over this long (Δv/Δt)
-
-# the samples only the estimators take (by type: `Daemon.take` sends them here first, the others by isinstance)
-CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, Scan))
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,21 +60,13 @@ class Cycle:
         thread); `policy`: the speed policy flown (companion/onboard/supervisor.py ContractSpeed by default)."""
         self.cfg, self.table, self.adapter = cfg, table, adapter
         veh = table.vehicle
-        self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s)
-        # D_od from evidence: what the sensors' claim cannot say
-        self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
-        self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
-        hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
-        start, self._thrust_start = start_thrust(table, contract)
-        self.thrust = ThrustEstimator(cfg.thrust, hover, start, veh.thrust_ratio_range[1])
+        self.sensing = sensing = Sensing(cfg, table, adapter, contract)
         self._thrust_said = False  # the start value in force in the air has been said (`thrust_start`)
-        self.nav = NavHealth(cfg.timeouts.nav_s)
-        self.timing = Timeliness(1.0 / cfg.loop_hz, cfg.timeouts.cycle_jitter_s)
         self.sup = Supervisor(table, cfg.daemon_mode, contract=contract, dwell_s=cfg.contract.dwell_s,
                               speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
-                              e_tr_floor_m=self.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s,
+                              e_tr_floor_m=sensing.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s,
                               t_cmd_s=cfg.delivery.t_cmd_s)
         self.checks = StartupChecks(adapter, veh, cfg, table.e_pred is not None)
         self.view: ModeView | None = None  # this cycle's mode, as the authority judged it
@@ -112,66 +88,25 @@ class Cycle:
             # (contracts/stop.py `recovery_brake`)
             budget = veh.braking.hold_switch_s + 1.0 / cfg.loop_hz + cfg.delivery.t_cmd_s
             self.flying = RecoveryBrake(veh, budget)
-        # the acceleration flown: the speed limit's check (its slow-down starts from it), the approach ramp's, and the
-        # recovery brake's start
-        self._accel = AccelEstimator(max(RAMP_WINDOW_S, A0_S))
         self._jerk_heard: float | None = None  # the autopilot's jerk last given to the approach ramp
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
-        self.v_cruise = math.nan  # the autopilot's cruise-speed parameter [m/s] (Adapter.cruise_param)
         # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
         self.calibration: CalibrationHolds | None = None
         if cfg.calibration is not None:
             self.calibration = CalibrationHolds(read_legs(cfg.calibration.legs), adapter.mission_item0_is_home)
         self.recheck = Recheck()
         self.shutdown: Shutdown | None = None  # the daemon is stopping (`stop`)
-        self._takers = {Position: self._position, Heading: self._heading, PathTarget: self._path_target,
-                        Throttle: self._throttle, NavStatus: self._nav_status, Scan: self._scan}
 
     offboard = property(lambda self: self.flying.controller if isinstance(self.flying, OffboardFlight) else None)
     brake = property(lambda self: self.flying.controller if isinstance(self.flying, RecoveryBrake) else None)
 
-    # ------------------------------------------------------------------ samples
     def take(self, s) -> None:
-        """One sample to the estimators that take it (the 50 Hz kinds by their type, the rest in `_take_other`)."""
-        own = self._takers.get(type(s))
-        if own is not None:
-            own(s)
-        else:
-            self._take_other(s)
-        self.sup.policy.take(s)  # as received: a baseline law builds its own map, as its firmware does
-
-    def _position(self, s: Position) -> None:
-        self.etr.measure(s.t, s.x, s.y)
-        self.dod.add_position(s.t, s.x, s.y)
-        self.truth.add_position(s.t, s.x, s.y)
-
-    def _heading(self, s: Heading) -> None:
-        self.dod.add_heading(s.t, s.yaw)
-        self.truth.add_heading(s.t, s.yaw)
-        self.dod.set_speed(s.ground_speed)
-
-    def _path_target(self, s: PathTarget) -> None:
-        if not self._flying_ours:  # offboard (or the recovery brake) shown: our own setpoints are the path
-            self.etr.command(s.t, s.x, s.y)
-
-    def _throttle(self, s: Throttle) -> None:
-        self.thrust.add(s.t, s.throttle, s.roll, s.pitch, s.vz_down, s.in_air)
-
-    def _nav_status(self, s: NavStatus) -> None:
-        self.nav.update(s.t, s.source, s.flags)
-
-    def _scan(self, s: Scan) -> None:  # every return to the obstacle logic; the medium's are D_od's evidence as well
-        self.truth.add_scan(s)
-        self.dod.add_scan(s)
-
-    def _take_other(self, s) -> None:
-        if isinstance(s, AutopilotParam) and self.adapter.cruise_param and s.name == self.adapter.cruise_param[0]:
-            v = s.value * self.adapter.cruise_param[1]
-            self.v_cruise = v if 0 < v < 100 else math.nan  # nonsense is not a cruise speed
-        elif isinstance(s, Implausible) and s.kind not in SENSOR_MSGS:  # a sensor's: its scan covers nothing
-            self.nav.fault(s.t, f"{s.kind}: {s.why}")
-        elif isinstance(s, MissionMessage) and self.calibration is not None and s.msg.get_type() == "HOME_POSITION":
-            self.calibration.take_home(Home.from_msg(s.msg))  # the hold legs' waypoints are placed from it
+        """One sample to the estimators that take it; HOME_POSITION to the hold legs (their waypoints are placed from
+        it); every sample to the speed policy as received (a baseline law builds its own map, as its firmware does)."""
+        if not self.sensing.take(s, self._flying_ours) and isinstance(s, MissionMessage) and self.calibration is not None and \
+                s.msg.get_type() == "HOME_POSITION":
+            self.calibration.take_home(Home.from_msg(s.msg))
+        self.sup.policy.take(s)
 
     def engage_requested(self) -> None:
         """CG_ENGAGE set anew: a restart in flight may engage now, and offboard may be entered again."""
@@ -205,28 +140,28 @@ class Cycle:
     # ------------------------------------------------------------------ the cycle
     def inputs(self, g: Given) -> Inputs:
         """What the supervisor judges: the estimators' values at `g.t`, the mode as the authority judges it."""
-        t, tel, to = g.t, g.tel, self.cfg.timeouts
+        t, tel, to, s = g.t, g.tel, self.cfg.timeouts, self.sensing
         link_ok = t - tel.t_heartbeat <= to.heartbeat_s
-        late = self.timing.tick(t, link_ok)
+        late = s.timing.tick(t, link_ok)
         telemetry_ok = t - tel.t_local <= to.telemetry_s
         speed = tel.ground_speed if telemetry_ok else math.nan
         # along the velocity; below 1 m/s (drift, stopping within ~0.3 m, inside the E_tr floor) along the heading
         beta = math.atan2(tel.vy, tel.vx) - tel.yaw if telemetry_ok and speed > 1.0 else 0.0
-        e_tr = self.etr.value
+        e_tr = s.etr.value
         corridor = 2 * g.r_obst + e_tr + self.table.vehicle.r_body_m
-        dod = self.dod.estimate(t, beta, corridor, g.r_obst)
-        truth = self.truth.estimate(t, dod.d_od)
+        dod = s.dod.estimate(t, beta, corridor, g.r_obst)
+        truth = s.truth.estimate(t, dod.d_od)
         if truth.d_od < dod.d_od:  # the evidence allows less than the claim (fog that hides, not tells)
             dod = replace(dod, d_od=truth.d_od, lowered=True,
                           reason=f"detection range from evidence ({truth.confidence:.0%} confidence): {truth.reason}")
-        thrust_ratio, _ = self.thrust.value(t)
-        self._accel.add(tel.t_local, tel.vx, tel.vy)
-        accel = self._accel.over(RAMP_WINDOW_S) if telemetry_ok else None
+        thrust_ratio, _ = s.thrust.value(t)
+        s.accel.add(tel.t_local, tel.vx, tel.vy)
+        accel = s.accel.over(RAMP_WINDOW_S) if telemetry_ok else None
         if accel is None:
             accel_along = math.nan
         else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)
             accel_along = float(accel @ (tel.vx, tel.vy)) / speed if speed > 0.5 else float(math.hypot(*accel))
-        discs, width = obstacle_discs(self.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, g.r_obst)
+        discs, width = obstacle_discs(s.dod.fresh_hits(t), (tel.x, tel.y), tel.yaw, g.r_obst)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
         self.view = view = self.authority.observe(t, mode, link_ok)
         if self.first_seen_in_air is None and tel.landed_state:
@@ -236,13 +171,13 @@ class Cycle:
                    and not (off is not None and off.state in (OffboardState.DONE, OffboardState.STOOD_DOWN)))
         applies = self.adapter.limit_applies(mode) or (off is not None and mode == "offboard")
         v_mission = self.calibration.mission_speed(tel.mission_seq) if self.calibration is not None else math.nan
-        return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=self.nav.healthy(t), armed=tel.armed,
+        return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=s.nav.healthy(t), armed=tel.armed,
                       in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=view.by_daemon,
                       mode_changed=view.event is not None, taken_over=view.taken_over,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=g.r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
-                      v_cruise=self.v_cruise, late_s=late, late_unbudgeted_s=self.timing.unbudgeted_s,
-                      late_within_s=self.timing.within_s, accel_along=accel_along, delivery_late=view.late,
+                      v_cruise=s.v_cruise, late_s=late, late_unbudgeted_s=s.timing.unbudgeted_s,
+                      late_within_s=s.timing.within_s, accel_along=accel_along, delivery_late=view.late,
                       v_mission=v_mission)
 
     def step(self, g: Given) -> tuple[Inputs, Decision, Outbox]:
@@ -268,7 +203,7 @@ class Cycle:
         if flown.switch_refused is not None:
             d = self.sup.switch_refused(d, i, *flown.switch_refused)
         if flown.end_stream:
-            self.etr.reset()  # our setpoints are no longer the commanded path
+            self.sensing.etr.reset()  # our setpoints are no longer the commanded path
         turn = replace(turn, d=d)
         parts = [flown] + [actor.step(turn) for actor in (self.recheck, self.calibration, self.shutdown)
                            if actor is not None]
@@ -285,14 +220,14 @@ class Cycle:
         cmd = self.authority.arbitrate(g.t, requests)
         sp = flown.setpoint
         if sp is not None and self._flying_ours:
-            self.etr.command(g.t, float(sp.p[0]), float(sp.p[1]))
+            self.sensing.etr.command(g.t, float(sp.p[0]), float(sp.p[1]))
         speed = d.send_speed if self.cfg.daemon_mode.governs else None
         return i, d, Outbox(mode=cmd, speed=speed, messages=tuple(protocol.send) if protocol is not None else (),
                             setpoint=sp, end_stream=flown.end_stream, events=tuple(events), texts=tuple(texts))
 
     def _turn(self, g: Given, i: Inputs, d: Decision) -> Turn:
         engaged_flying = i.engaged and i.armed and i.in_air and self.cfg.daemon_mode.commands
-        a0 = self._accel.over(A0_S) if isinstance(self.flying, RecoveryBrake) else None  # Δv over ≥ A0_S
+        a0 = self.sensing.accel.over(A0_S) if isinstance(self.flying, RecoveryBrake) else None  # Δv over ≥ A0_S
         return Turn(t=g.t, tel=g.tel, i=i, d=d, view=self.view, startup_ok=g.startup_ok,
                     engaged_flying=engaged_flying, stopping=self.shutdown is not None, tilt=self.sup.tilt_in_force,
                     mission_route=g.mission_route, a0=a0)
@@ -302,19 +237,19 @@ class Cycle:
         (`thrust_start`: once per flight, and again if the hover estimate goes stale), and for a `no safe speed`
         Hold (or a shadow flight's would-be Hold) the input that caused it and how the flight resumes
         (companion/onboard/no_speed.py), on the hold event and in a STATUSTEXT."""
-        basis = self.thrust.basis(turn.t)
+        basis = self.sensing.thrust.basis(turn.t)
         if not turn.tel.in_air or basis != "start":  # said again after a landing, or an estimate lost in flight
             self._thrust_said = False
         elif not self._thrust_said:
             self._thrust_said = True
-            events.insert(0, ("thrust_start", dict(self._thrust_start)))  # before what it explains
+            events.insert(0, ("thrust_start", dict(self.sensing.thrust_start)))  # before what it explains
         why = None
         for k, (name, f) in enumerate(events):
             if not (name == "failsafe" and f.get("cause") == Cause.NO_SAFE_SPEED
                     or name == "would_hold" and Cause.NO_SAFE_SPEED in f.get("causes", ())):
                 continue
             if why is None:
-                why = diagnose(self.table, self.sup.contract, turn.i, e_tr_floor=self.etr.floor, thrust_basis=basis,
+                why = diagnose(self.table, self.sup.contract, turn.i, e_tr_floor=self.sensing.etr.floor, thrust_basis=basis,
                                policy=getattr(self.sup.policy, "name", "contract"), t_cmd=self.sup.t_cmd)
             events[k] = (name, {**f, **why.fields(self.cfg.daemon_mode)})
             if name == "failsafe" and f.get("action") == "hold":

@@ -1,7 +1,7 @@
 """The on-board daemon: one loop (default 50 Hz) over one MAVLink connection (DESIGN.md §5). Thin: it polls,
 steps and runs the pipeline it wires — MAVLink in (samples) → cycle (estimators → mode authority → supervisor →
-actors → one Outbox, pure) → MAVLink out (`apply(outbox)`) — plus its own protocols (companion/onboard/protocols.py) and
-its periodic work (`PERIODIC`). Everything sent in a cycle leaves in that cycle's one outbox: what the protocols
+actors → one Outbox, pure) → MAVLink out (`apply(outbox)`) — plus its own protocols (companion/onboard/
+protocols.py) and its periodic work (`PERIODIC`); the real-time loop is companion/onboard/realtime.py's. Everything sent in a cycle leaves in that cycle's one outbox: what the protocols
 and the link's events want sent since the last cycle (their events logged at once) is joined to it, and so is
 what the periodic work adds. `poll()` drains the link, `step()` runs one cycle at the injected clock's time;
 `run` calls both at `loop_hz`, lock-step tests between simulator steps. `stop()` begins the shutdown (engaged in
@@ -11,7 +11,6 @@ counted and dropped, a failed log write is the log's problem, a missing stream l
 
 from __future__ import annotations
 
-import gc
 import math
 import time
 from dataclasses import replace
@@ -20,7 +19,7 @@ from contracts.table import ContractTable
 
 from .autopilots import adapter_for
 from .config import Config
-from .cycle import CYCLE_SAMPLES, Cycle, Given
+from .cycle import Cycle, Given
 from .guidance import InlinePlanning, ProcessPlanning, ThreadedPlanning
 from .logschema import LINK_COUNTERS, NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
@@ -28,75 +27,29 @@ from .mavlink_out import Counters, MavlinkOut
 from .mission import home_request
 from .outbox import EMPTY, Outbox
 from .protocols import Protocols
+from .sensing import CYCLE_SAMPLES
 from .supervisor import Decision
 
 MAX_MESSAGES_PER_POLL = 2000  # messages taken per cycle at most (a 50 Hz autopilot sends ~400/s)
-STOP_LIMIT_S = 3.0  # [s, host time] the real-time loop ends this long after a stop was asked, whatever the cycle does
 
 # the daemon's periodic work, as ArduPilot's scheduler_tasks[] lists its loops: (period [s], method); a period of
 # None is the state-sample rate (log.state_hz). Each runs when its period has passed since its last run (or the
 # clock went back), in this order, at the end of a cycle: what it returns joins the cycle's outbox (None: nothing
 # to send); a task that returns False had nothing to do yet and is tried again at the next cycle. The state sample
 # is written after the outbox is applied (after the cycle's events, as the log orders them).
-PERIODIC = (
-    (0.0, "_watch_log"),
-    (10.0, "_save_signing"),
-    (0.0, "_checks_deadline"),
-    (5.0, "_request_home"),
-    (1.0, "_heartbeat"),
-    (0.5, "_named_values"),
-)
+PERIODIC = ((0.0, "_watch_log"), (10.0, "_save_signing"), (0.0, "_checks_deadline"), (5.0, "_request_home"),
+            (1.0, "_heartbeat"), (0.5, "_named_values"))
 AFTER_OUTBOX = ((None, "_state_sample"),)
-
-
-def freeze_startup() -> None:
-    """What start-up made (the table's lookup lists, the modules: ~150 000 objects) leaves the cyclic collector's
-    view (`gc.freeze`), so a full collection in the loop walks only what the loop made: over all of them it took
-    61 ms on the 2-core VM, three 50 Hz cycles; in the loop 0.14 ms (`full_gc_ms` of `benchmarks/bench_daemon.py`)."""
-    gc.collect()
-    gc.freeze()
-
-
-class LoopTiming:
-    """How the real-time loop kept its schedule, for the `loop_timing` event at its end: per cycle the wake-up's
-    lateness (the host's: it woke the loop late) and the cycle's own work (poll, step, and the commit of its events
-    to the disk: wall time), their largest, how many cycles took over 10 / 20 / 40 ms in all, and the WORST cycles by
-    that sum (at vehicle time)."""
-
-    WORST = 5
-
-    def __init__(self):
-        self.cycles, self.over = 0, {10: 0, 20: 0, 40: 0}
-        self.work_max = self.wake_max = 0.0
-        self.worst: list[tuple] = []  # (wake + poll + step + commit, t, wake, poll, step, commit), the largest sums
-
-    def add(self, t: float, wake_s: float, poll_s: float, step_s: float, commit_s: float = 0.0) -> None:
-        self.cycles += 1
-        work = poll_s + step_s + commit_s
-        total = wake_s + work
-        self.work_max, self.wake_max = max(self.work_max, work), max(self.wake_max, wake_s)
-        for ms in self.over:
-            if total * 1e3 > ms:
-                self.over[ms] += 1
-        if len(self.worst) < self.WORST or total > self.worst[-1][0]:
-            self.worst = sorted([*self.worst, (total, t, wake_s, poll_s, step_s, commit_s)],
-                                reverse=True)[:self.WORST]
-
-    def summary(self) -> dict:
-        ms = lambda x: round(1e3 * x, 2)  # noqa: E731
-        return {"cycles": self.cycles, "work_ms_max": ms(self.work_max), "wake_late_ms_max": ms(self.wake_max),
-                "cycles_over_ms": {str(k): v for k, v in self.over.items()},
-                "worst": [{"t": t, "wake_late_ms": ms(w), "poll_ms": ms(p), "step_ms": ms(k), "commit_ms": ms(c)}
-                          for _, t, w, p, k, c in self.worst]}
 
 
 class Daemon:
     def __init__(self, cfg: Config, table: ContractTable, conn, log, clock=None, wall=time.time, signing_clock=None,
                  planning: str = "process", contract: str | None = None, policy=None):
         """`planning`: "process" (the avoidance planner in a worker process: no planning holds the loop's
-        interpreter lock), "thread" or "inline" (in the loop: lock-step tests), or a factory of a runner. `contract`: the one to enforce
-        (default: "avoid" in offboard mode, else "stop"; a replay names the one the flight flew under).
-        `policy`: the speed policy (the contract's Ω by default; a campaign's baselines: companion/ground/baselines.py)."""
+        interpreter lock), "thread" or "inline" (in the loop: lock-step tests), or a factory of a runner.
+        `contract`: the one to enforce (default: "avoid" in offboard mode, else "stop"; a replay names the one the
+        flight flew under). `policy`: the speed policy (the contract's Ω by default; a campaign's baselines:
+        companion/ground/baselines.py)."""
         runners = {"process": ProcessPlanning, "thread": ThreadedPlanning, "inline": InlinePlanning}
         if isinstance(planning, str) and planning not in runners:
             raise ValueError(f"planning must be one of {', '.join(runners)}, not {planning!r}")
@@ -108,7 +61,7 @@ class Daemon:
         self.adapter = adapter_for(cfg.link.autopilot)
         self.counters = Counters()
         self.mav_in = MavlinkIn(cfg, self.adapter, self.clock, self.vclock, self.counters)
-        self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self._event)
+        self.out = MavlinkOut(conn, cfg.link, self.adapter, self.counters, self.event)
         self.cycle = Cycle(cfg, table, self.adapter, contract or cfg.daemon_mode.contract,
                            runners.get(planning, planning), policy)
         self.checks = self.cycle.checks
@@ -127,7 +80,7 @@ class Daemon:
         self._log_healthy = True
         self._bad_cycles = 0
         if self.checks.ok is False:  # refused before the autopilot is even heard
-            self._event(self.clock(), "startup_check", ok=False, reason=self.checks.reason)
+            self.event(self.clock(), "startup_check", ok=False, reason=self.checks.reason)
 
     # what tests and the CLI look at
     tel = property(lambda self: self.mav_in.tel)
@@ -135,6 +88,11 @@ class Daemon:
     startup_ok = property(lambda self: self.checks.ok)
     offboard = property(lambda self: self.cycle.offboard)
     calibration = property(lambda self: self.cycle.calibration)
+
+    @property
+    def healthy(self) -> bool:
+        """Cycles complete (fewer than 10 failed in a row): the systemd watchdog is fed."""
+        return self._bad_cycles < 10
 
     @property
     def stopped(self) -> bool:
@@ -199,10 +157,10 @@ class Daemon:
         """An outbox made outside the cycle (a protocol's answer, what the link coming up asks for): its events
         logged now, the rest sent with the next cycle's outbox (a poll and its cycle follow each other at once)."""
         for name, fields in box.events:
-            self._event(t, name, **fields)
+            self.event(t, name, **fields)
         self._later = self._later.then(replace(box, events=()))
 
-    def _event(self, t: float, name: str, **fields) -> None:
+    def event(self, t: float, name: str, **fields) -> None:
         try:
             self.log.event(t, name, **fields)
         except Exception:
@@ -224,12 +182,12 @@ class Daemon:
             self._apply(t, box.then(self._run_periodic(t, self._periodic)))
             self._run_periodic(t, self._after_outbox)
         except Exception as err:  # a fault of ours, in any stage, must still end in the safe action
-            self._cycle_failed(t, err)
+            self.cycle_failed(t, err)
             return None
         self._bad_cycles = 0
         return d
 
-    def _cycle_failed(self, t: float, err: Exception) -> None:
+    def cycle_failed(self, t: float, err: Exception) -> None:
         """A cycle that raised: Hold (unless in shadow mode or on the ground), delivered by the mode authority; the
         heartbeat says CRITICAL; logged at the 1st, 10th, 100th and every 1000th failure in a row."""
         self._bad_cycles += 1
@@ -255,7 +213,7 @@ class Daemon:
     def _link_events(self, t: float, i) -> None:
         if i.link_ok != self._link_up:
             self._link_up = i.link_ok
-            self._event(t, "link", status="up" if i.link_ok else "down")
+            self.event(t, "link", status="up" if i.link_ok else "down")
             if i.link_ok:
                 box = self.checks.asked(t)
                 if self.mission is not None and self.mission.status in ("idle", "refused"):
@@ -335,40 +293,8 @@ class Daemon:
         self._apply(self.clock(), Outbox(texts=((5, "CG: contract-guard stopping"),)))
 
     def run(self, should_stop, notifier=None) -> None:
-        """Poll and step at `loop_hz` until `should_stop()` and then until the shutdown is over (`stop`). An
-        exception inside a cycle is logged and counted, never fatal; the systemd watchdog is fed only while
-        cycles complete on time."""
-        from .service import WatchdogFeeder
+        """Poll and step at `loop_hz` until `should_stop()` and then until the shutdown is over (companion/onboard/
+        realtime.py)."""
+        from .realtime import run
 
-        feeder = WatchdogFeeder(notifier, time.monotonic) if notifier is not None else None
-        period = 1.0 / self.cfg.loop_hz
-        freeze_startup()
-        timing = LoopTiming()
-        next_t, t_stop = time.monotonic(), None
-        while not self.stopped and (t_stop is None or time.monotonic() - t_stop < STOP_LIMIT_S):
-            if t_stop is None and should_stop():
-                t_stop = time.monotonic()
-                self.stop()
-            started = polled = time.monotonic()
-            try:
-                self.poll()
-                polled = time.monotonic()
-                self.step()
-            except Exception as err:  # a bug must not take the loop down: the safe action, logged; retried
-                self._cycle_failed(self.clock(), err)
-            stepped = time.monotonic()
-            self.log.tick()  # the cycle's events to the disk: one fsync for all of them (group commit)
-            timing.add(self.clock(), started - next_t, polled - started, stepped - polled, time.monotonic() - stepped)
-            if feeder is not None:
-                feeder.tick(self._bad_cycles < 10 and time.monotonic() - started < 5 * period)
-            # the loop rate is in vehicle time: against a SITL sped up k times, cycle k times as often
-            rate = self.vclock.rate if self.vclock is not None else 1.0
-            next_t += period / rate
-            delay = next_t - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                next_t = time.monotonic()
-        fsync = getattr(self.log, "max_fsync_s", None)  # the event log's slowest fsync (a commit, or a rotation)
-        self._event(self.clock(), "loop_timing", **timing.summary(),
-                    event_log_max_fsync_ms=None if fsync is None else round(1e3 * fsync, 2))
+        run(self, should_stop, notifier)

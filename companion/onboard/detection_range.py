@@ -245,7 +245,7 @@ class DetectionRange:
             if r < p.near_m:
                 continue  # the medium's returns are the backscatter evidence
             known = any(math.hypot(x - tr.x, y - tr.y) <= p.track_m + r * inc for tr in self._tracks)
-            tr = self._track(t, x, y, r, inc)
+            self._track(t, x, y, r, inc)
             edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
             if not known and not edge and r < stated - tol:
                 self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))

@@ -71,9 +71,9 @@ class Protocols:
 
     def _autopilot_param(self, s: AutopilotParam) -> Outbox:
         """The cruise speed, logged when it changes (a governor never sends more); the start-up checks' answers."""
-        before = self.cycle.v_cruise
+        before = self.cycle.sensing.v_cruise
         self.cycle.take(s)
-        now = self.cycle.v_cruise
+        now = self.cycle.sensing.v_cruise
         events = () if now == before or math.isnan(now) and math.isnan(before) else \
             (("cruise_speed", {"param": s.name, "v": now}),)
         box = Outbox(events=events)
