@@ -36,6 +36,7 @@ from typing import Iterable
 
 from companion.onboard.eventlog import file_set, finite_copy, read_events
 from companion.onboard.logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
+from companion.onboard.modes import MODES
 from contracts.errors import ContractError
 
 from . import review_checks
@@ -913,9 +914,11 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
     for f in rep["findings"]:
         lines.append(f"    - {f}")
     modes = rep.get("modes") or {}
+    # the log's modes by name; a name the daemon does not know counts as commanding (what it did is not said away)
+    commanded_nothing = bool(modes) and not any(m not in MODES or MODES[m].commands for m in modes)
     if modes:
         lines.append(f"  daemon mode: {', '.join(sorted(modes))}"
-                     + ("  (commanded nothing: what it would have done is below)" if set(modes) == {"shadow"} else ""))
+                     + ("  (commanded nothing: what it would have done is below)" if commanded_nothing else ""))
     lines.append(f"  Γ > 0 for {rep['gamma_positive_s']:.2f} s (limit in force − V_safe)")
     oc = rep.get("outside_contract")
     if not rep.get("obstacle_data", True) and rep["state_samples"]:
@@ -929,7 +932,7 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         for sp in oc["above_limit"]:
             lines.append(f"    above the limit: {_fmt_t(sp['start_t'])} … {_fmt_t(sp['end_t'])}  up to "
                          f"{fmt_value(sp['worst'], ' m/s')} at {_fmt_t(sp['worst_t'])}")
-    if rep.get("would_hold") is not None and (rep["would_hold"] or set(modes) == {"shadow"}):
+    if rep.get("would_hold") is not None and (rep["would_hold"] or commanded_nothing):
         lines.append(f"  would have held (shadow mode): {rep['would_hold_count']}")
         for wh in rep["would_hold"]:
             lines.append(f"    {_fmt_t(wh['start_t'])} … {_fmt_t(wh['end_t'])} ({wh['ended_by']})  "
