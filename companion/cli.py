@@ -63,11 +63,16 @@ def _ground(args) -> int:
     return getattr(commands, args.handler)(args)
 
 
-def _command(sub, name: str, help: str | None = None, **kw) -> argparse.ArgumentParser:
+def _command(sub, name: str, help: str | None = None, handler: str | None = None, side=_ground,
+             **kw) -> argparse.ArgumentParser:
     """A subcommand whose own `--help` page opens with what it does (its line in the command list; no
-    `help`: not listed, as `calibrate-plan`, which is spelled `calibrate plan`)."""
+    `help`: not listed, as `calibrate-plan`, which is spelled `calibrate plan`), run by `handler` of its package
+    (`side`: `_ground` or `_onboard`)."""
     kw.setdefault("description", help)
-    return sub.add_parser(name, **({"help": help} if help else {}), **kw)
+    parser = sub.add_parser(name, **({"help": help} if help else {}), **kw)
+    if handler is not None:
+        parser.set_defaults(func=side, handler=handler)
+    return parser
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -76,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     JSON = "print the result as one JSON object on stdout"
 
-    d = _command(sub, "demo", help="fly the paper's in-flight scenario: SITL + daemon on loopback UDP")
+    d = _command(sub, "demo", help="fly the paper's in-flight scenario: SITL + daemon on loopback UDP",
+                 handler="cmd_demo")
     d.add_argument("--scenario", default="fig17", help="scenario name or file (default: fig17)")
     d.add_argument("--out", type=Path, default=Path("demo-out"), help="event log, plot and summary go here")
     d.add_argument("--speedup", type=finite, default=1.0,
@@ -86,7 +92,6 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
                    help="which autopilot the SITL behaves like (default px4)")
     d.add_argument("--json", action="store_true", help=JSON)
-    d.set_defaults(func=_ground, handler='cmd_demo')
 
     # `sitl` hands its arguments to the harness's own parser (see main)
     _command(sub, "sitl", help="the SITL vehicle alone, for any MAVLink client: [--scenario NAME|FILE] "
@@ -94,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "default; `sitl --help` names the shipped scenarios)", add_help=False)
 
     r = _command(sub, "run", help="the on-board daemon (what systemd starts): connects to the autopilot, holds its "
-                 "speed within the contract in shadow, governor or offboard mode, and writes the event log")
+                 "speed within the contract in shadow, governor or offboard mode, and writes the event log",
+                 handler="cmd_run", side=_onboard)
     r.add_argument("--config", required=True, type=Path,
                    help="the daemon's YAML config (relative paths in it are relative to its directory)")
     r.add_argument("--connect", help="override link.connect (pymavlink URL)")
@@ -103,10 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="print nothing (the event log still has everything)")
     r.add_argument("--check", action="store_true", help="validate the config, its vehicle and table, print the "
                    "start banner and exit (the link is not opened)")
-    r.set_defaults(func=_onboard, handler='cmd_run')
 
     rv = _command(sub, "review", help="contract-violation report for a flight's event log, or for raw flight logs "
-                        "(.tlog, PX4 .ulg, ArduPilot .bin) replayed through the contract")
+                        "(.tlog, PX4 .ulg, ArduPilot .bin) replayed through the contract", handler="cmd_review")
     rv.add_argument("log", nargs="+", type=Path,
                     help="log directory (its rotated set), events*.jsonl files, or raw flight logs to replay "
                     "(.tlog, .ulg, .bin; several files or folders: a summary table and one report each)")
@@ -122,32 +127,32 @@ def build_parser() -> argparse.ArgumentParser:
                     "of view) would have set, and the time they would have cost (e.g. 10,60)")
     rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")
     rv.add_argument("--json", action="store_true", help=JSON)
-    rv.set_defaults(func=_ground, handler='cmd_review')
 
     t = _command(sub, "table", help="build, inspect, query, verify and plot Γ tables (the contract of one vehicle)")
     tsub = t.add_subparsers(dest="table_command", required=True)
 
-    s = _command(tsub, "show", help="print a table's metadata")
+    s = _command(tsub, "show", help="print a table's metadata", handler="cmd_table_show")
     s.add_argument("file", type=Path, help="table file (.npz)")
     s.add_argument("--public-key", type=Path, help="the table must be signed by this key's private key (PEM)")
     s.add_argument("--json", action="store_true", help=JSON)
-    s.set_defaults(func=_ground, handler='cmd_table_show')
 
-    v = _command(tsub, "verify", help="check a table (schema, hash, monotonicity, vehicle; signature with --public-key)")
+    v = _command(tsub, "verify",
+                 help="check a table (schema, hash, monotonicity, vehicle; signature with --public-key)",
+                 handler="cmd_table_verify")
     v.add_argument("file", type=Path, help="table file (.npz)")
     v.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
     v.add_argument("--public-key", type=Path, help="the table must be signed by this key's private key (PEM)")
     v.add_argument("--json", action="store_true", help=JSON)
-    v.set_defaults(func=_ground, handler='cmd_table_verify')
 
-    sg = _command(tsub, "sign", help="sign a table (ed25519 over its arrays and metadata; `keys --table` makes a key)")
+    sg = _command(tsub, "sign", help="sign a table (ed25519 over its arrays and metadata; `keys --table` makes a key)",
+                  handler="cmd_table_sign")
     sg.add_argument("file", type=Path, help="table file (.npz)")
     sg.add_argument("--key", type=Path, required=True, help="ed25519 private key (PEM)")
     sg.add_argument("--out", type=Path, help="write the signed table here instead of in place")
     sg.add_argument("--json", action="store_true", help=JSON)
-    sg.set_defaults(func=_ground, handler='cmd_table_sign')
 
-    q = _command(tsub, "query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed")
+    q = _command(tsub, "query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed",
+                 handler="cmd_table_query")
     q.add_argument("file", type=Path, help="table file (.npz)")
     q.add_argument("--d-od", type=finite, required=True, help="obstacle detection range [m]")
     q.add_argument("--r-obst", type=finite, required=True, help="expected obstacle radius [m]")
@@ -158,11 +163,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--contract", choices=["avoid", "stop"], help="default: avoid if the table has it")
     q.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
     q.add_argument("--json", action="store_true", help=JSON)
-    q.set_defaults(func=_ground, handler='cmd_table_query')
 
     b = _command(tsub, "build", help="build a Γ table for a vehicle: the stop contract (closed form, about a second) "
                  "and, unless "
-                 "--stop-only, the avoid contract's sweep over ρ, tilt and thrust ratio (IPOPT via CasADi)")
+                 "--stop-only, the avoid contract's sweep over ρ, tilt and thrust ratio (IPOPT via CasADi)",
+                 handler="cmd_table_build")
     b.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
     b.add_argument("--out", type=Path, required=True, help="the table file to write (.npz)")
     b.add_argument("--stop-only", action="store_true", help="carry the stop contract only (no sweep)")
@@ -179,9 +184,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue an interrupted build from its checkpoint (OUT.partial/, kept until the table is written)")
     b.add_argument("--sign-key", type=Path, help="sign the table with this ed25519 private key (PEM)")
     b.add_argument("--json", action="store_true", help=JSON)
-    b.set_defaults(func=_ground, handler='cmd_table_build')
 
-    e = _command(tsub, "etr", help="fly the SITL and write the controller contract E_tr_pred (Figure 12) into a table")
+    e = _command(tsub, "etr", help="fly the SITL and write the controller contract E_tr_pred (Figure 12) into a table",
+                 handler="cmd_table_etr")
     e.add_argument("--table", type=Path, required=True, help="table with an avoid slot (updated in place unless --out)")
     e.add_argument("--vehicle", help="vehicle file or shipped name the table must match")
     e.add_argument("--out", type=Path, help="write the result here instead of in place")
@@ -193,16 +198,16 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--sign-key", type=Path, help="sign the result with this ed25519 private key (PEM)")
     e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     e.add_argument("--json", action="store_true", help=JSON)
-    e.set_defaults(func=_ground, handler='cmd_table_etr')
 
-    fg = _command(sub, "figures", help="Figure 12 and the demonstration flights of Figures 14-16, PNG + CSV")
+    fg = _command(sub, "figures", help="Figure 12 and the demonstration flights of Figures 14-16, PNG + CSV",
+                  handler="cmd_figures")
     fg.add_argument("--out", type=Path, required=True, help="directory for the PNG and CSV files")
     fg.add_argument("--table", type=Path, help="table file (default: the shipped Mambo table)")
     fg.add_argument("--seeds", type=int, default=3, help="wind seeds per flight")
     fg.add_argument("--json", action="store_true", help=JSON)
-    fg.set_defaults(func=_ground, handler='cmd_figures')
 
-    cp = _command(tsub, "compare", help="analytical vs numerical contract (Figures 4, 6, 7), PNG + CSV")
+    cp = _command(tsub, "compare", help="analytical vs numerical contract (Figures 4, 6, 7), PNG + CSV",
+                  handler="cmd_table_compare")
     cp.add_argument("--vehicle", default="mambo", help="vehicle file or shipped name (default mambo)")
     cp.add_argument("--tilt-deg", type=finite, default=5.0, help="tilt limit of the comparison [deg] (default 5)")
     cp.add_argument("--out", type=Path, required=True, help="directory for the PNG and CSV files")
@@ -213,10 +218,10 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("--ts", type=finite, default=0.02, help="sample time of the collision sets [s]")
     cp.add_argument("--d-od-step", type=finite, default=0.5, help="step of the detection-range axis [m] (default 0.5)")
     cp.add_argument("--json", action="store_true", help=JSON)
-    cp.set_defaults(func=_ground, handler='cmd_table_compare')
 
     cg = _command(sub, "campaign", help="Monte Carlo lock-step flights over a scenario distribution, with the "
-                        "PX4/ArduPilot laws as baselines and negative controls, on a pool or a Dask cluster; report")
+                        "PX4/ArduPilot laws as baselines and negative controls, on a pool or a Dask cluster; report",
+                  handler="cmd_campaign")
     cg.add_argument("spec", type=Path, help="campaign spec (YAML)")
     cg.add_argument("--out", type=Path, help="results.jsonl and the report (an interrupted campaign resumes here)")
     cg.add_argument("--workers", type=int, default=1, help="local process pool size (default 1: in-process)")
@@ -226,10 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
     cg.add_argument("--report-only", action="store_true", help="report the results already in --out")
     cg.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     cg.add_argument("--json", action="store_true", help=JSON)
-    cg.set_defaults(func=_ground, handler='cmd_campaign')
 
     ca = _command(sub, "calibrate", help="calibrate the controller contract and braking from flight logs "
-                        "(`calibrate plan` writes the calibration flight plan)")
+                        "(`calibrate plan` writes the calibration flight plan)", handler="cmd_calibrate")
     ca.add_argument("log", nargs="+", type=Path, help="flight logs (.tlog, .ulg, .bin) or folders of them")
     ca.add_argument("--vehicle", required=True, help="vehicle file or shipped name")
     ca.add_argument("--table", type=Path, required=True, help="the table to calibrate (its avoid slot is kept)")
@@ -240,9 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--accept-faster", action="store_true", help="accept cells that became faster than the stock "
                     "table (E_tr_pred below the SITL's): without it calibrate refuses them (see the report's evidence)")
     ca.add_argument("--json", action="store_true", help=JSON)
-    ca.set_defaults(func=_ground, handler='cmd_calibrate')
 
-    cpl = _command(sub, "calibrate-plan",
+    cpl = _command(sub, "calibrate-plan", handler="cmd_calibrate_plan",
                    description="write the calibration flight plan: calibration.plan (QGroundControl), "
                    "calibration.waypoints (Mission Planner) and calibration-legs.json (the daemon's hold legs)")
     cpl.prog = "contract-guard calibrate plan"
@@ -252,21 +255,19 @@ def build_parser() -> argparse.ArgumentParser:
     cpl.add_argument("--v-top", type=finite, help="top speed of the ladder [m/s] (default: the grid's top)")
     cpl.add_argument("--altitude", type=finite, default=5.0, help="altitude above home [m]")
     cpl.add_argument("--json", action="store_true", help=JSON)
-    cpl.set_defaults(func=_ground, handler='cmd_calibrate_plan')
 
     ky = _command(sub, "keys", help="create or show the MAVLink signing key in the forms MAVProxy, QGroundControl, "
-                  "PX4 and ArduPilot take (--table: the key pair that signs tables)")
+                  "PX4 and ArduPilot take (--table: the key pair that signs tables)", handler="cmd_keys")
     ky.add_argument("dir", type=Path, help="directory for the key files (created, mode 700)")
     ky.add_argument("--passphrase", help="derive the key from this MAVProxy passphrase (default: a new random one)")
     ky.add_argument("--table", action="store_true", help="an ed25519 key pair for `table sign` / --sign-key instead")
     ky.add_argument("--json", action="store_true", help=JSON)
-    ky.set_defaults(func=_ground, handler='cmd_keys')
 
-    pl = _command(tsub, "plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV")
+    pl = _command(tsub, "plot", help="V_max vs D_od (Figures 6-7) and the surfaces of Figures 9-10, PNG + CSV",
+                  handler="cmd_table_plot")
     pl.add_argument("file", type=Path, help="table file (.npz)")
     pl.add_argument("--out", type=Path, required=True, help="directory for the PNG and CSV files")
     pl.add_argument("--json", action="store_true", help=JSON)
-    pl.set_defaults(func=_ground, handler='cmd_table_plot')
     return p
 
 

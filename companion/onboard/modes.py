@@ -4,19 +4,20 @@ from __future__ import annotations
 
 
 class Mode:
-    """One daemon mode: its name (the config's and the logs' string) and what it decides."""
+    """One daemon mode: its name (the config's and the logs' string) and what it decides. By default a mode flies
+    under the stop contract, commands the autopilot, and neither governs its mission nor flies a route."""
 
     name: str
-    contract: str  # the contract it flies under: "stop" | "avoid"
-    commands: bool  # it commands the autopilot (Hold, a speed, setpoints); False: it computes and logs only
-    governs: bool  # the autopilot flies its mission under the daemon's speed limit and Hold
-    flies_route: bool  # the daemon flies the route itself (setpoints round the keep-out discs)
+    contract = "stop"  # the contract it flies under: "stop" | "avoid"
+    commands = True  # it commands the autopilot (Hold, a speed, setpoints); False: it computes and logs only
+    governs = False  # the autopilot flies its mission under the daemon's speed limit and Hold
+    flies_route = False  # the daemon flies the route itself (setpoints round the keep-out discs)
+    resumes: str  # how a flight held for no safe speed resumes once `{needs}` holds
+    resume_short = ""  # the same in a few ASCII words (STATUSTEXT); "" for nothing to do
 
     def resume(self, needs: str) -> str:
         """How a flight held for no safe speed resumes once `needs` holds."""
-        raise NotImplementedError
-
-    resume_short = ""  # the same in a few ASCII words (STATUSTEXT); "" for nothing to do
+        return self.resumes.format(needs=needs)
 
     def __str__(self) -> str:
         return self.name
@@ -25,32 +26,26 @@ class Mode:
 class Shadow(Mode):
     """Computes and logs what a governor would do; commands nothing."""
 
-    name, contract, commands, governs, flies_route = "shadow", "stop", False, False, False
-
-    def resume(self, needs: str) -> str:
-        return f"no speed until {needs} (a governor would keep its Hold until the mode is changed)"
+    name, commands = "shadow", False
+    resumes = "no speed until {needs} (a governor would keep its Hold until the mode is changed)"
 
 
 class Governor(Mode):
     """The autopilot flies its mission; the daemon limits its speed and commands Hold (the stop contract)."""
 
-    name, contract, commands, governs, flies_route = "governor", "stop", True, True, False
+    name, governs = "governor", True
     resume_short = "change mode"
-
-    def resume(self, needs: str) -> str:
-        return (f"once {needs}, change the flight mode (e.g. back to the mission): the daemon keeps its Hold "
-                "until the pilot or a ground station does (not before: until then no speed is safe)")
+    resumes = ("once {needs}, change the flight mode (e.g. back to the mission): the daemon keeps its Hold "
+               "until the pilot or a ground station does (not before: until then no speed is safe)")
 
 
 class Offboard(Mode):
     """The daemon flies the route itself under the avoid contract."""
 
-    name, contract, commands, governs, flies_route = "offboard", "avoid", True, False, True
+    name, contract, flies_route = "offboard", "avoid", True
     resume_short = "CG_ENGAGE 0, 1"
-
-    def resume(self, needs: str) -> str:
-        return (f"once {needs}, set CG_ENGAGE 0 then 1 to fly the route again, or change the flight mode "
-                "(the fail-safe Hold is kept until then)")
+    resumes = ("once {needs}, set CG_ENGAGE 0 then 1 to fly the route again, or change the flight mode "
+               "(the fail-safe Hold is kept until then)")
 
 
 MODES: dict[str, Mode] = {m.name: m for m in (Shadow(), Governor(), Offboard())}
