@@ -78,8 +78,9 @@ class TableSerial:
         me = cls(path, table.serial, table.meta.get("arrays_sha256"), str(table.path))
         shown = f"serial {me.serial}" if me.serial is not None else "no serial (unsigned)"
         if path is None:
-            me.lines.append(f"table {shown}: rollback to an older table not checked (no state file: set "
-                            "table_state_file, or link.signing_timestamp_file)")
+            if me.serial is not None:
+                me.lines.append(f"table {shown}: rollback to an older table not checked (no state file: set "
+                                "table_state_file, or link.signing_timestamp_file)")
             return me
         me.last = _read_state(path)
         if me.last is None:
