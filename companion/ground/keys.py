@@ -91,15 +91,16 @@ def _write_set(files: list[tuple[Path, bytes, int]]) -> None:
     moved in only when every one is written (a failure leaves no part of a new set behind)."""
     tmp = [(path.with_name(path.name + ".new"), path, data, mode) for path, data, mode in files]
     try:
-        for t, path, data, mode in tmp:
+        for t, _, data, mode in tmp:
             if t.is_symlink() or t.exists():
                 _not_a_link(t)
                 t.unlink()
             _write_file(t, data, mode)
-        for t, path, _, _ in tmp:
+        for _, path, _, _ in tmp:  # every place still free before any file is moved in
             _not_a_link(path)
             if path.exists():
                 raise ContractError(f"keys: {path} appeared while writing the key set; move it away and run again")
+        for t, path, _, _ in tmp:
             os.replace(t, path)
     finally:
         for t, _, _, _ in tmp:

@@ -105,11 +105,11 @@ class TableSerial:
 
     def accept(self) -> None:
         """Record the serial as the last accepted (never lowering it: a rollback flown by permission stays one)."""
-        if self.path is None or self.rollback is not None:
-            return
+        if self.path is None or self.rollback is not None or self.serial is None:
+            return  # an unsigned table has no serial to record
         if self.last is not None and (self.serial or 0) <= self.last["serial"]:
             return
-        data = {"serial": self.serial or 0, "arrays_sha256": self.arrays_sha256, "table": self.table,
+        data = {"serial": self.serial, "arrays_sha256": self.arrays_sha256, "table": self.table,
                 "accepted_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
         tmp = self.path.with_name(self.path.name + ".new")
         try:
