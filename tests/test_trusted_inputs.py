@@ -351,3 +351,31 @@ def test_negative_control_without_the_check_the_same_guid_timeout_passed(monkeyp
     rig = _offboard_ardupilot(5.0)
     chk = rig.log.named("startup_check")
     assert chk and chk[-1]["ok"], chk
+
+
+def _old(old_checkout, *args, timeout=120):
+    return subprocess.run([sys.executable, "-m", "companion.cli", *map(str, args)], capture_output=True, text=True,
+                          cwd=str(old_checkout), timeout=timeout)
+
+
+def test_negative_control_the_old_cli_signed_an_edit_and_could_not_tell_tables_apart(keys, tmp_path, old_checkout):
+    """The old `table sign` signed the edited table (exit 0) and the daemon's public key then verified it; the old
+    `run --check` started an older signed table after a newer one, its banner the same but for the file name."""
+    bad = _edited(tmp_path / "edited.npz")
+    r = _old(old_checkout, "table", "sign", bad, "--key", keys["private_key"], "--out", tmp_path / "laundered.npz")
+    assert r.returncode == 0, r.stderr
+    assert verify(tmp_path / "laundered.npz", public_key=keys["public_key"]).signature["verified"]
+    old, new = tmp_path / "old.npz", tmp_path / "new.npz"
+    sign_table(shipped_table("mambo"), keys["private_key"], old, serial=100)
+    sign_table(shipped_table("mambo"), keys["private_key"], new, serial=200)
+    said = {}
+    for name, table in (("new", new), ("old", old)):
+        served = tmp_path / "in-service.npz"
+        shutil.copy(table, served)
+        cfg = _config(tmp_path, served, keys["public_key"]).read_text().replace(
+            f"table_state_file: {tmp_path / 'state' / 'table-serial.json'}\n", "")
+        (tmp_path / "old-cg.yaml").write_text(cfg)
+        r = _old(old_checkout, "run", "--config", tmp_path / "old-cg.yaml", "--check")
+        assert r.returncode == 0, r.stderr
+        said[name] = r.stdout
+    assert said["old"] == said["new"] and "serial" not in said["old"]
