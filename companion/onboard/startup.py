@@ -9,12 +9,13 @@ from .config import Config
 from .outbox import EMPTY, Outbox
 
 WAIT_S = 5.0  # a parameter asked for and not answered in this long counts as missing
+RESTART_CHECK_S = 10.0  # the checks re-run after an autopilot restart at most this often
 # ArduPilot's GUIDED follows a velocity (or acceleration) target for GUID_TIMEOUT seconds after the last one
 # arrives, then stops; position targets never time out (ArduCopter/Parameters.cpp `guided_timeout`, default 3 s,
 # range 0.1-5 s; ardupilot wiki, Copter commands in Guided mode: "re-send every second"). The daemon streams
 # velocity setpoints every cycle, so:
 # - longer than SETPOINT_TIMEOUT_MAX_S, a daemon that stops leaves the vehicle flying its last velocity blind for
-#   longer than ArduPilot's own default (3 s: 15 m at 5 m/s), the worst the failure behaviour allows (README);
+#   longer than ArduPilot's own default (3 s: 15 m at 5 m/s), the worst case the README's failure table states;
 # - shorter than one setpoint period plus the lateness the daemon itself tolerates before handing over
 #   (timeouts.cycle_late_s), the vehicle would stop between two setpoints of a running daemon: offboard useless.
 SETPOINT_TIMEOUT_MAX_S = 3.0
@@ -32,7 +33,6 @@ def setpoint_timeout_problem(name: str, value: float | None, cfg: Config) -> str
         return (f"{name} = {value:g} s: shorter than one setpoint period plus timeouts.cycle_late_s ({lo:g} s), "
                 "the vehicle would stop between setpoints (0.5-1 s recommended)")
     return None
-RESTART_CHECK_S = 10.0  # the checks re-run after an autopilot restart at most this often
 
 
 class StartupChecks:
