@@ -202,6 +202,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue an interrupted sweep from its checkpoint (DEST.partial/, kept until the table is written)")
     e.add_argument("--workers", type=int, default=2, help="local process pool size")
     e.add_argument("--sign-key", type=Path, help="sign the result with this ed25519 private key (PEM)")
+    _base_options(e, "--table, with --sign-key,")
     e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     e.add_argument("--json", action="store_true", help=JSON)
     e.set_defaults(func=_ground, handler='cmd_table_etr')

@@ -379,3 +379,12 @@ def test_negative_control_the_old_cli_signed_an_edit_and_could_not_tell_tables_a
         assert r.returncode == 0, r.stderr
         said[name] = r.stdout
     assert said["old"] == said["new"] and "serial" not in said["old"]
+
+
+def test_table_etr_sign_key_checks_its_base_before_flying(keys, tmp_path):
+    bad = _edited(tmp_path / "base.npz")
+    t0 = time.monotonic()
+    r = _cli("table", "etr", "--table", bad, "--vehicle", "x500", "--out", tmp_path / "e.npz", "--sign-key",
+             keys["private_key"])
+    _one_line(r, "base table", "array etr_e", "--accept-edited-base")
+    assert time.monotonic() - t0 < 60 and not (tmp_path / "e.npz").exists()  # refused before the sweep

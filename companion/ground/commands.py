@@ -243,6 +243,8 @@ def cmd_table_etr(args) -> int:
     if table.resolve().parent == DATA_DIR and args.out is None:
         raise ContractError(f"table etr: {args.table} is a shipped table; give --out for the result (shipped tables "
                             "are not rewritten in place)")
+    # a signed result vouches for the avoid contract it keeps from its base: checked before any flight
+    base = _base_checked(table, args.sign_key, args) if args.sign_key else None
     with _interruptible():
         s = build_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                       progress=show_progress(not args.json), out=args.out, resume=args.resume)
@@ -250,7 +252,8 @@ def cmd_table_etr(args) -> int:
     signed = _sign_after(s["path"], args.sign_key)
     _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s"
           f"{resumed}, {s['monotone_repairs_up']} repaired upward, worst raw contour error "
-          f"{s['raw_worst_max_m']:.3f} m (--json for the full record){signed}")
+          f"{s['raw_worst_max_m']:.3f} m (--json for the full record){signed}"
+          + (f"; the base table: {base}" if base else ""))
     return 0
 
 
