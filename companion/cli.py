@@ -75,6 +75,14 @@ def _command(sub, name: str, help: str | None = None, handler: str | None = None
     return parser
 
 
+def _base_options(parser: argparse.ArgumentParser, what: str) -> None:
+    """The options on the table a signature will vouch for (`table sign`, `calibrate --sign-key`)."""
+    parser.add_argument("--base-public-key", type=Path, help=f"{what} is signed by this key's private key (PEM; "
+                        "default: the signing key's own)")
+    parser.add_argument("--accept-edited-base", action="store_true", help=f"sign over {what} even where it is "
+                        "unsigned and not the shipped table of its vehicle (what differs is named)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="contract-guard", description=__doc__.splitlines()[0],
                epilog="`contract-guard COMMAND --help` describes each command and its options.")
@@ -149,6 +157,9 @@ def build_parser() -> argparse.ArgumentParser:
     sg.add_argument("file", type=Path, help="table file (.npz)")
     sg.add_argument("--key", type=Path, required=True, help="ed25519 private key (PEM)")
     sg.add_argument("--out", type=Path, help="write the signed table here instead of in place")
+    sg.add_argument("--serial", type=int, help="the signing's serial (default: the UTC time, YYYYMMDDHHMMSS; above "
+                    "the table's own): the daemon refuses a table older than the last it accepted")
+    _base_options(sg, "the table")
     sg.add_argument("--json", action="store_true", help=JSON)
 
     q = _command(tsub, "query", help="answer one query: Ω, V_safe, Γ and the stop-contract speed",
@@ -196,6 +207,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="continue an interrupted sweep from its checkpoint (DEST.partial/, kept until the table is written)")
     e.add_argument("--workers", type=int, default=2, help="local process pool size")
     e.add_argument("--sign-key", type=Path, help="sign the result with this ed25519 private key (PEM)")
+    _base_options(e, "--table, with --sign-key,")
     e.add_argument("--scheduler", help="Dask distributed scheduler address, e.g. tcp://host:8786")
     e.add_argument("--json", action="store_true", help=JSON)
 
@@ -241,6 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
     ca.add_argument("--quantile", type=finite, default=0.9, help="quantile the per-cell bound covers (default 0.9)")
     ca.add_argument("--confidence", type=finite, default=0.9, help="its confidence (default 0.9)")
     ca.add_argument("--sign-key", type=Path, help="sign the calibrated table with this ed25519 private key (PEM)")
+    _base_options(ca, "--table, with --sign-key,")
     ca.add_argument("--accept-faster", action="store_true", help="accept cells that became faster than the stock "
                     "table (E_tr_pred below the SITL's): without it calibrate refuses them (see the report's evidence)")
     ca.add_argument("--json", action="store_true", help=JSON)

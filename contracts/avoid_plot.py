@@ -8,12 +8,12 @@ setting closest to the paper's numerical curves.
 
 from __future__ import annotations
 
-import csv
 import math
 from pathlib import Path
 
 import numpy as np
 
+from . import csvfile
 from .table import verify
 from .vehicle import G
 
@@ -92,7 +92,7 @@ def _save(fig, stem: Path, cols: dict) -> list[Path]:
     fig.savefig(png, dpi=120)
     keys = list(cols)
     with open(csv_path, "w", newline="") as fh:
-        w = csv.writer(fh)
+        w = csvfile.writer(fh)
         w.writerow(keys)
         for row in zip(*(cols[k] for k in keys)):
             w.writerow([f"{x:.6g}" for x in row])

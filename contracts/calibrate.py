@@ -25,9 +25,11 @@ value either.
 cell takes its bound where that is above the SITL's value; below it only with at least `MIN_WINDOWS_BELOW_FACTOR`
 × n_min windows from at least `MIN_FLIGHTS_BELOW` distinct flights, and never below `BELOW_FLOOR` × the SITL's
 value (the margin: no amount of logged flight takes a cell below half of what the model predicts). Else it keeps
-max(SITL, bound). Flights are told apart by the caller (companion/ground/calibrate.py: identical files and logs whose
-time spans overlap are one flight). Any cell left below the SITL's value is reported (`faster`): the caller
-refuses it unless a person accepts it.
+max(SITL, bound). Flights are told apart by what was flown, not by time stamps or file hashes (`same_flight`): two
+logs whose velocity time series agree once their time offsets are removed are one flight, however they are
+stamped (the caller, companion/ground/calibrate.py, also takes identical files and logs whose time spans overlap as
+one flight). Any cell left below the SITL's value is reported (`faster`): the caller refuses it unless a person
+accepts it.
 
 **Braking** (the stop contract, `contracts/stop.py`): from each logged stop (Hold/Brake commanded at
 speed) the reaction (command → braking onset), the peak deceleration, the jerk of its rise, the
@@ -70,6 +72,58 @@ MIN_WINDOWS_BELOW_FACTOR = 2
 # the margin: never below this fraction of the SITL's value, whatever the logs say (the SITL models the airframe's
 # dynamics; a log claiming half its tracking error more likely measured the wrong path than a better aircraft)
 BELOW_FLOOR = 0.5
+
+
+# One flight, however stamped: logs are compared by their flown samples. A flight's series is its horizontal
+# speed and vertical velocity resampled every SAME_DT_S from its own first sample (so a new time stamp, or a
+# rotated or moved frame, changes nothing); two series are one flight when, at some time shift, they overlap for at
+# least SAME_MIN_SHARE of the shorter one (and SAME_MIN_S) and 90 % of the overlap agrees within SAME_TOL_M_S.
+# Two real flights never agree that closely: an autopilot's velocity estimate carries noise of several cm/s, and
+# wind and battery differ between flights; a copy, a re-stamped copy, or a log cut from another agrees exactly (up
+# to resampling). Where two flights cannot be told apart by what was flown, they count once (never optimistic).
+SAME_DT_S = 0.1
+SAME_TOL_M_S = 0.05
+SAME_MIN_SHARE = 0.5
+SAME_MIN_S = 5.0
+SAME_LAGS = 5  # the time shifts tried: the best few of the speeds' cross-correlation, and none
+
+
+def flight_series(t, vel) -> np.ndarray:
+    """A flight's content for `same_flight`: (horizontal speed, vertical velocity) [m/s] at every `SAME_DT_S` from
+    its first sample, (n, 2). `t` (n,) [s], `vel` (n, 3) NED [m/s]; non-finite samples dropped."""
+    t = np.asarray(t, float)
+    vel = np.asarray(vel, float).reshape(len(t), -1)
+    ok = np.isfinite(t) & np.all(np.isfinite(vel), axis=1)
+    t, vel = t[ok], vel[ok]
+    if len(t) < 2:
+        return np.zeros((0, 2))
+    order = np.argsort(t, kind="stable")
+    t, vel = t[order], vel[order]
+    grid = t[0] + np.arange(int((t[-1] - t[0]) / SAME_DT_S) + 1) * SAME_DT_S
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    return np.column_stack([np.interp(grid, t, speed), np.interp(grid, t, vel[:, 2])])
+
+
+def same_flight(a: np.ndarray, b: np.ndarray) -> float | None:
+    """The time shift [s] at which series `b` (`flight_series`) is series `a`'s flight, or None: another flight
+    (or too short to tell)."""
+    n, m = len(a), len(b)
+    need = max(SAME_MIN_SHARE * min(n, m), SAME_MIN_S / SAME_DT_S)
+    if min(n, m) < need:
+        return None
+    sa, sb = a[:, 0] - a[:, 0].mean(), b[:, 0] - b[:, 0].mean()
+    size = 1 << int(math.ceil(math.log2(n + m)))
+    xc = np.fft.irfft(np.fft.rfft(sa, size) * np.conj(np.fft.rfft(sb, size)), size)
+    # xc[k]: b shifted k samples later lines up with a (k < 0 wraps to the end)
+    lags = [0] + [int(k) if k < size // 2 else int(k) - size for k in np.argsort(xc)[::-1][:SAME_LAGS]]
+    for k in dict.fromkeys(lags):
+        lo, hi = max(0, k), min(n, m + k)  # a[lo:hi] against b[lo - k: hi - k]
+        if hi - lo < need:
+            continue
+        d = np.max(np.abs(a[lo:hi] - b[lo - k:hi - k]), axis=1)
+        if np.quantile(d, 0.9) <= SAME_TOL_M_S:
+            return k * SAME_DT_S
+    return None
 
 
 def n_min(quantile: float = QUANTILE, confidence: float = CONFIDENCE) -> int:

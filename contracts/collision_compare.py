@@ -19,7 +19,6 @@ Placement of the squares along the flight line (`placement`):
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import time
@@ -27,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import csvfile
 from .collision_sets import TS_DEFAULT, HeadOnLines, analytical_square_curve, input_vertices  # noqa: F401
 from .vehicle import Vehicle, load_vehicle
 
@@ -139,7 +139,7 @@ def compare(vehicle, tilt_deg: float, out_dir, tilt_model: str = "box", *, d_od_
     stem = f"compare_{veh.name}_{tilt_deg:g}deg_{tilt_model}"
     csv_path = out / f"{stem}.csv"
     with csv_path.open("w", newline="") as fh:
-        wr = csv.DictWriter(fh, fieldnames=CSV_COLUMNS)
+        wr = csvfile.DictWriter(fh, fieldnames=CSV_COLUMNS)
         wr.writeheader()
         for r in rows:
             wr.writerow({k: f"{v:.6g}" for k, v in r.items()})

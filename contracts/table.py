@@ -344,9 +344,24 @@ def key_id(public_key) -> str:
     return hashlib.sha256(public_key.public_bytes(Encoding.Raw, PublicFormat.Raw)).hexdigest()[:16]
 
 
-def sign_table(path: str | Path, private_key_path, out: str | Path | None = None) -> dict:
-    """Sign a verified table (in place, or into `out`): its arrays and metadata record are kept byte for byte,
-    a `signature_json` member is added (replacing an older one). Returns the signature record."""
+def next_serial(current: int | None, now: _dt.datetime | None = None) -> int:
+    """A new signing's serial: the UTC time of signing as the integer YYYYMMDDHHMMSS (readable, and larger for a
+    later signing on a clock that is right), or one more than `current` where that is larger."""
+    now = now or _dt.datetime.now(_dt.timezone.utc)
+    return max(int(now.strftime("%Y%m%d%H%M%S")), (current or 0) + 1)
+
+
+def table_serial(meta: dict) -> int | None:
+    """The serial a signed table's metadata carries (None: none, or not a positive integer)."""
+    v = meta.get("serial")
+    return v if isinstance(v, int) and not isinstance(v, bool) and v > 0 else None
+
+
+def sign_table(path: str | Path, private_key_path, out: str | Path | None = None, serial: int | None = None) -> dict:
+    """Sign a verified table (in place, or into `out`): its arrays are kept byte for byte, its metadata record gets
+    the signing's `serial` (a positive integer above the table's own, default `next_serial`: the daemon refuses an
+    older serial than the last it accepted) and a `signature_json` member is added (replacing an older one), over
+    both. Returns the signature record (with the serial)."""
     import base64
     import os
 
@@ -354,17 +369,81 @@ def sign_table(path: str | Path, private_key_path, out: str | Path | None = None
     key = load_private_key(private_key_path)
     verify(path)  # only a table that verifies is signed
     f = _read(path)
+    old = table_serial(f.meta)
+    if serial is None:
+        serial = next_serial(old)
+    elif isinstance(serial, bool) or not isinstance(serial, int) or serial <= 0 or serial <= (old or 0):
+        raise ContractError(f"table {path}: serial {serial!r} refused: a positive integer above the table's own "
+                            f"({old or 'none'}) is needed")
+    meta_raw = json.dumps({**f.meta, "serial": serial}).encode()
     sig = {"algorithm": "ed25519", "key_id": key_id(key.public_key()),
-           "signature": base64.b64encode(key.sign(signed_message(f.meta_raw, f.arrays))).decode(),
+           "signature": base64.b64encode(key.sign(signed_message(meta_raw, f.arrays))).decode(),
            "signed_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
     buf = io.BytesIO()
-    np.savez_compressed(buf, **{META_MEMBER: np.frombuffer(f.meta_raw, np.uint8),
+    np.savez_compressed(buf, **{META_MEMBER: np.frombuffer(meta_raw, np.uint8),
                                 SIGNATURE_MEMBER: np.frombuffer(json.dumps(sig).encode(), np.uint8)}, **f.arrays)
     dest = Path(out) if out is not None else path
     tmp = dest.with_name(dest.name + ".signing")
     tmp.write_bytes(buf.getvalue())
     os.replace(tmp, dest)
-    return sig
+    return {**sig, "serial": serial}
+
+
+# metadata that says when and by which release a table was written, not what it holds: a table rebuilt
+# identically differs only there (and in what signing adds)
+BOOKKEEPING = ("created_utc", "package_version", "serial")
+
+
+def table_differences(path: str | Path, reference: str | Path) -> list[str]:
+    """What in table `path` differs from table `reference`: the arrays by name, and the metadata's keys (the
+    first differing path inside each), bookkeeping aside; [] when they hold the same contract."""
+    a, b = _read(Path(path)), _read(Path(reference))
+    out = [f"array {n}" + (" (missing)" if n not in a.arrays else " (added)" if n not in b.arrays else "")
+           for n in sorted(set(a.arrays) | set(b.arrays))
+           if n not in a.arrays or n not in b.arrays or a.arrays[n].shape != b.arrays[n].shape
+           or a.arrays[n].dtype != b.arrays[n].dtype or not np.array_equal(a.arrays[n], b.arrays[n], equal_nan=True)]
+    for k in sorted(set(a.meta) | set(b.meta)):
+        if k not in BOOKKEEPING and a.meta.get(k) != b.meta.get(k):
+            out.append(f"metadata {_first_difference(a.meta.get(k), b.meta.get(k), k + '.')}")
+    return out
+
+
+def base_trust(path: str | Path, signer_public_key=None, public_key=None, accept_edited: bool = False) -> str:
+    """Whether a table may be signed over (`table sign`) or calibrated and the result signed (`calibrate
+    --sign-key`), in words: its signature verifies (with `public_key`, a PEM path or key, else the signer's own
+    `signer_public_key`), or it holds exactly the shipped table of its vehicle. Else — unsigned and edited, or
+    signed by a key not given — a `ContractError` naming what differs from the shipped table (or whose key it
+    is), unless `accept_edited`: then the same words, said as accepted."""
+    path = Path(path)
+    f = _read(path)
+    sig = f.signature
+    if sig is not None:
+        keys = [k for k in (public_key, signer_public_key) if k is not None]
+        for k in keys:
+            try:
+                st = _check_signature(path, f, k)
+                return f"signed by key {st['key_id']}, signature verified"
+            except ContractError:
+                continue
+        why = (f"signed by key {sig.get('key_id')}, which does not verify with "
+               + ("the key given" if public_key is not None else "the signing key's own public key")
+               + " (give its public key: --base-public-key)")
+    else:
+        name = ((f.meta.get("vehicle") or {}).get("name") if isinstance(f.meta.get("vehicle"), dict) else None)
+        ref = shipped_table(str(name)) if isinstance(name, str) and name.replace("-", "").replace("_", "").isalnum() \
+            else None
+        if ref is not None and ref.exists():
+            diff = table_differences(path, ref)
+            if not diff:
+                return f"unsigned, identical to the shipped table of {name}"
+            shown = ", ".join(diff[:6]) + (f" and {len(diff) - 6} more" if len(diff) > 6 else "")
+            why = f"unsigned and not the shipped table of {name}: differs in {shown}"
+        else:
+            why = f"unsigned, and no shipped table of vehicle {name!r} to compare it with"
+    if accept_edited:
+        return f"{why} — accepted with --accept-edited-base"
+    raise ContractError(f"base table {path}: {why}; refused: signing it would vouch for an edit nobody signed "
+                        "(sign as you build: table build --sign-key; or accept it: --accept-edited-base)")
 
 
 def _check_signature(path: Path, f: _File, public_key) -> dict:
@@ -432,6 +511,7 @@ def verify(path: str | Path, vehicle: Vehicle | None = None, public_key=None) ->
         raise ContractError(f"table {path}: unknown tilt_model {meta.get('tilt_model')!r}")
     table = ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path, slots.get("e_tr_pred_stop"))
     table.signature = signature
+    table.serial = table_serial(meta) if signature["signed"] else None
     return table
 
 
@@ -502,6 +582,7 @@ class ContractTable:
             self._s_lists = [[self._stop_slot.values[:, i, kk].tolist() for kk in range(len(self._sr_l))]
                              for i in range(len(self._st_l))]
         self.signature = {"signed": False, "key_id": None, "verified": False}  # set by `verify`
+        self.serial: int | None = None  # a signed table's serial (`sign_table`), set by `verify`
         self.tilt_model = meta["tilt_model"]
         v = vehicle
         self._r_body = v.r_body_m

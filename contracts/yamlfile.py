@@ -1,6 +1,7 @@
 """YAML files validated by a pydantic model, failing with one line that names the field.
 
-One implementation for vehicle files, daemon configs and SITL scenarios. Whatever file a person passes —
+One implementation for vehicle files, daemon configs and SITL scenarios; a key stated twice in one mapping is
+refused (one line naming it and its lines), never the last one taken. Whatever file a person passes —
 binary, not UTF-8, endless (`/dev/zero`), huge, an alias bomb, nested past reason — ends in one line
 within a second: the file is read to at most `MAX_BYTES`, and a document expanding (aliases counted
 each time they are used) to more than `MAX_NODES` nodes is refused before it is built.
@@ -83,8 +84,34 @@ def _expanded_size(node, memo: dict) -> int:
     return memo[key]
 
 
+def _duplicate_key(node, seen: set) -> str | None:
+    """The first mapping key stated twice in one mapping, as `'key' (line N, first at line M)`; None if none.
+    YAML says a mapping's keys are unique, but a loader keeps the last silently: a second `obstacle_s:` further
+    down would quietly undo the first."""
+    if id(node) in seen:
+        return None
+    seen.add(id(node))
+    if isinstance(node, yaml.MappingNode):
+        first: dict = {}
+        for k, v in node.value:
+            if isinstance(k, yaml.ScalarNode) and k.tag != "tag:yaml.org,2002:merge":
+                if k.value in first:
+                    return f"{k.value!r} (line {k.start_mark.line + 1}, first at line {first[k.value] + 1})"
+                first[k.value] = k.start_mark.line
+            found = _duplicate_key(k, seen) or _duplicate_key(v, seen)
+            if found:
+                return found
+    elif isinstance(node, yaml.SequenceNode):
+        for v in node.value:
+            found = _duplicate_key(v, seen)
+            if found:
+                return found
+    return None
+
+
 def parse_yaml(text: str) -> object:
-    """`yaml.safe_load`, refusing a document that expands past MAX_NODES (ValueError)."""
+    """`yaml.safe_load`, refusing a document that expands past MAX_NODES or states a key twice in one mapping
+    (ValueError)."""
     loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)(text)  # libyaml where built in: 10× faster
     try:
         node = loader.get_single_node()
@@ -92,6 +119,9 @@ def parse_yaml(text: str) -> object:
             return None
         if _expanded_size(node, {}) > MAX_NODES:
             raise ValueError(f"expands to more than {MAX_NODES} YAML nodes (aliases?)")
+        dup = _duplicate_key(node, set())
+        if dup:
+            raise ValueError(f"duplicate key {dup}")
         return loader.construct_document(node)
     finally:
         loader.dispose()

@@ -6,13 +6,13 @@ writes files.
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from contracts import csvfile
 from contracts.errors import ContractError
 
 from .demo_flights import PAPER, SCENARIOS, demo_set
@@ -41,7 +41,7 @@ def figure12(table, out: Path, tilt_deg: float = FIG12_TILT_DEG) -> list[Path]:
     j = min(j, len(tilts) - 1)
     csv_path = out / "fig12_etr_surface.csv"
     with csv_path.open("w", newline="") as f:
-        wr = csv.writer(f)
+        wr = csvfile.writer(f)
         wr.writerow(["v_max_m_s", "tilt_deg", "thrust_ratio", "e_tr_pred_m"])
         for i, vv in enumerate(v):
             for jj, tt in enumerate(tilts):
@@ -101,7 +101,7 @@ def plan_view(flights, out: Path, stem: str) -> list[Path]:
     plt.close(fig)
     csv_path = out / f"{stem}.csv"
     with csv_path.open("w", newline="") as fh:
-        wr = csv.writer(fh)
+        wr = csvfile.writer(fh)
         wr.writerow(["variant", "seed", "kind", "x_m", "y_m"])
         for f in flights:
             for kind, arr in (("planned", f.planned), ("flown", f.flown)):
@@ -123,7 +123,7 @@ def make_figures(table, out, seeds=(0, 1, 2), names=SCENARIOS) -> dict:
     rows = [f.summary() for f in flights]
     keys = list(rows[0])
     with (out / "demo_flights.csv").open("w", newline="") as fh:
-        wr = csv.DictWriter(fh, fieldnames=keys)
+        wr = csvfile.DictWriter(fh, fieldnames=keys)
         wr.writeheader()
         for r in rows:
             wr.writerow({k: (list(v) if isinstance(v, tuple) else v) for k, v in r.items()})

@@ -28,10 +28,12 @@ PX4_MISSION = (4 << 16) | (4 << 24)  # PX4 custom mode: main AUTO, sub MISSION
 
 
 def crafted_tlog(path: Path, day: int = 0, cruise_s: float = 60.0, v: float = 5.99, tilt_deg: float = 34.0,
-                 extra: bytes = b"") -> Path:
+                 extra: bytes = b"", wiggle: int = 0) -> Path:
     """A ground station's .tlog of a flight that never was: 30 s of hover (so the hover throttle says thrust 1.0),
     then `cruise_s` at `v` m/s and `tilt_deg`, the commanded path exactly where the vehicle is (no tracking error):
-    at the X500's D_od 6 m, R_obst 0.5 m fixed point (6 m/s, 35°)."""
+    at the X500's D_od 6 m, R_obst 0.5 m fixed point (6 m/s, 35°). `day`: the same flight stamped that many days
+    later; `wiggle` > 0: another flight, its cruise speed dipping up to 0.15 m/s every 2 + `wiggle` s (its windows
+    the same cells: a window's speed is the largest in it and the 8 s before)."""
     m = mav.MAVLink(None, srcSystem=1, srcComponent=1)
     out = bytearray()
     t0 = EPOCH_US + day * DAY_US
@@ -44,6 +46,8 @@ def crafted_tlog(path: Path, day: int = 0, cruise_s: float = 60.0, v: float = 5.
         t = n / 10.0
         moving = t >= 30.0
         vx = v if moving else 0.0
+        if moving and wiggle:
+            vx -= 0.15 * (1.0 - math.cos(2 * math.pi * (t - 30.0) / (2.0 + wiggle))) / 2
         x += vx * 0.1
         if n % 10 == 0:
             put(t, m.heartbeat_encode(2, 12, 1 | 128, PX4_MISSION, 4))
@@ -103,7 +107,7 @@ def test_logs_of_one_flight_overlapping_in_time_count_once(x500, tmp_path):
     veh, stock = x500
     a = crafted_tlog(tmp_path / "gcs.tlog")
     b = crafted_tlog(tmp_path / "router.tlog", extra=b"\x00" * 8)  # other content, same time span
-    c = crafted_tlog(tmp_path / "next-day.tlog", day=1)
+    c = crafted_tlog(tmp_path / "next-day.tlog", day=1, wiggle=1)  # another flight, the next day
     assert flights_of([{"sha256": "a", "wall_span": (0, 10)}, {"sha256": "b", "wall_span": (5, 20)},
                        {"sha256": "c", "wall_span": (20, 30)}, {"error": "x"}, {"sha256": "a", "wall_span": None}]) \
         == [0, 0, 2, None, 0]
@@ -115,7 +119,7 @@ def test_logs_of_one_flight_overlapping_in_time_count_once(x500, tmp_path):
 def test_faster_than_stock_is_refused_without_the_flag_and_shown_per_cell(x500, tmp_path):
     """Three distinct crafted flights are evidence enough to go below the SITL's value: that makes the table faster
     than stock, which calibrate refuses (one line, exit 2, the report written) unless --accept-faster."""
-    logs = [crafted_tlog(tmp_path / f"day{d}.tlog", day=d) for d in range(3)]
+    logs = [crafted_tlog(tmp_path / f"day{d}.tlog", day=d, wiggle=d) for d in range(3)]
     out = tmp_path / "fast.npz"
     cmd = [sys.executable, "-m", "companion.cli", "calibrate", *map(str, logs), "--vehicle", "x500", "--table", "x500",
            "--out", str(out)]
@@ -149,7 +153,53 @@ def test_faster_than_stock_is_refused_without_the_flag_and_shown_per_cell(x500, 
 
 def test_refusal_from_the_api_is_one_contract_error(x500, tmp_path):
     veh, stock = x500
-    logs = [crafted_tlog(tmp_path / f"d{d}.tlog", day=d) for d in range(3)]
+    logs = [crafted_tlog(tmp_path / f"d{d}.tlog", day=d, wiggle=d) for d in range(3)]
     with pytest.raises(ContractError, match="faster than the stock table") as e:
         calibrate(logs, veh, stock, tmp_path / "x.npz", report=False)
     assert "\n" not in str(e.value)
+
+
+# ----------------------------------------------------------------------------- one flight, however stamped
+
+
+def test_one_flight_restamped_by_one_and_two_days_is_one_flight(x500, tmp_path):
+    """The same flown samples stamped a day and two days later (other bytes, other time spans): one flight, so
+    no evidence to go below the SITL's value, the table not faster than stock."""
+    veh, stock = x500
+    logs = [crafted_tlog(tmp_path / f"day{d}.tlog", day=d) for d in range(3)]
+    assert len({lg.read_bytes() for lg in logs}) == 3  # other files, other time stamps
+    s = calibrate(logs, veh, stock, tmp_path / "n.npz", report=False)
+    assert s["flights"] == 1 and s["faster_cells"] == 0
+    assert [("same flown samples" in lg.get("not_counted", "")) for lg in s["logs"]] == [False, True, True]
+    assert "+24.0 h" in s["logs"][1]["not_counted"] and "+48.0 h" in s["logs"][2]["not_counted"]
+    assert _v_max(verify(tmp_path / "n.npz")) <= _v_max(stock) + 1e-9
+
+
+def test_negative_control_judged_by_stamps_and_hashes_the_restamped_flight_was_three(x500, tmp_path, monkeypatch):
+    """The old rule (time stamps and file hashes only, the content never compared): the same three logs are three
+    distinct flights, enough evidence for calibrate to make the contract faster than stock."""
+    from contracts import calibrate as cal
+
+    veh, stock = x500
+    logs = [crafted_tlog(tmp_path / f"day{d}.tlog", day=d) for d in range(3)]
+    monkeypatch.setattr(cal, "same_flight", lambda a, b: None)
+    with pytest.raises(ContractError, match=r"faster than the stock table .* on evidence from 3 flight\(s\)"):
+        calibrate(logs, veh, stock, tmp_path / "n.npz", report=False)
+
+
+def test_content_tells_flights_apart_not_stamps():
+    """Pure: a flight's series against itself shifted, cut, re-framed, and against other flights."""
+    from contracts.calibrate import flight_series, same_flight
+
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 300, 0.1)
+    v = np.column_stack([3 + np.sin(t / 7), np.cos(t / 5), 0.1 * np.sin(t)]) + rng.normal(0, 0.05, (len(t), 3))
+    a = flight_series(t, v)
+    assert same_flight(a, flight_series(t + 86400.0, v)) == 0.0  # re-stamped
+    rot = np.column_stack([-v[:, 1], v[:, 0], v[:, 2]])  # the frame turned 90°
+    assert same_flight(a, flight_series(t, rot)) == 0.0
+    cut = same_flight(a, flight_series(t[500:] + 3600.0, v[500:]))  # the first 50 s cut off, stamped an hour on
+    assert cut == pytest.approx(50.0)
+    other = v + rng.normal(0, 0.05, v.shape)  # the same plan flown again: other noise
+    assert same_flight(a, flight_series(t, other)) is None
+    assert same_flight(a, flight_series(t[:30], v[:30])) is None  # 3 s: too short to tell

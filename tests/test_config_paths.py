@@ -26,6 +26,9 @@ def own_vehicle_dir(tmp_path: Path) -> Path:
         "calibration: {legs: cal/calibration-legs.json}\n"
         "link: {signing_key_file: keys/signing.key, signing_timestamp_file: /var/lib/cg/signing.ts}\n"
         "log: {dir: logs}\n")
+    (d / "keys").mkdir()
+    (d / "keys" / "signing.key").write_text("ab" * 32 + "\n")  # run --check reads it, as run does
+    (d / "keys" / "signing.key").chmod(0o600)
     return d
 
 

@@ -35,6 +35,9 @@ def on_this_machine(config: Path, tmp_path: Path) -> Path:
         return config
     etc = tmp_path / "etc"
     etc.mkdir()
+    key = etc / "signing.key"  # its signing key, as `contract-guard keys` leaves one (run --check reads it)
+    key.write_text("ab" * 32 + "\n")
+    key.chmod(0o600)
     shutil.copy(ROOT / "examples" / "vehicles" / "quad-1600g.yaml", etc / "vehicle.yaml")
     assert cli.main(["table", "build", "--vehicle", str(etc / "vehicle.yaml"), "--stop-only",
                      "--out", str(etc / "table.npz")]) == 0

@@ -10,8 +10,9 @@ modes, Hold commands), and hands the numbers to the pure statistics of `contract
   calibrated vehicle file beside the table (`NEW.yaml`), which the new table embeds;
 - hover throttle and its spread;
 - provenance (log SHA-256s, sample counts, the rule) in the table's metadata;
-- evidence per cell (windows, distinct flights, worst measured, calibrated/SITL ratio): identical files and logs
-  whose time spans overlap are one flight (`flights_of`); a cell may go below the SITL's E_tr_pred only on the
+- evidence per cell (windows, distinct flights, worst measured, calibrated/SITL ratio): logs whose flown samples
+  are the same flight's (however they are time-stamped: `contracts.calibrate.same_flight`), identical files and
+  logs whose time spans overlap are one flight (`flight_groups`); a cell may go below the SITL's E_tr_pred only on the
   evidence `contracts/calibrate.py` states, and a table faster than stock anywhere is refused unless a person
   accepts it (`accept_faster`, the command's `--accept-faster`);
 - a report: `NEW.report.json`, `NEW.report.html` and, with matplotlib, `NEW.report.png`.
@@ -146,28 +147,44 @@ def flight_thrust_ratio(trace: Trace, hover_nominal: float, top: float) -> float
     return None if not h else min(top, hover_nominal / h)
 
 
-def flights_of(logs: list[dict]) -> list[int | None]:
-    """Per log (`sha256`, `wall_span`: (start, end) UNIX s or None), the index of the log that stands for its
-    flight — itself, or an earlier log with identical content or an overlapping time span (one aircraft flies one
-    flight at a time: a .tlog and the autopilot's .ulg of the same flight, or a copy, are one flight); None for a
-    log that was not read. Of a group, the first log stands for it. Pure."""
-    out: list[int | None] = []
+def flight_groups(logs: list[dict], series: list | None = None) -> list[tuple[int | None, str | None]]:
+    """Per log (`sha256`, `wall_span`: (start, end) UNIX s or None) and its flown samples (`series[n]`:
+    `contracts.calibrate.flight_series`, or None), (the index of the log that stands for its flight, why it is that
+    flight): itself (why None), or an earlier log with the same flown samples (judged by content: time stamps and
+    file hashes aside), identical content, or an overlapping time span (one aircraft flies one flight at a time: a
+    .tlog and the autopilot's .ulg of the same flight, or a copy, are one flight); (None, None) for a log that was
+    not read. Of a group, the first log stands for it. Pure."""
+    out: list[tuple[int | None, str | None]] = []
     for n, lg in enumerate(logs):
         if "sha256" not in lg:
-            out.append(None)
+            out.append((None, None))
             continue
-        rep = n
+        found: tuple[int | None, str | None] = (n, None)
         for m in range(n):
             other = logs[m]
-            if out[m] is None:
+            if out[m][0] is None:
                 continue
-            same = other["sha256"] == lg["sha256"]
             a, b = lg.get("wall_span"), other.get("wall_span")
-            if same or (a and b and a[0] < b[1] and b[0] < a[1]):
-                rep = out[m]
-                break
-        out.append(rep)
+            shift = (None if series is None or series[n] is None or series[m] is None
+                     else cal.same_flight(series[m], series[n]))
+            if other["sha256"] == lg["sha256"]:
+                why = "identical content"
+            elif a and b and a[0] < b[1] and b[0] < a[1]:
+                why = "overlapping time span"
+            elif shift is not None:
+                why = "the same flown samples, time offset removed" + (
+                    f"; its time stamps {(a[0] - b[0] - shift) / 3600:+.1f} h from the other's" if a and b else "")
+            else:
+                continue
+            found = (out[m][0], why)
+            break
+        out.append(found)
     return out
+
+
+def flights_of(logs: list[dict], series: list | None = None) -> list[int | None]:
+    """Per log, the index of the log that stands for its flight (`flight_groups`)."""
+    return [rep for rep, _ in flight_groups(logs, series)]
 
 
 def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUANTILE, confidence=cal.CONFIDENCE,
@@ -182,7 +199,7 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
         raise ContractError(f"table {table.path}: no controller contract (E_tr_pred) to calibrate")
     axes = table.e_pred.axes
     hover_nominal = vehicle.controller.thr_hover
-    logs, samples, stops, traces, read = [], [], [], [], []
+    logs, samples, stops, traces, read, series = [], [], [], [], [], []
     for p in paths:
         p = Path(p)
         try:
@@ -190,10 +207,13 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
             tr = trace_of(p.name, feed, cmds)
         except ContractError as err:
             logs.append({"log": str(p), "error": str(err)})
+            series.append(None)
             continue
         except Exception as err:  # noqa: BLE001 — a log the readers could not make sense of: said, not fatal
             logs.append({"log": str(p), "error": f"unreadable ({type(err).__name__}: {err})"})
+            series.append(None)
             continue
+        series.append(cal.flight_series(tr.t, tr.vel))
         ratio = flight_thrust_ratio(tr, hover_nominal, float(axes[2][-1]))
         w = cal.windows(tr.t, tr.xy, np.hypot(tr.vel[:, 0], tr.vel[:, 1]), tr.tilt, tr.t_path, tr.xy_path, tr.airborne)
         # no hover estimate: the grid's lowest thrust_ratio (the cell that helps least, never optimistic)
@@ -212,15 +232,16 @@ def calibrate(paths: list[Path], vehicle, table, out: Path, *, quantile=cal.QUAN
                      "stops_measured": len(flight_stops), "hover": tr.hover, "thrust_ratio": ratio})
     if not read:
         raise ContractError("no log could be read: " + "; ".join(x["error"] for x in logs))
-    # one flight, one vote: a copy of a log, or a second log of the same flight (overlapping in time), adds nothing
-    rep = flights_of(logs)
+    # one flight, one vote: a copy of a log, the same flight stamped anew, or a second log of the same flight
+    # (overlapping in time) adds nothing
+    groups = flight_groups(logs, series)
+    rep = [r for r, _ in groups]
     flight_ids = []
     for n, s_, st, tr in read:
         lg = logs[n]
         lg["flight"] = Path(logs[rep[n]]["log"]).name
         if rep[n] != n:
-            same = "identical content" if logs[rep[n]]["sha256"] == lg["sha256"] else "overlapping time span"
-            lg["not_counted"] = f"the same flight as {lg['flight']} ({same}): counted once"
+            lg["not_counted"] = f"the same flight as {lg['flight']} ({groups[n][1]}): counted once"
             continue
         samples += s_
         flight_ids += [n] * len(s_)

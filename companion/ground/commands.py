@@ -66,10 +66,11 @@ def _load_table(path, vehicle=None, public_key=None):
 def signature_line(t) -> str:
     """How far a verified table is trusted: its signature's status (`table verify`, `table show`)."""
     s = t.signature
+    serial = f", serial {t.serial}" if t.serial is not None else ""
     if s["verified"]:
-        return f"signed, signature verified with public key {s['key_id']}"
+        return f"signed, signature verified with public key {s['key_id']}{serial}"
     if s["signed"]:
-        return f"signed by key {s['key_id']}, signature not checked (no --public-key): integrity only"
+        return f"signed by key {s['key_id']}{serial}, signature not checked (no --public-key): integrity only"
     return "unsigned: integrity only"
 
 
@@ -114,13 +115,24 @@ def cmd_table_verify(args) -> int:
     return 0
 
 
+def _base_checked(path, key, args) -> str:
+    """The base table `path` may be signed over (`contracts.table.base_trust`): its signature verifies (with
+    --base-public-key, else the signing key's own), or it is the shipped table of its vehicle; else refused
+    naming what differs, unless --accept-edited-base. Returns the words that say which."""
+    from contracts.table import base_trust, load_private_key
+
+    return base_trust(path, load_private_key(key).public_key(), args.base_public_key, args.accept_edited_base)
+
+
 def cmd_table_sign(args) -> int:
     from contracts.table import sign_table
 
-    sig = sign_table(table_file(args.file), args.key, args.out)
-    _emit({"ok": True, "file": str(args.out or args.file), **sig}, args.json,
-          f"signed {args.out or args.file} with key {sig['key_id']} (ed25519; check: contract-guard table verify "
-          f"{args.out or args.file} --public-key PUBLIC.pem)")
+    src = table_file(args.file)
+    base = _base_checked(src, args.key, args)
+    sig = sign_table(src, args.key, args.out, args.serial)
+    _emit({"ok": True, "file": str(args.out or args.file), "base": base, **sig}, args.json,
+          f"signed {args.out or args.file} with key {sig['key_id']}, serial {sig['serial']} (ed25519; check: "
+          f"contract-guard table verify {args.out or args.file} --public-key PUBLIC.pem); the table signed: {base}")
     return 0
 
 
@@ -130,7 +142,8 @@ def _sign_after(path, key) -> str:
         return ""
     from contracts.table import sign_table
 
-    return f"; signed with key {sign_table(path, key)['key_id']}"
+    sig = sign_table(path, key)
+    return f"; signed with key {sig['key_id']}, serial {sig['serial']}"
 
 
 def query_table(t, d_od, r_obst, e_tr, thrust_ratio, tilt_deg=None, v_max=None, contract=None) -> dict:
@@ -230,6 +243,8 @@ def cmd_table_etr(args) -> int:
     if table.resolve().parent == DATA_DIR and args.out is None:
         raise ContractError(f"table etr: {args.table} is a shipped table; give --out for the result (shipped tables "
                             "are not rewritten in place)")
+    # a signed result vouches for the avoid contract it keeps from its base: checked before any flight
+    base = _base_checked(table, args.sign_key, args) if args.sign_key else None
     with _interruptible():
         s = build_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                       progress=show_progress(not args.json), out=args.out, resume=args.resume)
@@ -237,7 +252,8 @@ def cmd_table_etr(args) -> int:
     signed = _sign_after(s["path"], args.sign_key)
     _emit({"ok": True, **s}, args.json, f"wrote E_tr_pred into {s['path']}: {s['cells']} cells in {s['wall_s']} s"
           f"{resumed}, {s['monotone_repairs_up']} repaired upward, worst raw contour error "
-          f"{s['raw_worst_max_m']:.3f} m (--json for the full record){signed}")
+          f"{s['raw_worst_max_m']:.3f} m (--json for the full record){signed}"
+          + (f"; the base table: {base}" if base else ""))
     return 0
 
 
@@ -433,6 +449,8 @@ def cmd_calibrate(args) -> int:
 
     veh = load_vehicle(args.vehicle)
     table = _load_table(args.table, args.vehicle)
+    # a signed result vouches for its base too: the base must be signed (and verify) or be the shipped table
+    base = _base_checked(table_file(args.table), args.sign_key, args) if args.sign_key else None
     logs = [p for x in args.log for p in (sorted(q for q in x.rglob("*") if q.suffix.lower() in (".tlog", ".ulg", ".bin"))
                                            if x.is_dir() else [x])]
     if not logs:
@@ -443,7 +461,11 @@ def cmd_calibrate(args) -> int:
         signed = _sign_after(args.out, args.sign_key)
     except OSError as err:  # a full disk, a read-only folder: one line, not a traceback
         raise ContractError(f"cannot write the calibration to {args.out}: {err.strerror or err}") from None
-    _emit(s, args.json, format_summary(s) + signed.replace("; s", "\n  s") + f"\nreport: {args.out.with_suffix('')}.report.html")
+    if base is not None:
+        s["base_table"] = base
+        signed += f"; the base table: {base}"
+    _emit(s, args.json, format_summary(s) + signed.replace("; s", "\n  s").replace("; the base", "\n  the base")
+          + f"\nreport: {args.out.with_suffix('')}.report.html")
     return 0
 
 

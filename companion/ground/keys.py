@@ -64,10 +64,57 @@ def key_id(key: bytes) -> str:
     return hashlib.sha256(key).hexdigest()[:16]
 
 
-def _write_secret(path: Path, data: bytes) -> None:
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+def _not_a_link(path: Path) -> Path:
+    """`path`, refused (one line) where it is a symbolic link, dangling or not: a key file is never written or
+    trusted through a link (a link could put the key, or the public key the daemon trusts, anywhere)."""
+    if path.is_symlink():
+        raise ContractError(f"keys: {path} is a symbolic link (to {os.readlink(path)}): refused, a key file is never "
+                            "written through a link; remove the link")
+    return path
+
+
+def _write_file(path: Path, data: bytes, mode: int = 0o600) -> None:
+    """Create `path` (never an existing file, never through a link: O_EXCL | O_NOFOLLOW) with `mode`."""
+    _not_a_link(path)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), mode)
+    except FileExistsError:
+        raise ContractError(f"keys: {path} appeared while writing the key set; move it away and run again") from None
+    except OSError as err:
+        raise ContractError(f"keys: cannot write {path} ({err.strerror or err})") from None
     with os.fdopen(fd, "wb") as f:
         f.write(data)
+
+
+def _write_set(files: list[tuple[Path, bytes, int]]) -> None:
+    """Write a set of files that belong together, all or none: each is written beside its place and the set is
+    moved in only when every one is written (a failure leaves no part of a new set behind)."""
+    tmp = [(path.with_name(path.name + ".new"), path, data, mode) for path, data, mode in files]
+    try:
+        for t, _, data, mode in tmp:
+            if t.is_symlink() or t.exists():
+                _not_a_link(t)
+                t.unlink()
+            _write_file(t, data, mode)
+        for _, path, _, _ in tmp:  # every place still free before any file is moved in
+            _not_a_link(path)
+            if path.exists():
+                raise ContractError(f"keys: {path} appeared while writing the key set; move it away and run again")
+        for t, path, _, _ in tmp:
+            os.replace(t, path)
+    finally:
+        for t, _, _, _ in tmp:
+            if t.exists() and not t.is_symlink():
+                t.unlink()
+
+
+def _read_text(path: Path, what: str) -> str:
+    _not_a_link(path)
+    try:
+        return path.read_text()[:256].strip()
+    except (OSError, UnicodeDecodeError) as err:
+        raise ContractError(f"keys: cannot read {what} {path} ({getattr(err, 'strerror', None) or type(err).__name__})") \
+            from None
 
 
 def _directory(out: Path) -> Path:
@@ -83,23 +130,25 @@ def _directory(out: Path) -> Path:
 
 def mavlink_key(out: Path, passphrase: str | None = None, now: float | None = None) -> dict:
     """Create the signing key in `out` (from `passphrase`, else a new random one), or read the one there; return
-    every form of it and where it went."""
+    every form of it and where it went. The set (passphrase, key file, PX4 key file) is always one key: a new set
+    is written only where none of its files exists, and a set found is checked whole; a file of another key, or a
+    link in the place of one, is refused (one line), nothing written."""
     out = _directory(out)
-    kp, pp = out / KEY_FILE, out / PASSPHRASE_FILE
+    kp, pp, px = out / KEY_FILE, out / PASSPHRASE_FILE, out / PX4_FILE
+    for f in (pp, kp, px):
+        _not_a_link(f)
     created = not pp.exists()
     if created:
-        if kp.exists():
-            raise ContractError(f"keys: {kp} exists without its passphrase file; move it away first")
+        stale = [f for f in (kp, px) if f.exists()]
+        if stale:
+            raise ContractError(f"keys: {', '.join(map(str, stale))} exist(s) without the passphrase file {pp.name} "
+                                "(left from another key?): refused, nothing written; move it away first")
         phrase = passphrase if passphrase is not None else secrets.token_urlsafe(24)
         key = passphrase_to_key(phrase)
-        _write_secret(pp, (phrase + "\n").encode())
-        _write_secret(kp, (key.hex() + "\n").encode())
-        _write_secret(out / PX4_FILE, px4_key_file(key, signing_timestamp(time.time() if now is None else now)))
+        _write_set([(pp, (phrase + "\n").encode(), 0o600), (kp, (key.hex() + "\n").encode(), 0o600),
+                    (px, px4_key_file(key, signing_timestamp(time.time() if now is None else now)), 0o600)])
     else:
-        try:
-            phrase = pp.read_text()[:256].strip()
-        except (OSError, UnicodeDecodeError) as err:
-            raise ContractError(f"keys: cannot read {pp} ({type(err).__name__})") from None
+        phrase = _read_text(pp, "the passphrase file")
         key = passphrase_to_key(phrase)
         if passphrase is not None and passphrase_to_key(passphrase) != key:
             raise ContractError(f"keys: {out} already holds another key (key id {key_id(key)})")
@@ -107,8 +156,18 @@ def mavlink_key(out: Path, passphrase: str | None = None, now: float | None = No
 
         if not kp.exists() or load_signing_key(kp) != key:
             raise ContractError(f"keys: {kp} does not match {pp} (edited?); move both away and create a new key")
+        try:
+            on_card = px.read_bytes()[:64] if px.exists() else None
+        except OSError as err:
+            raise ContractError(f"keys: cannot read {px} ({err.strerror or err})") from None
+        if on_card is None:  # the set completed: PX4's file of the key found
+            _write_set([(px, px4_key_file(key, signing_timestamp(time.time() if now is None else now)), 0o600)])
+        elif len(on_card) != 40 or on_card[:32] != key:
+            raise ContractError(f"keys: {px} is not the key of {pp} (key id {key_id(key)}; a stale PX4 key file?): "
+                                "refused, an autopilot given it would reject the daemon; move it away and run again "
+                                "to write the matching one")
     return {"created": created, "key_id": key_id(key), "passphrase": phrase, "key_hex": key.hex(),
-            "key_file": str(kp), "passphrase_file": str(pp), "px4_file": str(out / PX4_FILE),
+            "key_file": str(kp), "passphrase_file": str(pp), "px4_file": str(px),
             "timestamp_file": str(out / TIMESTAMP_FILE)}
 
 
@@ -122,11 +181,16 @@ def table_key_pair(out: Path) -> dict:
 
     out = _directory(out)
     priv, pub = out / TABLE_PRIVATE, out / TABLE_PUBLIC
+    for f in (priv, pub):
+        _not_a_link(f)
     created = not priv.exists()
     if created:
+        if pub.exists():
+            raise ContractError(f"keys: {pub} exists without its private key {priv.name} (left from another key?): "
+                                "refused, nothing written; move it away first")
         k = Ed25519PrivateKey.generate()
-        _write_secret(priv, k.private_bytes(Encoding.PEM, PrivateFormat.PKCS8, NoEncryption()))
-        pub.write_bytes(k.public_key().public_bytes(Encoding.PEM, PublicFormat.SubjectPublicKeyInfo))
+        _write_set([(priv, k.private_bytes(Encoding.PEM, PrivateFormat.PKCS8, NoEncryption()), 0o600),
+                    (pub, k.public_key().public_bytes(Encoding.PEM, PublicFormat.SubjectPublicKeyInfo), 0o644)])
     k = load_private_key(priv)
     if not pub.exists() or table_key_id(load_public_key(pub)) != table_key_id(k.public_key()):
         raise ContractError(f"keys: {pub} is not the public key of {priv}")

@@ -26,7 +26,6 @@ violation still open when its daemon run ends is closed at that run's last recor
 
 from __future__ import annotations
 
-import csv
 import datetime as _dt
 import functools
 import json
@@ -37,6 +36,7 @@ from typing import Iterable
 from companion.onboard.eventlog import file_set, finite_copy, read_events
 from companion.onboard.logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
 from companion.onboard.modes import MODES
+from contracts import csvfile
 from contracts.errors import ContractError
 
 from . import review_checks
@@ -780,7 +780,7 @@ def write_outputs(rep: dict, samples: list[tuple], out_dir: Path, note: str = ""
         out_dir.mkdir(parents=True, exist_ok=True)
         csv_path = out_dir / "samples.csv"
         with open(csv_path, "w", newline="") as fh:
-            w = csv.writer(fh)
+            w = csvfile.writer(fh)
             w.writerow(CSV_COLUMNS)
             for row in samples:
                 w.writerow([_cell(v) for v in row])

@@ -44,6 +44,6 @@ class ArduPilot(Adapter):
         ParamCheck("ANGLE_MAX", 0.01, "tilt_max_deg"),  # centidegrees
         ParamCheck("WPNAV_ACCEL", 0.01, "braking.accel_max_m_s2"),  # cm/s²
         ParamCheck("WPNAV_JERK", 1.0, "braking.jerk_max_m_s3"),
-        ParamCheck("GUID_TIMEOUT", 1.0, "guided time-out [s]"),
+        ParamCheck("GUID_TIMEOUT", 1.0, "guided time-out [s]", setpoint_timeout=True),
     )
 

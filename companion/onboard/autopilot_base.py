@@ -36,6 +36,9 @@ class ParamCheck:
     what: str  # vehicle-file quantity it must agree with
     offboard_allowed: tuple[int, ...] = ()  # values offboard mode needs (empty: no such rule)
     offboard_need: str = ""  # those values in words, for the refusal line
+    # the autopilot's setpoint time-out in offboard [s after `scale`]: checked against the daemon's setpoint period
+    # (`startup.setpoint_timeout_problem`)
+    setpoint_timeout: bool = False
 
 
 class Adapter:

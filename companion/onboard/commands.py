@@ -36,7 +36,8 @@ def cmd_run(args) -> int:
     from .assumptions import controller_contract
     from .daemon import Daemon
     from .eventlog import EventLog
-    from .link import SigningClock, load_signing_key, open_connection, setup_signing
+    from .inputs import check_inputs
+    from .link import SigningClock, open_connection, setup_signing
     from .service import Notifier
 
     cfg = run_config(args)
@@ -44,17 +45,18 @@ def cmd_run(args) -> int:
     if cfg.daemon_mode.contract == "avoid" and table.avoid is None:
         raise ContractError(f"mode {cfg.mode} needs an avoid contract; table {table.path} carries the stop "
                             "contract only")
+    inputs = check_inputs(cfg, table)  # the same refusals for --check as for the run (nothing recorded yet)
     if args.check:
         for line in banner(cfg, table, controller_contract(cfg, table)):
             if not line.startswith("waiting for the autopilot"):  # it is not waited for
                 print(line)
-        for line in weakened(cfg):
+        for line in inputs.lines + weakened(cfg):
             print(line)
         print(f"config {args.config}: valid; its table fits (--check: the link is not opened)")
         return 0
     faulthandler.enable()  # a watchdog abort prints the stack to the journal
     signing_clock = None
-    key = load_signing_key(cfg.link.signing_key_file) if cfg.link.signing_key_file else None
+    key = inputs.signing_key
     conn = open_connection(cfg.link.connect, cfg.link.baud, cfg.link.target_system, cfg.link.component_id,
                            (cfg.link.target_system, cfg.link.target_component), cfg.link.pins(cfg.sensors))
     if key is not None:
@@ -65,8 +67,13 @@ def cmd_run(args) -> int:
                      quiet=args.quiet)
     for line in banner(cfg, table, controller_contract(cfg, table)):
         log.say(line)
+    for line in inputs.lines:  # the table's serial (WEAKENED: a rollback allowed)
+        log.say(line, 4 if line.startswith("WEAKENED") else 6)
     for line in weakened(cfg):  # inside its safe range but weaker than the default; unsigned on a network
         log.say(line, 4)
+    inputs.serial.accept()
+    if inputs.serial.rollback is not None:
+        log.event(None, "table_rollback", **inputs.serial.rollback)
     stop = {"now": False}
 
     def _stop(signum, frame):
@@ -79,7 +86,8 @@ def cmd_run(args) -> int:
     notifier = Notifier()
     log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect,
               controller_contract=controller_contract(cfg, table), nav_margin=cfg.contract.nav_margin,
-              delivery=cfg.delivery.model_dump())
+              delivery=cfg.delivery.model_dump(), table_serial=table.serial,
+              table_signature=table.signature)
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
 
     def should_stop() -> bool:  # said once, before the shutdown's own Hold (stop means stop: daemon.py)

@@ -76,8 +76,9 @@ class SensorConfig(_Strict):
     # over UDP (udpin), the address its messages come from (None: the first heard; a sensor with the autopilot's
     # ids is the autopilot's address)
     address: str | None = None
-    orientation_deg: float = 0.0  # sensor axis yaw in the body frame, clockwise from forward
-    h_fov_deg: Annotated[float, Field(gt=0, le=360)]
+    # sensor axis yaw in the body frame, clockwise from forward (a finite angle, one turn either way at most)
+    orientation_deg: Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False)] = 0.0
+    h_fov_deg: Annotated[float, Field(gt=0, le=360, allow_inf_nan=False)]
     min_quality: Annotated[int, Field(ge=0, le=100)] = 50  # signal_quality below this: not trusted
     # the sensor's rated range [m]: what its messages may claim (max_distance) is capped by it; required
     # in governor and offboard mode (a sensor's word is not taken for its range)
@@ -91,15 +92,35 @@ class SensorConfig(_Strict):
 
 
 NETWORK_LINKS = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")  # pymavlink URLs of a network
+LISTENING = ("udpin:", "udp:", "tcpin:")  # a network URL the daemon binds: port 0 lets the system choose one
+
+
+def connect_url(text: str) -> str:
+    """A pymavlink URL `run` can open: a network one is SCHEME:HOST:PORT with a port in 1–65535 (0 too where the
+    daemon listens: the system picks a free port); anything else is a serial device (checked when it is opened).
+    Raises ValueError naming what is wrong."""
+    if not text.startswith(NETWORK_LINKS):
+        if not text or text.strip() != text:
+            raise ValueError(f"{text!r} is not a pymavlink URL (udpin:HOST:PORT, tcp:HOST:PORT or a serial device)")
+        return text
+    scheme, _, rest = text.partition(":")
+    host, sep, port = rest.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise ValueError(f"{text!r} is not {scheme}:HOST:PORT")
+    lo = 0 if text.startswith(LISTENING) else 1
+    if not lo <= int(port) <= 65535:
+        raise ValueError(f"{text!r}: port {int(port)} outside {lo}–65535")
+    return text
 
 
 class LinkConfig(_Strict):
     connect: str = "udpin:0.0.0.0:14540"  # pymavlink URL: udpin:/udpout:/tcp:/serial path
-    baud: int = 921600
+    baud: Annotated[int, Field(gt=0)] = 921600
     autopilot: str = "px4"  # an adapter's name (companion/onboard/autopilots.py)
-    target_system: int = 1
-    target_component: int = 1
-    component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
+    # MAVLink ids are one byte, 0 meaning "all": an id outside 1–255 never matches a message
+    target_system: MavId = 1
+    target_component: MavId = 1
+    component_id: MavId = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
     gcs_system_ids: list[Annotated[int, Field(ge=1, le=255)]] = [255]  # ground stations that may set CG_* parameters
     # over UDP (udpin), the address the autopilot sends from (HOST:PORT; None: the first address its HEARTBEAT
     # comes from). Another address claiming its ids is refused, and said
@@ -112,6 +133,11 @@ class LinkConfig(_Strict):
     clock_rate: Annotated[float, Field(ge=0.1, le=20)] = 1.0
     signing_key_file: FilePath | None = None  # 32-byte key (raw or 64 hex chars), readable only by us
     signing_timestamp_file: FilePath | None = None  # persisted across restarts (no RTC on many boards)
+
+    @field_validator("connect")
+    @classmethod
+    def _url(cls, text: str) -> str:
+        return connect_url(text)
 
     @field_validator("autopilot")
     @classmethod
@@ -337,8 +363,11 @@ class CalibrationConfig(_Strict):
 
 class LogConfig(_Strict):
     dir: FilePath = Path("/var/log/contract-guard")  # the event log's directory (events.jsonl, raw.tlog)
-    max_bytes: int = 50_000_000  # an event log file is rotated at this size
-    keep: int = 10  # rotated files kept
+    # an event log file is rotated at this size. At least 1 MB: a state record is about 0.8 kB, so a file holds
+    # two minutes of flight at 10 Hz or more (smaller, a flight's start would be rotated away while it is flown)
+    max_bytes: Annotated[int, Field(ge=1_000_000)] = 50_000_000
+    # rotated files kept. At least 1: with none, every rotation deletes the record of the flight just flown
+    keep: Annotated[int, Field(ge=1, le=10_000)] = 10
     tlog: bool = False  # also write the raw MAVLink as a .tlog (raw.tlog, as MAVProxy and QGroundControl write it)
     state_hz: Pos = 10.0  # state samples per second in the event log
 
@@ -349,6 +378,11 @@ class Config(_Strict):
     # the table must carry an ed25519 signature by this public key's private key (PEM; `contract-guard keys
     # --table` makes the pair, `table sign` signs): an edited and re-hashed table is refused at start
     table_public_key: FilePath | None = None
+    # where the daemon keeps the serial of the last signed table it accepted (default: table-serial.json beside
+    # link.signing_timestamp_file; neither: a rollback is not checked, said in the banner). An older table is
+    # refused unless allow_table_rollback (then WEAKENED in the banner and a `table_rollback` event at every start)
+    table_state_file: FilePath | None = None
+    allow_table_rollback: bool = False
     mode: Literal["shadow", "governor", "offboard"] = "shadow"
     engage: bool = False  # engage only when asked (also the CG_ENGAGE parameter)
     # the daemon's cycle: at least 20 Hz, the offboard setpoint stream's rate (PX4 needs > 2 Hz to stay in

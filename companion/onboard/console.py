@@ -190,6 +190,15 @@ def reaction_budget(cfg, vehicle) -> str:
     return line
 
 
+def table_trust(table) -> str:
+    """A table's signature and serial in words (the banner's first line)."""
+    sig = table.signature
+    if not sig["signed"]:
+        return "unsigned"
+    how = "verified with table_public_key" if sig["verified"] else "signature not checked (no table_public_key)"
+    return f"signed by key {sig['key_id']}, {how}, serial {table.serial if table.serial is not None else 'none'}"
+
+
 def banner(cfg, table, controller_contract: str) -> list[str]:
     """The start banner: what the daemon will enforce, on what, and the defaults that shape it."""
     lk, ct = cfg.link, cfg.contract
@@ -206,7 +215,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         "steady); engage after that, or build the table over the whole thrust_ratio_range"]
     return [
         f"vehicle {table.vehicle.name}, table {table.path} (contracts: {', '.join(table.available)}; "
-        f"Ω lookup {kernel_name()})",
+        f"Ω lookup {kernel_name()}; {table_trust(table)})",
         f"controller contract: {controller_contract}; {controller_coverage(table)}",
         f"{cfg.mode} mode ({cfg.daemon_mode.contract} contract), {engage}",
         *short,

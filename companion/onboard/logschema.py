@@ -86,9 +86,13 @@ _NO_SPEED = ("input", "why", "resume")  # a `no safe speed` Hold's cause (compan
 _MISSION_STATS = ("resent", "duplicates", "out_of_order", "malformed")
 EVENTS = {
     "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract", "nav_margin",
-                    "delivery"),
+                    "delivery", "table_serial", "table_signature"),
                    "cli run, replay",
-                   "daemon run starts (connect: the live link; replay_of: the raw log replayed)"),
+                   "daemon run starts (connect: the live link; replay_of: the raw log replayed; table_serial: the "
+                   "signed table's serial, None unsigned; table_signature: signed, key_id, verified)"),
+    "table_rollback": Event(("serial", "last_serial", "last_table", "state_file"), "cli run",
+                            "a table older than the last accepted is flown because the config allows it "
+                            "(allow_table_rollback; WEAKENED in the banner)"),
     "stop": Event(("counters",), "cli run, replay", "daemon run ends cleanly (the daemon's counters)"),
     "loop_timing": Event(("cycles", "work_ms_max", "wake_late_ms_max", "cycles_over_ms", "worst",
                           "event_log_max_fsync_ms"), "daemon",

@@ -10,6 +10,29 @@ from .outbox import EMPTY, Outbox
 
 WAIT_S = 5.0  # a parameter asked for and not answered in this long counts as missing
 RESTART_CHECK_S = 10.0  # the checks re-run after an autopilot restart at most this often
+# ArduPilot's GUIDED follows a velocity (or acceleration) target for GUID_TIMEOUT seconds after the last one
+# arrives, then stops; position targets never time out (ArduCopter/Parameters.cpp `guided_timeout`, default 3 s,
+# range 0.1-5 s; ardupilot wiki, Copter commands in Guided mode: "re-send every second"). The daemon streams
+# velocity setpoints every cycle, so:
+# - longer than SETPOINT_TIMEOUT_MAX_S, a daemon that stops leaves the vehicle flying its last velocity blind for
+#   longer than ArduPilot's own default (3 s: 15 m at 5 m/s), the worst case the README's failure table states;
+# - shorter than one setpoint period plus the lateness the daemon itself tolerates before handing over
+#   (timeouts.cycle_late_s), the vehicle would stop between two setpoints of a running daemon: offboard useless.
+SETPOINT_TIMEOUT_MAX_S = 3.0
+
+
+def setpoint_timeout_problem(name: str, value: float | None, cfg: Config) -> str | None:
+    """Why the autopilot's offboard setpoint time-out `name` = `value` [s] is refused for this config, or None."""
+    lo = 1.0 / cfg.loop_hz + cfg.timeouts.cycle_late_s
+    if value is None or not math.isfinite(value) or value <= 0:
+        return f"{name} is unset ({value}): offboard needs the autopilot to stop when setpoints stop"
+    if value > SETPOINT_TIMEOUT_MAX_S:
+        return (f"{name} = {value:g} s: the vehicle would fly its last setpoint blind that long if the daemon "
+                f"stopped (at most {SETPOINT_TIMEOUT_MAX_S:g} s; 0.5-1 s recommended)")
+    if value < lo:
+        return (f"{name} = {value:g} s: shorter than one setpoint period plus timeouts.cycle_late_s ({lo:g} s), "
+                "the vehicle would stop between setpoints (0.5-1 s recommended)")
+    return None
 
 
 class StartupChecks:
@@ -126,6 +149,12 @@ class StartupChecks:
             got = int(self.values[c.name] * c.scale)
             if got not in c.offboard_allowed:
                 return False, f"{c.name} = {got}: a companion-only aircraft needs {c.offboard_need}"
+        for c in self.adapter.param_checks:
+            if c.setpoint_timeout:
+                got = self.values.get(c.name)
+                why = setpoint_timeout_problem(c.name, None if got is None else got * c.scale, self.cfg)
+                if why:
+                    return False, why
         return True, "ok"
 
     def brake_verdict(self, ok: bool, reason: str) -> tuple[bool, str]:
