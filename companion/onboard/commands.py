@@ -44,6 +44,12 @@ def cmd_run(args) -> int:
     if cfg.daemon_mode.contract == "avoid" and table.avoid is None:
         raise ContractError(f"mode {cfg.mode} needs an avoid contract; table {table.path} carries the stop "
                             "contract only")
+    if cfg.daemon_mode.commands:  # a set-up whose beams cover the swept corridor nowhere is refused before the link
+        from .coverage import refusal
+        from .cycle import e_tr_floor
+
+        if (why := refusal(cfg.sensors, table.vehicle.r_body_m, e_tr_floor(cfg, table))) is not None:
+            raise ContractError(f"config {args.config}: {cfg.mode} mode refused: {why}")
     if args.check:
         for line in banner(cfg, table, controller_contract(cfg, table)):
             if not line.startswith("waiting for the autopilot"):  # it is not waited for

@@ -24,6 +24,7 @@ from contracts.vehicle import G
 from contracts.window import WindowMax
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
+from .coverage import Beam, corridor_cover
 from .samples import Scan
 
 # ============================================================================ D_od
@@ -300,11 +301,17 @@ class DodEstimator:
             return bool(s.known) and min(abs(wrap(beta - b)) for b in s.known) <= s.increment / 2 + 1e-9
         return abs(wrap(beta - math.radians(s.cfg.orientation_deg))) <= math.radians(s.cfg.h_fov_deg) / 2 + 1e-9
 
-    def estimate(self, t: float, beta: float, corridor_m: float = math.inf) -> DodEstimate:
+    def estimate(self, t: float, beta: float, corridor_m: float = math.inf,
+                 swept_half_m: float | None = None) -> DodEstimate:
         """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
-        deciding which hits are on it (single-beam hits are always taken as on it)."""
+        deciding which hits are on it (single-beam hits are always taken as on it); `swept_half_m`: the swept
+        corridor's half-width the beams must cover, w = r_body + E_tr (`companion.onboard.coverage`; None: the
+        cycle's `corridor_m` less its 2·R_obst, as the cycle makes it 2·R_obst + E_tr + r_body; neither given: the
+        claim alone). D_od is at most the far end of the range interval over which the fresh, trusted beams
+        together cover that corridor, 0 where they cover it nowhere."""
         covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
         obstacle = math.inf
+        beams = []
         for i, s in enumerate(self.sensors):
             if t - s.t > self.stale_s:
                 continue
@@ -312,11 +319,23 @@ class DodEstimator:
             for b, r in s.hits:
                 if not bins or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
                     obstacle = min(obstacle, r)
-            if not s.trusted or not self._covers(s, beta):
+            if not s.trusted:
+                continue
+            beams.append(Beam(s.cfg.orientation_deg, s.cfg.h_fov_deg, s.max_m))
+            if not self._covers(s, beta):
                 continue
             covered.append(i)
             if s.max_m > d:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
+        if swept_half_m is None and math.isfinite(corridor_m):
+            swept_half_m = corridor_m - 2 * self.r_obst
+        if covered and swept_half_m is not None:  # the beams' cover of the corridor (Beam coverage, coverage.py)
+            cover = corridor_cover(beams, max(swept_half_m, 0.0), beta)
+            if not cover.covered:
+                d, reason = 0.0, f"the fresh, trusted sensors cover the swept corridor ±{swept_half_m:.2f} m nowhere"
+            elif cover.hi < d:
+                d, reason = cover.hi, (f"the fresh, trusted sensors cover the swept corridor ±{swept_half_m:.2f} m "
+                                       f"from {cover.lo:.2f} m to {cover.hi:.2f} m")
         if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
             d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
         swept = 0.0
