@@ -24,7 +24,7 @@ from contracts.vehicle import G
 from contracts.window import WindowMax
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
-from .coverage import Beam, corridor_cover
+from .coverage import Beam, corridor_cover, covered_d_od
 from .samples import Scan
 
 # ============================================================================ D_od
@@ -308,7 +308,8 @@ class DodEstimator:
         corridor's half-width the beams must cover, w = r_body + E_tr (`companion.onboard.coverage`; None: the
         cycle's `corridor_m` less its 2·R_obst, as the cycle makes it 2·R_obst + E_tr + r_body; neither given: the
         claim alone). D_od is at most the far end of the range interval over which the fresh, trusted beams
-        together cover that corridor, 0 where they cover it nowhere."""
+        together cover that corridor, 0 where they cover it nowhere; the swept coverage (the direction of travel
+        outside every field of view) no more than the beams cover of that corridor along any of their axes."""
         covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
         obstacle = math.inf
         beams = []
@@ -329,21 +330,29 @@ class DodEstimator:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
         if swept_half_m is None and math.isfinite(corridor_m):
             swept_half_m = corridor_m - 2 * self.r_obst
-        if covered and swept_half_m is not None:  # the beams' cover of the corridor (Beam coverage, coverage.py)
-            cover = corridor_cover(beams, max(swept_half_m, 0.0), beta)
-            if not cover.covered:
-                d, reason = 0.0, f"the fresh, trusted sensors cover the swept corridor ±{swept_half_m:.2f} m nowhere"
-            elif cover.hi < d:
-                d, reason = cover.hi, (f"the fresh, trusted sensors cover the swept corridor ±{swept_half_m:.2f} m "
-                                       f"from {cover.lo:.2f} m to {cover.hi:.2f} m")
+        w = None if swept_half_m is None else max(swept_half_m, 0.0)
+        short = False  # the beams cover less of the corridor along the direction of travel than they claim
+        if covered and w is not None:  # the beams' cover of the corridor (companion/onboard/coverage.py)
+            cover = corridor_cover(beams, w, beta)
+            if cover.hi < d:
+                short = True
+                d, reason = cover.hi, (f"the fresh, trusted sensors cover the swept corridor ±{w:.2f} m from "
+                                       f"{cover.lo:.2f} m to {cover.hi:.2f} m" if cover.covered else
+                                       f"the fresh, trusted sensors cover the swept corridor ±{w:.2f} m nowhere")
         if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
             d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
         swept = 0.0
-        if not covered and self._yaw_hist:  # outside every field of view: what was seen free on the way
+        if (not covered or short) and self._yaw_hist:  # what was seen free on the way
             swept = self._swept(t, self._yaw_hist[-1][1] + beta)
-            if swept > 0.0:
-                d, reason = swept, (f"direction of travel outside the field of view: {swept:.2f} m of it seen free "
-                                    f"in the last {COVERAGE_S:g} s")
+            if swept > 0.0 and w is not None:  # no more than the beams can cover of the corridor along any axis
+                swept = min(swept, max((covered_d_od(beams, w, math.radians(b.orientation_deg)) for b in beams),
+                                       default=0.0))
+            if swept > d:
+                where = "outside the field of view" if not covered else "at the fields of view's edge"
+                d, reason = swept, (f"direction of travel {where}: {swept:.2f} m of it seen free in the last "
+                                    f"{COVERAGE_S:g} s")
+            else:
+                swept = 0.0
         lowered, stated = False, d
         if self._penalty is not None:
             if t <= self._penalty[0]:
