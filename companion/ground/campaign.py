@@ -375,6 +375,42 @@ def classify(s: dict) -> tuple[bool, list[str]]:
     return bool(ok), sorted(stresses)
 
 
+def flown_speed(states) -> tuple[float | None, float]:
+    """(the largest Γ_flown = ground speed − V_safe, the time it exceeded `SPEED_TOLERANCE_M_S`) over a flight's
+    state samples while the daemon was engaged: the contract evaluated on the flight itself (the review's rule).
+    (None, 0) when no engaged sample carries it."""
+    from .review_checks import SPEED_TOLERANCE_M_S
+
+    worst, over_s, prev = None, 0.0, None
+    for x in states:
+        g = x.get("gamma_flown")
+        if not x.get("engaged") or g is None or not math.isfinite(g):
+            prev = None
+            continue
+        worst = g if worst is None else max(worst, g)
+        if prev is not None and prev[1] > SPEED_TOLERANCE_M_S:
+            over_s += x["t"] - prev[0]
+        prev = (x["t"], g)
+    return worst, over_s
+
+
+def strict(row: dict) -> tuple[bool, list[str], bool]:
+    """The strict classifier: (in contract, why not, judged in full). In contract only where every subsystem's
+    guarantee held as stated: in assumption (`classify`), no violation the daemon logged, and ground speed never
+    above V_safe by more than the review's tolerance (Γ_flown, `flown_speed`), however the flight came there —
+    honest fog that cuts D_od faster than the vehicle can slow is outside the contract while Γ_flown > 0. A row
+    flown before Γ_flown was kept is judged by the rest (`judged in full` False)."""
+    from .review_checks import SPEED_TOLERANCE_M_S
+
+    why = [] if row["in_assumption"] else ["outside assumption"]
+    why += [f"{sub} violation" for sub in dict.fromkeys(v["subsystem"] for v in row["violations"])]
+    full = "gamma_flown_max" in row
+    g = row.get("gamma_flown_max")
+    if g is not None and g > SPEED_TOLERANCE_M_S:
+        why.append("ground speed above V_safe")
+    return not why, why, full
+
+
 def flight_of(spec: CampaignSpec, i: int) -> tuple[dict, str]:
     if not 0 <= i < spec.flights:
         raise CampaignError(f"flight {i}: the campaign has flights 0..{spec.flights - 1}")
@@ -655,7 +691,8 @@ def result_row(spec: CampaignSpec, i: int, s: dict, arm: str, rig, trace: _Trace
     moving = [r[3] for r in trace.rows if t0 is not None and t0 <= r[0] <= t_end and r[3] > 0.3]
     log = rig.log
     viol = [{"subsystem": e["subsystem"], "t": e["t"]} for e in log.named("violation_start")]
-    return {
+    g_max, g_over_s = flown_speed(log.states)
+    row = {
         "index": i, "arm": arm, "mode": arm_mode(arm), **s,
         "collided": bool(cols), "contact_speed_m_s": None if contact is None else contact[3],
         "min_clearance_m": _finite(truth["min_clearance_m"]),
@@ -671,7 +708,10 @@ def result_row(spec: CampaignSpec, i: int, s: dict, arm: str, rig, trace: _Trace
         "holds": len({e["t"] for e in log.events if e["event"] in ("failsafe", "hold_trigger")
                       and e.get("action") == "hold"}),
         "sim_time_s": rig.sim.time_s,
+        "gamma_flown_max": g_max, "gamma_flown_over_s": g_over_s,
     }
+    row["in_contract"], row["outside_contract"], _ = strict(row)
+    return row
 
 
 def _finite(x):
