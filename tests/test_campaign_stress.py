@@ -57,7 +57,10 @@ def test_drawn_braking_is_what_the_sitl_brakes_with_and_the_px4_law_and_the_daem
     assert (rig.sim.autopilot.traj.acc_hor, rig.sim.autopilot.traj.jerk) == (pytest.approx(a, rel=1e-6),
                                                                             pytest.approx(j, rel=1e-6))
     law = rig.daemon.cycle.sup.policy
-    assert (law.acc_hor, law.jerk) == (pytest.approx(a, rel=1e-6), pytest.approx(j, rel=1e-6))  # as reported
+    # the drawn MPC_ACC_HOR as reported; the firmware's jerk MPC_JERK_MAX (its default 8), not the mission's
+    assert (law.acc_hor, law.jerk) == (pytest.approx(a, rel=1e-6), 8.0) and j < 8.0
+    auto = cg._policy("px4_cp_auto_jerk", s, spec)(rig.daemon.cfg)  # the separate arm: the mission's jerk
+    assert (auto.jerk, auto.jerk_param, auto.name) == (pytest.approx(j, rel=1e-6), "MPC_JERK_AUTO", "px4_cp_auto_jerk")
     assert rig.daemon.table.vehicle.braking.jerk_max_m_s3 == j  # the vehicle file the daemon checks and flies
     assert [e["ok"] for e in rig.log.events if e["event"] == "startup_check"][-1]
     assert row["sim_time_s"] > 5 and math.isfinite(row["mean_speed_m_s"])

@@ -54,7 +54,9 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
       - {kind: cmd_burst, p: 0.5, at_s: [4, 10], duration_s: 0.5}
       - {kind: cmd_jitter, p: 0.5, at_s: 1, max_s: 0.1}
 
-Arms: `governor` and `offboard` (ours), `px4_cp` and `ac_avoid` (the autopilots' laws as governors),
+Arms: `governor` and `offboard` (ours), `px4_cp` and `ac_avoid` (the autopilots' laws as governors; `px4_cp` at
+the firmware's jerk MPC_JERK_MAX and resuming as the firmware does, `px4_cp_auto_jerk` the same law at the
+mission's MPC_JERK_AUTO),
 `no_guard` (daemon off), and the negative controls `<mode>_x<k>` (the contract's speed × k) and
 `<mode>_no_etr` (the contract without the E_tr inflation); `governor_brake` is the governor with its recovery brake
 (`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking); `governor_ramp` the
@@ -83,7 +85,7 @@ Num = Annotated[float, Field(allow_inf_nan=False)]
 Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
-BASELINES = ("px4_cp", "ac_avoid", "no_guard")
+BASELINES = ("px4_cp", "px4_cp_auto_jerk", "ac_avoid", "no_guard")
 ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|ramp)$")
 RAMP_ARM_M_S = 0.3  # the approach ramp of the `governor_ramp` arm
 LINK_FAULTS = ("cmd_loss", "cmd_burst", "cmd_jitter")  # the daemon's outbound datagrams (flights.OutboundFaults)
@@ -403,7 +405,7 @@ def strict(row: dict) -> tuple[bool, list[str], bool]:
     from .review_checks import SPEED_TOLERANCE_M_S
 
     why = [] if row["in_assumption"] else ["outside assumption"]
-    why += [f"{sub} violation" for sub in dict.fromkeys(v["subsystem"] for v in row["violations"])]
+    why += [f"{sub} violation" for sub in dict.fromkeys(v["subsystem"] for v in row.get("violations", []))]
     full = "gamma_flown_max" in row
     g = row.get("gamma_flown_max")
     if g is not None and g > SPEED_TOLERANCE_M_S:
@@ -533,17 +535,54 @@ class _Trace:
         return over and t >= self.hold_on_until
 
 
+RESUME_AFTER_S = 0.2  # [s] the law's limit back at MIN_SPEED or above this long before the mission is resumed
+RESUME_EVERY_S = 1.0  # [s] a resume asked at most this often (the autopilot's answer takes a moment)
+
+
+class FirmwareResume:
+    """The PX4 law flown as the firmware flies it: Collision Prevention only bounds the velocity, so a limit that
+    dips below what the governor can command and rises again lets the vehicle go on. The daemon answers such a
+    limit with its "no safe speed" Hold, which a governor keeps until someone changes the mode; here the ground
+    station resumes the mission (MISSION_START) once the law's own limit (the state samples' `v_max`) has been at
+    the least commandable speed or above for `RESUME_AFTER_S`. Wraps the flight's `_Trace` (called every cycle)."""
+
+    def __init__(self, trace: "_Trace"):
+        self.trace = trace
+        self.resumed: list[float] = []  # when the mission was resumed
+        self._ok_since: float | None = None
+        self._asked = -math.inf
+
+    def __call__(self, rig) -> bool:
+        from .baselines import MIN_SPEED
+
+        st = rig.log.states[-1] if rig.log.states else None
+        t = rig.sim.time_s
+        held = st is not None and st.get("state") == "holding" and any(
+            e["cause"] == "no safe speed" for e in rig.log.named("failsafe")[-1:])
+        if held and (st.get("v_max") or 0.0) >= MIN_SPEED:
+            self._ok_since = t if self._ok_since is None else self._ok_since
+            if t - self._ok_since >= RESUME_AFTER_S and t - self._asked >= RESUME_EVERY_S:
+                rig.start_mission()
+                self._asked = t
+                self.resumed.append(t)
+        else:
+            self._ok_since = None
+        return self.trace(rig)
+
+
 def _policy(arm: str, s: dict, spec: CampaignSpec):
     """The speed policy an arm flies (None: the contract's own): a baseline law, as a function of the daemon's
-    Config (its sensors' mounts), or a negative control. The PX4 law brakes at the autopilot's auto-mode settings
-    (MPC_ACC_HOR, MPC_JERK_AUTO: the scenario's braking); AC_Avoid is not limited above the mission's cruise speed."""
+    Config (its sensors' mounts), or a negative control. The PX4 law brakes at the autopilot's MPC_ACC_HOR (the
+    scenario's) and the firmware's MPC_JERK_MAX (`px4_cp`), or the mission's MPC_JERK_AUTO (`px4_cp_auto_jerk`);
+    AC_Avoid is not limited above the mission's cruise speed."""
     from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention, Scaled, WithoutEtr, mounts
 
-    if arm == "px4_cp":
+    if arm in ("px4_cp", "px4_cp_auto_jerk"):
         brk = _braking(s)
+        # the firmware's jerk (MPC_JERK_MAX, its default); the variant the mission's (MPC_JERK_AUTO, drawn)
+        jerk = dict(jerk=brk.jerk_max_m_s3, jerk_param="MPC_JERK_AUTO", name=arm) if arm == "px4_cp_auto_jerk" else {}
         return lambda cfg: Px4CollisionPrevention(sensors=mounts(cfg.sensors), cp_dist_m=spec.px4_cp_dist_m,
-                                                  acc_hor=brk.accel_max_m_s2, jerk=brk.jerk_max_m_s3,
-                                                  cruise_m_s=s["cruise_m_s"])
+                                                  acc_hor=brk.accel_max_m_s2, cruise_m_s=s["cruise_m_s"], **jerk)
     if arm == "ac_avoid":
         return lambda cfg: ArduPilotAcAvoid(cruise_m_s=s["cruise_m_s"], sensors=mounts(cfg.sensors))
     m = ARM_RE.match(arm)
@@ -586,14 +625,17 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     if arm.endswith("_claim"):  # negative control: no detection range from evidence
         rig.daemon.cycle.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     seconds = spec.duration_s
+    until = FirmwareResume(trace) if arm in ("px4_cp", "px4_cp_auto_jerk") else trace
     if mode_of(mode).flies_route:
-        engage_and_fly(rig, seconds, trace)
+        engage_and_fly(rig, seconds, until)
     else:
-        fly_mission(rig, seconds, trace)
+        fly_mission(rig, seconds, until)
     if rig.outbound is not None:  # classified by its own delivery
         s = {**s, "delivery": delivery_of(rig)}
         s["in_assumption"], s["stresses"] = classify(s)
     row = result_row(spec, i, s, arm, rig, trace)
+    if isinstance(until, FirmwareResume):
+        row["resumed_s"] = until.resumed
     return (row, rig) if keep_rig else row
 
 
