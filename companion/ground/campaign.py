@@ -543,8 +543,9 @@ class FirmwareResume:
     """The PX4 law flown as the firmware flies it: Collision Prevention only bounds the velocity, so a limit that
     dips below what the governor can command and rises again lets the vehicle go on. The daemon answers such a
     limit with its "no safe speed" Hold, which a governor keeps until someone changes the mode; here the ground
-    station resumes the mission (MISSION_START) once the law's own limit (the state samples' `v_max`) has been at
-    the least commandable speed or above for `RESUME_AFTER_S`. Wraps the flight's `_Trace` (called every cycle)."""
+    station switches the autopilot back to its mission mode (MAV_CMD_DO_SET_MODE: the mission goes on from its
+    current item) once the law's own limit (the state samples' `v_max`) has been at the least commandable speed or
+    above for `RESUME_AFTER_S`. Wraps the flight's `_Trace` (called every cycle)."""
 
     def __init__(self, trace: "_Trace"):
         self.trace = trace
@@ -562,7 +563,9 @@ class FirmwareResume:
         if held and (st.get("v_max") or 0.0) >= MIN_SPEED:
             self._ok_since = t if self._ok_since is None else self._ok_since
             if t - self._ok_since >= RESUME_AFTER_S and t - self._asked >= RESUME_EVERY_S:
-                rig.start_mission()
+                from .flights import mav
+
+                rig.command(mav.MAV_CMD_DO_SET_MODE, *rig.daemon.adapter.set_mode_params("mission", True))
                 self._asked = t
                 self.resumed.append(t)
         else:
