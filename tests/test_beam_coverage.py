@@ -125,7 +125,7 @@ def test_the_estimators_d_od_is_the_cover_of_the_corridor(fov, expect):
     d = est.estimate(0.01, 0.0, 2 * r_obst + X500_W)
     assert d.d_od == expect and d.stated_m == expect
     if expect == 0.0:
-        assert "cover the swept corridor ±0.68 m nowhere" in d.reason
+        assert "cover the swept corridor ±0.69 m nowhere" in d.reason  # 0.68 m, widened to the cycle's grid
     # the negative control: the claim alone (no corridor given) is the old D_od, the sensor's range
     assert est.estimate(0.02, 0.0).d_od == 12.0
 
@@ -180,7 +180,7 @@ def test_the_same_flight_with_a_60_degree_sensor_holds_short_of_the_column():
 def test_negative_control_the_claim_alone_flies_into_a_column_the_beam_never_sees():
     """The old rule (D_od the sensor's claim, no refusal): the 3° beam's edge rays reach ±0.314 m at 12 m, so a
     column edge 0.34 m off the track is never seen; the vehicle's side (r_body 0.38 m) hits it at cruise."""
-    full = lambda beams, w, beta: Cover(0.0, math.inf, w)  # noqa: E731
+    full = lambda beams, w, beta, grid=False: Cover(0.0, math.inf, w)  # noqa: E731
     with mock.patch.object(startup, "coverage_refusal", lambda *a: None), \
             mock.patch.object(estimators, "corridor_cover", full):
         rig = _fly(narrow_scenario(3, 0.34))
@@ -189,3 +189,21 @@ def test_negative_control_the_claim_alone_flies_into_a_column_the_beam_never_see
     dods = sorted(s["d_od"] for s in rig.log.states if s["t"] > 2.0)
     assert dods[len(dods) // 2] > 10.0  # the claim, mostly (swept where the velocity strays out of the 3° beam)
     assert not _fly(narrow_scenario(3, 0.34)).log.named("startup_check")[-1]["ok"]
+
+
+def test_the_cycles_grid_never_covers_more_than_the_exact_corridor():
+    """The daemon's per-cycle cover (`grid=True`: the direction rounded, the half-width widened and rounded up)
+    covers the corridor at no range where the exact one does not."""
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        beams = [Beam(rng.uniform(-40, 40), rng.uniform(2, 120), rng.uniform(3, 30)) for _ in range(rng.integers(1, 4))]
+        w, beta = rng.uniform(0.2, 1.5), rng.uniform(-0.6, 0.6)
+        g, e = corridor_cover(beams, w, beta, grid=True), corridor_cover(beams, w, beta)
+        assert g.half_width_m >= w
+        if g.covered:
+            mid = (g.lo + g.hi) / 2
+            assert e.covered and all(
+                any(abs((beta + off - math.radians(b.orientation_deg) + math.pi) % (2 * math.pi) - math.pi)
+                    <= math.radians(b.h_fov_deg) / 2 + 1e-9 and b.range_m >= r for b in beams)
+                for r in (g.lo + 1e-6, mid, g.hi) for off in np.linspace(-math.asin(min(w / r, 1)),
+                                                                           math.asin(min(w / r, 1)), 41))

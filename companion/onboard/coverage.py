@@ -128,18 +128,33 @@ def _cover(beams: tuple, half_width: float, beta: float) -> Cover:
     return Cover(math.inf, 0.0, half_width) if lo is None else Cover(lo, hi, half_width)
 
 
-def corridor_cover(beams: Iterable[Beam], half_width_m: float, beta: float = 0.0) -> Cover:
+BETA_STEP = 1e-3  # [rad] the direction of travel is rounded to this (the cache's key) ...
+WIDTH_STEP = 0.01  # [m] ... and the half-width rounded up to this, after widening it by what that rounding moves
+
+
+def corridor_cover(beams: Iterable[Beam], half_width_m: float, beta: float = 0.0, grid: bool = False) -> Cover:
     """The lowest range interval over which `beams` together cover the swept corridor of half-width
-    `half_width_m` (= r_body + E_tr) along body bearing `beta` [rad] (module docstring). Cached."""
+    `half_width_m` (= r_body + E_tr) along body bearing `beta` [rad] (module docstring). Cached; with `grid`
+    (the daemon's every cycle, where E_tr and the direction of travel vary continuously) on a grid that errs on
+    the safe side: `beta` rounded to BETA_STEP moves the corridor's edge at range r by at most r·BETA_STEP/2, so
+    the half-width is widened by that at the longest range, then rounded up to WIDTH_STEP (the cover of a wider
+    corridor is never longer)."""
     key = tuple(sorted((round(math.radians(b.orientation_deg), 9), round(math.radians(b.h_fov_deg) / 2, 9),
-                        round(float(b.range_m), 6)) for b in beams if b.range_m > 0 and b.h_fov_deg > 0))
-    return _cover(key, round(float(half_width_m), 6), round(float(beta), 6))
+                        math.floor(float(b.range_m) * 1e6) / 1e6)  # (a range never rounded up)
+                       for b in beams if 0 < b.range_m < math.inf and b.h_fov_deg > 0))
+    if not key or not math.isfinite(half_width_m) or not math.isfinite(beta):
+        return Cover(math.inf, 0.0, half_width_m)
+    if not grid:
+        return _cover(key, round(float(half_width_m), 9), round(float(beta), 9))
+    wide = half_width_m + max(r for _, _, r in key) * BETA_STEP / 2
+    w = math.ceil(round(wide / WIDTH_STEP, 6)) * WIDTH_STEP
+    return _cover(key, round(w, 6), round(round(beta / BETA_STEP) * BETA_STEP, 9))
 
 
-def covered_d_od(beams: Iterable[Beam], half_width_m: float, beta: float = 0.0) -> float:
+def covered_d_od(beams: Iterable[Beam], half_width_m: float, beta: float = 0.0, grid: bool = False) -> float:
     """`D_od` the beams guarantee for the corridor: the far end of the lowest covered interval (0: covered
     nowhere)."""
-    c = corridor_cover(beams, half_width_m, beta)
+    c = corridor_cover(beams, half_width_m, beta, grid)
     return c.hi if c.covered else 0.0
 
 

@@ -333,20 +333,21 @@ class DodEstimator:
         w = None if swept_half_m is None else max(swept_half_m, 0.0)
         short = False  # the beams cover less of the corridor along the direction of travel than they claim
         if covered and w is not None:  # the beams' cover of the corridor (companion/onboard/coverage.py)
-            cover = corridor_cover(beams, w, beta)
+            cover = corridor_cover(beams, w, beta, grid=True)
             if cover.hi < d:
                 short = True
-                d, reason = cover.hi, (f"the fresh, trusted sensors cover the swept corridor ±{w:.2f} m from "
-                                       f"{cover.lo:.2f} m to {cover.hi:.2f} m" if cover.covered else
-                                       f"the fresh, trusted sensors cover the swept corridor ±{w:.2f} m nowhere")
+                d, reason = cover.hi, (f"the fresh, trusted sensors cover the swept corridor ±{cover.half_width_m:.2f} m "
+                                       f"from {cover.lo:.2f} m to {cover.hi:.2f} m" if cover.covered else
+                                       f"the fresh, trusted sensors cover the swept corridor ±{cover.half_width_m:.2f} m "
+                                       "nowhere")
         if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
             d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
         swept = 0.0
         if (not covered or short) and self._yaw_hist:  # what was seen free on the way
             swept = self._swept(t, self._yaw_hist[-1][1] + beta)
             if swept > 0.0 and w is not None:  # no more than the beams can cover of the corridor along any axis
-                swept = min(swept, max((covered_d_od(beams, w, math.radians(b.orientation_deg)) for b in beams),
-                                       default=0.0))
+                swept = min(swept, max((covered_d_od(beams, w, math.radians(b.orientation_deg), grid=True)
+                                        for b in beams), default=0.0))
             if swept > d:
                 where = "outside the field of view" if not covered else "at the fields of view's edge"
                 d, reason = swept, (f"direction of travel {where}: {swept:.2f} m of it seen free in the last "
