@@ -135,6 +135,14 @@ def test_sqrt_controller():
     assert bl.ac_avoid_speed(1.5) == 0.0
 
 
+def test_ac_avoid_takes_its_own_parameters_and_ignores_the_others():
+    law = bl.ArduPilotAcAvoid(cruise_m_s=8.0)
+    law.take(AutopilotParam(0.0, "ANGLE_MAX", 3000.0))  # not its own: ignored (the law has no jerk)
+    law.take(AutopilotParam(0.0, "MPC_JERK_MAX", 8.0))
+    law.take(AutopilotParam(0.0, "AVOID_MARGIN", 1.5))
+    assert law.margin_m == 1.5
+
+
 def test_ac_avoid_boundary_of_one_forward_reading():
     """A forward reading of 6 m: face 0 valid; update_boundary puts edge points at ±22.5° and, the neighbours
     having no data, ±67.5° (the cup), all at 6 m. Obstacle 7 is the segment −22.5°..22.5°: its closest point

@@ -341,11 +341,8 @@ class ArduPilotAcAvoid:
                 self._distance_sensor(s)
             elif s.quality != 1:
                 self._obstacle_distance(s)
-        elif isinstance(s, AutopilotParam) and math.isfinite(s.value):
-            if s.name in self.PARAMS:
-                setattr(self, self.PARAMS[s.name], s.value)
-            elif s.name == self.jerk_param:
-                self.jerk = s.value
+        elif isinstance(s, AutopilotParam) and s.name in self.PARAMS and math.isfinite(s.value):
+            setattr(self, self.PARAMS[s.name], s.value)
 
     def healthy(self, t: float) -> bool:
         """`AP_Proximity_MAV::update`: Good while messages arrive within PROXIMITY_MAV_TIMEOUT_MS."""
