@@ -87,9 +87,11 @@ def test_px4_direction_without_data_is_not_flown_and_the_pitch_shortens_a_readin
     assert side.omega(inputs(0.1, 1.0)).v_max == 0.0  # bin 0 (the motion's) has no data, CP_GO_NO_DATA 0
     side.go_no_data = True
     # allowed: only bin 8 (80°) bounds forward motion: v∥ = cos 80° = 0.173648, delay = 0.173648·(0.4 + 0.1)
-    # = 0.086824, s = 3 − 1 − 0.086824 = 1.913176, c = −11.47906, v = (−9 + sqrt(126.4791))/2 = 1.132936,
-    # over cos 80°: 6.5243 (bins 9, 10 at 90°, 100° bound none)
-    assert side.omega(inputs(0.1, 1.0)).v_max == pytest.approx(6.5243, abs=2e-3)
+    # = 0.086824, s = 3 − 1 − 0.086824 = 1.913176; at MPC_JERK_MAX's default 8: b = 4·3²/8 = 4.5,
+    # c = −11.47906, v = (−4.5 + sqrt(66.16624))/2 = 1.817131, over cos 80°: 10.4644 (bins 9, 10 at 90°, 100°
+    # bound none)
+    assert side.jerk == 8.0
+    assert side.omega(inputs(0.1, 1.0)).v_max == pytest.approx(10.4644, abs=2e-3)
     law = bl.Px4CollisionPrevention()
     law.take(Throttle(0.0, 0.5, 0.0, math.radians(20.0), 0.0, True))
     law.take(beam(0.0, 6.0))
@@ -108,7 +110,19 @@ def test_px4_obstacle_distance_bins_and_reported_parameters():
     assert law.dist_cm[4] == bl.UINT16_MAX  # 40°: outside the message's bins
     law.take(AutopilotParam(0.0, "MPC_JERK_AUTO", 1.0))
     law.take(Heading(0.0, 0.0, 1.0))  # other samples are ignored
-    assert law.jerk == 1.0
+    assert law.jerk == 8.0  # the mission's jerk is not the law's: CollisionPrevention.cpp passes MPC_JERK_MAX
+    law.take(AutopilotParam(0.0, "MPC_JERK_MAX", 6.0))
+    law.take(AutopilotParam(0.0, "MPC_ACC_HOR", 2.5))
+    assert (law.jerk, law.acc_hor) == (6.0, 2.5)
+    auto = bl.Px4CollisionPrevention(jerk_param="MPC_JERK_AUTO")  # the separate mission-jerk arm
+    auto.take(AutopilotParam(0.0, "MPC_JERK_AUTO", 1.0))
+    assert auto.jerk == 1.0
+
+
+def test_the_firmware_jerk_is_faster_than_the_mission_jerk_where_it_is_drawn_low():
+    """computeMaxSpeedFromDistance at 5 m, MPC_ACC_HOR 3: J 8 → 3.67 m/s, J 4 → 2.59, J 1 → 0.81."""
+    for j, v in ((8.0, 3.67), (4.0, 2.59), (1.0, 0.81)):
+        assert bl.px4_max_speed_from_distance(j, 3.0, 5.0) == pytest.approx(v, abs=0.01)
 
 
 # ----------------------------------------------------------------------------- ArduPilot
@@ -119,6 +133,14 @@ def test_sqrt_controller():
     assert bl.sqrt_controller(5.0, 1.0, 1.0) == pytest.approx(math.sqrt(2 * (5.0 - 0.5)))
     assert bl.ac_avoid_speed(7.0, accel=3.0) == bl.ac_avoid_speed(7.0)  # AC_AVOID_ACCEL_CMSS_MAX
     assert bl.ac_avoid_speed(1.5) == 0.0
+
+
+def test_ac_avoid_takes_its_own_parameters_and_ignores_the_others():
+    law = bl.ArduPilotAcAvoid(cruise_m_s=8.0)
+    law.take(AutopilotParam(0.0, "ANGLE_MAX", 3000.0))  # not its own: ignored (the law has no jerk)
+    law.take(AutopilotParam(0.0, "MPC_JERK_MAX", 8.0))
+    law.take(AutopilotParam(0.0, "AVOID_MARGIN", 1.5))
+    assert law.margin_m == 1.5
 
 
 def test_ac_avoid_boundary_of_one_forward_reading():

@@ -57,7 +57,10 @@ def test_drawn_braking_is_what_the_sitl_brakes_with_and_the_px4_law_and_the_daem
     assert (rig.sim.autopilot.traj.acc_hor, rig.sim.autopilot.traj.jerk) == (pytest.approx(a, rel=1e-6),
                                                                             pytest.approx(j, rel=1e-6))
     law = rig.daemon.cycle.sup.policy
-    assert (law.acc_hor, law.jerk) == (pytest.approx(a, rel=1e-6), pytest.approx(j, rel=1e-6))  # as reported
+    # the drawn MPC_ACC_HOR as reported; the firmware's jerk MPC_JERK_MAX (its default 8), not the mission's
+    assert (law.acc_hor, law.jerk) == (pytest.approx(a, rel=1e-6), 8.0) and j < 8.0
+    auto = cg._policy("px4_cp_auto_jerk", s, spec)(rig.daemon.cfg)  # the separate arm: the mission's jerk
+    assert (auto.jerk, auto.jerk_param, auto.name) == (pytest.approx(j, rel=1e-6), "MPC_JERK_AUTO", "px4_cp_auto_jerk")
     assert rig.daemon.table.vehicle.braking.jerk_max_m_s3 == j  # the vehicle file the daemon checks and flies
     assert [e["ok"] for e in rig.log.events if e["event"] == "startup_check"][-1]
     assert row["sim_time_s"] > 5 and math.isfinite(row["mean_speed_m_s"])
@@ -97,3 +100,34 @@ def test_every_shipped_campaign_spec_loads():
     loaded = {p.name: cg.load_spec(p) for p in specs}  # a bad one raises CampaignError with its one line
     big = loaded["campaign-evidence-10k.yaml"]
     assert big.arms == ["governor", "governor_brake", "offboard"] and big.flights == 43500
+
+
+RESUME = {**BASE, "scenarios": 1, "arms": ["px4_cp"], "duration_s": 30,
+          "scenario": {**BASE["scenario"], "x_obst_m": 200.0, "wind_factor": 0.0, "gust_factor": 0.0, "cruise_m_s": 4},
+          "faults": [{"kind": "sensor_dropout", "p": 1, "at_s": 8, "duration_s": 0.8}]}
+
+
+class _Latched(cg.FirmwareResume):
+    """The negative control: the law's Hold kept to the end of the flight (no resume)."""
+
+    def __call__(self, rig) -> bool:
+        return self.trace(rig)
+
+
+@pytest.mark.parametrize("resumes", [True, False])
+def test_the_px4_law_resumes_after_a_momentary_limit_below_what_a_governor_can_command(resumes, monkeypatch):
+    """A 0.8 s sensor drop-out at 8 s: the law's map goes stale (no obstacle data: "not moving", limit 0), the
+    daemon holds; the data back, the firmware would go on. Resumed (the mission mode again, from its current item),
+    the flight goes on along its route; latched (the old baseline), it stands where it stopped."""
+    if not resumes:
+        monkeypatch.setattr(cg, "FirmwareResume", _Latched)
+    row, rig = cg.fly(cg.spec_from_dict(RESUME), 0, keep_rig=True)
+    assert "no safe speed" in row["failsafes"]
+    t_hold = rig.log.named("failsafe")[0]["t"]
+    x_hold = next(s["x"] for s in rig.log.states if s["t"] >= t_hold)
+    x_end = rig.log.states[-1]["x"]
+    if resumes:
+        assert len(row["resumed_s"]) == 1 and t_hold < row["resumed_s"][0] < t_hold + 2.0
+        assert x_end > x_hold + 30.0 and rig.log.states[-1]["state"] == "active"
+    else:
+        assert row["resumed_s"] == [] and x_end < x_hold + 3.0

@@ -96,6 +96,20 @@ def test_an_assumed_sensor_gives_the_limits_and_the_time_they_cost(blind):
     assert f"{limit:.2f} m/s" in line and f"added {s['extra_s']:.0f} s" in line
 
 
+def test_an_assumed_narrow_beam_is_judged_by_its_cover_of_the_corridor_as_the_daemon_does(blind):
+    """A 3° lidar rated 12 m covers the X500's corridor (r_body 0.38 + E_tr 0.3 m) at no range: the contract's
+    limit with it is 0 (the daemon's own D_od); a 12 m / 60° sensor gets its range (the negative control)."""
+    rep = review(blind, sensor=Sensor(12.0, 3.0))
+    s = rep["detection_need"]["sensor"]
+    assert s["d_od_min"] == 0.0 and s["limit_max"] == 0.0 and s["uncovered_s"] == pytest.approx(30.0, abs=0.15)
+    assert any("covers the vehicle's swept corridor (r_body + E_tr) at no range" in x for x in rep["findings"])
+    wide = review(blind, sensor=Sensor(12.0, 60.0))["detection_need"]["sensor"]
+    assert wide["d_od_min"] == 12.0 and wide["uncovered_s"] == 0.0
+    assert wide["limit_min"] == pytest.approx(TABLE.omega(12.0, R_OBST, E_TR, THRUST, contract="stop").v_max)
+    # a beam that covers the corridor only beyond its range at the flown E_tr: 8° at 5 m covers ±0.35 m
+    assert review(blind, sensor=Sensor(5.0, 8.0))["detection_need"]["sensor"]["d_od_min"] == 0.0
+
+
 def test_thrust_below_the_tables_range_needs_more_than_any_range(tmp_path):
     lo = TABLE.vehicle.thrust_ratio_range[0]
     blind_flight(tmp_path, legs=((10.0, 2.0),), thrust=lo - 0.05)

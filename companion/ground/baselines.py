@@ -43,11 +43,15 @@ PX4-Autopilot (the stored version 001d722; the older 970e500 has the same law on
   (`b = 4a²/J`, `c = −2a·s`, `(−b + sqrt(b² − 4c))/2`). There is no `MPC_XY_P·s` term (MPC_XY_P only
   scales the stick input, `_getScale`). A bin whose reading is out of range holds `max_distance` and so
   limits the speed too, without the age term.
-- the jerk: the firmware's law passes MPC_JERK_MAX because it runs only in Position mode, whose stick
-  acceleration is slewed at MPC_JERK_MAX (`FlightTaskManualAcceleration` / `StickAccelerationXY`:
-  `setSlewRate(_param_mpc_jerk_max.get())`). In a mission (auto mode) the autopilot's trajectory brakes
-  at MPC_JERK_AUTO, so flown as a governor of a mission the law uses that (`jerk`; the campaign sets it to
-  the autopilot's MPC_JERK_AUTO and MPC_ACC_HOR, and a parameter the autopilot reports overrides them).
+- the jerk: the firmware passes MPC_JERK_MAX (default 8 m/s³; its Position mode slews the stick acceleration at
+  it, `FlightTaskManualAcceleration` / `StickAccelerationXY`: `setSlewRate(_param_mpc_jerk_max.get())`). The
+  law here does the same (`jerk`, `jerk_param` MPC_JERK_MAX; MPC_ACC_HOR the autopilot's), arm `px4_cp`. A
+  mission (auto mode) brakes at MPC_JERK_AUTO instead, which slows the law where it is drawn low (at 5 m:
+  jerk 8 → 3.67 m/s, 4 → 2.59, 1 → 0.81): that variant is the separate arm `px4_cp_auto_jerk`, never the peer.
+- no latch: the firmware only bounds the velocity, so a limit that dips to 0 and rises again lets the vehicle go
+  on. Flown as a governor, a limit below 0.2 m/s is the daemon's Hold, which a governor keeps until someone
+  changes the mode; the campaign's rig resumes the mission as soon as the law's limit is back (`campaign.
+  FirmwareResume`), as the firmware would.
 
 **ArduPilot AC_Avoid** (Copter's default `AVOID_BEHAVE` Slide) — `libraries/AC_Avoidance/AC_Avoid.cpp`
 `adjust_velocity` → `adjust_velocity_proximity` → `limit_velocity_3D` → `limit_velocity_2D` →
@@ -161,13 +165,14 @@ class Px4CollisionPrevention:
     min_distance_m: float = 0.1  # the sensor's own minimum distance (the map's min_distance)
     cp_delay_s: float = 0.4  # CP_DELAY
     acc_hor: float = 3.0  # MPC_ACC_HOR
-    jerk: float = 4.0  # MPC_JERK_AUTO (auto mode); the firmware's Position mode: MPC_JERK_MAX
+    jerk: float = 8.0  # MPC_JERK_MAX's default, as CollisionPrevention.cpp computes the speed
+    jerk_param: str = "MPC_JERK_MAX"  # the parameter `jerk` is (a report of it overrides): MPC_JERK_AUTO in the variant
     go_no_data: bool = False  # CP_GO_NO_DATA
     cruise_m_s: float = math.inf
     tilt: float = 0.0  # the tilt Ω carries (for the log only)
     name: str = "px4_cp"
-    # the autopilot's parameters that override the above when it reports them (AutopilotParam)
-    PARAMS = {"CP_DIST": "cp_dist_m", "CP_DELAY": "cp_delay_s", "MPC_ACC_HOR": "acc_hor", "MPC_JERK_AUTO": "jerk"}
+    # the autopilot's parameters that override the above when it reports them (AutopilotParam), with `jerk_param`
+    PARAMS = {"CP_DIST": "cp_dist_m", "CP_DELAY": "cp_delay_s", "MPC_ACC_HOR": "acc_hor"}
     stop_hold = False  # the law is the whole answer to an obstacle: the daemon's stop-distance Hold is off
     inflate_e_tr = True
 
@@ -188,8 +193,11 @@ class Px4CollisionPrevention:
                 self._add_obstacle_distance(s)
         elif isinstance(s, Throttle):
             self.roll, self.pitch = s.roll, s.pitch
-        elif isinstance(s, AutopilotParam) and s.name in self.PARAMS and math.isfinite(s.value):
-            setattr(self, self.PARAMS[s.name], s.value)
+        elif isinstance(s, AutopilotParam) and math.isfinite(s.value):
+            if s.name in self.PARAMS:
+                setattr(self, self.PARAMS[s.name], s.value)
+            elif s.name == self.jerk_param:
+                self.jerk = s.value
 
     def _enter(self, i: int, sensor_range: float, reading: float) -> bool:
         """`_enterData`: in range beats out of range; of two in range, the shorter-range sensor's."""

@@ -54,7 +54,9 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
       - {kind: cmd_burst, p: 0.5, at_s: [4, 10], duration_s: 0.5}
       - {kind: cmd_jitter, p: 0.5, at_s: 1, max_s: 0.1}
 
-Arms: `governor` and `offboard` (ours), `px4_cp` and `ac_avoid` (the autopilots' laws as governors),
+Arms: `governor` and `offboard` (ours), `px4_cp` and `ac_avoid` (the autopilots' laws as governors; `px4_cp` at
+the firmware's jerk MPC_JERK_MAX and resuming as the firmware does, `px4_cp_auto_jerk` the same law at the
+mission's MPC_JERK_AUTO),
 `no_guard` (daemon off), and the negative controls `<mode>_x<k>` (the contract's speed × k) and
 `<mode>_no_etr` (the contract without the E_tr inflation); `governor_brake` is the governor with its recovery brake
 (`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking); `governor_ramp` the
@@ -83,7 +85,7 @@ Num = Annotated[float, Field(allow_inf_nan=False)]
 Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
-BASELINES = ("px4_cp", "ac_avoid", "no_guard")
+BASELINES = ("px4_cp", "px4_cp_auto_jerk", "ac_avoid", "no_guard")
 ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|ramp)$")
 RAMP_ARM_M_S = 0.3  # the approach ramp of the `governor_ramp` arm
 LINK_FAULTS = ("cmd_loss", "cmd_burst", "cmd_jitter")  # the daemon's outbound datagrams (flights.OutboundFaults)
@@ -375,6 +377,42 @@ def classify(s: dict) -> tuple[bool, list[str]]:
     return bool(ok), sorted(stresses)
 
 
+def flown_speed(states) -> tuple[float | None, float]:
+    """(the largest Γ_flown = ground speed − V_safe, the time it exceeded `SPEED_TOLERANCE_M_S`) over a flight's
+    state samples while the daemon was engaged: the contract evaluated on the flight itself (the review's rule).
+    (None, 0) when no engaged sample carries it."""
+    from .review_checks import SPEED_TOLERANCE_M_S
+
+    worst, over_s, prev = None, 0.0, None
+    for x in states:
+        g = x.get("gamma_flown")
+        if not x.get("engaged") or g is None or not math.isfinite(g):
+            prev = None
+            continue
+        worst = g if worst is None else max(worst, g)
+        if prev is not None and prev[1] > SPEED_TOLERANCE_M_S:
+            over_s += x["t"] - prev[0]
+        prev = (x["t"], g)
+    return worst, over_s
+
+
+def strict(row: dict) -> tuple[bool, list[str], bool]:
+    """The strict classifier: (in contract, why not, judged in full). In contract only where every subsystem's
+    guarantee held as stated: in assumption (`classify`), no violation the daemon logged, and ground speed never
+    above V_safe by more than the review's tolerance (Γ_flown, `flown_speed`), however the flight came there —
+    honest fog that cuts D_od faster than the vehicle can slow is outside the contract while Γ_flown > 0. A row
+    flown before Γ_flown was kept is judged by the rest (`judged in full` False)."""
+    from .review_checks import SPEED_TOLERANCE_M_S
+
+    why = [] if row["in_assumption"] else ["outside assumption"]
+    why += [f"{sub} violation" for sub in dict.fromkeys(v["subsystem"] for v in row.get("violations", []))]
+    full = "gamma_flown_max" in row
+    g = row.get("gamma_flown_max")
+    if g is not None and g > SPEED_TOLERANCE_M_S:
+        why.append("ground speed above V_safe")
+    return not why, why, full
+
+
 def flight_of(spec: CampaignSpec, i: int) -> tuple[dict, str]:
     if not 0 <= i < spec.flights:
         raise CampaignError(f"flight {i}: the campaign has flights 0..{spec.flights - 1}")
@@ -497,17 +535,57 @@ class _Trace:
         return over and t >= self.hold_on_until
 
 
+RESUME_AFTER_S = 0.2  # [s] the law's limit back at MIN_SPEED or above this long before the mission is resumed
+RESUME_EVERY_S = 1.0  # [s] a resume asked at most this often (the autopilot's answer takes a moment)
+
+
+class FirmwareResume:
+    """The PX4 law flown as the firmware flies it: Collision Prevention only bounds the velocity, so a limit that
+    dips below what the governor can command and rises again lets the vehicle go on. The daemon answers such a
+    limit with its "no safe speed" Hold, which a governor keeps until someone changes the mode; here the ground
+    station switches the autopilot back to its mission mode (MAV_CMD_DO_SET_MODE: the mission goes on from its
+    current item) once the law's own limit (the state samples' `v_max`) has been at the least commandable speed or
+    above for `RESUME_AFTER_S`. Wraps the flight's `_Trace` (called every cycle)."""
+
+    def __init__(self, trace: "_Trace"):
+        self.trace = trace
+        self.resumed: list[float] = []  # when the mission was resumed
+        self._ok_since: float | None = None
+        self._asked = -math.inf
+
+    def __call__(self, rig) -> bool:
+        from .baselines import MIN_SPEED
+
+        st = rig.log.states[-1] if rig.log.states else None
+        t = rig.sim.time_s
+        held = st is not None and st.get("state") == "holding" and any(
+            e["cause"] == "no safe speed" for e in rig.log.named("failsafe")[-1:])
+        if held and (st.get("v_max") or 0.0) >= MIN_SPEED:
+            self._ok_since = t if self._ok_since is None else self._ok_since
+            if t - self._ok_since >= RESUME_AFTER_S and t - self._asked >= RESUME_EVERY_S:
+                from .flights import mav
+
+                rig.command(mav.MAV_CMD_DO_SET_MODE, *rig.daemon.adapter.set_mode_params("mission", True))
+                self._asked = t
+                self.resumed.append(t)
+        else:
+            self._ok_since = None
+        return self.trace(rig)
+
+
 def _policy(arm: str, s: dict, spec: CampaignSpec):
     """The speed policy an arm flies (None: the contract's own): a baseline law, as a function of the daemon's
-    Config (its sensors' mounts), or a negative control. The PX4 law brakes at the autopilot's auto-mode settings
-    (MPC_ACC_HOR, MPC_JERK_AUTO: the scenario's braking); AC_Avoid is not limited above the mission's cruise speed."""
+    Config (its sensors' mounts), or a negative control. The PX4 law brakes at the autopilot's MPC_ACC_HOR (the
+    scenario's) and the firmware's MPC_JERK_MAX (`px4_cp`), or the mission's MPC_JERK_AUTO (`px4_cp_auto_jerk`);
+    AC_Avoid is not limited above the mission's cruise speed."""
     from .baselines import ArduPilotAcAvoid, Px4CollisionPrevention, Scaled, WithoutEtr, mounts
 
-    if arm == "px4_cp":
+    if arm in ("px4_cp", "px4_cp_auto_jerk"):
         brk = _braking(s)
+        # the firmware's jerk (MPC_JERK_MAX, its default); the variant the mission's (MPC_JERK_AUTO, drawn)
+        jerk = dict(jerk=brk.jerk_max_m_s3, jerk_param="MPC_JERK_AUTO", name=arm) if arm == "px4_cp_auto_jerk" else {}
         return lambda cfg: Px4CollisionPrevention(sensors=mounts(cfg.sensors), cp_dist_m=spec.px4_cp_dist_m,
-                                                  acc_hor=brk.accel_max_m_s2, jerk=brk.jerk_max_m_s3,
-                                                  cruise_m_s=s["cruise_m_s"])
+                                                  acc_hor=brk.accel_max_m_s2, cruise_m_s=s["cruise_m_s"], **jerk)
     if arm == "ac_avoid":
         return lambda cfg: ArduPilotAcAvoid(cruise_m_s=s["cruise_m_s"], sensors=mounts(cfg.sensors))
     m = ARM_RE.match(arm)
@@ -550,14 +628,17 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     if arm.endswith("_claim"):  # negative control: no detection range from evidence
         rig.daemon.cycle.sensing.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     seconds = spec.duration_s
+    until = FirmwareResume(trace) if arm in ("px4_cp", "px4_cp_auto_jerk") else trace
     if mode_of(mode).flies_route:
-        engage_and_fly(rig, seconds, trace)
+        engage_and_fly(rig, seconds, until)
     else:
-        fly_mission(rig, seconds, trace)
+        fly_mission(rig, seconds, until)
     if rig.outbound is not None:  # classified by its own delivery
         s = {**s, "delivery": delivery_of(rig)}
         s["in_assumption"], s["stresses"] = classify(s)
     row = result_row(spec, i, s, arm, rig, trace)
+    if isinstance(until, FirmwareResume):
+        row["resumed_s"] = until.resumed
     return (row, rig) if keep_rig else row
 
 
@@ -655,7 +736,8 @@ def result_row(spec: CampaignSpec, i: int, s: dict, arm: str, rig, trace: _Trace
     moving = [r[3] for r in trace.rows if t0 is not None and t0 <= r[0] <= t_end and r[3] > 0.3]
     log = rig.log
     viol = [{"subsystem": e["subsystem"], "t": e["t"]} for e in log.named("violation_start")]
-    return {
+    g_max, g_over_s = flown_speed(log.states)
+    row = {
         "index": i, "arm": arm, "mode": arm_mode(arm), **s,
         "collided": bool(cols), "contact_speed_m_s": None if contact is None else contact[3],
         "min_clearance_m": _finite(truth["min_clearance_m"]),
@@ -671,7 +753,10 @@ def result_row(spec: CampaignSpec, i: int, s: dict, arm: str, rig, trace: _Trace
         "holds": len({e["t"] for e in log.events if e["event"] in ("failsafe", "hold_trigger")
                       and e.get("action") == "hold"}),
         "sim_time_s": rig.sim.time_s,
+        "gamma_flown_max": g_max, "gamma_flown_over_s": g_over_s,
     }
+    row["in_contract"], row["outside_contract"], _ = strict(row)
+    return row
 
 
 def _finite(x):

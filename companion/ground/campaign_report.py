@@ -4,10 +4,15 @@ PNG; matplotlib is imported here only — offline, never on the daemon's path).
 Per arm and per group of scenarios (all, in assumption, nominal = in assumption without faults, and each
 stress: hidden fog, thrust loss, wind beyond design, a link fault, a command delivered late; and each named stress
 of a spec's `stresses`, `stress_markdown`): the flights in assumption, the collision rate with its exact
-Clopper–Pearson 95 % interval (two-sided; its upper end is the bound quoted), the distribution of the minimum
+Clopper–Pearson 95 % interval (two-sided, `cp95_low` … `cp95_high`) and the one-sided 95 % upper bound
+(`upper95_one_sided`: the rate that k or fewer collisions in n would show with 5 % probability; for 0 in n it is
+1 − 0.05^(1/n), lower than the two-sided interval's upper end 1 − 0.025^(1/n)), the distribution of the minimum
 clearance to the true surface, the mean speed while moving and the time to destination, and the route completion. Ratios:
 each arm against each baseline over the same scenarios (paired: the mean speed over the scenarios both
-flew; the time to destination over those both completed). The fault matrix: fault kind × subsystem
+flew; the time to destination over those both completed). Two counts of the flights within the contract: lenient
+(`in_assumption`: the sampled conditions alone, `campaign.classify`) and strict (`in_contract`: also no violation
+logged and ground speed never above V_safe beyond the review's tolerance, `campaign.strict`), each with its
+collisions and bounds; rows flown before Γ_flown was kept are judged strictly by their violations alone (said). The fault matrix: fault kind × subsystem
 attributed × action → occurrences, detections, latency. The worst flights, with the command that re-flies
 each.
 """
@@ -22,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .campaign import BASELINES, refly_command
+from .campaign import BASELINES, refly_command, strict
 
-GROUPS = ("all", "in_assumption", "nominal", "hidden_fog", "thrust_loss", "thrust_below_range", "wind_beyond_design",
+GROUPS = ("all", "in_assumption", "in_contract", "nominal", "hidden_fog", "thrust_loss", "thrust_below_range", "wind_beyond_design",
           "obstacle_wider_than_r_obst", "link_loss", "sensor_dropout", "bad_nav", "cmd_loss", "cmd_burst", "cmd_jitter",
           "delivery")
 
@@ -41,11 +46,23 @@ def clopper_pearson(k: int, n: int, confidence: float = 0.95) -> tuple[float, fl
     return lo, hi
 
 
+def one_sided_upper(k: int, n: int, confidence: float = 0.95) -> float:
+    """The exact one-sided upper bound of a binomial rate, k successes in n: the rate at which k or fewer occur
+    with probability 1 − confidence (Clopper–Pearson's upper end at level 1 − confidence, not split in two)."""
+    from scipy.stats import beta
+
+    if n == 0 or k == n:
+        return 1.0
+    return float(beta.ppf(confidence, k + 1, n - k))
+
+
 def in_group(r: dict, g: str) -> bool:
     if g == "all":
         return True
     if g == "in_assumption":
         return r["in_assumption"]
+    if g == "in_contract":
+        return strict(r)[0]
     if g == "nominal":
         return r["in_assumption"] and not r["faults"]
     return g in r["stresses"]
@@ -62,8 +79,19 @@ def arm_stats(rows: list[dict]) -> dict:
              for r in rows if r["min_clearance_m"] is not None]
     times = [r["time_to_destination_s"] for r in rows if r["time_to_destination_s"] is not None]
     lo, hi = clopper_pearson(k, n)
-    return {"flights": n, "in_assumption": sum(r["in_assumption"] for r in rows), "collisions": k,
-            "rate": k / n if n else None, "cp95_low": lo, "cp95_high": hi,
+    judged = [strict(r) for r in rows]
+    why: dict[str, int] = defaultdict(int)
+    for (ok, reasons, _), r in zip(judged, rows):
+        if r["in_assumption"] and not ok:
+            for x in reasons:
+                why[x] += 1
+    return {"flights": n, "in_assumption": sum(r["in_assumption"] for r in rows),
+            "in_contract": sum(ok for ok, _, _ in judged),
+            "in_assumption_outside_contract": sum(r["in_assumption"] and not ok for (ok, _, _), r in zip(judged, rows)),
+            "outside_contract_why": dict(sorted(why.items())),
+            "strict_judged_in_full": all(full for _, _, full in judged),
+            "collisions": k, "rate": k / n if n else None, "cp95_low": lo, "cp95_high": hi,
+            "upper95_one_sided": one_sided_upper(k, n),
             "clearance_m": {"min": min(clear) if clear else None, "p5": _pct(clear, 5), "p50": _pct(clear, 50),
                             "p95": _pct(clear, 95)},
             "mean_speed_m_s": float(np.mean([r["mean_speed_m_s"] for r in rows])) if rows else None,
@@ -150,15 +178,24 @@ def _f(x, fmt="{:.3g}"):
 
 
 def format_summary(s: dict) -> str:
-    lines = [f"campaign: {s['flights']} flights"]
+    lines = [f"campaign: {s['flights']} flights (95 % upper bounds of the collision rate: exact, one-sided / the "
+             "upper end of the two-sided Clopper–Pearson interval; in assumption: the conditions sampled; in contract: "
+             "also no violation and ground speed never above V_safe + tolerance)"]
     for a in s["arms"]:
-        for g in ("all", "in_assumption"):
+        for g in ("all", "in_assumption", "in_contract"):
             st = s["per_arm"][a][g]
             if st["flights"]:
                 lines.append(f"  {a:16s} {g:14s} {st['flights']:5d} flights, {st['collisions']:4d} collisions "
-                             f"(95 % CP upper {_f(st['cp95_high'], '{:.4f}')}), mean speed {_f(st['mean_speed_m_s'])} m/s, "
+                             f"(95 % upper {_f(st['upper95_one_sided'], '{:.4%}')} one-sided / "
+                             f"{_f(st['cp95_high'], '{:.4%}')} two-sided), mean speed {_f(st['mean_speed_m_s'])} m/s, "
                              f"completion {_f(st['route_completion'], '{:.0%}')}, min clearance "
                              f"{_f(st['clearance_m']['min'], '{:.2f}')} m")
+        ia = s["per_arm"][a]["in_assumption"]
+        if ia["in_assumption_outside_contract"]:
+            why = ", ".join(f"{k} {v}" for k, v in ia["outside_contract_why"].items())
+            lines.append(f"  {a:16s} in assumption but outside the contract: {ia['in_assumption_outside_contract']} "
+                         f"({why})" + ("" if ia["strict_judged_in_full"] else
+                                        "; rows without Γ_flown: judged by their violations only"))
     if any(s["per_stress"].values()):
         lines.append(stress_markdown(s))
     for a, rs in s["ratios"].items():
@@ -173,7 +210,7 @@ def format_summary(s: dict) -> str:
 def stress_markdown(s: dict) -> str:
     """Per named stress and arm (a spec's `stresses`): flights in assumption, collisions, their 95 % upper bound,
     speed, time, routes."""
-    lines = ["| stress | arm | flights | in assumption | collisions | 95 % upper | mean speed [m/s] "
+    lines = ["| stress | arm | flights | in assumption | collisions | 95 % upper (two-sided CP) | mean speed [m/s] "
              "| time to destination [s] | routes completed |", "|---|---|---|---|---|---|---|---|---|"]
     for st in dict.fromkeys(k for d in s["per_stress"].values() for k in d):
         for a in s["arms"]:
@@ -223,10 +260,16 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
     fig.tight_layout()
     fig.savefig(out / "speed.png", dpi=110)
     plt.close(fig)
-    per = [[a, g, st["flights"], st["collisions"], _f(st["cp95_high"], "{:.4f}"), _f(st["clearance_m"]["min"]),
+    per = [[a, g, st["flights"], st["collisions"], _f(st["upper95_one_sided"], "{:.4f}"), _f(st["cp95_high"], "{:.4f}"),
+            _f(st["clearance_m"]["min"]),
             _f(st["clearance_m"]["p50"]), _f(st["mean_speed_m_s"]), _f(st["time_to_destination_s"]),
             _f(st["route_completion"], "{:.0%}")]
            for a in arms for g, st in s["per_arm"][a].items() if st["flights"]]
+    out_of_contract = [[a, s["per_arm"][a]["in_assumption"]["flights"],
+                        s["per_arm"][a]["in_assumption"]["in_assumption_outside_contract"],
+                        ", ".join(f"{k} {v}" for k, v in s["per_arm"][a]["in_assumption"]["outside_contract_why"].items())
+                        + ("" if s["per_arm"][a]["in_assumption"]["strict_judged_in_full"] else
+                           " (rows without Γ_flown: violations only)")] for a in arms]
     rat = [[a, b, q["scenarios"], _f(q["speed_ratio"]), _f(q["time_ratio"]), q["both_completed"]]
            for a, rs in s["ratios"].items() for b, q in rs.items()]
     fm = [[c["mode"], c["fault"], c["subsystem"], c["action"], f"{c['flights']}/{c['of_kind']}",
@@ -241,7 +284,12 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>contract-guard campaign</title>
 <style>body{{font-family:sans-serif}} table{{border-collapse:collapse}} td,th{{border:1px solid #999;padding:2px 6px}}</style>
 </head><body><h1>Campaign: {s['flights']} flights</h1>
-<h2>Per arm and group</h2>{_table(per, ["arm", "group", "flights", "collisions", "CP 95 % upper", "min clearance",
+<h2>Per arm and group</h2>
+<p>In assumption: the sampled conditions; in contract: also no violation and ground speed never above V_safe by
+more than the review's tolerance. Upper bounds of the collision rate: exact one-sided 95 %, and the upper end of the
+two-sided 95 % Clopper–Pearson interval.</p>{_table(out_of_contract, ["arm", "in assumption", "of them outside the contract", "why"])}
+{_table(per, ["arm", "group", "flights", "collisions", "95 % upper (one-sided)", "CP 95 % upper (two-sided)",
+                                          "min clearance",
                                           "median clearance", "mean speed", "time to destination", "completion"])}
 <h2>Per named stress</h2>{_table(ps, ["stress", "arm", "flights", "in assumption", "collisions", "CP 95 % upper",
                                      "mean speed", "time to destination", "completion"])}

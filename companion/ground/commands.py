@@ -305,9 +305,10 @@ def raw_log_of(paths) -> Path | None:
 
 
 def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, gap_s: float = 1.0,
-               tolerance_m_s: float = 0.2, sensor=None):
+               tolerance_m_s: float | None = None, sensor=None):
     """(report, origin) for event logs, or for one raw log replayed into an event log first (`origin`
-    says what it was made from; None for an event log). `config`, `vehicle`, `table`: for the replay."""
+    says what it was made from; None for an event log). `config`, `vehicle`, `table`: for the replay;
+    `tolerance_m_s`: None, the review's (`review_checks.SPEED_TOLERANCE_M_S`)."""
     import shutil
     import tempfile
 
@@ -315,6 +316,9 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
 
     from .flightlogs import check_file, guarded, replay_log
     from .review import review
+    from .review_checks import SPEED_TOLERANCE_M_S
+
+    tolerance_m_s = SPEED_TOLERANCE_M_S if tolerance_m_s is None else tolerance_m_s
 
     raw = raw_log_of(paths)
     if raw is None:

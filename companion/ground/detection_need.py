@@ -8,8 +8,10 @@ of every metre and says nothing. Instead, for each state sample flown at ground 
   under the flight's contract (the table's own lookup `ContractTable.omega`, its V_max being the largest speed
   with Γ ≤ 0 at that `d_od`; V_max rises with `d_od`, so a bisection finds it);
 - with an **assumed sensor** of range `range_m` (and a field of view, stated): the limit the contract would
-  have set (`omega(d_od = range_m).v_max`), the time flown above it and the time flying those stretches at the
-  limit would have added (distance ÷ limit − time taken).
+  have set (`omega(d_od).v_max`), the time flown above it and the time flying those stretches at the
+  limit would have added (distance ÷ limit − time taken). With a field of view, `d_od` is what the sensor, pointed
+  along the direction of travel, covers of the swept corridor r_body + E_tr at each sample (the daemon's own rule,
+  `companion.onboard.coverage`: 0 where it covers it nowhere); without one, its range.
 
 Conservative rounding: speeds and E_tr rounded up, thrust down, before a cached lookup; a required range is the
 upper end of its bisection. Pure (no I/O): samples are rows of `review.CSV_COLUMNS`.
@@ -22,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable
 
+from companion.onboard.coverage import Beam, covered_d_od, half_width
 from contracts.errors import ContractError
 
 MIN_SPEED = 0.2  # m/s: below this the vehicle hovers (the supervisor's own least speed command)
@@ -30,6 +33,7 @@ D_TOL = 0.05  # m: bisection tolerance on d_od
 D_MAX = 1000.0  # m: beyond this no range is reported (the table's speeds end first)
 RANGES_M = (5.0, 10.0, 20.0, 40.0)  # the usual sensors' ranges (lidar, ToF, stereo, radar), for the coverage line
 QUANTILES = (0.5, 0.9, 0.99)
+E_TR_LEAST = 0.3  # m: the daemon's default E_tr floor, the least tracking error an assumed sensor's corridor holds
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,13 @@ class Sensor:
 
     range_m: float
     fov_deg: float | None = None
+
+    def d_od(self, r_body_m: float, e_tr_m: float) -> float:
+        """The D_od this sensor guarantees along the direction of travel for the swept corridor r_body + E_tr
+        (its range when no field of view is stated)."""
+        if self.fov_deg is None:
+            return self.range_m
+        return covered_d_od([Beam(0.0, self.fov_deg, self.range_m)], half_width(r_body_m, e_tr_m))
 
     @classmethod
     def parse(cls, text: str) -> "Sensor":
@@ -127,7 +138,8 @@ def detection_need(samples: Iterable[tuple], columns: tuple, table, sensor: Sens
     stretches: dict[int, dict] = {}
     worst = None
     beyond = {"s": 0.0, "v_max": None}  # flown faster than any d_od allows (the table's speeds end)
-    cost = {"above_s": 0.0, "extra_s": 0.0, "spans": [], "limit_min": None, "limit_max": None, "no_speed_s": 0.0}
+    cost = {"above_s": 0.0, "extra_s": 0.0, "spans": [], "limit_min": None, "limit_max": None, "no_speed_s": 0.0,
+            "d_od_min": None, "uncovered_s": 0.0}
     span = None
     prev = None
     for row in samples:
@@ -172,7 +184,10 @@ def detection_need(samples: Iterable[tuple], columns: tuple, table, sensor: Sens
         if need >= st["d_od_m"]:
             st["d_od_m"], st["ground_speed"], st["at_t"] = need, max(st["ground_speed"], pv), t0
         if sensor is not None:
-            lim = 0.0 if key is None else look.v_max(sensor.range_m, key)
+            d_od = sensor.d_od(table.vehicle.r_body_m, max(key[2] if key is not None else e_tr, E_TR_LEAST))
+            cost["d_od_min"] = d_od if cost["d_od_min"] is None else min(cost["d_od_min"], d_od)
+            cost["uncovered_s"] += dt if d_od <= 0.0 else 0.0
+            lim = 0.0 if key is None or d_od <= 0.0 else look.v_max(d_od, key)
             cost["limit_min"] = lim if cost["limit_min"] is None else min(cost["limit_min"], lim)
             cost["limit_max"] = lim if cost["limit_max"] is None else max(cost["limit_max"], lim)
             if pv > lim:
@@ -247,6 +262,12 @@ def _findings(out: dict) -> list[str]:
     s = out.get("sensor")
     if s is not None:
         what = Sensor(s["range_m"], s["fov_deg"]).describe()
+        if s.get("uncovered_s"):
+            lines.append(f"with a {what}: the sensor covers the vehicle's swept corridor (r_body + E_tr) at no range "
+                         f"for {s['uncovered_s']:.0f} s of the flight: D_od 0 there, no speed is safe (a wider sensor)")
+        elif s.get("d_od_min") is not None and s["d_od_min"] < s["range_m"]:
+            lines.append(f"with a {what}: its beam covers the swept corridor only out to {s['d_od_min']:.1f} m at the "
+                         "widest tracking error flown: that is its D_od, not its range")
         if s["limit_min"] is None:
             lines.append(f"with a {what}: nothing flown to judge")
         elif s["above_s"] == 0:

@@ -40,7 +40,7 @@ from contracts import csvfile
 from contracts.errors import ContractError
 
 from . import review_checks
-from .review_checks import Checks, RunFacts, command_text, facts_of_start, refused
+from .review_checks import SPEED_TOLERANCE_M_S, Checks, RunFacts, command_text, facts_of_start, refused
 from .review_html import PAGE, verdict, write_flight_page
 
 SCHEMA = "contract-guard/review"
@@ -531,7 +531,7 @@ class _Summary:
         return rep
 
 
-def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
+def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: float = SPEED_TOLERANCE_M_S,
               facts_of=facts_of_start) -> dict:
     """The report for a sequence of records (oldest first). Pure: no I/O; never raises on odd records.
 
@@ -714,7 +714,7 @@ def _log_files(paths) -> list[Path]:
     return files
 
 
-def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
+def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = SPEED_TOLERANCE_M_S,
            origin: Origin | None = None, sensor=None, collisions=None) -> dict:
     """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON.
     `origin`: what a converter made the log from (its section and findings join the report). A log without
@@ -739,7 +739,7 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
     return rep
 
 
-def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = 0.2,
+def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = SPEED_TOLERANCE_M_S,
             keep_samples: bool = False, origin: Origin | None = None) -> tuple[dict, list[tuple] | None]:
     """(report, state rows in `CSV_COLUMNS` order or None) for event-log files."""
     reader = read_events(files)

@@ -31,9 +31,9 @@ def cmd_run(args) -> int:
 
     from contracts.table import load_for_vehicle
 
+    from .assumptions import controller_contract
     from .config import weakened
     from .console import ConsoleLog, banner
-    from .assumptions import controller_contract
     from .daemon import Daemon
     from .eventlog import EventLog
     from .inputs import check_inputs
@@ -45,6 +45,12 @@ def cmd_run(args) -> int:
     if cfg.daemon_mode.contract == "avoid" and table.avoid is None:
         raise ContractError(f"mode {cfg.mode} needs an avoid contract; table {table.path} carries the stop "
                             "contract only")
+    if cfg.daemon_mode.commands:  # a set-up whose beams cover the swept corridor nowhere is refused before the link
+        from .assumptions import e_tr_floor
+        from .coverage import refusal
+
+        if (why := refusal(cfg.sensors, table.vehicle.r_body_m, e_tr_floor(cfg, table))) is not None:
+            raise ContractError(f"config {args.config}: {cfg.mode} mode refused: {why}")
     inputs = check_inputs(cfg, table)  # the same refusals for --check as for the run (nothing recorded yet)
     if args.check:
         for line in banner(cfg, table, controller_contract(cfg, table)):

@@ -206,7 +206,8 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
                         f"rated {'(none: claims trusted, shadow only)' if s.max_range_m is None else f'{s.max_range_m:g} m'}"
                         for k, s in enumerate(cfg.sensors)) or "none (D_od is 0: no speed is safe)"
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
-    from .assumptions import start_thrust
+    from .assumptions import e_tr_floor, start_thrust
+    from .coverage import banner_line
 
     _, thrust = start_thrust(table, cfg.daemon_mode.contract)
     short = [] if thrust["covered"] else [  # a --partial-grid table: said before the first flight
@@ -226,6 +227,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
             "autopilot accepts the switch: refused above the Hold's limit, the stop is not guaranteed (logged as the "
             "autopilot's violation)"]),
         f"sensors: {sensors}",
+        banner_line(cfg.sensors, table.vehicle.r_body_m, e_tr_floor(cfg, table)),
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "
         f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, navigation margin {ct.nav_margin:g} of each sensor's claimed "

@@ -24,6 +24,7 @@ from contracts.vehicle import G
 from contracts.window import WindowMax
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
+from .coverage import Beam, corridor_cover, covered_d_od
 from .samples import Scan
 
 # ============================================================================ D_od
@@ -300,15 +301,21 @@ class DodEstimator:
             return bool(s.known) and min(abs(wrap(beta - b)) for b in s.known) <= s.increment / 2 + 1e-9
         return abs(wrap(beta - math.radians(s.cfg.orientation_deg))) <= math.radians(s.cfg.h_fov_deg) / 2 + 1e-9
 
-    def estimate(self, t: float, beta: float, corridor_m: float = math.inf, r_obst: float | None = None
-                 ) -> DodEstimate:
+    def estimate(self, t: float, beta: float, corridor_m: float = math.inf, r_obst: float | None = None,
+                 swept_half_m: float | None = None) -> DodEstimate:
         """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
         deciding which hits are on it (single-beam hits are always taken as on it); `r_obst`: the R_obst in force
-        from now on (CG_R_OBST; None: unchanged)."""
+        from now on (CG_R_OBST; None: unchanged); `swept_half_m`: the swept corridor's half-width the beams must
+        cover, w = r_body + E_tr (`companion.onboard.coverage`; None: the cycle's `corridor_m` less its 2·R_obst, as
+        the cycle makes it 2·R_obst + E_tr + r_body; neither given: the claim alone). D_od is at most the far end of
+        the range interval over which the fresh, trusted beams together cover that corridor, 0 where they cover it
+        nowhere; the swept coverage (the direction of travel outside every field of view) no more than the beams
+        cover of that corridor along any of their axes."""
         if r_obst is not None:
             self.r_obst = r_obst
         covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
         obstacle = math.inf
+        beams = []
         for i, s in enumerate(self.sensors):
             if t - s.t > self.stale_s:
                 continue
@@ -316,19 +323,40 @@ class DodEstimator:
             for b, r in s.hits:
                 if not bins or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
                     obstacle = min(obstacle, r)
-            if not s.trusted or not self._covers(s, beta):
+            if not s.trusted:
+                continue
+            beams.append(Beam(s.cfg.orientation_deg, s.cfg.h_fov_deg, s.max_m))
+            if not self._covers(s, beta):
                 continue
             covered.append(i)
             if s.max_m > d:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
+        if swept_half_m is None and math.isfinite(corridor_m):
+            swept_half_m = corridor_m - 2 * self.r_obst
+        w = None if swept_half_m is None else max(swept_half_m, 0.0)
+        short = False  # the beams cover less of the corridor along the direction of travel than they claim
+        if covered and w is not None:  # the beams' cover of the corridor (companion/onboard/coverage.py)
+            cover = corridor_cover(beams, w, beta, grid=True)
+            if cover.hi < d:
+                short = True
+                d, reason = cover.hi, (f"the fresh, trusted sensors cover the swept corridor ±{cover.half_width_m:.2f} m "
+                                       f"from {cover.lo:.2f} m to {cover.hi:.2f} m" if cover.covered else
+                                       f"the fresh, trusted sensors cover the swept corridor ±{cover.half_width_m:.2f} m "
+                                       "nowhere")
         if self.contract.nav_margin > 0.0 and d > 0.0:  # the navigation margin: trust (1 − m) of the claim
             d, reason = d * (1.0 - self.contract.nav_margin), f"{reason}, {self.contract.nav_margin:g} not trusted"
         swept = 0.0
-        if not covered and self._yaw_hist:  # outside every field of view: what was seen free on the way
+        if (not covered or short) and self._yaw_hist:  # what was seen free on the way
             swept = self._swept(t, self._yaw_hist[-1][1] + beta)
-            if swept > 0.0:
-                d, reason = swept, (f"direction of travel outside the field of view: {swept:.2f} m of it seen free "
-                                    f"in the last {COVERAGE_S:g} s")
+            if swept > 0.0 and w is not None:  # no more than the beams can cover of the corridor along any axis
+                swept = min(swept, max((covered_d_od(beams, w, math.radians(b.orientation_deg), grid=True)
+                                        for b in beams), default=0.0))
+            if swept > d:
+                where = "outside the field of view" if not covered else "at the fields of view's edge"
+                d, reason = swept, (f"direction of travel {where}: {swept:.2f} m of it seen free in the last "
+                                    f"{COVERAGE_S:g} s")
+            else:
+                swept = 0.0
         lowered, stated = False, d
         if self._penalty is not None:
             if t <= self._penalty[0]:

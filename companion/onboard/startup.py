@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 from .config import Config
+from .coverage import refusal as coverage_refusal
 from .outbox import EMPTY, Outbox
 
 WAIT_S = 5.0  # a parameter asked for and not answered in this long counts as missing
@@ -39,7 +40,8 @@ class StartupChecks:
     """DESIGN.md §5 start-up checks: the autopilot's tilt limit and braking limits must be at least what
     the contract assumes (else its braking or swerving is weaker than the table's), a companion-only
     offboard flight needs Land or Hold as offboard-loss action, and the configured sensors must cover
-    the direction of flight. Any mismatch refuses to engage (shadow mode still runs).
+    the direction of flight and cover its swept corridor at some range (`companion.onboard.coverage`). Any
+    mismatch refuses to engage (shadow mode still runs).
 
     Over time (`ok`: True, False, or None while pending): asked at link-up and after an autopilot restart
     (`asked`, `restarted`), decided when every checked parameter is in or `WAIT_S` after asking (`finish`,
@@ -107,7 +109,12 @@ class StartupChecks:
                     "or state contract.e_tr_assumed_m")
         if not any(abs(((s.orientation_deg + 180) % 360) - 180) <= s.h_fov_deg / 2 for s in self.cfg.sensors):
             return "no configured sensor looks forward"
-        return None
+        return coverage_refusal(self.cfg.sensors, self.vehicle.r_body_m, self.e_tr_least())
+
+    def e_tr_least(self) -> float:
+        """The least E_tr the contract uses (the floor; without a controller contract the stated E_tr)."""
+        ct = self.cfg.contract
+        return max(ct.e_tr_floor_m, (ct.e_tr_assumed_m or 0.0) if not self.controller_contract else 0.0)
 
     def wanted(self) -> list[str]:
         """The parameters to ask for: the checked ones, and the cruise speed (not checked, but used)."""
