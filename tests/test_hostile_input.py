@@ -207,7 +207,7 @@ def test_frames_of_an_unknown_message_id_are_not_counted_as_good_messages():
     rig = cruising()
     c = rig.daemon.counters
     n0, u0 = c.messages, c.unknown_messages
-    rig.daemon._dispatch(mav.MAVLink_unknown(60000, b"\x00" * 9))
+    rig.daemon.feed(mav.MAVLink_unknown(60000, b"\x00" * 9))
     assert (c.messages, c.unknown_messages) == (n0, u0 + 1)
 
 
@@ -677,3 +677,20 @@ def test_a_flood_on_the_port_costs_each_poll_a_bounded_read_and_the_autopilot_is
         for s in (ap_sock, junk, gcs_sock):
             s.close()
         link.close()
+
+
+def test_a_sample_its_taker_complains_of_is_dropped_counted_and_said(monkeypatch):
+    """A sample that raises where it is taken (a decoder's or an estimator's complaint — or a fault of a speed
+    policy) is dropped and counted, never fatal, and said in the event log: a fault is never silent."""
+    rig = cruising()
+    c, t0 = rig.daemon.counters, rig.sim.time_s
+
+    def complain(s):
+        raise ValueError("not a number I take")
+
+    monkeypatch.setattr(rig.daemon.cycle.sup.policy, "take", complain)
+    bad0 = c.bad_packets
+    rig.run(0.5)
+    assert c.bad_packets > bad0 and rig.daemon.last is not None
+    said = [e for e in rig.log.named("sample_dropped") if e["t"] >= t0]
+    assert said and "ValueError: not a number I take" in said[0]["error"] and said[0]["count"] >= 1

@@ -1,7 +1,6 @@
-"""The on-board daemon: one loop (default 50 Hz) over one MAVLink connection (DESIGN.md §5). Thin: it polls,
-steps and runs the pipeline it wires — MAVLink in (samples) → cycle (estimators → mode authority → supervisor →
-actors → one Outbox, pure) → MAVLink out (`apply(outbox)`) — plus its own protocols (companion/onboard/
-protocols.py) and its periodic work (`PERIODIC`); the real-time loop is companion/onboard/realtime.py's. Everything sent in a cycle leaves in that cycle's one outbox: what the protocols
+"""The on-board daemon: one loop (default 50 Hz) over one MAVLink connection (DESIGN.md §5). Thin: it polls, steps
+and runs the pipeline it wires — MAVLink in (samples) → cycle (pure: sensing → mode authority → supervisor →
+actors → one Outbox) → MAVLink out (`apply(outbox)`) — its protocols and its periodic work (`PERIODIC`). Everything sent in a cycle leaves in that cycle's one outbox: what the protocols
 and the link's events want sent since the last cycle (their events logged at once) is joined to it, and so is
 what the periodic work adds. `poll()` drains the link, `step()` runs one cycle at the injected clock's time;
 `run` calls both at `loop_hz`, lock-step tests between simulator steps. `stop()` begins the shutdown (engaged in
@@ -20,6 +19,7 @@ from contracts.table import ContractTable
 from .autopilots import adapter_for
 from .config import Config
 from .cycle import Cycle, Given
+from .eventlog import sparse
 from .guidance import InlinePlanning, ProcessPlanning, ThreadedPlanning
 from .logschema import LINK_COUNTERS, NVF, STATE_FIELDS
 from .mavlink_in import MavlinkIn, VehicleClock
@@ -115,17 +115,13 @@ class Daemon:
             if msg is None:
                 break
             n += 1
-            self._dispatch(msg)
+            self.feed(msg)
         for s in self.mav_in.from_link(self.conn):  # the link's counts, and whom it refused
             self.take(s)
         return n
 
     def feed(self, msg) -> None:
-        """One message as `poll` hands it on, from a log that is decoded already (a `.tlog` replay): the same
-        routing and checks from here on, without parsing the bytes a second time."""
-        self._dispatch(msg)
-
-    def _dispatch(self, msg) -> None:
+        """One message to its samples and where they belong (`poll`'s, or a decoded log's: a `.tlog` replay)."""
         kind = msg.get_type()
         if self.cfg.log.tlog and kind != "BAD_DATA":
             self.log.raw(int(self.wall() * 1e6), msg.get_msgbuf())
@@ -141,8 +137,11 @@ class Daemon:
         try:
             for s in self.mav_in.accept(msg):
                 self.take(s)
-        except Exception:  # decoded but nonsensical (a decoder's or an estimator's complaint): drop it
+        except Exception as err:  # decoded but nonsensical (a decoder's or an estimator's complaint): dropped, said
             self.counters.bad_packets += 1
+            if sparse(self.counters.bad_packets):
+                self.event(self.clock(), "sample_dropped", kind=kind, error=f"{type(err).__name__}: {err}"[:200],
+                           count=self.counters.bad_packets)
 
     def take(self, s) -> None:
         """A sample to where it belongs: the cycle's estimators, or the daemon's own protocols (MAVLink-in's
@@ -197,7 +196,7 @@ class Daemon:
                   else "none (not flying)")
         # the Hold asked every failed cycle: the mode authority delivers it (re-sent until answered)
         box = self.cycle.failed_hold(t) if action == "hold" else EMPTY
-        if self._bad_cycles in (1, 10, 100) or self._bad_cycles % 1000 == 0:
+        if sparse(self._bad_cycles):
             box = box.then(Outbox(
                 events=(("loop_error", {"error": f"{type(err).__name__}: {err}"[:200],
                                         "consecutive": self._bad_cycles, "action": action}),),

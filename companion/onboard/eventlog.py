@@ -71,6 +71,11 @@ _SEP = (",", ":")
 _FLAT = (str, int, float, type(None))  # a flat record's value types, subclasses too (a StrEnum, bool; `encode_record`)
 
 
+def sparse(n: int) -> bool:
+    """Whether the n-th of a repeated fault is logged: the 1st, 10th, 100th and every 1000th."""
+    return n in (1, 10, 100) or n % 1000 == 0
+
+
 # ============================================================================ encoding (pure)
 
 

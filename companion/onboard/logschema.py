@@ -161,6 +161,9 @@ EVENTS = {
     "implausible_input": Event(("message", "why", "count"), "daemon",
                                "a message dropped as implausible (message: its type, or time_boot_ms for the "
                                "autopilot's clock; count: of this type since the last such record)"),
+    "sample_dropped": Event(("kind", "error", "count"), "daemon",
+                            "a message its decoder or a sample's taker complained of: dropped and counted (logged at "
+                            "the 1st, 10th, 100th and every 1000th bad packet)"),
     "loop_error": Event(("error", "consecutive", "action"), "daemon",
                         "an exception inside a cycle (logged, not fatal; action: the safe action taken)"),
     "offboard": Event(("from", "to", "reason"), "offboard", "offboard controller state changed (governor mode: the "
