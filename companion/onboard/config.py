@@ -107,6 +107,9 @@ class LinkConfig(_Strict):
     # over a network link the daemon's parameters are set only by signed messages; true accepts unsigned
     # ones (weaker: anyone who can reach the link as a ground station's system id can disengage the guard)
     unsigned_params: bool = False
+    # over a network link (not loopback) governor and offboard engage only with signing on; true accepts
+    # unsigned operation (weaker: anyone who can reach the link can send sensor data and forge addresses)
+    accept_unsigned: bool = False
     # the autopilot's clock rate against the host's: 1 for a real aircraft, K for a SITL sped up K times;
     # daemon time runs at it, and an autopilot clock running otherwise is a fault
     clock_rate: Annotated[float, Field(ge=0.1, le=20)] = 1.0
@@ -154,6 +157,30 @@ class LinkConfig(_Strict):
             return [f"CG_* parameters: signed sets only over {self.connect}, and no signing key is configured: "
                     "they cannot be set over the link"]
         return []
+
+    def seats(self, sensors: list[SensorConfig]) -> str:
+        """Who the link takes the autopilot and the sensors from, in one line (for the banner): pinned to
+        configured addresses, loopback only, or OPEN (a claimant heard alone for a while takes a seat)."""
+        from .link import SEAT_SETTLE_S
+
+        if not self.connect.startswith("udpin:"):
+            return f"link: {self.connect}: the autopilot is the peer of this link"
+        host = self.connect.split(":")[1].strip("[]").lower()
+        ap = (self.target_system, self.target_component)
+        unpinned = sorted({"%d/%d" % self.sensor_source(s) for s in sensors
+                           if self.sensor_source(s) != ap and s.address is None})
+        first = f"the first claimant heard alone for {SEAT_SETTLE_S:g} s takes"
+        if self.autopilot_address is not None and not unpinned:
+            return (f"link: pinned to {self.autopilot_address} (the autopilot; sensors with ids of their own at their "
+                    "configured addresses); an address is no authentication, only signing is")
+        if host == "localhost" or host.startswith("127.") or host == "::1":
+            return (f"link: loopback only ({self.connect}; a router such as mavlink-router forwards the autopilot); "
+                    f"{first} a seat, two claimants refuse engaging")
+        if self.autopilot_address is not None:
+            return (f"link: pinned to {self.autopilot_address} (the autopilot); OPEN for sensors "
+                    f"{', '.join(unpinned)}: {first} the seat (pin it: sensors[k].address)")
+        return (f"link: OPEN — first speaker: {first} the autopilot's seat on {self.connect} (pin it: "
+                "link.autopilot_address; or listen on 127.0.0.1 behind a router)")
 
     def sensor_source(self, s: "SensorConfig") -> tuple[int, int]:
         """The (system, component) a configured sensor's messages come from."""
@@ -450,8 +477,11 @@ def weakened(cfg: Config) -> list[str]:
         out.append(f"weaker than the default: link.clock_rate {cfg.link.clock_rate:g}: every time-out runs "
                    f"{1 / cfg.link.clock_rate:g} times longer in real time (1 on an aircraft)")
     if cfg.daemon_mode.commands and cfg.link.signing_key_file is None and is_network_link(cfg.link.connect):
-        out.append(f"unsigned on a network link in {cfg.mode} mode: anyone who can reach {cfg.link.connect} can "
-                   "send the daemon sensor data and commands (link.signing_key_file; contract-guard keys)")
+        out.append(f"WEAKENED link.accept_unsigned: unsigned on a network link in {cfg.mode} mode: anyone who can "
+                   f"reach {cfg.link.connect} can send the daemon sensor data and commands (link.signing_key_file; "
+                   "contract-guard keys)" if cfg.link.accept_unsigned else
+                   f"unsigned on a network link in {cfg.mode} mode: REFUSING TO ENGAGE (sign: link.signing_key_file, "
+                   "contract-guard keys; or accept it, weaker: link.accept_unsigned: true)")
     return out
 
 
