@@ -31,6 +31,7 @@ def cmd_run(args) -> int:
 
     from contracts.table import load_for_vehicle
 
+    from .autopilots import adapter_for
     from .config import weakened
     from .console import ConsoleLog, banner
     from .cycle import controller_contract
@@ -38,6 +39,7 @@ def cmd_run(args) -> int:
     from .eventlog import EventLog
     from .link import SigningClock, load_signing_key, open_connection, setup_signing
     from .service import Notifier
+    from .startup import StartupChecks
 
     cfg = run_config(args)
     table = load_for_vehicle(cfg.vehicle, cfg.table, cfg.table_public_key)
@@ -50,6 +52,9 @@ def cmd_run(args) -> int:
                 print(line)
         for line in weakened(cfg):
             print(line)
+        checks = StartupChecks(adapter_for(cfg.link.autopilot), table.vehicle, cfg, table.e_pred is not None)
+        if checks.ok is False:  # refused whatever the autopilot answers
+            print(f"REFUSING TO ENGAGE: {checks.reason}")
         print(f"config {args.config}: valid; its table fits (--check: the link is not opened)")
         return 0
     faulthandler.enable()  # a watchdog abort prints the stack to the journal

@@ -476,12 +476,11 @@ def weakened(cfg: Config) -> list[str]:
     if cfg.link.clock_rate < 1.0:
         out.append(f"weaker than the default: link.clock_rate {cfg.link.clock_rate:g}: every time-out runs "
                    f"{1 / cfg.link.clock_rate:g} times longer in real time (1 on an aircraft)")
-    if cfg.daemon_mode.commands and cfg.link.signing_key_file is None and is_network_link(cfg.link.connect):
+    lk = cfg.link
+    if cfg.daemon_mode.commands and lk.signing_key_file is None and lk.accept_unsigned and is_network_link(lk.connect):
         out.append(f"WEAKENED link.accept_unsigned: unsigned on a network link in {cfg.mode} mode: anyone who can "
-                   f"reach {cfg.link.connect} can send the daemon sensor data and commands (link.signing_key_file; "
-                   "contract-guard keys)" if cfg.link.accept_unsigned else
-                   f"unsigned on a network link in {cfg.mode} mode: REFUSING TO ENGAGE (sign: link.signing_key_file, "
-                   "contract-guard keys; or accept it, weaker: link.accept_unsigned: true)")
+                   f"reach {lk.connect} can send the daemon sensor data and commands, and forge the autopilot's "
+                   "address (sign instead: link.signing_key_file, contract-guard keys)")
     return out
 
 
