@@ -151,3 +151,65 @@ def test_a_sensor_seat_goes_to_no_one_while_two_claim_it(fast, monkeypatch, prot
             return
         assert readings == [] and link.pinned[(1, 158)] is None
         assert [c["ids"] for c in link.contested()] == [(1, 158)]
+
+
+# ------------------------------------------------------------------ what the daemon does with a contest
+class ContestedLink:
+    """What a listening UDP link reports after a poll (`stats`, `take_refusals`), on the lock-step rig's link: the
+    daemon's own path from a contest to its engage decision, with no edit to the cycle (the start-up checks'
+    verdict, which the cycle already obeys)."""
+
+    def __init__(self, conn):
+        self.conn, self.reports = conn, []
+        conn.stats, conn.take_refusals = {}, self.take
+
+    def take(self):
+        out, self.reports = self.reports, []
+        return out
+
+    def contest(self, on: bool):
+        self.reports.append({"what": "contested" if on else "uncontested", "autopilot": True, "ids": (1, 1),
+                             "address": "127.0.0.1:40001, 127.0.0.1:40002" if on else None,
+                             "pinned": "127.0.0.1:40001", "count": 2 if on else 0, "held": None})
+
+
+def engage(rig):
+    rig.to_daemon(rig.gcs.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9))
+    rig.run(0.5)
+    return rig.daemon.params["CG_ENGAGE"]
+
+
+def test_engaging_is_refused_while_a_seat_is_contested_and_taken_once_it_is_not():
+    from tests.lockstep import Rig
+    from tests.test_daemon_lockstep import column_scenario
+
+    rig = Rig(column_scenario(1, x_col=400.0), "px4", config={"engage": False})
+    link = ContestedLink(rig.conn)
+    rig.run(7.0)  # the start-up checks have answered
+    assert rig.daemon.startup_ok is True
+    link.contest(True)
+    rig.run(0.2)
+    assert rig.daemon.startup_ok is False and engage(rig) == 0.0
+    [refused] = rig.log.named("engage_refused")
+    assert "2 addresses claim the autopilot 1/1" in refused["reason"]
+    assert any("2 addresses claim the autopilot 1/1" in x for x in rig.daemon_texts())  # STATUSTEXT
+    link.contest(False)
+    rig.run(0.2)
+    assert rig.daemon.startup_ok is True and engage(rig) == 1.0  # the same request, once the contest ended
+
+
+def test_a_contest_in_flight_holds_the_engaged_vehicle():
+    from tests.lockstep import Rig, fly_mission
+    from tests.test_daemon_lockstep import column_scenario
+
+    rig = Rig(column_scenario(1, x_col=400.0), "px4")
+    link = ContestedLink(rig.conn)
+    fly_mission(rig, 6.0)
+    assert rig.daemon.last.state == "active"
+    t0 = rig.sim.time_s
+    link.contest(True)
+    rig.run(6.0)
+    fs = [e for e in rig.log.named("failsafe") if e["t"] >= t0 - 0.1]
+    assert fs and fs[0]["cause"] == "start-up checks failed in flight"
+    assert [e for e in rig.log.named("command") if e["cmd"] == "hold" and e["t"] >= fs[0]["t"]]
+    assert rig.daemon.tel.ground_speed < 0.5
