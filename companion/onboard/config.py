@@ -73,8 +73,8 @@ class SensorConfig(_Strict):
     # as DISTANCE_SENSOR / OBSTACLE_DISTANCE of their own component)
     system_id: MavId | None = None
     component_id: MavId | None = None
-    # over UDP (udpin), the address its messages come from (None: the first heard; a sensor with the autopilot's
-    # ids is the autopilot's address)
+    # over UDP (udpin), the address its messages come from (None: the one address heard alone claiming its ids
+    # for a while; two claiming them refuse engaging; a sensor with the autopilot's ids is the autopilot's address)
     address: str | None = None
     orientation_deg: float = 0.0  # sensor axis yaw in the body frame, clockwise from forward
     h_fov_deg: Annotated[float, Field(gt=0, le=360)]
@@ -101,8 +101,9 @@ class LinkConfig(_Strict):
     target_component: int = 1
     component_id: int = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
     gcs_system_ids: list[Annotated[int, Field(ge=1, le=255)]] = [255]  # ground stations that may set CG_* parameters
-    # over UDP (udpin), the address the autopilot sends from (HOST:PORT; None: the first address its HEARTBEAT
-    # comes from). Another address claiming its ids is refused, and said
+    # over UDP (udpin), the address the autopilot sends from (HOST:PORT; None: the one address heard alone
+    # claiming its ids for a while). Another address claiming its ids is refused, and said; two claiming the
+    # autopilot's seat refuse engaging
     autopilot_address: str | None = None
     # over a network link the daemon's parameters are set only by signed messages; true accepts unsigned
     # ones (weaker: anyone who can reach the link as a ground station's system id can disengage the guard)
@@ -188,7 +189,7 @@ class LinkConfig(_Strict):
 
     def pins(self, sensors: list[SensorConfig]) -> dict[tuple[int, int], tuple[str, int] | None]:
         """The sources a UDP link (udpin) takes from one address only: the autopilot, and each sensor with ids of
-        its own — (system, component) → the configured address, or None (the first heard). A sensor with the
+        its own — (system, component) → the configured address, or None (given by the link's seat rules). A sensor with the
         autopilot's ids comes from the autopilot's address."""
         ap = (self.target_system, self.target_component)
         pins = {ap: udp_address(self.autopilot_address)}

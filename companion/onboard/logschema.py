@@ -153,7 +153,7 @@ EVENTS = {
                             "autopilot, sensor or ground station has (once per source); `refused` a pinned source's "
                             "ids from another address — a second autopilot, a spoofed sensor — (said by STATUSTEXT "
                             "and on the console; count: refused since the last such record); `moved` a source "
-                            "pinned to the first address heard follows a new one after falling silent (never while `held`: engaged "
+                            "without a configured address follows a new one after falling silent (never while `held`: engaged "
                             "or armed); `contested` two or more addresses (`address`, the seat's holder `pinned`) "
                             "claim one source: the daemon refuses to engage until `uncontested`; `bad_signature` a "
                             "signed message that does not verify under our key (a wrong key)"),
