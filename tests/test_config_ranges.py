@@ -168,3 +168,17 @@ def test_run_check_says_in_one_line_that_an_unsigned_network_link_refuses_to_eng
     else:
         assert len(refused) == 1 and "unsigned on the network link udpin:0.0.0.0:14540" in refused[0], r.stdout
         assert weak == []
+
+
+def test_the_banner_says_how_the_link_takes_the_autopilot():
+    def line(link, sensors=({"h_fov_deg": 30, "max_range_m": 6},)):
+        c = config_from_dict({"link": link, "sensors": list(sensors)})
+        return c.link.seats(c.sensors)
+
+    assert line({"connect": "udpin:0.0.0.0:14540", "autopilot_address": "192.168.1.10:14580"}) \
+        .startswith("link: pinned to 192.168.1.10:14580")
+    assert line({"connect": "udpin:127.0.0.1:14540"}).startswith("link: loopback only")
+    assert line({"connect": "udpin:0.0.0.0:14540"}).startswith("link: OPEN — first speaker")
+    own = [{"h_fov_deg": 30, "max_range_m": 6, "component_id": 158}]  # a sensor with ids of its own, no address
+    assert "OPEN for sensors 1/158" in line({"connect": "udpin:0.0.0.0:14540", "autopilot_address": "10.0.0.2:1"}, own)
+    assert line({"connect": "/dev/serial0"}).startswith("link: /dev/serial0")
