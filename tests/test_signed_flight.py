@@ -122,3 +122,20 @@ def test_a_wrong_key_is_said_as_a_signature_mismatch_at_once(keys, tmp_path):
     start = next(e["wall"] for e in f["events"] if e.get("event") == "start")
     assert ev[0]["wall"] - start < 5.0  # at once: the first of them, not after a time-out
     assert "1:191 says" not in f["gcs"]  # the ground station hears nothing it can verify from the daemon
+
+
+def test_the_ground_station_with_a_wrong_key_says_so_not_only_no_heartbeat(keys, tmp_path):
+    right, right_hex, wrong = keys
+    port = free_port()
+    sitl = cg("sitl", "--personality", "px4", "--listen", f"udp:127.0.0.1:{port}", "--signing-key-hex", right_hex)
+    assert "listening" in sitl.stderr.readline()
+    try:
+        gcs = subprocess.run([sys.executable, str(ROOT / "examples" / "ground_station.py"), "--connect",
+                              f"udpout:127.0.0.1:{port}", "--signing-key", str(wrong), "--wait-s", "4"], env=ENV,
+                             cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    finally:
+        sitl.send_signal(signal.SIGINT)
+        sitl.communicate(timeout=30)
+    assert gcs.returncode == 1
+    assert "gcs: signature mismatch from 1:1: wrong key?" in gcs.stdout, gcs.stdout + gcs.stderr
+    assert "no autopilot heartbeat" in gcs.stdout
