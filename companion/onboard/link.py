@@ -123,8 +123,8 @@ class UdpLink(mavutil.mavfile):
         self.pinned: dict[tuple[int, int], tuple | None] = dict(pins) if self.listening else {}
         self.fixed = {ids for ids, a in pins.items() if a is not None} if self.listening else set()
         self._seen: dict[tuple[int, int], float] = {}  # seat → when last heard from its holder
-        # seat → {address: [first, last] heard} of the other addresses claiming it (candidates or rivals)
-        self._claims: dict[tuple[int, int], dict[tuple, list]] = {}
+        # seat → {address: when last heard} of the other addresses claiming it (candidates or rivals)
+        self._claims: dict[tuple[int, int], dict[tuple, float]] = {}
         self._alone: dict[tuple[int, int], tuple[tuple, float]] = {}  # free seat → (sole claimant, since when)
         self._contests_said: dict[tuple[int, int], tuple] = {}  # contested seat → its claimants as last reported
         self.engaged = False  # set by `hold_seats`
@@ -171,7 +171,7 @@ class UdpLink(mavutil.mavfile):
         out = []
         for ids, claims in self._claims.items():
             holder = self.pinned.get(ids)
-            active = [a for a, (_, last) in claims.items() if now - last <= CONTEST_S and a != holder]
+            active = [a for a, last in claims.items() if now - last <= CONTEST_S and a != holder]
             if holder is not None and now - self._seen.get(ids, -math.inf) <= CONTEST_S:
                 active.insert(0, holder)
             if len(active) >= 2:
@@ -201,12 +201,12 @@ class UdpLink(mavutil.mavfile):
         except OSError:
             self.ap_sock = None  # the shared socket still serves (without the flood protection)
 
-    def _claim(self, ids: tuple[int, int], addr: tuple, now: float) -> list:
-        c = self._claims.setdefault(ids, {}).setdefault(addr, [now, now])
-        c[1] = now
-        if len(self._claims[ids]) > MAX_REPORTED:  # no flood of addresses grows it: the longest silent goes
-            del self._claims[ids][min(self._claims[ids], key=lambda a: self._claims[ids][a][1])]
-        return c
+    def _claim(self, ids: tuple[int, int], addr: tuple, now: float) -> None:
+        """`addr` claims the seat of `ids` now (at most MAX_REPORTED claimants kept: the longest silent goes)."""
+        claims = self._claims.setdefault(ids, {})
+        claims[addr] = now
+        if len(claims) > MAX_REPORTED:
+            del claims[min(claims, key=claims.get)]
 
     def _refuse(self, ids: tuple[int, int], addr: tuple, now: float) -> None:
         """A held seat's ids from another address: dropped, a rival claim recorded, reported."""
@@ -214,7 +214,7 @@ class UdpLink(mavutil.mavfile):
         self._claim(ids, addr, now)
         self._report(ids, addr, self.pinned.get(ids), "refused", now)
 
-    def _report(self, ids, addr, pinned, what: str, now: float, address: str | None = None) -> None:
+    def _report(self, ids, addr, pinned, what: str, now: float) -> None:
         """A refusal (or a move) for the daemon to say: the first of each address, then at most every
         REPORT_EVERY_S with the number refused since (`count`); at most MAX_REPORTED addresses remembered and
         REPORTS_PER_WINDOW reports per REPORT_EVERY_S, so that no spoofer can flood the log through it."""
@@ -230,7 +230,7 @@ class UdpLink(mavutil.mavfile):
         if now - rec[1] >= REPORT_EVERY_S and self._window[1] < REPORTS_PER_WINDOW:
             self._window[1] += 1
             self.refusals.append({"what": what, "autopilot": ids == self.autopilot_ids, "ids": ids,
-                                  "address": address or _fmt_addr(addr), "pinned": _fmt_addr(pinned),
+                                  "address": _fmt_addr(addr), "pinned": _fmt_addr(pinned),
                                   "count": rec[0], "held": self.seats_held})
             rec[0], rec[1] = 0, now
 
@@ -277,7 +277,7 @@ class UdpLink(mavutil.mavfile):
             self.stats["unseated"] += 1  # e.g. the autopilot's telemetry before its HEARTBEAT took the seat
             return False
         self._claim(ids, addr, now)
-        active = [a for a, (_, last) in self._claims[ids].items() if now - last <= CONTEST_S and a != holder]
+        active = [a for a, last in self._claims[ids].items() if now - last <= CONTEST_S and a != holder]
         if active != [addr]:
             self._alone.pop(ids, None)  # more than one claimant: no one takes the seat
             self.stats["unseated"] += 1
