@@ -96,11 +96,23 @@ def test_the_autopilots_telemetry_before_its_heartbeat_is_no_second_autopilot(fa
 
 
 # ------------------------------------------------------------------ two claimants
-def test_two_claimants_contest_a_held_seat_until_one_falls_silent(fast):
+@pytest.mark.parametrize("rules", ["seats", "negative control: old rules"])
+def test_two_claimants_contest_a_held_seat_until_one_falls_silent(fast, monkeypatch, rules):
+    """The autopilot holds its seat; an impostor claims it too. The holder keeps the seat, and the seat is
+    contested (the daemon refuses to engage) until the impostor has been silent for CONTEST_S. With the rules
+    of before the impostor was refused quietly and nothing stood in the way of engaging."""
+    old = rules != "seats"
+    if old:
+        old_rules(monkeypatch)
+        monkeypatch.setattr(lk.UdpLink, "contested", lambda self, now=None: [])  # a second claimant counts for nothing
     with link_and_peers(None, ap=(1, 1), impostor=(1, 1)) as (link, target, p):
         speak(link, target, [(p["ap"], 1.0)], 0.5)
         assert link.autopilot_addr == p["ap"].sock.getsockname()
         got = speak(link, target, [(p["ap"], 1.0), (p["impostor"], 1000.0)], 0.4)
+        if old:
+            assert set(positions(got)) == {1.0} and link.contested() == []
+            assert [r["what"] for r in link.take_refusals()] == ["refused"]
+            return
         assert set(positions(got)) == {1.0}  # the holder keeps its seat
         [c] = link.contested()
         assert c["seat"] == p["ap"].address and c["claimants"] == [p["ap"].address, p["impostor"].address]
