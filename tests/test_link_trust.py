@@ -1,6 +1,9 @@
 """Who is who on the link, over real loopback UDP with the daemon as a process (`contract-guard run`,
 `udpin`): the autopilot is its ids and the address it is pinned to, each sensor its configured source, and
-only a configured ground station's *signed* message sets the daemon's parameters over a network link.
+only a configured ground station's *signed* message sets the daemon's parameters over a network link. A seat
+(the autopilot's, a sensor's with ids of its own) goes to no one while two addresses claim it, which refuses
+engaging and is said on the console, in the event log and to the seat's holder and the ground stations; it
+never moves while the vehicle is armed (test_link_seats.py: the same rules on the link alone).
 
 Before these checks, a spoofed DISTANCE_SENSOR "free to 6 m" at 200 Hz hid a real obstacle at 3 m (from
 another component, another address or the autopilot's own address); an unsigned PARAM_SET CG_ENGAGE 0 from
@@ -87,6 +90,8 @@ class Flight:
         self.link = {"connect": "udpin:%s:%d" % self.target, **(link or {})}
         self.engage = engage
         self.mode = "shadow"
+        self.armed = True  # what the autopilot's HEARTBEAT says
+        self.silent = lambda t: False  # the autopilot says nothing while this holds (t: since the daemon answered)
         self.console = ""
         self.t_first: float | None = None
 
@@ -111,9 +116,9 @@ class Flight:
                 tick = time.monotonic()
                 speaking = before() or speaking
                 tb = int((tick - t_start) * 1000)
-                if speaking:
+                if speaking and not (self.t_first is not None and self.silent(time.monotonic() - self.t_first)):
                     e = self.ap.enc
-                    for msg in (e.heartbeat_encode(2, 12, 1 | 128, 4 << 16 | 4 << 24, 4),
+                    for msg in (e.heartbeat_encode(2, 12, 1 | (128 if self.armed else 0), 4 << 16 | 4 << 24, 4),
                                 e.attitude_encode(tb, 0, 0, 0, 0, 0, 0),
                                 e.local_position_ned_encode(tb, 1.0, 2.0, -2, 0, 0, 0),
                                 e.distance_sensor_encode(tb, 20, MAX_CM, OBSTACLE_CM, 0, 0, 0, 255)):
@@ -477,3 +482,36 @@ def test_an_impostor_heartbeat_before_the_autopilot_and_every_9_s_takes_no_seat_
     assert "claim the autopilot 1/1" in refused["reason"] and "MPC_TILTMAX_AIR" not in refused["reason"]
     assert not [s for s in states(log) if s["x"] == 1000.0]
     assert "link: loopback only" in flight.console  # the banner says how seats are given
+
+
+@pytest.mark.parametrize("armed", [True, False], ids=["in flight: the seat is held", "on the ground: it moves"])
+def test_a_silent_autopilot_loses_its_seat_to_a_new_address_only_on_the_ground(tmp_path, armed):
+    """The autopilot (x = 1 m) holds its seat, then falls silent for good; from 1 s later another address claims
+    its ids (x = 1000 m). Armed (in flight), the seat is never moved: the newcomer is refused, said with why
+    ("seat held: armed"), and never answered. Disarmed (on the ground), it takes the seat once the holder has
+    been silent for 10 s and it has been the only claimant for 2 s, and the move is said. Before, the seat
+    followed the new address after 10 s of silence in flight too."""
+    flight = Flight(tmp_path)
+    flight.armed = armed
+    flight.silent = lambda t: t > 1.0
+    newcomer = Peer(1, 1)
+
+    def each(t):
+        if t > 2.0:
+            e = newcomer.enc
+            newcomer.send(e.heartbeat_encode(2, 12, 1 | (128 if armed else 0), 4 << 16 | 4 << 24, 4), flight.target)
+            newcomer.send(e.local_position_ned_encode(0, 1000.0, 1000.0, -2, 0, 0, 0), flight.target)
+            newcomer.drain()
+
+    log = flight.fly(16.0, each)
+    newcomer.sock.close()
+    xs = {s["x"] for s in states(log)}
+    said = [r for r in log if r.get("event") == "source_refused" and r["address"] == newcomer.address]
+    if armed:
+        assert xs == {1.0} and not newcomer.received("HEARTBEAT")
+        assert said and said[0]["what"] == "refused" and said[0]["held"] == "armed"
+        assert "(seat held: armed)" in flight.console
+    else:
+        assert 1000.0 in xs and newcomer.received("HEARTBEAT")
+        moved = [r for r in log if r.get("event") == "source_refused" and r["what"] == "moved"]
+        assert moved and moved[0]["address"] == newcomer.address and moved[0]["pinned"] == flight.ap.address
