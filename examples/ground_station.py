@@ -8,6 +8,10 @@ It says hello (HEARTBEAT) until the autopilot (1:1) answers, waits for the daemo
 take off, Mission (PX4) / Auto (ArduPilot), `CG_ENGAGE 1` on the daemon's component, and prints what it
 hears for `--seconds`: the daemon's STATUSTEXTs, mode changes and the speed the vehicle flies. One line
 per thing; exit status 0 when every step was acknowledged, 1 otherwise. Needs only pymavlink.
+
+With `--signing-key FILE` (the key `contract-guard keys` made: 32 bytes, or 64 hex characters) it signs what
+it sends and takes only messages signed with that key (MAVLink 2 signing, docs/signing.md); a message whose
+signature does not verify is said once per sender ("signature mismatch ...: wrong key?").
 """
 
 from __future__ import annotations
@@ -30,9 +34,32 @@ def say(text: str) -> None:
     print(f"gcs: {text}", flush=True)
 
 
+SIGNING_EPOCH = 1420070400  # 2015-01-01: MAVLink 2 signing timestamps count 10 µs from here
+
+
+def read_key(path: str) -> bytes:
+    """A signing key file: 32 raw bytes or 64 hex characters (what `contract-guard keys` writes)."""
+    try:
+        raw = open(path, "rb").read(256).strip()
+    except OSError as err:
+        raise SystemExit(f"gcs: signing key {path}: {err.strerror or err}") from None
+    if len(raw) == 64:
+        try:
+            raw = bytes.fromhex(raw.decode())
+        except ValueError:
+            raw = b""
+    if len(raw) != 32:
+        raise SystemExit(f"gcs: signing key {path}: not 32 bytes or 64 hex characters")
+    return raw
+
+
 class Station:
-    def __init__(self, url: str, sysid: int = 255, tlog: str | None = None):
+    def __init__(self, url: str, sysid: int = 255, tlog: str | None = None, key: bytes | None = None):
         self.m = mavutil.mavlink_connection(url, source_system=sysid, source_component=mav.MAV_COMP_ID_MISSIONPLANNER)
+        if key is not None:  # sign everything sent; take only what is signed with the same key
+            self.m.setup_signing(key, sign_outgoing=True,
+                                 initial_timestamp=int((time.time() - SIGNING_EPOCH) * 1e5))
+        self.mismatch: set[tuple[int, int]] = set()  # senders whose signature did not verify (said once each)
         # what it receives, stamped on arrival (8-byte big-endian µs, then the packet), as MAVProxy's and
         # QGC's telemetry logs are
         self.tlog = open(tlog, "wb") if tlog else None  # noqa: SIM115 (closed at the end of main)
@@ -50,12 +77,26 @@ class Station:
                 self.m.mav.heartbeat_send(mav.MAV_TYPE_GCS, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
                 self.t_hb = time.time()
             msg = self.m.recv_match(blocking=True, timeout=0.05)
-            if msg is None or msg.get_type() == "BAD_DATA":
+            if msg is not None and msg.get_type() == "BAD_DATA":
+                self._bad(msg)
+                continue
+            if msg is None:
                 continue
             self._take(msg)
             if want is not None and want(msg):
                 return msg
         return None
+
+    def _bad(self, msg) -> None:
+        """A frame refused for its signature: said once per sender (its ids from the frame's header)."""
+        data = bytes(msg.data)
+        if "signature" not in str(getattr(msg, "reason", "")).lower() or len(data) < 7 or data[0] != 0xFD:
+            return
+        src = (data[5], data[6])
+        if src not in self.mismatch:
+            self.mismatch.add(src)
+            say(f"signature mismatch from {src[0]}:{src[1]}: wrong key?" if data[2] & 1 else
+                f"unsigned messages from {src[0]}:{src[1]} refused (signing is on here)")
 
     def _take(self, msg) -> None:
         if self.tlog is not None:
@@ -93,9 +134,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-engage", action="store_true", help="leave CG_ENGAGE alone")
     ap.add_argument("--tlog", help="write what this ground station receives to a .tlog (as MAVProxy does)")
     ap.add_argument("--wait-s", type=float, default=60.0, help="give up when the vehicle or daemon stays silent")
+    ap.add_argument("--signing-key", metavar="FILE", help="sign with this MAVLink 2 key (32 bytes or 64 hex "
+                    "characters, as `contract-guard keys` writes it) and take only messages signed with it")
     a = ap.parse_args(argv)
-    s = Station(a.connect, tlog=a.tlog)
-    say(f"connecting to {a.connect}")
+    s = Station(a.connect, tlog=a.tlog, key=read_key(a.signing_key) if a.signing_key else None)
+    say(f"connecting to {a.connect}{' (signed)' if a.signing_key else ''}")
     if s.poll(a.wait_s, lambda m: m.get_type() == "HEARTBEAT" and (m.get_srcSystem(), m.get_srcComponent()) == (1, 1)) is None:
         say("no autopilot heartbeat (is the SITL listening on that port?)")
         return 1

@@ -85,15 +85,30 @@ def test_weakened_names_each_weaker_value_and_nothing_at_the_defaults():
     assert len(weakened(weak)) == 6
 
 
-def test_unsigned_network_link_in_governor_or_offboard_is_named():
+@pytest.mark.parametrize("mode", ["governor", "offboard"])
+def test_unsigned_network_link_in_governor_or_offboard_refuses_unless_accepted_by_name(mode):
+    """Secure by default: over a network link (not loopback, not serial) a commanding mode refuses to engage
+    unsigned (one line, the start-up checks' reason); `link.accept_unsigned: true` engages, WEAKENED in the
+    banner. Before, it engaged unsigned with a warning only."""
+    from companion.onboard.startup import unsigned_refusal
+
     sensors = [{"h_fov_deg": 30, "max_range_m": 10}]
-    net = {"mode": "governor", "sensors": sensors, "link": {"connect": "udpin:0.0.0.0:14540"}}
-    assert any("unsigned on a network link in governor mode" in x for x in weakened(config_from_dict(net)))
+    net = {"mode": mode, "sensors": sensors, "link": {"connect": "udpin:0.0.0.0:14540"}}
+    if mode == "offboard":
+        net["route"] = {"waypoints": [[0, 0], [20, 0]], "altitude_m": 5}
+    why = unsigned_refusal(config_from_dict(net))
+    assert why is not None and f"{mode} mode engages only with signing" in why and "accept_unsigned" in why
+    accepted = {**net, "link": {**net["link"], "accept_unsigned": True}}
+    assert unsigned_refusal(config_from_dict(accepted)) is None
+    assert any(x.startswith("WEAKENED link.accept_unsigned") for x in weakened(config_from_dict(accepted)))
     quiet = [{**net, "mode": "shadow"}, {**net, "link": {"connect": "/dev/ttyAMA0"}},
-             {**net, "link": {"connect": "udpout:127.0.0.1:14540"}},
+             {**net, "link": {"connect": "udpout:127.0.0.1:14540"}}, {**net, "link": {"connect": "udpin:127.0.0.1:14540"}},
              {**net, "link": {"connect": "udpin:0.0.0.0:14540", "signing_key_file": "/etc/cg/key"}}]
     for q in quiet:
-        assert not any("unsigned" in x for x in weakened(config_from_dict(q))), q
+        if q["mode"] == "shadow":
+            q = {k: v for k, v in q.items() if k != "route"}
+        c = config_from_dict(q)
+        assert unsigned_refusal(c) is None and not any("unsigned" in x for x in weakened(c)), q
 
 
 def free_udp_port() -> int:
@@ -131,6 +146,39 @@ def test_the_start_banner_prints_the_weakened_values(tmp_path):
         "vehicle": "mambo", "mode": "governor", "link": {"connect": f"udpin:0.0.0.0:{port}"},
         "sensors": [{"h_fov_deg": 30, "max_range_m": 10}], "timeouts": {"obstacle_s": 1.5},
         "log": {"dir": str(tmp_path / "log")}}))
-    text = daemon_output_until(cfg, "unsigned on a network link")
+    text = daemon_output_until(cfg, "REFUSING TO ENGAGE")
     assert "timeouts.obstacle_s 1.5 (default 0.5)" in text, text
-    assert "unsigned on a network link in governor mode" in text, text
+    assert "REFUSING TO ENGAGE: unsigned on the network link" in text, text
+    assert "link: OPEN — first speaker" in text, text  # the banner says how the autopilot's seat is given
+
+
+@pytest.mark.parametrize("accept", [False, True], ids=["refused", "accepted by name"])
+def test_run_check_says_in_one_line_that_an_unsigned_network_link_refuses_to_engage(tmp_path, accept):
+    cfg = tmp_path / "cg.yaml"
+    cfg.write_text(yaml.safe_dump({
+        "vehicle": "mambo", "mode": "governor", "link": {"connect": "udpin:0.0.0.0:14540", "accept_unsigned": accept},
+        "sensors": [{"h_fov_deg": 30, "max_range_m": 10}], "log": {"dir": str(tmp_path / "log")}}))
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg), "--check"],
+                       capture_output=True, text=True, cwd=str(ROOT), timeout=120)
+    assert r.returncode == 0, r.stderr
+    refused = [ln for ln in r.stdout.splitlines() if "REFUSING TO ENGAGE" in ln]
+    weak = [ln for ln in r.stdout.splitlines() if ln.startswith("WEAKENED link.accept_unsigned")]
+    if accept:
+        assert refused == [] and len(weak) == 1, r.stdout
+    else:
+        assert len(refused) == 1 and "unsigned on the network link udpin:0.0.0.0:14540" in refused[0], r.stdout
+        assert weak == []
+
+
+def test_the_banner_says_how_the_link_takes_the_autopilot():
+    def line(link, sensors=({"h_fov_deg": 30, "max_range_m": 6},)):
+        c = config_from_dict({"link": link, "sensors": list(sensors)})
+        return c.link.seats(c.sensors)
+
+    assert line({"connect": "udpin:0.0.0.0:14540", "autopilot_address": "192.168.1.10:14580"}) \
+        .startswith("link: pinned to 192.168.1.10:14580")
+    assert line({"connect": "udpin:127.0.0.1:14540"}).startswith("link: loopback only")
+    assert line({"connect": "udpin:0.0.0.0:14540"}).startswith("link: OPEN — first speaker")
+    own = [{"h_fov_deg": 30, "max_range_m": 6, "component_id": 158}]  # a sensor with ids of its own, no address
+    assert "OPEN for sensors 1/158" in line({"connect": "udpin:0.0.0.0:14540", "autopilot_address": "10.0.0.2:1"}, own)
+    assert line({"connect": "/dev/serial0"}).startswith("link: /dev/serial0")

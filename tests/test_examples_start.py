@@ -68,7 +68,7 @@ def test_run_reaches_the_link_with_the_offboard_mission_config(overrides, monkey
     monkeypatch.setattr(link, "open_connection", refuse_link)
     with pytest.raises(LinkReached) as reached:
         cli.main(["run", "--config", str(ROOT / "examples" / "offboard-mission.yaml"), *overrides])
-    assert reached.value.args[0] == (overrides[1] if overrides[:1] == ["--connect"] else "udpin:0.0.0.0:14540")
+    assert reached.value.args[0] == (overrides[1] if overrides[:1] == ["--connect"] else "udpin:127.0.0.1:14540")
 
 
 def test_an_override_is_validated_with_the_file(tmp_path, capsys):
@@ -94,3 +94,14 @@ def test_run_check_starts_the_own_vehicle_config_beside_its_table(tmp_path, caps
     out = capsys.readouterr().out
     assert f"vehicle quad-1600g, table {vehicles / 'quad-1600g.npz'}" in out
     assert f"event log {vehicles / 'quad-1600g-log'}" in out
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.name)
+def test_every_shipped_config_says_how_its_link_takes_the_autopilot(config, tmp_path, capsys):
+    """Each shipped daemon config is pinned, loopback only or a peer link (serial, udpout): none listens on the
+    network for whoever speaks first, and the banner says which it is."""
+    assert cli.main(["run", "--config", str(on_this_machine(config, tmp_path)), "--check"]) == 0
+    out = capsys.readouterr().out
+    [line] = [ln for ln in out.splitlines() if ln.startswith("link: ")]
+    assert "OPEN" not in line and "REFUSING TO ENGAGE: unsigned" not in out, out
+    assert line.startswith(("link: pinned to ", "link: loopback only", "link: /dev/", "link: udpout:127.0.0.1")), line

@@ -630,15 +630,17 @@ def test_a_signed_engage_replayed_over_udp_after_kill_9_does_not_engage(tmp_path
     assert stop and stop[0]["counters"]["rejected_signature"] >= 2
 
 
-def test_a_flood_on_the_port_costs_each_poll_a_bounded_read_and_the_autopilot_is_read_in_full():
+def test_a_flood_on_the_port_costs_each_poll_a_bounded_read_and_the_autopilot_is_read_in_full(monkeypatch):
     """Issue 17 item 3: with the autopilot on its own socket, one poll reads at most
     PORT_DATAGRAMS_PER_POLL datagrams of the shared port (a flood there once took the whole poll budget,
     37 % of a core at 100 000/s), yet every autopilot message waiting is read, and a ground station's
     message behind a burst still comes through within a few polls."""
     import socket
 
+    import companion.onboard.link as lk
     from companion.onboard.link import PORT_DATAGRAMS_PER_POLL, open_connection
 
+    monkeypatch.setattr(lk, "SEAT_SETTLE_S", 0.0)  # the autopilot's seat at its first HEARTBEAT (no one else claims)
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

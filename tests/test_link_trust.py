@@ -1,6 +1,9 @@
 """Who is who on the link, over real loopback UDP with the daemon as a process (`contract-guard run`,
 `udpin`): the autopilot is its ids and the address it is pinned to, each sensor its configured source, and
-only a configured ground station's *signed* message sets the daemon's parameters over a network link.
+only a configured ground station's *signed* message sets the daemon's parameters over a network link. A seat
+(the autopilot's, a sensor's with ids of its own) goes to no one while two addresses claim it, which refuses
+engaging and is said on the console, in the event log and to the seat's holder and the ground stations; it
+never moves while the vehicle is armed (test_link_seats.py: the same rules on the link alone).
 
 Before these checks, a spoofed DISTANCE_SENSOR "free to 6 m" at 200 Hz hid a real obstacle at 3 m (from
 another component, another address or the autopilot's own address); an unsigned PARAM_SET CG_ENGAGE 0 from
@@ -86,6 +89,9 @@ class Flight:
         self.ap = Peer(1, 1)
         self.link = {"connect": "udpin:%s:%d" % self.target, **(link or {})}
         self.engage = engage
+        self.mode = "shadow"
+        self.armed = True  # what the autopilot's HEARTBEAT says
+        self.silent = lambda t: False  # the autopilot says nothing while this holds (t: since the daemon answered)
         self.console = ""
         self.t_first: float | None = None
 
@@ -96,7 +102,7 @@ class Flight:
         answered = answered or (lambda: self.ap.got)
         speaking = False
         cfg = self.tmp / "cg.yaml"
-        cfg.write_text(yaml.safe_dump({"vehicle": "mambo", "mode": "shadow", "engage": self.engage, "link": self.link,
+        cfg.write_text(yaml.safe_dump({"vehicle": "mambo", "mode": self.mode, "engage": self.engage, "link": self.link,
                                        "sensors": [{"h_fov_deg": 30, "max_range_m": 6}],
                                        "log": {"dir": str(self.tmp / "log")}}))
         d = subprocess.Popen([sys.executable, "-m", "companion.cli", "run", "--config", str(cfg)], cwd=ROOT,
@@ -110,9 +116,9 @@ class Flight:
                 tick = time.monotonic()
                 speaking = before() or speaking
                 tb = int((tick - t_start) * 1000)
-                if speaking:
+                if speaking and not (self.t_first is not None and self.silent(time.monotonic() - self.t_first)):
                     e = self.ap.enc
-                    for msg in (e.heartbeat_encode(2, 12, 1 | 128, 4 << 16 | 4 << 24, 4),
+                    for msg in (e.heartbeat_encode(2, 12, 1 | (128 if self.armed else 0), 4 << 16 | 4 << 24, 4),
                                 e.attitude_encode(tb, 0, 0, 0, 0, 0, 0),
                                 e.local_position_ned_encode(tb, 1.0, 2.0, -2, 0, 0, 0),
                                 e.distance_sensor_encode(tb, 20, MAX_CM, OBSTACLE_CM, 0, 0, 0, 255)):
@@ -275,6 +281,9 @@ def test_a_second_autopilot_is_refused_and_said_the_real_one_keeps_the_link(tmp_
     assert any("second autopilot 1/1" in t and "REFUSED" in t for t in flight.ap.texts())  # the ground station hears it
     assert f"a second autopilot 1/1 from {impostor.address} REFUSED" in flight.console
     assert len(flight.ap.received("HEARTBEAT", after=t0)) >= 2  # the daemon still talks to the real one
+    contest = [" ".join(t.split()) for t in flight.ap.texts() if "claim the autopilot 1/1" in t]
+    assert contest and f"said to the seat {flight.ap.address}" in contest[0]  # the seat hears it, and whom it is
+    assert "refusing to engage" in contest[0]
     assert not impostor.received("HEARTBEAT") and not impostor.received("COMMAND_LONG")
     assert counters(log)["refused_address"] > 50
 
@@ -292,13 +301,16 @@ def test_an_impostor_heard_first_is_refused_where_the_autopilot_address_is_confi
     assert f"from {flight.ap.address}" in flight.console  # the banner names the configured address
 
 
-def test_an_impostor_heard_first_without_a_configured_address_is_never_silent(tmp_path):
-    """Without link.autopilot_address the first HEARTBEAT wins (nothing else tells them apart): then the real
-    autopilot is the one refused — loudly, naming both addresses, so that a person can configure the right one."""
+def test_an_impostor_heard_alone_first_without_a_configured_address_is_never_silent(tmp_path):
+    """Without link.autopilot_address an impostor heard alone before the real autopilot speaks at all takes the
+    seat (nothing else tells them apart): then the real autopilot is refused — loudly, naming both addresses, so
+    that a person can configure the right one — and the seat is contested: no engaging."""
     flight, impostor, log, _ = impostor_flight(tmp_path, configured=False, first=True)
     refused = [r for r in log if r.get("event") == "source_refused" and r["what"] == "refused"]
     assert refused and refused[0]["address"] == flight.ap.address and refused[0]["pinned"] == impostor.address
     assert f"a second autopilot 1/1 from {flight.ap.address} REFUSED" in flight.console
+    assert [r for r in log if r.get("event") == "source_refused" and r["what"] == "contested"]
+    assert "2 addresses claim the autopilot 1/1" in flight.console
 
 
 # ------------------------------------------------------------------ the pieces: the link and MAVLink-in
@@ -331,39 +343,48 @@ def read_all(link, tries=20) -> list:
     return got
 
 
-def test_a_sensor_with_ids_of_its_own_is_taken_from_its_first_address_only():
+def test_a_sensor_with_ids_of_its_own_is_taken_from_the_address_that_claimed_it_alone(monkeypatch):
+    import companion.onboard.link as lk
+
+    monkeypatch.setattr(lk, "SEAT_SETTLE_S", 0.2)
     with link_and_peers({(1, 1): None, (1, 158): None}, ap=(1, 1), lidar=(1, 158), spoof=(1, 158)) as (link, target, p):
         p["ap"].send(p["ap"].enc.heartbeat_encode(2, 12, 0, 0, 4), target)
-        p["lidar"].send(p["lidar"].enc.distance_sensor_encode(0, 20, 600, 300, 0, 0, 0, 255), target)
-        read_all(link)
+        for _ in range(3):  # heard alone for the settle time: the seat is the lidar's
+            p["lidar"].send(p["lidar"].enc.distance_sensor_encode(0, 20, 600, 300, 0, 0, 0, 255), target)
+            read_all(link)
+            time.sleep(0.1)
+        assert link.pinned[(1, 158)] == p["lidar"].sock.getsockname()
         for _ in range(20):
             p["spoof"].send(p["spoof"].enc.distance_sensor_encode(0, 20, 600, 601, 0, 0, 0, 255), target)
         p["lidar"].send(p["lidar"].enc.distance_sensor_encode(0, 20, 600, 300, 0, 0, 0, 255), target)
         got = [m for m in read_all(link) if m.get_type() == "DISTANCE_SENSOR"]
         assert [m.current_distance for m in got] == [300]
         assert link.stats["foreign_source"] == 20
-        [r] = link.take_refusals()  # reported once, with the first of them
+        r, contest = link.take_refusals()  # reported once, with the first of them; and the contest
         assert (r["what"], r["ids"], r["address"], r["pinned"]) == ("refused", (1, 158), p["spoof"].address,
                                                                     p["lidar"].address)
+        assert (contest["what"], contest["ids"], contest["pinned"]) == ("contested", (1, 158), p["lidar"].address)
 
 
 def test_an_autopilot_on_its_first_address_moves_only_after_silence_and_says_so(monkeypatch):
     import companion.onboard.link as lk
 
     monkeypatch.setattr(lk, "CLIENT_TIMEOUT_S", 0.3)
+    monkeypatch.setattr(lk, "CONTEST_S", 0.3)
+    monkeypatch.setattr(lk, "SEAT_SETTLE_S", 0.0)
     with link_and_peers(None, old=(1, 1), new=(1, 1)) as (link, target, p):
-        hb = p["old"].enc.heartbeat_encode(2, 12, 0, 0, 4)
+        hb = p["old"].enc.heartbeat_encode(2, 12, 0, 0, 4)  # disarmed: the seat may move once silent
         p["old"].send(hb, target)
         read_all(link)
         p["new"].send(hb, target)
         read_all(link)
         assert link.autopilot_addr == p["old"].sock.getsockname()
-        assert [r["what"] for r in link.take_refusals()] == ["refused"]
+        assert [r["what"] for r in link.take_refusals()] == ["refused", "contested"]
         time.sleep(0.4)  # the old address falls silent
         p["new"].send(hb, target)
         read_all(link)
         assert link.autopilot_addr == p["new"].sock.getsockname()
-        [r] = link.take_refusals()
+        [r] = [r for r in link.take_refusals() if r["what"] != "uncontested"]
         assert (r["what"], r["address"], r["pinned"]) == ("moved", p["new"].address, p["old"].address)
 
 
@@ -410,3 +431,87 @@ def test_mavlink_in_takes_each_sensor_from_its_configured_source_only():
     gcs = mav.MAVLink(None, srcSystem=255, srcComponent=190)
     assert inp.accept(gcs.decode(bytearray(gcs.heartbeat_encode(6, 8, 0, 0, 4).pack(gcs)))) == []
     assert c.unknown_source == 3  # a ground station's other messages are not an unknown source
+
+
+# ------------------------------------------------------------------ the first speaker, as a hostile reviewer tried it
+def test_an_impostor_heartbeat_before_the_autopilot_and_every_9_s_takes_no_seat_and_engaging_is_refused(tmp_path):
+    """Governor mode listening on the loopback with no link.autopilot_address: one impostor HEARTBEAT 1/1
+    just before the real autopilot's, then one every 9 s. It used to take the seat (the daemon's HEARTBEAT and
+    commands went to it; the real autopilot got none, its first messages said to be "a second autopilot …
+    REFUSED … it is None", and engaging was refused for a wrong reason: "autopilot did not report
+    MPC_TILTMAX_AIR"). Now no one holds the seat while both claim it, engaging is refused for that reason, and
+    it is said on the console, in the event log and to the ground station (no seat: not to either claimant)."""
+    flight = Flight(tmp_path, link={"unsigned_params": True})
+    impostor, gcs = Peer(1, 1), Peer(255, 190)
+    state = {"last": None, "asked": 0}
+
+    def first():  # once the daemon listens (it answers the ground station): one impostor HEARTBEAT, then the real
+        gcs.send(gcs.enc.heartbeat_encode(6, 8, 0, 0, 4), flight.target)
+        gcs.drain()
+        if state["last"] is None and gcs.got:
+            impostor.send(impostor.enc.heartbeat_encode(2, 12, 1 | 128, 4 << 16 | 4 << 24, 4), flight.target)
+            state["last"] = time.monotonic()
+        return state["last"] is not None
+
+    def each(t):
+        if time.monotonic() - state["last"] > 9.0:
+            impostor.send(impostor.enc.heartbeat_encode(2, 12, 1 | 128, 4 << 16 | 4 << 24, 4), flight.target)
+            state["last"] = time.monotonic()
+        if int(t * 50) % 50 == 0:
+            gcs.send(gcs.enc.heartbeat_encode(6, 8, 0, 0, 4), flight.target)
+        if t > 3.0 and state["asked"] < 1:
+            gcs.send(gcs.enc.param_set_encode(1, 191, b"CG_ENGAGE", 1.0, 9), flight.target)
+            state["asked"] += 1
+        gcs.drain()
+        impostor.drain()
+
+    flight.mode = "governor"
+    log = flight.fly(11.0, each, before=first, answered=lambda: gcs.got)
+    impostor.sock.close()
+    gcs.sock.close()
+    assert not impostor.received("HEARTBEAT") and not impostor.received("COMMAND_LONG")  # it holds no seat
+    assert not flight.ap.received("COMMAND_LONG")  # nor does the real one: two claim it
+    contest = [r for r in log if r.get("event") == "source_refused" and r["what"] == "contested"]
+    assert contest and set(contest[0]["address"].split(", ")) == {impostor.address, flight.ap.address}
+    assert contest[0]["pinned"] is None
+    assert "2 addresses claim the autopilot 1/1" in flight.console
+    assert "it is None" not in flight.console  # the false report at every ordinary start
+    said = [" ".join(t.split()) for t in gcs.texts() if "claim the autopilot 1/1" in t]  # (chunks padded)
+    assert said and "no seat held: said to the ground stations only" in said[0]
+    [refused] = [r for r in log if r.get("event") == "engage_refused"]
+    assert "claim the autopilot 1/1" in refused["reason"] and "MPC_TILTMAX_AIR" not in refused["reason"]
+    assert not [s for s in states(log) if s["x"] == 1000.0]
+    assert "link: loopback only" in flight.console  # the banner says how seats are given
+
+
+@pytest.mark.parametrize("armed", [True, False], ids=["in flight: the seat is held", "on the ground: it moves"])
+def test_a_silent_autopilot_loses_its_seat_to_a_new_address_only_on_the_ground(tmp_path, armed):
+    """The autopilot (x = 1 m) holds its seat, then falls silent for good; from 1 s later another address claims
+    its ids (x = 1000 m). Armed (in flight), the seat is never moved: the newcomer is refused, said with why
+    ("seat held: armed"), and never answered. Disarmed (on the ground), it takes the seat once the holder has
+    been silent for 10 s and it has been the only claimant for 2 s, and the move is said. Before, the seat
+    followed the new address after 10 s of silence in flight too."""
+    flight = Flight(tmp_path)
+    flight.armed = armed
+    flight.silent = lambda t: t > 1.0
+    newcomer = Peer(1, 1)
+
+    def each(t):
+        if t > 2.0:
+            e = newcomer.enc
+            newcomer.send(e.heartbeat_encode(2, 12, 1 | (128 if armed else 0), 4 << 16 | 4 << 24, 4), flight.target)
+            newcomer.send(e.local_position_ned_encode(0, 1000.0, 1000.0, -2, 0, 0, 0), flight.target)
+            newcomer.drain()
+
+    log = flight.fly(16.0, each)
+    newcomer.sock.close()
+    xs = {s["x"] for s in states(log)}
+    said = [r for r in log if r.get("event") == "source_refused" and r["address"] == newcomer.address]
+    if armed:
+        assert xs == {1.0} and not newcomer.received("HEARTBEAT")
+        assert said and said[0]["what"] == "refused" and said[0]["held"] == "armed"
+        assert "(seat held: armed)" in flight.console
+    else:
+        assert 1000.0 in xs and newcomer.received("HEARTBEAT")
+        moved = [r for r in log if r.get("event") == "source_refused" and r["what"] == "moved"]
+        assert moved and moved[0]["address"] == newcomer.address and moved[0]["pinned"] == flight.ap.address

@@ -1,4 +1,4 @@
-"""Issue 13 item 7: docs/vehicle-file.md, followed literally. Every command of its ```sh walkthrough blocks runs
+"""Issue 13 item 7: docs/vehicle-file.md, followed literally. Every command of its ```{.sh .walkthrough} blocks runs
 as written (`contract-guard` is this checkout's CLI, the UDP port a free one, `&` a background job, `kill` stops
 the background jobs in the order given): a small table for the new vehicle file, its controller contract, the
 checks, then the SITL flying *that* vehicle, the daemon governing it, a scripted ground station engaging it, and
@@ -23,7 +23,7 @@ PAGE = ROOT / "docs" / "vehicle-file.md"
 
 
 def walkthrough_commands(text: str) -> list[str]:
-    blocks = re.findall(r"```sh walkthrough\n(.*?)```", text, flags=re.DOTALL)
+    blocks = re.findall(r"```\{\.sh \.walkthrough\}\n(.*?)```", text, flags=re.DOTALL)
     return [ln.strip() for b in blocks for ln in b.splitlines() if ln.strip() and not ln.strip().startswith("#")]
 
 

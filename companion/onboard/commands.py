@@ -32,6 +32,7 @@ def cmd_run(args) -> int:
     from contracts.table import load_for_vehicle
 
     from .assumptions import controller_contract
+    from .autopilots import adapter_for
     from .config import weakened
     from .console import ConsoleLog, banner
     from .daemon import Daemon
@@ -39,6 +40,7 @@ def cmd_run(args) -> int:
     from .inputs import check_inputs
     from .link import SigningClock, open_connection, setup_signing
     from .service import Notifier
+    from .startup import StartupChecks
 
     cfg = run_config(args)
     table = load_for_vehicle(cfg.vehicle, cfg.table, cfg.table_public_key)
@@ -58,6 +60,9 @@ def cmd_run(args) -> int:
                 print(line)
         for line in inputs.lines + weakened(cfg):
             print(line)
+        checks = StartupChecks(adapter_for(cfg.link.autopilot), table.vehicle, cfg, table.e_pred is not None)
+        if checks.ok is False:  # refused whatever the autopilot answers
+            print(f"REFUSING TO ENGAGE: {checks.reason}")
         print(f"config {args.config}: valid; its table fits (--check: the link is not opened)")
         return 0
     faulthandler.enable()  # a watchdog abort prints the stack to the journal

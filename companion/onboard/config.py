@@ -73,8 +73,8 @@ class SensorConfig(_Strict):
     # as DISTANCE_SENSOR / OBSTACLE_DISTANCE of their own component)
     system_id: MavId | None = None
     component_id: MavId | None = None
-    # over UDP (udpin), the address its messages come from (None: the first heard; a sensor with the autopilot's
-    # ids is the autopilot's address)
+    # over UDP (udpin), the address its messages come from (None: the one address heard alone claiming its ids
+    # for a while; two claiming them refuse engaging; a sensor with the autopilot's ids is the autopilot's address)
     address: str | None = None
     # sensor axis yaw in the body frame, clockwise from forward (a finite angle, one turn either way at most)
     orientation_deg: Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False)] = 0.0
@@ -122,12 +122,16 @@ class LinkConfig(_Strict):
     target_component: MavId = 1
     component_id: MavId = 191  # MAV_COMP_ID_ONBOARD_COMPUTER
     gcs_system_ids: list[Annotated[int, Field(ge=1, le=255)]] = [255]  # ground stations that may set CG_* parameters
-    # over UDP (udpin), the address the autopilot sends from (HOST:PORT; None: the first address its HEARTBEAT
-    # comes from). Another address claiming its ids is refused, and said
+    # over UDP (udpin), the address the autopilot sends from (HOST:PORT; None: the one address heard alone
+    # claiming its ids for a while). Another address claiming its ids is refused, and said; two claiming the
+    # autopilot's seat refuse engaging
     autopilot_address: str | None = None
     # over a network link the daemon's parameters are set only by signed messages; true accepts unsigned
     # ones (weaker: anyone who can reach the link as a ground station's system id can disengage the guard)
     unsigned_params: bool = False
+    # over a network link (not loopback) governor and offboard engage only with signing on; true accepts
+    # unsigned operation (weaker: anyone who can reach the link can send sensor data and forge addresses)
+    accept_unsigned: bool = False
     # the autopilot's clock rate against the host's: 1 for a real aircraft, K for a SITL sped up K times;
     # daemon time runs at it, and an autopilot clock running otherwise is a fault
     clock_rate: Annotated[float, Field(ge=0.1, le=20)] = 1.0
@@ -181,13 +185,37 @@ class LinkConfig(_Strict):
                     "they cannot be set over the link"]
         return []
 
+    def seats(self, sensors: list[SensorConfig]) -> str:
+        """Who the link takes the autopilot and the sensors from, in one line (for the banner): pinned to
+        configured addresses, loopback only, or OPEN (a claimant heard alone for a while takes a seat)."""
+        from .link import SEAT_SETTLE_S
+
+        if not self.connect.startswith("udpin:"):
+            return f"link: {self.connect}: the autopilot is the peer of this link"
+        host = self.connect.split(":")[1].strip("[]").lower()
+        ap = (self.target_system, self.target_component)
+        unpinned = sorted({"%d/%d" % self.sensor_source(s) for s in sensors
+                           if self.sensor_source(s) != ap and s.address is None})
+        first = f"the first claimant heard alone for {SEAT_SETTLE_S:g} s takes"
+        if self.autopilot_address is not None and not unpinned:
+            return (f"link: pinned to {self.autopilot_address} (the autopilot; sensors with ids of their own at their "
+                    "configured addresses); an address is no authentication, only signing is")
+        if host == "localhost" or host.startswith("127.") or host == "::1":
+            return (f"link: loopback only ({self.connect}; a router such as mavlink-router forwards the autopilot); "
+                    f"{first} a seat, two claimants refuse engaging")
+        if self.autopilot_address is not None:
+            return (f"link: pinned to {self.autopilot_address} (the autopilot); OPEN for sensors "
+                    f"{', '.join(unpinned)}: {first} the seat (pin it: sensors[k].address)")
+        return (f"link: OPEN — first speaker: {first} the autopilot's seat on {self.connect} (pin it: "
+                "link.autopilot_address; or listen on 127.0.0.1 behind a router)")
+
     def sensor_source(self, s: "SensorConfig") -> tuple[int, int]:
         """The (system, component) a configured sensor's messages come from."""
         return (s.system_id or self.target_system, s.component_id or self.target_component)
 
     def pins(self, sensors: list[SensorConfig]) -> dict[tuple[int, int], tuple[str, int] | None]:
         """The sources a UDP link (udpin) takes from one address only: the autopilot, and each sensor with ids of
-        its own — (system, component) → the configured address, or None (the first heard). A sensor with the
+        its own — (system, component) → the configured address, or None (given by the link's seat rules). A sensor with the
         autopilot's ids comes from the autopilot's address."""
         ap = (self.target_system, self.target_component)
         pins = {ap: udp_address(self.autopilot_address)}
@@ -483,9 +511,11 @@ def weakened(cfg: Config) -> list[str]:
     if cfg.link.clock_rate < 1.0:
         out.append(f"weaker than the default: link.clock_rate {cfg.link.clock_rate:g}: every time-out runs "
                    f"{1 / cfg.link.clock_rate:g} times longer in real time (1 on an aircraft)")
-    if cfg.daemon_mode.commands and cfg.link.signing_key_file is None and is_network_link(cfg.link.connect):
-        out.append(f"unsigned on a network link in {cfg.mode} mode: anyone who can reach {cfg.link.connect} can "
-                   "send the daemon sensor data and commands (link.signing_key_file; contract-guard keys)")
+    lk = cfg.link
+    if cfg.daemon_mode.commands and lk.signing_key_file is None and lk.accept_unsigned and is_network_link(lk.connect):
+        out.append(f"WEAKENED link.accept_unsigned: unsigned on a network link in {cfg.mode} mode: anyone who can "
+                   f"reach {lk.connect} can send the daemon sensor data and commands, and forge the autopilot's "
+                   "address (sign instead: link.signing_key_file, contract-guard keys)")
     return out
 
 

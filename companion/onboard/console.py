@@ -95,7 +95,8 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return (INFO, f"mission route ready: {f.get('waypoints')} waypoints") if f["status"] == "ready" else \
             (ERR, f"mission refused: {f.get('reason')}")
     if name == "source_refused":
-        return (NOTICE if f["what"] == "unknown" else ERR if f["what"] == "refused" else WARNING), refusal_text(f)
+        return (NOTICE if f["what"] == "unknown" else ERR if f["what"] in ("refused", "contested", "bad_signature")
+                else WARNING), refusal_text(f)
     if name == "log_failing":
         return ERR, f"EVENT LOG FAILING: {f['error']} (records are kept in memory and written when it can)"
     if name in ("loop_error", "implausible_input", "autopilot_restart", "log_recovered", "log_writing"):
@@ -233,6 +234,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, navigation margin {ct.nav_margin:g} of each sensor's claimed "
         f"range{'' if ct.nav_margin else ' (claims trusted in full)'}, loop {cfg.loop_hz:g} Hz, event log {cfg.log.dir}",
         reaction_budget(cfg, table.vehicle),
+        lk.seats(cfg.sensors),
         *lk.trust(),
         f"waiting for the autopilot ({lk.autopilot}, system {lk.target_system} component {lk.target_component}) "
         f"on {lk.connect}{f' from {lk.autopilot_address}' if lk.autopilot_address else ''}",

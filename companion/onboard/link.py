@@ -61,6 +61,9 @@ PORT_DATAGRAMS_PER_POLL = 256  # udpin, autopilot pinned: the shared port's data
 REPORT_EVERY_S = 10.0  # a refused address is reported at its first datagram, then at most this often
 MAX_REPORTED = 64  # refused addresses remembered at most (the first heard of them is forgotten first)
 REPORTS_PER_WINDOW = 16  # reports per REPORT_EVERY_S at most, whatever the number of addresses (then counted only)
+SEAT_SETTLE_S = 2.0  # a seat without a configured address goes to a claimant heard alone for this long
+CONTEST_S = CLIENT_TIMEOUT_S  # an address that claimed a seat this recently still claims it
+MAV_MODE_FLAG_SAFETY_ARMED = 128
 
 
 class UdpLink(mavutil.mavfile):
@@ -71,18 +74,24 @@ class UdpLink(mavutil.mavfile):
       a datagram that cannot hold a MAVLink frame is dropped unread (`not_mavlink`);
     - `udpout:HOST:PORT` connects the socket, so the kernel delivers only that peer's datagrams and the
       local side is bound to the interface that reaches it;
-    - `udpin:HOST:PORT` binds (a second daemon on the port is refused) and takes each pinned source — the
-      autopilot (`autopilot` = (system, component) of its HEARTBEAT) and the sensors with ids of their own
-      (`pins`: (system, component) → configured address or None) — from one address only: the configured
-      one, or the first heard (for the autopilot, its first HEARTBEAT's). From then on a second socket on
-      the same port, connected to the autopilot's address, receives its datagrams in a buffer of their own,
-      so no flood on the port can crowd them out. Another address claiming a pinned source's ids is
-      refused (`foreign_autopilot`, `foreign_source`: dropped unread) and reported (`refusals`, at the first
-      datagram of each address and then at most every REPORT_EVERY_S); a source pinned to the first address
-      heard follows a new one only after CLIENT_TIMEOUT_S of silence (`autopilot_moves`, reported too), a
-      configured address never. Other senders of well-formed MAVLink are clients (answered too), at most
-      MAX_CLIENTS, forgotten after CLIENT_TIMEOUT_S of silence; new senders beyond that are dropped unread
-      (`refused_sources`);
+    - `udpin:HOST:PORT` binds (a second daemon on the port is refused) and gives each *seat* — the autopilot
+      (`autopilot` = (system, component) of its HEARTBEAT) and each sensor with ids of its own (`pins`:
+      (system, component) → configured address or None) — to one address only. A configured address holds its
+      seat for good. Without one, arrival order alone never decides: an address claims the seat (the autopilot
+      by its HEARTBEAT, a sensor by any message) and takes it only once it has been the only claimant for
+      SEAT_SETTLE_S; until then its messages are dropped unread (`unseated`, not reported: an ordinary start).
+      Once held, a seat moves only when its holder has been silent for CLIENT_TIMEOUT_S, and never while the
+      seats are held (`hold_seats`: engaged, or the autopilot reports itself armed); the move is reported.
+      Every other address claiming a held seat is refused (`foreign_autopilot`, `foreign_source`: dropped) and
+      reported (`refusals`, at its first datagram and then at most every REPORT_EVERY_S). Two addresses claiming
+      one seat within CONTEST_S of each other make it *contested* (`contested()`: the daemon refuses to engage
+      while any seat is), reported when it starts and when it ends. The autopilot's seat, once held, gets a
+      second socket connected to its address, so no flood on the port can crowd its datagrams out. Other
+      senders of well-formed MAVLink are clients (answered too), at most MAX_CLIENTS, forgotten after
+      CLIENT_TIMEOUT_S of silence; new senders beyond that are dropped unread (`refused_sources`). An address is
+      no authentication (a forged UDP source address passes): only signing is (docs/link-trust.md). With
+      signing on, a signed frame whose signature does not verify under our key is reported at once
+      (`bad_signature`: a wrong key, most likely);
     - reading drains the sockets in batches (`recv_msg` returns one message at a time; the daemon bounds
       what it takes per cycle); once the autopilot has its own socket, the shared port (ground stations,
       and whatever a flood sends) is read for at most PORT_DATAGRAMS_PER_POLL datagrams between two
@@ -107,20 +116,26 @@ class UdpLink(mavutil.mavfile):
                 self.sock = _udp_socket(connect=self.local)
         except OSError as err:
             raise ContractError(f"cannot open link {url}: {err.strerror or err}") from None
-        self.ap_sock: socket.socket | None = None  # udpin: connected to the autopilot once it is heard
+        self.ap_sock: socket.socket | None = None  # udpin: connected to the autopilot once it holds its seat
         pins = dict(pins or {})
         pins.setdefault(self.autopilot_ids, None)
-        # udpin: (system, component) → the address its messages are taken from (None: not heard yet)
+        # udpin: (system, component) → the address holding its seat (None: not taken yet)
         self.pinned: dict[tuple[int, int], tuple | None] = dict(pins) if self.listening else {}
         self.fixed = {ids for ids, a in pins.items() if a is not None} if self.listening else set()
-        self._seen: dict[tuple[int, int], float] = {}  # pinned source → when last heard from its address
+        self._seen: dict[tuple[int, int], float] = {}  # seat → when last heard from its holder
+        # seat → {address: when last heard} of the other addresses claiming it (candidates or rivals)
+        self._claims: dict[tuple[int, int], dict[tuple, float]] = {}
+        self._alone: dict[tuple[int, int], tuple[tuple, float]] = {}  # free seat → (sole claimant, since when)
+        self._contests_said: dict[tuple[int, int], tuple] = {}  # contested seat → its claimants as last reported
+        self.engaged = False  # set by `hold_seats`
+        self.armed = False  # the autopilot's last HEARTBEAT from its seat says armed
         self.refusals: list[dict] = []  # what the daemon should say (`take_refusals`)
         self._reported: dict[tuple, list] = {}  # (ids, address, what) → [refused since reported, when reported]
         self._window = [-math.inf, 0]  # [start, reports in it]: at most REPORTS_PER_WINDOW per REPORT_EVERY_S
         self.clients: dict[tuple, float] = {}
         self.stats = {"datagrams": 0, "not_mavlink": 0, "refused_sources": 0, "foreign_autopilot": 0,
                       "foreign_source": 0, "autopilot_moves": 0, "truncated_datagrams": 0, "kernel_drops": 0,
-                      "send_errors": 0}
+                      "send_errors": 0, "unseated": 0, "bad_signature": 0}
         self._drops: dict[int, int] = {}
         self._queue: list = []
         self._q = 0
@@ -134,18 +149,49 @@ class UdpLink(mavutil.mavfile):
 
     @property
     def autopilot_addr(self) -> tuple | None:
-        """The address the autopilot is taken from (udpout: the peer; udpin: pinned, or None before it is heard)."""
+        """The address the autopilot is taken from (udpout: the peer; udpin: its seat's holder, or None)."""
         return self.pinned.get(self.autopilot_ids) if self.listening else self.local
 
-    # ---- who sends from where
+    # ---- seats: who sends from where
+    def hold_seats(self, engaged: bool) -> None:
+        """The daemon is engaged (or not): while it is, or while the autopilot reports itself armed, no seat
+        moves, whatever falls silent."""
+        self.engaged = bool(engaged)
+
+    @property
+    def seats_held(self) -> str | None:
+        """Why no seat may move now (None: they may)."""
+        return "engaged" if self.engaged else "armed" if self.armed else None
+
+    def contested(self, now: float | None = None) -> list[dict]:
+        """The seats two or more addresses claim (each heard within CONTEST_S): `ids`, `autopilot` (the seat is
+        the autopilot's), `seat` (the holder's address, or None: no one holds it) and `claimants` (every
+        claiming address, the holder first). The daemon refuses to engage while this is not empty."""
+        now = time.monotonic() if now is None else now
+        out = []
+        for ids, claims in self._claims.items():
+            holder = self.pinned.get(ids)
+            active = [a for a, last in claims.items() if now - last <= CONTEST_S and a != holder]
+            if holder is not None and now - self._seen.get(ids, -math.inf) <= CONTEST_S:
+                active.insert(0, holder)
+            if len(active) >= 2:
+                out.append({"ids": ids, "autopilot": ids == self.autopilot_ids, "seat": _fmt_addr(holder),
+                            "claimants": [_fmt_addr(a) for a in active]})
+        return out
+
     def _pin(self, ids: tuple[int, int], addr: tuple, now: float) -> None:
-        """Take `ids` from `addr` from now on; the autopilot on a socket of its own."""
+        """Give `ids`'s seat to `addr` from now on; the autopilot on a socket of its own."""
         before = self.pinned.get(ids)
         self.pinned[ids], self._seen[ids] = addr, now
+        self._claims.get(ids, {}).pop(addr, None)
+        self._alone.pop(ids, None)
         if before is not None and before != addr:
+            if ids == self.autopilot_ids:
+                self.stats["autopilot_moves"] += 1
             self._report(ids, addr, before, "moved", now)
         if ids != self.autopilot_ids:
             return
+        self.armed = False  # until its own HEARTBEAT says so
         if self.ap_sock is not None:
             self.ap_sock.close()
             self.ap_sock = None
@@ -155,8 +201,17 @@ class UdpLink(mavutil.mavfile):
         except OSError:
             self.ap_sock = None  # the shared socket still serves (without the flood protection)
 
+    def _claim(self, ids: tuple[int, int], addr: tuple, now: float) -> None:
+        """`addr` claims the seat of `ids` now (at most MAX_REPORTED claimants kept: the longest silent goes)."""
+        claims = self._claims.setdefault(ids, {})
+        claims[addr] = now
+        if len(claims) > MAX_REPORTED:
+            del claims[min(claims, key=claims.get)]
+
     def _refuse(self, ids: tuple[int, int], addr: tuple, now: float) -> None:
+        """A held seat's ids from another address: dropped, a rival claim recorded, reported."""
         self.stats["foreign_autopilot" if ids == self.autopilot_ids else "foreign_source"] += 1
+        self._claim(ids, addr, now)
         self._report(ids, addr, self.pinned.get(ids), "refused", now)
 
     def _report(self, ids, addr, pinned, what: str, now: float) -> None:
@@ -175,40 +230,84 @@ class UdpLink(mavutil.mavfile):
         if now - rec[1] >= REPORT_EVERY_S and self._window[1] < REPORTS_PER_WINDOW:
             self._window[1] += 1
             self.refusals.append({"what": what, "autopilot": ids == self.autopilot_ids, "ids": ids,
-                                  "address": _fmt_addr(addr), "pinned": _fmt_addr(pinned), "count": rec[0]})
+                                  "address": _fmt_addr(addr), "pinned": _fmt_addr(pinned),
+                                  "count": rec[0], "held": self.seats_held})
             rec[0], rec[1] = 0, now
 
     def take_refusals(self) -> list[dict]:
-        """The refusals and moves to report since the last call (see `_report`)."""
+        """The refusals, moves and contests to report since the last call (see `_report`): a contest when it
+        starts or its claimants change (`contested`, `pinned`: the seat's holder, `address`: every claimant) and
+        when it ends (`uncontested`)."""
+        now = time.monotonic()
+        contests = {c["ids"]: c for c in self.contested(now)}
+        for ids, c in contests.items():
+            if self._contests_said.get(ids) != tuple(c["claimants"]):
+                self._contests_said[ids] = tuple(c["claimants"])
+                self.refusals.append({"what": "contested", "autopilot": c["autopilot"], "ids": ids,
+                                      "address": ", ".join(c["claimants"]), "pinned": c["seat"],
+                                      "count": len(c["claimants"]), "held": self.seats_held})
+        for ids in [i for i in self._contests_said if i not in contests]:
+            del self._contests_said[ids]
+            self.refusals.append({"what": "uncontested", "autopilot": ids == self.autopilot_ids, "ids": ids,
+                                  "address": None, "pinned": _fmt_addr(self.pinned.get(ids)), "count": 0,
+                                  "held": self.seats_held})
         out, self.refusals = self.refusals, []
         return out
 
     def _may_move(self, ids: tuple[int, int], now: float) -> bool:
-        """Whether a source pinned to the first address heard may follow a new one: silent for CLIENT_TIMEOUT_S."""
-        return ids not in self.fixed and now - self._seen.get(ids, -math.inf) > CLIENT_TIMEOUT_S
+        """Whether a held seat may go to another address: not configured, its holder silent for
+        CLIENT_TIMEOUT_S, and the seats not held (engaged or armed)."""
+        return ids not in self.fixed and self.seats_held is None \
+            and now - self._seen.get(ids, -math.inf) > CLIENT_TIMEOUT_S
 
     def _accept_from(self, msg, addr: tuple, now: float) -> bool:
-        """Whether a message claiming a pinned source's ids may be taken from `addr` (not pinned: yes)."""
+        """Whether a message claiming a seat's ids may be taken from `addr` (no seat for its ids: yes)."""
         ids = (msg.get_srcSystem(), msg.get_srcComponent())
         if ids not in self.pinned:
             return True
-        pinned = self.pinned[ids]
-        if addr == pinned:
+        holder = self.pinned[ids]
+        if addr == holder:
             return True
-        # the autopilot is pinned by its HEARTBEAT (what makes it the autopilot), a sensor by any message
-        pins_here = ids != self.autopilot_ids or msg.get_type() == "HEARTBEAT"
-        if pins_here and (pinned is None or self._may_move(ids, now)):
-            if pinned is not None and ids == self.autopilot_ids:
-                self.stats["autopilot_moves"] += 1  # the old address fell silent: follow the new one
+        # the autopilot claims its seat by its HEARTBEAT (what makes it the autopilot), a sensor by any message
+        claims = ids != self.autopilot_ids or msg.get_type() == "HEARTBEAT"
+        if holder is not None and not self._may_move(ids, now):
+            self._refuse(ids, addr, now)
+            return False
+        if not claims:
+            self.stats["unseated"] += 1  # e.g. the autopilot's telemetry before its HEARTBEAT took the seat
+            return False
+        self._claim(ids, addr, now)
+        active = [a for a, last in self._claims[ids].items() if now - last <= CONTEST_S and a != holder]
+        if active != [addr]:
+            self._alone.pop(ids, None)  # more than one claimant: no one takes the seat
+            self.stats["unseated"] += 1
+            return False
+        alone = self._alone.get(ids)
+        if alone is None or alone[0] != addr:
+            alone = self._alone[ids] = (addr, now)
+        if now - alone[1] >= SEAT_SETTLE_S:
             self._pin(ids, addr, now)
             return True
-        self._refuse(ids, addr, now)
+        self.stats["unseated"] += 1
         return False
 
     def _claimed_ids(self, data: bytes) -> tuple[int, int] | None:
         """The first frame's (system, component), read from its header without parsing."""
         at = 5 if data[0] == 0xFD else 3
         return (data[at], data[at + 1]) if len(data) > at + 1 else None
+
+    def _signature_mismatch(self, data: bytes, addr: tuple, now: float) -> None:
+        """A datagram whose first frame is signed, and whose signature does not verify under our key (not a
+        replay: that one verifies and is old): reported at once, then at most every REPORT_EVERY_S."""
+        key = getattr(self.mav.signing, "secret_key", None)
+        if key is None or data[0] != 0xFD or len(data) < 10 or not data[2] & 0x01:
+            return
+        n = 10 + data[1] + 2 + 13
+        if len(data) < n or hashlib.sha256(key + bytes(data[:n - 6])).digest()[:6] == bytes(data[n - 6:n]):
+            return
+        self.stats["bad_signature"] += 1
+        ids = self._claimed_ids(data)
+        self._report(ids, addr, self.pinned.get(ids), "bad_signature", now)
 
     def _admit(self, addr: tuple, now: float) -> bool:
         if addr in self.clients:
@@ -256,12 +355,13 @@ class UdpLink(mavutil.mavfile):
             if len(data) < 8 or data[0] not in (0xFD, 0xFE):
                 self.stats["not_mavlink"] += 1  # MAVLink over UDP: every datagram starts with a frame
                 continue
+            signing = self.mav.signing.secret_key is not None
             if self.listening:
                 ids = self._claimed_ids(data)
                 pinned = self.pinned.get(ids, addr)
-                if pinned is not None and pinned != addr and not self._may_move(ids, now):
+                if not signing and pinned is not None and pinned != addr and not self._may_move(ids, now):
                     self._refuse(ids, addr, now)  # cheap: a flood claiming the autopilot's ids is not parsed
-                    continue
+                    continue  # (signed: a claim counts only once its signature verifies)
                 if addr != self.autopilot_addr and not self._admit(addr, now):
                     continue
             valid = False
@@ -270,8 +370,13 @@ class UdpLink(mavutil.mavfile):
                     if self.listening and not self._accept_from(m, addr, now):
                         continue
                     valid = True
-                    if self.listening and (m.get_srcSystem(), m.get_srcComponent()) in self.pinned:
-                        self._seen[(m.get_srcSystem(), m.get_srcComponent())] = now
+                    ids = (m.get_srcSystem(), m.get_srcComponent())
+                    if self.listening and ids in self.pinned:
+                        self._seen[ids] = now
+                        if ids == self.autopilot_ids and m.get_type() == "HEARTBEAT":
+                            self.armed = bool(m.base_mode & MAV_MODE_FLAG_SAFETY_ARMED)
+                elif signing and "signature" in str(getattr(m, "reason", "")).lower():
+                    self._signature_mismatch(data, addr, now)
                 self.post_message(m)
                 self._queue.append(m)
             if valid and self.listening and addr != self.autopilot_addr:

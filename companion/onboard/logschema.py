@@ -152,12 +152,15 @@ EVENTS = {
     "param_refused": Event(("param", "value", "source", "why"), "daemon",
                            "a parameter set refused (unknown sender, unsigned over a network link, out of range, "
                            "read-only)"),
-    "source_refused": Event(("what", "system", "component", "autopilot", "address", "pinned", "count"), "daemon",
+    "source_refused": Event(("what", "system", "component", "autopilot", "address", "pinned", "count", "held"), "daemon",
                             "messages refused for who sent them (docs/link-trust.md): `unknown` ids no configured "
                             "autopilot, sensor or ground station has (once per source); `refused` a pinned source's "
                             "ids from another address — a second autopilot, a spoofed sensor — (said by STATUSTEXT "
                             "and on the console; count: refused since the last such record); `moved` a source "
-                            "pinned to the first address heard follows a new one after falling silent"),
+                            "without a configured address follows a new one after falling silent (never while `held`: engaged "
+                            "or armed); `contested` two or more addresses (`address`, the seat's holder `pinned`) "
+                            "claim one source: the daemon refuses to engage until `uncontested`; `bad_signature` a "
+                            "signed message that does not verify under our key (a wrong key)"),
     "implausible_input": Event(("message", "why", "count"), "daemon",
                                "a message dropped as implausible (message: its type, or time_boot_ms for the "
                                "autopilot's clock; count: of this type since the last such record)"),

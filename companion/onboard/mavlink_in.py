@@ -202,7 +202,17 @@ def refusal_text(f: dict) -> str:
         return f"messages from {ids}, not a configured autopilot, sensor or ground station: dropped"
     if f["what"] == "moved":
         return f"{who} {ids} now taken from {f['address']} (was {f['pinned']}, silent)"
-    return f"a second {who} {ids} from {f['address']} REFUSED ({f['count']}): it is {f['pinned']}"
+    if f["what"] == "contested":
+        heard = (f"said to the seat {f['pinned']} and the ground stations" if f["pinned"] else
+                 "no seat held: said to the ground stations only")
+        return (f"{f['count']} addresses claim the {who} {ids}: {f['address']}: refusing to engage until one is "
+                f"silent (pin its address in the config; {heard})")
+    if f["what"] == "uncontested":
+        return f"the {who} {ids} is claimed from one address again ({f['pinned'] or 'no seat taken yet'})"
+    if f["what"] == "bad_signature":
+        return f"signature mismatch from {f['address']} ids {ids}: wrong key? ({f['count']} refused)"
+    held = f" (seat held: {f['held']})" if f.get("held") else ""
+    return f"a second {who} {ids} from {f['address']} REFUSED ({f['count']}): it is {f['pinned']}{held}"
 
 
 SENSOR_KINDS = {"DISTANCE_SENSOR": _distance_sensor, "OBSTACLE_DISTANCE": _obstacle_distance}
@@ -277,7 +287,7 @@ class MavlinkIn:
             c.kernel_drops = stats.get("kernel_drops", 0)
         refusals = conn.take_refusals() if hasattr(conn, "take_refusals") else ()
         return [SourceRefused(self.clock(), r["what"], tuple(r["ids"]), r["autopilot"], r["address"], r["pinned"],
-                              r["count"]) for r in refusals]
+                              r["count"], r.get("held")) for r in refusals]
 
     def samples(self, t: float, kind: str, msg, src: tuple[int, int] | None = None) -> list:
         """The samples of one accepted message at daemon time t (may raise on nonsense: the caller counts it);

@@ -47,6 +47,7 @@ class Protocols:
                                          lk.target_system, lk.component_id, cfg.route.level_tolerance_m,
                                          corner_cut_m=cfg.route.corner_cut_m)
         self._implausible_seen: dict[str, tuple[float, int]] = {}  # kind → (last logged, count since)
+        self._hold_seats()
 
     def take(self, s, t_now: float) -> Outbox:
         """One sample that is not the estimators' alone; `t_now`: the daemon's time (a PARAM_SET carries none)."""
@@ -60,11 +61,19 @@ class Protocols:
         if isinstance(s, AutopilotParam):
             return self._autopilot_param(s)
         if isinstance(s, SourceRefused):
+            if s.what in ("contested", "uncontested"):  # no engaging while two addresses claim one source
+                self.checks.contest(s.ids, refusal_text(_fields(s)) if s.what == "contested" else None)
             return _source_refused(s)
         self.cycle.take(s)
         if isinstance(s, MissionMessage):
             return _outbox(self.mission.take(s.t, s.msg)) if self.mission is not None else EMPTY
         return self._implausible(s) if isinstance(s, Implausible) else EMPTY
+
+    def _hold_seats(self) -> None:
+        """Engaged (CG_ENGAGE 1), no seat on the link moves (a link without seats has no `hold_seats`)."""
+        hold = getattr(self.out.conn, "hold_seats", None)
+        if hold is not None:
+            hold(self.params.values["CG_ENGAGE"] >= 0.5)
 
     def mission_request(self, t: float, why: str) -> Outbox:
         return _outbox(self.mission.request(t, why)) if self.mission is not None else EMPTY
@@ -122,14 +131,21 @@ class Protocols:
                 self.cycle.engage_requested()
                 box = self.mission_request(t, "engage requested")  # the mission as it is now (it may be edited)
             events.append(("param_set", {"param": name, "old": old, "new": new}))
+            self._hold_seats()
         self.save_signing()  # a set taken is never taken again, even after a kill -9
         return Outbox(messages=(ps.value(name),)).then(box).then(Outbox(events=tuple(events), texts=tuple(texts)))
 
 
+def _fields(s: SourceRefused) -> dict:
+    return dict(what=s.what, system=s.ids[0], component=s.ids[1], autopilot=s.autopilot, address=s.address,
+                pinned=s.pinned, count=s.count, held=s.held)
+
+
 def _source_refused(s: SourceRefused) -> Outbox:
     """Whom MAVLink-in or the link refused, in the event log; a pinned source's ids from another address (a second
-    autopilot, a spoofed sensor) or a move also to the ground station and the console."""
-    fields = dict(what=s.what, system=s.ids[0], component=s.ids[1], autopilot=s.autopilot, address=s.address,
-                  pinned=s.pinned, count=s.count)
-    texts = () if s.what == "unknown" else ((2 if s.what == "refused" else 4, "CG: " + refusal_text(fields)),)
+    autopilot, a spoofed sensor), a contested seat, a signature that does not verify, or a move also to the ground
+    stations (and the autopilot's seat, if held) and the console."""
+    fields = _fields(s)
+    severity = 2 if s.what in ("refused", "contested", "bad_signature") else 4
+    texts = () if s.what == "unknown" else ((severity, "CG: " + refusal_text(fields)),)
     return Outbox(events=(("source_refused", fields),), texts=texts)

@@ -82,7 +82,9 @@ class Scan:
 class SourceRefused:
     """Messages refused for who sent them: ids no configured autopilot, sensor or ground station has
     (`what` "unknown"), or a pinned source's ids from another address (`what` "refused": a second autopilot,
-    a spoofed sensor) or a pinned source that followed a new address after falling silent ("moved")."""
+    a spoofed sensor), a pinned source that followed a new address after falling silent ("moved"), a seat two
+    addresses claim ("contested", until "uncontested"; `address`: every claimant) or a signed message whose
+    signature does not verify under our key ("bad_signature")."""
 
     t: float
     what: str
@@ -91,6 +93,7 @@ class SourceRefused:
     address: str | None = None  # where the refused messages came from (a UDP link's; None: not known)
     pinned: str | None = None  # the address the source is taken from
     count: int = 1  # refused since the last report
+    held: str | None = None  # why no seat may move now ("engaged", "armed"), or None
 
 
 @dataclass(frozen=True, slots=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .config import Config
+from .config import Config, is_network_link
 from .coverage import refusal as coverage_refusal
 from .outbox import EMPTY, Outbox
 
@@ -36,6 +36,19 @@ def setpoint_timeout_problem(name: str, value: float | None, cfg: Config) -> str
     return None
 
 
+def unsigned_refusal(cfg: Config) -> str | None:
+    """Why a commanding mode refuses to engage on this link, or None: over a network link (not loopback, not
+    serial) the daemon engages only with signing on, or with unsigned operation accepted by name
+    (`link.accept_unsigned`, WEAKENED in the banner). Anyone who can reach an unsigned network link can send
+    the daemon sensor data and forge the autopilot's address."""
+    lk = cfg.link
+    if not cfg.daemon_mode.commands or lk.signing_key_file is not None or lk.accept_unsigned \
+            or not is_network_link(lk.connect):
+        return None
+    return (f"unsigned on the network link {lk.connect}: {cfg.mode} mode engages only with signing "
+            "(link.signing_key_file) or with link.accept_unsigned: true (weaker)")
+
+
 class StartupChecks:
     """DESIGN.md §5 start-up checks: the autopilot's tilt limit and braking limits must be at least what
     the contract assumes (else its braking or swerving is weaker than the table's), a companion-only
@@ -57,14 +70,35 @@ class StartupChecks:
         self.said: tuple[bool, str] | None = None  # the verdict last logged
         self.t_asked: float | None = None
         self._t_restart = -math.inf
+        # the link's seats two or more addresses claim: (system, component) → why (`contest`); refuses while any
+        self.contests: dict[tuple[int, int], str] = {}
         why = self.static()
         self.ok: bool | None = None if why is None else False  # refused before the autopilot is even heard
         if why is not None:
             self.said = (False, why)
 
     @property
+    def ok(self) -> bool | None:
+        """True, False, or None while pending; False too while a seat on the link is contested."""
+        return False if self.contests else self._ok
+
+    @ok.setter
+    def ok(self, value: bool | None) -> None:
+        self._ok = value
+
+    @property
     def reason(self) -> str:
+        if self.contests:
+            return next(iter(self.contests.values()))
         return self.said[1] if self.said is not None else "the start-up checks are pending"
+
+    def contest(self, ids: tuple[int, int], why: str | None) -> None:
+        """The link says two or more addresses claim the source `ids` (`why`), or no longer (None): no engaging
+        while any source is claimed twice (an engaged flight then holds, as for any failed check in flight)."""
+        if why is None:
+            self.contests.pop(ids, None)
+        else:
+            self.contests[ids] = why
 
     def asked(self, t: float) -> Outbox:
         """The link is up (the parameters are asked for now): the deadline starts; a refusal is said again, now
@@ -109,7 +143,8 @@ class StartupChecks:
                     "or state contract.e_tr_assumed_m")
         if not any(abs(((s.orientation_deg + 180) % 360) - 180) <= s.h_fov_deg / 2 for s in self.cfg.sensors):
             return "no configured sensor looks forward"
-        return coverage_refusal(self.cfg.sensors, self.vehicle.r_body_m, self.e_tr_least())
+        return coverage_refusal(self.cfg.sensors, self.vehicle.r_body_m, self.e_tr_least()) or \
+            unsigned_refusal(self.cfg)
 
     def e_tr_least(self) -> float:
         """The least E_tr the contract uses (the floor; without a controller contract the stated E_tr)."""
