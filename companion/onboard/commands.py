@@ -40,14 +40,16 @@ def cmd_run(args) -> int:
     from .inputs import check_inputs
     from .link import SigningClock, open_connection, setup_signing
     from .service import Notifier
-    from .startup import StartupChecks
+    from .startup import StartupChecks, looks_forward
 
     cfg = run_config(args)
     table = load_for_vehicle(cfg.vehicle, cfg.table, cfg.table_public_key)
     if cfg.daemon_mode.contract == "avoid" and table.avoid is None:
         raise ContractError(f"mode {cfg.mode} needs an avoid contract; table {table.path} carries the stop "
                             "contract only")
-    if cfg.daemon_mode.commands:  # a set-up whose beams cover the swept corridor nowhere is refused before the link
+    # a set-up whose forward beams cover the swept corridor nowhere is refused before the link (one with no forward
+    # sensor at all starts and refuses to engage, saying so to the ground station: the start-up checks)
+    if cfg.daemon_mode.commands and looks_forward(cfg.sensors):
         from .assumptions import e_tr_floor
         from .coverage import refusal
 

@@ -125,7 +125,12 @@ class DodEstimator:
     the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the swept
     coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
 
-    def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float):
+    def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float, cover: bool = True):
+        """`cover`: D_od is capped by the beams' cover of the swept corridor (`estimate`); False under the avoid
+        contract, where the daemon's own swerves put the direction of travel at a field of view's edge and the cap
+        read them as blindness (Figure 17 with late plans stopped short of its route; its braking broke the
+        controller contract)."""
+        self.cover = cover
         self.sensors = [_SensorState(c) for c in sensors]
         self.contract = contract
         self.stale_s = stale_s
@@ -333,7 +338,7 @@ class DodEstimator:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
         if swept_half_m is None and math.isfinite(corridor_m):
             swept_half_m = corridor_m - 2 * self.r_obst
-        w = None if swept_half_m is None else max(swept_half_m, 0.0)
+        w = None if swept_half_m is None or not self.cover else max(swept_half_m, 0.0)
         short = False  # the beams cover less of the corridor along the direction of travel than they claim
         if covered and w is not None:  # the beams' cover of the corridor (companion/onboard/coverage.py)
             cover = corridor_cover(beams, w, beta, grid=True)

@@ -26,7 +26,7 @@ class Sensing:
     def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str):
         veh = table.vehicle
         self.adapter = adapter
-        self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s)
+        self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s, cover=contract == "stop")
         # D_od from evidence: what the sensors' claim cannot say
         self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))

@@ -36,6 +36,14 @@ def setpoint_timeout_problem(name: str, value: float | None, cfg: Config) -> str
     return None
 
 
+NOT_FORWARD = "no configured sensor looks forward"
+
+
+def looks_forward(sensors) -> bool:
+    """Some configured sensor's field of view holds the direction of flight (the body's forward axis)."""
+    return any(abs(((s.orientation_deg + 180) % 360) - 180) <= s.h_fov_deg / 2 for s in sensors)
+
+
 def unsigned_refusal(cfg: Config) -> str | None:
     """Why a commanding mode refuses to engage on this link, or None: over a network link (not loopback, not
     serial) the daemon engages only with signing on, or with unsigned operation accepted by name
@@ -141,8 +149,8 @@ class StartupChecks:
         if not self.controller_contract and self.cfg.contract.e_tr_assumed_m is None:
             return ("the table carries no controller contract (E_tr_pred): build it (contract-guard table etr) "
                     "or state contract.e_tr_assumed_m")
-        if not any(abs(((s.orientation_deg + 180) % 360) - 180) <= s.h_fov_deg / 2 for s in self.cfg.sensors):
-            return "no configured sensor looks forward"
+        if not looks_forward(self.cfg.sensors):
+            return NOT_FORWARD
         return coverage_refusal(self.cfg.sensors, self.vehicle.r_body_m, self.e_tr_least()) or \
             unsigned_refusal(self.cfg)
 
