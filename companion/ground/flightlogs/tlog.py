@@ -41,6 +41,7 @@ from contracts.errors import ContractError
 
 from ..review import Origin, fmt_value
 from .bounds import MAX_SAMPLES, gc_frozen, gc_paused
+from .flightspan import HORIZONTAL, Watch, facing, flight_end, gaps_finding, not_forward_lines
 from .loginput import Feed, not_multirotor, order
 
 MAGIC = re.compile(b"[\xfd\xfe]")
@@ -581,6 +582,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     off, length, t_us, raw_us, common = scan.offset, scan.length, scan.t_us, scan.raw_us, scan.common
 
     mav = daemon.conn.mav  # the daemon's own dialect (the scan's: mavutil's)
+    watch, target = Watch(cfg.timeouts.heartbeat_s), (cfg.link.target_system, cfg.link.target_component)
+    off_path: Counter = Counter()  # (sys, comp, id, orientation) of DISTANCE_SENSORs off the horizontal → samples
 
     def take(i: int, t: float) -> None:
         now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
@@ -589,6 +592,12 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
             daemon.counters.bad_packets += 1
             return
+        kind = msg.get_type()
+        if kind == "HEARTBEAT" and (msg.get_srcSystem(), msg.get_srcComponent()) == target:
+            watch.stream(now["t"], t_us[i] / 1e6)
+            watch.armed(now["t"], bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
+        elif kind == "DISTANCE_SENSOR" and msg.orientation >= HORIZONTAL:
+            off_path[(msg.get_srcSystem(), msg.get_srcComponent(), msg.id, msg.orientation)] += 1
         daemon.feed(msg)
 
     def step(tick: float) -> None:
@@ -599,7 +608,13 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     run = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {**run, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
+    sensors = [{"what": f"DISTANCE_SENSOR id {i} from {sy}/{cp}", "facing": facing(o), "samples": n}
+               for (sy, cp, i, o), n in sorted(off_path.items())]
+    sensors += [{"what": f"RANGEFINDER from {sy}/{cp}", "samples": n,
+                 "facing": "no orientation given (ArduPilot's primary rangefinder, usually the downward one)"}
+                for (sy, cp, k), n in sorted(scan.counts.items()) if k == "RANGEFINDER"]
+    return {**run, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets,
+            "flight": watch.result(now["t"]), "other_sensors": sensors}
 
 
 def stepped_silence(cfg: Config) -> float:
@@ -784,6 +799,10 @@ class Replay(Origin):
             out.append(f"tlog longer than {MAX_SAMPLES} packets: only the first {MAX_SAMPLES} replayed")
         if info.get("gaps_skipped"):
             out.append(silences(info))
+        gaps = gaps_finding(info.get("flight"), "ground-station telemetry gaps" if info.get("recorder")
+                            else "telemetry gaps in the tlog", "the autopilot's HEARTBEAT absent from the tlog")
+        if gaps:
+            out.append(gaps)
         fl = info.get("in_flight")
         line = differs(fl) if fl else None
         if line:
@@ -802,7 +821,10 @@ class Replay(Origin):
             out.append(f"  in-flight daemon vs replay ({part}, aligned within {ALIGN_BEFORE_S:g} s), max |difference|: "
                        + ", ".join(f"{k} {fmt_value(v)} ({fl['compared'][k]} values)"
                                    for k, v in fl["max_abs_diff"].items()))
-        return out
+        return out + not_forward_lines(rp.get("other_sensors", []))
+
+    def flight_end(self, daemon_end: dict | None) -> dict | None:
+        return flight_end(self.info.get("flight"), daemon_end)
 
     def title(self) -> str:
         return f"replayed from {Path(self.info['tlog']).name}"
@@ -865,6 +887,11 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "skipped_s": run["skipped_s"],
         "daemon_messages": run["messages"],
         "missing_streams": {k: list(v) for k, v in missing.items()},
+        "flight": run["flight"],
+        "other_sensors": run["other_sensors"],
+        # who recorded the tlog: a ground station (its own HEARTBEAT, or the telemetry radio's status) or not said
+        "recorder": "ground station" if any(ty == mavlink.MAV_TYPE_GCS for ty, _ in scan.heartbeats.values())
+        or any(k == "RADIO_STATUS" for _, _, k in scan.counts) else None,
         "slow_streams": slow,
         "event_log": None,  # where the replayed event log is kept, if it is (see companion.cli)
         "in_flight": in_flight(replace(scan, in_flight=[(cut_time(run["cuts"], t), *r) for t, *r in scan.in_flight],

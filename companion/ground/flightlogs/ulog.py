@@ -39,6 +39,7 @@ import numpy as np
 from contracts.errors import ContractError
 from contracts.geodesy import ne_from_geo
 
+from .flightspan import off_path_sensors
 from .loginput import (
     MAV_TYPES,
     VTOL_TYPES,
@@ -333,11 +334,13 @@ def read_ulog(path) -> Feed:
         add("vehicle_land_detected", ts["vehicle_land_detected"], "landed", [(1 if v > 0 else 2,) for v in c.tolist()])
     if (d := top.get("estimator_status")) is not None and (c := _col(d, "solution_status_flags")) is not None:
         add("estimator_status", ts["estimator_status"], "nav", [("ESTIMATOR_STATUS", int(v)) for v in c.tolist()])
+    off_path: list[dict] = []  # range sensors looking off the path (up, down): named in the review
     if (d := top.get("distance_sensor")) is not None:
         cur, lo, hi = _col(d, "current_distance"), _col(d, "min_distance"), _col(d, "max_distance")
         ori, q = _col(d, "orientation"), _col(d, "signal_quality")
         if cur is not None and lo is not None and hi is not None:
             ori = ori if ori is not None else np.zeros(len(cur))
+            off_path = off_path_sensors("distance_sensor", ori)
             q = q if q is not None else -np.ones(len(cur))
             rows = [(math.radians(45 * o), c, a, b, 0 if s < 0 else 1 if s == 0 else max(2, int(s)))
                     for c, a, b, o, s in zip(cur.tolist(), lo.tolist(), hi.tolist(), ori.astype(int).tolist(), q.tolist())
@@ -433,6 +436,7 @@ def read_ulog(path) -> Feed:
         "span_s": ops[-1][0] / 1e6 if ops else 0.0,
         "sources": used,
         "lacking": missing,
+        "other_sensors": off_path,
         "rates_hz": {k: round(v, 2) for k, v in sorted(rates.items())},
         "params": {k: params[k] for k in PARAMS if k in params},
         "dropouts": len(ulog.dropouts),
