@@ -39,13 +39,15 @@ def _as_live_daemons(out: Path) -> dict:
 # ------------------------------------------------------------------ a ground station's tlog of known truth
 
 ARM_S, GAP_AT_S, GAP_S, DISARM_S, STREAM_END_S, LOG_END_S = 2.0, 20.0, 4.0, 40.0, 45.0, 100.0
+PARAM_AT_S = 10  # after the replay's start-up checks gave up waiting (5 s)
 
 
 def ground_station_tlog(path: Path) -> Path:
     """A quadrotor's stream as a ground station records it: its own HEARTBEAT (GCS, 255/190) every second to the
     end; the autopilot's HEARTBEAT at 1 Hz and position, attitude and a downward DISTANCE_SENSOR (id 3,
     orientation 25) at 5 Hz; armed at ARM_S, the radio silent for GAP_S from GAP_AT_S, disarmed at DISARM_S, the
-    autopilot's stream gone at STREAM_END_S (the vehicle powered off) while the ground station logs on to LOG_END_S."""
+    autopilot's stream gone at STREAM_END_S (the vehicle powered off) while the ground station logs on to LOG_END_S;
+    ANGLE_MAX, asked for by the ground station, at PARAM_AT_S."""
     from pymavlink.dialects.v20 import common as mav
 
     ap, gcs = mav.MAVLink(None, srcSystem=1, srcComponent=1), mav.MAVLink(None, srcSystem=255, srcComponent=190)
@@ -59,6 +61,8 @@ def ground_station_tlog(path: Path) -> Path:
             if t >= STREAM_END_S or GAP_AT_S < t < GAP_AT_S + GAP_S:
                 continue
             ms = round(t * 1000)
+            if k == PARAM_AT_S * 5:  # the one checked parameter the ground station asked for, late
+                out.write(stamp + ap.param_value_encode(b"ANGLE_MAX", 3500.0, 9, 500, 7).pack(ap))
             if k % 5 == 0:
                 armed = 128 if ARM_S <= t < DISARM_S else 0
                 out.write(stamp + ap.heartbeat_encode(2, 3, 1 | armed, 5, 4).pack(ap))
@@ -116,6 +120,17 @@ def test_a_downward_rangefinder_is_named_and_not_taken_as_d_od(gcs_replay):
     assert ("a downward rangefinder (DISTANCE_SENSOR id 3 from 1/1, orientation down; " in text
             and "it is not an obstacle sensor: its readings are not taken as D_od" in text)
     assert rep["ranges"]["d_od"]["max"] == 0.0  # not D_od: the assumed sensor looks forward
+
+
+def test_a_parameter_the_tlog_holds_late_is_not_said_unreported(gcs_replay):
+    """The replay cannot ask for the parameters its start-up checks read: it has those the ground station asked
+    for, when it did. The finding says so, and where the tlog holds each."""
+    rep, _, text, out = gcs_replay
+    assert "1 failed start-up check(s): the log holds no ANGLE_MAX in time for the replay's check" in rep["findings"]
+    assert (f"the start-up checks' parameters in the tlog: ANGLE_MAX (t = {PARAM_AT_S:.1f} s); not in it: "
+            "WPNAV_ACCEL, WPNAV_JERK, GUID_TIMEOUT") in text
+    # negative control: read as the live daemon's log, the autopilot "did not report" it
+    assert "1 failed start-up check(s): autopilot did not report ANGLE_MAX" in _as_live_daemons(out)["findings"]
 
 
 # ------------------------------------------------------------------ the rule itself
@@ -206,11 +221,58 @@ def test_the_real_arducopters_flight_ends_at_its_last_disarm(arducopter):
     assert old == {"t": pytest.approx(1053.26, abs=0.1), "why": "failsafe: autopilot heartbeat lost"}
 
 
-@needs_px4
-def test_a_real_ulogs_silence_is_a_gap_in_the_log_not_a_failsafe(tmp_path):
-    rep, origin = review_log(PX4_GAPPY, tmp_path / "out", vehicle="x500")
+# ------------------------------------------------------------------ a ULog's snapshot from before its start
+
+SNAPSHOT_BEFORE_S, ULOG_START_US, ULOG_S = 20.0, 30_000_000, 10.0
+
+
+def snapshot_ulog(path: Path) -> Path:
+    """A PX4 hover logged for ULOG_S from ULOG_START_US, whose `vehicle_status` (armed) is the logger's snapshot
+    at its start: one sample published SNAPSHOT_BEFORE_S before logging began, as PX4's logger writes it."""
+    from sitl_harness.flightlog import Px4Log
+    from sitl_harness.ulog_writer import ULogWriter
+
+    topics = ("vehicle_local_position", "vehicle_attitude", "vehicle_status", "vehicle_land_detected")
+    w = ULogWriter(path, ULOG_START_US)
+    for name in topics:
+        w.define(name, Px4Log.TOPICS[name])
+    w.info("sys_name", "PX4")
+    w.info("ver_hw", "PX4_SITL")
+    w.param("MAV_TYPE", 2, True)
+    ids = {name: w.add(name) for name in topics}
+    w.data(ids["vehicle_status"], {"timestamp": ULOG_START_US - round(SNAPSHOT_BEFORE_S * 1e6), "nav_state": 4,
+                                   "arming_state": 2, "vehicle_type": 1})
+    for k in range(int(ULOG_S * 10) + 1):
+        us = ULOG_START_US + k * 100_000
+        w.data(ids["vehicle_local_position"], {"timestamp": us, "xy_valid": True, "z_valid": True, "v_xy_valid": True,
+                                               "v_z_valid": True, "z": -5.0})
+        w.data(ids["vehicle_attitude"], {"timestamp": us, "q": [1.0, 0.0, 0.0, 0.0]})
+        w.data(ids["vehicle_land_detected"], {"timestamp": us, "landed": False})
+    w.close()
+    return path
+
+
+def test_a_ulogs_snapshot_from_before_its_start_is_no_gap(tmp_path):
+    from pyulog import ULog
+
+    path = snapshot_ulog(tmp_path / "snapshot.ulg")
+    raw = ULog(str(path))  # the trap is in the file: a sample stamped 20 s before the log's start
+    status = next(d for d in raw.data_list if d.name == "vehicle_status")
+    assert raw.start_timestamp - int(status.data["timestamp"][0]) == SNAPSHOT_BEFORE_S * 1e6
+    rep, origin = review_log(path, vehicle="x500")
+    info = rep["flight_log"]
+    assert info["span_s"] == pytest.approx(ULOG_S, abs=0.01)  # was 30 s "of a 10 s log"
+    assert info["stamped_before_start"] == ["vehicle_status"] and "predates the log's start" in format_report(rep, origin)
+    assert info["flight"]["gaps"] == 0 and not info.get("gaps_skipped")  # was a 20 s silence at t = 0, cut out
     assert rep["failsafe_count"] == 0
-    assert sum(f.startswith("gaps in the autopilot's log: 1 ") for f in rep["findings"]) == 1
-    assert rep["flight_end"] == {"t": None, "why": "the log never shows the vehicle armed"}
-    old = _as_live_daemons(tmp_path / "out")
-    assert old["failsafe_count"] == 1 and old["flight_end"]["why"] == "failsafe: autopilot heartbeat lost"
+    assert rep["flight_end"]["why"].startswith("still armed at the log's end")
+
+
+@needs_px4
+def test_the_real_ulogs_say_no_failsafe_and_span_no_more_than_the_log(tmp_path):
+    for path in sorted(PX4_GAPPY.parent.glob("*.ulg")):
+        rep, _ = review_log(path, vehicle="x500")
+        info = rep["flight_log"]
+        assert rep["failsafe_count"] == 0, path.name
+        assert info["span_s"] <= info["log_duration_s"] + 0.5, path.name  # was 19.7 s of a 9.77 s log, and others
+        assert not any("gaps in the autopilot's log" in f for f in rep["findings"]), path.name  # none is gappy

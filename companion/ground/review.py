@@ -55,6 +55,7 @@ OVERSHOOT = 0.05
 MAX_LISTED = 1000  # longest list kept per kind of event in the report (the rest are counted)
 # the daemon's failsafe reason for the autopilot's heartbeat lost (`supervisor`): in a replay, the log fell silent
 LOG_LINK = "autopilot heartbeat lost"
+NOT_REPORTED = "autopilot did not report "  # a start-up check's reason for a parameter not answered (`startup`)
 
 
 def _num(x) -> float | None:
@@ -637,7 +638,11 @@ def findings(rep: dict) -> list[str]:
                    f"({len(short)} flight(s)); build the table over the whole thrust_ratio_range")
     bad_checks = [c for c in rep["startup_checks"] if c["ok"] is not True]
     if bad_checks:
-        out.append(f"{len(bad_checks)} failed start-up check(s): {bad_checks[0]['reason']}")
+        why = bad_checks[0]["reason"]
+        if rep["link"].get("of_the_log") and isinstance(why, str) and why.startswith(NOT_REPORTED):
+            # a replay cannot ask: it has the parameters the log holds, when the log's recorder had them
+            why = f"the log holds no {why[len(NOT_REPORTED):]} in time for the replay's check"
+        out.append(f"{len(bad_checks)} failed start-up check(s): {why}")
     failed = rep["commands"]["failed"]
     if failed:
         out.append(f"{len(failed)} command(s) not accepted by the autopilot, the first at t = "

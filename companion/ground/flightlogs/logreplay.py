@@ -128,6 +128,9 @@ class FlightLog(Origin):
             out.append(f"  E_tr against the commanded path ({info['sources'].get('target')}): max "
                        f"{et['measured_max_m']:.2f} m at t = {et['at_t']:.1f} s (contract used "
                        f"{fmt_value(et['used_at_max_m'], ' m')} there)")
+        if info.get("stamped_before_start"):
+            out.append(f"  {', '.join(info['stamped_before_start'])}: the logger's first sample predates the log's "
+                       "start (its snapshot of the last value): taken as the value at the start")
         return out + not_forward_lines(info.get("other_sensors", []))
 
     def flight_end(self, daemon_end: dict | None) -> dict | None:

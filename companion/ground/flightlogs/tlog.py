@@ -584,6 +584,7 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     mav = daemon.conn.mav  # the daemon's own dialect (the scan's: mavutil's)
     watch, target = Watch(cfg.timeouts.heartbeat_s), (cfg.link.target_system, cfg.link.target_component)
     off_path: Counter = Counter()  # (sys, comp, id, orientation) of DISTANCE_SENSORs off the horizontal → samples
+    checked = {c.name: None for c in adapter_for(cfg.link.autopilot).param_checks}  # → when the log first has it
 
     def take(i: int, t: float) -> None:
         now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
@@ -598,6 +599,8 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
             watch.armed(now["t"], bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
         elif kind == "DISTANCE_SENSOR" and msg.orientation >= HORIZONTAL:
             off_path[(msg.get_srcSystem(), msg.get_srcComponent(), msg.id, msg.orientation)] += 1
+        elif kind == "PARAM_VALUE" and checked.get(msg.param_id, 0) is None:
+            checked[msg.param_id] = now["t"]
         daemon.feed(msg)
 
     def step(tick: float) -> None:
@@ -614,7 +617,7 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
                  "facing": "no orientation given (ArduPilot's primary rangefinder, usually the downward one)"}
                 for (sy, cp, k), n in sorted(scan.counts.items()) if k == "RANGEFINDER"]
     return {**run, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets,
-            "flight": watch.result(now["t"]), "other_sensors": sensors}
+            "flight": watch.result(now["t"]), "other_sensors": sensors, "checked_params": checked}
 
 
 def stepped_silence(cfg: Config) -> float:
@@ -821,13 +824,24 @@ class Replay(Origin):
             out.append(f"  in-flight daemon vs replay ({part}, aligned within {ALIGN_BEFORE_S:g} s), max |difference|: "
                        + ", ".join(f"{k} {fmt_value(v)} ({fl['compared'][k]} values)"
                                    for k, v in fl["max_abs_diff"].items()))
-        return out + not_forward_lines(rp.get("other_sensors", []))
+        return out + _checked_line(rp.get("checked_params")) + not_forward_lines(rp.get("other_sensors", []))
 
     def flight_end(self, daemon_end: dict | None) -> dict | None:
         return flight_end(self.info.get("flight"), daemon_end)
 
     def title(self) -> str:
         return f"replayed from {Path(self.info['tlog']).name}"
+
+
+def _checked_line(checked: dict | None) -> list[str]:
+    """Where the tlog holds the parameters the start-up checks read (a replay cannot ask for them: it has what the
+    tlog's recorder asked for, when it did)."""
+    if not checked:
+        return []
+    held = [f"{k} (t = {t:.1f} s)" for k, t in checked.items() if t is not None]
+    lacks = [k for k, t in checked.items() if t is None]
+    return [f"  the start-up checks' parameters in the tlog: {', '.join(held) or 'none'}"
+            + (f"; not in it: {', '.join(lacks)}" if lacks else "")]
 
 
 def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -> Replay:
@@ -889,6 +903,7 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "missing_streams": {k: list(v) for k, v in missing.items()},
         "flight": run["flight"],
         "other_sensors": run["other_sensors"],
+        "checked_params": run["checked_params"],  # the start-up checks' parameters → when the tlog first has one
         # who recorded the tlog: a ground station (its own HEARTBEAT, or the telemetry radio's status) or not said
         "recorder": "ground station" if any(ty == mavlink.MAV_TYPE_GCS for ty, _ in scan.heartbeats.values())
         or any(k == "RADIO_STATUS" for _, _, k in scan.counts) else None,

@@ -253,10 +253,16 @@ def read_ulog(path) -> Feed:
     ts = {k: np.asarray(v["timestamp"], dtype=np.int64) for k, v in top.items() if len(v.get("timestamp", ()))}
     top = {k: v for k, v in top.items() if k in ts}  # a topic without timestamps (a damaged format): not read
     used: dict[str, str] = {}
+    # PX4's logger starts by writing each topic's last sample, stamped when it was published, which may be long
+    # before logging began: taken as the topic's value at the log's start (no pause before it is made up)
+    start, early = int(getattr(ulog, "start_timestamp", 0) or 0), set()
 
     def add(topic, times, op, rows):
         for t, row in zip(times.tolist(), rows):
             if 0 < t < MAX_DT_US:  # a zero or absurd timestamp is a corrupt sample: not fed
+                if t < start:
+                    t = start
+                    early.add(topic)
                 ops.append((t, op, row))
         used[op] = used.get(op) or topic
 
@@ -449,5 +455,6 @@ def read_ulog(path) -> Feed:
            if said else []),
         "estimator_notes": selector_notes,
         "time_jumps": jumps[:100],
+        "stamped_before_start": sorted(early),  # topics whose first sample predates logging (taken at its start)
     }
     return Feed(ops=ops, info=info, autopilot="px4", wall0=wall0)
