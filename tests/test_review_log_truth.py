@@ -13,12 +13,12 @@ import struct
 from pathlib import Path
 
 import pytest
+from crafted_logs import copter_sample
 
 from companion.ground.commands import review_log
 from companion.ground.flightlogs.flightspan import flight_end, off_path_sensors
 from companion.ground.review import format_report, review
 from companion.onboard.logschema import REPLAY_LOG_FILE
-from crafted_logs import copter_sample
 from sitl_harness.flightlog import DataFlashWriter
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,7 +81,7 @@ def gcs_replay(tmp_path_factory):
 
 
 def test_a_ground_stations_radio_gap_is_a_gap_in_the_recording_not_a_failsafe(gcs_replay):
-    rep, origin, text, _ = gcs_replay
+    rep, _, text, _ = gcs_replay
     assert rep["failsafe_count"] == 0 and "failsafes: 0" in text
     assert not any("failsafe(s)" in f or "link down" in f for f in rep["findings"])
     gaps = [f for f in rep["findings"] if f.startswith("ground-station telemetry gaps: 1 ")]
@@ -152,6 +152,18 @@ def test_flight_end_by_arming():
     assert flight_end(_flight([], 60.0, 60.0, known=False), daemon) is daemon  # no arming in the log: the daemon's
     hold = {"t": 20.0, "why": "hold: no safe speed"}
     assert "last stopped on hold: no safe speed at t = 20.0 s" in flight_end(_flight([[12.0, 30.0]], 60, 60), hold)["note"]
+
+
+def test_the_last_of_many_armings_ends_the_flight():
+    from companion.ground.flightlogs.flightspan import LISTED, Watch
+
+    w = Watch(1.5)
+    for k in range(3 * LISTED):
+        w.stream(float(k), float(k))
+        w.armed(float(k), k % 2 == 0)
+    r = w.result(3.0 * LISTED)
+    assert len(r["armed_spans"]) == LISTED and r["armed_count"] == 3 * LISTED // 2
+    assert flight_end(r, None)["t"] == 3 * LISTED - 1  # the last disarm, not the LISTED-th
 
 
 def test_off_path_sensors_by_orientation():

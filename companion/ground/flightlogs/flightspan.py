@@ -36,7 +36,8 @@ class Watch:
         self.last: tuple[float, float] | None = None  # (t, t_log) of the stream's last message
         self.gaps: list[dict] = []  # the first LISTED
         self.count, self.total_s, self.longest = 0, 0.0, None
-        self.spans: list[list] = []  # armed [start, end]; end None while armed
+        self.spans: list[list] = []  # armed [start, end] (end None while armed): the first LISTED − 1, and the last
+        self.armings = 0
         self.known = False  # a message said whether the vehicle was armed
 
     def stream(self, t: float, t_log: float) -> None:
@@ -56,6 +57,9 @@ class Watch:
         self.known = True
         open_ = bool(self.spans) and self.spans[-1][1] is None
         if on and not open_:
+            self.armings += 1
+            if len(self.spans) >= LISTED:  # bounded: the last one replaces the one before it
+                self.spans.pop()
             self.spans.append([t, None])
         elif not on and open_:
             self.spans[-1][1] = t
@@ -63,8 +67,8 @@ class Watch:
     def result(self, log_end_t: float) -> dict:
         """The report's `flight` section: the gaps, the armed spans, the stream's and the log's end [s]."""
         return {"gap_limit_s": self.limit_s, "gaps": self.count, "gaps_s": self.total_s, "longest_gap": self.longest,
-                "gap_list": self.gaps, "armed_known": self.known, "armed_spans": self.spans[:LISTED],
-                "armed_count": len(self.spans), "stream_end_t": None if self.last is None else self.last[0],
+                "gap_list": self.gaps, "armed_known": self.known, "armed_spans": self.spans,
+                "armed_count": self.armings, "stream_end_t": None if self.last is None else self.last[0],
                 "log_end_t": log_end_t}
 
 
