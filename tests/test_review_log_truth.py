@@ -69,6 +69,8 @@ def ground_station_tlog(path: Path) -> Path:
             out.write(stamp + ap.local_position_ned_encode(ms, 0.0, 0.0, -5.0, 0.0, 0.0, 0.0).pack(ap))
             out.write(stamp + ap.attitude_encode(ms, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0).pack(ap))
             out.write(stamp + ap.distance_sensor_encode(ms, 20, 700, 480, 0, 3, 25, 100).pack(ap))
+            if k % 25 == 0:  # and a side-looking one no configured sensor matches (the assumed one looks forward)
+                out.write(stamp + ap.distance_sensor_encode(ms, 20, 4000, 900, 0, 4, 2, 100).pack(ap))
     return path
 
 
@@ -115,11 +117,15 @@ def test_the_flight_ends_where_the_vehicle_disarms_not_where_the_recording_stops
 
 def test_a_downward_rangefinder_is_named_and_not_taken_as_d_od(gcs_replay):
     rep, _, text, _ = gcs_replay
-    (sensor,) = rep["replay"]["other_sensors"]
-    assert sensor["what"] == "DISTANCE_SENSOR id 3 from 1/1" and sensor["facing"] == "down" and sensor["samples"] > 150
+    down, side = rep["replay"]["other_sensors"]  # by id
+    assert down["what"] == "DISTANCE_SENSOR id 3 from 1/1" and down["facing"] == "down" and down["samples"] == 206
+    assert side["what"] == "DISTANCE_SENSOR id 4 from 1/1" and side["facing"].startswith("facing ROTATION_YAW_90")
+    assert ("a rangefinder (DISTANCE_SENSOR id 4 from 1/1, facing ROTATION_YAW_90, where no configured sensor looks; "
+            in text and "it is not one of the configured obstacle sensors" in text)
     assert ("a downward rangefinder (DISTANCE_SENSOR id 3 from 1/1, orientation down; " in text
             and "it is not an obstacle sensor: its readings are not taken as D_od" in text)
     assert rep["ranges"]["d_od"]["max"] == 0.0  # not D_od: the assumed sensor looks forward
+    assert "obstacle data (DISTANCE_SENSOR: D_od is 0 throughout)" in rep["replay"]["missing_streams"]
 
 
 def test_a_parameter_the_tlog_holds_late_is_not_said_unreported(gcs_replay):

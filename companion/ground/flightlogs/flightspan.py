@@ -21,7 +21,11 @@ HORIZONTAL = 8  # MAV_SENSOR_ORIENTATION below this: horizontal (ROTATION_YAW_45
 
 
 def facing(orientation: int) -> str:
-    """A MAV_SENSOR_ORIENTATION as a person reads it: up, down, or the rotation's number."""
+    """A MAV_SENSOR_ORIENTATION as a person reads it: up, down, a horizontal one by its rotation's name (for one
+    that no configured sensor has), or the rotation's number."""
+    if 0 <= orientation < HORIZONTAL:
+        name = f"ROTATION_YAW_{45 * orientation}" if orientation else "ROTATION_NONE"
+        return f"facing {name}, where no configured sensor looks"
     return FACING.get(orientation, f"orientation {orientation}, not horizontal")
 
 
@@ -129,6 +133,8 @@ def not_forward_lines(sensors: list[dict]) -> list[str]:
         f = s["facing"]
         kind = f"{f}ward rangefinder" if f in FACING.values() else "rangefinder"
         where = f"orientation {f}" if f in FACING.values() else f
-        out.append(f"  a {kind} ({s['what']}, {where}; {s['samples']} samples) is present; it is not an obstacle "
-                   "sensor: its readings are not taken as D_od")
+        what = ("one of the configured obstacle sensors (give the flight's --config with it)"
+                if f.startswith("facing") else "an obstacle sensor")
+        out.append(f"  a {kind} ({s['what']}, {where}; {s['samples']} samples) is present; it is not {what}: its "
+                   "readings are not taken as D_od")
     return out

@@ -37,11 +37,12 @@ from companion.onboard.config import Config, SensorConfig, load_config
 from companion.onboard.eventlog import EventLog, finite_copy, read_events
 from companion.onboard.link import MemoryMavfile, mavlink
 from companion.onboard.logschema import COMMANDS, LOG_FILE, NVF
+from companion.onboard.mavlink_in import sensor_orientation
 from contracts.errors import ContractError
 
 from ..review import Origin, fmt_value
 from .bounds import MAX_SAMPLES, gc_frozen, gc_paused
-from .flightspan import HORIZONTAL, Watch, facing, flight_end, gaps_finding, not_forward_lines
+from .flightspan import Watch, facing, flight_end, gaps_finding, not_forward_lines
 from .loginput import Feed, not_multirotor, order
 
 MAGIC = re.compile(b"[\xfd\xfe]")
@@ -583,7 +584,9 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
 
     mav = daemon.conn.mav  # the daemon's own dialect (the scan's: mavutil's)
     watch, target = Watch(cfg.timeouts.heartbeat_s), (cfg.link.target_system, cfg.link.target_component)
-    off_path: Counter = Counter()  # (sys, comp, id, orientation) of DISTANCE_SENSORs off the horizontal → samples
+    # (sys, comp, id, orientation) → samples, of DISTANCE_SENSORs off the horizontal or where no configured one looks
+    off_path: Counter = Counter()
+    looks = {sensor_orientation(s.orientation_deg) for s in cfg.sensors if s.kind == "distance_sensor"}
     checked = {c.name: None for c in adapter_for(cfg.link.autopilot).param_checks}  # → when the log first has it
 
     def take(i: int, t: float) -> None:
@@ -597,7 +600,7 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         if kind == "HEARTBEAT" and (msg.get_srcSystem(), msg.get_srcComponent()) == target:
             watch.stream(now["t"], t_us[i] / 1e6)
             watch.armed(now["t"], bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
-        elif kind == "DISTANCE_SENSOR" and msg.orientation >= HORIZONTAL:
+        elif kind == "DISTANCE_SENSOR" and msg.orientation not in looks:
             off_path[(msg.get_srcSystem(), msg.get_srcComponent(), msg.id, msg.orientation)] += 1
         elif kind == "PARAM_VALUE" and checked.get(msg.param_id, 0) is None:
             checked[msg.param_id] = now["t"]
@@ -611,7 +614,7 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     run = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    sensors = [{"what": f"DISTANCE_SENSOR id {i} from {sy}/{cp}", "facing": facing(o), "samples": n}
+    sensors = [{"what": f"DISTANCE_SENSOR id {i} from {sy}/{cp}", "facing": facing(o), "samples": n, "system": sy}
                for (sy, cp, i, o), n in sorted(off_path.items())]
     sensors += [{"what": f"RANGEFINDER from {sy}/{cp}", "samples": n,
                  "facing": "no orientation given (ArduPilot's primary rangefinder, usually the downward one)"}
@@ -874,8 +877,12 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         if 0 < r < 1.25 / timeout:  # a mean interval over 0.8 of the staleness limit: stale at every jitter
             slow.append({"stream": stream, "rate_hz": r, "timeout_s": timeout})
     missing = {what: ks for what, ks in _needed(cfg).items() if not any(scan.counts[(*target, k)] for k in ks)}
+    elsewhere = Counter()  # DISTANCE_SENSOR samples of the autopilot's system that look where no sensor is configured
+    for o in run["other_sensors"]:
+        if o.get("system") == target[0]:
+            elsewhere["DISTANCE_SENSOR"] += o["samples"]
     for kind in kinds:
-        if not any(c for (sy, _, k), c in scan.counts.items() if sy == target[0] and k == kind):
+        if sum(c for (sy, _, k), c in scan.counts.items() if sy == target[0] and k == kind) <= elsewhere[kind]:
             missing[f"obstacle data ({kind}: D_od is 0 throughout)"] = (kind,)
     info = {
         "tlog": str(path),
