@@ -53,6 +53,9 @@ RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flow
 # force" needs 1.05 × limit + margin). Above V_safe is always a finding (outside_contract).
 OVERSHOOT = 0.05
 MAX_LISTED = 1000  # longest list kept per kind of event in the report (the rest are counted)
+# the daemon's failsafe reason for the autopilot's heartbeat lost (`supervisor`): in a replay, the log fell silent
+LOG_LINK = "autopilot heartbeat lost"
+NOT_REPORTED = "autopilot did not report "  # a start-up check's reason for a parameter not answered (`startup`)
 
 
 def _num(x) -> float | None:
@@ -136,8 +139,10 @@ class _Spans:
 class _Summary:
     """One pass over the records; `result()` is the report dict."""
 
-    def __init__(self, gap_s: float, tolerance_m_s: float, facts_of=facts_of_start):
+    def __init__(self, gap_s: float, tolerance_m_s: float, facts_of=facts_of_start, replayed: bool = False):
         self.gap_s, self.tol = gap_s, tolerance_m_s
+        # a replay: the daemon's link is the log's recording, so its losses are gaps in the log (`LOG_LINK`)
+        self.replayed = replayed
         self.facts_of = facts_of  # a run's `start` record → its RunFacts (vehicle radius, braking, budgets)
         self.checks = Checks(gap_s)  # keep-out and delivery (companion/ground/review_checks.py)
         self.records = 0
@@ -178,6 +183,7 @@ class _Summary:
         self.points = {k: [] for k in ("stand_downs", "collisions")}
         self.open_marks: dict[str, dict] = {}
         self.failsafe_entries = 0  # state changes into `failsafe` (the link lost: no failsafe event is written)
+        self.log_silence_entries = 0  # a replay's: into `failsafe` because the log fell silent (not a failsafe)
         self.flight_end: dict | None = None  # why the flight stopped flying on: the last cause not resumed from
         self._cause: tuple | None = None  # the last hold or failsafe cause (t, cause), for the Hold it led to
         self.obstacle_seen = False  # any finite obstacle_m, or any d_od > 0: the log has obstacle data
@@ -284,8 +290,8 @@ class _Summary:
             after = f" after {self._cause[1]} at t = {_fmt_t(self._cause[0])}" if self._cause else ""
             why = f"offboard {g('to')}{after}: {g('reason')}"
         elif name == "state_change" and g("to") == "failsafe" and g("reason") != "no autopilot heartbeat yet":
-            why = f"failsafe: {g('reason')}"
-        elif name == "link" and g("status") == "down":
+            why = None if self._log_silence(g("reason")) else f"failsafe: {g('reason')}"
+        elif name == "link" and g("status") == "down" and not self.replayed:
             why = "autopilot link down"
         elif name == "shutdown" and g("hold"):
             why = "the daemon stopped in flight (Hold)"
@@ -333,11 +339,14 @@ class _Summary:
         elif name == "state_change":
             self._keep(self.lists["state_changes"], {"t": t, "from": g("from"), "to": g("to"), "reason": g("reason")})
             to, why = g("to"), g("reason")
-            yet = why == "no autopilot heartbeat yet"  # not linked yet: no failsafe
+            # not linked yet, or a replayed log fallen silent: no failsafe
+            yet = why == "no autopilot heartbeat yet" or self._log_silence(why)
             for state, kind in (("holding", "holds"), ("failsafe", "failsafe_states")):
                 self._mark(kind, t, to == state and not (yet and kind == "failsafe_states"), why)
             if to == "failsafe" and not yet:
                 self.failsafe_entries += 1
+            elif to == "failsafe" and self._log_silence(why):
+                self.log_silence_entries += 1
             if isinstance(why, str) and "standing down" in why:
                 self._keep(self.points["stand_downs"], {"t": t, "what": why})
         elif name == "calibration_hold":
@@ -402,6 +411,10 @@ class _Summary:
                                                 "dropped_records": g("dropped_records"), "error": g("error")})
         elif name != "log_open":
             self.other_events[name] = self.other_events.get(name, 0) + 1
+
+    def _log_silence(self, why) -> bool:
+        """A replay's failsafe state for the link lost: the log fell silent there (see `LOG_LINK`)."""
+        return self.replayed and why == LOG_LINK
 
     def _close_violation(self, v: dict) -> None:
         s = self.by_sub.setdefault(str(v["subsystem"]), {"count": 0, "total_s": 0.0})
@@ -510,6 +523,7 @@ class _Summary:
             "failsafe_count": self.counts["failsafes"] + self.failsafe_entries,
             "failsafe_events": self.counts["failsafes"],
             "failsafe_state_entries": self.failsafe_entries,
+            "log_silence_entries": self.log_silence_entries,
             "flight_end": self.flight_end,
             "marks": {**self.marks, **self.points},
             # False: D_od 0 throughout and no obstacle ever seen (a log without an obstacle sensor)
@@ -518,7 +532,8 @@ class _Summary:
             "tables": self.tables,
             "mode_changes": self.lists["mode_changes"],
             "state_changes": self.lists["state_changes"],
-            "link": {"events": self.lists["link"], "down_s": self.link_down_s},
+            # of_the_log: a replay's link is the log's recording (its losses are the log's gaps, `LOG_LINK`)
+            "link": {"events": self.lists["link"], "down_s": self.link_down_s, "of_the_log": self.replayed},
             "limit_changes": self.counts["limit_changes"],
             "commands": {"count": self.counts["commands"], "failed": self.lists["commands_failed"]},
             "startup_checks": self.lists["startup_checks"],
@@ -542,8 +557,9 @@ def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: flo
     return conclude(_summary(records, gap_s, tolerance_m_s, facts_of))
 
 
-def _summary(records: Iterable[dict], gap_s: float, tolerance_m_s: float, facts_of=facts_of_start) -> dict:
-    s = _Summary(gap_s, tolerance_m_s, facts_of)
+def _summary(records: Iterable[dict], gap_s: float, tolerance_m_s: float, facts_of=facts_of_start,
+             replayed: bool = False) -> dict:
+    s = _Summary(gap_s, tolerance_m_s, facts_of, replayed)
     for rec in records:
         s.add(rec)
     return s.result()
@@ -611,7 +627,8 @@ def findings(rep: dict) -> list[str]:
                                                (rep.get("failsafe_state_entries", 0), "× into the failsafe state "
                                                 "(link lost)")) if n]
         out.append(f"{rep['failsafe_count']} failsafe(s): {', '.join(parts)}")
-    if rep["link"]["down_s"] > 0 or any(e["status"] == "down" for e in rep["link"]["events"]):
+    if not rep["link"].get("of_the_log") and (rep["link"]["down_s"] > 0
+                                               or any(e["status"] == "down" for e in rep["link"]["events"])):
         out.append(f"autopilot link down for {rep['link']['down_s']:.1f} s")
     short = [s for s in rep.get("thrust_starts", []) if s["covered"] is False]
     if short:
@@ -621,7 +638,11 @@ def findings(rep: dict) -> list[str]:
                    f"({len(short)} flight(s)); build the table over the whole thrust_ratio_range")
     bad_checks = [c for c in rep["startup_checks"] if c["ok"] is not True]
     if bad_checks:
-        out.append(f"{len(bad_checks)} failed start-up check(s): {bad_checks[0]['reason']}")
+        why = bad_checks[0]["reason"]
+        if rep["link"].get("of_the_log") and isinstance(why, str) and why.startswith(NOT_REPORTED):
+            # a replay cannot ask: it has the parameters the log holds, when the log's recorder had them
+            why = f"the log holds no {why[len(NOT_REPORTED):]} in time for the replay's check"
+        out.append(f"{len(bad_checks)} failed start-up check(s): {why}")
     failed = rep["commands"]["failed"]
     if failed:
         out.append(f"{len(failed)} command(s) not accepted by the autopilot, the first at t = "
@@ -665,6 +686,10 @@ class Origin:
     def title(self) -> str:
         """A note for the plot's title."""
         return ""
+
+    def flight_end(self, daemon_end: dict | None) -> dict | None:
+        """Where the flight ended, as the raw log says it (its arming), given where the replay's daemon stopped."""
+        return daemon_end
 
 
 def run_facts(rec: dict) -> RunFacts:
@@ -752,7 +777,7 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = SPE
             yield rec
 
     try:
-        rep = _summary(records(), gap_s, tolerance_m_s, run_facts)
+        rep = _summary(records(), gap_s, tolerance_m_s, run_facts, replayed=origin is not None)
     except OSError as err:
         raise ContractError(f"cannot read {err.filename or files[0]}: {err.strerror or err}") from err
     rep["files"] = origin.files if origin else [str(f) for f in files]
@@ -762,6 +787,7 @@ def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = SPE
     rep = finite_copy(rep)  # a foreign log's NaN/Infinity tokens: the report stays strict JSON
     if origin is not None:
         rep[origin.key] = finite_copy(origin.info)
+        rep["flight_end"] = origin.flight_end(rep["flight_end"])
     return conclude(rep, origin.findings() if origin else ()), samples
 
 
@@ -957,8 +983,10 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
                      f"{v['guarantee']}; assumed {fmt_value(v['assumed'])}, observed {fmt_value(v['observed'])}; "
                      f"action {fmt_value(v['action'])}")
     lines += review_checks.lines(rep)
-    if rep.get("flight_end"):
-        lines.append(f"  flight ended: {rep['flight_end']['why']} (t = {_fmt_t(rep['flight_end']['t'])})")
+    fe = rep.get("flight_end")
+    if fe:
+        lines.append(f"  flight ended: {fe['why']}" + (f" (t = {_fmt_t(fe['t'])})" if fe["t"] is not None else "")
+                     + (f"; {fe['note']}" if fe.get("note") else ""))
     lines.append(f"  failsafes: {rep['failsafe_count']}" + (
         f" ({rep.get('failsafe_events', 0)} event(s), {rep['failsafe_state_entries']}× into the failsafe state)"
         if rep.get("failsafe_state_entries") else ""))
@@ -972,7 +1000,10 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
     lines.append(f"  mode changes: {len(rep['mode_changes'])}")
     for m in rep["mode_changes"]:
         lines.append(f"    {_fmt_t(m['t'])}  {m['from']} → {m['to']} (by {m['by']})")
-    lines.append(f"  link events: {len(rep['link']['events'])}, down {rep['link']['down_s']:.1f} s")
+    lines.append(f"  link events: {len(rep['link']['events'])}, down {rep['link']['down_s']:.1f} s"
+                 + (f" (the link that recorded the log, not one in flight: the replay's daemon lost it "
+                    f"{rep['log_silence_entries']}× where the log fell silent, not counted as failsafes)"
+                    if rep["link"].get("of_the_log") and rep.get("log_silence_entries") else ""))
     for e in rep["link"]["events"]:
         lines.append(f"    {_fmt_t(e['t'])}  {e['status']}")
     lines.append(f"  state changes: {len(rep['state_changes'])}, limit changes: {rep['limit_changes']}, "

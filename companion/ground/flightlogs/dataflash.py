@@ -47,6 +47,7 @@ import numpy as np
 
 from contracts.errors import ContractError
 
+from .flightspan import off_path_sensors
 from .loginput import Feed, exclude, finite_param, lacking, order, read_head, unreadable_params
 
 HEAD = b"\xa3\x95"
@@ -357,6 +358,7 @@ def read_dataflash(path) -> Feed:
     if (d := col.get(ekf4)):
         core0 = d["C"] == 0 if "C" in d else np.ones(len(d["TimeUS"]), bool)
         add(d["TimeUS"][core0], "nav", [("EKF_STATUS_REPORT", int(v)) for v in d["SS"][core0].tolist()], ekf4)
+    off_path: list[dict] = []  # range sensors looking off the path (up, down): named in the review
     if (d := col.get("RFND")):
         # RFND has no min/max: the RNGFND1_MIN_CM/MAX_CM parameters give them. Stat Good: a reading;
         # OutOfRangeHigh: nothing within the maximum (what MAVLink's DISTANCE_SENSOR says with a distance
@@ -365,6 +367,7 @@ def read_dataflash(path) -> Feed:
         lo, hi = params.get("RNGFND1_MIN_CM", 0.0) / 100, params.get("RNGFND1_MAX_CM", 0.0) / 100
         o = d["Orient"].astype(int)
         fwd = o < 8  # ROTATION_YAW_45·k (clockwise); down-facing (25) covers no path
+        off_path = off_path_sensors("RFND", o)
         stat = d["Stat"].astype(int)
         good = ((stat == RFND_GOOD) | (stat == RFND_OUT_OF_RANGE_HIGH)) & (hi > 0)
         dist = np.where(stat == RFND_OUT_OF_RANGE_HIGH, max(hi, 0.0) + 0.01, d["Dist"].astype(float))
@@ -450,6 +453,7 @@ def read_dataflash(path) -> Feed:
         "span_s": span,
         "sources": used,
         "lacking": missing,
+        "other_sensors": off_path,
         "rates_hz": rates,
         "params": params,
         "dropouts": 0,

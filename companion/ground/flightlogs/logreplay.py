@@ -22,6 +22,7 @@ from contracts.errors import ContractError
 
 from ..review import Origin, fmt_value
 from .bounds import MAX_SAMPLES, gc_paused
+from .flightspan import ARMED, Watch, flight_end, gaps_finding, not_forward_lines
 from .loginput import Feed, LogIn
 from .tlog import ASSUMED_NOTE, ASSUMED_SENSORS, in_log_time, settle, shadow_daemon, silences, stepped_silence
 
@@ -43,10 +44,14 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
     daemon, log = shadow_daemon(cfg, table, log_dir, contract, source, lambda: now["t"], wall)
     login = LogIn(cfg, daemon.tel, adapter_for(feed.autopilot).autopilot_id)
     ops, bad = feed.ops, [0]
+    watch = Watch(cfg.timeouts.heartbeat_s)  # every op: the autopilot's logger alive (as `LogIn` takes it)
 
     def take(i: int, t: float) -> None:
-        _, op, args = ops[i]
+        t_log, op, args = ops[i]
         now["t"] = t / 1e6
+        watch.stream(now["t"], t_log / 1e6)
+        if op == "mode":
+            watch.armed(now["t"], bool(int(args[0]) & ARMED))
         try:
             for s in login.apply(now["t"], op, args):
                 daemon.take(s)  # the daemon's own routing of MAVLink-in's samples
@@ -60,7 +65,7 @@ def replay_feed(feed: Feed, cfg: Config, table, log_dir: Path, contract: str, so
     run = in_log_time([o[0] for o in ops], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {**run, "ops": len(ops), "refused_samples": bad[0]}
+    return {**run, "ops": len(ops), "refused_samples": bad[0], "flight": watch.result(now["t"])}
 
 
 class FlightLog(Origin):
@@ -80,6 +85,9 @@ class FlightLog(Origin):
             out.append(f"{len(info['time_jumps'])} clock jump(s) in the log's timestamps closed up")
         if info.get("gaps_skipped"):
             out.append(silences(info))
+        gaps = gaps_finding(info.get("flight"), "gaps in the autopilot's log", "nothing logged")
+        if gaps:
+            out.append(gaps)
         for s in info["slow_streams"]:
             out.append(f"{s['stream']} logged at {s['rate_hz']:.1f} Hz, too slow for the daemon's {s['timeout_s']} s "
                        "staleness limit: stale-data findings may be the log's, not the flight's")
@@ -120,7 +128,13 @@ class FlightLog(Origin):
             out.append(f"  E_tr against the commanded path ({info['sources'].get('target')}): max "
                        f"{et['measured_max_m']:.2f} m at t = {et['at_t']:.1f} s (contract used "
                        f"{fmt_value(et['used_at_max_m'], ' m')} there)")
-        return out
+        if info.get("stamped_before_start"):
+            out.append(f"  {', '.join(info['stamped_before_start'])}: the logger's first sample predates the log's "
+                       "start (its snapshot of the last value): taken as the value at the start")
+        return out + not_forward_lines(info.get("other_sensors", []))
+
+    def flight_end(self, daemon_end: dict | None) -> dict | None:
+        return flight_end(self.info.get("flight"), daemon_end)
 
     def title(self) -> str:
         return f"replayed from {Path(self.info['log']).name}"
@@ -183,7 +197,7 @@ def replay_flight_log(read, path, log_dir: Path, *, config=None, vehicle=None, t
         "refused_samples": run["refused_samples"],
         "config": None if config is None else str(config), "vehicle_file": veh.name, "table": str(tab.path),
         "contract": contract, "loop_hz": cfg.loop_hz, "slow_streams": slow, "param_findings": pf,
-        "event_log": None, "e_tr": _e_tr(log_dir),
+        "event_log": None, "e_tr": _e_tr(log_dir), "flight": run["flight"],
         "notes": ["shadow replay: the controller guarantee (contour error vs E_tr_pred at the commanded limit) "
                   "is evaluated only against a commanded limit, so it is not checked here"]
         + ([ASSUMED_NOTE] if config is None else []),

@@ -37,10 +37,12 @@ from companion.onboard.config import Config, SensorConfig, load_config
 from companion.onboard.eventlog import EventLog, finite_copy, read_events
 from companion.onboard.link import MemoryMavfile, mavlink
 from companion.onboard.logschema import COMMANDS, LOG_FILE, NVF
+from companion.onboard.mavlink_in import sensor_orientation
 from contracts.errors import ContractError
 
 from ..review import Origin, fmt_value
 from .bounds import MAX_SAMPLES, gc_frozen, gc_paused
+from .flightspan import Watch, facing, flight_end, gaps_finding, not_forward_lines
 from .loginput import Feed, not_multirotor, order
 
 MAGIC = re.compile(b"[\xfd\xfe]")
@@ -581,6 +583,11 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     off, length, t_us, raw_us, common = scan.offset, scan.length, scan.t_us, scan.raw_us, scan.common
 
     mav = daemon.conn.mav  # the daemon's own dialect (the scan's: mavutil's)
+    watch, target = Watch(cfg.timeouts.heartbeat_s), (cfg.link.target_system, cfg.link.target_component)
+    # (sys, comp, id, orientation) → samples, of DISTANCE_SENSORs off the horizontal or where no configured one looks
+    off_path: Counter = Counter()
+    looks = {sensor_orientation(s.orientation_deg) for s in cfg.sensors if s.kind == "distance_sensor"}
+    checked = {c.name: None for c in adapter_for(cfg.link.autopilot).param_checks}  # → when the log first has it
 
     def take(i: int, t: float) -> None:
         now["t"], now["wall"] = t / 1e6, raw_us[i] / 1e6
@@ -589,6 +596,14 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
         except Exception:  # noqa: BLE001 — as the parser would: a bad packet, counted
             daemon.counters.bad_packets += 1
             return
+        kind = msg.get_type()
+        if kind == "HEARTBEAT" and (msg.get_srcSystem(), msg.get_srcComponent()) == target:
+            watch.stream(now["t"], t_us[i] / 1e6)
+            watch.armed(now["t"], bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
+        elif kind == "DISTANCE_SENSOR" and msg.orientation not in looks:
+            off_path[(msg.get_srcSystem(), msg.get_srcComponent(), msg.id, msg.orientation)] += 1
+        elif kind == "PARAM_VALUE" and checked.get(msg.param_id, 0) is None:
+            checked[msg.param_id] = now["t"]
         daemon.feed(msg)
 
     def step(tick: float) -> None:
@@ -599,7 +614,13 @@ def replay(data: bytes, scan: Scan, cfg: Config, table, log_dir: Path, contract:
     run = in_log_time(t_us[:scan.packets], cfg.loop_hz, take, step, stepped_silence(cfg))
     log.event(now["t"], "stop", counters=daemon.counters.__dict__)
     log.close()
-    return {**run, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets}
+    sensors = [{"what": f"DISTANCE_SENSOR id {i} from {sy}/{cp}", "facing": facing(o), "samples": n, "system": sy}
+               for (sy, cp, i, o), n in sorted(off_path.items())]
+    sensors += [{"what": f"RANGEFINDER from {sy}/{cp}", "samples": n,
+                 "facing": "no orientation given (ArduPilot's primary rangefinder, usually the downward one)"}
+                for (sy, cp, k), n in sorted(scan.counts.items()) if k == "RANGEFINDER"]
+    return {**run, "messages": daemon.counters.messages, "bad_packets": daemon.counters.bad_packets,
+            "flight": watch.result(now["t"]), "other_sensors": sensors, "checked_params": checked}
 
 
 def stepped_silence(cfg: Config) -> float:
@@ -784,6 +805,10 @@ class Replay(Origin):
             out.append(f"tlog longer than {MAX_SAMPLES} packets: only the first {MAX_SAMPLES} replayed")
         if info.get("gaps_skipped"):
             out.append(silences(info))
+        gaps = gaps_finding(info.get("flight"), "ground-station telemetry gaps" if info.get("recorder")
+                            else "telemetry gaps in the tlog", "the autopilot's HEARTBEAT absent from the tlog")
+        if gaps:
+            out.append(gaps)
         fl = info.get("in_flight")
         line = differs(fl) if fl else None
         if line:
@@ -802,10 +827,24 @@ class Replay(Origin):
             out.append(f"  in-flight daemon vs replay ({part}, aligned within {ALIGN_BEFORE_S:g} s), max |difference|: "
                        + ", ".join(f"{k} {fmt_value(v)} ({fl['compared'][k]} values)"
                                    for k, v in fl["max_abs_diff"].items()))
-        return out
+        return out + _checked_line(rp.get("checked_params")) + not_forward_lines(rp.get("other_sensors", []))
+
+    def flight_end(self, daemon_end: dict | None) -> dict | None:
+        return flight_end(self.info.get("flight"), daemon_end)
 
     def title(self) -> str:
         return f"replayed from {Path(self.info['tlog']).name}"
+
+
+def _checked_line(checked: dict | None) -> list[str]:
+    """Where the tlog holds the parameters the start-up checks read (a replay cannot ask for them: it has what the
+    tlog's recorder asked for, when it did)."""
+    if not checked:
+        return []
+    held = [f"{k} (t = {t:.1f} s)" for k, t in checked.items() if t is not None]
+    lacks = [k for k, t in checked.items() if t is None]
+    return [f"  the start-up checks' parameters in the tlog: {', '.join(held) or 'none'}"
+            + (f"; not in it: {', '.join(lacks)}" if lacks else "")]
 
 
 def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -> Replay:
@@ -838,8 +877,12 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         if 0 < r < 1.25 / timeout:  # a mean interval over 0.8 of the staleness limit: stale at every jitter
             slow.append({"stream": stream, "rate_hz": r, "timeout_s": timeout})
     missing = {what: ks for what, ks in _needed(cfg).items() if not any(scan.counts[(*target, k)] for k in ks)}
+    elsewhere = Counter()  # DISTANCE_SENSOR samples of the autopilot's system that look where no sensor is configured
+    for o in run["other_sensors"]:
+        if o.get("system") == target[0]:
+            elsewhere["DISTANCE_SENSOR"] += o["samples"]
     for kind in kinds:
-        if not any(c for (sy, _, k), c in scan.counts.items() if sy == target[0] and k == kind):
+        if sum(c for (sy, _, k), c in scan.counts.items() if sy == target[0] and k == kind) <= elsewhere[kind]:
             missing[f"obstacle data ({kind}: D_od is 0 throughout)"] = (kind,)
     info = {
         "tlog": str(path),
@@ -865,6 +908,12 @@ def replay_tlog(path, log_dir: Path, *, config=None, vehicle=None, table=None) -
         "skipped_s": run["skipped_s"],
         "daemon_messages": run["messages"],
         "missing_streams": {k: list(v) for k, v in missing.items()},
+        "flight": run["flight"],
+        "other_sensors": run["other_sensors"],
+        "checked_params": run["checked_params"],  # the start-up checks' parameters → when the tlog first has one
+        # who recorded the tlog: a ground station (its own HEARTBEAT, or the telemetry radio's status) or not said
+        "recorder": "ground station" if any(ty == mavlink.MAV_TYPE_GCS for ty, _ in scan.heartbeats.values())
+        or any(k == "RADIO_STATUS" for _, _, k in scan.counts) else None,
         "slow_streams": slow,
         "event_log": None,  # where the replayed event log is kept, if it is (see companion.cli)
         "in_flight": in_flight(replace(scan, in_flight=[(cut_time(run["cuts"], t), *r) for t, *r in scan.in_flight],

@@ -39,6 +39,7 @@ import numpy as np
 from contracts.errors import ContractError
 from contracts.geodesy import ne_from_geo
 
+from .flightspan import off_path_sensors
 from .loginput import (
     MAV_TYPES,
     VTOL_TYPES,
@@ -252,10 +253,16 @@ def read_ulog(path) -> Feed:
     ts = {k: np.asarray(v["timestamp"], dtype=np.int64) for k, v in top.items() if len(v.get("timestamp", ()))}
     top = {k: v for k, v in top.items() if k in ts}  # a topic without timestamps (a damaged format): not read
     used: dict[str, str] = {}
+    # PX4's logger starts by writing each topic's last sample, stamped when it was published, which may be long
+    # before logging began: taken as the topic's value at the log's start (no pause before it is made up)
+    start, early = int(getattr(ulog, "start_timestamp", 0) or 0), set()
 
     def add(topic, times, op, rows):
         for t, row in zip(times.tolist(), rows):
             if 0 < t < MAX_DT_US:  # a zero or absurd timestamp is a corrupt sample: not fed
+                if t < start:
+                    t = start
+                    early.add(topic)
                 ops.append((t, op, row))
         used[op] = used.get(op) or topic
 
@@ -333,11 +340,13 @@ def read_ulog(path) -> Feed:
         add("vehicle_land_detected", ts["vehicle_land_detected"], "landed", [(1 if v > 0 else 2,) for v in c.tolist()])
     if (d := top.get("estimator_status")) is not None and (c := _col(d, "solution_status_flags")) is not None:
         add("estimator_status", ts["estimator_status"], "nav", [("ESTIMATOR_STATUS", int(v)) for v in c.tolist()])
+    off_path: list[dict] = []  # range sensors looking off the path (up, down): named in the review
     if (d := top.get("distance_sensor")) is not None:
         cur, lo, hi = _col(d, "current_distance"), _col(d, "min_distance"), _col(d, "max_distance")
         ori, q = _col(d, "orientation"), _col(d, "signal_quality")
         if cur is not None and lo is not None and hi is not None:
             ori = ori if ori is not None else np.zeros(len(cur))
+            off_path = off_path_sensors("distance_sensor", ori)
             q = q if q is not None else -np.ones(len(cur))
             rows = [(math.radians(45 * o), c, a, b, 0 if s < 0 else 1 if s == 0 else max(2, int(s)))
                     for c, a, b, o, s in zip(cur.tolist(), lo.tolist(), hi.tolist(), ori.astype(int).tolist(), q.tolist())
@@ -433,6 +442,7 @@ def read_ulog(path) -> Feed:
         "span_s": ops[-1][0] / 1e6 if ops else 0.0,
         "sources": used,
         "lacking": missing,
+        "other_sensors": off_path,
         "rates_hz": {k: round(v, 2) for k, v in sorted(rates.items())},
         "params": {k: params[k] for k in PARAMS if k in params},
         "dropouts": len(ulog.dropouts),
@@ -445,5 +455,6 @@ def read_ulog(path) -> Feed:
            if said else []),
         "estimator_notes": selector_notes,
         "time_jumps": jumps[:100],
+        "stamped_before_start": sorted(early),  # topics whose first sample predates logging (taken at its start)
     }
     return Feed(ops=ops, info=info, autopilot="px4", wall0=wall0)
