@@ -783,7 +783,7 @@ class ContractTable:
 
     # ---- operating point Ω
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None, recovery_dt=None,
-              a0_max=None, t_cmd=0.0) -> Omega:
+              a0_max=None, t_cmd=0.0, t_silent=0.0) -> Omega:
         """Ω = (V_max, tilt) maximising V_max subject to Γ ≤ 0, with e_tr = max(measured, E_tr_pred(V_max)).
 
         `tilt` caps the tilt (default: the vehicle's limit); the avoid contract picks the best grid tilt
@@ -791,7 +791,10 @@ class ContractTable:
         stops, its loop period that [s] (contracts/stop.py `recovery_brake`); None: the autopilot's Hold.
         `a0_max` (the stop contract): the approach's acceleration is held below it (the governor's approach ramp,
         contracts/stop.py `ramp_accel`); None: any approach the autopilot's smoothing flies. `t_cmd` (the stop
-        contract): the command-delivery budget [s], added to the stop's dead time.
+        contract): the command-delivery budget [s], added to the stop's dead time. `t_silent`: the obstacle sensors'
+        silence budget [s], the time the vehicle may fly on a last reading before a dead sensor is noticed: dead
+        time of the stop (added to it, as `t_cmd`) and reaction time of the avoid contract
+        (V ≤ V_safe(d_od − V·t_silent), `_omega_silent`).
         Safe-first: any doubt → 0.
         """
         tilt = self._tilt_max if tilt is None else tilt
@@ -801,8 +804,19 @@ class ContractTable:
         if bad:
             return Omega(contract, 0.0, tilt if math.isfinite(tilt) else 0.0, e_tr_meas, 0.0, 0.0, bad)
         if contract == "avoid":
-            return self._omega_avoid(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
-        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max, t_cmd)
+            return self._omega_silent(d_od, t_silent, lambda d: self._omega_avoid(d, r_obst, e_tr_meas, thrust_ratio,
+                                                                                    tilt))
+        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max, t_cmd + t_silent)
+
+    @staticmethod
+    def _omega_silent(d_od: float, t_silent: float, omega_at) -> Omega:
+        """Ω with `t_silent` of reaction time more: V ≤ V_safe(d_od − V·t_silent), as the reaction-time fold (DESIGN.md
+        §2), from `omega_at(d)` (Ω at detection range d). One step from above: V₀ = V(d_od) bounds the answer, and
+        V₁ = V(d_od − V₀·t_silent) ≤ V₀ is safe at its own speed (a shorter D_od never gives a higher V_max)."""
+        om = omega_at(d_od)
+        if t_silent <= 0.0 or om.v_max <= 0.0:
+            return om
+        return omega_at(max(d_od - om.v_max * t_silent, 0.0))
 
     def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt) -> Omega:
         top, k = self._avoid_cells(tilt, thrust_ratio)

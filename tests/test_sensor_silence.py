@@ -1,0 +1,89 @@
+"""Each obstacle sensor's silence budget (companion/onboard/estimators.py SilenceBudget): a few of its own measured
+periods, floored and capped, before it counts as dead; and the contracts taking it as dead time
+(contracts/table.py `ContractTable.omega(..., t_silent=)`)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from companion.onboard.config import ContractConfig, SensorConfig, config_from_dict
+from companion.onboard.estimators import PERIOD_MIN_SAMPLES, DodEstimator, SilenceBudget
+from companion.onboard.samples import Scan
+from companion.onboard.sensing import silence_budget
+from contracts.table import load_for_vehicle
+
+BUDGET = SilenceBudget(3.0, 0.1, 0.5)
+
+
+def estimator(budget: SilenceBudget | None = BUDGET) -> DodEstimator:
+    return DodEstimator([SensorConfig(h_fov_deg=30, max_range_m=8.0)], ContractConfig(), 0.5, budget)
+
+
+def feed(est: DodEstimator, times) -> None:
+    for t in times:
+        est.add_scan(Scan(t, 0, (), 8.0, 0, None, None, None))
+
+
+def test_the_budget_is_periods_of_the_median_interval_floored_and_capped():
+    assert BUDGET.of([0.05] * 4) == 0.5  # too few intervals measured: the time-out
+    assert BUDGET.of([0.05] * PERIOD_MIN_SAMPLES) == pytest.approx(0.15)  # 20 Hz: 3 periods
+    assert BUDGET.of([0.01] * 8) == 0.1  # 100 Hz: the floor
+    assert BUDGET.of([0.25] * 8) == 0.5  # 4 Hz: the cap
+    # one late sample, or a burst, does not move the median
+    assert BUDGET.of([0.05, 0.05, 0.3, 0.05, 0.0001, 0.05, 0.05]) == pytest.approx(0.15)
+
+
+def test_a_sensor_silent_past_its_budget_counts_as_dead_and_is_named():
+    est = estimator()
+    feed(est, [k * 0.05 for k in range(20)])  # 20 Hz, the last sample at 0.95 s
+    alive = est.estimate(0.95 + 0.15, 0.0)
+    assert alive.d_od == 8.0 and alive.silence_s == pytest.approx(0.15) and not alive.silent
+    dead = est.estimate(0.95 + 0.16, 0.0)
+    assert dead.d_od == 0.0 and dead.silence_s == 0.0
+    [s] = dead.silent
+    assert s.sensor == 0 and s.silent_s == pytest.approx(0.16) and s.budget_s == pytest.approx(0.15)
+    feed(est, [1.2])  # it speaks again: alive, its gap one interval among many
+    back = est.estimate(1.2, 0.0)
+    assert back.d_od == 8.0 and not back.silent and back.silence_s == pytest.approx(0.15)
+
+
+def test_negative_control_the_old_time_out_believes_a_silent_sensor_for_half_a_second():
+    est = estimator(None)  # every sensor the time-out, as before
+    feed(est, [k * 0.05 for k in range(20)])
+    assert est.estimate(0.95 + 0.45, 0.0).d_od == 8.0
+
+
+def test_a_sensor_never_heard_is_not_silent():
+    assert not estimator().estimate(5.0, 0.0).silent
+
+
+def test_the_config_states_the_budget_with_safe_defaults():
+    cfg = config_from_dict({})
+    assert silence_budget(cfg) == SilenceBudget(3.0, 0.1, 0.5)
+    assert silence_budget(config_from_dict({"timeouts": {"obstacle_s": 0.05}})) == SilenceBudget(3.0, 0.05, 0.05)
+    for bad in ({"obstacle_periods": 1.0}, {"obstacle_min_s": 0.0}, {"obstacle_periods": math.inf}):
+        with pytest.raises(Exception, match=next(iter(bad))):
+            config_from_dict({"timeouts": bad})
+
+
+@pytest.mark.parametrize("vehicle", ["mambo", "x500"])
+def test_the_stop_contract_takes_the_silence_as_dead_time(vehicle):
+    table = load_for_vehicle(vehicle)
+    for d in (3.0, 6.0, 10.0):
+        a = table.omega(d, 1.0, 0.3, 1.0, contract="stop", t_cmd=0.1, t_silent=0.15).v_max
+        assert a == table.omega(d, 1.0, 0.3, 1.0, contract="stop", t_cmd=0.25).v_max
+        assert a < table.omega(d, 1.0, 0.3, 1.0, contract="stop", t_cmd=0.1).v_max
+
+
+@pytest.mark.parametrize("vehicle", ["mambo", "x500"])
+def test_the_avoid_contract_takes_the_silence_as_reaction_time(vehicle):
+    """V ≤ V_safe(d_od − V·t_silent): the answer is safe at its own speed, and lower than without the budget."""
+    table = load_for_vehicle(vehicle)
+    for d in (3.0, 6.0):
+        v0 = table.omega(d, 1.0, 0.3, 1.0).v_max
+        v = table.omega(d, 1.0, 0.3, 1.0, t_silent=0.15).v_max
+        assert 0 < v < v0
+        assert v <= table.omega(d - v * 0.15, 1.0, 0.3, 1.0).v_max
+    assert table.omega(0.1, 1.0, 0.3, 1.0, t_silent=0.5).v_max == 0.0
