@@ -67,9 +67,16 @@ def flown(n: int) -> dict:
     for arm in ARMS:
         row = {"flights": len(ks)}
         for label, unbudgeted in (("budgeted", False), ("unbudgeted_0.5s", True)):
-            rigs = [fly_sensor_dies(spec, k, arm, unbudgeted)[0] for k in ks]
+            flights = [fly_sensor_dies(spec, k, arm, unbudgeted) for k in ks]
+            rigs = [r for r, _ in flights]
+            # the limit in force when the sensor died (the cruise limit: the column not yet seen)
+            limits = [max((s["v_cmd"] or 0.0 for s in r.log.states if s["t"] <= t), default=0.0)
+                      for r, t in flights if t is not None]
             row[label] = {"collisions": sum(bool(r.truth["collisions"]) for r in rigs),
-                          "min_clearance_m": round(min(r.truth["min_clearance_m"] for r in rigs), 2)}
+                          "min_clearance_m": round(min(r.truth["min_clearance_m"] for r in rigs), 2),
+                          "v_limit_at_death_mean": round(float(np.mean(limits)), 3)}
+        row["v_limit_cost_pct"] = round(100 * (1 - row["budgeted"]["v_limit_at_death_mean"] /
+                                               row["unbudgeted_0.5s"]["v_limit_at_death_mean"]), 1)
         out[arm] = row
     return out
 

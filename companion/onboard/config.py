@@ -271,11 +271,12 @@ class Timeouts(_Strict):
     # (CollisionPrevention.cpp RANGE_STREAM_TIMEOUT_US 500 ms); at most 2 s, beyond it a silent sensor's last
     # "free" reading would cover more than a D_od at cruise speed
     obstacle_s: Bounded(0.0, 2.0, lo_open=True) = 0.5
-    # a sensor counts as silent (dead) once it has sent nothing for this many of its own periods, the median
-    # interval between its last samples as the daemon received them, never less than obstacle_min_s nor more
-    # than obstacle_s (obstacle_s until 5 intervals are measured). The stop and avoid contracts take that
+    # a sensor counts as silent (dead) once it has sent nothing for this many of its own periods, the mean
+    # interval of its last 16 samples as the daemon received them, never less than obstacle_min_s nor more
+    # than obstacle_s (obstacle_s until 16 intervals are measured). The stop and avoid contracts take that
     # silence as dead time (the vehicle flies on the last reading that long), so a shorter one is a faster
-    # limit: at 20 Hz, 3 periods (0.15 s) cost the governor about 2-6 % of its limit where 0.5 s cost 8-20 %
+    # limit: a 20 Hz sensor's 3 periods (0.15 s) cost the governor 2-3 % of its limit at D_od 3-10 m, with the
+    # recovery brake 5-11 %, offboard 0-17 %, where 0.5 s would cost 8-18 %, 17-31 %, 25-59 %
     # (benchmarks/bench_stale_cost.py). Fewer periods, or a lower floor, declare a sensor whose samples are
     # jittered dead more often (D_od without it: a Hold where it was the only one)
     obstacle_periods: Bounded(1.5, 20.0) = 3.0

@@ -32,8 +32,7 @@ from .samples import Scan
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
 SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
 SENSOR_LAG_S = 0.1  # [s] a sample was taken up to this before it is placed (latency ≤ 0.05 s + one position interval)
-PERIOD_SAMPLES = 16  # a sensor's period is the median of its last this many intervals
-PERIOD_MIN_SAMPLES = 5  # fewer measured intervals: its silence budget is the time-out itself
+PERIOD_SAMPLES = 16  # a sensor's period is the mean of its last this many intervals (their span over their count)
 
 
 @dataclass
@@ -127,9 +126,11 @@ class DodEstimate:
 
 @dataclass(frozen=True)
 class SilenceBudget:
-    """How long a sensor may be silent before it counts as dead: `periods` of its own measured period (the median of
-    its last PERIOD_SAMPLES intervals), at least `min_s`, at most `max_s` (and `max_s` until PERIOD_MIN_SAMPLES are
-    measured). The contracts take that silence as dead time: the vehicle flies on the last reading for as long."""
+    """How long a sensor may be silent before it counts as dead: `periods` of its own measured period, at least
+    `min_s`, at most `max_s` (and `max_s` until PERIOD_SAMPLES intervals are measured). The period is the mean of its
+    last PERIOD_SAMPLES intervals as received — their span over their count, which a burst of samples delivered
+    together does not shorten and the daemon's loop, receiving a 20 Hz sensor 40 and 60 ms apart in turn, does not
+    move. The contracts take that silence as dead time: the vehicle flies on the last reading for as long."""
 
     periods: float
     min_s: float
@@ -137,12 +138,11 @@ class SilenceBudget:
 
     def of(self, gaps) -> float:
         """The budget [s] for a sensor whose last intervals are `gaps`."""
-        if len(gaps) < PERIOD_MIN_SAMPLES:
+        if len(gaps) < PERIOD_SAMPLES:
             return self.max_s
-        g = sorted(gaps)
-        n = len(g)
-        median = g[n // 2] if n % 2 else 0.5 * (g[n // 2 - 1] + g[n // 2])
-        return min(max(self.periods * median, self.min_s), self.max_s)
+        # to the millisecond above (the clock's rounding neither lowers it nor makes every sample a new value)
+        budget = math.ceil(self.periods * math.fsum(gaps) / len(gaps) * 1e3 - 1e-6) / 1e3
+        return min(max(budget, self.min_s), self.max_s)
 
 
 @dataclass(frozen=True, slots=True)
