@@ -89,5 +89,9 @@ def test_the_avoid_contract_takes_the_silence_as_reaction_time(vehicle):
         v0 = table.omega(d, 1.0, 0.3, 1.0).v_max
         v = table.omega(d, 1.0, 0.3, 1.0, t_silent=0.15).v_max
         assert 0 < v < v0
-        assert v <= table.omega(d - v * 0.15, 1.0, 0.3, 1.0).v_max
+        assert v <= table.omega(d - v * 0.15, 1.0, 0.3, 1.0).v_max  # safe at its own speed
+        # no lower than one step from above, and within the tolerance of the largest speed safe at its own range
+        assert v >= table.omega(d - v0 * 0.15, 1.0, 0.3, 1.0).v_max
+        w = v + 2e-3
+        assert w > table.omega(d - w * 0.15, 1.0, 0.3, 1.0).v_max
     assert table.omega(0.1, 1.0, 0.3, 1.0, t_silent=0.5).v_max == 0.0

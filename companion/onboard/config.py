@@ -276,7 +276,7 @@ class Timeouts(_Strict):
     # than obstacle_s (obstacle_s until 16 intervals are measured). The stop and avoid contracts take that
     # silence as dead time (the vehicle flies on the last reading that long), so a shorter one is a faster
     # limit: a 20 Hz sensor's 3 periods (0.15 s) cost the governor 2-3 % of its limit at D_od 3-10 m, with the
-    # recovery brake 5-11 %, offboard 0-17 %, where 0.5 s would cost 8-18 %, 17-31 %, 25-59 %
+    # recovery brake 5-11 %, offboard 0-15 %, where 0.5 s would cost 8-18 %, 17-31 %, 19-37 %
     # (benchmarks/bench_stale_cost.py). Fewer periods, or a lower floor, declare a sensor whose samples are
     # jittered dead more often (D_od without it: a Hold where it was the only one)
     obstacle_periods: Bounded(1.5, 20.0) = 3.0
