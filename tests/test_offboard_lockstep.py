@@ -358,14 +358,7 @@ def test_x500_flies_round_a_column_revealed_at_dod_in_its_design_wind(personalit
         engage_and_fly(rig, 25.0)
         assert not rig.truth["collisions"], (seed, rig.truth["collisions"])
         assert rig.log.named("offboard")[-1]["to"] == "done"  # route complete
-        events = [e for e in rig.log.events if e["event"] in ("violation_start", "failsafe", "hold_trigger")]
-        if (seed, personality) == (2, "px4"):
-            # at the limit the sensor's silence budget leaves (5.08 m/s), this swerve in the design wind tracks
-            # 1.17 m off its path where the table's E_tr_pred says 1.12 m: the controller contract's violation,
-            # said as such (E_tr raised to the measured value); the table's E_tr_pred does not cover it
-            assert [(e["event"], e.get("subsystem")) for e in events] == [("violation_start", "controller")]
-        else:
-            assert not events
+        assert not [e for e in rig.log.events if e["event"] in ("violation_start", "failsafe", "hold_trigger")]
         v_cmd = max(s["v_cmd"] or 0 for s in rig.log.states)
         fast = max(s["ground_speed"] for s in rig.log.states if s["ground_speed"] == s["ground_speed"])
         assert v_cmd > 3.0 and fast > 0.8 * v_cmd
