@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from companion.ground.campaign import load_spec
+from companion.ground.campaign import load_spec, sample_scenario
 from companion.ground.sensor_death import OLD_TIMEOUT_S, fly_sensor_dies, sensor_dies_scenarios
 from companion.onboard.supervisor import SENSOR_SILENCE
 
@@ -37,13 +37,8 @@ def silence_violation(rig) -> dict:
 
 def test_the_stress_campaigns_sensor_dies_scenarios_are_the_ones_flown():
     assert len(sensor_dies_scenarios(SPEC)) == 24
-    assert {(s["vehicle"], s["personality"]) for s in map(_scenario, SCENARIOS)} == \
+    assert {(s["vehicle"], s["personality"]) for s in (sample_scenario(SPEC, k) for k in SCENARIOS)} == \
         {("mambo", "px4"), ("x500", "px4"), ("mambo", "ardupilot")}
-
-
-def _scenario(k):
-    from companion.ground.campaign import sample_scenario
-    return sample_scenario(SPEC, k)
 
 
 @pytest.mark.parametrize("k", SCENARIOS)
@@ -76,8 +71,12 @@ def test_the_budget_is_dead_time_of_the_contract(arm):
     step at the speed grid sets the limit; benchmarks/bench_stale_cost.py gives the cost over D_od)."""
     k = SCENARIOS[0]
     (new, t_new), (old, t_old) = dies(k, arm), dies(k, arm, unbudgeted=True)
-    fast = lambda rig, t: max(s["v_cmd"] or 0.0 for s in rig.log.states if s["t"] < t)  # noqa: E731
-    assert fast(new, t_new) < fast(old, t_old)
+    assert cruise_limit(new, t_new) < cruise_limit(old, t_old)
+
+
+def cruise_limit(rig, t_kill: float) -> float:
+    """The highest limit commanded before the sensor died."""
+    return max(s["v_cmd"] or 0.0 for s in rig.log.states if s["t"] < t_kill)
 
 
 @pytest.mark.parametrize("k", SCENARIOS)
