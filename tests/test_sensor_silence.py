@@ -95,3 +95,18 @@ def test_the_avoid_contract_takes_the_silence_as_reaction_time(vehicle):
         w = v + 2e-3
         assert w > table.omega(d - w * 0.15, 1.0, 0.3, 1.0).v_max
     assert table.omega(0.1, 1.0, 0.3, 1.0, t_silent=0.5).v_max == 0.0
+
+
+def test_the_start_record_states_the_silence_budget(tmp_path, monkeypatch):
+    """`contract-guard run` on a real UDP link: the start record carries the budget's terms as configured."""
+    from companion import cli
+    from companion.onboard.daemon import Daemon
+    from companion.onboard.eventlog import read_events
+
+    monkeypatch.setattr(Daemon, "run", lambda self, *a, **k: None)  # started, then stopped at once
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("vehicle: mambo\nlink: {connect: 'udpin:127.0.0.1:0'}\ntimeouts: {obstacle_periods: 4}\n"
+                   f"log: {{dir: {tmp_path / 'log'}}}\n")
+    assert cli.main(["run", "--config", str(cfg), "--quiet"]) == 0
+    [start] = [e for e in read_events(tmp_path / "log") if e.get("event") == "start"]
+    assert start["sensor_silence"] == {"periods": 4.0, "min_s": 0.1, "max_s": 0.5}
