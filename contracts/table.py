@@ -19,7 +19,7 @@ import json
 import math
 import zipfile
 from bisect import bisect_left, bisect_right
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,7 @@ LAW_CLAIM = "cone: F = sqrt(a_h/g)*G(rho)"  # how a cone build states its scalin
 # the planners' 1e-3 brackets (measured: at 7° it is 0.07 % above it), so the law's row keeps
 # two brackets of margin (0.2 %); the worst corner it replaces loses up to 13 % a degree at small tilts.
 LAW_MARGIN = 1.0 - 2e-3
+SILENT_TOL_M_S = 1e-3  # [m/s] the sensors' silence budget's fixed point is solved to this (`_omega_silent`)
 
 # slot → (value array, axis arrays, per-axis monotone direction of the values, safe repair direction)
 SLOTS = {
@@ -783,7 +784,7 @@ class ContractTable:
 
     # ---- operating point Ω
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None, recovery_dt=None,
-              a0_max=None, t_cmd=0.0) -> Omega:
+              a0_max=None, t_cmd=0.0, t_silent=0.0) -> Omega:
         """Ω = (V_max, tilt) maximising V_max subject to Γ ≤ 0, with e_tr = max(measured, E_tr_pred(V_max)).
 
         `tilt` caps the tilt (default: the vehicle's limit); the avoid contract picks the best grid tilt
@@ -791,7 +792,10 @@ class ContractTable:
         stops, its loop period that [s] (contracts/stop.py `recovery_brake`); None: the autopilot's Hold.
         `a0_max` (the stop contract): the approach's acceleration is held below it (the governor's approach ramp,
         contracts/stop.py `ramp_accel`); None: any approach the autopilot's smoothing flies. `t_cmd` (the stop
-        contract): the command-delivery budget [s], added to the stop's dead time.
+        contract): the command-delivery budget [s], added to the stop's dead time. `t_silent`: the obstacle sensors'
+        silence budget [s], the time the vehicle may fly on a last reading before a dead sensor is noticed: dead
+        time of the stop (added to it, as `t_cmd`) and reaction time of the avoid contract
+        (V ≤ V_safe(d_od − V·t_silent), `_omega_silent`).
         Safe-first: any doubt → 0.
         """
         tilt = self._tilt_max if tilt is None else tilt
@@ -801,8 +805,30 @@ class ContractTable:
         if bad:
             return Omega(contract, 0.0, tilt if math.isfinite(tilt) else 0.0, e_tr_meas, 0.0, 0.0, bad)
         if contract == "avoid":
-            return self._omega_avoid(d_od, r_obst, e_tr_meas, thrust_ratio, tilt)
-        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max, t_cmd)
+            return self._omega_silent(d_od, t_silent, lambda d: self._omega_avoid(d, r_obst, e_tr_meas, thrust_ratio,
+                                                                                    tilt))
+        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max, t_cmd + t_silent)
+
+    @staticmethod
+    def _omega_silent(d_od: float, t_silent: float, omega_at) -> Omega:
+        """Ω with `t_silent` of reaction time more: the largest V with V ≤ V_safe(d_od − V·t_silent), as the
+        reaction-time fold (DESIGN.md §2), from `omega_at(d)` (Ω at detection range d, its V_max not decreasing
+        with d). V₀ = V(d_od) bounds it; V₁ = V(d_od − V₀·t_silent) ≤ V₀ is safe at its own speed (a shorter D_od
+        never gives a higher V_max); between them a bisection keeps the largest speed found safe at its own
+        range (to SILENT_TOL_M_S), answered with the Ω of that range, its V_max lowered to that speed."""
+        om0 = omega_at(d_od)
+        if t_silent <= 0.0 or om0.v_max <= 0.0:
+            return om0
+        best = omega_at(max(d_od - om0.v_max * t_silent, 0.0))
+        lo, hi = best.v_max, om0.v_max
+        while hi - lo > SILENT_TOL_M_S:
+            mid = 0.5 * (lo + hi)
+            om = omega_at(max(d_od - mid * t_silent, 0.0))
+            if om.v_max >= mid:
+                lo, best = mid, replace(om, v_max=mid, gamma=mid - om.v_safe)
+            else:
+                hi = mid
+        return best
 
     def _omega_avoid(self, d_od, r_obst, e_meas, thrust_ratio, tilt) -> Omega:
         top, k = self._avoid_cells(tilt, thrust_ratio)

@@ -34,8 +34,9 @@ def limits(rig: Rig) -> tuple[float, float]:
     t, e = rig.daemon.table, rig.daemon.cfg.contract.e_tr_floor_m
     a0 = ramp_accel(rig.daemon.table.vehicle.braking.jerk_max_m_s3, RAMP + RAMP_SLACK_M_S) + RAMP_A_TOL
     t_cmd = rig.daemon.cfg.delivery.t_cmd_s
-    return (t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", t_cmd=t_cmd).v_max,
-            t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", a0_max=a0, t_cmd=t_cmd).v_max)
+    t_silent = rig.daemon.cycle.sensing.dod.sensors[0].budget  # the sensor's silence budget (3 of its periods)
+    return (t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", t_cmd=t_cmd, t_silent=t_silent).v_max,
+            t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", a0_max=a0, t_cmd=t_cmd, t_silent=t_silent).v_max)
 
 
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])
@@ -43,7 +44,7 @@ def test_the_ramp_raises_the_limit_and_the_governor_still_stops_short(personalit
     rig = flight(personality, 28.0, 25.0)
     assert not rig.truth["collisions"], rig.truth["collisions"]
     plain, shaped = limits(rig)
-    assert shaped > 1.04 * plain  # what the ramp buys here
+    assert shaped > 1.025 * plain  # what the ramp buys here (2.8 %, the sensor's silence in the dead time)
     (on,) = rig.log.named("approach_ramp")[:1]
     assert on["in_force"] and on["t"] >= rig.log.named("limit_change")[0]["t"] + RAMP_REARM_S - 0.05
     v_cmd = max(s["v_cmd"] or 0.0 for s in rig.log.states)
@@ -55,7 +56,7 @@ def test_the_ramp_raises_the_limit_and_the_governor_still_stops_short(personalit
     # every speed command: the any-approach limit, above it at most the ramp above the speed measured when it was
     # decided (the state samples within 0.1 s of it: they are not logged every cycle)
     sent = [(e["t"], e["params"][1]) for e in rig.log.named("command") if e["cmd"] == "change_speed"]
-    assert any(v > plain + 0.1 for _, v in sent)
+    assert any(v > plain + 0.05 for _, v in sent)
     for t, v in sent:
         speed = max(s["ground_speed"] for s in rig.log.states if abs(s["t"] - t) <= 0.1)
         assert v <= plain + 1e-6 or v <= speed + RAMP + 1e-6, (t, v, speed)

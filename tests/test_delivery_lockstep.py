@@ -9,6 +9,7 @@ import functools
 
 import pytest
 
+from companion.ground.baselines import SilenceUnbudgeted
 from companion.onboard import supervisor as supervisor_module
 from companion.onboard.authority import GUARANTEE_ANSWERED, GUARANTEE_SHOWN, Delivery, ModeAuthority
 from companion.onboard.console import event_line
@@ -148,12 +149,13 @@ def test_a_hold_refused_takes_land_and_is_said(personality):
 def late_switch(vehicle: str, personality: str, delay_s: float, today: bool = False) -> Rig:
     """The column flight with the recovery brake, the autopilot answering its OFFBOARD / GUIDED at once and
     showing it `delay_s` later (it flies its mission meanwhile). `today`: the negative control — the brake's own
-    limit from the start, its switch awaited the mode authority's whole 1.2 s, the contract budgeting no delivery."""
+    limit from the start, its switch awaited the mode authority's whole 1.2 s, the contract budgeting no delivery (nor
+    the sensor's silence, which it did not budget then either)."""
     sc = gov.column_scenario(1, vehicle=vehicle,
                              faults=[{"at_s": 0.0, "mode_delay": {"delay_s": delay_s, "only": "offboard"}}])
     sc["params"] = {"COM_OBL_RC_ACT": 5} if personality == "px4" else {}
     config = {"governor": {"recovery_brake": True}} | ({"delivery": {"t_cmd_s": 0.0}} if today else {})
-    rig = Rig(sc, personality, config=config)
+    rig = Rig(sc, personality, config=config, policy=SilenceUnbudgeted() if today else None)
     with pytest.MonkeyPatch.context() as mp:
         if today:
             rig.daemon.cycle.brake.shown()

@@ -22,6 +22,7 @@ from tests.lockstep import Rig
 
 PERSONALITIES = ["px4", "ardupilot"]
 T_CMD = DeliveryConfig().t_cmd_s  # the stop contract's command-delivery budget (the default)
+T_SILENT = 3 * 0.05  # the sensors' silence budget: three periods of the flights' 20 Hz sensor
 
 
 BESIDE = {"x_m": 28.0, "y_m": 1.3, "radius_m": 0.5, "name": "beside"}  # in the corridor, passed on resuming
@@ -76,13 +77,16 @@ def stop(rig: Rig) -> tuple[float, float, float]:
     return t0, s0["ground_speed"], max(s["x"] for s in rig.log.states if s["t"] >= t0) - s0["x"]
 
 
+MEASURED_S = 1.0  # the sensor's period is measured by then (16 intervals): its silence budget is T_SILENT
+
+
 def v_max(rig: Rig) -> float:
-    return max(s["v_max"] or 0.0 for s in rig.log.states)
+    return max(s["v_max"] or 0.0 for s in rig.log.states if s["t"] >= MEASURED_S)
 
 
 def hold_limit(table, **kw) -> float:
     """The governor's limit under the autopilot's Hold's stop contract at the flight's 6 m sensor (E_tr 0.3 m)."""
-    return table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", t_cmd=T_CMD, **kw).v_max
+    return table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", t_cmd=T_CMD, t_silent=T_SILENT, **kw).v_max
 
 
 def brake_limit(table) -> float:
@@ -114,7 +118,8 @@ def test_the_first_stop_shows_the_switch_and_the_second_flies_from_the_higher_li
     assert not off.log.named("recovery_brake")
     table, veh = on.daemon.table, on.daemon.table.vehicle
     first = on.log.named("hold_trigger")[0]["t"]
-    assert max(s["v_max"] or 0 for s in on.log.states if s["t"] < first) == pytest.approx(hold_limit(table), rel=1e-6)
+    assert max(s["v_max"] or 0 for s in on.log.states if MEASURED_S <= s["t"] < first) == \
+        pytest.approx(hold_limit(table), rel=1e-6)
     assert said[2]["t"] > first and v_max(on) == pytest.approx(brake_limit(table), rel=1e-6)
     assert v_max(off) == pytest.approx(hold_limit(table), rel=1e-6) and v_max(on) > 1.3 * v_max(off)
     # each stop: offboard asked one cycle after the stop command (its first setpoint streamed before), shown, then
@@ -179,7 +184,7 @@ def review_of(rig: Rig) -> dict:
 def test_a_refusal_above_the_holds_limit_is_the_autopilot_breaking_the_brakes_assumption(personality, refuse):
     """The first stop showed the switch, so the governor flies the brake's higher limit; the autopilot refuses the
     switch at the second stop (its answer, or the mode never shown): the daemon holds at once from above the
-    autopilot's Hold's limit, that stop is not guaranteed (the column is hit), and the log, the ground station,
+    autopilot's Hold's limit, that stop is not guaranteed, and the log, the ground station,
     the console and the review say the autopilot broke the brake's assumption."""
     rig = flight(personality, True, second=70.0, refuse_second=refuse)
     held = rig.log.named("offboard")[-1]
@@ -195,7 +200,10 @@ def test_a_refusal_above_the_holds_limit_is_the_autopilot_breaking_the_brakes_as
     assert v["assumed"] <= hold_limit(rig.daemon.table) + 1e-9
     end = next(e for e in rig.log.named("violation_end") if e["subsystem"] == "autopilot")  # the stop is over
     assert end["t"] > v["t"] and next(s for s in rig.log.states if s["t"] >= end["t"])["ground_speed"] < 0.35
-    assert rig.truth["collisions"]  # what the violation warns of: the Hold from that speed does not stop short
+    # what the violation warns of: the Hold from a third above its own limit is not guaranteed to stop short (this
+    # SITL's Hold brakes harder than the vehicle file states: with the sensor's silence in the dead time the brake's
+    # limit, 4.16 m/s, no longer reaches the column; at 4.49 m/s without it, it did)
+    assert v["observed"] > 1.3 * v["assumed"]
     # the ground station: a critical STATUSTEXT, in chunks of at most 50 bytes
     crit = [m for m in rig.daemon_messages() if m.get_type() == "STATUSTEXT" and m.severity == 2 and m.id]
     assert crit and all(len(m.text.encode() if isinstance(m.text, str) else m.text) <= 50 for m in crit)

@@ -448,6 +448,16 @@ class WithoutEtr(ContractSpeed):
         return self._bare.omega(i.dod.d_od, i.r_obst, 0.0, i.thrust_ratio, contract=sup.contract)
 
 
+class SilenceUnbudgeted(ContractSpeed):
+    """The contract taking none of the obstacle sensors' silence as dead time (a negative control only): Ω as if a
+    sensor that dies were noticed at once, while the daemon flies on its last reading for its whole silence budget."""
+
+    name = "contract without the silence budget"
+
+    def omega(self, i, sup) -> Omega:
+        return sup.contract_omega(replace(i, dod=replace(i.dod, silence_s=0.0)))
+
+
 class TrustTheClaim(DetectionRange):
     """The detection-range estimator that believes the sensor's stated range (a negative control only; flown as
     the `_claim` arms): D_od is the claim."""

@@ -340,9 +340,10 @@ def _braking(s: dict):
     return brk.model_copy(update=drawn)
 
 
-# faults whose only answer is a Hold that the contract does not budget for: the daemon cannot command the
-# autopilot (link), or flies blind until the obstacle data is stale (0.5 s) or the estimator is flagged —
-# each breaks a guarantee the contract rests on; they are stresses, flown and reported, not in assumption
+# faults whose only answer is a Hold: the daemon cannot command the autopilot (link), loses its obstacle sensor (the
+# silence before it counts as dead is budgeted as dead time, but the sensor's guarantee is gone), or flies on until
+# the estimator is flagged — each breaks a guarantee the contract rests on; they are stresses, flown and reported,
+# not in assumption
 HOLD_ONLY_FAULTS = ("link_loss", "sensor_dropout", "bad_nav")
 
 

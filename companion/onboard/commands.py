@@ -28,6 +28,7 @@ def cmd_run(args) -> int:
     """The daemon (what systemd starts)."""
     import faulthandler
     import signal
+    from dataclasses import asdict
 
     from contracts.table import load_for_vehicle
 
@@ -39,6 +40,7 @@ def cmd_run(args) -> int:
     from .eventlog import EventLog
     from .inputs import check_inputs
     from .link import SigningClock, open_connection, setup_signing
+    from .sensing import silence_budget
     from .service import Notifier
     from .startup import StartupChecks, looks_forward
 
@@ -99,7 +101,7 @@ def cmd_run(args) -> int:
     notifier = Notifier()
     log.event(None, "start", mode=cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect=cfg.link.connect,
               controller_contract=controller_contract(cfg, table), nav_margin=cfg.contract.nav_margin,
-              delivery=cfg.delivery.model_dump(), table_serial=table.serial,
+              delivery=cfg.delivery.model_dump(), sensor_silence=asdict(silence_budget(cfg)), table_serial=table.serial,
               table_signature=table.signature)
     notifier.ready(f"{cfg.mode} mode on {cfg.link.connect}")
 

@@ -299,6 +299,16 @@ class Timeouts(_Strict):
     # (CollisionPrevention.cpp RANGE_STREAM_TIMEOUT_US 500 ms); at most 2 s, beyond it a silent sensor's last
     # "free" reading would cover more than a D_od at cruise speed
     obstacle_s: Bounded(0.0, 2.0, lo_open=True) = 0.5
+    # a sensor counts as silent (dead) once it has sent nothing for this many of its own periods, the mean
+    # interval of its last 16 samples as the daemon received them, never less than obstacle_min_s nor more
+    # than obstacle_s (obstacle_s until 16 intervals are measured). The stop and avoid contracts take that
+    # silence as dead time (the vehicle flies on the last reading that long), so a shorter one is a faster
+    # limit: a 20 Hz sensor's 3 periods (0.15 s) cost the governor 2-3 % of its limit at D_od 3-10 m, with the
+    # recovery brake 5-11 %, offboard 0-15 %, where 0.5 s would cost 8-18 %, 17-31 %, 19-37 %
+    # (benchmarks/bench_stale_cost.py). Fewer periods, or a lower floor, declare a sensor whose samples are
+    # jittered dead more often (D_od without it: a Hold where it was the only one)
+    obstacle_periods: Bounded(1.5, 20.0) = 3.0
+    obstacle_min_s: Bounded(0.02, 2.0) = 0.1
     # the autopilot's estimator health (ESTIMATOR_STATUS / EKF_STATUS_REPORT, 1-10 Hz): at most 5 s
     nav_s: Bounded(0.0, 5.0, lo_open=True) = 2.0
     # the daemon's own cycle (companion/onboard/estimators.py Timeliness). cycle_jitter_s is the jitter allowance: the

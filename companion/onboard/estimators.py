@@ -32,6 +32,7 @@ from .samples import Scan
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
 SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
 SENSOR_LAG_S = 0.1  # [s] a sample was taken up to this before it is placed (latency ≤ 0.05 s + one position interval)
+PERIOD_SAMPLES = 16  # a sensor's period is the mean of its last this many intervals (their span over their count)
 
 
 @dataclass
@@ -44,6 +45,8 @@ class _SensorState:
     known: tuple[float, ...] | None = None  # body bearings of the bins that report (None: a single beam)
     increment: float = 0.0
     period: float = 0.0  # smoothed interval between samples (delivery jitter does not shorten it)
+    gaps: deque = field(default_factory=lambda: deque(maxlen=PERIOD_SAMPLES))  # its last intervals [s]
+    budget: float = math.inf  # [s] the silence after which it counts as dead (`SilenceBudget`); set at construction
     swept: deque = field(default_factory=deque)  # `_Seen` samples of the last COVERAGE_S
     # each source's last sample (t, hits, claimed range, trusted): a sensor matching several DISTANCE_SENSOR ids
     # sees what any of them saw within the time-out (a "free" reading never erases another source's obstacle)
@@ -116,22 +119,60 @@ class DodEstimate:
     swept: bool = False  # d_od is the swept coverage: the direction of travel is outside every field of view
     lowered: bool = False  # d_od is below the sensors' claim: a late first detection, or the evidence (a violation)
     stated_m: float = math.nan  # the D_od the sensors' claim gives (before any lowering)
+    # [s] the longest silence budget of the sensors D_od rests on: the dead time the contracts take for it
+    silence_s: float = 0.0
+    silent: tuple[SilentSensor, ...] = ()  # the sensors heard before and silent longer than their budget now
+
+
+@dataclass(frozen=True)
+class SilenceBudget:
+    """How long a sensor may be silent before it counts as dead: `periods` of its own measured period, at least
+    `min_s`, at most `max_s` (and `max_s` until PERIOD_SAMPLES intervals are measured). The period is the mean of its
+    last PERIOD_SAMPLES intervals as received — their span over their count, which a burst of samples delivered
+    together does not shorten and the daemon's loop, receiving a 20 Hz sensor 40 and 60 ms apart in turn, does not
+    move. The contracts take that silence as dead time: the vehicle flies on the last reading for as long."""
+
+    periods: float
+    min_s: float
+    max_s: float
+
+    def of(self, gaps) -> float:
+        """The budget [s] for a sensor whose last intervals are `gaps`."""
+        if len(gaps) < PERIOD_SAMPLES:
+            return self.max_s
+        # to the millisecond above (the clock's rounding neither lowers it nor makes every sample a new value)
+        budget = math.ceil(self.periods * math.fsum(gaps) / len(gaps) * 1e3 - 1e-6) / 1e3
+        return min(max(budget, self.min_s), self.max_s)
+
+
+@dataclass(frozen=True, slots=True)
+class SilentSensor:
+    """A sensor silent longer than its budget: the navigation guarantee it gave is gone."""
+
+    sensor: int
+    silent_s: float  # since its last sample
+    budget_s: float  # what the contracts took
 
 
 class DodEstimator:
     """`D_od` along the direction of travel from the sensors' configured mounting and field of view,
-    their reported range limits and signal quality, staleness (stale ⇒ 0), coverage and late first
+    their reported range limits and signal quality, each sensor's silence (one silent longer than its own budget,
+    `SilenceBudget`, counts for nothing; none left ⇒ 0), coverage and late first
     detections (which lower the estimate for a hold time). A direction outside every field of view gets
     the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the swept
     coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
 
-    def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float, cover: bool = True):
-        """`cover`: D_od is capped by the beams' cover of the swept corridor (`estimate`); False under the avoid
+    def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float,
+                 silence: SilenceBudget | None = None, cover: bool = True):
+        """`stale_s`: the time-out (`timeouts.obstacle_s`): a position or heading older than it places nothing, and
+        a sensor's sources are merged within it; `silence`: each sensor's own budget (None: the time-out for all);
+        `cover`: D_od is capped by the beams' cover of the swept corridor (`estimate`); False under the avoid
         contract, where the daemon's own swerves put the direction of travel at a field of view's edge and the cap
         read them as blindness (Figure 17 with late plans stopped short of its route; its braking broke the
         controller contract)."""
         self.cover = cover
-        self.sensors = [_SensorState(c) for c in sensors]
+        self.silence = silence if silence is not None else SilenceBudget(1.0, stale_s, stale_s)
+        self.sensors = [_SensorState(c, budget=self.silence.max_s) for c in sensors]
         self.contract = contract
         self.stale_s = stale_s
         self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
@@ -181,6 +222,8 @@ class DodEstimator:
         gap = t - s.t if fresh else 0.0
         if gap > 0:
             s.period = gap if s.period == 0 else 0.9 * s.period + 0.1 * gap
+            s.gaps.append(gap)
+            s.budget = self.silence.of(s.gaps)
         # samples delivered in a burst were still taken one interval apart
         tolerance = self.contract.late_detection_tolerance_m + self._speed * max(gap, s.period if fresh else 0.0)
         trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
@@ -251,7 +294,7 @@ class DodEstimator:
         rows, shifts = [], []
         trust = 1.0 - self.contract.nav_margin
         for s in self.sensors:
-            if t - s.t > self.stale_s or not s.trusted:
+            if t - s.t > s.budget or not s.trusted:
                 continue
             for seen in s.swept:
                 if seen.t >= t - COVERAGE_S:
@@ -292,7 +335,7 @@ class DodEstimator:
         """Obstacle hits of the fresh sensors: (body bearing, range, bearing uncertainty ±, from bins)."""
         out = []
         for s in self.sensors:
-            if t - s.t <= self.stale_s:
+            if t - s.t <= s.budget:
                 bins = s.known is not None
                 half = s.increment / 2 if bins else math.radians(s.cfg.h_fov_deg) / 2
                 out.extend((b, r, half, bins) for b, r in s.hits)
@@ -321,9 +364,13 @@ class DodEstimator:
         covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
         obstacle = math.inf
         beams = []
+        silence, silent = 0.0, []
         for i, s in enumerate(self.sensors):
-            if t - s.t > self.stale_s:
+            if t - s.t > s.budget:
+                if math.isfinite(s.t):
+                    silent.append(SilentSensor(i, t - s.t, s.budget))
                 continue
+            silence = max(silence, s.budget)
             bins = s.known is not None
             for b, r in s.hits:
                 if not bins or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
@@ -372,7 +419,8 @@ class DodEstimator:
         self._last_d_od = d
         late = self._pending[0] if self._pending else None
         self._pending.clear()
-        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated)
+        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated, silence,
+                           tuple(silent))
 
 
 # ============================================================================ E_tr

@@ -86,10 +86,12 @@ _NO_SPEED = ("input", "why", "resume")  # a `no safe speed` Hold's cause (compan
 _MISSION_STATS = ("resent", "duplicates", "out_of_order", "malformed")
 EVENTS = {
     "start": Event(("mode", "vehicle", "table", "connect", "replay_of", "contract", "controller_contract", "nav_margin",
-                    "delivery", "table_serial", "table_signature"),
+                    "delivery", "sensor_silence", "table_serial", "table_signature"),
                    "cli run, replay",
-                   "daemon run starts (connect: the live link; replay_of: the raw log replayed; table_serial: the "
-                   "signed table's serial, None unsigned; table_signature: signed, key_id, verified)"),
+                   "daemon run starts (connect: the live link; replay_of: the raw log replayed; sensor_silence: how "
+                   "long an obstacle sensor may be silent, budgeted as dead time (periods of its own, min_s, max_s); "
+                   "table_serial: the signed table's serial, None unsigned; table_signature: signed, key_id, "
+                   "verified)"),
     "table_rollback": Event(("serial", "last_serial", "last_table", "state_file"), "cli run",
                             "a table older than the last accepted is flown because the config allows it "
                             "(allow_table_rollback; WEAKENED in the banner)"),
@@ -104,8 +106,9 @@ EVENTS = {
     "log_writing": Event(("error",), "daemon", "the event log writes again"),
     "log_recovered": Event(("dropped_records", "write_errors", "since_wall", "error"), "eventlog",
                            "writes succeed again after a failure (records dropped meanwhile)"),
-    "violation_start": Event(("subsystem", "guarantee", "assumed", "observed", "action"), "supervisor",
-                             "a subsystem broke its guarantee (subsystem ∈ SUBSYSTEMS)"),
+    "violation_start": Event(("subsystem", "guarantee", "assumed", "observed", "action", "sensor"), "supervisor",
+                             "a subsystem broke its guarantee (subsystem ∈ SUBSYSTEMS; sensor: the obstacle sensor "
+                             "silent longer than its budget, its index in `sensors`)"),
     "reaction_time": Event(("late_s", "t_react_s"), "supervisor",
                            "the daemon's own lateness counted as reaction time changed (a late cycle, or 10 s on "
                            "time since): Ω flies V ≤ V_safe(d_od − V·(t_react + late_s)); 0 when on time"),

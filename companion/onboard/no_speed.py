@@ -100,7 +100,8 @@ def diagnose(table: ContractTable, contract: str, i: Inputs, *, e_tr_floor: floa
         return NoSpeed("thrust_ratio", why, needs, f"thrust_ratio {now} < {lowest}", f"thrust_ratio >= {lowest}")
 
     def speed(d_od: float = d, e_tr: float = e) -> bool:
-        return table.omega(d_od, r, e_tr, thr, contract=contract, t_cmd=t_cmd).v_max >= MIN_SPEED_CMD
+        return table.omega(d_od, r, e_tr, thr, contract=contract, t_cmd=t_cmd,
+                           t_silent=i.dod.silence_s).v_max >= MIN_SPEED_CMD
 
     if speed():  # the contract has a speed at these inputs: the daemon's lateness, or the policy flown, took it
         if i.late_s > 0.0:

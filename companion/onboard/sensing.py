@@ -11,7 +11,8 @@ from contracts.table import ContractTable
 from .assumptions import e_tr_floor, start_thrust
 from .config import Config
 from .detection_range import DetectionRange, DetectionRangeParams
-from .estimators import AccelEstimator, DodEstimator, EtrEstimator, NavHealth, ThrustEstimator, Timeliness
+from .estimators import (AccelEstimator, DodEstimator, EtrEstimator, NavHealth, SilenceBudget, ThrustEstimator,
+                         Timeliness)
 from .mavlink_in import SENSOR_MSGS
 from .samples import AutopilotParam, Heading, Implausible, NavStatus, PathTarget, Position, Scan, Throttle
 from .supervisor import RAMP_WINDOW_S
@@ -22,11 +23,19 @@ A0_S = 0.1  # [s] the recovery brake's stop starts from the acceleration measure
 CYCLE_SAMPLES = frozenset((Position, Heading, PathTarget, Throttle, NavStatus, Scan))
 
 
+def silence_budget(cfg: Config) -> SilenceBudget:
+    """Each obstacle sensor's silence budget as configured (`timeouts.obstacle_periods`, `obstacle_min_s`, capped by
+    `obstacle_s`)."""
+    t = cfg.timeouts
+    return SilenceBudget(t.obstacle_periods, min(t.obstacle_min_s, t.obstacle_s), t.obstacle_s)
+
+
 class Sensing:
     def __init__(self, cfg: Config, table: ContractTable, adapter, contract: str):
         veh = table.vehicle
         self.adapter = adapter
-        self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s, cover=contract == "stop")
+        self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s, silence_budget(cfg),
+                                cover=contract == "stop")
         # D_od from evidence: what the sensors' claim cannot say
         self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))

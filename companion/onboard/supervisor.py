@@ -57,6 +57,9 @@ RAMP_V_TOL = (1.03, 0.15)  # the speed flown is never above 1.03 × the speed co
 SLOWDOWN_LAG_S = 0.6
 SLOWDOWN_NEAR_M_S = 0.3  # [m/s] flying within this of the old limit's tolerance when a lower one comes: complying
 LIMIT_FLOWN = "a speed limit is flown within the autopilot's slow-down"  # the delivery subsystem's guarantee
+# the navigation subsystem's guarantee of each obstacle sensor: it reports within its silence budget, which the stop and
+# avoid contracts take as dead time (companion/onboard/estimators.py SilenceBudget)
+SENSOR_SILENCE = "an obstacle sensor reports within its silence budget"
 
 
 @dataclass(frozen=True, slots=True)
@@ -453,13 +456,13 @@ class Supervisor:
         return om
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
-        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max)
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s)
         om = self._omega_at.get(key)
         if om is None:
             if len(self._omega_at) >= 4:  # this cycle's few lookups (with and without the brake, the ramp)
                 self._omega_at.clear()
             om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
-                                                        a0_max=a0_max, t_cmd=self.t_cmd)
+                                                        a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s)
         return om
 
     # ------------------------------------------------------------------ the cycle
@@ -572,6 +575,12 @@ class Supervisor:
             self._dod_swept = i.dod.swept
             basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")
             d.events.append(("dod_coverage", {"basis": basis, "d_od": i.dod.d_od, "reason": i.dod.reason}))
+        silent = i.dod.silent[0] if i.dod.silent else None
+        self._violation(d, "sensor_silent", silent is not None, lambda: dict(
+                        subsystem=Subsystem.NAVIGATION, guarantee=SENSOR_SILENCE, sensor=silent.sensor,
+                        assumed=silent.budget_s, observed=silent.silent_s,
+                        action=f"sensors[{silent.sensor}] taken for dead, D_od without it: {i.dod.d_od:.2f} m "
+                               f"({i.dod.reason})"))
         late = i.dod.late
         self._violation(d, Subsystem.NAVIGATION, i.dod.lowered, lambda: dict(
                         subsystem=Subsystem.NAVIGATION, guarantee="every obstacle within D_od is detected",
