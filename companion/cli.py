@@ -96,7 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--speedup", type=finite, default=1.0,
                    help="simulated seconds per wall-clock second (default 1: real time, the daemon's timing budget "
                         "as on an aircraft; at K the host's lateness counts K times)")
-    d.add_argument("--duration", type=finite, default=75.0, help="simulated seconds")
+    d.add_argument("--duration", type=finite, default=85.0,
+                   help="simulated seconds after the take-off (default 85: the route and its Hold)")
     d.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
                    help="which autopilot the SITL behaves like (default px4)")
     d.add_argument("--json", action="store_true", help=JSON)

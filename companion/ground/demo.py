@@ -154,7 +154,7 @@ def daemon_config(sc, port: int, speedup: float, personality: str, log_dir: Path
 
 
 def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: float = 1.0,
-             duration_s: float = 75.0, personality: str = "px4") -> dict:
+             duration_s: float = 85.0, personality: str = "px4") -> dict:
     """Fly scenario `sc` (loaded from `scenario_path` by the CLI, which wires the harness in)."""
     from companion.onboard.autopilots import adapter_for
 
