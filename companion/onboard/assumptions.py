@@ -11,9 +11,14 @@ from .estimators import SETTLE_S
 
 
 def e_tr_floor(cfg: Config, table: ContractTable) -> float:
+    """The smallest E_tr the contract may use with this table (`least_e_tr`)."""
+    return least_e_tr(cfg, table.e_pred is not None)
+
+
+def least_e_tr(cfg: Config, controller_contract: bool) -> float:
     """The smallest E_tr the contract may use: the configured floor, and without a controller contract in
     the table at least the configured assumption (without either, the start-up checks refuse)."""
-    assumed = cfg.contract.e_tr_assumed_m if table.e_pred is None else None
+    assumed = None if controller_contract else cfg.contract.e_tr_assumed_m
     return max(cfg.contract.e_tr_floor_m, assumed or 0.0)
 
 

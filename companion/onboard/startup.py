@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from .assumptions import least_e_tr
 from .config import Config, is_network_link
 from .coverage import refusal as coverage_refusal
 from .outbox import EMPTY, Outbox
@@ -151,13 +152,9 @@ class StartupChecks:
                     "or state contract.e_tr_assumed_m")
         if not looks_forward(self.cfg.sensors):
             return NOT_FORWARD
-        return coverage_refusal(self.cfg.sensors, self.vehicle.r_body_m, self.e_tr_least()) or \
+        e_tr = least_e_tr(self.cfg, self.controller_contract)
+        return coverage_refusal(self.cfg.sensors, self.vehicle.r_body_m, e_tr) or \
             unsigned_refusal(self.cfg)
-
-    def e_tr_least(self) -> float:
-        """The least E_tr the contract uses (the floor; without a controller contract the stated E_tr)."""
-        ct = self.cfg.contract
-        return max(ct.e_tr_floor_m, (ct.e_tr_assumed_m or 0.0) if not self.controller_contract else 0.0)
 
     def wanted(self) -> list[str]:
         """The parameters to ask for: the checked ones, and the cruise speed (not checked, but used)."""
