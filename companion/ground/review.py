@@ -550,8 +550,8 @@ def summarise(records: Iterable[dict], *, gap_s: float = 1.0, tolerance_m_s: flo
               facts_of=facts_of_start) -> dict:
     """The report for a sequence of records (oldest first). Pure: no I/O; never raises on odd records.
 
-    `tolerance_m_s`: ground speed above the limit by no more than this is not a finding (issue 5 accepts
-    limit + 0.2 m/s after a limit drop). `facts_of`: a `start` record → its run's `RunFacts` (the default reads
+    `tolerance_m_s`: ground speed above the limit by no more than this is not a finding (the autopilot holds a
+    commanded speed within a few tenths: limit + 0.2 m/s after a limit drop is accepted). `facts_of`: a `start` record → its run's `RunFacts` (the default reads
     the record alone; `review` also looks its vehicle up: `run_facts`).
     """
     return conclude(_summary(records, gap_s, tolerance_m_s, facts_of))
