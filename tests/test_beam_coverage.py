@@ -133,8 +133,8 @@ def test_the_estimators_d_od_is_the_cover_of_the_corridor(fov, expect):
 def test_a_wider_tracking_error_lowers_the_d_od_of_a_beam_that_covers_only_far_out():
     est = DodEstimator([SensorConfig(h_fov_deg=6, max_range_m=12)], ContractConfig(), 0.5)
     est.add_scan(_scan(0.0))
-    assert est.estimate(0.01, 0.0, swept_half_m=0.5).d_od == 12.0  # 12·sin 3° = 0.63 m ≥ 0.5 m
-    assert est.estimate(0.02, 0.0, swept_half_m=0.7).d_od == 0.0
+    assert est.estimate(0.01, 0.0, 2 * est.r_obst + 0.5).d_od == 12.0  # 12·sin 3° = 0.63 m ≥ 0.5 m
+    assert est.estimate(0.02, 0.0, 2 * est.r_obst + 0.7).d_od == 0.0
 
 
 # ---------------------------------------------------------------- the lock-step flights

@@ -349,13 +349,13 @@ class DodEstimator:
             return bool(s.known) and min(abs(wrap(beta - b)) for b in s.known) <= s.increment / 2 + 1e-9
         return abs(wrap(beta - math.radians(s.cfg.orientation_deg))) <= math.radians(s.cfg.h_fov_deg) / 2 + 1e-9
 
-    def estimate(self, t: float, beta: float, corridor_m: float = math.inf, r_obst: float | None = None,
-                 swept_half_m: float | None = None) -> DodEstimate:
+    def estimate(self, t: float, beta: float, corridor_m: float = math.inf, r_obst: float | None = None
+                 ) -> DodEstimate:
         """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for
         deciding which hits are on it (single-beam hits are always taken as on it); `r_obst`: the R_obst in force
-        from now on (CG_R_OBST; None: unchanged); `swept_half_m`: the swept corridor's half-width the beams must
-        cover, w = r_body + E_tr (`companion.onboard.coverage`; None: the cycle's `corridor_m` less its 2·R_obst, as
-        the cycle makes it 2·R_obst + E_tr + r_body; neither given: the claim alone). D_od is at most the far end of
+        from now on (CG_R_OBST; None: unchanged). The swept corridor the beams must cover has half-width
+        w = r_body + E_tr (`companion.onboard.coverage`): `corridor_m` less its 2·R_obst, as the cycle makes it
+        2·R_obst + E_tr + r_body (no corridor given: the claim alone). D_od is at most the far end of
         the range interval over which the fresh, trusted beams together cover that corridor, 0 where they cover it
         nowhere; the swept coverage (the direction of travel outside every field of view) no more than the beams
         cover of that corridor along any of their axes."""
@@ -383,9 +383,7 @@ class DodEstimator:
             covered.append(i)
             if s.max_m > d:
                 d, reason = s.max_m, f"sensor {i} reports range {s.max_m:.2f} m"
-        if swept_half_m is None and math.isfinite(corridor_m):
-            swept_half_m = corridor_m - 2 * self.r_obst
-        w = None if swept_half_m is None or not self.cover else max(swept_half_m, 0.0)
+        w = max(corridor_m - 2 * self.r_obst, 0.0) if self.cover and math.isfinite(corridor_m) else None
         short = False  # the beams cover less of the corridor along the direction of travel than they claim
         if covered and w is not None:  # the beams' cover of the corridor (companion/onboard/coverage.py)
             cover = corridor_cover(beams, w, beta, grid=True)
