@@ -45,6 +45,10 @@ SIDE_SLOW = 0.7  # [m/s] …or below this (under the 1 m/s at which D_od is take
 REJOIN_OPEN_M = 0.5  # [m] a rejoin this far beside the route slows for the next stop at A_REJOIN_STOP·a_max
 A_REJOIN_STOP = 0.2
 HEADING_TOL = math.radians(20.0)  # the reference speeds up only with the heading this close to the yaw
+# the vehicle flown above V_max gives the excess back: the cruise reference's budget shrinks by GIVE_BACK × the
+# excess, a pass's clock slows by the excess over its speed (at most PASS_SLOW_MAX); 0 and 0: the reference alone
+GIVE_BACK = 1.0
+PASS_SLOW_MAX = 0.5
 
 
 @dataclass
@@ -371,6 +375,7 @@ class OffboardGuidance:
     planning: InlinePlanning | ThreadedPlanning = field(default_factory=InlinePlanning)
     plan: Plan | None = None
     plan_t: float = 0.0
+    plan_held: float = 0.0  # [s] the pass's clock held back while the vehicle flew above V_max (`_follow`)
     plan_omega: tuple[float, float] | None = None
     s_ref: float = 0.0  # along-track position of the cruise reference
     v_ref: float = 0.0  # speed of the cruise reference
@@ -413,13 +418,13 @@ class OffboardGuidance:
         z = -self.route.altitude_m
         ahead = self._threats(p, v, discs)
         if ahead:
-            return self._avoid(t, p, v, v_max, a_max, ahead, z)
+            return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z)
         self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
-        if self.plan is not None and self.plan.kind == "pass" and t - self.plan_t < self.plan.t[-1] \
+        if self.plan is not None and self.plan.kind == "pass" and self._tau(t) < self.plan.t[-1] \
                 and not self._past_the_profile(t, v_max, a_max):
-            return self._follow(t, z)  # finish going round the obstacle before rejoining
+            return self._follow(t, dt, z, v_max)  # finish going round the obstacle before rejoining
         if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
-            end_p, end_v, _ = self.plan.sample(t - self.plan_t)
+            end_p, end_v, _ = self.plan.sample(self._tau(t))
             self.s_ref = self.route.project(end_p)
             self._rejoin_from(end_p, end_v)
             self.plan = None
@@ -453,7 +458,10 @@ class OffboardGuidance:
         if abs(self.y_off) > REJOIN_OPEN_M:  # still beside the route: slow gently for the stop ahead, so the
             # vehicle does not overshoot it and come back outside the sensor's view
             limit = min(limit, math.sqrt(2 * A_REJOIN_STOP * a_max * max(route.next_stop(self.s_ref) - self.s_ref, 0.0)))
-        target = min(math.sqrt(max(v_max * v_max - self.vy_off * self.vy_off, 0.0)) / max(stretch, 1.0), limit)
+        # the vehicle flown above V_max (catching up with a reference ahead of it, overshooting a speed-up) gives the
+        # excess back: the reference's budget shrinks by it, so the ground speed, not only the reference, stays ≤ V_max
+        budget = max(v_max - GIVE_BACK * max(float(np.hypot(*self._v_meas)) - v_max, 0.0), 0.0)
+        target = min(math.sqrt(max(budget * budget - self.vy_off * self.vy_off, 0.0)) / max(stretch, 1.0), limit)
         up = 0.5 * a_max * dt
         if heading is not None and abs(wrap(heading - self._yaw(u * self.v_ref * stretch + n * self.vy_off, u))) \
                 > HEADING_TOL:
@@ -503,7 +511,7 @@ class OffboardGuidance:
                 out.append(d)
         return out
 
-    def _avoid(self, t, p, v, v_max, a_max, discs, z) -> Setpoint:
+    def _avoid(self, t, dt, p, v, omega, discs, z) -> Setpoint:
         """Replan when an obstacle appears (no plan), every REPLAN_S, and — at most every REPLAN_MIN_S —
         when Ω changes, the vehicle drifts from the plan or it is braking. A plan starts at the state
         measured when it was asked for, so it is followed from its request time. While the first plan is
@@ -512,6 +520,7 @@ class OffboardGuidance:
         braking, flown from its request, left the vehicle behind it by the braking's lost speed (a controller
         violation at the demo's first obstacle in fog on a loaded host)."""
         self._take(t, self.planning.poll())
+        v_max, a_max = omega
         omega = (round(v_max, 3), round(a_max, 3))
         since = t - max(self.plan_t, self.plan_t_try)
         urgent = False
@@ -519,23 +528,23 @@ class OffboardGuidance:
             bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, discs, self.planner.n)
             kind = "brake" if self.planner_failed else "await"  # a planner that fails is not awaited
             self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
-            self.plan_t, self.plan_omega, since = t, omega, math.inf
+            self.plan_t, self.plan_held, self.plan_omega, since = t, 0.0, omega, math.inf
         else:
-            drift = float(np.hypot(*(self.plan.sample(t - self.plan_t)[0] - p)))
+            drift = float(np.hypot(*(self.plan.sample(self._tau(t))[0] - p)))
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
         if (since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
                 t_req = t + self._lead()
-                p_req, v_req, _ = self.plan.sample(t_req - self.plan_t)
+                p_req, v_req, _ = self.plan.sample(self._tau(t_req))
             _, u = self.route.point(self.route.project(p_req))
             warm = self.plan if self.plan.kind in ("pass", "stop") else None
             self.plan_t_try, self._asked_t = t_req, t
             self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
                                  list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
-                                 warm=warm, elapsed=t - self.plan_t, budget_s=self.planning.budget_s)
+                                 warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)
             self._take(t, self.planning.poll())
-        return self._follow(t, z)
+        return self._follow(t, dt, z, v_max)
 
     def _lead(self) -> float:
         """How far ahead a plan asked for while braking starts: the slowest of the last answers' latencies,
@@ -558,7 +567,7 @@ class OffboardGuidance:
         """Whether the pass being finished (its obstacle behind) flies faster than the route's speed profile
         at half its braking allows — then the vehicle rejoins now and slows for what is ahead (the route's end,
         a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it."""
-        pos, vel, _ = self.plan.sample(t - self.plan_t)
+        pos, vel, _ = self.plan.sample(self._tau(t))
         return float(np.hypot(*vel)) > float(self.route.speed_limit(self.route.project(pos), v_max, 0.5 * a_max))
 
     def _pass_speed(self, discs, v_max: float, a_max: float) -> float:
@@ -588,13 +597,25 @@ class OffboardGuidance:
         self.plan_times.append(new.solve_s)
         self.rejected += new.rejected
         self.last_notes = new.notes
-        if keeps_plan(self.plan, t_req - self.plan_t, new):  # keep flying the verified plan in progress
+        if keeps_plan(self.plan, self._tau(t_req), new):  # keep flying the verified plan in progress
             self.kept += 1
         else:
-            self.plan, self.plan_t, self.plan_omega = new, t_req, omega
+            self.plan, self.plan_t, self.plan_held, self.plan_omega = new, t_req, 0.0, omega
 
-    def _follow(self, t, z) -> Setpoint:
-        pos, vel, acc = self.plan.sample(t - self.plan_t)
+    def _tau(self, t: float) -> float:
+        """Where in the plan being flown the reference is at time t (its own clock)."""
+        return t - self.plan_t - self.plan_held
+
+    def _follow(self, t, dt, z, v_max) -> Setpoint:
+        """The plan's reference now. A pass's clock slows while the vehicle flies above V_max (catching up with a
+        reference it lags, it overshoots the plan's speed): by the excess over the reference's speed, so the path
+        (clear of every keep-out disc) is the same and its speed, the feed-forward's with it, is lower."""
+        pos, vel, acc = self.plan.sample(self._tau(t))
+        if self.plan.kind == "pass" and dt > 0:
+            excess = float(np.hypot(*self._v_meas)) - v_max
+            slow = min(max(excess, 0.0) / max(float(np.hypot(*vel)), 0.1), PASS_SLOW_MAX)
+            self.plan_held += slow * dt
+            vel, acc = vel * (1.0 - slow), acc * (1.0 - slow) ** 2
         s_here = self.route.project(pos)
         _, u = self.route.point(s_here)
         yaw = self._yaw(vel, u)
