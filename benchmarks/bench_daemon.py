@@ -11,8 +11,9 @@ core, latency p95 < 25 ms.
 claiming the autopilot's ids (telemetry). Goal under a flood: loop period p99 < 25 ms and no failsafe.
 `cycle_work_ms` is one cycle's own work (poll and step) in wall time, apart from how late the OS wakes
 the loop, and `cycle_cpu_ms` the same in CPU time (what a busy machine's preemption cannot inflate);
-`load_average_1min` says how busy the machine was. The daemon runs at the service unit's `Nice=` (as
-installed; `BENCH_NICE=0` for the default priority); `nice` says which it got.
+`load_average_1min` says how busy the machine was. The daemon runs at the service unit's `Nice=` and
+`CPUSchedulingPolicy=fifo` priority (as installed; `BENCH_NICE=0`, `BENCH_FIFO=0` for the defaults); `nice` and
+`sched_fifo` say which it got.
 
 `cycle_lateness_ms` is each cycle's lateness as the daemon judges its own timeliness (companion/onboard/estimators.py
 `Timeliness`: how much later than one loop period after the previous cycle it started), with the share of cycles
@@ -42,15 +43,18 @@ DURATION_S = float(os.environ.get("BENCH_DAEMON_S", "30"))
 UNIT = Path(__file__).resolve().parents[1] / "systemd" / "contract-guard.service"
 
 
-def unit_nice() -> int:
-    """The service unit's Nice= (the priority the daemon runs at when installed), 0 when it sets none."""
+def unit_setting(name: str, default: str) -> str:
+    """One of the service unit's settings (how the daemon runs when installed), `default` when it sets none."""
     for line in UNIT.read_text().splitlines():
-        if line.startswith("Nice="):
-            return int(line.split("=", 1)[1])
-    return 0
+        if line.startswith(f"{name}="):
+            return line.split("=", 1)[1].strip()
+    return default
 
 
-NICE = int(os.environ.get("BENCH_NICE", unit_nice()))  # as installed; raising it needs root or CAP_SYS_NICE
+NICE = int(os.environ.get("BENCH_NICE", unit_setting("Nice", "0")))  # as installed; needs root or CAP_SYS_NICE
+# the unit's SCHED_FIFO priority (CPUSchedulingPolicy=fifo), 0 for none; BENCH_FIFO=0 measures without it
+FIFO = int(os.environ.get("BENCH_FIFO", unit_setting("CPUSchedulingPriority", "0")
+                          if unit_setting("CPUSchedulingPolicy", "other") == "fifo" else "0"))
 PX4_MISSION, PX4_HOLD = (4 << 16) | (4 << 24), (4 << 16) | (3 << 24)
 PARAMS = {"MPC_TILTMAX_AIR": (45.0, 9), "MPC_ACC_HOR": (3.0, 9), "MPC_JERK_AUTO": (4.0, 9), "COM_OBL_RC_ACT": (5.0, 9)}
 
@@ -210,6 +214,13 @@ def main() -> None:
             nice = NICE
         except OSError:
             print(f"bench_daemon: cannot set nice {NICE} (not root): measured at 0", file=sys.stderr)
+    fifo = 0
+    if FIFO:  # the unit's real-time scheduling; children started from here on get the default (reset on fork)
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO | os.SCHED_RESET_ON_FORK, os.sched_param(FIFO))
+            fifo = FIFO
+        except OSError as e:
+            print(f"bench_daemon: cannot set SCHED_FIFO {FIFO} ({e.strerror}): measured without", file=sys.stderr)
     load = os.getloadavg()[0]
     gc_ms = {"objects_at_start": len(gc.get_objects()), "before_freeze": _full_gc_ms()}
     daemon.run(lambda: time.monotonic() - t0 > DURATION_S)  # (it freezes start-up's objects: `freeze_startup`)
@@ -241,7 +252,7 @@ def main() -> None:
         "flood": {"kind": kind or None, "rate_hz": rate if kind else 0, "link": dict(conn.stats),
                   "poll_budget_hits": daemon.counters.poll_budget_hits,
                   "failsafes": [e for e in failsafes(cfg.log.dir)]},
-        "load_average_1min": round(load, 2), "nice": nice,
+        "load_average_1min": round(load, 2), "nice": nice, "sched_fifo": fifo,
         "goal": {"cpu_percent": 5, "latency_p95_ms": 25, "flood_loop_p99_ms": 25, "flood_failsafes": 0},
     }))
 

@@ -105,6 +105,7 @@ def test_unit_has_the_required_settings():
         "ConfigurationDirectory": "contract-guard", "ProtectSystem": "strict", "ProtectHome": "yes",
         "PrivateTmp": "yes", "NoNewPrivileges": "yes", "DevicePolicy": "closed", "NotifyAccess": "main",
         "Nice": "-10", "CPUWeight": "1000",  # its share of a contended CPU, within and across cgroups
+        "CPUSchedulingPolicy": "fifo", "CPUSchedulingResetOnFork": "yes",  # its cycles on time, its planner not
     }
     for k, v in required.items():
         assert svc.get(k) == [v], k

@@ -31,6 +31,27 @@ from companion.onboard.logschema import LOG_FILE  # noqa: E402
 from contracts.errors import ContractError  # noqa: E402
 
 
+FIFO_PRIORITY = 50  # the service unit's CPUSchedulingPriority (systemd/contract-guard.service)
+
+
+def _scheduling() -> tuple[object, str]:
+    """How the SITL and the daemon run: SCHED_FIFO at the service unit's priority, their own children (the planning
+    worker) back at the default (SCHED_RESET_ON_FORK), where this user may — the daemon as it runs on an aircraft,
+    the SITL as the autopilot that has a processor of its own; else the default, and why. Returns (the child's
+    set-up, or None; what the console says)."""
+    fifo, reset = getattr(os, "SCHED_FIFO", None), getattr(os, "SCHED_RESET_ON_FORK", 0)
+    if fifo is None:
+        return None, "default (this system has no SCHED_FIFO)"
+    try:  # asked of this process and given back at once: the answer the children would get
+        os.sched_setscheduler(0, fifo | reset, os.sched_param(FIFO_PRIORITY))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    except OSError as e:
+        return None, (f"default priority: SCHED_FIFO is not permitted for this user ({e.strerror}); on a loaded "
+                      "computer cycles may come late (said in the review)")
+    return (lambda: os.sched_setscheduler(0, fifo | reset, os.sched_param(FIFO_PRIORITY))), \
+        f"SITL and daemon at SCHED_FIFO {FIFO_PRIORITY}, as the service unit runs the daemon"
+
+
 def _free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
@@ -172,6 +193,7 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
     cfg_path = out / "daemon.yaml"
     cfg_path.write_text(yaml.safe_dump(cfg))
     py = sys.executable
+    rt, scheduling = _scheduling()
     # the demo ends the flight `duration_s` of vehicle time after the take-off (not after the SITL's start: on a
     # busy host the daemon's start-up alone took 20 s of the SITL's 2× time, and the flight was cut 22 m short of
     # the route's end); the SITL's own --duration is a backstop covering the minute the daemon may take to start
@@ -179,7 +201,7 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
                              "--personality", personality, "--listen", f"udp:127.0.0.1:{port}",
                              "--speedup", str(speedup), "--duration", str(duration_s + 60.0 * (1.0 + speedup)), "--json",
                              "--log-dir", str(ap_log_dir)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=rt)
     daemon = gcs = gs = None
     try:
         if "listening" not in (sitl.stderr.readline() or ""):
@@ -187,7 +209,7 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
         sitl_out = _Tail(sitl.stdout)  # its summary, the last line; its stderr drained beside it
         _Tail(sitl.stderr)
         daemon = subprocess.Popen([py, "-m", "companion.cli", "run", "--config", str(cfg_path)],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=rt)
         daemon_err = _Tail(daemon.stderr)
         deadline = time.time() + 60
         while not any(e.get("event") == "startup_check" for e in _events(log_dir)):
@@ -231,7 +253,7 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
             sitl.kill()
     sitl_summary = json.loads(summary_line.strip().splitlines()[-1]) if summary_line.strip() else {}
     rep = review([log_dir], out_dir=out / "review")
-    return summarise_flight(sc, _events(log_dir), sitl_summary, rep, out, gs.report())
+    return summarise_flight(sc, _events(log_dir), sitl_summary, rep, out, gs.report(), scheduling)
 
 
 def _stop(proc, sig, timeout_s: float) -> None:
@@ -244,7 +266,7 @@ def _stop(proc, sig, timeout_s: float) -> None:
 
 
 def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out: Path,
-                     gcs_actions: list[dict] = ()) -> dict:
+                     gcs_actions: list[dict] = (), scheduling: str | None = None) -> dict:
     """Collisions, minimum clearance to the true columns, violations, speeds and the V_max steps."""
     from contracts.vehicle import load_vehicle
 
@@ -285,7 +307,7 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         # speed-up flies its vehicle slower than the daemon's clock runs
         "sitl_behind_ms": {k: round(float(sitl_summary[f"jitter_ms_{k}"]), 1) for k in ("p99", "max")
                            if sitl_summary.get(f"jitter_ms_{k}") is not None},
-        "setpoints": _stream_figures(records),
+        "setpoints": _stream_figures(records), "scheduling": scheduling,
         "event_log": str(out / "log" / LOG_FILE), "autopilot_log": sitl_summary.get("flight_log"), "plot": (rep.get("outputs") or {}).get("png"),
         "plot_note": (rep.get("outputs") or {}).get("png_skipped"),
         "safe": collisions == 0 and clear > 0,
@@ -317,6 +339,8 @@ def format_summary(r: dict) -> str:
     if behind:
         lines.append(f"  SITL ticks behind their schedule: p99 {behind.get('p99', math.nan):.0f} ms, max "
                      f"{behind.get('max', math.nan):.0f} ms (wall clock)")
+    if r.get("scheduling"):
+        lines.append(f"  scheduling: {r['scheduling']}")
     sp = r.get("setpoints") or {}
     if sp.get("sent"):
         lines.append(f"  setpoints: {sp['sent']} sent, longest gap {1e3 * sp['gap_max_s']:.0f} ms (vehicle time)")

@@ -460,7 +460,7 @@ class OffboardGuidance:
             limit = min(limit, math.sqrt(2 * A_REJOIN_STOP * a_max * max(route.next_stop(self.s_ref) - self.s_ref, 0.0)))
         # the vehicle flown above V_max (catching up with a reference ahead of it, overshooting a speed-up) gives the
         # excess back: the reference's budget shrinks by it, so the ground speed, not only the reference, stays ≤ V_max
-        budget = max(v_max - GIVE_BACK * max(float(np.hypot(*self._v_meas)) - v_max, 0.0), 0.0)
+        budget = max(v_max - GIVE_BACK * self._excess(math.hypot(self.v_ref * stretch, self.vy_off), v_max), 0.0)
         target = min(math.sqrt(max(budget * budget - self.vy_off * self.vy_off, 0.0)) / max(stretch, 1.0), limit)
         up = 0.5 * a_max * dt
         if heading is not None and abs(wrap(heading - self._yaw(u * self.v_ref * stretch + n * self.vy_off, u))) \
@@ -602,6 +602,13 @@ class OffboardGuidance:
         else:
             self.plan, self.plan_t, self.plan_held, self.plan_omega = new, t_req, 0.0, omega
 
+    def _excess(self, ref_speed: float, v_max: float) -> float:
+        """How much faster than V_max the vehicle flies because it outruns its reference (catching up with it, or
+        overshooting a speed-up): the ground speed's excess over both. A V_max that just fell is not this: the
+        reference slows (the cruise's braking, a replan) and the vehicle with it."""
+        speed = float(np.hypot(*self._v_meas))
+        return max(min(speed - v_max, speed - ref_speed), 0.0)
+
     def _tau(self, t: float) -> float:
         """Where in the plan being flown the reference is at time t (its own clock)."""
         return t - self.plan_t - self.plan_held
@@ -612,8 +619,8 @@ class OffboardGuidance:
         (clear of every keep-out disc) is the same and its speed, the feed-forward's with it, is lower."""
         pos, vel, acc = self.plan.sample(self._tau(t))
         if self.plan.kind == "pass" and dt > 0:
-            excess = float(np.hypot(*self._v_meas)) - v_max
-            slow = min(max(excess, 0.0) / max(float(np.hypot(*vel)), 0.1), PASS_SLOW_MAX)
+            speed = float(np.hypot(*vel))
+            slow = min(self._excess(speed, v_max) / max(speed, 0.1), PASS_SLOW_MAX)
             self.plan_held += slow * dt
             vel, acc = vel * (1.0 - slow), acc * (1.0 - slow) ** 2
         s_here = self.route.project(pos)
