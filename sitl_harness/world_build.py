@@ -9,8 +9,8 @@ centred `at_m` along it, measured from its first point; the pieces either side o
 
 A corridor is two walls either side of a centre polyline, their inner faces `width_m` apart at the start and
 `end_width_m` apart at the end (the width changes linearly along the centre line: a corridor that narrows, or
-closes at 0), with mitred corners at each turn of the centre line; `closed_end` puts a wall across its end (a
-dead end).
+closes at 0, which also puts a wall across its end), with mitred corners at each turn of the centre line;
+`closed_end` puts a wall across its end (a dead end).
 """
 
 from __future__ import annotations
@@ -119,7 +119,7 @@ def corridor_walls(points: list[Point], width: float, end_width: float, thicknes
     left = offset_polyline(points, half)
     right = offset_polyline(points, [-h for h in half])
     walls = [left, right]
-    if closed_end:
+    if closed_end or end_width <= 0.0:  # closing to nothing: the walls' ends would only touch at a point
         walls.append([left[-1], right[-1]])
     return walls
 
