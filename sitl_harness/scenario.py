@@ -249,7 +249,7 @@ class SensorSpec(_Strict):
             return data
         model = data.get("model", "sector")
         if model == "sector":
-            extra = [k for k in MODEL_KEYS if k in data]
+            extra = [k for k in MODEL_KEYS if k in data and data[k] != cls.model_fields[k].default]  # a dump: defaults
             if extra:
                 raise ValueError(f"{', '.join(extra)}: only for model depth_camera or single_beam")
             return data

@@ -13,7 +13,9 @@ On top of what is there (in order, every draw from seeded streams, so one seed g
 - the fog of the sector sensor (contracts/lidar.py: the lidar equation with the sensor's rated reflectivity,
   the honest/hidden stated range, backscatter when hidden) — for the camera a stand-in for the loss of contrast
   that limits stereo matching in a medium;
-- range noise of σ(d) = max(noise_sd_m, noise_rel·d, noise_quad_per_m·d²) [1 σ, Gaussian];
+- range noise of σ(d) = max(noise_sd_m, noise_rel·d, noise_quad_per_m·d²) [1 σ, Gaussian], where d is what
+  the sensor reports: the range along the ray, or for `reports: z_depth` (a depth camera) the depth along the
+  optical axis, d·cos(azimuth), of the nearest pixel in the bin (a stereo camera's error grows with depth);
 - dropped bins (no valid depth; a beam frame without a return) at `dropout_rate` per bin and frame;
 - spurious close returns (a propeller in view, rain, dust) at `spurious_rate` per bin and frame, uniform in
   [min_range_m, spurious_max_m], reported when nearer than what the bin saw;
@@ -70,6 +72,10 @@ class BodySensor(RangeSensor):
         super().__init__(cfg, seed)
         self.rng_faults = np.random.default_rng(seed + 15485863)  # dropouts and spurious returns
 
+    def rays(self) -> np.ndarray:
+        """The azimuths off the axis of every ray, as `_rays` casts them (left edges, centres, right edges)."""
+        return np.concatenate([self.offsets - 0.5 * self.inc, self.offsets, self.offsets + 0.5 * self.inc])
+
     def ground_ranges(self, rays: np.ndarray, alt: float, pitch: float) -> np.ndarray:
         """Slant range to flat ground along the lowest ray at each azimuth `rays` (rad off the axis), inf where
         that ray does not meet the ground within the nominal range. `pitch`: the vehicle's, nose up positive."""
@@ -83,8 +89,7 @@ class BodySensor(RangeSensor):
     def surfaces(self, world, pos, yaw: float, pitch: float) -> tuple[np.ndarray, np.ndarray]:
         """(3 × bins) range and reflectivity of the first surface, world or ground."""
         d3, rho3 = self._rays(world, pos, yaw)
-        rays = np.concatenate([self.offsets - 0.5 * self.inc, self.offsets, self.offsets + 0.5 * self.inc])
-        g3 = self.ground_ranges(rays, float(-pos[2]), pitch).reshape(3, self.n_used)
+        g3 = self.ground_ranges(self.rays(), float(-pos[2]), pitch).reshape(3, self.n_used)
         ground = g3 < d3
         return np.where(ground, g3, d3), np.where(ground, self.cfg.ground_reflectivity, rho3)
 
@@ -100,13 +105,15 @@ class BodySensor(RangeSensor):
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             m3 = np.where(np.isfinite(d3), margin(d3, rho3, alpha, cfg.max_range_m, cfg.rated_reflectivity), 0.0)
         det3 = m3 >= 1.0
-        d_det = np.where(det3, d3, np.inf).min(axis=0)
-        m_det = m3[np.where(det3, d3, np.inf).argmin(axis=0), np.arange(n)]
+        rep3 = d3 * np.cos(self.rays().reshape(3, n)) if cfg.reports == "z_depth" else d3  # what a pixel reports
+        k = np.where(det3, rep3, np.inf).argmin(axis=0)
+        d_det = rep3[k, np.arange(n)]
+        d_det = np.where(det3[k, np.arange(n)], d_det, np.inf)  # the nearest detected return per bin
+        m_det = m3[k, np.arange(n)]
         eff = self.effective_range()
         seen = np.isfinite(d_det) & (d_det <= (eff if self.honest else cfg.max_range_m))
-        noisy = np.where(seen, d_det, 0.0) + self.rng.standard_normal(n) * self.sigma(np.where(seen, d_det, 0.0))
-        if cfg.reports == "z_depth":  # depth along the optical axis, not along the bin's ray
-            noisy = noisy * np.cos(self.offsets)
+        base = np.where(seen, d_det, 0.0)
+        noisy = base + self.rng.standard_normal(n) * self.sigma(base)
         if alpha > 0.0 and not self.honest:  # the medium's own returns near the sensor (sensors.py)
             u = self.rng_medium.random((3, n))
             bs = u[0] < backscatter_probability(alpha, cfg.backscatter_length_m)
