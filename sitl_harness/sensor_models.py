@@ -46,8 +46,8 @@ from .sensors import N_BINS, UINT16_MAX, RangeReading, RangeSensor, RangeSensorC
 # depth RMS error ≤ 2 % at 2 m, growing with the square of the distance (stereo: RMS = d²·subpixel/(focal·baseline),
 # Intel's "Tuning depth cameras for best performance"): σ(d) = 0.02·2 m·(d/2 m)² = 0.01·d² [m]. The bins are
 # built from a horizontal line of the image a few pixel rows thick (d4xx_to_mavlink.py's obstacle line: 10 rows
-# of 480 over 58°, 1.2°), reported as depth along the optical axis (z), as that script does; 5° bins over 87°
-# (17 bins). `dropout_rate` and `spurious_rate` are not datasheet figures: modest stress values (the D435's
+# of 480 over 58°, 1.2°), reported as depth along the optical axis (z), as that script does; 17 bins of 5° over
+# the middle 85° of its 87°. `dropout_rate` and `spurious_rate` are not datasheet figures: modest stress values (the D435's
 # fill rate is ≥ 99 % on textured scenes; a bin is the minimum over its rows and columns).
 DEPTH_CAMERA = {"fov_deg": 87.0, "increment_deg": 5.0, "min_range_m": 0.3, "max_range_m": 10.0, "rate_hz": 30.0,
                 "noise_sd_m": 0.0, "noise_rel": 0.0, "noise_quad_per_m": 0.01, "v_fov_deg": 1.2,
@@ -70,6 +70,12 @@ class BodySensor(RangeSensor):
 
     def __init__(self, cfg: RangeSensorConfig, seed: int = 0):
         super().__init__(cfg, seed)
+        # bins of exactly `increment_deg`, as many as fit the field of view (87° → 17 × 5° = 85°): OBSTACLE_DISTANCE's
+        # 72 bins then span 360° at most, which a reader checks of the whole array, unused bins included
+        n = max(1, min(N_BINS, math.floor(cfg.fov_deg / cfg.increment_deg + 1e-9)))
+        self.n_used = n
+        self.inc = math.radians(cfg.increment_deg)
+        self.offsets = (np.arange(n) - (n - 1) / 2.0) * self.inc
         self.rng_faults = np.random.default_rng(seed + 15485863)  # dropouts and spurious returns
 
     def rays(self) -> np.ndarray:
@@ -163,7 +169,7 @@ class BodySensor(RangeSensor):
         current = min(valid) if valid else free
         m = float(m_det[bins.index(current)]) if valid else None
         return RangeReading(bins, math.degrees(self.inc), math.degrees(self.offsets[0]), min_cm, max_cm, current,
-                            self._quality(eff, m), math.radians(self.cfg.fov_deg))
+                            self._quality(eff, m), self.n_used * self.inc)
 
 
 class DepthCamera(BodySensor):
@@ -192,7 +198,7 @@ class SingleBeam(BodySensor):
         bins = [UINT16_MAX] * N_BINS
         bins[0] = current if current else UINT16_MAX
         return RangeReading(bins, math.degrees(self.inc), math.degrees(self.offsets[0]), min_cm, max_cm, current,
-                            quality, math.radians(self.cfg.fov_deg))
+                            quality, self.n_used * self.inc)
 
 
 MODELS = {"sector": RangeSensor, "depth_camera": DepthCamera, "single_beam": SingleBeam}
