@@ -54,7 +54,8 @@ DEPTH_CAMERA = {"fov_deg": 87.0, "increment_deg": 5.0, "min_range_m": 0.3, "max_
                 "dropout_rate": 0.02, "spurious_rate": 0.002, "spurious_max_m": 1.0, "reports": "z_depth"}
 # Benewake TFmini Plus (TFmini Plus datasheet / product manual): 0.1–12 m at 90 % reflectivity (0.1–4 m at 10 %:
 # the 1/R² law, R ∝ √ρ), accuracy ±5 cm to 6 m and ±1 % from 6 to 12 m (taken as 1 σ: conservative), 1 cm
-# resolution, 100 Hz default frame rate, FOV 3.6° (one bin of 3.6°).
+# resolution, 100 Hz default frame rate, FOV 3.6° (one bin of 3.6°). σ = max(5 cm, 1 %·d): 1 % from 5 m, a little
+# above the datasheet between 5 and 6 m.
 SINGLE_BEAM = {"fov_deg": 3.6, "increment_deg": 3.6, "min_range_m": 0.1, "max_range_m": 12.0, "rate_hz": 100.0,
                "noise_sd_m": 0.05, "noise_rel": 0.01, "noise_quad_per_m": 0.0, "v_fov_deg": 3.6,
                "rated_reflectivity": 0.9, "dropout_rate": 0.005, "spurious_rate": 0.0005, "spurious_max_m": 1.0,
