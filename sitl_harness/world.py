@@ -119,11 +119,14 @@ class World:
         dy = np.sin(angles)
         best = np.full(angles.shape, np.inf)
         rho = np.zeros(angles.shape)
-        cols = [c for c in self.columns if alt <= c.height]
-        if cols:  # every column against every ray at once: (columns × rays)
-            ox = px - np.array([c.x for c in cols])[:, None]
-            oy = py - np.array([c.y for c in cols])[:, None]
-            r = np.array([c.radius for c in cols])[:, None]
+        cx, cy, cr, ch, crho = self._column_arrays()
+        tall = ch >= alt
+        if tall.any():  # every column against every ray at once: (columns × rays)
+            if not tall.all():
+                cx, cy, cr, crho = cx[tall], cy[tall], cr[tall], crho[tall]
+            ox = px - cx[:, None]
+            oy = py - cy[:, None]
+            r = cr[:, None]
             b = dx * ox + dy * oy
             cc = ox * ox + oy * oy - r * r
             disc = b * b - cc
@@ -134,7 +137,7 @@ class World:
             tk = t[k, np.arange(angles.size)].reshape(angles.shape)
             hit = tk < best
             best = np.where(hit, tk, best)
-            rho = np.where(hit, np.array([c.reflectivity for c in cols])[k].reshape(angles.shape), rho)
+            rho = np.where(hit, crho[k].reshape(angles.shape), rho)
         for bx in self.boxes:
             if alt > bx.height:
                 continue
@@ -163,6 +166,15 @@ class World:
             best, rho = self._cast_edges(px, py, alt, dx, dy, best, rho)
         d = np.where(best <= max_range, best, np.inf)
         return (d, np.where(np.isfinite(d), rho, 0.0)) if reflectivity else d
+
+    def _column_arrays(self):
+        """The columns' x, y, radius, height and reflectivity as arrays, rebuilt when the list changes."""
+        key = (id(self.columns), len(self.columns))
+        if getattr(self, "_col_key", None) != key:
+            self._col_key = key
+            self._cols = tuple(np.array([getattr(c, a) for c in self.columns], dtype=float)
+                               for a in ("x", "y", "radius", "height", "reflectivity"))
+        return self._cols
 
     def _cast_edges(self, px, py, alt, dx, dy, best, rho):
         """`best`, `rho` with every polygon's edges taken in (edges × rays); a ray from inside a polygon: 0."""
