@@ -346,8 +346,9 @@ def test_a_cluttered_lockstep_flight_is_reviewed_over_its_world(tmp_path):
 
     sc = load_scenario("corridor_turn")
     log = EventLog(tmp_path / "log", commit="none")
-    rig = Rig(sc.model_dump(), "px4", log=log,
-              config={"mode": "shadow", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 85.0}]})
+    rig = Rig(sc.model_dump(), "px4", log=log, config={"mode": "shadow"})
+    (cam,) = rig.cfg.sensors  # the rig's daemon takes the SITL's sensor as it is: the camera's message and bins
+    assert (cam.kind, cam.h_fov_deg, cam.max_range_m) == ("obstacle_distance", 85.0, 10.0)
     fly(rig, 30.0)
     log.close()
     assert rig.truth["collisions"] == [] and rig.truth["pos"][1] > 7.0  # round the turn, touching nothing

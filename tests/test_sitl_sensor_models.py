@@ -204,3 +204,12 @@ def test_a_dumped_scenario_loads_again():
     for model in ("sector", "depth_camera", "single_beam"):
         sc = scenario_from_dict({"sensor": {"model": model}})
         assert scenario_from_dict(sc.model_dump()) == sc
+
+
+def test_the_lockstep_rigs_daemon_takes_the_sitls_sensor_as_it_is():
+    from tests.lockstep import Rig
+
+    for model, want in (("sector", ("distance_sensor", 60.0, 10.0)), ("single_beam", ("distance_sensor", 3.6, 12.0)),
+                        ("depth_camera", ("obstacle_distance", 85.0, 10.0))):
+        (s,) = Rig({"sensor": {"model": model}}, "px4").cfg.sensors
+        assert (s.kind, s.h_fov_deg, s.max_range_m) == want, model
