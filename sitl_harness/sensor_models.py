@@ -26,9 +26,9 @@ Encodings (MAVLink common.xml; PX4's ObstacleDistance.msg says the same): nothin
 **UINT16_MAX** in OBSTACLE_DISTANCE ("unknown"); with `dropped_as: free` it is `max_distance + 1` instead, what
 the ArduPilot wiki's `d4xx_to_mavlink.py` (vision_to_mavros) writes for every invalid depth ("the invalid distance
 value (below MIN/above MAX) will be replaced with MAX+1"): a camera pipeline that calls a hole free. DISTANCE_SENSOR
-has no "unknown": a dropped beam frame is `max_distance + 1` with `signal_quality` 1 ("invalid"), a return below
-the minimum is `current_distance` 0 (below `min_distance`: no valid reading); with `dropped_as: free` a dropped
-frame is `max_distance + 1` at full quality.
+has no "unknown" value: the single beam sends no message for a dropped frame, as PX4's TFmini driver publishes
+nothing for a frame it rejects (`SingleBeam`), or `max_distance + 1` with `dropped_as: free`; a return below the
+minimum is `current_distance` 0 (below `min_distance`: no valid reading).
 """
 
 from __future__ import annotations
@@ -104,7 +104,8 @@ class BodySensor(RangeSensor):
         c = self.cfg
         return np.maximum(np.maximum(c.noise_sd_m, c.noise_rel * d), c.noise_quad_per_m * d * d)
 
-    def read(self, world, pos, yaw: float, pitch: float = 0.0) -> RangeReading:
+    def read(self, world, pos, yaw: float, pitch: float = 0.0) -> RangeReading | None:
+        """One frame (None: the sensor sends nothing this time)."""
         cfg = self.cfg
         n = self.n_used
         d3, rho3 = self.surfaces(world, pos, yaw, pitch)
@@ -178,24 +179,27 @@ class DepthCamera(BodySensor):
 
 
 class SingleBeam(BodySensor):
-    """A single-beam lidar as DISTANCE_SENSOR (TFmini Plus class; SINGLE_BEAM)."""
+    """A single-beam lidar as DISTANCE_SENSOR (TFmini Plus class; SINGLE_BEAM), sent as PX4's TFmini driver sends
+    it (src/drivers/distance_sensor/tfmini: `_px4_rangefinder.update(timestamp, distance_m)`, no signal quality:
+    MAVLink's 0, unknown; a frame its parser rejects is not published at all): a dropped frame is no message
+    (`read` returns None), or with `dropped_as: free` `max_distance + 1`; quality 0, except an honest sensor in
+    fog, which states its fallen range and quality as the sector sensor does."""
 
     MESSAGES = ("DISTANCE_SENSOR",)
     SENSOR_TYPE = "LASER"
 
-    def encode(self, cm, seen, dropped, m_det, eff) -> RangeReading:
+    def encode(self, cm, seen, dropped, m_det, eff) -> RangeReading | None:
         max_cm = self._max_cm(eff)
         min_cm = int(round(self.cfg.min_range_m * 100))
-        quality = self._quality(eff, float(m_det[0]) if seen[0] else None)
-        if dropped[0]:
-            current = max_cm + 1
-            quality = quality if self.cfg.dropped_as == "free" else 1
-        elif not seen[0] or cm[0] > max_cm:
+        if dropped[0] and self.cfg.dropped_as != "free":
+            return None
+        if dropped[0] or not seen[0] or cm[0] > max_cm:
             current = max_cm + 1
         elif cm[0] < min_cm:
             current = 0
         else:
             current = int(cm[0])
+        quality = self._quality(eff, None) if self.honest and self.extinction() > 0.0 else 0
         bins = [UINT16_MAX] * N_BINS
         bins[0] = current if current else UINT16_MAX
         return RangeReading(bins, math.degrees(self.inc), math.degrees(self.offsets[0]), min_cm, max_cm, current,

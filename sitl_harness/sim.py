@@ -222,8 +222,9 @@ class Sim:
             self.sensor.dropout = t < self._sensor_dropout_until
             if not self.sensor.dropout:
                 _, pitch, yaw = euler_from_quat(self.model.quat)
-                self._frames.append((t + self.scenario.sensor.latency_s,
-                                     self.sensor.read(self.world, self.model.pos, yaw, pitch)))
+                frame = self.sensor.read(self.world, self.model.pos, yaw, pitch)
+                if frame is not None:  # None: a frame the sensor does not send (sensor_models.SingleBeam)
+                    self._frames.append((t + self.scenario.sensor.latency_s, frame))
         while self._frames and self._frames[0][0] <= t + 1e-9:  # sensor latency: seen then, sent now
             self.reading = self._frames.popleft()[1]
             self.sensor_seq += 1

@@ -130,14 +130,14 @@ def test_single_beam_noise_is_5_cm_then_1_percent():
     assert near.std() == pytest.approx(0.05, rel=0.15) and far.std() == pytest.approx(0.10, rel=0.15)
 
 
-def test_single_beam_dropouts_are_invalid_frames_and_spurious_returns_are_close():
+def test_single_beam_dropouts_are_frames_not_sent_and_spurious_returns_are_close():
     s = sensor(model="single_beam", dropout_rate=0.05, spurious_rate=0.0)
     rs = frames(s, wall_at(3.0, 0.9), 2000)
-    bad = [r for r in rs if r.signal_quality == 1]
-    assert abs(len(bad) - 100) < 4 * math.sqrt(2000 * 0.05 * 0.95)
-    assert all(r.current_cm == r.max_cm + 1 for r in bad)  # no reading, said invalid
+    assert abs(rs.count(None) - 100) < 4 * math.sqrt(2000 * 0.05 * 0.95)  # PX4's TFmini driver: nothing published
+    assert all(abs(r.current_cm - 300) < 30 and r.signal_quality == 0 for r in rs if r is not None)  # quality unknown
     free = sensor(model="single_beam", dropout_rate=0.05, spurious_rate=0.0, dropped_as="free")
-    assert not [r for r in frames(free, wall_at(3.0, 0.9), 200) if r.signal_quality == 1]
+    said_free = [r for r in frames(free, wall_at(3.0, 0.9), 2000) if r.current_cm == r.max_cm + 1]
+    assert abs(len(said_free) - 100) < 4 * math.sqrt(2000 * 0.05 * 0.95)  # a wall 3 m ahead called free space
     sp = sensor(model="single_beam", dropout_rate=0.0, spurious_rate=0.05)
     close = [r.current_cm for r in frames(sp, EMPTY, 2000) if r.current_cm <= 100]
     assert abs(len(close) - 100) < 4 * math.sqrt(2000 * 0.05 * 0.95) and min(close) >= 10
