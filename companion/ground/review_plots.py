@@ -292,14 +292,15 @@ def plan_figure(rep: dict, samples: list[tuple], columns: tuple, title: str) -> 
 
 
 def _world(ax, world: dict | None, handles) -> None:
-    """The scenario's true world (`review.world_outline`), drawn beneath the track: what was really there."""
+    """The scenario's true world (`review.world_outline`): over the daemon's obstacle estimates, beneath the track
+    and the marks — what was really there."""
     if not world:
         return
     for pts in world.get("polygons") or []:
         ax.add_patch(PolygonPatch([(e, n) for n, e in pts], closed=True, color="saddlebrown", alpha=0.55, lw=0,
-                                  zorder=0.5, gid="plan:wall"))
+                                  zorder=1.5, gid="plan:wall"))
     for x, y, r, _ in world.get("columns") or []:
-        ax.add_patch(Circle((y, x), r, color="saddlebrown", alpha=0.55, lw=0, zorder=0.5, gid="plan:column"))
+        ax.add_patch(Circle((y, x), r, color="saddlebrown", alpha=0.55, lw=0, zorder=1.5, gid="plan:column"))
     if world.get("polygons") or world.get("columns"):
         handles.append(Patch(color="saddlebrown", alpha=0.55, label="world (scenario)"))
 
