@@ -210,7 +210,6 @@ class WorldSpec(_Strict):
         return outline(self)
 
 
-SENSOR_MODELS = ("sector", "depth_camera", "single_beam")
 # the keys only the body-fixed models have (sensor_models.py), and each model's defaults where they differ
 MODEL_KEYS = ("v_fov_deg", "mount_pitch_deg", "noise_quad_per_m", "dropout_rate", "dropped_as", "spurious_rate",
               "spurious_max_m", "ground_reflectivity", "rated_reflectivity", "reports")
