@@ -210,7 +210,7 @@ class WorldSpec(_Strict):
         return outline(self)
 
 
-# the keys only the body-fixed models have (sensor_models.py), and each model's defaults where they differ
+# the keys only the body-fixed models have (their defaults: sensor_models.MODEL_DEFAULTS)
 MODEL_KEYS = ("v_fov_deg", "mount_pitch_deg", "noise_quad_per_m", "dropout_rate", "dropped_as", "spurious_rate",
               "spurious_max_m", "ground_reflectivity", "rated_reflectivity", "reports")
 
