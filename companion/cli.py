@@ -134,6 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
     rv.add_argument("--assume-sensor", metavar="RANGE_M[,FOV_DEG]", type=_sensor,
                     help="a log without obstacle data: the speed limits a forward sensor of this range (and field "
                     "of view) would have set, and the time they would have cost (e.g. 10,60)")
+    rv.add_argument("--scenario", help="a SITL flight: its scenario (a shipped name or a file), whose walls, "
+                    "polygons and columns the plan view draws beneath the track")
     rv.add_argument("--strict", action="store_true", help="exit 1 when the report has findings")
     rv.add_argument("--json", action="store_true", help=JSON)
 

@@ -16,7 +16,8 @@ once after an arming or mode change),
 SYS_STATUS 2, EXTENDED_SYS_STATE 1, ATTITUDE 50, ATTITUDE_QUATERNION 10, LOCAL_POSITION_NED 30,
 GLOBAL_POSITION_INT 10, GPS_RAW_INT 5, HOME_POSITION 0.5, VFR_HUD 10, POSITION_TARGET_LOCAL_NED
 10, ESTIMATOR_STATUS (PX4) / EKF_STATUS_REPORT (ArduPilot) 2, BATTERY_STATUS 1, SYSTEM_TIME 1,
-TIMESYNC 1, MISSION_CURRENT 1; DISTANCE_SENSOR and OBSTACLE_DISTANCE at the sensor's rate; on
+TIMESYNC 1, MISSION_CURRENT 1; at the sensor's rate its messages (the sector sensor: DISTANCE_SENSOR and
+OBSTACLE_DISTANCE; a depth camera: OBSTACLE_DISTANCE; a single beam: DISTANCE_SENSOR; sensor_models.py); on
 request AUTOPILOT_VERSION; on events COMMAND_ACK, STATUSTEXT, MISSION_ITEM_REACHED, PARAM_VALUE.
 """
 
@@ -110,7 +111,9 @@ class MavlinkEndpoint:
                       "rx_handler_errors": 0, "rx_not_for_us": 0, "rx_refused_targets": 0,
                       "tx_packets": 0}
         self.intervals = {k: 1.0 / v for k, v in DEFAULT_RATES_HZ.items()}
-        self.intervals.update({k: 1.0 / sim.sensor.cfg.rate_hz for k in SENSOR_MSGS})
+        carried = {getattr(mav, f"MAVLINK_MSG_ID_{name}") for name in sim.sensor.MESSAGES}  # the sensor model's
+        self.intervals.update({k: 1.0 / sim.sensor.cfg.rate_hz for k in SENSOR_MSGS if k in carried})
+        self.sensor_type = getattr(mav, f"MAV_DISTANCE_SENSOR_{sim.sensor.SENSOR_TYPE}")
         for est in (mav.MAVLINK_MSG_ID_ESTIMATOR_STATUS, mav.MAVLINK_MSG_ID_EKF_STATUS_REPORT):
             if est != self.ap.pers.estimator_status_msg:  # only the personality's own is streamed
                 self.intervals.pop(est)
@@ -569,12 +572,12 @@ class MavlinkEndpoint:
 
     def _distance_sensor(self) -> None:
         r = self.sim.reading
-        self.tx.distance_sensor_send(self.boot_ms(), r.min_cm, r.max_cm, r.current_cm, mav.MAV_DISTANCE_SENSOR_LASER,
+        self.tx.distance_sensor_send(self.boot_ms(), r.min_cm, r.max_cm, r.current_cm, self.sensor_type,
                                      0, mav.MAV_SENSOR_ROTATION_NONE, 255, r.fov_rad, 0.0, [0.0] * 4,
                                      r.signal_quality)
 
     def _obstacle_distance(self) -> None:
         r = self.sim.reading
         inc = max(1, min(255, round(r.increment_deg)))  # uint8 degrees too, for readers that ignore increment_f
-        self.tx.obstacle_distance_send(self.usec(), mav.MAV_DISTANCE_SENSOR_LASER, r.distances_cm, inc, r.min_cm,
+        self.tx.obstacle_distance_send(self.usec(), self.sensor_type, r.distances_cm, inc, r.min_cm,
                                        r.max_cm, r.increment_deg, r.angle_offset_deg, mav.MAV_FRAME_BODY_FRD)

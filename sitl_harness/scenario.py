@@ -13,7 +13,11 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
       columns: [{x_m: 12, y_m: 0, radius_m: 0.5, reflectivity: 0.1},   # a dark column (default 0.5)
                 {x_m: 30, y_m: 0, radius_m: 0.3, appears_within_m: 1.8}]  # revealed 1.8 m ahead
       boxes: [{x_m: 20, y_m: 5, length_m: 2, width_m: 1, yaw_deg: 30}]
-    sensor: {fov_deg: 60, max_range_m: 8}
+      walls: [{points: [[40, -10], [40, 10]], thickness_m: 0.3, gaps: [{at_m: 10, width_m: 1.2}]}]  # a doorway
+      polygons: [{points: [[50, 2], [54, 2], [52, 6]]}]
+      clusters: [{x_m: 60, y_m: 0, radius_m: 6, count: 12, column_radius_m: [0.1, 0.4], min_gap_m: 1.5, seed: 3}]
+      corridors: [{points: [[70, 0], [90, 0], [90, 20]], width_m: 3, end_width_m: 2, closed_end: false}]
+    sensor: {fov_deg: 60, max_range_m: 8}   # or {model: depth_camera} / {model: single_beam} (sensor_models.py)
     wind: {mean_m_s: 1.0, from_deg: 90, gust_m_s: 0.3}
     route: {altitude_m: 2, cruise_speed_m_s: 2, waypoints: [[0, 0], [25, 0]]}
     params: {MPC_XY_CRUISE: 2.0}
@@ -34,13 +38,14 @@ seconds of simulated time. Example (see `sitl_harness/scenarios/*.yaml`)::
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from contracts.errors import ContractError
-from contracts.lidar import REFERENCE_REFLECTIVITY
+from contracts.lidar import RATED_REFLECTIVITY, REFERENCE_REFLECTIVITY
 from contracts.yamlfile import load_model, model_from_dict, resolve_named
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -100,12 +105,122 @@ class BoxSpec(_Strict):
     reflectivity: Reflectivity = REFERENCE_REFLECTIVITY
 
 
+XY = tuple[Num, Num]
+
+
+class _Solid(_Strict):
+    """What every wall-like obstacle has besides its shape."""
+
+    height_m: Pos | None = None
+    name: str = ""
+    reflectivity: Reflectivity = REFERENCE_REFLECTIVITY
+
+
+class GapSpec(_Strict):
+    """A gap in a wall (a doorway): `width_m` of it taken out, centred `at_m` along the wall from its first point."""
+
+    at_m: NonNeg
+    width_m: Pos
+
+
+class WallSpec(_Solid):
+    """A wall along a polyline (two points: a straight wall), `thickness_m` thick, centred on its points."""
+
+    points: Annotated[list[XY], Field(min_length=2, max_length=200)]
+    thickness_m: Pos = 0.2
+    gaps: list[GapSpec] = []
+
+    @model_validator(mode="after")
+    def _fits(self) -> "WallSpec":
+        steps = [math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(self.points, self.points[1:])]
+        if min(steps) <= 0.0:
+            raise ValueError("two consecutive points are the same")
+        for g in self.gaps:
+            if g.at_m > sum(steps):
+                raise ValueError(f"a gap at {g.at_m:g} m is beyond the wall's end ({sum(steps):.2f} m)")
+        return self
+
+
+class PolygonSpec(_Solid):
+    """A solid polygon (`points` in order, not repeated at the end; no holes)."""
+
+    points: Annotated[list[XY], Field(min_length=3, max_length=200)]
+
+    @model_validator(mode="after")
+    def _area(self) -> "PolygonSpec":
+        p = self.points
+        area = 0.5 * sum(a[0] * b[1] - b[0] * a[1] for a, b in zip(p, [*p[1:], p[0]]))
+        if abs(area) < 1e-6:
+            raise ValueError("the polygon has no area")
+        return self
+
+
+class ClusterSpec(_Solid):
+    """`count` columns placed from `seed` in the disc of `radius_m` about (x_m, y_m), radii uniform in
+    `column_radius_m`, surfaces at least `min_gap_m` apart (sitl_harness/world_build.py)."""
+
+    x_m: Num
+    y_m: Num
+    radius_m: Pos
+    count: Annotated[int, Field(ge=1, le=500)]
+    column_radius_m: tuple[Pos, Pos] = (0.2, 0.5)
+    min_gap_m: NonNeg = 1.0
+    seed: int = 0
+
+    @model_validator(mode="after")
+    def _placeable(self) -> "ClusterSpec":
+        lo, hi = self.column_radius_m
+        if lo > hi:
+            raise ValueError("column_radius_m: the smallest radius is above the largest")
+        from .world_build import cluster_columns
+
+        cluster_columns(self.x_m, self.y_m, self.radius_m, self.count, lo, hi, self.min_gap_m, self.seed)
+        return self
+
+
+class CorridorSpec(_Solid):
+    """Two walls either side of the centre polyline `points`, inner faces `width_m` apart at the start and
+    `end_width_m` (default: the same) at the end; `closed_end`: a wall across the end (a dead end)."""
+
+    points: Annotated[list[XY], Field(min_length=2, max_length=200)]
+    width_m: Pos
+    end_width_m: NonNeg | None = None
+    thickness_m: Pos = 0.2
+    closed_end: bool = False
+
+    @model_validator(mode="after")
+    def _steps(self) -> "CorridorSpec":
+        if min(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(self.points, self.points[1:])) <= 0.0:
+            raise ValueError("two consecutive points are the same")
+        return self
+
+
 class WorldSpec(_Strict):
     columns: list[ColumnSpec] = []
     boxes: list[BoxSpec] = []
+    walls: list[WallSpec] = []
+    polygons: list[PolygonSpec] = []
+    clusters: list[ClusterSpec] = []
+    corridors: list[CorridorSpec] = []
+
+    def outline(self) -> dict:
+        """Plain data of the world from above, for a plan view (`world_build.outline`)."""
+        from .world_build import outline
+
+        return outline(self)
+
+
+# the keys only the body-fixed models have (their defaults: sensor_models.MODEL_DEFAULTS)
+MODEL_KEYS = ("v_fov_deg", "mount_pitch_deg", "noise_quad_per_m", "dropout_rate", "dropped_as", "spurious_rate",
+              "spurious_max_m", "ground_reflectivity", "rated_reflectivity", "reports")
 
 
 class SensorSpec(_Strict):
+    """The forward obstacle sensor. `model`: `sector` (the default: a levelled scanning sensor, sensors.py),
+    `depth_camera` or `single_beam` (body-fixed, sensor_models.py, with their datasheet defaults for every key
+    not given)."""
+
+    model: Literal["sector", "depth_camera", "single_beam"] = "sector"
     fov_deg: Annotated[float, Field(gt=0, le=360)] = 60.0
     increment_deg: Annotated[float, Field(gt=0, le=90)] = 5.0
     min_range_m: NonNeg = 0.1
@@ -114,6 +229,32 @@ class SensorSpec(_Strict):
     noise_rel: NonNeg = 0.01
     rate_hz: Annotated[float, Field(gt=0, le=100)] = 20.0
     latency_s: Annotated[float, Field(ge=0, le=1)] = 0.0  # a frame is sent this long after it was seen
+    # body-fixed models only
+    v_fov_deg: Annotated[float, Field(gt=0, le=90)] = 1.2
+    mount_pitch_deg: Annotated[float, Field(ge=-45, le=45)] = 0.0
+    noise_quad_per_m: NonNeg = 0.0
+    dropout_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    dropped_as: Literal["unknown", "free"] = "unknown"
+    spurious_rate: Annotated[float, Field(ge=0, le=1)] = 0.0
+    spurious_max_m: Pos = 1.0
+    ground_reflectivity: Reflectivity = 0.3
+    rated_reflectivity: Reflectivity = RATED_REFLECTIVITY
+    reports: Literal["range", "z_depth"] = "range"
+
+    @model_validator(mode="before")
+    @classmethod
+    def _model_defaults(cls, data):
+        if not isinstance(data, dict):
+            return data
+        model = data.get("model", "sector")
+        if model == "sector":
+            extra = [k for k in MODEL_KEYS if k in data and data[k] != cls.model_fields[k].default]  # a dump: defaults
+            if extra:
+                raise ValueError(f"{', '.join(extra)}: only for model depth_camera or single_beam")
+            return data
+        from .sensor_models import MODEL_DEFAULTS
+
+        return {**MODEL_DEFAULTS.get(model, {}), **data}
 
 
 class WindSpec(_Strict):

@@ -63,6 +63,16 @@ class RangeSensorConfig:
     rate_hz: float = 20.0
     rated_reflectivity: float = RATED_REFLECTIVITY
     backscatter_length_m: float = BACKSCATTER_LENGTH_M  # L_bs (contracts/lidar.py)
+    # the body-fixed models only (sensor_models.py; the scenario's `sensor` block documents each)
+    v_fov_deg: float = 1.2
+    mount_pitch_deg: float = 0.0
+    noise_quad_per_m: float = 0.0
+    dropout_rate: float = 0.0
+    dropped_as: str = "unknown"
+    spurious_rate: float = 0.0
+    spurious_max_m: float = 1.0
+    ground_reflectivity: float = 0.3
+    reports: str = "range"
 
 
 @dataclass
@@ -80,6 +90,9 @@ class RangeReading:
 
 
 class RangeSensor:
+    MESSAGES = ("DISTANCE_SENSOR", "OBSTACLE_DISTANCE")  # what carries its frames (mavlink_endpoint.py)
+    SENSOR_TYPE = "LASER"  # MAV_DISTANCE_SENSOR_*
+
     def __init__(self, cfg: RangeSensorConfig, seed: int = 0):
         self.cfg = cfg
         self.rng = np.random.default_rng(seed + 7919)
@@ -113,7 +126,8 @@ class RangeSensor:
         """Noise-free nearest surface per bin (inf if none within the nominal range), seen or not."""
         return self._rays(world, pos, yaw)[0].min(axis=0)
 
-    def read(self, world, pos, yaw: float) -> RangeReading:
+    def read(self, world, pos, yaw: float, pitch: float = 0.0) -> RangeReading:
+        """One frame; levelled, so the vehicle's `pitch` does not tilt it."""
         cfg = self.cfg
         d3, rho3 = self._rays(world, pos, yaw)
         d = d3.min(axis=0)

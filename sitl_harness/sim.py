@@ -26,9 +26,10 @@ from .mavlink_endpoint import MavlinkEndpoint, mav
 from .physics import X_R, euler_from_quat
 from .px4 import Px4
 from .scenario import Scenario, ScenarioError, load_scenario
-from .sensors import RangeSensor, RangeSensorConfig
+from .sensor_models import make_sensor
 from .wind import Wind
 from .world import Box, Column, CollisionMonitor, World
+from .world_build import built
 
 PERSONALITIES = {"px4": Px4, "ardupilot": ArduPilot}
 BATTERY_MAH = 5000.0
@@ -65,13 +66,12 @@ class Sim:
         # columns absent until the vehicle comes within their distance of them (`_reveal`)
         self._unrevealed = [(c, within) for c, within in columns if within is not None]
         self.revealed: list[tuple[float, Column]] = []  # (time, column) of each that appeared (truth)
+        built_columns, polygons = built(sc.world)  # clusters, walls, corridors, polygons
         self.world = World(
-            [c for c, within in columns if within is None],
+            [c for c, within in columns if within is None] + built_columns,
             [Box(b.x_m, b.y_m, b.length_m, b.width_m, math.radians(b.yaw_deg), b.height_m or math.inf, b.name,
-                 b.reflectivity) for b in sc.world.boxes])
-        s = sc.sensor
-        self.sensor = RangeSensor(RangeSensorConfig(s.fov_deg, s.increment_deg, s.min_range_m, s.max_range_m,
-                                                    s.noise_sd_m, s.noise_rel, s.rate_hz), seed=self.seed)
+                 b.reflectivity) for b in sc.world.boxes], polygons)
+        self.sensor = make_sensor(sc.sensor, self.seed)
         w = sc.wind
         self.wind = Wind(v.wind.mean_m_s if w.mean_m_s is None else w.mean_m_s, w.from_deg,
                          v.wind.gust_m_s if w.gust_m_s is None else w.gust_m_s, w.length_m, seed=self.seed)
@@ -221,8 +221,10 @@ class Sim:
             self._next_sensor += 1.0 / self.sensor.cfg.rate_hz
             self.sensor.dropout = t < self._sensor_dropout_until
             if not self.sensor.dropout:
-                self._frames.append((t + self.scenario.sensor.latency_s, self.sensor.read(self.world, self.model.pos,
-                                                                                           ap.yaw)))
+                _, pitch, yaw = euler_from_quat(self.model.quat)
+                frame = self.sensor.read(self.world, self.model.pos, yaw, pitch)
+                if frame is not None:  # None: a frame the sensor does not send (sensor_models.SingleBeam)
+                    self._frames.append((t + self.scenario.sensor.latency_s, frame))
         while self._frames and self._frames[0][0] <= t + 1e-9:  # sensor latency: seen then, sent now
             self.reading = self._frames.popleft()[1]
             self.sensor_seq += 1

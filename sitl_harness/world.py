@@ -1,4 +1,9 @@
-"""The true world: vertical circular columns and (rotated) boxes standing on the ground. Pure maths.
+"""The true world: vertical circular columns, (rotated) boxes and solid polygons standing on the ground. Pure maths.
+
+Walls (thick segments and polylines, with gaps and doorways), corridors and clusters of columns are built
+from the scenario's keys into these three shapes by `sitl_harness/world_build.py`: a wall piece is a thin
+rectangular `Polygon`, a cluster is its `Column`s. Ray casting takes every shape of a kind in one vectorised
+pass (columns as circles, polygons as their edges).
 
 Horizontal geometry in local NED (x north, y east). Each obstacle rises from the ground to
 `height_m` (infinite by default); a vehicle at altitude h = −z sees/hits it only while h ≤ height.
@@ -41,17 +46,68 @@ class Box:
     reflectivity: float = REFERENCE_REFLECTIVITY
 
 
+@dataclass(frozen=True)
+class Polygon:
+    """A solid prism on a simple polygon's outline (`points` in order, either sense, not repeated at the end)."""
+
+    points: tuple[tuple[float, float], ...]
+    height: float = math.inf
+    name: str = ""
+    reflectivity: float = REFERENCE_REFLECTIVITY
+
+
+class _Edges:
+    """Every polygon's edges as arrays (start, direction, owner polygon), rebuilt when a polygon is added."""
+
+    def __init__(self, polygons: list[Polygon]):
+        a = [p for poly in polygons for p in poly.points]
+        b = [p for poly in polygons for p in (*poly.points[1:], poly.points[0])]
+        self.owner = np.array([i for i, poly in enumerate(polygons) for _ in poly.points], dtype=int)
+        self.ax, self.ay = (np.array([p[k] for p in a], dtype=float) for k in (0, 1))
+        self.ex, self.ey = (np.array([q[k] - p[k] for p, q in zip(a, b)], dtype=float) for k in (0, 1))
+        self.height = np.array([p.height for p in polygons], dtype=float)
+        self.rho = np.array([p.reflectivity for p in polygons], dtype=float)
+        self.n = len(polygons)
+
+    def inside(self, px: float, py: float) -> np.ndarray:
+        """Per polygon: whether (px, py) is inside it (crossing number of a ray towards +x)."""
+        ay, by = self.ay, self.ay + self.ey
+        straddle = (ay > py) != (by > py)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xc = self.ax + (py - ay) / self.ey * self.ex
+        cross = straddle & (xc > px)
+        return np.bincount(self.owner, weights=cross, minlength=self.n).astype(int) % 2 == 1
+
+    def distance(self, px: float, py: float) -> np.ndarray:
+        """Per polygon: distance from (px, py) to its outline."""
+        wx, wy = px - self.ax, py - self.ay
+        ll = self.ex * self.ex + self.ey * self.ey
+        s = np.clip((wx * self.ex + wy * self.ey) / ll, 0.0, 1.0)
+        d = np.hypot(wx - s * self.ex, wy - s * self.ey)
+        out = np.full(self.n, np.inf)
+        np.minimum.at(out, self.owner, d)
+        return out
+
+
 @dataclass
 class World:
     columns: list[Column] = field(default_factory=list)
     boxes: list[Box] = field(default_factory=list)
+    polygons: list[Polygon] = field(default_factory=list)
 
     def __post_init__(self):
-        self.obstacles = [*self.columns, *self.boxes]
+        self.obstacles = [*self.columns, *self.boxes, *self.polygons]
+        self._edges = _Edges(self.polygons) if self.polygons else None
+        self._poly_index = [len(self.columns) + len(self.boxes) + i for i in range(len(self.polygons))]
 
-    def add(self, obstacle: Column | Box) -> None:
+    def add(self, obstacle: Column | Box | Polygon) -> None:
         """An obstacle that appears now; appended last to `obstacles`, so earlier indices keep their meaning."""
-        (self.columns if isinstance(obstacle, Column) else self.boxes).append(obstacle)
+        if isinstance(obstacle, Polygon):
+            self.polygons.append(obstacle)
+            self._edges = _Edges(self.polygons)
+            self._poly_index.append(len(self.obstacles))
+        else:
+            (self.columns if isinstance(obstacle, Column) else self.boxes).append(obstacle)
         self.obstacles.append(obstacle)
 
     def ray_cast(self, px: float, py: float, alt: float, angles: np.ndarray,
@@ -63,18 +119,25 @@ class World:
         dy = np.sin(angles)
         best = np.full(angles.shape, np.inf)
         rho = np.zeros(angles.shape)
-        for c in self.columns:
-            if alt > c.height:
-                continue
-            ox, oy = px - c.x, py - c.y
+        cx, cy, cr, ch, crho = self._column_arrays()
+        tall = ch >= alt
+        if tall.any():  # every column against every ray at once: (columns × rays)
+            if not tall.all():
+                cx, cy, cr, crho = cx[tall], cy[tall], cr[tall], crho[tall]
+            ox = px - cx[:, None]
+            oy = py - cy[:, None]
+            r = cr[:, None]
             b = dx * ox + dy * oy
-            cc = ox * ox + oy * oy - c.radius * c.radius
+            cc = ox * ox + oy * oy - r * r
             disc = b * b - cc
             with np.errstate(invalid="ignore"):
                 t = np.where(cc <= 0.0, 0.0, -b - np.sqrt(np.maximum(disc, 0.0)))
-            hit = (disc >= 0.0) & (t >= 0.0) & (t < best)
-            best = np.where(hit, t, best)
-            rho = np.where(hit, c.reflectivity, rho)
+            t = np.where((disc >= 0.0) & (t >= 0.0), t, np.inf)
+            k = t.argmin(axis=0)  # the first column of the nearest surface, as a loop over columns would keep
+            tk = t[k, np.arange(angles.size)].reshape(angles.shape)
+            hit = tk < best
+            best = np.where(hit, tk, best)
+            rho = np.where(hit, crho[k].reshape(angles.shape), rho)
         for bx in self.boxes:
             if alt > bx.height:
                 continue
@@ -99,15 +162,51 @@ class World:
             hit = ok & (tmin <= tmax) & (tmin < best)
             best = np.where(hit, tmin, best)
             rho = np.where(hit, bx.reflectivity, rho)
+        if self._edges is not None:
+            best, rho = self._cast_edges(px, py, alt, dx, dy, best, rho)
         d = np.where(best <= max_range, best, np.inf)
         return (d, np.where(np.isfinite(d), rho, 0.0)) if reflectivity else d
+
+    def _column_arrays(self):
+        """The columns' x, y, radius, height and reflectivity as arrays, rebuilt when the list changes."""
+        key = (id(self.columns), len(self.columns))
+        if getattr(self, "_col_key", None) != key:
+            self._col_key = key
+            self._cols = tuple(np.array([getattr(c, a) for c in self.columns], dtype=float)
+                               for a in ("x", "y", "radius", "height", "reflectivity"))
+        return self._cols
+
+    def _cast_edges(self, px, py, alt, dx, dy, best, rho):
+        """`best`, `rho` with every polygon's edges taken in (edges × rays); a ray from inside a polygon: 0."""
+        e = self._edges
+        tall = e.height >= alt
+        inside = e.inside(px, py) & tall
+        if inside.any():
+            i = int(np.flatnonzero(inside)[0])
+            return np.zeros_like(best), np.full(best.shape, e.rho[i])
+        keep = tall[e.owner]
+        ax, ay, ex, ey = (v[keep][:, None] for v in (e.ax, e.ay, e.ex, e.ey))
+        wx, wy = ax - px, ay - py
+        u, v = dx.reshape(1, -1), dy.reshape(1, -1)
+        den = u * ey - v * ex  # (direction × edge): 0 for a ray along the edge
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (wx * ey - wy * ex) / den
+            s = (wx * v - wy * u) / den
+        t = np.where((den != 0.0) & (t >= 0.0) & (s >= 0.0) & (s <= 1.0), t, np.inf)
+        if t.size == 0:
+            return best, rho
+        k = t.argmin(axis=0)
+        tk = t[k, np.arange(t.shape[1])].reshape(best.shape)
+        hit = tk < best
+        owner_rho = e.rho[e.owner[keep]][k].reshape(best.shape)
+        return np.where(hit, tk, best), np.where(hit, owner_rho, rho)
 
     def clearance(self, px: float, py: float, alt: float) -> tuple[float, int]:
         """Horizontal distance from a point to the nearest obstacle surface (negative inside) and
         that obstacle's index in `obstacles` (−1 if none)."""
         best, idx = math.inf, -1
         for i, o in enumerate(self.obstacles):
-            if alt > o.height:
+            if alt > o.height or isinstance(o, Polygon):
                 continue
             if isinstance(o, Column):
                 d = math.hypot(px - o.x, py - o.y) - o.radius
@@ -118,6 +217,13 @@ class World:
                 d = math.hypot(max(lx, 0.0), max(ly, 0.0)) if (lx > 0 or ly > 0) else max(lx, ly)
             if d < best:
                 best, idx = d, i
+        if self._edges is not None:
+            e = self._edges
+            d = np.where(e.inside(px, py), -1.0, 1.0) * e.distance(px, py)
+            d = np.where(e.height >= alt, d, np.inf)
+            j = int(d.argmin())
+            if d[j] < best:
+                best, idx = float(d[j]), self._poly_index[j]
         return best, idx
 
 

@@ -286,3 +286,74 @@ def test_a_governed_flights_holds_failsafes_and_stand_down_are_marked_where_the_
     # the obstacle is drawn where the column is (north 45 m, on the path), not behind the braking vehicle
     discs = [p for p in plan.patches if p.get_gid() == "plan:obstacle"]
     assert discs and all(abs(p.center[0]) < 0.5 and 44.0 < p.center[1] < 47.0 for p in discs)
+
+
+# ----------------------------------------------------------------------------- the scenario's world on the plan view
+
+WORLD = {"walls": [{"points": [[-5, 60], [5, 60]], "thickness_m": 0.4, "gaps": [{"at_m": 5, "width_m": 2}]}],
+         "clusters": [{"x_m": 8, "y_m": 100, "radius_m": 4, "count": 6, "column_radius_m": [0.2, 0.4],
+                       "min_gap_m": 1.0, "seed": 2}],
+         "columns": [{"x_m": 0, "y_m": 90, "radius_m": 0.5}]}
+
+
+def world_artists(rep, samples):
+    ax = rp.plan_figure(rep, samples, CSV_COLUMNS, "plan").axes[0]
+    return ([p for p in ax.patches if p.get_gid() == "plan:wall"],
+            [p for p in ax.patches if p.get_gid() == "plan:column"])
+
+
+def test_the_plan_view_draws_the_scenarios_walls_and_columns_where_they_are(scripted):
+    from companion.ground.review import world_outline
+    from sitl_harness.scenario import scenario_from_dict
+
+    _, rep, samples = scripted
+    assert world_artists(rep, samples) == ([], [])  # the review without a scenario: nothing drawn
+    outline = scenario_from_dict({"world": WORLD}).world.outline()
+    walls, columns = world_artists({**rep, "world": world_outline(outline)}, samples)
+    assert len(walls) == 2 and len(columns) == 7  # the wall either side of its doorway; the column and the cluster
+    east = sorted(p.get_xy()[:, 0].min() for p in walls)
+    assert east == pytest.approx([59.8, 59.8])  # east 60 m, 0.4 m thick: drawn east right, north up
+    north = sorted((p.get_xy()[:, 1].min(), p.get_xy()[:, 1].max()) for p in walls)
+    assert north[0] == pytest.approx((-5.0, -1.0)) and north[1] == pytest.approx((1.0, 5.0))  # the 2 m doorway
+    assert columns[0].center == (90.0, 0.0) and columns[0].radius == 0.5  # east 90, north 0
+    bad = world_outline({"columns": [[1, 2, float("nan")], ["x", 1, 1]], "polygons": [[[0, 0], [1, 1]]]})
+    assert bad == {"columns": [], "polygons": []}  # nothing half-drawn from bad data
+
+
+def test_review_scenario_draws_its_world_and_a_bad_name_is_one_line(scripted, tmp_path):
+    d, _, _ = scripted
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "review", str(d / "log"), "--out", str(out),
+                        "--scenario", "wall_doorway", "--json"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    world = json.loads((out / "review.json").read_text())["world"]
+    assert len(world["polygons"]) == 2 and (out / "plan.png").stat().st_size > 0
+    r = subprocess.run([sys.executable, "-m", "companion.cli", "review", str(d / "log"), "--scenario", "no_such"],
+                       capture_output=True, text=True)
+    assert r.returncode != 0 and "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_a_cluttered_lockstep_flight_is_reviewed_over_its_world(tmp_path):
+    """A shadow daemon beside the SITL's own mission in the corridor_turn world (a depth camera, OBSTACLE_DISTANCE,
+    real MAVLink bytes), reviewed with the scenario: the plan view draws the corridor's five wall pieces beneath a
+    track that runs between them round the turn."""
+    from companion.ground.review import review
+    from sitl_harness.scenario import load_scenario
+    from tests.lockstep import Rig
+    from tests.test_daemon_lockstep import fly
+
+    sc = load_scenario("corridor_turn")
+    log = EventLog(tmp_path / "log", commit="none")
+    rig = Rig(sc.model_dump(), "px4", log=log, config={"mode": "shadow"})
+    (cam,) = rig.cfg.sensors  # the rig's daemon takes the SITL's sensor as it is: the camera's message and bins
+    assert (cam.kind, cam.h_fov_deg, cam.max_range_m) == ("obstacle_distance", 85.0, 10.0)
+    fly(rig, 30.0)
+    log.close()
+    assert rig.truth["collisions"] == [] and rig.truth["pos"][1] > 7.0  # round the turn, touching nothing
+    rep = review([tmp_path / "log"], out_dir=tmp_path / "review", world=sc.world.outline())
+    assert len(rep["world"]["polygons"]) == 5 and (tmp_path / "review" / "plan.png").stat().st_size > 0
+    _, samples = analyse([tmp_path / "log" / "events.jsonl"], keep_samples=True)
+    walls, _ = world_artists(rep, samples)
+    assert len(walls) == 5

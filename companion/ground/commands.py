@@ -305,10 +305,11 @@ def raw_log_of(paths) -> Path | None:
 
 
 def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, gap_s: float = 1.0,
-               tolerance_m_s: float | None = None, sensor=None):
+               tolerance_m_s: float | None = None, sensor=None, world: dict | None = None):
     """(report, origin) for event logs, or for one raw log replayed into an event log first (`origin`
     says what it was made from; None for an event log). `config`, `vehicle`, `table`: for the replay;
-    `tolerance_m_s`: None, the review's (`review_checks.SPEED_TOLERANCE_M_S`)."""
+    `tolerance_m_s`: None, the review's (`review_checks.SPEED_TOLERANCE_M_S`); `world`: the true world's outline
+    (`scenario_world`), drawn on the plan view."""
     import shutil
     import tempfile
 
@@ -332,7 +333,7 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
             for f in file_set(p) if p.is_dir() else [p]:
                 check_file(f, "an event log")
         return guarded(files[0], "event log", review, paths, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s,
-                       sensor=sensor), None
+                       sensor=sensor, world=world), None
     with tempfile.TemporaryDirectory(prefix="contract-guard-replay-", ignore_cleanup_errors=True) as work:
         log = Path(work) / LOG_FILE
         origin = replay_log(raw, Path(work), config=config, vehicle=vehicle, table=table)
@@ -344,8 +345,17 @@ def review_log(paths, out_dir=None, *, config=None, vehicle=None, table=None, ga
             except OSError as err:
                 raise ContractError(f"cannot write the review to {out_dir}: {err.strerror or err}") from err
             origin.info["event_log"] = str(kept)
-        rep = review(log, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s, origin=origin, sensor=sensor)
+        rep = review(log, out_dir, gap_s=gap_s, tolerance_m_s=tolerance_m_s, origin=origin, sensor=sensor, world=world)
     return rep, origin
+
+
+def scenario_world(name_or_path: str | None) -> dict | None:
+    """The outline of a SITL scenario's world (`review --scenario`), or None without one."""
+    if not name_or_path:
+        return None
+    from sitl_harness.scenario import load_scenario
+
+    return load_scenario(name_or_path).world.outline()
 
 
 def cmd_review(args) -> int:
@@ -358,16 +368,18 @@ def cmd_review(args) -> int:
     # many flights (several raw logs, or folders of them, and no event log among them): one table, each reviewed
     event_logs = any(file_set(p) if p.is_dir() else p.suffix.lower() not in READERS for p in map(Path, args.log))
     raw = [] if event_logs else expand(args.log, READERS)
+    world = scenario_world(args.scenario)
     if len(raw) > 1 or (raw and any(Path(p).is_dir() for p in args.log)):
         result, texts = review_set(args.log, READERS, lambda path, out: review_log(
-            path, out, config=args.config, vehicle=args.vehicle, table=args.table, sensor=args.assume_sensor),
+            path, out, config=args.config, vehicle=args.vehicle, table=args.table, sensor=args.assume_sensor,
+            world=world),
             args.out)
         text = "\n".join(summary_lines(result) + [""] + texts
                           + [f"  wrote {k}: {v}" for k, v in result.get("outputs", {}).items()])
         _emit(result, args.json, text)
         return 0 if result["ok"] or not args.strict else 1
     rep, origin = review_log(args.log, args.out, config=args.config, vehicle=args.vehicle, table=args.table,
-                             sensor=args.assume_sensor)
+                             sensor=args.assume_sensor, world=world)
     _emit(rep, args.json, format_report(rep, origin))
     return 0 if rep["ok"] or not args.strict else 1
 

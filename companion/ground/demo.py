@@ -252,7 +252,7 @@ def run_demo(sc, scenario_path: Path, out: Path = Path("demo-out"), speedup: flo
         if sitl.poll() is None:
             sitl.kill()
     sitl_summary = json.loads(summary_line.strip().splitlines()[-1]) if summary_line.strip() else {}
-    rep = review([log_dir], out_dir=out / "review")
+    rep = review([log_dir], out_dir=out / "review", world=sc.world.outline())
     return summarise_flight(sc, _events(log_dir), sitl_summary, rep, out, gs.report(), scheduling)
 
 

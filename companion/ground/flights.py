@@ -243,7 +243,7 @@ class Rig:
             table = table_wrapper(table)
         cfg = {"vehicle": sc.vehicle, "mode": "governor", "engage": True,
                "link": {"autopilot": personality, "connect": "memory"},
-               "sensors": [{"kind": "distance_sensor", "h_fov_deg": sc.sensor.fov_deg}]}
+               "sensors": [self._scenario_sensor(sc)]}
         for k, v in (config or {}).items():
             cfg[k] = {**cfg[k], **v} if isinstance(v, dict) and isinstance(cfg.get(k), dict) else v
         # the sensors are the scenario's: rated at its range unless a test says otherwise
@@ -279,6 +279,15 @@ class Rig:
         self.gcs = mav.MAVLink(_W(gwrite), srcSystem=255, srcComponent=190)
         self.gcs_msgs: list = []
         self.daemon_on = True
+
+    def _scenario_sensor(self, sc) -> dict:
+        """The daemon's sensor entry for the SITL's sensor: its message and the field of view its bins cover (the
+        sector sensor: DISTANCE_SENSOR over the scenario's field of view; a depth camera: OBSTACLE_DISTANCE)."""
+        s = self.sim.sensor
+        if sc.sensor.model == "sector":
+            return {"kind": "distance_sensor", "h_fov_deg": sc.sensor.fov_deg}
+        kind = "distance_sensor" if "DISTANCE_SENSOR" in s.MESSAGES else "obstacle_distance"
+        return {"kind": kind, "h_fov_deg": round(math.degrees(s.n_used * s.inc), 6)}
 
     def _endpoint(self):
         q: deque = deque()

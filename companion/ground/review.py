@@ -740,11 +740,13 @@ def _log_files(paths) -> list[Path]:
 
 
 def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tolerance_m_s: float = SPEED_TOLERANCE_M_S,
-           origin: Origin | None = None, sensor=None, collisions=None) -> dict:
+           origin: Origin | None = None, sensor=None, collisions=None, world: dict | None = None) -> dict:
     """Read the event log(s) at `paths` and report; with `out_dir`, also write the plot, CSV and JSON.
     `origin`: what a converter made the log from (its section and findings join the report). A log without
     obstacle data gets the detection range it needed (`companion.ground.detection_need`; `sensor`: an assumed one).
-    `collisions`: a simulator's truth, [{t, x, y, what}] (the daemon cannot know them), marked on the plots."""
+    `collisions`: a simulator's truth, [{t, x, y, what}] (the daemon cannot know them), marked on the plots.
+    `world`: the true world from above where the flight's scenario is known (a SITL scenario's `world.outline()`:
+    {"columns": [[x, y, r, name]], "polygons": [[[x, y], …]]}, local NED metres), drawn on the plan view."""
     files = _log_files(paths)
     rep, samples = analyse(files, gap_s=gap_s, tolerance_m_s=tolerance_m_s, keep_samples=out_dir is not None,
                            origin=origin)
@@ -758,10 +760,33 @@ def review(paths, out_dir: str | Path | None = None, *, gap_s: float = 1.0, tole
         rep["marks"]["collisions"] = [{"t": _num(c.get("t")), "x": _num(c.get("x")), "y": _num(c.get("y")),
                                        "what": str(c.get("what") or "collision")} for c in collisions][:MAX_LISTED]
         conclude(rep, origin.findings() if origin else ())
+    if world:
+        rep["world"] = world_outline(world)
     if out_dir is not None:
         rep["outputs"] = write_outputs(rep, samples, Path(out_dir), origin.title() if origin else "")
         write_flight_page(Path(out_dir), rep, format_report(rep, origin), Path(rep["files"][0]).name)
     return rep
+
+
+MAX_WORLD_SHAPES = 5000  # columns and polygons each: the plan view draws no more
+
+
+def world_outline(world: dict) -> dict:
+    """The drawable part of a `world` outline: finite numbers only, at most `MAX_WORLD_SHAPES` of each kind."""
+    def point(p):
+        return [_num(p[0]), _num(p[1])] if isinstance(p, (list, tuple)) and len(p) >= 2 else [None, None]
+
+    columns = []
+    for c in list(world.get("columns") or [])[:MAX_WORLD_SHAPES]:
+        x, y, r = (_num(v) for v in (list(c) + [None] * 3)[:3])
+        if None not in (x, y, r):
+            columns.append([x, y, r, str(c[3]) if len(c) > 3 else ""])
+    polygons = []
+    for poly in list(world.get("polygons") or [])[:MAX_WORLD_SHAPES]:
+        pts = [point(p) for p in poly]
+        if len(pts) >= 3 and all(None not in p for p in pts):
+            polygons.append(pts)
+    return {"columns": columns, "polygons": polygons}
 
 
 def analyse(files: list[Path], *, gap_s: float = 1.0, tolerance_m_s: float = SPEED_TOLERANCE_M_S,

@@ -10,7 +10,9 @@ Plan view: the track in the local frame (east right, north up), coloured by grou
 in force (`v_cmd`, else `v_max`; for a log without obstacle data, against the assumed sensor's limit, else
 plain speed), the obstacle hits the daemon saw (`obstacle_m` along the direction of travel), the obstacle and
 its keep-out disc (R_obst, R_obst + E_tr) at each obstacle's closest approach, the commanded route (a
-mission's waypoints, where the log has them) and where holds, violations and the closest approach happened.
+mission's waypoints, where the log has them) and where holds, violations and the closest approach happened;
+where the review knows the flight's scenario, the true world beneath it all: walls, polygons and boxes
+(`plan:wall`) and columns, a cluster's included (`plan:column`).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Patch
+from matplotlib.patches import Polygon as PolygonPatch
 
 SUBSYSTEM_COLOURS = {"navigation": "tab:blue", "controller": "tab:orange", "environment": "tab:green",
                      "actuators": "tab:red", "guidance": "tab:purple", "autopilot": "tab:brown"}
@@ -253,6 +256,7 @@ def plan_figure(rep: dict, samples: list[tuple], columns: tuple, title: str) -> 
         rn, re_ = zip(*route)
         ax.plot(re_, rn, "--", color="tab:blue", lw=1.2, marker="+", ms=9, gid="plan:route")
         handles.append(Line2D([], [], color="tab:blue", ls="--", marker="+", label="commanded route"))
+    _world(ax, rep.get("world"), handles)
     _obstacles(ax, rows, col, handles)
 
     def at(tt):
@@ -285,6 +289,20 @@ def plan_figure(rep: dict, samples: list[tuple], columns: tuple, title: str) -> 
     _title(fig, title)
     _layout(fig, _legend(fig, handles, 4))
     return fig
+
+
+def _world(ax, world: dict | None, handles) -> None:
+    """The scenario's true world (`review.world_outline`): over the daemon's obstacle estimates, beneath the track
+    and the marks — what was really there."""
+    if not world:
+        return
+    for pts in world.get("polygons") or []:
+        ax.add_patch(PolygonPatch([(e, n) for n, e in pts], closed=True, color="saddlebrown", alpha=0.55, lw=0,
+                                  zorder=1.5, gid="plan:wall"))
+    for x, y, r, _ in world.get("columns") or []:
+        ax.add_patch(Circle((y, x), r, color="saddlebrown", alpha=0.55, lw=0, zorder=1.5, gid="plan:column"))
+    if world.get("polygons") or world.get("columns"):
+        handles.append(Patch(color="saddlebrown", alpha=0.55, label="world (scenario)"))
 
 
 def _obstacles(ax, rows, col, handles) -> None:
