@@ -464,3 +464,15 @@ def test_one_acceleration_estimator_answers_each_window_from_the_same_samples():
             assert (a is None) == (t < w - 1e-9), (t, w)
             if t >= 0.4 + w + 0.02:  # the window wholly in the second part
                 assert a == pytest.approx([0.0, 2.0])
+
+
+def test_a_reading_at_the_minimum_is_a_return_there_not_free_space():
+    """A driver clamps a return nearer than its minimum to the minimum (the SITL's sector sensor does): that reading is
+    an obstacle at most that far, never "nothing within range". Below the minimum the scan is unknown (invalid)."""
+    at_min = range_scan(0.0, 0, 0.0, 0.2, 0.2, 6.0, 100)
+    assert at_min.hits == ((0.0, 0.2),) and at_min.quality != 1
+    below = range_scan(0.0, 0, 0.0, 0.1, 0.2, 6.0, 100)
+    assert below.hits == () and below.quality == 1
+    e = dod()
+    e.add_scan(at_min)
+    assert e.estimate(0.05, 0.0).obstacle_m == pytest.approx(0.2)  # the daemon sees it: no speed towards it

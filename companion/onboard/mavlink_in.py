@@ -100,12 +100,13 @@ def range_scan(t: float, sensor: int, bearing: float, current_m: float, min_m: f
                quality: int, rated_m: float | None = None, source: tuple | None = None) -> Scan:
     """A single range beam along body bearing `bearing`. PX4's convention: a reading at or beyond the
     maximum sees nothing within it; a reading below the minimum is unknown, never free (the scan is
-    invalid: quality 1), and so is a message whose minimum exceeds its maximum. The claimed maximum is
-    capped by the sensor's rated range. `source`: who sent it (`Scan.source`)."""
+    invalid: quality 1), and so is a message whose minimum exceeds its maximum; a reading at the minimum is a
+    return there or nearer (drivers clamp a too-close return to it): a hit. The claimed maximum is capped by
+    the sensor's rated range. `source`: who sent it (`Scan.source`)."""
     if min_m > max_m or current_m < min_m:
         return Scan(t, sensor, (), 0.0, 1, None, None, source)
     cap = max_m if rated_m is None else min(max_m, rated_m)
-    hits = ((bearing, current_m),) if min_m < current_m < max_m - 0.01 and current_m < cap else ()
+    hits = ((bearing, current_m),) if current_m < max_m - 0.01 and current_m < cap else ()
     return Scan(t, sensor, hits, cap, quality, None, None, source)
 
 
