@@ -12,6 +12,11 @@ OUT/haze<m>/ (resumable).
 
     nice -n 10 python -m benchmarks.hidden_fog OUT [--scenarios N] [--fracs 1 0.8 0.6 0.4 0.2] [--haze 200]
                                                    [--arms governor offboard ...] [--workers 2]
+                                                   [--withhold-the-medium] [--per-frame]
+
+Two negative-control settings the daemon never flies (in-process, one worker): `--withhold-the-medium` keeps the returns
+the estimator counts as the medium's from the obstacle logic (tests/test_detection_range.py `hide_the_medium`: what
+D_od's evidence does on its own), `--per-frame` counts the governor's DISTANCE_SENSOR as one shot per frame.
 """
 
 from __future__ import annotations
@@ -40,6 +45,28 @@ def spec_for(frac: float, scenarios: int, arms=ARMS, haze_m: float | None = None
     return cg.spec_from_dict(d)
 
 
+def negative_controls(withhold: bool, per_frame: bool) -> None:
+    """Patch the campaign's flights in this process for the negative-control settings (module docstring)."""
+    if per_frame:
+        config = cg.daemon_config
+
+        def per_frame_config(s, arm, nav_margin=0.0):
+            cfg = config(s, arm, nav_margin)
+            for sensor in cfg.get("sensors", []):
+                sensor.pop("shots_per_frame", None)
+            return cfg
+        cg.daemon_config = per_frame_config
+    if withhold:
+        from companion.ground import flights
+        from tests.test_detection_range import hide_the_medium
+
+        class Withheld(flights.Rig):
+            def __init__(self, *a, **k):
+                super().__init__(*a, **k)
+                hide_the_medium(self.daemon.cycle)
+        flights.Rig = Withheld
+
+
 def cell(rows: list[dict]) -> dict:
     n = len(rows)
     hits = sum(r["collided"] for r in rows)
@@ -57,7 +84,12 @@ def main(argv=None) -> None:
     ap.add_argument("--haze", type=float, nargs="*", default=[], help="meteorological visibilities [m] to fly")
     ap.add_argument("--arms", nargs="+", default=list(ARMS))
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--withhold-the-medium", action="store_true", help="negative-control setting (docstring)")
+    ap.add_argument("--per-frame", action="store_true", help="negative control: one shot per DISTANCE_SENSOR frame")
     a = ap.parse_args(argv)
+    if (a.withhold_the_medium or a.per_frame) and a.workers != 1:
+        ap.error("the negative-control settings fly in this process: --workers 1")
+    negative_controls(a.withhold_the_medium, a.per_frame)
     arms = a.arms
     cells, fogged = [], {arm: [] for arm in arms}
     media = [(frac, None, f"frac{frac:g}") for frac in a.fracs] + [(1.0, m, f"haze{m:g}") for m in a.haze]
