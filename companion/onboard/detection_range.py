@@ -15,9 +15,8 @@ of evidence and turns each into an upper bound on the range at which the referen
    configured `shots_per_frame`, else one shot per report — a bin one shot, a single beam's frame one shot,
    the conservative reading for a beam that gathers several). The fraction over the last `window_s`, one
    standard error up (when unsure, the thicker fog), becomes a per-shot rate p by q = 1 − (1 − p)^shots and
-   is inverted to α by
-   p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the sensor's, measured on one fog flight) — the law the
-   SITL draws per bin and frame. A haze is not a fog: the medium lowers D_od only on evidence that it can —
+   is inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the sensor's, measured on one fog
+   flight) — the law the SITL draws per bin and frame. A haze is not a fog: the medium lowers D_od only on evidence that it can —
    the last window's rate itself, or the rate over the longer `rate_window_s` one standard error up, giving at
    least α₀, the extinction at which the reference target's range is the claim (`extinction_for_range`);
    below it no range is shortened, and the few returns of a haze that happen to fall in one second, one
@@ -309,21 +308,27 @@ class DetectionRange:
         different numbers of shots (`shots_of`) are pooled by `per_shot_rate`. A window needs `min_reports`
         reports and `min_spurious` such returns to count."""
         start = t - self.p.window_s
-        whole = {per: [n, 0] for per, n in self._reports.items() if n > 0}
-        last: dict[float, list[int]] = {}
-        for f in reversed(self._frames):
-            if f.t < start:
-                break
-            last.setdefault(f.per, [0, 0])[0] += f.reports
-        for f in self._near_frames:
-            k = sum(1 for x, y in f.near if not self._on_track(x, y))
-            whole[f.per][1] += k
-            if f.t >= start:
-                last[f.per][1] += k
+        last = self._counts(start, {})
         a_last = self._alpha(last, True)
-        if a_last >= harmless and self._alpha(last, False) < harmless and self._alpha(whole, True) < harmless:
+        if a_last >= harmless and self._alpha(last, False) < harmless and \
+                self._alpha(self._counts(-math.inf, self._reports), True) < harmless:
             a_last = 0.0  # neither the last window at its rate nor the longer one says the medium can shorten D_od
         return a_last, sum(k for _, k in last.values()), sum(n for n, _ in last.values())
+
+    def _counts(self, start: float, reports: dict[float, int]) -> dict[float, list[int]]:
+        """[reports, spurious short returns] by the shots behind each report, of the frames from `start` on (the
+        reports: `reports`'s running sums, or counted here when it is empty)."""
+        out = {per: [n, 0] for per, n in reports.items() if n > 0}
+        if not reports:
+            for f in reversed(self._frames):
+                if f.t < start:
+                    break
+                out.setdefault(f.per, [0, 0])[0] += f.reports
+        for f in reversed(self._near_frames):
+            if f.t < start:
+                break
+            out[f.per][1] += sum(1 for x, y in f.near if not self._on_track(x, y))
+        return out
 
     def _alpha(self, counts: dict[float, list[int]], up: bool) -> float:
         return extinction_from_backscatter(per_shot_rate(counts, up), self.p.backscatter_length_m) \
