@@ -1,7 +1,10 @@
 """The detection-range estimator (companion/onboard/detection_range.py) against the SITL's sensor model in hidden fog:
 per visibility, how soon the estimate is within 1.15 × the default target's true detection range, how close it
-then stays, how soon it recovers; and how a fog thickening over a ramp of T seconds is followed (the residual
-assumption: the worst over-estimate and how long the estimate stays above the truth). Prints one JSON object.
+then stays, how soon it recovers; how a fog thickening over a ramp of T seconds is followed (the residual
+assumption: the worst over-estimate and how long the estimate stays above the truth); each reading of the SITL's
+sensor in fog (its 12 bins; its DISTANCE_SENSOR counted as 12 shots a frame, or as one) against the truth; and
+haze of 200 m meteorological visibility for sensors stating 5–15 m (the cycles it lowers D_od in, and how far).
+Prints one JSON object.
 
     python benchmarks/bench_detection_range.py [--seeds N]
 """
@@ -18,7 +21,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from companion.onboard.config import SensorConfig  # noqa: E402
 from companion.onboard.detection_range import DetectionRange  # noqa: E402
+from contracts.lidar import extinction_from_met_visibility, visibility_for_extinction  # noqa: E402
+from sitl_harness.sensors import RangeSensorConfig  # noqa: E402
 from tests.test_detection_range import BINS, R_MAX, fly, route_world  # noqa: E402
 
 FACTOR = 1.15
@@ -55,6 +61,36 @@ def ramp(ramp_s: float, seed: int, visibility: float = 3.0) -> dict:
             "time_above_truth_s": round(len(over) / 20.0, 2)}
 
 
+READINGS = {"bins": ("obstacle_distance", None), "beam_12_shots": ("distance_sensor", 12),
+            "beam_one_shot": ("distance_sensor", None)}
+
+
+def _reading(name: str, range_m: float) -> tuple[SensorConfig, bool]:
+    kind, shots = READINGS[name]
+    return SensorConfig(kind=kind, h_fov_deg=60.0, max_range_m=range_m, shots_per_frame=shots), kind != "obstacle_distance"
+
+
+def reading(name: str, visibility: float, seed: int) -> dict:
+    """Hidden fog from the start, 40 s at 3 m/s: the estimate / the true range after the first 2 s."""
+    cfg, beam = _reading(name, R_MAX)
+    trace = fly(route_world(200.0, seed=seed), 40.0, [(0.0, visibility)], DetectionRange([cfg]), beam=beam, seed=seed)
+    r = [d / visibility for t, d, _, _ in trace if t >= 2.0]
+    return {"reading": name, "visibility_m": visibility, "seed": seed, "median_ratio": round(float(np.median(r)), 3),
+            "max_ratio": round(max(r), 3)}
+
+
+def haze(name: str, range_m: float, seed: int, met_m: float = 200.0) -> dict:
+    """Hidden haze of `met_m` meteorological visibility from the start, 60 s at 3 m/s: how often and how far D_od falls
+    below the stated range after the first 2 s."""
+    cfg, beam = _reading(name, range_m)
+    vis = visibility_for_extinction(extinction_from_met_visibility(met_m), 0.5, range_m)
+    trace = fly(route_world(200.0, seed=seed), 60.0, [(0.0, vis)], DetectionRange([cfg]), beam=beam, seed=seed,
+                sensor_cfg=RangeSensorConfig(max_range_m=range_m))
+    r = np.array([d / stated for t, d, stated, _ in trace if t >= 2.0])
+    return {"reading": name, "range_m": range_m, "seed": seed, "cycles_lowered": round(float(np.mean(r < 1 - 1e-9)), 3),
+            "lowest_ratio": round(float(r.min()), 3)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3)
@@ -62,8 +98,10 @@ def main() -> None:
     seeds = range(1, a.seeds + 1)
     steps = [step(v, s) for v in (2.0, 3.0, 5.0, 8.0, 9.5) for s in seeds]
     ramps = [ramp(r, s) for r in (0.0, 1.0, 3.0, 10.0) for s in seeds]
+    readings = [reading(n, v, s) for n in READINGS for v in (8.0, 6.0, 4.0) for s in seeds]
+    hazes = [haze(n, r, s) for n in READINGS for r in (5.0, 8.0, 10.0, 15.0) for s in seeds]
     print(json.dumps({"bench": "detection_range", "sensor": "12 bins of 5 deg, 20 Hz, 10 m stated, 3 m/s",
-                      "factor": FACTOR, "steps": steps, "ramps": ramps}))
+                      "factor": FACTOR, "steps": steps, "ramps": ramps, "readings": readings, "haze_200m": hazes}))
 
 
 if __name__ == "__main__":

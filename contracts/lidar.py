@@ -17,7 +17,9 @@ on-board detection-range estimator share. Pure maths, SI units.
 - Backscatter from the medium: the fog's own return close to the sensor (where the receiver's field of
   view starts to overlap the beam) exceeds the threshold on a fraction of the shots that grows with α; we
   take p = 1 − e^(−α · L_bs) per shot (bin and frame), L_bs the sensor's backscatter length (a property of
-  its optics and threshold, to be measured on one fog flight).
+  its optics and threshold, to be measured on one fog flight). A report that is the nearest of b shots (a
+  DISTANCE_SENSOR giving the nearest return over a field of b beams) carries the medium's return when any of
+  them does: q = 1 − (1 − p)^b, so p = 1 − (1 − q)^(1/b) from the fraction q of such reports.
 """
 
 from __future__ import annotations
@@ -55,6 +57,19 @@ def detection_range(alpha: float, rho: float, max_range_m: float, rho_rated: flo
     r0 = link_range(max_range_m, rho, rho_rated)
     if alpha <= 0.0:
         return min(r0, max_range_m)
+    return min(_through(alpha, r0), max_range_m)
+
+
+def visibility_for_extinction(alpha: float, rho: float, max_range_m: float,
+                              rho_rated: float = RATED_REFLECTIVITY) -> float:
+    """The range to which a target of reflectivity ρ is seen through extinction α with no range gate (the SITL's
+    `visibility_m` of a medium, which may exceed the sensor's range: haze): R · e^(αR) = R0(ρ); inf without
+    extinction. The inverse of `extinction_for_range`."""
+    return _through(alpha, link_range(max_range_m, rho, rho_rated)) if alpha > 0.0 else math.inf
+
+
+def _through(alpha: float, r0: float) -> float:
+    """The R with R · e^(αR) = r0 (α > 0): Newton on ln R + αR = ln r0."""
     ln_r0 = math.log(r0)
     r = min(r0, 1.0 / alpha)
     for _ in range(60):
@@ -63,7 +78,7 @@ def detection_range(alpha: float, rho: float, max_range_m: float, rho_rated: flo
         r = max(r - step, r * 1e-3)
         if abs(step) < 1e-12 * max(r, 1.0):
             break
-    return min(r, max_range_m)
+    return r
 
 
 def extinction_for_range(range_m: float, rho: float, max_range_m: float, rho_rated: float = RATED_REFLECTIVITY) -> float:
@@ -76,6 +91,14 @@ def extinction_for_range(range_m: float, rho: float, max_range_m: float, rho_rat
 def backscatter_probability(alpha: float, length_m: float = BACKSCATTER_LENGTH_M) -> float:
     """The chance that one shot (one bin of one frame) returns from the medium near the sensor."""
     return 1.0 - math.exp(-alpha * length_m) if alpha > 0.0 else 0.0
+
+
+def per_shot_from_reports(q: float, shots: float) -> float:
+    """The chance p that one shot returns from the medium, from the fraction q of reports that carry such a
+    return when each report is the nearest of `shots` shots: q = 1 − (1 − p)^shots (one shot: p = q)."""
+    if shots == 1 or q <= 0.0:
+        return q
+    return 1.0 - (1.0 - min(q, 1.0)) ** (1.0 / shots)
 
 
 def extinction_from_backscatter(p: float, length_m: float = BACKSCATTER_LENGTH_M) -> float:

@@ -14,13 +14,16 @@ import numpy as np
 import pytest
 
 from companion.onboard.autopilots import adapter_for
-from companion.onboard.config import Config, SensorConfig
+from companion.onboard.config import Config, SensorConfig, config_from_dict
 from companion.onboard.cycle import Cycle
-from companion.onboard.detection_range import DetectionRange, DetectionRangeEstimate
+from companion.onboard.detection_range import (DetectionRange, DetectionRangeEstimate, DetectionRangeParams,
+                                               evidence_line, per_shot_rate)
 from companion.onboard.guidance import InlinePlanning
 from companion.onboard.mavlink_in import UINT16_MAX, bins_scan, range_scan
 from companion.onboard.samples import Heading, Position, Scan
-from contracts.lidar import detection_range, extinction_for_range
+from contracts.errors import ContractError
+from contracts.lidar import (backscatter_probability, detection_range, extinction_for_range,
+                             extinction_from_met_visibility, per_shot_from_reports, visibility_for_extinction)
 from contracts.table import load_for_vehicle
 from sitl_harness.sensors import RangeSensor, RangeSensorConfig
 from sitl_harness.world import Column, World
@@ -35,6 +38,9 @@ FLOOR = 0.5  # ... and, over the fog, its median at least this times it (useful,
 
 BINS = SensorConfig(kind="obstacle_distance", h_fov_deg=60.0, max_range_m=R_MAX)
 BEAM = SensorConfig(kind="distance_sensor", h_fov_deg=60.0, max_range_m=R_MAX)
+# the SITL's DISTANCE_SENSOR as it is: the nearest return of its 12 bins (60° in 5° bins), each one shot a frame
+BEAMS = SensorConfig(kind="distance_sensor", h_fov_deg=60.0, max_range_m=R_MAX, shots_per_frame=12)
+HAZE_MET_M = 200.0  # a haze's meteorological visibility: α = 3.912 / 200 m shortens no range of 10 m
 
 
 class TrustTheClaim:
@@ -56,17 +62,17 @@ class TrustTheClaim:
         return DetectionRangeEstimate(stated_m, stated_m, 1.0, 0.0, "the claim")
 
 
-def scan_of(reading, t: float, sensor: int, beam: bool):
+def scan_of(reading, t: float, sensor: int, beam: bool, rated_m: float = R_MAX):
     """A sensor frame decoded as MAVLink-in decodes OBSTACLE_DISTANCE (bins) or DISTANCE_SENSOR (one beam)."""
     max_m = reading.max_cm / 100
     if beam:
         return range_scan(t, sensor, 0.0, reading.current_cm / 100, reading.min_cm / 100, max_m,
-                          reading.signal_quality, R_MAX)
+                          reading.signal_quality, rated_m)
     d = np.asarray(reading.distances_cm, dtype=float)
     used = d != UINT16_MAX
     ang = np.radians(reading.angle_offset_deg + reading.increment_deg * np.arange(len(d)))
     rng = np.where(d > reading.max_cm, np.inf, d / 100.0)
-    return bins_scan(t, sensor, ang[used], rng[used], max_m, math.radians(reading.increment_deg), R_MAX)
+    return bins_scan(t, sensor, ang[used], rng[used], max_m, math.radians(reading.increment_deg), rated_m)
 
 
 def route_world(length_m: float, seed: int, spacing: float = 12.0, rho=(0.5,)) -> World:
@@ -81,9 +87,9 @@ def route_world(length_m: float, seed: int, spacing: float = 12.0, rho=(0.5,)) -
     return World(cols)
 
 
-def nearby(world: World, x: float) -> World:
+def nearby(world: World, x: float, r_max: float = R_MAX) -> World:
     """The columns within reach of the sensor from x (the ray cast's cost is per column)."""
-    return World([c for c in world.columns if -5.0 < c.x - x < R_MAX + 5.0])
+    return World([c for c in world.columns if -5.0 < c.x - x < r_max + 5.0])
 
 
 def fly(world: World, seconds: float, fog: list[tuple[float, float | None]], estimator, *, beam=False,
@@ -102,10 +108,10 @@ def fly(world: World, seconds: float, fog: list[tuple[float, float | None]], est
         pos = np.array([speed * t, 0.0, -2.0])
         estimator.add_position(t, pos[0], pos[1])
         estimator.add_heading(t, 0.0)
-        r = s.read(nearby(world, pos[0]), pos, 0.0)
-        estimator.add_scan(scan_of(r, t, 0, beam))
+        r = s.read(nearby(world, pos[0], s.cfg.max_range_m), pos, 0.0)
+        estimator.add_scan(scan_of(r, t, 0, beam, s.cfg.max_range_m))
         est = estimator.estimate(t, r.max_cm / 100)
-        out.append((t, est.d_od, est.stated_m, min(s.visibility_m, R_MAX)))
+        out.append((t, est.d_od, est.stated_m, min(s.visibility_m, s.cfg.max_range_m)))
     return out
 
 
@@ -127,6 +133,16 @@ def follows_the_fog(trace, t_on: float, t_off: float, truth: float):
     assert np.median(during) >= FLOOR * truth, f"median {np.median(during):.2f} m below {FLOOR} × {truth:.2f} m"
 
 
+def costs_nothing(trace):
+    """A medium that cannot shorten the range: the median estimate is the stated range, the mean at least 0.98 of
+    it, and lowered in at most 10 % of the cycles (a rare second of haze returns as many as a fog's may still lower
+    it for the hold's 3 s)."""
+    ratio = np.array([d / stated for _, d, stated, _ in trace])
+    assert np.median(ratio) == pytest.approx(1.0), f"median {np.median(ratio):.2f} of the stated range"
+    assert ratio.mean() >= 0.98, f"mean {ratio.mean():.3f} of the stated range"
+    assert np.mean(ratio < 1.0 - 1e-9) <= 0.1, f"lowered in {np.mean(ratio < 1.0 - 1e-9):.0%} of the cycles"
+
+
 def recovers(trace, t_off: float):
     after = [(t, d, stated) for t, d, stated, _ in trace if t >= t_off + T_RECOVER_S]
     assert after and all(d == pytest.approx(stated) for _, d, stated in after)
@@ -140,6 +156,90 @@ def test_clear_air_never_lowers_over_a_long_flight():
     trace = fly(world, 600.0, [], DetectionRange([BINS]))
     no_false_lowering(trace)
     never_above_the_claim(trace)
+
+
+# ------------------------------------------------------------------ evidence per shot
+def test_a_report_of_the_nearest_of_many_shots_is_inverted_per_shot():
+    """The SITL draws the medium's return per bin and frame (p = 1 − e^(−α·L_bs)); a DISTANCE_SENSOR reports the
+    nearest of its bins, so a frame carries one with q = 1 − (1 − p)^12. Inverted per shot, 20 000 frames give p
+    back; taken as one shot each (the per-frame reading) they over-state it about tenfold."""
+    rng = np.random.default_rng(4)
+    for alpha in (extinction_from_met_visibility(HAZE_MET_M), extinction_for_range(8.0, 0.5, R_MAX),
+                  extinction_for_range(4.0, 0.5, R_MAX)):
+        p = backscatter_probability(alpha)
+        frames = (rng.random((20000, 12)) < p).any(axis=1)
+        q = frames.mean()
+        assert per_shot_from_reports(q, 12) == pytest.approx(p, rel=0.1)
+        assert per_shot_from_reports(q, 1) == q > 5.0 * p  # the per-frame reading
+    assert per_shot_from_reports(0.3, 1) == 0.3
+
+
+def test_reports_of_different_shots_pool_between_their_own_rates():
+    """Two sensors in one window, bins (one shot each) and a single beam (12 shots a frame): the pooled per-shot
+    rate lies between the two sensors' own, and one sensor alone is its closed form."""
+    bins, beam = {1.0: [240, 6]}, {12.0: [20, 4]}
+    a, b = per_shot_rate(bins), per_shot_rate(beam)
+    assert min(a, b) < per_shot_rate({**bins, **beam}) < max(a, b)
+    assert per_shot_rate(beam, up=False) == pytest.approx(1 - (1 - 4 / 20) ** (1 / 12))
+    assert per_shot_rate(bins, up=False) == 6 / 240
+
+
+def test_the_banner_says_what_each_frame_is_counted_as():
+    line = evidence_line([BEAM, BINS, BEAMS])
+    assert "[0] one shot per frame (assumed; shots_per_frame not set" in line
+    assert "[1] one shot per bin (assumed" in line and "[2] 12 shots per frame (configured)" in line
+
+
+def test_shots_per_frame_below_one_is_refused_naming_the_key():
+    with pytest.raises(ContractError, match="shots_per_frame"):
+        config_from_dict({"vehicle": "mambo", "mode": "governor",
+                          "sensors": [{"kind": "distance_sensor", "h_fov_deg": 60, "max_range_m": 8,
+                                       "shots_per_frame": 0}]})
+
+
+@pytest.mark.parametrize("sensor", ["beams", "bins"])
+def test_haze_costs_nothing(sensor):
+    """Hidden haze of 200 m meteorological visibility (α 0.0196/m: the default target seen to 16 m, past the
+    10 m range) for a minute at 3 m/s on two seeds: D_od stays at the stated range — the SITL's DISTANCE_SENSOR
+    counted as its 12 shots a frame, or its 12 bins."""
+    haze = visibility_for_extinction(extinction_from_met_visibility(HAZE_MET_M), 0.5, R_MAX)
+    assert haze > R_MAX
+    for seed in (1, 3):
+        est = DetectionRange([BEAMS if sensor == "beams" else BINS])
+        trace = fly(route_world(200.0, seed), 60.0, [(0.0, haze)], est, beam=sensor == "beams", seed=seed)
+        costs_nothing([x for x in trace if x[0] >= 2.0])
+
+
+@pytest.mark.parametrize("control", ["one_shot_per_frame", "one_second_rate"])
+def test_negative_control_haze_read_as_fog(control):
+    """The same haze through the old readings fails `costs_nothing`: a single beam's frame taken as one shot (its
+    rate over-stated about tenfold: D_od cut to a fifth), or the last second's rate one standard error up taken
+    whatever it says (`rate_window_s` the last second: a haze's chance few returns in one second read as fog)."""
+    haze = visibility_for_extinction(extinction_from_met_visibility(HAZE_MET_M), 0.5, R_MAX)
+    seed = 3
+    if control == "one_shot_per_frame":
+        est, beam = DetectionRange([BEAM]), True
+    else:
+        est, beam = DetectionRange([BINS], params=DetectionRangeParams(rate_window_s=1.0)), False
+    trace = fly(route_world(200.0, seed), 60.0, [(0.0, haze)], est, beam=beam, seed=seed)
+    with pytest.raises(AssertionError):
+        costs_nothing([x for x in trace if x[0] >= 2.0])
+
+
+@pytest.mark.parametrize("visibility", [8.0, 4.0])
+def test_single_beam_counted_per_shot_follows_the_fog(visibility):
+    """Hidden fog of visibility 0.8 and 0.4 of the stated range, the SITL's DISTANCE_SENSOR counted as its 12 shots
+    a frame: never above FACTOR × the true range once the fog has been seen, never above the claim, its median at
+    least FLOOR × the truth (`follows_the_fog`); the frame taken as one shot fails that (a median near 0.15 ×)."""
+    world = route_world(200.0, seed=5)
+    t_on, t_off = 6.0, 26.0
+    trace = fly(world, 36.0, [(t_on, visibility), (t_off, None)], DetectionRange([BEAMS]), beam=True)
+    never_above_the_claim(trace)
+    follows_the_fog(trace, t_on, t_off, visibility)
+    recovers(trace, t_off)
+    old = fly(world, 36.0, [(t_on, visibility), (t_off, None)], DetectionRange([BEAM]), beam=True)
+    with pytest.raises(AssertionError, match="median"):
+        follows_the_fog(old, t_on, t_off, visibility)
 
 
 # ------------------------------------------------------------------ hidden fog

@@ -60,7 +60,9 @@ mission's MPC_JERK_AUTO),
 `no_guard` (daemon off), and the negative controls `<mode>_x<k>` (the contract's speed × k) and
 `<mode>_no_etr` (the contract without the E_tr inflation); `governor_brake` is the governor with its recovery brake
 (`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking); `governor_ramp` the
-governor with its approach ramp (`governor.approach_ramp_m_s` RAMP_ARM_M_S).
+governor with its approach ramp (`governor.approach_ramp_m_s` RAMP_ARM_M_S). The governor arms read the SITL's
+sensor as one DISTANCE_SENSOR (the nearest return of its field, `shots_per_frame` its bins), `governor_sector` as
+offboard does, its bins in OBSTACLE_DISTANCE.
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from companion.onboard.modes import mode_of
 from contracts.errors import ContractError
+from contracts.lidar import REFERENCE_REFLECTIVITY, extinction_from_met_visibility, visibility_for_extinction
 from contracts.yamlfile import load_model, model_from_dict
 
 Num = Annotated[float, Field(allow_inf_nan=False)]
@@ -86,7 +89,8 @@ Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "px4_cp_auto_jerk", "ac_avoid", "no_guard")
-ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|ramp)$")
+ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|ramp|sector)$")
+SENSOR_FOV_DEG, SENSOR_BIN_DEG = 60, 5  # the SITL sensor every campaign flies: its field and its bins
 RAMP_ARM_M_S = 0.3  # the approach ramp of the `governor_ramp` arm
 LINK_FAULTS = ("cmd_loss", "cmd_burst", "cmd_jitter")  # the daemon's outbound datagrams (flights.OutboundFaults)
 FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav", *LINK_FAULTS)
@@ -143,6 +147,9 @@ class FaultDist(_Strict):
     at_s: Range = (4.0, 10.0)
     visibility_m: Range = (3.0, 5.0)  # fog
     visibility_frac: Range | None = None  # fog: the visibility as a fraction of the sensor's range (instead of _m)
+    # fog: the medium's meteorological visibility [m] (Koschmieder, α = 3.912 / V_met) instead of the two above; the
+    # default target is then seen as far as α lets it, past the sensor's range in haze
+    met_visibility_m: Range | None = None
     thrust_ratio: Range = (0.65, 0.9)  # thrust_loss
     duration_s: Range = (0.5, 2.0)  # sensor_dropout, link_loss, bad_nav, cmd_burst
     rate: Range = 0.01  # cmd_loss: each datagram's probability of loss
@@ -209,7 +216,8 @@ class CampaignSpec(_Strict):
         for a in v:
             if a not in BASELINES and not ARM_RE.match(a):
                 raise ValueError(f"unknown arm {a!r}: governor, offboard, {', '.join(BASELINES)}, "
-                                 "<mode>_x<k>, <mode>_no_etr, <mode>_claim, governor_brake or governor_ramp")
+                                 "<mode>_x<k>, <mode>_no_etr, <mode>_claim, governor_brake, governor_ramp or "
+                                 "governor_sector")
         if len(set(v)) != len(v) or not v:
             raise ValueError("arms must be distinct and at least one")
         return v
@@ -279,16 +287,19 @@ def sample_scenario(spec: CampaignSpec, k: int) -> dict:
     faults = []
     for f in fault_dists:
         u, at = rng.random(), _u(rng, f.at_s)
-        vis, tr, dur = _u(rng, f.visibility_m if f.visibility_frac is None else f.visibility_frac), \
-            _u(rng, f.thrust_ratio), _u(rng, f.duration_s)
-        if f.visibility_frac is not None:
+        vis, tr, dur = _u(rng, f.met_visibility_m or (f.visibility_m if f.visibility_frac is None else
+                                                       f.visibility_frac)), _u(rng, f.thrust_ratio), _u(rng, f.duration_s)
+        if f.met_visibility_m is not None:  # the default target's range through the medium (not capped: haze)
+            vis = visibility_for_extinction(extinction_from_met_visibility(vis), REFERENCE_REFLECTIVITY,
+                                            s["sensor_range_m"])
+        elif f.visibility_frac is not None:
             vis *= s["sensor_range_m"]
         # a link fault's size is one more draw, for those kinds only (the other kinds' streams stay as they were)
         size = _u(rng, f.rate if f.kind == "cmd_loss" else f.max_s) if f.kind in ("cmd_loss", "cmd_jitter") else None
         if u < f.p:
             fault = {"kind": f.kind, "at_s": at}
             if f.kind.startswith("fog"):
-                fault["visibility_m"] = min(vis, 0.95 * s["sensor_range_m"])
+                fault["visibility_m"] = vis if f.met_visibility_m is not None else min(vis, 0.95 * s["sensor_range_m"])
             elif f.kind == "thrust_loss":
                 fault["thrust_ratio"] = tr
             elif f.kind == "cmd_loss":
@@ -445,7 +456,7 @@ def scenario_dict(s: dict, arm: str) -> dict:
     sc = {"name": f"campaign_{s['scenario']}", "vehicle": s["vehicle"], "seed": s["sim_seed"],
           "world": {"columns": [{"x_m": x, "y_m": y, "radius_m": s["r_obst_true_m"], "name": f"column{j}"}
                                 for j, (x, y) in enumerate(s["columns"])]},
-          "sensor": {"fov_deg": 60, "increment_deg": 5, "max_range_m": s["sensor_range_m"], "rate_hz": 20,
+          "sensor": {"fov_deg": SENSOR_FOV_DEG, "increment_deg": SENSOR_BIN_DEG, "max_range_m": s["sensor_range_m"], "rate_hz": 20,
                      "latency_s": s["sensor_latency_s"], "noise_sd_m": s["noise_sd_m"]},
           "wind": {"mean_m_s": veh.wind.mean_m_s * s["wind_factor"], "from_deg": s["wind_from_deg"],
                    "gust_m_s": veh.wind.gust_m_s * s["gust_factor"]},
@@ -493,6 +504,9 @@ def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
                     "route": {"waypoints": [[0, 0], [s["route_end_m"], 0]], "altitude_m": ALT_M}})
     else:
         cfg["mode"] = "governor"
+        beams = SENSOR_FOV_DEG // SENSOR_BIN_DEG
+        cfg["sensors"] = [{"kind": "obstacle_distance", "h_fov_deg": SENSOR_FOV_DEG} if arm == "governor_sector" else
+                          {"kind": "distance_sensor", "h_fov_deg": SENSOR_FOV_DEG, "shots_per_frame": beams}]
         if arm == "governor_brake":
             cfg["governor"] = {"recovery_brake": True}
         elif arm == "governor_ramp":

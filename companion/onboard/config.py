@@ -80,6 +80,11 @@ class SensorConfig(_Strict):
     orientation_deg: Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False)] = 0.0
     h_fov_deg: Annotated[float, Field(gt=0, le=360, allow_inf_nan=False)]
     min_quality: Annotated[int, Field(ge=0, le=100)] = 50  # signal_quality below this: not trusted
+    # the beams (shots) one frame gathers, shared evenly by its reports (OBSTACLE_DISTANCE's bins, DISTANCE_SENSOR's
+    # one range, each the nearest of its shots): what the fog's backscatter rate is counted per. None: one shot per
+    # report (a bin one shot, a DISTANCE_SENSOR's frame one shot, as a single narrow beam or a flash sensor takes
+    # it); a sensor that reports the nearest of many beams then reads the fog thicker than it is
+    shots_per_frame: Annotated[int, Field(ge=1, le=100_000)] | None = None
     # the sensor's rated range [m]: what its messages may claim (max_distance) is capped by it; required
     # in governor and offboard mode (a sensor's word is not taken for its range)
     max_range_m: Pos | None = None

@@ -209,6 +209,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
     from .assumptions import e_tr_floor, start_thrust
     from .coverage import banner_line
+    from .detection_range import evidence_line
 
     _, thrust = start_thrust(table, cfg.daemon_mode.contract)
     short = [] if thrust["covered"] else [  # a --partial-grid table: said before the first flight
@@ -229,6 +230,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
             "autopilot's violation)"]),
         f"sensors: {sensors}",
         banner_line(cfg.sensors, table.vehicle.r_body_m, e_tr_floor(cfg, table)),
+        evidence_line(cfg.sensors),
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "
         f"{ct.e_tr_window_s:g} s, dwell {ct.dwell_s:g} s, navigation margin {ct.nav_margin:g} of each sensor's claimed "

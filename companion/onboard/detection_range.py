@@ -8,13 +8,20 @@ is the physics of the medium (contracts/lidar.py: Koschmieder's extinction α, t
 of evidence and turns each into an upper bound on the range at which the reference target (reflectivity
 `reference_reflectivity`: the darkest obstacle the contract is to see) is still detected:
 
-1. backscatter rate — the fraction of shots (bins × frames; a single beam's frame is one shot, which
-   over-states α for a beam that gathers several) with a short return (< `near_m`) that is the medium's:
-   no tracked target accounts for it (a surface near the sensor was first seen farther away and followed
-   in) and it does not stay put for `confirm_frames` frames in a row. Its rate, one standard error up (when
-   unsure, the thicker fog), is inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the
-   sensor's, measured on one fog flight). This is evidence for D_od only: the obstacle logic takes every
-   return, these included (`add_scan`);
+1. backscatter rate — the fraction of reports (bins × frames, or a single beam's frames) with a short return
+   (< `near_m`) that is the medium's: no tracked target accounts for it (a surface near the sensor was first
+   seen farther away and followed in) and it does not stay put for `confirm_frames` frames in a row. Each
+   report is the nearest of the shots its sensor's frame gathers, shared by its reports (`shots_of`: the
+   configured `shots_per_frame`, else one shot per report — a bin one shot, a single beam's frame one shot,
+   the conservative reading for a beam that gathers several). The fraction over the last `window_s`, one
+   standard error up (when unsure, the thicker fog), becomes a per-shot rate p by q = 1 − (1 − p)^shots and
+   is inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the sensor's, measured on one fog
+   flight) — the law the SITL draws per bin and frame. A haze is not a fog: the medium lowers D_od only on evidence that it can —
+   the last window's rate itself, or the rate over the longer `rate_window_s` one standard error up, giving at
+   least α₀, the extinction at which the reference target's range is the claim (`extinction_for_range`);
+   below it no range is shortened, and the few returns of a haze that happen to fall in one second, one
+   standard error up, would read as fog. With that evidence, α is the last window's, one standard error up, as
+   above. This is evidence for D_od only: the obstacle logic takes every return, these included (`add_scan`);
 2. signal-quality trend — a single beam's quality is the strength of the return it reports; while one
    tracked target is approached, ln(margin) + 2 ln R falls linearly with R at slope −2α in a medium and is
    flat in clear air, whatever the target's reflectivity (it cancels). The margin is read from the quality
@@ -31,8 +38,9 @@ range through α̂ (R·e^(α̂R) = R0, R0 = stated·√(ρ_ref/ρ_rated)); (3) a
 config's cap.
 
 Timing (the defaults): a fog is taken into account within `window_s` (1 s) of its onset once its
-backscatter gives `min_spurious` (3) short returns in a window (a 12-bin sensor at 20 Hz: any fog with
-α ≥ 0.04/m, and a 10 m sensor's reference range shortens only from α = 0.08/m); a late first detection at
+backscatter gives `min_spurious` (3) short returns in a window and the window's rate reaches α₀ (a 10 m
+sensor's reference range shortens only from α = 0.08/m: 6 returns in a second of a 12-bin sensor at 20 Hz);
+a late first detection at
 once. The estimate recovers `window_s + recover_s` (4 s) after the evidence clears. What it cannot see: a
 medium that thickens faster than that (from clear to dense between two windows) is seen one window late, and
 between two targets nothing but backscatter and quality tell of the medium (docs/detection-range.md).
@@ -53,7 +61,9 @@ from contracts.lidar import (
     RATED_REFLECTIVITY,
     REFERENCE_REFLECTIVITY,
     detection_range,
+    extinction_for_range,
     extinction_from_backscatter,
+    per_shot_from_reports,
 )
 from contracts.window import WindowMax
 
@@ -66,11 +76,12 @@ FULL_WINDOW_SHOTS_PER_S = 160.0  # shots per second behind a confidence of 1 (a 
 @dataclass(frozen=True)
 class DetectionRangeParams:
     window_s: float = 1.0  # evidence window (backscatter rate, quality trend)
+    rate_window_s: float = 4.0  # the backscatter rate's longer window, that tells a haze (the module docstring's (1))
     recover_s: float = 3.0  # a bound below the stated range is held this long after its evidence clears
     near_m: float = 2.0  # returns nearer than this are checked for the medium's (backscatter)
     confirm_m: float = 0.08  # a short return within this (+ its bin's width) of one in each of the last frames...
     confirm_frames: int = 4  # ... of this many in a row: a surface
-    min_shots: int = 20  # shots in the window before the backscatter rate counts (a single beam at 20 Hz: 1 s)
+    min_reports: int = 20  # reports in the window before the backscatter rate counts (a single beam at 20 Hz: 1 s)
     min_spurious: int = 3  # spurious short returns in the window before the rate counts
     backscatter_length_m: float = BACKSCATTER_LENGTH_M  # the sensor's L_bs (contracts/lidar.py)
     rated_reflectivity: float = RATED_REFLECTIVITY  # the target its stated range is rated at
@@ -104,7 +115,8 @@ class DetectionRangeEstimate:
 class _Frame:
     t: float
     sensor: int
-    shots: int
+    reports: int  # the frame's reports (bins that report, or one for a single beam)
+    per: float  # the shots behind each report (`shots_of`)
     near: list  # (x, y) of short returns (local frame, or body frame without a pose) on no tracked target
 
 
@@ -129,8 +141,8 @@ class DetectionRange:
         self._pos: tuple[float, float, float] | None = None  # (t, x, y)
         self._speed = 0.0
         self._yaw: tuple[float, float] | None = None  # (t, yaw)
-        self._frames: deque[_Frame] = deque()  # the evidence window's (`_window`)
-        self._shots = 0  # the window's shots (a running sum)
+        self._frames: deque[_Frame] = deque()  # the frames of the last rate_window_s (`_window`)
+        self._reports: dict[float, int] = {}  # their reports by the shots behind each (running sums)
         self._near_frames: deque[_Frame] = deque()  # those of them with short returns, in the same order
         self._tracks: list[_Track] = []
         self._alphas = WindowMax(params.recover_s)  # α̂ of the last recover_s
@@ -173,7 +185,7 @@ class DetectionRange:
         stated = scan.max_m
         before = self._stated.get(i, stated)  # the claim of the sensor's last frame
         self._stated[i] = stated
-        shots = len(scan.known) if scan.known is not None else 1
+        reports = len(scan.known) if scan.known is not None else 1
         placed = [(*self._place(t, b, r), b, r) for b, r in scan.hits]
         near, medium, now = [], [], []
         hist = self._near_hist.get(i)
@@ -193,9 +205,9 @@ class DetectionRange:
                 near.append((x, y))
                 medium.append(k)
         hist.append(now)
-        frame = _Frame(t, i, shots, near)
+        frame = _Frame(t, i, reports, self.shots_of(i, reports), near)
         self._frames.append(frame)
-        self._shots += shots
+        self._reports[frame.per] = self._reports.get(frame.per, 0) + reports
         if near:
             self._near_frames.append(frame)
         if scan.known is None and placed:  # a single beam: the target it follows in (and its quality, the return's)
@@ -211,6 +223,13 @@ class DetectionRange:
         self._disagreements(t, i, scan, placed, stated)
         self._last_hits[i] = (t, stated, [(x, y, r) for k, (x, y, _, r) in enumerate(placed) if k not in medium])
         return tuple(medium)
+
+    def shots_of(self, i: int, reports: int) -> float:
+        """The shots behind each of a frame's `reports` from sensor i: its configured `shots_per_frame` shared by
+        them (at least one each), else one."""
+        cfg = self.sensors[i] if i < len(self.sensors) else None
+        spf = getattr(cfg, "shots_per_frame", None)
+        return max(1.0, spf / max(reports, 1)) if spf else 1.0
 
     def _nearest_track(self, x: float, y: float) -> _Track | None:
         near = [(math.hypot(x - tr.x, y - tr.y), k) for k, tr in enumerate(self._tracks)]
@@ -274,24 +293,50 @@ class DetectionRange:
 
     # ---------------------------------------------------------------- evidence
     def _window(self, t: float) -> None:
-        """Drop the frames older than the evidence window."""
-        start = t - self.p.window_s
+        """Drop the frames older than the rate's window."""
+        start = t - max(self.p.rate_window_s, self.p.window_s)
         while self._frames and self._frames[0].t < start:
             old = self._frames.popleft()
-            self._shots -= old.shots
+            self._reports[old.per] -= old.reports
             if self._near_frames and self._near_frames[0] is old:
                 self._near_frames.popleft()
 
-    def _alpha_backscatter(self) -> tuple[float, int, int]:
-        """α from the window's spurious short returns; (α, spurious, shots). A short return on a tracked target
-        (one first seen farther away and followed in) is a surface, not the medium."""
-        shots = self._shots
-        spurious = sum(1 for f in self._near_frames for x, y in f.near if not self._on_track(x, y))
-        if shots < self.p.min_shots or spurious < self.p.min_spurious:
-            return 0.0, spurious, shots
-        rate = spurious / shots
-        rate += math.sqrt(rate * (1.0 - rate) / shots)  # one standard error up: when unsure, the thicker fog
-        return extinction_from_backscatter(rate, self.p.backscatter_length_m), spurious, shots
+    def _alpha_backscatter(self, t: float, harmless: float) -> tuple[float, int, int]:
+        """α from the spurious short returns (the module docstring's (1)), the last window_s's spurious returns and
+        reports. `harmless`: α₀, below which the medium cannot shorten D_od. A short return on a tracked target
+        (one first seen farther away and followed in) is a surface, not the medium. Reports behind which stand
+        different numbers of shots (`shots_of`) are pooled by `per_shot_rate`. A window needs `min_reports`
+        reports and `min_spurious` such returns to count."""
+        start = t - self.p.window_s
+        last = self._counts(start, {})
+        a_last = self._alpha(last, True)
+        if a_last >= harmless and self._alpha(last, False) < harmless and \
+                self._alpha(self._counts(-math.inf, self._reports), True) < harmless:
+            a_last = 0.0  # neither the last window at its rate nor the longer one says the medium can shorten D_od
+        return a_last, sum(k for _, k in last.values()), sum(n for n, _ in last.values())
+
+    def _counts(self, start: float, reports: dict[float, int]) -> dict[float, list[int]]:
+        """[reports, spurious short returns] by the shots behind each report, of the frames from `start` on (the
+        reports: `reports`'s running sums, or counted here when it is empty)."""
+        out = {per: [n, 0] for per, n in reports.items() if n > 0}
+        if not reports:
+            for f in reversed(self._frames):
+                if f.t < start:
+                    break
+                out.setdefault(f.per, [0, 0])[0] += f.reports
+        for f in reversed(self._near_frames):
+            if f.t < start:
+                break
+            out[f.per][1] += sum(1 for x, y in f.near if not self._on_track(x, y))
+        return out
+
+    def _alpha(self, counts: dict[float, list[int]], up: bool) -> float:
+        return extinction_from_backscatter(per_shot_rate(counts, up), self.p.backscatter_length_m) \
+            if self._enough(counts) else 0.0
+
+    def _enough(self, counts: dict[float, list[int]]) -> bool:
+        return sum(n for n, _ in counts.values()) >= self.p.min_reports and \
+            sum(k for _, k in counts.values()) >= self.p.min_spurious
 
     def _on_track(self, x: float, y: float) -> bool:
         return self._nearest_track(x, y) is not None
@@ -321,22 +366,67 @@ class DetectionRange:
         stated = max(stated_m, 0.0) if math.isfinite(stated_m) else 0.0
         top = stated if self.cap_m is None else min(stated, self.cap_m)
         self._window(t)
-        a_bs, spurious, shots = self._alpha_backscatter()
+        r_max = max(self._stated.values(), default=stated)
+        harmless = extinction_for_range(top, p.reference_reflectivity, r_max, p.rated_reflectivity) if top > 0 else 0.0
+        a_bs, spurious, reports = self._alpha_backscatter(t, harmless)
+        shots = sum(f.per * f.reports for f in self._frames if f.t >= t - p.window_s)
         a_tr = self._alpha_trend(t)
         self._alphas.add(t, max(a_bs, a_tr))
         alpha = self._alphas.max
         while self._bounds and self._bounds[0][0] < t - p.recover_s:
             self._bounds.popleft()
-        r_max = max(self._stated.values(), default=stated)
         d_medium = detection_range(alpha, p.reference_reflectivity, r_max, p.rated_reflectivity) if alpha > 0 else math.inf
         d_bound, why_bound = min(((b, w) for _, b, w in self._bounds), default=(math.inf, ""))
         d, reason = top, "the stated range" if self.cap_m is None or stated <= self.cap_m else "the configured cap"
         if d_medium < d:
-            d, reason = d_medium, (f"the medium: extinction {alpha:.3f}/m (backscatter {spurious}/{shots} shots"
+            d, reason = d_medium, (f"the medium: extinction {alpha:.3f}/m (backscatter {spurious}/{reports} "
+                                   f"{'shots' if shots == reports else f'reports of {shots / reports:.3g} shots'}"
                                    f"{f', quality trend {a_tr:.3f}/m' if a_tr > 0 else ''})")
         if d_bound < d:
             d, reason = d_bound, why_bound
         confidence = min(1.0, shots / (FULL_WINDOW_SHOTS_PER_S * p.window_s))
         return DetectionRangeEstimate(max(d, 0.0), stated, confidence, alpha, reason,
                                       {"medium_m": d_medium, "bound_m": d_bound, "alpha_backscatter": a_bs,
-                                       "alpha_trend": a_tr, "spurious": spurious, "shots": shots})
+                                       "alpha_trend": a_tr, "spurious": spurious, "reports": reports,
+                                       "shots": shots})
+
+
+def evidence_line(sensors: list[SensorConfig]) -> str:
+    """The start banner's line on what the backscatter rate is counted per: each sensor's shots per report, and
+    whether configured (`shots_per_frame`) or assumed (one per report: the conservative reading)."""
+    def one(k: int, s: SensorConfig) -> str:
+        if s.shots_per_frame is not None:
+            per = "frame" if s.kind == "distance_sensor" else "frame, shared by its bins"
+            return f"[{k}] {s.shots_per_frame} shots per {per} (configured)"
+        if s.kind == "obstacle_distance":
+            return f"[{k}] one shot per bin (assumed; shots_per_frame not set)"
+        return (f"[{k}] one shot per frame (assumed; shots_per_frame not set: a sensor reporting the nearest of "
+                "several beams reads fog thicker than it is)")
+    lines = "; ".join(one(k, s) for k, s in enumerate(sensors)) or "no sensors"
+    return f"fog evidence (backscatter) counted per shot: {lines}"
+
+
+def per_shot_rate(counts: dict[float, list[int]], up: bool = True) -> float:
+    """The per-shot backscatter rate p from spurious reports: `counts` maps the shots behind each report (b) to
+    [reports n_b, spurious k_b]. The fraction of spurious reports (`up`: one standard error up — when unsure, the
+    thicker fog) is matched to its expectation under q_b = 1 − (1 − p)^b (contracts/lidar.py): with one b,
+    q + √(q(1 − q)/n) = 1 − (1 − p)^b in closed form; with several, Σ n_b·q_b(p) = Σ k_b + √(Σ k_b(1 − k_b/n_b))
+    solved by bisection (the expectation grows with p)."""
+    if len(counts) == 1:
+        (per, (n, k)), = counts.items()
+        rate = k / n
+        if up:
+            rate += math.sqrt(rate * (1.0 - rate) / n)
+        return per_shot_from_reports(rate, per)
+    target = sum(k for _, k in counts.values()) + \
+        (math.sqrt(sum(k * (1.0 - k / n) for n, k in counts.values())) if up else 0.0)
+    if target >= sum(n for n, _ in counts.values()):
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(60):
+        p = 0.5 * (lo + hi)
+        if sum(n * (1.0 - (1.0 - p) ** per) for per, (n, _) in counts.items()) < target:
+            lo = p
+        else:
+            hi = p
+    return hi
