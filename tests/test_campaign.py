@@ -242,3 +242,37 @@ def test_a_fault_inside_a_link_loss_is_not_counted_as_missed():
     assert masked_by_link_loss(inside, [loss, inside])
     assert not masked_by_link_loss(after, [loss, after]) and not masked_by_link_loss(fog, [loss, fog])
     assert not masked_by_link_loss(loss, [loss]) and not masked_by_link_loss(inside, [inside])
+
+
+# ----------------------------------------------------------------------------- narrow beams
+
+NARROW = {"name": "narrow", "seed": 5, "scenarios": 2, "vehicles": ["mambo"], "personalities": ["px4"],
+          "arms": ["governor", "offboard"], "duration_s": 25,
+          "stresses": [{"name": "beam_3deg", "scenario": {"sensor_fov_deg": 3.0}},
+                       {"name": "beam_60deg", "scenario": {"sensor_fov_deg": 60.0}}],
+          "scenario": {"sensor_range_m": 12.0, "r_obst_true_m": 0.5, "lateral_offset_m": 0.3, "x_obst_m": 30.0,
+                       "wind_factor": 0.5, "gust_factor": 0.5, "cruise_m_s": 4.0}}
+
+
+@pytest.mark.parametrize("arm", ["governor", "offboard"])
+def test_a_beam_too_narrow_for_the_corridor_is_refused_and_a_wide_one_flies_clear(arm):
+    """A 3° beam rated 12 m covers ±0.31 m at its range, less than the Mambo's r_body + E_tr: the start-up checks
+    refuse it (said, and the row is outside the contract); the same column 0.3 m off the track with a 60° sensor is
+    flown by without touching it. The field of view reaches the SITL's sensor and the daemon's config alike."""
+    spec = cg.spec_from_dict(NARROW)
+    i = spec.arms.index(arm)
+    narrow, wide = cg.fly(spec, i), cg.fly(spec, len(spec.arms) + i)
+    assert (narrow["stress"], wide["stress"]) == ("beam_3deg", "beam_60deg")
+    assert narrow["sensor_fov_deg"] == 3.0 and cg.daemon_config(narrow, arm)["sensors"][0]["h_fov_deg"] == 3.0
+    assert cg.scenario_dict(narrow, arm)["sensor"]["fov_deg"] == 3.0
+    assert narrow["refused"] and "covers" in narrow["refused"] and not narrow["in_contract"]
+    assert "refused at start-up" in narrow["outside_contract"]
+    assert wide["refused"] is None and not wide["collided"] and wide["in_contract"], wide["outside_contract"]
+
+
+def test_a_spec_without_the_field_of_view_samples_as_before():
+    """The field of view is the fifth draw of the optional stream: the first four keep their values."""
+    base = {**SMALL, "scenario": {**SMALL["scenario"], "wind_from_deg": [0, 360]}}
+    a = cg.sample_scenario(cg.spec_from_dict(base), 0)
+    b = cg.sample_scenario(cg.spec_from_dict({**base, "scenario": {**base["scenario"], "sensor_fov_deg": [3, 60]}}), 0)
+    assert "sensor_fov_deg" not in a and 3 <= b.pop("sensor_fov_deg") <= 60 and a == b

@@ -134,6 +134,8 @@ class ScenarioDims(_Strict):
     jerk_auto_m_s3: Range | None = None  # MPC_JERK_AUTO (WPNAV_JERK)
     reveal_in_speedup: Range | None = None  # the first column seen at this fraction of the speed-up (not x_obst_m)
     wind_from_deg: Range | None = None  # the wind's direction (unset: uniform)
+    # the forward sensor's field of view [°], one bin per SENSOR_BIN_DEG or one bin when narrower (unset: SENSOR_FOV_DEG)
+    sensor_fov_deg: Range | None = None
 
     @field_validator("*")
     @classmethod
@@ -322,12 +324,15 @@ def speedup_distance(v: float, a: float, j: float) -> float:
 
 
 def _sample_extra(seed: int, k: int, d: ScenarioDims, s: dict) -> None:
-    """The optional dimensions, from their own stream (seed, k, 1): four draws whichever are set."""
-    dims = (d.accel_hor_m_s2, d.jerk_auto_m_s3, d.reveal_in_speedup, d.wind_from_deg)
+    """The optional dimensions, from their own stream (seed, k, 1): five draws whichever are set (the first four are
+    what four draws were: a spec without the field of view draws as before)."""
+    dims = (d.accel_hor_m_s2, d.jerk_auto_m_s3, d.reveal_in_speedup, d.wind_from_deg, d.sensor_fov_deg)
     if all(r is None for r in dims):
         return
-    u = np.random.default_rng([seed & 0xFFFFFFFF, k, 1]).random(4)
-    a, j, frac, wind = (None if r is None else _u_at(x, r) for x, r in zip(u, dims))
+    u = np.random.default_rng([seed & 0xFFFFFFFF, k, 1]).random(5)
+    a, j, frac, wind, fov = (None if r is None else _u_at(x, r) for x, r in zip(u, dims))
+    if fov is not None:
+        s["sensor_fov_deg"] = fov
     if a is not None or j is not None:
         s["braking"] = {"accel_max_m_s2": a, "jerk_max_m_s3": j}
         brk = _braking(s)
@@ -422,6 +427,8 @@ def strict(row: dict) -> tuple[bool, list[str], bool]:
     g = row.get("gamma_flown_max")
     if g is not None and g > SPEED_TOLERANCE_M_S:
         why.append("ground speed above V_safe")
+    if row.get("refused"):
+        why.append("refused at start-up")
     return not why, why, full
 
 
@@ -456,7 +463,8 @@ def scenario_dict(s: dict, arm: str) -> dict:
     sc = {"name": f"campaign_{s['scenario']}", "vehicle": s["vehicle"], "seed": s["sim_seed"],
           "world": {"columns": [{"x_m": x, "y_m": y, "radius_m": s["r_obst_true_m"], "name": f"column{j}"}
                                 for j, (x, y) in enumerate(s["columns"])]},
-          "sensor": {"fov_deg": SENSOR_FOV_DEG, "increment_deg": SENSOR_BIN_DEG, "max_range_m": s["sensor_range_m"], "rate_hz": 20,
+          "sensor": {"fov_deg": fov_of(s), "increment_deg": min(SENSOR_BIN_DEG, fov_of(s)),
+                     "max_range_m": s["sensor_range_m"], "rate_hz": 20,
                      "latency_s": s["sensor_latency_s"], "noise_sd_m": s["noise_sd_m"]},
           "wind": {"mean_m_s": veh.wind.mean_m_s * s["wind_factor"], "from_deg": s["wind_from_deg"],
                    "gust_m_s": veh.wind.gust_m_s * s["gust_factor"]},
@@ -497,16 +505,21 @@ def delivery_of(rig) -> dict:
             "dropped": len(out.dropped), "delayed": len(out.delayed)}
 
 
+def fov_of(s: dict) -> float:
+    """The forward sensor's field of view in scenario `s` [°]."""
+    return s.get("sensor_fov_deg", SENSOR_FOV_DEG)
+
+
 def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
     cfg = {"vehicle": s["vehicle"], "contract": {"r_obst_m": s["r_obst_m"], "nav_margin": nav_margin}}
     if mode_of(arm_mode(arm)).flies_route:
-        cfg.update({"mode": "offboard", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 60}],
+        cfg.update({"mode": "offboard", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": fov_of(s)}],
                     "route": {"waypoints": [[0, 0], [s["route_end_m"], 0]], "altitude_m": ALT_M}})
     else:
         cfg["mode"] = "governor"
-        beams = SENSOR_FOV_DEG // SENSOR_BIN_DEG
-        cfg["sensors"] = [{"kind": "obstacle_distance", "h_fov_deg": SENSOR_FOV_DEG} if arm == "governor_sector" else
-                          {"kind": "distance_sensor", "h_fov_deg": SENSOR_FOV_DEG, "shots_per_frame": beams}]
+        beams = max(round(fov_of(s) / SENSOR_BIN_DEG), 1)
+        cfg["sensors"] = [{"kind": "obstacle_distance", "h_fov_deg": fov_of(s)} if arm == "governor_sector" else
+                          {"kind": "distance_sensor", "h_fov_deg": fov_of(s), "shots_per_frame": beams}]
         if arm == "governor_brake":
             cfg["governor"] = {"recovery_brake": True}
         elif arm == "governor_ramp":
@@ -769,6 +782,9 @@ def result_row(spec: CampaignSpec, i: int, s: dict, arm: str, rig, trace: _Trace
                       and e.get("action") == "hold"}),
         "sim_time_s": rig.sim.time_s,
         "gamma_flown_max": g_max, "gamma_flown_over_s": g_over_s,
+        # the daemon's start-up checks refused to engage (None: they passed, or were never judged): said, and its
+        # flight is the autopilot's alone
+        "refused": next((e["reason"] for e in log.named("startup_check") if not e["ok"]), None),
     }
     row["in_contract"], row["outside_contract"], _ = strict(row)
     return row
