@@ -2,9 +2,10 @@
 UDP with two busy processes beside them (`python -c "while True: pass"` ×2). It exits 0 when the flight was safe and
 within the contract, and says why it ended (about 90 s of wall time on a 2-core host: the demo flies in real time).
 
-On an otherwise idle 2-core host (load about 2 with the two busy processes) it passed 9 times in 9; on a host
-already loaded by other jobs (load 4-6 before the two busy processes) single cycles come later than the budget
-allows and it fails, as it should (docs/evidence.md, the daemon's timeliness on a loaded computer).
+The demo runs the SITL and the daemon at SCHED_FIFO where the user may (the service unit's scheduling): on the
+2-core build VM, already loaded by other jobs (load average 6-10), it passed 5 times in 5. Without real-time
+scheduling single cycles there came later than the budget allows and it failed, as it should (docs/evidence.md,
+the daemon's timeliness on a loaded computer).
 Hence `-m slow`: the suite itself runs on every core, which is not the load this test names."""
 
 import json
