@@ -34,7 +34,8 @@ def limits(vehicle: str, thrust_ratio: float) -> list[dict]:
     out = []
     for d in D_OD:
         hold = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", t_cmd=T_CMD).v_max
-        brake = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", recovery_dt=LOOP_DT, t_cmd=T_CMD).v_max
+        brake = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", recovery_dt=LOOP_DT, t_cmd=T_CMD,
+                            e_brake=True).v_max
         out.append({"d_od_m": d, "v_max_hold": round(hold, 3), "v_max_brake": round(brake, 3),
                     "gain": round(brake / hold, 3) if hold > 0 else None})
     return out
