@@ -153,3 +153,19 @@ def test_the_brakes_slot_round_trips_with_its_hash(tmp_path):
     again = verify(path, shipped.vehicle)
     assert np.array_equal(again.e_pred_brake.values, b.values)
     assert again.meta["arrays_sha256"] == shipped.meta["arrays_sha256"]
+
+
+def test_the_brakes_surface_is_written_beside_the_others_kept_exactly(tmp_path):
+    """`table etr --brake` (`build_governor_etr(brake=True)`): the `e_tr_pred_brake` slot written from the governor's
+    manoeuvres and the brake's stop, every other slot kept bit for bit, the hash over them all."""
+    shipped = load_for_vehicle("mambo")
+    grid = es.EtrGrid(v=np.array([2.0, 4.0]), tilt=np.radians([25.0]), thrust_ratio=np.array([1.0]), seeds=(0,))
+    out = tmp_path / "t.npz"
+    es.build_governor_etr(shipped.path, "mambo", grid, workers=1, progress=False, out=out, brake=True)
+    t = verify(out, shipped.vehicle)
+    for name in ("avoid", "e_pred", "e_pred_stop"):
+        assert np.array_equal(getattr(t, name).values, getattr(shipped, name).values)
+    info = t.e_pred_brake.info
+    assert set(info["per_maneuver_worst_m"]) == set(es.BRAKE_MANEUVERS) and "recovery brake" in info["method"]
+    worst = max(info["per_maneuver_worst_m"].values())
+    assert t.e_pred_brake.values.max() >= worst * (1 + es.MARGIN_REL) + es.MARGIN_ABS - 1e-12
