@@ -74,7 +74,8 @@ def sweep() -> dict:
                 out.append({"vehicle": vehicle, "autopilot": personality, "x_col_m": x_col, "braked": braked,
                             "v_max": round(max(s["v_max"] or 0.0 for s in rig.log.states), 3),
                             "min_clearance_m": round(rig.truth["min_clearance_m"], 3),
-                            "collisions": len(rig.truth["collisions"]), "controller_violations": controller_violations(rig)})
+                            "collisions": len(rig.truth["collisions"]),
+                            "controller_violations": controller_violations(rig)})
     return {"flights": out, "collisions": sum(f["collisions"] for f in out),
             "controller_violations": sum(f["controller_violations"] for f in out),
             "least_clearance_m": min(f["min_clearance_m"] for f in out), "all_braked": all(f["braked"] for f in out)}

@@ -381,7 +381,8 @@ class BrakeFlight:
         return np.array(self._t), np.array(self._p)
 
 
-def worst_contour_error(vehicle: Vehicle, ref: Reference | OnlineReference | BrakeReference, thrust_ratio: float, seed: int) -> float:
+def worst_contour_error(vehicle: Vehicle, ref: Reference | OnlineReference | BrakeReference, thrust_ratio: float,
+                        seed: int) -> float:
     """Fly `ref` (after SETTLE_S on its entry line) and return the worst horizontal contour error
     from t = 0 to its end against the path commanded in that flight (Figure 11); +inf if the vehicle
     was lost."""

@@ -11,11 +11,21 @@ import numpy as np
 import pytest
 
 from companion.onboard.flying import NOT_COVERED, RecoveryBrake
-from contracts.stop import airframe_decel, braking_decel, recovery_brake, recovery_brake_stop, stop_jerk
+from contracts.stop import (
+    airframe_decel,
+    braking_decel,
+    recovery_brake,
+    recovery_brake_stop,
+    stop_jerk,
+)
 from contracts.table import Slot, load_for_vehicle, verify, write_table
 from contracts.vehicle import load_vehicle
 from sitl_harness import etr_sweep as es
-from sitl_harness.maneuvers import BrakeReference, smooth_step_reference, worst_contour_error
+from sitl_harness.maneuvers import (
+    BrakeReference,
+    smooth_step_reference,
+    worst_contour_error,
+)
 from tests.test_recovery_brake_lockstep import two_stops
 
 SECOND = 70.0  # the second column's x (tests/test_recovery_brake_lockstep.py `two_stops`)

@@ -453,7 +453,8 @@ def scenario_dict(s: dict, arm: str) -> dict:
           "wind": {"mean_m_s": veh.wind.mean_m_s * s["wind_factor"], "from_deg": s["wind_from_deg"],
                    "gust_m_s": veh.wind.gust_m_s * s["gust_factor"]},
           "faults": faults}
-    if off or arm.startswith("governor_brake"):  # a companion-only aircraft's offboard-loss action: Hold (the start-up check)
+    # a companion-only aircraft's offboard-loss action: Hold (the start-up check)
+    if off or arm.startswith("governor_brake"):
         sc["params"] = {"COM_OBL_RC_ACT": 5} if s["personality"] == "px4" else {}
     if off:
         sc["start"] = {"alt_m": ALT_M}

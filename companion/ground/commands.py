@@ -247,7 +247,8 @@ def cmd_table_etr(args) -> int:
     base = _base_checked(table, args.sign_key, args) if args.sign_key else None
     if args.brake:
         if args.resume:
-            raise ContractError("table etr: --resume is for the offboard sweep, not --brake (a few minutes, no checkpoint)")
+            raise ContractError("table etr: --resume is for the offboard sweep, not --brake (a few minutes, "
+                                "no checkpoint)")
         with _interruptible():
             s = build_governor_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                                    progress=show_progress(not args.json), out=args.out, brake=True)
