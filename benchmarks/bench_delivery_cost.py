@@ -29,17 +29,20 @@ LOOP_DT = 0.02
 def cost(vehicle: str, t_cmd: float, recovery_dt: float | None) -> dict:
     """Relative speed lost (1 − V_max(t_cmd)/V_max(0)) over the grid where V_max(0) > 0.5 m/s."""
     table = load_for_vehicle(vehicle)
+    brake = recovery_dt is not None  # the brake flies the stops: its own controller contract
     losses = []
     for d in D_OD:
         for e in E_TR:
             for k in THRUST:
-                base = table.omega(float(d), 1.0, e, k, contract="stop", recovery_dt=recovery_dt).v_max
+                base = table.omega(float(d), 1.0, e, k, contract="stop", recovery_dt=recovery_dt, e_brake=brake).v_max
                 if base > 0.5:
                     with_budget = table.omega(float(d), 1.0, e, k, contract="stop", recovery_dt=recovery_dt,
+                                              e_brake=brake,
                                               t_cmd=t_cmd).v_max
                     losses.append(1.0 - with_budget / base)
-    at6 = [1.0 - table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", recovery_dt=recovery_dt, t_cmd=t_cmd).v_max /
-           table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", recovery_dt=recovery_dt).v_max]
+    at6 = [1.0 - table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", recovery_dt=recovery_dt, e_brake=brake,
+                             t_cmd=t_cmd).v_max /
+           table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", recovery_dt=recovery_dt, e_brake=brake).v_max]
     return {"cells": len(losses), "mean_pct": round(100 * float(np.mean(losses)), 2),
             "max_pct": round(100 * float(np.max(losses)), 2), "at_6m_pct": round(100 * at6[0], 2)}
 

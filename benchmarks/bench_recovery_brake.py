@@ -7,7 +7,8 @@ from its limit), both personalities: the speed at the second stop command and th
 `--sweep`, the brake on both vehicles and personalities at a second column 8 m (first seen while speeding up) to
 28 m past where the vehicle rests after its first stop, in wind (a second column already in the sensor's view where the vehicle rests after its
 first stop is the pilot's to mind: the daemon stood down from it when the mission was resumed): collisions and the
-least clearance. Prints one JSON object.
+least clearance, and the controller violations (the brake's tracking error against its own E_tr_pred). Prints one
+JSON object.
 
     PYTHONPATH=. python benchmarks/bench_recovery_brake.py [--fly] [--sweep]
 """
@@ -34,10 +35,16 @@ def limits(vehicle: str, thrust_ratio: float) -> list[dict]:
     out = []
     for d in D_OD:
         hold = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", t_cmd=T_CMD).v_max
-        brake = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", recovery_dt=LOOP_DT, t_cmd=T_CMD).v_max
+        brake = table.omega(d, 1.0, 0.3, thrust_ratio, contract="stop", recovery_dt=LOOP_DT, t_cmd=T_CMD,
+                            e_brake=True).v_max
         out.append({"d_od_m": d, "v_max_hold": round(hold, 3), "v_max_brake": round(brake, 3),
                     "gain": round(brake / hold, 3) if hold > 0 else None})
     return out
+
+
+def controller_violations(rig) -> int:
+    """The flight's controller violations (E_tr above the E_tr_pred the supervisor judged it against)."""
+    return sum(e["subsystem"] == "controller" for e in rig.log.named("violation_start"))
 
 
 def flights() -> dict:
@@ -50,7 +57,8 @@ def flights() -> dict:
             _, v, d = second_stop(rig)
             out[f"{personality}_{'brake' if brake else 'hold'}"] = {
                 "v_max": round(v_max(rig), 3), "speed_at_stop_command": round(v, 3), "braking_distance_m": round(d, 3),
-                "min_clearance_m": round(rig.truth["min_clearance_m"], 3), "collisions": len(rig.truth["collisions"])}
+                "min_clearance_m": round(rig.truth["min_clearance_m"], 3), "collisions": len(rig.truth["collisions"]),
+                "controller_violations": controller_violations(rig)}
     return out
 
 
@@ -66,8 +74,10 @@ def sweep() -> dict:
                 out.append({"vehicle": vehicle, "autopilot": personality, "x_col_m": x_col, "braked": braked,
                             "v_max": round(max(s["v_max"] or 0.0 for s in rig.log.states), 3),
                             "min_clearance_m": round(rig.truth["min_clearance_m"], 3),
-                            "collisions": len(rig.truth["collisions"])})
+                            "collisions": len(rig.truth["collisions"]),
+                            "controller_violations": controller_violations(rig)})
     return {"flights": out, "collisions": sum(f["collisions"] for f in out),
+            "controller_violations": sum(f["controller_violations"] for f in out),
             "least_clearance_m": min(f["min_clearance_m"] for f in out), "all_braked": all(f["braked"] for f in out)}
 
 

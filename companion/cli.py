@@ -208,6 +208,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: the vehicle's shipped grid, about 15 min on two cores)")
     e.add_argument("--resume", action="store_true",
                    help="continue an interrupted sweep from its checkpoint (DEST.partial/, kept until the table is written)")
+    e.add_argument("--brake", action="store_true",
+                   help="instead: the governor's E_tr_pred with its recovery brake (what the autopilot flies and the "
+                        "brake's own stop), written as the table's e_tr_pred_brake slot")
     e.add_argument("--workers", type=int, default=2, help="local process pool size")
     e.add_argument("--sign-key", type=Path, help="sign the result with this ed25519 private key (PEM)")
     _base_options(e, "--table, with --sign-key,")

@@ -229,24 +229,25 @@ def stop_dead_time(vehicle: Vehicle) -> float:
     return vehicle.t_react_s + vehicle.braking.hold_switch_s
 
 
-# The recovery brake's stop contract (DESIGN.md §1 stop contract): the daemon flies the stop itself
-# in offboard at the airframe's deceleration and `stop_jerk`; its contract takes RECOVERY_SHARE of both, the rest
-# for the vehicle's lag behind the stop it streams (the offboard fail-safe stop's pattern: it plans harder than its
-# contract assumes)
-RECOVERY_SHARE = 0.7
+def recovery_brake_stop(vehicle: Vehicle, thrust_ratio: float, tilt: float | None = None) -> tuple[float, float]:
+    """(a, j) of the recovery brake's stop, as the daemon flies it and as its stop contract takes it: the airframe's
+    braking (`airframe_decel`) at `stop_jerk`, never softer than the autopilot's own (`braking_decel` and its jerk).
+    The vehicle's lag behind the stop it is given is not taken off the deceleration: it is tracking error, which the
+    brake's controller contract measures by flying this same stop (the table's `e_tr_pred_brake`) and which the
+    keep-out disc's E_tr then holds."""
+    a = max(airframe_decel(vehicle, thrust_ratio, tilt), braking_decel(vehicle, thrust_ratio, tilt))
+    return a, max(stop_jerk(vehicle), vehicle.braking.jerk_max_m_s3)
 
 
 def recovery_brake(vehicle: Vehicle, thrust_ratio: float, loop_dt: float, tilt: float | None = None,
                    t_cmd: float = 0.0) -> tuple[float, float, float]:
-    """(a, j, t_r) of the recovery brake's stop contract, for `approach_stop_speed`: RECOVERY_SHARE of the airframe's
-    deceleration and of `stop_jerk` (never below the autopilot's own, `braking_decel` and its jerk: a brake that
-    flies no harder is not flown), and its dead time: reaction, one loop period (the first setpoint goes out a cycle
-    before OFFBOARD / GUIDED is asked: PX4 refuses offboard without a stream) and the switch (`hold_switch_s`:
-    command round trip and mode switch; `t_cmd`: the command-delivery budget). The joint bound's approach (speed ≤ V_max, acceleration ≤ a, jerk ≤ j)
-    covers the autopilot's own approach, whose acceleration and jerk are no larger."""
-    a = max(RECOVERY_SHARE * airframe_decel(vehicle, thrust_ratio, tilt), braking_decel(vehicle, thrust_ratio, tilt))
-    j = max(RECOVERY_SHARE * stop_jerk(vehicle), vehicle.braking.jerk_max_m_s3)
-    return a, j, stop_dead_time(vehicle) + loop_dt + t_cmd
+    """(a, j, t_r) of the recovery brake's stop contract, for `approach_stop_speed` (DESIGN.md §1 stop contract): the
+    stop it flies (`recovery_brake_stop`), and its dead time: reaction, one loop period (the first setpoint goes out a
+    cycle before OFFBOARD / GUIDED is asked: PX4 refuses offboard without a stream) and the switch (`hold_switch_s`:
+    command round trip and mode switch; `t_cmd`: the command-delivery budget). The joint bound's approach (speed ≤
+    V_max, acceleration ≤ a, jerk ≤ j) covers the autopilot's own approach, whose acceleration and jerk are no
+    larger."""
+    return (*recovery_brake_stop(vehicle, thrust_ratio, tilt), stop_dead_time(vehicle) + loop_dt + t_cmd)
 
 
 def v_stop(vehicle: Vehicle, d_od: float, r_obst: float, e_tr: float, thrust_ratio: float,

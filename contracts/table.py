@@ -4,6 +4,8 @@ Slots:
 - `avoid` (offboard, the daemon can brake and swerve): F(ρ; tilt, thrust_ratio) in the reduced form
   V_safe = √(g·c)·F(r_k/c), built at t_react = 0 (the lookup applies the reaction time);
 - `e_tr_pred` (the controller contract, Figure 12): E_tr_pred(v_max, tilt, thrust_ratio);
+- `e_tr_pred_stop` (the governor's controller contract: what a governed vehicle flies, the autopilot's Hold) and
+  `e_tr_pred_brake` (the same and the daemon's own recovery brake, flown as the daemon flies it);
 - `stop` (governor, the autopilot brakes): closed form from the vehicle's braking limits, always there.
 
 The loader verifies schema, SHA-256 of the arrays, axes, finiteness, monotonicity and (when given) the
@@ -59,6 +61,8 @@ SLOTS = {
     "e_tr_pred": ("etr_e", ("etr_v", "etr_tilt", "etr_thrust_ratio"), (+1, +1, -1), "up"),
     # the governor's: flown on what a governed vehicle flies, no swerve; the stop contract's if present
     "e_tr_pred_stop": ("etrs_e", ("etrs_v", "etrs_tilt", "etrs_thrust_ratio"), (+1, +1, -1), "up"),
+    # the governor with its recovery brake: the governor's manoeuvres and the brake's own stop
+    "e_tr_pred_brake": ("etrb_e", ("etrb_v", "etrb_tilt", "etrb_thrust_ratio"), (+1, +1, -1), "up"),
 }
 AXIS_INFO = {
     "avoid": [
@@ -72,7 +76,7 @@ AXIS_INFO = {
         {"name": "thrust_ratio", "unit": "1", "effect": "helps"},
     ],
 }
-AXIS_INFO["e_tr_pred_stop"] = AXIS_INFO["e_tr_pred"]
+AXIS_INFO["e_tr_pred_stop"] = AXIS_INFO["e_tr_pred_brake"] = AXIS_INFO["e_tr_pred"]
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,7 @@ def write_table(
     e_tr_pred: Slot | None = None,
     method: dict | None = None,
     e_tr_pred_stop: Slot | None = None,
+    e_tr_pred_brake: Slot | None = None,
 ) -> dict:
     """Write a table; refuses slots that are not monotone (repair them first, `lookup.repair_monotone`)."""
     arrays: dict[str, np.ndarray] = {}
@@ -115,7 +120,8 @@ def write_table(
             "braking": vehicle.braking.model_dump(),
         }
     }
-    for name, slot in (("avoid", avoid), ("e_tr_pred", e_tr_pred), ("e_tr_pred_stop", e_tr_pred_stop)):
+    for name, slot in (("avoid", avoid), ("e_tr_pred", e_tr_pred), ("e_tr_pred_stop", e_tr_pred_stop),
+                       ("e_tr_pred_brake", e_tr_pred_brake)):
         if slot is None:
             contracts[name] = None
             continue
@@ -510,7 +516,8 @@ def verify(path: str | Path, vehicle: Vehicle | None = None, public_key=None) ->
         slots[name] = Slot(tuple(arrays[a] for a in anames), arrays[vname], contracts[name])
     if meta.get("tilt_model") not in ("cone", "box"):
         raise ContractError(f"table {path}: unknown tilt_model {meta.get('tilt_model')!r}")
-    table = ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path, slots.get("e_tr_pred_stop"))
+    table = ContractTable(meta, tv, slots.get("avoid"), slots.get("e_tr_pred"), path, slots.get("e_tr_pred_stop"),
+                          slots.get("e_tr_pred_brake"))
     table.signature = signature
     table.serial = table_serial(meta) if signature["signed"] else None
     return table
@@ -569,19 +576,25 @@ class Omega:
 THRUST_AXIS_TOL = 1e-9
 
 
+def _columns(slot: Slot) -> tuple[list, list, list, list]:
+    """A stop contract's E_tr_pred surface as Python lists for `_e_list`: (speeds, tilts, thrust ratios, the speed
+    column per (tilt, thrust) cell)."""
+    v, t, r = (a.tolist() for a in slot.axes)
+    return v, t, r, [[slot.values[:, i, kk].tolist() for kk in range(len(r))] for i in range(len(t))]
+
+
 class ContractTable:
     """A verified table with the conservative lookups of DESIGN.md §2, precomputed for its vehicle."""
 
     def __init__(self, meta: dict, vehicle: Vehicle, avoid: Slot | None, e_tr_pred: Slot | None, path=None,
-                 e_tr_pred_stop: Slot | None = None):
+                 e_tr_pred_stop: Slot | None = None, e_tr_pred_brake: Slot | None = None):
         self.meta, self.vehicle, self.avoid, self.e_pred, self.path = meta, vehicle, avoid, e_tr_pred, path
-        # the stop contract's E_tr_pred: the governor's surface where the table has one, else the general one
-        self.e_pred_stop = e_tr_pred_stop
+        # the stop contract's E_tr_pred: the governor's surface where the table has one, else the general one;
+        # with the recovery brake flying the stops, the brake's surface (none: no controller contract covers it)
+        self.e_pred_stop, self.e_pred_brake = e_tr_pred_stop, e_tr_pred_brake
         self._stop_slot = e_tr_pred_stop if e_tr_pred_stop is not None else e_tr_pred
-        if self._stop_slot is not None:
-            self._sv_l, self._st_l, self._sr_l = (a.tolist() for a in self._stop_slot.axes)
-            self._s_lists = [[self._stop_slot.values[:, i, kk].tolist() for kk in range(len(self._sr_l))]
-                             for i in range(len(self._st_l))]
+        self._stop_cols = {name: _columns(slot) for name, slot in (("stop", self._stop_slot),
+                                                                   ("brake", e_tr_pred_brake)) if slot is not None}
         self.signature = {"signed": False, "key_id": None, "verified": False}  # set by `verify`
         self.serial: int | None = None  # a signed table's serial (`sign_table`), set by `verify`
         self.tilt_model = meta["tilt_model"]
@@ -700,7 +713,8 @@ class ContractTable:
     @property
     def available(self) -> list[str]:
         return ["stop"] + [n for n, s in (("avoid", self.avoid), ("e_tr_pred", self.e_pred),
-                                          ("e_tr_pred_stop", self.e_pred_stop)) if s is not None]
+                                          ("e_tr_pred_stop", self.e_pred_stop),
+                                          ("e_tr_pred_brake", self.e_pred_brake)) if s is not None]
 
     # ---- raw conservative lookups
     def f_lookup(self, rho: float, tilt: float, thrust_ratio: float) -> float:
@@ -712,8 +726,14 @@ class ContractTable:
 
     def e_tr_pred(self, v: float, tilt: float, thrust_ratio: float, contract: str = "avoid") -> float:
         """E_tr_pred at the worst grid corner (inf where the grid has no answer; 0 if no slot); `contract` "stop":
-        the governor's surface where the table has one."""
-        slot = self._stop_slot if contract == "stop" else self.e_pred
+        the governor's surface where the table has one; "brake": the governor's with its recovery brake (inf
+        without that surface: no controller contract covers the brake)."""
+        if contract == "brake":
+            if self.e_pred_brake is None:
+                return math.inf
+            slot = self.e_pred_brake
+        else:
+            slot = self._stop_slot if contract == "stop" else self.e_pred
         if slot is None:
             return 0.0
         ev, et, er = slot.axes
@@ -775,16 +795,17 @@ class ContractTable:
         acceleration at most `a0_max`."""
         return approach_stop_speed(d_od - e_tr - self._r_body, *brake, a0_max)
 
-    def _e_list(self, tilt, thrust_ratio, stop=False):
+    def _e_list(self, tilt, thrust_ratio, stop: str | None = None):
         """E_tr_pred over the speed grid at the worst corner of (tilt, thrust), a list; None: no bound (∞).
-        `stop`: of the stop contract's surface (the governor's where the table has one)."""
-        et, er, lists = (self._st_l, self._sr_l, self._s_lists) if stop else (self._et_l, self._er_l, self._e_lists)
+        `stop`: of a stop contract's surface ("stop": the governor's where the table has one; "brake": the
+        governor's with its recovery brake)."""
+        et, er, lists = (self._stop_cols[stop][1:] if stop else (self._et_l, self._er_l, self._e_lists))
         i, kk = bisect_left(et, tilt), bisect_right(er, thrust_ratio) - 1
         return None if i == len(et) or kk == NONE else lists[i][kk]
 
     # ---- operating point Ω
     def omega(self, d_od, r_obst, e_tr_meas, thrust_ratio, contract="avoid", tilt=None, recovery_dt=None,
-              a0_max=None, t_cmd=0.0, t_silent=0.0) -> Omega:
+              a0_max=None, t_cmd=0.0, t_silent=0.0, e_brake=False) -> Omega:
         """Ω = (V_max, tilt) maximising V_max subject to Γ ≤ 0, with e_tr = max(measured, E_tr_pred(V_max)).
 
         `tilt` caps the tilt (default: the vehicle's limit); the avoid contract picks the best grid tilt
@@ -795,7 +816,8 @@ class ContractTable:
         contract): the command-delivery budget [s], added to the stop's dead time. `t_silent`: the obstacle sensors'
         silence budget [s], the time the vehicle may fly on a last reading before a dead sensor is noticed: dead
         time of the stop (added to it, as `t_cmd`) and reaction time of the avoid contract
-        (V ≤ V_safe(d_od − V·t_silent), `_omega_silent`).
+        (V ≤ V_safe(d_od − V·t_silent), `_omega_silent`). `e_brake` (the stop contract): the recovery brake flies
+        the stops, so E_tr_pred is its surface (`e_tr_pred_brake`; without it, no safe speed).
         Safe-first: any doubt → 0.
         """
         tilt = self._tilt_max if tilt is None else tilt
@@ -807,7 +829,8 @@ class ContractTable:
         if contract == "avoid":
             return self._omega_silent(d_od, t_silent, lambda d: self._omega_avoid(d, r_obst, e_tr_meas, thrust_ratio,
                                                                                     tilt))
-        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max, t_cmd + t_silent)
+        return self._omega_stop(d_od, e_tr_meas, thrust_ratio, tilt, recovery_dt, a0_max, t_cmd + t_silent,
+                                "brake" if e_brake else "stop")
 
     @staticmethod
     def _omega_silent(d_od: float, t_silent: float, omega_at) -> Omega:
@@ -885,21 +908,24 @@ class ContractTable:
         v, j, lim_j = crossing_fixed_point(ev, lim, decide)
         return v, max(col[j], e_meas), lim_j
 
-    def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt, recovery_dt=None, a0_max=None, t_cmd=0.0) -> Omega:
+    def _omega_stop(self, d_od, e_meas, thrust_ratio, tilt, recovery_dt=None, a0_max=None, t_cmd=0.0,
+                    surface: str = "stop") -> Omega:
         tilt, tr = min(tilt, self._tilt_max), min(thrust_ratio, self._tr_hi)
         brake = self._hold_brake(tr, tilt, t_cmd) if recovery_dt is None else \
             recovery_brake(self.vehicle, tr, recovery_dt, tilt, t_cmd)
         a0_max = math.inf if a0_max is None else a0_max
-        if self._stop_slot is None:
+        if surface == "brake" and surface not in self._stop_cols:
+            return Omega("stop", 0.0, tilt, math.inf, 0.0, 0.0, "no E_tr_pred for the recovery brake in this table")
+        if surface not in self._stop_cols:
             v = self._stop(d_od, e_meas, brake, a0_max)
             v_max, e_b, v_s = v, e_meas, v
         else:
-            col = self._e_list(tilt, thrust_ratio, stop=True)
+            col = self._e_list(tilt, thrust_ratio, stop=surface)
             if col is None:  # no E_tr bound at this tilt or thrust: no safe speed
                 v_max, e_b, v_s = 0.0, math.inf, 0.0
             else:
                 lim = lambda k: self._stop(d_od, max(col[k], e_meas), brake, a0_max)  # noqa: E731
-                v_max, k, v_s = crossing_fixed_point(self._sv_l, lim)
+                v_max, k, v_s = crossing_fixed_point(self._stop_cols[surface][0], lim)
                 e_b = max(col[k], e_meas)
         reason = "ok" if v_max > 0 else "no safe speed at this D_od, E_tr"
         return Omega("stop", v_max, tilt, e_b, v_s, v_max - v_s, reason)

@@ -62,13 +62,14 @@ from contracts.gridspec import as_grid, axis, load_mapping, vehicle_spans
 from contracts.lookup import repair_monotone
 from contracts.online_planner import OFFBOARD_CAP, REPLAN_S, AvoidancePlanner, Disc
 from contracts.runner import Checkpoint, run_tasks
-from contracts.stop import braking_decel, stop_jerk
+from contracts.stop import braking_decel, recovery_brake_stop, stop_jerk
 from contracts.table import SLOTS, Slot, verify, write_table
 from contracts.trajectories import limiting_trajectory, pass_branches
 from contracts.vehicle import Vehicle, load_vehicle
 
-from .maneuvers import (COAST_S, DT_NAV, SETTLE_S, WINDOW_S, Z_REF, OnlineReference, Reference, cruise_reference,
-                        smooth_step_reference, speed_step_reference, worst_contour_error, zoh_reference)
+from .maneuvers import (COAST_S, DT_NAV, SETTLE_S, WINDOW_S, Z_REF, BrakeReference, OnlineReference, Reference,
+                        cruise_reference, smooth_step_reference, speed_step_reference, worst_contour_error,
+                        zoh_reference)
 
 MARGIN_REL = 0.25  # stated margin: E_tr_pred = worst·(1 + MARGIN_REL) + MARGIN_ABS
 MARGIN_ABS = 0.02  # [m]
@@ -81,6 +82,8 @@ MANEUVERS = ("cruise", "step_down", "step_up", "avoid", "online", "failsafe", "d
 # what a governed vehicle flies: the autopilot's own mission, straight, its speed steps and its Hold,
 # each through its velocity smoothing (MPC_ACC_HOR / MPC_JERK_AUTO: the vehicle file's braking settings)
 GOVERNOR_MANEUVERS = ("cruise", "smooth_up", "hold")
+# ... and with the daemon's recovery brake: its own stop as well (`maneuvers.BrakeReference`)
+BRAKE_MANEUVERS = (*GOVERNOR_MANEUVERS, "brake")
 ONLINE_REPLANS = 1  # replans modelled per online flight, from the measured state, warm-started
 FAILSAFE_FRAC = 0.5  # ``failsafe@ρ``: the fail-safe stop starts at this fraction of the first plan
 
@@ -120,17 +123,22 @@ def online_reference(table_path, rho_index: int, tilt_index: int, thrust_index: 
 
 def cell_references(table_path, vehicle: Vehicle, v: float, tilt: float, thrust_ratio: float,
                     avoid_index: tuple[int, int], rhos=BUILD_RHOS,
-                    skipped: list | None = None, governor: bool = False) -> list[Reference | OnlineReference]:
+                    skipped: list | None = None, governor: bool | str = False) -> list:
     """The named manoeuvre set of one cell (module docstring); the names of ``online@ρ`` geometries
     without a verified plan are appended to `skipped`. `governor`: `GOVERNOR_MANEUVERS` only — no swerve, and
     the autopilot's own speed steps v/2 → v (``smooth_up``) and Hold v → 0 (``hold``), jerk-limited at
-    `braking_decel` and its jerk, as its velocity smoothing flies them."""
+    `braking_decel` and its jerk, as its velocity smoothing flies them; "brake": `BRAKE_MANEUVERS`, those and the
+    recovery brake's own stop from v at the cell's tilt and thrust (``brake``: `contracts.stop.recovery_brake_stop`,
+    from the measured state, as the daemon flies it)."""
     a_h = horizontal_accel_limit(tilt, vehicle.t_max(thrust_ratio), vehicle.mass_kg)
     a_top = horizontal_accel_limit(tilt, vehicle.t_max(vehicle.thrust_ratio_range[1]), vehicle.mass_kg)
     if governor:
         a, j = braking_decel(vehicle, thrust_ratio, tilt), vehicle.braking.jerk_max_m_s3
-        return [cruise_reference(v), smooth_step_reference("smooth_up", 0.5 * v, v, a, j),
+        refs = [cruise_reference(v), smooth_step_reference("smooth_up", 0.5 * v, v, a, j),
                 smooth_step_reference("hold", v, 0.0, a, j)]
+        if governor == "brake":
+            refs.append(BrakeReference("brake", v, *recovery_brake_stop(vehicle, thrust_ratio, tilt)))
+        return refs
     refs = [cruise_reference(v), speed_step_reference("step_down", v, 0.0, a_h),
             speed_step_reference("step_up", 0.5 * v, v, a_h)]
     if table_path is not None:
@@ -254,7 +262,8 @@ def _avoid_index(table, tilt: float, thrust_ratio: float) -> tuple[int, int]:
 
 
 def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 2, scheduler: str | None = None,
-                    progress: bool = True, checkpoint=None, governor: bool = False) -> tuple[np.ndarray, dict, np.ndarray]:
+                    progress: bool = True, checkpoint=None, governor: bool | str = False
+                    ) -> tuple[np.ndarray, dict, np.ndarray]:
     """Worst contour error per cell (no margin, no repair) → (values (n_v, n_tilt, n_tr), per-manoeuvre
     worst, number of ``online@ρ`` geometries skipped for want of a verified plan). `checkpoint`: a
     `contracts.runner.Checkpoint` keeping the finished columns. `governor`: `GOVERNOR_MANEUVERS` only (no
@@ -271,7 +280,8 @@ def measure_surface(table_path, vehicle: Vehicle, grid: EtrGrid, workers: int = 
     results = run_tasks(tasks, workers, scheduler, progress, len(tasks) * len(grid.v), fn=_etr_column,
                         desc="E_tr cells", checkpoint=checkpoint)
     worst = np.zeros((len(grid.v), len(grid.tilt), len(grid.thrust_ratio)))
-    per = {m: np.zeros_like(worst) for m in (GOVERNOR_MANEUVERS if governor else MANEUVERS)}
+    per = {m: np.zeros_like(worst) for m in (BRAKE_MANEUVERS if governor == "brake" else
+                                             GOVERNOR_MANEUVERS if governor else MANEUVERS)}
     skipped = np.zeros(worst.shape, dtype=int)
     for task, res in zip(tasks, results):
         j, k = task["jk"]
@@ -290,36 +300,48 @@ def with_margin(worst: np.ndarray) -> tuple[np.ndarray, int]:
 
 
 def governor_surface(vehicle: Vehicle, grid: EtrGrid, workers: int = 2, scheduler: str | None = None,
-                     progress: bool = True) -> tuple[np.ndarray, dict, int]:
+                     progress: bool = True, brake: bool = False) -> tuple[np.ndarray, dict, int]:
     """The governor's E_tr_pred: the controller contract (Figure 12) flown on what a governed
     vehicle flies — cruise, speed steps and the autopilot's braking stop, no swerve — with the build's margin and
-    upward repair → (values (n_v, n_tilt, n_tr), per-manoeuvre worst, repairs). Its rows need no avoid table."""
-    worst, per, _ = measure_surface(None, vehicle, grid, workers, scheduler, progress, governor=True)
+    upward repair → (values (n_v, n_tilt, n_tr), per-manoeuvre worst, repairs). Its rows need no avoid table.
+    `brake`: the governor with its recovery brake (`BRAKE_MANEUVERS`: the brake's own stop too)."""
+    worst, per, _ = measure_surface(None, vehicle, grid, workers, scheduler, progress,
+                                    governor="brake" if brake else True)
     e, repairs = with_margin(worst)
     return e, per, repairs
 
 
 def build_governor_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: int = 2,
-                       scheduler: str | None = None, progress: bool = True, out=None) -> dict:
+                       scheduler: str | None = None, progress: bool = True, out=None, brake: bool = False) -> dict:
     """Fly `governor_surface` on `grid` (default: the E_tr grid's) and write it as the table's `e_tr_pred_stop` slot
-    (the stop contract's E_tr_pred), keeping its other slots exactly; returns a summary."""
+    (the stop contract's E_tr_pred), keeping its other slots exactly; returns a summary. `brake`: the surface with
+    the recovery brake's own stop, written as the `e_tr_pred_brake` slot (the stop contract's E_tr_pred while the
+    brake flies the stops)."""
     t0 = time.perf_counter()
     veh = vehicle if isinstance(vehicle, Vehicle) else (load_vehicle(vehicle) if vehicle else None)
     table = verify(table_path, veh)
     veh = table.vehicle
     grid = as_grid(grid, veh, default_etr_grid, etr_grid_from_dict, "E_tr grid file")
-    e, per, repairs = governor_surface(veh, grid, workers, scheduler, progress)
+    e, per, repairs = governor_surface(veh, grid, workers, scheduler, progress, brake)
     info = {"method": "controller contract (Figure 12) flown on what a governed vehicle flies: "
-                      + ", ".join(GOVERNOR_MANEUVERS) + " (speed steps and Hold jerk-limited at braking_decel and "
-                      "the vehicle's braking jerk, as the autopilot's velocity smoothing flies them); no swerve",
+                      + ", ".join(BRAKE_MANEUVERS if brake else GOVERNOR_MANEUVERS)
+                      + " (speed steps and Hold jerk-limited at braking_decel and "
+                      "the vehicle's braking jerk, as the autopilot's velocity smoothing flies them"
+                      + ("; the recovery brake's straight stop from the measured state at the airframe's braking and "
+                         "the attitude-rate jerk (contracts/stop.py recovery_brake_stop), as the daemon streams it"
+                         if brake else "") + "); no swerve",
+            "per_maneuver_worst_m": {m: float(np.max(np.where(np.isfinite(a), a, 0.0))) for m, a in per.items()},
             "margin": {"relative": MARGIN_REL, "absolute_m": MARGIN_ABS,
                        "rule": "E_tr_pred = worst * (1 + relative) + absolute"},
             "grid": grid.describe(), "monotone_repairs_up": int(repairs),
             "build_wall_s": round(time.perf_counter() - t0, 1)}
-    method = dict(table.meta.get("method") or {}) | {"e_tr_pred_stop": "sitl_harness.etr_sweep.build_governor_etr"}
+    name = "e_tr_pred_brake" if brake else "e_tr_pred_stop"
+    method = dict(table.meta.get("method") or {}) | {name: "sitl_harness.etr_sweep.build_governor_etr"}
     dest = Path(out) if out is not None else Path(table_path)
+    slots = {"e_tr_pred_stop": table.e_pred_stop, "e_tr_pred_brake": table.e_pred_brake}
+    slots[name] = Slot((grid.v, grid.tilt, grid.thrust_ratio), e, info)
     write_table(dest, veh, tilt_model=table.tilt_model, avoid=table.avoid, e_tr_pred=table.e_pred, method=method,
-                e_tr_pred_stop=Slot((grid.v, grid.tilt, grid.thrust_ratio), e, info))
+                **slots)
     verify(dest, veh)
     return {"path": str(dest), "vehicle": veh.name, "cells": int(e.size), "monotone_repairs_up": int(repairs),
             "wall_s": round(time.perf_counter() - t0, 1)}
@@ -373,7 +395,7 @@ def build_etr(table_path, vehicle=None, grid: EtrGrid | None = None, workers: in
     method["e_tr_pred"] = "sitl_harness.etr_sweep.build_etr"
     write_table(dest, veh, tilt_model=table.tilt_model, avoid=table.avoid,
                 e_tr_pred=Slot((grid.v, grid.tilt, grid.thrust_ratio), e_rep, info), method=method,
-                e_tr_pred_stop=table.e_pred_stop)
+                e_tr_pred_stop=table.e_pred_stop, e_tr_pred_brake=table.e_pred_brake)
     verify(dest, veh)
     if ckpt is not None:
         ckpt.remove()

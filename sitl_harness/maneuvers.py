@@ -315,7 +315,74 @@ class OnlineFlight:
 
 
 
-def worst_contour_error(vehicle: Vehicle, ref: Reference | OnlineReference, thrust_ratio: float, seed: int) -> float:
+A0_S = 0.1  # [s] the brake's start acceleration is measured over this (companion/onboard/sensing.py, A0_S)
+
+
+@dataclass(frozen=True)
+class BrakeReference:
+    """``brake``: governor mode's recovery brake as the daemon flies it (companion/onboard/offboard.py `recover`):
+    cruise along +x at `v`, then at t = 0 — the moment the autopilot shows it flies the daemon's stream — the
+    straight jerk-limited stop from the measured state (`best_stop` at `a_stop`, its acceleration turned from
+    the one measured over `A0_S` at `jerk`), then rest at its end."""
+
+    name: str
+    v0: float
+    a_stop: float
+    jerk: float
+
+    @property
+    def t_end(self) -> float:
+        return self.v0 / self.a_stop + 2.0 * self.a_stop / self.jerk + COAST_S
+
+    @property
+    def p(self) -> np.ndarray:
+        return np.zeros((1, 2))
+
+    @property
+    def v(self) -> np.ndarray:
+        return np.array([[self.v0, 0.0]])
+
+    def flight(self) -> BrakeFlight:
+        return BrakeFlight(self)
+
+
+class BrakeFlight:
+    """One flight of a `BrakeReference`: the setpoints sent (its commanded path, Figure 11)."""
+
+    def __init__(self, ref: BrakeReference):
+        self.ref = ref
+        self.stop: Plan | None = None
+        self._seen: list[tuple[float, np.ndarray]] = []  # (t, velocity) over the last A0_S
+        self._t: list[float] = []
+        self._p: list[np.ndarray] = []
+
+    def setpoint(self, t: float, pos, vel):
+        ref = self.ref
+        vh = np.asarray(vel[:2], float)
+        self._seen = [(tk, vk) for tk, vk in self._seen if t - tk <= A0_S + 1e-9] + [(t, vh)]
+        if t < 0.0:
+            p, v, a = np.array([ref.v0 * t, 0.0]), np.array([ref.v0, 0.0]), np.zeros(2)
+        else:
+            if self.stop is None:
+                (t1, v1) = self._seen[0]
+                a0 = (vh - v1) / (t - t1) if t - t1 > 0.5 * A0_S else np.zeros(2)
+                sp_, sv, sa, sts, _ = best_stop(np.asarray(pos[:2], float), vh, ref.a_stop, [], 40, a0=a0,
+                                                jerk=ref.jerk)
+                self.stop = Plan("brake", np.arange(len(sp_)) * sts, sp_, sv, sa, True, -np.inf)
+                self.stop_t = t
+            p, v, a = self.stop.sample(t - self.stop_t)
+        if t >= -WINDOW_S - 1e-9:
+            self._t.append(t)
+            self._p.append(np.asarray(p, dtype=float))
+        return p, v, a
+
+    def path(self):
+        """The setpoints sent from −WINDOW_S on: (times, points (m, 2))."""
+        return np.array(self._t), np.array(self._p)
+
+
+def worst_contour_error(vehicle: Vehicle, ref: Reference | OnlineReference | BrakeReference, thrust_ratio: float,
+                        seed: int) -> float:
     """Fly `ref` (after SETTLE_S on its entry line) and return the worst horizontal contour error
     from t = 0 to its end against the path commanded in that flight (Figure 11); +inf if the vehicle
     was lost."""

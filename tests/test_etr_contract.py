@@ -30,7 +30,7 @@ AVOID_SHA256 = "e5828d6e2bf147ccd38893f0e560c17aaff5fad63c3057de47cc22aa2030c2ec
 
 
 def test_shipped_mambo_table_carries_a_monotone_etr_slot_and_the_untouched_avoid_slot():
-    assert TABLE.available == ["stop", "avoid", "e_tr_pred", "e_tr_pred_stop"]
+    assert TABLE.available == ["stop", "avoid", "e_tr_pred", "e_tr_pred_stop", "e_tr_pred_brake"]
     e = TABLE.e_pred.values
     assert is_monotone(e, SLOTS["e_tr_pred"][2]) and np.all(e > 0)
     g = TABLE.e_pred_stop  # the governor's own: on the same axes, monotone, never above the general surface

@@ -138,8 +138,9 @@ def tiny_build(tmp_path_factory):
 
 def test_tiny_build_writes_a_monotone_slot_and_keeps_the_avoid_slot(tiny_build):
     before, after, summary = tiny_build
-    assert after.available == ["stop", "avoid", "e_tr_pred", "e_tr_pred_stop"]
-    assert np.array_equal(after.e_pred_stop.values, before.e_pred_stop.values)  # the governor's slot kept exactly
+    assert after.available == ["stop", "avoid", "e_tr_pred", "e_tr_pred_stop", "e_tr_pred_brake"]
+    assert np.array_equal(after.e_pred_stop.values, before.e_pred_stop.values)  # the governor's slots kept exactly
+    assert np.array_equal(after.e_pred_brake.values, before.e_pred_brake.values)
     e = after.e_pred.values
     assert e.shape == (2, 2, 2) and np.all(np.isfinite(e)) and np.all(e > es.MARGIN_ABS)
     assert is_monotone(e, SLOTS["e_tr_pred"][2])

@@ -90,8 +90,8 @@ def hold_limit(table, **kw) -> float:
 
 
 def brake_limit(table) -> float:
-    """... and under the recovery brake's own stop contract."""
-    return hold_limit(table, recovery_dt=0.02)
+    """... and under the recovery brake's own stop contract (and its controller contract, `e_tr_pred_brake`)."""
+    return hold_limit(table, recovery_dt=0.02, e_brake=True)
 
 
 def second_stop(rig: Rig) -> tuple[float, float, float]:
@@ -118,8 +118,9 @@ def test_the_first_stop_shows_the_switch_and_the_second_flies_from_the_higher_li
     assert not off.log.named("recovery_brake")
     table, veh = on.daemon.table, on.daemon.table.vehicle
     first = on.log.named("hold_trigger")[0]["t"]
+    # (the Hold's stop contract, with the brake's controller contract: the brake flies that first stop)
     assert max(s["v_max"] or 0 for s in on.log.states if MEASURED_S <= s["t"] < first) == \
-        pytest.approx(hold_limit(table), rel=1e-6)
+        pytest.approx(hold_limit(table, e_brake=True), rel=1e-6)
     assert said[2]["t"] > first and v_max(on) == pytest.approx(brake_limit(table), rel=1e-6)
     assert v_max(off) == pytest.approx(hold_limit(table), rel=1e-6) and v_max(on) > 1.3 * v_max(off)
     # each stop: offboard asked one cycle after the stop command (its first setpoint streamed before), shown, then
@@ -265,9 +266,10 @@ def test_the_switch_asked_after_one_setpoint_then_seen_streams_the_stop():
     assert first.setpoint is not None and not first.enter and not first.hold
     second = _recover(ctl, 10.02)
     assert second.enter and second.setpoint is not None
-    third = _recover(ctl, 10.04, mode="offboard")
+    third = _recover(ctl, 10.04, mode="offboard")  # shown: the stop from the state measured now
     assert not third.enter and not third.hold and third.setpoint is not None
-    assert float(np.hypot(*third.setpoint.v)) < 4.0  # braking
+    assert np.allclose(third.setpoint.p, (0.0, 0.0)) and third.setpoint.a[0] < 0.0  # braking from here
+    assert float(np.hypot(*_recover(ctl, 10.2, mode="offboard").setpoint.v)) < 4.0
     late = _recover(ctl, 13.0, mode="offboard")  # shown: nothing more awaited
     assert not late.hold and ctl.state == OffboardState.BRAKING and ctl.refused is None
 

@@ -59,10 +59,12 @@ the firmware's jerk MPC_JERK_MAX and resuming as the firmware does, `px4_cp_auto
 mission's MPC_JERK_AUTO),
 `no_guard` (daemon off), and the negative controls `<mode>_x<k>` (the contract's speed × k) and
 `<mode>_no_etr` (the contract without the E_tr inflation); `governor_brake` is the governor with its recovery brake
-(`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking); `governor_ramp` the
-governor with its approach ramp (`governor.approach_ramp_m_s` RAMP_ARM_M_S). The governor arms read the SITL's
-sensor as one DISTANCE_SENSOR (the nearest return of its field, `shots_per_frame` its bins), `governor_sector` as
-offboard does, its bins in OBSTACLE_DISTANCE.
+(`governor.recovery_brake`: the daemon's own stop in offboard, at the airframe's braking); `governor_brake_proven`
+the same with its switch taken as shown from take-off (a measurement of what the brake's own limit buys before a
+first stop has shown the switch, not a mode the daemon offers); `governor_ramp` the governor with its approach ramp
+(`governor.approach_ramp_m_s` RAMP_ARM_M_S). The governor arms read the SITL's sensor as one DISTANCE_SENSOR (the
+nearest return of its field, `shots_per_frame` its bins), `governor_sector` as offboard does, its bins in
+OBSTACLE_DISTANCE.
 """
 
 from __future__ import annotations
@@ -89,7 +91,7 @@ Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
 OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "px4_cp_auto_jerk", "ac_avoid", "no_guard")
-ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|ramp|sector)$")
+ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|brake_proven|ramp|sector)$")
 SENSOR_FOV_DEG, SENSOR_BIN_DEG = 60, 5  # the SITL sensor every campaign flies: its field and its bins
 RAMP_ARM_M_S = 0.3  # the approach ramp of the `governor_ramp` arm
 LINK_FAULTS = ("cmd_loss", "cmd_burst", "cmd_jitter")  # the daemon's outbound datagrams (flights.OutboundFaults)
@@ -218,8 +220,8 @@ class CampaignSpec(_Strict):
         for a in v:
             if a not in BASELINES and not ARM_RE.match(a):
                 raise ValueError(f"unknown arm {a!r}: governor, offboard, {', '.join(BASELINES)}, "
-                                 "<mode>_x<k>, <mode>_no_etr, <mode>_claim, governor_brake, governor_ramp or "
-                                 "governor_sector")
+                                 "<mode>_x<k>, <mode>_no_etr, <mode>_claim, governor_brake, governor_brake_proven, "
+                                 "governor_ramp or governor_sector")
         if len(set(v)) != len(v) or not v:
             raise ValueError("arms must be distinct and at least one")
         return v
@@ -469,7 +471,8 @@ def scenario_dict(s: dict, arm: str) -> dict:
           "wind": {"mean_m_s": veh.wind.mean_m_s * s["wind_factor"], "from_deg": s["wind_from_deg"],
                    "gust_m_s": veh.wind.gust_m_s * s["gust_factor"]},
           "faults": faults}
-    if off or arm == "governor_brake":  # a companion-only aircraft's offboard-loss action: Hold (the start-up check)
+    # a companion-only aircraft's offboard-loss action: Hold (the start-up check)
+    if off or arm.startswith("governor_brake"):
         sc["params"] = {"COM_OBL_RC_ACT": 5} if s["personality"] == "px4" else {}
     if off:
         sc["start"] = {"alt_m": ALT_M}
@@ -520,7 +523,7 @@ def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
         beams = max(round(fov_of(s) / SENSOR_BIN_DEG), 1)
         cfg["sensors"] = [{"kind": "obstacle_distance", "h_fov_deg": fov_of(s)} if arm == "governor_sector" else
                           {"kind": "distance_sensor", "h_fov_deg": fov_of(s), "shots_per_frame": beams}]
-        if arm == "governor_brake":
+        if arm.startswith("governor_brake"):
             cfg["governor"] = {"recovery_brake": True}
         elif arm == "governor_ramp":
             cfg["governor"] = {"approach_ramp_m_s": RAMP_ARM_M_S}
@@ -633,7 +636,7 @@ def _with_braking(s: dict):
 
     def wrap(t):
         veh = t.vehicle.model_copy(update={"braking": _braking(s)})
-        out = ContractTable(t.meta, veh, t.avoid, t.e_pred, t.path, t.e_pred_stop)
+        out = ContractTable(t.meta, veh, t.avoid, t.e_pred, t.path, t.e_pred_stop, t.e_pred_brake)
         out.signature = t.signature
         return out
     return wrap
@@ -653,6 +656,8 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
     if arm == "no_guard":
         rig.daemon_on = False
+    if arm == "governor_brake_proven":  # the brake's switch taken as shown from the start (a measurement)
+        rig.daemon.cycle.brake.shown()
     if arm.endswith("_claim"):  # negative control: no detection range from evidence
         rig.daemon.cycle.sensing.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     seconds = spec.duration_s

@@ -237,7 +237,7 @@ def cmd_table_etr(args) -> int:
     """The controller contract E_tr_pred (Figure 12) from SITL flights, written into the table."""
     from contracts.runner import show_progress
     from contracts.vehicle import DATA_DIR
-    from sitl_harness.etr_sweep import build_etr  # offline: flies the SITL
+    from sitl_harness.etr_sweep import build_etr, build_governor_etr  # offline: flies the SITL
 
     table = table_file(args.table)
     if table.resolve().parent == DATA_DIR and args.out is None:
@@ -245,6 +245,18 @@ def cmd_table_etr(args) -> int:
                             "are not rewritten in place)")
     # a signed result vouches for the avoid contract it keeps from its base: checked before any flight
     base = _base_checked(table, args.sign_key, args) if args.sign_key else None
+    if args.brake:
+        if args.resume:
+            raise ContractError("table etr: --resume is for the offboard sweep, not --brake (a few minutes, "
+                                "no checkpoint)")
+        with _interruptible():
+            s = build_governor_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
+                                   progress=show_progress(not args.json), out=args.out, brake=True)
+        signed = _sign_after(s["path"], args.sign_key)
+        _emit({"ok": True, **s}, args.json, f"wrote the recovery brake's E_tr_pred into {s['path']}: {s['cells']} "
+              f"cells in {s['wall_s']} s, {s['monotone_repairs_up']} repaired upward{signed}"
+              + (f"; the base table: {base}" if base else ""))
+        return 0
     with _interruptible():
         s = build_etr(table, args.vehicle, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                       progress=show_progress(not args.json), out=args.out, resume=args.resume)

@@ -223,9 +223,11 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"{cfg.mode} mode ({cfg.daemon_mode.contract} contract), {engage}",
         *short,
         *([] if not cfg.governor.recovery_brake else [
-            "recovery brake on: a stop is flown by the daemon in offboard at the airframe's braking, then Hold, and the "
-            "limit is its own stop contract's while its start-up checks pass (offboard mode, offboard-loss action Hold "
-            "or Land); else, or once the autopilot refuses the switch, the autopilot's Hold's limit. It assumes the "
+            "recovery brake on: a stop is flown by the daemon in offboard at the airframe's braking, then Hold, its "
+            "tracking error within its own E_tr_pred (the table's e_tr_pred_brake: without it the brake is "
+            "unavailable); the limit is its own stop contract's once its switch has been shown in this flight and its "
+            "start-up checks pass (offboard mode, offboard-loss action Hold or Land); until then, or once the "
+            "autopilot refuses the switch, the autopilot's Hold's limit. It assumes the "
             "autopilot accepts the switch: refused above the Hold's limit, the stop is not guaranteed (logged as the "
             "autopilot's violation)"]),
         f"sensors: {sensors}",

@@ -87,7 +87,7 @@ class Cycle:
             # its stop contract allows its switch the switch itself, one cycle and the delivery budget
             # (contracts/stop.py `recovery_brake`)
             budget = veh.braking.hold_switch_s + 1.0 / cfg.loop_hz + cfg.delivery.t_cmd_s
-            self.flying = RecoveryBrake(veh, budget)
+            self.flying = RecoveryBrake(veh, budget, covered=getattr(table, "e_pred_brake", None) is not None)
         self._jerk_heard: float | None = None  # the autopilot's jerk last given to the approach ramp
         self.first_seen_in_air: bool | None = None  # restart in flight ⇒ no engagement until asked anew
         # calibration.legs: the calibration plan's hold legs, flown by the daemon (governor mode only: config.py)
@@ -190,7 +190,7 @@ class Cycle:
         first = Part()
         if brake is not None:  # its availability, before the decision (its own stop contract sets the limit)
             first = brake.available(self.checks.brake)
-            self.sup.use_recovery_brake(1.0 / self.cfg.loop_hz if brake.proven else None)
+            self.sup.use_recovery_brake(1.0 / self.cfg.loop_hz if brake.proven else None, flies=brake.ready)
         d = self.sup.step(i)
         protocol, view = g.protocol, self.view
         events = [*first.events, *(protocol.events if protocol is not None else ()),

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 from contracts.flat import horizontal_accel_limit
-from contracts.stop import airframe_decel, braking_decel, stop_jerk
+from contracts.stop import braking_decel, recovery_brake_stop, stop_jerk
 from contracts.vehicle import Vehicle
 
 from .authority import HOLD, ModeRequest, Requester
@@ -23,6 +23,7 @@ from .turn import Part, Turn
 ENTRY = "offboard"  # the mode the flying actors ask for (OFFBOARD / GUIDED: the adapter's name)
 FAILSAFE_LATCH = "fail-safe stop: held until the pilot or CG_ENGAGE decides"
 BRAKE_LATCH = "recovery brake: held until the pilot or the ground station changes the mode"
+NOT_COVERED = "the table carries no E_tr_pred for the brake's own stop (contract-guard table etr --brake)"
 
 
 def brakeable(turn: Turn) -> bool:
@@ -135,9 +136,12 @@ class RecoveryBrake(Flying):
     before, the autopilot's Hold's does, so a first switch refused or late still stops from within the Hold's
     limit."""
 
-    def __init__(self, vehicle: Vehicle, switch_budget_s: float):
+    def __init__(self, vehicle: Vehicle, switch_budget_s: float, covered: bool = True):
+        """`covered`: the table carries the brake's controller contract (`e_tr_pred_brake`); without it the brake is
+        unavailable (no E_tr_pred bounds the stop it flies)."""
         super().__init__(OffboardController(None), vehicle)
         self.within_s = switch_budget_s
+        self.covered = covered
         self.ready = False  # the brake flies a stop the stop contract calls for
         self._said: tuple[bool, bool, str] | None = None
         self._v0 = 0.0  # [m/s] the ground speed when the brake was last called
@@ -152,6 +156,7 @@ class RecoveryBrake(Flying):
         brake's own start-up checks and fallback)."""
         br = self.controller
         ready, why = (False, f"the switch to offboard was refused: {br.refused}") if br.refused else \
+            (False, NOT_COVERED) if not self.covered else \
             (False, "its start-up checks are pending") if checks is None else checks
         self.ready = ready
         now = (ready, self.proven, why)
@@ -177,9 +182,9 @@ class RecoveryBrake(Flying):
             br.rearm()
         sound = brakeable(turn)
         was_refused, was_braking = br.refused is not None, br.state == OffboardState.BRAKING
-        acts = br.recover(self._ask(
-            turn, start=d.hold and sound and self.ready, abort=not sound,
-            a_stop=airframe_decel(veh, thrust_in_range(veh, i.thrust_ratio)), track_jerk=stop_jerk(veh), a0=turn.a0))
+        a_stop, jerk = recovery_brake_stop(veh, thrust_in_range(veh, i.thrust_ratio))
+        acts = br.recover(self._ask(turn, start=d.hold and sound and self.ready, abort=not sound, a_stop=a_stop,
+                                    track_jerk=jerk, a0=turn.a0))
         braking = br.state == OffboardState.BRAKING
         if braking and not was_braking:  # the speed the brake was called at: a refusal judged on it too
             self._v0 = i.ground_speed

@@ -244,11 +244,18 @@ class OffboardController:
         delivery): entering, offboard is not entered; braking, the recovery brake holds at the next cycle."""
         self._refusal = why
 
-    def _switched(self, t, mode: str, acts) -> bool:
+    def _switched(self, ask: Ask, acts) -> bool:
         """The recovery brake's switch to offboard: asked from the cycle after the first setpoint until shown, or
-        refused / not shown in time (False: Hold now)."""
+        refused / not shown in time (False: Hold now). Shown, the autopilot flies the stream from now on: the stop
+        is planned again from the state measured now (the one streamed before was planned from the state at the
+        call, behind a vehicle that flew on under the autopilot's mission meanwhile), so the stop it tracks is the
+        one its controller contract flew (sitl_harness/etr_sweep.py ``brake``) and starts within the brake's dead
+        time (contracts/stop.py `recovery_brake`)."""
+        t, mode = ask.t, ask.mode
         if mode == "offboard":
             self._switch = False
+            self._plan_stop(ask, [], math.inf, ask.a0)
+            self._t_state = t
         elif self._refusal is not None:
             self.refused = self._refusal
             acts.hold = True
@@ -278,7 +285,7 @@ class OffboardController:
             acts.hold = True
             self._go(t, S.HELD, HELD, acts)
             return acts
-        if self._switch and not self._switched(t, mode, acts):
+        if self._switch and not self._switched(ask, acts):
             return acts
         tau = t - self._t_state
         plan = self._stop_plan

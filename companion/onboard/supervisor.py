@@ -290,7 +290,7 @@ class Supervisor:
         self._held_for: list[Cause] = []  # the causes of the daemon's current Hold
         self._would: tuple[Cause, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
-        self._e_pred_at: tuple[float, float, float, float] | None = None  # (v, tilt, thrust, E_tr_pred)
+        self._e_pred_at: tuple | None = None  # (v, tilt, thrust, surface, E_tr_pred)
         self._e_pred_window = WindowMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
         self.e_tr_floor = e_tr_floor_m
         self._omega_at: dict[tuple, Omega] = {}  # (d_od, r_obst, e_tr measured, thrust, brake, ramp) → Ω
@@ -305,6 +305,9 @@ class Supervisor:
         # the stop contract's brake: None, the autopilot's Hold; the loop period, the daemon's recovery brake
         # (set by the cycle while the brake is available, contracts/stop.py `recovery_brake`)
         self.recovery_dt: float | None = None
+        # the E_tr_pred surface of the stop contract: the recovery brake's while it flies the stops (its controller
+        # contract covers its own stop as well as what the autopilot flies), else the contract's own
+        self.e_surface = contract
         self.ramp = ApproachRamp(ramp_m_s, table.vehicle.braking.jerk_max_m_s3) \
             if ramp_m_s is not None and self.mode.governs else None
 
@@ -323,10 +326,13 @@ class Supervisor:
         """CG_ENGAGE set anew: a latched Hold is the pilot's to resume."""
         self.latched = False
 
-    def use_recovery_brake(self, loop_dt: float | None) -> None:
+    def use_recovery_brake(self, loop_dt: float | None, flies: bool = False) -> None:
         """The stop contract's brake from this cycle on: the daemon's recovery brake, flown at `loop_dt` (its switch
-        shown in time in this flight), or None: the autopilot's Hold."""
+        shown in time in this flight), or None: the autopilot's Hold. `flies`: the recovery brake flies the stops
+        (available, its switch shown or not), so the controller contract is the brake's (`e_tr_pred_brake`): the
+        tracking error of the stop it flies is predicted and judged against the surface that flew it."""
         self.recovery_dt = loop_dt
+        self.e_surface = "brake" if flies and self.contract == "stop" else self.contract
 
     def switch_refused(self, d: Decision, i: Inputs, refused: bool, speed: float) -> Decision:
         """The recovery brake's assumption: the autopilot accepts its switch to offboard when called, within the
@@ -414,9 +420,10 @@ class Supervisor:
         """E_tr_pred (Figure 12) of the controller contract at speed v, at the tilt of the operating point
         being flown (a Ω with no speed — D_od lost, say — has no tilt of its own), one lookup per value."""
         tilt = self._tilt_in_force if self._tilt_in_force is not None else tilt
-        if self._e_pred_at is None or self._e_pred_at[:3] != (v, tilt, thrust_ratio):
-            self._e_pred_at = (v, tilt, thrust_ratio, self.table.e_tr_pred(v, tilt, thrust_ratio, self.contract))
-        return self._e_pred_at[3]
+        if self._e_pred_at is None or self._e_pred_at[:4] != (v, tilt, thrust_ratio, self.e_surface):
+            self._e_pred_at = (v, tilt, thrust_ratio, self.e_surface,
+                               self.table.e_tr_pred(v, tilt, thrust_ratio, self.e_surface))
+        return self._e_pred_at[4]
 
     def omega(self, i: Inputs) -> Omega:
         """Ω of the speed policy flown at this cycle's inputs (the contract's, `contract_omega`, by default)."""
@@ -456,13 +463,14 @@ class Supervisor:
         return om
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
-        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s)
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s, self.e_surface)
         om = self._omega_at.get(key)
         if om is None:
             if len(self._omega_at) >= 4:  # this cycle's few lookups (with and without the brake, the ramp)
                 self._omega_at.clear()
             om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
-                                                        a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s)
+                                                        a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s,
+                                                        e_brake=self.e_surface == "brake")
         return om
 
     # ------------------------------------------------------------------ the cycle
