@@ -94,6 +94,15 @@ def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
+def slot_sha256(name: str, slot: Slot) -> str:
+    """The hash one slot's arrays would have alone (`arrays_sha256` of a table holding only it): what ties the
+    avoid slot's limiting trajectories to it, whatever slots a table adds beside it later."""
+    vname, anames, _, _ = SLOTS[name]
+    arrays = {an: np.asarray(ax, dtype=np.float64) for an, ax in zip(anames, slot.axes)}
+    arrays[vname] = np.asarray(slot.values, dtype=np.float64)
+    return arrays_sha256(arrays)
+
+
 # ============================================================================ writer
 
 
