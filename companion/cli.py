@@ -196,6 +196,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "(warns; below the grid's lowest thrust ratio the daemon finds no safe speed)")
     b.add_argument("--resume", action="store_true",
                    help="continue an interrupted build from its checkpoint (OUT.partial/, kept until the table is written)")
+    b.add_argument("--extend", type=Path, metavar="TABLE",
+                   help="keep the verified avoid cells of this built table (same vehicle, tilt model, tilt and thrust "
+                   "axes and solver settings) and solve only the ρ points its axis lacks; its E_tr_pred is carried "
+                   "over; without --grid: its axes with the default ρ axis")
     b.add_argument("--sign-key", type=Path, help="sign the table with this ed25519 private key (PEM)")
     b.add_argument("--json", action="store_true", help=JSON)
 

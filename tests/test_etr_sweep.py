@@ -119,8 +119,10 @@ def test_online_geometries_without_a_verified_plan_are_skipped_and_counted():
     skipped = []
     refs = es.cell_references(TABLE, MAMBO, 6.0, tilt, 1.0, idx, rhos=(0.03, 0.2), skipped=skipped)
     names = [r.name for r in refs]
-    assert skipped == ["online@rho=0.0305"] and "online@rho=0.0305" not in names  # the planner brakes there
-    assert "online@rho=0.201" in names and "avoid@rho=0.0305" in names
+    rho = t.avoid.axes[0]
+    low, mid = (f"{rho[int(np.argmin(np.abs(rho - r)))]:.3g}" for r in (0.03, 0.2))  # the grid cells flown
+    assert skipped == [f"online@rho={low}"] and f"online@rho={low}" not in names  # the planner brakes there
+    assert f"online@rho={mid}" in names and f"avoid@rho={low}" in names
 
 
 @pytest.fixture(scope="module")

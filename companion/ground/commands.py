@@ -212,6 +212,8 @@ def cmd_table_build(args) -> int:
     from contracts.vehicle import load_vehicle
 
     vehicle = load_vehicle(args.vehicle)
+    if args.stop_only and args.extend is not None:
+        raise ContractError("table build: --extend keeps avoid cells; it does not go with --stop-only")
     if args.stop_only:
         meta = write_table(args.out, vehicle, tilt_model=args.tilt_model)
         signed = _sign_after(args.out, args.sign_key)
@@ -225,7 +227,7 @@ def cmd_table_build(args) -> int:
         summary = build_avoid_table(vehicle, args.out, grid=args.grid, workers=args.workers, scheduler=args.scheduler,
                                     tilt_model=args.tilt_model or vehicle.tilt_model,
                                     progress=show_progress(not args.json), resume=args.resume,
-                                    partial_grid=args.partial_grid)
+                                    partial_grid=args.partial_grid, extend=args.extend)
     for gap in summary["coverage_gaps"]:
         print(f"contract-guard: warning: the grid does not cover the vehicle: {gap}", file=sys.stderr)
     signed = _sign_after(args.out, args.sign_key)
