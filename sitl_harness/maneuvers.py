@@ -250,7 +250,24 @@ class OnlineReference:
         return OnlineFlight(self)
 
 
-class OnlineFlight:
+class _SentPath:
+    """The setpoints a flight sent from −WINDOW_S on (its commanded path, Figure 11)."""
+
+    def __init__(self):
+        self._t: list[float] = []
+        self._p: list[np.ndarray] = []
+
+    def _sent(self, t: float, p) -> None:
+        if t >= -WINDOW_S - 1e-9:
+            self._t.append(t)
+            self._p.append(np.asarray(p, dtype=float))
+
+    def path(self):
+        """The setpoints sent from −WINDOW_S on: (times, points (m, 2))."""
+        return np.array(self._t), np.array(self._p)
+
+
+class OnlineFlight(_SentPath):
     """One flight of an `OnlineReference`: the setpoints sent (its commanded path for the contour
     error, Figure 11, as the on-board estimator sees it) and the replans — from the measured state,
     every REPLAN_S while the disc is still ahead, warm-started from the plan in progress, which a
@@ -268,8 +285,7 @@ class OnlineFlight:
         self.stop: Plan | None = None
         self.stop_t = 0.0
         self._a_last = np.zeros(2)  # the last setpoint's acceleration (the fail-safe stop starts from it)
-        self._t: list[float] = []
-        self._p: list[np.ndarray] = []
+        super().__init__()
 
     def setpoint(self, t: float, pos, vel):
         ref, d = self.ref, self.ref.disc
@@ -304,14 +320,8 @@ class OnlineFlight:
             else:
                 p, v, a = self.plan.sample(tau)
         self._a_last = np.asarray(a, dtype=float)
-        if t >= -WINDOW_S - 1e-9:
-            self._t.append(t)
-            self._p.append(np.asarray(p, dtype=float))
+        self._sent(t, p)
         return p, v, a
-
-    def path(self):
-        """The setpoints sent from −WINDOW_S on: (times, points (m, 2))."""
-        return np.array(self._t), np.array(self._p)
 
 
 
@@ -346,15 +356,14 @@ class BrakeReference:
         return BrakeFlight(self)
 
 
-class BrakeFlight:
+class BrakeFlight(_SentPath):
     """One flight of a `BrakeReference`: the setpoints sent (its commanded path, Figure 11)."""
 
     def __init__(self, ref: BrakeReference):
+        super().__init__()
         self.ref = ref
         self.stop: Plan | None = None
         self._seen: list[tuple[float, np.ndarray]] = []  # (t, velocity) over the last A0_S
-        self._t: list[float] = []
-        self._p: list[np.ndarray] = []
 
     def setpoint(self, t: float, pos, vel):
         ref = self.ref
@@ -371,14 +380,8 @@ class BrakeFlight:
                 self.stop = Plan("brake", np.arange(len(sp_)) * sts, sp_, sv, sa, True, -np.inf)
                 self.stop_t = t
             p, v, a = self.stop.sample(t - self.stop_t)
-        if t >= -WINDOW_S - 1e-9:
-            self._t.append(t)
-            self._p.append(np.asarray(p, dtype=float))
+        self._sent(t, p)
         return p, v, a
-
-    def path(self):
-        """The setpoints sent from −WINDOW_S on: (times, points (m, 2))."""
-        return np.array(self._t), np.array(self._p)
 
 
 def worst_contour_error(vehicle: Vehicle, ref: Reference | OnlineReference | BrakeReference, thrust_ratio: float,
