@@ -332,3 +332,14 @@ def test_a_speed_command_is_sent_every_cycle_until_the_autopilot_answers_it():
     assert d.send_speed is None  # answered: not until it changes (or 5 s)
     assert any(n == "violation_end" and f["subsystem"] == "delivery" for n, f in d.events)
     assert s.step(replace(BASE, t=5.2)).send_speed is not None
+
+
+def test_an_obstacle_wider_than_r_obst_breaks_the_avoid_contract_not_the_stop_contract():
+    """R_obst is what the swerve is planned round: a wall seen wider is an environment violation under the avoid
+    contract; the stop contract stops short of whatever is within D_od, so under it nothing is broken (a wall beside
+    a governor's route is not a finding)."""
+    wall = replace(BASE, obstacle_width=3.0)
+    subsystems = lambda d: [f["subsystem"] for n, f in d.events if n == "violation_start"]  # noqa: E731
+    assert "environment" not in subsystems(sup("governor").step(wall))
+    assert "environment" not in subsystems(sup("shadow").step(wall))
+    assert "environment" in subsystems(sup("offboard").step(replace(wall, mode="offboard")))
