@@ -11,14 +11,16 @@ from contracts.table import load_for_vehicle
 from contracts.vehicle import load_vehicle
 
 
-def test_the_default_rho_axis_halves_the_shipped_log_step_and_keeps_its_points():
+def test_the_default_rho_axis_halves_the_120_point_log_step_and_keeps_its_points():
+    """The default build axis (the shipped tables') is the 120-point axis with its geometric midpoints."""
+    coarse = np.geomspace(0.01, 0.97, 120)
     for name in ("mambo", "x500"):
         veh = load_vehicle(name)
-        shipped = load_for_vehicle(veh).avoid.axes[0]
         rho = default_grid(veh).rho
-        assert np.allclose(rho[::2], shipped, rtol=1e-12, atol=0)  # every shipped cell is a cell of the rebuild
+        assert np.allclose(load_for_vehicle(veh).avoid.axes[0], rho, rtol=1e-12, atol=0)
+        assert np.allclose(rho[::2], coarse, rtol=1e-12, atol=0)  # every 120-point cell is a cell of it
         step = float(np.max(rho[1:] / rho[:-1]))
-        assert step <= math.sqrt(float(np.max(shipped[1:] / shipped[:-1]))) * (1 + 1e-12) < 1.02
+        assert step <= math.sqrt(float(np.max(coarse[1:] / coarse[:-1]))) * (1 + 1e-12) < 1.02
 
 
 def test_where_a_pass_is_possible_f_falls_as_the_inverse_square_root_of_rho():

@@ -41,13 +41,15 @@ def _one_line(r, *words):
         assert w in r.stderr, r.stderr
 
 
-def _edited(dst: Path, name="x500", note=False):
+def _edited(dst: Path, name="x500", note=False, old=False):
     """The shipped table with its controller contract halved (a faster contract) and the hash recomputed: what a
-    hand with a text editor and numpy makes; unsigned."""
+    hand with a text editor and numpy makes; unsigned. `old`: without the slot the old code did not know (`_as_old`)."""
     with np.load(shipped_table(name)) as z:
         a = {k: z[k].copy() for k in z.files}
     meta = json.loads(a.pop("metadata_json").tobytes())
     a["etr_e"] = a["etr_e"] * 0.5
+    if old:
+        _drop_brake(a, meta)
     meta["arrays_sha256"] = arrays_sha256(a)
     if note:
         meta["method"] = {**meta.get("method", {}), "by": "someone"}
@@ -353,6 +355,26 @@ def test_negative_control_without_the_check_the_same_guid_timeout_passed(monkeyp
     assert chk and chk[-1]["ok"], chk
 
 
+def _drop_brake(a: dict, meta: dict) -> None:
+    """A table's arrays and metadata without the recovery brake's E_tr_pred slot (newer than the old code)."""
+    for k in [k for k in a if k.startswith("etrb_")]:
+        del a[k]
+    meta["available"] = [x for x in meta["available"] if x != "e_tr_pred_brake"]
+    for key in ("contracts", "axes", "method"):
+        meta.get(key, {}).pop("e_tr_pred_brake", None)
+
+
+def _as_old(name: str, dst: Path) -> Path:
+    """The shipped table as the old code can read it (`_drop_brake`), its hash recomputed."""
+    with np.load(shipped_table(name)) as z:
+        a = {k: z[k].copy() for k in z.files}
+    meta = json.loads(a.pop("metadata_json").tobytes())
+    _drop_brake(a, meta)
+    meta["arrays_sha256"] = arrays_sha256(a)
+    np.savez(dst, metadata_json=np.frombuffer(json.dumps(meta).encode(), np.uint8), **a)
+    return dst
+
+
 def _old(old_checkout, *args, timeout=120):
     return subprocess.run([sys.executable, "-m", "companion.cli", *map(str, args)], capture_output=True, text=True,
                           cwd=str(old_checkout), timeout=timeout)
@@ -361,13 +383,14 @@ def _old(old_checkout, *args, timeout=120):
 def test_negative_control_the_old_cli_signed_an_edit_and_could_not_tell_tables_apart(keys, tmp_path, old_checkout):
     """The old `table sign` signed the edited table (exit 0) and the daemon's public key then verified it; the old
     `run --check` started an older signed table after a newer one, its banner the same but for the file name."""
-    bad = _edited(tmp_path / "edited.npz")
+    bad = _edited(tmp_path / "edited.npz", old=True)
     r = _old(old_checkout, "table", "sign", bad, "--key", keys["private_key"], "--out", tmp_path / "laundered.npz")
     assert r.returncode == 0, r.stderr
     assert verify(tmp_path / "laundered.npz", public_key=keys["public_key"]).signature["verified"]
     old, new = tmp_path / "old.npz", tmp_path / "new.npz"
-    sign_table(shipped_table("mambo"), keys["private_key"], old, serial=100)
-    sign_table(shipped_table("mambo"), keys["private_key"], new, serial=200)
+    shipped = _as_old("mambo", tmp_path / "shipped-as-old.npz")
+    sign_table(shipped, keys["private_key"], old, serial=100)
+    sign_table(shipped, keys["private_key"], new, serial=200)
     said = {}
     for name, table in (("new", new), ("old", old)):
         served = tmp_path / "in-service.npz"
