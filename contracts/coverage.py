@@ -53,9 +53,13 @@ def ray_intervals(p, theta: float, sectors: np.ndarray) -> np.ndarray:
     return np.column_stack([lo, hi])
 
 
-def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: float = 0.0) -> float:
+def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: float = 0.0,
+                     start_m: float = 0.0) -> float:
     """How far the ray from p along θ runs through seen-free space without a break: the end of the chain
     of the sectors' stretches that starts at p (0 when p's own neighbourhood along θ was never seen).
+    `start_m`: the chain may start this far along the ray — a stretch of the ray inside the vehicle itself, where
+    an obstacle would already be a collision (a hovering vehicle a millimetre behind the apexes of the wedges it
+    just saw is otherwise outside every one of them).
 
     `shifts` (n, 2): where each sector's apex is known only to the segment from its apex to apex + shift (a
     sample taken up to a latency before the position it is placed at). A wedge is a translate of a convex
@@ -73,11 +77,11 @@ def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: f
     if len(iv) == 0:
         return 0.0
     iv = iv[np.argsort(iv[:, 0])]
-    reach = 0.0
+    reach, gap = 0.0, max(gap_m, start_m)  # the first stretch may start up to start_m along the ray
     for s0, s1 in iv:
-        if s0 > reach + gap_m + EPS:
+        if s0 > reach + gap + EPS:
             break  # a stretch not seen: beyond it nothing counts
-        reach = max(reach, float(s1))
+        reach, gap = max(reach, float(s1)), gap_m
     return reach
 
 

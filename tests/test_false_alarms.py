@@ -41,3 +41,51 @@ def test_bins_in_use_past_a_circle_are_still_refused():
     out = _decode(d, inc)
     assert [s for s in out if isinstance(s, Implausible)]
     assert [s.quality for s in out if isinstance(s, Scan)] == [1]
+
+
+# ------------------------------------------------------------------ a hovering camera that drops its centre bin
+def _hover_with_a_dropped_centre_bin(monkeypatch=None, start_m=None):
+    """A 17-bin camera (5°) hovering, its position drifting 1 mm back a frame; every bin free for 1 s, then one
+    frame without the centre bin (UINT16_MAX: unknown). D_od along the heading then."""
+    from companion.onboard import estimators
+    from companion.onboard.config import ContractConfig, SensorConfig
+    from companion.onboard.mavlink_in import bins_scan
+
+    if start_m is not None:
+        monkeypatch.setattr(estimators, "SWEPT_START_M", start_m)
+    cam = SensorConfig(kind="obstacle_distance", h_fov_deg=85.0, max_range_m=10.0)
+    e = estimators.DodEstimator([cam], ContractConfig(), stale_s=0.5, cover=False)
+    inc = math.radians(5.0)
+    bearings = (np.arange(17) - 8) * inc
+    t = 0.0
+    for k in range(31):
+        t = k / 30.0
+        e.add_position(t, -0.001 * k, 0.0)
+        e.add_heading(t, 0.0)
+        keep = np.ones(17, bool) if k < 30 else np.arange(17) != 8
+        e.add_scan(bins_scan(t, 0, bearings[keep], np.full(keep.sum(), np.inf), 10.0, inc, 10.0))
+        est = e.estimate(t, 0.0)
+    return est
+
+
+def test_a_hovering_camera_that_drops_its_centre_bin_keeps_what_it_just_saw_free():
+    """A dropped bin is unknown, not free: D_od along it is what the last frames saw free (the swept coverage,
+    less its position margin), not zero — zero is a "no safe speed" stop on one bin of one frame in clear air."""
+    est = _hover_with_a_dropped_centre_bin()
+    assert est.swept and 9.5 < est.d_od < 10.0
+
+
+def test_negative_control_a_chain_that_must_start_at_the_centre_leaves_a_drifting_hover_nothing(monkeypatch):
+    est = _hover_with_a_dropped_centre_bin(monkeypatch, start_m=0.0)
+    assert est.d_od == 0.0
+
+
+def test_the_swept_chain_starts_only_within_start_m_and_joins_no_gap_beyond_it():
+    from contracts.coverage import covered_distance
+
+    wedge = np.array([(0.03, 0.0, -0.3, 0.3, 5.0)])  # seen from 3 cm ahead
+    assert covered_distance((0.0, 0.0), 0.0, wedge) == 0.0
+    assert abs(covered_distance((0.0, 0.0), 0.0, wedge, start_m=0.05) - 5.03) < 1e-9
+    assert covered_distance((0.0, 0.0), 0.0, np.array([(0.08, 0.0, -0.3, 0.3, 5.0)]), start_m=0.05) == 0.0
+    two = np.array([(0.03, 0.0, -0.3, 0.3, 2.0), (2.06, 0.0, -0.3, 0.3, 3.0)])  # a 3 cm break at 2.03 m
+    assert abs(covered_distance((0.0, 0.0), 0.0, two, start_m=0.05) - 2.03) < 1e-9
