@@ -89,3 +89,107 @@ def test_the_swept_chain_starts_only_within_start_m_and_joins_no_gap_beyond_it()
     assert covered_distance((0.0, 0.0), 0.0, np.array([(0.08, 0.0, -0.3, 0.3, 5.0)]), start_m=0.05) == 0.0
     two = np.array([(0.03, 0.0, -0.3, 0.3, 2.0), (2.06, 0.0, -0.3, 0.3, 3.0)])  # a 3 cm break at 2.03 m
     assert abs(covered_distance((0.0, 0.0), 0.0, two, start_m=0.05) - 2.03) < 1e-9
+
+
+# ------------------------------------------------------------------ first detections that are no evidence
+from companion.onboard.config import SensorConfig  # noqa: E402
+from companion.onboard.detection_range import DetectionRange  # noqa: E402
+from companion.onboard.mavlink_in import bins_scan  # noqa: E402
+from sitl_harness.world import Column, World  # noqa: E402
+
+INC = math.radians(5.0)
+CAMERA = SensorConfig(kind="obstacle_distance", h_fov_deg=85.0, max_range_m=10.0)
+OFFSETS = (np.arange(17) - 8) * INC  # a RealSense-class camera's 17 bins of 5°
+
+
+def frame(world, x, y, yaw, stated=10.0, dropped=()):
+    """One frame of the camera's bins from (x, y, yaw): the nearest surface of each bin's three rays (its edges and
+    centre), as the SITL's model builds it, without noise; `dropped`: bins that report nothing (UINT16_MAX)."""
+    rays = np.concatenate([OFFSETS - INC / 2, OFFSETS, OFFSETS + INC / 2])
+    r = world.ray_cast(x, y, 2.0, yaw + rays, stated).reshape(3, 17).min(axis=0)
+    keep = np.array([k not in dropped for k in range(17)])
+    return OFFSETS[keep], r[keep]
+
+
+def fly_frames(world, poses, stated=None, dropped=None, est=None):
+    """Feed frames at 30 Hz from `poses` [(x, y, yaw)]; the bounds D_od took from first detections."""
+    est = est or DetectionRange([CAMERA])
+    out = []
+    for k, (x, y, yaw) in enumerate(poses):
+        t = k / 30.0
+        s = stated(t) if stated else 10.0
+        est.add_position(t, x, y)
+        est.add_heading(t, yaw)
+        b, r = frame(world, x, y, yaw, s, dropped(k) if dropped else ())
+        est.add_scan(bins_scan(t, 0, b, r, s, INC, 10.0))
+        e = est.estimate(t, s)
+        if e.evidence["bound_m"] < math.inf:
+            out.append((round(t, 3), e.d_od, e.reason))
+    return out
+
+
+def test_a_column_that_comes_into_view_in_a_turn_is_no_evidence():
+    """Yawing at 90°/s toward a column 5 m off at 70°: it enters at the field of view's edge while the two outer
+    bins report nothing, and is first seen two bins in: no frame looked at it before (a side entry)."""
+    world = World([Column(5 * math.cos(math.radians(70)), 5 * math.sin(math.radians(70)), 0.3)])
+    poses = [(0.0, 0.0, math.radians(3.0 * k)) for k in range(20)]
+    outer_dropped = lambda k: (15, 16) if k < 12 else ()  # noqa: E731  (in the sun, say)
+    assert fly_frames(world, poses, dropped=outer_dropped) == []
+
+
+def test_a_column_that_comes_out_from_behind_another_is_no_evidence():
+    """Flying +x past a near pole, a far one 4 m behind it comes out from behind it: the bins that now see the far
+    one saw the near one a frame before (occluded, not missed)."""
+    world = World([Column(6.0, 0.9, 0.25), Column(9.5, 1.9, 0.25)])
+    poses = [(1.5 * k / 30.0, 0.0, 0.0) for k in range(90)]
+    assert fly_frames(world, poses) == []
+
+
+def test_the_first_frame_is_no_evidence():
+    """The camera's first frame in a corridor: every wall it sees is inside its range, none of it late."""
+    world = World([Column(4.0, 0.0, 0.3)])
+    assert fly_frames(world, [(0.0, 0.0, 0.0)] * 5) == []
+
+
+def test_a_column_missed_where_the_camera_looked_is_still_evidence():
+    """The rule keeps its teeth: a dark column the camera looks straight at, reported free by the bin on it until
+    it is 4 m away (as in fog that hides), is first seen late: D_od bounded by its distance."""
+    world = World([Column(9.0, 0.0, 0.3)])
+    blind = World([])
+    est = DetectionRange([CAMERA])
+    poses = [(1.5 * k / 30.0, 0.0, 0.0) for k in range(110)]
+    out = []
+    for k, (x, y, yaw) in enumerate(poses):
+        t = k / 30.0
+        est.add_position(t, x, y)
+        est.add_heading(t, yaw)
+        b, r = frame(world if 9.0 - 0.3 - x < 4.0 else blind, x, y, yaw)
+        est.add_scan(bins_scan(t, 0, b, r, 10.0, INC, 10.0))
+        e = est.estimate(t, 10.0)
+        if e.evidence["bound_m"] < math.inf:
+            out.append(e.d_od)
+    assert out and max(out) < 4.1  # its first return: 4.06 m in the bin beside the centre
+
+
+def _fog_lift(monkeypatch=None):
+    """Honest fog: the camera states 3 m; at t = 1 s it lifts and the claim grows to 10 m with a column 4.4 m
+    ahead (the demo's case)."""
+    world = World([Column(4.4 + 0.3, 0.0, 0.3)])
+    return fly_frames(world, [(0.0, 0.0, 0.0)] * 60, stated=lambda t: 3.0 if t < 1.0 else 10.0)
+
+
+def test_a_column_first_seen_because_the_fog_lifted_is_no_evidence():
+    assert _fog_lift() == []
+
+
+def test_negative_control_without_the_claim_rules_the_fog_lift_is_a_late_detection(monkeypatch):
+    """The same frames with the stated-range rules taken out (a frame's claim not asked whether it reached the
+    column; the claim of the frame now, not the smaller of it and the last frame's): "first seen at 4.4 m"."""
+    from companion.onboard import detection_range as dr
+
+    monkeypatch.setattr(dr._View, "saw_through", lambda v, x, y, tol: True)
+    first = dr.DetectionRange._first_detections
+    monkeypatch.setattr(dr.DetectionRange, "_first_detections",
+                        lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))
+    out = _fog_lift()
+    assert out and "first seen at 4.4" in out[0][2]
