@@ -77,11 +77,11 @@ def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: f
     if len(iv) == 0:
         return 0.0
     iv = iv[np.argsort(iv[:, 0])]
-    reach, gap = 0.0, max(gap_m, start_m)  # the first stretch may start up to start_m along the ray
+    reach = 0.0
     for s0, s1 in iv:
-        if s0 > reach + gap + EPS:
+        if s0 > max(reach + gap_m, start_m) + EPS:  # any stretch starting within start_m begins the chain
             break  # a stretch not seen: beyond it nothing counts
-        reach, gap = max(reach, float(s1)), gap_m
+        reach = max(reach, float(s1))
     return reach
 
 

@@ -193,3 +193,14 @@ def test_negative_control_without_the_claim_rules_the_fog_lift_is_a_late_detecti
                         lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))
     out = _fog_lift()
     assert out and "first seen at 4.4" in out[0][2]
+
+
+def test_every_stretch_starting_within_start_m_begins_the_chain():
+    """A hovering vehicle's wedges: a sliver of one ending 1.2 mm out and the next starting at 1.5 mm, both
+    within the vehicle: the chain runs on through the long one."""
+    from contracts.coverage import covered_distance
+
+    sliver = (0.001, 0.0, -0.001, 0.001, 0.0002)  # [1.0, 1.2] mm along the ray
+    long = (0.0015, 0.0, -0.3, 0.3, 5.0)
+    d = covered_distance((0.0, 0.0), 0.0, np.array([sliver, long]), start_m=0.05)
+    assert abs(d - 5.0015) < 1e-9
