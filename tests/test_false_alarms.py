@@ -204,3 +204,71 @@ def test_every_stretch_starting_within_start_m_begins_the_chain():
     long = (0.0015, 0.0, -0.3, 0.3, 5.0)
     d = covered_distance((0.0, 0.0), 0.0, np.array([sliver, long]), start_m=0.05)
     assert abs(d - 5.0015) < 1e-9
+
+
+# ------------------------------------------------------------------ clear-air flights judged by the SITL's truth
+from companion.ground.false_alarms import fly as fly_clear  # noqa: E402
+
+
+def unfounded(row):
+    return [e for e in row["events"] if not e["founded"]]
+
+
+@pytest.mark.parametrize("mode,world", [("governor", "cluster"), ("offboard", "columns")])
+def test_a_clear_air_cluttered_flight_has_no_unfounded_hold_or_violation(mode, world):
+    """The sector sensor's bins (as the demo reads them), a stand of poles flown beside (governor: the SITL's
+    mission) or a route past columns (offboard: the daemon flies): to the route's end with nothing a perfect
+    observer would call unfounded."""
+    row = fly_clear(mode, "sector", world, 1)
+    assert row["arrived"] and row["collisions"] == 0 and row["flown_s"] > 8.0
+    assert unfounded(row) == []
+
+
+def test_negative_control_the_observer_calls_a_reaction_to_a_spurious_return_unfounded():
+    """The same governor flight with a depth camera whose spurious close returns come at 1 % a bin and frame: the
+    daemon reacts to one (a close return is an obstacle, and a first detection, until shown otherwise) and the
+    observer, finding no surface there, calls it unfounded."""
+    row = fly_clear("governor", "depth_camera", "cluster", 1, sensor={"spurious_rate": 0.01})
+    bad = [e for e in unfounded(row) if e["cause"] == "spurious close return"]
+    assert bad and bad[0]["kind"] in ("hold (obstacle)", "violation (navigation)")
+
+
+def _fog_lift_flight(monkeypatch=None):
+    """Governor, the sector sensor's bins in honest fog (3 m) until the column ahead is 4.4 m away, then clear: the
+    stated range grows from 3 to 10 m with the column inside it."""
+    from companion.ground import false_alarms as fa
+
+    sc = fa.scenario_of("governor", "sector", "plain", 1)
+    sc["world"] = {"columns": [{"x_m": 8.0, "y_m": 0.0, "radius_m": 0.3, "name": "column"}]}
+    sc["route"]["waypoints"] = [[0.0, 0.0], [5.0, 0.0]]
+    lift_at = {}
+
+    def clear_when_close(rig):
+        x = rig.sim.truth()["pos"][0]
+        if not lift_at and 8.0 - 0.3 - x <= 4.4:
+            lift_at["t"] = rig.sim.time_s
+            rig.sim.sensor.visibility_m = math.inf
+        return False
+
+    sc["faults"] = [{"at_s": 0.0, "fog": {"visibility_m": 3.0, "report": "honest"}}]
+    from companion.ground.flights import Rig, fly_mission
+
+    rig = Rig(sc, "px4", config=fa.config_of("governor", sc["route"]["waypoints"]))
+    fly_mission(rig, 20.0, until=clear_when_close)
+    assert lift_at, "the fog never lifted"
+    return [e for e in rig.log.named("violation_start") if e["subsystem"] == "navigation" and e["t"] >= lift_at["t"]]
+
+
+def test_a_fog_lifting_in_flight_is_no_evidence_of_a_shorter_detection_range():
+    assert _fog_lift_flight() == []
+
+
+def test_negative_control_without_the_claim_rules_a_fog_lifting_in_flight_is_a_violation(monkeypatch):
+    from companion.onboard import detection_range as dr
+
+    monkeypatch.setattr(dr._View, "saw_through", lambda v, x, y, tol: True)
+    first = dr.DetectionRange._first_detections
+    monkeypatch.setattr(dr.DetectionRange, "_first_detections",
+                        lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))
+    late = _fog_lift_flight()
+    assert late and "first seen" in late[0]["action"]
