@@ -36,7 +36,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from companion.ground.false_alarms import MODELS, MODES, WORLDS, fly  # noqa: E402
+from companion.ground.false_alarms import MODELS, MODES, WORLDS, fly
 
 # the 95 % upper bound of a Poisson mean for k = 0..5 events seen (Garwood, one-sided)
 POISSON_95 = (3.0, 4.74, 6.30, 7.75, 9.15, 10.51)
@@ -99,6 +99,8 @@ def main() -> None:
                 break
             for c, row in zip(todo, pool.map(_fly, [(*c, seed, a.spurious_rate) for c in todo])):
                 rows[c].append(row)
+                print(f"{'/'.join(c)} seed {seed}: {row['flown_s']:.1f} s, "
+                      f"{sum(not e['founded'] for e in row['events'])} unfounded", file=sys.stderr, flush=True)
     every = [r for c in cells for r in rows[c]]
     out = {"benchmark": "false_alarms", "hours_asked": a.hours, "max_flights": a.max_flights,
            "spurious_rate": a.spurious_rate, "wall_s": round(time.time() - t0, 1), "all": summarise(every),

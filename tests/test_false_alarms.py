@@ -7,9 +7,12 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from companion.onboard.config import config_from_dict
-from companion.onboard.mavlink_in import MavlinkIn
+from companion.ground.false_alarms import fly as fly_clear
+from companion.onboard.config import SensorConfig, config_from_dict
+from companion.onboard.detection_range import DetectionRange
+from companion.onboard.mavlink_in import MavlinkIn, bins_scan
 from companion.onboard.samples import Implausible, Scan
+from sitl_harness.world import Column, World
 
 SENSOR = mav.MAVLink(None, srcSystem=1, srcComponent=158)
 
@@ -48,8 +51,7 @@ def _hover_with_a_dropped_centre_bin(monkeypatch=None, start_m=None):
     """A 17-bin camera (5°) hovering, its position drifting 1 mm back a frame; every bin free for 1 s, then one
     frame without the centre bin (UINT16_MAX: unknown). D_od along the heading then."""
     from companion.onboard import estimators
-    from companion.onboard.config import ContractConfig, SensorConfig
-    from companion.onboard.mavlink_in import bins_scan
+    from companion.onboard.config import ContractConfig
 
     if start_m is not None:
         monkeypatch.setattr(estimators, "SWEPT_START_M", start_m)
@@ -92,10 +94,6 @@ def test_the_swept_chain_starts_only_within_start_m_and_joins_no_gap_beyond_it()
 
 
 # ------------------------------------------------------------------ first detections that are no evidence
-from companion.onboard.config import SensorConfig  # noqa: E402
-from companion.onboard.detection_range import DetectionRange  # noqa: E402
-from companion.onboard.mavlink_in import bins_scan  # noqa: E402
-from sitl_harness.world import Column, World  # noqa: E402
 
 INC = math.radians(5.0)
 CAMERA = SensorConfig(kind="obstacle_distance", h_fov_deg=85.0, max_range_m=10.0)
@@ -133,7 +131,9 @@ def test_a_column_that_comes_into_view_in_a_turn_is_no_evidence():
     bins report nothing, and is first seen two bins in: no frame looked at it before (a side entry)."""
     world = World([Column(5 * math.cos(math.radians(70)), 5 * math.sin(math.radians(70)), 0.3)])
     poses = [(0.0, 0.0, math.radians(3.0 * k)) for k in range(20)]
-    outer_dropped = lambda k: (15, 16) if k < 12 else ()  # noqa: E731  (in the sun, say)
+    def outer_dropped(k):  # (in the sun, say)
+        return (15, 16) if k < 12 else ()
+
     assert fly_frames(world, poses, dropped=outer_dropped) == []
 
 
@@ -207,7 +207,6 @@ def test_every_stretch_starting_within_start_m_begins_the_chain():
 
 
 # ------------------------------------------------------------------ clear-air flights judged by the SITL's truth
-from companion.ground.false_alarms import fly as fly_clear  # noqa: E402
 
 
 def unfounded(row):

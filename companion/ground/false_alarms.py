@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -73,8 +74,9 @@ def world_of(family: str, seed: int) -> tuple[dict, list[list[float]]]:
     if family == "cluster":  # a stand of poles flown beside, its edge 3–5 m off the route
         radius = float(rng.uniform(4.0, 7.0))
         side = 1.0 if rng.random() < 0.5 else -1.0
+        count = int(rng.integers(4, int(1.6 * radius) + 1))  # as many as fit 1.5 m apart
         cluster = {"x_m": float(rng.uniform(18.0, 25.0)), "y_m": side * (radius + 0.3 + float(rng.uniform(3.0, 5.0))),
-                   "radius_m": radius, "count": int(rng.integers(8, 16)), "column_radius_m": [0.1, 0.3],
+                   "radius_m": radius, "count": count, "column_radius_m": [0.1, 0.3],
                    "min_gap_m": 1.5, "seed": int(rng.integers(0, 2**31 - 1)), "name": "poles"}
         return {"clusters": [cluster]}, [[0.0, 0.0], [length, 0.0]]
     if family == "corridor":  # an open corridor 5–7 m wide that turns left or right
@@ -296,7 +298,7 @@ def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = N
     """One clear-air flight and its judged events (module docstring); `sensor`: as `scenario_of`'s."""
     sc = scenario_of(mode, model, family, seed, sensor)
     route = sc["route"]["waypoints"]
-    length = sum(math.dist(a, b) for a, b in zip(route, route[1:]))
+    length = sum(math.dist(a, b) for a, b in pairwise(route))
     seconds = seconds if seconds is not None else length / CRUISE_M_S + 15.0
     rig = Rig(sc, "px4", config=config_of(mode, route, model), **(rig_kw or {}))
     obs = Observer(rig)
