@@ -271,3 +271,34 @@ def test_negative_control_without_the_claim_rules_a_fog_lifting_in_flight_is_a_v
                         lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))
     late = _fog_lift_flight()
     assert late and "first seen" in late[0]["action"]
+
+
+# ------------------------------------------------------------------ a depth camera's depth is along its axis
+def _wall_bins(depth):
+    """A wall 5 m ahead across a 17-bin camera's view, sent as the camera sends it (each bin: the depth along the
+    axis of its nearest pixel, 5 m in every bin), decoded with the sensor's `depth` setting."""
+    cfg = config_from_dict({"mode": "shadow", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 85,
+                                                          "max_range_m": 10.0, "depth": depth}]})
+    inp = MavlinkIn(cfg, None, lambda: 0.0, None)
+    msg = mav.MAVLink_obstacle_distance_message(0, 0, [500] * 17 + [65535] * 55, 0, 30, 1000, 5.0, -40.0, 12)
+    (scan,) = [s for s in inp.samples(0.0, "OBSTACLE_DISTANCE", msg) if isinstance(s, Scan)]
+    return dict(scan.hits)
+
+
+def test_axis_depth_is_read_as_the_least_range_the_bin_allows_never_more_than_the_truth():
+    hits = _wall_bins("axis_depth")
+    for b, r in hits.items():
+        edge = max(abs(b) - math.radians(2.5), 0.0)
+        true_far, true_near = 5.0 / math.cos(abs(b) + math.radians(2.5)), 5.0 / math.cos(edge)
+        assert r <= true_near + 1e-9 <= true_far + 1e-9  # the wall's nearest point in the bin is no nearer
+        assert abs(r - true_near) < 1e-9
+    assert abs(hits[0.0] - 5.0) < 1e-9
+    # the outer bins (37.5–42.5° off): the wall's nearest point in them is 5 / cos 37.5° = 6.30 m away, not 5 m
+    assert abs(hits[math.radians(40.0)] - 5.0 / math.cos(math.radians(37.5))) < 1e-9
+
+
+def test_negative_control_axis_depth_read_as_range_puts_the_side_of_a_wall_nearer_than_it_is():
+    """Read as range, every bin of the wall is 5 m away: its sides 1.2 m nearer than they are, inside a corridor
+    they are not in (a hold with nothing there)."""
+    hits = _wall_bins("range")
+    assert all(abs(r - 5.0) < 1e-9 for r in hits.values())

@@ -157,8 +157,19 @@ def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemet
     if getattr(msg, "frame", MAV_FRAME_BODY_FRD) != MAV_FRAME_BODY_FRD:
         ang = ang - tel.yaw
     rng = np.where(d > msg.max_distance, np.inf, d / 100.0)
+    if cfg.sensors[i].depth == "axis_depth":
+        rng = rng / axis_depth_factor(ang - math.radians(cfg.sensors[i].orientation_deg), math.radians(inc))
     return [bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc),
                       cfg.sensors[i].max_range_m, source)]
+
+
+def axis_depth_factor(off_axis: np.ndarray, increment: float) -> np.ndarray:
+    """cos of the bin's edge nearest the sensor's axis (1 for a bin the axis crosses): a pixel at depth z along the
+    axis, off it by a, is z / cos a away, and no pixel of a bin centred `off_axis` [rad] from the axis is nearer
+    to the axis than that edge — z over this is the least range the bin's depth allows, never more than the true
+    range of its nearest pixel."""
+    edge = np.maximum(np.abs((off_axis + np.pi) % (2 * np.pi) - np.pi) - increment / 2.0, 0.0)
+    return np.cos(np.minimum(edge, np.radians(89.0)))
 
 
 def implausible_position(x: float, y: float, z: float, vx: float, vy: float, vz: float) -> str | None:
