@@ -180,6 +180,29 @@ class Observer:
         _, rho = self.world.ray_cast(tr.x, tr.y, ALT_M, np.array([a]), 30.0, reflectivity=True)
         return float(rho[0]) if rho[0] > 0 else None
 
+    def sensor_before(self, t: float, tr: Truth, r_seen: float, assumed: float) -> str | None:
+        """What the SITL's own sensor, noise-free, had in its frame one period before where the surface first seen
+        now at `r_seen` is: "out of view", "something" within `assumed` (it, or what hid it), or "missed" — its rays,
+        as its model casts them, stepped over it (a thin column between them). None: no true surface at `r_seen`."""
+        ok = np.isfinite(tr.ranges)
+        if not ok.any():
+            return None
+        k = int(np.argmin(np.where(ok, np.abs(tr.ranges - r_seen), np.inf)))
+        a = float(tr.rays[k])  # the target's compass bearing now
+        if abs(tr.ranges[k] - r_seen) > 1.0:
+            return None
+        target = (tr.x + tr.ranges[k] * math.cos(a), tr.y + tr.ranges[k] * math.sin(a))
+        sensor = self.rig.sim.sensor
+        before = self.at(t - 1.0 / sensor.cfg.rate_hz)
+        pos = np.array([before.x, before.y, -before.alt])
+        true = sensor.true_ranges(self.world, pos, before.yaw)
+        bearing = math.atan2(target[1] - before.y, target[0] - before.x) - before.yaw
+        off = np.abs((sensor.offsets - bearing + math.pi) % (2 * math.pi) - math.pi)
+        j = int(np.argmin(off))
+        if off[j] > sensor.inc / 2 + 1e-9:
+            return "out of view"
+        return "something" if true[j] <= assumed else "missed"
+
     def wide_in_view(self, tr: Truth, reach: float, r_obst: float) -> bool:
         """A surface wider than R_obst within `reach` ahead: a wall, polygon or box, or a column of radius > R_obst."""
         for o in self.world.obstacles:
@@ -279,8 +302,11 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
                 return "violation (navigation)", False, {"observed": seen, "assumed": assumed, "surface": None}
             c = rig.sim.sensor.cfg
             reach = detection_range(0.0, rho, c.max_range_m, getattr(c, "rated_reflectivity", RATED_REFLECTIVITY))
-            return "violation (navigation)", reach < assumed - tol, {"observed": seen, "assumed": assumed,
-                                                                     "reflectivity": rho, "true_reach_m": reach}
+            # a surface its rays stepped over a frame before (a thin column between them) was truly not seen
+            stepped_over = obs.sensor_before(t, tr, seen, assumed) == "missed"
+            return "violation (navigation)", reach < assumed - tol or stepped_over, {
+                "observed": seen, "assumed": assumed, "reflectivity": rho, "true_reach_m": reach,
+                "rays_missed_it": stepped_over}
         if sub == "environment":
             return "violation (environment)", obs.wide_in_view(tr, stated, R_OBST_M), {"observed": e.get("observed")}
         return f"violation ({sub})", True, {"guarantee": g}
