@@ -349,11 +349,14 @@ def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = N
     events, nav = [], []
     for e in sorted((e for e in rig.log.events if e["event"] in JUDGED), key=lambda e: e["t"]):
         kind, founded, why = judge(rig, obs, e, nav)
-        if kind == "violation (navigation)":
-            nav.append((e["t"], founded))
-        if not founded:
+        inherited = kind == "no safe speed" or "after a late first detection" in why.get("action", "")
+        if not founded and inherited:  # it rests on an earlier unfounded lowering of D_od: that one's cause
+            why["cause"] = next((c for _, ok, c in reversed(nav) if not ok), "other")
+        elif not founded:
             seen = why.get("obstacle_seen_m", why.get("observed"))
             why["cause"] = likely_cause(rig, obs.at(e["t"]), seen if seen is not None else obs.daemon_saw(e["t"])[0])
+        if kind == "violation (navigation)":
+            nav.append((e["t"], founded, why.get("cause")))
         events.append({"t": round(e["t"], 2), "kind": kind, "founded": founded,
                        **{k: (round(v, 3) if isinstance(v, float) else v) for k, v in why.items()}})
     tr = obs.samples[-1][1]
