@@ -53,9 +53,13 @@ def ray_intervals(p, theta: float, sectors: np.ndarray) -> np.ndarray:
     return np.column_stack([lo, hi])
 
 
-def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: float = 0.0) -> float:
+def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: float = 0.0,
+                     start_m: float = 0.0) -> float:
     """How far the ray from p along θ runs through seen-free space without a break: the end of the chain
     of the sectors' stretches that starts at p (0 when p's own neighbourhood along θ was never seen).
+    `start_m`: the chain may start this far along the ray — a stretch of the ray inside the vehicle itself, where
+    an obstacle would already be a collision (a hovering vehicle a millimetre behind the apexes of the wedges it
+    just saw is otherwise outside every one of them).
 
     `shifts` (n, 2): where each sector's apex is known only to the segment from its apex to apex + shift (a
     sample taken up to a latency before the position it is placed at). A wedge is a translate of a convex
@@ -75,7 +79,7 @@ def covered_distance(p, theta: float, sectors: np.ndarray, shifts=None, gap_m: f
     iv = iv[np.argsort(iv[:, 0])]
     reach = 0.0
     for s0, s1 in iv:
-        if s0 > reach + gap_m + EPS:
+        if s0 > max(reach + gap_m, start_m) + EPS:  # any stretch starting within start_m begins the chain
             break  # a stretch not seen: beyond it nothing counts
         reach = max(reach, float(s1))
     return reach

@@ -282,12 +282,14 @@ class Rig:
 
     def _scenario_sensor(self, sc) -> dict:
         """The daemon's sensor entry for the SITL's sensor: its message and the field of view its bins cover (the
-        sector sensor: DISTANCE_SENSOR over the scenario's field of view; a depth camera: OBSTACLE_DISTANCE)."""
+        sector sensor: DISTANCE_SENSOR over the scenario's field of view; a depth camera: OBSTACLE_DISTANCE, its
+        bins' depth along its axis)."""
         s = self.sim.sensor
         if sc.sensor.model == "sector":
             return {"kind": "distance_sensor", "h_fov_deg": sc.sensor.fov_deg}
         kind = "distance_sensor" if "DISTANCE_SENSOR" in s.MESSAGES else "obstacle_distance"
-        return {"kind": kind, "h_fov_deg": round(math.degrees(s.n_used * s.inc), 6)}
+        depth = {"depth": "axis_depth"} if kind == "obstacle_distance" and s.cfg.reports == "z_depth" else {}
+        return {"kind": kind, "h_fov_deg": round(math.degrees(s.n_used * s.inc), 6), **depth}
 
     def _endpoint(self):
         q: deque = deque()

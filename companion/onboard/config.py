@@ -88,6 +88,10 @@ class SensorConfig(_Strict):
     # the sensor's rated range [m]: what its messages may claim (max_distance) is capped by it; required
     # in governor and offboard mode (a sensor's word is not taken for its range)
     max_range_m: Pos | None = None
+    # what an OBSTACLE_DISTANCE bin's distance is: `range` along the bin, or `axis_depth`, the depth along the
+    # sensor's axis of the bin's nearest pixel (a stereo camera's obstacle line, as d4xx_to_mavlink.py sends it),
+    # read as the least range that depth allows anywhere in the bin (mavlink_in.py)
+    depth: Literal["range", "axis_depth"] = "range"
 
     @field_validator("address")
     @classmethod

@@ -27,8 +27,12 @@ of evidence and turns each into an upper bound on the range at which the referen
    flat in clear air, whatever the target's reflectivity (it cancels). The margin is read from the quality
    with the driver's normalisation (`quality_full_margin`: quality 100 at that margin, 0 at threshold);
 3. first detections — a static target (placed in the local frame from position and heading) first seen
-   inside the stated range, away from the field of view's edges, was not detectable farther: D_od ≤ that
-   distance;
+   inside the stated range, away from the field of view's edges, where one of the sensor's frames of the last
+   `look_back_s` saw through its place (the bin looking at it from where that frame was taken reported free,
+   or a return beyond it, and that frame's stated range reached it), was not detectable farther: D_od ≤ that
+   distance. A place no recent frame saw through is no evidence: a target behind a nearer one (occluded), outside
+   the field of view then (a turn, a wall's end, a doorway's side), in a bin that reported nothing, beyond the
+   claim of the frame (a fog lifting: the stated range just grew), or in the sensor's first frame;
 4. disagreement — a point one sensor sees that another, looking the same way and claiming a longer range,
    does not see at the same time: that one's range is at most its distance.
 
@@ -91,6 +95,7 @@ class DetectionRangeParams:
     trend_span_m: float = 1.0  # ... spanning at least this much range
     track_m: float = 1.0  # a hit within this (+ the bin's width at its range) of a tracked point: the same target
     first_tolerance_m: float = 0.3  # first seen this much inside the stated range (+ one frame's travel): late
+    look_back_s: float = 0.5  # ... and a frame this recent saw through its place
     fresh_s: float = 0.5  # a sensor silent longer adds nothing (staleness is the other estimator's)
 
     @classmethod
@@ -118,6 +123,33 @@ class _Frame:
     reports: int  # the frame's reports (bins that report, or one for a single beam)
     per: float  # the shots behind each report (`shots_of`)
     near: list  # (x, y) of short returns (local frame, or body frame without a pose) on no tracked target
+
+
+@dataclass(frozen=True)
+class _View:
+    """What one frame of bins looked at: from where (local frame), the bins that reported (body bearings) and how
+    far each saw (inf: free to the claim), the claim."""
+
+    t: float
+    x: float
+    y: float
+    yaw: float
+    bearings: np.ndarray
+    ranges: np.ndarray
+    increment: float
+    stated: float
+
+    def saw_through(self, x: float, y: float, tol: float) -> bool:
+        """Whether this frame looked at (x, y) from inside its field of view (an interior bin), within its claim,
+        and saw past it: the bin there reported free, or a return more than `tol` beyond it."""
+        d = math.hypot(x - self.x, y - self.y)
+        if d > self.stated or self.bearings.size < 3:
+            return False
+        b = wrap(math.atan2(y - self.y, x - self.x) - self.yaw)
+        k = int(np.argmin(np.abs((self.bearings - b + math.pi) % (2 * math.pi) - math.pi)))
+        if abs(wrap(self.bearings[k] - b)) > self.increment / 2 or k in (0, self.bearings.size - 1):
+            return False
+        return bool(self.ranges[k] > d + tol)
 
 
 @dataclass
@@ -150,6 +182,7 @@ class DetectionRange:
         self._last_hits: dict[int, tuple[float, float, list]] = {}  # sensor → (t, its stated m, [(x, y, r)])
         self._stated: dict[int, float] = {}
         self._near_hist: dict[int, deque] = {}  # sensor → the short returns (x, y) of its last frames
+        self._views: dict[int, deque] = {}  # sensor → its frames of bins of the last look_back_s (`_View`)
 
     # ---------------------------------------------------------------- inputs
     def add_position(self, t: float, x: float, y: float) -> None:
@@ -162,9 +195,15 @@ class DetectionRange:
         if math.isfinite(yaw):
             self._yaw = (t, yaw)
 
+    def _posed(self, t: float) -> bool:
+        """Position and heading known and fresh at `t`."""
+        p = self.p
+        return self._pos is not None and self._yaw is not None and t - self._pos[0] <= p.fresh_s \
+            and t - self._yaw[0] <= p.fresh_s
+
     def _place(self, t: float, bearing: float, r: float) -> tuple[float, float]:
         """A hit in the local frame (the body frame when position or heading is unknown or stale)."""
-        if self._pos is None or self._yaw is None or t - self._pos[0] > self.p.fresh_s or t - self._yaw[0] > self.p.fresh_s:
+        if not self._posed(t):
             return r * math.cos(bearing), r * math.sin(bearing)
         a = self._yaw[1] + bearing
         return self._pos[1] + r * math.cos(a), self._pos[2] + r * math.sin(a)
@@ -220,6 +259,7 @@ class DetectionRange:
             # a target is late only if the last frame's claim, too, reached it (a claim that just grew, as a fog
             # clears, does not make a target at its old edge late)
             self._first_detections(t, i, scan, placed, min(stated, before))
+            self._remember_view(t, i, scan, stated)
         self._disagreements(t, i, scan, placed, stated)
         self._last_hits[i] = (t, stated, [(x, y, r) for k, (x, y, _, r) in enumerate(placed) if k not in medium])
         return tuple(medium)
@@ -249,8 +289,28 @@ class DetectionRange:
         self._tracks.append(tr)
         return tr
 
+    def _remember_view(self, t: float, i: int, scan: Scan, stated: float) -> None:
+        """Keep what this frame of bins looked at (a frame without a fresh pose is kept by none)."""
+        views = self._views.setdefault(i, deque())
+        while views and views[0].t < t - self.p.look_back_s:
+            views.popleft()
+        if not self._posed(t) or not scan.known:
+            return
+        bearings = np.asarray(scan.known, dtype=float)
+        ranges = np.full(bearings.size, math.inf)
+        for b, r in scan.hits:
+            k = int(np.argmin(np.abs((bearings - b + math.pi) % (2 * math.pi) - math.pi)))
+            ranges[k] = min(ranges[k], r)
+        views.append(_View(t, self._pos[1], self._pos[2], self._yaw[1], bearings, ranges, scan.increment or 0.0,
+                           stated))
+
+    def _seen_through(self, i: int, x: float, y: float, tol: float) -> bool:
+        """Whether one of the sensor's recent frames saw through (x, y) (`_View.saw_through`)."""
+        return any(v.saw_through(x, y, tol) for v in self._views.get(i, ()))
+
     def _first_detections(self, t: float, i: int, scan: Scan, placed: list, stated: float) -> None:
-        """Static targets first seen inside the stated range, away from the edges of the field of view."""
+        """Static targets first seen inside the stated range, away from the edges of the field of view, where a
+        recent frame saw through their place (module docstring, 3)."""
         p = self.p
         inc = scan.increment or 0.0
         lo, hi = (scan.known[0], scan.known[-1]) if scan.known else (0.0, 0.0)
@@ -266,7 +326,7 @@ class DetectionRange:
             known = any(math.hypot(x - tr.x, y - tr.y) <= p.track_m + r * inc for tr in self._tracks)
             self._track(t, x, y, r, inc)
             edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
-            if not known and not edge and r < stated - tol:
+            if not known and not edge and r < stated - tol and self._seen_through(i, x, y, tol):
                 self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))
 
     def _disagreements(self, t: float, i: int, scan: Scan, placed: list, stated: float) -> None:

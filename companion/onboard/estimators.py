@@ -31,6 +31,9 @@ from .samples import Scan
 
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
 SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
+# [m] the swept chain may start this far ahead of the vehicle's centre: its position drifts by millimetres between
+# two samples at a hover, behind the apexes it saw from; inside any vehicle's radius (the Mambo's 0.10 m)
+SWEPT_START_M = 0.05
 SENSOR_LAG_S = 0.1  # [s] a sample was taken up to this before it is placed (latency ≤ 0.05 s + one position interval)
 PERIOD_SAMPLES = 16  # a sensor's period is the mean of its last this many intervals (their span over their count)
 
@@ -303,7 +306,7 @@ class DodEstimator:
                     shifts.extend([seen.shift] * len(sec))
         if not rows:
             return 0.0
-        d = covered_distance(self._pos[1:], theta, np.array(rows), np.array(shifts))
+        d = covered_distance(self._pos[1:], theta, np.array(rows), np.array(shifts), start_m=SWEPT_START_M)
         return max(d - SWEPT_MARGIN_M, 0.0)
 
     def _tracked_already(self, t: float, p, tolerance: float) -> bool:

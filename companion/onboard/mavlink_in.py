@@ -136,27 +136,41 @@ def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry
 
 def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry, source: tuple) -> list:
     """OBSTACLE_DISTANCE: bin k at angle_offset + k·increment (clockwise; MAV_FRAME_GLOBAL is north-aligned,
-    rotated into the body frame here); UINT16_MAX is a bin that knows nothing, beyond max_distance is
-    free; cm → m. Bins wider than a circle, or a minimum above the maximum: an invalid scan."""
+    rotated into the body frame here); UINT16_MAX is a bin that knows nothing ("unknown/not used", common.xml),
+    beyond max_distance is free; cm → m. Bins in use reaching past a circle (they would overlap the first), or a
+    minimum above the maximum: an invalid scan. The trailing unused bins span nothing: a camera of 87° in 17 bins
+    of 5.12° fills 17 of the 72 and is judged on those 17."""
     i = sensor_of.get(("obstacle_distance", None, None))
     if i is None:
         return []
     inc = msg.increment_f if getattr(msg, "increment_f", 0) else float(msg.increment)
     offset = getattr(msg, "angle_offset", 0.0)
+    d = np.asarray(msg.distances, dtype=float)
+    used = d != UINT16_MAX
+    span = int(np.flatnonzero(used)[-1]) + 1 if used.any() else 0  # bins up to the last one in use
     if not (math.isfinite(inc) and math.isfinite(offset)) or inc < 0 or msg.min_distance > msg.max_distance \
-            or inc * len(msg.distances) > 360.0 + 1e-6:
-        why = "increment or angle_offset not finite, bins past a circle, or min_distance above max_distance"
+            or inc * span > 360.0 + 1e-6:
+        why = "increment or angle_offset not finite, bins in use past a circle, or min_distance above max_distance"
         return [Scan(t, i, (), 0.0, 1, (), 0.0, source), Implausible(t, "OBSTACLE_DISTANCE", why)]
     if inc == 0:
         return []  # PX4 ignores increment 0 too
-    d = np.asarray(msg.distances, dtype=float)
-    used = d != UINT16_MAX
     ang = np.radians(offset + inc * np.arange(len(d)))
     if getattr(msg, "frame", MAV_FRAME_BODY_FRD) != MAV_FRAME_BODY_FRD:
         ang = ang - tel.yaw
     rng = np.where(d > msg.max_distance, np.inf, d / 100.0)
+    if cfg.sensors[i].depth == "axis_depth":
+        rng = rng / axis_depth_factor(ang - math.radians(cfg.sensors[i].orientation_deg), math.radians(inc))
     return [bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc),
                       cfg.sensors[i].max_range_m, source)]
+
+
+def axis_depth_factor(off_axis: np.ndarray, increment: float) -> np.ndarray:
+    """cos of the bin's edge nearest the sensor's axis (1 for a bin the axis crosses): a pixel at depth z along the
+    axis, off it by a, is z / cos a away, and no pixel of a bin centred `off_axis` [rad] from the axis is nearer
+    to the axis than that edge — z over this is the least range the bin's depth allows, never more than the true
+    range of its nearest pixel."""
+    edge = np.maximum(np.abs((off_axis + np.pi) % (2 * np.pi) - np.pi) - increment / 2.0, 0.0)
+    return np.cos(np.minimum(edge, np.radians(89.0)))
 
 
 def implausible_position(x: float, y: float, z: float, vx: float, vy: float, vz: float) -> str | None:

@@ -1,0 +1,365 @@
+"""False alarms in clear air: lock-step flights of the real daemon against the real SITL (`flights.Rig`) through
+cluttered worlds with no fog, every hold, "no safe speed" stop, violation and `no_avoiding_plan` the daemon logs
+judged by a perfect observer that reads the SITL's truth (the world's true shapes, the vehicle's true pose).
+
+The observer's questions, one per kind of event (`judge`):
+
+- **hold for an obstacle** (the stop contract's Hold): was a true surface, in the swept corridor the daemon judges
+  (`corridor_m` either side of the direction of travel), really within what the daemon saw (its `obstacle_m`, plus
+  the sensor's noise)? A hold on a return with nothing there is unfounded;
+- **navigation, "every obstacle within D_od is detected"** (D_od lowered): was D_od really shorter than stated?
+  In clear air the range at which a surface of reflectivity ρ is detected is the lidar equation's
+  (contracts/lidar.py `detection_range` with α = 0); a first detection is founded only where the surface it hit
+  could not have been detected at the range assumed. A first sight of a surface that was occluded, outside the
+  field of view or whose bin was dropped, and a lowering for a medium (clear air has none), are unfounded;
+- **environment, "no obstacle wider than R_obst"**: is a surface wider than R_obst really in view (a wall, a
+  polygon, a box, or a column of radius above R_obst)?
+- **no safe speed**: founded unless it rests on a D_od lowered by an unfounded navigation violation;
+- **no avoiding plan**: was a true surface within the stated range in the corridor ahead (something to plan
+  round)? If the corridor was truly clear, the planner stopped on a phantom;
+- the rest (the controller's contour error, measured on the SITL's true position; command delivery; the daemon's
+  own lateness; a silent sensor, which really sent nothing) are measurements of the truth itself: founded.
+
+A flight's row (`fly`) says what it flew (mode, sensor model, world family, seed, seconds airborne) and each
+event with its verdict and the truth behind it. `benchmarks/false_alarms.py` flies many and sums them per
+flight-hour.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from itertools import pairwise
+
+import numpy as np
+
+from contracts.lidar import RATED_REFLECTIVITY, detection_range
+
+from .flights import Rig, engage_and_fly, fly_mission
+
+MODES = ("governor", "offboard")
+MODELS = ("sector", "depth_camera", "single_beam")
+WORLDS = ("plain", "columns", "doorway", "cluster", "corridor")
+ALT_M = 2.0
+CRUISE_M_S = 1.5  # the shipped clutter scenarios' cruise speed (the Mambo's)
+R_OBST_M = 1.0
+NOISE_SIGMAS = 3.0  # a return within this many σ of the sensor's noise of a true surface is that surface
+TRUTH_RAYS = 721  # rays of the observer's fan over the half-plane ahead (0.25°)
+
+
+# ----------------------------------------------------------------------------- the worlds
+
+def world_of(family: str, seed: int) -> tuple[dict, list[list[float]]]:
+    """(the scenario's `world`, the route's waypoints) of a world family, drawn from `seed`: everything beside or
+    across the route, nothing on it (clear air, a route that exists)."""
+    rng = np.random.default_rng([seed, WORLDS.index(family)])
+    length = float(rng.uniform(40.0, 55.0))
+    if family == "plain":
+        return {}, [[0.0, 0.0], [length, 0.0]]
+    if family == "columns":  # a route past columns, either side, their surfaces 2.5–5 m off the route
+        cols = []
+        for k, x in enumerate(np.arange(10.0, length - 5.0, float(rng.uniform(5.0, 8.0)))):
+            r = float(rng.uniform(0.1, 0.4))
+            side = 1.0 if k % 2 else -1.0
+            cols.append({"x_m": float(x), "y_m": side * (r + float(rng.uniform(2.5, 5.0))), "radius_m": r,
+                         "name": f"column {k}"})
+        return {"columns": cols}, [[0.0, 0.0], [length, 0.0]]
+    if family == "doorway":  # a facade across the route, flown through a doorway 4–6 m wide
+        x = float(rng.uniform(14.0, 22.0))
+        width = float(rng.uniform(4.0, 6.0))
+        off = float(rng.uniform(-0.5, 0.5))
+        wall = {"points": [[x, -20.0], [x, 20.0]], "thickness_m": 0.3, "name": "facade",
+                "gaps": [{"at_m": 20.0 + off, "width_m": width}]}
+        return {"walls": [wall]}, [[0.0, 0.0], [length, 0.0]]
+    if family == "cluster":  # a stand of poles flown beside, its edge 3–5 m off the route
+        radius = float(rng.uniform(4.0, 7.0))
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        count = int(rng.integers(4, int(1.6 * radius) + 1))  # as many as fit 1.5 m apart
+        cluster = {"x_m": float(rng.uniform(18.0, 25.0)), "y_m": side * (radius + 0.3 + float(rng.uniform(3.0, 5.0))),
+                   "radius_m": radius, "count": count, "column_radius_m": [0.1, 0.3],
+                   "min_gap_m": 1.5, "seed": int(rng.integers(0, 2**31 - 1)), "name": "poles"}
+        return {"clusters": [cluster]}, [[0.0, 0.0], [length, 0.0]]
+    if family == "corridor":  # an open corridor 5–7 m wide that turns left or right
+        width = float(rng.uniform(5.0, 7.0))
+        a = float(rng.uniform(14.0, 20.0))
+        b = float(rng.uniform(12.0, 18.0)) * (1.0 if rng.random() < 0.5 else -1.0)
+        corr = {"points": [[-3.0, 0.0], [a, 0.0], [a, b + 3.0 * np.sign(b)]], "width_m": width,
+                "thickness_m": 0.2, "name": "corridor"}
+        return {"corridors": [corr]}, [[0.0, 0.0], [a, 0.0], [a, b]]
+    raise ValueError(f"unknown world family {family!r}")
+
+
+def scenario_of(mode: str, model: str, family: str, seed: int, sensor: dict | None = None) -> dict:
+    """The scenario of one flight; `sensor`: keys over the model's defaults (e.g. `spurious_rate`)."""
+    world, route = world_of(family, seed)
+    base = {"model": model} if model != "sector" else {"fov_deg": 60, "max_range_m": 10.0, "rate_hz": 20}
+    sensor = {**base, **(sensor or {})} if model != "sector" else base
+    sim_seed = 1000 * seed + 10 * WORLDS.index(family) + MODELS.index(model)  # each cell its own sensor faults
+    sc = {"name": f"clear_{family}", "vehicle": "mambo", "seed": sim_seed, "world": world, "sensor": sensor,
+          "route": {"altitude_m": ALT_M, "cruise_speed_m_s": CRUISE_M_S, "waypoints": route}}
+    if mode == "offboard":
+        sc["start"] = {"alt_m": ALT_M}
+        sc["params"] = {"COM_OBL_RC_ACT": 5}  # a companion-only aircraft holds when offboard is lost
+    return sc
+
+
+def config_of(mode: str, route: list, model: str = "sector") -> dict:
+    """The daemon's config: the sector sensor read as its bins (OBSTACLE_DISTANCE, as the demo reads it), the
+    other models as the rig takes them."""
+    cfg = {"mode": mode, "contract": {"r_obst_m": R_OBST_M}}
+    if model == "sector":
+        cfg["sensors"] = [{"kind": "obstacle_distance", "h_fov_deg": 60}]
+    if mode == "offboard":
+        cfg["route"] = {"waypoints": route, "altitude_m": ALT_M}
+    return cfg
+
+
+# ----------------------------------------------------------------------------- the observer
+
+@dataclass
+class Truth:
+    """What the perfect observer knows at one moment: the vehicle's true pose and the world's true surfaces."""
+
+    x: float
+    y: float
+    alt: float
+    yaw: float
+    ground_m: float  # where the sensor's lowest ray straight ahead meets the ground (inf: not within range)
+    course: float  # the direction of travel (the heading when at rest)
+    rays: np.ndarray  # compass angles of the fan
+    ranges: np.ndarray  # true range along each (inf: nothing within 30 m)
+    owners: list = field(default_factory=list)  # the obstacle each ray hits (None: none)
+
+
+class Observer:
+    """Reads the SITL's truth once per daemon cycle (`sample`) and answers for events at those times."""
+
+    def __init__(self, rig: Rig):
+        self.rig = rig
+        self.world = rig.sim.world
+        self.samples: list[tuple[float, Truth]] = []
+        self.seen: list[tuple[float, float, float, float]] = []  # (t, obstacle_m, d_od, stated) the daemon judged
+
+    def daemon_saw(self, t: float) -> tuple[float, float, float]:
+        """(obstacle_m, d_od, stated) of the daemon's cycle at `t` (the inputs its supervisor judged)."""
+        past = [s for s in self.seen if s[0] <= t + 1e-9]
+        return past[-1][1:] if past else (math.inf, math.nan, math.nan)
+
+    def sample(self) -> None:
+        t = self.rig.sim.truth()
+        x, y = float(t["pos"][0]), float(t["pos"][1])
+        vx, vy = float(t["vel"][0]), float(t["vel"][1])
+        course = math.atan2(vy, vx) if math.hypot(vx, vy) > 0.2 else float(t["yaw"])
+        rays = course + np.linspace(-math.pi / 2, math.pi / 2, TRUTH_RAYS)
+        ranges = self.world.ray_cast(x, y, ALT_M, rays, 30.0)
+        sensor = self.rig.sim.sensor
+        alt = -float(t["pos"][2])
+        ground = float(sensor.ground_ranges(np.zeros(1), alt, float(t["pitch"]))[0]) \
+            if hasattr(sensor, "ground_ranges") else math.inf
+        self.samples.append((self.rig.sim.time_s, Truth(x, y, alt, float(t["yaw"]), ground, course, rays, ranges)))
+
+    def at(self, t: float) -> Truth:
+        k = min(range(len(self.samples)), key=lambda j: abs(self.samples[j][0] - t))
+        return self.samples[k][1]
+
+    def nearest_in_corridor(self, tr: Truth, half_width: float, course: float | None = None) -> float:
+        """The nearest true surface ahead whose offset from the line of travel is at most `half_width`."""
+        c = tr.course if course is None else course
+        ok = np.isfinite(tr.ranges)
+        r, a = tr.ranges[ok], tr.rays[ok] - c
+        lateral, along = np.abs(r * np.sin(a)), r * np.cos(a)
+        inside = (lateral <= half_width) & (along > 0.0)
+        return float(r[inside].min()) if inside.any() else math.inf
+
+    def reflectivity_near(self, tr: Truth, r_seen: float, tol: float) -> float | None:
+        """The reflectivity of the true surface in view at a range within `tol` of `r_seen` (None: nothing there)."""
+        ok = np.isfinite(tr.ranges) & (np.abs(tr.ranges - r_seen) <= tol)
+        if not ok.any():
+            return None
+        a = tr.rays[ok][np.argmin(np.abs(tr.ranges[ok] - r_seen))]
+        _, rho = self.world.ray_cast(tr.x, tr.y, ALT_M, np.array([a]), 30.0, reflectivity=True)
+        return float(rho[0]) if rho[0] > 0 else None
+
+    def sensor_before(self, t: float, tr: Truth, r_seen: float, assumed: float) -> str | None:
+        """What the SITL's own sensor, noise-free, had in its frame one period before where the surface first seen
+        now at `r_seen` is: "out of view", "something" within `assumed` (it, or what hid it), or "missed" — its rays,
+        as its model casts them, stepped over it (a thin column between them). None: no true surface at `r_seen`."""
+        ok = np.isfinite(tr.ranges)
+        if not ok.any():
+            return None
+        k = int(np.argmin(np.where(ok, np.abs(tr.ranges - r_seen), np.inf)))
+        a = float(tr.rays[k])  # the target's compass bearing now
+        if abs(tr.ranges[k] - r_seen) > 1.0:
+            return None
+        target = (tr.x + tr.ranges[k] * math.cos(a), tr.y + tr.ranges[k] * math.sin(a))
+        sensor = self.rig.sim.sensor
+        before = self.at(t - 1.0 / sensor.cfg.rate_hz)
+        pos = np.array([before.x, before.y, -before.alt])
+        true = sensor.true_ranges(self.world, pos, before.yaw)
+        bearing = math.atan2(target[1] - before.y, target[0] - before.x) - before.yaw
+        off = np.abs((sensor.offsets - bearing + math.pi) % (2 * math.pi) - math.pi)
+        j = int(np.argmin(off))
+        if off[j] > sensor.inc / 2 + 1e-9:
+            return "out of view"
+        return "something" if true[j] <= assumed else "missed"
+
+    def wide_in_view(self, tr: Truth, reach: float, r_obst: float) -> bool:
+        """A surface wider than R_obst within `reach` ahead: a wall, polygon or box, or a column of radius > R_obst."""
+        for o in self.world.obstacles:
+            radius = getattr(o, "radius", None)
+            if radius is not None and radius <= r_obst + 0.05:
+                continue
+            if _distance_to(o, self.world, tr.x, tr.y) <= reach:
+                return True
+        return False
+
+
+def _distance_to(o, world, x: float, y: float) -> float:
+    """Distance from (x, y) to one obstacle's surface (columns exactly, anything else by its polygon's edges)."""
+    if hasattr(o, "radius"):
+        return math.hypot(x - o.x, y - o.y) - o.radius
+    pts = np.asarray(getattr(o, "points", None) if getattr(o, "points", None) is not None else _box_corners(o))
+    a, b = pts, np.roll(pts, -1, axis=0)
+    ab = b - a
+    t = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / np.maximum((ab ** 2).sum(axis=1), 1e-12), 0, 1)
+    px, py = a[:, 0] + t * ab[:, 0], a[:, 1] + t * ab[:, 1]
+    return float(np.hypot(px - x, py - y).min())
+
+
+def _box_corners(b) -> list:
+    c, s = math.cos(b.yaw), math.sin(b.yaw)
+    hx, hy = b.length / 2, b.width / 2
+    return [(b.x + c * u - s * v, b.y + s * u + c * v) for u, v in ((hx, hy), (-hx, hy), (-hx, -hy), (hx, -hy))]
+
+
+# ----------------------------------------------------------------------------- flights and verdicts
+
+def noise_m(rig: Rig, r: float) -> float:
+    """The sensor's 1 σ range noise at `r`, plus its centimetre quantisation."""
+    c = rig.sim.sensor.cfg
+    return max(c.noise_sd_m, c.noise_rel * r, getattr(c, "noise_quad_per_m", 0.0) * r * r) + 0.01
+
+
+def _state_at(rig: Rig, t: float) -> dict:
+    past = [s for s in rig.log.states if s["t"] <= t + 1e-9]
+    return past[-1] if past else rig.log.states[0]
+
+
+def likely_cause(rig: Rig, tr: Truth, seen: float | None) -> str:
+    """What an unfounded reaction most likely rests on: the ground in the sensor's view (pitched, or low), a
+    spurious close return (no surface within the noise of what was seen, nearer than the model's spurious
+    returns reach), or something else."""
+    c = rig.sim.sensor.cfg
+    if tr.ground_m <= c.max_range_m:
+        return "ground in view"
+    if seen is not None and seen <= getattr(c, "spurious_max_m", 0.0) + 0.05 and getattr(c, "spurious_rate", 0.0) > 0:
+        return "spurious close return"
+    return "other"
+
+
+def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bool, dict]:
+    """(kind, founded, why) of one event the daemon logged (module docstring)."""
+    t = e["t"]
+    tr = obs.at(t)
+    st = _state_at(rig, t)
+    name = e["event"]
+    r_body = rig.daemon.cycle.sup.table.vehicle.r_body_m
+    e_tr = st.get("e_tr") or 0.0
+    corridor = 2 * R_OBST_M + e_tr + r_body
+    stated = rig.sim.sensor.cfg.max_range_m
+    if name == "hold_trigger" and e["cause"] == OBSTACLE:
+        seen = obs.daemon_saw(t)[0]
+        true = obs.nearest_in_corridor(tr, corridor)
+        tol = NOISE_SIGMAS * noise_m(rig, min(seen, stated)) + 0.1
+        # the depth camera reports depth along its axis, less than the range off it: what it saw is no farther
+        # than the true range, so a surface truly within seen/cos(half the field of view) is what it saw
+        half = 0.5 * rig.sim.sensor.n_used * rig.sim.sensor.inc if hasattr(rig.sim.sensor, "n_used") else 0.0
+        reach = (seen + tol) / max(math.cos(half), 0.5) if rig.sim.sensor.cfg.reports == "z_depth" else seen + tol
+        return "hold (obstacle)", true <= reach, {"obstacle_seen_m": seen, "obstacle_true_m": true}
+    if name == "hold_trigger":
+        return f"hold ({e['cause']})", True, {}
+    if name == "failsafe" and e.get("cause") == "no safe speed":
+        lowered = (st.get("d_od") or 0.0) < (st.get("d_od_stated") or 0.0) - 0.01
+        bad = [v for v in nav_verdicts if v[0] <= t + 1e-9 and not v[1]]
+        founded = not (e.get("input") == "d_od" and lowered and bad)
+        return "no safe speed", founded, {"input": e.get("input"), "why": e.get("why")}
+    if name == "failsafe":
+        return f"failsafe ({e.get('cause')})", True, {}
+    if name == "no_avoiding_plan":
+        ahead = obs.nearest_in_corridor(tr, corridor)
+        return "no avoiding plan", ahead <= stated, {"obstacle_true_m": ahead, "notes": e.get("notes")}
+    if name == "violation_start":
+        sub = e["subsystem"]
+        g = e.get("guarantee", "")
+        if sub == "navigation" and g == "every obstacle within D_od is detected":
+            action = e.get("action", "")
+            if ":" in action:  # lowered by the evidence of a medium (or a disagreement): clear air has no medium
+                return "violation (navigation)", False, {"action": action}
+            seen, assumed = float(e["observed"]), float(e["assumed"])
+            tol = NOISE_SIGMAS * noise_m(rig, seen) + 0.1
+            rho = obs.reflectivity_near(tr, seen, tol + 0.5)
+            if rho is None:
+                return "violation (navigation)", False, {"observed": seen, "assumed": assumed, "surface": None}
+            c = rig.sim.sensor.cfg
+            reach = detection_range(0.0, rho, c.max_range_m, getattr(c, "rated_reflectivity", RATED_REFLECTIVITY))
+            # a surface its rays stepped over a frame before (a thin column between them) was truly not seen
+            stepped_over = obs.sensor_before(t, tr, seen, assumed) == "missed"
+            return "violation (navigation)", reach < assumed - tol or stepped_over, {
+                "observed": seen, "assumed": assumed, "reflectivity": rho, "true_reach_m": reach,
+                "rays_missed_it": stepped_over}
+        if sub == "environment":
+            return "violation (environment)", obs.wide_in_view(tr, stated, R_OBST_M), {"observed": e.get("observed")}
+        return f"violation ({sub})", True, {"guarantee": g}
+    raise ValueError(name)
+
+
+OBSTACLE = "obstacle inside the stop distance"  # the stop contract's hold (companion/onboard/states.py Cause)
+AFTER_STOP_S = 3.0  # a flight ends this long after the daemon's first Hold or braking stop (the pilot takes over)
+JUDGED = ("hold_trigger", "failsafe", "no_avoiding_plan", "violation_start")
+STOPS = ("hold_trigger", "failsafe", "no_avoiding_plan")
+
+
+def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = None, rig_kw: dict | None = None,
+        sensor: dict | None = None) -> dict:
+    """One clear-air flight and its judged events (module docstring); `sensor`: as `scenario_of`'s."""
+    sc = scenario_of(mode, model, family, seed, sensor)
+    route = sc["route"]["waypoints"]
+    length = sum(math.dist(a, b) for a, b in pairwise(route))
+    seconds = seconds if seconds is not None else length / CRUISE_M_S + 15.0
+    rig = Rig(sc, "px4", config=config_of(mode, route, model), **(rig_kw or {}))
+    obs = Observer(rig)
+    end = route[-1]
+
+    stopped: list[float] = []
+
+    def watch(r) -> bool:
+        obs.sample()
+        i = getattr(r.daemon, "_last_in", None)  # read only: what the supervisor judged this cycle
+        if i is not None:
+            obs.seen.append((i.t, i.dod.obstacle_m, i.dod.d_od, i.dod.stated_m))
+        tr = obs.samples[-1][1]
+        if not stopped and any(e["event"] in STOPS for e in r.log.events[-8:]):
+            stopped.append(r.sim.time_s)
+        return (math.hypot(tr.x - end[0], tr.y - end[1]) < 1.0 and r.sim.time_s > 5.0) or \
+            (bool(stopped) and r.sim.time_s >= stopped[0] + AFTER_STOP_S)
+
+    (engage_and_fly if mode == "offboard" else fly_mission)(rig, seconds, until=watch)
+    cut = stopped[0] if stopped else math.inf  # flight-hours count to the first stop: after it the pilot flies
+    airborne = sum(1 for t, tr in obs.samples if tr.alt > 0.5 and t <= cut) / rig.cfg.loop_hz
+    events, nav = [], []
+    for e in sorted((e for e in rig.log.events if e["event"] in JUDGED), key=lambda e: e["t"]):
+        kind, founded, why = judge(rig, obs, e, nav)
+        inherited = kind == "no safe speed" or "after a late first detection" in why.get("action", "")
+        if not founded and inherited:  # it rests on an earlier unfounded lowering of D_od: that one's cause
+            why["cause"] = next((c for _, ok, c in reversed(nav) if not ok), "other")
+        elif not founded:
+            seen = why.get("obstacle_seen_m", why.get("observed"))
+            why["cause"] = likely_cause(rig, obs.at(e["t"]), seen if seen is not None else obs.daemon_saw(e["t"])[0])
+        if kind == "violation (navigation)":
+            nav.append((e["t"], founded, why.get("cause")))
+        events.append({"t": round(e["t"], 2), "kind": kind, "founded": founded,
+                       **{k: (round(v, 3) if isinstance(v, float) else v) for k, v in why.items()}})
+    tr = obs.samples[-1][1]
+    return {"mode": mode, "model": model, "world": family, "seed": seed, "flown_s": round(airborne, 2),
+            "arrived": math.hypot(tr.x - end[0], tr.y - end[1]) < 1.0, "stopped_s": stopped[0] if stopped else None,
+            "collisions": len(rig.truth["collisions"]), "events": events}

@@ -1,0 +1,304 @@
+"""False alarms in clear air: what a perfect observer (the SITL's truth) calls unfounded, and the daemon-side rules
+that kept a clear-air flight from being called unsafe (companion/ground/false_alarms.py)."""
+
+import math
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mav
+
+from companion.ground.false_alarms import fly as fly_clear
+from companion.onboard.config import SensorConfig, config_from_dict
+from companion.onboard.detection_range import DetectionRange
+from companion.onboard.mavlink_in import MavlinkIn, bins_scan
+from companion.onboard.samples import Implausible, Scan
+from sitl_harness.world import Column, World
+
+SENSOR = mav.MAVLink(None, srcSystem=1, srcComponent=158)
+
+
+def _decode(distances, inc_f):
+    cfg = config_from_dict({"mode": "shadow", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 87}]})
+    inp = MavlinkIn(cfg, None, lambda: 0.0, None)
+    msg = mav.MAVLink_obstacle_distance_message(0, 0, list(distances), 0, 30, 1000, inc_f, -87.0 / 2 + inc_f / 2, 12)
+    return inp.samples(0.0, "OBSTACLE_DISTANCE", msg)
+
+
+def test_a_camera_of_87_degrees_in_17_bins_is_read_and_only_bins_in_use_are_judged():
+    """A RealSense-class camera's 87° in 17 bins of 5.12°: 72 × 5.12° is past a circle, but the 55 bins after the
+    17th are UINT16_MAX, "not used" (MAVLink common.xml OBSTACLE_DISTANCE); the 17 it uses span 87°."""
+    inc = 87.0 / 17
+    d = [1001] * 17 + [65535] * 55
+    d[8] = 420  # straight ahead
+    out = _decode(d, inc)
+    assert not [s for s in out if isinstance(s, Implausible)]
+    (scan,) = [s for s in out if isinstance(s, Scan)]
+    assert scan.quality != 1 and len(scan.known) == 17
+    assert [r for _, r in scan.hits] == [4.2] and abs(scan.hits[0][0]) < 1e-9
+
+
+def test_bins_in_use_past_a_circle_are_still_refused():
+    """Negative control: the same increment with bins in use up to the 72nd (368°, overlapping the first)."""
+    inc = 87.0 / 17
+    d = [1001] * 72
+    out = _decode(d, inc)
+    assert [s for s in out if isinstance(s, Implausible)]
+    assert [s.quality for s in out if isinstance(s, Scan)] == [1]
+
+
+# ------------------------------------------------------------------ a hovering camera that drops its centre bin
+def _hover_with_a_dropped_centre_bin(monkeypatch=None, start_m=None):
+    """A 17-bin camera (5°) hovering, its position drifting 1 mm back a frame; every bin free for 1 s, then one
+    frame without the centre bin (UINT16_MAX: unknown). D_od along the heading then."""
+    from companion.onboard import estimators
+    from companion.onboard.config import ContractConfig
+
+    if start_m is not None:
+        monkeypatch.setattr(estimators, "SWEPT_START_M", start_m)
+    cam = SensorConfig(kind="obstacle_distance", h_fov_deg=85.0, max_range_m=10.0)
+    e = estimators.DodEstimator([cam], ContractConfig(), stale_s=0.5, cover=False)
+    inc = math.radians(5.0)
+    bearings = (np.arange(17) - 8) * inc
+    t = 0.0
+    for k in range(31):
+        t = k / 30.0
+        e.add_position(t, -0.001 * k, 0.0)
+        e.add_heading(t, 0.0)
+        keep = np.ones(17, bool) if k < 30 else np.arange(17) != 8
+        e.add_scan(bins_scan(t, 0, bearings[keep], np.full(keep.sum(), np.inf), 10.0, inc, 10.0))
+        est = e.estimate(t, 0.0)
+    return est
+
+
+def test_a_hovering_camera_that_drops_its_centre_bin_keeps_what_it_just_saw_free():
+    """A dropped bin is unknown, not free: D_od along it is what the last frames saw free (the swept coverage,
+    less its position margin), not zero — zero is a "no safe speed" stop on one bin of one frame in clear air."""
+    est = _hover_with_a_dropped_centre_bin()
+    assert est.swept and 9.5 < est.d_od < 10.0
+
+
+def test_negative_control_a_chain_that_must_start_at_the_centre_leaves_a_drifting_hover_nothing(monkeypatch):
+    est = _hover_with_a_dropped_centre_bin(monkeypatch, start_m=0.0)
+    assert est.d_od == 0.0
+
+
+def test_the_swept_chain_starts_only_within_start_m_and_joins_no_gap_beyond_it():
+    from contracts.coverage import covered_distance
+
+    wedge = np.array([(0.03, 0.0, -0.3, 0.3, 5.0)])  # seen from 3 cm ahead
+    assert covered_distance((0.0, 0.0), 0.0, wedge) == 0.0
+    assert abs(covered_distance((0.0, 0.0), 0.0, wedge, start_m=0.05) - 5.03) < 1e-9
+    assert covered_distance((0.0, 0.0), 0.0, np.array([(0.08, 0.0, -0.3, 0.3, 5.0)]), start_m=0.05) == 0.0
+    two = np.array([(0.03, 0.0, -0.3, 0.3, 2.0), (2.06, 0.0, -0.3, 0.3, 3.0)])  # a 3 cm break at 2.03 m
+    assert abs(covered_distance((0.0, 0.0), 0.0, two, start_m=0.05) - 2.03) < 1e-9
+
+
+# ------------------------------------------------------------------ first detections that are no evidence
+
+INC = math.radians(5.0)
+CAMERA = SensorConfig(kind="obstacle_distance", h_fov_deg=85.0, max_range_m=10.0)
+OFFSETS = (np.arange(17) - 8) * INC  # a RealSense-class camera's 17 bins of 5°
+
+
+def frame(world, x, y, yaw, stated=10.0, dropped=()):
+    """One frame of the camera's bins from (x, y, yaw): the nearest surface of each bin's three rays (its edges and
+    centre), as the SITL's model builds it, without noise; `dropped`: bins that report nothing (UINT16_MAX)."""
+    rays = np.concatenate([OFFSETS - INC / 2, OFFSETS, OFFSETS + INC / 2])
+    r = world.ray_cast(x, y, 2.0, yaw + rays, stated).reshape(3, 17).min(axis=0)
+    keep = np.array([k not in dropped for k in range(17)])
+    return OFFSETS[keep], r[keep]
+
+
+def fly_frames(world, poses, stated=None, dropped=None, est=None):
+    """Feed frames at 30 Hz from `poses` [(x, y, yaw)]; the bounds D_od took from first detections."""
+    est = est or DetectionRange([CAMERA])
+    out = []
+    for k, (x, y, yaw) in enumerate(poses):
+        t = k / 30.0
+        s = stated(t) if stated else 10.0
+        est.add_position(t, x, y)
+        est.add_heading(t, yaw)
+        b, r = frame(world, x, y, yaw, s, dropped(k) if dropped else ())
+        est.add_scan(bins_scan(t, 0, b, r, s, INC, 10.0))
+        e = est.estimate(t, s)
+        if e.evidence["bound_m"] < math.inf:
+            out.append((round(t, 3), e.d_od, e.reason))
+    return out
+
+
+def test_a_column_that_comes_into_view_in_a_turn_is_no_evidence():
+    """Yawing at 90°/s toward a column 5 m off at 70°: it enters at the field of view's edge while the two outer
+    bins report nothing, and is first seen two bins in: no frame looked at it before (a side entry)."""
+    world = World([Column(5 * math.cos(math.radians(70)), 5 * math.sin(math.radians(70)), 0.3)])
+    poses = [(0.0, 0.0, math.radians(3.0 * k)) for k in range(20)]
+    def outer_dropped(k):  # (in the sun, say)
+        return (15, 16) if k < 12 else ()
+
+    assert fly_frames(world, poses, dropped=outer_dropped) == []
+
+
+def test_a_column_that_comes_out_from_behind_another_is_no_evidence():
+    """Flying +x past a near pole, a far one 4 m behind it comes out from behind it: the bins that now see the far
+    one saw the near one a frame before (occluded, not missed)."""
+    world = World([Column(6.0, 0.9, 0.25), Column(9.5, 1.9, 0.25)])
+    poses = [(1.5 * k / 30.0, 0.0, 0.0) for k in range(90)]
+    assert fly_frames(world, poses) == []
+
+
+def test_the_first_frame_is_no_evidence():
+    """The camera's first frame in a corridor: every wall it sees is inside its range, none of it late."""
+    world = World([Column(4.0, 0.0, 0.3)])
+    assert fly_frames(world, [(0.0, 0.0, 0.0)] * 5) == []
+
+
+def test_a_column_missed_where_the_camera_looked_is_still_evidence():
+    """The rule keeps its teeth: a dark column the camera looks straight at, reported free by the bin on it until
+    it is 4 m away (as in fog that hides), is first seen late: D_od bounded by its distance."""
+    world = World([Column(9.0, 0.0, 0.3)])
+    blind = World([])
+    est = DetectionRange([CAMERA])
+    poses = [(1.5 * k / 30.0, 0.0, 0.0) for k in range(110)]
+    out = []
+    for k, (x, y, yaw) in enumerate(poses):
+        t = k / 30.0
+        est.add_position(t, x, y)
+        est.add_heading(t, yaw)
+        b, r = frame(world if 9.0 - 0.3 - x < 4.0 else blind, x, y, yaw)
+        est.add_scan(bins_scan(t, 0, b, r, 10.0, INC, 10.0))
+        e = est.estimate(t, 10.0)
+        if e.evidence["bound_m"] < math.inf:
+            out.append(e.d_od)
+    assert out and max(out) < 4.1  # its first return: 4.06 m in the bin beside the centre
+
+
+def _fog_lift(monkeypatch=None):
+    """Honest fog: the camera states 3 m; at t = 1 s it lifts and the claim grows to 10 m with a column 4.4 m
+    ahead (the demo's case)."""
+    world = World([Column(4.4 + 0.3, 0.0, 0.3)])
+    return fly_frames(world, [(0.0, 0.0, 0.0)] * 60, stated=lambda t: 3.0 if t < 1.0 else 10.0)
+
+
+def test_a_column_first_seen_because_the_fog_lifted_is_no_evidence():
+    assert _fog_lift() == []
+
+
+def test_negative_control_without_the_claim_rules_the_fog_lift_is_a_late_detection(monkeypatch):
+    """The same frames with the stated-range rules taken out (a frame's claim not asked whether it reached the
+    column; the claim of the frame now, not the smaller of it and the last frame's): "first seen at 4.4 m"."""
+    from companion.onboard import detection_range as dr
+
+    monkeypatch.setattr(dr._View, "saw_through", lambda v, x, y, tol: True)
+    first = dr.DetectionRange._first_detections
+    monkeypatch.setattr(dr.DetectionRange, "_first_detections",
+                        lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))
+    out = _fog_lift()
+    assert out and "first seen at 4.4" in out[0][2]
+
+
+def test_every_stretch_starting_within_start_m_begins_the_chain():
+    """A hovering vehicle's wedges: a sliver of one ending 1.2 mm out and the next starting at 1.5 mm, both
+    within the vehicle: the chain runs on through the long one."""
+    from contracts.coverage import covered_distance
+
+    sliver = (0.001, 0.0, -0.001, 0.001, 0.0002)  # [1.0, 1.2] mm along the ray
+    long = (0.0015, 0.0, -0.3, 0.3, 5.0)
+    d = covered_distance((0.0, 0.0), 0.0, np.array([sliver, long]), start_m=0.05)
+    assert abs(d - 5.0015) < 1e-9
+
+
+# ------------------------------------------------------------------ clear-air flights judged by the SITL's truth
+
+
+def unfounded(row):
+    return [e for e in row["events"] if not e["founded"]]
+
+
+@pytest.mark.parametrize("mode,world", [("governor", "cluster"), ("offboard", "columns")])
+def test_a_clear_air_cluttered_flight_has_no_unfounded_hold_or_violation(mode, world):
+    """The sector sensor's bins (as the demo reads them), a stand of poles flown beside (governor: the SITL's
+    mission) or a route past columns (offboard: the daemon flies): to the route's end with nothing a perfect
+    observer would call unfounded."""
+    row = fly_clear(mode, "sector", world, 1)
+    assert row["arrived"] and row["collisions"] == 0 and row["flown_s"] > 8.0
+    assert unfounded(row) == []
+
+
+def test_negative_control_the_observer_calls_a_reaction_to_a_spurious_return_unfounded():
+    """The same governor flight with a depth camera whose spurious close returns come at 1 % a bin and frame: the
+    daemon reacts to one (a close return is an obstacle, and a first detection, until shown otherwise) and the
+    observer, finding no surface there, calls it unfounded."""
+    row = fly_clear("governor", "depth_camera", "cluster", 1, sensor={"spurious_rate": 0.01})
+    bad = [e for e in unfounded(row) if e["cause"] == "spurious close return"]
+    assert bad and bad[0]["kind"] in ("hold (obstacle)", "violation (navigation)")
+
+
+def _fog_lift_flight(monkeypatch=None):
+    """Governor, the sector sensor's bins in honest fog (3 m) until the column ahead is 4.4 m away, then clear: the
+    stated range grows from 3 to 10 m with the column inside it."""
+    from companion.ground import false_alarms as fa
+
+    sc = fa.scenario_of("governor", "sector", "plain", 1)
+    sc["world"] = {"columns": [{"x_m": 8.0, "y_m": 0.0, "radius_m": 0.3, "name": "column"}]}
+    sc["route"]["waypoints"] = [[0.0, 0.0], [5.0, 0.0]]
+    lift_at = {}
+
+    def clear_when_close(rig):
+        x = rig.sim.truth()["pos"][0]
+        if not lift_at and 8.0 - 0.3 - x <= 4.4:
+            lift_at["t"] = rig.sim.time_s
+            rig.sim.sensor.visibility_m = math.inf
+        return False
+
+    sc["faults"] = [{"at_s": 0.0, "fog": {"visibility_m": 3.0, "report": "honest"}}]
+    from companion.ground.flights import Rig, fly_mission
+
+    rig = Rig(sc, "px4", config=fa.config_of("governor", sc["route"]["waypoints"]))
+    fly_mission(rig, 20.0, until=clear_when_close)
+    assert lift_at, "the fog never lifted"
+    return [e for e in rig.log.named("violation_start") if e["subsystem"] == "navigation" and e["t"] >= lift_at["t"]]
+
+
+def test_a_fog_lifting_in_flight_is_no_evidence_of_a_shorter_detection_range():
+    assert _fog_lift_flight() == []
+
+
+def test_negative_control_without_the_claim_rules_a_fog_lifting_in_flight_is_a_violation(monkeypatch):
+    from companion.onboard import detection_range as dr
+
+    monkeypatch.setattr(dr._View, "saw_through", lambda v, x, y, tol: True)
+    first = dr.DetectionRange._first_detections
+    monkeypatch.setattr(dr.DetectionRange, "_first_detections",
+                        lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))
+    late = _fog_lift_flight()
+    assert late and "first seen" in late[0]["action"]
+
+
+# ------------------------------------------------------------------ a depth camera's depth is along its axis
+def _wall_bins(depth):
+    """A wall 5 m ahead across a 17-bin camera's view, sent as the camera sends it (each bin: the depth along the
+    axis of its nearest pixel, 5 m in every bin), decoded with the sensor's `depth` setting."""
+    cfg = config_from_dict({"mode": "shadow", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": 85,
+                                                          "max_range_m": 10.0, "depth": depth}]})
+    inp = MavlinkIn(cfg, None, lambda: 0.0, None)
+    msg = mav.MAVLink_obstacle_distance_message(0, 0, [500] * 17 + [65535] * 55, 0, 30, 1000, 5.0, -40.0, 12)
+    (scan,) = [s for s in inp.samples(0.0, "OBSTACLE_DISTANCE", msg) if isinstance(s, Scan)]
+    return dict(scan.hits)
+
+
+def test_axis_depth_is_read_as_the_least_range_the_bin_allows_never_more_than_the_truth():
+    hits = _wall_bins("axis_depth")
+    for b, r in hits.items():
+        edge = max(abs(b) - math.radians(2.5), 0.0)
+        true_far, true_near = 5.0 / math.cos(abs(b) + math.radians(2.5)), 5.0 / math.cos(edge)
+        assert r <= true_near + 1e-9 <= true_far + 1e-9  # the wall's nearest point in the bin is no nearer
+        assert abs(r - true_near) < 1e-9
+    assert abs(hits[0.0] - 5.0) < 1e-9
+    # the outer bins (37.5–42.5° off): the wall's nearest point in them is 5 / cos 37.5° = 6.30 m away, not 5 m
+    assert abs(hits[math.radians(40.0)] - 5.0 / math.cos(math.radians(37.5))) < 1e-9
+
+
+def test_negative_control_axis_depth_read_as_range_puts_the_side_of_a_wall_nearer_than_it_is():
+    """Read as range, every bin of the wall is 5 m away: its sides 1.2 m nearer than they are, inside a corridor
+    they are not in (a hold with nothing there)."""
+    hits = _wall_bins("range")
+    assert all(abs(r - 5.0) < 1e-9 for r in hits.values())
