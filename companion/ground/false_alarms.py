@@ -33,6 +33,7 @@ from itertools import pairwise
 
 import numpy as np
 
+from contracts.geometry import wrap_array
 from contracts.lidar import RATED_REFLECTIVITY, detection_range
 
 from .flights import Rig, engage_and_fly, fly_mission
@@ -197,7 +198,7 @@ class Observer:
         pos = np.array([before.x, before.y, -before.alt])
         true = sensor.true_ranges(self.world, pos, before.yaw)
         bearing = math.atan2(target[1] - before.y, target[0] - before.x) - before.yaw
-        off = np.abs((sensor.offsets - bearing + math.pi) % (2 * math.pi) - math.pi)
+        off = np.abs(wrap_array(sensor.offsets - bearing))
         j = int(np.argmin(off))
         if off[j] > sensor.inc / 2 + 1e-9:
             return "out of view"

@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.geometry import wrap
+from contracts.geometry import wrap, wrap_array
 from contracts.lidar import (
     BACKSCATTER_LENGTH_M,
     QUALITY_FULL_MARGIN,
@@ -125,6 +125,11 @@ class _Frame:
     near: list  # (x, y) of short returns (local frame, or body frame without a pose) on no tracked target
 
 
+def _nearest_bin(bearings: np.ndarray, b: float) -> int:
+    """The index of the bin whose bearing is nearest `b` [rad]."""
+    return int(np.argmin(np.abs(wrap_array(bearings - b))))
+
+
 @dataclass(frozen=True)
 class _View:
     """What one frame of bins looked at: from where (local frame), the bins that reported (body bearings) and how
@@ -146,7 +151,7 @@ class _View:
         if d > self.stated or self.bearings.size < 3:
             return False
         b = wrap(math.atan2(y - self.y, x - self.x) - self.yaw)
-        k = int(np.argmin(np.abs((self.bearings - b + math.pi) % (2 * math.pi) - math.pi)))
+        k = _nearest_bin(self.bearings, b)
         if abs(wrap(self.bearings[k] - b)) > self.increment / 2 or k in (0, self.bearings.size - 1):
             return False
         return bool(self.ranges[k] > d + tol)
@@ -299,7 +304,7 @@ class DetectionRange:
         bearings = np.asarray(scan.known, dtype=float)
         ranges = np.full(bearings.size, math.inf)
         for b, r in scan.hits:
-            k = int(np.argmin(np.abs((bearings - b + math.pi) % (2 * math.pi) - math.pi)))
+            k = _nearest_bin(bearings, b)
             ranges[k] = min(ranges[k], r)
         views.append(_View(t, self._pos[1], self._pos[2], self._yaw[1], bearings, ranges, scan.increment or 0.0,
                            stated))

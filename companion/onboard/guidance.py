@@ -511,7 +511,7 @@ class OffboardGuidance:
                 out.append(d)
         return out
 
-    def _avoid(self, t, dt, p, v, omega, discs, z) -> Setpoint:
+    def _avoid(self, t, dt, p, v, limits, discs, z) -> Setpoint:
         """Replan when an obstacle appears (no plan), every REPLAN_S, and — at most every REPLAN_MIN_S —
         when Ω changes, the vehicle drifts from the plan or it is braking. A plan starts at the state
         measured when it was asked for, so it is followed from its request time. While the first plan is
@@ -520,7 +520,7 @@ class OffboardGuidance:
         braking, flown from its request, left the vehicle behind it by the braking's lost speed (a controller
         violation at the demo's first obstacle in fog on a loaded host)."""
         self._take(t, self.planning.poll())
-        v_max, a_max = omega
+        v_max, a_max = limits  # Ω's (V_max, a_max)
         omega = (round(v_max, 3), round(a_max, 3))
         since = t - max(self.plan_t, self.plan_t_try)
         urgent = False

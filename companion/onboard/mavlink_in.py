@@ -14,6 +14,8 @@ import time
 
 import numpy as np
 
+from contracts.geometry import wrap_array
+
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .config import Config
 from .samples import (
@@ -169,7 +171,7 @@ def axis_depth_factor(off_axis: np.ndarray, increment: float) -> np.ndarray:
     axis, off it by a, is z / cos a away, and no pixel of a bin centred `off_axis` [rad] from the axis is nearer
     to the axis than that edge — z over this is the least range the bin's depth allows, never more than the true
     range of its nearest pixel."""
-    edge = np.maximum(np.abs((off_axis + np.pi) % (2 * np.pi) - np.pi) - increment / 2.0, 0.0)
+    edge = np.maximum(np.abs(wrap_array(off_axis)) - increment / 2.0, 0.0)
     return np.cos(np.minimum(edge, np.radians(89.0)))
 
 
