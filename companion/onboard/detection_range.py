@@ -179,7 +179,6 @@ class DetectionRange:
         self._speed = 0.0
         self._yaw: tuple[float, float] | None = None  # (t, yaw)
         self._frames: deque[_Frame] = deque()  # the frames of the last rate_window_s (`_window`)
-        self._reports: dict[float, int] = {}  # their reports by the shots behind each (running sums)
         self._near_frames: deque[_Frame] = deque()  # those of them with short returns, in the same order
         self._tracks: list[_Track] = []
         self._alphas = WindowMax(params.recover_s)  # α̂ of the last recover_s
@@ -251,7 +250,6 @@ class DetectionRange:
         hist.append(now)
         frame = _Frame(t, i, reports, self.shots_of(i, reports), near)
         self._frames.append(frame)
-        self._reports[frame.per] = self._reports.get(frame.per, 0) + reports
         if near:
             self._near_frames.append(frame)
         if scan.known is None and placed:  # a single beam: the target it follows in (and its quality, the return's)
@@ -362,7 +360,6 @@ class DetectionRange:
         start = t - max(self.p.rate_window_s, self.p.window_s)
         while self._frames and self._frames[0].t < start:
             old = self._frames.popleft()
-            self._reports[old.per] -= old.reports
             if self._near_frames and self._near_frames[0] is old:
                 self._near_frames.popleft()
 
@@ -373,22 +370,20 @@ class DetectionRange:
         different numbers of shots (`shots_of`) are pooled by `per_shot_rate`. A window needs `min_reports`
         reports and `min_spurious` such returns to count."""
         start = t - self.p.window_s
-        last = self._counts(start, {})
+        last = self._counts(start)
         a_last = self._alpha(last, True)
         if a_last >= harmless and self._alpha(last, False) < harmless and \
-                self._alpha(self._counts(-math.inf, self._reports), True) < harmless:
+                self._alpha(self._counts(-math.inf), True) < harmless:
             a_last = 0.0  # neither the last window at its rate nor the longer one says the medium can shorten D_od
         return a_last, sum(k for _, k in last.values()), sum(n for n, _ in last.values())
 
-    def _counts(self, start: float, reports: dict[float, int]) -> dict[float, list[int]]:
-        """[reports, spurious short returns] by the shots behind each report, of the frames from `start` on (the
-        reports: `reports`'s running sums, or counted here when it is empty)."""
-        out = {per: [n, 0] for per, n in reports.items() if n > 0}
-        if not reports:
-            for f in reversed(self._frames):
-                if f.t < start:
-                    break
-                out.setdefault(f.per, [0, 0])[0] += f.reports
+    def _counts(self, start: float) -> dict[float, list[int]]:
+        """[reports, spurious short returns] by the shots behind each report, of the frames from `start` on."""
+        out: dict[float, list[int]] = {}
+        for f in reversed(self._frames):
+            if f.t < start:
+                break
+            out.setdefault(f.per, [0, 0])[0] += f.reports
         for f in reversed(self._near_frames):
             if f.t < start:
                 break
