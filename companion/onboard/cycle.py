@@ -21,6 +21,7 @@ from contracts.table import ContractTable
 from .authority import HOLD, ModeAuthority, ModeRequest, ModeView, Requester
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
+from .contract_in_force import fallback_for
 from .config import Config
 from .flying import OffboardFlight, RecoveryBrake
 from .guidance import OffboardGuidance, Route, obstacle_discs
@@ -67,7 +68,7 @@ class Cycle:
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
                               e_tr_floor_m=sensing.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s,
-                              t_cmd_s=cfg.delivery.t_cmd_s)
+                              t_cmd_s=cfg.delivery.t_cmd_s, fallback=fallback_for(cfg, contract))
         self.checks = StartupChecks(adapter, veh, cfg, table.e_pred is not None)
         self.view: ModeView | None = None  # this cycle's mode, as the authority judged it
         self.authority = ModeAuthority(adapter.hold_mode(), cfg.delivery.t_cmd_s, cfg.delivery.t_mode_s,

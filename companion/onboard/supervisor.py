@@ -29,6 +29,7 @@ from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
 from .authority import GUARANTEE_ANSWERED, Late
+from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, fallback_omega
 from .estimators import DodEstimate
 from .guidance import inflated
 from .modes import Mode, mode_of
@@ -247,6 +248,7 @@ class Supervisor:
     def __init__(self, table: ContractTable, mode: str | Mode, *, contract: str, dwell_s: float, speed_margin: float,
                  loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
                  e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None,
+                 fallback: ContractInForce | None = None,
                  t_cmd_s: float = 0.0):
         """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
         `late_hold_s`: a cycle this late breaks the daemon's own guarantee outright (Hold); `late_allowance_s`: the
@@ -255,12 +257,15 @@ class Supervisor:
         `e_tr_window_s`, `e_tr_floor_m`: the window E_tr is measured over and the floor it never reads below
         (`contract.e_tr_window_s`, `contract.e_tr_floor_m`), so also what its prediction is judged over;
         `ramp_m_s`: governor mode's approach ramp (`governor.approach_ramp_m_s`, `ApproachRamp`), None: none;
-        `t_cmd_s`: the command-delivery budget the stop contract adds to its dead time (`delivery.t_cmd_s`)."""
+        `t_cmd_s`: the command-delivery budget the stop contract adds to its dead time (`delivery.t_cmd_s`);
+        `fallback`: under the avoid contract, which contract is in force each cycle (the stop contract where the
+        avoid contract's assumptions are not there: companion/onboard/contract_in_force.py), None: always `contract`."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
         self.mode = mode_of(mode)
-        self.contract = contract
+        self.contract = self.configured = contract  # `contract`: the one in force this cycle
+        self.fallback = fallback if contract == "avoid" else None
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -463,14 +468,18 @@ class Supervisor:
         return om
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
-        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s, self.e_surface)
+        key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s, self.e_surface,
+               self.contract)
         om = self._omega_at.get(key)
         if om is None:
-            if len(self._omega_at) >= 4:  # this cycle's few lookups (with and without the brake, the ramp)
+            if len(self._omega_at) >= 6:  # this cycle's few lookups (with and without the brake, the ramp, fallen back)
                 self._omega_at.clear()
-            om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
-                                                        a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s,
-                                                        e_brake=self.e_surface == "brake")
+            if self.contract != self.configured:  # fallen back to the stop contract (offboard)
+                om = self._omega_at[key] = fallback_omega(self.table, d_od, i, self.t_cmd, self.loop_dt)
+            else:
+                om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
+                                                            a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s,
+                                                            e_brake=self.e_surface == "brake")
         return om
 
     # ------------------------------------------------------------------ the cycle
@@ -495,16 +504,21 @@ class Supervisor:
         virtual obstacle's E_tr and the vehicle's radius)."""
         d = self._decide(i)
         e_tr_virtual = self.e_tr_virtual(i, d)
+        # under the stop contract guidance plans round nothing: it cruises the route, and stops
+        discs = i.discs if self.contract == self.configured else ()
         return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
-                        e_tr_virtual, tuple(inflated(list(i.discs), e_tr_virtual, self.table.vehicle.r_body_m)),
+                        e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, self.table.vehicle.r_body_m)),
                         tuple(d.hold_causes))
 
     def _decide(self, i: Inputs) -> _Draft:
         """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still
         be done, the holds, and the limit in force."""
         ramp = self._judge_ramp(i) if self.ramp is not None else None
+        in_force = self._contract_in_force(i)
         om = self.omega(i)
         d = _Draft(self.state, om, self.limit.value)
+        if in_force is not None and in_force.changed:
+            self._said_in_force(d, in_force)
         if ramp is not None:
             self._ramp_events(d, i, *ramp)
         self._authority(d, i)
@@ -540,7 +554,11 @@ class Supervisor:
             self._recent_limits.popleft()
         d.v_cmd = v_limit
         if fresh:
+            dead_end = Cause.OBSTACLE in fresh and self.contract != self.configured and self.state != State.HOLDING
             self._hold(d, fresh)
+            if dead_end:  # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
+                d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": i.dod.obstacle_m}))
+                d.statustext.append((2, f"CG: {DEAD_END}"))
             return d
         if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
             return d  # stay stopped until someone else decides (authority; latched: Hold asked, not yet seen)
@@ -568,6 +586,21 @@ class Supervisor:
         self._last_seq = i.mission_seq
         self._last_in_air = i.in_air
 
+    def _contract_in_force(self, i: Inputs) -> InForce | None:
+        """The contract in force this cycle (`self.contract`), judged by the fallback on the avoid contract's Ω at
+        these inputs (its E_tr: the keep-out disc the pass goes round); None without a fallback."""
+        if self.fallback is None:
+            return None
+        self.contract = self.configured
+        now = self.fallback.judge(i, self.contract_omega(i), self.table.vehicle.r_body_m)
+        self.contract = now.contract
+        return now
+
+    @staticmethod
+    def _said_in_force(d: _Draft, now: InForce) -> None:
+        d.events.append(("contract_in_force", {"contract": now.contract, "reason": now.reason}))
+        d.statustext.append((4 if now.contract == "stop" else 5, f"CG: {now.contract} contract in force: {now.reason}"))
+
     def _judge_guarantees(self, d: _Draft, i: Inputs, om: Omega) -> None:
         """Every subsystem's guarantee, logged in every mode (shadow included): actuators, environment, navigation
         (D_od), the daemon's own timeliness, the controller (E_tr ≤ E_tr_pred) and command delivery."""
@@ -578,10 +611,11 @@ class Supervisor:
                         observed=i.thrust_ratio, action="no safe speed: hold"))
         # R_obst is the avoid contract's assumption (the swerve round one column of it); the stop contract stops
         # short of whatever is within D_od, whatever its width: under it a wall or a wide box breaks nothing
-        wide = self.contract == "avoid" and i.obstacle_width > i.r_obst + 0.05
+        wide = self.configured == "avoid" and i.obstacle_width > i.r_obst + WIDE_TOL_M
         self._violation(d, Subsystem.ENVIRONMENT, wide, lambda: dict(
                         subsystem=Subsystem.ENVIRONMENT, guarantee="no obstacle wider than R_obst", assumed=i.r_obst,
-                        observed=i.obstacle_width, action="planning round the observed width"))
+                        observed=i.obstacle_width, action="falling back to the stop contract" if self.fallback else
+                        "planning round the observed width"))
         if i.dod.swept != self._dod_swept:  # D_od's basis: said when the swept coverage starts and ends
             self._dod_swept = i.dod.swept
             basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")

@@ -1,0 +1,192 @@
+"""The contract in force in offboard mode: the avoid contract while what it assumes is there, else the stop contract.
+
+Pure: no I/O; `ContractInForce.judge(inputs, e_tr)` once a cycle, `fallback_omega(...)` the operating point under
+the stop contract as offboard flies it.
+
+The avoid contract (the paper's numerical construction, DESIGN.md §1) assumes
+
+(i)  one obstacle no wider than R_obst at a time: the swerve round one keep-out disc of radius
+     r_k = R_obst + E_tr + r_body. Among walls the daemon would plan round a wall as one huge disc, which no cell of
+     the table covers;
+(ii) that the sensors keep the swerve in view. A pass round the keep-out disc whose centre lies c = D_od + R_obst
+     ahead leaves along a bearing at least asin(ρ) off the line to the obstacle, ρ = r_k / c (the table's own reduced
+     axis, DESIGN.md §2), and the vehicle's heading — the sensors' axis — lags behind its track. The pass is seen
+     only where asin(ρ) + lag ≤ the half-width of the forward field of view (on the narrower side: the pass may go
+     either way).
+
+Where either fails the stop contract is in force: Ω is the table's stop contract with the braking stop offboard
+flies (`fallback_omega`), something in the swept corridor within stopping distance is a braking stop then Hold at
+rest (the supervisor's OBSTACLE hold cause, as in governor mode), and guidance plans round nothing: it cruises the
+route. A thing wider than R_obst keeps the stop contract in force until the vehicle has flown the detection range it
+was seen within (D_od at the last sighting) past the last sighting: until then it may still be within reach. The
+avoid contract comes back only once its assumptions have held for `dwell_s` (limits move one way fast).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+from contracts.table import ContractTable, Omega
+
+# [deg] the heading's lag behind the track the field-of-view rule budgets: the median measured in the SITL (true heading
+# against true track above 1 m/s over 20 offboard flights: median 8°, 17–21° at speed). Not the worst: the rule
+# already asks more of the sensors than the evidence needs (no collision in 161 narrow-beam flights with beams of
+# 12° and more, half of which is less than asin(ρ) at any D_od), and a 60° sensor keeps the swerve round a column
+# in view from D_od ≈ 4 m with it, ≈ 8 m with the worst lag
+LAG_BUDGET_DEG = 8.0
+WIDE_TOL_M = 0.05
+MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
+AVOID, STOP = "avoid", "stop"
+DEAD_END = "no path the contract can prove: stopped"
+
+
+def pass_bearing(r_k: float, c: float) -> float:
+    """[rad] the least bearing off the line to the obstacle along which a pass round the keep-out disc of radius r_k
+    centred c ahead leaves: asin(ρ), ρ = r_k / c (π/2 where the disc reaches the vehicle)."""
+    return math.asin(min(r_k / c, 1.0)) if c > 0.0 else math.pi / 2
+
+
+def forward_half_fov(sensors) -> float:
+    """[rad] the half-width of the configured sensors' joint field of view about the forward axis: the largest a with
+    the bearings [−a, a] inside the union of their fields of view (0 where none looks forward)."""
+    arcs = []
+    for s in sensors:
+        half = math.radians(min(s.h_fov_deg, 360.0)) / 2
+        if half >= math.pi:
+            return math.pi
+        c = (math.radians(s.orientation_deg) + math.pi) % (2 * math.pi) - math.pi
+        arcs += [(c - half + k * 2 * math.pi, c + half + k * 2 * math.pi) for k in (-1, 0, 1)]
+    lo = hi = None  # the union's interval about 0
+    for a, b in sorted(arcs):
+        if hi is not None and a <= hi:
+            hi = max(hi, b)  # overlaps the interval being grown
+        elif hi is not None and hi >= 0.0:
+            break  # a gap after the interval round 0
+        else:
+            lo, hi = a, b
+    if lo is None or not lo <= 0.0 <= hi:
+        return 0.0
+    return min(hi, -lo, math.pi)
+
+
+def avoid_d_od_from(half_fov: float, r_k: float, r_obst: float, lag: float) -> float | None:
+    """[m] the least D_od at which the field-of-view rule holds (asin(r_k / (D_od + R_obst)) + lag ≤ half_fov), None
+    where it holds at no range."""
+    room = half_fov - lag
+    if room <= 0.0:
+        return None
+    if room >= math.pi / 2:
+        return 0.0
+    return max(r_k / math.sin(room) - r_obst, 0.0)
+
+
+def banner_line(sensors, r_k: float, r_obst: float, top_m: float) -> str:
+    """The start banner's line: the D_od range in which the configured sensors keep the avoid contract's swerve in
+    view (at the least E_tr assumed), or that offboard flies the stop contract only."""
+    half = forward_half_fov(sensors)
+    d = avoid_d_od_from(half, r_k, r_obst, math.radians(LAG_BUDGET_DEG))
+    what = (f"the forward field of view ±{math.degrees(half):.1f}° less the heading's lag {LAG_BUDGET_DEG:g}° "
+            f"against the pass bearing asin(r_k / (D_od + R_obst)), r_k {r_k:.2f} m")
+    if d is None or d >= top_m:
+        return f"avoid contract in view: {what}: at no D_od within {top_m:g} m: stop contract only"
+    return (f"avoid contract in view: {what}: from D_od {d:.2f} m (to {top_m:g} m); below it, or among things "
+            f"wider than R_obst, offboard flies the stop contract")
+
+
+@dataclass(frozen=True, slots=True)
+class InForce:
+    """The contract in force this cycle, why, and whether it changed this cycle."""
+
+    contract: str
+    reason: str
+    changed: bool = False
+
+
+class ContractInForce:
+    """Judges, each cycle, which contract offboard flies (the module's docstring: the rule, and how long a sighting
+    holds)."""
+
+    def __init__(self, half_fov: float, dwell_s: float, lag: float = math.radians(LAG_BUDGET_DEG)):
+        self.half_fov, self.dwell_s, self.lag = half_fov, dwell_s, lag
+        self.now = InForce(AVOID, "its assumptions hold")
+        self._odo = 0.0  # [m] flown, from the ground speed
+        self._t: float | None = None
+        self._wide: tuple[float, float] | None = None  # (odometer, D_od) at the last sighting of something wide
+        self._clear_since: float | None = None  # the avoid contract's assumptions have held since
+
+    def judge(self, i, avoid: Omega, r_body: float) -> InForce:
+        """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
+        D_od) and the avoid contract's Ω at them (`avoid`: the speed it would fly and the E_tr it takes, with the
+        vehicle's radius `r_body` the keep-out disc). Where the avoid contract has no speed to fly there is no swerve
+        to keep in view: the field-of-view rule is not judged (either contract holds the vehicle there)."""
+        speed = i.ground_speed if math.isfinite(i.ground_speed) else 0.0
+        if self._t is not None:
+            self._odo += speed * max(i.t - self._t, 0.0)
+        self._t = i.t
+        e_tr = avoid.e_tr if math.isfinite(avoid.e_tr) else i.e_tr_measured
+        why = self._broken(i, e_tr + r_body + i.r_obst, avoid.v_max >= MIN_SPEED_M_S)
+        if why is not None:
+            self._clear_since = None
+            return self._say(InForce(STOP, why))
+        if self.now.contract == STOP:
+            self._clear_since = i.t if self._clear_since is None else self._clear_since
+            if i.t - self._clear_since < self.dwell_s:
+                return self._say(self.now)
+        return self._say(InForce(AVOID, "its assumptions hold: one obstacle no wider than R_obst, the pass in view"))
+
+    def _broken(self, i, r_k: float, swerves: bool) -> str | None:
+        """Which assumption of the avoid contract does not hold now (None: both hold)."""
+        d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
+        if i.obstacle_width > i.r_obst + WIDE_TOL_M:
+            self._wide = (self._odo, d_od)
+            return f"an obstacle {i.obstacle_width:.2f} m wide (half-width) in view, wider than R_obst {i.r_obst:g} m"
+        if self._wide is not None:
+            flown = self._odo - self._wide[0]
+            if flown < self._wide[1]:
+                return (f"an obstacle wider than R_obst seen {flown:.1f} m ago, within reach until "
+                        f"{self._wide[1]:.1f} m past it")
+            self._wide = None
+        bearing = pass_bearing(r_k, d_od + i.r_obst)
+        if swerves and bearing + self.lag > self.half_fov:
+            return (f"the pass at D_od {d_od:.2f} m leaves {math.degrees(bearing):.1f}° off the obstacle, with the "
+                    f"heading's lag {math.degrees(self.lag):g}° beyond the field of view ±"
+                    f"{math.degrees(self.half_fov):.1f}°")
+        return None
+
+    def _say(self, new: InForce) -> InForce:
+        changed = new.contract != self.now.contract
+        self.now = replace(new, changed=changed)
+        return self.now
+
+
+def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: float) -> Omega:
+    """Ω under the stop contract as offboard flies it: the stop is the daemon's own braking stop from offboard
+    (flying.py `OffboardFlight`: the airframe's braking at the tilt flown, never softer than the autopilot's, at the
+    stop jerk — `contracts.stop.recovery_brake_stop`, the recovery brake's), so the table's stop slot with the
+    recovery brake's stop and its E_tr_pred surface (`recovery_dt` one loop period, `e_brake`); the dead time it
+    budgets (reaction, the switch, a loop period, `t_cmd`) is more than offboard's, which needs no switch. The
+    vehicle cruises on offboard setpoints, so E_tr is at least the offboard (avoid) surface's at the speed flown:
+    E_tr = max(measured, E_tr_pred_avoid(V)), V from the stop contract at the measured E_tr, then again at that E_tr
+    (a larger E_tr never gives a higher V_max, so the second answer is safe at its own speed). Never above the avoid
+    contract's own Ω at the same inputs. `d_od`: the detection range after any lateness fold (the supervisor's)."""
+    r, thr, e = i.r_obst, i.thrust_ratio, i.e_tr_measured
+    t_silent = i.dod.silence_s
+
+    def stop(e_tr: float) -> Omega:
+        return table.omega(d_od, r, e_tr, thr, contract=STOP, recovery_dt=loop_dt, t_cmd=t_cmd, t_silent=t_silent,
+                           e_brake=True)
+
+    first = stop(e)
+    e_avoid = table.e_tr_pred(first.v_max, first.tilt, thr, AVOID) if first.v_max > 0.0 else e
+    om = stop(max(e, e_avoid)) if math.isfinite(e_avoid) else replace(first, v_max=0.0, v_safe=0.0, gamma=0.0,
+                                                                     reason="no E_tr_pred for offboard at this speed")
+    avoid = table.omega(d_od, r, e, thr, contract=AVOID, t_silent=t_silent)
+    return om if om.v_max <= avoid.v_max else replace(avoid, contract=STOP, reason=f"{avoid.reason} (the avoid "
+                                                                                    "contract's, lower)")
+
+
+def fallback_for(cfg, contract: str) -> ContractInForce | None:
+    """The daemon's fallback under the avoid contract, from the configured sensors' forward field of view and the
+    contract's dwell (None under the stop contract: nothing to fall back from)."""
+    return ContractInForce(forward_half_fov(cfg.sensors), cfg.contract.dwell_s) if contract == AVOID else None
