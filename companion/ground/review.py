@@ -161,6 +161,8 @@ class _Summary:
         # the flight itself against the contract (what shadow mode would have enforced): ground speed above
         # V_safe (gamma_flown > tolerance) and above the limit, as spans
         self.flown = _Spans("gamma_flown")
+        self.fallen_back = _Spans("v_max")  # offboard flown under the stop contract (its avoid contract's fallback)
+        self.avoid_run = False  # this daemon run was configured for the avoid contract (its `start` record)
         self.over = _Spans("excess_m_s")
         self.flown_s = 0.0
         self.would: list[dict] = []  # shadow mode: the holds the daemon would have commanded, as spans
@@ -256,6 +258,7 @@ class _Summary:
         # above the limit by more than a tracking overshoot (the supervisor's own rule: 5 % + tolerance)
         over_far = over is not None and over > self.tol + OVERSHOOT * limit
         self.flown.add(t, gf is not None and gf > self.tol, gf)
+        self.fallen_back.add(t, self.avoid_run and rec.get("contract") == "stop", _num(rec.get("v_max")))
         self.over.add(t, over_far, over)
         if self.prev is not None and t is not None:
             pt, pgamma, pover, pflown = self.prev
@@ -303,6 +306,8 @@ class _Summary:
         name = name if isinstance(name, str) else str(name)
         g = rec.get
         self._ending(name, t, g)
+        if name == "start":
+            self.avoid_run = g("contract") == "avoid"
         if name == "violation_start":
             key = (self.boot, _hashable(g("subsystem")), _hashable(g("guarantee")))
             if key not in self.open_viol:
@@ -453,6 +458,7 @@ class _Summary:
             self._close_would(self.last_t_of_boot, why)
         self.flown.end()
         self.over.end()
+        self.fallen_back.end()
         for v in self.open_viol.values():
             v.update(end_t=self.last_t_of_boot, ended_by=why)
             st = v["start_t"]
@@ -508,6 +514,8 @@ class _Summary:
                 "worst_gamma_flown": self.flown.worst,
                 "above_limit": self.over.spans,
             },
+            # offboard: the spans flown under the stop contract where the avoid contract's assumptions were not there
+            "stop_contract": {"spans": self.fallen_back.spans, "count": self.fallen_back.count},
             "would_hold": self.would,
             "would_hold_count": len(self.would),
             "modes": self.modes,
@@ -983,6 +991,12 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         for sp in oc["above_limit"]:
             lines.append(f"    above the limit: {_fmt_t(sp['start_t'])} … {_fmt_t(sp['end_t'])}  up to "
                          f"{fmt_value(sp['worst'], ' m/s')} at {_fmt_t(sp['worst_t'])}")
+    fb = rep.get("stop_contract")
+    if fb and fb["count"]:
+        lines.append(f"  flown under the stop contract (offboard; the avoid contract's assumptions not there): "
+                     f"{fb['count']} span(s)")
+        for sp in fb["spans"]:
+            lines.append(f"    {_fmt_t(sp['start_t'])} … {_fmt_t(sp['end_t'])}")
     if rep.get("would_hold") is not None and (rep["would_hold"] or commanded_nothing):
         lines.append(f"  would have held (shadow mode): {rep['would_hold_count']}")
         for wh in rep["would_hold"]:

@@ -208,6 +208,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
                         for k, s in enumerate(cfg.sensors)) or "none (D_od is 0: no speed is safe)"
     engage = "engaged from the start" if cfg.engage else "engages when asked (CG_ENGAGE 1)"
     from .assumptions import e_tr_floor, start_thrust
+    from .contract_in_force import banner_line as swerve_line
     from .coverage import banner_line
     from .detection_range import evidence_line
 
@@ -232,6 +233,9 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
             "autopilot's violation)"]),
         f"sensors: {sensors}",
         banner_line(cfg.sensors, table.vehicle.r_body_m, e_tr_floor(cfg, table)),
+        *([] if cfg.daemon_mode.contract != "avoid" else [swerve_line(
+            cfg.sensors, ct.r_obst_m + e_tr_floor(cfg, table) + table.vehicle.r_body_m, ct.r_obst_m,
+            max((s.max_range_m or 0.0 for s in cfg.sensors), default=0.0))]),
         evidence_line(cfg.sensors),
         f"contract settings: R_obst {ct.r_obst_m:g} m (CG_R_OBST {ct.r_obst_range_m[0]:g}–{ct.r_obst_range_m[1]:g} m "
         f"from systems {', '.join(map(str, lk.gcs_system_ids))}), E_tr floor {ct.e_tr_floor_m:g} m over "

@@ -33,7 +33,7 @@ from contracts.table import ContractTable, Omega
 # against true track above 1 m/s over 20 offboard flights: median 8°, 17–21° at speed). Not the worst: the rule
 # already asks more of the sensors than the evidence needs (no collision in 161 narrow-beam flights with beams of
 # 12° and more, half of which is less than asin(ρ) at any D_od), and a 60° sensor keeps the swerve round a column
-# in view from D_od ≈ 4 m with it, ≈ 8 m with the worst lag
+# in view (R_obst 1 m, E_tr 0.3 m, the Mambo) from D_od ≈ 2.7 m with it, ≈ 8 m with the worst lag
 LAG_BUDGET_DEG = 8.0
 WIDE_TOL_M = 0.05
 MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
@@ -117,14 +117,15 @@ class ContractInForce:
 
     def judge(self, i, avoid: Omega, r_body: float) -> InForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
-        D_od) and the avoid contract's Ω at them (`avoid`: the speed it would fly and the E_tr it takes, with the
-        vehicle's radius `r_body` the keep-out disc). Where the avoid contract has no speed to fly there is no swerve
+        D_od, the measured E_tr) and the avoid contract's Ω at them (`avoid`: the speed it would fly; `r_body` the
+        vehicle's radius). The keep-out disc of the rule is r_k = R_obst + E_tr + r_body with the measured E_tr (its
+        floor at least), as the table's ρ axis is read. Where the avoid contract has no speed to fly there is no swerve
         to keep in view: the field-of-view rule is not judged (either contract holds the vehicle there)."""
         speed = i.ground_speed if math.isfinite(i.ground_speed) else 0.0
         if self._t is not None:
             self._odo += speed * max(i.t - self._t, 0.0)
         self._t = i.t
-        e_tr = avoid.e_tr if math.isfinite(avoid.e_tr) else i.e_tr_measured
+        e_tr = i.e_tr_measured if math.isfinite(i.e_tr_measured) else math.inf
         why = self._broken(i, e_tr + r_body + i.r_obst, avoid.v_max >= MIN_SPEED_M_S)
         if why is not None:
             self._clear_since = None

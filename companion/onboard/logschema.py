@@ -119,6 +119,14 @@ EVENTS = {
                           "D_od's basis changed to or from `swept`: the direction of travel outside every field of "
                           "view, D_od the distance along it seen free recently (else `field of view` or `none`: 0)"),
     "violation_end": Event(("subsystem", "guarantee"), "supervisor", "that guarantee holds again"),
+    "contract_in_force": Event(("contract", "reason"), "supervisor",
+                               "offboard: the contract in force changed — `stop` where the avoid contract's assumptions "
+                               "are not there (something wider than R_obst in view or still within reach, or a swerve "
+                               "the sensors' field of view would not keep in view at this D_od), `avoid` again once "
+                               "they have held for the dwell"),
+    "dead_end": Event(("reason", "obstacle_m"), "supervisor",
+                      "offboard under the stop contract: something in the swept corridor within the stopping distance "
+                      "(obstacle_m ahead): a braking stop, then Hold — no path the contract can prove"),
     "state_change": Event(("from", "to", "reason"), "supervisor", "supervisor state changed"),
     "mode_change": Event(("from", "to", "by"), "supervisor", "autopilot mode changed (by: daemon | other)"),
     "failsafe": Event(("cause", "action", *_NO_SPEED), "supervisor", "a failsafe cause made the daemon hold (a "

@@ -1,0 +1,220 @@
+"""Offboard falls back to the stop contract where what the avoid contract assumes is not there
+(companion/onboard/contract_in_force.py): something wider than R_obst in view or still within reach, or a swerve the
+sensors' forward field of view would not keep in view at this D_od. The rule's pieces directly, then lock-step flights
+of the real daemon against the real SITL over real MAVLink bytes, each with its negative control (the fallback
+disabled: the old behaviour)."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import pytest
+
+from companion.ground.false_alarms import config_of, scenario_of
+from companion.onboard.contract_in_force import (
+    LAG_BUDGET_DEG,
+    ContractInForce,
+    avoid_d_od_from,
+    banner_line,
+    fallback_omega,
+    forward_half_fov,
+    pass_bearing,
+)
+from companion.onboard.estimators import DodEstimate
+from contracts.table import load_for_vehicle
+from tests.lockstep import Rig, engage_and_fly
+
+TABLE = load_for_vehicle("mambo")
+LAG = math.radians(LAG_BUDGET_DEG)
+R_K = 1.0 + 0.3 + 0.1  # R_obst 1 m, E_tr 0.3 m, the Mambo's r_body 0.1 m
+
+
+def _sensor(orientation=0.0, fov=60.0, rng=10.0):
+    return SimpleNamespace(orientation_deg=orientation, h_fov_deg=fov, max_range_m=rng)
+
+
+def _inputs(t, d_od=9.0, width=0.0, speed=5.0, e_tr=0.3, r_obst=1.0):
+    dod = SimpleNamespace(d_od=d_od, silence_s=0.0)
+    return SimpleNamespace(t=t, ground_speed=speed, obstacle_width=width, r_obst=r_obst, dod=dod, e_tr_measured=e_tr,
+                           thrust_ratio=1.0)
+
+
+def _avoid(v=5.0):
+    return SimpleNamespace(v_max=v, e_tr=0.5)
+
+
+# ----------------------------------------------------------------------------- the rule's pieces
+
+def test_the_pass_bearing_is_the_tables_own_axis():
+    """asin(ρ), ρ = r_k / (D_od + R_obst): 7.6° at D_od 9.6 m and 20° at 3 m (the Mambo, R_obst 1 m, E_tr 0.3 m)."""
+    assert math.degrees(pass_bearing(R_K, 9.6 + 1.0)) == pytest.approx(7.6, abs=0.05)
+    assert math.degrees(pass_bearing(R_K, 3.0 + 1.0)) == pytest.approx(20.5, abs=0.05)
+    assert pass_bearing(R_K, 0.5) == pytest.approx(math.pi / 2)  # the disc reaches the vehicle
+
+
+def test_the_forward_field_of_view_is_the_narrower_side_of_the_joint_view():
+    half = lambda *s: round(math.degrees(forward_half_fov(list(s))), 6)  # noqa: E731
+    assert half(_sensor(fov=60)) == 30.0
+    assert half(_sensor(fov=9)) == 4.5
+    assert half(_sensor(orientation=20, fov=60)) == 10.0  # turned right: the left side is what is left
+    assert half(_sensor(-30, 60), _sensor(30, 60)) == 60.0  # two that overlap at the nose
+    assert half(_sensor(-40, 60), _sensor(40, 60)) == 0.0  # a gap at the nose
+    assert half(_sensor(90, 60)) == 0.0  # none looks forward
+    assert half(_sensor(fov=360)) == 180.0
+
+
+def test_the_range_the_swerve_is_in_view():
+    """A 60° sensor keeps the swerve in view from D_od ≈ 2.7 m (the lag budget's median 8°); a beam narrower than
+    twice the lag budget at no range."""
+    d = avoid_d_od_from(math.radians(30), R_K, 1.0, LAG)
+    assert d == pytest.approx(R_K / math.sin(math.radians(22)) - 1.0)
+    assert math.degrees(pass_bearing(R_K, d + 1.0)) + LAG_BUDGET_DEG == pytest.approx(30.0)
+    assert avoid_d_od_from(math.radians(6), R_K, 1.0, LAG) is None
+    assert "from D_od 2.74 m" in banner_line([_sensor()], R_K, 1.0, 10.0)
+    assert "stop contract only" in banner_line([_sensor(fov=12)], R_K, 1.0, 10.0)
+
+
+def test_a_wide_obstacle_keeps_the_stop_contract_until_flown_past_within_its_reach():
+    """Something wider than R_obst: stop at once; still stop while the vehicle has flown less than the D_od of the last
+    sighting past it; avoid again only after the assumptions have held for the dwell. The negative control: a column
+    no wider than R_obst never leaves the avoid contract."""
+    f = ContractInForce(math.radians(30), dwell_s=1.0)
+    assert f.judge(_inputs(0.0), _avoid(), 0.1).contract == "avoid"
+    now = f.judge(_inputs(0.1, width=2.0), _avoid(), 0.1)
+    assert (now.contract, now.changed) == ("stop", True) and "wider than R_obst" in now.reason
+    t, said = 0.1, []
+    while t < 5.0:  # 5 m/s: 9 m (the D_od of the sighting) flown after 1.8 s, then the 1 s dwell
+        t += 0.1
+        now = f.judge(_inputs(t), _avoid(), 0.1)
+        said.append((round(t, 1), now.contract))
+    first_avoid = next(tt for tt, c in said if c == "avoid")
+    assert 0.1 + 9.0 / 5.0 + 1.0 - 0.15 <= first_avoid <= 0.1 + 9.0 / 5.0 + 1.0 + 0.25
+    g = ContractInForce(math.radians(30), dwell_s=1.0)
+    assert all(g.judge(_inputs(k * 0.1, width=0.9), _avoid(), 0.1).contract == "avoid" for k in range(50))
+
+
+def test_the_field_of_view_rule_is_judged_where_the_avoid_contract_would_swerve():
+    f = ContractInForce(math.radians(30), dwell_s=1.0)
+    assert f.judge(_inputs(0.0, d_od=6.0), _avoid(), 0.1).contract == "avoid"
+    short = f.judge(_inputs(0.1, d_od=1.25), _avoid(), 0.1)  # 38° off: out of the 60° view
+    assert short.contract == "stop" and "field of view" in short.reason
+    narrow = ContractInForce(math.radians(4.5), dwell_s=1.0)  # a 9° beam: at no D_od
+    assert narrow.judge(_inputs(0.0, d_od=12.0), _avoid(), 0.1).contract == "stop"
+    # no speed to fly under the avoid contract: no swerve to keep in view (both contracts hold the vehicle)
+    idle = ContractInForce(math.radians(30), dwell_s=1.0)
+    assert idle.judge(_inputs(0.0, d_od=0.0), _avoid(0.0), 0.1).contract == "avoid"
+
+
+@pytest.mark.parametrize("d_od", [2.0, 4.0, 6.0, 9.0, 12.0])
+def test_the_fallbacks_omega_is_never_above_either_contract(d_od):
+    """Ω under the fallback: the table's stop contract with the braking stop offboard flies (the recovery brake's, its
+    E_tr_pred surface), E_tr at least the offboard surface's at the speed flown; never above the avoid contract's Ω."""
+    i = _inputs(0.0, d_od=d_od)
+    om = fallback_omega(TABLE, d_od, i, 0.1, 0.02)
+    avoid = TABLE.omega(d_od, 1.0, 0.3, 1.0)
+    stop = TABLE.omega(d_od, 1.0, 0.3, 1.0, contract="stop", recovery_dt=0.02, t_cmd=0.1, e_brake=True)
+    assert om.contract == "stop" and 0.0 < om.v_max <= min(avoid.v_max, stop.v_max) + 1e-12
+    assert om.e_tr >= TABLE.e_tr_pred(om.v_max, om.tilt, 1.0, "avoid") - 1e-12
+    # what it stands on: the stop contract's speed at its own E_tr
+    assert om.v_max == pytest.approx(TABLE.omega(d_od, 1.0, om.e_tr, 1.0, contract="stop", recovery_dt=0.02, t_cmd=0.1,
+                                                 e_brake=True).v_max, abs=1e-9) or om.v_max == avoid.v_max
+
+
+# ----------------------------------------------------------------------------- lock-step flights
+
+def _no_fallback(monkeypatch):
+    """The negative control: the daemon as before the fallback (the avoid contract whatever it sees)."""
+    monkeypatch.setattr("companion.onboard.cycle.fallback_for", lambda cfg, contract: None)
+
+
+def _world_flight(family: str, seed: int, seconds: float = 30.0) -> Rig:
+    sc = scenario_of("offboard", "sector", family, seed)
+    rig = Rig(sc, "px4", config=config_of("offboard", sc["route"]["waypoints"]))
+    engage_and_fly(rig, seconds)
+    return rig
+
+
+def _said_the_fallback(rig: Rig) -> None:
+    cif = rig.log.named("contract_in_force")
+    assert cif and cif[0]["contract"] == "stop" and "wider than R_obst" in cif[0]["reason"]
+    env = [e for e in rig.log.named("violation_start") if e["subsystem"] == "environment"]
+    assert env and env[0]["action"] == "falling back to the stop contract"
+    assert any(s["contract"] == "stop" for s in rig.log.states)
+
+
+@pytest.mark.parametrize("family,seed", [("doorway", 6), ("corridor", 2)])
+def test_offboard_among_walls_falls_back_and_touches_nothing(family, seed, monkeypatch):
+    """A facade flown through its doorway, and a corridor with a turn (companion/ground/false_alarms.py worlds; both
+    touched a wall before the fallback): the stop contract in force once a wall is in view, said; no wall touched;
+    the vehicle stopped short of what lay in its swept corridor (said as a dead end) or flew on at the stop contract's
+    speed. Control: the fallback disabled plans round the wall as one huge disc and touches it."""
+    rig = _world_flight(family, seed)
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    _said_the_fallback(rig)
+    for d in rig.log.named("dead_end"):
+        assert d["reason"] == "no path the contract can prove: stopped"
+    # under the stop contract the limit is the stop contract's, not the avoid contract's
+    fallen = [s for s in rig.log.states if s["contract"] == "stop" and s["v_max"] is not None]
+    assert fallen and all(s["v_max"] <= TABLE.omega(s["d_od"], 1.0, s["e_tr_measured"], 1.0).v_max + 1e-9
+                          for s in fallen)
+
+    _no_fallback(monkeypatch)
+    old = _world_flight(family, seed)
+    assert old.truth["collisions"]  # the control must fail: the old behaviour touches the wall
+    assert not old.log.named("contract_in_force")
+    env = [e for e in old.log.named("violation_start") if e["subsystem"] == "environment"]
+    assert env and env[0]["action"] == "planning round the observed width"
+
+
+def test_a_closing_corridor_ends_in_a_stop_without_contact_said_as_a_dead_end(monkeypatch):
+    """The corridor narrowing to nothing (sitl_harness/scenarios/closing_corridor.yaml), seen by the 60° sector
+    sensor: the stop contract in force, a braking stop short of the funnel's walls, then Hold, said as a dead end
+    (event and STATUSTEXT). Control: the fallback disabled plans round the funnel as one huge disc and finds no safe
+    speed, with nothing said of why."""
+    from sitl_harness.scenario import load_scenario
+
+    def fly() -> Rig:
+        sc = load_scenario("closing_corridor").model_dump()
+        sc.update(start={**sc["start"], "alt_m": 2.0}, params={"COM_OBL_RC_ACT": 5},
+                  sensor={"fov_deg": 60, "max_range_m": 10.0, "rate_hz": 20})
+        rig = Rig(sc, "px4", config=config_of("offboard", sc["route"]["waypoints"]))
+        engage_and_fly(rig, 30.0)
+        return rig
+
+    rig = fly()
+    assert not rig.truth["collisions"], rig.truth["collisions"]
+    (dead,) = rig.log.named("dead_end")
+    assert dead["reason"] == "no path the contract can prove: stopped"
+    texts = rig.daemon_texts()  # the STATUSTEXTs as sent, over MAVLink
+    assert any("no path the contract can prove" in t for t in texts) and any("stop contract in force" in t for t in texts)
+    assert rig.log.named("contract_in_force")[0]["contract"] == "stop"
+
+    _no_fallback(monkeypatch)
+    old = fly()  # the old behaviour: the funnel planned round as one huge disc, no safe speed, nothing said of why
+    assert not old.log.named("dead_end") and not old.log.named("contract_in_force")
+    assert [e["cause"] for e in old.log.named("failsafe")][:1] == ["no safe speed"]
+    env = [e for e in old.log.named("violation_start") if e["subsystem"] == "environment"]
+    assert env and env[0]["action"] == "planning round the observed width"
+
+
+@pytest.mark.slow
+def test_a_narrow_beam_flight_that_collided_is_held_to_the_stop_contract(monkeypatch):
+    """examples/campaign-narrow-beams.yaml flight 75 (offboard, one forward beam of 8.9°): it collided before the
+    fallback. A 8.9° beam keeps no swerve in view at any D_od: the stop contract from the start, and no collision.
+    Control: the fallback disabled collides again."""
+    from pathlib import Path
+
+    from companion.ground.campaign import flight_of, fly, load_spec
+
+    spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "campaign-narrow-beams.yaml")
+    s, arm = flight_of(spec, 75)
+    assert arm == "offboard" and s["sensor_fov_deg"] < 9.0
+    row, rig = fly(spec, 75, keep_rig=True)
+    assert not row["collided"] and row["min_clearance_m"] > 0.0
+    cif = rig.log.named("contract_in_force")
+    assert cif and cif[0]["contract"] == "stop" and "field of view" in cif[0]["reason"]
+
+    _no_fallback(monkeypatch)
+    old = fly(spec, 75)
+    assert old["collided"]  # the control must fail
