@@ -218,3 +218,27 @@ def test_a_narrow_beam_flight_that_collided_is_held_to_the_stop_contract(monkeyp
     _no_fallback(monkeypatch)
     old = fly(spec, 75)
     assert old["collided"]  # the control must fail
+
+
+def test_the_review_lists_the_spans_flown_under_the_stop_contract(tmp_path, monkeypatch):
+    """The doorway flight's event log, reviewed: the spans flown under the stop contract are listed (JSON and text).
+    Control: the same flight with the fallback disabled has none."""
+    from companion.ground.review import format_report, review
+    from companion.onboard.eventlog import EventLog
+
+    def reviewed(name: str) -> dict:
+        sc = scenario_of("offboard", "sector", "doorway", 6)
+        log = EventLog(tmp_path / name, commit="none")
+        rig = Rig(sc, "px4", log=log, config=config_of("offboard", sc["route"]["waypoints"]))
+        engage_and_fly(rig, 20.0)
+        log.close()
+        return review([tmp_path / name])
+
+    rep = reviewed("fallback")
+    fb = rep["stop_contract"]
+    assert fb["count"] >= 1 and fb["spans"][0]["start_t"] is not None
+    assert "flown under the stop contract (offboard" in format_report(rep)
+
+    _no_fallback(monkeypatch)
+    old = reviewed("old")
+    assert old["stop_contract"]["count"] == 0 and "flown under the stop contract" not in format_report(old)

@@ -162,7 +162,9 @@ class _Summary:
         # V_safe (gamma_flown > tolerance) and above the limit, as spans
         self.flown = _Spans("gamma_flown")
         self.fallen_back = _Spans("v_max")  # offboard flown under the stop contract (its avoid contract's fallback)
-        self.avoid_run = False  # this daemon run was configured for the avoid contract (its `start` record)
+        # this daemon run flies the avoid contract (offboard): its `start` record says so, or it said which contract
+        # is in force, or a state sample was flown under it
+        self.avoid_run = False
         self.over = _Spans("excess_m_s")
         self.flown_s = 0.0
         self.would: list[dict] = []  # shadow mode: the holds the daemon would have commanded, as spans
@@ -258,6 +260,7 @@ class _Summary:
         # above the limit by more than a tracking overshoot (the supervisor's own rule: 5 % + tolerance)
         over_far = over is not None and over > self.tol + OVERSHOOT * limit
         self.flown.add(t, gf is not None and gf > self.tol, gf)
+        self.avoid_run = self.avoid_run or rec.get("contract") == "avoid"
         self.fallen_back.add(t, self.avoid_run and rec.get("contract") == "stop", _num(rec.get("v_max")))
         self.over.add(t, over_far, over)
         if self.prev is not None and t is not None:
@@ -308,6 +311,8 @@ class _Summary:
         self._ending(name, t, g)
         if name == "start":
             self.avoid_run = g("contract") == "avoid"
+        elif name == "contract_in_force":
+            self.avoid_run = True
         if name == "violation_start":
             key = (self.boot, _hashable(g("subsystem")), _hashable(g("guarantee")))
             if key not in self.open_viol:
@@ -459,6 +464,7 @@ class _Summary:
         self.flown.end()
         self.over.end()
         self.fallen_back.end()
+        self.avoid_run = False
         for v in self.open_viol.values():
             v.update(end_t=self.last_t_of_boot, ended_by=why)
             st = v["start_t"]

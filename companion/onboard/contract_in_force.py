@@ -114,6 +114,7 @@ class ContractInForce:
         self._t: float | None = None
         self._wide: tuple[float, float] | None = None  # (odometer, D_od) at the last sighting of something wide
         self._clear_since: float | None = None  # the avoid contract's assumptions have held since
+        self._dead_end_said = False  # the dead end of this stretch under the stop contract has been said
 
     def judge(self, i, avoid: Omega, r_body: float) -> InForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
@@ -155,8 +156,16 @@ class ContractInForce:
                     f"{math.degrees(self.half_fov):.1f}°")
         return None
 
+    def dead_end(self) -> bool:
+        """An obstacle ahead stops the vehicle under the stop contract: True the first time in this stretch under it
+        (said once: a stop flickering with what the sensors see is one dead end)."""
+        first, self._dead_end_said = not self._dead_end_said, True
+        return first
+
     def _say(self, new: InForce) -> InForce:
         changed = new.contract != self.now.contract
+        if changed:
+            self._dead_end_said = False
         self.now = replace(new, changed=changed)
         return self.now
 
@@ -185,6 +194,23 @@ def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: 
     avoid = table.omega(d_od, r, e, thr, contract=AVOID, t_silent=t_silent)
     return om if om.v_max <= avoid.v_max else replace(avoid, contract=STOP, reason=f"{avoid.reason} (the avoid "
                                                                                     "contract's, lower)")
+
+
+def swept_obstacle_m(hits, beta: float, half_width_m: float) -> float:
+    """[m] the nearest hit in the swept corridor — the band of half-width `half_width_m` (r_body + E_tr) about the
+    direction of travel `beta` (body frame) — that the stop contract stops short of, whatever its shape
+    (companion/onboard/coverage.py: a surface is touched where it enters that band). A bin's hit may lie anywhere in
+    its sector (± its uncertainty): it counts where the sector's nearest bearing to the line of travel is inside the
+    band; a single beam's hit is taken as on the path (inf: none). Walls beside the route are outside the band."""
+    nearest = math.inf
+    for b, r, h, bins in hits:
+        if r >= nearest:
+            continue
+        off = abs((b - beta + math.pi) % (2 * math.pi) - math.pi)
+        gap = max(off - h, 0.0)  # the sector's nearest bearing to the line of travel
+        if not bins or gap >= math.pi / 2 and r <= half_width_m or gap < math.pi / 2 and r * math.sin(gap) <= half_width_m:
+            nearest = r
+    return nearest
 
 
 def fallback_for(cfg, contract: str) -> ContractInForce | None:

@@ -29,7 +29,7 @@ from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
 from .authority import GUARANTEE_ANSWERED, Late
-from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, fallback_omega
+from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, fallback_omega, swept_obstacle_m
 from .estimators import DodEstimate
 from .guidance import inflated
 from .modes import Mode, mode_of
@@ -87,6 +87,8 @@ class Inputs:
     v_mission: float = math.nan  # the speed the mission's own speed items set at this item, NaN: not known
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
+    hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
+    beta: float = 0.0  # the direction of travel in the body frame [rad] (along the heading below 1 m/s)
     late_s: float = 0.0  # the daemon's own worst lateness, beyond t_react's budget, of the last 10 s (Timeliness)
     late_unbudgeted_s: float = 0.0  # this cycle's lateness where it exceeds what was counted before it, else 0
     late_within_s: float = 0.0  # this cycle's lateness inside the jitter allowance, to be said (an event), else 0
@@ -554,9 +556,8 @@ class Supervisor:
             self._recent_limits.popleft()
         d.v_cmd = v_limit
         if fresh:
-            dead_end = Cause.OBSTACLE in fresh and self.contract != self.configured and self.state != State.HOLDING
             self._hold(d, fresh)
-            if dead_end:  # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
+            if Cause.OBSTACLE in fresh and self.contract != self.configured and self.fallback.dead_end():  # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
                 d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": i.dod.obstacle_m}))
                 d.statustext.append((2, f"CG: {DEAD_END}"))
             return d
@@ -770,7 +771,9 @@ class Supervisor:
         (`_judge_limit`)."""
         finite = _finite_inputs(i)
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
-        obstacle = finite and i.dod.obstacle_m - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+        ahead = i.dod.obstacle_m if self.contract == self.configured else swept_obstacle_m(
+            i.hits, i.beta, self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr))  # (fallen back: the stop's own)
+        obstacle = finite and ahead - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
             Cause.NON_FINITE: not finite,
             Cause.STALE: not i.telemetry_ok,
