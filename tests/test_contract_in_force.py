@@ -242,3 +242,21 @@ def test_the_review_lists_the_spans_flown_under_the_stop_contract(tmp_path, monk
     _no_fallback(monkeypatch)
     old = reviewed("old")
     assert old["stop_contract"]["count"] == 0 and "flown under the stop contract" not in format_report(old)
+
+
+@pytest.mark.parametrize("fov,said", [(60, "from D_od 2."), (9, "stop contract only")])
+def test_the_start_banner_states_where_the_sensors_support_the_swerve(fov, said):
+    """Offboard's banner: the D_od range in which the configured sensors keep the avoid contract's swerve in view, or
+    "stop contract only"; governor mode (the stop contract only, by design) has no such line."""
+    from companion.onboard.config import config_from_dict
+    from companion.onboard.console import banner
+
+    def lines(mode):
+        cfg = config_from_dict({"mode": mode, "sensors": [{"h_fov_deg": fov, "max_range_m": 10}],
+                                **({"route": {"waypoints": [[0, 0], [20, 0]], "altitude_m": 2.0}}
+                                   if mode == "offboard" else {})})
+        return [ln for ln in banner(cfg, TABLE, "table") if ln.startswith("avoid contract in view")]
+
+    (line,) = lines("offboard")
+    assert said in line
+    assert lines("governor") == []
