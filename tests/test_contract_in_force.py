@@ -21,7 +21,6 @@ from companion.onboard.contract_in_force import (
     forward_half_fov,
     pass_bearing,
 )
-from companion.onboard.estimators import DodEstimate
 from contracts.table import load_for_vehicle
 from tests.lockstep import Rig, engage_and_fly
 
@@ -54,7 +53,9 @@ def test_the_pass_bearing_is_the_tables_own_axis():
 
 
 def test_the_forward_field_of_view_is_the_narrower_side_of_the_joint_view():
-    half = lambda *s: round(math.degrees(forward_half_fov(list(s))), 6)  # noqa: E731
+    def half(*s):
+        return round(math.degrees(forward_half_fov(list(s))), 6)
+
     assert half(_sensor(fov=60)) == 30.0
     assert half(_sensor(fov=9)) == 4.5
     assert half(_sensor(orientation=20, fov=60)) == 10.0  # turned right: the left side is what is left

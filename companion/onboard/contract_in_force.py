@@ -35,8 +35,8 @@ from contracts.table import ContractTable, Omega
 # 12° and more, half of which is less than asin(ρ) at any D_od), and a 60° sensor keeps the swerve round a column
 # in view (R_obst 1 m, E_tr 0.3 m, the Mambo) from D_od ≈ 2.7 m with it, ≈ 8 m with the worst lag
 LAG_BUDGET_DEG = 8.0
-WIDE_TOL_M = 0.05
-MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
+WIDE_TOL_M = 0.05  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
+MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)
 AVOID, STOP = "avoid", "stop"
 DEAD_END = "no path the contract can prove: stopped"
 
