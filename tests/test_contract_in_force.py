@@ -261,3 +261,20 @@ def test_the_start_banner_states_where_the_sensors_support_the_swerve(fov, said)
     (line,) = lines("offboard")
     assert said in line
     assert lines("governor") == []
+
+
+def test_the_swept_corridor_takes_what_enters_it_whatever_its_shape():
+    """A hit counts where its sector's nearest bearing to the line of travel lies within r_body + E_tr of it; a wall
+    beside the route does not; a single beam's hit is on the path."""
+    from companion.onboard.contract_in_force import swept_obstacle_m
+
+    h = math.radians(2.5)
+    ahead = (math.radians(3.0), 6.0, h, True)  # its sector reaches the line of travel
+    beside = (math.radians(25.0), 5.0, h, True)  # a corridor wall 2 m off the route
+    edge = (math.radians(10.0), 5.0, h, True)  # 5·sin(7.5°) = 0.65 m off
+    assert swept_obstacle_m([beside], 0.0, 0.6) == math.inf
+    assert swept_obstacle_m([beside, ahead], 0.0, 0.6) == 6.0
+    assert swept_obstacle_m([edge], 0.0, 0.6) == math.inf and swept_obstacle_m([edge], 0.0, 0.7) == 5.0
+    assert swept_obstacle_m([beside], math.radians(25.0), 0.6) == 5.0  # travelling towards it
+    assert swept_obstacle_m([(math.radians(25.0), 5.0, h, False)], 0.0, 0.6) == 5.0  # a single beam: on the path
+    assert swept_obstacle_m([(math.pi, 0.5, h, True)], 0.0, 0.6) == 0.5  # touching, behind

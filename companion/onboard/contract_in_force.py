@@ -208,7 +208,8 @@ def swept_obstacle_m(hits, beta: float, half_width_m: float) -> float:
             continue
         off = abs((b - beta + math.pi) % (2 * math.pi) - math.pi)
         gap = max(off - h, 0.0)  # the sector's nearest bearing to the line of travel
-        if not bins or gap >= math.pi / 2 and r <= half_width_m or gap < math.pi / 2 and r * math.sin(gap) <= half_width_m:
+        lateral = r * math.sin(gap) if gap < math.pi / 2 else r  # behind the line's normal: its range
+        if not bins or lateral <= half_width_m:
             nearest = r
     return nearest
 

@@ -557,8 +557,9 @@ class Supervisor:
         d.v_cmd = v_limit
         if fresh:
             self._hold(d, fresh)
-            if Cause.OBSTACLE in fresh and self.contract != self.configured and self.fallback.dead_end():  # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
-                d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": i.dod.obstacle_m}))
+            # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
+            if Cause.OBSTACLE in fresh and self.contract != self.configured and self.fallback.dead_end():
+                d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": self._ahead(i, om)}))
                 d.statustext.append((2, f"CG: {DEAD_END}"))
             return d
         if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
@@ -771,9 +772,7 @@ class Supervisor:
         (`_judge_limit`)."""
         finite = _finite_inputs(i)
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
-        ahead = i.dod.obstacle_m if self.contract == self.configured else swept_obstacle_m(
-            i.hits, i.beta, self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr))  # (fallen back: the stop's own)
-        obstacle = finite and ahead - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+        obstacle = finite and self._ahead(i, om) - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
             Cause.NON_FINITE: not finite,
             Cause.STALE: not i.telemetry_ok,
@@ -786,6 +785,14 @@ class Supervisor:
         if self.contract == "avoid" or not self.policy.stop_hold:
             del causes[Cause.OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
         return causes
+
+    def _ahead(self, i: Inputs, om: Omega) -> float:
+        """[m] the nearest obstacle the stop-distance Hold judges: near the path (D_od's estimate); fallen back from
+        the avoid contract, in the swept corridor r_body + E_tr itself, whatever its shape (walls beside the route are
+        not in it)."""
+        if self.contract == self.configured:
+            return i.dod.obstacle_m
+        return swept_obstacle_m(i.hits, i.beta, self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr))
 
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""
