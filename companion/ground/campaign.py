@@ -38,6 +38,10 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
       jerk_auto_m_s3: [1, 8]      # PX4 MPC_JERK_AUTO, ArduPilot WPNAV_JERK
       reveal_in_speedup: [0.1, 0.9]  # the first column first seen at this fraction of the speed-up to cruise
       wind_from_deg: 270          # the wind's direction (unset: any); the route flies north, +y is east
+      # a cluttered world per scenario (companion/ground/worlds.py), the same for every arm; replaces the columns and
+      # the straight route (the mission's waypoints for the governor arms, the daemon's route for offboard)
+      world_families: [columns, doorway, cluster, corridor, dead_end]
+      sensor_models: [sector, depth_camera, single_beam]  # the SITL's sensor model (unset: sector)
     stresses:                     # optional: scenario k flies stress k mod len(stresses), its own dims and faults
       - {name: fog, faults: [{kind: fog_honest, p: 1}]}
       - {name: crosswind, scenario: {wind_from_deg: 270, lateral_offset_m: [1.5, 2.5]}}
@@ -64,7 +68,14 @@ the same with its switch taken as shown from take-off (a measurement of what the
 first stop has shown the switch, not a mode the daemon offers); `governor_ramp` the governor with its approach ramp
 (`governor.approach_ramp_m_s` RAMP_ARM_M_S). The governor arms read the SITL's sensor as one DISTANCE_SENSOR (the
 nearest return of its field, `shots_per_frame` its bins), `governor_sector` as offboard does, its bins in
-OBSTACLE_DISTANCE.
+OBSTACLE_DISTANCE (and so does every arm in a cluttered world).
+
+In a cluttered world the row also says the world (`world_family`, `world_seed`, `world`, `route`), whether its route
+exists (`route_exists`; a dead end has none, and its success is `stopped_short`: standing still short of its end
+without contact, after a stop the daemon said), what the vehicle touched (`collided_with`: the SITL's collision truth
+against every shape), the seconds airborne (`airborne_s`), and every hold, stop and violation the daemon logged judged
+by the perfect observer of companion/ground/false_alarms.py (`judged_alarms`; the unfounded ones listed in
+`unfounded_alarms`).
 """
 
 from __future__ import annotations
