@@ -152,3 +152,16 @@ def test_the_family_table_pairs_speeds_with_the_px4_law_and_counts_alarms_per_ho
     assert (dead["stopped_short"], dead["dead_ends"], dead["speed_x_peer"]) == (1, 1, None)
     md = world_family_markdown(s)
     assert "| doorway | offboard | 2 | 0/2 |" in md and "| 1/2 | – | 3.00 | 2.00 | 0.7 (1.500) |" in md
+
+
+def test_an_output_directory_begun_before_the_new_dimensions_is_the_same_campaign():
+    """A campaign begun before `world_families` and `sensor_models` existed stored a spec without them: it resumes
+    (they are unset); one that sets either is another campaign."""
+    spec = cg.load_spec("examples/campaign-small.yaml")
+    old = spec.model_dump(mode="json")
+    for k in ("world_families", "sensor_models"):
+        del old["scenario"][k]
+    assert cg.same_campaign(old, spec)
+    clutter = cg.spec_from_dict({**spec.model_dump(mode="json"),
+                                 "scenario": {**old["scenario"], "world_families": ["doorway"]}})
+    assert not cg.same_campaign(old, clutter)

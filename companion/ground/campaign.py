@@ -766,20 +766,17 @@ class _Observed:
         return self.until(rig)
 
 
-STOP_EVENTS = ("hold_trigger", "failsafe", "no_avoiding_plan")  # the daemon stopped the vehicle, and said so
-
-
 def clutter_outcome(rig, obs, row: dict) -> dict:
     """What a cluttered flight adds to its row: the seconds airborne, every hold, stop and violation the daemon logged
     judged by the perfect observer (false_alarms.judge: unfounded ones listed), what it touched, and whether it ended
     stopped short without contact with a stop it said (where no route exists, that is the success)."""
-    from .false_alarms import judged_events
+    from .false_alarms import STOPS, judged_events
 
     events = judged_events(rig, obs)
     unfounded = [{k: e[k] for k in ("t", "kind", "cause") if k in e} for e in events if not e["founded"]]
-    last_v = obs.rig.sim.model.vel
-    still = math.hypot(float(last_v[0]), float(last_v[1])) < 0.3
-    said = any(e["event"] in STOP_EVENTS for e in rig.log.events)
+    v = rig.sim.model.vel
+    still = math.hypot(float(v[0]), float(v[1])) < 0.3
+    said = any(e["event"] in STOPS for e in rig.log.events)  # a Hold, a "no safe speed" stop or "no avoiding plan"
     return {"airborne_s": obs.airborne_s(), "judged_alarms": len(events), "unfounded_alarms": unfounded,
             "collided_with": sorted({c.obstacle_name for c in rig.truth["collisions"]}),
             "stopped_short": bool(still and said and not row["collided"] and not row["route_completed"])}
