@@ -165,3 +165,22 @@ def test_an_output_directory_begun_before_the_new_dimensions_is_the_same_campaig
     clutter = cg.spec_from_dict({**spec.model_dump(mode="json"),
                                  "scenario": {**old["scenario"], "world_families": ["doorway"]}})
     assert not cg.same_campaign(old, clutter)
+
+
+def test_a_reflown_cluttered_flight_is_kept_for_its_review_with_its_world(tmp_path, capsys):
+    """`campaign --fly N --out DIR` keeps the flight as an event log the review reads and the SITL scenario it flew;
+    the review draws that world (the dead end's walls) beneath the track and sees the governor's stop."""
+    import json
+
+    from companion.cli import main
+
+    spec_file = tmp_path / "clutter.yaml"
+    spec_file.write_text(json.dumps(DEAD_END))
+    out = tmp_path / "one"
+    assert main(["campaign", str(spec_file), "--fly", "0", "--out", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert f"contract-guard review {out / 'flight-0'} --scenario {out / 'scenario-0.json'}" in said
+    assert main(["review", str(out / "flight-0"), "--scenario", str(out / "scenario-0.json"), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert len(rep["world"]["polygons"]) >= 3 and rep["state_samples"] > 100  # left, right and end walls
+    assert rep["modes"] and not rep["keep_out"]["collisions"], rep["keep_out"]

@@ -755,6 +755,27 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
     return (row, rig) if keep_rig else row
 
 
+def keep_flight(rig, s: dict, arm: str, out: Path, i: int) -> tuple[Path, Path]:
+    """A re-flown flight kept for its review: the daemon's records as an event log (`out/flight-i/`, what `contract-guard
+    review` reads, opened by the `start` record a daemon's run writes) and the SITL scenario it flew
+    (`out/scenario-i.json`, whose world `review --scenario` draws beneath the track). Returns both paths."""
+    from companion.onboard.eventlog import EventLog
+
+    log_dir, scenario = out / f"flight-{i}", out / f"scenario-{i}.json"
+    scenario.write_text(json.dumps(_plain(scenario_dict(s, arm)), indent=1))
+    table = rig.daemon.table
+    log = EventLog(log_dir, clock=lambda: 0.0, commit="none", max_bytes=1 << 62)
+    log.event(0.0, "start", mode=rig.cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect="lock-step")
+    for rec in sorted(rig.log.states + rig.log.events, key=lambda r: r["t"]):
+        fields = {k: v for k, v in rec.items() if k not in ("t", "event")}
+        if "event" in rec:
+            log.event(rec["t"], rec["event"], **fields)
+        else:
+            log.state(rec["t"], **fields)
+    log.close()
+    return log_dir, scenario
+
+
 class _Observed:
     """A flight's stop rule with the perfect observer's look at the truth before it, once a cycle."""
 
