@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from companion.ground import campaign as cg
-from companion.ground.campaign_report import summarize, world_family_markdown
+from companion.ground.campaign_report import format_summary, summarize, world_family_markdown, write_report
 from companion.ground.worlds import CLEAR, CLUTTERED, clear_world, cluttered_world
 from sitl_harness.scenario import scenario_from_dict
 from sitl_harness.sim import Sim
@@ -139,7 +139,7 @@ def _row(scenario, arm, fam, v, collided=False, done=True, alarms=0, air=3600.0,
             "stresses": [], "vehicle": "mambo", "personality": "px4", "fault_outcomes": [], "violations": []}
 
 
-def test_the_family_table_pairs_speeds_with_the_px4_law_and_counts_alarms_per_hour():
+def test_the_family_table_pairs_speeds_with_the_px4_law_and_counts_alarms_per_hour(tmp_path):
     rows = [_row(0, "px4_cp", "doorway", 1.0), _row(0, "offboard", "doorway", 3.0, alarms=1),
             _row(1, "px4_cp", "doorway", 2.0), _row(1, "offboard", "doorway", 3.0, done=False, air=1800.0),
             _row(2, "offboard", "dead_end", 1.0, done=False, exists=False)]
@@ -152,6 +152,11 @@ def test_the_family_table_pairs_speeds_with_the_px4_law_and_counts_alarms_per_ho
     assert (dead["stopped_short"], dead["dead_ends"], dead["speed_x_peer"]) == (1, 1, None)
     md = world_family_markdown(s)
     assert "| doorway | offboard | 2 | 0/2 |" in md and "| 1/2 | – | 3.00 | 2.00 | 0.7 (1.500) |" in md
+    write_report(rows, tmp_path)
+    page = (tmp_path / "report.html").read_text()
+    assert "Per world family" in page and "<td>dead_end</td><td>offboard</td>" in page
+    plain = [{k: v for k, v in r.items() if k != "world_family"} for r in rows]  # a campaign without worlds
+    assert summarize(plain)["per_world_family"] == {} and "| world |" not in format_summary(summarize(plain))
 
 
 def test_an_output_directory_begun_before_the_new_dimensions_is_the_same_campaign():
