@@ -94,3 +94,17 @@ def test_negative_control_the_old_law_does_not_invert_the_new_one():
     old = -math.log(1.0 - p) / 0.3
     assert extinction_from_volume_backscatter(p, R_MAX, NEAR) == pytest.approx(a, rel=1e-6)
     assert old > 10 * a
+
+
+@pytest.mark.parametrize("r_max", [5.0, 8.0])
+@pytest.mark.parametrize("near", [NEAR, NearField(0.15, 0.2, 1.0), NearField(0.75, 0.2, 3.0), NearField(0.75, 0.1, 0.5)])
+def test_a_fog_at_0_8_of_the_range_is_seen_where_a_200_m_medium_is_barely_seen(r_max, near):
+    """M̄ is linear in the pulse, 1/S and 1/ρ_rated, so the ratio of two media's margins depends on the overlap and
+    the range only: scaled so that a 200 m medium returns on one shot in 10⁴, a fog that lets the reference target be
+    seen to 0.8 of the stated range returns on more than a quarter of the shots."""
+    haze = extinction_from_met_visibility(200.0)
+    fog = extinction_for_range(0.8 * r_max, 0.5, r_max)
+    ratio = medium_margin(fog, r_max, near) / medium_margin(haze, r_max, near)
+    m_haze = -1.0 / math.log(1e-4)
+    assert fog / haze > 8.0 and ratio > 7.0
+    assert math.exp(-1.0 / (ratio * m_haze)) > 0.25
