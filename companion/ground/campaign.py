@@ -38,6 +38,10 @@ Spec (YAML, validated like every file here; a range is a number or `[low, high]`
       jerk_auto_m_s3: [1, 8]      # PX4 MPC_JERK_AUTO, ArduPilot WPNAV_JERK
       reveal_in_speedup: [0.1, 0.9]  # the first column first seen at this fraction of the speed-up to cruise
       wind_from_deg: 270          # the wind's direction (unset: any); the route flies north, +y is east
+      # a cluttered world per scenario (companion/ground/worlds.py), the same for every arm; replaces the columns and
+      # the straight route (the mission's waypoints for the governor arms, the daemon's route for offboard)
+      world_families: [columns, doorway, cluster, corridor, dead_end]
+      sensor_models: [sector, depth_camera, single_beam]  # the SITL's sensor model (unset: sector)
     stresses:                     # optional: scenario k flies stress k mod len(stresses), its own dims and faults
       - {name: fog, faults: [{kind: fog_honest, p: 1}]}
       - {name: crosswind, scenario: {wind_from_deg: 270, lateral_offset_m: [1.5, 2.5]}}
@@ -64,7 +68,14 @@ the same with its switch taken as shown from take-off (a measurement of what the
 first stop has shown the switch, not a mode the daemon offers); `governor_ramp` the governor with its approach ramp
 (`governor.approach_ramp_m_s` RAMP_ARM_M_S). The governor arms read the SITL's sensor as one DISTANCE_SENSOR (the
 nearest return of its field, `shots_per_frame` its bins), `governor_sector` as offboard does, its bins in
-OBSTACLE_DISTANCE.
+OBSTACLE_DISTANCE (and so does every arm in a cluttered world).
+
+In a cluttered world the row also says the world (`world_family`, `world_seed`, `world`, `route`), whether its route
+exists (`route_exists`; a dead end has none, and its success is `stopped_short`: standing still short of its end
+without contact, after a stop the daemon said), what the vehicle touched (`collided_with`: the SITL's collision truth
+against every shape), the seconds airborne (`airborne_s`), and every hold, stop and violation the daemon logged judged
+by the perfect observer of companion/ground/false_alarms.py (`judged_alarms`; the unfounded ones listed in
+`unfounded_alarms`).
 """
 
 from __future__ import annotations
@@ -75,6 +86,7 @@ import math
 import os
 import re
 import time
+from itertools import pairwise
 from pathlib import Path
 from typing import Annotated, Literal, Union
 
@@ -86,6 +98,8 @@ from contracts.errors import ContractError
 from contracts.lidar import REFERENCE_REFLECTIVITY, extinction_from_met_visibility, visibility_for_extinction
 from contracts.yamlfile import load_model, model_from_dict
 
+from .worlds import CLUTTERED, cluttered_world
+
 Num = Annotated[float, Field(allow_inf_nan=False)]
 Range = Union[Num, tuple[Num, Num]]
 IntRange = Union[int, tuple[int, int]]
@@ -93,6 +107,9 @@ OURS = ("governor", "offboard")
 BASELINES = ("px4_cp", "px4_cp_auto_jerk", "ac_avoid", "no_guard")
 ARM_RE = re.compile(r"^(governor|offboard)(_x(\d+(\.\d+)?)|_no_etr|_claim)?$|^governor_(brake|brake_proven|ramp|sector)$")
 SENSOR_FOV_DEG, SENSOR_BIN_DEG = 60, 5  # the SITL sensor every campaign flies: its field and its bins
+SENSOR_MODELS = ("sector", "depth_camera", "single_beam")  # the SITL's sensor models (sitl_harness/sensor_models.py)
+# the scenario keys of the one column route, which a cluttered world replaces
+COLUMN_KEYS = ("columns", "x_obst_m", "lateral_offset_m", "r_obst_true_m", "obstacles")
 RAMP_ARM_M_S = 0.3  # the approach ramp of the `governor_ramp` arm
 LINK_FAULTS = ("cmd_loss", "cmd_burst", "cmd_jitter")  # the daemon's outbound datagrams (flights.OutboundFaults)
 FAULT_KINDS = ("fog_hidden", "fog_honest", "thrust_loss", "sensor_dropout", "link_loss", "bad_nav", *LINK_FAULTS)
@@ -138,6 +155,18 @@ class ScenarioDims(_Strict):
     wind_from_deg: Range | None = None  # the wind's direction (unset: uniform)
     # the forward sensor's field of view [°], one bin per SENSOR_BIN_DEG or one bin when narrower (unset: SENSOR_FOV_DEG)
     sensor_fov_deg: Range | None = None
+    # a cluttered world per scenario, one of these families drawn uniformly (companion/ground/worlds.py; unset: the
+    # columns above), the same world for every arm; it replaces the columns and the straight route
+    world_families: Annotated[list[Literal[CLUTTERED]], Field(min_length=1)] | None = None
+    # the SITL's sensor model, one drawn uniformly (unset: sector): sector flies the dimensions above, depth_camera
+    # and single_beam their datasheets' ranges and faults (sitl_harness/sensor_models.py) with the drawn latency
+    sensor_models: Annotated[list[Literal[SENSOR_MODELS]], Field(min_length=1)] | None = None
+
+    @model_validator(mode="after")
+    def _clutter_alone(self):
+        if self.world_families is not None and self.reveal_in_speedup is not None:
+            raise ValueError("reveal_in_speedup places the first column: not with world_families")
+        return self
 
     @field_validator("*")
     @classmethod
@@ -314,7 +343,8 @@ def sample_scenario(spec: CampaignSpec, k: int) -> dict:
                 fault["duration_s"] = dur
             faults.append(fault)
     s["faults"] = faults
-    s["route_end_m"] = s["columns"][-1][0] + 15.0
+    if "world_family" not in s:
+        s["route_end_m"] = s["columns"][-1][0] + 15.0
     s["in_assumption"], s["stresses"] = classify(s)
     return s
 
@@ -326,13 +356,19 @@ def speedup_distance(v: float, a: float, j: float) -> float:
 
 
 def _sample_extra(seed: int, k: int, d: ScenarioDims, s: dict) -> None:
-    """The optional dimensions, from their own stream (seed, k, 1): five draws whichever are set (the first four are
-    what four draws were: a spec without the field of view draws as before)."""
+    """The optional dimensions, from their own stream (seed, k, 1): eight draws whichever are set (the first five are
+    what five draws were: a spec without the later dimensions draws as before) — the braking, the reveal, the wind's
+    direction, the field of view, then the world family, the world's seed and the sensor model."""
     dims = (d.accel_hor_m_s2, d.jerk_auto_m_s3, d.reveal_in_speedup, d.wind_from_deg, d.sensor_fov_deg)
-    if all(r is None for r in dims):
+    if all(r is None for r in dims) and d.world_families is None and d.sensor_models is None:
         return
-    u = np.random.default_rng([seed & 0xFFFFFFFF, k, 1]).random(5)
+    u = np.random.default_rng([seed & 0xFFFFFFFF, k, 1]).random(8)
     a, j, frac, wind, fov = (None if r is None else _u_at(x, r) for x, r in zip(u, dims))
+    if d.sensor_models is not None:
+        s["sensor_model"] = d.sensor_models[min(int(u[7] * len(d.sensor_models)), len(d.sensor_models) - 1)]
+    if d.world_families is not None:
+        family = d.world_families[min(int(u[5] * len(d.world_families)), len(d.world_families) - 1)]
+        with_world(s, family, int(u[6] * (2**31 - 1)))
     if fov is not None:
         s["sensor_fov_deg"] = fov
     if a is not None or j is not None:
@@ -347,6 +383,31 @@ def _sample_extra(seed: int, k: int, d: ScenarioDims, s: dict) -> None:
         s["x_obst_m"] = x
     if wind is not None:
         s["wind_from_deg"] = wind % 360.0
+
+
+def with_world(s: dict, family: str, seed: int) -> None:
+    """Scenario `s` flown in a cluttered world of `family` drawn from `seed` (companion/ground/worlds.py): its world,
+    its route, whether the route exists; the one column route's keys go."""
+    drawn = cluttered_world(family, seed)
+    for key in COLUMN_KEYS:
+        s.pop(key, None)
+    s.update(world_family=family, world_seed=seed, world=drawn.world, route=drawn.route,
+             route_exists=drawn.route_exists)
+
+
+def route_of(s: dict) -> list[list[float]]:
+    """The waypoints scenario `s` flies: its world's route, or straight north past the columns."""
+    return s["route"] if "route" in s else [[0.0, 0.0], [s["route_end_m"], 0.0]]
+
+
+def widest_column_m(s: dict) -> float:
+    """The true radius of scenario `s`'s widest column (its world's; 0 without one)."""
+    if "r_obst_true_m" in s:
+        return s["r_obst_true_m"]
+    world = s.get("world", {})
+    radii = [c["radius_m"] for c in world.get("columns", [])]
+    radii += [c["column_radius_m"][1] for c in world.get("clusters", [])]
+    return max(radii, default=0.0)
 
 
 def _braking(s: dict):
@@ -369,13 +430,16 @@ def classify(s: dict) -> tuple[bool, list[str]]:
     """(in assumption, stresses) of a sampled scenario. In assumption: obstacles no wider than R_obst,
     wind and gusts within the vehicle's design, sensor latency within its budget, one obstacle at a time in
     the sensed corridor (gaps at least the sensor's range), only faults the contract answers: honest fog,
-    thrust losses within the vehicle's range — and every command delivered within its budget. Link faults are
+    thrust losses within the vehicle's range — and every command delivered within its budget. In a cluttered world
+    the walls, the stand of poles and the dead end are what the campaign tests, not a breach: the conditions are
+    judged as above and its columns by their width (the guard must meet the rest by what it can prove). Link faults are
     judged by the flight's own delivery (`s["delivery"]`, `delivery_of`: the rig's ground truth); before the
     flight it is unknown, and unknown is not in assumption (stress `delivery`)."""
     from contracts.vehicle import load_vehicle
 
     lo = load_vehicle(s["vehicle"]).thrust_ratio_range[0]
-    gaps = [b[0] - a[0] for a, b in zip(s["columns"], s["columns"][1:])]
+    cols = s.get("columns", [])
+    gaps = [b[0] - a[0] for a, b in pairwise(cols)]
     stresses = set()
     for f in s["faults"]:
         if f["kind"] == "fog_hidden":
@@ -389,7 +453,7 @@ def classify(s: dict) -> tuple[bool, list[str]]:
         stresses.add("delivery")
     if s["wind_factor"] > 1.0 or s["gust_factor"] > 1.0:
         stresses.add("wind_beyond_design")
-    if s["r_obst_true_m"] > s["r_obst_m"]:
+    if widest_column_m(s) > s["r_obst_m"]:
         stresses.add("obstacle_wider_than_r_obst")
     breaks = stresses - {"thrust_loss", *LINK_FAULTS}  # a link fault breaks the assumption only through `delivery`
     ok = not breaks and s["sensor_latency_s"] <= LATENCY_BUDGET_S and all(g >= s["sensor_range_m"] for g in gaps)
@@ -462,12 +526,15 @@ def scenario_dict(s: dict, arm: str) -> dict:
         else:
             key = {"sensor_dropout": "sensor_dropout_s", "link_loss": "link_dropout_s", "bad_nav": "nav_fault_s"}
             faults.append({"at_s": f["at_s"], key[f["kind"]]: f["duration_s"]})
+    world = s["world"] if "world" in s else \
+        {"columns": [{"x_m": x, "y_m": y, "radius_m": s["r_obst_true_m"], "name": f"column{j}"}
+                     for j, (x, y) in enumerate(s["columns"])]}
+    sensor = {"model": s["sensor_model"], "latency_s": s["sensor_latency_s"]} \
+        if s.get("sensor_model", "sector") != "sector" else \
+        {"fov_deg": fov_of(s), "increment_deg": min(SENSOR_BIN_DEG, fov_of(s)), "max_range_m": s["sensor_range_m"],
+         "rate_hz": 20, "latency_s": s["sensor_latency_s"], "noise_sd_m": s["noise_sd_m"]}
     sc = {"name": f"campaign_{s['scenario']}", "vehicle": s["vehicle"], "seed": s["sim_seed"],
-          "world": {"columns": [{"x_m": x, "y_m": y, "radius_m": s["r_obst_true_m"], "name": f"column{j}"}
-                                for j, (x, y) in enumerate(s["columns"])]},
-          "sensor": {"fov_deg": fov_of(s), "increment_deg": min(SENSOR_BIN_DEG, fov_of(s)),
-                     "max_range_m": s["sensor_range_m"], "rate_hz": 20,
-                     "latency_s": s["sensor_latency_s"], "noise_sd_m": s["noise_sd_m"]},
+          "world": world, "sensor": sensor,
           "wind": {"mean_m_s": veh.wind.mean_m_s * s["wind_factor"], "from_deg": s["wind_from_deg"],
                    "gust_m_s": veh.wind.gust_m_s * s["gust_factor"]},
           "faults": faults}
@@ -477,8 +544,7 @@ def scenario_dict(s: dict, arm: str) -> dict:
     if off:
         sc["start"] = {"alt_m": ALT_M}
     else:
-        sc["route"] = {"altitude_m": ALT_M, "cruise_speed_m_s": s["cruise_m_s"],
-                       "waypoints": [[0, 0], [s["route_end_m"], 0]]}
+        sc["route"] = {"altitude_m": ALT_M, "cruise_speed_m_s": s["cruise_m_s"], "waypoints": route_of(s)}
     if "braking" in s:  # the autopilot's own settings (wire units)
         a, j = s["braking"]["accel_max_m_s2"], s["braking"]["jerk_max_m_s3"]
         sc["params"] = {**sc.get("params", {}), **({"MPC_ACC_HOR": a, "MPC_JERK_AUTO": j} if s["personality"] == "px4"
@@ -514,19 +580,25 @@ def fov_of(s: dict) -> float:
 
 
 def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
+    """The daemon's config for scenario `s` and `arm`. The sector sensor is read as its bins (OBSTACLE_DISTANCE) by
+    offboard, by `governor_sector` and by every arm in a cluttered world (one nearest return over the field would
+    put every wall beside the route ahead); the other governor arms read it as one DISTANCE_SENSOR. Another sensor
+    model is read as the rig reads it (flights.Rig: its own message and field)."""
     cfg = {"vehicle": s["vehicle"], "contract": {"r_obst_m": s["r_obst_m"], "nav_margin": nav_margin}}
+    bins = [{"kind": "obstacle_distance", "h_fov_deg": fov_of(s)}]
     if mode_of(arm_mode(arm)).flies_route:
-        cfg.update({"mode": "offboard", "sensors": [{"kind": "obstacle_distance", "h_fov_deg": fov_of(s)}],
-                    "route": {"waypoints": [[0, 0], [s["route_end_m"], 0]], "altitude_m": ALT_M}})
+        cfg.update({"mode": "offboard", "sensors": bins, "route": {"waypoints": route_of(s), "altitude_m": ALT_M}})
     else:
         cfg["mode"] = "governor"
         beams = max(round(fov_of(s) / SENSOR_BIN_DEG), 1)
-        cfg["sensors"] = [{"kind": "obstacle_distance", "h_fov_deg": fov_of(s)} if arm == "governor_sector" else
-                          {"kind": "distance_sensor", "h_fov_deg": fov_of(s), "shots_per_frame": beams}]
+        cfg["sensors"] = bins if arm == "governor_sector" or "world_family" in s else \
+            [{"kind": "distance_sensor", "h_fov_deg": fov_of(s), "shots_per_frame": beams}]
         if arm.startswith("governor_brake"):
             cfg["governor"] = {"recovery_brake": True}
         elif arm == "governor_ramp":
             cfg["governor"] = {"approach_ramp_m_s": RAMP_ARM_M_S}
+    if s.get("sensor_model", "sector") != "sector":
+        del cfg["sensors"]
     return cfg
 
 
@@ -653,7 +725,7 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
               policy=_policy(arm, s, spec), table_wrapper=_with_braking(s), outbound=outbound_faults(s))
     # a fault shortly before or after the arrival is still given FAULT_WINDOW_S to be detected (the flight
     # hovers at the end): ending at arrival counted 0.1–2 s-old faults as missed
-    trace = _Trace((s["route_end_m"], 0.0), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
+    trace = _Trace(tuple(route_of(s)[-1]), max((f["at_s"] for f in s["faults"]), default=0.0) + FAULT_WINDOW_S)
     if arm == "no_guard":
         rig.daemon_on = False
     if arm == "governor_brake_proven":  # the brake's switch taken as shown from the start (a measurement)
@@ -662,21 +734,78 @@ def fly(spec: CampaignSpec, i: int, keep_rig: bool = False):
         rig.daemon.cycle.sensing.truth = TrustTheClaim(rig.daemon.cfg.sensors)
     seconds = spec.duration_s
     until = FirmwareResume(trace) if arm in ("px4_cp", "px4_cp_auto_jerk") else trace
+    obs = None
+    if "world_family" in s:  # a cluttered world: a perfect observer judges every alarm (false_alarms.py)
+        from .false_alarms import Observer
+
+        obs = Observer(rig)
+    flown = until if obs is None else _Observed(obs, until)
     if mode_of(mode).flies_route:
-        engage_and_fly(rig, seconds, until)
+        engage_and_fly(rig, seconds, flown)
     else:
-        fly_mission(rig, seconds, until)
+        fly_mission(rig, seconds, flown)
     if rig.outbound is not None:  # classified by its own delivery
         s = {**s, "delivery": delivery_of(rig)}
         s["in_assumption"], s["stresses"] = classify(s)
     row = result_row(spec, i, s, arm, rig, trace)
     if isinstance(until, FirmwareResume):
         row["resumed_s"] = until.resumed
+    if obs is not None:
+        row.update(clutter_outcome(rig, obs, row))
     return (row, rig) if keep_rig else row
 
 
-def _surface_distance(s: dict, x: float, y: float) -> float:
-    return min(math.hypot(x - cx, y - cy) - s["r_obst_true_m"] for cx, cy in s["columns"])
+def keep_flight(rig, s: dict, arm: str, out: Path, i: int) -> tuple[Path, Path]:
+    """A re-flown flight kept for its review: the daemon's records as an event log (`out/flight-i/`, what `contract-guard
+    review` reads, opened by the `start` record a daemon's run writes) and the SITL scenario it flew
+    (`out/scenario-i.json`, whose world `review --scenario` draws beneath the track). Returns both paths."""
+    from companion.onboard.eventlog import EventLog
+
+    log_dir, scenario = out / f"flight-{i}", out / f"scenario-{i}.json"
+    scenario.write_text(json.dumps(_plain(scenario_dict(s, arm)), indent=1))
+    table = rig.daemon.table
+    log = EventLog(log_dir, clock=lambda: 0.0, commit="none", max_bytes=1 << 62)
+    log.event(0.0, "start", mode=rig.cfg.mode, vehicle=table.vehicle.name, table=str(table.path), connect="lock-step")
+    for rec in sorted(rig.log.states + rig.log.events, key=lambda r: r["t"]):
+        fields = {k: v for k, v in rec.items() if k not in ("t", "event")}
+        if "event" in rec:
+            log.event(rec["t"], rec["event"], **fields)
+        else:
+            log.state(rec["t"], **fields)
+    log.close()
+    return log_dir, scenario
+
+
+class _Observed:
+    """A flight's stop rule with the perfect observer's look at the truth before it, once a cycle."""
+
+    def __init__(self, obs, until):
+        self.obs, self.until = obs, until
+
+    def __call__(self, rig) -> bool:
+        self.obs.watch()
+        return self.until(rig)
+
+
+def clutter_outcome(rig, obs, row: dict) -> dict:
+    """What a cluttered flight adds to its row: the seconds airborne, every hold, stop and violation the daemon logged
+    judged by the perfect observer (false_alarms.judge: unfounded ones listed), what it touched, and whether it ended
+    stopped short without contact with a stop it said (where no route exists, that is the success)."""
+    from .false_alarms import STOPS, judged_events
+
+    events = judged_events(rig, obs)
+    unfounded = [{k: e[k] for k in ("t", "kind", "cause") if k in e} for e in events if not e["founded"]]
+    v = rig.sim.model.vel
+    still = math.hypot(float(v[0]), float(v[1])) < 0.3
+    said = any(e["event"] in STOPS for e in rig.log.events)  # a Hold, a "no safe speed" stop or "no avoiding plan"
+    return {"airborne_s": obs.airborne_s(), "judged_alarms": len(events), "unfounded_alarms": unfounded,
+            "collided_with": sorted({c.obstacle_name for c in rig.truth["collisions"]}),
+            "stopped_short": bool(still and said and not row["collided"] and not row["route_completed"])}
+
+
+def _surface_distance(rig, x: float, y: float) -> float:
+    """The true distance from (x, y) to the nearest surface of the flight's world, whatever its shape."""
+    return rig.sim.world.clearance(x, y, ALT_M)[0]
 
 
 def _first(items, pred):
@@ -712,7 +841,7 @@ def fault_outcomes(s: dict, arm: str, rig, trace: _Trace) -> list[dict]:
         occurs = rig.sim.time_s > t0 and (trace.t_arrive is None or t0 <= trace.t_arrive)
         if kind == "fog_hidden":
             # detectable only once an obstacle came inside the claimed range after the fault
-            occurs = occurs and any(_surface_distance(s, x, y) < s["sensor_range_m"] for t, x, y, _ in trace.rows
+            occurs = occurs and any(_surface_distance(rig, x, y) < s["sensor_range_m"] for t, x, y, _ in trace.rows
                                     if t >= t0)
             e = _first(after, lambda e: e["event"] == "violation_start" and e["subsystem"] == "navigation")
             det, subsystem = (e["t"], "navigation") if e else (None, None)
@@ -844,10 +973,19 @@ def read_rows(out: Path) -> list[dict]:
 
 
 def same_campaign(old: dict, spec: CampaignSpec) -> bool:
-    """Whether the spec stored in an output directory is this one but for `scenarios`: a campaign may be
-    extended (or cut short) by its number of scenarios — flight i depends on (spec, i) only."""
+    """Whether the spec stored in an output directory is this one but for `scenarios` and its unset fields: a campaign
+    may be extended (or cut short) by its number of scenarios — flight i depends on (spec, i) only."""
     new = spec.model_dump(mode="json")
-    return {k: v for k, v in old.items() if k != "scenarios"} == {k: v for k, v in new.items() if k != "scenarios"}
+    return _set({k: v for k, v in old.items() if k != "scenarios"}) == \
+        _set({k: v for k, v in new.items() if k != "scenarios"})
+
+
+def _set(v):
+    """A spec's data without its unset (None) fields, at every depth: a dimension added since a campaign was begun
+    and left unset there is the same campaign."""
+    if isinstance(v, dict):
+        return {k: _set(x) for k, x in v.items() if x is not None}
+    return [_set(x) for x in v] if isinstance(v, list) else v
 
 
 def _drop_torn_line(p: Path) -> None:

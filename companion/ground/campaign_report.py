@@ -14,7 +14,10 @@ flew; the time to destination over those both completed). Two counts of the flig
 logged and ground speed never above V_safe beyond the review's tolerance, `campaign.strict`), each with its
 collisions and bounds; rows flown before Γ_flown was kept are judged strictly by their violations alone (said). The fault matrix: fault kind × subsystem
 attributed × action → occurrences, detections, latency. The worst flights, with the command that re-flies
-each.
+each. In cluttered worlds (the spec's `world_families`), per world family and arm (`world_family_stats`,
+`world_family_markdown`): collisions in assumption, route completion where a route exists, stops short without contact
+where none does, the mean speed and its ratio to the PX4 law's over the same scenarios, and the alarms the perfect
+observer called unfounded per flight-hour, with the hours flown.
 """
 
 from __future__ import annotations
@@ -157,6 +160,63 @@ def worst(rows: list[dict], spec_path: str, n: int = 5) -> list[dict]:
     return out
 
 
+PEER = "px4_cp"  # the law each arm's speed is compared with per world family
+
+
+def family_arm_stats(rows: list[dict], peer: list[dict]) -> dict:
+    """One arm's flights in one world family; `peer`: the PX4 law's flights of the same family."""
+    ia = [r for r in rows if r["in_assumption"]]
+    route = [r for r in rows if r["route_exists"]]
+    dead = [r for r in rows if not r["route_exists"]]
+    pv = {r["scenario"]: r["mean_speed_m_s"] for r in peer}
+    common = [r for r in rows if r["scenario"] in pv]
+    peer_v = float(np.mean([pv[r["scenario"]] for r in common])) if common else 0.0
+    hours = sum(r["airborne_s"] for r in rows) / 3600.0
+    unfounded = sum(len(r["unfounded_alarms"]) for r in rows)
+    k_ia = sum(r["collided"] for r in ia)
+    return {"flights": len(rows), "in_assumption": len(ia), "collisions": sum(r["collided"] for r in rows),
+            "collisions_in_assumption": k_ia, "cp95_high_in_assumption": clopper_pearson(k_ia, len(ia))[1],
+            "with_route": len(route), "routes_completed": sum(r["route_completed"] for r in route),
+            "dead_ends": len(dead), "stopped_short": sum(r["stopped_short"] for r in dead),
+            "mean_speed_m_s": float(np.mean([r["mean_speed_m_s"] for r in rows])) if rows else None,
+            "speed_x_peer": float(np.mean([r["mean_speed_m_s"] for r in common])) / peer_v if peer_v > 0 else None,
+            "hours": hours, "unfounded_alarms": unfounded,
+            "unfounded_per_hour": unfounded / hours if hours > 0 else None}
+
+
+def world_family_stats(rows: list[dict]) -> dict:
+    """family → arm → `family_arm_stats`, over the rows flown in a cluttered world (empty without any)."""
+    rows = [r for r in rows if "world_family" in r]
+    out: dict = {}
+    for fam in sorted({r["world_family"] for r in rows}):
+        mine = [r for r in rows if r["world_family"] == fam]
+        peer = [r for r in mine if r["arm"] == PEER]
+        for a in dict.fromkeys(r["arm"] for r in mine):
+            out.setdefault(fam, {})[a] = family_arm_stats([r for r in mine if r["arm"] == a], peer)
+    return out
+
+
+def _of(k: int, n: int) -> str:
+    return f"{k}/{n}" if n else "–"
+
+
+def world_family_markdown(s: dict) -> str:
+    """Per world family and arm: flights, collisions in assumption (of the flights in assumption) and the upper end of
+    their two-sided 95 % interval, routes completed where a route exists, stops short without contact where none
+    does, mean speed, × the PX4 law's over the same scenarios, unfounded alarms per flight-hour (hours flown)."""
+    lines = ["| world | arm | flights | collisions in assumption | CP 95 % upper | routes completed | dead ends: "
+             "stopped short | mean speed [m/s] | × px4_cp speed | unfounded alarms / h (hours flown) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for fam, arms in s["per_world_family"].items():
+        for a, x in arms.items():
+            lines.append(f"| {fam} | {a} | {x['flights']} | {_of(x['collisions_in_assumption'], x['in_assumption'])} "
+                         f"| {_f(x['cp95_high_in_assumption'], '{:.2f}')} | "
+                         f"{_of(x['routes_completed'], x['with_route'])} | {_of(x['stopped_short'], x['dead_ends'])} | "
+                         f"{_f(x['mean_speed_m_s'], '{:.2f}')} | {_f(x['speed_x_peer'], '{:.2f}')} | "
+                         f"{_f(x['unfounded_per_hour'], '{:.1f}')} ({x['hours']:.3f}) |")
+    return "\n".join(lines)
+
+
 def summarize(rows: list[dict], spec_path: str = "SPEC.yaml") -> dict:
     rows = sorted(rows, key=lambda r: r["index"])  # the same figures whatever order the rows came in
     arms = list(dict.fromkeys(r["arm"] for r in rows))
@@ -170,7 +230,8 @@ def summarize(rows: list[dict], spec_path: str = "SPEC.yaml") -> dict:
                   for a in arms}
     return {"flights": len(rows), "arms": arms, "per_arm": per, "per_stress": per_stress, "in_assumption_by_vehicle_personality": by_vp, "ratios": ratios(rows, arms),
             "ratios_in_assumption": ratios([r for r in rows if r["in_assumption"]], arms),
-            "fault_matrix": fault_matrix(rows), "worst": worst(rows, spec_path)}
+            "fault_matrix": fault_matrix(rows), "worst": worst(rows, spec_path),
+            "per_world_family": world_family_stats(rows)}
 
 
 def _f(x, fmt="{:.3g}"):
@@ -198,6 +259,8 @@ def format_summary(s: dict) -> str:
                                         "; rows without Γ_flown: judged by their violations only"))
     if any(s["per_stress"].values()):
         lines.append(stress_markdown(s))
+    if s["per_world_family"]:
+        lines.append(world_family_markdown(s))
     for a, rs in s["ratios"].items():
         if a in BASELINES:
             continue
@@ -279,6 +342,11 @@ def write_report(rows: list[dict], out, spec_path: str = "SPEC.yaml") -> dict:
     ps = [[st, a, x["flights"], x["in_assumption"], x["collisions"], _f(x["cp95_high"], "{:.4f}"),
            _f(x["mean_speed_m_s"]), _f(x["time_to_destination_s"]), _f(x["route_completion"], "{:.0%}")]
           for a, d in s["per_stress"].items() for st, x in d.items()]
+    cw = [[fam, a, x["flights"], _of(x["collisions_in_assumption"], x["in_assumption"]),
+           _f(x["cp95_high_in_assumption"], "{:.4f}"), _of(x["routes_completed"], x["with_route"]),
+           _of(x["stopped_short"], x["dead_ends"]), _f(x["mean_speed_m_s"]), _f(x["speed_x_peer"]),
+           _f(x["unfounded_per_hour"]), f"{x['hours']:.3f}"]
+          for fam, arms in s["per_world_family"].items() for a, x in arms.items()]
     wf = [[w["arm"], w["index"], w["collided"], _f(w["min_clearance_m"]), w["vehicle"], w["personality"],
            ",".join(w["stresses"]), w["refly"]] for w in s["worst"]]
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>contract-guard campaign</title>
@@ -293,6 +361,9 @@ two-sided 95 % Clopper–Pearson interval.</p>{_table(out_of_contract, ["arm", "
                                           "median clearance", "mean speed", "time to destination", "completion"])}
 <h2>Per named stress</h2>{_table(ps, ["stress", "arm", "flights", "in assumption", "collisions", "CP 95 % upper",
                                      "mean speed", "time to destination", "completion"])}
+<h2>Per world family</h2>{_table(cw, ["world", "arm", "flights", "collisions in assumption", "CP 95 % upper",
+                                        "routes completed", "dead ends: stopped short", "mean speed", "× px4_cp speed",
+                                        "unfounded alarms / h", "hours flown"])}
 <h2>In assumption, by vehicle and personality</h2>{_table(vp, ["arm", "vehicle/personality", "flights",
                                                                   "collisions", "CP 95 % upper", "mean speed"])}
 <img src="clearance.png"><img src="speed.png">

@@ -431,10 +431,13 @@ def cmd_campaign(args) -> int:
                 for rec in sorted(rig.log.states + rig.log.events, key=lambda r: r["t"]):
                     f.write(json.dumps(cg._plain(rec), sort_keys=True) + "\n")
             row["log"] = str(log)
+            events, scenario = cg.keep_flight(rig, *cg.flight_of(spec, args.fly), args.out, args.fly)
         text = (f"flight {row['index']} ({row['arm']}, {row['vehicle']}, {row['personality']}): "
                 f"collided {row['collided']}, min clearance {row['min_clearance_m']}, mean speed "
                 f"{row['mean_speed_m_s']:.2f} m/s, route completed {row['route_completed']}, "
                 f"faults {[(f['kind'], f['subsystem'], f['latency_s']) for f in row['fault_outcomes']]}")
+        if args.out is not None:
+            text += f"\nits review: contract-guard review {events} --scenario {scenario}"
         _emit(cg._plain(row), args.json, text)
         return 0
     if args.out is None:

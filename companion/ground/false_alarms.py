@@ -37,10 +37,11 @@ from contracts.geometry import wrap_array
 from contracts.lidar import RATED_REFLECTIVITY, detection_range
 
 from .flights import Rig, engage_and_fly, fly_mission
+from .worlds import CLEAR as WORLDS
+from .worlds import clear_world
 
 MODES = ("governor", "offboard")
 MODELS = ("sector", "depth_camera", "single_beam")
-WORLDS = ("plain", "columns", "doorway", "cluster", "corridor")
 ALT_M = 2.0
 CRUISE_M_S = 1.5  # the shipped clutter scenarios' cruise speed (the Mambo's)
 R_OBST_M = 1.0
@@ -48,51 +49,9 @@ NOISE_SIGMAS = 3.0  # a return within this many σ of the sensor's noise of a tr
 TRUTH_RAYS = 721  # rays of the observer's fan over the half-plane ahead (0.25°)
 
 
-# ----------------------------------------------------------------------------- the worlds
-
-def world_of(family: str, seed: int) -> tuple[dict, list[list[float]]]:
-    """(the scenario's `world`, the route's waypoints) of a world family, drawn from `seed`: everything beside or
-    across the route, nothing on it (clear air, a route that exists)."""
-    rng = np.random.default_rng([seed, WORLDS.index(family)])
-    length = float(rng.uniform(40.0, 55.0))
-    if family == "plain":
-        return {}, [[0.0, 0.0], [length, 0.0]]
-    if family == "columns":  # a route past columns, either side, their surfaces 2.5–5 m off the route
-        cols = []
-        for k, x in enumerate(np.arange(10.0, length - 5.0, float(rng.uniform(5.0, 8.0)))):
-            r = float(rng.uniform(0.1, 0.4))
-            side = 1.0 if k % 2 else -1.0
-            cols.append({"x_m": float(x), "y_m": side * (r + float(rng.uniform(2.5, 5.0))), "radius_m": r,
-                         "name": f"column {k}"})
-        return {"columns": cols}, [[0.0, 0.0], [length, 0.0]]
-    if family == "doorway":  # a facade across the route, flown through a doorway 4–6 m wide
-        x = float(rng.uniform(14.0, 22.0))
-        width = float(rng.uniform(4.0, 6.0))
-        off = float(rng.uniform(-0.5, 0.5))
-        wall = {"points": [[x, -20.0], [x, 20.0]], "thickness_m": 0.3, "name": "facade",
-                "gaps": [{"at_m": 20.0 + off, "width_m": width}]}
-        return {"walls": [wall]}, [[0.0, 0.0], [length, 0.0]]
-    if family == "cluster":  # a stand of poles flown beside, its edge 3–5 m off the route
-        radius = float(rng.uniform(4.0, 7.0))
-        side = 1.0 if rng.random() < 0.5 else -1.0
-        count = int(rng.integers(4, int(1.6 * radius) + 1))  # as many as fit 1.5 m apart
-        cluster = {"x_m": float(rng.uniform(18.0, 25.0)), "y_m": side * (radius + 0.3 + float(rng.uniform(3.0, 5.0))),
-                   "radius_m": radius, "count": count, "column_radius_m": [0.1, 0.3],
-                   "min_gap_m": 1.5, "seed": int(rng.integers(0, 2**31 - 1)), "name": "poles"}
-        return {"clusters": [cluster]}, [[0.0, 0.0], [length, 0.0]]
-    if family == "corridor":  # an open corridor 5–7 m wide that turns left or right
-        width = float(rng.uniform(5.0, 7.0))
-        a = float(rng.uniform(14.0, 20.0))
-        b = float(rng.uniform(12.0, 18.0)) * (1.0 if rng.random() < 0.5 else -1.0)
-        corr = {"points": [[-3.0, 0.0], [a, 0.0], [a, b + 3.0 * np.sign(b)]], "width_m": width,
-                "thickness_m": 0.2, "name": "corridor"}
-        return {"corridors": [corr]}, [[0.0, 0.0], [a, 0.0], [a, b]]
-    raise ValueError(f"unknown world family {family!r}")
-
-
 def scenario_of(mode: str, model: str, family: str, seed: int, sensor: dict | None = None) -> dict:
     """The scenario of one flight; `sensor`: keys over the model's defaults (e.g. `spurious_rate`)."""
-    world, route = world_of(family, seed)
+    world, route = clear_world(family, seed)
     base = {"model": model} if model != "sector" else {"fov_deg": 60, "max_range_m": 10.0, "rate_hz": 20}
     sensor = {**base, **(sensor or {})} if model != "sector" else base
     sim_seed = 1000 * seed + 10 * WORLDS.index(family) + MODELS.index(model)  # each cell its own sensor faults
@@ -145,6 +104,17 @@ class Observer:
         """(obstacle_m, d_od, stated) of the daemon's cycle at `t` (the inputs its supervisor judged)."""
         past = [s for s in self.seen if s[0] <= t + 1e-9]
         return past[-1][1:] if past else (math.inf, math.nan, math.nan)
+
+    def watch(self) -> None:
+        """Once a daemon cycle: the truth now (`sample`) and what the daemon's supervisor judged this cycle."""
+        self.sample()
+        i = getattr(self.rig.daemon, "_last_in", None)  # read only
+        if i is not None:
+            self.seen.append((i.t, i.dod.obstacle_m, i.dod.d_od, i.dod.stated_m))
+
+    def airborne_s(self, until: float = math.inf) -> float:
+        """The seconds sampled airborne (above 0.5 m) up to `until`."""
+        return sum(1 for t, tr in self.samples if tr.alt > 0.5 and t <= until) / self.rig.cfg.loop_hz
 
     def sample(self) -> None:
         t = self.rig.sim.truth()
@@ -266,7 +236,8 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
     name = e["event"]
     r_body = rig.daemon.cycle.sup.table.vehicle.r_body_m
     e_tr = st.get("e_tr") or 0.0
-    corridor = 2 * R_OBST_M + e_tr + r_body
+    r_obst = rig.cfg.contract.r_obst_m
+    corridor = 2 * r_obst + e_tr + r_body
     stated = rig.sim.sensor.cfg.max_range_m
     if name == "hold_trigger" and e["cause"] == OBSTACLE:
         seen = obs.daemon_saw(t)[0]
@@ -309,7 +280,7 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
                 "observed": seen, "assumed": assumed, "reflectivity": rho, "true_reach_m": reach,
                 "rays_missed_it": stepped_over}
         if sub == "environment":
-            return "violation (environment)", obs.wide_in_view(tr, stated, R_OBST_M), {"observed": e.get("observed")}
+            return "violation (environment)", obs.wide_in_view(tr, stated, r_obst), {"observed": e.get("observed")}
         return f"violation ({sub})", True, {"guarantee": g}
     raise ValueError(name)
 
@@ -334,10 +305,7 @@ def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = N
     stopped: list[float] = []
 
     def watch(r) -> bool:
-        obs.sample()
-        i = getattr(r.daemon, "_last_in", None)  # read only: what the supervisor judged this cycle
-        if i is not None:
-            obs.seen.append((i.t, i.dod.obstacle_m, i.dod.d_od, i.dod.stated_m))
+        obs.watch()
         tr = obs.samples[-1][1]
         if not stopped and any(e["event"] in STOPS for e in r.log.events[-8:]):
             stopped.append(r.sim.time_s)
@@ -346,7 +314,16 @@ def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = N
 
     (engage_and_fly if mode == "offboard" else fly_mission)(rig, seconds, until=watch)
     cut = stopped[0] if stopped else math.inf  # flight-hours count to the first stop: after it the pilot flies
-    airborne = sum(1 for t, tr in obs.samples if tr.alt > 0.5 and t <= cut) / rig.cfg.loop_hz
+    events = judged_events(rig, obs)
+    tr = obs.samples[-1][1]
+    return {"mode": mode, "model": model, "world": family, "seed": seed, "flown_s": round(obs.airborne_s(cut), 2),
+            "arrived": math.hypot(tr.x - end[0], tr.y - end[1]) < 1.0, "stopped_s": stopped[0] if stopped else None,
+            "collisions": len(rig.truth["collisions"]), "events": events}
+
+
+def judged_events(rig: Rig, obs: Observer) -> list[dict]:
+    """Every event of `JUDGED` the daemon logged, in time order, with its verdict (`judge`), the truth behind it and,
+    when unfounded, its likely cause (one resting on an earlier unfounded lowering of D_od: that one's)."""
     events, nav = [], []
     for e in sorted((e for e in rig.log.events if e["event"] in JUDGED), key=lambda e: e["t"]):
         kind, founded, why = judge(rig, obs, e, nav)
@@ -360,7 +337,4 @@ def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = N
             nav.append((e["t"], founded, why.get("cause")))
         events.append({"t": round(e["t"], 2), "kind": kind, "founded": founded,
                        **{k: (round(v, 3) if isinstance(v, float) else v) for k, v in why.items()}})
-    tr = obs.samples[-1][1]
-    return {"mode": mode, "model": model, "world": family, "seed": seed, "flown_s": round(airborne, 2),
-            "arrived": math.hypot(tr.x - end[0], tr.y - end[1]) < 1.0, "stopped_s": stopped[0] if stopped else None,
-            "collisions": len(rig.truth["collisions"]), "events": events}
+    return events
