@@ -9,7 +9,7 @@ from dataclasses import replace
 import pytest
 
 from companion.onboard.config import config_from_dict, weakened
-from companion.onboard.overshoot import DEFAULT, OvershootBudget, OvershootWatch, overshoot_of
+from companion.onboard.overshoot import DEFAULT, OvershootBudget, OvershootWatch, overshoot_of, ramped_out
 from companion.onboard.states import Subsystem
 from companion.onboard.supervisor import SPEED_OVERSHOOT, Supervisor
 from tests.test_supervisor import BASE, TABLE, dod, run
@@ -33,12 +33,18 @@ def test_a_raised_budget_covers_the_excess_flown_and_is_never_lowered():
 
 def test_the_watch_judges_only_a_limit_the_vehicle_has_met():
     w, b = OvershootWatch(), OvershootBudget(0.1, 0.0)
-    assert w.judge(b, 3.0, 5.0) is None  # slowing down to a lower limit: the slow-down's judgement, not this
-    assert w.judge(b, 3.0, 3.05) is None  # met
-    assert w.judge(b, 3.0, 3.3) == (pytest.approx(3.1), 3.3)  # then above it by more than the budget
-    assert w.judge(b, 2.0, 3.3) is None  # a lower limit: not met yet
-    assert w.judge(b, 4.0, 3.3) is None and w.judge(b, 4.0, 4.2) == (pytest.approx(4.1), 4.2)  # a higher one: met
-    assert w.judge(b, None, 9.0) is None and w.judge(b, 4.0, 4.2) is None  # no limit: forgotten
+    assert w.judge(b, 3.0, 5.0, 5.0) is None  # slowing down to a lower limit: the slow-down's judgement, not this
+    assert w.judge(b, 3.0, 3.05, 3.05) is None  # met
+    assert w.judge(b, 3.0, 3.3, 3.3) == (pytest.approx(3.1), 3.3)  # then above it by more than the budget
+    assert w.judge(b, 2.0, 3.3, 3.3) is None  # a lower limit: not met yet
+    assert w.judge(b, 4.0, 3.3, 3.3) is None and w.judge(b, 4.0, 4.2, 4.2) == (pytest.approx(4.1), 4.2)  # higher: met
+    assert w.judge(b, None, 9.0, 9.0) is None and w.judge(b, 4.0, 4.2, 4.2) is None  # no limit: forgotten
+    # a limit lowered while the vehicle speeds up: below it, but its acceleration ramped out still passes it — the
+    # autopilot's jerk-limited slow-down, not an overshoot (until it has met the limit)
+    w = OvershootWatch()
+    assert w.judge(b, 1.0, 0.6, ramped_out(0.6, 2.5, 4.0)) is None and w.judge(b, 1.0, 1.4, 1.4) is None
+    assert w.judge(b, 1.0, 0.9, 0.9) is None and w.judge(b, 1.0, 1.2, 1.2) == (pytest.approx(1.1), 1.2)
+    assert math.isnan(ramped_out(1.0, math.nan, 4.0)) and ramped_out(1.0, -2.0, 4.0) == 1.0
 
 
 def test_the_governor_sends_v_max_minus_the_budget_and_shadow_too_offboard_not():
@@ -62,17 +68,18 @@ def _violations(ds, name):
 
 def test_an_overshoot_beyond_the_budget_is_the_autopilots_violation_and_lowers_the_limit():
     s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, loop_dt=0.02)
-    v = s.step(replace(BASE, ground_speed=1.0)).v_cmd
-    ok = run(s, BASE, 0.02, 1.0, ground_speed=DEFAULT.top(v) - 0.01)  # within the budget: nothing
+    level = replace(BASE, accel_along=0.0)  # (flying level: its acceleration ramped out adds nothing)
+    v = s.step(replace(level, ground_speed=1.0)).v_cmd
+    ok = run(s, level, 0.02, 1.0, ground_speed=DEFAULT.top(v) - 0.01)  # within the budget: nothing
     assert not _violations(ok, "violation_start") and ok[-1].v_cmd == pytest.approx(v)
-    over = run(s, BASE, 1.0, 1.5, ground_speed=DEFAULT.top(v) + 0.2)
+    over = run(s, level, 1.0, 1.5, ground_speed=DEFAULT.top(v) + 0.2)
     start = _violations(over, "violation_start")
     assert len(start) == 1 and start[0]["subsystem"] == Subsystem.AUTOPILOT
     assert start[0]["assumed"] == pytest.approx(DEFAULT.top(v)) and "budget raised" in start[0]["action"]
     assert s.overshoot.top(v) == pytest.approx(DEFAULT.top(v) + 0.2)
     # the raised budget: a lower limit at once (which the vehicle then slows down to: `_judge_limit`'s to judge)
     assert _violations(over, "violation_end") and over[-1].v_cmd < v - 0.15
-    run(s, BASE, 1.6, 1.7, in_air=False, ground_speed=0.0)
+    run(s, level, 1.6, 1.7, in_air=False, ground_speed=0.0)
     assert s.overshoot == DEFAULT  # measured per flight
 
 
@@ -94,12 +101,12 @@ def test_the_config_names_the_budget_and_a_smaller_one_is_weaker():
 
 
 def test_the_overshoot_a_log_shows_is_counted_after_the_limit_is_met():
-    t = [0, 1, 2, 3, 4, 5, 6]
-    speed = [5.0, 3.5, 2.9, 3.2, 3.1, 1.0, 1.3]
-    limit = [3.0, 3.0, 3.0, 3.0, 3.0, 1.2, 1.2]
-    r = overshoot_of(t, speed, limit)
-    assert r["overshoot_m_s"] == pytest.approx(0.2) and r["at_limit_m_s"] == 3.0 and r["samples"] == 5
-    assert overshoot_of([0], [2.0], [None])["overshoot_m_s"] is None
+    t = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.4]
+    speed = [5.0, 3.5, 2.9, 2.9, 3.2, 3.1, 1.0, 1.3]
+    limit = [3.0, 3.0, 3.0, 3.0, 3.0, 3.0, 1.2, 1.2]
+    r = overshoot_of(t, speed, limit, jerk=4.0)
+    assert r["overshoot_m_s"] == pytest.approx(0.2) and r["at_limit_m_s"] == 3.0 and r["samples"] == 6
+    assert overshoot_of([0], [2.0], [None], jerk=4.0)["overshoot_m_s"] is None
 
 
 # ---------------------------------------------------------------- lock-step: the real daemon against the real SITL

@@ -56,13 +56,21 @@ class OvershootBudget:
                 "is raised for the rest of the flight)")
 
 
-DEFAULT = OvershootBudget(0.1, 0.04)  # the shipped vehicles' worst (module docstring; config.SpeedOvershootConfig)
+DEFAULT = OvershootBudget(0.15, 0.04)  # the shipped vehicles' worst, rounded up (module docstring; config.SpeedOvershootConfig)
+
+
+def ramped_out(speed: float, accel: float, jerk: float) -> float:
+    """The speed the vehicle still reaches while its acceleration `accel` (along its velocity) is ramped out at the
+    autopilot's jerk: speed + a²/(2j) when speeding up (the autopilot's jerk-limited reference cannot stop speeding
+    up sooner). NaN when the acceleration is not known."""
+    return speed + max(accel, 0.0) ** 2 / (2.0 * jerk) if math.isfinite(accel) else math.nan
 
 
 class OvershootWatch:
-    """Judges the guarantee: once the vehicle has flown within the allowance of the limit in force (it met the
-    limit, from below or after slowing down to it), a ground speed above `top(limit)` breaks it. While the vehicle
-    still slows down to a lower limit it is not judged here (the slow-down is `Supervisor._judge_limit`'s)."""
+    """Judges the guarantee: once the vehicle has met the limit in force — it would reach no more than the limit and
+    its allowance with its acceleration ramped out (`ramped_out`), speeding up toward it from below or after slowing down to a
+    lower one — a ground speed above `top(limit)` breaks it. A limit lowered while the vehicle speeds up past it is
+    not judged here until met (that slow-down, from the acceleration it found, is `Supervisor._judge_limit`'s)."""
 
     def __init__(self) -> None:
         self.reset()
@@ -71,8 +79,9 @@ class OvershootWatch:
         self._limit: float | None = None
         self._met = False
 
-    def judge(self, budget: OvershootBudget, limit: float | None, speed: float) -> tuple[float, float] | None:
-        """(allowed, flown) while the guarantee is broken, else None. `limit`: the limit in force (None: none)."""
+    def judge(self, budget: OvershootBudget, limit: float | None, speed: float, reach: float) -> tuple[float, float] | None:
+        """(allowed, flown) while the guarantee is broken, else None. `limit`: the limit in force (None: none);
+        `reach`: the speed the vehicle reaches with its acceleration ramped out (`ramped_out`; NaN: not known)."""
         if limit is None or not math.isfinite(speed):
             self.reset()
             return None
@@ -80,25 +89,27 @@ class OvershootWatch:
             self._met = False  # a lower limit: met again once the vehicle has slowed down to it
         self._limit = limit
         top = budget.top(limit)
-        if speed <= top:
-            self._met = True
-            return None
-        return (top, speed) if self._met else None
+        self._met = self._met or reach <= top
+        return (top, speed) if self._met and speed > top else None
 
 
-def overshoot_of(t, speed, limit) -> dict:
-    """The overshoot a flight log shows: over samples (t, ground speed, limit sent), the largest ground speed above
-    the limit once the vehicle had met it (flown at or below it since the limit was last lowered), per limit.
+def overshoot_of(t, speed, limit, jerk: float, window_s: float = 0.3) -> dict:
+    """The overshoot a flight log shows: over samples (t, ground speed, limit in force), the largest ground speed
+    above the limit once the vehicle had met it (as `OvershootWatch` judges it: its acceleration, Δv over
+    `window_s`, ramped out at the autopilot's `jerk` reaching no more than the limit).
     {"overshoot_m_s", "at_limit_m_s", "samples"} — the calibration's evidence for `speed_overshoot`."""
     worst, at, met, last, n = -math.inf, math.nan, False, None, 0
+    past: list[tuple[float, float]] = []
     for tk, v, lim in zip(t, speed, limit):
         if not (math.isfinite(v) and lim is not None and math.isfinite(lim) and lim > 0):
-            met, last = False, None
+            met, last, past = False, None, []
             continue
+        past = [p for p in past if tk - p[0] <= window_s + 1e-9] + [(tk, v)]
+        accel = (v - past[0][1]) / (tk - past[0][0]) if tk - past[0][0] >= 0.5 * window_s else math.nan
         if last is None or lim < last - 1e-6:
             met = False
         last = lim
-        met = met or v <= lim
+        met = met or ramped_out(v, accel, jerk) <= lim
         if met:
             n += 1
             if v - lim > worst:

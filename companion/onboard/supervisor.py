@@ -32,7 +32,7 @@ from .authority import GUARANTEE_ANSWERED, Late
 from .estimators import DodEstimate
 from .guidance import inflated
 from .modes import Mode, mode_of
-from .overshoot import DEFAULT as DEFAULT_OVERSHOOT, OvershootBudget, OvershootWatch
+from .overshoot import DEFAULT as DEFAULT_OVERSHOOT, OvershootBudget, OvershootWatch, ramped_out
 from .states import (  # noqa: F401 (re-exported)
     AT_REST_M_S,
     BRAKE_STOP_CAUSES,
@@ -754,7 +754,8 @@ class Supervisor:
         """The autopilot's guarantee SPEED_OVERSHOOT, judged against the limit in force once the vehicle met it:
         broken, the excess flown becomes the budget for the rest of the flight (a lower limit from now on)."""
         limit = self.limit.value if i.limit_applies else None
-        over = self._overshoot_watch.judge(self.overshoot, limit, i.ground_speed)
+        reach = ramped_out(i.ground_speed, i.accel_along, self.table.vehicle.braking.jerk_max_m_s3)
+        over = self._overshoot_watch.judge(self.overshoot, limit, i.ground_speed, reach)
         if over is not None:
             self.overshoot = self.overshoot.raised(limit, over[1])
         self._violation(d, "speed_overshoot", over is not None, lambda: dict(
