@@ -16,7 +16,7 @@ from tests.test_supervisor import BASE, TABLE, dod, run
 
 
 def test_the_limit_sent_leaves_exactly_the_budget_below_v_max():
-    b = OvershootBudget(0.1, 0.04)
+    b = OvershootBudget(0.15, 0.04)
     for v_max in (0.3, 1.0, 3.0, 7.5):
         v = b.sent(v_max)
         assert v < v_max and b.top(v) == pytest.approx(v_max)
@@ -25,7 +25,7 @@ def test_the_limit_sent_leaves_exactly_the_budget_below_v_max():
 
 
 def test_a_raised_budget_covers_the_excess_flown_and_is_never_lowered():
-    b = OvershootBudget(0.1, 0.04)
+    b = OvershootBudget(0.15, 0.04)
     r = b.raised(2.0, 2.5)
     assert r.top(2.0) == pytest.approx(2.5) and r.fraction == b.fraction
     assert r.raised(2.0, 2.1) is r

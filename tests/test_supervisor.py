@@ -60,7 +60,8 @@ def test_governor_sends_the_stop_contract_speed_and_follows_dod():
     want = OVERSHOOT.sent(v_max)
     assert want <= TABLE.v_stop(8.0, 1.0, 0.2, 1.0) and OVERSHOOT.top(want) == pytest.approx(v_max)
     assert d.state == "active" and d.send_speed == pytest.approx(want) and d.v_cmd == pytest.approx(want)
-    assert ("limit_change", {"v_max": pytest.approx(want), "reason": "ok"}) in d.events
+    assert ("limit_change", {"v_max": pytest.approx(want), "reason": "ok",
+                             "overshoot_budget_m_s": pytest.approx(v_max - want)}) in d.events
     # fog: D_od drops, the limit drops in the same cycle
     d2 = s.step(replace(BASE, t=0.02, dod=dod(4.0)))
     low = OVERSHOOT.sent(TABLE.omega(4.0, 1.0, 0.2, 1.0, contract="stop").v_max)

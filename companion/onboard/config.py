@@ -374,9 +374,9 @@ class RouteConfig(_Strict):
 class SpeedOvershootConfig(_Strict):
     """The autopilot's guarantee that the ground speed stays within base_m_s + fraction × limit of the speed limit
     sent (DO_CHANGE_SPEED). Defaults: the larger of the shipped vehicles' measured in the SITL, in their design wind,
-    both personalities (benchmarks/bench_speed_overshoot.py: X500 0.12 m/s at 1 m/s to 0.31 m/s at 6 m/s). For an
-    aircraft: `contract-guard calibrate` of a governor flight's event log says the overshoot its autopilot flew
-    (docs/calibration.md). At most 1 m/s and 0.5: a larger budget would accept a limit that is not obeyed."""
+    both personalities (benchmarks/bench_speed_overshoot.py: X500 0.12 m/s at 1 m/s to 0.32 m/s at 5–6 m/s). For an
+    aircraft: its governor flights' event log says the overshoot its autopilot flew (`overshoot.overshoot_of`,
+    docs/calibration.md). At most 1 m/s and 0.5: a larger budget would accept a limit that is not obeyed."""
 
     base_m_s: Bounded(0.0, 1.0) = OVERSHOOT.base_m_s
     fraction: Bounded(0.0, 0.5) = OVERSHOOT.fraction

@@ -4,10 +4,12 @@ The guarantee (supervisor.py SPEED_OVERSHOOT): in its auto modes the autopilot k
 δ_v(v) = base + fraction · v of the speed limit v it was sent (DO_CHANGE_SPEED). The mission reference itself never
 passes its target speed, but the position loop lags the reference while it speeds up and catches up above it once
 the reference levels off, and wind adds its gusts: measured per vehicle and personality by
-benchmarks/bench_speed_overshoot.py (X500 0.12 m/s at 1 m/s to 0.31 m/s at 6 m/s in its design wind; Mambo at most
-0.19 m/s), and on an aircraft from its own flight log (`overshoot_of`, used by `contract-guard calibrate`).
+benchmarks/bench_speed_overshoot.py (X500 0.12 m/s at a 1 m/s limit to 0.32 m/s at 5–6 m/s in its design wind;
+Mambo at most 0.24 m/s: 0.123 m/s + 0.04 × limit covers every X500 flight), and on an aircraft from the daemon's
+own event log of its governor flights (`overshoot_of`, docs/calibration.md).
 
-The stop contract assumes the vehicle flies at most V_max (eq. of the stop distance in contracts/stop.py), so the
+The stop contract assumes the vehicle flies at most V_max (the stopping distance of contracts/stop.py starts from
+it), so the
 governor sends the largest v with v + δ_v(v) ≤ V_max (`sent`): the flown speed stays within the contract's V_max
 while the autopilot keeps its guarantee. The same allowance is the only tolerance the supervisor gives a limit it
 judges flown (`Supervisor._over_limit`, `_judge_limit`, the recovery brake's refusal, the approach ramp), so the

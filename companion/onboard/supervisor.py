@@ -752,8 +752,9 @@ class Supervisor:
 
     def _judge_overshoot(self, d: _Draft, i: Inputs) -> None:
         """The autopilot's guarantee SPEED_OVERSHOOT, judged against the limit in force once the vehicle met it:
-        broken, the excess flown becomes the budget for the rest of the flight (a lower limit from now on)."""
-        limit = self.limit.value if i.limit_applies else None
+        broken, the excess flown becomes the budget for the rest of the flight (a lower limit from now on). Under the
+        stop contract only: offboard flies its own setpoints."""
+        limit = self.limit.value if i.limit_applies and self.contract == "stop" else None
         reach = ramped_out(i.ground_speed, i.accel_along, self.table.vehicle.braking.jerk_max_m_s3)
         over = self._overshoot_watch.judge(self.overshoot, limit, i.ground_speed, reach)
         if over is not None:
