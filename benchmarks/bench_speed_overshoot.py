@@ -7,9 +7,9 @@ after the vehicle starts to move along: PX4 resets its cruising speed at the end
 next command arrives; judged from when the vehicle first flies at or below it), `approach` (from a settled hover up
 to the limit), `step_up` (cruising at half the limit, the limit raised) and `step_down` (cruising at the
 autopilot's own speed, the limit lowered; judged from when the vehicle first flies at or below it) — at limits
-1–6 m/s, in still air and in the vehicle file's design wind from ahead, the right, behind and the left (seeds). Per cell: the
-largest ground speed above the limit (overshoot, m/s), as a fraction of the limit, and how long the ground speed
-stayed above limit + 0.05 m/s. Where it comes from: the mission's reference never exceeds the limit
+1–6 m/s, in still air and in the vehicle file's design wind from ahead, the right, behind and the left (seeds).
+Per cell: the largest ground speed above the limit (overshoot, m/s), as a fraction of the limit, and how long the
+ground speed stayed above limit + 0.05 m/s. Where it comes from: the mission's reference never exceeds the limit
 (sitl_harness/trajectory.py: jerk-limited, no overshoot of its target speed), but the position loop lags the
 reference while it accelerates (MPC_XY_P · lag adds to the velocity feed-forward), so the vehicle catches up above
 the limit once the reference levels off; wind adds its gusts. Prints one JSON object.
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 
 import numpy as np
 

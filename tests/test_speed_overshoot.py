@@ -12,7 +12,7 @@ from companion.onboard.config import config_from_dict, weakened
 from companion.onboard.overshoot import DEFAULT, OvershootBudget, OvershootWatch, overshoot_of, ramped_out
 from companion.onboard.states import Subsystem
 from companion.onboard.supervisor import SPEED_OVERSHOOT, Supervisor
-from tests.test_supervisor import BASE, TABLE, dod, run
+from tests.test_supervisor import BASE, TABLE, run
 
 
 def test_the_limit_sent_leaves_exactly_the_budget_below_v_max():
@@ -98,6 +98,19 @@ def test_the_config_names_the_budget_and_a_smaller_one_is_weaker():
     assert cfg.speed_overshoot.budget() == DEFAULT
     weak = weakened(config_from_dict({"speed_overshoot": {"base_m_s": 0.0}}))
     assert any("speed_overshoot.base_m_s" in w for w in weak)
+
+
+def test_the_banner_and_the_console_say_the_limit_leaves_room_for_the_overshoot():
+    from companion.onboard.console import banner, event_line
+
+    sensors = [{"kind": "distance_sensor", "h_fov_deg": 30, "max_range_m": 8.0}]
+    for mode, said in (("governor", True), ("shadow", True), ("offboard", False)):
+        cfg = config_from_dict({"vehicle": "mambo", "mode": mode, "sensors": sensors,
+                                **({"route": {"waypoints": [[0, 0], [10, 0]]}} if mode == "offboard" else {})})
+        lines = [ln for ln in banner(cfg, TABLE, "x") if "overshoot budget" in ln]
+        assert bool(lines) is said and (not said or "V_max − δ_v" in lines[0] and "0.15 m/s + 0.04" in lines[0])
+    _, line = event_line("limit_change", {"v_max": 2.84, "reason": "ok", "overshoot_budget_m_s": 0.26})
+    assert "V_max − 0.26 m/s, the autopilot's overshoot budget" in line
 
 
 def test_the_overshoot_a_log_shows_is_counted_after_the_limit_is_met():

@@ -12,7 +12,8 @@ from contracts.lidar import BACKSCATTER_LENGTH_M, RATED_REFLECTIVITY, REFERENCE_
 from contracts.yamlfile import load_model, model_from_dict
 
 from .modes import Mode, mode_of
-from .overshoot import DEFAULT as OVERSHOOT, OvershootBudget
+from .overshoot import DEFAULT as OVERSHOOT
+from .overshoot import OvershootBudget
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]

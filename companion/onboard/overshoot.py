@@ -45,7 +45,7 @@ class OvershootBudget:
             return v_max
         return max((v_max - self.base_m_s) / (1.0 + self.fraction), 0.0)
 
-    def raised(self, v_sent: float, flown: float) -> "OvershootBudget":
+    def raised(self, v_sent: float, flown: float) -> OvershootBudget:
         """The budget after the autopilot flew `flown` under the limit `v_sent`: its base raised so that this
         excess is covered (never lowered)."""
         need = flown - v_sent - self.fraction * max(v_sent, 0.0)
@@ -54,11 +54,12 @@ class OvershootBudget:
     def line(self) -> str:
         """The banner's words for it."""
         return (f"speed limit sent V_max − δ_v: autopilot overshoot budget δ_v = {self.base_m_s:g} m/s + "
-                f"{self.fraction:g} × limit (the ground speed flown above the limit sent; measured above it, the budget "
-                "is raised for the rest of the flight)")
+                f"{self.fraction:g} × limit (the ground speed flown above the limit sent; measured above it, the "
+                "budget is raised for the rest of the flight)")
 
 
-DEFAULT = OvershootBudget(0.15, 0.04)  # the shipped vehicles' worst, rounded up (module docstring; config.SpeedOvershootConfig)
+# the shipped vehicles' worst, rounded up (module docstring; config.SpeedOvershootConfig)
+DEFAULT = OvershootBudget(0.15, 0.04)
 
 
 def ramped_out(speed: float, accel: float, jerk: float) -> float:
@@ -70,9 +71,10 @@ def ramped_out(speed: float, accel: float, jerk: float) -> float:
 
 class OvershootWatch:
     """Judges the guarantee: once the vehicle has met the limit in force — it would reach no more than the limit and
-    its allowance with its acceleration ramped out (`ramped_out`), speeding up toward it from below or after slowing down to a
-    lower one — a ground speed above `top(limit)` breaks it. A limit lowered while the vehicle speeds up past it is
-    not judged here until met (that slow-down, from the acceleration it found, is `Supervisor._judge_limit`'s)."""
+    its allowance with its acceleration ramped out (`ramped_out`), speeding up toward it from below or after slowing
+    down to a lower one — a ground speed above `top(limit)` breaks it. A limit lowered while the vehicle speeds up
+    past it is not judged here until met (that slow-down, from the acceleration it found, is
+    `Supervisor._judge_limit`'s)."""
 
     def __init__(self) -> None:
         self.reset()
@@ -81,7 +83,8 @@ class OvershootWatch:
         self._limit: float | None = None
         self._met = False
 
-    def judge(self, budget: OvershootBudget, limit: float | None, speed: float, reach: float) -> tuple[float, float] | None:
+    def judge(self, budget: OvershootBudget, limit: float | None, speed: float, reach: float
+              ) -> tuple[float, float] | None:
         """(allowed, flown) while the guarantee is broken, else None. `limit`: the limit in force (None: none);
         `reach`: the speed the vehicle reaches with its acceleration ramped out (`ramped_out`; NaN: not known)."""
         if limit is None or not math.isfinite(speed):

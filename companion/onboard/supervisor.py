@@ -32,7 +32,8 @@ from .authority import GUARANTEE_ANSWERED, Late
 from .estimators import DodEstimate
 from .guidance import inflated
 from .modes import Mode, mode_of
-from .overshoot import DEFAULT as DEFAULT_OVERSHOOT, OvershootBudget, OvershootWatch, ramped_out
+from .overshoot import DEFAULT as DEFAULT_OVERSHOOT
+from .overshoot import OvershootBudget, OvershootWatch, ramped_out
 from .states import (  # noqa: F401 (re-exported)
     AT_REST_M_S,
     BRAKE_STOP_CAUSES,
@@ -188,8 +189,8 @@ class ApproachRamp:
     acceleration at most `a0_max` (that plus RAMP_A_TOL) instead of the worst of any approach — a higher V_max.
     The assumption is checked: in force only once the autopilot has reported its jerk and after RAMP_REARM_S flown
     on the ramp (at least `free − gap`, judged once the measurement's window lies on it) with the measured
-    acceleration ≤ a0_max; the speed flown never above the command by more than the autopilot's overshoot budget (`OvershootBudget.top`)
-    while speeding up. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
+    acceleration ≤ a0_max; the speed flown never above the command by more than the autopilot's overshoot budget
+    (`OvershootBudget.top`) while speeding up. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
     or overshoots the command), it is out of force at once and for the rest of the flight (until on the ground),
     the limit falls to the any-approach contract's, and the autopilot's violation lasts while the excess does."""
 
@@ -248,7 +249,8 @@ class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
     def __init__(self, table: ContractTable, mode: str | Mode, *, contract: str, dwell_s: float, loop_dt: float,
-                 overshoot: OvershootBudget = DEFAULT_OVERSHOOT, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
+                 overshoot: OvershootBudget = DEFAULT_OVERSHOOT, late_hold_s: float = math.inf,
+                 late_allowance_s: float = 0.0, policy=None,
                  e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None,
                  t_cmd_s: float = 0.0):
         """`contract`: "stop" (governor, shadow) or "avoid" (offboard; or a replay of an offboard flight);
@@ -270,7 +272,7 @@ class Supervisor:
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
         self.limit = OneSidedLimit(dwell_s)
-        self.overshoot0 = self.overshoot = overshoot  # as configured; as measured in this flight (raised, never lowered)
+        self.overshoot0 = self.overshoot = overshoot  # as configured; as measured this flight (raised, never lowered)
         self._overshoot_watch = OvershootWatch()
         self.loop_dt = loop_dt
         self.late_hold_s = late_hold_s
