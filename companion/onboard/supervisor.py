@@ -737,15 +737,18 @@ class Supervisor:
         if since is None or self.limit.value < since[2] - 0.05 and \
                 i.ground_speed <= self.overshoot.top(since[2]) + SLOWDOWN_NEAR_M_S:
             # from the speed and acceleration flown then, never above the highest limit it may still be acting
-            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target)
+            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target) or
+            # the speed its acceleration then, ramped out at its jerk, still carries it to
             a0 = i.accel_along if math.isfinite(i.accel_along) else 0.0
-            cap = max([i.ground_speed] + [v for _, v in self._recent_limits])
+            reach = ramped_out(i.ground_speed, a0, self.table.vehicle.braking.jerk_max_m_s3)
+            cap = max([reach] + [v for _, v in self._recent_limits])
             self._over_since = (i.t, i.ground_speed, self.limit.value, a0, cap)
         t0, v0, _, a0, cap = self._over_since
         a = max(self._braking_decel(min(i.thrust_ratio, 1.0)), 0.1)
         allowed = min(cap, slowdown_speed(v0, self.limit.value, a, self.table.vehicle.braking.jerk_max_m_s3,
                                           self._limit_dead_time, i.t - t0, a0))
-        return (allowed, i.ground_speed) if i.ground_speed > self.overshoot.top(allowed) else None
+        # the autopilot's overshoot around its slow-down is that of the highest limit it may still be acting on
+        return (allowed, i.ground_speed) if i.ground_speed > allowed + self.overshoot.allowance(cap) else None
 
     def _over_limit(self, i: Inputs) -> bool:
         """The vehicle flies above the limit in force by more than the autopilot's overshoot budget."""
