@@ -737,11 +737,14 @@ class Supervisor:
         if since is None or self.limit.value < since[2] - 0.05 and \
                 i.ground_speed <= self.overshoot.top(since[2]) + SLOWDOWN_NEAR_M_S:
             # from the speed and acceleration flown then, never above the highest limit it may still be acting
-            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target) or
-            # the speed its acceleration then, ramped out at its jerk, still carries it to
+            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target) —
+            # or, while the limits have been in force for less than a dead time (just engaged), the speed its
+            # acceleration toward its own earlier target, ramped out at its jerk, still carries it to
             a0 = i.accel_along if math.isfinite(i.accel_along) else 0.0
-            reach = ramped_out(i.ground_speed, a0, self.table.vehicle.braking.jerk_max_m_s3)
-            cap = max([reach] + [v for _, v in self._recent_limits])
+            recent = [v for _, v in self._recent_limits]
+            new = not recent or i.t - self._recent_limits[0][0] < self._limit_dead_time - self.loop_dt
+            reach = ramped_out(i.ground_speed, a0, self.table.vehicle.braking.jerk_max_m_s3) if new else 0.0
+            cap = max([i.ground_speed, reach] + recent)
             self._over_since = (i.t, i.ground_speed, self.limit.value, a0, cap)
         t0, v0, _, a0, cap = self._over_since
         a = max(self._braking_decel(min(i.thrust_ratio, 1.0)), 0.1)
