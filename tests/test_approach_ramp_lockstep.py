@@ -9,9 +9,11 @@ import math
 import pytest
 
 from companion.onboard.console import event_line
+from companion.onboard.overshoot import DEFAULT as OVERSHOOT
 from companion.ground.review import format_report
 from companion.onboard.states import RAMP_FOLLOWED
-from companion.onboard.supervisor import RAMP_A_TOL, RAMP_REARM_S, RAMP_SLACK_M_S, RAMP_WINDOW_S, ApproachRamp
+from companion.onboard.supervisor import (RAMP_A_TOL, RAMP_REARM_S, RAMP_SLACK_M_S, RAMP_WINDOW_S, SPEED_OVERSHOOT,
+                                          ApproachRamp)
 from contracts.stop import ramp_accel
 from tests import test_daemon_lockstep as gov
 from tests.lockstep import Rig
@@ -30,13 +32,15 @@ def flight(personality: str, x_col: float, seconds: float, faults=(), ramp: floa
 
 def limits(rig: Rig) -> tuple[float, float]:
     """The stop contract's limit at the flight's sensor range without and with the ramp's bound (its E_tr floor,
-    full thrust: the open-air cruise before the column is seen)."""
+    full thrust: the open-air cruise before the column is seen), as sent: with room for the autopilot's overshoot."""
     t, e = rig.daemon.table, rig.daemon.cfg.contract.e_tr_floor_m
     a0 = ramp_accel(rig.daemon.table.vehicle.braking.jerk_max_m_s3, RAMP + RAMP_SLACK_M_S) + RAMP_A_TOL
     t_cmd = rig.daemon.cfg.delivery.t_cmd_s
     t_silent = rig.daemon.cycle.sensing.dod.sensors[0].budget  # the sensor's silence budget (3 of its periods)
-    return (t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", t_cmd=t_cmd, t_silent=t_silent).v_max,
-            t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", a0_max=a0, t_cmd=t_cmd, t_silent=t_silent).v_max)
+    budget = rig.daemon.cfg.speed_overshoot.budget()
+    return (budget.sent(t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", t_cmd=t_cmd, t_silent=t_silent).v_max),
+            budget.sent(t.omega(gov.D_SENSOR, 1.0, e, 1.0, contract="stop", a0_max=a0, t_cmd=t_cmd,
+                                t_silent=t_silent).v_max))
 
 
 @pytest.mark.parametrize("personality", ["px4", "ardupilot"])
@@ -77,7 +81,9 @@ def test_an_autopilot_that_stops_following_the_ramp_is_caught_and_the_limit_fall
     rig = flight("px4", 80.0, 22.0, faults=[{"at_s": 13.0, "speed_commands_ignored": True}])
     assert not rig.truth["collisions"]
     plain, shaped = limits(rig)
-    (v,) = [e for e in rig.log.named("violation_start") if e["subsystem"] == "autopilot"]
+    # the ramp's guarantee broken, and then the speed overshoot's (the speed flown above the limit it had met)
+    (v, over) = [e for e in rig.log.named("violation_start") if e["subsystem"] == "autopilot"]
+    assert over["guarantee"] == SPEED_OVERSHOOT and over["t"] >= v["t"]
     assert v["guarantee"] == RAMP_FOLLOWED and 13.0 < v["t"] < 14.0 and v["observed"] > v["assumed"]
     off = [e for e in rig.log.named("approach_ramp") if not e["in_force"]][0]
     assert off["t"] == v["t"] and "faster or accelerated harder" in off["why"]
@@ -94,18 +100,22 @@ def test_an_autopilot_that_stops_following_the_ramp_is_caught_and_the_limit_fall
     assert "accelerated harder than the approach ramp allows" in verdict and "recovery brake" not in verdict
 
 
+TOP_2_2, TOP_3 = OVERSHOOT.top(2.2), OVERSHOOT.top(3.0)  # the most the default overshoot budget allows at 2.2, 3 m/s
+
+
 def _follow(ramp: ApproachRamp, t0: float, seconds: float) -> float:
-    """The ramp followed (on it: 2 m/s above its free 0 m/s, commanded 2.2 m/s, accelerating 1 m/s²) for `seconds`."""
+    """The ramp followed (on it: 2 m/s above its free 0 m/s, commanded 2.2 m/s, accelerating 1 m/s²) for
+    `seconds`."""
     t = t0
     while t < t0 + seconds:
-        ramp.judge(t, True, 1.0, 2.0, 2.2, True)
+        ramp.judge(t, True, 1.0, 2.0, TOP_2_2, True)
         t += 0.05
     return t
 
 
 def test_the_ramp_is_in_force_only_when_followed_and_once_broken_not_again_this_flight():
     ramp = ApproachRamp(0.3, 4.0)
-    assert ramp.judge(0.0, True, 0.5, math.nan, 2.2, True) == (False, False) and math.isinf(ramp.a0_max)  # no jerk
+    assert ramp.judge(0.0, True, 0.5, math.nan, TOP_2_2, True) == (False, False) and math.isinf(ramp.a0_max)  # no jerk
     ramp.autopilot_jerk(2.0)  # a smaller jerk reported: the vehicle file's (the start-up checks refuse it anyway)
     assert ramp.a0_max == pytest.approx(math.sqrt(2 * 4.0 * 0.35) + RAMP_A_TOL)
     ramp.autopilot_jerk(8.0)
@@ -115,19 +125,19 @@ def test_the_ramp_is_in_force_only_when_followed_and_once_broken_not_again_this_
     assert not ramp.in_force  # on the ramp for the window, then followed RAMP_REARM_S …
     t = _follow(ramp, t, 0.2)
     assert ramp.in_force  # … and no sooner
-    assert ramp.judge(t, False, 1.0, 2.0, 2.2, True) == (True, False) and not ramp.broken  # not ramping: out, no blame
+    assert ramp.judge(t, False, 1.0, 2.0, TOP_2_2, True) == (True, False) and not ramp.broken  # not ramping: no blame
     t = _follow(ramp, t + 0.05, RAMP_WINDOW_S + RAMP_REARM_S + 0.1)
     assert ramp.in_force
     assert ramp.command(5.0, 2.0, 1.0) == pytest.approx(2.3) and ramp.command(2.1, 2.0, 1.0) == 2.1
     assert ramp.command(5.0, 0.5, 3.0) == 3.0  # up to the any-approach limit the autopilot speeds up as it likes …
-    assert ramp.judge(t, True, 2.5, 0.5, 3.0, True) == (False, False)  # … however hard
-    assert ramp.judge(t + 4.0, True, -1.0, 3.3, 3.0, True) == (False, False)  # slowing to a command just lowered
-    assert ramp.judge(t + 5.0, True, 1.0, 3.3, 3.0, True) == (True, True) and ramp.broken  # faster, speeding up
-    assert ramp.excess[0] == "speed" and ramp.excess[2] == pytest.approx(1.03 * 3.0 + 0.15)
+    assert ramp.judge(t, True, 2.5, 0.5, TOP_3, True) == (False, False)  # … however hard
+    assert ramp.judge(t + 4.0, True, -1.0, 3.3, TOP_3, True) == (False, False)  # slowing to a command just lowered
+    assert ramp.judge(t + 5.0, True, 1.0, 3.3, TOP_3, True) == (True, True) and ramp.broken  # faster, speeding up
+    assert ramp.excess[0] == "speed" and ramp.excess[2] == pytest.approx(TOP_3)
     ramp.command(5.0, 2.0, 0.0)
     for k in range(200):  # followed again: not in force this flight
-        assert ramp.judge(t + 6.0 + 0.05 * k, True, 1.0, 2.0, 2.2, True)[0] is False
-    ramp.judge(t + 20.0, False, 0.0, 0.0, None, False)  # landed
+        assert ramp.judge(t + 6.0 + 0.05 * k, True, 1.0, 2.0, TOP_2_2, True)[0] is False
+    ramp.judge(t + 20.0, False, 0.0, 0.0, math.inf, False)  # landed
     _follow(ramp, t + 30.0, RAMP_WINDOW_S + RAMP_REARM_S + 0.1)
     assert ramp.in_force
 

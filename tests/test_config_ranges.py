@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 OUTSIDE = [
     (("timeouts", "obstacle_s"), 1e9), (("timeouts", "cycle_late_s"), 1e9), (("loop_hz",), 0.2),
     (("timeouts", "heartbeat_s"), 60.0), (("timeouts", "telemetry_s"), 10.0), (("timeouts", "nav_s"), 30.0),
-    (("timeouts", "cycle_jitter_s"), 0.5), (("loop_hz",), 19.0), (("speed_margin_m_s",), 5.0),
+    (("timeouts", "cycle_jitter_s"), 0.5), (("loop_hz",), 19.0), (("speed_overshoot", "base_m_s"), 5.0), (("speed_overshoot", "fraction"), 0.9),
     (("contract", "dwell_s"), 0.0), (("contract", "e_tr_window_s"), 0.1), (("contract", "late_detection_hold_s"), 0.0),
     (("contract", "late_detection_tolerance_m"), 10.0), (("contract", "e_tr_floor_m"), 1e6),
     (("thrust", "tau_s"), 1e9), (("contract", "r_obst_m"), 0.05),

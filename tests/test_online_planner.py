@@ -184,15 +184,15 @@ def test_offboard_never_flies_a_larger_cap_than_its_controller_contract_was_flow
     t = load_for_vehicle(vehicle)
     flown = t.etr_offboard_cap
     assert flown is not None and 0 < flown <= 1
-    sup = Supervisor(t, "offboard", contract="avoid", dwell_s=2.0, speed_margin=0.0, loop_dt=0.02)
+    sup = Supervisor(t, "offboard", contract="avoid", dwell_s=2.0, loop_dt=0.02)
     assert sup.cap == min(OFFBOARD_CAP, flown) == offboard_cap(flown)
     assert offboard_cap(None) == UNRECORDED_CAP < OFFBOARD_CAP  # nothing recorded: the old, slower cap
-    assert Supervisor(t, "governor", contract="stop", dwell_s=2.0, speed_margin=0.0, loop_dt=0.02).cap == 1.0
+    assert Supervisor(t, "governor", contract="stop", dwell_s=2.0, loop_dt=0.02).cap == 1.0
     info = dict(t.e_pred.info, grid={**t.e_pred.info["grid"], "online": {**t.e_pred.info["grid"]["online"],
                                                                            "offboard_cap": 0.5}})
     monkeypatch.setattr(t, "e_pred", type(t.e_pred)(t.e_pred.axes, t.e_pred.values, info))
     assert t.etr_offboard_cap == 0.5
-    assert Supervisor(t, "offboard", contract="avoid", dwell_s=2.0, speed_margin=0.0, loop_dt=0.02).cap == 0.5
+    assert Supervisor(t, "offboard", contract="avoid", dwell_s=2.0, loop_dt=0.02).cap == 0.5
 
 
 def test_the_planner_reaches_the_avoid_contract_where_it_used_to_fail(planner):

@@ -18,6 +18,7 @@ from contracts.stop import (approach_stopping_distance, braking_decel, recovery_
                             stopping_distance)
 from contracts.table import load_for_vehicle
 from tests import test_daemon_lockstep as gov
+from companion.onboard.overshoot import DEFAULT as OVERSHOOT
 from tests.lockstep import Rig
 
 PERSONALITIES = ["px4", "ardupilot"]
@@ -85,8 +86,9 @@ def v_max(rig: Rig) -> float:
 
 
 def hold_limit(table, **kw) -> float:
-    """The governor's limit under the autopilot's Hold's stop contract at the flight's 6 m sensor (E_tr 0.3 m)."""
-    return table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", t_cmd=T_CMD, t_silent=T_SILENT, **kw).v_max
+    """The governor's limit under the autopilot's Hold's stop contract at the flight's 6 m sensor (E_tr 0.3 m), as
+    sent: with room below it for the autopilot's overshoot (the default budget)."""
+    return OVERSHOOT.sent(table.omega(6.0, 1.0, 0.3, 1.0, contract="stop", t_cmd=T_CMD, t_silent=T_SILENT, **kw).v_max)
 
 
 def brake_limit(table) -> float:

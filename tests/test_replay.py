@@ -155,7 +155,10 @@ def test_negative_control_another_e_tr_floor_gives_another_v_max(fog, tmp_path):
     (tmp_path / "other.yaml").write_text(yaml.safe_dump(other))
     rep, _ = review_log(d / "raw.tlog", tmp_path / "out", config=tmp_path / "other.yaml")
     live_s, rep_s = states(d), states(tmp_path / "out" / REPLAY_LOG)
-    assert len(disagreements(live_s, rep_s, "v_max", 0.02, offset_of(rep))) > len(live_s) // 2
+    # (judged where the flight had a speed to fly: in the fog both floors leave less than the autopilot's overshoot
+    # budget, and both send nothing)
+    flying = [s for s in live_s if s["v_max"]]
+    assert len(disagreements(flying, rep_s, "v_max", 0.02, offset_of(rep))) > len(flying) // 2
 
 
 def test_router_tlog_with_the_daemons_own_packets(thrust, tmp_path):

@@ -302,20 +302,24 @@ def column_flight(directory, drop: bool):
 
 def test_a_lost_hold_that_ends_in_the_column_is_not_kept(tmp_path):
     """The Hold went out again 1 s later, the autopilot showed it at once, too late: the column is hit. The
-    sensor's last return (0.16 m, closing at 2.3 m/s) is inside the keep-out disc, and nearer than the body could
-    stop even at 2 g: a collision as far as the log tells."""
+    sensor's last return is inside the keep-out disc, and at or inside the body's radius or nearer than it could stop
+    even at 2 g: a collision as far as the log tells."""
     rig, lost = column_flight(tmp_path / "log", drop=True)
     assert lost and rig.truth["collisions"]
     rep, _ = review_log(tmp_path / "log")
     assert not rep["ok"]
-    (e,) = rep["keep_out"]["entries"]
+    # (the vehicle then rests against the column: its sensor's return wavers about the keep-out margin, one entry or
+    # several, each after that same late Hold)
+    e, *more = rep["keep_out"]["entries"]
+    assert all(m["last_mode_command"] == e["last_mode_command"] for m in more)
     assert e["closest_m"] < R_BODY + 0.1 and e["margin_m"] == pytest.approx(KEEP_OUT)
     last = e["last_mode_command"]
     assert last["cmd"] == "hold" and last["t"] == pytest.approx(lost[0]) and last["delay_s"] > 0.9
     (c,) = rep["keep_out"]["collisions"]
     assert c["t"] == pytest.approx(rig.truth["collisions"][0].time_s, abs=0.15)
     f = said(rep)
-    assert "collision as far as the log tells (1×)" in f and "not even braking at 2 g" in f
+    assert "collision as far as the log tells (1×)" in f
+    assert "not even braking at 2 g" in f or "at or inside the vehicle's radius" in f
     assert "entered its keep-out disc" in f and "the last mode command before it: hold at t = " in f
     assert "contract kept" not in format_report(rep) and "collision" in verdict(rep)
 

@@ -5,6 +5,7 @@ import pytest
 
 from companion.onboard.estimators import DodEstimate
 from companion.onboard.authority import GUARANTEE_ANSWERED
+from companion.onboard.overshoot import DEFAULT as OVERSHOOT
 from companion.onboard.supervisor import Inputs, OneSidedLimit, Supervisor
 from contracts.table import load_for_vehicle
 
@@ -22,7 +23,7 @@ BASE = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, i
 
 def sup(mode="governor", dwell=2.0):
     return Supervisor(TABLE, mode, contract="avoid" if mode == "offboard" else "stop", dwell_s=dwell,
-                      speed_margin=0.2, loop_dt=0.02)
+                      loop_dt=0.02)
 
 
 def run(s, inputs, t0, t1, dt=0.02, **changes):
@@ -54,13 +55,16 @@ def test_standby_commands_nothing():
 def test_governor_sends_the_stop_contract_speed_and_follows_dod():
     s = sup()
     d = s.step(BASE)
-    want = TABLE.omega(8.0, 1.0, 0.2, 1.0, contract="stop").v_max  # Ω: with the E_tr_pred fixed point (issue 6)
-    assert want <= TABLE.v_stop(8.0, 1.0, 0.2, 1.0)
+    # Ω with the E_tr_pred fixed point, sent with room below it for the autopilot's overshoot
+    v_max = TABLE.omega(8.0, 1.0, 0.2, 1.0, contract="stop").v_max
+    want = OVERSHOOT.sent(v_max)
+    assert want <= TABLE.v_stop(8.0, 1.0, 0.2, 1.0) and OVERSHOOT.top(want) == pytest.approx(v_max)
     assert d.state == "active" and d.send_speed == pytest.approx(want) and d.v_cmd == pytest.approx(want)
-    assert ("limit_change", {"v_max": pytest.approx(want), "reason": "ok"}) in d.events
+    assert ("limit_change", {"v_max": pytest.approx(want), "reason": "ok",
+                             "overshoot_budget_m_s": pytest.approx(v_max - want)}) in d.events
     # fog: D_od drops, the limit drops in the same cycle
     d2 = s.step(replace(BASE, t=0.02, dod=dod(4.0)))
-    low = TABLE.omega(4.0, 1.0, 0.2, 1.0, contract="stop").v_max
+    low = OVERSHOOT.sent(TABLE.omega(4.0, 1.0, 0.2, 1.0, contract="stop").v_max)
     assert d2.send_speed == pytest.approx(low) and low < want
     # fog clears: the limit rises only after the dwell
     ds = run(s, BASE, 0.04, 2.0)
@@ -225,7 +229,7 @@ def test_the_worst_error_of_a_window_is_judged_against_the_fastest_prediction_of
 def test_a_prediction_below_the_measurements_floor_is_judged_at_the_floor():
     """The measured E_tr never reads below its floor (0.3 m): a prediction under it (the governor's at a crawl) is
     judged at the floor, not broken by a vehicle at rest; above the floor the prediction is the bound again."""
-    s = Supervisor(TABLE, "offboard", contract="avoid", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02,
+    s = Supervisor(TABLE, "offboard", contract="avoid", dwell_s=2.0, loop_dt=0.02,
                    e_tr_floor_m=0.3)
     s.e_tr_pred_flown = lambda v, tilt, thrust: 0.16  # noqa: E731 (a prediction under the floor)
     crawl = replace(BASE, mode="offboard", ground_speed=0.3, dod=dod(7.0), e_tr_measured=0.3)
@@ -284,7 +288,7 @@ def test_lateness_counts_as_reaction_time_never_faster_and_safe_at_its_own_speed
 
 
 def test_lateness_beyond_the_hard_limit_holds_at_once_and_only_unbudgeted_lateness_is_a_violation():
-    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02, late_hold_s=0.25,
+    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, loop_dt=0.02, late_hold_s=0.25,
                    t_cmd_s=0.1)  # (its speed commands unanswered here: within their delivery budget)
     s.step(BASE)
     d = s.step(replace(BASE, t=0.02, late_s=0.1, late_unbudgeted_s=0.1))
@@ -305,7 +309,7 @@ def test_lateness_beyond_the_hard_limit_holds_at_once_and_only_unbudgeted_latene
 def test_lateness_inside_the_jitter_allowance_is_an_event_not_a_violation():
     """t_react budgets one loop period plus a stated jitter allowance: a cycle late within it is said, the guarantee
     holds; beyond it the violation names the allowance it assumed."""
-    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02,
+    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, loop_dt=0.02,
                    late_allowance_s=0.03, t_cmd_s=0.1)
     s.step(BASE)
     d = s.step(replace(BASE, t=0.02, late_within_s=0.025))
@@ -319,7 +323,7 @@ def test_lateness_inside_the_jitter_allowance_is_an_event_not_a_violation():
 
 def test_a_speed_command_is_sent_every_cycle_until_the_autopilot_answers_it():
     """DO_CHANGE_SPEED lost on the link is sent again the next cycle (delivery), not 5 s later."""
-    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, speed_margin=0.2, loop_dt=0.02, t_cmd_s=0.1)
+    s = Supervisor(TABLE, "governor", contract="stop", dwell_s=2.0, loop_dt=0.02, t_cmd_s=0.1)
     first = s.step(BASE)
     assert first.send_speed is not None
     again = s.step(replace(BASE, t=0.02))  # no answer: sent again

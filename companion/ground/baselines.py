@@ -458,6 +458,19 @@ class SilenceUnbudgeted(ContractSpeed):
         return sup.contract_omega(replace(i, dod=replace(i.dod, silence_s=0.0)))
 
 
+class OvershootUnbudgeted(ContractSpeed):
+    """The contract sending V_max itself, with no room for the autopilot's speed overshoot (a negative control
+    only): the flown speed then goes above V_safe by what the autopilot overshoots, while the limit is judged with
+    the same allowance (companion/onboard/overshoot.py)."""
+
+    name = "contract without the overshoot budget"
+
+    def omega(self, i, sup) -> Omega:
+        om = sup.contract_omega(i)
+        v = min(sup.overshoot.top(om.v_max), om.v_safe) if om.v_max > 0 else om.v_max
+        return replace(om, v_max=v, gamma=v - om.v_safe)
+
+
 class TrustTheClaim(DetectionRange):
     """The detection-range estimator that believes the sensor's stated range (a negative control only; flown as
     the `_claim` arms): D_od is the claim."""

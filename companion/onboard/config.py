@@ -12,6 +12,8 @@ from contracts.lidar import BACKSCATTER_LENGTH_M, RATED_REFLECTIVITY, REFERENCE_
 from contracts.yamlfile import load_model, model_from_dict
 
 from .modes import Mode, mode_of
+from .overshoot import DEFAULT as OVERSHOOT
+from .overshoot import OvershootBudget
 
 Pos = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNeg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
@@ -370,6 +372,20 @@ class RouteConfig(_Strict):
         return self
 
 
+class SpeedOvershootConfig(_Strict):
+    """The autopilot's guarantee that the ground speed stays within base_m_s + fraction × limit of the speed limit
+    sent (DO_CHANGE_SPEED). Defaults: the larger of the shipped vehicles' measured in the SITL, in their design wind,
+    both personalities (benchmarks/bench_speed_overshoot.py: X500 0.12 m/s at 1 m/s to 0.32 m/s at 5–6 m/s). For an
+    aircraft: its governor flights' event log says the overshoot its autopilot flew (`overshoot.overshoot_of`,
+    docs/calibration.md). At most 1 m/s and 0.5: a larger budget would accept a limit that is not obeyed."""
+
+    base_m_s: Bounded(0.0, 1.0) = OVERSHOOT.base_m_s
+    fraction: Bounded(0.0, 0.5) = OVERSHOOT.fraction
+
+    def budget(self) -> OvershootBudget:
+        return OvershootBudget(self.base_m_s, self.fraction)
+
+
 class GovernorConfig(_Strict):
     """Governor mode's own settings."""
 
@@ -436,9 +452,9 @@ class Config(_Strict):
     # offboard; 20 Hz keeps a setpoint's age under the vehicle files' t_react). t_react budgets one 50 Hz cycle,
     # so a slower loop is named in the banner. At most 1000 Hz (a typo would only spin the CPU)
     loop_hz: Bounded(20.0, 1000.0) = 50.0
-    # ground speed this far above the limit still counts as the limit in force. At most 1 m/s: PX4 and ArduPilot
-    # hold a commanded speed within a few tenths; a larger margin would accept a limit that is not obeyed
-    speed_margin_m_s: Bounded(0.0, 1.0) = 0.2
+    # the autopilot's overshoot above the speed limit sent (companion/onboard/overshoot.py): budgeted (the limit
+    # sent leaves room for it below V_max) and the only tolerance a limit flown is judged with
+    speed_overshoot: SpeedOvershootConfig = SpeedOvershootConfig()
     link: LinkConfig = LinkConfig()
     sensors: list[SensorConfig] = []  # the obstacle sensors as mounted (none: D_od is 0, no speed is safe)
     contract: ContractConfig = ContractConfig()
@@ -493,7 +509,8 @@ WEAKER = (
     ("timeouts", "cycle_jitter_s", "higher", "more of the daemon's lateness goes uncounted (t_react must hold it)"),
     ("timeouts", "cycle_late_s", "higher", "a stalled daemon hands over to Hold later"),
     ("", "loop_hz", "lower", "decisions are further apart than t_react budgets"),
-    ("", "speed_margin_m_s", "higher", "a speed limit overshot by more counts as in force"),
+    ("speed_overshoot", "base_m_s", "lower", "less of the autopilot's overshoot is budgeted below V_max"),
+    ("speed_overshoot", "fraction", "lower", "less of the autopilot's overshoot is budgeted below V_max"),
     ("contract", "e_tr_floor_m", "lower", "a smaller tracking error is assumed"),
     ("contract", "e_tr_window_s", "lower", "a tracking error is forgotten sooner"),
     ("contract", "dwell_s", "lower", "a higher limit takes effect sooner"),

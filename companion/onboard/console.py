@@ -71,6 +71,9 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return WARNING, f"shadow: would HOLD: {', '.join(f['causes'])}" + (f" ({f['why']})" if f.get("why") else "")
     if name == "limit_change" and "sent" in f:
         return INFO, f"speed limit {f['v_max']:.2f} m/s; sent {f['sent']:.2f} m/s, the autopilot's own cruise"
+    if name == "limit_change" and "overshoot_budget_m_s" in f:
+        return INFO, (f"speed limit sent {f['v_max']:.2f} m/s: V_max − {f['overshoot_budget_m_s']:.2f} m/s, the "
+                      "autopilot's overshoot budget")
     if name == "limit_change":
         return INFO, f"speed limit {f['v_max']:.2f} m/s"
     if name == "cruise_speed":
@@ -223,6 +226,7 @@ def banner(cfg, table, controller_contract: str) -> list[str]:
         f"controller contract: {controller_contract}; {controller_coverage(table)}",
         f"{cfg.mode} mode ({cfg.daemon_mode.contract} contract), {engage}",
         *short,
+        *([cfg.speed_overshoot.budget().line()] if cfg.daemon_mode.contract == "stop" else []),
         *([] if not cfg.governor.recovery_brake else [
             "recovery brake on: a stop is flown by the daemon in offboard at the airframe's braking, then Hold, its "
             "tracking error within its own E_tr_pred (the table's e_tr_pred_brake: without it the brake is "

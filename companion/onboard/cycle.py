@@ -64,7 +64,7 @@ class Cycle:
         self.sensing = sensing = Sensing(cfg, table, adapter, contract)
         self._thrust_said = False  # the start value in force in the air has been said (`thrust_start`)
         self.sup = Supervisor(table, cfg.daemon_mode, contract=contract, dwell_s=cfg.contract.dwell_s,
-                              speed_margin=cfg.speed_margin_m_s, loop_dt=1.0 / cfg.loop_hz,
+                              overshoot=cfg.speed_overshoot.budget(), loop_dt=1.0 / cfg.loop_hz,
                               late_hold_s=cfg.timeouts.cycle_late_s, late_allowance_s=cfg.timeouts.cycle_jitter_s,
                               policy=policy, e_tr_window_s=cfg.contract.e_tr_window_s,
                               e_tr_floor_m=sensing.etr.floor, ramp_m_s=cfg.governor.approach_ramp_m_s,

@@ -134,10 +134,11 @@ EVENTS = {
                       "non-finite —, `why` in words, how the flight resumes)"),
     "hold_trigger": Event(("cause", "action"), "supervisor", "a non-failsafe cause (obstacle, limit not in force) "
                           "made the daemon hold"),
-    "limit_change": Event(("v_max", "reason"), "supervisor", "a new speed limit is sent (`sent`, `cruise`: a "
+    "limit_change": Event(("v_max", "reason", "overshoot_budget_m_s"), "supervisor", "a new speed limit is sent (`sent`, `cruise`: a "
                           "governor sent the autopilot's lower cruise speed instead; `mission_speed`: the mission's "
                           "own speed item's, with calibration.legs; with the approach ramp: the speed the ramp's "
-                          "commands climb to changed)"),
+                          "commands climb to changed; `overshoot_budget_m_s`: the stop contract's limit is V_max − "
+                          "this, the autopilot's overshoot budget, speed_overshoot)"),
     "cruise_speed": Event(("param", "v"), "daemon", "the autopilot's cruise-speed parameter (NaN: unusable); a "
                           "governor never sends a limit above it"),
     "limit_not_applicable": Event(("mode", "v_max"), "supervisor", "the autopilot's mode ignores the speed limit"),

@@ -33,6 +33,8 @@ from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, f
 from .estimators import DodEstimate
 from .guidance import inflated
 from .modes import Mode, mode_of
+from .overshoot import DEFAULT as DEFAULT_OVERSHOOT
+from .overshoot import OvershootBudget, OvershootWatch, ramped_out
 from .states import (  # noqa: F401 (re-exported)
     AT_REST_M_S,
     BRAKE_STOP_CAUSES,
@@ -52,12 +54,13 @@ RAMP_A_TOL = 0.3  # [m/s²] … and the stop contract's Hold-start acceleration 
 # measured acceleration's noise and lag (the check judges the measurement against the contract's own bound)
 RAMP_WINDOW_S = 0.3  # [s] the acceleration the check judges is Δv/Δt over this long
 RAMP_REARM_S = 3.0  # [s] the ramp followed this long (measured) before its bound is in force, at first and again
-RAMP_V_TOL = (1.03, 0.15)  # the speed flown is never above 1.03 × the speed commanded + 0.15 m/s (tracking, wind)
 # [s] a lower limit is flown within the autopilot's slow-down (`slowdown_speed`) from its dead time plus this: the
 # vehicle's velocity lags its autopilot's smooth slow-down by its velocity loop (PX4 MPC_XY_VEL_P_ACC 1.8/s: ~0.5 s)
 SLOWDOWN_LAG_S = 0.6
 SLOWDOWN_NEAR_M_S = 0.3  # [m/s] flying within this of the old limit's tolerance when a lower one comes: complying
 LIMIT_FLOWN = "a speed limit is flown within the autopilot's slow-down"  # the delivery subsystem's guarantee
+# the autopilot's guarantee the stop contract budgets (companion/onboard/overshoot.py): the limit sent is V_max − δ_v
+SPEED_OVERSHOOT = "the ground speed stays within δ_v of the speed limit sent"
 # the navigation subsystem's guarantee of each obstacle sensor: it reports within its silence budget, which the stop and
 # avoid contracts take as dead time (companion/onboard/estimators.py SilenceBudget)
 SENSOR_SILENCE = "an obstacle sensor reports within its silence budget"
@@ -189,7 +192,8 @@ class ApproachRamp:
     acceleration at most `a0_max` (that plus RAMP_A_TOL) instead of the worst of any approach — a higher V_max.
     The assumption is checked: in force only once the autopilot has reported its jerk and after RAMP_REARM_S flown
     on the ramp (at least `free − gap`, judged once the measurement's window lies on it) with the measured
-    acceleration ≤ a0_max; the speed flown never above RAMP_V_TOL of the command while speeding up. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
+    acceleration ≤ a0_max; the speed flown never above the command by more than the autopilot's overshoot budget
+    (`OvershootBudget.top`) while speeding up. Broken while in force (the autopilot accelerates harder or flies faster: it ignores
     or overshoots the command), it is out of force at once and for the rest of the flight (until on the ground),
     the limit falls to the any-approach contract's, and the autopilot's violation lasts while the excess does."""
 
@@ -210,17 +214,17 @@ class ApproachRamp:
         ok = jerk is not None and math.isfinite(jerk) and jerk > 0
         self.a0_max = ramp_accel(max(jerk, self.jerk_file), self.gap + RAMP_SLACK_M_S) + RAMP_A_TOL if ok else math.inf
 
-    def judge(self, t: float, ramping: bool, accel: float, speed: float, v_sent: float | None, in_air: bool
+    def judge(self, t: float, ramping: bool, accel: float, speed: float, v_top: float, in_air: bool
               ) -> tuple[bool, bool]:
         """One cycle: `ramping`, the daemon's commands reach the autopilot; `accel`, the acceleration measured along
-        the velocity (NaN: unknown); `speed` the ground speed and `v_sent` the last speed commanded. (changed,
+        the velocity (NaN: unknown); `speed` the ground speed and `v_top` the most the last speed commanded allows
+        (with the autopilot's overshoot budget; inf: none commanded). (changed,
         over): whether `in_force` changed, and whether the measured acceleration (on the ramp) or speed is above
         what the ramp allows (with `changed`: it broke the ramp in force)."""
         was = self.in_force
         # on the ramp (at least free − gap) for the measurement's whole window: its acceleration is judged
         self._ramp_t = (self._ramp_t if self._ramp_t is not None else t) if speed >= self.free - self.gap else None
         on_ramp = self._ramp_t is not None and t - self._ramp_t >= RAMP_WINDOW_S
-        v_top = RAMP_V_TOL[0] * v_sent + RAMP_V_TOL[1] if v_sent is not None else math.inf
         # (above the command while still speeding up: a command just lowered — fog, a nearer obstacle — is not
         # overshot by a vehicle slowing down to it)
         self.excess = (("acceleration", "m/s²", self.a0_max, accel) if on_ramp and accel > self.a0_max else
@@ -247,8 +251,9 @@ class ApproachRamp:
 class Supervisor:
     """Governor and shadow modes under the stop contract; offboard reuses Ω under the avoid contract."""
 
-    def __init__(self, table: ContractTable, mode: str | Mode, *, contract: str, dwell_s: float, speed_margin: float,
-                 loop_dt: float, late_hold_s: float = math.inf, late_allowance_s: float = 0.0, policy=None,
+    def __init__(self, table: ContractTable, mode: str | Mode, *, contract: str, dwell_s: float, loop_dt: float,
+                 overshoot: OvershootBudget = DEFAULT_OVERSHOOT, late_hold_s: float = math.inf,
+                 late_allowance_s: float = 0.0, policy=None,
                  e_tr_window_s: float = 2.0, e_tr_floor_m: float = 0.0, ramp_m_s: float | None = None,
                  fallback: ContractInForce | None = None,
                  t_cmd_s: float = 0.0):
@@ -261,7 +266,9 @@ class Supervisor:
         `ramp_m_s`: governor mode's approach ramp (`governor.approach_ramp_m_s`, `ApproachRamp`), None: none;
         `t_cmd_s`: the command-delivery budget the stop contract adds to its dead time (`delivery.t_cmd_s`);
         `fallback`: under the avoid contract, which contract is in force each cycle (the stop contract where the
-        avoid contract's assumptions are not there: companion/onboard/contract_in_force.py), None: always `contract`."""
+        avoid contract's assumptions are not there: companion/onboard/contract_in_force.py), None: always `contract`;
+        `overshoot`: the autopilot's speed overshoot δ_v the stop contract's limit leaves room for, and the one
+        tolerance a limit is judged flown with (`speed_overshoot`, companion/onboard/overshoot.py)."""
         if contract not in ("stop", "avoid"):
             raise ValueError(f"contract must be 'stop' or 'avoid', not {contract!r}")
         self.table = table
@@ -272,7 +279,8 @@ class Supervisor:
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
         self.limit = OneSidedLimit(dwell_s)
-        self.margin = speed_margin
+        self.overshoot0 = self.overshoot = overshoot  # as configured; as measured this flight (raised, never lowered)
+        self._overshoot_watch = OvershootWatch()
         self.loop_dt = loop_dt
         self.late_hold_s = late_hold_s
         self.late_allowance_s = late_allowance_s
@@ -356,7 +364,7 @@ class Supervisor:
             on, v_hold = not i.ground_speed < AT_REST_M_S, math.nan  # (an unknown speed: not at rest)
         elif refused:  # above the Hold's limit as the limit itself is judged flown (`_judge_limit`)
             v_hold = self.hold_omega(i).v_max
-            on = speed > 1.05 * v_hold + self.margin
+            on = speed > self.overshoot.top(v_hold)
         else:
             return d
         draft = _Draft(d.state, d.omega, d.v_cmd)
@@ -457,6 +465,13 @@ class Supervisor:
         return self.ramp.a0_max if self.ramp is not None and self.ramp.in_force else None
 
     def _contract_omega(self, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
+        om = self._late_omega(i, recovery_dt, a0_max)
+        if self.configured != "stop":
+            return om  # offboard (under either contract): the daemon flies the setpoints itself
+        v = self.overshoot.sent(om.v_max)  # the autopilot's overshoot budgeted: flown ≤ V_max
+        return om if v == om.v_max else replace(om, v_max=v, gamma=v - om.v_safe)
+
+    def _late_omega(self, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
         if i.late_s <= 0.0:
             return self._omega(i.dod.d_od, i, recovery_dt, a0_max)
         # the daemon's own lateness is reaction time the table's fold did not budget (DESIGN.md §2):
@@ -534,6 +549,9 @@ class Supervisor:
         self._linked = True
         if not (i.engaged and i.armed and i.in_air) or not self.mode.commands:
             self.limit.reset()
+            self._overshoot_watch.reset()
+            if not i.in_air:
+                self.overshoot = self.overshoot0  # measured per flight
             self._over_since = None
             self._recent_limits.clear()
             self._set_state(d, State.STANDBY, f"{self.mode.name} mode" if not self.mode.commands else
@@ -541,6 +559,7 @@ class Supervisor:
             d.v_cmd = None
             return self._shadow(d, i) if not self.mode.commands else d
         flown = self._judge_limit(i, self._over_limit(i) and i.limit_applies)
+        self._judge_overshoot(d, i)
         causes = self._causes(i, om, flown)
         self._violation(d, "limit_flown", flown is not None, lambda: dict(
                         subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
@@ -712,6 +731,8 @@ class Supervisor:
         # said when the target changes (the limit, or the autopilot's own speed); the ramp's steps are not
         if last is None or abs(target - self._target_sent) > tol:
             d.events.append(("limit_change", {"v_max": v_limit, "reason": d.omega.reason} |
+                             ({"overshoot_budget_m_s": self.overshoot.allowance(v_limit)} if self.configured == "stop"
+                              else {}) |
                              ({"sent": target, "cruise": i.v_cruise} if capped else {}) |
                              ({"mission_speed": i.v_mission} if capped and i.v_mission > 0 else {})))
         self._last_sent, self._last_sent_t, self._target_sent = v_send, i.t, target
@@ -722,7 +743,8 @@ class Supervisor:
         reach the autopilot while the limit is in force in a mode that applies it (the last cycle's state)."""
         ramping = (self.state == State.ACTIVE and i.link_ok and i.engaged and i.armed and i.in_air
                    and i.limit_applies and self._last_sent is not None)
-        return self.ramp.judge(i.t, ramping, i.accel_along, i.ground_speed, self._last_sent, i.in_air)
+        v_top = self.overshoot.top(self._last_sent) if self._last_sent is not None else math.inf
+        return self.ramp.judge(i.t, ramping, i.accel_along, i.ground_speed, v_top, i.in_air)
 
     def _ramp_events(self, d: _Draft, i: Inputs, changed: bool, over: bool) -> None:
         ramp = self.ramp
@@ -749,23 +771,41 @@ class Supervisor:
         # was well above the old limit (one that ignores the limits would never be caught)
         since = self._over_since
         if since is None or self.limit.value < since[2] - 0.05 and \
-                i.ground_speed <= 1.05 * since[2] + self.margin + SLOWDOWN_NEAR_M_S:
+                i.ground_speed <= self.overshoot.top(since[2]) + SLOWDOWN_NEAR_M_S:
             # from the speed and acceleration flown then, never above the highest limit it may still be acting
-            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target)
+            # on (those of the last dead time: a compliant autopilot's smoothing does not overshoot its target) —
+            # or, while the limits have been in force for less than a dead time (just engaged), the speed its
+            # acceleration toward its own earlier target, ramped out at its jerk, still carries it to
             a0 = i.accel_along if math.isfinite(i.accel_along) else 0.0
-            cap = max([i.ground_speed] + [v for _, v in self._recent_limits])
+            recent = [v for _, v in self._recent_limits]
+            new = not recent or i.t - self._recent_limits[0][0] < self._limit_dead_time - self.loop_dt
+            reach = ramped_out(i.ground_speed, a0, self.table.vehicle.braking.jerk_max_m_s3) if new else 0.0
+            cap = max([i.ground_speed, reach] + recent)
             self._over_since = (i.t, i.ground_speed, self.limit.value, a0, cap)
         t0, v0, _, a0, cap = self._over_since
         a = max(self._braking_decel(min(i.thrust_ratio, 1.0)), 0.1)
         allowed = min(cap, slowdown_speed(v0, self.limit.value, a, self.table.vehicle.braking.jerk_max_m_s3,
                                           self._limit_dead_time, i.t - t0, a0))
-        return (allowed, i.ground_speed) if i.ground_speed > 1.05 * allowed + self.margin else None
+        # the autopilot's overshoot around its slow-down is that of the highest limit it may still be acting on
+        return (allowed, i.ground_speed) if i.ground_speed > allowed + self.overshoot.allowance(cap) else None
 
     def _over_limit(self, i: Inputs) -> bool:
-        """The vehicle flies above the limit in force (a tracking overshoot of a few per cent is the controller's
-        business, E_tr, not a broken limit)."""
+        """The vehicle flies above the limit in force by more than the autopilot's overshoot budget."""
         return (self.limit.value is not None and _finite_inputs(i)
-                and i.ground_speed > 1.05 * self.limit.value + self.margin)
+                and i.ground_speed > self.overshoot.top(self.limit.value))
+
+    def _judge_overshoot(self, d: _Draft, i: Inputs) -> None:
+        """The autopilot's guarantee SPEED_OVERSHOOT, judged against the limit in force once the vehicle met it:
+        broken, the excess flown becomes the budget for the rest of the flight (a lower limit from now on). Under the
+        stop contract only: offboard flies its own setpoints."""
+        limit = self.limit.value if i.limit_applies and self.configured == "stop" else None
+        reach = ramped_out(i.ground_speed, i.accel_along, self.table.vehicle.braking.jerk_max_m_s3)
+        over = self._overshoot_watch.judge(self.overshoot, limit, i.ground_speed, reach)
+        if over is not None:
+            self.overshoot = self.overshoot.raised(limit, over[1])
+        self._violation(d, "speed_overshoot", over is not None, lambda: dict(
+                        subsystem=Subsystem.AUTOPILOT, guarantee=SPEED_OVERSHOOT, assumed=over[0], observed=over[1],
+                        action=f"overshoot budget raised to {self.overshoot.allowance(limit):.2f} m/s: a lower limit"))
 
     def _causes(self, i: Inputs, om: Omega, not_flown: tuple[float, float] | None) -> dict[Cause, bool]:
         """Every reason to stop now (each edge-triggered after an override); `not_flown`: the limit not flown
