@@ -39,7 +39,9 @@ def test_honest_fog_faster_than_the_vehicle_slows_is_outside_the_contract_and_a_
     assert [f["kind"] for f in row["faults"]] == ["fog_honest"]
     assert row["in_assumption"] and cg.classify(row)[0]  # lenient: in
     assert row["gamma_flown_max"] > 3.0 and row["gamma_flown_over_s"] > 0.5
-    assert not row["in_contract"] and row["outside_contract"] == ["ground speed above V_safe"]
+    # (the pass at D_od 3.2 m would leave the field of view: offboard falls back to the stop contract, whose lower
+    # limit also makes the brake from 7.8 m/s a controller violation — a consequence of the same speed)
+    assert not row["in_contract"] and "ground speed above V_safe" in row["outside_contract"]
     write_event_log(rig, tmp_path / "log")
     found = [f for f in review(tmp_path / "log")["findings"] if f.startswith("flown outside the contract")]
     assert found and f"{row['gamma_flown_max']:.2f} m/s" in found[0]

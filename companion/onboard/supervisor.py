@@ -435,9 +435,13 @@ class Supervisor:
         """E_tr_pred (Figure 12) of the controller contract at speed v, at the tilt of the operating point
         being flown (a Ω with no speed — D_od lost, say — has no tilt of its own), one lookup per value."""
         tilt = self._tilt_in_force if self._tilt_in_force is not None else tilt
-        if self._e_pred_at is None or self._e_pred_at[:4] != (v, tilt, thrust_ratio, self.e_surface):
-            self._e_pred_at = (v, tilt, thrust_ratio, self.e_surface,
-                               self.table.e_tr_pred(v, tilt, thrust_ratio, self.e_surface))
+        # fallen back to the stop contract (offboard): it cruises on offboard setpoints and stops with the brake's
+        # stop (`fallback_omega`), so its tracking is bounded by the larger of the two surfaces
+        surfaces = (self.e_surface,) if self.contract == self.configured else (self.e_surface, "brake")
+        if self._e_pred_at is None or self._e_pred_at[:4] != (v, tilt, thrust_ratio, surfaces):
+            preds = [self.table.e_tr_pred(v, tilt, thrust_ratio, s) for s in surfaces]
+            self._e_pred_at = (v, tilt, thrust_ratio, surfaces,
+                               max(preds) if all(math.isfinite(p) for p in preds) else math.nan)
         return self._e_pred_at[4]
 
     def omega(self, i: Inputs) -> Omega:
