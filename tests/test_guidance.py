@@ -21,7 +21,7 @@ def test_bins_give_the_obstacle_position_and_width():
         disc = bb * bb - (c @ c - r * r)
         if disc >= 0:
             hits.append((b, bb - math.sqrt(disc), math.radians(2.5), True))
-    discs, widest = obstacle_discs(hits, (0.0, 0.0), 0.0, r_obst=1.0, inflate=0.3)
+    discs, widest, _ = obstacle_discs(hits, (0.0, 0.0), 0.0, r_obst=1.0, inflate=0.3)
     assert len(discs) == 1
     d = discs[0]
     # the estimate holds the true obstacle: every point of the column is inside the keep-out disc
@@ -34,7 +34,7 @@ def test_bins_give_the_obstacle_position_and_width():
 
 def test_a_single_beam_keeps_every_position_consistent_with_the_hit():
     # a 30° beam reports 5 m: the obstacle may be anywhere across the beam at that range
-    discs, _ = obstacle_discs([(0.0, 5.0, math.radians(15), False)], (0.0, 0.0), 0.0, r_obst=0.5, inflate=0.2)
+    discs, _, _ = obstacle_discs([(0.0, 5.0, math.radians(15), False)], (0.0, 0.0), 0.0, r_obst=0.5, inflate=0.2)
     assert len(discs) > 2
     for off in np.linspace(-15, 15, 61):  # any hit point across the field of view …
         hp = 5.0 * np.array([math.cos(math.radians(off)), math.sin(math.radians(off))])

@@ -7,7 +7,8 @@ The avoid contract (the paper's numerical construction, DESIGN.md §1) assumes
 
 (i)  one obstacle no wider than R_obst at a time: the swerve round one keep-out disc of radius
      r_k = R_obst + E_tr + r_body. Among walls the daemon would plan round a wall as one huge disc, which no cell of
-     the table covers;
+     the table covers; among several obstacles in view at once (a stand of poles) the swerve round one may meet
+     another, which the table's cell does not know of;
 (ii) that the sensors keep the swerve in view. A pass round the keep-out disc whose centre lies c = D_od + R_obst
      ahead leaves along a bearing at least asin(ρ) off the line to the obstacle, ρ = r_k / c (the table's own reduced
      axis, DESIGN.md §2), and the vehicle's heading — the sensors' axis — lags behind its track. The pass is seen
@@ -17,8 +18,9 @@ The avoid contract (the paper's numerical construction, DESIGN.md §1) assumes
 Where either fails the stop contract is in force: Ω is the table's stop contract with the braking stop offboard
 flies (`fallback_omega`), something in the swept corridor within stopping distance is a braking stop then Hold at
 rest (the supervisor's OBSTACLE hold cause, as in governor mode), and guidance plans round nothing: it cruises the
-route. A thing wider than R_obst keeps the stop contract in force until the vehicle has flown the detection range it
-was seen within (D_od at the last sighting) past the last sighting: until then it may still be within reach. The
+route. A thing wider than R_obst, or several things in view, keep the stop contract in force until the vehicle has
+flown the detection range they were seen within (D_od at the last sighting) past the last sighting: until then they
+may still be within reach. The
 avoid contract comes back only once its assumptions have held for `dwell_s` (limits move one way fast).
 """
 
@@ -112,7 +114,7 @@ class ContractInForce:
         self.now = InForce(AVOID, "its assumptions hold")
         self._odo = 0.0  # [m] flown, from the ground speed
         self._t: float | None = None
-        self._wide: tuple[float, float] | None = None  # (odometer, D_od) at the last sighting of something wide
+        self._breach: tuple[float, float, str] | None = None  # (odometer, D_od, what) at the last sighting of a breach
         self._clear_since: float | None = None  # the avoid contract's assumptions have held since
         self._dead_end_said = False  # the dead end of this stretch under the stop contract has been said
 
@@ -141,14 +143,17 @@ class ContractInForce:
         """Which assumption of the avoid contract does not hold now (None: both hold)."""
         d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
         if i.obstacle_width > i.r_obst + WIDE_TOL_M:
-            self._wide = (self._odo, d_od)
+            self._breach = (self._odo, d_od, "an obstacle wider than R_obst")
             return f"an obstacle {i.obstacle_width:.2f} m wide (half-width) in view, wider than R_obst {i.r_obst:g} m"
-        if self._wide is not None:
-            flown = self._odo - self._wide[0]
-            if flown < self._wide[1]:
-                return (f"an obstacle wider than R_obst seen {flown:.1f} m ago, within reach until "
-                        f"{self._wide[1]:.1f} m past it")
-            self._wide = None
+        if i.obstacles > 1:
+            self._breach = (self._odo, d_od, "several obstacles")
+            return f"{i.obstacles} obstacles in view at once: the avoid contract goes round one at a time"
+        if self._breach is not None:
+            flown = self._odo - self._breach[0]
+            if flown < self._breach[1]:
+                return (f"{self._breach[2]} seen {flown:.1f} m ago, within reach until {self._breach[1]:.1f} m past the "
+                        "sighting")
+            self._breach = None
         bearing = pass_bearing(r_k, d_od + i.r_obst)
         if swerves and bearing + self.lag > self.half_fov:
             return (f"the pass at D_od {d_od:.2f} m leaves {math.degrees(bearing):.1f}° off the obstacle, with the "

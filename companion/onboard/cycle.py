@@ -163,7 +163,7 @@ class Cycle:
         else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)
             accel_along = float(accel @ (tel.vx, tel.vy)) / speed if speed > 0.5 else float(math.hypot(*accel))
         hits = tuple(s.dod.fresh_hits(t))
-        discs, width = obstacle_discs(hits, (tel.x, tel.y), tel.yaw, g.r_obst)
+        discs, width, apart = obstacle_discs(hits, (tel.x, tel.y), tel.yaw, g.r_obst)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
         self.view = view = self.authority.observe(t, mode, link_ok)
         if self.first_seen_in_air is None and tel.landed_state:
@@ -177,7 +177,7 @@ class Cycle:
                       in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=view.by_daemon,
                       mode_changed=view.event is not None, taken_over=view.taken_over,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=g.r_obst,
-                      engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, discs=tuple(discs),
+                      engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, obstacles=apart, discs=tuple(discs),
                       hits=hits, beta=beta,
                       v_cruise=s.v_cruise, late_s=late, late_unbudgeted_s=s.timing.unbudgeted_s,
                       late_within_s=s.timing.within_s, accel_along=accel_along, delivery_late=view.late,

@@ -190,7 +190,7 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
     return tuple(np.linspace(lo, hi, n).tolist())
 
 
-def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float]:
+def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float, int]:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
     Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
@@ -198,10 +198,11 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
     reported as the observed width). A single beam only says that the surface is at that range
     somewhere in its field of view: every disc of radius R_obst touching such a point lies within
     2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
-    Returns the discs and the widest obstacle radius observed (0 if none measurable).
+    Returns the discs, the widest obstacle radius observed (0 if none measurable) and how many obstacles the beams
+    tell apart (one per run of adjacent bins, one per single beam's hit).
     """
     if not hits:  # nothing seen (most cycles): no disc
-        return [], 0.0
+        return [], 0.0, 0
     p = np.asarray(p, float)
     discs: list[Disc] = []
     widest = 0.0
@@ -235,7 +236,7 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         for a in _arc(b - h, b + h, n):  # each hit point p + r·(cos, sin)(yaw + a), in floats
             # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
             discs.append(Disc(px + r * math.cos(yaw + a), py + r * math.sin(yaw + a), 2 * r_obst + reach + inflate))
-    return discs, widest
+    return discs, widest, len(clusters) + len(singles)
 
 
 def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:

@@ -64,6 +64,7 @@ SPEED_OVERSHOOT = "the ground speed stays within δ_v of the speed limit sent"
 # the navigation subsystem's guarantee of each obstacle sensor: it reports within its silence budget, which the stop and
 # avoid contracts take as dead time (companion/onboard/estimators.py SilenceBudget)
 SENSOR_SILENCE = "an obstacle sensor reports within its silence budget"
+ONE_AT_A_TIME = "one obstacle in view at a time"  # the environment's guarantee the avoid contract's swerve assumes
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,6 +90,7 @@ class Inputs:
     v_cruise: float = math.nan  # the autopilot's own auto-mode cruise speed (its parameter), NaN: not heard
     v_mission: float = math.nan  # the speed the mission's own speed items set at this item, NaN: not known
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
+    obstacles: int = 0  # how many obstacles the beams tell apart now
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
     beta: float = 0.0  # the direction of travel in the body frame [rad] (along the heading below 1 m/s)
@@ -641,6 +643,12 @@ class Supervisor:
                         subsystem=Subsystem.ENVIRONMENT, guarantee="no obstacle wider than R_obst", assumed=i.r_obst,
                         observed=i.obstacle_width, action="falling back to the stop contract" if self.fallback else
                         "planning round the observed width"))
+        # the avoid contract's swerve goes round one obstacle at a time (DESIGN.md §1): several in view at once (a
+        # stand of poles) may put one in the path of the swerve round another
+        several = self.configured == "avoid" and i.obstacles > 1
+        self._violation(d, "one_at_a_time", several, lambda: dict(
+                        subsystem=Subsystem.ENVIRONMENT, guarantee=ONE_AT_A_TIME, assumed=1, observed=i.obstacles,
+                        action="falling back to the stop contract" if self.fallback else "planning round all of them"))
         if i.dod.swept != self._dod_swept:  # D_od's basis: said when the swept coverage starts and ends
             self._dod_swept = i.dod.swept
             basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")
