@@ -236,7 +236,23 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         for a in _arc(b - h, b + h, n):  # each hit point p + r·(cos, sin)(yaw + a), in floats
             # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
             discs.append(Disc(px + r * math.cos(yaw + a), py + r * math.sin(yaw + a), 2 * r_obst + reach + inflate))
-    return discs, widest, len(clusters) + len(singles)
+    return discs, widest, _apart(discs[:len(clusters)]) + len(singles)
+
+
+def _apart(discs: list[Disc]) -> int:
+    """How many obstacles the bins' discs tell apart: discs that overlap are one obstacle (a column whose middle
+    bins returned nothing gives two runs of bins, and two discs that overlap)."""
+    root = list(range(len(discs)))
+
+    def find(k: int) -> int:
+        while root[k] != k:
+            k = root[k]
+        return k
+    for a in range(len(discs)):
+        for b in range(a + 1, len(discs)):
+            if math.hypot(discs[a].x - discs[b].x, discs[a].y - discs[b].y) < discs[a].r + discs[b].r:
+                root[find(b)] = find(a)
+    return len({find(k) for k in range(len(discs))})
 
 
 def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:
