@@ -36,6 +36,8 @@ import numpy as np
 from contracts.geometry import wrap_array
 from contracts.lidar import RATED_REFLECTIVITY, detection_range
 
+from companion.onboard.supervisor import ONE_AT_A_TIME
+
 from .flights import Rig, engage_and_fly, fly_mission
 from .worlds import CLEAR as WORLDS
 from .worlds import clear_world
@@ -174,6 +176,10 @@ class Observer:
             return "out of view"
         return "something" if true[j] <= assumed else "missed"
 
+    def several_in_view(self, tr: Truth, reach: float) -> bool:
+        """Two or more obstacles whose surfaces are within `reach`."""
+        return sum(_distance_to(o, self.world, tr.x, tr.y) <= reach for o in self.world.obstacles) > 1
+
     def wide_in_view(self, tr: Truth, reach: float, r_obst: float) -> bool:
         """A surface wider than R_obst within `reach` ahead: a wall, polygon or box, or a column of radius > R_obst."""
         for o in self.world.obstacles:
@@ -279,6 +285,9 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
             return "violation (navigation)", reach < assumed - tol or stepped_over, {
                 "observed": seen, "assumed": assumed, "reflectivity": rho, "true_reach_m": reach,
                 "rays_missed_it": stepped_over}
+        if sub == "environment" and g == ONE_AT_A_TIME:  # several in view, or one wide thing seen as several
+            founded = obs.several_in_view(tr, stated) or obs.wide_in_view(tr, stated, r_obst)
+            return "violation (environment)", founded, {"observed": e.get("observed")}
         if sub == "environment":
             return "violation (environment)", obs.wide_in_view(tr, stated, r_obst), {"observed": e.get("observed")}
         return f"violation ({sub})", True, {"guarantee": g}
