@@ -439,7 +439,7 @@ class Supervisor:
         tilt = self._tilt_in_force if self._tilt_in_force is not None else tilt
         # fallen back to the stop contract (offboard): it cruises on offboard setpoints and stops with the brake's
         # stop (`fallback_omega`), so its tracking is bounded by the larger of the two surfaces
-        surfaces = (self.e_surface,) if self.contract == self.configured else (self.e_surface, "brake")
+        surfaces = (self.e_surface, "brake") if self.fallen_back else (self.e_surface,)
         if self._e_pred_at is None or self._e_pred_at[:4] != (v, tilt, thrust_ratio, surfaces):
             preds = [self.table.e_tr_pred(v, tilt, thrust_ratio, s) for s in surfaces]
             self._e_pred_at = (v, tilt, thrust_ratio, surfaces,
@@ -497,7 +497,7 @@ class Supervisor:
         if om is None:
             if len(self._omega_at) >= 6:  # this cycle's few lookups (with and without the brake, the ramp, fallen back)
                 self._omega_at.clear()
-            if self.contract != self.configured:  # fallen back to the stop contract (offboard)
+            if self.fallen_back:
                 om = self._omega_at[key] = fallback_omega(self.table, d_od, i, self.t_cmd, self.loop_dt)
             else:
                 om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
@@ -528,7 +528,7 @@ class Supervisor:
         d = self._decide(i)
         e_tr_virtual = self.e_tr_virtual(i, d)
         # under the stop contract guidance plans round nothing: it cruises the route, and stops
-        discs = i.discs if self.contract == self.configured else ()
+        discs = () if self.fallen_back else i.discs
         return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
                         e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, self.table.vehicle.r_body_m)),
                         tuple(d.hold_causes))
@@ -583,7 +583,7 @@ class Supervisor:
         if fresh:
             self._hold(d, fresh)
             # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
-            if Cause.OBSTACLE in fresh and self.contract != self.configured and self.fallback.dead_end():
+            if Cause.OBSTACLE in fresh and self.fallen_back and self.fallback.dead_end():
                 d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": self._ahead(i, om)}))
                 d.statustext.append((2, f"CG: {DEAD_END}"))
             return d
@@ -612,6 +612,11 @@ class Supervisor:
             self._last_sent = None
         self._last_seq = i.mission_seq
         self._last_in_air = i.in_air
+
+    @property
+    def fallen_back(self) -> bool:
+        """Offboard flies the stop contract this cycle (the avoid contract's assumptions are not there)."""
+        return self.contract != self.configured
 
     def _contract_in_force(self, i: Inputs) -> InForce | None:
         """The contract in force this cycle (`self.contract`), judged by the fallback on the avoid contract's Ω at
@@ -842,7 +847,7 @@ class Supervisor:
         """[m] the nearest obstacle the stop-distance Hold judges: near the path (D_od's estimate); fallen back from
         the avoid contract, in the swept corridor r_body + E_tr itself, whatever its shape (walls beside the route are
         not in it)."""
-        if self.contract == self.configured:
+        if not self.fallen_back:
             return i.dod.obstacle_m
         return swept_obstacle_m(i.hits, i.beta, self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr))
 
