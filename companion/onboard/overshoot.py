@@ -97,25 +97,29 @@ class OvershootWatch:
         self._met = self._met or reach <= top
         return (top, speed) if self._met and speed > top else None
 
+    @property
+    def met(self) -> bool:
+        """The vehicle has met the limit in force (the last `judge`)."""
+        return self._met
+
 
 def overshoot_of(t, speed, limit, jerk: float, window_s: float = 0.3) -> dict:
     """The overshoot a flight log shows: over samples (t, ground speed, limit in force), the largest ground speed
     above the limit once the vehicle had met it (as `OvershootWatch` judges it: its acceleration, Δv over
     `window_s`, ramped out at the autopilot's `jerk` reaching no more than the limit).
     {"overshoot_m_s", "at_limit_m_s", "samples"} — the calibration's evidence for `speed_overshoot`."""
-    worst, at, met, last, n = -math.inf, math.nan, False, None, 0
+    worst, at, n = -math.inf, math.nan, 0
+    watch, exact = OvershootWatch(), OvershootBudget(0.0, 0.0)  # met as the daemon judges it, against the limit itself
     past: list[tuple[float, float]] = []
     for tk, v, lim in zip(t, speed, limit):
         if not (math.isfinite(v) and lim is not None and math.isfinite(lim) and lim > 0):
-            met, last, past = False, None, []
+            watch.reset()
+            past = []
             continue
         past = [p for p in past if tk - p[0] <= window_s + 1e-9] + [(tk, v)]
         accel = (v - past[0][1]) / (tk - past[0][0]) if tk - past[0][0] >= 0.5 * window_s else math.nan
-        if last is None or lim < last - 1e-6:
-            met = False
-        last = lim
-        met = met or ramped_out(v, accel, jerk) <= lim
-        if met:
+        watch.judge(exact, lim, v, ramped_out(v, accel, jerk))
+        if watch.met:
             n += 1
             if v - lim > worst:
                 worst, at = v - lim, lim
