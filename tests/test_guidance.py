@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from contracts.geometry import wrap
+from companion.onboard.contract_in_force import WIDE_TOL_M
 from companion.onboard.guidance import A_LAT, YAW_RATE_ARC, OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
 from contracts.online_planner import AvoidancePlanner, Disc
 
@@ -30,6 +31,43 @@ def test_bins_give_the_obstacle_position_and_width():
     assert np.all(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y) <= d.r - 0.3 + 0.05)  # within 5 cm
     assert abs(d.y) < 0.3 and 5.5 < d.x < 6.8
     assert widest <= 1.0 + 1e-6  # no environment violation for an obstacle of exactly R_obst
+
+
+def _bins_seeing(circles, bin_deg=5.0, half_fov_deg=30.0):
+    """A bin sensor's hits (body bearing, range, ± half a bin, bins) from the vehicle at the origin heading +x: each
+    bin the nearest return over its sector (rays across it), reported at the sector's centre bearing."""
+    h = math.radians(bin_deg / 2)
+    hits = []
+    for b in np.radians(np.arange(-half_fov_deg, half_fov_deg + 1e-9, bin_deg)):
+        ranges = []
+        for a in np.linspace(b - h, b + h, 21):
+            u = np.array([math.cos(a), math.sin(a)])
+            for c, r in circles:
+                c = np.asarray(c, float)
+                near = u @ c
+                disc = near * near - (c @ c - r * r)
+                if disc >= 0:
+                    ranges.append(near - math.sqrt(disc))
+        if ranges:
+            hits.append((float(b), min(ranges), h, True))
+    return hits
+
+
+def test_two_poles_a_free_bin_apart_are_one_obstacle_wider_than_r_obst():
+    # poles of 0.4 m, 2.2 m apart at 6 m: one free 5° bin between them, and the runs' discs (R_obst 1 m) overlap —
+    # one obstacle, which no disc of radius R_obst holds (both fit only in one of 1.5 m)
+    hits = _bins_seeing([((6.0, -1.1), 0.4), ((6.0, 1.1), 0.4)])
+    assert [round(math.degrees(b)) for b, *_ in hits] == [-15, -10, -5, 5, 10, 15]
+    _, widest, apart = obstacle_discs(hits, (0.0, 0.0), 0.0, r_obst=1.0)
+    assert apart == 1 and widest > 1.0 + WIDE_TOL_M
+
+
+def test_a_column_whose_middle_bins_returned_nothing_is_one_obstacle_as_wide_as_its_face():
+    # the control: a column of R_obst whose middle bin the fog blanked gives two runs, one obstacle, within R_obst
+    hits = [hit for hit in _bins_seeing([((6.0, 0.0), 1.0)]) if abs(hit[0]) > 1e-6]
+    assert len(hits) == 4
+    _, widest, apart = obstacle_discs(hits, (0.0, 0.0), 0.0, r_obst=1.0)
+    assert apart == 1 and widest <= 1.0 + WIDE_TOL_M
 
 
 def test_a_single_beam_keeps_every_position_consistent_with_the_hit():

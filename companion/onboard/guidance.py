@@ -209,6 +209,7 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
     bins = sorted((b, r, h) for b, r, h, is_bins in hits if is_bins)
     singles = [(b, r, h) for b, r, h, is_bins in hits if not is_bins]
     clusters: list[list] = []
+    faces: list[tuple[np.ndarray, float]] = []  # each run's hit points and how far off a point may be
     for b, r, h in bins:
         if clusters and abs(b - clusters[-1][-1][0]) <= 2.5 * h + 1e-9 and abs(r - clusters[-1][-1][1]) < 2 * r_obst + 0.5:
             clusters[-1].append((b, r, h))
@@ -226,6 +227,7 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         radius = max(r_obst, w2)
         if len(cl) > 1:
             widest = max(widest, w2 - pad)
+        faces.append((pts, pad))
         centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
         grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
         discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
@@ -236,7 +238,13 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         for a in _arc(b - h, b + h, n):  # each hit point p + r·(cos, sin)(yaw + a), in floats
             # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
             discs.append(Disc(px + r * math.cos(yaw + a), py + r * math.sin(yaw + a), 2 * r_obst + reach + inflate))
-    return discs, widest, _apart(discs[:len(clusters)]) + len(singles)
+    groups = _apart(discs[:len(clusters)])
+    for g in groups:
+        if len(g) > 1:  # one obstacle seen as several runs: as wide as all their hits
+            pts = np.vstack([faces[k][0] for k in g])
+            spread = max(float(np.max(np.hypot(*(pts - q).T))) for q in pts)
+            widest = max(widest, spread / 2 - max(faces[k][1] for k in g))
+    return discs, widest, len(groups) + len(singles)
 
 
 def _apart(discs: list[Disc]) -> int:
@@ -252,7 +260,10 @@ def _apart(discs: list[Disc]) -> int:
         for b in range(a + 1, len(discs)):
             if math.hypot(discs[a].x - discs[b].x, discs[a].y - discs[b].y) < discs[a].r + discs[b].r:
                 root[find(b)] = find(a)
-    return len({find(k) for k in range(len(discs))})
+    groups: dict[int, list[int]] = {}
+    for k in range(len(discs)):
+        groups.setdefault(find(k), []).append(k)
+    return list(groups.values())
 
 
 def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:
