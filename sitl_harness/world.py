@@ -201,30 +201,34 @@ class World:
         owner_rho = e.rho[e.owner[keep]][k].reshape(best.shape)
         return np.where(hit, tk, best), np.where(hit, owner_rho, rho)
 
-    def clearance(self, px: float, py: float, alt: float) -> tuple[float, int]:
-        """Horizontal distance from a point to the nearest obstacle surface (negative inside) and
-        that obstacle's index in `obstacles` (−1 if none)."""
-        best, idx = math.inf, -1
-        for i, o in enumerate(self.obstacles):
+    def distances(self, px: float, py: float, alt: float = -math.inf) -> np.ndarray:
+        """Per obstacle (in `obstacles` order): the horizontal distance from a point to its surface (negative
+        inside), inf for one lower than `alt`."""
+        out = np.full(len(self.obstacles), np.inf)
+        for k, o in enumerate(self.obstacles):
             if alt > o.height or isinstance(o, Polygon):
                 continue
             if isinstance(o, Column):
-                d = math.hypot(px - o.x, py - o.y) - o.radius
+                out[k] = math.hypot(px - o.x, py - o.y) - o.radius
             else:
                 cy, sy = math.cos(o.yaw), math.sin(o.yaw)
                 ox, oy = px - o.x, py - o.y
                 lx, ly = abs(cy * ox + sy * oy) - 0.5 * o.length, abs(-sy * ox + cy * oy) - 0.5 * o.width
-                d = math.hypot(max(lx, 0.0), max(ly, 0.0)) if (lx > 0 or ly > 0) else max(lx, ly)
-            if d < best:
-                best, idx = d, i
+                out[k] = math.hypot(max(lx, 0.0), max(ly, 0.0)) if (lx > 0 or ly > 0) else max(lx, ly)
         if self._edges is not None:
             e = self._edges
             d = np.where(e.inside(px, py), -1.0, 1.0) * e.distance(px, py)
-            d = np.where(e.height >= alt, d, np.inf)
-            j = int(d.argmin())
-            if d[j] < best:
-                best, idx = float(d[j]), self._poly_index[j]
-        return best, idx
+            out[self._poly_index] = np.where(e.height >= alt, d, np.inf)
+        return out
+
+    def clearance(self, px: float, py: float, alt: float) -> tuple[float, int]:
+        """Horizontal distance from a point to the nearest obstacle surface (negative inside) and
+        that obstacle's index in `obstacles` (−1 if none)."""
+        d = self.distances(px, py, alt)
+        if not d.size or not np.isfinite(d).any():
+            return math.inf, -1
+        k = int(d.argmin())
+        return float(d[k]), k
 
 
 @dataclass(frozen=True)

@@ -178,35 +178,13 @@ class Observer:
 
     def several_in_view(self, tr: Truth, reach: float) -> bool:
         """Two or more obstacles whose surfaces are within `reach`."""
-        return sum(_distance_to(o, self.world, tr.x, tr.y) <= reach for o in self.world.obstacles) > 1
+        return int(np.count_nonzero(self.world.distances(tr.x, tr.y) <= reach)) > 1
 
     def wide_in_view(self, tr: Truth, reach: float, r_obst: float) -> bool:
         """A surface wider than R_obst within `reach` ahead: a wall, polygon or box, or a column of radius > R_obst."""
-        for o in self.world.obstacles:
-            radius = getattr(o, "radius", None)
-            if radius is not None and radius <= r_obst + 0.05:
-                continue
-            if _distance_to(o, self.world, tr.x, tr.y) <= reach:
-                return True
-        return False
-
-
-def _distance_to(o, world, x: float, y: float) -> float:
-    """Distance from (x, y) to one obstacle's surface (columns exactly, anything else by its polygon's edges)."""
-    if hasattr(o, "radius"):
-        return math.hypot(x - o.x, y - o.y) - o.radius
-    pts = np.asarray(getattr(o, "points", None) if getattr(o, "points", None) is not None else _box_corners(o))
-    a, b = pts, np.roll(pts, -1, axis=0)
-    ab = b - a
-    t = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1]) / np.maximum((ab ** 2).sum(axis=1), 1e-12), 0, 1)
-    px, py = a[:, 0] + t * ab[:, 0], a[:, 1] + t * ab[:, 1]
-    return float(np.hypot(px - x, py - y).min())
-
-
-def _box_corners(b) -> list:
-    c, s = math.cos(b.yaw), math.sin(b.yaw)
-    hx, hy = b.length / 2, b.width / 2
-    return [(b.x + c * u - s * v, b.y + s * u + c * v) for u, v in ((hx, hy), (-hx, hy), (-hx, -hy), (hx, -hy))]
+        near = self.world.distances(tr.x, tr.y) <= reach
+        return any(hit and (getattr(o, "radius", None) is None or o.radius > r_obst + 0.05)
+                   for hit, o in zip(near, self.world.obstacles))
 
 
 # ----------------------------------------------------------------------------- flights and verdicts
