@@ -33,10 +33,9 @@ from itertools import pairwise
 
 import numpy as np
 
+from companion.onboard.supervisor import ONE_AT_A_TIME
 from contracts.geometry import wrap_array
 from contracts.lidar import RATED_REFLECTIVITY, detection_range
-
-from companion.onboard.supervisor import ONE_AT_A_TIME
 
 from .flights import Rig, engage_and_fly, fly_mission
 from .worlds import CLEAR as WORLDS
