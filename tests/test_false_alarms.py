@@ -302,3 +302,26 @@ def test_negative_control_axis_depth_read_as_range_puts_the_side_of_a_wall_neare
     they are not in (a hold with nothing there)."""
     hits = _wall_bins("range")
     assert all(abs(r - 5.0) < 1e-9 for r in hits.values())
+
+
+def test_two_poles_seen_as_one_wide_run_break_the_environment_assumption_truly(monkeypatch):
+    """examples/campaign-clutter.yaml flight 497 (offboard, the Mambo, a stand of poles beside the route and one on
+    it): braking for the pole on the route, a run of bins spans it and a pole of the stand behind — said as "no
+    obstacle wider than R_obst". Neither pole is wide, but two are within the stated range: the avoid contract's
+    assumption (one obstacle no wider than R_obst at a time) is truly broken, and the observer says so. Control: an
+    observer that judges that guarantee by width alone calls it unfounded."""
+    from pathlib import Path
+
+    from companion.ground import false_alarms as fa
+    from companion.ground.campaign import fly, load_spec
+
+    spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "campaign-clutter.yaml")
+    row, rig = fly(spec, 497, keep_rig=True)
+    wide = [v["t"] for v in rig.log.named("violation_start") if v["guarantee"] == "no obstacle wider than R_obst"]
+    assert wide
+    assert not any(a["kind"] == "violation (environment)" for a in row["unfounded_alarms"])
+
+    monkeypatch.setattr(fa.Observer, "several_in_view", lambda self, tr, reach: False)
+    old = fly(spec, 497)
+    assert any(a["kind"] == "violation (environment)" and a["t"] == pytest.approx(wide[0])
+               for a in old["unfounded_alarms"])

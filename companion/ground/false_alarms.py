@@ -12,8 +12,10 @@ The observer's questions, one per kind of event (`judge`):
   (contracts/lidar.py `detection_range` with α = 0); a first detection is founded only where the surface it hit
   could not have been detected at the range assumed. A first sight of a surface that was occluded, outside the
   field of view or whose bin was dropped, and a lowering for a medium (clear air has none), are unfounded;
-- **environment, "no obstacle wider than R_obst"**: is a surface wider than R_obst really in view (a wall, a
-  polygon, a box, or a column of radius above R_obst)?
+- **environment, "no obstacle wider than R_obst"** and **"one obstacle in view at a time"**, the two faces of the
+  avoid contract's one assumption that the beams cannot always tell apart (two poles in adjacent bins are one wide
+  run; a wall whose middle bins returned nothing is two): is a surface wider than R_obst (a wall, a polygon, a box,
+  or a column of radius above R_obst), or more than one obstacle, really within the stated range?
 - **no safe speed**: founded unless it rests on a D_od lowered by an unfounded navigation violation;
 - **no avoiding plan**: was a true surface within the stated range in the corridor ahead (something to plan
   round)? If the corridor was truly clear, the planner stopped on a phantom;
@@ -33,7 +35,6 @@ from itertools import pairwise
 
 import numpy as np
 
-from companion.onboard.supervisor import ONE_AT_A_TIME
 from contracts.geometry import wrap_array
 from contracts.lidar import RATED_REFLECTIVITY, detection_range
 
@@ -262,11 +263,10 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
             return "violation (navigation)", reach < assumed - tol or stepped_over, {
                 "observed": seen, "assumed": assumed, "reflectivity": rho, "true_reach_m": reach,
                 "rays_missed_it": stepped_over}
-        if sub == "environment" and g == ONE_AT_A_TIME:  # several in view, or one wide thing seen as several
+        if sub == "environment":  # the avoid contract's "one obstacle no wider than R_obst at a time", either face:
+            # one wide thing seen as several runs of bins, or several seen as one wide run, breaks it as truly
             founded = obs.several_in_view(tr, stated) or obs.wide_in_view(tr, stated, r_obst)
-            return "violation (environment)", founded, {"observed": e.get("observed")}
-        if sub == "environment":
-            return "violation (environment)", obs.wide_in_view(tr, stated, r_obst), {"observed": e.get("observed")}
+            return "violation (environment)", founded, {"observed": e.get("observed"), "guarantee": g}
         return f"violation ({sub})", True, {"guarantee": g}
     raise ValueError(name)
 
