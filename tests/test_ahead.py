@@ -89,7 +89,7 @@ def _corridor_flight(columns=()) -> Rig:
 
 def _band(monkeypatch):
     """The negative control: the Hold judged against D_od's band (2·R_obst + E_tr + r_body), as before."""
-    monkeypatch.setattr(Supervisor, "_ahead", lambda self, i, om: i.dod.obstacle_m)
+    monkeypatch.setattr(Supervisor, "ahead_m", lambda self, i, om: i.dod.obstacle_m)
 
 
 def test_the_governor_flies_a_corridor_past_its_walls_without_a_hold():

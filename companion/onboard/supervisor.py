@@ -571,7 +571,7 @@ class Supervisor:
         self._violation(d, "limit_flown", flown is not None, lambda: dict(
                         subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
                         action="hold"))
-        # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
+        # a cause stood down from re-arms when it clears; an obstacle's only when nothing is left where its Hold looks
         causes_now = {c for c, on in causes.items() if on}
         self._suppressed = {c for c in self._suppressed if c in causes_now or
                             (c == Cause.OBSTACLE and math.isfinite(self.ahead_m(i, om)))}
