@@ -22,7 +22,7 @@ BIN_HALF = math.radians(2.5)  # a 5° bin's half-width
 def seen(r, bearing=0.0, d=8.0):
     """What the sensors give the supervisor for one 5° bin's hit `r` m away at body `bearing` (the direction of
     travel is 0): the hit itself and D_od's estimate with it in its band (its `obstacle_m`)."""
-    return dict(dod=dod(d, obstacle=r), hits=((bearing, r, BIN_HALF, True),))
+    return {"dod": dod(d, obstacle=r), "hits": ((bearing, r, BIN_HALF, True),)}
 
 
 BASE = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, in_air=True, mode="mission",
