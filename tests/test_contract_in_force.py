@@ -281,7 +281,7 @@ def test_the_start_banner_states_where_the_sensors_support_the_swerve(fov, said)
 def test_the_swept_corridor_takes_what_enters_it_whatever_its_shape():
     """A hit counts where its sector's nearest bearing to the line of travel lies within r_body + E_tr of it; a wall
     beside the route does not; a single beam's hit is on the path."""
-    from companion.onboard.contract_in_force import swept_obstacle_m
+    from companion.onboard.ahead import swept_obstacle_m
 
     h = math.radians(2.5)
     ahead = (math.radians(3.0), 6.0, h, True)  # its sector reaches the line of travel

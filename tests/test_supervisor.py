@@ -16,6 +16,15 @@ def dod(d=8.0, obstacle=math.inf, reason="sensor 0 reports range", lowered=False
     return DodEstimate(d, (0,), obstacle, None, reason, lowered=lowered)
 
 
+BIN_HALF = math.radians(2.5)  # a 5° bin's half-width
+
+
+def seen(r, bearing=0.0, d=8.0):
+    """What the sensors give the supervisor for one 5° bin's hit `r` m away at body `bearing` (the direction of
+    travel is 0): the hit itself and D_od's estimate with it in its band (its `obstacle_m`)."""
+    return {"dod": dod(d, obstacle=r), "hits": ((bearing, r, BIN_HALF, True),)}
+
+
 BASE = Inputs(t=0.0, link_ok=True, telemetry_ok=True, nav_ok=True, armed=True, in_air=True, mode="mission",
               limit_applies=True, mode_by_daemon=False, ground_speed=2.0, dod=dod(), e_tr_measured=0.2, thrust_ratio=1.0,
               r_obst=1.0, engaged=True)
@@ -76,32 +85,68 @@ def test_governor_sends_the_stop_contract_speed_and_follows_dod():
 def test_obstacle_inside_the_stop_distance_holds_and_authority_is_respected():
     s = sup()
     s.step(BASE)
-    d = s.step(replace(BASE, t=0.02, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
+    d = s.step(replace(BASE, t=0.02, ground_speed=3.0, **seen(2.0)))
     assert d.hold and d.state == "holding"
     assert any(n == "hold_trigger" and f["cause"] == "obstacle inside the stop distance" for n, f in d.events)
     # not taken within 1 s: asked once only (the mode authority re-sends it: companion/onboard/authority.py)
-    d = s.step(replace(BASE, t=1.1, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
+    d = s.step(replace(BASE, t=1.1, ground_speed=3.0, **seen(2.0)))
     assert not d.hold and d.state == "holding"
     # while in the daemon's Hold nothing more is commanded
-    d = s.step(replace(BASE, t=1.14, mode="hold", mode_by_daemon=True, ground_speed=0.5, dod=dod(8.0, obstacle=2.0)))
+    d = s.step(replace(BASE, t=1.14, mode="hold", mode_by_daemon=True, ground_speed=0.5, **seen(2.0)))
     assert not d.hold and d.state == "holding"
     # the pilot resumes the mission: the daemon stands down from that cause
     # (the mode authority judged the change someone else's: companion/onboard/authority.py, tests/test_authority.py)
     d = s.step(replace(BASE, t=1.16, mode="mission", mode_changed=True, taken_over=True, ground_speed=0.5,
-                       dod=dod(8.0, obstacle=2.0)))
+                       **seen(2.0)))
     assert d.state == "active" and not d.hold
     assert ("state_change", {"from": "holding", "to": "active", "reason": "mission set by someone else: standing down"}
             ) in d.events
-    d = s.step(replace(BASE, t=1.18, ground_speed=2.5, dod=dod(8.0, obstacle=1.5)))
+    d = s.step(replace(BASE, t=1.18, ground_speed=2.5, **seen(1.5)))
     assert not d.hold  # same cause, not cleared: no fight
-    s.step(replace(BASE, t=1.20, dod=dod(8.0)))  # clears
-    d = s.step(replace(BASE, t=1.22, ground_speed=3.0, dod=dod(8.0, obstacle=2.0)))
+    s.step(replace(BASE, t=1.20, **seen(math.inf)))  # clears
+    d = s.step(replace(BASE, t=1.22, ground_speed=3.0, **seen(2.0)))
     assert d.hold  # a new obstacle: hold again
+
+
+def test_a_wall_beside_the_route_is_not_an_obstacle_ahead():
+    """A surface D_od's band holds (`obstacle_m` 2 m) but 60° off the direction of travel — 1.7 m beside the
+    line, outside the swept corridor r_body + E_tr — gives no Hold; the same return on the line does."""
+    beside = seen(2.0, bearing=math.radians(60))
+    assert not any(d.hold for d in run(sup(), BASE, 0.0, 0.2, ground_speed=3.0, **beside))
+    assert any(d.hold for d in run(sup(), BASE, 0.0, 0.2, ground_speed=3.0, **seen(2.0)))
+
+
+def test_a_stood_down_obstacle_re_arms_once_the_corridor_is_clear_though_a_wall_beside_stays_in_view():
+    """After the pilot stands the daemon down from an obstacle Hold, the cause re-arms when nothing is left in the
+    swept corridor — a wall beside the route, still in D_od's band, does not keep it stood down — so the next
+    thing on the path holds again."""
+    s = sup()
+    s.step(replace(BASE, t=0.0, ground_speed=3.0, **seen(2.0)))
+    d = s.step(replace(BASE, t=0.02, mode="mission", mode_changed=True, taken_over=True, ground_speed=3.0, **seen(2.0)))
+    assert d.state == "active"
+    wall = seen(1.5, bearing=math.radians(70))
+    assert not s.step(replace(BASE, t=0.04, ground_speed=3.0, **wall)).hold
+    d = s.step(replace(BASE, t=0.06, ground_speed=3.0, **seen(2.0)))
+    assert d.hold and any(n == "hold_trigger" for n, _ in d.events)
+    # control: with the return still on the path the cause stays stood down (no fight with the pilot)
+    s = sup()
+    s.step(replace(BASE, t=0.0, ground_speed=3.0, **seen(2.0)))
+    s.step(replace(BASE, t=0.02, mode="mission", mode_changed=True, taken_over=True, ground_speed=3.0, **seen(2.0)))
+    s.step(replace(BASE, t=0.04, ground_speed=3.0, **seen(2.5)))
+    assert not s.step(replace(BASE, t=0.06, ground_speed=3.0, **seen(2.0))).hold
+
+
+def test_near_rest_anything_close_in_view_holds():
+    """At or below 1 m/s the direction of travel is not known: a return close by in any direction holds (and the
+    same return at speed, 70° off the line, does not)."""
+    close = seen(1.0, bearing=math.radians(70))
+    assert any(d.hold for d in run(sup(), BASE, 0.0, 0.1, ground_speed=0.8, **close))
+    assert not any(d.hold for d in run(sup(), BASE, 0.0, 0.1, ground_speed=2.0, **close))
 
 
 def test_far_obstacle_does_not_hold():
     s = sup()
-    d = s.step(replace(BASE, ground_speed=2.0, dod=dod(8.0, obstacle=7.5)))
+    d = s.step(replace(BASE, ground_speed=2.0, **seen(7.5)))
     assert not d.hold
 
 
@@ -164,7 +209,7 @@ def test_speed_limit_not_in_force_holds_after_the_settle_time():
 
 def test_shadow_mode_commands_nothing_but_logs_what_it_would_do():
     s = sup("shadow")
-    d = s.step(replace(BASE, dod=dod(8.0, obstacle=1.0), ground_speed=3.0))
+    d = s.step(replace(BASE, **seen(1.0), ground_speed=3.0))
     assert not d.hold and d.send_speed is None and d.state == "standby"
     assert any(n == "would_hold" and "obstacle inside the stop distance" in f["causes"] for n, f in d.events)
     assert d.omega.v_max > 0  # Ω is still computed

@@ -4,9 +4,10 @@ judged by a perfect observer that reads the SITL's truth (the world's true shape
 
 The observer's questions, one per kind of event (`judge`):
 
-- **hold for an obstacle** (the stop contract's Hold): was a true surface, in the swept corridor the daemon judges
-  (`corridor_m` either side of the direction of travel), really within what the daemon saw (its `obstacle_m`, plus
-  the sensor's noise)? A hold on a return with nothing there is unfounded;
+- **hold for an obstacle** (the stop contract's Hold): was a true surface near the path (`corridor_m` either side of
+  the direction of travel: D_od's band, which holds the swept corridor and its bins' slack; near rest anywhere
+  ahead) really within what the daemon's Hold judged (the supervisor's `ahead_m`, the nearest hit in the swept
+  corridor, plus the sensor's noise)? A hold on a return with nothing there is unfounded;
 - **navigation, "every obstacle within D_od is detected"** (D_od lowered): was D_od really shorter than stated?
   In clear air the range at which a surface of reflectivity ρ is detected is the lidar equation's
   (contracts/lidar.py `detection_range` with α = 0); a first detection is founded only where the surface it hit
@@ -37,6 +38,8 @@ import numpy as np
 
 from contracts.geometry import wrap_array
 from contracts.lidar import RATED_REFLECTIVITY, detection_range
+
+from companion.onboard.ahead import TRAVEL_SPEED_M_S
 
 from .flights import Rig, engage_and_fly, fly_mission
 from .worlds import CLEAR as WORLDS
@@ -100,19 +103,23 @@ class Observer:
         self.rig = rig
         self.world = rig.sim.world
         self.samples: list[tuple[float, Truth]] = []
-        self.seen: list[tuple[float, float, float, float]] = []  # (t, obstacle_m, d_od, stated) the daemon judged
+        # (t, the obstacle its Hold judged, d_od, stated, ground speed) the daemon judged
+        self.seen: list[tuple[float, float, float, float, float]] = []
 
-    def daemon_saw(self, t: float) -> tuple[float, float, float]:
-        """(obstacle_m, d_od, stated) of the daemon's cycle at `t` (the inputs its supervisor judged)."""
+    def daemon_saw(self, t: float) -> tuple[float, float, float, float]:
+        """(the obstacle its Hold judged, d_od, stated, ground speed) of the daemon's cycle at `t` (the inputs its
+        supervisor judged)."""
         past = [s for s in self.seen if s[0] <= t + 1e-9]
-        return past[-1][1:] if past else (math.inf, math.nan, math.nan)
+        return past[-1][1:] if past else (math.inf, math.nan, math.nan, math.nan)
 
     def watch(self) -> None:
         """Once a daemon cycle: the truth now (`sample`) and what the daemon's supervisor judged this cycle."""
         self.sample()
-        i = getattr(self.rig.daemon, "_last_in", None)  # read only
-        if i is not None:
-            self.seen.append((i.t, i.dod.obstacle_m, i.dod.d_od, i.dod.stated_m))
+        daemon = self.rig.daemon
+        i, d = getattr(daemon, "_last_in", None), getattr(daemon, "last", None)  # read only
+        if i is not None and d is not None:
+            ahead = daemon.cycle.sup.ahead_m(i, d.omega)
+            self.seen.append((i.t, ahead, i.dod.d_od, i.dod.stated_m, i.ground_speed))
 
     def airborne_s(self, until: float = math.inf) -> float:
         """The seconds sampled airborne (above 0.5 m) up to `until`."""
@@ -224,8 +231,9 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
     corridor = 2 * r_obst + e_tr + r_body
     stated = rig.sim.sensor.cfg.max_range_m
     if name == "hold_trigger" and e["cause"] == OBSTACLE:
-        seen = obs.daemon_saw(t)[0]
-        true = obs.nearest_in_corridor(tr, corridor)
+        seen, _, _, speed = obs.daemon_saw(t)
+        # near rest the Hold judges anything in view (companion/onboard/ahead.py): the truth anywhere ahead
+        true = obs.nearest_in_corridor(tr, corridor if speed > TRAVEL_SPEED_M_S else math.inf)
         tol = NOISE_SIGMAS * noise_m(rig, min(seen, stated)) + 0.1
         # the depth camera reports depth along its axis, less than the range off it: what it saw is no farther
         # than the true range, so a surface truly within seen/cos(half the field of view) is what it saw

@@ -201,24 +201,6 @@ def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: 
                                                                                     "contract's, lower)")
 
 
-def swept_obstacle_m(hits, beta: float, half_width_m: float) -> float:
-    """[m] the nearest hit in the swept corridor — the band of half-width `half_width_m` (r_body + E_tr) about the
-    direction of travel `beta` (body frame) — that the stop contract stops short of, whatever its shape
-    (companion/onboard/coverage.py: a surface is touched where it enters that band). A bin's hit may lie anywhere in
-    its sector (± its uncertainty): it counts where the sector's nearest bearing to the line of travel is inside the
-    band; a single beam's hit is taken as on the path (inf: none). Walls beside the route are outside the band."""
-    nearest = math.inf
-    for b, r, h, bins in hits:
-        if r >= nearest:
-            continue
-        off = abs((b - beta + math.pi) % (2 * math.pi) - math.pi)
-        gap = max(off - h, 0.0)  # the sector's nearest bearing to the line of travel
-        lateral = r * math.sin(gap) if gap < math.pi / 2 else r  # behind the line's normal: its range
-        if not bins or lateral <= half_width_m:
-            nearest = r
-    return nearest
-
-
 def fallback_for(cfg, contract: str) -> ContractInForce | None:
     """The daemon's fallback under the avoid contract, from the configured sensors' forward field of view and the
     contract's dwell (None under the stop contract: nothing to fall back from)."""

@@ -59,7 +59,9 @@ STATE = {
     "gamma": ("m/s", "Γ = limit in force (v_cmd, else v_max) − v_safe"),
     "gamma_flown": ("m/s", "ground speed − v_safe: the contract evaluated on the flight itself"),
     "v_cmd": ("m/s", "speed limit actually commanded (null when none: shadow, not engaged)"),
-    "obstacle_m": ("m", "nearest obstacle seen near the path (inf/null: none)"),
+    "obstacle_m": ("m", "nearest obstacle seen near the path, D_od's band 2·R_obst + E_tr + r_body about the "
+                        "direction of travel (inf/null: none); the stop contract's Hold judges the narrower swept "
+                        "corridor"),
 }
 # what the link did not believe, counted since the daemon started (companion/onboard/mavlink_out.py Counters)
 LINK_COUNTERS = {

@@ -29,7 +29,8 @@ from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
 from .authority import GUARANTEE_ANSWERED, Late
-from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, fallback_omega, swept_obstacle_m
+from .ahead import stop_obstacle_m
+from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, fallback_omega
 from .estimators import DodEstimate
 from .guidance import inflated
 from .modes import Mode, mode_of
@@ -570,10 +571,10 @@ class Supervisor:
         self._violation(d, "limit_flown", flown is not None, lambda: dict(
                         subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
                         action="hold"))
-        # a cause stood down from re-arms when it clears; an obstacle's only when it is no longer seen
+        # a cause stood down from re-arms when it clears; an obstacle's only when nothing is left where its Hold looks
         causes_now = {c for c, on in causes.items() if on}
         self._suppressed = {c for c in self._suppressed if c in causes_now or
-                            (c == Cause.OBSTACLE and math.isfinite(i.dod.obstacle_m))}
+                            (c == Cause.OBSTACLE and math.isfinite(self.ahead_m(i, om)))}
         fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
         v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
         self._recent_limits.append((i.t, v_limit))
@@ -584,7 +585,7 @@ class Supervisor:
             self._hold(d, fresh)
             # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
             if Cause.OBSTACLE in fresh and self.fallen_back and self.fallback.dead_end():
-                d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": self._ahead(i, om)}))
+                d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": self.ahead_m(i, om)}))
                 d.statustext.append((2, f"CG: {DEAD_END}"))
             return d
         if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
@@ -829,7 +830,7 @@ class Supervisor:
         (`_judge_limit`)."""
         finite = _finite_inputs(i)
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
-        obstacle = finite and self._ahead(i, om) - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+        obstacle = finite and self.ahead_m(i, om) - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
             Cause.NON_FINITE: not finite,
             Cause.STALE: not i.telemetry_ok,
@@ -843,13 +844,12 @@ class Supervisor:
             del causes[Cause.OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
         return causes
 
-    def _ahead(self, i: Inputs, om: Omega) -> float:
-        """[m] the nearest obstacle the stop-distance Hold judges: near the path (D_od's estimate); fallen back from
-        the avoid contract, in the swept corridor r_body + E_tr itself, whatever its shape (walls beside the route are
-        not in it)."""
-        if not self.fallen_back:
-            return i.dod.obstacle_m
-        return swept_obstacle_m(i.hits, i.beta, self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr))
+    def ahead_m(self, i: Inputs, om: Omega) -> float:
+        """[m] the nearest obstacle the stop contract stops short of (companion/onboard/ahead.py): in the swept
+        corridor r_body + E_tr about the direction of travel, whatever its shape (walls beside the route are not in
+        it); near rest, the nearest in view. E_tr: the larger of the measured and the one Ω budgets."""
+        half_width = self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr)
+        return stop_obstacle_m(i.hits, i.beta, i.ground_speed, half_width)
 
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""

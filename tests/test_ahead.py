@@ -1,0 +1,117 @@
+"""The nearest obstacle the stop contract stops short of (companion/onboard/ahead.py): the swept corridor
+r_body + E_tr about the direction of travel, whatever is in it, and near rest anything close in view — pure, and
+flown lock-step (the real daemon, the real SITL, MAVLink over UDP) down a corridor whose walls stand beside the route.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from companion.ground import false_alarms as fa
+from companion.ground.flights import Rig, fly_mission
+from companion.ground.worlds import column, turning_corridor
+from companion.onboard.ahead import TRAVEL_SPEED_M_S, stop_obstacle_m, swept_obstacle_m
+from companion.onboard.supervisor import Supervisor
+
+BIN = math.radians(5.0)
+OBSTACLE = "obstacle inside the stop distance"
+RAY_TOL_M = 0.01  # a bin's least range over its 20 rays may miss the surface's nearest point between two rays
+
+
+def test_near_rest_the_nearest_hit_in_any_direction_counts():
+    h = BIN / 2
+    beside = (math.radians(70.0), 1.2, h, True)  # 1.1 m off the line of travel
+    far = (0.0, 6.0, h, True)
+    assert stop_obstacle_m([beside, far], 0.0, 3.0, 0.6) == 6.0  # at speed: only what is in the swept corridor
+    for v in (0.0, TRAVEL_SPEED_M_S, math.nan):  # at rest, at the threshold, speed unknown
+        assert stop_obstacle_m([beside, far], 0.0, v, 0.6) == 1.2
+    assert stop_obstacle_m([], 0.0, 0.0, 0.6) == math.inf
+
+
+def _column_bins(cx: float, cy: float, radius: float, n_bins: int = 24, rays_per_bin: int = 20):
+    """A 5° sector sensor's bins (body bearing, least range in the bin) over ±60° looking at one column, by casting
+    rays from the origin; the bins that see it."""
+    out = []
+    for k in range(n_bins):
+        lo = -n_bins / 2 * BIN + k * BIN
+        best = math.inf
+        for a in np.linspace(lo, lo + BIN, rays_per_bin):
+            dx, dy = math.cos(a), math.sin(a)
+            along = dx * cx + dy * cy
+            miss2 = cx * cx + cy * cy - along * along
+            if along > 0 and miss2 <= radius * radius:
+                best = min(best, along - math.sqrt(radius * radius - miss2))
+        if math.isfinite(best):
+            out.append((lo + BIN / 2, best, BIN / 2, True))
+    return out
+
+
+@pytest.mark.parametrize("radius", [0.1, 0.3, 1.0])
+def test_a_column_whose_surface_enters_the_swept_corridor_is_held_for(radius):
+    """Every column of radius up to R_obst (1 m) whose surface enters the band r_body + E_tr about the line of
+    travel, seen by 5° bins, is in the swept corridor no farther than the nearest point of its surface inside the
+    band; one whose surface stays outside the band by more than a bin's width at the bins' ranges is not."""
+    w = 0.5
+    for x in np.arange(2.0, 10.01, 0.5):
+        for off in np.arange(-w - radius - 1.5, w + radius + 1.5, 0.05):
+            hits = _column_bins(x, off, radius)
+            if not hits:
+                continue
+            gap = abs(off) - radius  # the surface's distance from the line of travel
+            surface = [(x + radius * math.cos(t), off + radius * math.sin(t)) for t in np.linspace(0, 2 * math.pi, 721)]
+            got = swept_obstacle_m(hits, 0.0, w)
+            if gap <= w:  # no farther than the nearest point of its surface inside the band
+                near = min(math.hypot(px, py) for px, py in surface if abs(py) <= w + 1e-9)
+                assert got <= near + RAY_TOL_M, (x, off)
+            elif gap > w + max(r for _, r, _, _ in hits) * math.sin(BIN) + 1e-6:
+                assert got == math.inf, (x, off)
+
+
+# ------------------------------------------------------------------ lock-step: down a corridor, walls beside
+CRUISE_M_S = 4.0  # fast enough that the walls 2.5 m beside are within the stop distance's reach
+
+
+def _corridor_flight(columns=()) -> Rig:
+    """The governor (the Mambo, PX4, the 60° sector sensor read as bins) flying its mission at 4 m/s down a straight
+    corridor 5 m wide — its walls 2.5 m either side of the route — whose turn lies beyond the route's end and the
+    sensor's 10 m, with `columns` on the route."""
+    sc = fa.scenario_of("governor", "sector", "plain", 1)
+    sc["world"] = {"corridors": [turning_corridor(70.0, 15.0, 5.0)], "columns": list(columns)}
+    sc["route"].update(cruise_speed_m_s=CRUISE_M_S, waypoints=[[0.0, 0.0], [45.0, 0.0]])
+    rig = Rig(sc, "px4", config=fa.config_of("governor", sc["route"]["waypoints"]))
+    fly_mission(rig, 25.0, until=lambda r: bool(r.log.named("hold_trigger")) and r.sim.time_s > 3.0 +
+                r.log.named("hold_trigger")[0]["t"])
+    return rig
+
+
+def _band(monkeypatch):
+    """The negative control: the Hold judged against D_od's band (2·R_obst + E_tr + r_body), as before."""
+    monkeypatch.setattr(Supervisor, "ahead_m", lambda self, i, om: i.dod.obstacle_m)
+
+
+def test_the_governor_flies_a_corridor_past_its_walls_without_a_hold():
+    rig = _corridor_flight()
+    assert not rig.truth["collisions"]
+    assert [e for e in rig.log.named("hold_trigger") if e["cause"] == OBSTACLE] == []
+    end = rig.sim.truth()["pos"]
+    assert math.hypot(end[0] - 45.0, end[1]) < 1.5  # the route flown to its end
+    assert max(s["ground_speed"] or 0.0 for s in rig.log.states) > 3.0  # at speed, between the walls
+
+
+def test_negative_control_judged_against_the_band_the_corridor_walls_hold_the_governor(monkeypatch):
+    _band(monkeypatch)
+    rig = _corridor_flight()
+    holds = [e for e in rig.log.named("hold_trigger") if e["cause"] == OBSTACLE]
+    assert holds
+    assert rig.sim.truth()["pos"][0] < 40.0  # stopped short of the route's end
+
+
+def test_a_column_on_the_route_between_the_walls_is_held_for_without_contact():
+    rig = _corridor_flight([column(25.0, 0.0, 0.3, "column")])
+    assert not rig.truth["collisions"]
+    holds = [e for e in rig.log.named("hold_trigger") if e["cause"] == OBSTACLE]
+    assert holds
+    assert rig.sim.truth()["pos"][0] < 25.0 - 0.3
