@@ -2,8 +2,8 @@
 single-beam lidar (DISTANCE_SENSOR). Pure maths; `make_sensor` picks the scenario's `sensor.model`.
 
 Both are fixed to the airframe (tilted by `mount_pitch_deg`): they turn with the vehicle's heading and pitch
-with it. Each bin (the lidar has one) is built from three horizontal rays (its edges and centre) against the
-world, as the levelled sector sensor's are (sensors.py), plus **the ground**: the lowest ray each reading is
+with it. Each bin (the lidar has one) is built from horizontal rays across it (sensors.py `bin_rays`) against the
+world, as the levelled sector sensor's are, plus **the ground**: the lowest ray each reading is
 built from looks `v_fov_deg / 2` below the sensor's axis; once the vehicle pitches down far enough that this
 ray meets the ground (altitude −z, flat) within range, the ground is a surface of reflectivity
 `ground_reflectivity` at the ray's slant range. For a bin at azimuth φ off the axis and a nose-down pitch θ,
@@ -79,10 +79,6 @@ class BodySensor(RangeSensor):
         self.offsets = (np.arange(n) - (n - 1) / 2.0) * self.inc
         self.rng_faults = np.random.default_rng(seed + 15485863)  # dropouts and spurious returns
 
-    def rays(self) -> np.ndarray:
-        """The azimuths off the axis of every ray, as `_rays` casts them (left edges, centres, right edges)."""
-        return np.concatenate([self.offsets - 0.5 * self.inc, self.offsets, self.offsets + 0.5 * self.inc])
-
     def ground_ranges(self, rays: np.ndarray, alt: float, pitch: float) -> np.ndarray:
         """Slant range to flat ground along the lowest ray at each azimuth `rays` (rad off the axis), inf where
         that ray does not meet the ground within the nominal range. `pitch`: the vehicle's, nose up positive."""
@@ -94,9 +90,9 @@ class BodySensor(RangeSensor):
         return np.where((r <= self.cfg.max_range_m) & (alt > 0.0), r, np.inf)
 
     def surfaces(self, world, pos, yaw: float, pitch: float) -> tuple[np.ndarray, np.ndarray]:
-        """(3 × bins) range and reflectivity of the first surface, world or ground."""
+        """(rays × bins) range and reflectivity of the first surface, world or ground."""
         d3, rho3 = self._rays(world, pos, yaw)
-        g3 = self.ground_ranges(self.rays(), float(-pos[2]), pitch).reshape(3, self.n_used)
+        g3 = self.ground_ranges(self.rays(), float(-pos[2]), pitch)
         ground = g3 < d3
         return np.where(ground, g3, d3), np.where(ground, self.cfg.ground_reflectivity, rho3)
 
@@ -113,7 +109,7 @@ class BodySensor(RangeSensor):
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             m3 = np.where(np.isfinite(d3), margin(d3, rho3, alpha, cfg.max_range_m, cfg.rated_reflectivity), 0.0)
         det3 = m3 >= 1.0
-        rep3 = d3 * np.cos(self.rays().reshape(3, n)) if cfg.reports == "z_depth" else d3  # what a pixel reports
+        rep3 = d3 * np.cos(self.rays()) if cfg.reports == "z_depth" else d3  # what a pixel reports
         k = np.where(det3, rep3, np.inf).argmin(axis=0)
         d_det = rep3[k, np.arange(n)]
         d_det = np.where(det3[k, np.arange(n)], d_det, np.inf)  # the nearest detected return per bin

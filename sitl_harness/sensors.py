@@ -2,8 +2,8 @@
 
 The sensor is mounted level looking along the vehicle's heading (a gimbal-levelled or horizontally
 scanning sensor; the vehicle's roll/pitch do not tilt its rays). Its field of view is split into
-bins of `increment_deg`; each bin reports the nearest surface *detected* by three rays (its centre and
-both edges), with Gaussian noise.
+bins of `increment_deg`; each bin reports the nearest surface *detected* by rays across it, its edges included,
+at most `RAY_SPACING_DEG` apart (`bin_rays`), with Gaussian noise.
 
 Fog is a medium of extinction α (contracts/lidar.py: Koschmieder, the lidar equation). A ray's return
 from a surface of reflectivity ρ at range R is detected while its margin over the receiver's threshold,
@@ -50,6 +50,18 @@ from contracts.lidar import (BACKSCATTER_LENGTH_M, OVERLAP_M, QUALITY_FULL_MARGI
 
 UINT16_MAX = 65535
 N_BINS = 72  # OBSTACLE_DISTANCE.distances length
+# A bin reports the nearest return over its whole sector, as a depth camera's bin (the least depth of its pixels:
+# 848 px over 87° on a RealSense D435, ~0.1° each, Intel D400 datasheet 337029) or a scanning lidar's sector (a
+# LightWare SF45/B samples every 0.2°–1°, its manual) does: rays this far apart at most, so that nothing the worlds
+# hold (a pole of 0.1 m radius subtends 0.95° at 12 m) falls between two rays of a bin.
+RAY_SPACING_DEG = 0.5
+
+
+def bin_rays(offsets: np.ndarray, inc: float) -> np.ndarray:
+    """(rays × bins) azimuths [rad] of the rays each bin is built from: evenly across the bin, its two edges
+    included, at most `RAY_SPACING_DEG` apart (three at least: its edges and centre)."""
+    k = max(3, math.ceil(math.degrees(inc) / RAY_SPACING_DEG - 1e-9) + 1)
+    return offsets[None, :] + np.linspace(-0.5, 0.5, k)[:, None] * inc
 
 
 @dataclass
@@ -114,13 +126,17 @@ class RangeSensor:
         return extinction_for_range(self.visibility_m, REFERENCE_REFLECTIVITY, self.cfg.max_range_m,
                                     self.cfg.rated_reflectivity) if math.isfinite(self.visibility_m) else 0.0
 
+    def rays(self) -> np.ndarray:
+        """(rays × bins) azimuths off the axis of the rays each bin is built from (`bin_rays`)."""
+        return bin_rays(self.offsets, self.inc)
+
     def _rays(self, world, pos, yaw: float) -> tuple[np.ndarray, np.ndarray]:
-        """Per ray (3 × bins: left edges, centres, right edges): distance to the first surface within the
-        nominal range (inf if none) and its reflectivity."""
-        rays = np.concatenate([self.offsets - 0.5 * self.inc, self.offsets, self.offsets + 0.5 * self.inc])
-        d, rho = world.ray_cast(float(pos[0]), float(pos[1]), float(-pos[2]), yaw + rays, self.cfg.max_range_m,
+        """Per ray (rays × bins, `rays`): distance to the first surface within the nominal range (inf if none) and
+        its reflectivity."""
+        rays = self.rays()
+        d, rho = world.ray_cast(float(pos[0]), float(pos[1]), float(-pos[2]), yaw + rays.ravel(), self.cfg.max_range_m,
                                 reflectivity=True)
-        return d.reshape(3, self.n_used), rho.reshape(3, self.n_used)
+        return d.reshape(rays.shape), rho.reshape(rays.shape)
 
     def true_ranges(self, world, pos, yaw: float) -> np.ndarray:
         """Noise-free nearest surface per bin (inf if none within the nominal range), seen or not."""

@@ -296,7 +296,7 @@ def test_the_swept_corridor_takes_what_enters_it_whatever_its_shape():
 
 
 def test_offboard_in_a_stand_of_poles_falls_back_and_collides_no_more(monkeypatch):
-    """examples/campaign-clutter.yaml flight 1841 (offboard, the 450–500 mm quad on ArduPilot, a stand of poles beside
+    """examples/campaign-clutter.yaml flight 1981 (offboard, the 450–500 mm quad on ArduPilot, a stand of poles beside
     the route and one on it): several poles in view at once break the avoid contract's one obstacle at a time — said
     (an environment violation), the stop contract in force, no collision. Control: the beams made to tell only one
     obstacle apart (the rule blind) — the swerve round the pole on the route meets the stand, a collision."""
@@ -306,9 +306,9 @@ def test_offboard_in_a_stand_of_poles_falls_back_and_collides_no_more(monkeypatc
     from companion.onboard import cycle, guidance
 
     spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "campaign-clutter.yaml")
-    s, arm = flight_of(spec, 1841)
+    s, arm = flight_of(spec, 1981)
     assert arm == "offboard" and s["world_family"] == "cluster"
-    row, rig = fly(spec, 1841, keep_rig=True)
+    row, rig = fly(spec, 1981, keep_rig=True)
     assert not row["collided"] and row["min_clearance_m"] > 0.5
     assert any("obstacles in view" in e["reason"] for e in rig.log.named("contract_in_force"))
     assert any(v.get("guarantee") == "one obstacle in view at a time" for v in rig.log.named("violation_start"))
@@ -318,5 +318,5 @@ def test_offboard_in_a_stand_of_poles_falls_back_and_collides_no_more(monkeypatc
         return discs, width, min(len(discs), 1)
 
     monkeypatch.setattr(cycle, "obstacle_discs", one_apart)
-    old = fly(spec, 1841)
+    old = fly(spec, 1981)
     assert old["collided"]  # the control must fail

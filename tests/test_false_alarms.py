@@ -12,6 +12,7 @@ from companion.onboard.config import SensorConfig, config_from_dict
 from companion.onboard.detection_range import DetectionRange
 from companion.onboard.mavlink_in import MavlinkIn, bins_scan
 from companion.onboard.samples import Implausible, Scan
+from sitl_harness.sensors import bin_rays
 from sitl_harness.world import Column, World
 
 SENSOR = mav.MAVLink(None, srcSystem=1, srcComponent=158)
@@ -101,10 +102,10 @@ OFFSETS = (np.arange(17) - 8) * INC  # a RealSense-class camera's 17 bins of 5°
 
 
 def frame(world, x, y, yaw, stated=10.0, dropped=()):
-    """One frame of the camera's bins from (x, y, yaw): the nearest surface of each bin's three rays (its edges and
-    centre), as the SITL's model builds it, without noise; `dropped`: bins that report nothing (UINT16_MAX)."""
-    rays = np.concatenate([OFFSETS - INC / 2, OFFSETS, OFFSETS + INC / 2])
-    r = world.ray_cast(x, y, 2.0, yaw + rays, stated).reshape(3, 17).min(axis=0)
+    """One frame of the camera's bins from (x, y, yaw): the nearest surface of each bin's rays (`bin_rays`), as the
+    SITL's model builds it, without noise; `dropped`: bins that report nothing (UINT16_MAX)."""
+    rays = bin_rays(OFFSETS, INC)
+    r = world.ray_cast(x, y, 2.0, yaw + rays.ravel(), stated).reshape(rays.shape).min(axis=0)
     keep = np.array([k not in dropped for k in range(17)])
     return OFFSETS[keep], r[keep]
 
@@ -305,8 +306,8 @@ def test_negative_control_axis_depth_read_as_range_puts_the_side_of_a_wall_neare
 
 
 def test_two_poles_seen_as_one_wide_run_break_the_environment_assumption_truly(monkeypatch):
-    """examples/campaign-clutter.yaml flight 497 (offboard, the Mambo, a stand of poles beside the route and one on
-    it): braking for the pole on the route, a run of bins spans it and a pole of the stand behind — said as "no
+    """examples/campaign-clutter.yaml flight 529 (offboard, the 450–500 mm quad on PX4, a stand of poles beside the
+    route and one on it): a run of bins spans the pole on the route and a pole of the stand behind it — said as "no
     obstacle wider than R_obst". Neither pole is wide, but two are within the stated range: the avoid contract's
     assumption (one obstacle no wider than R_obst at a time) is truly broken, and the observer says so. Control: an
     observer that judges that guarantee by width alone calls it unfounded."""
@@ -316,12 +317,12 @@ def test_two_poles_seen_as_one_wide_run_break_the_environment_assumption_truly(m
     from companion.ground.campaign import fly, load_spec
 
     spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "campaign-clutter.yaml")
-    row, rig = fly(spec, 497, keep_rig=True)
+    row, rig = fly(spec, 529, keep_rig=True)
     wide = [v["t"] for v in rig.log.named("violation_start") if v["guarantee"] == "no obstacle wider than R_obst"]
     assert wide
     assert not any(a["kind"] == "violation (environment)" for a in row["unfounded_alarms"])
 
     monkeypatch.setattr(fa.Observer, "several_in_view", lambda self, tr, reach: False)
-    old = fly(spec, 497)
+    old = fly(spec, 529)
     assert any(a["kind"] == "violation (environment)" and a["t"] == pytest.approx(wide[0])
                for a in old["unfounded_alarms"])
