@@ -294,6 +294,12 @@ class DetectionConfig(_Strict):
     # the sensor's backscatter length L_bs [m]: a shot sees the medium with p = 1 − e^(−α·L_bs); measure it on one
     # fog flight. Higher is weaker: a larger L_bs reads a thinner fog from the same backscatter
     backscatter_length_m: Bounded(0.01, 10.0) = BACKSCATTER_LENGTH_M
+    # the sensors' range noise, 1 σ = range_noise_m + range_noise_rel × range: a target is first seen up to three of
+    # it short of the stated range by noise alone, which is no evidence of a shorter one. TFmini Plus datasheet:
+    # ±5 cm to 5 m, ±1 % to 12 m; a RealSense D435 < 2 % at 2 m. Higher is weaker: a larger shortfall passes as
+    # on time (lower: a noisy sensor's first sightings read as a shorter range — slower, never less safe)
+    range_noise_m: Bounded(0.0, 0.5) = 0.03
+    range_noise_rel: Bounded(0.0, 0.05) = 0.01
 
 
 class Timeouts(_Strict):
@@ -521,6 +527,8 @@ WEAKER = (
     ("thrust", "tau_s", "higher", "a thrust loss shows later"),
     ("detection", "reference_reflectivity", "higher", "a darker obstacle than this is seen later than D_od"),
     ("detection", "backscatter_length_m", "higher", "the same backscatter reads as thinner fog"),
+    ("detection", "range_noise_m", "higher", "a larger range shortfall at first sight passes as noise"),
+    ("detection", "range_noise_rel", "higher", "a larger range shortfall at first sight passes as noise"),
 )
 
 

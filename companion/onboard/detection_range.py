@@ -27,7 +27,8 @@ of evidence and turns each into an upper bound on the range at which the referen
    flat in clear air, whatever the target's reflectivity (it cancels). The margin is read from the quality
    with the driver's normalisation (`quality_full_margin`: quality 100 at that margin, 0 at threshold);
 3. first detections — a static target (placed in the local frame from position and heading) first seen
-   inside the stated range, away from the field of view's edges, where one of the sensor's frames of the last
+   inside the stated range by more than its range noise allows (`NOISE_SIGMAS` σ of the configured noise),
+   away from the field of view's edges, where one of the sensor's frames of the last
    `look_back_s` saw through its place (the bin looking at it from where that frame was taken reported free,
    or a return beyond it, and that frame's stated range reached it), was not detectable farther: D_od ≤ that
    distance. A place no recent frame saw through is no evidence: a target behind a nearer one (occluded), outside
@@ -74,6 +75,7 @@ from contracts.window import WindowMax
 from .config import SensorConfig
 from .samples import Scan
 
+NOISE_SIGMAS = 3.0  # a first sighting this many σ of range noise short of the stated range is still on time
 FULL_WINDOW_SHOTS_PER_S = 160.0  # shots per second behind a confidence of 1 (a 12-bin sensor at 20 Hz gives 240)
 
 
@@ -94,7 +96,9 @@ class DetectionRangeParams:
     trend_samples: int = 5  # quality samples of one target before its trend counts
     trend_span_m: float = 1.0  # ... spanning at least this much range
     track_m: float = 1.0  # a hit within this (+ the bin's width at its range) of a tracked point: the same target
-    first_tolerance_m: float = 0.3  # first seen this much inside the stated range (+ one frame's travel): late
+    first_tolerance_m: float = 0.3  # first seen this much inside the stated range (+ one frame's travel ...
+    range_noise_m: float = 0.03  # ... + NOISE_SIGMAS of the range noise σ = range_noise_m + range_noise_rel · r): late
+    range_noise_rel: float = 0.01
     look_back_s: float = 0.5  # ... and a frame this recent saw through its place
     fresh_s: float = 0.5  # a sensor silent longer adds nothing (staleness is the other estimator's)
 
@@ -103,7 +107,8 @@ class DetectionRangeParams:
         """The parameters a config's `detection:` section sets (companion/onboard/config.py DetectionConfig)."""
         return cls(reference_reflectivity=detection.reference_reflectivity,
                    rated_reflectivity=detection.rated_reflectivity,
-                   backscatter_length_m=detection.backscatter_length_m)
+                   backscatter_length_m=detection.backscatter_length_m, range_noise_m=detection.range_noise_m,
+                   range_noise_rel=detection.range_noise_rel)
 
 
 @dataclass(frozen=True, slots=True)
@@ -322,13 +327,14 @@ class DetectionRange:
             same = [f.t for f in self._frames if f.sensor == i]
             if len(same) > 1:
                 period = max(same[-1] - same[-2], 1e-3)
-        tol = p.first_tolerance_m + self._speed * period
         for x, y, b, r in placed:
             if r < p.near_m:
                 continue  # the medium's returns are the backscatter evidence
             known = any(math.hypot(x - tr.x, y - tr.y) <= p.track_m + r * inc for tr in self._tracks)
             self._track(t, x, y, r, inc)
             edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
+            # a target at the stated range reads up to NOISE_SIGMAS σ(r) short of it by noise alone
+            tol = p.first_tolerance_m + self._speed * period + NOISE_SIGMAS * (p.range_noise_m + p.range_noise_rel * r)
             if not known and not edge and r < stated - tol and self._seen_through(i, x, y, tol):
                 self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))
 
