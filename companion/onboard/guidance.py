@@ -26,6 +26,7 @@ import numpy as np
 from contracts.geometry import wrap
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan, load_solver
 
+PATH_ON_M = 100.0  # [m] a pass's path goes on straight this far beyond its end (`path_ahead`: past any stop)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
@@ -190,7 +191,8 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
     return tuple(np.linspace(lo, hi, n).tolist())
 
 
-def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float, int]:
+def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf
+                   ) -> tuple[list[Disc], float, int]:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
     Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
@@ -199,13 +201,15 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
     somewhere in its field of view: every disc of radius R_obst touching such a point lies within
     2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
     Returns the discs, the widest obstacle radius observed (0 if none measurable) and how many obstacles the beams
-    tell apart (one per run of adjacent bins, one per single beam's hit).
+    tell apart (one per run of adjacent bins, one per single beam's hit). `widest`: a run whose measured half-width
+    is above it gets no disc (its width and count are still returned).
     """
     if not hits:  # nothing seen (most cycles): no disc
         return [], 0.0, 0
     p = np.asarray(p, float)
     discs: list[Disc] = []
-    widest = 0.0
+    seen = 0.0  # the widest half-width measured
+    narrow: list[bool] = []  # each run's disc is kept (no wider than `widest`)
     bins = sorted((b, r, h) for b, r, h, is_bins in hits if is_bins)
     singles = [(b, r, h) for b, r, h, is_bins in hits if not is_bins]
     clusters: list[list] = []
@@ -226,11 +230,12 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
         radius = max(r_obst, w2)
         if len(cl) > 1:
-            widest = max(widest, w2 - pad)
+            seen = max(seen, w2 - pad)
         faces.append((pts, pad))
         centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
         grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
         discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
+        narrow.append(len(cl) == 1 or w2 - pad <= widest)
     px, py = float(p[0]), float(p[1])
     for b, r, h in singles:
         n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
@@ -243,8 +248,10 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         if len(g) > 1:  # one obstacle seen as several runs: as wide as all their hits
             pts = np.vstack([faces[k][0] for k in g])
             spread = max(float(np.max(np.hypot(*(pts - q).T))) for q in pts)
-            widest = max(widest, spread / 2 - max(faces[k][1] for k in g))
-    return discs, widest, len(groups) + len(singles)
+            seen = max(seen, spread / 2 - max(faces[k][1] for k in g))
+    if not all(narrow):
+        discs = [d for k, d in enumerate(discs) if k >= len(narrow) or narrow[k]]
+    return discs, seen, len(groups) + len(singles)
 
 
 def _apart(discs: list[Disc]) -> int:
@@ -264,6 +271,12 @@ def _apart(discs: list[Disc]) -> int:
     for k in range(len(discs)):
         groups.setdefault(find(k), []).append(k)
     return list(groups.values())
+
+
+def new_obstacles(discs, known) -> list[Disc]:
+    """The discs of obstacles not among `known`: whose centre lies within no known disc (a disc that moved as its
+    obstacle was seen better is the same obstacle)."""
+    return [d for d in discs if not any(math.hypot(d.x - k.x, d.y - k.y) <= max(d.r, k.r) for k in known)]
 
 
 def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:
@@ -421,6 +434,7 @@ class OffboardGuidance:
     lead_s: tuple[float, float] = PLAN_LEAD_S  # (0, 0): plans start at the state measured at the request
     _pending: tuple | None = None  # an answer that starts later than now (asked for while braking)
     _asked_t: float = 0.0
+    _asked_discs: tuple = ()  # the discs the last plan asked for goes round
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
 
     def start(self, p, v) -> None:
@@ -429,6 +443,23 @@ class OffboardGuidance:
         self.plan = None
         self.epoch += 1
         self._rejoin_from(p, v)
+
+    def path_ahead(self, t: float) -> tuple[tuple[float, float], ...]:
+        """The points the plan in force still flies through from its reference at t on: a pass round the keep-out
+        discs, then straight on along its last velocity (a point PATH_ON_M beyond); a stop, or the braking while a
+        plan is computed, up to where it rests. () where none is in force (cruising, the plan flown out: the line of
+        travel is the path)."""
+        plan = self.plan
+        tau = self._tau(t)
+        if plan is None or tau >= plan.t[-1]:
+            return ()
+        k = int(np.searchsorted(plan.t, tau, side="right"))
+        pts = [plan.sample(tau)[0], *plan.p[k:]]
+        v_end = plan.v[-1]
+        speed = float(np.hypot(*v_end))
+        if speed > 0.1:
+            pts.append(plan.p[-1] + v_end / speed * PATH_ON_M)
+        return tuple((float(x), float(y)) for x, y in pts)
 
     def _rejoin_from(self, p, v) -> None:
         """Start the cruise reference where the vehicle is, beside the route if it is beside it."""
@@ -560,14 +591,15 @@ class OffboardGuidance:
         else:
             drift = float(np.hypot(*(self.plan.sample(self._tau(t))[0] - p)))
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
-        if (since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
+        unknown = bool(new_obstacles(discs, self._asked_discs))  # the plan goes round what it was asked to: at once
+        if (since > REPLAN_S or urgent and since > REPLAN_MIN_S or unknown) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
                 t_req = t + self._lead()
                 p_req, v_req, _ = self.plan.sample(self._tau(t_req))
             _, u = self.route.point(self.route.project(p_req))
             warm = self.plan if self.plan.kind in ("pass", "stop") else None
-            self.plan_t_try, self._asked_t = t_req, t
+            self.plan_t_try, self._asked_t, self._asked_discs = t_req, t, tuple(discs)
             self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
                                  list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
                                  warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)

@@ -228,6 +228,10 @@ class OffboardController:
         if self.state in FINISHED:
             self.state = S.OFF
 
+    def path_ahead(self, t: float) -> tuple:
+        """The points the plan in force still flies through while flying the route (guidance's), () where none is."""
+        return self.guidance.path_ahead(t) if self.state == S.FLYING and self.guidance is not None else ()
+
     def follow(self, guidance: OffboardGuidance) -> None:
         """The route to fly from the next entry on (a route downloaded anew); the old guidance's planner ends."""
         if self.guidance is not None:

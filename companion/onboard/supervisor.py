@@ -29,9 +29,19 @@ from contracts.table import ContractTable, Omega
 from contracts.window import WindowMax
 
 from .authority import GUARANTEE_ANSWERED, Late
-from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, fallback_omega, swept_obstacle_m
+from .contract_in_force import (
+    DEAD_END,
+    WIDE_TOL_M,
+    ContractInForce,
+    InForce,
+    fallback_omega,
+    path_obstacle_m,
+    swept_obstacle_m,
+    swerve_discs,
+    uncovered,
+)
 from .estimators import DodEstimate
-from .guidance import inflated
+from .guidance import inflated, new_obstacles
 from .modes import Mode, mode_of
 from .overshoot import DEFAULT as DEFAULT_OVERSHOOT
 from .overshoot import OvershootBudget, OvershootWatch, ramped_out
@@ -94,6 +104,8 @@ class Inputs:
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
     beta: float = 0.0  # the direction of travel in the body frame [rad] (along the heading below 1 m/s)
+    pose: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the vehicle's (x, y, yaw), local NED, the hits are seen from
+    path: tuple = ()  # the points (x, y) the plan in force still flies through, () where none is (offboard's guidance)
     late_s: float = 0.0  # the daemon's own worst lateness, beyond t_react's budget, of the last 10 s (Timeliness)
     late_unbudgeted_s: float = 0.0  # this cycle's lateness where it exceeds what was counted before it, else 0
     late_within_s: float = 0.0  # this cycle's lateness inside the jitter allowance, to be said (an event), else 0
@@ -277,6 +289,7 @@ class Supervisor:
         self.mode = mode_of(mode)
         self.contract = self.configured = contract  # `contract`: the one in force this cycle
         self.fallback = fallback if contract == "avoid" else None
+        self._planned_round: tuple = ()  # the discs guidance was given to swerve round under the stop contract
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -527,8 +540,10 @@ class Supervisor:
         virtual obstacle's E_tr and the vehicle's radius)."""
         d = self._decide(i)
         e_tr_virtual = self.e_tr_virtual(i, d)
-        # under the stop contract guidance plans round nothing: it cruises the route, and stops
-        discs = () if self.fallen_back else i.discs
+        # under the stop contract guidance plans round what is no wider than R_obst where the swerve stays in view,
+        # else round nothing: it cruises the route, and stops
+        discs = i.discs if not self.fallen_back else swerve_discs(i) if self.swerves else ()
+        self._planned_round = tuple(discs) if self.swerves else ()
         return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
                         e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, self.table.vehicle.r_body_m)),
                         tuple(d.hold_causes))
@@ -617,6 +632,12 @@ class Supervisor:
     def fallen_back(self) -> bool:
         """Offboard flies the stop contract this cycle (the avoid contract's assumptions are not there)."""
         return self.contract != self.configured
+
+    @property
+    def swerves(self) -> bool:
+        """Fallen back for the world with the pass in view: offboard still swerves round what is no wider than R_obst
+        (companion/onboard/contract_in_force.py)."""
+        return self.fallen_back and self.fallback.now.swerve
 
     def _contract_in_force(self, i: Inputs) -> InForce | None:
         """The contract in force this cycle (`self.contract`), judged by the fallback on the avoid contract's Ω at
@@ -846,10 +867,15 @@ class Supervisor:
     def _ahead(self, i: Inputs, om: Omega) -> float:
         """[m] the nearest obstacle the stop-distance Hold judges: near the path (D_od's estimate); fallen back from
         the avoid contract, in the swept corridor r_body + E_tr itself, whatever its shape (walls beside the route are
-        not in it)."""
+        not in it) — about the path the plan in force flies where offboard still swerves, else the line of travel."""
         if not self.fallen_back:
             return i.dod.obstacle_m
-        return swept_obstacle_m(i.hits, i.beta, self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr))
+        half_width = self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr)
+        if not self.swerves:
+            return swept_obstacle_m(i.hits, i.beta, half_width)
+        # an obstacle guidance is given for the first time it plans round this cycle: the next judges that plan
+        hits = uncovered(i.hits, i.pose, new_obstacles(swerve_discs(i), self._planned_round))
+        return path_obstacle_m(hits, i.pose, i.path, half_width) if i.path else swept_obstacle_m(hits, i.beta, half_width)
 
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""
