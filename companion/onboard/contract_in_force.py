@@ -297,6 +297,15 @@ def uncovered(hits, pose, discs) -> tuple:
         for d in discs))
 
 
+def wall_discs(i, discs) -> tuple[Disc, ...]:
+    """What a plan round `discs` keeps out of too: each bin's hit outside them (a wall's, a facade's) as the disc of
+    its lateral uncertainty about the point at its sector's centre (range × tan of the half-bin, plus 5 cm, as
+    `obstacle_discs` pads a run)."""
+    x, y, yaw = i.pose
+    return tuple(Disc(x + r * math.cos(yaw + b), y + r * math.sin(yaw + b), r * math.tan(h) + 0.05)
+                 for b, r, h, bins in uncovered(i.hits, i.pose, discs) if bins)
+
+
 def swerve_discs(i) -> tuple[Disc, ...]:
     """The discs guidance plans round under the stop contract where it still swerves: those of the runs of bins no
     wider than R_obst (`WIDE_TOL_M` as the rule judges) and of single beams (companion/onboard/guidance.py

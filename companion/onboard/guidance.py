@@ -26,7 +26,9 @@ import numpy as np
 from contracts.geometry import wrap
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan, load_solver
 
-PATH_ON_M = 100.0  # [m] a pass's path goes on straight this far beyond its end (`path_ahead`: past any stop)
+RANGE_TOL_M = 0.1  # [m] a bin's range is good to this (3 σ of the range noise the sensors are flown with)
+PATH_AHEAD_M = 40.0  # [m] the path ahead (`path_ahead`) reaches this far along the route: past any stopping distance
+PATH_STEP_M = 0.5  # [m] … in steps of this (a corner's arc)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
@@ -201,8 +203,8 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
     somewhere in its field of view: every disc of radius R_obst touching such a point lies within
     2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
     Returns the discs, the widest obstacle radius observed (0 if none measurable) and how many obstacles the beams
-    tell apart (one per run of adjacent bins, one per single beam's hit). `widest`: a run whose measured half-width
-    is above it gets no disc (its width and count are still returned).
+    tell apart (one per run of adjacent bins, one per single beam's hit). `widest`: a run whose measured half-width,
+    or depth, is above it gets no disc (its width and count are still returned).
     """
     if not hits:  # nothing seen (most cycles): no disc
         return [], 0.0, 0
@@ -235,7 +237,11 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
         centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
         grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
         discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
-        narrow.append(len(cl) == 1 or w2 - pad <= widest)
+        # a face no wider than `widest` is no deeper either (what is seen of a disc lies within its radius of the
+        # nearest point seen; a bin's range is its sector's nearest return, good to the range noise): a run deeper
+        # than that is a wall seen along its length
+        depth = max(r for _, r, _ in cl) - r_near - RANGE_TOL_M
+        narrow.append(len(cl) == 1 or max(w2 - pad, depth) <= widest)
     px, py = float(p[0]), float(p[1])
     for b, r, h in singles:
         n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
@@ -435,6 +441,7 @@ class OffboardGuidance:
     _pending: tuple | None = None  # an answer that starts later than now (asked for while braking)
     _asked_t: float = 0.0
     _asked_discs: tuple = ()  # the discs the last plan asked for goes round
+    _walls: tuple = ()  # this cycle's discs a plan keeps out of too (`step`)
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
 
     def start(self, p, v) -> None:
@@ -445,21 +452,24 @@ class OffboardGuidance:
         self._rejoin_from(p, v)
 
     def path_ahead(self, t: float) -> tuple[tuple[float, float], ...]:
-        """The points the plan in force still flies through from its reference at t on: a pass round the keep-out
-        discs, then straight on along its last velocity (a point PATH_ON_M beyond); a stop, or the braking while a
-        plan is computed, up to where it rests. () where none is in force (cruising, the plan flown out: the line of
-        travel is the path)."""
-        plan = self.plan
-        tau = self._tau(t)
+        """The points the setpoints ahead fly through from their reference at t on: the plan in force (a pass round
+        the keep-out discs, then the route from where it ends; a stop, or the braking while a plan is computed, up to
+        where it rests), else the route from the cruise reference — each up to PATH_AHEAD_M along the route, or its
+        end (where the reference rests)."""
+        plan, tau = self.plan, self._tau(t)
         if plan is None or tau >= plan.t[-1]:
-            return ()
+            return self._route_from(self.s_ref)
         k = int(np.searchsorted(plan.t, tau, side="right"))
-        pts = [plan.sample(tau)[0], *plan.p[k:]]
-        v_end = plan.v[-1]
-        speed = float(np.hypot(*v_end))
-        if speed > 0.1:
-            pts.append(plan.p[-1] + v_end / speed * PATH_ON_M)
-        return tuple((float(x), float(y)) for x, y in pts)
+        pts = tuple((float(x), float(y)) for x, y in (plan.sample(tau)[0], *plan.p[k:]))
+        if float(np.hypot(*plan.v[-1])) <= 0.1:
+            return pts
+        return pts + self._route_from(self.route.project(plan.p[-1]))
+
+    def _route_from(self, s0: float) -> tuple[tuple[float, float], ...]:
+        """Points of the route from along-track s0 on, every PATH_STEP_M, up to PATH_AHEAD_M or its end."""
+        s1 = min(s0 + PATH_AHEAD_M, self.route.length)
+        return tuple((float(q[0]), float(q[1])) for q in
+                     (self.route.point(s)[0] for s in (*np.arange(s0, s1, PATH_STEP_M), s1)))
 
     def _rejoin_from(self, p, v) -> None:
         """Start the cruise reference where the vehicle is, beside the route if it is beside it."""
@@ -469,9 +479,11 @@ class OffboardGuidance:
         self.v_ref = max(float(np.asarray(v) @ u), 0.0)
 
     def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc],
-             yaw: float | None = None) -> Setpoint:
+             yaw: float | None = None, walls: tuple[Disc, ...] = ()) -> Setpoint:
         """One cycle: the setpoint for now (t), given the vehicle's state (`yaw`: its measured heading,
-        if known) and Ω = (v_max, a_max)."""
+        if known) and Ω = (v_max, a_max). `walls`: keep-out discs a plan round `discs` must also keep out of,
+        which are never a reason to plan (the hit points of what is wider than R_obst, under the stop contract)."""
+        self._walls = tuple(walls)
         p, v = np.asarray(p, float), np.asarray(v, float)
         self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
         z = -self.route.altitude_m
@@ -584,7 +596,8 @@ class OffboardGuidance:
         since = t - max(self.plan_t, self.plan_t_try)
         urgent = False
         if self.plan is None:  # no plan yet: start braking now (the slower choice)
-            bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, discs, self.planner.n)
+            bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, [*discs, *self._walls],
+                                           self.planner.n)
             kind = "brake" if self.planner_failed else "await"  # a planner that fails is not awaited
             self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
             self.plan_t, self.plan_held, self.plan_omega, since = t, 0.0, omega, math.inf
@@ -601,7 +614,8 @@ class OffboardGuidance:
             warm = self.plan if self.plan.kind in ("pass", "stop") else None
             self.plan_t_try, self._asked_t, self._asked_discs = t_req, t, tuple(discs)
             self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
-                                 list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 [*discs, *self._walls], v_max=v_max, a_max=a_max,
+                                 v_cruise=self._pass_speed(discs, v_max, a_max),
                                  warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)
             self._take(t, self.planning.poll())
         return self._follow(t, dt, z, v_max)

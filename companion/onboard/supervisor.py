@@ -39,6 +39,7 @@ from .contract_in_force import (
     swept_obstacle_m,
     swerve_discs,
     uncovered,
+    wall_discs,
 )
 from .estimators import DodEstimate
 from .guidance import inflated, new_obstacles
@@ -144,6 +145,7 @@ class Decision:
     e_tr_virtual: float = 0.0  # E_tr of the virtual obstacle (Figure 13): measured, or E_tr_pred flown if larger
     discs: tuple[Disc, ...] = ()  # the keep-out discs: the obstacles grown by E_tr + r_body
     hold_causes: tuple[Cause, ...] = ()  # why it holds this cycle (fresh causes)
+    walls: tuple[Disc, ...] = ()  # keep-out discs a plan round `discs` keeps out of too (grown as they are)
 
 
 class ContractSpeed:
@@ -544,9 +546,11 @@ class Supervisor:
         # else round nothing: it cruises the route, and stops
         discs = i.discs if not self.fallen_back else swerve_discs(i) if self.swerves else ()
         self._planned_round = tuple(discs) if self.swerves else ()
+        walls = wall_discs(i, discs) if self.swerves else ()
+        r_body = self.table.vehicle.r_body_m
         return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
-                        e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, self.table.vehicle.r_body_m)),
-                        tuple(d.hold_causes))
+                        e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, r_body)), tuple(d.hold_causes),
+                        tuple(inflated(list(walls), e_tr_virtual, r_body)))
 
     def _decide(self, i: Inputs) -> _Draft:
         """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still
