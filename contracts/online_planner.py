@@ -85,6 +85,24 @@ def pass_sides(local: list[Disc], v0, a_max: float) -> tuple[float, float]:
     return (1.0, -1.0) if abs(up - drift) <= abs(down - drift) else (-1.0, 1.0)
 
 
+def between_sides(local: list[Disc]) -> np.ndarray | None:
+    """Per disc, the side to pass it on (+1: the route frame's +y) to go through the gap between the discs either
+    side of the route line (each passed on the route line's side), or None where there is no such gap: discs on one
+    side only, one across the line, or the two sides' discs overlapping across it."""
+    left = [d.y - d.r for d in local if d.y > 0.0]
+    right = [d.y + d.r for d in local if d.y < 0.0]
+    if not left or not right or len(left) + len(right) < len(local) or min(left) <= max(right):
+        return None
+    return np.array([-1.0 if d.y > 0.0 else 1.0 for d in local])
+
+
+def _side_name(side) -> str:
+    """A pass attempt's side in the planner's notes: +, -, between (one side per disc) or none."""
+    if np.ndim(side):
+        return " between"
+    return "+" if side > 0 else "-" if side < 0 else ""
+
+
 def admitted(discs: list[Disc], p0, gap: float) -> tuple[list[Disc], list[str]]:
     """The discs a plan starting at `p0` must keep out of (paper, Figures 13–16: the vehicle may enter
     the virtual obstacle by up to E_tr and must still avoid the real one). A disc that already holds
@@ -501,6 +519,9 @@ class AvoidancePlanner:
         rejected = 0
         notes = []
         attempts = [("pass", side, None) for side in pass_sides(local, vr0, a_max)] + [("stop", 0.0, None)]
+        sides = between_sides(local)
+        if sides is not None:  # a gap between what lies either side of the route line: through it first
+            attempts.insert(0, ("pass", sides, None))
         if warm is not None and warm.kind in ("pass", "stop"):
             h[warm.kind] = max(h[warm.kind], warm.t[-1] - elapsed)
             tw = h[warm.kind] / self.n
@@ -518,7 +539,7 @@ class AvoidancePlanner:
             res = self._scp(kind, side, pr0, vr0, keep_out, v_max, a_max, v_cruise, ts, guess)
             total += res[-1]
             if res[0] is None:
-                notes.append(f"{kind}{'+' if side > 0 else '-' if side < 0 else ''}: {res[1]}")
+                notes.append(f"{kind}{_side_name(side)}: {res[1]}")
                 continue
             p, v, a, why, ok, clear = res[:6]
             if ok:
@@ -586,7 +607,7 @@ class AvoidancePlanner:
             guess = p0[None, :] + v0[None, :] * tk[:, None]
         centres = np.array([[d.x, d.y] for d in discs]).reshape(-1, 2)
         radii = np.array([d.r for d in discs])
-        lift = side * (radii + inflate)[:, None] if kind == "pass" else np.zeros((len(discs), 1))
+        lift = np.reshape(side * (radii + inflate), (-1, 1)) if kind == "pass" else np.zeros((len(discs), 1))
         solves, sol = 0, None
         p = v = a = None
         gv = np.vstack([v0, np.diff(guess, axis=0) / ts])  # the guess's velocities, then its accelerations

@@ -56,6 +56,8 @@ LAG_BUDGET_DEG = 8.0
 WIDE_TOL_M = 0.05  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
 MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)
 AVOID, STOP = "avoid", "stop"
+E_SWERVE_M = 0.5  # [m] the tracking error the swerve under the stop contract is flown at (`swerve_omega`) …
+SWERVE_MIN_M_S = 1.0  # [m/s] … but not slower than this for it
 DEAD_END = "no path the contract can prove: stopped"
 
 
@@ -226,6 +228,27 @@ def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: 
     avoid = table.omega(d_od, r, e, thr, contract=AVOID, t_silent=t_silent)
     return om if om.v_max <= avoid.v_max else replace(avoid, contract=STOP, reason=f"{avoid.reason} (the avoid "
                                                                                     "contract's, lower)")
+
+
+def swerve_omega(table: ContractTable, om: Omega, i, e_tr_m: float = E_SWERVE_M) -> Omega:
+    """Ω for the swerve under the stop contract: the stop contract's `om`, its speed lowered (never raised: the stop
+    contract holds at any lower speed) to the highest at which the controller contract predicts a tracking error of
+    at most `e_tr_m` (E_tr_pred, Figure 12, the larger of offboard's and the brake's surfaces at Ω's tilt), never
+    below SWERVE_MIN_M_S. The pass between walls needs r_body + E_tr either side of its path: at the stop contract's
+    own speed E_tr_pred is up to 1.3 m, which closes a 3 m doorway or a corridor beside a column. Its E_tr: the
+    measured error or E_tr_pred at the lowered speed, the larger. `i`: the supervisor's inputs."""
+    def e_pred(v: float) -> float:
+        e = max(table.e_tr_pred(v, om.tilt, i.thrust_ratio, s) for s in (AVOID, "brake"))
+        return e if math.isfinite(e) else math.inf
+
+    if om.v_max <= SWERVE_MIN_M_S or e_pred(om.v_max) <= e_tr_m:
+        return om
+    lo, hi = SWERVE_MIN_M_S, om.v_max  # E_tr_pred does not decrease with the speed (the table's monotonicity)
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if e_pred(mid) <= e_tr_m else (lo, mid)
+    return replace(om, v_max=lo, gamma=lo - om.v_safe, e_tr=max(i.e_tr_measured, e_pred(lo)),
+                   reason=f"{om.reason}; swerving: E_tr_pred ≤ {e_tr_m:g} m")
 
 
 def swept_obstacle_m(hits, beta: float, half_width_m: float) -> float:

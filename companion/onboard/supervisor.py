@@ -38,6 +38,7 @@ from .contract_in_force import (
     path_obstacle_m,
     swept_obstacle_m,
     swerve_discs,
+    swerve_omega,
     uncovered,
     wall_discs,
 )
@@ -507,13 +508,14 @@ class Supervisor:
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
         key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s, self.e_surface,
-               self.contract)
+               self.contract, self.swerves)
         om = self._omega_at.get(key)
         if om is None:
             if len(self._omega_at) >= 6:  # this cycle's few lookups (with and without the brake, the ramp, fallen back)
                 self._omega_at.clear()
             if self.fallen_back:
-                om = self._omega_at[key] = fallback_omega(self.table, d_od, i, self.t_cmd, self.loop_dt)
+                om = fallback_omega(self.table, d_od, i, self.t_cmd, self.loop_dt)
+                om = self._omega_at[key] = swerve_omega(self.table, om, i) if self.swerves else om
             else:
                 om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
                                                             a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s,
