@@ -159,7 +159,8 @@ class ContractInForce:
         if self.now.contract == STOP:
             self._clear_since = i.t if self._clear_since is None else self._clear_since
             if i.t - self._clear_since < self.dwell_s:
-                return self._say(InForce(STOP, self.now.reason, swerve=in_view))
+                # (the swerve goes on only for a breach of the world: a stretch the view broke stays straight)
+                return self._say(InForce(STOP, self.now.reason, swerve=self.now.swerve and in_view))
         return self._say(InForce(AVOID, "its assumptions hold: one obstacle no wider than R_obst, the pass in view"))
 
     def _broken(self, i, r_k: float, swerves: bool) -> str | None:
