@@ -85,13 +85,15 @@ def pass_sides(local: list[Disc], v0, a_max: float) -> tuple[float, float]:
     return (1.0, -1.0) if abs(up - drift) <= abs(down - drift) else (-1.0, 1.0)
 
 
-def between_sides(local: list[Disc]) -> np.ndarray | None:
+def between_sides(local: list[Disc], one_side: bool = False) -> np.ndarray | None:
     """Per disc, the side to pass it on (+1: the route frame's +y) to go through the gap between the discs either
     side of the route line (each passed on the route line's side), or None where there is no such gap: discs on one
-    side only, one across the line, or the two sides' discs overlapping across it."""
+    side only (unless `one_side`: then those are passed on the route line's side too), one across the line, or the
+    two sides' discs overlapping across it."""
     left = [d.y - d.r for d in local if d.y > 0.0]
     right = [d.y + d.r for d in local if d.y < 0.0]
-    if not left or not right or len(left) + len(right) < len(local) or min(left) <= max(right):
+    if not (left or right) or not one_side and not (left and right) or len(left) + len(right) < len(local) \
+            or min(left, default=math.inf) <= max(right, default=-math.inf):
         return None
     return np.array([-1.0 if d.y > 0.0 else 1.0 for d in local])
 
@@ -485,12 +487,15 @@ class AvoidancePlanner:
     # ---------------------------------------------------------------- one plan
     def plan(self, p0, v0, route_dir, discs: list[Disc], v_max: float, a_max: float, v_cruise: float | None = None,
              horizon_s: float | None = None, warm: Plan | None = None, elapsed: float = 0.0,
-             budget_s: float | None = None) -> Plan:
+             budget_s: float | None = None, along: bool | None = None) -> Plan:
         """Plan from (p0, v0) along `route_dir` around `discs` within V_max and the tilt's a_max.
 
         `warm`: the previous plan, `elapsed` seconds old — its remainder is the first linearisation of
         the same kind of plan (replanning), tried before the cold starts. `budget_s`: no further QP
         attempt starts once this much time is spent (the first always runs; braking is always ready).
+        `along` (None: not tried): first try passing every disc on the route line's side — through the gap between
+        what lies either side of it, and (True) beside what lies on one side of it only (among walls, whose hit
+        points are discs: a pass round their far side goes through the wall between the points seen).
         """
         t0 = time.perf_counter()
         bad = [d for d in discs if not all(math.isfinite(x) for x in (d.x, d.y, d.r))]
@@ -519,7 +524,7 @@ class AvoidancePlanner:
         rejected = 0
         notes = []
         attempts = [("pass", side, None) for side in pass_sides(local, vr0, a_max)] + [("stop", 0.0, None)]
-        sides = between_sides(local)
+        sides = between_sides(local, one_side=along) if along is not None else None
         if sides is not None:  # a gap between what lies either side of the route line: through it first
             attempts.insert(0, ("pass", sides, None))
         if warm is not None and warm.kind in ("pass", "stop"):

@@ -114,12 +114,18 @@ def test_the_planner_goes_through_the_gap_between_two_discs_either_side_of_the_r
     sides = between_sides([left, right])
     assert list(sides) == [-1.0, 1.0]
     assert between_sides([Disc(12.0, 1.0, 1.4), Disc(12.0, -1.0, 1.4)]) is None  # overlapping across the line
-    assert between_sides([Disc(12.0, 2.4, 1.4)]) is None  # one side only: the one-sided passes
-    plan = AvoidancePlanner().plan((0.0, 0.0), (3.0, 0.0), (1.0, 0.0), [left, right], v_max=3.0, a_max=4.0)
-    assert plan.kind == "pass" and plan.ok
-    at = np.argmin(np.abs(plan.p[:, 0] - 12.0))
-    assert abs(plan.p[at, 1]) < 1.0  # through the doorway, not round the outside
-    assert exact_check(plan.p, plan.v, plan.a, plan.t[1] - plan.t[0], [left, right], 3.0, 4.0)[0]
+    assert between_sides([Disc(12.0, 2.4, 1.4)]) is None  # one side only: the one-sided passes …
+    assert list(between_sides([Disc(12.0, 2.4, 1.4)], one_side=True)) == [-1.0]  # … or beside it, among walls
+
+    def across(along):
+        plan = AvoidancePlanner().plan((0.0, 0.0), (3.0, 0.0), (1.0, 0.0), [left, right], v_max=3.0, a_max=4.0,
+                                       along=along)
+        assert plan.kind == "pass" and plan.ok
+        assert exact_check(plan.p, plan.v, plan.a, plan.t[1] - plan.t[0], [left, right], 3.0, 4.0)[0]
+        return abs(plan.p[np.argmin(np.abs(plan.p[:, 0] - 12.0)), 1])
+
+    assert across(False) < 1.0  # through the doorway
+    assert across(None) > 3.0  # control: the avoid contract's planner passes all discs on one side: round the outside
 
 
 # ----------------------------------------------------------------------------- when it swerves, and how fast

@@ -45,7 +45,7 @@ import numpy as np
 from contracts.online_planner import Disc
 from contracts.table import ContractTable, Omega
 
-from .guidance import obstacle_discs
+from .guidance import new_obstacles, obstacle_discs
 
 # [deg] the heading's lag behind the track the field-of-view rule budgets: the median measured in the SITL (true heading
 # against true track above 1 m/s over 20 offboard flights: median 8°, 17–21° at speed). Not the worst: the rule
@@ -328,6 +328,15 @@ def wall_discs(i, discs) -> tuple[Disc, ...]:
     x, y, yaw = i.pose
     return tuple(Disc(x + r * math.cos(yaw + b), y + r * math.sin(yaw + b), r * math.tan(h) + 0.05)
                  for b, r, h, bins in uncovered(i.hits, i.pose, discs) if bins)
+
+
+def unplanned(i, known: tuple) -> tuple:
+    """The hits guidance plans round or keeps out of for the first time this cycle (`swerve_discs`, `wall_discs`
+    not among `known`, the (discs, walls) it was given the cycle before, companion/onboard/guidance.py
+    `new_obstacles`): its plan is judged against them from the next cycle on; the rest of `i.hits` now."""
+    discs = swerve_discs(i)
+    new = [*new_obstacles(discs, known[0] if known else ()), *new_obstacles(wall_discs(i, discs), known[1] if known else ())]
+    return uncovered(i.hits, i.pose, new) if new else i.hits
 
 
 def swerve_discs(i) -> tuple[Disc, ...]:

@@ -442,6 +442,8 @@ class OffboardGuidance:
     _asked_t: float = 0.0
     _asked_discs: tuple = ()  # the discs the last plan asked for goes round
     _walls: tuple = ()  # this cycle's discs a plan keeps out of too (`step`)
+    _swerving: bool = False  # offboard swerves under the stop contract (`step`'s walls given)
+    _asked_walls: tuple = ()  # those the last plan asked for keeps out of
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
 
     def start(self, p, v) -> None:
@@ -479,11 +481,12 @@ class OffboardGuidance:
         self.v_ref = max(float(np.asarray(v) @ u), 0.0)
 
     def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc],
-             yaw: float | None = None, walls: tuple[Disc, ...] = ()) -> Setpoint:
+             yaw: float | None = None, walls: tuple[Disc, ...] | None = None) -> Setpoint:
         """One cycle: the setpoint for now (t), given the vehicle's state (`yaw`: its measured heading,
         if known) and Ω = (v_max, a_max). `walls`: keep-out discs a plan round `discs` must also keep out of,
-        which are never a reason to plan (the hit points of what is wider than R_obst, under the stop contract)."""
-        self._walls = tuple(walls)
+        which are never a reason to plan (the hit points of what is wider than R_obst), given while offboard swerves
+        under the stop contract (None: the avoid contract's plans, round `discs` only)."""
+        self._swerving, self._walls = walls is not None, tuple(walls or ())
         p, v = np.asarray(p, float), np.asarray(v, float)
         self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
         z = -self.route.altitude_m
@@ -604,18 +607,22 @@ class OffboardGuidance:
         else:
             drift = float(np.hypot(*(self.plan.sample(self._tau(t))[0] - p)))
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
-        unknown = bool(new_obstacles(discs, self._asked_discs))  # the plan goes round what it was asked to: at once
+        # swerving under the stop contract, something the plan was not asked to keep out of: at once (the hold judges
+        # the plan's path against it from the next cycle)
+        unknown = self._swerving and bool(new_obstacles(discs, self._asked_discs) or
+                                          new_obstacles(self._walls, self._asked_walls))
         if (since > REPLAN_S or urgent and since > REPLAN_MIN_S or unknown) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
                 t_req = t + self._lead()
                 p_req, v_req, _ = self.plan.sample(self._tau(t_req))
             _, u = self.route.point(self.route.project(p_req))
-            warm = self.plan if self.plan.kind in ("pass", "stop") else None
-            self.plan_t_try, self._asked_t, self._asked_discs = t_req, t, tuple(discs)
+            # (among walls a plan is not warm-started: the side it went round the points then seen may be the wall's)
+            warm = self.plan if self.plan.kind in ("pass", "stop") and not self._walls else None
+            self.plan_t_try, self._asked_t, self._asked_discs, self._asked_walls = t_req, t, tuple(discs), self._walls
             self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
                                  [*discs, *self._walls], v_max=v_max, a_max=a_max,
-                                 v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 v_cruise=self._pass_speed(discs, v_max, a_max), along=bool(self._walls) if self._swerving else None,
                                  warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)
             self._take(t, self.planning.poll())
         return self._follow(t, dt, z, v_max)

@@ -73,7 +73,7 @@ class Ask:
     v_max: float = 0.0  # the speed the route may be flown at [m/s]
     a_max: float = 0.0  # the horizontal acceleration limit [m/s²]
     discs: tuple = ()  # the keep-out discs seen now
-    walls: tuple = ()  # the keep-out discs a plan round `discs` keeps out of too (never a reason to plan)
+    walls: tuple | None = None  # discs a plan round `discs` keeps out of too (None: not swerving under the stop contract)
     stop: bool = False  # the decision stops the flight
     brake_stop: bool = False  # (with `stop`) the daemon may fly the stop out itself, braking at `a_stop`
     a_stop: float = 0.0  # [m/s²] the stop's deceleration (the tilt's horizontal acceleration limit)
@@ -131,7 +131,7 @@ class OffboardController:
             self._seen = (t, list(ask.discs))  # the obstacle is static: remembered if the sensor goes blind
         if ask.stop and self.state == S.FLYING and ask.brake_stop and ask.a_stop > 0:
             known = list(ask.discs) or (self._seen[1] if self._seen is not None and t - self._seen[0] < SEEN_S else [])
-            known += ask.walls
+            known += ask.walls or ()
             # braking at the tilt's full deceleration (the avoid contract's stop branch); a swerve off the
             # discs may lengthen it to at most 0.9 × the stop contract's braking distance (the rest is for the
             # vehicle's lag behind the stop it is given), from the acceleration last commanded (what the vehicle

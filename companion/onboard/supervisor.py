@@ -39,11 +39,11 @@ from .contract_in_force import (
     swept_obstacle_m,
     swerve_discs,
     swerve_omega,
-    uncovered,
+    unplanned,
     wall_discs,
 )
 from .estimators import DodEstimate
-from .guidance import inflated, new_obstacles
+from .guidance import inflated
 from .modes import Mode, mode_of
 from .overshoot import DEFAULT as DEFAULT_OVERSHOOT
 from .overshoot import OvershootBudget, OvershootWatch, ramped_out
@@ -146,7 +146,9 @@ class Decision:
     e_tr_virtual: float = 0.0  # E_tr of the virtual obstacle (Figure 13): measured, or E_tr_pred flown if larger
     discs: tuple[Disc, ...] = ()  # the keep-out discs: the obstacles grown by E_tr + r_body
     hold_causes: tuple[Cause, ...] = ()  # why it holds this cycle (fresh causes)
-    walls: tuple[Disc, ...] = ()  # keep-out discs a plan round `discs` keeps out of too (grown as they are)
+    # keep-out discs a plan round `discs` keeps out of too (grown as they are), while offboard swerves under the stop
+    # contract (None: not swerving)
+    walls: tuple[Disc, ...] | None = None
 
 
 class ContractSpeed:
@@ -292,7 +294,7 @@ class Supervisor:
         self.mode = mode_of(mode)
         self.contract = self.configured = contract  # `contract`: the one in force this cycle
         self.fallback = fallback if contract == "avoid" else None
-        self._planned_round: tuple = ()  # the discs guidance was given to swerve round under the stop contract
+        self._planned_round: tuple = ()  # (discs, walls) guidance was given to swerve round under the stop contract
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -547,12 +549,12 @@ class Supervisor:
         # under the stop contract guidance plans round what is no wider than R_obst where the swerve stays in view,
         # else round nothing: it cruises the route, and stops
         discs = i.discs if not self.fallen_back else swerve_discs(i) if self.swerves else ()
-        self._planned_round = tuple(discs) if self.swerves else ()
-        walls = wall_discs(i, discs) if self.swerves else ()
+        walls = wall_discs(i, discs) if self.swerves else None
+        self._planned_round = (tuple(discs), walls) if self.swerves else ()
         r_body = self.table.vehicle.r_body_m
         return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
                         e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, r_body)), tuple(d.hold_causes),
-                        tuple(inflated(list(walls), e_tr_virtual, r_body)))
+                        None if walls is None else tuple(inflated(list(walls), e_tr_virtual, r_body)))
 
     def _decide(self, i: Inputs) -> _Draft:
         """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still
@@ -880,7 +882,7 @@ class Supervisor:
         if not self.swerves:
             return swept_obstacle_m(i.hits, i.beta, half_width)
         # an obstacle guidance is given for the first time it plans round this cycle: the next judges that plan
-        hits = uncovered(i.hits, i.pose, new_obstacles(swerve_discs(i), self._planned_round))
+        hits = unplanned(i, self._planned_round)
         return path_obstacle_m(hits, i.pose, i.path, half_width) if i.path else swept_obstacle_m(hits, i.beta, half_width)
 
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
