@@ -211,15 +211,15 @@ def test_a_pole_on_the_route_beside_a_stand_of_poles_is_passed_without_contact(m
 
 
 def test_a_column_inside_a_corridor_is_passed_without_contact(monkeypatch):
-    """Scenario 47 (the Mambo on ArduPilot, a 6 m corridor with a turn, a column inside): its walls wider than R_obst
+    """Scenario 61 (the Mambo on ArduPilot, a corridor with a turn, a column inside): its walls wider than R_obst
     keep the stop contract in force; the swerve round the column between the walls; no contact; the route
     completed. Control: today's straight flight ends in a dead end."""
-    s, row, rig = _clutter(47)
+    s, row, rig = _clutter(61)
     assert s["world_family"] == "corridor"
     assert not row["collided"] and row["route_completed"] and _swerved(rig)
 
     _no_swerve(monkeypatch)
-    _, old, old_rig = _clutter(47)
+    _, old, old_rig = _clutter(61)
     assert not old["collided"] and not old["route_completed"] and old_rig.log.named("dead_end")
 
 

@@ -25,14 +25,16 @@ avoid contract comes back only once its assumptions have held for `dwell_s` (lim
 
 Where the stop contract is in force because of the world (something wider than R_obst, several obstacles) while the
 field-of-view rule (ii) holds, offboard still swerves (`InForce.swerve`): guidance plans round the obstacles no wider
-than R_obst (`swerve_discs`: runs of bins within R_obst, single beams; a wall gets no disc, whose chord would make a
-disc that blocks its own doorway), at the stop contract's Ω. That Ω guarantees the braking stop started now stops
-short of anything seen at D_od along the direction of travel; the swerve is flown only inside that guarantee: the
-OBSTACLE hold judges every hit, walls included, against the path the vehicle will fly (`path_obstacle_m`: the plan in
-force) instead of the straight line, and stops where anything lies within r_body + E_tr of it inside the stopping
-distance — a wall across the route, a closing corridor, is still a dead end. Where the field-of-view rule is broken
-the swerve would leave the view: guidance plans round nothing and the hold judges the straight line
-(`swept_obstacle_m`).
+than R_obst (`swerve_discs`: runs of bins within R_obst in width and depth, single beams; a wall gets no disc, whose
+chord would make a disc that blocks its own doorway) and keeps out of every other bin's hit point (`wall_discs`), at
+the stop contract's Ω lowered to the speed whose E_tr_pred is E_SWERVE_M (`swerve_omega`). That Ω guarantees the
+braking stop started now stops short of anything seen at D_od along the direction of travel; the swerve is flown only
+inside that guarantee: the OBSTACLE hold judges every hit, walls included, against the path the vehicle will fly
+(`path_obstacle_m`: the plan in force, else the route ahead) instead of the straight line, and stops where anything
+lies within r_body + E_tr of it inside the stopping distance — a wall across the route, a closing corridor, is still a
+dead end. What guidance is given for the first time it plans round in the same cycle (`unplanned`): the hold judges
+that plan from the next. Where the field-of-view rule is broken the swerve would leave the view: guidance plans round
+nothing and the hold judges the straight line (`swept_obstacle_m`).
 """
 
 from __future__ import annotations
