@@ -84,8 +84,8 @@ def _inputs(hits, pose=(0.0, 0.0, 0.0), r_obst=1.0):
 
 
 def test_the_swerve_plans_round_a_pole_not_round_a_facade_whose_hit_points_it_keeps_out_of():
-    """A pole (one run within R_obst) gets its disc; a facade across the route (a run 6 m wide) gets none — its chord's
-    disc would block its own doorway — but each of its hits is a small disc the plan keeps out of (its lateral
+    """A pole (one run within R_obst) gets its disc; a facade across the route (a run 6 m wide) gets none — its
+    chord's disc would block its own doorway — but each of its hits is a small disc the plan keeps out of (its lateral
     uncertainty); a corridor's wall seen along its length (a run deeper than R_obst, however narrow its chord) is a
     wall too."""
     bearings = np.radians(np.arange(-27.5, 27.6, 5.0))  # twelve 5° bins, each its sector's nearest return

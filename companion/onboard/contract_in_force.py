@@ -337,7 +337,8 @@ def unplanned(i, known: tuple) -> tuple:
     not among `known`, the (discs, walls) it was given the cycle before, companion/onboard/guidance.py
     `new_obstacles`): its plan is judged against them from the next cycle on; the rest of `i.hits` now."""
     discs = swerve_discs(i)
-    new = [*new_obstacles(discs, known[0] if known else ()), *new_obstacles(wall_discs(i, discs), known[1] if known else ())]
+    old_discs, old_walls = known if known else ((), ())
+    new = [*new_obstacles(discs, old_discs), *new_obstacles(wall_discs(i, discs), old_walls)]
     return uncovered(i.hits, i.pose, new) if new else i.hits
 
 

@@ -622,7 +622,8 @@ class OffboardGuidance:
             self.plan_t_try, self._asked_t, self._asked_discs, self._asked_walls = t_req, t, tuple(discs), self._walls
             self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
                                  [*discs, *self._walls], v_max=v_max, a_max=a_max,
-                                 v_cruise=self._pass_speed(discs, v_max, a_max), along=bool(self._walls) if self._swerving else None,
+                                 v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 along=bool(self._walls) if self._swerving else None,
                                  warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)
             self._take(t, self.planning.poll())
         return self._follow(t, dt, z, v_max)

@@ -73,7 +73,7 @@ class Ask:
     v_max: float = 0.0  # the speed the route may be flown at [m/s]
     a_max: float = 0.0  # the horizontal acceleration limit [m/s²]
     discs: tuple = ()  # the keep-out discs seen now
-    walls: tuple | None = None  # discs a plan round `discs` keeps out of too (None: not swerving under the stop contract)
+    walls: tuple | None = None  # discs a plan round `discs` keeps out of too (None: not swerving, stop contract)
     stop: bool = False  # the decision stops the flight
     brake_stop: bool = False  # (with `stop`) the daemon may fly the stop out itself, braking at `a_stop`
     a_stop: float = 0.0  # [m/s²] the stop's deceleration (the tilt's horizontal acceleration limit)

@@ -883,7 +883,9 @@ class Supervisor:
             return swept_obstacle_m(i.hits, i.beta, half_width)
         # an obstacle guidance is given for the first time it plans round this cycle: the next judges that plan
         hits = unplanned(i, self._planned_round)
-        return path_obstacle_m(hits, i.pose, i.path, half_width) if i.path else swept_obstacle_m(hits, i.beta, half_width)
+        if i.path:
+            return path_obstacle_m(hits, i.pose, i.path, half_width)
+        return swept_obstacle_m(hits, i.beta, half_width)
 
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""
