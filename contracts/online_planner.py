@@ -85,6 +85,26 @@ def pass_sides(local: list[Disc], v0, a_max: float) -> tuple[float, float]:
     return (1.0, -1.0) if abs(up - drift) <= abs(down - drift) else (-1.0, 1.0)
 
 
+def between_sides(local: list[Disc], one_side: bool = False) -> np.ndarray | None:
+    """Per disc, the side to pass it on (+1: the route frame's +y) to go through the gap between the discs either
+    side of the route line (each passed on the route line's side), or None where there is no such gap: discs on one
+    side only (unless `one_side`: then those are passed on the route line's side too), one across the line, or the
+    two sides' discs overlapping across it."""
+    left = [d.y - d.r for d in local if d.y > 0.0]
+    right = [d.y + d.r for d in local if d.y < 0.0]
+    if not (left or right) or not one_side and not (left and right) or len(left) + len(right) < len(local) \
+            or min(left, default=math.inf) <= max(right, default=-math.inf):
+        return None
+    return np.array([-1.0 if d.y > 0.0 else 1.0 for d in local])
+
+
+def _side_name(side) -> str:
+    """A pass attempt's side in the planner's notes: +, -, between (one side per disc) or none."""
+    if np.ndim(side):
+        return " between"
+    return "+" if side > 0 else "-" if side < 0 else ""
+
+
 def admitted(discs: list[Disc], p0, gap: float) -> tuple[list[Disc], list[str]]:
     """The discs a plan starting at `p0` must keep out of (paper, Figures 13–16: the vehicle may enter
     the virtual obstacle by up to E_tr and must still avoid the real one). A disc that already holds
@@ -467,12 +487,15 @@ class AvoidancePlanner:
     # ---------------------------------------------------------------- one plan
     def plan(self, p0, v0, route_dir, discs: list[Disc], v_max: float, a_max: float, v_cruise: float | None = None,
              horizon_s: float | None = None, warm: Plan | None = None, elapsed: float = 0.0,
-             budget_s: float | None = None) -> Plan:
+             budget_s: float | None = None, along: bool | None = None) -> Plan:
         """Plan from (p0, v0) along `route_dir` around `discs` within V_max and the tilt's a_max.
 
         `warm`: the previous plan, `elapsed` seconds old — its remainder is the first linearisation of
         the same kind of plan (replanning), tried before the cold starts. `budget_s`: no further QP
         attempt starts once this much time is spent (the first always runs; braking is always ready).
+        `along` (None: not tried): first try passing every disc on the route line's side — through the gap between
+        what lies either side of it, and (True) beside what lies on one side of it only (among walls, whose hit
+        points are discs: a pass round their far side goes through the wall between the points seen).
         """
         t0 = time.perf_counter()
         bad = [d for d in discs if not all(math.isfinite(x) for x in (d.x, d.y, d.r))]
@@ -501,6 +524,9 @@ class AvoidancePlanner:
         rejected = 0
         notes = []
         attempts = [("pass", side, None) for side in pass_sides(local, vr0, a_max)] + [("stop", 0.0, None)]
+        sides = between_sides(local, one_side=along) if along is not None else None
+        if sides is not None:  # a gap between what lies either side of the route line: through it first
+            attempts.insert(0, ("pass", sides, None))
         if warm is not None and warm.kind in ("pass", "stop"):
             h[warm.kind] = max(h[warm.kind], warm.t[-1] - elapsed)
             tw = h[warm.kind] / self.n
@@ -518,7 +544,7 @@ class AvoidancePlanner:
             res = self._scp(kind, side, pr0, vr0, keep_out, v_max, a_max, v_cruise, ts, guess)
             total += res[-1]
             if res[0] is None:
-                notes.append(f"{kind}{'+' if side > 0 else '-' if side < 0 else ''}: {res[1]}")
+                notes.append(f"{kind}{_side_name(side)}: {res[1]}")
                 continue
             p, v, a, why, ok, clear = res[:6]
             if ok:
@@ -586,7 +612,7 @@ class AvoidancePlanner:
             guess = p0[None, :] + v0[None, :] * tk[:, None]
         centres = np.array([[d.x, d.y] for d in discs]).reshape(-1, 2)
         radii = np.array([d.r for d in discs])
-        lift = side * (radii + inflate)[:, None] if kind == "pass" else np.zeros((len(discs), 1))
+        lift = np.reshape(side * (radii + inflate), (-1, 1)) if kind == "pass" else np.zeros((len(discs), 1))
         solves, sol = 0, None
         p = v = a = None
         gv = np.vstack([v0, np.diff(guess, axis=0) / ts])  # the guess's velocities, then its accelerations

@@ -22,6 +22,19 @@ route. A thing wider than R_obst, or several things in view, keep the stop contr
 flown the detection range they were seen within (D_od at the last sighting) past the last sighting: until then they
 may still be within reach. The
 avoid contract comes back only once its assumptions have held for `dwell_s` (limits move one way fast).
+
+Where the stop contract is in force because of the world (something wider than R_obst, several obstacles) while the
+field-of-view rule (ii) holds, offboard still swerves (`InForce.swerve`): guidance plans round the obstacles no wider
+than R_obst (`swerve_discs`: runs of bins within R_obst in width and depth, single beams; a wall gets no disc, whose
+chord would make a disc that blocks its own doorway) and keeps out of every other bin's hit point (`wall_discs`), at
+the stop contract's Ω lowered to the speed whose E_tr_pred is E_SWERVE_M (`swerve_omega`). That Ω guarantees the
+braking stop started now stops short of anything seen at D_od along the direction of travel; the swerve is flown only
+inside that guarantee: the OBSTACLE hold judges every hit, walls included, against the path the vehicle will fly
+(`path_obstacle_m`: the plan in force, else the route ahead) instead of the straight line, and stops where anything
+lies within r_body + E_tr of it inside the stopping distance — a wall across the route, a closing corridor, is still a
+dead end. What guidance is given for the first time it plans round in the same cycle (`unplanned`): the hold judges
+that plan from the next. Where the field-of-view rule is broken the swerve would leave the view: guidance plans round
+nothing and the hold judges the straight line (`swept_obstacle_m`).
 """
 
 from __future__ import annotations
@@ -29,7 +42,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
+import numpy as np
+
+from contracts.online_planner import Disc
 from contracts.table import ContractTable, Omega
+
+from .guidance import new_obstacles, obstacle_discs
 
 # [deg] the heading's lag behind the track the field-of-view rule budgets: the median measured in the SITL (true heading
 # against true track above 1 m/s over 20 offboard flights: median 8°, 17–21° at speed). Not the worst: the rule
@@ -40,6 +58,8 @@ LAG_BUDGET_DEG = 8.0
 WIDE_TOL_M = 0.05  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
 MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)
 AVOID, STOP = "avoid", "stop"
+E_SWERVE_M = 0.5  # [m] the tracking error the swerve under the stop contract is flown at (`swerve_omega`) …
+SWERVE_MIN_M_S = 1.0  # [m/s] … but not slower than this for it
 DEAD_END = "no path the contract can prove: stopped"
 
 
@@ -103,6 +123,9 @@ class InForce:
     contract: str
     reason: str
     changed: bool = False
+    # the stop contract in force because of the world with the pass in view: guidance still plans round the obstacles
+    # no wider than R_obst (`swerve_discs`) and the hold judges the path it flies (`path_obstacle_m`)
+    swerve: bool = False
 
 
 class ContractInForce:
@@ -129,14 +152,17 @@ class ContractInForce:
             self._odo += speed * max(i.t - self._t, 0.0)
         self._t = i.t
         e_tr = i.e_tr_measured if math.isfinite(i.e_tr_measured) else math.inf
-        why = self._broken(i, e_tr + r_body + i.r_obst, avoid.v_max >= MIN_SPEED_M_S)
+        r_k, swerves = e_tr + r_body + i.r_obst, avoid.v_max >= MIN_SPEED_M_S
+        why = self._broken(i, r_k, swerves)
+        in_view = self._in_view(i, r_k, swerves) is None
         if why is not None:
             self._clear_since = None
-            return self._say(InForce(STOP, why))
+            return self._say(InForce(STOP, why, swerve=in_view))
         if self.now.contract == STOP:
             self._clear_since = i.t if self._clear_since is None else self._clear_since
             if i.t - self._clear_since < self.dwell_s:
-                return self._say(self.now)
+                # (the swerve goes on only for a breach of the world: a stretch the view broke stays straight)
+                return self._say(InForce(STOP, self.now.reason, swerve=self.now.swerve and in_view))
         return self._say(InForce(AVOID, "its assumptions hold: one obstacle no wider than R_obst, the pass in view"))
 
     def _broken(self, i, r_k: float, swerves: bool) -> str | None:
@@ -154,6 +180,12 @@ class ContractInForce:
                 return (f"{self._breach[2]} seen {flown:.1f} m ago, within reach until {self._breach[1]:.1f} m past the "
                         "sighting")
             self._breach = None
+        return self._in_view(i, r_k, swerves)
+
+    def _in_view(self, i, r_k: float, swerves: bool) -> str | None:
+        """Why the pass round the keep-out disc r_k would leave the field of view at this D_od (None: it stays in
+        view, or there is no swerve to judge)."""
+        d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
         bearing = pass_bearing(r_k, d_od + i.r_obst)
         if swerves and bearing + self.lag > self.half_fov:
             return (f"the pass at D_od {d_od:.2f} m leaves {math.degrees(bearing):.1f}° off the obstacle, with the "
@@ -199,6 +231,107 @@ def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: 
     avoid = table.omega(d_od, r, e, thr, contract=AVOID, t_silent=t_silent)
     return om if om.v_max <= avoid.v_max else replace(avoid, contract=STOP, reason=f"{avoid.reason} (the avoid "
                                                                                     "contract's, lower)")
+
+
+def swerve_omega(table: ContractTable, om: Omega, i, e_tr_m: float = E_SWERVE_M) -> Omega:
+    """Ω for the swerve under the stop contract: the stop contract's `om`, its speed lowered (never raised: the stop
+    contract holds at any lower speed) to the highest at which the controller contract predicts a tracking error of
+    at most `e_tr_m` (E_tr_pred, Figure 12, the larger of offboard's and the brake's surfaces at Ω's tilt), never
+    below SWERVE_MIN_M_S. The pass between walls needs r_body + E_tr either side of its path: at the stop contract's
+    own speed E_tr_pred is up to 1.3 m, which closes a 3 m doorway or a corridor beside a column. Its E_tr: the
+    measured error or E_tr_pred at the lowered speed, the larger. `i`: the supervisor's inputs."""
+    def e_pred(v: float) -> float:
+        e = max(table.e_tr_pred(v, om.tilt, i.thrust_ratio, s) for s in (AVOID, "brake"))
+        return e if math.isfinite(e) else math.inf
+
+    if om.v_max <= SWERVE_MIN_M_S or e_pred(om.v_max) <= e_tr_m:
+        return om
+    lo, hi = SWERVE_MIN_M_S, om.v_max  # E_tr_pred does not decrease with the speed (the table's monotonicity)
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if e_pred(mid) <= e_tr_m else (lo, mid)
+    return replace(om, v_max=lo, gamma=lo - om.v_safe, e_tr=max(i.e_tr_measured, e_pred(lo)),
+                   reason=f"{om.reason}; swerving: E_tr_pred ≤ {e_tr_m:g} m")
+
+
+def path_obstacle_m(hits, pose, path, half_width_m: float) -> float:
+    """[m] the distance along `path` to where it first comes within `half_width_m` (r_body + E_tr) of a hit — the
+    swept corridor of `ahead.swept_obstacle_m` laid along the path the vehicle will fly rather than the line of travel,
+    whatever the hit's shape. `pose`: the vehicle's (x, y, yaw) in local NED, where the hits' body bearings are
+    measured from; `path`: the points ahead (x, y) it flies through in order, from where it is (the plan in force;
+    a path that goes on carries a far point, one that ends at rest ends there). A bin's hit may lie anywhere in its
+    sector (± its uncertainty): the sector's arc is sampled and the band widened by the sampling's reach; a single
+    beam's hit is taken as on the path at its range (inf: nothing within the band)."""
+    x, y, yaw = pose
+    pts = np.array([(x, y), *path], float).reshape(-1, 2)
+    seg = np.diff(pts, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    keep = length > 1e-9
+    if not keep.any():  # at rest where it is: what touches it
+        pts, seg, length, keep = pts[:1].repeat(2, 0), np.array([[1e-9, 0.0]]), np.array([1e-9]), np.array([True])
+    a, seg, ends = pts[:-1][keep], seg[keep], length[keep]
+    u = seg / ends[:, None]
+    s0 = np.concatenate([[0.0], np.cumsum(ends)[:-1]])
+    nearest = math.inf
+    for b, r, h, bins in hits:
+        if r >= nearest:
+            continue
+        if not bins:
+            nearest = r
+            continue
+        n = max(2, math.ceil(2 * h * r / 0.1) + 1)
+        reach = 2 * r * math.sin(h / (2 * (n - 1)))  # the farthest a point of the arc is from its nearest sample
+        ang = yaw + np.linspace(b - h, b + h, n)
+        q = np.column_stack([x + r * np.cos(ang), y + r * np.sin(ang)])  # (n, 2) the sector's possible hit points
+        rel = q[:, None, :] - a[None, :, :]  # (n, m)
+        along = np.einsum("nmk,mk->nm", rel, u)
+        perp2 = np.einsum("nmk,nmk->nm", rel, rel) - along * along
+        w = half_width_m + reach
+        inside = perp2 <= w * w
+        half_chord = np.sqrt(np.maximum(w * w - perp2, 0.0))
+        enter, leave = along - half_chord, along + half_chord
+        on = inside & (enter <= ends[None, :]) & (leave >= 0.0)
+        if on.any():
+            nearest = min(nearest, float(np.min((s0[None, :] + np.maximum(enter, 0.0))[on])))
+    return nearest
+
+
+def uncovered(hits, pose, discs) -> tuple:
+    """The hits whose point (at the sector's centre bearing) lies in none of `discs`: what a plan round the discs
+    does not go round."""
+    x, y, yaw = pose
+    return tuple(hit for hit in hits if not any(
+        math.hypot(x + hit[1] * math.cos(yaw + hit[0]) - d.x, y + hit[1] * math.sin(yaw + hit[0]) - d.y) <= d.r
+        for d in discs))
+
+
+def wall_discs(i, discs) -> tuple[Disc, ...]:
+    """What a plan round `discs` keeps out of too: each bin's hit outside them (a wall's, a facade's) as the disc of
+    its lateral uncertainty about the point at its sector's centre (range × tan of the half-bin, plus 5 cm, as
+    `obstacle_discs` pads a run)."""
+    x, y, yaw = i.pose
+    return tuple(Disc(x + r * math.cos(yaw + b), y + r * math.sin(yaw + b), r * math.tan(h) + 0.05)
+                 for b, r, h, bins in uncovered(i.hits, i.pose, discs) if bins)
+
+
+def unplanned(i, known: tuple) -> tuple:
+    """The hits guidance plans round or keeps out of for the first time this cycle (`swerve_discs`, `wall_discs`
+    not among `known`, the (discs, walls) it was given the cycle before, companion/onboard/guidance.py
+    `new_obstacles`): its plan is judged against them from the next cycle on; the rest of `i.hits` now."""
+    discs = swerve_discs(i)
+    old_discs, old_walls = known if known else ((), ())
+    new = [*new_obstacles(discs, old_discs), *new_obstacles(wall_discs(i, discs), old_walls)]
+    return uncovered(i.hits, i.pose, new) if new else i.hits
+
+
+def swerve_discs(i) -> tuple[Disc, ...]:
+    """The discs guidance plans round under the stop contract where it still swerves: those of the runs of bins no
+    wider than R_obst (`WIDE_TOL_M` as the rule judges) and of single beams (companion/onboard/guidance.py
+    `obstacle_discs`). A wider run — a wall, a facade — gets none: its chord's disc would block its own doorway; the
+    hold judges the path flown against it (`path_obstacle_m`)."""
+    x, y, yaw = i.pose
+    discs, _, _ = obstacle_discs(i.hits, (x, y), yaw, i.r_obst, widest=i.r_obst + WIDE_TOL_M)
+    return tuple(discs)
 
 
 def fallback_for(cfg, contract: str) -> ContractInForce | None:

@@ -179,7 +179,8 @@ class Cycle:
                       mode_changed=view.event is not None, taken_over=view.taken_over,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=g.r_obst,
                       engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, obstacles=apart, discs=tuple(discs),
-                      hits=hits, beta=beta,
+                      hits=hits, beta=beta, pose=(tel.x, tel.y, tel.yaw),
+                      path=off.path_ahead(t) if off is not None else (),
                       v_cruise=s.v_cruise, late_s=late, late_unbudgeted_s=s.timing.unbudgeted_s,
                       late_within_s=s.timing.within_s, accel_along=accel_along, delivery_late=view.late,
                       v_mission=v_mission)

@@ -120,7 +120,8 @@ class OffboardFlight(Flying):
         acts = off.step(self._ask(
             turn, by_daemon=i.mode_by_daemon, engaged=i.engaged and turn.startup_ok is not False and
             d.state == State.ACTIVE, flying=i.armed and i.in_air, v_max=d.v_cmd or 0.0, a_max=a_max, discs=d.discs,
-            stop=stop, brake_stop=brake_stop, a_stop=a_stop, stop_decel=stop_decel, jerk=veh.braking.jerk_max_m_s3,
+            walls=d.walls, stop=stop, brake_stop=brake_stop, a_stop=a_stop, stop_decel=stop_decel,
+            jerk=veh.braking.jerk_max_m_s3,
             failsafe=d.state == State.HOLDING, track_jerk=stop_jerk(veh)))
         # entering the fail-safe hold latches it until someone else's mode change or CG_ENGAGE clears it
         held = any(name == "offboard" and f["to"] == OffboardState.HELD for name, f in acts.events)

@@ -26,6 +26,9 @@ import numpy as np
 from contracts.geometry import wrap
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan, load_solver
 
+RANGE_TOL_M = 0.1  # [m] a bin's range is good to this (3 σ of the range noise the sensors are flown with)
+PATH_AHEAD_M = 40.0  # [m] the path ahead (`path_ahead`) reaches this far along the route: past any stopping distance
+PATH_STEP_M = 0.5  # [m] … in steps of this (a corner's arc)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
@@ -190,7 +193,8 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
     return tuple(np.linspace(lo, hi, n).tolist())
 
 
-def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[list[Disc], float, int]:
+def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf
+                   ) -> tuple[list[Disc], float, int]:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
     Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
@@ -199,13 +203,15 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
     somewhere in its field of view: every disc of radius R_obst touching such a point lies within
     2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
     Returns the discs, the widest obstacle radius observed (0 if none measurable) and how many obstacles the beams
-    tell apart (one per run of adjacent bins, one per single beam's hit).
+    tell apart (one per run of adjacent bins, one per single beam's hit). `widest`: a run whose measured half-width,
+    or depth, is above it gets no disc (its width and count are still returned).
     """
     if not hits:  # nothing seen (most cycles): no disc
         return [], 0.0, 0
     p = np.asarray(p, float)
     discs: list[Disc] = []
-    widest = 0.0
+    seen = 0.0  # the widest half-width measured
+    narrow: list[bool] = []  # each run's disc is kept (no wider than `widest`)
     bins = sorted((b, r, h) for b, r, h, is_bins in hits if is_bins)
     singles = [(b, r, h) for b, r, h, is_bins in hits if not is_bins]
     clusters: list[list] = []
@@ -226,11 +232,16 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
         radius = max(r_obst, w2)
         if len(cl) > 1:
-            widest = max(widest, w2 - pad)
+            seen = max(seen, w2 - pad)
         faces.append((pts, pad))
         centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
         grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
         discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
+        # a face no wider than `widest` is no deeper either (what is seen of a disc lies within its radius of the
+        # nearest point seen; a bin's range is its sector's nearest return, good to the range noise): a run deeper
+        # than that is a wall seen along its length
+        depth = max(r for _, r, _ in cl) - r_near - RANGE_TOL_M
+        narrow.append(len(cl) == 1 or max(w2 - pad, depth) <= widest)
     px, py = float(p[0]), float(p[1])
     for b, r, h in singles:
         n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
@@ -243,8 +254,10 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0) -> tuple[l
         if len(g) > 1:  # one obstacle seen as several runs: as wide as all their hits
             pts = np.vstack([faces[k][0] for k in g])
             spread = max(float(np.max(np.hypot(*(pts - q).T))) for q in pts)
-            widest = max(widest, spread / 2 - max(faces[k][1] for k in g))
-    return discs, widest, len(groups) + len(singles)
+            seen = max(seen, spread / 2 - max(faces[k][1] for k in g))
+    if not all(narrow):
+        discs = [d for k, d in enumerate(discs) if k >= len(narrow) or narrow[k]]
+    return discs, seen, len(groups) + len(singles)
 
 
 def _apart(discs: list[Disc]) -> int:
@@ -264,6 +277,12 @@ def _apart(discs: list[Disc]) -> int:
     for k in range(len(discs)):
         groups.setdefault(find(k), []).append(k)
     return list(groups.values())
+
+
+def new_obstacles(discs, known) -> list[Disc]:
+    """The discs of obstacles not among `known`: whose centre lies within no known disc (a disc that moved as its
+    obstacle was seen better is the same obstacle)."""
+    return [d for d in discs if not any(math.hypot(d.x - k.x, d.y - k.y) <= max(d.r, k.r) for k in known)]
 
 
 def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:
@@ -421,6 +440,10 @@ class OffboardGuidance:
     lead_s: tuple[float, float] = PLAN_LEAD_S  # (0, 0): plans start at the state measured at the request
     _pending: tuple | None = None  # an answer that starts later than now (asked for while braking)
     _asked_t: float = 0.0
+    _asked_discs: tuple = ()  # the discs the last plan asked for goes round
+    _walls: tuple = ()  # this cycle's discs a plan keeps out of too (`step`)
+    _swerving: bool = False  # offboard swerves under the stop contract (`step`'s walls given)
+    _asked_walls: tuple = ()  # those the last plan asked for keeps out of
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
 
     def start(self, p, v) -> None:
@@ -430,6 +453,26 @@ class OffboardGuidance:
         self.epoch += 1
         self._rejoin_from(p, v)
 
+    def path_ahead(self, t: float) -> tuple[tuple[float, float], ...]:
+        """The points the setpoints ahead fly through from their reference at t on: the plan in force (a pass round
+        the keep-out discs, then the route from where it ends; a stop, or the braking while a plan is computed, up to
+        where it rests), else the route from the cruise reference — each up to PATH_AHEAD_M along the route, or its
+        end (where the reference rests)."""
+        plan, tau = self.plan, self._tau(t)
+        if plan is None or tau >= plan.t[-1]:
+            return self._route_from(self.s_ref)
+        k = int(np.searchsorted(plan.t, tau, side="right"))
+        pts = tuple((float(x), float(y)) for x, y in (plan.sample(tau)[0], *plan.p[k:]))
+        if float(np.hypot(*plan.v[-1])) <= 0.1:
+            return pts
+        return pts + self._route_from(self.route.project(plan.p[-1]))
+
+    def _route_from(self, s0: float) -> tuple[tuple[float, float], ...]:
+        """Points of the route from along-track s0 on, every PATH_STEP_M, up to PATH_AHEAD_M or its end."""
+        s1 = min(s0 + PATH_AHEAD_M, self.route.length)
+        return tuple((float(q[0]), float(q[1])) for q in
+                     (self.route.point(s)[0] for s in (*np.arange(s0, s1, PATH_STEP_M), s1)))
+
     def _rejoin_from(self, p, v) -> None:
         """Start the cruise reference where the vehicle is, beside the route if it is beside it."""
         base, u = self.route.point(self.route.project(p))
@@ -438,9 +481,12 @@ class OffboardGuidance:
         self.v_ref = max(float(np.asarray(v) @ u), 0.0)
 
     def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc],
-             yaw: float | None = None) -> Setpoint:
+             yaw: float | None = None, walls: tuple[Disc, ...] | None = None) -> Setpoint:
         """One cycle: the setpoint for now (t), given the vehicle's state (`yaw`: its measured heading,
-        if known) and Ω = (v_max, a_max)."""
+        if known) and Ω = (v_max, a_max). `walls`: keep-out discs a plan round `discs` must also keep out of,
+        which are never a reason to plan (the hit points of what is wider than R_obst), given while offboard swerves
+        under the stop contract (None: the avoid contract's plans, round `discs` only)."""
+        self._swerving, self._walls = walls is not None, tuple(walls or ())
         p, v = np.asarray(p, float), np.asarray(v, float)
         self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
         z = -self.route.altitude_m
@@ -553,23 +599,31 @@ class OffboardGuidance:
         since = t - max(self.plan_t, self.plan_t_try)
         urgent = False
         if self.plan is None:  # no plan yet: start braking now (the slower choice)
-            bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, discs, self.planner.n)
+            bp, bv, ba, bts, _ = best_stop(np.array(p, float), np.array(v, float), a_max, [*discs, *self._walls],
+                                           self.planner.n)
             kind = "brake" if self.planner_failed else "await"  # a planner that fails is not awaited
             self.plan = Plan(kind, np.arange(len(bp)) * bts, bp, bv, ba, False, -math.inf)
             self.plan_t, self.plan_held, self.plan_omega, since = t, 0.0, omega, math.inf
         else:
             drift = float(np.hypot(*(self.plan.sample(self._tau(t))[0] - p)))
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
-        if (since > REPLAN_S or urgent and since > REPLAN_MIN_S) and not self.planning.busy:
+        # swerving under the stop contract, something the plan was not asked to keep out of: at once (the hold judges
+        # the plan's path against it from the next cycle)
+        unknown = self._swerving and bool(new_obstacles(discs, self._asked_discs) or
+                                          new_obstacles(self._walls, self._asked_walls))
+        if (since > REPLAN_S or urgent and since > REPLAN_MIN_S or unknown) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
                 t_req = t + self._lead()
                 p_req, v_req, _ = self.plan.sample(self._tau(t_req))
             _, u = self.route.point(self.route.project(p_req))
-            warm = self.plan if self.plan.kind in ("pass", "stop") else None
-            self.plan_t_try, self._asked_t = t_req, t
+            # (among walls a plan is not warm-started: the side it went round the points then seen may be the wall's)
+            warm = self.plan if self.plan.kind in ("pass", "stop") and not self._walls else None
+            self.plan_t_try, self._asked_t, self._asked_discs, self._asked_walls = t_req, t, tuple(discs), self._walls
             self.planning.submit(self.planner, self.epoch, t_req, omega, p_req, v_req, u,
-                                 list(discs), v_max=v_max, a_max=a_max, v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 [*discs, *self._walls], v_max=v_max, a_max=a_max,
+                                 v_cruise=self._pass_speed(discs, v_max, a_max),
+                                 along=bool(self._walls) if self._swerving else None,
                                  warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)
             self._take(t, self.planning.poll())
         return self._follow(t, dt, z, v_max)

@@ -73,6 +73,7 @@ class Ask:
     v_max: float = 0.0  # the speed the route may be flown at [m/s]
     a_max: float = 0.0  # the horizontal acceleration limit [m/s²]
     discs: tuple = ()  # the keep-out discs seen now
+    walls: tuple | None = None  # discs a plan round `discs` keeps out of too (None: not swerving, stop contract)
     stop: bool = False  # the decision stops the flight
     brake_stop: bool = False  # (with `stop`) the daemon may fly the stop out itself, braking at `a_stop`
     a_stop: float = 0.0  # [m/s²] the stop's deceleration (the tilt's horizontal acceleration limit)
@@ -130,6 +131,7 @@ class OffboardController:
             self._seen = (t, list(ask.discs))  # the obstacle is static: remembered if the sensor goes blind
         if ask.stop and self.state == S.FLYING and ask.brake_stop and ask.a_stop > 0:
             known = list(ask.discs) or (self._seen[1] if self._seen is not None and t - self._seen[0] < SEEN_S else [])
+            known += ask.walls or ()
             # braking at the tilt's full deceleration (the avoid contract's stop branch); a swerve off the
             # discs may lengthen it to at most 0.9 × the stop contract's braking distance (the rest is for the
             # vehicle's lag behind the stop it is given), from the acceleration last commanded (what the vehicle
@@ -159,7 +161,8 @@ class OffboardController:
                 return acts
             if self._done_at is not None:
                 return self._finish(t, acts)
-            acts.setpoint = self.guidance.step(t, dt, p, v, ask.v_max, ask.a_max, ask.discs, yaw=ask.yaw)
+            acts.setpoint = self.guidance.step(t, dt, p, v, ask.v_max, ask.a_max, ask.discs, yaw=ask.yaw,
+                                                 walls=ask.walls)
             if acts.setpoint.mode == SetpointKind.DONE and float(np.hypot(*v)) < AT_REST_M_S:
                 # the route is flown: hold the vehicle where it is for SETTLE_S, then hand over to Hold, so
                 # that the last setpoint is where it rests (PX4's Hold restarts from the last setpoint: handed
@@ -227,6 +230,10 @@ class OffboardController:
         set anew)."""
         if self.state in FINISHED:
             self.state = S.OFF
+
+    def path_ahead(self, t: float) -> tuple:
+        """The points the plan in force still flies through while flying the route (guidance's), () where none is."""
+        return self.guidance.path_ahead(t) if self.state == S.FLYING and self.guidance is not None else ()
 
     def follow(self, guidance: OffboardGuidance) -> None:
         """The route to fly from the next entry on (a route downloaded anew); the old guidance's planner ends."""

@@ -30,7 +30,18 @@ from contracts.window import WindowMax
 
 from .authority import GUARANTEE_ANSWERED, Late
 from .ahead import stop_obstacle_m
-from .contract_in_force import DEAD_END, WIDE_TOL_M, ContractInForce, InForce, fallback_omega
+from .contract_in_force import (
+    DEAD_END,
+    WIDE_TOL_M,
+    ContractInForce,
+    InForce,
+    fallback_omega,
+    path_obstacle_m,
+    swerve_discs,
+    swerve_omega,
+    unplanned,
+    wall_discs,
+)
 from .estimators import DodEstimate
 from .guidance import inflated
 from .modes import Mode, mode_of
@@ -95,6 +106,8 @@ class Inputs:
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
     beta: float = 0.0  # the direction of travel in the body frame [rad] (along the heading below 1 m/s)
+    pose: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the vehicle's (x, y, yaw), local NED, the hits are seen from
+    path: tuple = ()  # the points (x, y) the plan in force still flies through, () where none is (offboard's guidance)
     late_s: float = 0.0  # the daemon's own worst lateness, beyond t_react's budget, of the last 10 s (Timeliness)
     late_unbudgeted_s: float = 0.0  # this cycle's lateness where it exceeds what was counted before it, else 0
     late_within_s: float = 0.0  # this cycle's lateness inside the jitter allowance, to be said (an event), else 0
@@ -133,6 +146,9 @@ class Decision:
     e_tr_virtual: float = 0.0  # E_tr of the virtual obstacle (Figure 13): measured, or E_tr_pred flown if larger
     discs: tuple[Disc, ...] = ()  # the keep-out discs: the obstacles grown by E_tr + r_body
     hold_causes: tuple[Cause, ...] = ()  # why it holds this cycle (fresh causes)
+    # keep-out discs a plan round `discs` keeps out of too (grown as they are), while offboard swerves under the stop
+    # contract (None: not swerving)
+    walls: tuple[Disc, ...] | None = None
 
 
 class ContractSpeed:
@@ -278,6 +294,7 @@ class Supervisor:
         self.mode = mode_of(mode)
         self.contract = self.configured = contract  # `contract`: the one in force this cycle
         self.fallback = fallback if contract == "avoid" else None
+        self._planned_round: tuple = ()  # (discs, walls) guidance was given to swerve round under the stop contract
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -493,13 +510,14 @@ class Supervisor:
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
         key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s, self.e_surface,
-               self.contract)
+               self.contract, self.swerves)
         om = self._omega_at.get(key)
         if om is None:
             if len(self._omega_at) >= 6:  # this cycle's few lookups (with and without the brake, the ramp, fallen back)
                 self._omega_at.clear()
             if self.fallen_back:
-                om = self._omega_at[key] = fallback_omega(self.table, d_od, i, self.t_cmd, self.loop_dt)
+                om = fallback_omega(self.table, d_od, i, self.t_cmd, self.loop_dt)
+                om = self._omega_at[key] = swerve_omega(self.table, om, i) if self.swerves else om
             else:
                 om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
                                                             a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s,
@@ -528,11 +546,15 @@ class Supervisor:
         virtual obstacle's E_tr and the vehicle's radius)."""
         d = self._decide(i)
         e_tr_virtual = self.e_tr_virtual(i, d)
-        # under the stop contract guidance plans round nothing: it cruises the route, and stops
-        discs = () if self.fallen_back else i.discs
+        # under the stop contract guidance plans round what is no wider than R_obst where the swerve stays in view,
+        # else round nothing: it cruises the route, and stops
+        discs = i.discs if not self.fallen_back else swerve_discs(i) if self.swerves else ()
+        walls = wall_discs(i, discs) if self.swerves else None
+        self._planned_round = (tuple(discs), walls) if self.swerves else ()
+        r_body = self.table.vehicle.r_body_m
         return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
-                        e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, self.table.vehicle.r_body_m)),
-                        tuple(d.hold_causes))
+                        e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, r_body)), tuple(d.hold_causes),
+                        None if walls is None else tuple(inflated(list(walls), e_tr_virtual, r_body)))
 
     def _decide(self, i: Inputs) -> _Draft:
         """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still
@@ -618,6 +640,12 @@ class Supervisor:
     def fallen_back(self) -> bool:
         """Offboard flies the stop contract this cycle (the avoid contract's assumptions are not there)."""
         return self.contract != self.configured
+
+    @property
+    def swerves(self) -> bool:
+        """Fallen back for the world with the pass in view: offboard still swerves round what is no wider than R_obst
+        (companion/onboard/contract_in_force.py)."""
+        return self.fallen_back and self.fallback.now.swerve
 
     def _contract_in_force(self, i: Inputs) -> InForce | None:
         """The contract in force this cycle (`self.contract`), judged by the fallback on the avoid contract's Ω at
@@ -847,9 +875,16 @@ class Supervisor:
     def ahead_m(self, i: Inputs, om: Omega) -> float:
         """[m] the nearest obstacle the stop contract stops short of (companion/onboard/ahead.py): in the swept
         corridor r_body + E_tr about the direction of travel, whatever its shape (walls beside the route are not in
-        it); near rest, the nearest in view. E_tr: the larger of the measured and the one Ω budgets."""
+        it); near rest, the nearest in view; where offboard swerves under the stop contract, about the path the plan
+        in force flies. E_tr: the larger of the measured and the one Ω budgets."""
         half_width = self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr)
-        return stop_obstacle_m(i.hits, i.beta, i.ground_speed, half_width)
+        if not self.swerves:
+            return stop_obstacle_m(i.hits, i.beta, i.ground_speed, half_width)
+        # an obstacle guidance is given for the first time it plans round this cycle: the next judges that plan
+        hits = unplanned(i, self._planned_round)
+        if i.path:
+            return path_obstacle_m(hits, i.pose, i.path, half_width)
+        return stop_obstacle_m(hits, i.beta, i.ground_speed, half_width)
 
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""

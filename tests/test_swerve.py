@@ -1,0 +1,252 @@
+"""Offboard under the stop contract because of the world (something wider than R_obst, several obstacles) still swerves
+round what is no wider than R_obst, at a speed the stop contract allows, and stops where anything lies on the path it
+will fly (companion/onboard/contract_in_force.py). The pieces directly, then lock-step flights of the real daemon
+against the real SITL over real MAVLink bytes (examples/campaign-clutter.yaml's worlds), each with its negative
+control: the swerve disabled, today's straight flight that ends in a dead end."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from companion.onboard.ahead import swept_obstacle_m
+from companion.onboard.contract_in_force import (
+    E_SWERVE_M,
+    SWERVE_MIN_M_S,
+    ContractInForce,
+    path_obstacle_m,
+    swerve_discs,
+    swerve_omega,
+    uncovered,
+    wall_discs,
+)
+from companion.onboard.guidance import obstacle_discs
+from contracts.online_planner import AvoidancePlanner, Disc, between_sides, exact_check
+from contracts.table import load_for_vehicle
+
+TABLE = load_for_vehicle("mambo")
+H = math.radians(2.5)  # a 5° bin's half-width
+SPEC = Path(__file__).resolve().parents[1] / "examples" / "campaign-clutter.yaml"
+
+
+def _wall_hits(x_wall: float, ys, pose=(0.0, 0.0, 0.0)):
+    """The bins' hits (body bearing, range, ±, from bins) of the points (x_wall, y) seen from `pose`."""
+    x, y, yaw = pose
+    return [(math.atan2(yy - y, x_wall - x) - yaw, math.hypot(x_wall - x, yy - y), H, True) for yy in ys]
+
+
+# ----------------------------------------------------------------------------- the path's nearest hit
+
+def test_the_path_measure_is_the_swept_corridor_laid_along_the_path():
+    """Along a straight path it finds what the swept corridor finds, never farther (the distance along the path to
+    where the band is entered, not the range); a pole the path swerves round is not on it, a wall the path runs into
+    is, at the distance along the path; a single beam's hit is on the path at its range; a path that ends at rest
+    before a wall does not reach it; something touching the vehicle is at 0."""
+    pose = (0.0, 0.0, 0.0)
+    straight = ((20.0, 0.0),)
+    pole = (math.radians(1.0), 8.0, H, True)
+    assert swept_obstacle_m([pole], 0.0, 0.5) == 8.0
+    assert 7.4 < path_obstacle_m([pole], pose, straight, 0.5) <= 8.0
+    beside = (math.radians(25.0), 5.0, H, True)  # 2.1 m off the line of travel
+    assert path_obstacle_m([beside], pose, straight, 0.5) == math.inf == swept_obstacle_m([beside], 0.0, 0.5)
+    # a swerve 3 m to the left round the pole, then back
+    swerve = ((4.0, 1.5), (8.0, 3.0), (12.0, 1.5), (16.0, 0.0), (30.0, 0.0))
+    assert path_obstacle_m([pole], pose, swerve, 0.5) == math.inf
+    wall = _wall_hits(8.5, [2.0, 2.6, 3.2, 3.8])  # what the swerve would run into
+    d = path_obstacle_m(wall, pose, swerve, 0.5)
+    assert 6.0 < d < 9.0
+    assert path_obstacle_m([(math.radians(40.0), 5.0, H, False)], pose, swerve, 0.5) == 5.0  # a single beam
+    short = ((4.0, 0.0),)  # a stop that rests 4 m on
+    assert path_obstacle_m([pole], pose, short, 0.5) == math.inf
+    assert path_obstacle_m([(math.pi, 0.3, H, True)], pose, straight, 0.5) == 0.0  # touching, behind
+    # in another frame: the same world turned and moved gives the same answer
+    yaw, at = 0.7, np.array([3.0, -2.0])
+    rot = np.array([[math.cos(yaw), -math.sin(yaw)], [math.sin(yaw), math.cos(yaw)]])
+    moved = tuple(tuple(at + rot @ np.array(q)) for q in swerve)
+    assert path_obstacle_m(wall, (*at, yaw), moved, 0.5) == pytest.approx(d, abs=1e-9)
+
+
+def test_a_hit_in_a_disc_the_plan_goes_round_is_covered_and_a_wall_beside_it_is_not():
+    discs = [Disc(9.0, 0.0, 1.3)]
+    pole = (0.0, 8.0, H, True)
+    wall = (math.radians(20.0), 8.0, H, True)
+    assert uncovered([pole, wall], (0.0, 0.0, 0.0), discs) == (wall,)
+
+
+# ----------------------------------------------------------------------------- what guidance is given
+
+def _inputs(hits, pose=(0.0, 0.0, 0.0), r_obst=1.0):
+    return SimpleNamespace(hits=tuple(hits), pose=pose, r_obst=r_obst)
+
+
+def test_the_swerve_plans_round_a_pole_not_round_a_facade_whose_hit_points_it_keeps_out_of():
+    """A pole (one run within R_obst) gets its disc; a facade across the route (a run 6 m wide) gets none — its
+    chord's disc would block its own doorway — but each of its hits is a small disc the plan keeps out of (its lateral
+    uncertainty); a corridor's wall seen along its length (a run deeper than R_obst, however narrow its chord) is a
+    wall too."""
+    bearings = np.radians(np.arange(-27.5, 27.6, 5.0))  # twelve 5° bins, each its sector's nearest return
+    hits = [(b, 8.0 if abs(b) < math.radians(3.0) else 12.0 / math.cos(b), H, True) for b in bearings]
+    facade = [h for h in hits if h[1] > 9.0]  # both sides of the pole: two runs 5 m wide
+    discs = swerve_discs(_inputs(hits))
+    assert len(discs) == 1 and discs[0].x > 8.0 and abs(discs[0].y) < 0.1
+    walls = wall_discs(_inputs(hits), discs)
+    assert len(walls) == len(facade) and all(abs(w.x - 12.0) < 1e-9 and w.r < 0.7 for w in walls)
+    # the same facade in the avoid contract's discs: a disc wider than R_obst each side
+    all_discs, width, _ = obstacle_discs(hits, (0.0, 0.0), 0.0, 1.0)
+    assert len(all_discs) == 3 and width > 1.5
+    # a corridor wall 2.8 m to the left, seen by three bins along its length: chord within R_obst, depth not
+    along = [(b, 2.8 / math.sin(b), H, True) for b in np.radians([20.0, 25.0, 30.0])]
+    chord = math.hypot(*(np.array([math.cos(along[0][0]), math.sin(along[0][0])]) * along[0][1]
+                         - np.array([math.cos(along[-1][0]), math.sin(along[-1][0])]) * along[-1][1]))
+    assert along[0][1] - along[-1][1] > 2.0 and chord / 2 < 2.0
+    assert swerve_discs(_inputs(along)) == ()
+    assert len(obstacle_discs(along, (0.0, 0.0), 0.0, 1.0)[0]) == 1  # (the avoid contract's discs: unchanged)
+
+
+def test_the_planner_goes_through_the_gap_between_two_discs_either_side_of_the_route():
+    """Two door edges either side of the route line: the pass goes between them (each disc passed on the route's
+    side), checked exactly; without the gap (the discs overlap across the line) no such attempt is made."""
+    left, right = Disc(12.0, 2.4, 1.4, 1.0), Disc(12.0, -2.4, 1.4, 1.0)
+    sides = between_sides([left, right])
+    assert list(sides) == [-1.0, 1.0]
+    assert between_sides([Disc(12.0, 1.0, 1.4), Disc(12.0, -1.0, 1.4)]) is None  # overlapping across the line
+    assert between_sides([Disc(12.0, 2.4, 1.4)]) is None  # one side only: the one-sided passes …
+    assert list(between_sides([Disc(12.0, 2.4, 1.4)], one_side=True)) == [-1.0]  # … or beside it, among walls
+
+    def across(along):
+        plan = AvoidancePlanner().plan((0.0, 0.0), (3.0, 0.0), (1.0, 0.0), [left, right], v_max=3.0, a_max=4.0,
+                                       along=along)
+        assert plan.kind == "pass" and plan.ok
+        assert exact_check(plan.p, plan.v, plan.a, plan.t[1] - plan.t[0], [left, right], 3.0, 4.0)[0]
+        return abs(plan.p[np.argmin(np.abs(plan.p[:, 0] - 12.0)), 1])
+
+    assert across(False) < 1.0  # through the doorway
+    assert across(None) > 3.0  # control: the avoid contract's planner passes all discs on one side: round the outside
+
+
+# ----------------------------------------------------------------------------- when it swerves, and how fast
+
+def _judged(width=0.0, obstacles=0, d_od=9.0, fov=60.0):
+    rule = ContractInForce(math.radians(fov) / 2, dwell_s=1.0)
+    i = SimpleNamespace(t=0.0, ground_speed=3.0, obstacle_width=width, r_obst=1.0, e_tr_measured=0.3,
+                        thrust_ratio=1.0, obstacles=obstacles, dod=SimpleNamespace(d_od=d_od, silence_s=0.0))
+    return rule.judge(i, SimpleNamespace(v_max=5.0), 0.1)
+
+
+def test_it_swerves_where_the_world_broke_the_avoid_contract_not_where_the_view_did():
+    wide = _judged(width=3.0)
+    several = _judged(obstacles=3)
+    assert wide.contract == several.contract == "stop" and wide.swerve and several.swerve
+    narrow_view = _judged(fov=9.0)  # the pass would leave a 9° view: no swerve
+    assert narrow_view.contract == "stop" and not narrow_view.swerve
+    both = _judged(width=3.0, fov=9.0)  # a wall in a 9° view: the world's breach said, still no swerve
+    assert both.contract == "stop" and "wider than R_obst" in both.reason and not both.swerve
+    assert _judged().contract == "avoid" and not _judged().swerve
+
+
+@pytest.mark.parametrize("vehicle", ["mambo", "x500"])
+def test_the_swerve_flies_no_faster_than_the_stop_contract_at_the_tracking_error_it_plans_with(vehicle):
+    """The stop contract's Ω lowered (never raised) to the speed whose E_tr_pred (offboard's and the brake's surfaces)
+    is E_SWERVE_M; never below SWERVE_MIN_M_S; unchanged where the stop contract's own speed is slower."""
+    from companion.onboard.contract_in_force import fallback_omega
+
+    table = load_for_vehicle(vehicle)
+    i = SimpleNamespace(r_obst=1.0, thrust_ratio=1.0, e_tr_measured=0.3, dod=SimpleNamespace(silence_s=0.0))
+    om = fallback_omega(table, 9.0, i, 0.1, 0.02)
+    sw = swerve_omega(table, om, i)
+    assert SWERVE_MIN_M_S <= sw.v_max < om.v_max and sw.tilt == om.tilt and sw.v_safe == om.v_safe
+    e = max(table.e_tr_pred(sw.v_max, om.tilt, 1.0, s) for s in ("avoid", "brake"))
+    assert e <= E_SWERVE_M + 1e-9 and sw.e_tr == pytest.approx(max(0.3, e))
+    faster = max(table.e_tr_pred(sw.v_max + 0.1, om.tilt, 1.0, s) for s in ("avoid", "brake"))
+    assert faster > E_SWERVE_M - 0.05  # the highest such speed, within the bisection's step
+    slow = fallback_omega(table, 1.5, i, 0.1, 0.02)
+    assert swerve_omega(table, slow, i) == slow
+
+
+# ----------------------------------------------------------------------------- lock-step flights
+
+def _no_swerve(monkeypatch):
+    """The negative control: the stop contract flown as before the swerve (straight, no discs, the straight line's
+    hold)."""
+    from companion.onboard.supervisor import Supervisor
+
+    monkeypatch.setattr(Supervisor, "swerves", property(lambda self: False))
+
+
+def _clutter(scenario: int, keep_rig: bool = True):
+    """examples/campaign-clutter.yaml's offboard flight of this scenario (the spec's arms: governor, offboard, …)."""
+    from companion.ground.campaign import flight_of, fly, load_spec
+
+    spec = load_spec(SPEC)
+    i = scenario * len(spec.arms) + spec.arms.index("offboard")
+    s, arm = flight_of(spec, i)
+    assert arm == "offboard"
+    return s, *fly(spec, i, keep_rig=True)
+
+
+def _swerved(rig) -> bool:
+    """Guidance flew a plan round a disc (an avoid setpoint) under the stop contract."""
+    return any(s["contract"] == "stop" for s in rig.log.states) and rig.daemon.cycle.offboard.guidance.replans > 0
+
+
+def test_a_pole_on_the_route_beside_a_stand_of_poles_is_passed_without_contact(monkeypatch):
+    """Scenario 20 (the Mambo on PX4, a stand of nine poles beside the route and a pole on it): the avoid contract's
+    one obstacle at a time broken, the stop contract in force, said; the swerve round the pole on the route at the swerve's speed; no contact;
+    the route completed. Control: the straight flight of the stop contract ends at the pole, a dead end."""
+    s, row, rig = _clutter(20)
+    assert s["world_family"] == "cluster"
+    assert not row["collided"] and row["min_clearance_m"] > 0.3 and row["route_completed"]
+    # the stand and the pole: several obstacles, or one run of bins wider than R_obst across two poles
+    assert any("obstacles in view" in e["reason"] or "wider than R_obst" in e["reason"]
+               for e in rig.log.named("contract_in_force"))
+    assert _swerved(rig) and not rig.log.named("dead_end")
+    assert any("swerving" in e.get("reason", "") for e in rig.log.named("limit_change"))
+
+    _no_swerve(monkeypatch)
+    _, old, old_rig = _clutter(20)
+    assert not old["collided"] and not old["route_completed"]  # the control must fail: today's dead end
+    assert old_rig.log.named("dead_end")
+
+
+def test_a_column_inside_a_corridor_is_passed_without_contact(monkeypatch):
+    """Scenario 61 (the Mambo on ArduPilot, a corridor with a turn, a column inside): its walls wider than R_obst
+    keep the stop contract in force; the swerve round the column between the walls; no contact; the route
+    completed. Control: today's straight flight ends in a dead end."""
+    s, row, rig = _clutter(61)
+    assert s["world_family"] == "corridor"
+    assert not row["collided"] and row["route_completed"] and _swerved(rig)
+
+    _no_swerve(monkeypatch)
+    _, old, old_rig = _clutter(61)
+    assert not old["collided"] and not old["route_completed"] and old_rig.log.named("dead_end")
+
+
+def test_a_wall_across_the_route_is_still_a_dead_end_stopped_short_and_said():
+    """Scenario 16 (the Mambo on ArduPilot, a wall across the route: no route exists): the stop contract's braking
+    stop short of the wall, then Hold, said as a dead end (event and STATUSTEXT over MAVLink)."""
+    s, row, rig = _clutter(16)
+    assert s["world_family"] == "dead_end" and not row["route_exists"]
+    assert not row["collided"] and row["stopped_short"] and not row["route_completed"]
+    (dead,) = rig.log.named("dead_end")
+    assert dead["reason"] == "no path the contract can prove: stopped"
+    assert any("no path the contract can prove" in t for t in rig.daemon_texts())
+
+
+def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
+    """The stop contract in force because the pass would leave the view, then the view holds again: during the dwell
+    before the avoid contract returns it stays straight (the swerve is for a breach of the world only)."""
+    rule = ContractInForce(math.radians(30.0), dwell_s=1.0)
+
+    def at(t, d_od):
+        i = SimpleNamespace(t=t, ground_speed=1.0, obstacle_width=0.0, r_obst=1.0, e_tr_measured=0.3,
+                            thrust_ratio=1.0, obstacles=0, dod=SimpleNamespace(d_od=d_od, silence_s=0.0))
+        return rule.judge(i, SimpleNamespace(v_max=2.0), 0.1)
+
+    assert at(0.0, 1.0).contract == "stop" and not rule.now.swerve  # the view broken at D_od 1 m
+    dwell = at(0.5, 9.0)
+    assert dwell.contract == "stop" and not dwell.swerve
+    assert at(2.0, 9.0).contract == "avoid"
