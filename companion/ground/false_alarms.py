@@ -20,8 +20,9 @@ The observer's questions, one per kind of event (`judge`):
 - the rest (the controller's contour error, measured on the SITL's true position; command delivery; the daemon's
   own lateness; a silent sensor, which really sent nothing) are measurements of the truth itself: founded.
 
-A flight's row (`fly`) says what it flew (mode, sensor model, world family, seed, seconds airborne) and each
-event with its verdict and the truth behind it. `benchmarks/false_alarms.py` flies many and sums them per
+A flight's row (`fly`) says what it flew (mode, sensor model, world family, seed, seconds airborne), whether the
+daemon guarded it at all (`guarded`; `refused`: the start-up check that kept it from engaging) and each event with
+its verdict and the truth behind it. `benchmarks/false_alarms.py` flies many and sums them per
 flight-hour.
 """
 
@@ -302,9 +303,17 @@ def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = N
     cut = stopped[0] if stopped else math.inf  # flight-hours count to the first stop: after it the pilot flies
     events = judged_events(rig, obs)
     tr = obs.samples[-1][1]
+    refused = next((e["reason"] for e in rig.log.named("startup_check") if not e["ok"]), None)
     return {"mode": mode, "model": model, "world": family, "seed": seed, "flown_s": round(obs.airborne_s(cut), 2),
             "arrived": math.hypot(tr.x - end[0], tr.y - end[1]) < 1.0, "stopped_s": stopped[0] if stopped else None,
-            "collisions": len(rig.truth["collisions"]), "events": events}
+            "collisions": len(rig.truth["collisions"]), "guarded": guarded(rig), "refused": refused, "events": events}
+
+
+def guarded(rig: Rig) -> bool:
+    """Whether the daemon guarded the flight at all: its supervisor left standby (a limit in force, a Hold, its own
+    offboard flight). A daemon that refused to engage (its start-up checks failed: the sensors cannot cover the swept
+    corridor) watches a flight it does not guard; its events are still logged and judged."""
+    return any(s["state"] != "standby" for s in rig.log.states)
 
 
 def judged_events(rig: Rig, obs: Observer) -> list[dict]:
