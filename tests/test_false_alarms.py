@@ -347,3 +347,33 @@ def test_negative_control_axis_depth_read_as_range_puts_the_side_of_a_wall_neare
     they are not in (a hold with nothing there)."""
     hits = _wall_bins("range")
     assert all(abs(r - 5.0) < 1e-9 for r in hits.values())
+
+
+def test_a_pole_the_rays_stepped_over_is_a_founded_first_detection_whichever_estimate_declares_it():
+    """Governor, the sector sensor, a route past columns (seed 2): a thin pole the 5° bins step over until 9.5 m is
+    truly seen late. The evidence's first detection ("a target first seen at 9.49 m") comes a frame before the
+    late-detection rule's confirmed one and names the violation; the observer judges it by the truth, as it judges the
+    rule's (the surface, and the frame before its first sight), not as a medium's lowering."""
+    row = fly_clear("governor", "sector", "columns", 2)
+    nav = [e for e in row["events"] if e["kind"] == "violation (navigation)"]
+    assert nav and nav[0]["founded"] and nav[0]["rays_missed_it"], nav
+
+
+def test_negative_control_judged_as_a_medium_the_evidences_first_detection_is_unfounded(monkeypatch):
+    from companion.ground import false_alarms as fa
+
+    monkeypatch.setattr(fa, "FIRST_SEEN", fa.re.compile(r"(?!)"))  # never matches: every ":" action is a medium's
+    row = fly_clear("governor", "sector", "columns", 2)
+    nav = [e for e in row["events"] if e["kind"] == "violation (navigation)"]
+    assert nav and not nav[0]["founded"]
+
+
+def test_a_late_detection_is_judged_at_its_first_sight():
+    """The violation is said when the following frames confirm it; the observer looks at the truth when it was first
+    seen (the frame before that is the one whose rays may have stepped over it)."""
+    from companion.ground.false_alarms import Observer
+
+    obs = Observer.__new__(Observer)
+    obs.late = [(5.10, 5.00), (9.30, 9.20)]
+    assert obs.first_seen(9.30) == 9.20 and obs.first_seen(5.10) == 5.00
+    assert obs.first_seen(7.0) == 7.0  # no late detection declared then: the event's own time

@@ -9,7 +9,8 @@ The observer's questions, one per kind of event (`judge`):
   the sensor's noise)? A hold on a return with nothing there is unfounded;
 - **navigation, "every obstacle within D_od is detected"** (D_od lowered): was D_od really shorter than stated?
   In clear air the range at which a surface of reflectivity ρ is detected is the lidar equation's
-  (contracts/lidar.py `detection_range` with α = 0); a first detection is founded only where the surface it hit
+  (contracts/lidar.py `detection_range` with α = 0); a first detection (the daemon's late first detection, judged
+  at its first sight, or the evidence's "a target first seen at r m") is founded only where the surface it hit
   could not have been detected at the range assumed. A first sight of a surface that was occluded, outside the
   field of view or whose bin was dropped, and a lowering for a medium (clear air has none), are unfounded;
 - **environment, "no obstacle wider than R_obst"**: is a surface wider than R_obst really in view (a wall, a
@@ -29,6 +30,7 @@ flight-hour.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from itertools import pairwise
 
@@ -101,6 +103,7 @@ class Observer:
         self.world = rig.sim.world
         self.samples: list[tuple[float, Truth]] = []
         self.seen: list[tuple[float, float, float, float]] = []  # (t, obstacle_m, d_od, stated) the daemon judged
+        self.late: list[tuple[float, float]] = []  # (t declared, t first seen) of the daemon's late first detections
 
     def daemon_saw(self, t: float) -> tuple[float, float, float]:
         """(obstacle_m, d_od, stated) of the daemon's cycle at `t` (the inputs its supervisor judged)."""
@@ -113,6 +116,13 @@ class Observer:
         i = getattr(self.rig.daemon, "_last_in", None)  # read only
         if i is not None:
             self.seen.append((i.t, i.dod.obstacle_m, i.dod.d_od, i.dod.stated_m))
+            if i.dod.late is not None:
+                self.late.append((i.t, i.dod.late.t))
+
+    def first_seen(self, t: float) -> float:
+        """When the late first detection the daemon declared at `t` was first seen (declared once the following
+        frames confirmed it); `t` itself where none was declared then."""
+        return next((first for at, first in reversed(self.late) if abs(at - t) <= 1e-6), t)
 
     def airborne_s(self, until: float = math.inf) -> float:
         """The seconds sampled airborne (above 0.5 m) up to `until`."""
@@ -249,9 +259,13 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
         g = e.get("guarantee", "")
         if sub == "navigation" and g == "every obstacle within D_od is detected":
             action = e.get("action", "")
-            if ":" in action:  # lowered by the evidence of a medium (or a disagreement): clear air has no medium
-                return "violation (navigation)", False, {"action": action}
-            seen, assumed = float(e["observed"]), float(e["assumed"])
+            first = FIRST_SEEN.search(action)
+            if ":" in action and first is None:  # lowered by the evidence of a medium (or a disagreement): clear air
+                return "violation (navigation)", False, {"action": action}  # has no medium
+            # a late first detection, the estimator's or the evidence's ("a target first seen at r m"): the truth
+            seen, assumed = float(first.group(1) if first else e["observed"]), float(e["assumed"])
+            t = obs.first_seen(t)  # the truth when it was first seen
+            tr = obs.at(t)
             tol = NOISE_SIGMAS * noise_m(rig, seen) + 0.1
             rho = obs.reflectivity_near(tr, seen, tol + 0.5)
             if rho is None:
@@ -272,6 +286,7 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
     raise ValueError(name)
 
 
+FIRST_SEEN = re.compile(r"a target first seen at ([0-9.]+) m")  # the evidence's first detection (detection_range.py)
 OBSTACLE = "obstacle inside the stop distance"  # the stop contract's hold (companion/onboard/states.py Cause)
 AFTER_STOP_S = 3.0  # a flight ends this long after the daemon's first Hold or braking stop (the pilot takes over)
 JUDGED = ("hold_trigger", "failsafe", "no_avoiding_plan", "violation_start")
