@@ -20,8 +20,8 @@ its share of `--hours` or `--max-flights` flights.
 defaults: 0.002 and 0.0005, sitl_harness/sensor_models.py), to measure the alarms that are theirs alone.
 Per cell and per (mode, model): flights, hours, routes completed (`arrived`), flights the daemon guarded at all
 (`guarded`: it left standby; a set-up whose sensors cannot cover the swept corridor is refused at start-up and only
-watches), events per hour by kind, unfounded per hour, and the 95 % upper bound of the unfounded rate (Poisson: 3.0 / hours with none seen); the first unfounded events, with the truth
-behind them.
+watches), events per hour by kind, unfounded per hour, and the 95 % upper bound of the unfounded rate (Poisson:
+3.0 / hours with none seen); the first unfounded events, with the truth behind them.
 """
 
 from __future__ import annotations

@@ -95,7 +95,7 @@ def test_a_real_obstacle_first_seen_inside_dod_is_declared_two_frames_later_wher
     spurious returns on: an obstacle from its first frame, declared on the second frame received after it, at the
     range and time it was first seen; D_od lowered to that range. The same with the rule off: declared at once."""
     for seed in range(1, 9):
-        def run(confirm, spurious):
+        def run(confirm, spurious, seed=seed):
             sensor = model(SingleBeam, SINGLE_BEAM, spurious_rate=spurious, dropout_rate=0.1, seed=seed)
             appear = (3.0, Column(SPEED * 3.0 + 4.0 + 0.3, 0.0, 0.3))
             return fly(sensor, BEAM, World(), 4.0, confirm, appear)

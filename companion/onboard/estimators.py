@@ -150,10 +150,10 @@ class SilentSensor:
 class DodEstimator:
     """`D_od` along the direction of travel from the sensors' configured mounting and field of view,
     their reported range limits and signal quality, each sensor's silence (one silent longer than its own budget,
-    `SilenceBudget`, counts for nothing; none left ⇒ 0), coverage and late first
-    detections (which lower the estimate for a hold time once the following frames confirm them, `late_detection`). A direction outside every field of view gets
-    the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the swept
-    coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
+    `SilenceBudget`, counts for nothing; none left ⇒ 0), coverage and late first detections (which lower the
+    estimate for a hold time once the following frames confirm them, `late_detection`). A direction outside every
+    field of view gets the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the
+    swept coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
 
     def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float,
                  silence: SilenceBudget | None = None, cover: bool = True):
