@@ -235,7 +235,7 @@ class DodEstimator:
         placed = self._placed(i, t, seen)
         self._sweep(i, t, view)  # free only short of every fresh source's hits
         followed = self._confirm.follow(Frame(t, i, source, seen, placed, s.known, s.increment, tolerance),
-                                        lambda c: self._looks_at(s, t, c))
+                                        lambda c: self._seen_from_here(t, c))
         track = [p for c in followed.confirmed for p in self._declare(t, c)]
         # a candidate this frame ended was no obstacle: a hit in its bin now is not "the same as before"
         before = [h for h in before if h[0] not in followed.ended]
@@ -263,16 +263,14 @@ class DodEstimator:
         self._penalty = (t + self.contract.late_detection_hold_s, cap)
         return list(c.points)
 
-    def _looks_at(self, s: _SensorState, t: float, c: Candidate) -> bool:
-        """Whether sensor `s`'s sample at `t` looked at candidate `c`'s place: a single beam always; bins when one
-        that reported covers its bearing now (from the vehicle's pose where both are known, else its last)."""
-        if s.known is None:
-            return True
-        bearing = c.bearing
-        if c.point is not None and self._pos is not None and self._yaw_hist and t - self._pos[0] <= self.stale_s \
-                and t - self._yaw_hist[-1][0] <= self.stale_s:
-            bearing = math.atan2(c.point[1] - self._pos[2], c.point[0] - self._pos[1]) - self._yaw_hist[-1][1]
-        return any(abs(wrap(bearing - b)) <= s.increment / 2 + 1e-9 for b in s.known)
+    def _seen_from_here(self, t: float, c: Candidate) -> tuple[float, float]:
+        """The body bearing and range at which a sample at `t` sees candidate `c`'s place: from the vehicle's pose now
+        where it and the place are known, else where it was last seen."""
+        if c.point is None or self._pos is None or not self._yaw_hist or t - self._pos[0] > self.stale_s \
+                or t - self._yaw_hist[-1][0] > self.stale_s:
+            return c.bearing, c.range_m
+        dx, dy = c.point[0] - self._pos[1], c.point[1] - self._pos[2]
+        return wrap(math.atan2(dy, dx) - self._yaw_hist[-1][1]), math.hypot(dx, dy)
 
     def _placed(self, i: int, t: float, seen) -> list[tuple[float, float, float] | None]:
         """Each hit in the local frame: (x, y, uncertainty ±) from the last position and heading (None when

@@ -23,9 +23,11 @@ hide a real late detection: a static surface inside `D_od` and in the field of v
 and the declaration keeps the range and time of its first sight. With `frames` 0 every first sight is declared at
 once.
 
-A "consistent place": within the two sightings' placement uncertainties and the late-detection tolerance (which
-holds one frame's travel) of each other in the local frame, or, where a pose is missing, in the same bin (a
-single beam: its one beam) within that tolerance in range.
+A "consistent place": where the candidate's last sight would be seen now, the vehicle's own motion and turn
+accounted for (its place in the local frame, seen from the vehicle's pose now; its last bearing and range where a
+pose is missing) — in the bin that covers that bearing or the one beside it (a single beam: its one beam), and
+within the late-detection tolerance (which holds one frame's travel) of that range. Close to the sensor a bin is
+narrow in metres: a distance in the local frame alone would let returns in bins far apart at short range match.
 """
 
 from __future__ import annotations
@@ -113,16 +115,17 @@ class Confirmations:
         self._open.append(c)
         return None
 
-    def follow(self, f: Frame, looks) -> Followed:
-        """Match the frame's hits against the sensor's candidates of the same source. `looks(candidate)`: whether
-        this frame looked at the candidate's place (a single beam always does)."""
+    def follow(self, f: Frame, where) -> Followed:
+        """Match the frame's hits against the sensor's candidates of the same source. `where(candidate)`: the body
+        bearing and range at which this frame would see the candidate's place."""
         confirmed, used, ended, keep = [], set(), [], []
         for c in self._open:
             if c.first.sensor != f.sensor or c.source != f.source:
                 if f.t - c.t_last <= self.stale_s:
                     keep.append(c)
                 continue
-            k = self._match(c, f, used)
+            bearing, rng = where(c)
+            k = self._match(f, bearing, rng, used)
             if k is not None:
                 used.add(k)
                 c.seen_again += 1
@@ -130,7 +133,7 @@ class Confirmations:
                 if f.placed[k] is not None:
                     c.points.append(f.placed[k])
                 (confirmed if c.seen_again >= self.frames else keep).append(c)
-            elif looks(c) or f.t - c.t_last > self.stale_s:
+            elif self._looks(f, bearing) or f.t - c.t_last > self.stale_s:
                 ended.append(c.bearing)
             else:
                 keep.append(c)
@@ -138,20 +141,19 @@ class Confirmations:
         return Followed(tuple(confirmed), frozenset(used), tuple(ended))
 
     @staticmethod
-    def _match(c: Candidate, f: Frame, used: set) -> int | None:
-        """The hit of `f` at a consistent place with the candidate's last sight (the nearest such), or None."""
+    def _looks(f: Frame, bearing: float) -> bool:
+        """Whether the frame looked along body `bearing`: a single beam always; bins when one that reported covers
+        it."""
+        return f.known is None or any(abs(wrap(bearing - b)) <= f.increment / 2 + 1e-9 for b in f.known)
+
+    @staticmethod
+    def _match(f: Frame, bearing: float, rng: float, used: set) -> int | None:
+        """The hit of `f` at a consistent place (module docstring) with a candidate expected at body `bearing` and
+        range `rng` (the nearest in range of such), or None."""
         best, best_d = None, math.inf
         for k, (b, r) in enumerate(f.hits):
-            if k in used:
-                continue
-            p = f.placed[k]
-            if p is not None and c.point is not None:
-                d = math.hypot(p[0] - c.point[0], p[1] - c.point[1])
-                ok = d <= p[2] + c.point[2] + f.tolerance
-            else:
-                same_bin = f.known is None or abs(wrap(b - c.bearing)) <= f.increment * 1.5 + 1e-9
-                d = abs(r - c.range_m)
-                ok = same_bin and d <= f.tolerance
-            if ok and d < best_d:
+            d = abs(r - rng)
+            same_bin = f.known is None or abs(wrap(b - bearing)) <= f.increment + 1e-9
+            if k not in used and same_bin and d <= f.tolerance and d < best_d:
                 best, best_d = k, d
         return best
