@@ -214,3 +214,33 @@ def test_the_confirmation_frames_are_bounded_and_more_than_the_default_is_named_
     assert not any("late_detection_confirm" in line for line in
                    weakened(config_from_dict({"contract": {"late_detection_confirm_frames": 0}})))
 
+
+
+def test_close_returns_in_bins_far_apart_are_not_one_place():
+    """The camera's bins, flying at 1.5 m/s: spurious returns at −15° 0.54 m, −10° 0.60 m, +30° 0.47 m in three frames
+    in a row (as the SITL's camera drew them once) are not one surface: 0.38 m apart in the local frame, within the
+    tolerance, but 40° apart — a static surface stays in its bin or the one beside it. The same surface seen in
+    its bin and coming nearer by the travel is."""
+    bearings = np.radians(np.arange(-40, 41, 5.0))
+    inc = math.radians(5)
+
+    def run(seen):
+        e = DodEstimator([CAMERA], ContractConfig(), stale_s=0.5)
+        e.set_speed(SPEED)
+        dt = 1 / 30
+        late = None
+        for k in range(10 + len(seen)):
+            t = k * dt
+            ranges = np.full(len(bearings), np.inf)
+            if k >= 10:
+                deg, r = seen[k - 10]
+                ranges[int(round((deg + 40) / 5))] = r
+            e.add_position(t, SPEED * t, 0.0)
+            e.add_heading(t, 0.0)
+            e.add_scan(bins_scan(t, 0, bearings, ranges, 10.0, inc))
+            late = late or e.estimate(t, 0.0).late
+        return late
+
+    assert run([(-15, 0.54), (-10, 0.60), (30, 0.47)]) is None
+    surface = run([(-15, 0.54), (-15, 0.49), (-15, 0.44)])
+    assert surface is not None and surface.range_m == 0.54
