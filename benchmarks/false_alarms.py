@@ -18,9 +18,10 @@ its share of `--hours` or `--max-flights` flights.
 
 `--spurious-rate`: the depth camera's and the single beam's spurious close returns per bin and frame (their
 defaults: 0.002 and 0.0005, sitl_harness/sensor_models.py), to measure the alarms that are theirs alone.
-Per cell and per (mode, model): flights, hours, events per hour by kind, unfounded per hour, and the 95 % upper
-bound of the unfounded rate (Poisson: 3.0 / hours with none seen); the first unfounded events, with the truth
-behind them.
+Per cell and per (mode, model): flights, hours, routes completed (`arrived`), flights the daemon guarded at all
+(`guarded`: it left standby; a set-up whose sensors cannot cover the swept corridor is refused at start-up and only
+watches), events per hour by kind, unfounded per hour, and the 95 % upper bound of the unfounded rate (Poisson:
+3.0 / hours with none seen); the first unfounded events, with the truth behind them.
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ def summarise(rows: list[dict]) -> dict:
     n_bad = sum(unfounded.values())
     per = (lambda c: {k: round(v / hours, 1) for k, v in sorted(c.items())}) if hours > 0 else (lambda c: {})
     return {"flights": len(rows), "hours": round(hours, 4), "arrived": sum(r["arrived"] for r in rows),
+            "guarded": sum(r.get("guarded", True) for r in rows),
             "collisions": sum(r["collisions"] for r in rows), "events": dict(sorted(events.items())),
             "unfounded": dict(sorted(unfounded.items())), "unfounded_by_cause": dict(sorted(causes.items())),
             "events_per_hour": per(events),

@@ -67,8 +67,16 @@ def test_late_first_detection_lowers_dod_and_is_reported():
         t += 0.05
     add_range(e, 0, t, 3.0, 0.1, 10.0, 100)  # hidden fog: first seen at 3 m although 10 m were promised
     est = e.estimate(t, 0.0)
-    assert est.late is not None and est.late.range_m == 3.0 and est.late.assumed_d_od == 10.0
-    assert est.d_od == 3.0 and est.obstacle_m == 3.0
+    assert est.obstacle_m == 3.0  # an obstacle from its first frame
+    assert est.late is None and est.d_od == 10.0  # the shorter range not yet: seen once
+    for k, r in enumerate((2.95, 2.9)):  # seen again in each of the two frames that follow
+        t += 0.05
+        add_range(e, 0, t, r, 0.1, 10.0, 100)
+        est = e.estimate(t, 0.0)
+        assert (est.late is None) == (k == 0)
+    assert est.late.range_m == 3.0 and est.late.assumed_d_od == 10.0  # where and when it was first seen
+    assert est.late.t == pytest.approx(t - 0.1)
+    assert est.d_od == 3.0 and est.obstacle_m == 2.9
     # the same obstacle getting closer is not a new late detection
     add_range(e, 0, t + 0.05, 2.8, 0.1, 10.0, 100)
     assert e.estimate(t + 0.05, 0.0).late is None
@@ -105,9 +113,10 @@ def test_bins_side_entry_is_not_a_violation_but_interior_is():
     add_bins(e, 0, 0.05, bearings, edge, 10.0, inc)
     assert e.estimate(0.05, 0.0).late is None
     mid = edge.copy()
-    mid[6] = 4.0  # appears dead ahead, well inside the promised 10 m
-    add_bins(e, 0, 0.1, bearings, mid, 10.0, inc)
-    est = e.estimate(0.1, 0.0)
+    mid[6] = 4.0  # appears dead ahead, well inside the promised 10 m, and stays
+    for t in (0.1, 0.15, 0.2):
+        add_bins(e, 0, t, bearings, mid, 10.0, inc)
+        est = e.estimate(t, 0.0)
     assert est.late is not None and abs(est.late.bearing) < 1e-9 and est.d_od == 4.0
 
 
@@ -180,8 +189,10 @@ def test_samples_delivered_in_a_burst_still_get_one_interval_of_travel():
     add_range(e, 0, t + 0.001, 9.45, 0.1, 10.0, 100)  # burst: 6 m/s · 50 ms + 0.3 m tolerance covers 0.55 m
     assert e.estimate(t + 0.001, 0.0).late is None
     add_range(e, 0, t + 0.05, 10.0, 0.1, 10.0, 100)
-    add_range(e, 0, t + 0.051, 8.9, 0.1, 10.0, 100)  # 1.1 m inside: late even so
-    assert e.estimate(t + 0.051, 0.0).late is not None
+    add_range(e, 0, t + 0.051, 8.9, 0.1, 10.0, 100)  # 1.1 m inside: late even so (once the next frames confirm it)
+    add_range(e, 0, t + 0.1, 8.6, 0.1, 10.0, 100)
+    add_range(e, 0, t + 0.15, 8.3, 0.1, 10.0, 100)
+    assert e.estimate(t + 0.15, 0.0).late is not None
 
 
 def test_an_obstacle_already_tracked_is_not_a_new_late_detection():
@@ -208,12 +219,15 @@ def test_an_obstacle_already_tracked_is_not_a_new_late_detection():
         e.add_heading(0.5, yaw)
         back = far.copy()
         back[5:8] = 1.5
-        add_bins(e, 0, 0.5, bearings, back, 4.0, inc)
-        return e.estimate(0.5, 0.0)
+        late = None
+        for t in (0.5, 0.55, 0.6):  # hovering there: seen in three frames
+            add_bins(e, 0, t, bearings, back, 4.0, inc)
+            late = late or e.estimate(t, 0.0).late
+        return e.estimate(0.6, 0.0), late
 
-    assert flight(0.0).late is None  # the tracked column (within 2·R_obst of its points): not late
-    est = flight(8.5)  # 8.5 m on: no tracked obstacle there, a late detection as before
-    assert est.late is not None and est.d_od == 1.5
+    assert flight(0.0)[1] is None  # the tracked column (within 2·R_obst of its points): not late
+    est, late = flight(8.5)  # 8.5 m on: no tracked obstacle there, a late detection as before
+    assert late is not None and est.d_od == 1.5
 
 
 def test_thrust_ratio_is_only_measured_airborne_and_settled():

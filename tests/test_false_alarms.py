@@ -221,16 +221,61 @@ def test_a_clear_air_cluttered_flight_has_no_unfounded_hold_or_violation(mode, w
     observer would call unfounded."""
     row = fly_clear(mode, "sector", world, 1)
     assert row["arrived"] and row["collisions"] == 0 and row["flown_s"] > 8.0
+    assert row["guarded"] and row["refused"] is None  # the daemon guarded the flight, not only watched it
     assert unfounded(row) == []
 
 
-def test_negative_control_the_observer_calls_a_reaction_to_a_spurious_return_unfounded():
-    """The same governor flight with a depth camera whose spurious close returns come at 1 % a bin and frame: the
-    daemon reacts to one (a close return is an obstacle, and a first detection, until shown otherwise) and the
-    observer, finding no surface there, calls it unfounded."""
-    row = fly_clear("governor", "depth_camera", "cluster", 1, sensor={"spurious_rate": 0.01})
+# the camera pitched up by more than the Mambo pitches, so that the ground stays out of its view
+PITCHED_UP = {"spurious_rate": 0.01, "mount_pitch_deg": 15.0}
+
+
+def _confirm_frames(monkeypatch, frames):
+    """The flights' daemon config with `contract.late_detection_confirm_frames` set."""
+    from companion.ground import false_alarms as fa
+
+    config_of = fa.config_of
+
+    def with_frames(mode, route, model="sector"):
+        cfg = config_of(mode, route, model)
+        return {**cfg, "contract": {**cfg["contract"], "late_detection_confirm_frames": frames}}
+
+    monkeypatch.setattr(fa, "config_of", with_frames)
+
+
+def test_the_observer_calls_a_hold_for_a_spurious_return_unfounded_and_it_is_no_late_detection():
+    """The governor with a depth camera whose spurious close returns come at 1 % a bin and frame: the daemon holds
+    for one (a close return is an obstacle until shown otherwise: the safe reaction stays) and the observer, finding
+    no surface there, calls it unfounded; a return seen in one frame only is no late detection."""
+    row = fly_clear("governor", "depth_camera", "cluster", 1, sensor=PITCHED_UP)
     bad = [e for e in unfounded(row) if e["cause"] == "spurious close return"]
-    assert bad and bad[0]["kind"] in ("hold (obstacle)", "violation (navigation)")
+    assert bad and bad[0]["kind"] == "hold (obstacle)"
+    assert not [e for e in row["events"] if e["kind"] == "violation (navigation)"]
+
+
+def test_negative_control_without_confirmation_a_spurious_return_is_a_late_detection(monkeypatch):
+    """The same flight with every first sight declared at once: a spurious return is taken for an obstacle first seen
+    inside the stated range, and the observer calls that navigation violation unfounded."""
+    _confirm_frames(monkeypatch, 0)
+    row = fly_clear("governor", "depth_camera", "cluster", 1, sensor=PITCHED_UP)
+    bad = [e for e in unfounded(row) if e["cause"] == "spurious close return"]
+    assert bad and bad[0]["kind"] == "violation (navigation)"
+
+
+def test_offboard_with_a_single_beam_has_no_late_detection_from_a_spurious_return():
+    """Offboard with the TFmini-class beam in clear air (its default spurious returns): a return at 0.29 m five
+    seconds in is no late detection (it is not seen again), so nothing is judged. The beam cannot cover the swept
+    corridor (3.6° at 12 m covers ±0.38 m of the ±0.40 m): the daemon refuses to engage, says why, and the vehicle
+    hovers where it took off; that refusal, not an alarm, is why no single-beam route is completed."""
+    row = fly_clear("offboard", "single_beam", "plain", 1)
+    assert row["events"] == []
+    assert not row["guarded"] and "cannot cover the swept corridor" in row["refused"] and not row["arrived"]
+
+
+def test_negative_control_without_confirmation_the_single_beams_spurious_return_is_a_violation(monkeypatch):
+    _confirm_frames(monkeypatch, 0)
+    row = fly_clear("offboard", "single_beam", "plain", 1)
+    assert [(e["kind"], e["founded"], e["cause"]) for e in row["events"]] == [
+        ("violation (navigation)", False, "spurious close return")]
 
 
 def _fog_lift_flight(monkeypatch=None):
@@ -326,3 +371,36 @@ def test_two_poles_seen_as_one_wide_run_break_the_environment_assumption_truly(m
     old = fly(spec, 529)
     assert any(a["kind"] == "violation (environment)" and a["t"] == pytest.approx(wide[0])
                for a in old["unfounded_alarms"])
+
+
+DARK_COLUMN = {"columns": [{"x_m": 30.0, "y_m": 0.4, "radius_m": 0.3, "reflectivity": 0.02, "name": "dark column"}]}
+
+
+def test_a_column_darker_than_the_rating_is_a_founded_first_detection_whichever_estimate_declares_it():
+    """Governor, the sector sensor, a column of reflectivity 0.02 on the route (a fifth of the rated 10 %): the lidar
+    equation sees it at 4.5 m of a 10 m rating, and it is truly first seen late. Whichever estimate says so first —
+    the evidence's first detection ("a target first seen at …") or the late-detection rule's confirmed one — the
+    observer judges it by the truth (the surface's reflectivity and its true reach), not as a medium's lowering."""
+    row = fly_clear("governor", "sector", "plain", 1, world=DARK_COLUMN)
+    nav = [e for e in row["events"] if e["kind"] == "violation (navigation)"]
+    assert nav and nav[0]["founded"] and nav[0]["true_reach_m"] < nav[0]["assumed"], nav
+
+
+def test_negative_control_judged_as_a_medium_the_evidences_first_detection_is_unfounded(monkeypatch):
+    from companion.ground import false_alarms as fa
+
+    monkeypatch.setattr(fa, "FIRST_SEEN", fa.re.compile(r"(?!)"))  # never matches: every ":" action is a medium's
+    row = fly_clear("governor", "sector", "plain", 1, world=DARK_COLUMN)
+    nav = [e for e in row["events"] if e["kind"] == "violation (navigation)"]
+    assert nav and not nav[0]["founded"]
+
+
+def test_a_late_detection_is_judged_at_its_first_sight():
+    """The violation is said when the following frames confirm it; the observer looks at the truth when it was first
+    seen (the frame before that is the one whose rays may have stepped over it)."""
+    from companion.ground.false_alarms import Observer
+
+    obs = Observer.__new__(Observer)
+    obs.late = [(5.10, 5.00), (9.30, 9.20)]
+    assert obs.first_seen(9.30) == 9.20 and obs.first_seen(5.10) == 5.00
+    assert obs.first_seen(7.0) == 7.0  # no late detection declared then: the event's own time

@@ -118,9 +118,14 @@ def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
     assert len(rep_s) == pytest.approx(len(live_s), abs=5)
     speeds = load_for_vehicle("mambo").e_pred.axes[0]
     v_at = {s["t"]: s["v_max"] for s in live_s}
+    # live samples beside a replayed one whose beam was untrusted (claim 0, below): V_max, and E_tr_pred with it, may
+    # differ there
+    untrusted = [r["t"] + off for r in rep_s if r["d_od_stated"] == 0.0]
+    untrusted_in_replay = {s["t"] for s in live_s if any(abs(t - s["t"]) <= 0.1 + 1e-9 for t in untrusted)}
     for key, tol in (("d_od", 0.01), ("v_max", 0.02), ("e_tr", 0.02), ("thrust_ratio", 0.01)):
         bad = disagreements(live_s, rep_s, key, tol, off)
         if key == "e_tr":
+            bad = [t for t in bad if t not in untrusted_in_replay]
             # E_tr_pred is a step function of V_max: where Ω's fixed point sits on one of its grid speeds (3.0 m/s
             # here, with the E_tr_pred rebuilt for issue 19 item 9), a hair's difference in the estimates flips E_tr
             # between the two cells' values (0.60 / 0.70 m) and V_max by 1 mm, both consistent answers: such
@@ -131,8 +136,9 @@ def test_replayed_daemon_tlog_agrees_with_the_live_review(fog, tmp_path):
             # D_od from evidence: the medium's backscatter counted over a 1 s window of frames that the replay
             # steps at log time, a poll apart from the live daemon's: samples lowered by the evidence may differ,
             # and so may those where the beam was untrusted (claim 0: its nearest return the medium's, too weak
-            # for its min_quality, in one frame and not the next); those at a trusted claim may not
+            # for its min_quality, in one frame and not the next), in either log; those at a trusted claim may not
             lowered = {s["t"] for s in live_s if s["d_od"] < s["d_od_stated"] - 1e-9 or s["d_od_stated"] == 0.0}
+            lowered |= untrusted_in_replay
             assert [t for t in bad if t not in lowered] == [], key
             assert len(bad) <= 0.25 * len(live_s), (len(bad), len(live_s))
         else:

@@ -10,7 +10,8 @@ The observer's questions, one per kind of event (`judge`):
   corridor, plus the sensor's noise)? A hold on a return with nothing there is unfounded;
 - **navigation, "every obstacle within D_od is detected"** (D_od lowered): was D_od really shorter than stated?
   In clear air the range at which a surface of reflectivity ρ is detected is the lidar equation's
-  (contracts/lidar.py `detection_range` with α = 0); a first detection is founded only where the surface it hit
+  (contracts/lidar.py `detection_range` with α = 0); a first detection (the daemon's late first detection, judged
+  at its first sight, or the evidence's "a target first seen at r m") is founded only where the surface it hit
   could not have been detected at the range assumed. A first sight of a surface that was occluded, outside the
   field of view or whose bin was dropped, and a lowering for a medium (clear air has none), are unfounded;
 - **environment, "no obstacle wider than R_obst"** and **"one obstacle in view at a time"**, the two faces of the
@@ -23,14 +24,16 @@ The observer's questions, one per kind of event (`judge`):
 - the rest (the controller's contour error, measured on the SITL's true position; command delivery; the daemon's
   own lateness; a silent sensor, which really sent nothing) are measurements of the truth itself: founded.
 
-A flight's row (`fly`) says what it flew (mode, sensor model, world family, seed, seconds airborne) and each
-event with its verdict and the truth behind it. `benchmarks/false_alarms.py` flies many and sums them per
+A flight's row (`fly`) says what it flew (mode, sensor model, world family, seed, seconds airborne), whether the
+daemon guarded it at all (`guarded`; `refused`: the start-up check that kept it from engaging) and each event with
+its verdict and the truth behind it. `benchmarks/false_alarms.py` flies many and sums them per
 flight-hour.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from itertools import pairwise
 
@@ -105,6 +108,7 @@ class Observer:
         self.samples: list[tuple[float, Truth]] = []
         # (t, the obstacle its Hold judged, d_od, stated, ground speed) the daemon judged
         self.seen: list[tuple[float, float, float, float, float]] = []
+        self.late: list[tuple[float, float]] = []  # (t declared, t first seen) of the daemon's late first detections
 
     def daemon_saw(self, t: float) -> tuple[float, float, float, float]:
         """(the obstacle its Hold judged, d_od, stated, ground speed) of the daemon's cycle at `t` (the inputs its
@@ -120,6 +124,13 @@ class Observer:
         if i is not None and d is not None:
             ahead = daemon.cycle.sup.ahead_m(i, d.omega)
             self.seen.append((i.t, ahead, i.dod.d_od, i.dod.stated_m, i.ground_speed))
+            if i.dod.late is not None:
+                self.late.append((i.t, i.dod.late.t))
+
+    def first_seen(self, t: float) -> float:
+        """When the late first detection the daemon declared at `t` was first seen (declared once the following
+        frames confirmed it); `t` itself where none was declared then."""
+        return next((first for at, first in reversed(self.late) if abs(at - t) <= 1e-6), t)
 
     def airborne_s(self, until: float = math.inf) -> float:
         """The seconds sampled airborne (above 0.5 m) up to `until`."""
@@ -257,9 +268,13 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
         g = e.get("guarantee", "")
         if sub == "navigation" and g == "every obstacle within D_od is detected":
             action = e.get("action", "")
-            if ":" in action:  # lowered by the evidence of a medium (or a disagreement): clear air has no medium
-                return "violation (navigation)", False, {"action": action}
-            seen, assumed = float(e["observed"]), float(e["assumed"])
+            first = FIRST_SEEN.search(action)
+            if ":" in action and first is None:  # lowered by the evidence of a medium (or a disagreement): clear air
+                return "violation (navigation)", False, {"action": action}  # has no medium
+            # a late first detection, the estimator's or the evidence's ("a target first seen at r m"): the truth
+            seen, assumed = float(first.group(1) if first else e["observed"]), float(e["assumed"])
+            t = obs.first_seen(t)  # the truth when it was first seen
+            tr = obs.at(t)
             tol = NOISE_SIGMAS * noise_m(rig, seen) + 0.1
             rho = obs.reflectivity_near(tr, seen, tol + 0.5)
             if rho is None:
@@ -279,6 +294,7 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
     raise ValueError(name)
 
 
+FIRST_SEEN = re.compile(r"a target first seen at ([0-9.]+) m")  # the evidence's first detection (detection_range.py)
 OBSTACLE = "obstacle inside the stop distance"  # the stop contract's hold (companion/onboard/states.py Cause)
 AFTER_STOP_S = 3.0  # a flight ends this long after the daemon's first Hold or braking stop (the pilot takes over)
 JUDGED = ("hold_trigger", "failsafe", "no_avoiding_plan", "violation_start")
@@ -286,9 +302,12 @@ STOPS = ("hold_trigger", "failsafe", "no_avoiding_plan")
 
 
 def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = None, rig_kw: dict | None = None,
-        sensor: dict | None = None) -> dict:
-    """One clear-air flight and its judged events (module docstring); `sensor`: as `scenario_of`'s."""
+        sensor: dict | None = None, world: dict | None = None) -> dict:
+    """One clear-air flight and its judged events (module docstring); `sensor`: as `scenario_of`'s; `world`: the
+    scenario's world instead of the family's (its route kept)."""
     sc = scenario_of(mode, model, family, seed, sensor)
+    if world is not None:
+        sc["world"] = world
     route = sc["route"]["waypoints"]
     length = sum(math.dist(a, b) for a, b in pairwise(route))
     seconds = seconds if seconds is not None else length / CRUISE_M_S + 15.0
@@ -310,9 +329,17 @@ def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = N
     cut = stopped[0] if stopped else math.inf  # flight-hours count to the first stop: after it the pilot flies
     events = judged_events(rig, obs)
     tr = obs.samples[-1][1]
+    refused = next((e["reason"] for e in rig.log.named("startup_check") if not e["ok"]), None)
     return {"mode": mode, "model": model, "world": family, "seed": seed, "flown_s": round(obs.airborne_s(cut), 2),
             "arrived": math.hypot(tr.x - end[0], tr.y - end[1]) < 1.0, "stopped_s": stopped[0] if stopped else None,
-            "collisions": len(rig.truth["collisions"]), "events": events}
+            "collisions": len(rig.truth["collisions"]), "guarded": guarded(rig), "refused": refused, "events": events}
+
+
+def guarded(rig: Rig) -> bool:
+    """Whether the daemon guarded the flight at all: its supervisor left standby (a limit in force, a Hold, its own
+    offboard flight). A daemon that refused to engage (its start-up checks failed: the sensors cannot cover the swept
+    corridor) watches a flight it does not guard; its events are still logged and judged."""
+    return any(s["state"] != "standby" for s in rig.log.states)
 
 
 def judged_events(rig: Rig, obs: Observer) -> list[dict]:

@@ -258,6 +258,11 @@ class ContractConfig(_Strict):
     # a first detection this much inside the claimed range is not late. At most 2 m: a tolerance larger than the
     # keep-out margins it protects (r_obst + e_tr floor, about 1 m) would hide every real shortfall
     late_detection_tolerance_m: Bounded(0.0, 2.0) = 0.3
+    # a return first seen inside D_od is declared a late detection (D_od lowered, a navigation violation) only once
+    # the sensor has seen it again at a consistent place in this many following frames: a real surface persists, a
+    # spurious close return (a propeller, rain) is new in every frame. The return is an obstacle from its first frame
+    # whatever this is. At most 5: the lowering must not wait more than a few frames (0: every single frame counts)
+    late_detection_confirm_frames: Annotated[int, Field(ge=0, le=5)] = 2
     # navigation margin: the part of a sensor's claimed range not trusted, D_od = (1 − m) ×
     # the claim; 0 is the paper's contract (the claim is the guarantee). m survives a hidden shortfall of up to
     # m (the sensor silently seeing only 1 − m of what it claims), at a lower speed limit
@@ -522,6 +527,7 @@ WEAKER = (
     ("contract", "dwell_s", "lower", "a higher limit takes effect sooner"),
     ("contract", "late_detection_hold_s", "lower", "a late detection lowers D_od for less time"),
     ("contract", "late_detection_tolerance_m", "higher", "a larger range shortfall passes as on time"),
+    ("contract", "late_detection_confirm_frames", "higher", "a late detection lowers D_od frames later"),
     ("delivery", "t_cmd_s", "lower", "a command lost or delayed for a shorter time is outside the contract"),
     ("delivery", "t_mode_s", "higher", "a mode the autopilot does not show is given up on later"),
     ("thrust", "tau_s", "higher", "a thrust loss shows later"),

@@ -25,6 +25,7 @@ from contracts.window import WindowMax
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
 from .coverage import Beam, corridor_cover, covered_d_od
+from .late_detection import Candidate, Confirmations, Frame, LateDetection
 from .samples import Scan
 
 # ============================================================================ D_od
@@ -101,17 +102,6 @@ class _Seen:
         return self._sectors
 
 
-@dataclass(frozen=True)
-class LateDetection:
-    """A navigation guarantee broken: an obstacle first seen inside the assumed D_od, within the FOV."""
-
-    t: float
-    sensor: int
-    bearing: float  # body frame
-    range_m: float  # where it first appeared
-    assumed_d_od: float  # what the estimate promised just before
-
-
 @dataclass(frozen=True, slots=True)
 class DodEstimate:
     d_od: float  # guaranteed detection range along the direction of travel [m]
@@ -160,10 +150,10 @@ class SilentSensor:
 class DodEstimator:
     """`D_od` along the direction of travel from the sensors' configured mounting and field of view,
     their reported range limits and signal quality, each sensor's silence (one silent longer than its own budget,
-    `SilenceBudget`, counts for nothing; none left ⇒ 0), coverage and late first
-    detections (which lower the estimate for a hold time). A direction outside every field of view gets
-    the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the swept
-    coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
+    `SilenceBudget`, counts for nothing; none left ⇒ 0), coverage and late first detections (which lower the
+    estimate for a hold time once the following frames confirm them, `late_detection`). A direction outside every
+    field of view gets the distance along it that the fresh, trusted sensors saw free in the last `COVERAGE_S` (the
+    swept coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
 
     def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float,
                  silence: SilenceBudget | None = None, cover: bool = True):
@@ -181,6 +171,8 @@ class DodEstimator:
         self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
         self._last_d_od = 0.0
         self._pending: list[LateDetection] = []
+        # first sights inside D_od awaiting the following frames that confirm them (`late_detection`)
+        self._confirm = Confirmations(contract.late_detection_confirm_frames, stale_s)
         self._yaw_hist: deque[tuple[float, float]] = deque()
         self._pos: tuple[float, float, float] | None = None  # (t, x, y) local NED, the last known
         self._tracked: deque[tuple[float, float, float]] = deque(maxlen=256)  # (t seen, x, y) of obstacle hits
@@ -242,18 +234,43 @@ class DodEstimator:
         view = seen if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
         placed = self._placed(i, t, seen)
         self._sweep(i, t, view)  # free only short of every fresh source's hits
+        followed = self._confirm.follow(Frame(t, i, source, seen, placed, s.known, s.increment, tolerance),
+                                        lambda c: self._seen_from_here(t, c))
+        track = [p for c in followed.confirmed for p in self._declare(t, c)]
+        # a candidate this frame ended was no obstacle: a hit in its bin now is not "the same as before"
+        before = [h for h in before if h[0] not in followed.ended]
+        untracked = set(followed.used)  # a candidate's sightings are tracked only once it is confirmed
         for k, (bearing, r) in enumerate(seen):
-            if any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
-                continue  # the same obstacle as before
+            if k in followed.used or any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
+                continue  # a candidate seen again, or the same obstacle as before
             if r < self._last_d_od - tolerance and not self._side_entry(i, t, bearing) \
                     and not self._tracked_already(t, placed[k], tolerance):
-                self._pending.append(LateDetection(t, i, bearing, r, self._last_d_od))
-                cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])
-                self._penalty = (t + self.contract.late_detection_hold_s, cap)
-        for p in placed:
-            if p is not None:
-                self._tracked.append((t, *p[:2]))
+                untracked.add(k)
+                c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k])
+                if c is not None:
+                    track += self._declare(t, c)
+        track += [p for k, p in enumerate(placed) if p is not None and k not in untracked]
+        for p in track:
+            self._tracked.append((t, *p[:2]))
         s.hits = view
+
+    def _declare(self, t: float, c: Candidate) -> list:
+        """A confirmed late first detection: reported, and D_od capped at the range it was first seen at for the
+        late-detection hold time from now. Returns its sightings' points: a tracked obstacle from now on."""
+        self._pending.append(c.first)
+        r = c.first.range_m
+        cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])
+        self._penalty = (t + self.contract.late_detection_hold_s, cap)
+        return list(c.points)
+
+    def _seen_from_here(self, t: float, c: Candidate) -> tuple[float, float]:
+        """The body bearing and range at which a sample at `t` sees candidate `c`'s place: from the vehicle's pose now
+        where it and the place are known, else where it was last seen."""
+        if c.point is None or self._pos is None or not self._yaw_hist or t - self._pos[0] > self.stale_s \
+                or t - self._yaw_hist[-1][0] > self.stale_s:
+            return c.bearing, c.range_m
+        dx, dy = c.point[0] - self._pos[1], c.point[1] - self._pos[2]
+        return wrap(math.atan2(dy, dx) - self._yaw_hist[-1][1]), math.hypot(dx, dy)
 
     def _placed(self, i: int, t: float, seen) -> list[tuple[float, float, float] | None]:
         """Each hit in the local frame: (x, y, uncertainty ±) from the last position and heading (None when
