@@ -404,3 +404,23 @@ def test_a_late_detection_is_judged_at_its_first_sight():
     obs.late = [(5.10, 5.00), (9.30, 9.20)]
     assert obs.first_seen(9.30) == 9.20 and obs.first_seen(5.10) == 5.00
     assert obs.first_seen(7.0) == 7.0  # no late detection declared then: the event's own time
+
+
+def test_a_hold_on_the_path_the_swerve_flies_is_judged_on_that_path(monkeypatch):
+    """examples/campaign-clutter.yaml flight 37 (offboard, a corridor with a turn and a column inside): under the stop
+    contract offboard swerves, and its Hold judges the path the plan flies (contract_in_force.path_obstacle_m); the
+    observer finds the true surface on that path. Control: an observer that judges the line of travel calls the Hold
+    unfounded."""
+    from pathlib import Path
+
+    from companion.ground import false_alarms as fa
+    from companion.ground.campaign import fly, load_spec
+
+    spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "campaign-clutter.yaml")
+    row, rig = fly(spec, 37, keep_rig=True)
+    assert row["world_family"] == "corridor" and rig.log.named("hold_trigger")
+    assert not any(a["kind"] == "hold (obstacle)" for a in row["unfounded_alarms"])
+
+    monkeypatch.setattr(fa.Observer, "path_judged", lambda self, t: None)
+    old = fly(spec, 37)
+    assert any(a["kind"] == "hold (obstacle)" for a in old["unfounded_alarms"])

@@ -6,7 +6,8 @@ The observer's questions, one per kind of event (`judge`):
 
 - **hold for an obstacle** (the stop contract's Hold): was a true surface near the path (`corridor_m` either side of
   the direction of travel: D_od's band, which holds the swept corridor and its bins' slack; near rest anywhere
-  ahead) really within what the daemon's Hold judged (the supervisor's `ahead_m`, the nearest hit in the swept
+  ahead; where offboard swerves under the stop contract, that far either side of the path its plan flies, as its
+  Hold judges) really within what the daemon's Hold judged (the supervisor's `ahead_m`, the nearest hit in the swept
   corridor, plus the sensor's noise)? A hold on a return with nothing there is unfounded;
 - **navigation, "every obstacle within D_od is detected"** (D_od lowered): was D_od really shorter than stated?
   In clear air the range at which a surface of reflectivity ρ is detected is the lidar equation's
@@ -43,6 +44,7 @@ from contracts.geometry import wrap_array
 from contracts.lidar import RATED_REFLECTIVITY, detection_range
 
 from companion.onboard.ahead import TRAVEL_SPEED_M_S
+from companion.onboard.contract_in_force import path_obstacle_m
 
 from .flights import Rig, engage_and_fly, fly_mission
 from .worlds import CLEAR as WORLDS
@@ -108,6 +110,7 @@ class Observer:
         self.samples: list[tuple[float, Truth]] = []
         # (t, the obstacle its Hold judged, d_od, stated, ground speed) the daemon judged
         self.seen: list[tuple[float, float, float, float, float]] = []
+        self.paths: dict[float, tuple] = {}  # t → (pose, path): where the Hold judged the path its swerve flies
         self.late: list[tuple[float, float]] = []  # (t declared, t first seen) of the daemon's late first detections
 
     def daemon_saw(self, t: float) -> tuple[float, float, float, float]:
@@ -124,6 +127,8 @@ class Observer:
         if i is not None and d is not None:
             ahead = daemon.cycle.sup.ahead_m(i, d.omega)
             self.seen.append((i.t, ahead, i.dod.d_od, i.dod.stated_m, i.ground_speed))
+            if daemon.cycle.sup.swerves and i.path:
+                self.paths[i.t] = (i.pose, i.path)
             if i.dod.late is not None:
                 self.late.append((i.t, i.dod.late.t))
 
@@ -152,6 +157,18 @@ class Observer:
     def at(self, t: float) -> Truth:
         k = min(range(len(self.samples)), key=lambda j: abs(self.samples[j][0] - t))
         return self.samples[k][1]
+
+    def path_judged(self, t: float) -> tuple | None:
+        """(pose, path) where the daemon's Hold at `t` judged the path its swerve flies (None: the line of travel)."""
+        past = [s[0] for s in self.seen if s[0] <= t + 1e-9]
+        return self.paths.get(past[-1]) if past else None
+
+    def nearest_on_path(self, tr: Truth, half_width: float, pose, path) -> float:
+        """The distance along `path` (from `pose`) to where it first comes within `half_width` of a true surface:
+        the daemon's own measure (`path_obstacle_m`) on the truth's rays."""
+        ok = np.isfinite(tr.ranges)
+        hits = [(float(a) - pose[2], float(r), 1e-4, True) for a, r in zip(tr.rays[ok], tr.ranges[ok])]
+        return path_obstacle_m(hits, (tr.x, tr.y, pose[2]), path, half_width)
 
     def nearest_in_corridor(self, tr: Truth, half_width: float, course: float | None = None) -> float:
         """The nearest true surface ahead whose offset from the line of travel is at most `half_width`."""
@@ -243,8 +260,11 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
     stated = rig.sim.sensor.cfg.max_range_m
     if name == "hold_trigger" and e["cause"] == OBSTACLE:
         seen, _, _, speed = obs.daemon_saw(t)
-        # near rest the Hold judges anything in view (companion/onboard/ahead.py): the truth anywhere ahead
-        true = obs.nearest_in_corridor(tr, corridor if speed > TRAVEL_SPEED_M_S else math.inf)
+        judged = obs.path_judged(t)
+        if judged is not None:  # offboard's swerve under the stop contract: the Hold judged the path it flies
+            true = obs.nearest_on_path(tr, corridor, *judged)
+        else:  # near rest the Hold judges anything in view (companion/onboard/ahead.py): the truth anywhere ahead
+            true = obs.nearest_in_corridor(tr, corridor if speed > TRAVEL_SPEED_M_S else math.inf)
         tol = NOISE_SIGMAS * noise_m(rig, min(seen, stated)) + 0.1
         # the depth camera reports depth along its axis, less than the range off it: what it saw is no farther
         # than the true range, so a surface truly within seen/cos(half the field of view) is what it saw
