@@ -14,9 +14,8 @@ from __future__ import annotations
 import math
 
 # [m/s] below this the velocity's direction is drift, not the direction of travel: the cycle takes D_od along the
-# heading there. Low: a vehicle that creeps sideways or backwards at walking pace (offboard's swerve among walls) goes
-# where its beams look, not where its heading points — at 1 m/s a Mambo crept 2 s sideways into a column it never saw
-TRAVEL_SPEED_M_S = 0.3
+# heading there (stopping from it takes ~0.3 m, inside the E_tr floor)
+TRAVEL_SPEED_M_S = 1.0
 
 
 def swept_obstacle_m(hits, beta: float, half_width_m: float) -> float:
