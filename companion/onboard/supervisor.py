@@ -605,7 +605,7 @@ class Supervisor:
         d.v_cmd = v_limit
         if fresh:
             self._hold(d, fresh)
-            # under the stop contract offboard plans round nothing: an obstacle ahead ends the route
+            # under the stop contract an obstacle on the way offboard flies (no plan round it) ends the route
             if Cause.OBSTACLE in fresh and self.fallen_back and self.fallback.dead_end():
                 d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": self.ahead_m(i, om)}))
                 d.statustext.append((2, f"CG: {DEAD_END}"))
