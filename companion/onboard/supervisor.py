@@ -589,14 +589,15 @@ class Supervisor:
             return self._shadow(d, i) if not self.mode.commands else d
         flown = self._judge_limit(i, self._over_limit(i) and i.limit_applies)
         self._judge_overshoot(d, i)
-        causes = self._causes(i, om, flown)
+        ahead = self.ahead_m(i, om)  # once a cycle: the Hold's cause, its release and the dead end read it
+        causes = self._causes(i, om, flown, ahead)
         self._violation(d, "limit_flown", flown is not None, lambda: dict(
                         subsystem=Subsystem.DELIVERY, guarantee=LIMIT_FLOWN, assumed=flown[0], observed=flown[1],
                         action="hold"))
         # a cause stood down from re-arms when it clears; an obstacle's only when nothing is left where its Hold looks
         causes_now = {c for c, on in causes.items() if on}
         self._suppressed = {c for c in self._suppressed if c in causes_now or
-                            (c == Cause.OBSTACLE and math.isfinite(self.ahead_m(i, om)))}
+                            (c == Cause.OBSTACLE and math.isfinite(ahead))}
         fresh = [c for c, on in causes.items() if on and c not in self._suppressed]
         v_limit = self.limit.update(i.t, min(om.v_max * self.cap, self.v_covered))
         self._recent_limits.append((i.t, v_limit))
@@ -607,7 +608,7 @@ class Supervisor:
             self._hold(d, fresh)
             # under the stop contract an obstacle on the way offboard flies (no plan round it) ends the route
             if Cause.OBSTACLE in fresh and self.fallen_back and self.fallback.dead_end():
-                d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": self.ahead_m(i, om)}))
+                d.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": ahead}))
                 d.statustext.append((2, f"CG: {DEAD_END}"))
             return d
         if self.state == State.HOLDING and (i.mode in STOP_MODES and i.mode_by_daemon or self.latched and i.mode == "offboard"):
@@ -853,12 +854,12 @@ class Supervisor:
                         subsystem=Subsystem.AUTOPILOT, guarantee=SPEED_OVERSHOOT, assumed=over[0], observed=over[1],
                         action=f"overshoot budget raised to {self.overshoot.allowance(limit):.2f} m/s: a lower limit"))
 
-    def _causes(self, i: Inputs, om: Omega, not_flown: tuple[float, float] | None) -> dict[Cause, bool]:
+    def _causes(self, i: Inputs, om: Omega, not_flown: tuple[float, float] | None, ahead: float) -> dict[Cause, bool]:
         """Every reason to stop now (each edge-triggered after an override); `not_flown`: the limit not flown
-        (`_judge_limit`)."""
+        (`_judge_limit`); `ahead`: the nearest obstacle the Hold judges (`ahead_m`)."""
         finite = _finite_inputs(i)
         margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
-        obstacle = finite and self.ahead_m(i, om) - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+        obstacle = finite and ahead - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
             Cause.NON_FINITE: not finite,
             Cause.STALE: not i.telemetry_ok,
@@ -889,7 +890,7 @@ class Supervisor:
     def _shadow(self, d: _Draft, i: Inputs) -> _Draft:
         """Shadow mode: what the governor would do, logged, nothing commanded."""
         if i.armed and i.in_air:
-            on = self._causes(i, d.omega, self._judge_limit(i, False))
+            on = self._causes(i, d.omega, self._judge_limit(i, False), self.ahead_m(i, d.omega))
             causes = tuple(c for c, held in on.items() if held)
         else:
             causes = ()
