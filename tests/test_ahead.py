@@ -1,11 +1,12 @@
 """The nearest obstacle the stop contract stops short of (companion/onboard/ahead.py): the swept corridor
-r_body + E_tr about the direction of travel, whatever is in it, and near rest anything close in view — pure, and
-flown lock-step (the real daemon, the real SITL, MAVLink over UDP) down a corridor whose walls stand beside the route.
+r_body + E_tr about the direction of travel, whatever is in it, and near rest anything close in view; the direction
+of travel of a vehicle creeping out of view — pure, and flown lock-step (the real daemon, the real SITL, MAVLink over UDP) down a corridor whose walls stand beside the route.
 """
 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,9 +14,11 @@ import pytest
 from companion.ground import false_alarms as fa
 from companion.ground.flights import Rig, fly_mission
 from companion.ground.worlds import column, turning_corridor
-from companion.onboard.ahead import TRAVEL_SPEED_M_S, stop_obstacle_m, swept_obstacle_m
+from companion.onboard import ahead
+from companion.onboard.ahead import CREEP_SPEED_M_S, TRAVEL_SPEED_M_S, Creep, stop_obstacle_m, swept_obstacle_m
 from companion.onboard.supervisor import Supervisor
 
+ROOT = Path(__file__).resolve().parents[1]
 BIN = math.radians(5.0)
 OBSTACLE = "obstacle inside the stop distance"
 RAY_TOL_M = 0.01  # a bin's least range over its 20 rays may miss the surface's nearest point between two rays
@@ -115,3 +118,59 @@ def test_a_column_on_the_route_between_the_walls_is_held_for_without_contact():
     holds = [e for e in rig.log.named("hold_trigger") if e["cause"] == OBSTACLE]
     assert holds
     assert rig.sim.truth()["pos"][0] < 25.0 - 0.3
+
+
+FOV = math.radians(30.0)
+
+
+def _in_view(beta: float) -> bool:
+    return abs(beta) <= FOV
+
+
+def test_creep_direction_of_travel():
+    """Above walking pace the velocity's bearing; below it the heading's, until the vehicle has crept farther than
+    the allowance along bearings no sensor looks along; a creep back into view, a stop, or no telemetry start it
+    over."""
+    c, dt, side = Creep(), 0.02, math.radians(-90.0)
+    assert c.bearing(0.0, 0.0, 0.1, 0.0, _in_view, 0.3) == 0.0  # a hover's drift
+    assert c.bearing(0.02, 2.0, 0.0, 0.5, _in_view, 0.3) == pytest.approx(-0.5)  # at speed: the velocity's
+    v = 0.6  # sideways (−y, body −90°), below TRAVEL_SPEED_M_S
+    got = [c.bearing(0.04 + k * dt, 0.0, -v, 0.0, _in_view, 0.3) for k in range(60)]
+    first = next(k for k, b in enumerate(got) if b != 0.0)
+    assert got[first] == pytest.approx(side) and all(b == pytest.approx(side) for b in got[first:])
+    assert first * dt * v == pytest.approx(0.3, abs=v * dt)  # after the allowance, not before
+    assert c.bearing(1.5, v, 0.0, 0.0, _in_view, 0.3) == 0.0  # back in view: the heading, and the creep starts over
+    assert c.bearing(1.52, 0.0, -v, 0.0, _in_view, 0.3) == 0.0
+    c.bearing(2.5, 0.0, -v, 0.0, _in_view, 0.3)
+    assert c.out_m > 0.3 and c.bearing(2.52, 0.0, -CREEP_SPEED_M_S, 0.0, _in_view, 0.3) == 0.0 and c.out_m == 0.0
+    assert c.bearing(2.54, math.nan, math.nan, 0.0, _in_view, 0.3) == 0.0
+    # along a bearing in view, below walking pace: the heading's however long
+    assert all(c.bearing(3.0 + k * dt, 0.6, 0.1, 0.0, _in_view, 0.3) == 0.0 for k in range(200))
+
+
+def _clutter_spec(tmp_path):
+    """examples/campaign-clutter.yaml at 2 000 scenarios and its two arms, as the clutter evidence flew it."""
+    from companion.ground.campaign import load_spec
+
+    text = (ROOT / "examples" / "campaign-clutter.yaml").read_text()
+    text = text.replace("scenarios: 500", "scenarios: 2000").replace(
+        "arms: [governor, offboard, px4_cp, ac_avoid]", "arms: [governor, offboard]")
+    path = tmp_path / "clutter-2000.yaml"
+    path.write_text(text)
+    return load_spec(path)
+
+
+def test_offboard_creeping_sideways_out_of_view_judges_where_it_goes(tmp_path, monkeypatch):
+    """The clutter campaign's flight 3431 (the Mambo on PX4, a corridor with a turn and a column inside): swerving at
+    walking pace the vehicle slides sideways while its heading, and its sensor, point along the corridor. D_od and the
+    Hold are judged along where it goes once the creep passes E_tr: no contact. Control: the heading's below walking
+    pace whatever the creep (the rule off) — the column, never in view, is hit."""
+    from companion.ground.campaign import flight_of, fly
+
+    spec = _clutter_spec(tmp_path)
+    s, arm = flight_of(spec, 3431)
+    assert arm == "offboard" and s["world_family"] == "corridor" and s["vehicle"] == "mambo"
+    row = fly(spec, 3431)
+    assert not row["collided"] and row["min_clearance_m"] > 0.3
+    monkeypatch.setattr(ahead, "CREEP_SPEED_M_S", math.inf)
+    assert fly(spec, 3431)["collided"]  # the control must fail

@@ -14,8 +14,42 @@ from __future__ import annotations
 import math
 
 # [m/s] below this the velocity's direction is drift, not the direction of travel: the cycle takes D_od along the
-# heading there (stopping from it takes ~0.3 m, inside the E_tr floor)
+# heading there (stopping from it takes ~0.3 m, inside the E_tr floor) unless the vehicle creeps out of view
 TRAVEL_SPEED_M_S = 1.0
+# [m/s] above this the velocity is motion, not a hover's noise (a hovering multirotor's velocity estimate wanders
+# by ~0.1 m/s)
+CREEP_SPEED_M_S = 0.3
+
+
+class Creep:
+    """The direction of travel D_od and the Hold are judged along (body frame, rad): the velocity's above
+    TRAVEL_SPEED_M_S; below it the heading's (0) — the velocity's bearing is a hover's drift there — unless the
+    vehicle creeps (faster than CREEP_SPEED_M_S) along bearings no sensor looks along for longer than an
+    allowance: from then on the velocity's, so D_od is what was seen free that way (estimators.DodEstimator: the
+    swept coverage), not the sensor's range along a heading the vehicle is not flying (a vehicle sliding sideways
+    at walking pace into a column it never saw). The allowance is the tracking error E_tr the contract carries:
+    the swept corridor about the heading is r_body + E_tr wide, so a creep shorter than E_tr stays in what D_od and
+    the Hold judge (a velocity swinging past the field of view's edge while a turn's yaw catches up)."""
+
+    def __init__(self):
+        self._t = math.nan
+        self.out_m = 0.0  # [m] crept out of view since the velocity last pointed into view (or the vehicle stopped)
+
+    def bearing(self, t: float, vx: float, vy: float, yaw: float, in_view, allowance_m: float) -> float:
+        """`in_view(beta)`: whether a fresh, trusted sensor looks along body bearing beta; a speed that is not
+        finite (no telemetry) gives the heading."""
+        dt = t - self._t if t > self._t else 0.0
+        self._t = t
+        speed = math.hypot(vx, vy)
+        if not math.isfinite(speed) or speed <= CREEP_SPEED_M_S:
+            self.out_m = 0.0
+            return 0.0
+        beta = (math.atan2(vy, vx) - yaw + math.pi) % (2 * math.pi) - math.pi
+        if speed > TRAVEL_SPEED_M_S or in_view(beta):
+            self.out_m = 0.0
+            return beta if speed > TRAVEL_SPEED_M_S else 0.0
+        self.out_m += speed * dt
+        return beta if self.out_m > allowance_m else 0.0
 
 
 def swept_obstacle_m(hits, beta: float, half_width_m: float) -> float:

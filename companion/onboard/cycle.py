@@ -18,7 +18,6 @@ from contracts.errors import ContractError
 from contracts.online_planner import load_solver
 from contracts.table import ContractTable
 
-from .ahead import TRAVEL_SPEED_M_S
 from .authority import HOLD, ModeAuthority, ModeRequest, ModeView, Requester
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .calibration_holds import CalibrationHolds, read_legs
@@ -147,9 +146,9 @@ class Cycle:
         late = s.timing.tick(t, link_ok)
         telemetry_ok = t - tel.t_local <= to.telemetry_s
         speed = tel.ground_speed if telemetry_ok else math.nan
-        # along the velocity; below 1 m/s (drift, stopping within ~0.3 m, inside the E_tr floor) along the heading
-        beta = math.atan2(tel.vy, tel.vx) - tel.yaw if telemetry_ok and speed > TRAVEL_SPEED_M_S else 0.0
         e_tr = s.etr.value
+        beta = s.creep.bearing(t, tel.vx, tel.vy, tel.yaw, lambda b: s.dod.in_view(t, b), e_tr) if telemetry_ok \
+            else 0.0
         corridor = 2 * g.r_obst + e_tr + self.table.vehicle.r_body_m
         dod = s.dod.estimate(t, beta, corridor, g.r_obst)
         truth = s.truth.estimate(t, dod.d_od)

@@ -369,6 +369,10 @@ class DodEstimator:
             return bool(s.known) and min(abs(wrap(beta - b)) for b in s.known) <= s.increment / 2 + 1e-9
         return abs(wrap(beta - math.radians(s.cfg.orientation_deg))) <= math.radians(s.cfg.h_fov_deg) / 2 + 1e-9
 
+    def in_view(self, t: float, beta: float) -> bool:
+        """Whether a fresh, trusted sensor looks along body bearing `beta` (`_covers`)."""
+        return any(t - s.t <= s.budget and s.trusted and self._covers(s, beta) for s in self.sensors)
+
     def estimate(self, t: float, beta: float, corridor_m: float = math.inf, r_obst: float | None = None
                  ) -> DodEstimate:
         """`beta`: direction of travel in the body frame; `corridor_m`: half-width of the swept path for

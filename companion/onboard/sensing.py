@@ -8,6 +8,7 @@ import math
 
 from contracts.table import ContractTable
 
+from .ahead import Creep
 from .assumptions import e_tr_floor, start_thrust
 from .config import Config
 from .detection_range import DetectionRange, DetectionRangeParams
@@ -39,6 +40,7 @@ class Sensing:
         # D_od from evidence: what the sensors' claim cannot say
         self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
+        self.creep = Creep()  # the direction of travel below walking pace (companion/onboard/ahead.py)
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
         start, self.thrust_start = start_thrust(table, contract)
         self.thrust = ThrustEstimator(cfg.thrust, hover, start, veh.thrust_ratio_range[1])
