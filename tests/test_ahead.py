@@ -162,8 +162,8 @@ def _clutter_spec(tmp_path):
 
 def test_offboard_creeping_sideways_out_of_view_judges_where_it_goes(tmp_path, monkeypatch):
     """The clutter campaign's flight 3431 (the Mambo on PX4, a corridor with a turn and a column inside): swerving at
-    walking pace the vehicle slides sideways while its heading, and its sensor, point along the corridor. D_od and the
-    Hold are judged along where it goes once the creep passes E_tr: no contact. Control: the heading's below walking
+    walking pace the vehicle slides sideways while its heading, and its sensor, point along the corridor. D_od is
+    judged along where it goes once the creep passes E_tr: no contact. Control: the heading's below walking
     pace whatever the creep (the rule off) — the column, never in view, is hit."""
     from companion.ground.campaign import flight_of, fly
 

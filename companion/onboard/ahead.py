@@ -22,14 +22,14 @@ CREEP_SPEED_M_S = 0.3
 
 
 class Creep:
-    """The direction of travel D_od and the Hold are judged along (body frame, rad): the velocity's above
-    TRAVEL_SPEED_M_S; below it the heading's (0) — the velocity's bearing is a hover's drift there — unless the
-    vehicle creeps (faster than CREEP_SPEED_M_S) along bearings no sensor looks along for longer than an
-    allowance: from then on the velocity's, so D_od is what was seen free that way (estimators.DodEstimator: the
-    swept coverage), not the sensor's range along a heading the vehicle is not flying (a vehicle sliding sideways
-    at walking pace into a column it never saw). The allowance is the tracking error E_tr the contract carries:
-    the swept corridor about the heading is r_body + E_tr wide, so a creep shorter than E_tr stays in what D_od and
-    the Hold judge (a velocity swinging past the field of view's edge while a turn's yaw catches up)."""
+    """The direction of travel D_od is judged along (body frame, rad; above TRAVEL_SPEED_M_S the Hold's swept
+    corridor too, `stop_obstacle_m`): the velocity's above TRAVEL_SPEED_M_S; below it the heading's (0) — the
+    velocity's bearing is a hover's drift there — unless the vehicle creeps (faster than CREEP_SPEED_M_S) along
+    bearings no sensor looks along for longer than an allowance: from then on the velocity's, so D_od is what was
+    seen free that way (estimators.DodEstimator: the swept coverage), not the sensor's range along a heading the
+    vehicle is not flying (a vehicle sliding sideways at walking pace into a column it never saw). The allowance is the tracking error E_tr the contract carries:
+    the swept corridor about the heading is r_body + E_tr wide, so a creep shorter than E_tr stays in what D_od
+    judges (a velocity swinging past the field of view's edge while a turn's yaw catches up)."""
 
     def __init__(self):
         self._t = math.nan
