@@ -160,11 +160,20 @@ def _clutter_spec(tmp_path):
     return load_spec(path)
 
 
+def _old_guidance(monkeypatch):
+    """Offboard guidance that slides back onto the route whatever the heading, its yaw along the route when slow."""
+    from companion.onboard import guidance
+
+    monkeypatch.setattr(guidance, "slow_aim", lambda heading, want: (None, False))
+
+
 def test_offboard_creeping_sideways_out_of_view_judges_where_it_goes(tmp_path, monkeypatch):
-    """The clutter campaign's flight 3431 (the Mambo on PX4, a corridor with a turn and a column inside): swerving at
-    walking pace the vehicle slides sideways while its heading, and its sensor, point along the corridor. D_od is
-    judged along where it goes once the creep passes E_tr: no contact. Control: the heading's below walking
-    pace whatever the creep (the rule off) — the column, never in view, is hit."""
+    """The clutter campaign's flight 3431 (the Mambo on PX4, a turning corridor with a column inside): sliding back
+    onto the route at walking pace after a swerve, the vehicle crept sideways while its heading, and its sensor,
+    pointed along the corridor, into a column it never saw. D_od is judged along where the vehicle goes once a creep
+    out of view passes E_tr (`Creep`): it stops clear, with or without the guidance that turns the heading to a slow
+    rejoin before flying it (companion/onboard/guidance.py `slow_aim`), which alone keeps it off the column too.
+    Control: both off — the column, never in view, is hit."""
     from companion.ground.campaign import flight_of, fly
 
     spec = _clutter_spec(tmp_path)
@@ -172,5 +181,11 @@ def test_offboard_creeping_sideways_out_of_view_judges_where_it_goes(tmp_path, m
     assert arm == "offboard" and s["world_family"] == "corridor" and s["vehicle"] == "mambo"
     row = fly(spec, 3431)
     assert not row["collided"] and row["min_clearance_m"] > 0.3
+    with monkeypatch.context() as m:
+        _old_guidance(m)
+        row = fly(spec, 3431)
+        assert not row["collided"] and row["min_clearance_m"] > 0.3
     monkeypatch.setattr(ahead, "CREEP_SPEED_M_S", math.inf)
+    assert not fly(spec, 3431)["collided"]  # the guidance alone (it passes 0.13 m from the column)
+    _old_guidance(monkeypatch)
     assert fly(spec, 3431)["collided"]  # the control must fail

@@ -7,7 +7,9 @@ import pytest
 
 from contracts.geometry import wrap
 from companion.onboard.contract_in_force import WIDE_TOL_M
-from companion.onboard.guidance import A_LAT, YAW_RATE_ARC, OffboardGuidance, Route, ThreadedPlanning, obstacle_discs
+from companion.onboard.ahead import TRAVEL_SPEED_M_S
+from companion.onboard.guidance import (A_LAT, HEADING_TOL, SIDE_SLOW, TURN_FIRST_SPEED, YAW_RATE_ARC, YAW_SPEED,
+                                        OffboardGuidance, Route, ThreadedPlanning, obstacle_discs)
 from contracts.online_planner import AvoidancePlanner, Disc
 
 
@@ -293,27 +295,67 @@ def test_speed_profile_slows_for_each_arc_and_comes_to_rest_at_the_end():
 
 
 def test_yaw_follows_the_commanded_and_measured_velocity_else_the_route_ahead():
+    """The yaw: along a slow command itself (above TURN_FIRST_SPEED, at most walking pace); faster, along the
+    commanded velocity plus the measured one while the command is slow; near rest along the route ahead."""
     route = Route([[0, 0], [30, 0], [30, 30]], 2.0)
     g = OffboardGuidance(route)
     g.start([0.0, 0.0], [0.0, 0.0])
     g.y_off, g.vy_off = 2.0, 0.0  # 2 m beside the route, as after an avoidance pass: the lateral rejoin
-    p, v, sideways, slow = np.array([0.0, 2.0]), np.zeros(2), 0, 0
+    p, v, sideways, slow, rest = np.array([0.0, 2.0]), np.zeros(2), 0, 0, 0
     for k in range(1500):
         sp = g.step(k * 0.02, 0.02, p, v, 5.0, 4.0, [], yaw=None)
         _, u = route.point(g.s_ref)
+        speed = math.hypot(*sp.v)
         # commanded + measured when the command is slow (here measured = last cycle's command, tracked exactly)
-        d = sp.v + max(0.0, 1.0 - math.hypot(*sp.v) / 2.0) * v
-        if math.hypot(*d) > 1.0:
+        d = sp.v + max(0.0, 1.0 - speed / 2.0) * v
+        if TURN_FIRST_SPEED < speed <= TRAVEL_SPEED_M_S:
+            assert sp.yaw == pytest.approx(math.atan2(sp.v[1], sp.v[0]), abs=1e-3)
+            slow += 1
+        elif math.hypot(*d) > 2 * YAW_SPEED:
             assert sp.yaw == pytest.approx(math.atan2(d[1], d[0]))
             sideways += abs(wrap(sp.yaw - math.atan2(u[1], u[0]))) > math.radians(10)
         else:
             assert sp.yaw == pytest.approx(math.atan2(u[1], u[0]))
-            slow += 1
+            rest += 1
         p, v = sp.p, sp.v
         if sp.mode == "done":
             break
-    assert sideways > 10 and slow > 3 and sp.mode == "done"
+    assert sideways > 10 and slow > 3 and rest > 0 and sp.mode == "done"
     assert sp.yaw == pytest.approx(math.pi / 2)  # at rest at the end: along the last leg
+
+
+def _rejoin_at_the_end(turn: bool):
+    """The route's end reached 3 m beside it, the heading along the route; the heading turns at 45°/s towards the
+    yaw asked (`turn`; else the guidance is not told the heading), the vehicle flies the setpoint exactly. Rows of
+    (heading, setpoint)."""
+    route = Route([[0, 0], [10, 0]], 2.0)
+    g = OffboardGuidance(route)
+    g.start([10.0, 3.0], [0.0, 0.0])
+    g.s_ref, g.v_ref, g.y_off, g.vy_off = route.length, 0.0, 3.0, 0.0
+    p, v, heading, rows = np.array([10.0, 3.0]), np.zeros(2), 0.0, []
+    for k in range(3000):
+        sp = g.step(k * 0.02, 0.02, p, v, 5.0, 4.0, [], yaw=heading if turn else None)
+        rows.append((heading, sp))
+        heading += max(min(wrap(sp.yaw - heading), math.radians(45.0) * 0.02), -math.radians(45.0) * 0.02)
+        p, v = sp.p, sp.v
+        if sp.mode == "done":
+            break
+    return rows
+
+
+def test_a_slow_rejoin_turns_first_then_goes_sideways():
+    """Sideways to the route at its end the daemon does not creep out of its sensor's view: the reference is no
+    faster than TURN_FIRST_SPEED while the heading is more than HEADING_TOL off the way it goes, then SIDE_SLOW with
+    the heading on it. Control: not told the heading, it goes sideways at SIDE_SLOW looking along the route."""
+    rows = _rejoin_at_the_end(turn=True)
+    assert rows[-1][1].mode == "done"
+    off = [math.hypot(*sp.v) for h, sp in rows
+           if math.hypot(*sp.v) > 1e-6 and abs(wrap(h - math.atan2(sp.v[1], sp.v[0]))) > HEADING_TOL + 0.02]
+    assert off and max(off) <= TURN_FIRST_SPEED + 0.05  # (one cycle's change at half a_max)
+    assert max(math.hypot(*sp.v) for _, sp in rows) == pytest.approx(SIDE_SLOW, abs=0.01)
+    control = _rejoin_at_the_end(turn=False)
+    heading_fixed = [math.hypot(*sp.v) for _, sp in control if abs(wrap(math.atan2(sp.v[1], sp.v[0]))) > HEADING_TOL]
+    assert max(heading_fixed) == pytest.approx(SIDE_SLOW, abs=0.01)  # the control: sideways, fast, off the route
 
 
 def test_the_reference_turns_first_then_speeds_up():

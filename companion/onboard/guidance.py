@@ -26,6 +26,8 @@ import numpy as np
 from contracts.geometry import wrap
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan, load_solver
 
+from .ahead import CREEP_SPEED_M_S, TRAVEL_SPEED_M_S
+
 RANGE_TOL_M = 0.1  # [m] a bin's range is good to this (3 σ of the range noise the sensors are flown with)
 PATH_AHEAD_M = 40.0  # [m] the path ahead (`path_ahead`) reaches this far along the route: past any stopping distance
 PATH_STEP_M = 0.5  # [m] … in steps of this (a corner's arc)
@@ -44,10 +46,14 @@ REVERSAL_DEG = 150.0  # a corner turning more than this gets no arc: the referen
 YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity, else the route
 YAW_MEAS_BELOW = 2.0  # [m/s] the measured velocity weighs in the yaw below this commanded speed (1 at rest)
 SIDE_DEG = 25.0  # [°] a rejoin's sideways speed keeps the reference this close to the route's direction…
-SIDE_SLOW = 0.7  # [m/s] …or below this (under the 1 m/s at which D_od is taken along the heading: ahead.py `Creep`)
+SIDE_SLOW = 0.7  # [m/s] …or below this, with the heading on the reference's direction (else a creep's speed)
 REJOIN_OPEN_M = 0.5  # [m] a rejoin this far beside the route slows for the next stop at A_REJOIN_STOP·a_max
+ON_ROUTE_M = 0.1  # [m] this close beside the route the vehicle is on it (the route's end is reached)
 A_REJOIN_STOP = 0.2
 HEADING_TOL = math.radians(20.0)  # the reference speeds up only with the heading this close to the yaw
+# below walking pace, a rejoin's reference off the heading by more than HEADING_TOL is flown no faster than this until
+# the heading has turned to it: the daemon's own creep out of the field of view (companion/onboard/ahead.py `Creep`)
+TURN_FIRST_SPEED = 0.5 * CREEP_SPEED_M_S
 # the vehicle flown above V_max gives the excess back: the cruise reference's budget shrinks by GIVE_BACK × the
 # excess, a pass's clock slows by the excess over its speed (at most PASS_SLOW_MAX); 0 and 0: the reference alone
 GIVE_BACK = 1.0
@@ -291,6 +297,19 @@ def inflated(discs: list[Disc], e_tr: float, r_body: float) -> list[Disc]:
     return [Disc(d.x, d.y, d.r + e_tr + r_body, d.r + r_body) for d in discs]
 
 
+def slow_aim(heading: float | None, want) -> tuple[float | None, bool]:
+    """The yaw for a slow reference velocity `want` of a rejoin (above TURN_FIRST_SPEED, at most walking pace;
+    None otherwise: `OffboardGuidance._yaw` decides, which looks along the route for so slow a reference) — along
+    it — and whether the reference is to creep until the heading has turned to it (more than HEADING_TOL off the
+    measured heading). Below walking pace the cycle takes D_od along the heading until the vehicle has crept out
+    of view farther than E_tr (companion/onboard/ahead.py `Creep`): the daemon does not fly that creep itself."""
+    speed = float(np.hypot(*want))
+    if not TURN_FIRST_SPEED < speed <= TRAVEL_SPEED_M_S:
+        return None, False
+    aim = math.atan2(want[1], want[0])
+    return aim, heading is not None and abs(wrap(heading - aim)) > HEADING_TOL
+
+
 @dataclass
 class Setpoint:
     p: np.ndarray  # (x, y) NED [m]
@@ -520,12 +539,21 @@ class OffboardGuidance:
         # yaw (≈ 45°/s flown) could follow, where the sensor had seen under a metre free: no safe speed.
         cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)), math.sqrt(max(SIDE_SLOW ** 2 - self.v_ref ** 2, 0.0)))
         vy = min(max(self.vy_off + ay * dt, -cap), cap)
+        _, u = route.point(self.s_ref)
+        n = np.array([-u[1], u[0]])
+        # rejoining from beside the route below walking pace: the yaw on the way the reference goes; with the heading
+        # off it, turn first, creeping
+        rejoin = abs(self.y_off) > ON_ROUTE_M
+        aim, turning = slow_aim(heading, u * self.v_ref + n * vy) if rejoin else (None, False)
+        if turning:  # (slowing sideways at half a_max, as the rejoin's offset is flown)
+            cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)),
+                      math.sqrt(max(TURN_FIRST_SPEED ** 2 - self.v_ref ** 2, 0.0)))
+            step = 0.5 * a_max * dt
+            vy = min(max(min(max(vy, -cap), cap), self.vy_off - step), self.vy_off + step)
         ay = (vy - self.vy_off) / dt if dt > 0 else 0.0
         self.vy_off = vy
         self.y_off += self.vy_off * dt
         # along the path: the speed profile, and no speeding up until the heading is on the yaw wanted
-        _, u = route.point(self.s_ref)
-        n = np.array([-u[1], u[0]])
         stretch = max(1.0 - route.curvature(self.s_ref) * self.y_off, 0.1)  # path speed at the offset / v_ref
         limit = min(route.speed_limit(self.s_ref, v_max, a_max),
                     route.speed_limit(self.s_ref + self.v_ref * dt, v_max, a_max))
@@ -554,8 +582,11 @@ class OffboardGuidance:
         vel = u * self.v_ref * stretch + n * self.vy_off
         # exact acceleration of the offset point: tangential, Coriolis-like, centripetal (v²/R) and lateral
         a_vec = u * (stretch * acc - 2 * k * self.vy_off * self.v_ref) + n * (stretch * k * self.v_ref ** 2 + ay)
-        arrived = self.s_ref >= route.length - 1e-9 and abs(self.y_off) <= 0.1  # at rest, on the route
-        return Setpoint(pos + n * self.y_off, vel, a_vec, z, self._yaw(vel, u), "done" if arrived else "cruise")
+        arrived = self.s_ref >= route.length - 1e-9 and abs(self.y_off) <= ON_ROUTE_M  # at rest, on the route
+        if rejoin and not turning:  # (while turning: where the reference is to go, not its creep)
+            aim, _ = slow_aim(None, vel)
+        yaw = self._yaw(vel, u) if aim is None else aim
+        return Setpoint(pos + n * self.y_off, vel, a_vec, z, yaw, "done" if arrived else "cruise")
 
     def _yaw(self, vel, u) -> float:
         """The heading to fly: along the commanded velocity, plus — when that is slow — the measured one
