@@ -100,6 +100,30 @@ def test_a_detection_at_the_range_edge_or_after_a_turn_is_not_late():
     assert e2.estimate(0.5, 0.0).late is None
 
 
+def _first_seen(first_m: float, range_noise: tuple[float, float]):
+    """A target first seen `first_m` by a sensor stating 10 m, then in the two frames that follow, 5 cm nearer each:
+    the late detection declared, or None."""
+    e = DodEstimator([FWD], CC, stale_s=0.5, range_noise=range_noise)
+    add_range(e, 0, 0.0, 10.0, 0.1, 10.0, 100)
+    e.estimate(0.0, 0.0)
+    late = None
+    for k in range(3):
+        add_range(e, 0, 0.05 * (k + 1), first_m - 0.05 * k, 0.1, 10.0, 100)
+        late = late or e.estimate(0.05 * (k + 1), 0.0).late
+    return late
+
+
+def test_a_first_sighting_within_the_range_noise_of_dod_is_on_time():
+    """Three σ of the configured range noise (σ(10 m) = 0.03 + 0.01 × 10 = 0.13 m) beyond the 0.3 m tolerance: a
+    target first seen 0.5 m inside the stated 10 m is on time, one first seen 0.8 m inside it is late. Control:
+    without the noise allowance the first is late too."""
+    noise = (0.03, 0.01)
+    assert _first_seen(9.5, noise) is None
+    late = _first_seen(9.2, noise)
+    assert late is not None and late.range_m == 9.2 and late.assumed_d_od == 10.0
+    assert _first_seen(9.5, (0.0, 0.0)) is not None  # the control must fail
+
+
 def test_bins_side_entry_is_not_a_violation_but_interior_is():
     cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=60.0)
     e = DodEstimator([cfg], CC, stale_s=0.5)

@@ -25,6 +25,7 @@ from contracts.window import WindowMax
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
 from .coverage import Beam, corridor_cover, covered_d_od
+from .detection_range import NOISE_SIGMAS
 from .late_detection import Candidate, Confirmations, Frame, LateDetection
 from .samples import Scan
 
@@ -156,9 +157,13 @@ class DodEstimator:
     swept coverage, `contracts.coverage`; never more than was seen; none ⇒ 0)."""
 
     def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float,
-                 silence: SilenceBudget | None = None, cover: bool = True):
+                 silence: SilenceBudget | None = None, cover: bool = True,
+                 range_noise: tuple[float, float] = (0.0, 0.0)):
         """`stale_s`: the time-out (`timeouts.obstacle_s`): a position or heading older than it places nothing, and
         a sensor's sources are merged within it; `silence`: each sensor's own budget (None: the time-out for all);
+        `range_noise`: the configured range noise σ(r) = m + rel·r (`detection.range_noise_m`, `range_noise_rel`): a
+        first sighting less than NOISE_SIGMAS σ(D_od) inside D_od is on time, as the detection range from evidence
+        judges it (companion/onboard/detection_range.py), not a late first detection;
         `cover`: D_od is capped by the beams' cover of the swept corridor (`estimate`); False under the avoid
         contract, where the daemon's own swerves put the direction of travel at a field of view's edge and the cap
         read them as blindness (Figure 17 with late plans stopped short of its route; its braking broke the
@@ -168,6 +173,7 @@ class DodEstimator:
         self.sensors = [_SensorState(c, budget=self.silence.max_s) for c in sensors]
         self.contract = contract
         self.stale_s = stale_s
+        self.range_noise = range_noise
         self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
         self._last_d_od = 0.0
         self._pending: list[LateDetection] = []
@@ -243,7 +249,8 @@ class DodEstimator:
         for k, (bearing, r) in enumerate(seen):
             if k in followed.used or any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
                 continue  # a candidate seen again, or the same obstacle as before
-            if r < self._last_d_od - tolerance and not self._side_entry(i, t, bearing) \
+            noise = NOISE_SIGMAS * (self.range_noise[0] + self.range_noise[1] * self._last_d_od)
+            if r < self._last_d_od - tolerance - noise and not self._side_entry(i, t, bearing) \
                     and not self._tracked_already(t, placed[k], tolerance):
                 untracked.add(k)
                 c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k])

@@ -36,7 +36,8 @@ class Sensing:
         veh = table.vehicle
         self.adapter = adapter
         self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s, silence_budget(cfg),
-                                cover=contract == "stop")
+                                cover=contract == "stop",
+                                range_noise=(cfg.detection.range_noise_m, cfg.detection.range_noise_rel))
         # D_od from evidence: what the sensors' claim cannot say
         self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
