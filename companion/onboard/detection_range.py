@@ -76,6 +76,12 @@ from .config import SensorConfig
 from .samples import Scan
 
 NOISE_SIGMAS = 3.0  # a first sighting this many σ of range noise short of the stated range is still on time
+
+
+def noise_short_m(range_noise_m: float, range_noise_rel: float, r: float) -> float:
+    """[m] how far short of range r a target reads by noise alone: NOISE_SIGMAS σ(r), σ(r) = range_noise_m +
+    range_noise_rel · r (the configured range noise)."""
+    return NOISE_SIGMAS * (range_noise_m + range_noise_rel * r)
 FULL_WINDOW_SHOTS_PER_S = 160.0  # shots per second behind a confidence of 1 (a 12-bin sensor at 20 Hz gives 240)
 
 
@@ -334,7 +340,7 @@ class DetectionRange:
             self._track(t, x, y, r, inc)
             edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
             # a target at the stated range reads up to NOISE_SIGMAS σ(r) short of it by noise alone
-            tol = p.first_tolerance_m + self._speed * period + NOISE_SIGMAS * (p.range_noise_m + p.range_noise_rel * r)
+            tol = p.first_tolerance_m + self._speed * period + noise_short_m(p.range_noise_m, p.range_noise_rel, r)
             if not known and not edge and r < stated - tol and self._seen_through(i, x, y, tol):
                 self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))
 

@@ -25,7 +25,7 @@ from contracts.window import WindowMax
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
 from .coverage import Beam, corridor_cover, covered_d_od
-from .detection_range import NOISE_SIGMAS
+from .detection_range import noise_short_m
 from .late_detection import Candidate, Confirmations, Frame, LateDetection
 from .samples import Scan
 
@@ -162,8 +162,8 @@ class DodEstimator:
         """`stale_s`: the time-out (`timeouts.obstacle_s`): a position or heading older than it places nothing, and
         a sensor's sources are merged within it; `silence`: each sensor's own budget (None: the time-out for all);
         `range_noise`: the configured range noise σ(r) = m + rel·r (`detection.range_noise_m`, `range_noise_rel`): a
-        first sighting less than NOISE_SIGMAS σ(D_od) inside D_od is on time, as the detection range from evidence
-        judges it (companion/onboard/detection_range.py), not a late first detection;
+        first sighting less short of D_od than noise alone reads (`noise_short_m`) is on time, as the detection range
+        from evidence judges it (companion/onboard/detection_range.py), not a late first detection;
         `cover`: D_od is capped by the beams' cover of the swept corridor (`estimate`); False under the avoid
         contract, where the daemon's own swerves put the direction of travel at a field of view's edge and the cap
         read them as blindness (Figure 17 with late plans stopped short of its route; its braking broke the
@@ -246,11 +246,11 @@ class DodEstimator:
         # a candidate this frame ended was no obstacle: a hit in its bin now is not "the same as before"
         before = [h for h in before if h[0] not in followed.ended]
         untracked = set(followed.used)  # a candidate's sightings are tracked only once it is confirmed
+        late_inside = self._last_d_od - tolerance - noise_short_m(*self.range_noise, self._last_d_od)
         for k, (bearing, r) in enumerate(seen):
             if k in followed.used or any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
                 continue  # a candidate seen again, or the same obstacle as before
-            noise = NOISE_SIGMAS * (self.range_noise[0] + self.range_noise[1] * self._last_d_od)
-            if r < self._last_d_od - tolerance - noise and not self._side_entry(i, t, bearing) \
+            if r < late_inside and not self._side_entry(i, t, bearing) \
                     and not self._tracked_already(t, placed[k], tolerance):
                 untracked.add(k)
                 c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k])
