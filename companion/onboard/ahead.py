@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import math
 
+from contracts.geometry import wrap
+
 # [m/s] below this the velocity's direction is drift, not the direction of travel: the cycle takes D_od along the
 # heading there (stopping from it takes ~0.3 m, inside the E_tr floor) unless the vehicle creeps out of view
 TRAVEL_SPEED_M_S = 1.0
@@ -27,9 +29,10 @@ class Creep:
     velocity's bearing is a hover's drift there — unless the vehicle creeps (faster than CREEP_SPEED_M_S) along
     bearings no sensor looks along for longer than an allowance: from then on the velocity's, so D_od is what was
     seen free that way (estimators.DodEstimator: the swept coverage), not the sensor's range along a heading the
-    vehicle is not flying (a vehicle sliding sideways at walking pace into a column it never saw). The allowance is the tracking error E_tr the contract carries:
-    the swept corridor about the heading is r_body + E_tr wide, so a creep shorter than E_tr stays in what D_od
-    judges (a velocity swinging past the field of view's edge while a turn's yaw catches up)."""
+    vehicle is not flying (a vehicle sliding sideways at walking pace into a column it never saw). The allowance is
+    the tracking error E_tr the contract carries: the swept corridor about the heading is r_body + E_tr wide, so a
+    creep shorter than E_tr stays in what D_od judges (a velocity swinging past the field of view's edge while a
+    turn's yaw catches up)."""
 
     def __init__(self):
         self._t = math.nan
@@ -44,7 +47,7 @@ class Creep:
         if not math.isfinite(speed) or speed <= CREEP_SPEED_M_S:
             self.out_m = 0.0
             return 0.0
-        beta = (math.atan2(vy, vx) - yaw + math.pi) % (2 * math.pi) - math.pi
+        beta = wrap(math.atan2(vy, vx) - yaw)
         if speed > TRAVEL_SPEED_M_S or in_view(beta):
             self.out_m = 0.0
             return beta if speed > TRAVEL_SPEED_M_S else 0.0

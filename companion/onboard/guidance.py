@@ -46,7 +46,7 @@ REVERSAL_DEG = 150.0  # a corner turning more than this gets no arc: the referen
 YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity, else the route
 YAW_MEAS_BELOW = 2.0  # [m/s] the measured velocity weighs in the yaw below this commanded speed (1 at rest)
 SIDE_DEG = 25.0  # [°] a rejoin's sideways speed keeps the reference this close to the route's direction…
-SIDE_SLOW = 0.7  # [m/s] …or below this, with the heading on the reference's direction (else a creep's speed)
+SIDE_SLOW = 0.7  # [m/s] …or below this, with the heading on the reference's direction (else TURN_FIRST_SPEED)
 REJOIN_OPEN_M = 0.5  # [m] a rejoin this far beside the route slows for the next stop at A_REJOIN_STOP·a_max
 ON_ROUTE_M = 0.1  # [m] this close beside the route the vehicle is on it (the route's end is reached)
 A_REJOIN_STOP = 0.2
@@ -549,7 +549,7 @@ class OffboardGuidance:
             cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)),
                       math.sqrt(max(TURN_FIRST_SPEED ** 2 - self.v_ref ** 2, 0.0)))
             step = 0.5 * a_max * dt
-            vy = min(max(min(max(vy, -cap), cap), self.vy_off - step), self.vy_off + step)
+            vy = float(np.clip(np.clip(vy, -cap, cap), self.vy_off - step, self.vy_off + step))
         ay = (vy - self.vy_off) / dt if dt > 0 else 0.0
         self.vy_off = vy
         self.y_off += self.vy_off * dt
