@@ -161,19 +161,32 @@ def _clutter_spec(tmp_path):
 
 
 def _old_guidance(monkeypatch):
-    """Offboard guidance that slides back onto the route whatever the heading, its yaw along the route when slow."""
+    """Offboard guidance that slides back onto the route whatever the heading, its yaw along the route when slow —
+    and as it flew swerves before: R_obst's disc round a pole at any range, a pass flown to its end past the route's
+    turn, planned along the route where the vehicle is, not waiting for the heading, a sideways speed clipped at once."""
     from companion.onboard import guidance
+    from companion.onboard.guidance import OffboardGuidance
+    from companion.onboard.supervisor import Supervisor
 
     monkeypatch.setattr(guidance, "slow_aim", lambda heading, want: (None, False))
+    monkeypatch.setattr(guidance, "A_SIDE", math.inf)
+    monkeypatch.setattr(Supervisor, "_hold_reach", lambda self, i: math.inf)
+    monkeypatch.setattr(OffboardGuidance, "_past_the_leg", lambda self, t: False)
+    monkeypatch.setattr(OffboardGuidance, "_plan_direction", lambda self, p, discs: self.route.point(
+        self.route.project(p))[1])
+    follow = OffboardGuidance._follow
+    monkeypatch.setattr(OffboardGuidance, "_follow", lambda self, t, dt, z, v_max, a_max, heading=None: follow(
+        self, t, dt, z, v_max, a_max))
 
 
 def test_offboard_creeping_sideways_out_of_view_judges_where_it_goes(tmp_path, monkeypatch):
     """The clutter campaign's flight 3431 (the Mambo on PX4, a turning corridor with a column inside): sliding back
     onto the route at walking pace after a swerve, the vehicle crept sideways while its heading, and its sensor,
     pointed along the corridor, into a column it never saw. D_od is judged along where the vehicle goes once a creep
-    out of view passes E_tr (`Creep`): it stops clear, with or without the guidance that turns the heading to a slow
-    rejoin before flying it (companion/onboard/guidance.py `slow_aim`), which alone keeps it off the column too.
-    Control: both off — the column, never in view, is hit."""
+    out of view passes E_tr (`Creep`): it stops clear, with or without today's guidance (which turns the heading to a
+    slow rejoin before flying it, `slow_aim`, and no longer flies that creep: it plans round the column as seen and
+    takes the corridor's turn), which alone keeps it off the column too. Control: both off — the column, never in
+    view, is hit."""
     from companion.ground.campaign import flight_of, fly
 
     spec = _clutter_spec(tmp_path)
@@ -186,6 +199,6 @@ def test_offboard_creeping_sideways_out_of_view_judges_where_it_goes(tmp_path, m
         row = fly(spec, 3431)
         assert not row["collided"] and row["min_clearance_m"] > 0.3
     monkeypatch.setattr(ahead, "CREEP_SPEED_M_S", math.inf)
-    assert not fly(spec, 3431)["collided"]  # the guidance alone (it passes 0.13 m from the column)
+    assert not fly(spec, 3431)["collided"]  # the guidance alone
     _old_guidance(monkeypatch)
     assert fly(spec, 3431)["collided"]  # the control must fail

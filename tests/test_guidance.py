@@ -10,7 +10,7 @@ from companion.onboard.contract_in_force import WIDE_TOL_M
 from companion.onboard.ahead import TRAVEL_SPEED_M_S
 from companion.onboard.guidance import (A_LAT, HEADING_TOL, SIDE_SLOW, TURN_FIRST_SPEED, YAW_RATE_ARC, YAW_SPEED,
                                         OffboardGuidance, Route, ThreadedPlanning, obstacle_discs)
-from contracts.online_planner import AvoidancePlanner, Disc
+from contracts.online_planner import AvoidancePlanner, Disc, Plan
 
 
 def test_bins_give_the_obstacle_position_and_width():
@@ -423,3 +423,80 @@ def test_process_planning_plans_as_inline_in_a_worker_process_and_survives_its_d
         assert dead[3].ok  # a new worker plans again
     finally:
         runner.close()
+
+
+def _straight_pass(p0, u, speed: float, length: float) -> Plan:
+    """A pass plan straight from p0 along u at a constant speed (what the planner's pass is once beside its obstacle)."""
+    n = 60
+    t = np.linspace(0.0, length / speed, n + 1)
+    u = np.asarray(u, float)
+    p = np.asarray(p0, float) + np.outer(t * speed, u)
+    return Plan("pass", t, p, np.tile(u * speed, (n + 1, 1)), np.zeros((n, 2)), True, 1.0)
+
+
+def _fly_pass(g, plan, steps: int, heading=None, walls=None):
+    """Fly the pass from now with the vehicle on its setpoints; the setpoints."""
+    g.plan, g.plan_t, g.plan_held = plan, 0.0, 0.0
+    p, v, out = plan.p[0], plan.v[0], []
+    for k in range(steps):
+        sp = g.step(k * 0.02, 0.02, p, v, 5.0, 4.0, [], yaw=heading, walls=walls)
+        out.append(sp)
+        p, v = sp.p, sp.v
+    return out
+
+
+def test_a_pass_is_left_where_the_route_turns():
+    """A pass is straight along the route where it was asked for and ends about twice its obstacle's distance on: its
+    obstacle behind, it is left where the route turns from its direction, and the cruise takes the turn. Control: a
+    pass flown to its end goes straight on past a corridor's turn (towards the wall beyond it)."""
+    route = Route([[0, 0], [20, 0], [20, 20]], 2.0)
+    plan = _straight_pass([10.0, 0.5], [1.0, 0.0], 1.5, 16.0)  # to x = 26, 6 m past the turn
+    g = OffboardGuidance(route)
+    g.start([10.0, 0.5], [1.5, 0.0])
+    out = _fly_pass(g, plan, 600)
+    left = next(k for k, sp in enumerate(out) if sp.mode == "cruise")
+    arc_start = route.arcs[0][2]
+    assert out[left - 1].p[0] <= arc_start + 1.0  # left where the arc starts
+    assert max(sp.p[0] for sp in out) < 20.5 and out[-1].p[1] > 5.0  # the turn taken, not overshot
+    control = OffboardGuidance(route)
+    control.start([10.0, 0.5], [1.5, 0.0])
+    control._past_the_leg = lambda t: False
+    assert max(sp.p[0] for sp in _fly_pass(control, plan, 600)) > 25.0  # the control must fail
+
+
+def test_a_swerving_pass_waits_for_the_heading_to_turn_to_it():
+    """Swerving under the stop contract, a pass whose direction is more than HEADING_TOL off the measured heading is
+    slowed (its clock, at half a_max) to TURN_FIRST_SPEED and the yaw asked along it; the heading on it, it speeds up
+    again on the same path. Control: the avoid contract's pass (not swerving) is flown at its speed."""
+    route = Route([[0, 0], [30, 0]], 2.0)
+    plan = _straight_pass([5.0, 0.0], [0.0, 1.0], 1.2, 6.0)  # sideways to the route, the heading along it
+    g = OffboardGuidance(route)
+    g.start([5.0, 0.0], [0.0, 1.2])
+    out = _fly_pass(g, plan, 100, heading=0.0, walls=())
+    speeds = [float(np.hypot(*sp.v)) for sp in out]
+    assert speeds[-1] == pytest.approx(TURN_FIRST_SPEED, abs=0.01)
+    assert max(abs(np.diff(speeds))) <= 0.5 * 4.0 * 0.02 + 1e-9  # slowing at half a_max
+    assert all(sp.yaw == pytest.approx(math.pi / 2) for sp in out)
+    assert all(abs(sp.p[0] - 5.0) < 1e-9 for sp in out)  # the same path
+    more = _fly_pass(g, plan, 100, heading=math.pi / 2, walls=())  # (flown again from its start, heading on it)
+    assert float(np.hypot(*more[-1].v)) == pytest.approx(1.2, abs=0.01)
+    control = OffboardGuidance(route)
+    control.start([5.0, 0.0], [0.0, 1.2])
+    assert min(float(np.hypot(*sp.v)) for sp in _fly_pass(control, plan, 100, heading=0.0)) == pytest.approx(1.2)
+
+
+def test_a_pass_handed_over_sideways_slows_sideways_at_half_a_max():
+    """The cruise taking over from a pass that ends moving sideways faster than a rejoin flies: the sideways speed
+    falls at half a_max, its acceleration in the setpoint with it (clipped at once it was the whole step in one
+    cycle, 30 m/s², and a fail-safe brake started from that acceleration flew at 14 m/s)."""
+    route = Route([[0, 0], [30, 0]], 2.0)
+    g = OffboardGuidance(route)
+    g.start([5.0, 1.0], [0.5, 2.0])
+    p, v, acc, vy = np.array([5.0, 1.0]), np.array([0.5, 2.0]), [], [g.vy_off]
+    for k in range(50):
+        sp = g.step(k * 0.02, 0.02, p, v, 5.0, 4.0, [])
+        acc.append(float(np.hypot(*sp.a)))
+        vy.append(g.vy_off)
+        p, v = sp.p, sp.v
+    assert max(acc) <= 4.0  # within a_max (sideways half of it, the along-track speed-up the rest)
+    assert max(abs(np.diff(vy))) <= 0.5 * 4.0 * 0.02 + 1e-9 and vy[-1] < 0.7

@@ -5,6 +5,7 @@ its switch and fallback in companion/onboard/offboard.py)."""
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import pytest
@@ -345,3 +346,14 @@ def test_after_its_hold_the_pilots_mode_change_resumes_and_the_brake_is_ready_ag
     assert (last["to"], last["by"]) == ("mission", "other")
     assert rig.daemon.cycle.brake.state == OffboardState.OFF and rig.daemon.cycle.sup.recovery_dt is not None
     assert rig.log.named("recovery_brake")[-1]["available"]
+
+
+def test_the_fail_safe_stop_starts_from_no_more_acceleration_than_the_tilt_gives():
+    """The stop's acceleration is turned from the last setpoint's (what the vehicle turns to); a setpoint asking for
+    more than the tilt allows (30 m/s² sideways) is taken at the tilt's limit: from it the stop flew at 14 m/s into a
+    wall. The stop never goes faster than the vehicle already flies by more than a_stop × the turn's time."""
+    ctl = OffboardController(None)
+    ask = Ask(t=0.0, mode="offboard", p=(0.0, 0.0), v=(-0.25, 1.0), z=-2.0, yaw=0.0, a_stop=6.9, track_jerk=30.0)
+    ctl._plan_stop(ask, [], math.inf, np.array([0.0, -30.2]))
+    speeds = np.hypot(*ctl._stop_plan.v.T)
+    assert speeds.max() < 1.5 and np.hypot(*ctl._stop_plan.a.T).max() <= 6.9 + 1e-9

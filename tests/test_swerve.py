@@ -91,7 +91,7 @@ def test_the_swerve_plans_round_a_pole_not_round_a_facade_whose_hit_points_it_ke
     bearings = np.radians(np.arange(-27.5, 27.6, 5.0))  # twelve 5° bins, each its sector's nearest return
     hits = [(b, 8.0 if abs(b) < math.radians(3.0) else 12.0 / math.cos(b), H, True) for b in bearings]
     facade = [h for h in hits if h[1] > 9.0]  # both sides of the pole: two runs 5 m wide
-    discs = swerve_discs(_inputs(hits))
+    discs = swerve_discs(_inputs(hits), math.inf)
     assert len(discs) == 1 and discs[0].x > 8.0 and abs(discs[0].y) < 0.1
     walls = wall_discs(_inputs(hits), discs)
     assert len(walls) == len(facade) and all(abs(w.x - 12.0) < 1e-9 and w.r < 0.7 for w in walls)
@@ -103,8 +103,28 @@ def test_the_swerve_plans_round_a_pole_not_round_a_facade_whose_hit_points_it_ke
     chord = math.hypot(*(np.array([math.cos(along[0][0]), math.sin(along[0][0])]) * along[0][1]
                          - np.array([math.cos(along[-1][0]), math.sin(along[-1][0])]) * along[-1][1]))
     assert along[0][1] - along[-1][1] > 2.0 and chord / 2 < 2.0
-    assert swerve_discs(_inputs(along)) == ()
+    assert swerve_discs(_inputs(along), 0.0) == ()
     assert len(obstacle_discs(along, (0.0, 0.0), 0.0, 1.0)[0]) == 1  # (the avoid contract's discs: unchanged)
+
+
+@pytest.mark.parametrize("cx, cy, radius", [(2.0, 0.3, 0.1), (4.0, -0.8, 0.4), (6.0, 0.5, 0.25), (9.0, 0.0, 0.15)])
+def test_the_swerve_plans_round_the_pole_it_sees_beyond_the_hold_s_reach(cx, cy, radius):
+    """Under the stop contract the hold on the path flown is the guarantee, not the disc: beyond the hold's reach a
+    pole's disc is centred half the chord of bins that saw it behind the chord, holding every bin's sector and
+    SWERVE_MARGIN_M more — every point of the pole inside, and within R_obst's disc, which beside a pole in a 5–7 m
+    corridor closed the passage either side (far off, where a few bins span more than R_obst, R_obst's). Within the
+    hold's reach, R_obst's."""
+    from tests.test_ahead import _column_bins
+
+    hits = _column_bins(cx, cy, radius)
+    (disc,) = swerve_discs(_inputs(hits), 1.0)
+    pole = [(cx + radius * math.cos(a), cy + radius * math.sin(a)) for a in np.linspace(0.0, 2 * math.pi, 360)]
+    assert max(math.hypot(x - disc.x, y - disc.y) for x, y in pole) <= disc.r
+    (avoid,), _, _ = obstacle_discs(hits, (0.0, 0.0), 0.0, 1.0)  # the avoid contract's: R_obst
+    assert avoid.r >= 1.0 and disc.r <= avoid.r
+    if math.hypot(cx, cy) < 7.0:
+        assert abs(disc.y) + disc.r < abs(avoid.y) + avoid.r - 0.3  # less far to the side
+    assert swerve_discs(_inputs(hits), 12.0) == (avoid,)
 
 
 def test_the_planner_goes_through_the_gap_between_two_discs_either_side_of_the_route():
@@ -223,6 +243,38 @@ def test_a_column_inside_a_corridor_is_passed_without_contact(monkeypatch):
     _no_swerve(monkeypatch)
     _, old, old_rig = _clutter(61)
     assert not old["collided"] and not old["route_completed"] and old_rig.log.named("dead_end")
+
+
+@pytest.mark.parametrize("scenario", [96, 42])  # the Mambo on PX4, the X500 on ArduPilot
+def test_a_column_inside_a_corridor_is_passed_round_what_was_seen_of_it(scenario, monkeypatch):
+    """A corridor with a turn and a column inside: the swerve plans round the column as seen (beyond the hold's
+    reach), passes it without contact and completes the route. Control: R_obst's disc at every range, which with the
+    walls' keep-out closes the passage either side of the column — the route is not completed (a dead end, or no
+    safe speed from a pass that swung the direction of travel out of view)."""
+    from companion.onboard.supervisor import Supervisor
+
+    s, row, rig = _clutter(scenario)
+    assert s["world_family"] == "corridor" and s["world"]["columns"]
+    assert not row["collided"] and row["route_completed"] and _swerved(rig) and row["min_clearance_m"] > 0.3
+
+    monkeypatch.setattr(Supervisor, "_hold_reach", lambda self, i: math.inf)
+    _, old, _ = _clutter(scenario)
+    assert not old["collided"] and not old["route_completed"]  # the control must fail
+
+
+@pytest.mark.parametrize("scenario", [42])
+def test_a_pass_before_a_corridor_s_turn_leaves_it_for_the_turn(scenario, monkeypatch):
+    """The pass round the column is straight along the corridor's first leg and ends about twice the column's
+    distance on, past the turn: left where the route turns, the cruise takes the turn and the route is completed.
+    Control: the pass flown to its end goes on towards the wall beyond the turn — a dead end."""
+    from companion.onboard.guidance import OffboardGuidance
+
+    _, row, _ = _clutter(scenario)
+    assert not row["collided"] and row["route_completed"]
+    monkeypatch.setattr(OffboardGuidance, "_past_the_leg", lambda self, t: False)
+    _, old, old_rig = _clutter(scenario)
+    assert not old["collided"] and not old["route_completed"]  # the control must fail
+    assert old_rig.log.named("dead_end")
 
 
 def test_a_wall_across_the_route_is_still_a_dead_end_stopped_short_and_said():

@@ -314,23 +314,25 @@ def wall_discs(i, discs) -> tuple[Disc, ...]:
                  for b, r, h, bins in uncovered(i.hits, i.pose, discs) if bins)
 
 
-def unplanned(i, known: tuple) -> tuple:
-    """The hits guidance plans round or keeps out of for the first time this cycle (`swerve_discs`, `wall_discs`
-    not among `known`, the (discs, walls) it was given the cycle before, companion/onboard/guidance.py
+def unplanned(i, known: tuple, reach_m: float) -> tuple:
+    """The hits guidance plans round or keeps out of for the first time this cycle (`swerve_discs` at `reach_m`,
+    `wall_discs` not among `known`, the (discs, walls) it was given the cycle before, companion/onboard/guidance.py
     `new_obstacles`): its plan is judged against them from the next cycle on; the rest of `i.hits` now."""
-    discs = swerve_discs(i)
+    discs = swerve_discs(i, reach_m)
     old_discs, old_walls = known if known else ((), ())
     new = [*new_obstacles(discs, old_discs), *new_obstacles(wall_discs(i, discs), old_walls)]
     return uncovered(i.hits, i.pose, new) if new else i.hits
 
 
-def swerve_discs(i) -> tuple[Disc, ...]:
+def swerve_discs(i, reach_m: float) -> tuple[Disc, ...]:
     """The discs guidance plans round under the stop contract where it still swerves: those of the runs of bins no
     wider than R_obst (`WIDE_TOL_M` as the rule judges) and of single beams (companion/onboard/guidance.py
     `obstacle_discs`). A wider run — a wall, a facade — gets none: its chord's disc would block its own doorway; the
-    hold judges the path flown against it (`path_obstacle_m`)."""
+    hold judges the path flown against it (`path_obstacle_m`). A run farther than `reach_m` (how far the hold reaches
+    now) gets the disc of what was seen of it, not R_obst's: within that reach a plan round what was seen, on the
+    hold's edge, was held for what the next cycles added of the obstacle's outline (a pole passed at speed)."""
     x, y, yaw = i.pose
-    discs, _, _ = obstacle_discs(i.hits, (x, y), yaw, i.r_obst, widest=i.r_obst + WIDE_TOL_M)
+    discs, _, _ = obstacle_discs(i.hits, (x, y), yaw, i.r_obst, widest=i.r_obst + WIDE_TOL_M, measured_beyond=reach_m)
     return tuple(discs)
 
 

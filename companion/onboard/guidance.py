@@ -29,6 +29,9 @@ from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, bes
 from .ahead import CREEP_SPEED_M_S, TRAVEL_SPEED_M_S
 
 RANGE_TOL_M = 0.1  # [m] a bin's range is good to this (3 σ of the range noise the sensors are flown with)
+# [m] a swerve's plan keeps this much farther from a run's sectors than the hold on its path (r_body + E_tr): a plan on
+# the band's edge was held for the next cycle's range noise
+SWERVE_MARGIN_M = 0.2
 PATH_AHEAD_M = 40.0  # [m] the path ahead (`path_ahead`) reaches this far along the route: past any stopping distance
 PATH_STEP_M = 0.5  # [m] … in steps of this (a corner's arc)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
@@ -41,6 +44,7 @@ PLAN_LEAD_S = (0.3, 1.0)  # [s] the lead a plan asked for while braking starts a
 
 A_LAT = 0.5  # fraction of a_max an arc's centripetal acceleration may use (the rest is for tracking)
 A_BRAKE = 0.8  # fraction of a_max the reference slows at, for arcs, stops and the route end
+A_SIDE = 0.5  # fraction of a_max a rejoin's sideways speed changes at
 YAW_RATE_ARC = 1.5  # [rad/s] arcs are flown no faster than turns the heading at this rate (v ≤ ω·R)
 REVERSAL_DEG = 150.0  # a corner turning more than this gets no arc: the reference stops at the vertex
 YAW_SPEED = 0.5  # [m/s] above this commanded speed the yaw follows the velocity, else the route
@@ -58,6 +62,7 @@ TURN_FIRST_SPEED = 0.5 * CREEP_SPEED_M_S
 # excess, a pass's clock slows by the excess over its speed (at most PASS_SLOW_MAX); 0 and 0: the reference alone
 GIVE_BACK = 1.0
 PASS_SLOW_MAX = 0.5
+LEG_TURN_DEG = 5.0  # [deg] the route's direction this far from a pass's: the pass has reached the route's turn
 
 
 @dataclass
@@ -199,15 +204,19 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
     return tuple(np.linspace(lo, hi, n).tolist())
 
 
-def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf
-                   ) -> tuple[list[Disc], float, int]:
+def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf,
+                   measured_beyond: float = math.inf) -> tuple[list[Disc], float, int]:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
     Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
     R_obst through the chord's ends, on the far side (or wider, if the chord is wider than 2·R_obst —
     reported as the observed width). A single beam only says that the surface is at that range
     somewhere in its field of view: every disc of radius R_obst touching such a point lies within
-    2·R_obst of it, so discs of that radius are placed along the arc of possible hit points.
+    2·R_obst of it, so discs of that radius are placed along the arc of possible hit points. `measured_beyond`: a
+    run seen farther than this gets the chord's own disc where that is the smaller — centred half the chord behind
+    its middle (the silhouette of a column is as wide as the column), holding every bin's sector at its range, and
+    SWERVE_MARGIN_M more — for a swerve whose guarantee is the stop contract's hold on the path flown, which counts
+    those sectors, not the disc (R_obst's disc beside a pole closed a 5–7 m corridor's passage either side).
     Returns the discs, the widest obstacle radius observed (0 if none measurable) and how many obstacles the beams
     tell apart (one per run of adjacent bins, one per single beam's hit). `widest`: a run whose measured half-width,
     or depth, is above it gets no disc (its width and count are still returned).
@@ -236,13 +245,19 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
         w2 = float(np.hypot(*(pts[-1] - pts[0]))) / 2  # half the chord the beams saw
         mid = 0.5 * (pts[0] + pts[-1])
         u = (mid - p) / max(float(np.hypot(*(mid - p))), 1e-9)
-        radius = max(r_obst, w2)
         if len(cl) > 1:
             seen = max(seen, w2 - pad)
         faces.append((pts, pad))
-        centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u  # the front face is what was seen
-        grow = max(0.0, float(np.max(np.hypot(*(pts - centre).T))) - radius)  # every hit inside
-        discs.append(Disc(float(centre[0]), float(centre[1]), radius + grow + pad + inflate))
+        radius = max(r_obst, w2)  # R_obst (or the chord, if wider), the front face what was seen
+        centre = mid + math.sqrt(max(radius * radius - w2 * w2, 0.0)) * u
+        disc = Disc(*map(float, centre), _holding(centre, radius, pts) + pad)
+        if r_near > measured_beyond:  # half the chord behind its middle, holding every bin's sector, and a margin
+            centre = mid + w2 * u
+            sectors = np.array([p + r * np.array([math.cos(yaw + b + e), math.sin(yaw + b + e)])
+                                for b, r, h in cl for e in (-h, 0.0, h)])
+            own = Disc(*map(float, centre), _holding(centre, w2 + pad, sectors) + SWERVE_MARGIN_M)
+            disc = own if own.r < disc.r else disc  # (far off, a few bins span more than R_obst's disc)
+        discs.append(Disc(disc.x, disc.y, disc.r + inflate))
         # a face no wider than `widest` is no deeper either (what is seen of a disc lies within its radius of the
         # nearest point seen; a bin's range is its sector's nearest return, good to the range noise): a run deeper
         # than that is a wall seen along its length
@@ -264,6 +279,11 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
     if not all(narrow):
         discs = [d for k, d in enumerate(discs) if k >= len(narrow) or narrow[k]]
     return discs, seen, len(groups) + len(singles)
+
+
+def _holding(centre, radius: float, pts) -> float:
+    """The radius, grown from `radius` if need be, of the disc about `centre` that holds every point of `pts`."""
+    return radius + max(0.0, float(np.max(np.hypot(*(np.asarray(pts) - centre).T))) - radius)
 
 
 def _apart(discs: list[Disc]) -> int:
@@ -464,6 +484,7 @@ class OffboardGuidance:
     _swerving: bool = False  # offboard swerves under the stop contract (`step`'s walls given)
     _asked_walls: tuple = ()  # those the last plan asked for keeps out of
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
+    _rate: float = 1.0  # how fast a pass's clock runs while the heading turns to it (`_follow`)
 
     def start(self, p, v) -> None:
         self.s_ref = self.route.project(p)
@@ -511,16 +532,16 @@ class OffboardGuidance:
         z = -self.route.altitude_m
         ahead = self._threats(p, v, discs)
         if ahead:
-            return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z)
+            return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z, yaw)
         self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
         if self.plan is not None and self.plan.kind == "pass" and self._tau(t) < self.plan.t[-1] \
-                and not self._past_the_profile(t, v_max, a_max):
-            return self._follow(t, dt, z, v_max)  # finish going round the obstacle before rejoining
+                and not self._past_the_profile(t, v_max, a_max) and not self._past_the_leg(t):
+            return self._follow(t, dt, z, v_max, a_max, yaw)  # finish going round the obstacle before rejoining
         if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
             end_p, end_v, _ = self.plan.sample(self._tau(t))
             self.s_ref = self.route.project(end_p)
-            self._rejoin_from(end_p, end_v)
-            self.plan = None
+            self._rejoin_from(end_p, end_v * self._rate)
+            self.plan, self._rate = None, 1.0
         return self._cruise(dt, p, v_max, a_max, z, yaw)
 
     # ---------------------------------------------------------------- cruising
@@ -545,11 +566,13 @@ class OffboardGuidance:
         # off it, turn first, creeping
         rejoin = abs(self.y_off) > ON_ROUTE_M
         aim, turning = slow_aim(heading, u * self.v_ref + n * vy) if rejoin else (None, False)
-        if turning:  # (slowing sideways at half a_max, as the rejoin's offset is flown)
+        if turning:
             cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)),
                       math.sqrt(max(TURN_FIRST_SPEED ** 2 - self.v_ref ** 2, 0.0)))
-            step = 0.5 * a_max * dt
-            vy = float(np.clip(np.clip(vy, -cap, cap), self.vy_off - step, self.vy_off + step))
+        # a sideways speed above the cap (a pass handed over sideways) slows at A_SIDE·a_max, as the offset is flown:
+        # clipped at once, its acceleration was the whole step over one cycle (30 m/s²)
+        step = A_SIDE * a_max * dt
+        vy = float(np.clip(np.clip(vy, -cap, cap), self.vy_off - step, self.vy_off + step))
         ay = (vy - self.vy_off) / dt if dt > 0 else 0.0
         self.vy_off = vy
         self.y_off += self.vy_off * dt
@@ -616,7 +639,7 @@ class OffboardGuidance:
                 out.append(d)
         return out
 
-    def _avoid(self, t, dt, p, v, limits, discs, z) -> Setpoint:
+    def _avoid(self, t, dt, p, v, limits, discs, z, heading=None) -> Setpoint:
         """Replan when an obstacle appears (no plan), every REPLAN_S, and — at most every REPLAN_MIN_S —
         when Ω changes, the vehicle drifts from the plan or it is braking. A plan starts at the state
         measured when it was asked for, so it is followed from its request time. While the first plan is
@@ -647,7 +670,7 @@ class OffboardGuidance:
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
                 t_req = t + self._lead()
                 p_req, v_req, _ = self.plan.sample(self._tau(t_req))
-            _, u = self.route.point(self.route.project(p_req))
+            u = self._plan_direction(p_req, discs)
             # (among walls a plan is not warm-started: the side it went round the points then seen may be the wall's)
             warm = self.plan if self.plan.kind in ("pass", "stop") and not self._walls else None
             self.plan_t_try, self._asked_t, self._asked_discs, self._asked_walls = t_req, t, tuple(discs), self._walls
@@ -657,7 +680,16 @@ class OffboardGuidance:
                                  along=bool(self._walls) if self._swerving else None,
                                  warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)
             self._take(t, self.planning.poll())
-        return self._follow(t, dt, z, v_max)
+        return self._follow(t, dt, z, v_max, a_max, heading)
+
+    def _plan_direction(self, p, discs) -> np.ndarray:
+        """The direction a pass from p round `discs` is planned along: the route's where the vehicle is, or on a
+        turn's arc, where the nearest obstacle is (a pass is straight: one planned along the arc went straight on
+        across the turn towards the wall beyond it)."""
+        s = self.route.project(p)
+        if self.route.curvature(s):
+            s = max(s, min(self.route.project((d.x, d.y)) for d in discs))
+        return self.route.point(s)[1]
 
     def _lead(self) -> float:
         """How far ahead a plan asked for while braking starts: the slowest of the last answers' latencies,
@@ -682,6 +714,16 @@ class OffboardGuidance:
         a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it."""
         pos, vel, _ = self.plan.sample(self._tau(t))
         return float(np.hypot(*vel)) > float(self.route.speed_limit(self.route.project(pos), v_max, 0.5 * a_max))
+
+    def _past_the_leg(self, t: float) -> bool:
+        """Whether the pass being finished (its obstacle behind) has reached where the route turns from the
+        direction it was planned along (an arc, a sharp corner): a pass is straight along the route where it was
+        asked for and ends about twice the obstacle's distance on; flown past the turn it leaves the route (a
+        corridor's turn: straight on towards its end wall)."""
+        route = self.route
+        _, u0 = route.point(route.project(self.plan.p[0]))
+        _, u = route.point(route.project(self.plan.sample(self._tau(t))[0]))
+        return float(u0 @ u) < math.cos(math.radians(LEG_TURN_DEG))
 
     def _pass_speed(self, discs, v_max: float, a_max: float) -> float:
         """The speed a pass ends at: what the route's speed profile allows beyond the farthest disc, at half
@@ -726,19 +768,32 @@ class OffboardGuidance:
         """Where in the plan being flown the reference is at time t (its own clock)."""
         return t - self.plan_t - self.plan_held
 
-    def _follow(self, t, dt, z, v_max) -> Setpoint:
+    def _follow(self, t, dt, z, v_max, a_max, heading=None) -> Setpoint:
         """The plan's reference now. A pass's clock slows while the vehicle flies above V_max (catching up with a
         reference it lags, it overshoots the plan's speed): by the excess over the reference's speed, so the path
-        (clear of every keep-out disc) is the same and its speed, the feed-forward's with it, is lower."""
+        (clear of every keep-out disc) is the same and its speed, the feed-forward's with it, is lower. Swerving
+        under the stop contract, it slows too while the measured heading is more than HEADING_TOL off the pass's
+        direction, to TURN_FIRST_SPEED (changing speed at half a_max), the yaw on that direction: the pass turns
+        the velocity faster than the heading follows, and the direction of travel left the sensor's view (D_od 0,
+        no safe speed, at a corridor's turn and beside a column)."""
         pos, vel, acc = self.plan.sample(self._tau(t))
-        if self.plan.kind == "pass" and dt > 0:
-            speed = float(np.hypot(*vel))
+        speed = float(np.hypot(*vel))
+        aim = math.atan2(vel[1], vel[0]) if speed > TURN_FIRST_SPEED else None
+        if self.plan.kind != "pass":
+            self._rate = 1.0
+        elif dt > 0:
             slow = min(self._excess(speed, v_max) / max(speed, 0.1), PASS_SLOW_MAX)
+            turning = self._swerving and heading is not None and aim is not None \
+                and abs(wrap(heading - aim)) > HEADING_TOL
+            want = TURN_FIRST_SPEED / speed if turning else 1.0
+            step = 0.5 * a_max * dt / max(speed, 0.1)
+            self._rate = float(np.clip(want, self._rate - step, self._rate + step))
+            slow = max(slow, 1.0 - self._rate)
             self.plan_held += slow * dt
             vel, acc = vel * (1.0 - slow), acc * (1.0 - slow) ** 2
         s_here = self.route.project(pos)
         _, u = self.route.point(s_here)
-        yaw = self._yaw(vel, u)
+        yaw = aim if self._rate < 1.0 and aim is not None else self._yaw(vel, u)
         self.s_ref, self.v_ref = s_here, float(vel @ u)
         mode = {"pass": "avoid", "stop": "avoid", "brake": "brake", "await": "planning"}[self.plan.kind]
         return Setpoint(pos, vel, acc, z, yaw, mode)

@@ -196,6 +196,8 @@ class OffboardController:
     def _plan_stop(self, ask: Ask, known, budget: float, a0) -> None:
         """The stop to stream: `best_stop` from the measured state at `ask.a_stop`, its acceleration from `a0` at
         `ask.track_jerk`."""
+        if a0 is not None and float(np.hypot(*a0)) > ask.a_stop:  # no vehicle turns to more than its tilt allows
+            a0 = np.asarray(a0, float) * ask.a_stop / float(np.hypot(*a0))
         bp, bv, ba, bts, _ = best_stop(np.asarray(ask.p, float), np.asarray(ask.v, float), ask.a_stop, known, 40,
                                        max_path_m=budget, a0=a0, jerk=ask.track_jerk)
         self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)

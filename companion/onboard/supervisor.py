@@ -548,7 +548,7 @@ class Supervisor:
         e_tr_virtual = self.e_tr_virtual(i, d)
         # under the stop contract guidance plans round what is no wider than R_obst where the swerve stays in view,
         # else round nothing: it cruises the route, and stops
-        discs = i.discs if not self.fallen_back else swerve_discs(i) if self.swerves else ()
+        discs = i.discs if not self.fallen_back else swerve_discs(i, self._hold_reach(i)) if self.swerves else ()
         walls = wall_discs(i, discs) if self.swerves else None
         self._planned_round = (tuple(discs), walls) if self.swerves else ()
         r_body = self.table.vehicle.r_body_m
@@ -858,8 +858,7 @@ class Supervisor:
         """Every reason to stop now (each edge-triggered after an override); `not_flown`: the limit not flown
         (`_judge_limit`); `ahead`: the nearest obstacle the Hold judges (`ahead_m`)."""
         finite = _finite_inputs(i)
-        margin_m = i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
-        obstacle = finite and ahead - margin_m <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+        obstacle = finite and ahead - self._hold_margin(i) <= self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
         causes = {
             Cause.NON_FINITE: not finite,
             Cause.STALE: not i.telemetry_ok,
@@ -873,6 +872,15 @@ class Supervisor:
             del causes[Cause.OBSTACLE]  # offboard: the daemon flies round it (or brakes) itself; a law: its own speed
         return causes
 
+    def _hold_margin(self, i: Inputs) -> float:
+        """[m] what the Hold adds to the stopping distance: the tracking error, the vehicle's radius and the way flown
+        in a cycle and the data's lateness."""
+        return i.e_tr_measured + self.table.vehicle.r_body_m + i.ground_speed * (self.loop_dt + i.late_s)
+
+    def _hold_reach(self, i: Inputs) -> float:
+        """[m] how far along the path the Hold stops for an obstacle now (`_causes`; NaN where an input is not known)."""
+        return self._hold_margin(i) + self._stop_distance(i.ground_speed, i.thrust_ratio) * 1.1
+
     def ahead_m(self, i: Inputs, om: Omega) -> float:
         """[m] the nearest obstacle the stop contract stops short of (companion/onboard/ahead.py): in the swept
         corridor r_body + E_tr about the direction of travel, whatever its shape (walls beside the route are not in
@@ -882,7 +890,7 @@ class Supervisor:
         if not self.swerves:
             return stop_obstacle_m(i.hits, i.beta, i.ground_speed, half_width)
         # an obstacle guidance is given for the first time it plans round this cycle: the next judges that plan
-        hits = unplanned(i, self._planned_round)
+        hits = unplanned(i, self._planned_round, self._hold_reach(i))
         if i.path:
             return path_obstacle_m(hits, i.pose, i.path, half_width)
         return stop_obstacle_m(hits, i.beta, i.ground_speed, half_width)
