@@ -407,7 +407,7 @@ def test_a_late_detection_is_judged_at_its_first_sight():
 
 
 def test_a_hold_on_the_path_the_swerve_flies_is_judged_on_that_path(monkeypatch):
-    """examples/campaign-clutter.yaml flight 37 (offboard, a corridor with a turn and a column inside): under the stop
+    """examples/campaign-clutter.yaml flight 597 (offboard, a corridor with a turn and a column inside): under the stop
     contract offboard swerves, and its Hold judges the path the plan flies (contract_in_force.path_obstacle_m); the
     observer finds the true surface on that path. Control: an observer that judges the line of travel calls the Hold
     unfounded."""
@@ -417,10 +417,10 @@ def test_a_hold_on_the_path_the_swerve_flies_is_judged_on_that_path(monkeypatch)
     from companion.ground.campaign import fly, load_spec
 
     spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "campaign-clutter.yaml")
-    row, rig = fly(spec, 37, keep_rig=True)
+    row, rig = fly(spec, 597, keep_rig=True)
     assert row["world_family"] == "corridor" and rig.log.named("hold_trigger")
     assert not any(a["kind"] == "hold (obstacle)" for a in row["unfounded_alarms"])
 
     monkeypatch.setattr(fa.Observer, "path_judged", lambda self, t: None)
-    old = fly(spec, 37)
+    old = fly(spec, 597)
     assert any(a["kind"] == "hold (obstacle)" for a in old["unfounded_alarms"])
