@@ -569,8 +569,8 @@ class OffboardGuidance:
         if turning:
             cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)),
                       math.sqrt(max(TURN_FIRST_SPEED ** 2 - self.v_ref ** 2, 0.0)))
-        # a sideways speed above the cap (a pass handed over sideways) slows at A_SIDE·a_max, as the offset is flown:
-        # clipped at once, its acceleration was the whole step over one cycle (30 m/s²)
+        # a sideways speed above the cap (a pass handed over sideways) slows at A_SIDE·a_max, as the offset is flown
+        # (clipped at once, the setpoint's acceleration would be the whole step in one cycle, tens of m/s²)
         step = A_SIDE * a_max * dt
         vy = float(np.clip(np.clip(vy, -cap, cap), self.vy_off - step, self.vy_off + step))
         ay = (vy - self.vy_off) / dt if dt > 0 else 0.0
