@@ -5,6 +5,7 @@ import pytest
 
 from companion.onboard.config import ContractConfig, SensorConfig, ThrustConfig
 from companion.onboard.estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from companion.onboard.detection_range import RangeNoise
 from companion.onboard.mavlink_in import bins_scan, range_scan
 from contracts.vehicle import G
 
@@ -100,7 +101,7 @@ def test_a_detection_at_the_range_edge_or_after_a_turn_is_not_late():
     assert e2.estimate(0.5, 0.0).late is None
 
 
-def _first_seen(first_m: float, range_noise: tuple[float, float]):
+def _first_seen(first_m: float, range_noise: RangeNoise):
     """A target first seen `first_m` by a sensor stating 10 m, then in the two frames that follow, 5 cm nearer each:
     the late detection declared, or None."""
     e = DodEstimator([FWD], CC, stale_s=0.5, range_noise=range_noise)
@@ -117,11 +118,11 @@ def test_a_first_sighting_within_the_range_noise_of_dod_is_on_time():
     """Three σ of the configured range noise (σ(10 m) = 0.03 + 0.01 × 10 = 0.13 m) beyond the 0.3 m tolerance: a
     target first seen 0.5 m inside the stated 10 m is on time, one first seen 0.8 m inside it is late. Control:
     without the noise allowance the first is late too."""
-    noise = (0.03, 0.01)
+    noise = RangeNoise(0.03, 0.01)
     assert _first_seen(9.5, noise) is None
     late = _first_seen(9.2, noise)
     assert late is not None and late.range_m == 9.2 and late.assumed_d_od == 10.0
-    assert _first_seen(9.5, (0.0, 0.0)) is not None  # the control must fail
+    assert _first_seen(9.5, RangeNoise(0.0, 0.0)) is not None  # the control must fail
 
 
 def test_bins_side_entry_is_not_a_violation_but_interior_is():

@@ -71,18 +71,25 @@ def fly(sensor, cfg: SensorConfig, world: World, seconds: float, confirm: int, a
 @pytest.mark.parametrize("cls,defaults,cfg,rate", [(SingleBeam, SINGLE_BEAM, BEAM, 0.02),
                                                    (DepthCamera, DEPTH_CAMERA, CAMERA, 0.01)],
                          ids=["single_beam", "depth_camera"])
-def test_spurious_close_returns_in_clear_air_are_obstacles_never_late_detections(cls, defaults, cfg, rate):
-    """Clear air, spurious close returns at 40× (the beam) and 5× (the camera) their defaults: every one is an
-    obstacle the frame it is seen (the hold and brake react to it), none is declared a late detection and D_od is
-    never lowered; without the confirmation (negative control) the first is declared at once and holds D_od down
-    for the hold time."""
-    def run(confirm):
+def test_spurious_close_returns_in_clear_air_are_never_late_detections_nor_within_the_clutter_obstacles(
+        cls, defaults, cfg, rate):
+    """Clear air, spurious close returns at 40× (the beam) and 5× (the camera) their defaults: none is declared a
+    late detection and D_od is never lowered. With the sensor's clutter configured (`clutter_m`, the reach of its
+    spurious returns) none reaches the obstacle logic: each came where the frames before saw free and is withheld
+    until the following frames confirm it, which they never do. Without it each is an obstacle the frame it is seen
+    (the hold and brake react to it); without the confirmation (negative control) the first is declared at once and
+    holds D_od down for the hold time."""
+    def run(confirm, clutter=0.0):
         sensor = model(cls, defaults, spurious_rate=rate, dropout_rate=0.0)
-        return fly(sensor, cfg, World(), 60.0, confirm)
+        return fly(sensor, cfg.model_copy(update={"clutter_m": clutter}), World(), 60.0, confirm)
 
+    def close(frames):
+        return sum(1 for _, m, _ in frames if m <= defaults["spurious_max_m"] + 0.05)
+
+    declared, frames, _ = run(2, clutter=defaults["spurious_max_m"])
+    assert close(frames) == 0 and declared == [] and not any(low for _, _, low in frames)
     declared, frames, _ = run(2)
-    seen_close = sum(1 for _, m, _ in frames if m <= defaults["spurious_max_m"] + 0.05)
-    assert seen_close > 100  # the returns were there, and reached the obstacle logic
+    assert close(frames) > 100  # the returns were there, and without the clutter reached the obstacle logic
     assert declared == [] and not any(low for _, _, low in frames)
     old, frames, _ = run(0)
     assert len(old) >= 1 and old[0][1].range_m <= defaults["spurious_max_m"] + 0.05  # negative control
@@ -153,6 +160,24 @@ def test_one_frame_return_is_an_obstacle_then_gone_and_nothing_is_lowered():
     for k in range(1, 5):
         est = frame(e, t + 0.01 * k, 12.01)
         assert est.late is None and not est.lowered and est.d_od == pytest.approx(12.0)
+
+
+@pytest.mark.parametrize("r,withheld", [(0.4, True), (1.2, False)])
+def test_a_one_frame_return_within_the_sensor_s_clutter_is_withheld(r, withheld):
+    """The beam with its clutter at 1 m: a return at 0.4 m where the frames before saw 12 m free is withheld until
+    the frames that follow confirm it (they do not: it never reaches the obstacle logic); one at 1.2 m, beyond the
+    clutter, is an obstacle from its first frame."""
+    e = DodEstimator([BEAM.model_copy(update={"clutter_m": 1.0})], ContractConfig(), stale_s=0.5)
+    t = clear_run(e)
+    assert frame(e, t, r).obstacle_m == (math.inf if withheld else pytest.approx(r))
+    assert frame(e, t + 0.01, 12.01).late is None
+
+
+def test_a_return_within_the_clutter_seen_again_in_two_frames_is_an_obstacle_from_the_second():
+    e = DodEstimator([BEAM.model_copy(update={"clutter_m": 1.0})], ContractConfig(), stale_s=0.5)
+    t = clear_run(e)
+    seen = [frame(e, t + 0.01 * k, 0.8 - SPEED * 0.01 * k).obstacle_m for k in range(4)]
+    assert seen[:2] == [math.inf, math.inf] and seen[2] == pytest.approx(0.8 - SPEED * 0.02)
 
 
 def test_returns_in_consecutive_frames_at_inconsistent_places_are_not_confirmed():

@@ -244,6 +244,8 @@ class Rig:
         cfg = {"vehicle": sc.vehicle, "mode": "governor", "engage": True,
                "link": {"autopilot": personality, "connect": "memory"},
                "sensors": [self._scenario_sensor(sc)]}
+        if getattr(self.sim.sensor.cfg, "noise_quad_per_m", 0.0):  # a stereo camera's noise, as its datasheet says
+            cfg["detection"] = {"range_noise_quad_per_m": self.sim.sensor.cfg.noise_quad_per_m}
         for k, v in (config or {}).items():
             cfg[k] = {**cfg[k], **v} if isinstance(v, dict) and isinstance(cfg.get(k), dict) else v
         # the sensors are the scenario's: rated at its range unless a test says otherwise
@@ -283,13 +285,18 @@ class Rig:
     def _scenario_sensor(self, sc) -> dict:
         """The daemon's sensor entry for the SITL's sensor: its message and the field of view its bins cover (the
         sector sensor: DISTANCE_SENSOR over the scenario's field of view; a depth camera: OBSTACLE_DISTANCE, its
-        bins' depth along its axis)."""
+        bins' depth along its axis); a body-fixed model's vertical field of view and mount, where the ground
+        comes into its view, and the reach of its spurious returns (its clutter)."""
         s = self.sim.sensor
         if sc.sensor.model == "sector":
             return {"kind": "distance_sensor", "h_fov_deg": sc.sensor.fov_deg}
         kind = "distance_sensor" if "DISTANCE_SENSOR" in s.MESSAGES else "obstacle_distance"
         depth = {"depth": "axis_depth"} if kind == "obstacle_distance" and s.cfg.reports == "z_depth" else {}
-        return {"kind": kind, "h_fov_deg": round(math.degrees(s.n_used * s.inc), 6), **depth}
+        # its spurious returns' reach, as a range (a depth along the axis is up to 1 / cos(half its field) farther)
+        reach = s.cfg.spurious_max_m / (math.cos(s.n_used * s.inc / 2) if depth else 1.0)
+        clutter = {"clutter_m": round(reach, 3)} if s.cfg.spurious_rate > 0 else {}
+        return {"kind": kind, "h_fov_deg": round(math.degrees(s.n_used * s.inc), 6), **depth, **clutter,
+                "v_fov_deg": s.cfg.v_fov_deg, "mount_pitch_deg": s.cfg.mount_pitch_deg}
 
     def _endpoint(self):
         q: deque = deque()

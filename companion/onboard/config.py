@@ -94,6 +94,15 @@ class SensorConfig(_Strict):
     # sensor's axis of the bin's nearest pixel (a stereo camera's obstacle line, as d4xx_to_mavlink.py sends it),
     # read as the least range that depth allows anywhere in the bin (mavlink_in.py)
     depth: Literal["range", "axis_depth"] = "range"
+    # fixed to the airframe, it pitches with it (companion/onboard/ground.py): each reading the nearest over
+    # `v_fov_deg` of elevation about its axis, the axis pitched up by `mount_pitch_deg`; where its lowest ray meets
+    # the ground, its claim stops. None: levelled (a gimbal), or the ground never in its view
+    v_fov_deg: Annotated[float, Field(gt=0, le=90, allow_inf_nan=False)] | None = None
+    mount_pitch_deg: Annotated[float, Field(ge=-90, le=90, allow_inf_nan=False)] = 0.0
+    # [m] the sensor's own clutter: within this its spurious returns come (a propeller in view, rain or dust at the
+    # lens). A return this near where its frames just saw free waits for the frames that confirm it before the
+    # obstacle logic takes it (companion/onboard/late_detection.py); 0: every return at once. At most 2 m
+    clutter_m: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False)] = 0.0
 
     @field_validator("address")
     @classmethod
@@ -260,8 +269,9 @@ class ContractConfig(_Strict):
     late_detection_tolerance_m: Bounded(0.0, 2.0) = 0.3
     # a return first seen inside D_od is declared a late detection (D_od lowered, a navigation violation) only once
     # the sensor has seen it again at a consistent place in this many following frames: a real surface persists, a
-    # spurious close return (a propeller, rain) is new in every frame. The return is an obstacle from its first frame
-    # whatever this is. At most 5: the lowering must not wait more than a few frames (0: every single frame counts)
+    # spurious close return (a propeller, rain) is new in every frame. The return is an obstacle from its first frame,
+    # except within its sensor's clutter (`sensors[k].clutter_m`), where it waits as long. At most 5: neither may
+    # wait more than a few frames (0: every single frame counts, at once)
     late_detection_confirm_frames: Annotated[int, Field(ge=0, le=5)] = 2
     # navigation margin: the part of a sensor's claimed range not trusted, D_od = (1 − m) ×
     # the claim; 0 is the paper's contract (the claim is the guarantee). m survives a hidden shortfall of up to
@@ -305,6 +315,11 @@ class DetectionConfig(_Strict):
     # on time (lower: a noisy sensor's first sightings read as a shorter range — slower, never less safe)
     range_noise_m: Bounded(0.0, 0.5) = 0.03
     range_noise_rel: Bounded(0.0, 0.05) = 0.01
+    # ... + range_noise_quad_per_m × range²: a stereo camera's (RMS ∝ depth²; a RealSense D435 about 0.01 per m)
+    range_noise_quad_per_m: Bounded(0.0, 0.05) = 0.0
+    # [deg] how far the reported attitude may be off: a body-fixed sensor's ground (sensors[k].v_fov_deg) is placed
+    # with the vehicle this much more nose-down and rolled. Lower is weaker: the ground read as an obstacle's return
+    attitude_error_deg: Bounded(0.0, 10.0) = 1.0
 
 
 class Timeouts(_Strict):
@@ -527,7 +542,8 @@ WEAKER = (
     ("contract", "dwell_s", "lower", "a higher limit takes effect sooner"),
     ("contract", "late_detection_hold_s", "lower", "a late detection lowers D_od for less time"),
     ("contract", "late_detection_tolerance_m", "higher", "a larger range shortfall passes as on time"),
-    ("contract", "late_detection_confirm_frames", "higher", "a late detection lowers D_od frames later"),
+    ("contract", "late_detection_confirm_frames", "higher",
+     "a late detection lowers D_od, and a return within a sensor's clutter is held for, frames later"),
     ("delivery", "t_cmd_s", "lower", "a command lost or delayed for a shorter time is outside the contract"),
     ("delivery", "t_mode_s", "higher", "a mode the autopilot does not show is given up on later"),
     ("thrust", "tau_s", "higher", "a thrust loss shows later"),
@@ -535,6 +551,8 @@ WEAKER = (
     ("detection", "backscatter_length_m", "higher", "the same backscatter reads as thinner fog"),
     ("detection", "range_noise_m", "higher", "a larger range shortfall at first sight passes as noise"),
     ("detection", "range_noise_rel", "higher", "a larger range shortfall at first sight passes as noise"),
+    ("detection", "range_noise_quad_per_m", "higher", "a larger range shortfall at first sight passes as noise"),
+    ("detection", "attitude_error_deg", "lower", "the ground nearer than placed reads as an obstacle"),
 )
 
 

@@ -78,10 +78,22 @@ from .samples import Scan
 NOISE_SIGMAS = 3.0  # a first sighting this many σ of range noise short of the stated range is still on time
 
 
-def noise_short_m(range_noise_m: float, range_noise_rel: float, r: float) -> float:
-    """[m] how far short of range r a target reads by noise alone: NOISE_SIGMAS σ(r), σ(r) = range_noise_m +
-    range_noise_rel · r (the configured range noise)."""
-    return NOISE_SIGMAS * (range_noise_m + range_noise_rel * r)
+@dataclass(frozen=True)
+class RangeNoise:
+    """The sensors' range noise as configured (`detection.range_noise_*`): 1 σ(r) = m + rel·r + quad·r² (a stereo
+    camera's grows with the square of the depth)."""
+
+    m: float = 0.03
+    rel: float = 0.01
+    quad: float = 0.0
+
+    @classmethod
+    def of(cls, detection) -> "RangeNoise":
+        return cls(detection.range_noise_m, detection.range_noise_rel, detection.range_noise_quad_per_m)
+
+    def short_m(self, r: float) -> float:
+        """[m] how far short of range r a target reads by noise alone: NOISE_SIGMAS σ(r)."""
+        return NOISE_SIGMAS * (self.m + self.rel * r + self.quad * r * r)
 FULL_WINDOW_SHOTS_PER_S = 160.0  # shots per second behind a confidence of 1 (a 12-bin sensor at 20 Hz gives 240)
 
 
@@ -103,8 +115,7 @@ class DetectionRangeParams:
     trend_span_m: float = 1.0  # ... spanning at least this much range
     track_m: float = 1.0  # a hit within this (+ the bin's width at its range) of a tracked point: the same target
     first_tolerance_m: float = 0.3  # first seen this much inside the stated range (+ one frame's travel ...
-    range_noise_m: float = 0.03  # ... + NOISE_SIGMAS of the range noise σ = range_noise_m + range_noise_rel · r): late
-    range_noise_rel: float = 0.01
+    range_noise: RangeNoise = RangeNoise()  # ... + NOISE_SIGMAS of the range noise σ(r)): late
     look_back_s: float = 0.5  # ... and a frame this recent saw through its place
     fresh_s: float = 0.5  # a sensor silent longer adds nothing (staleness is the other estimator's)
 
@@ -113,8 +124,7 @@ class DetectionRangeParams:
         """The parameters a config's `detection:` section sets (companion/onboard/config.py DetectionConfig)."""
         return cls(reference_reflectivity=detection.reference_reflectivity,
                    rated_reflectivity=detection.rated_reflectivity,
-                   backscatter_length_m=detection.backscatter_length_m, range_noise_m=detection.range_noise_m,
-                   range_noise_rel=detection.range_noise_rel)
+                   backscatter_length_m=detection.backscatter_length_m, range_noise=RangeNoise.of(detection))
 
 
 @dataclass(frozen=True, slots=True)
@@ -339,8 +349,8 @@ class DetectionRange:
             known = any(math.hypot(x - tr.x, y - tr.y) <= p.track_m + r * inc for tr in self._tracks)
             self._track(t, x, y, r, inc)
             edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
-            # a target at the stated range reads up to NOISE_SIGMAS σ(r) short of it by noise alone
-            tol = p.first_tolerance_m + self._speed * period + noise_short_m(p.range_noise_m, p.range_noise_rel, r)
+            # a target at the stated range reads up to NOISE_SIGMAS σ(stated) short of it by noise alone
+            tol = p.first_tolerance_m + self._speed * period + p.range_noise.short_m(stated)
             if not known and not edge and r < stated - tol and self._seen_through(i, x, y, tol):
                 self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))
 

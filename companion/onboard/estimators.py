@@ -25,12 +25,14 @@ from contracts.window import WindowMax
 
 from .config import ContractConfig, SensorConfig, ThrustConfig
 from .coverage import Beam, corridor_cover, covered_d_od
-from .detection_range import noise_short_m
+from .detection_range import RangeNoise
 from .late_detection import Candidate, Confirmations, Frame, LateDetection
 from .samples import Scan
 
 # ============================================================================ D_od
 
+LOOK_BACK_S = 0.2  # [s] a place a frame this recent saw free holds no static surface (a side entry's check)
+HEADING_SLACK = math.radians(0.5)  # [rad] a direction this close to a bin that reported was looked at (heading noise)
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
 SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
 # [m] the swept chain may start this far ahead of the vehicle's centre: its position drifts by millimetres between
@@ -103,6 +105,29 @@ class _Seen:
         return self._sectors
 
 
+def _saw_free(seen: _Seen, pose: tuple[float, float, float], increment: float, bearing: float, far: float,
+              beam: tuple[float, float] | None = None) -> bool:
+    """Whether frame `seen` saw free, out to `far` plus the travel since, every direction a return at body `bearing`
+    (in a bin `increment` wide) seen from `pose` (x, y, yaw) now may be in: its bin, widened by the turn since that
+    frame and by the turn in `SENSOR_LAG_S` at the rate then, all in bins that reported (a single beam: inside its
+    field of view, `beam` = (axis, half width)) and no hit that near."""
+    (t0, yaw0), prev = seen.yaw_last, seen.yaw_prev
+    rate = 0.0 if prev is None or t0 <= prev[0] else abs(wrap(yaw0 - prev[1])) / (t0 - prev[0])
+    then = bearing + wrap(pose[2] - yaw0)  # the body bearing that frame would have seen the place at
+    half = increment / 2 + rate * SENSOR_LAG_S  # every direction within this of `then` ...
+    beyond = far + math.hypot(pose[0] - seen.pos[1], pose[1] - seen.pos[2])
+    if seen.known is None:  # ... inside the beam, which saw nothing that near
+        near = min((r for _, r in seen.seen), default=math.inf)
+        return min(near, seen.max_m) > beyond and abs(wrap(then - beam[0])) + half <= beam[1] + HEADING_SLACK
+    near = min((r for b, r in seen.seen if abs(wrap(b - then)) <= half + seen.increment / 2 + 1e-6),
+               default=math.inf)
+    if min(near, seen.max_m) <= beyond:
+        return False
+    n = 1 + math.ceil(4 * half / seen.increment)  # ... in a bin that reported
+    return all(any(abs(wrap(then + half * (2 * k / (n - 1) - 1) - b)) <= seen.increment / 2 + HEADING_SLACK
+                   for b in seen.known) for k in range(n))
+
+
 @dataclass(frozen=True, slots=True)
 class DodEstimate:
     d_od: float  # guaranteed detection range along the direction of travel [m]
@@ -158,12 +183,12 @@ class DodEstimator:
 
     def __init__(self, sensors: list[SensorConfig], contract: ContractConfig, stale_s: float,
                  silence: SilenceBudget | None = None, cover: bool = True,
-                 range_noise: tuple[float, float] = (0.0, 0.0)):
+                 range_noise: RangeNoise = RangeNoise(0.0, 0.0)):
         """`stale_s`: the time-out (`timeouts.obstacle_s`): a position or heading older than it places nothing, and
         a sensor's sources are merged within it; `silence`: each sensor's own budget (None: the time-out for all);
-        `range_noise`: the configured range noise σ(r) = m + rel·r (`detection.range_noise_m`, `range_noise_rel`): a
-        first sighting less short of D_od than noise alone reads (`noise_short_m`) is on time, as the detection range
-        from evidence judges it (companion/onboard/detection_range.py), not a late first detection;
+        `range_noise`: the configured range noise σ(r) (`detection.range_noise_*`): a first sighting less short of
+        D_od than noise alone reads (`RangeNoise.short_m`) is on time, as the detection range from evidence judges it
+        (companion/onboard/detection_range.py), not a late first detection;
         `cover`: D_od is capped by the beams' cover of the swept corridor (`estimate`); False under the avoid
         contract, where the daemon's own swerves put the direction of travel at a field of view's edge and the cap
         read them as blindness (Figure 17 with late plans stopped short of its route; its braking broke the
@@ -177,6 +202,7 @@ class DodEstimator:
         self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
         self._last_d_od = 0.0
         self._pending: list[LateDetection] = []
+        self.withheld = 0  # returns withheld awaiting confirmation, frame by frame (`late_detection`)
         # first sights inside D_od awaiting the following frames that confirm them (`late_detection`)
         self._confirm = Confirmations(contract.late_detection_confirm_frames, stale_s)
         self._yaw_hist: deque[tuple[float, float]] = deque()
@@ -239,31 +265,48 @@ class DodEstimator:
             s.trusted = all(v[3] for v in s.sources.values())
         view = seen if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
         placed = self._placed(i, t, seen)
-        self._sweep(i, t, view)  # free only short of every fresh source's hits
+        self._sweep(i, t, view)  # free only short of every fresh source's hits, withheld ones too
         followed = self._confirm.follow(Frame(t, i, source, seen, placed, s.known, s.increment, tolerance),
                                         lambda c: self._seen_from_here(t, c))
-        track = [p for c in followed.confirmed for p in self._declare(t, c)]
+        track = [p for c in followed.confirmed for p in self._declare(t, c)]  # (`_declare` says the late ones)
         # a candidate this frame ended was no obstacle: a hit in its bin now is not "the same as before"
         before = [h for h in before if h[0] not in followed.ended]
         untracked = set(followed.used)  # a candidate's sightings are tracked only once it is confirmed
-        late_inside = self._last_d_od - tolerance - noise_short_m(*self.range_noise, self._last_d_od)
+        # ... and within the sensor's clutter reach the obstacle logic only then (`late_detection`)
+        withheld = {k for k in followed.waiting if seen[k][1] <= s.cfg.clutter_m}
+        late_inside = self._last_d_od - tolerance - self.range_noise.short_m(self._last_d_od)
         for k, (bearing, r) in enumerate(seen):
-            if k in followed.used or any(abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9 for b0, _ in before):
-                continue  # a candidate seen again, or the same obstacle as before
-            if r < late_inside and not self._side_entry(i, t, bearing) \
-                    and not self._tracked_already(t, placed[k], tolerance):
+            near = [r0 for b0, r0 in before if abs(wrap(bearing - b0)) <= s.increment * 1.5 + 1e-9]
+            if k in followed.used or any(abs(r - r0) <= tolerance for r0 in near):
+                continue  # a candidate seen again, or the same surface as before
+            late = not near and r < late_inside and not self._side_entry(i, t, bearing) \
+                and not self._tracked_already(t, placed[k], tolerance)
+            # within the sensor's own clutter, a return where its last frames saw free (no static surface is
+            # there) waits for confirmation too
+            clutter = r <= s.cfg.clutter_m and (late or self._seen_free_before(i, t, bearing, r + tolerance))
+            if late or clutter:
                 untracked.add(k)
-                c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k])
+                c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k], late)
                 if c is not None:
                     track += self._declare(t, c)
+                elif clutter:
+                    withheld.add(k)
         track += [p for k, p in enumerate(placed) if p is not None and k not in untracked]
         for p in track:
             self._tracked.append((t, *p[:2]))
+        if withheld:
+            self.withheld += len(withheld)
+            kept = [h for k, h in enumerate(seen) if k not in withheld]
+            s.sources[source] = (t, kept, claim, trusted)
+            view = kept if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
         s.hits = view
 
     def _declare(self, t: float, c: Candidate) -> list:
         """A confirmed late first detection: reported, and D_od capped at the range it was first seen at for the
-        late-detection hold time from now. Returns its sightings' points: a tracked obstacle from now on."""
+        late-detection hold time from now. Returns its sightings' points: a tracked obstacle from now on (a confirmed
+        candidate that was no late first detection: those only)."""
+        if not c.late:
+            return list(c.points)
         self._pending.append(c.first)
         r = c.first.range_m
         cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])
@@ -345,6 +388,21 @@ class DodEstimator:
             self._tracked.popleft()
         reach = 2 * max(self.r_obst, 0.0) + p[2] + tolerance
         return any(math.hypot(p[0] - qx, p[1] - qy) <= reach for _, qx, qy in self._tracked)
+
+    def _seen_free_before(self, i: int, t: float, bearing: float, far: float) -> bool:
+        """Whether one of the sensor's frames of the last `LOOK_BACK_S` before this one saw free, out to `far` plus
+        the vehicle's travel since, every direction that may have looked where a return at body `bearing` is now
+        (`_saw_free`): a static surface there would have been seen. False where no such frame, pose or heading is
+        known."""
+        s = self.sensors[i]
+        frames = [seen for seen in list(s.swept)[:-1] if t - seen.t <= LOOK_BACK_S]
+        if self._pos is None or not self._yaw_hist or not frames:
+            return False
+        pose = (*self._pos[1:], self._yaw_hist[-1][1])
+        half = math.radians(s.cfg.h_fov_deg) / 2
+        width = s.increment if s.known is not None else 2 * half
+        beam = (math.radians(s.cfg.orientation_deg), half)
+        return any(_saw_free(seen, pose, width, bearing, far, beam) for seen in frames)
 
     def _side_entry(self, i: int, t: float, bearing: float) -> bool:
         """Whether a new hit may have come in from the side of the field of view rather than out of range."""

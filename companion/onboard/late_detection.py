@@ -5,8 +5,8 @@ The navigation subsystem guarantees that every obstacle within `D_od` that reach
 inside the assumed `D_od` says two things, and they need different evidence:
 
 - *something is there*: the return is an obstacle from the frame it is first seen in. It goes to the obstacle logic
-  at once (the stop contract's hold, the planner's keep-out disc, the recovery brake) whatever this module decides:
-  the safe reaction never waits;
+  at once (the stop contract's hold, the planner's keep-out disc, the recovery brake) whatever this module decides
+  — except within its sensor's own clutter (below);
 - *the sensor sees less far than it claims* (the navigation guarantee broken): `D_od` is lowered for the
   late-detection hold time and a navigation violation is said. One frame cannot show that. A real surface first
   seen late is static (the contract's assumption) and stays in the beam: it is seen again in every following
@@ -18,10 +18,18 @@ So a candidate is declared only once the sensor (the same source of it) has seen
 `frames` following frames (`ContractConfig.late_detection_confirm_frames`). A frame that looks at the candidate's
 place and sees nothing consistent there ends it; a frame that does not look there (a bin that reported nothing, the
 place outside the field of view) neither confirms nor ends it, until the sensor's time-out. The rule delays the
-*declaration* by `frames` frames (at 20 Hz and 2 frames, 0.1 s), never the reaction to the return itself, and cannot
-hide a real late detection: a static surface inside `D_od` and in the field of view is in each following frame,
-and the declaration keeps the range and time of its first sight. With `frames` 0 every first sight is declared at
-once.
+*declaration* by `frames` frames (at 20 Hz and 2 frames, 0.1 s) and cannot hide a real late detection: a static
+surface inside `D_od` and in the field of view is in each following frame, and the declaration keeps the range and
+time of its first sight. With `frames` 0 every first sight is declared at once.
+
+**Within a sensor's clutter** (`sensors[k].clutter_m`: the reach of its own spurious returns) a return that is a
+late first detection, or that comes where the sensor's recent frames saw free (no static surface can be there), is a
+candidate too — `late` False for the latter: confirmed, it is an obstacle, not a late detection — and its returns
+are withheld from the obstacle logic until it is confirmed (`Followed.waiting`), never from what the sensor saw free,
+which stops short of them. What is withheld is what the navigation guarantee excludes: a static obstacle within
+`D_od` is first seen at `D_od`, or comes in from the side or from behind another, and reaches the obstacle logic in
+the frame it is seen. One first seen inside the clutter where the sensor had just seen free is a broken guarantee,
+declared, and held for `frames` frames after its first sight (at 30 Hz and 2 frames, 67 ms).
 
 A "consistent place": where the candidate's last sight would be seen now, the vehicle's own motion and turn
 accounted for (its place in the local frame, seen from the vehicle's pose now; its last bearing and range where a
@@ -62,6 +70,7 @@ class Candidate:
     point: tuple[float, float, float] | None
     points: list = field(default_factory=list)
     seen_again: int = 0  # frames since the first that saw it again
+    late: bool = True  # confirmed, a late first detection (False: a return withheld only, where it was seen free)
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,6 +98,7 @@ class Followed:
     confirmed: tuple[Candidate, ...]
     used: frozenset[int]
     ended: tuple[float, ...]
+    waiting: frozenset[int] = frozenset()  # of `used`, the hits of candidates still waiting: withheld
 
 
 class Confirmations:
@@ -105,11 +115,11 @@ class Confirmations:
     def waiting(self) -> tuple[Candidate, ...]:
         return tuple(self._open)
 
-    def offer(self, first: LateDetection, source, point) -> Candidate | None:
-        """A first sight inside D_od: the candidate, already confirmed when no following frame is asked for (None:
-        it waits for `follow`)."""
+    def offer(self, first: LateDetection, source, point, late: bool = True) -> Candidate | None:
+        """A first sight inside D_od (`late`), or a return where recent frames saw free: the candidate, already
+        confirmed when no following frame is asked for (None: it waits for `follow`)."""
         c = Candidate(first, source, first.bearing, first.range_m, first.t, point,
-                      [point] if point is not None else [])
+                      [point] if point is not None else [], late=late)
         if self.frames == 0:
             return c
         self._open.append(c)
@@ -118,7 +128,7 @@ class Confirmations:
     def follow(self, f: Frame, where) -> Followed:
         """Match the frame's hits against the sensor's candidates of the same source. `where(candidate)`: the body
         bearing and range at which this frame would see the candidate's place."""
-        confirmed, used, ended, keep = [], set(), [], []
+        confirmed, used, ended, keep, waiting = [], set(), [], [], set()
         for c in self._open:
             if c.first.sensor != f.sensor or c.source != f.source:
                 if f.t - c.t_last <= self.stale_s:
@@ -132,13 +142,17 @@ class Confirmations:
                 c.bearing, c.range_m, c.t_last, c.point = f.hits[k][0], f.hits[k][1], f.t, f.placed[k]
                 if f.placed[k] is not None:
                     c.points.append(f.placed[k])
-                (confirmed if c.seen_again >= self.frames else keep).append(c)
+                if c.seen_again >= self.frames:
+                    confirmed.append(c)
+                else:
+                    keep.append(c)
+                    waiting.add(k)
             elif self._looks(f, bearing) or f.t - c.t_last > self.stale_s:
                 ended.append(c.bearing)
             else:
                 keep.append(c)
         self._open = keep
-        return Followed(tuple(confirmed), frozenset(used), tuple(ended))
+        return Followed(tuple(confirmed), frozenset(used), tuple(ended), frozenset(waiting))
 
     @staticmethod
     def _looks(f: Frame, bearing: float) -> bool:

@@ -18,6 +18,8 @@ from contracts.geometry import wrap_array
 
 from .autopilot_base import MAV_CMD_DO_CHANGE_SPEED, MAV_CMD_DO_SET_MODE
 from .config import Config
+from .detection_range import RangeNoise
+from .ground import ground_claim_m, ground_range_m
 from .samples import (
     AutopilotParam,
     AutopilotRestart,
@@ -130,8 +132,10 @@ def _distance_sensor(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemetry
     if i is None:
         return []
     c = cfg.sensors[i]
-    scan = range_scan(t, i, math.radians(c.orientation_deg), msg.current_distance / 100, msg.min_distance / 100,
-                      msg.max_distance / 100, getattr(msg, "signal_quality", 0), c.max_range_m, source)
+    axis = math.radians(c.orientation_deg)
+    rated = ground_cap(cfg, c, tel, [axis], math.radians(c.h_fov_deg) / 2)
+    scan = range_scan(t, i, axis, msg.current_distance / 100, msg.min_distance / 100,
+                      msg.max_distance / 100, getattr(msg, "signal_quality", 0), rated, source)
     bad = msg.min_distance > msg.max_distance
     return [scan, Implausible(t, "DISTANCE_SENSOR", "min_distance above max_distance")] if bad else [scan]
 
@@ -160,10 +164,28 @@ def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemet
     if getattr(msg, "frame", MAV_FRAME_BODY_FRD) != MAV_FRAME_BODY_FRD:
         ang = ang - tel.yaw
     rng = np.where(d > msg.max_distance, np.inf, d / 100.0)
-    if cfg.sensors[i].depth == "axis_depth":
-        rng = rng / axis_depth_factor(ang - math.radians(cfg.sensors[i].orientation_deg), math.radians(inc))
-    return [bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc),
-                      cfg.sensors[i].max_range_m, source)]
+    c, half = cfg.sensors[i], math.radians(inc) / 2
+    off_axis = ang[used] - math.radians(c.orientation_deg)
+    factors = None
+    if c.depth == "axis_depth":
+        rng = rng / axis_depth_factor(ang - math.radians(c.orientation_deg), math.radians(inc))
+        # a pixel at the bin's far edge reads its range times cos(far edge) / cos(near edge)
+        factors = np.cos(np.minimum(np.abs(wrap_array(off_axis)) + half, math.radians(89.0))) \
+            / axis_depth_factor(off_axis, 2 * half)
+    rated = ground_cap(cfg, c, tel, ang[used], half, factors)
+    return [bins_scan(t, i, ang[used], rng[used], msg.max_distance / 100.0, math.radians(inc), rated, source)]
+
+
+def ground_cap(cfg: Config, c, tel: Telemetry, azimuths, half_width: float, factors=None) -> float | None:
+    """Sensor `c`'s rated range, capped where its lowest ray meets the ground now (companion/onboard/ground.py;
+    only for a sensor fixed to the airframe, `v_fov_deg` set); None: no rated range and no ground in view."""
+    if c.v_fov_deg is None:
+        return c.max_range_m
+    err = math.radians(cfg.detection.attitude_error_deg)
+    roll_lo, roll_hi, pitch = tel.attitude_span()
+    g = ground_range_m(-tel.z, azimuths, half_width, math.radians(c.v_fov_deg), math.radians(c.mount_pitch_deg),
+                       (roll_lo, roll_hi), pitch, err, factors)
+    return ground_claim_m(math.inf if c.max_range_m is None else c.max_range_m, g, RangeNoise.of(cfg.detection))
 
 
 def axis_depth_factor(off_axis: np.ndarray, increment: float) -> np.ndarray:

@@ -11,7 +11,7 @@ from contracts.table import ContractTable
 from .ahead import Creep
 from .assumptions import e_tr_floor, start_thrust
 from .config import Config
-from .detection_range import DetectionRange, DetectionRangeParams
+from .detection_range import DetectionRange, DetectionRangeParams, RangeNoise
 from .estimators import (AccelEstimator, DodEstimator, EtrEstimator, NavHealth, SilenceBudget, ThrustEstimator,
                          Timeliness)
 from .mavlink_in import SENSOR_MSGS
@@ -37,7 +37,7 @@ class Sensing:
         self.adapter = adapter
         self.dod = DodEstimator(cfg.sensors, cfg.contract, cfg.timeouts.obstacle_s, silence_budget(cfg),
                                 cover=contract == "stop",
-                                range_noise=(cfg.detection.range_noise_m, cfg.detection.range_noise_rel))
+                                range_noise=RangeNoise.of(cfg.detection))
         # D_od from evidence: what the sensors' claim cannot say
         self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))

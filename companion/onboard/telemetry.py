@@ -4,10 +4,14 @@ with decoded MAVLink messages (`update(t, msg)`), read by the daemon's cycle."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 MAV_LANDED_STATE_IN_AIR, MAV_LANDED_STATE_TAKEOFF, MAV_LANDED_STATE_LANDING = 2, 3, 4
 MAV_MODE_FLAG_SAFETY_ARMED = 128
+# [s] the attitudes of this long ago are kept: a sensor's frame may have been taken at any of them
+# (the sensor's lag and its frame's own time, ATTITUDE's period)
+ATTITUDE_WINDOW_S = 0.2
 POSITION_TARGET_IGNORE_XY = 1 | 2
 
 
@@ -33,6 +37,15 @@ class Telemetry:
     t_target: float = -math.inf
     mission_seq: int = -1
     time_boot_ms: int | None = None
+    attitudes: deque = field(default_factory=deque)  # (t, roll, pitch) of the last ATTITUDE_WINDOW_S
+
+    def attitude_span(self) -> tuple[float, float, float]:
+        """(least roll, most roll, most nose-down pitch) [rad] over the last ATTITUDE_WINDOW_S (the last reported
+        where none is kept)."""
+        if not self.attitudes:
+            return self.roll, self.roll, self.pitch
+        rolls = [a[1] for a in self.attitudes]
+        return min(rolls), max(rolls), min(a[2] for a in self.attitudes)
 
     @property
     def armed(self) -> bool:
@@ -57,6 +70,9 @@ class Telemetry:
             self.x, self.y, self.z, self.vx, self.vy, self.vz = msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz
         elif kind == "ATTITUDE":
             self.roll, self.pitch, self.yaw = msg.roll, msg.pitch, msg.yaw
+            self.attitudes.append((t, msg.roll, msg.pitch))
+            while self.attitudes[0][0] < t - ATTITUDE_WINDOW_S:
+                self.attitudes.popleft()
         elif kind == "VFR_HUD":
             self.throttle = msg.throttle / 100.0
         elif kind == "EXTENDED_SYS_STATE":
