@@ -16,7 +16,7 @@ import pytest
 from companion.onboard.autopilots import adapter_for
 from companion.onboard.config import Config, SensorConfig, config_from_dict
 from companion.onboard.cycle import Cycle
-from companion.onboard.detection_range import (DetectionRange, DetectionRangeEstimate, DetectionRangeParams,
+from companion.onboard.detection_range import (DetectionRange, DetectionRangeEstimate, DetectionRangeParams, RangeNoise,
                                                evidence_line, per_shot_rate)
 from companion.onboard.guidance import InlinePlanning
 from companion.onboard.mavlink_in import UINT16_MAX, bins_scan, range_scan
@@ -447,3 +447,54 @@ def test_bad_input_never_raises_d_od():
     assert est.estimate(0.1, 10.0).d_od <= 8.0
     assert est.estimate(0.2, math.nan).d_od == 0.0
     assert est.estimate(0.3, -1.0).d_od == 0.0
+
+
+def _tracked_then_short(noise: RangeNoise, short_m: float) -> float:
+    """A column tracked just right of ahead from 9.5 m in to 7.5 m (3 m/s, 20 Hz, 5° bins), then one frame reading it
+    `short_m` short in the next bin (it straddles the two), which had seen free: the lowest D_od the estimator
+    gives."""
+    est = DetectionRange([BINS], params=DetectionRangeParams(range_noise=noise))
+    bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
+    lowest = math.inf
+    for k in range(14):
+        t = k / RATE_HZ
+        r = 9.5 - SPEED * t - (short_m if k == 13 else 0.0)
+        est.add_position(t, SPEED * t, 0.0)
+        est.add_heading(t, 0.0)
+        ranges = np.where(np.abs(bearings - bearings[7 if k == 13 else 6]) < 1e-9, r, np.inf)
+        est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
+        lowest = min(lowest, est.estimate(t, R_MAX).d_od)
+    return lowest
+
+
+def test_a_tracked_column_read_short_by_the_noise_is_that_column_not_a_first_sighting():
+    """A stereo camera's noise (σ = 0.01 per metre × r²: 0.3 m at 5.5 m): one frame reads the tracked column 2 m
+    short, within the tracking's 1 m, the bin's width and three σ. It is the column, not a target first seen at
+    5.5 m. Control: an estimator told of a lidar's noise (3 cm + 1 %) takes it for a first sighting and lowers D_od."""
+    assert _tracked_then_short(RangeNoise(0.0, 0.0, 0.01), 2.0) == R_MAX
+    assert _tracked_then_short(RangeNoise(), 2.0) < 6.0  # negative control
+def test_a_first_sighting_is_judged_against_the_noise_at_the_stated_range():
+    """A stereo camera (σ = 0.01 per metre × r²: 1 m at its stated 10 m) first sees a column at 7.2 m, where its
+    frames had seen free: a target at the stated range reads that short by noise alone (2.8 σ), no evidence of a
+    shorter range. Control: judged against the noise at 7.2 m (σ 0.52 m) it is a first sighting that lowers D_od."""
+    class AtTheSighting(RangeNoise):  # the control's: no allowance beyond the noise at the sighting's 7.2 m
+        def short_m(self, r: float) -> float:
+            return super().short_m(min(r, 7.2))
+
+    def lowest(at_stated: bool) -> float:
+        noise = (RangeNoise if at_stated else AtTheSighting)(0.0, 0.0, 0.01)
+        est = DetectionRange([BINS], params=DetectionRangeParams(range_noise=noise))
+        bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
+        out = math.inf
+        for k in range(12):
+            t = k / RATE_HZ
+            est.add_position(t, SPEED * t, 0.0)
+            est.add_heading(t, 0.0)
+            r = 7.2 - SPEED * (t - 0.5) if k >= 10 else np.inf
+            ranges = np.where(np.abs(bearings - bearings[6]) < 1e-9, r, np.inf)
+            est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
+            out = min(out, est.estimate(t, R_MAX).d_od)
+        return out
+
+    assert lowest(True) == R_MAX
+    assert lowest(False) < R_MAX  # negative control

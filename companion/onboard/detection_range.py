@@ -346,7 +346,9 @@ class DetectionRange:
         for x, y, b, r in placed:
             if r < p.near_m:
                 continue  # the medium's returns are the backscatter evidence
-            known = any(math.hypot(x - tr.x, y - tr.y) <= p.track_m + r * inc for tr in self._tracks)
+            # a tracked target read short by its range noise is still that target
+            reach = p.track_m + r * inc + p.range_noise.short_m(r)
+            known = any(math.hypot(x - tr.x, y - tr.y) <= reach for tr in self._tracks)
             self._track(t, x, y, r, inc)
             edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
             # a target at the stated range reads up to NOISE_SIGMAS σ(stated) short of it by noise alone
