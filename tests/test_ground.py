@@ -50,6 +50,7 @@ def test_the_claim_stops_three_sigma_short_of_the_ground_within_it():
     assert ground_claim_m(10.0, 6.0, noise) == pytest.approx(6.0 - 3 * 0.36)
     assert ground_claim_m(10.0, 10.5, noise) == 10.0  # beyond the claim: not reported at all
     assert ground_claim_m(10.0, 0.5, noise) == pytest.approx(0.5 - 3 * 0.0025)
+    assert ground_claim_m(math.inf, math.inf, noise) == math.inf  # no rating and no ground in view: not capped
 
 
 def _camera_scan(pitch_deg: float, ranges_m, v_fov_deg=1.2):

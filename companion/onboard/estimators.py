@@ -31,7 +31,7 @@ from .samples import Scan
 
 # ============================================================================ D_od
 
-LOOK_BACK_S = 0.2  # [s] a place a frame this recent saw free holds no static surface (a side entry's check)
+LOOK_BACK_S = 0.2  # [s] a place a frame this recent saw free holds no static surface (the clutter rule)
 HEADING_SLACK = math.radians(0.5)  # [rad] a direction this close to a bin that reported was looked at (heading noise)
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
 SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise

@@ -63,6 +63,6 @@ def ground_claim_m(claim: float, ground_m: float, noise: RangeNoise) -> float:
     """The sensor's claim [m] capped where the ground is in view, within it: three σ of range noise short of the
     ground (never negative). Ground beyond the claim is not reported at all (a sensor reports no return beyond its
     rated range)."""
-    if ground_m > claim:
+    if ground_m > claim or math.isinf(ground_m):
         return claim
     return max(0.0, ground_m - noise.short_m(ground_m))

@@ -178,7 +178,7 @@ def _obstacle_distance(cfg: Config, sensor_of: dict, t: float, msg, tel: Telemet
 
 def ground_cap(cfg: Config, c, tel: Telemetry, azimuths, half_width: float, factors=None) -> float | None:
     """Sensor `c`'s rated range, capped where its lowest ray meets the ground now (companion/onboard/ground.py;
-    only for a sensor fixed to the airframe, `v_fov_deg` set); None: no rated range and no ground in view."""
+    only for a sensor fixed to the airframe, `v_fov_deg` set); None or inf: no rated range and no ground in view."""
     if c.v_fov_deg is None:
         return c.max_range_m
     err = math.radians(cfg.detection.attitude_error_deg)
