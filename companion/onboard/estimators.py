@@ -202,7 +202,6 @@ class DodEstimator:
         self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
         self._last_d_od = 0.0
         self._pending: list[LateDetection] = []
-        self.withheld = 0  # returns withheld awaiting confirmation, frame by frame (`late_detection`)
         # first sights inside D_od awaiting the following frames that confirm them (`late_detection`)
         self._confirm = Confirmations(contract.late_detection_confirm_frames, stale_s)
         self._yaw_hist: deque[tuple[float, float]] = deque()
@@ -295,7 +294,6 @@ class DodEstimator:
         for p in track:
             self._tracked.append((t, *p[:2]))
         if withheld:
-            self.withheld += len(withheld)
             kept = [h for k, h in enumerate(seen) if k not in withheld]
             s.sources[source] = (t, kept, claim, trusted)
             view = kept if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
