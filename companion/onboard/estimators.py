@@ -59,6 +59,10 @@ class _SensorState:
     # sees what any of them saw within the time-out (a "free" reading never erases another source's obstacle)
     sources: dict = field(default_factory=dict)
 
+    def merged(self, own: list) -> list:
+        """What the sensor sees now: `own` (this sample's hits) when it has one source, else every fresh source's."""
+        return own if len(self.sources) == 1 else [h for v in self.sources.values() for h in v[1]]
+
 
 @dataclass(slots=True)
 class _Seen:
@@ -262,7 +266,7 @@ class DodEstimator:
             s.sources = {k: v for k, v in s.sources.items() if t - v[0] <= self.stale_s}
             s.max_m = min(v[2] for v in s.sources.values())
             s.trusted = all(v[3] for v in s.sources.values())
-        view = seen if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
+        view = s.merged(seen)
         placed = self._placed(i, t, seen)
         self._sweep(i, t, view)  # free only short of every fresh source's hits, withheld ones too
         followed = self._confirm.follow(Frame(t, i, source, seen, placed, s.known, s.increment, tolerance),
@@ -296,7 +300,7 @@ class DodEstimator:
         if withheld:
             kept = [h for k, h in enumerate(seen) if k not in withheld]
             s.sources[source] = (t, kept, claim, trusted)
-            view = kept if len(s.sources) == 1 else [h for v in s.sources.values() for h in v[1]]
+            view = s.merged(kept)
         s.hits = view
 
     def _declare(self, t: float, c: Candidate) -> list:
