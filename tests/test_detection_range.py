@@ -25,6 +25,7 @@ from contracts.errors import ContractError
 from contracts.lidar import (backscatter_probability, detection_range, extinction_for_range,
                              extinction_from_met_visibility, per_shot_from_reports, visibility_for_extinction)
 from contracts.table import load_for_vehicle
+from sitl_harness.sensor_models import DepthCamera
 from sitl_harness.sensors import RangeSensor, RangeSensorConfig
 from sitl_harness.world import Column, World
 
@@ -93,10 +94,10 @@ def nearby(world: World, x: float, r_max: float = R_MAX) -> World:
 
 
 def fly(world: World, seconds: float, fog: list[tuple[float, float | None]], estimator, *, beam=False,
-        seed: int = 1, sensor_cfg: RangeSensorConfig | None = None, speed: float = SPEED):
+        seed: int = 1, sensor_cfg: RangeSensorConfig | None = None, speed: float = SPEED, model=RangeSensor):
     """Fly +x at `speed` through `world` with fog events [(t, visibility or None: clear)] (hidden fog); returns
-    per frame (t, d_od, stated, true detection range of the default target)."""
-    s = RangeSensor(sensor_cfg or RangeSensorConfig(max_range_m=R_MAX), seed=seed)
+    per frame (t, d_od, stated, true detection range of the default target). `model`: the SITL's sensor class."""
+    s = model(sensor_cfg or RangeSensorConfig(max_range_m=R_MAX), seed=seed)
     s.honest = False
     events = sorted(fog, key=lambda e: e[0])
     out = []
@@ -240,6 +241,37 @@ def test_single_beam_counted_per_shot_follows_the_fog(visibility):
     old = fly(world, 36.0, [(t_on, visibility), (t_off, None)], DetectionRange([BEAM]), beam=True)
     with pytest.raises(AssertionError, match="median"):
         follows_the_fog(old, t_on, t_off, visibility)
+
+
+# a sensor with spurious returns of its own at 0.3–1.0 m, where the fog's backscatter comes (0.5–1.5 m): 12 bins of
+# 5° at 20 Hz, 0.4 % of them, about one a second; level at 2 m, so the ground stays out of its view
+OWN_RATE = 0.004
+OWN_CLUTTER = RangeSensorConfig(max_range_m=R_MAX, fov_deg=60.0, increment_deg=5.0, min_range_m=0.3,
+                                spurious_rate=OWN_RATE, spurious_max_m=1.0)
+
+
+def test_a_sensors_own_spurious_returns_are_not_a_fog():
+    """10 minutes of clear air with the sensor's own spurious returns, their rate configured (`spurious_rate`): not
+    one cycle lowers D_od. Unconfigured, the same returns read as fog (a few in one second): the control."""
+    world = route_world(1800.0, seed=3, rho=(0.1, 0.5, 0.9))
+    told = fly(world, 600.0, [], DetectionRange([BINS.model_copy(update={"spurious_rate": OWN_RATE})]), sensor_cfg=OWN_CLUTTER,
+               model=DepthCamera)
+    no_false_lowering(told)
+    untold = fly(world, 600.0, [], DetectionRange([BINS]), sensor_cfg=OWN_CLUTTER, model=DepthCamera)
+    with pytest.raises(AssertionError, match="lowered in clear air"):
+        no_false_lowering(untold)
+
+
+@pytest.mark.parametrize("visibility", [3.0, 6.0])
+def test_a_fog_is_seen_over_the_sensors_own_spurious_returns(visibility):
+    """Hidden fog over the same sensor's own returns, their rate configured: followed as without them."""
+    world = route_world(200.0, seed=5)
+    t_on, t_off = 6.0, 26.0
+    trace = fly(world, 36.0, [(t_on, visibility), (t_off, None)],
+                DetectionRange([BINS.model_copy(update={"spurious_rate": OWN_RATE})]), sensor_cfg=OWN_CLUTTER, model=DepthCamera)
+    never_above_the_claim(trace)
+    follows_the_fog(trace, t_on, t_off, visibility)
+    recovers(trace, t_off)
 
 
 # ------------------------------------------------------------------ hidden fog

@@ -103,6 +103,9 @@ class SensorConfig(_Strict):
     # lens). A return this near where its frames just saw free waits for the frames that confirm it before the
     # obstacle logic takes it (companion/onboard/late_detection.py); 0: every return at once. At most 2 m
     clutter_m: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False)] = 0.0
+    # the fraction of its reports that are its own spurious returns in clear air (measured in the same hover): the
+    # fog's backscatter comes at the same ranges and is counted beyond them (detection_range.py). At most 0.1
+    spurious_rate: Annotated[float, Field(ge=0, le=0.1, allow_inf_nan=False)] = 0.0
 
     @field_validator("address")
     @classmethod
@@ -576,6 +579,9 @@ def weakened(cfg: Config) -> list[str]:
         if s.min_quality < SensorConfig.model_fields["min_quality"].default:
             out.append(f"weaker than the default: sensors[{k}].min_quality {s.min_quality} (default "
                        f"{SensorConfig.model_fields['min_quality'].default}): poorer readings are trusted")
+        if s.spurious_rate > 0.0:
+            out.append(f"weaker than the default: sensors[{k}].spurious_rate {s.spurious_rate:g} (default 0): a fog "
+                       "whose backscatter its own spurious returns could account for is not seen")
     if cfg.link.clock_rate < 1.0:
         out.append(f"weaker than the default: link.clock_rate {cfg.link.clock_rate:g}: every time-out runs "
                    f"{1 / cfg.link.clock_rate:g} times longer in real time (1 on an aircraft)")

@@ -13,7 +13,10 @@ of evidence and turns each into an upper bound on the range at which the referen
    seen farther away and followed in) and it does not stay put for `confirm_frames` frames in a row. Each
    report is the nearest of the shots its sensor's frame gathers, shared by its reports (`shots_of`: the
    configured `shots_per_frame`, else one shot per report — a bin one shot, a single beam's frame one shot,
-   the conservative reading for a beam that gathers several). The fraction over the last `window_s`, one
+   the conservative reading for a beam that gathers several). A sensor's own spurious returns (a propeller in
+   view, rain at the lens: `spurious_rate` of its reports in clear air, configured) come at the same ranges: a
+   window's count they would reach with a probability above `OWN_RETURNS_P` (Poisson) is no evidence, and
+   beyond it their expected number is taken off. The fraction over the last `window_s`, one
    standard error up (when unsure, the thicker fog), becomes a per-shot rate p by q = 1 − (1 − p)^shots and
    is inverted to α by p = 1 − e^(−α·L_bs) (`backscatter_length_m`, the sensor's, measured on one fog
    flight) — the law the SITL draws per bin and frame. A haze is not a fog: the medium lowers D_od only on evidence that it can —
@@ -59,7 +62,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.geometry import wrap, wrap_array
+from contracts.geometry import wrap
 from contracts.lidar import (
     BACKSCATTER_LENGTH_M,
     QUALITY_FULL_MARGIN,
@@ -74,6 +77,7 @@ from contracts.window import WindowMax
 
 from .config import SensorConfig
 from .samples import Scan
+from .sight import looked_past
 
 NOISE_SIGMAS = 3.0  # a first sighting this many σ of range noise short of the stated range is still on time
 
@@ -94,6 +98,7 @@ class RangeNoise:
     def short_m(self, r: float) -> float:
         """[m] how far short of range r a target reads by noise alone: NOISE_SIGMAS σ(r)."""
         return NOISE_SIGMAS * (self.m + self.rel * r + self.quad * r * r)
+OWN_RETURNS_P = 1e-6  # a window's short returns the sensors' own would reach this seldom are evidence of a medium
 FULL_WINDOW_SHOTS_PER_S = 160.0  # shots per second behind a confidence of 1 (a 12-bin sensor at 20 Hz gives 240)
 
 
@@ -144,38 +149,28 @@ class _Frame:
     reports: int  # the frame's reports (bins that report, or one for a single beam)
     per: float  # the shots behind each report (`shots_of`)
     near: list  # (x, y) of short returns (local frame, or body frame without a pose) on no tracked target
-
-
-def _nearest_bin(bearings: np.ndarray, b: float) -> int:
-    """The index of the bin whose bearing is nearest `b` [rad]."""
-    return int(np.argmin(np.abs(wrap_array(bearings - b))))
+    own: float = 0.0  # the sensor's own spurious returns expected among them (reports × `spurious_rate`)
 
 
 @dataclass(frozen=True)
 class _View:
-    """What one frame of bins looked at: from where (local frame), the bins that reported (body bearings) and how
-    far each saw (inf: free to the claim), the claim."""
+    """What one frame of bins looked at: from where (local frame), the bins that reported (body bearings), its hits
+    (body bearing, range), the claim."""
 
     t: float
     x: float
     y: float
     yaw: float
-    bearings: np.ndarray
-    ranges: np.ndarray
+    bearings: tuple
+    hits: tuple
     increment: float
     stated: float
 
     def saw_through(self, x: float, y: float, tol: float) -> bool:
-        """Whether this frame looked at (x, y) from inside its field of view (an interior bin), within its claim,
-        and saw past it: the bin there reported free, or a return more than `tol` beyond it."""
-        d = math.hypot(x - self.x, y - self.y)
-        if d > self.stated or self.bearings.size < 3:
-            return False
-        b = wrap(math.atan2(y - self.y, x - self.x) - self.yaw)
-        k = _nearest_bin(self.bearings, b)
-        if abs(wrap(self.bearings[k] - b)) > self.increment / 2 or k in (0, self.bearings.size - 1):
-            return False
-        return bool(self.ranges[k] > d + tol)
+        """Whether this frame looked at (x, y) from an inner bin, within its claim, and saw more than `tol` past it
+        (`sight.looked_past`)."""
+        return looked_past((self.x, self.y), self.yaw, self.bearings, self.increment, self.hits, self.stated,
+                           [(x, y)], tol, interior=True)
 
 
 @dataclass
@@ -269,7 +264,8 @@ class DetectionRange:
                 near.append((x, y))
                 medium.append(k)
         hist.append(now)
-        frame = _Frame(t, i, reports, self.shots_of(i, reports), near)
+        own = reports * getattr(self.sensors[i] if i < len(self.sensors) else None, "spurious_rate", 0.0)
+        frame = _Frame(t, i, reports, self.shots_of(i, reports), near, own)
         self._frames.append(frame)
         if near:
             self._near_frames.append(frame)
@@ -320,13 +316,8 @@ class DetectionRange:
             views.popleft()
         if not self._posed(t) or not scan.known:
             return
-        bearings = np.asarray(scan.known, dtype=float)
-        ranges = np.full(bearings.size, math.inf)
-        for b, r in scan.hits:
-            k = _nearest_bin(bearings, b)
-            ranges[k] = min(ranges[k], r)
-        views.append(_View(t, self._pos[1], self._pos[2], self._yaw[1], bearings, ranges, scan.increment or 0.0,
-                           stated))
+        views.append(_View(t, self._pos[1], self._pos[2], self._yaw[1], tuple(scan.known), tuple(scan.hits),
+                           scan.increment or 0.0, stated))
 
     def _seen_through(self, i: int, x: float, y: float, tol: float) -> bool:
         """Whether one of the sensor's recent frames saw through (x, y) (`_View.saw_through`)."""
@@ -392,27 +383,39 @@ class DetectionRange:
         reports. `harmless`: α₀, below which the medium cannot shorten D_od. A short return on a tracked target
         (one first seen farther away and followed in) is a surface, not the medium. Reports behind which stand
         different numbers of shots (`shots_of`) are pooled by `per_shot_rate`. A window needs `min_reports`
-        reports and `min_spurious` such returns to count."""
-        start = t - self.p.window_s
-        last = self._counts(start)
+        reports and `min_spurious` such returns beyond the sensors' own (`_beyond_own`) to count."""
+        raw = self._counts(t - self.p.window_s)
+        last, whole = self._beyond_own(raw), self._beyond_own(self._counts(-math.inf))
         a_last = self._alpha(last, True)
-        if a_last >= harmless and self._alpha(last, False) < harmless and \
-                self._alpha(self._counts(-math.inf), True) < harmless:
+        if a_last >= harmless and self._alpha(last, False) < harmless and self._alpha(whole, True) < harmless:
             a_last = 0.0  # neither the last window at its rate nor the longer one says the medium can shorten D_od
-        return a_last, sum(k for _, k in last.values()), sum(n for n, _ in last.values())
+        return a_last, int(sum(c[1] for c in raw.values())), sum(c[0] for c in raw.values())
 
-    def _counts(self, start: float) -> dict[float, list[int]]:
-        """[reports, spurious short returns] by the shots behind each report, of the frames from `start` on."""
-        out: dict[float, list[int]] = {}
+    def _counts(self, start: float) -> dict[float, list]:
+        """[reports, spurious short returns, the sensors' own expected among them] by the shots behind each report,
+        of the frames from `start` on."""
+        out: dict[float, list] = {}
         for f in reversed(self._frames):
             if f.t < start:
                 break
-            out.setdefault(f.per, [0, 0])[0] += f.reports
+            c = out.setdefault(f.per, [0, 0, 0.0])
+            c[0] += f.reports
+            c[2] += f.own
         for f in reversed(self._near_frames):
             if f.t < start:
                 break
             out[f.per][1] += sum(1 for x, y in f.near if not self._on_track(x, y))
         return out
+
+    @staticmethod
+    def _beyond_own(counts: dict[float, list]) -> dict[float, list]:
+        """[reports, spurious returns beyond the sensors' own] by shots per report; none where the sensors' own
+        spurious returns (`sensors[k].spurious_rate`, Poisson with the expected count) would reach the window's
+        count with a probability above `OWN_RETURNS_P`: no evidence of a medium."""
+        own = sum(c[2] for c in counts.values())
+        if own > 0.0 and poisson_tail(sum(c[1] for c in counts.values()), own) > OWN_RETURNS_P:
+            return {}
+        return {per: [n, max(k - o, 0.0)] for per, (n, k, o) in counts.items()}
 
     def _alpha(self, counts: dict[float, list[int]], up: bool) -> float:
         return extinction_from_backscatter(per_shot_rate(counts, up), self.p.backscatter_length_m) \
@@ -514,3 +517,14 @@ def per_shot_rate(counts: dict[float, list[int]], up: bool = True) -> float:
         else:
             hi = p
     return hi
+
+
+def poisson_tail(k: float, mean: float) -> float:
+    """P(N ≥ k) for N Poisson with `mean`."""
+    if k <= 0:
+        return 1.0
+    term = cdf = math.exp(-mean)
+    for j in range(1, math.ceil(k)):
+        term *= mean / j
+        cdf += term
+    return max(0.0, 1.0 - cdf)

@@ -28,10 +28,11 @@ from .coverage import Beam, corridor_cover, covered_d_od
 from .detection_range import RangeNoise
 from .late_detection import Candidate, Confirmations, Frame, LateDetection
 from .samples import Scan
+from .sight import looked_past
 
 # ============================================================================ D_od
 
-LOOK_BACK_S = 0.2  # [s] a place a frame this recent saw free holds no static surface (the clutter rule)
+LOOK_BACK_S = 1.0  # [s] a place a frame this recent saw past holds no static surface (the clutter rule)
 HEADING_SLACK = math.radians(0.5)  # [rad] a direction this close to a bin that reported was looked at (heading noise)
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
 SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
@@ -109,27 +110,24 @@ class _Seen:
         return self._sectors
 
 
-def _saw_free(seen: _Seen, pose: tuple[float, float, float], increment: float, bearing: float, far: float,
-              beam: tuple[float, float] | None = None) -> bool:
-    """Whether frame `seen` saw free, out to `far` plus the travel since, every direction a return at body `bearing`
-    (in a bin `increment` wide) seen from `pose` (x, y, yaw) now may be in: its bin, widened by the turn since that
-    frame and by the turn in `SENSOR_LAG_S` at the rate then, all in bins that reported (a single beam: inside its
-    field of view, `beam` = (axis, half width)) and no hit that near."""
-    (t0, yaw0), prev = seen.yaw_last, seen.yaw_prev
-    rate = 0.0 if prev is None or t0 <= prev[0] else abs(wrap(yaw0 - prev[1])) / (t0 - prev[0])
-    then = bearing + wrap(pose[2] - yaw0)  # the body bearing that frame would have seen the place at
-    half = increment / 2 + rate * SENSOR_LAG_S  # every direction within this of `then` ...
-    beyond = far + math.hypot(pose[0] - seen.pos[1], pose[1] - seen.pos[2])
-    if seen.known is None:  # ... inside the beam, which saw nothing that near
-        near = min((r for _, r in seen.seen), default=math.inf)
-        return min(near, seen.max_m) > beyond and abs(wrap(then - beam[0])) + half <= beam[1] + HEADING_SLACK
-    near = min((r for b, r in seen.seen if abs(wrap(b - then)) <= half + seen.increment / 2 + 1e-6),
-               default=math.inf)
-    if min(near, seen.max_m) <= beyond:
-        return False
-    n = 1 + math.ceil(4 * half / seen.increment)  # ... in a bin that reported
-    return all(any(abs(wrap(then + half * (2 * k / (n - 1) - 1) - b)) <= seen.increment / 2 + HEADING_SLACK
-                   for b in seen.known) for k in range(n))
+def _saw_free(seen: _Seen, pose: tuple[float, float, float], width: float, bearing: float, r: float, tol: float,
+              rate: float, beam: tuple[float, float]) -> bool:
+    """Whether frame `seen` looked past every place a return at body `bearing` and range `r`, seen from `pose` (x, y,
+    yaw) now, may be (`sight.looked_past`): its bin's arc (`width` wide) widened by the turn in `SENSOR_LAG_S` at the
+    yaw `rate` now, in places half that frame's bin apart; that frame's directions as uncertain as the turn in its
+    own lag, and the travel in both lags added to `tol`. A single beam: `beam` = (axis, half width)."""
+    (_, x0, y0), (t0, yaw0), prev = seen.pos, seen.yaw_last, seen.yaw_prev
+    rate0 = 0.0 if prev is None or t0 <= prev[0] else abs(wrap(yaw0 - prev[1])) / (t0 - prev[0])
+    spread = width / 2 + abs(rate) * SENSOR_LAG_S
+    a0 = pose[2] + bearing
+    mid = math.hypot(pose[0] + r * math.cos(a0) - x0, pose[1] + r * math.sin(a0) - y0)
+    step = max(mid - r * spread, 0.05) * (seen.increment or 2 * beam[1]) / 2
+    n = min(1 + math.ceil(2 * spread * r / step), 200)
+    places = [(pose[0] + r * math.cos(a), pose[1] + r * math.sin(a))
+              for a in (a0 + spread * (2 * k / n - 1) for k in range(n + 1))]
+    travel = math.hypot(seen.pos[1] - seen.pos_lag[1], seen.pos[2] - seen.pos_lag[2])
+    return looked_past((x0, y0), yaw0, seen.known, seen.increment, seen.seen, seen.max_m, places, tol + 2 * travel,
+                       rate0 * SENSOR_LAG_S + HEADING_SLACK, beam=beam)
 
 
 @dataclass(frozen=True, slots=True)
@@ -286,7 +284,7 @@ class DodEstimator:
                 and not self._tracked_already(t, placed[k], tolerance)
             # within the sensor's own clutter, a return where its last frames saw free (no static surface is
             # there) waits for confirmation too
-            clutter = r <= s.cfg.clutter_m and (late or self._seen_free_before(i, t, bearing, r + tolerance))
+            clutter = r <= s.cfg.clutter_m and (late or self._seen_free_before(i, t, bearing, r, tolerance))
             if late or clutter:
                 untracked.add(k)
                 c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k], late)
@@ -391,20 +389,21 @@ class DodEstimator:
         reach = 2 * max(self.r_obst, 0.0) + p[2] + tolerance
         return any(math.hypot(p[0] - qx, p[1] - qy) <= reach for _, qx, qy in self._tracked)
 
-    def _seen_free_before(self, i: int, t: float, bearing: float, far: float) -> bool:
-        """Whether one of the sensor's frames of the last `LOOK_BACK_S` before this one saw free, out to `far` plus
-        the vehicle's travel since, every direction that may have looked where a return at body `bearing` is now
-        (`_saw_free`): a static surface there would have been seen. False where no such frame, pose or heading is
-        known."""
+    def _seen_free_before(self, i: int, t: float, bearing: float, r: float, tol: float) -> bool:
+        """Whether one of the sensor's frames of the last `LOOK_BACK_S` before this one saw past every place a return
+        at body `bearing` and range `r` now may be (`_saw_free`): a static surface there would have been seen. False
+        where no such frame, pose or heading is known."""
         s = self.sensors[i]
         frames = [seen for seen in list(s.swept)[:-1] if t - seen.t <= LOOK_BACK_S]
         if self._pos is None or not self._yaw_hist or not frames:
             return False
-        pose = (*self._pos[1:], self._yaw_hist[-1][1])
+        yh = self._yaw_hist
+        rate = wrap(yh[-1][1] - yh[-2][1]) / (yh[-1][0] - yh[-2][0]) if len(yh) > 1 and yh[-1][0] > yh[-2][0] else 0.0
+        pose = (*self._pos[1:], yh[-1][1])
         half = math.radians(s.cfg.h_fov_deg) / 2
         width = s.increment if s.known is not None else 2 * half
         beam = (math.radians(s.cfg.orientation_deg), half)
-        return any(_saw_free(seen, pose, width, bearing, far, beam) for seen in frames)
+        return any(_saw_free(seen, pose, width, bearing, r, tol, rate, beam) for seen in frames)
 
     def _side_entry(self, i: int, t: float, bearing: float) -> bool:
         """Whether a new hit may have come in from the side of the field of view rather than out of range."""
