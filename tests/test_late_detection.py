@@ -217,6 +217,38 @@ def test_a_candidate_ended_in_a_bin_does_not_hide_a_real_obstacle_appearing_ther
     assert lates[:2] == [None, None] and lates[2] is not None and lates[2].range_m == 4.0
 
 
+@pytest.mark.parametrize("looked", [True, False])
+def test_a_surface_confirmed_within_the_clutter_where_the_sensor_had_looked_past_is_declared(looked):
+    """Bins of 5° over 60°, their clutter at 1.5 m, flying +x: a surface at 1.0 m in the edge bin (no late first
+    detection: it may have come in from the side) where the frames before, from farther back, looked past it is
+    withheld two frames, then declared — a surface where the sensor had looked past is a broken guarantee. Where
+    no frame had looked (that half of the bins dropped before), it may have come in from the side: taken at once,
+    not declared."""
+    cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=60.0, clutter_m=1.5)
+    e = DodEstimator([cfg], ContractConfig(), stale_s=0.5)
+    bearings = np.radians(np.arange(-27.5, 28, 5.0))
+    inc = math.radians(5)
+    for k in range(6):
+        used = bearings if looked else bearings[6:]
+        e.add_position(0.05 * k, SPEED * 0.05 * k, 0.0)
+        e.add_heading(0.05 * k, 0.0)
+        e.add_scan(bins_scan(0.05 * k, 0, used, np.full(len(used), np.inf), 10.0, inc))
+        e.estimate(0.05 * k, 0.0)
+    out = []
+    for k in range(6, 9):
+        ranges = np.full(len(bearings), np.inf)
+        ranges[0] = 1.0 - SPEED * 0.05 * (k - 6) * math.cos(bearings[0])
+        e.add_position(0.05 * k, SPEED * 0.05 * k, 0.0)
+        e.add_heading(0.05 * k, 0.0)
+        e.add_scan(bins_scan(0.05 * k, 0, bearings, ranges, 10.0, inc))
+        out.append(e.estimate(0.05 * k, 0.0))
+    if looked:
+        assert [o.obstacle_m for o in out[:2]] == [math.inf, math.inf] and out[2].obstacle_m < 1.0
+        assert out[2].late is not None and out[2].late.range_m == 1.0 and out[2].d_od == pytest.approx(1.0)
+    else:
+        assert all(o.obstacle_m <= 1.0 and o.late is None for o in out)
+
+
 def test_a_confirmed_detection_holds_dod_down_for_the_hold_time_from_its_declaration():
     e = beam()
     t = clear_run(e)

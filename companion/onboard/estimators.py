@@ -282,12 +282,12 @@ class DodEstimator:
                 continue  # a candidate seen again, or the same surface as before
             late = not near and r < late_inside and not self._side_entry(i, t, bearing) \
                 and not self._tracked_already(t, placed[k], tolerance)
-            # within the sensor's own clutter, a return where its last frames saw free (no static surface is
-            # there) waits for confirmation too
+            # within the sensor's own clutter, a return where a recent frame looked past (no static surface is
+            # there) waits for confirmation too, and confirmed is a broken guarantee as a late one is
             clutter = r <= s.cfg.clutter_m and (late or self._seen_free_before(i, t, bearing, r, tolerance))
             if late or clutter:
                 untracked.add(k)
-                c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k], late)
+                c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k])
                 if c is not None:
                     track += self._declare(t, c)
                 elif clutter:
@@ -302,11 +302,9 @@ class DodEstimator:
         s.hits = view
 
     def _declare(self, t: float, c: Candidate) -> list:
-        """A confirmed late first detection: reported, and D_od capped at the range it was first seen at for the
-        late-detection hold time from now. Returns its sightings' points: a tracked obstacle from now on (a confirmed
-        candidate that was no late first detection: those only)."""
-        if not c.late:
-            return list(c.points)
+        """A confirmed late first detection (or a surface where the sensor had looked past): reported, and D_od capped
+        at the range it was first seen at for the late-detection hold time from now. Returns its sightings' points: a
+        tracked obstacle from now on."""
         self._pending.append(c.first)
         r = c.first.range_m
         cap = r if self._penalty is None or self._penalty[0] < t else min(r, self._penalty[1])

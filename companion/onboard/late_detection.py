@@ -23,9 +23,9 @@ surface inside `D_od` and in the field of view is in each following frame, and t
 time of its first sight. With `frames` 0 every first sight is declared at once.
 
 **Within a sensor's clutter** (`sensors[k].clutter_m`: the reach of its own spurious returns) a return that is a
-late first detection, or that comes where the sensor's recent frames saw free (no static surface can be there), is a
-candidate too — `late` False for the latter: confirmed, it is an obstacle, not a late detection — and its returns
-are withheld from the obstacle logic until it is confirmed (`Followed.waiting`), never from what the sensor saw free,
+late first detection, or that comes where one of the sensor's recent frames looked past (no static surface can be
+there), is a candidate too — confirmed, a surface where the sensor had looked past is a broken guarantee, declared
+as a late first detection is — and its returns are withheld from the obstacle logic until it is confirmed (`Followed.waiting`), never from what the sensor saw free,
 which stops short of them. What is withheld is what the navigation guarantee excludes: a static obstacle within
 `D_od` is first seen at `D_od`, or comes in from the side or from behind another, and reaches the obstacle logic in
 the frame it is seen. One first seen inside the clutter where the sensor had just seen free is a broken guarantee,
@@ -70,7 +70,6 @@ class Candidate:
     point: tuple[float, float, float] | None
     points: list = field(default_factory=list)
     seen_again: int = 0  # frames since the first that saw it again
-    late: bool = True  # confirmed, a late first detection (False: a return withheld only, where it was seen free)
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,11 +114,10 @@ class Confirmations:
     def waiting(self) -> tuple[Candidate, ...]:
         return tuple(self._open)
 
-    def offer(self, first: LateDetection, source, point, late: bool = True) -> Candidate | None:
-        """A first sight inside D_od (`late`), or a return where recent frames saw free: the candidate, already
-        confirmed when no following frame is asked for (None: it waits for `follow`)."""
-        c = Candidate(first, source, first.bearing, first.range_m, first.t, point,
-                      [point] if point is not None else [], late=late)
+    def offer(self, first: LateDetection, source, point) -> Candidate | None:
+        """A first sight inside D_od, or a return where a recent frame looked past: the candidate, already confirmed
+        when no following frame is asked for (None: it waits for `follow`)."""
+        c = Candidate(first, source, first.bearing, first.range_m, first.t, point, [point] if point is not None else [])
         if self.frames == 0:
             return c
         self._open.append(c)

@@ -34,7 +34,7 @@ def looked_past(apex: tuple[float, float], yaw: float, bins: Sequence[float] | N
         if any(abs(wrap(b - phi)) <= turn + increment / 2 and h <= d + tol for b, h in hits):
             return False
         m = 1 + math.ceil(4 * turn / increment)  # directions half a bin apart across phi ± turn
-        if not all(any(abs(wrap(phi + turn * (2 * j / m - 1) - b)) <= increment / 2 for b in inner)
+        if not all(any(abs(wrap(phi + turn * (2 * j / m - 1) - b)) <= increment / 2 + 1e-9 for b in inner)
                    for j in range(m + 1)):
             return False
     return True
