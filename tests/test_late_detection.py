@@ -169,7 +169,8 @@ def test_a_one_frame_return_within_the_sensor_s_clutter_is_withheld(r, withheld)
     clutter, is an obstacle from its first frame."""
     e = DodEstimator([BEAM.model_copy(update={"clutter_m": 1.0})], ContractConfig(), stale_s=0.5)
     t = clear_run(e)
-    assert frame(e, t, r).obstacle_m == (math.inf if withheld else pytest.approx(r))
+    est = frame(e, t, r)
+    assert est.obstacle_m == (math.inf if withheld else pytest.approx(r)) and est.withheld == int(withheld)
     assert frame(e, t + 0.01, 12.01).late is None
 
 

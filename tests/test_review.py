@@ -152,6 +152,21 @@ def test_a_clean_flight_has_no_findings(tmp_path):
     assert "contract kept" in format_report(rep)
 
 
+def test_the_returns_withheld_within_a_sensors_clutter_are_said_with_the_flights_count(tmp_path):
+    """The daemon counts, frame by frame, the returns it withheld within a sensor's clutter; the review gives the
+    flight's count (the last, cumulative), and says nothing of it where none was withheld."""
+    for name, counts in (("some", [0] * 50 + [1] * 50 + [3] * 100), ("none", [0] * 200)):
+        log = EventLog(tmp_path / name)
+        for i, n in enumerate(counts):
+            put(log, i, withheld=n)
+        log.close()
+        text = format_report(review(tmp_path / name / "events.jsonl"))
+        said = [line for line in text.splitlines() if "withheld until confirmed" in line]
+        assert said == (["  returns within a sensor's clutter withheld until confirmed: 3 (frame by frame; one "
+                         "confirmed where the sensor had looked past is a navigation violation below)"]
+                        if name == "some" else [])
+
+
 def test_gaps_and_lost_records_are_findings():
     recs = [{"kind": "state", "t": t, "seq": s, "boot": "a", "gamma": None if s == 8 else -1.0,
              "ground_speed": 1.0, "v_max": 2.0} for s, t in zip([0, 1, 2, 8, 9, 10], [0.0, 0.1, 0.2, 0.3, 0.4, 3.0])]

@@ -47,7 +47,7 @@ SCHEMA = "contract-guard/review"
 SCHEMA_VERSION = 1
 CSV_COLUMNS = ("boot", "seq", "t", "wall", *STATE_FIELDS)
 RANGE_FIELDS = ("v_max", "v_cmd", "ground_speed", "v_safe", "gamma", "gamma_flown", "d_od", "d_od_stated", "e_tr",
-                "e_tr_measured", "thrust_ratio", "r_obst", "tilt_deg", *LINK_COUNTERS)
+                "e_tr_measured", "thrust_ratio", "r_obst", "tilt_deg", "withheld", *LINK_COUNTERS)
 # ground speed above the limit by up to this fraction of it (plus `tolerance_m_s`) is a tracking overshoot, the
 # controller's business (covered by E_tr), not a broken limit: the supervisor's own rule ("speed limit not in
 # force" needs 1.05 × limit + margin). Above V_safe is always a finding (outside_contract).
@@ -1017,6 +1017,10 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         r = rep["ranges"][k]
         miss = f"  ({r['missing']} null)" if r["missing"] else ""
         lines.append(f"    {k:<13} {fmt_value(r['min'])} … {fmt_value(r['max'])}{miss}")
+    withheld = (rep["ranges"].get("withheld") or {}).get("max")
+    if withheld:  # cumulative: the last is the flight's
+        lines.append(f"  returns within a sensor's clutter withheld until confirmed: {int(withheld)} (frame by frame; "
+                     "one confirmed where the sensor had looked past is a navigation violation below)")
     link = {k: rep["ranges"][k]["max"] for k in LINK_COUNTERS if (rep["ranges"].get(k) or {}).get("max")}
     if link:  # cumulative counts: the last is the flight's
         lines.append("  link, not believed: " + ", ".join(f"{int(n)} {k.replace('_', ' ')}" for k, n in link.items()))

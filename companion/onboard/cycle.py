@@ -287,4 +287,5 @@ class Cycle:
             d_od=i.dod.d_od, d_od_stated=i.dod.stated_m, e_tr=om.e_tr, e_tr_measured=i.e_tr_measured, r_obst=i.r_obst,
             thrust_ratio=i.thrust_ratio, v_max=om.v_max, tilt_deg=math.degrees(om.tilt), v_safe=om.v_safe,
             gamma=(d.v_cmd if d.v_cmd is not None else om.v_max) - om.v_safe,
-            gamma_flown=i.ground_speed - om.v_safe, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m)
+            gamma_flown=i.ground_speed - om.v_safe, v_cmd=d.v_cmd, obstacle_m=i.dod.obstacle_m,
+            withheld=i.dod.withheld)

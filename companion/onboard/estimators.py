@@ -143,6 +143,7 @@ class DodEstimate:
     # [s] the longest silence budget of the sensors D_od rests on: the dead time the contracts take for it
     silence_s: float = 0.0
     silent: tuple[SilentSensor, ...] = ()  # the sensors heard before and silent longer than their budget now
+    withheld: int = 0  # returns withheld within a sensor's clutter until confirmed, since the start (one per frame)
 
 
 @dataclass(frozen=True)
@@ -204,6 +205,7 @@ class DodEstimator:
         self._penalty: tuple[float, float] | None = None  # (until t, d_od cap)
         self._last_d_od = 0.0
         self._pending: list[LateDetection] = []
+        self._withheld = 0  # returns withheld within a sensor's clutter, counted frame by frame (`DodEstimate`)
         # first sights inside D_od awaiting the following frames that confirm them (`late_detection`)
         self._confirm = Confirmations(contract.late_detection_confirm_frames, stale_s)
         self._yaw_hist: deque[tuple[float, float]] = deque()
@@ -296,6 +298,7 @@ class DodEstimator:
         for p in track:
             self._tracked.append((t, *p[:2]))
         if withheld:
+            self._withheld += len(withheld)
             kept = [h for k, h in enumerate(seen) if k not in withheld]
             s.sources[source] = (t, kept, claim, trusted)
             view = s.merged(kept)
@@ -506,7 +509,7 @@ class DodEstimator:
         late = self._pending[0] if self._pending else None
         self._pending.clear()
         return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated, silence,
-                           tuple(silent))
+                           tuple(silent), self._withheld)
 
 
 # ============================================================================ E_tr

@@ -62,6 +62,8 @@ STATE = {
     "obstacle_m": ("m", "nearest obstacle seen near the path, D_od's band 2·R_obst + E_tr + r_body about the "
                         "direction of travel (inf/null: none); the stop contract's Hold judges the narrower swept "
                         "corridor"),
+    "withheld": ("count", "returns within a sensor's clutter (sensors[k].clutter_m) withheld from the obstacle logic "
+                          "until the next frames confirm them, one per frame, since the daemon started"),
 }
 # what the link did not believe, counted since the daemon started (companion/onboard/mavlink_out.py Counters)
 LINK_COUNTERS = {
