@@ -49,6 +49,24 @@ def test_dod_stale_untrusted_and_honest_fog():
     assert e.estimate(1.2, 0.0).d_od == 10.0
 
 
+def test_a_weak_reading_is_no_reading_its_return_an_obstacle_and_its_sensor_covers_within_its_budget():
+    """A single beam at 20 Hz whose frames now and then carry a weak return (a fog's, quality 10, below min_quality
+    50): such a frame says nothing of free space — D_od stays what the last trusted frame gave, within the sensor's
+    silence budget — but its return is an obstacle. Weak frames alone for longer than the budget: D_od 0."""
+    e = dod()
+    for k in range(20):
+        add_range(e, 0, 0.05 * k, 10.0, 0.1, 10.0, 100)
+    add_range(e, 0, 1.0, 1.2, 0.1, 10.0, 10)
+    est = e.estimate(1.0, 0.0)
+    assert est.d_od == 10.0 and est.obstacle_m == 1.2
+    add_range(e, 0, 1.05, 10.0, 0.1, 10.0, 100)
+    assert e.estimate(1.05, 0.0).obstacle_m == math.inf
+    for k in range(1, 20):
+        add_range(e, 0, 1.05 + 0.05 * k, 1.2, 0.1, 10.0, 10)
+    budget = e.sensors[0].budget
+    assert budget < 0.95 and e.estimate(1.05 + 0.95, 0.0).d_od == 0.0
+
+
 def test_dod_follows_the_direction_of_travel_across_sensors():
     e = dod(FWD, RIGHT)
     add_range(e, 0, 0.0, 10.0, 0.1, 10.0, 100)
@@ -467,8 +485,9 @@ def test_each_source_keeps_its_own_state_and_the_sensor_is_as_good_as_its_worst_
     add_from(e, (1, 1, 0), 0.0, 6.01, max_m=6.0)
     add_from(e, (1, 1, 1), 0.01, 6.01, max_m=4.0)  # a second source claiming less: the smaller claim
     assert e.estimate(0.02, 0.0).d_od == 4.0
-    add_from(e, (1, 1, 1), 0.02, 6.01, max_m=4.0, quality=1)  # invalid: unknown is never free
-    assert e.estimate(0.03, 0.0).d_od == 0.0
+    add_from(e, (1, 1, 1), 0.02, 6.01, max_m=4.0, quality=1)  # invalid: no reading, the last trusted one stands ...
+    assert e.estimate(0.03, 0.0).d_od == 4.0
+    assert e.estimate(0.55, 0.0).d_od == 0.0  # ... for the silence budget (0.5 s) from it, no longer
     add_from(e, (1, 1, 0), 0.6, 6.01, max_m=6.0)  # the others are stale now: this source alone
     assert e.estimate(0.6, 0.0).d_od == 6.0
 

@@ -161,6 +161,9 @@ class ScenarioDims(_Strict):
     # the SITL's sensor model, one drawn uniformly (unset: sector): sector flies the dimensions above, depth_camera
     # and single_beam their datasheets' ranges and faults (sitl_harness/sensor_models.py) with the drawn latency
     sensor_models: Annotated[list[Literal[SENSOR_MODELS]], Field(min_length=1)] | None = None
+    # [m] the daemon's `clutter_m` for the sector sensor: the reach of the returns that are no surface, as a user
+    # measures it (the SITL's fog returns within 1.5 × OVERLAP_M = 1.5 m); unset: none. Not drawn
+    sensor_clutter_m: Annotated[float, Field(ge=0, le=2)] | None = None
 
     @model_validator(mode="after")
     def _clutter_alone(self):
@@ -315,6 +318,8 @@ def sample_scenario(spec: CampaignSpec, k: int) -> dict:
     for g, o in zip(gaps, offs):
         s["columns"].append([s["columns"][-1][0] + g, o])
     _sample_extra(spec.seed, k, d, s)
+    if d.sensor_clutter_m:
+        s["sensor_clutter_m"] = d.sensor_clutter_m
     if stress is not None:
         s["stress"] = stress
     faults = []
@@ -599,6 +604,9 @@ def daemon_config(s: dict, arm: str, nav_margin: float = 0.0) -> dict:
             cfg["governor"] = {"approach_ramp_m_s": RAMP_ARM_M_S}
     if s.get("sensor_model", "sector") != "sector":
         del cfg["sensors"]
+    elif s.get("sensor_clutter_m"):
+        for sensor in cfg["sensors"]:
+            sensor["clutter_m"] = s["sensor_clutter_m"]
     return cfg
 
 

@@ -48,7 +48,10 @@ class _SensorState:
     cfg: SensorConfig
     t: float = -math.inf  # time of the last sample
     max_m: float = 0.0  # reported maximum range (lowered by honest degradation)
-    trusted: bool = False  # signal quality acceptable
+    trusted: bool = False  # the last sample's signal quality acceptable
+    # the last trusted sample's time: a sample below `min_quality` is no reading (its hits are obstacles, its free space
+    # nothing, its claim not taken), and the sensor counts as covering until its silence budget runs from this
+    t_trusted: float = -math.inf
     hits: list[tuple[float, float]] = field(default_factory=list)  # (body bearing, range) seen now
     known: tuple[float, ...] | None = None  # body bearings of the bins that report (None: a single beam)
     increment: float = 0.0
@@ -115,7 +118,8 @@ def _saw_free(seen: _Seen, pose: tuple[float, float, float], width: float, beari
     """Whether frame `seen` looked past every place a return at body `bearing` and range `r`, seen from `pose` (x, y,
     yaw) now, may be (`sight.looked_past`): its bin's arc (`width` wide) widened by the turn in `SENSOR_LAG_S` at the
     yaw `rate` now, in places half that frame's bin apart; that frame's directions as uncertain as the turn in its
-    own lag, and the travel in both lags added to `tol`. A single beam: `beam` = (axis, half width)."""
+    own lag, its bins wider by `HEADING_SLACK`, and the travel in both lags added to `tol`. A single beam: `beam` =
+    (axis, half width)."""
     (_, x0, y0), (t0, yaw0), prev = seen.pos, seen.yaw_last, seen.yaw_prev
     rate0 = 0.0 if prev is None or t0 <= prev[0] else abs(wrap(yaw0 - prev[1])) / (t0 - prev[0])
     spread = width / 2 + abs(rate) * SENSOR_LAG_S
@@ -127,7 +131,7 @@ def _saw_free(seen: _Seen, pose: tuple[float, float, float], width: float, beari
               for a in (a0 + spread * (2 * k / n - 1) for k in range(n + 1))]
     travel = math.hypot(seen.pos[1] - seen.pos_lag[1], seen.pos[2] - seen.pos_lag[2])
     return looked_past((x0, y0), yaw0, seen.known, seen.increment, seen.seen, seen.max_m, places, tol + 2 * travel,
-                       rate0 * SENSOR_LAG_S + HEADING_SLACK, beam=beam)
+                       rate0 * SENSOR_LAG_S, beam=beam, slack=HEADING_SLACK)
 
 
 @dataclass(frozen=True, slots=True)
@@ -261,11 +265,15 @@ class DodEstimator:
         s.sources[source] = (t, seen, claim, trusted)
         s.t = t
         if len(s.sources) == 1:  # the one source is this sample's (the most of sensors): fresh, its values
-            s.max_m, s.trusted = claim, trusted
+            s.trusted = trusted
+            if trusted:
+                s.max_m = claim
         else:
             s.sources = {k: v for k, v in s.sources.items() if t - v[0] <= self.stale_s}
             s.max_m = min(v[2] for v in s.sources.values())
             s.trusted = all(v[3] for v in s.sources.values())
+        if s.trusted:
+            s.t_trusted = t
         view = s.merged(seen)
         placed = self._placed(i, t, seen)
         self._sweep(i, t, view)  # free only short of every fresh source's hits, withheld ones too
@@ -365,7 +373,7 @@ class DodEstimator:
         rows, shifts = [], []
         trust = 1.0 - self.contract.nav_margin
         for s in self.sensors:
-            if t - s.t > s.budget or not s.trusted:
+            if t - s.t_trusted > s.budget:
                 continue
             for seen in s.swept:
                 if seen.t >= t - COVERAGE_S:
@@ -438,7 +446,7 @@ class DodEstimator:
 
     def in_view(self, t: float, beta: float) -> bool:
         """Whether a fresh, trusted sensor looks along body bearing `beta` (`_covers`)."""
-        return any(t - s.t <= s.budget and s.trusted and self._covers(s, beta) for s in self.sensors)
+        return any(t - s.t_trusted <= s.budget and self._covers(s, beta) for s in self.sensors)
 
     def estimate(self, t: float, beta: float, corridor_m: float = math.inf, r_obst: float | None = None
                  ) -> DodEstimate:
@@ -466,7 +474,7 @@ class DodEstimator:
             for b, r in s.hits:
                 if not bins or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
                     obstacle = min(obstacle, r)
-            if not s.trusted:
+            if t - s.t_trusted > s.budget:
                 continue
             beams.append(Beam(s.cfg.orientation_deg, s.cfg.h_fov_deg, s.max_m))
             if not self._covers(s, beta):
