@@ -98,6 +98,8 @@ class RangeNoise:
     def short_m(self, r: float) -> float:
         """[m] how far short of range r a target reads by noise alone: NOISE_SIGMAS σ(r)."""
         return NOISE_SIGMAS * (self.m + self.rel * r + self.quad * r * r)
+
+
 OWN_RETURNS_P = 1e-6  # a window's short returns the sensors' own would reach this seldom are evidence of a medium
 FULL_WINDOW_SHOTS_PER_S = 160.0  # shots per second behind a confidence of 1 (a 12-bin sensor at 20 Hz gives 240)
 
