@@ -240,7 +240,8 @@ def test_samples_delivered_in_a_burst_still_get_one_interval_of_travel():
 
 def test_an_obstacle_already_tracked_is_not_a_new_late_detection():
     """Issue 19 item 4: a column seen on time, lost from the field of view during a pass, then swept back
-    into middle bins by a fast yaw is the same obstacle; another obstacle appearing there is still late."""
+    into middle bins by a fast yaw is the same obstacle; another obstacle appearing where a frame from there had
+    looked past is still late."""
     cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=60.0)
     bearings = np.radians(np.arange(-30, 31, 5.0))
     inc = math.radians(5)
@@ -256,8 +257,14 @@ def test_an_obstacle_already_tracked_is_not_a_new_late_detection():
         assert e.estimate(0.0, 0.0).late is None
         add_bins(e, 0, 0.05, bearings, far, 4.0, inc)  # out of view
         e.estimate(0.05, 0.0)
-        # moved on, yaw swung fast to -30°: three middle bins light up at once, 1.5 m ahead
+        # moved on, yaw swung fast to -30°, one frame there seeing nothing; then three middle bins light up at
+        # once, 1.5 m ahead (a first sight is late only where a frame had looked past its place)
         yaw = math.radians(-30)
+        for t in (0.3, 0.35, 0.4, 0.45):  # there for a while: its position a lag before is this one too
+            e.add_position(t, 3.38 - 1.5 * math.cos(yaw) + dx, -1.95 - 1.5 * math.sin(yaw))
+            e.add_heading(t, yaw)
+        add_bins(e, 0, 0.45, bearings, far, 4.0, inc)
+        e.estimate(0.45, 0.0)
         e.add_position(0.5, 3.38 - 1.5 * math.cos(yaw) + dx, -1.95 - 1.5 * math.sin(yaw))
         e.add_heading(0.5, yaw)
         back = far.copy()

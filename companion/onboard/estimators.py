@@ -292,9 +292,12 @@ class DodEstimator:
                 continue  # a candidate seen again, or the same surface as before
             late = not near and r < late_inside and not self._side_entry(i, t, bearing) \
                 and not self._tracked_already(t, placed[k], tolerance)
-            # within the sensor's own clutter, a return where a recent frame looked past (no static surface is
-            # there) waits for confirmation too, and confirmed is a broken guarantee as a late one is
-            clutter = r <= s.cfg.clutter_m and (late or self._seen_free_before(i, t, bearing, r, tolerance))
+            # a first sight inside D_od is late only where a recent frame looked past its place (a static surface
+            # there would have been seen; without a pose, as the field of view's edges allow); within the sensor's
+            # own clutter such a return waits for confirmation too, and confirmed is a broken guarantee as a late one is
+            looked = (late or r <= s.cfg.clutter_m) and self._seen_free_before(i, t, bearing, r, tolerance)
+            late = late and (looked or not self._posed(t))
+            clutter = r <= s.cfg.clutter_m and looked
             if late or clutter:
                 untracked.add(k)
                 c = self._confirm.offer(LateDetection(t, i, bearing, r, self._last_d_od), source, placed[k])
@@ -397,6 +400,11 @@ class DodEstimator:
             self._tracked.popleft()
         reach = 2 * max(self.r_obst, 0.0) + p[2] + tolerance
         return any(math.hypot(p[0] - qx, p[1] - qy) <= reach for _, qx, qy in self._tracked)
+
+    def _posed(self, t: float) -> bool:
+        """Position and heading known and no older than the sensors' staleness."""
+        return self._pos is not None and bool(self._yaw_hist) and t - self._pos[0] <= self.stale_s \
+            and t - self._yaw_hist[-1][0] <= self.stale_s
 
     def _seen_free_before(self, i: int, t: float, bearing: float, r: float, tol: float) -> bool:
         """Whether one of the sensor's frames of the last `LOOK_BACK_S` before this one saw past every place a return
