@@ -32,7 +32,7 @@ from .sight import looked_past
 
 # ============================================================================ D_od
 
-LOOK_BACK_S = 1.0  # [s] a place a frame this recent saw past holds no static surface (the clutter rule)
+LOOK_BACK_S = 1.0  # [s] a place a frame this recent looked past holds no static surface (late sights, the clutter)
 HEADING_SLACK = math.radians(0.5)  # [rad] a direction this close to a bin that reported was looked at (heading noise)
 COVERAGE_S = 2.0  # [s] space seen free this recently counts as covered (static obstacles; odometry drift small)
 SWEPT_MARGIN_M = 0.1  # [m] off the swept distance: position noise
