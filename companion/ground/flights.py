@@ -294,7 +294,8 @@ class Rig:
         depth = {"depth": "axis_depth"} if kind == "obstacle_distance" and s.cfg.reports == "z_depth" else {}
         # its spurious returns' reach, as a range (a depth along the axis is up to 1 / cos(half its field) farther)
         reach = s.cfg.spurious_max_m / (math.cos(s.n_used * s.inc / 2) if depth else 1.0)
-        clutter = {"clutter_m": round(reach, 3), "spurious_rate": s.cfg.spurious_rate} if s.cfg.spurious_rate > 0 else {}
+        clutter = {"clutter_m": round(reach, 3), "spurious_rate": s.cfg.spurious_rate} \
+            if s.cfg.spurious_rate > 0 else {}
         return {"kind": kind, "h_fov_deg": round(math.degrees(s.n_used * s.inc), 6), **depth, **clutter,
                 "v_fov_deg": s.cfg.v_fov_deg, "mount_pitch_deg": s.cfg.mount_pitch_deg}
 

@@ -100,7 +100,7 @@ class SensorConfig(_Strict):
     v_fov_deg: Annotated[float, Field(gt=0, le=90, allow_inf_nan=False)] | None = None
     mount_pitch_deg: Annotated[float, Field(ge=-90, le=90, allow_inf_nan=False)] = 0.0
     # [m] the sensor's own clutter: within this its spurious returns come (a propeller in view, rain or dust at the
-    # lens). A return this near where its frames just saw free waits for the frames that confirm it before the
+    # lens). A return this near where a recent frame looked past waits for the frames that confirm it before the
     # obstacle logic takes it (companion/onboard/late_detection.py); 0: every return at once. At most 2 m
     clutter_m: Annotated[float, Field(ge=0, le=2, allow_inf_nan=False)] = 0.0
     # the fraction of its reports that are its own spurious returns in clear air (measured in the same hover): the

@@ -328,8 +328,7 @@ class DodEstimator:
     def _seen_from_here(self, t: float, c: Candidate) -> tuple[float, float]:
         """The body bearing and range at which a sample at `t` sees candidate `c`'s place: from the vehicle's pose now
         where it and the place are known, else where it was last seen."""
-        if c.point is None or self._pos is None or not self._yaw_hist or t - self._pos[0] > self.stale_s \
-                or t - self._yaw_hist[-1][0] > self.stale_s:
+        if c.point is None or not self._posed(t):
             return c.bearing, c.range_m
         dx, dy = c.point[0] - self._pos[1], c.point[1] - self._pos[2]
         return wrap(math.atan2(dy, dx) - self._yaw_hist[-1][1]), math.hypot(dx, dy)
@@ -338,8 +337,7 @@ class DodEstimator:
         """Each hit in the local frame: (x, y, uncertainty ±) from the last position and heading (None when
         either is unknown or older than the sensor's staleness)."""
         s = self.sensors[i]
-        if self._pos is None or not self._yaw_hist or t - self._pos[0] > self.stale_s \
-                or t - self._yaw_hist[-1][0] > self.stale_s:
+        if not self._posed(t):
             return [None] * len(seen)
         _, x, y = self._pos
         yaw = self._yaw_hist[-1][1]
@@ -360,8 +358,7 @@ class DodEstimator:
         s = self.sensors[i]
         while s.swept and s.swept[0].t < t - COVERAGE_S:
             s.swept.popleft()
-        if not s.trusted or s.max_m <= 0 or self._pos is None or not self._yaw_hist \
-                or t - self._pos[0] > self.stale_s or t - self._yaw_hist[-1][0] > self.stale_s:
+        if not s.trusted or s.max_m <= 0 or not self._posed(t):
             return
         yh = self._yaw_hist
         s.swept.append(_Seen(t, self._pos, self._pos_hist[0], self.stale_s, yh[-1], yh[-2] if len(yh) > 1 else None,
@@ -412,7 +409,7 @@ class DodEstimator:
         where no such frame, pose or heading is known."""
         s = self.sensors[i]
         frames = [seen for seen in list(s.swept)[:-1] if t - seen.t <= LOOK_BACK_S]
-        if self._pos is None or not self._yaw_hist or not frames:
+        if not self._posed(t) or not frames:
             return False
         yh = self._yaw_hist
         rate = wrap(yh[-1][1] - yh[-2][1]) / (yh[-1][0] - yh[-2][0]) if len(yh) > 1 and yh[-1][0] > yh[-2][0] else 0.0
