@@ -409,11 +409,29 @@ def test_two_poles_seen_as_one_wide_run_break_the_environment_assumption_truly(m
 DARK_COLUMN = {"columns": [{"x_m": 30.0, "y_m": 0.4, "radius_m": 0.3, "reflectivity": 0.02, "name": "dark column"}]}
 
 
-def test_a_column_darker_than_the_rating_is_a_founded_first_detection_whichever_estimate_declares_it():
+def _evidence_first(monkeypatch) -> None:
+    """The evidence's first detections bound D_od at their first sight (no following frame asked for), so that the
+    evidence ("a target first seen at …") declares a late target before the late-detection rule does."""
+    from companion.onboard import sensing
+    from companion.onboard.detection_range import DetectionRangeParams
+
+    class AtOnce(DetectionRangeParams):
+        @classmethod
+        def of(cls, detection, confirm_frames: int = 2):
+            return DetectionRangeParams.of(detection, 0)
+
+    monkeypatch.setattr(sensing, "DetectionRangeParams", AtOnce)
+
+
+@pytest.mark.parametrize("evidence_first", [False, True])
+def test_a_column_darker_than_the_rating_is_a_founded_first_detection_whichever_estimate_declares_it(
+        evidence_first, monkeypatch):
     """Governor, the sector sensor, a column of reflectivity 0.02 on the route (a fifth of the rated 10 %): the lidar
     equation sees it at 4.5 m of a 10 m rating, and it is truly first seen late. Whichever estimate says so first —
     the evidence's first detection ("a target first seen at …") or the late-detection rule's confirmed one — the
     observer judges it by the truth (the surface's reflectivity and its true reach), not as a medium's lowering."""
+    if evidence_first:
+        _evidence_first(monkeypatch)
     row = fly_clear("governor", "sector", "plain", 1, world=DARK_COLUMN)
     nav = [e for e in row["events"] if e["kind"] == "violation (navigation)"]
     assert nav and nav[0]["founded"] and nav[0]["true_reach_m"] < nav[0]["assumed"], nav
@@ -422,6 +440,7 @@ def test_a_column_darker_than_the_rating_is_a_founded_first_detection_whichever_
 def test_negative_control_judged_as_a_medium_the_evidences_first_detection_is_unfounded(monkeypatch):
     from companion.ground import false_alarms as fa
 
+    _evidence_first(monkeypatch)
     monkeypatch.setattr(fa, "FIRST_SEEN", fa.re.compile(r"(?!)"))  # never matches: every ":" action is a medium's
     row = fly_clear("governor", "sector", "plain", 1, world=DARK_COLUMN)
     nav = [e for e in row["events"] if e["kind"] == "violation (navigation)"]

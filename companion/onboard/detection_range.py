@@ -36,7 +36,9 @@ of evidence and turns each into an upper bound on the range at which the referen
    or a return beyond it, and that frame's stated range reached it), was not detectable farther: D_od ≤ that
    distance. A place no recent frame saw through is no evidence: a target behind a nearer one (occluded), outside
    the field of view then (a turn, a wall's end, a doorway's side), in a bin that reported nothing, beyond the
-   claim of the frame (a fog lifting: the stated range just grew), or in the sensor's first frame;
+   claim of the frame (a fog lifting: the stated range just grew), or in the sensor's first frame. Such a sight
+   counts once `first_confirm_frames` following frames see it again at its place (late_detection.py): a draw of
+   a stereo camera's range noise 4 σ short of a wall near its claim is gone in the next frame, a surface stays;
 4. disagreement — a point one sensor sees that another, looking the same way and claiming a longer range,
    does not see at the same time: that one's range is at most its distance.
 
@@ -48,8 +50,8 @@ config's cap.
 Timing (the defaults): a fog is taken into account within `window_s` (1 s) of its onset once its
 backscatter gives `min_spurious` (3) short returns in a window and the window's rate reaches α₀ (a 10 m
 sensor's reference range shortens only from α = 0.08/m: 6 returns in a second of a 12-bin sensor at 20 Hz);
-a late first detection at
-once. The estimate recovers `window_s + recover_s` (4 s) after the evidence clears. What it cannot see: a
+a late first detection
+`first_confirm_frames` frames after its first sight. The estimate recovers `window_s + recover_s` (4 s) after the evidence clears. What it cannot see: a
 medium that thickens faster than that (from clear to dense between two windows) is seen one window late, and
 between two targets nothing but backscatter and quality tell of the medium (docs/detection-range.md).
 """
@@ -76,6 +78,7 @@ from contracts.lidar import (
 from contracts.window import WindowMax
 
 from .config import SensorConfig
+from .late_detection import Candidate, Confirmations, Frame, LateDetection, seen_from
 from .samples import Scan
 from .sight import looked_past
 
@@ -98,6 +101,11 @@ class RangeNoise:
     def short_m(self, r: float) -> float:
         """[m] how far short of range r a target reads by noise alone: NOISE_SIGMAS σ(r)."""
         return NOISE_SIGMAS * (self.m + self.rel * r + self.quad * r * r)
+
+    def spread_m(self, r: float) -> float:
+        """[m] how far apart two readings of one surface at range r fall by noise alone: NOISE_SIGMAS σ of their
+        difference (√2 σ(r))."""
+        return math.sqrt(2.0) * self.short_m(r)
 
 
 OWN_RETURNS_P = 1e-6  # a window's short returns the sensors' own would reach this seldom are evidence of a medium
@@ -124,14 +132,17 @@ class DetectionRangeParams:
     first_tolerance_m: float = 0.3  # first seen this much inside the stated range (+ one frame's travel ...
     range_noise: RangeNoise = RangeNoise()  # ... + NOISE_SIGMAS of the range noise σ(r)): late
     look_back_s: float = 0.5  # ... and a frame this recent saw through its place
+    first_confirm_frames: int = 2  # ... once this many following frames see it again (a noise draw is gone in the next)
     fresh_s: float = 0.5  # a sensor silent longer adds nothing (staleness is the other estimator's)
 
     @classmethod
-    def of(cls, detection) -> "DetectionRangeParams":
-        """The parameters a config's `detection:` section sets (companion/onboard/config.py DetectionConfig)."""
+    def of(cls, detection, confirm_frames: int = 2) -> "DetectionRangeParams":
+        """The parameters a config's `detection:` section sets (companion/onboard/config.py DetectionConfig), and the
+        contract's `late_detection_confirm_frames`."""
         return cls(reference_reflectivity=detection.reference_reflectivity,
                    rated_reflectivity=detection.rated_reflectivity,
-                   backscatter_length_m=detection.backscatter_length_m, range_noise=RangeNoise.of(detection))
+                   backscatter_length_m=detection.backscatter_length_m, range_noise=RangeNoise.of(detection),
+                   first_confirm_frames=confirm_frames)
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,6 +216,8 @@ class DetectionRange:
         self._stated: dict[int, float] = {}
         self._near_hist: dict[int, deque] = {}  # sensor → the short returns (x, y) of its last frames
         self._views: dict[int, deque] = {}  # sensor → its frames of bins of the last look_back_s (`_View`)
+        # late first sights awaiting the following frames that see them again (companion/onboard/late_detection.py)
+        self._late = Confirmations(params.first_confirm_frames, params.fresh_s, params.range_noise.spread_m)
 
     # ---------------------------------------------------------------- inputs
     def add_position(self, t: float, x: float, y: float) -> None:
@@ -278,6 +291,7 @@ class DetectionRange:
                 if 2 <= scan.quality < 100:
                     tr.samples.append((r, 1.0 + scan.quality / 100.0 * (p.quality_full_margin - 1.0)))
         if scan.known is not None:
+            self._follow_late(t, i, scan, placed)
             # a target is late only if the last frame's claim, too, reached it (a claim that just grew, as a fog
             # clears, does not make a target at its old edge late)
             self._first_detections(t, i, scan, placed, min(stated, before))
@@ -325,17 +339,18 @@ class DetectionRange:
         """Whether one of the sensor's recent frames saw through (x, y) (`_View.saw_through`)."""
         return any(v.saw_through(x, y, tol) for v in self._views.get(i, ()))
 
+    def _period(self, i: int) -> float:
+        """Sensor i's frame interval: its last two frames' (1/20 s before it has two)."""
+        same = [f.t for f in self._frames if f.sensor == i][-2:]
+        return max(same[1] - same[0], 1e-3) if len(same) == 2 else 1.0 / 20.0
+
     def _first_detections(self, t: float, i: int, scan: Scan, placed: list, stated: float) -> None:
         """Static targets first seen inside the stated range, away from the edges of the field of view, where a
         recent frame saw through their place (module docstring, 3)."""
         p = self.p
         inc = scan.increment or 0.0
         lo, hi = (scan.known[0], scan.known[-1]) if scan.known else (0.0, 0.0)
-        period = 1.0 / 20.0
-        if self._frames:
-            same = [f.t for f in self._frames if f.sensor == i]
-            if len(same) > 1:
-                period = max(same[-1] - same[-2], 1e-3)
+        period = self._period(i)
         for x, y, b, r in placed:
             if r < p.near_m:
                 continue  # the medium's returns are the backscatter evidence
@@ -347,7 +362,25 @@ class DetectionRange:
             # a target at the stated range reads up to NOISE_SIGMAS σ(stated) short of it by noise alone
             tol = p.first_tolerance_m + self._speed * period + p.range_noise.short_m(stated)
             if not known and not edge and r < stated - tol and self._seen_through(i, x, y, tol):
-                self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))
+                c = self._late.offer(LateDetection(t, i, b, r, stated), None, (x, y) if self._posed(t) else None)
+                if c is not None:
+                    self._first_seen(t, c)
+
+    def _follow_late(self, t: float, i: int, scan: Scan, placed: list) -> None:
+        """The late first sights this frame sees again at their place (companion/onboard/late_detection.py: a range
+        noise draw is gone in the next frame, a surface stays), those seen often enough bound D_od at the range of
+        their first sight."""
+        posed = self._posed(t)
+        pose = (self._pos[1], self._pos[2], self._yaw[1]) if posed else None
+        frame = Frame(t, i, None, list(scan.hits), [(x, y) if posed else None for x, y, _, _ in placed],
+                      tuple(scan.known), scan.increment or 0.0, self.p.first_tolerance_m + self._speed * self._period(i))
+        for c in self._late.follow(frame, lambda c: seen_from(c, pose)).confirmed:
+            self._first_seen(t, c)
+
+    def _first_seen(self, t: float, c: Candidate) -> None:
+        """A late first sight confirmed: D_od ≤ the range it was first seen at."""
+        r = c.first.range_m
+        self._bounds.append((t, r, f"a target first seen at {r:.2f} m"))
 
     def _disagreements(self, t: float, i: int, scan: Scan, placed: list, stated: float) -> None:
         """A point another sensor sees now, inside this one's stated range and field of view, unseen here."""

@@ -26,7 +26,7 @@ from contracts.window import WindowMax
 from .config import ContractConfig, SensorConfig, ThrustConfig
 from .coverage import Beam, corridor_cover, covered_d_od
 from .detection_range import RangeNoise
-from .late_detection import Candidate, Confirmations, Frame, LateDetection
+from .late_detection import Candidate, Confirmations, Frame, LateDetection, seen_from
 from .samples import Scan
 from .sight import looked_past
 
@@ -211,7 +211,7 @@ class DodEstimator:
         self._pending: list[LateDetection] = []
         self._withheld = 0  # returns withheld within a sensor's clutter, counted frame by frame (`DodEstimate`)
         # first sights inside D_od awaiting the following frames that confirm them (`late_detection`)
-        self._confirm = Confirmations(contract.late_detection_confirm_frames, stale_s)
+        self._confirm = Confirmations(contract.late_detection_confirm_frames, stale_s, range_noise.spread_m)
         self._yaw_hist: deque[tuple[float, float]] = deque()
         self._pos: tuple[float, float, float] | None = None  # (t, x, y) local NED, the last known
         self._tracked: deque[tuple[float, float, float]] = deque(maxlen=256)  # (t seen, x, y) of obstacle hits
@@ -328,10 +328,7 @@ class DodEstimator:
     def _seen_from_here(self, t: float, c: Candidate) -> tuple[float, float]:
         """The body bearing and range at which a sample at `t` sees candidate `c`'s place: from the vehicle's pose now
         where it and the place are known, else where it was last seen."""
-        if c.point is None or not self._posed(t):
-            return c.bearing, c.range_m
-        dx, dy = c.point[0] - self._pos[1], c.point[1] - self._pos[2]
-        return wrap(math.atan2(dy, dx) - self._yaw_hist[-1][1]), math.hypot(dx, dy)
+        return seen_from(c, (self._pos[1], self._pos[2], self._yaw_hist[-1][1]) if self._posed(t) else None)
 
     def _placed(self, i: int, t: float, seen) -> list[tuple[float, float, float] | None]:
         """Each hit in the local frame: (x, y, uncertainty ±) from the last position and heading (None when

@@ -34,7 +34,8 @@ declared, and held for `frames` frames after its first sight (at 30 Hz and 2 fra
 A "consistent place": where the candidate's last sight would be seen now, the vehicle's own motion and turn
 accounted for (its place in the local frame, seen from the vehicle's pose now; its last bearing and range where a
 pose is missing) — in the bin that covers that bearing or the one beside it (a single beam: its one beam), and
-within the late-detection tolerance (which holds one frame's travel) of that range. Close to the sensor a bin is
+within the late-detection tolerance (which holds one frame's travel) of that range, or where two readings of one
+surface fall further apart by the sensor's range noise alone (a stereo camera's σ is 0.36 m at 6 m), within that. Close to the sensor a bin is
 narrow in metres: a distance in the local frame alone would let returns in bins far apart at short range match.
 """
 
@@ -100,14 +101,25 @@ class Followed:
     waiting: frozenset[int] = frozenset()  # of `used`, the hits of candidates still waiting: withheld
 
 
+def seen_from(c: Candidate, pose: tuple[float, float, float] | None) -> tuple[float, float]:
+    """The body bearing and range at which a frame taken at `pose` (local x, y, heading; None: unknown) sees
+    candidate `c`'s place: from that pose where it and the place are known, else where it was last seen."""
+    if c.point is None or pose is None:
+        return c.bearing, c.range_m
+    dx, dy = c.point[0] - pose[0], c.point[1] - pose[1]
+    return wrap(math.atan2(dy, dx) - pose[2]), math.hypot(dx, dy)
+
+
 class Confirmations:
     """The candidates of every sensor awaiting confirmation (module docstring). Pure: frames in, declarations out."""
 
-    def __init__(self, frames: int, stale_s: float):
+    def __init__(self, frames: int, stale_s: float, spread=lambda r: 0.0):
         """`frames`: the following frames that must see a candidate again (0: declared at once); `stale_s`: the
-        sensors' time-out, the longest a candidate waits for a frame that looks at its place."""
+        sensors' time-out, the longest a candidate waits for a frame that looks at its place; `spread(r)`: how far
+        apart two readings of one surface at range r fall by the sensor's noise alone [m] (`RangeNoise.spread_m`)."""
         self.frames = max(int(frames), 0)
         self.stale_s = stale_s
+        self.spread = spread
         self._open: list[Candidate] = []
 
     @property
@@ -133,7 +145,7 @@ class Confirmations:
                     keep.append(c)
                 continue
             bearing, rng = where(c)
-            k = self._match(f, bearing, rng, used)
+            k = self._match(f, bearing, rng, max(f.tolerance, self.spread(rng)), used)
             if k is not None:
                 used.add(k)
                 c.seen_again += 1
@@ -159,13 +171,13 @@ class Confirmations:
         return f.known is None or any(abs(wrap(bearing - b)) <= f.increment / 2 + 1e-9 for b in f.known)
 
     @staticmethod
-    def _match(f: Frame, bearing: float, rng: float, used: set) -> int | None:
+    def _match(f: Frame, bearing: float, rng: float, tol: float, used: set) -> int | None:
         """The hit of `f` at a consistent place (module docstring) with a candidate expected at body `bearing` and
-        range `rng` (the nearest in range of such), or None."""
+        range `rng`, within `tol` of it (the nearest in range of such), or None."""
         best, best_d = None, math.inf
         for k, (b, r) in enumerate(f.hits):
             d = abs(r - rng)
             same_bin = f.known is None or abs(wrap(b - bearing)) <= f.increment + 1e-9
-            if k not in used and same_bin and d <= f.tolerance and d < best_d:
+            if k not in used and same_bin and d <= tol and d < best_d:
                 best, best_d = k, d
         return best

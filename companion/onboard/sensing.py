@@ -39,7 +39,8 @@ class Sensing:
                                 cover=contract == "stop",
                                 range_noise=RangeNoise.of(cfg.detection))
         # D_od from evidence: what the sensors' claim cannot say
-        self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection))
+        self.truth = DetectionRange(cfg.sensors, params=DetectionRangeParams.of(cfg.detection,
+                                                                        cfg.contract.late_detection_confirm_frames))
         self.etr = EtrEstimator(cfg.contract, e_tr_floor(cfg, table))
         self.creep = Creep()  # the direction of travel below walking pace (companion/onboard/ahead.py)
         hover = cfg.thrust.hover_throttle_nominal or veh.controller.thr_hover
