@@ -162,11 +162,15 @@ def _clutter_spec(tmp_path):
 
 def _old_guidance(monkeypatch):
     """Offboard guidance that slides back onto the route whatever the heading, its yaw along the route when slow —
-    and as it flew swerves before: R_obst's disc round a pole at any range, a pass flown to its end past the route's
-    turn, planned along the route where the vehicle is, not waiting for the heading, a sideways speed clipped at once."""
+    and as it flew swerves before: R_obst's disc round a pole at any range and round every run of bins whatever the
+    bins beside it saw, a pass flown to its end past the route's turn, planned along the route where the vehicle is,
+    not waiting for the heading, a sideways speed clipped at once."""
     from companion.onboard import guidance
+    from companion.onboard.estimators import DodEstimator
     from companion.onboard.guidance import OffboardGuidance
     from companion.onboard.supervisor import Supervisor
+
+    monkeypatch.setattr(DodEstimator, "hit_ends", lambda self, t: [])
 
     monkeypatch.setattr(guidance, "slow_aim", lambda heading, want: (None, False))
     monkeypatch.setattr(guidance, "A_SIDE", math.inf)

@@ -541,3 +541,18 @@ def test_a_reading_at_the_minimum_is_a_return_there_not_free_space():
     e = dod()
     e.add_scan(at_min)
     assert e.estimate(0.05, 0.0).obstacle_m == pytest.approx(0.2)  # the daemon sees it: no speed towards it
+
+
+def test_how_far_past_each_hit_the_bins_beside_it_saw():
+    """`hit_ends`: per hit, how far past it the bin on each side saw — to its hit (negative where nearer), to the claim
+    where it saw nothing, -inf where the bin reported nothing (a dropped bin), inf beyond the field of view's edge."""
+    cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=65.0)
+    e = DodEstimator([cfg], CC, stale_s=0.5)
+    bearings = np.radians([-30, -25, -20, -15, -10, -5, 0, 5, 15, 20, 25, 30])  # 10° reported nothing
+    ranges = np.full(len(bearings), np.inf)
+    ranges[[6, 7, 9, 10, 11]] = [6.0, 6.1, 5.0, 3.0, 4.0]
+    add_bins(e, 0, 0.0, bearings, ranges, 10.0, math.radians(5))
+    ends = e.hit_ends(0.0)
+    hits = [round(math.degrees(b)) for b, *_ in e.fresh_hits(0.0)]
+    assert hits == [0, 5, 20, 25, 30]
+    assert ends == [pytest.approx(x) for x in [(4.0, 0.1), (-0.1, -math.inf), (5.0, -2.0), (2.0, 1.0), (-1.0, math.inf)]]

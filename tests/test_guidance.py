@@ -500,3 +500,27 @@ def test_a_pass_handed_over_sideways_slows_sideways_at_half_a_max():
         p, v = sp.p, sp.v
     assert max(acc) <= 4.0  # within a_max (sideways half of it, the along-track speed-up the rest)
     assert max(abs(np.diff(vy))) <= 0.5 * 4.0 * 0.02 + 1e-9 and vy[-1] < 0.7
+
+
+def _pole_run(ends):
+    """Two bins of 5° seeing a pole 6 m ahead (beyond a hold's reach of 4 m), with `ends` (how far past each hit the
+    bins beside it saw): the discs `obstacle_discs` gives under the stop contract's swerve rules."""
+    h = math.radians(2.5)
+    hits = [(-h, 6.0, h, True), (h, 6.05, h, True)]
+    return obstacle_discs(hits, (0.0, 0.0), 0.0, 1.0, widest=1.0 + WIDE_TOL_M, measured_beyond=4.0, ends=ends)[0]
+
+
+def test_a_run_whose_sides_the_bins_did_not_see_past_gets_no_swerve_disc():
+    """A pole is planned round where the bins beside it saw well past it (a hit 4 m behind, nothing within a claim 4
+    m beyond). A run whose side a bin that reported nothing, or a nearer hit, hides is of unknown width; one whose
+    neighbours saw nothing only because the claim ends 1 m behind it (a wall far ahead cut off by the range: it looks
+    like a pole) waits until it is within the hold's reach. Control: every run's disc without the bins' word."""
+    assert len(_pole_run([(4.0, 0.0), (0.0, 4.0)])) == 1
+    assert _pole_run([(-math.inf, 0.0), (0.0, 4.0)]) == []  # a dropped bin beside it
+    assert _pole_run([(4.0, 0.0), (0.0, -1.5)]) == []  # a nearer hit beside it
+    assert _pole_run([(1.0, 0.0), (0.0, 1.0)]) == []  # the claim ends 1 m behind it, beyond the reach
+    h = math.radians(2.5)
+    near = obstacle_discs([(-h, 3.0, h, True), (h, 3.05, h, True)], (0.0, 0.0), 0.0, 1.0, widest=1.0 + WIDE_TOL_M,
+                          measured_beyond=4.0, ends=[(1.0, 0.0), (0.0, 1.0)])[0]
+    assert len(near) == 1  # within the reach: planned round
+    assert len(_pole_run(None)) == 1  # negative control

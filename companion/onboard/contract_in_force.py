@@ -332,7 +332,8 @@ def swerve_discs(i, reach_m: float) -> tuple[Disc, ...]:
     now) gets the disc of what was seen of it, not R_obst's: within that reach a plan round what was seen, on the
     hold's edge, was held for what the next cycles added of the obstacle's outline (a pole passed at speed)."""
     x, y, yaw = i.pose
-    discs, _, _ = obstacle_discs(i.hits, (x, y), yaw, i.r_obst, widest=i.r_obst + WIDE_TOL_M, measured_beyond=reach_m)
+    discs, _, _ = obstacle_discs(i.hits, (x, y), yaw, i.r_obst, widest=i.r_obst + WIDE_TOL_M, measured_beyond=reach_m,
+                                 ends=i.hit_ends)
     return tuple(discs)
 
 

@@ -67,6 +67,24 @@ class _SensorState:
         """What the sensor sees now: `own` (this sample's hits) when it has one source, else every fresh source's."""
         return own if len(self.sources) == 1 else [h for v in self.sources.values() for h in v[1]]
 
+    def seen_past(self) -> list[tuple[float, float]]:
+        """For each hit, how far past its range the bin beside it on each side (the lower bearing's, the higher's)
+        saw [m]: to a hit there (negative: a nearer one, which hides the side), or to the claim where it saw
+        nothing; -inf where a bin inside the field of view reported nothing; inf beyond the field of view's edge
+        (what the bins cannot bound there is R_obst's by the contract, as the avoid contract plans round it). A
+        single beam's hits: inf (its one return is placed along the arc it may lie on, not bounded by bins)."""
+        if self.known is None:
+            return [(math.inf, math.inf)] * len(self.hits)
+        tol = self.increment / 2
+        lo, hi = min(self.known, default=0.0), max(self.known, default=0.0)
+
+        def past(b: float, r: float) -> float:
+            if not any(abs(wrap(b - k)) <= tol for k in self.known):
+                return -math.inf if lo - tol <= b <= hi + tol else math.inf
+            return min((r2 for b2, r2 in self.hits if abs(wrap(b2 - b)) <= tol), default=self.max_m) - r
+
+        return [(past(b - self.increment, r), past(b + self.increment, r)) for b, r in self.hits]
+
 
 @dataclass(slots=True)
 class _Seen:
@@ -431,12 +449,19 @@ class DodEstimator:
     def fresh_hits(self, t: float) -> list[tuple[float, float, float, bool]]:
         """Obstacle hits of the fresh sensors: (body bearing, range, bearing uncertainty ±, from bins)."""
         out = []
-        for s in self.sensors:
-            if t - s.t <= s.budget:
-                bins = s.known is not None
-                half = s.increment / 2 if bins else math.radians(s.cfg.h_fov_deg) / 2
-                out.extend((b, r, half, bins) for b, r in s.hits)
+        for s in self._fresh(t):
+            bins = s.known is not None
+            half = s.increment / 2 if bins else math.radians(s.cfg.h_fov_deg) / 2
+            out.extend((b, r, half, bins) for b, r in s.hits)
         return out
+
+    def hit_ends(self, t: float) -> list[tuple[float, float]]:
+        """For each of `fresh_hits(t)`, in its order: how far past it the bins beside it saw on its lower and its
+        higher bearing's side (`_SensorState.seen_past`)."""
+        return [e for s in self._fresh(t) for e in s.seen_past()]
+
+    def _fresh(self, t: float) -> list[_SensorState]:
+        return [s for s in self.sensors if t - s.t <= s.budget]
 
     @staticmethod
     def _covers(s: _SensorState, beta: float) -> bool:

@@ -205,14 +205,19 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
 
 
 def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf,
-                   measured_beyond: float = math.inf) -> tuple[list[Disc], float, int]:
+                   measured_beyond: float = math.inf, ends=None) -> tuple[list[Disc], float, int]:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
     Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
     R_obst through the chord's ends, on the far side (or wider, if the chord is wider than 2·R_obst —
     reported as the observed width). A single beam only says that the surface is at that range
     somewhere in its field of view: every disc of radius R_obst touching such a point lies within
-    2·R_obst of it, so discs of that radius are placed along the arc of possible hit points. `measured_beyond`: a
+    2·R_obst of it, so discs of that radius are placed along the arc of possible hit points. `ends`: for each hit,
+    how far past it the bins beside it saw on its lower and higher bearing's side (`DodEstimator.hit_ends`): a run
+    whose outline the bins beside it did not close — a bin that reported nothing, a nearer hit that hides its side —
+    is of unknown width and gets no disc; beyond `measured_beyond` neither does one they saw less than a run's break
+    (2·R_obst + 0.5 m) past, until it is nearer (a wall far ahead where the claim cuts it off, or a grazing wall's
+    range noise splits, looks like a pole; a plan round it went through the wall beside). `measured_beyond`: a
     run seen farther than this gets the chord's own disc where that is the smaller — centred half the chord behind
     its middle (the silhouette of a column is as wide as the column), holding every bin's sector at its range, and
     SWERVE_MARGIN_M more — for a swerve whose guarantee is the stop contract's hold on the path flown, which counts
@@ -227,15 +232,20 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
     discs: list[Disc] = []
     seen = 0.0  # the widest half-width measured
     narrow: list[bool] = []  # each run's disc is kept (no wider than `widest`)
-    bins = sorted((b, r, h) for b, r, h, is_bins in hits if is_bins)
+    if ends is None or len(ends) != len(hits):
+        ends = [(math.inf, math.inf)] * len(hits)
+    brk = 2 * r_obst + 0.5  # a range step that parts two runs
+    bins = sorted((b, r, h, e) for (b, r, h, is_bins), e in zip(hits, ends) if is_bins)
     singles = [(b, r, h) for b, r, h, is_bins in hits if not is_bins]
     clusters: list[list] = []
     faces: list[tuple[np.ndarray, float]] = []  # each run's hit points and how far off a point may be
-    for b, r, h in bins:
-        if clusters and abs(b - clusters[-1][-1][0]) <= 2.5 * h + 1e-9 and abs(r - clusters[-1][-1][1]) < 2 * r_obst + 0.5:
-            clusters[-1].append((b, r, h))
+    for b, r, h, e in bins:
+        if clusters and abs(b - clusters[-1][-1][0]) <= 2.5 * h + 1e-9 and abs(r - clusters[-1][-1][1]) < brk:
+            clusters[-1].append((b, r, h, e))
         else:
-            clusters.append([(b, r, h)])
+            clusters.append([(b, r, h, e)])
+    past = [min(cl[0][3][0], cl[-1][3][1]) for cl in clusters]  # how far past the run its outline was seen
+    clusters = [[(b, r, h) for b, r, h, _ in cl] for cl in clusters]
     for cl in clusters:
         pts = np.array([p + r * np.array([math.cos(yaw + b), math.sin(yaw + b)]) for b, r, _ in cl])
         r_near = min(r for _, r, _ in cl)
@@ -262,7 +272,8 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
         # nearest point seen; a bin's range is its sector's nearest return, good to the range noise): a run deeper
         # than that is a wall seen along its length
         depth = max(r for _, r, _ in cl) - r_near - RANGE_TOL_M
-        narrow.append(len(cl) == 1 or max(w2 - pad, depth) <= widest)
+        closed = past[len(narrow)] >= (brk if r_near > measured_beyond else 0.0) and past[len(narrow)] > 0.0
+        narrow.append((len(cl) == 1 or max(w2 - pad, depth) <= widest) and closed)
     px, py = float(p[0]), float(p[1])
     for b, r, h in singles:
         n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)

@@ -105,6 +105,7 @@ class Inputs:
     obstacles: int = 0  # how many obstacles the beams tell apart now
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
+    hit_ends: tuple = ()  # for each hit, how far past it the bins beside it saw [m] (`DodEstimator.hit_ends`)
     beta: float = 0.0  # the direction of travel in the body frame [rad] (along the heading below 1 m/s)
     pose: tuple[float, float, float] = (0.0, 0.0, 0.0)  # the vehicle's (x, y, yaw), local NED, the hits are seen from
     path: tuple = ()  # the points (x, y) the plan in force still flies through, () where none is (offboard's guidance)
