@@ -43,7 +43,7 @@ from .contract_in_force import (
     wall_discs,
 )
 from .estimators import DodEstimate
-from .guidance import inflated
+from .guidance import inflated, new_obstacles
 from .modes import Mode, mode_of
 from .overshoot import DEFAULT as DEFAULT_OVERSHOOT
 from .overshoot import OvershootBudget, OvershootWatch, ramped_out
@@ -296,6 +296,8 @@ class Supervisor:
         self.contract = self.configured = contract  # `contract`: the one in force this cycle
         self.fallback = fallback if contract == "avoid" else None
         self._planned_round: tuple = ()  # (discs, walls) guidance was given to swerve round under the stop contract
+        self._frames: tuple = ((), (), ())  # (the hits of the sensors' last frame, the discs of the frame before it,
+        # those of the last frame: `_seen_again`)
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -549,13 +551,27 @@ class Supervisor:
         e_tr_virtual = self.e_tr_virtual(i, d)
         # under the stop contract guidance plans round what is no wider than R_obst where the swerve stays in view,
         # else round nothing: it cruises the route, and stops
-        discs = i.discs if not self.fallen_back else swerve_discs(i, self._hold_reach(i)) if self.swerves else ()
+        if not self.fallen_back:
+            discs = i.discs
+            self._seen_again(i.hits, discs)  # (what the frames saw before a fallback counts as seen before it)
+        else:
+            discs = self._seen_again(i.hits, swerve_discs(i, self._hold_reach(i))) if self.swerves else ()
         walls = wall_discs(i, discs) if self.swerves else None
         self._planned_round = (tuple(discs), walls) if self.swerves else ()
         r_body = self.table.vehicle.r_body_m
         return Decision(d.state, d.omega, d.v_cmd, d.send_speed, d.hold, tuple(d.events), tuple(d.statustext),
                         e_tr_virtual, tuple(inflated(list(discs), e_tr_virtual, r_body)), tuple(d.hold_causes),
                         None if walls is None else tuple(inflated(list(walls), e_tr_virtual, r_body)))
+
+    def _seen_again(self, hits: tuple, discs) -> tuple:
+        """Of the swerve's discs, those an earlier frame of the sensors saw too (`new_obstacles`): a stereo camera's
+        range noise draws a pole out of a wall now and then, never twice at one place; one frame's disc is planned
+        round from the next frame, its hit points kept out of meanwhile (`wall_discs`) and judged by the Hold."""
+        if hits != self._frames[0]:  # a new frame: this cycle's discs are the next one's earlier frame
+            self._frames = (hits, self._frames[2], tuple(discs))
+        else:
+            self._frames = (hits, self._frames[1], tuple(discs))
+        return tuple(d for d in discs if not new_obstacles([d], self._frames[1]))
 
     def _decide(self, i: Inputs) -> _Draft:
         """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still

@@ -1,0 +1,15 @@
+"""The swerve's rules turned off one by one, for negative controls: the swerve under the stop contract as it was flown
+before each."""
+
+from companion.onboard.estimators import DodEstimator
+from companion.onboard.supervisor import Supervisor
+
+
+def seen_once(monkeypatch) -> None:
+    """A disc planned round from the frame it is first seen in (not only once an earlier frame saw it too)."""
+    monkeypatch.setattr(Supervisor, "_seen_again", lambda self, hits, discs: tuple(discs))
+
+
+def outline_unread(monkeypatch) -> None:
+    """Every run of bins a disc, whatever the bins beside it saw."""
+    monkeypatch.setattr(DodEstimator, "hit_ends", lambda self, t: [])
