@@ -481,22 +481,27 @@ def test_bad_input_never_raises_d_od():
     assert est.estimate(0.3, -1.0).d_od == 0.0
 
 
-def _tracked_then_short(noise: RangeNoise, short_m: float) -> float:
-    """A column tracked just right of ahead from 9.5 m in to 7.5 m (3 m/s, 20 Hz, 5° bins), then three frames reading
-    it `short_m` short in the next bin (it straddles the two), which had seen free: the lowest D_od the estimator
-    gives."""
+def _lowest_d_od(noise: RangeNoise, frames: int, seen) -> float:
+    """Fly +x at SPEED with 12 bins of 5° at 20 Hz, frame k at t seeing `seen(k, t)` = (its bin, range) and nothing
+    else: the lowest D_od the estimator told the range noise `noise` gives."""
     est = DetectionRange([BINS], params=DetectionRangeParams(range_noise=noise))
     bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
     lowest = math.inf
-    for k in range(16):
+    for k in range(frames):
         t = k / RATE_HZ
-        r = 9.5 - SPEED * t - (short_m if k >= 13 else 0.0)
         est.add_position(t, SPEED * t, 0.0)
         est.add_heading(t, 0.0)
-        ranges = np.where(np.abs(bearings - bearings[7 if k >= 13 else 6]) < 1e-9, r, np.inf)
+        b, r = seen(k, t)
+        ranges = np.where(np.arange(len(bearings)) == b, r, np.inf)
         est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
         lowest = min(lowest, est.estimate(t, R_MAX).d_od)
     return lowest
+
+
+def _tracked_then_short(noise: RangeNoise, short_m: float) -> float:
+    """A column tracked just right of ahead from 9.5 m in to 7.5 m (3 m/s), then three frames reading it `short_m`
+    short in the next bin (it straddles the two), which had seen free."""
+    return _lowest_d_od(noise, 16, lambda k, t: (7, 9.5 - SPEED * t - short_m) if k >= 13 else (6, 9.5 - SPEED * t))
 
 
 def test_a_tracked_column_read_short_by_the_noise_is_that_column_not_a_first_sighting():
@@ -517,18 +522,7 @@ def test_a_first_sighting_is_judged_against_the_noise_at_the_stated_range():
 
     def lowest(at_stated: bool) -> float:
         noise = (RangeNoise if at_stated else AtTheSighting)(0.0, 0.0, 0.01)
-        est = DetectionRange([BINS], params=DetectionRangeParams(range_noise=noise))
-        bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
-        out = math.inf
-        for k in range(13):
-            t = k / RATE_HZ
-            est.add_position(t, SPEED * t, 0.0)
-            est.add_heading(t, 0.0)
-            r = 7.2 - SPEED * (t - 0.5) if k >= 10 else np.inf
-            ranges = np.where(np.abs(bearings - bearings[6]) < 1e-9, r, np.inf)
-            est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
-            out = min(out, est.estimate(t, R_MAX).d_od)
-        return out
+        return _lowest_d_od(noise, 13, lambda k, t: (6, 7.2 - SPEED * (t - 0.5) if k >= 10 else np.inf))
 
     assert lowest(True) == R_MAX
     assert lowest(False) < R_MAX  # negative control
@@ -536,19 +530,9 @@ def test_a_first_sighting_is_judged_against_the_noise_at_the_stated_range():
 
 def _column_then_short(short_frames: int) -> float:
     """A stereo camera (σ = 0.01 per metre × r²) following a column dead ahead from 9.9 m in, then `short_frames`
-    frames reading it at 5 m in its own bin, which had seen past there: the lowest D_od the estimator gives."""
-    est = DetectionRange([BINS], params=DetectionRangeParams(range_noise=RangeNoise(0.0, 0.0, 0.01)))
-    bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
-    lowest = math.inf
-    for k in range(12):
-        t = k / RATE_HZ
-        est.add_position(t, SPEED * t, 0.0)
-        est.add_heading(t, 0.0)
-        r = 5.0 if 4 <= k < 4 + short_frames else 9.9 - SPEED * t
-        ranges = np.where(np.abs(bearings - bearings[6]) < 1e-9, r, np.inf)
-        est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
-        lowest = min(lowest, est.estimate(t, R_MAX).d_od)
-    return lowest
+    frames reading it at 5 m in its own bin, which had seen past there."""
+    return _lowest_d_od(RangeNoise(0.0, 0.0, 0.01), 12,
+                        lambda k, t: (6, 5.0 if 4 <= k < 4 + short_frames else 9.9 - SPEED * t))
 
 
 def test_one_frame_of_range_noise_far_short_of_a_column_is_not_a_first_sighting():

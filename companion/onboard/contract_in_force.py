@@ -25,8 +25,9 @@ avoid contract comes back only once its assumptions have held for `dwell_s` (lim
 
 Where the stop contract is in force because of the world (something wider than R_obst, several obstacles) while the
 field-of-view rule (ii) holds, offboard still swerves (`InForce.swerve`): guidance plans round the obstacles no wider
-than R_obst (`swerve_discs`: runs of bins within R_obst in width and depth, single beams; a wall gets no disc, whose
-chord would make a disc that blocks its own doorway) and keeps out of every other bin's hit point (`wall_discs`), at
+than R_obst (`swerve_discs`: runs of bins within R_obst in width and depth whose sides the bins beside them saw past,
+single beams; a wall gets no disc, whose chord would make a disc that blocks its own doorway; the supervisor passes
+on a disc once an earlier frame saw it too) and keeps out of every other bin's hit point (`wall_discs`), at
 the stop contract's Ω lowered to the speed whose E_tr_pred is E_SWERVE_M (`swerve_omega`). That Ω guarantees the
 braking stop started now stops short of anything seen at D_od along the direction of travel; the swerve is flown only
 inside that guarantee: the OBSTACLE hold judges every hit, walls included, against the path the vehicle will fly
