@@ -136,8 +136,9 @@ def _saw_free(seen: _Seen, pose: tuple[float, float, float], width: float, beari
     """Whether frame `seen` looked past every place a return at body `bearing` and range `r`, seen from `pose` (x, y,
     yaw) now, may be (`sight.looked_past`): its bin's arc (`width` wide) widened by the turn in `SENSOR_LAG_S` at the
     yaw `rate` now, in places half that frame's bin apart; that frame's directions as uncertain as the turn in its
-    own lag, its bins wider by `HEADING_SLACK`, and the travel in both lags added to `tol`. A single beam: `beam` =
-    (axis, half width)."""
+    own lag, its bins wider by `HEADING_SLACK`, the travel in both lags added to `tol`, and the travel in that
+    frame's lag to where it was taken from (a place near the sensor at its field of view's edge moves across that
+    edge as the vehicle drifts by millimetres). A single beam: `beam` = (axis, half width)."""
     (_, x0, y0), (t0, yaw0), prev = seen.pos, seen.yaw_last, seen.yaw_prev
     rate0 = 0.0 if prev is None or t0 <= prev[0] else abs(wrap(yaw0 - prev[1])) / (t0 - prev[0])
     spread = width / 2 + abs(rate) * SENSOR_LAG_S
@@ -149,7 +150,7 @@ def _saw_free(seen: _Seen, pose: tuple[float, float, float], width: float, beari
               for a in (a0 + spread * (2 * k / n - 1) for k in range(n + 1))]
     travel = math.hypot(seen.pos[1] - seen.pos_lag[1], seen.pos[2] - seen.pos_lag[2])
     return looked_past((x0, y0), yaw0, seen.known, seen.increment, seen.seen, seen.max_m, places, tol + 2 * travel,
-                       rate0 * SENSOR_LAG_S, beam=beam, slack=HEADING_SLACK)
+                       rate0 * SENSOR_LAG_S, beam=beam, slack=HEADING_SLACK, apex_m=travel)
 
 
 @dataclass(frozen=True, slots=True)

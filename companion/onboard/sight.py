@@ -15,12 +15,13 @@ from contracts.geometry import wrap
 def looked_past(apex: tuple[float, float], yaw: float, bins: Sequence[float] | None, increment: float,
                 hits: Iterable[tuple[float, float]], claim: float, places: Iterable[tuple[float, float]], tol: float,
                 turn: float = 0.0, interior: bool = False, beam: tuple[float, float] | None = None,
-                slack: float = 0.0) -> bool:
+                slack: float = 0.0, apex_m: float = 0.0) -> bool:
     """Whether a frame taken at `apex` (local x, y) heading `yaw` looked past every one of `places` (local x, y):
     each within its `claim` with `tol` to spare, every direction within `turn` [rad] of it inside a bin that
-    reported (`bins`: their body bearings, `increment` wide, widened by `slack` for the heading's noise; an inner
-    one if `interior`; None: a single beam, `beam` = (axis, half width)), and none of its `hits` (body bearing,
-    range) there nearer than `tol` beyond it."""
+    reported (`bins`: their body bearings, `increment` wide, widened by `slack` for the heading's noise and by the
+    bearing `apex_m` of uncertainty in where the frame was taken subtends at the place; an inner one if `interior`;
+    None: a single beam, `beam` = (axis, half width)), and none of its `hits` (body bearing, range) there nearer
+    than `tol` beyond it."""
     hits = list(hits)
     inner = None if bins is None else (list(bins[1:-1]) if interior else list(bins))
     for x, y in places:
@@ -29,14 +30,15 @@ def looked_past(apex: tuple[float, float], yaw: float, bins: Sequence[float] | N
         if d + tol > claim:
             return False
         phi = wrap(math.atan2(dy, dx) - yaw)
+        wide = slack + math.atan2(apex_m, d)
         if inner is None:  # a single beam: inside its field of view, its one range beyond the place
-            if abs(wrap(phi - beam[0])) + turn > beam[1] + slack or any(h <= d + tol for _, h in hits):
+            if abs(wrap(phi - beam[0])) + turn > beam[1] + wide or any(h <= d + tol for _, h in hits):
                 return False
             continue
         if any(abs(wrap(b - phi)) <= turn + increment / 2 and h <= d + tol for b, h in hits):
             return False
         m = 1 + math.ceil(4 * turn / increment)  # directions half a bin apart across phi ± turn
-        if not all(any(abs(wrap(phi + turn * (2 * j / m - 1) - b)) <= increment / 2 + slack + 1e-9 for b in inner)
+        if not all(any(abs(wrap(phi + turn * (2 * j / m - 1) - b)) <= increment / 2 + wide + 1e-9 for b in inner)
                    for j in range(m + 1)):
             return False
     return True
