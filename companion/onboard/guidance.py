@@ -272,7 +272,8 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
         # nearest point seen; a bin's range is its sector's nearest return, good to the range noise): a run deeper
         # than that is a wall seen along its length
         depth = max(r for _, r, _ in cl) - r_near - RANGE_TOL_M
-        closed = past[len(narrow)] >= (brk if r_near > measured_beyond else 0.0) and past[len(narrow)] > 0.0
+        k = len(narrow)
+        closed = past[k] > 0.0 and (r_near <= measured_beyond or past[k] >= brk)  # (`ends`)
         narrow.append((len(cl) == 1 or max(w2 - pad, depth) <= widest) and closed)
     px, py = float(p[0]), float(p[1])
     for b, r, h in singles:
