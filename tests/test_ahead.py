@@ -164,8 +164,8 @@ def _clutter_spec(tmp_path):
 def _old_guidance(monkeypatch):
     """Offboard guidance that slides back onto the route whatever the heading, its yaw along the route when slow —
     and as it flew swerves before: R_obst's disc round a pole at any range and round every run of bins whatever the
-    bins beside it saw, from its first frame, a pass flown to its end past the route's turn, planned along the route where the vehicle is,
-    not waiting for the heading, a sideways speed clipped at once."""
+    bins beside it saw, from its first frame, a pass flown to its end past the route's turn, planned along the route
+    where the vehicle is, not waiting for the heading, a sideways speed clipped at once."""
     from companion.onboard import guidance
     from companion.onboard.guidance import OffboardGuidance
     from companion.onboard.supervisor import Supervisor

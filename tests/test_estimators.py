@@ -544,8 +544,9 @@ def test_a_reading_at_the_minimum_is_a_return_there_not_free_space():
 
 
 def test_how_far_past_each_hit_the_bins_beside_it_saw():
-    """`hit_ends`: per hit, how far past it the bin on each side saw — to its hit (negative where nearer), to the claim
-    where it saw nothing, -inf where the bin reported nothing (a dropped bin), inf beyond the field of view's edge."""
+    """`hit_ends`: per hit, how far past it the bin on each side saw — to its hit (negative where nearer), to the
+    claim where it saw nothing, -inf where the bin reported nothing (a dropped bin), inf beyond the field of view's
+    edge."""
     cfg = SensorConfig(kind="obstacle_distance", h_fov_deg=65.0)
     e = DodEstimator([cfg], CC, stale_s=0.5)
     bearings = np.radians([-30, -25, -20, -15, -10, -5, 0, 5, 15, 20, 25, 30])  # 10° reported nothing
@@ -555,4 +556,5 @@ def test_how_far_past_each_hit_the_bins_beside_it_saw():
     ends = e.hit_ends(0.0)
     hits = [round(math.degrees(b)) for b, *_ in e.fresh_hits(0.0)]
     assert hits == [0, 5, 20, 25, 30]
-    assert ends == [pytest.approx(x) for x in [(4.0, 0.1), (-0.1, -math.inf), (5.0, -2.0), (2.0, 1.0), (-1.0, math.inf)]]
+    want = [(4.0, 0.1), (-0.1, -math.inf), (5.0, -2.0), (2.0, 1.0), (-1.0, math.inf)]
+    assert ends == [pytest.approx(x) for x in want]

@@ -63,9 +63,9 @@ def test_a_single_beam_looked_past_what_lies_inside_its_field_short_of_its_one_r
 
 
 def test_a_place_at_the_edge_of_the_view_is_looked_past_within_the_frame_s_own_drift():
-    """A place 0.42 m off at 43.4° from where an earlier frame was taken: 0.4° beyond that frame's last bin (40° ± 2.5°,
-    0.5° heading slack) — the vehicle drifted 6 mm since. Where that frame was taken is uncertain by the travel in its
-    lag (5 mm, 0.7° at 0.42 m): it looked past the place. Control: taken as exact, it did not."""
+    """A place 0.42 m off at 43.4° from where an earlier frame was taken: 0.4° beyond that frame's last bin (40° ±
+    2.5°, 0.5° heading slack) — the vehicle drifted 6 mm since. Where that frame was taken is uncertain by the travel
+    in its lag (5 mm, 0.7° at 0.42 m): it looked past the place. Control: taken as exact, it did not."""
     bins = [math.radians(b) for b in range(-40, 45, 5)]
     a = math.radians(43.37)
     place = [(0.42 * math.cos(a), 0.42 * math.sin(a))]

@@ -51,7 +51,8 @@ Timing (the defaults): a fog is taken into account within `window_s` (1 s) of it
 backscatter gives `min_spurious` (3) short returns in a window and the window's rate reaches α₀ (a 10 m
 sensor's reference range shortens only from α = 0.08/m: 6 returns in a second of a 12-bin sensor at 20 Hz);
 a late first detection
-`first_confirm_frames` frames after its first sight. The estimate recovers `window_s + recover_s` (4 s) after the evidence clears. What it cannot see: a
+`first_confirm_frames` frames after its first sight. The estimate recovers `window_s + recover_s` (4 s) after the
+evidence clears. What it cannot see: a
 medium that thickens faster than that (from clear to dense between two windows) is seen one window late, and
 between two targets nothing but backscatter and quality tell of the medium (docs/detection-range.md).
 """
@@ -372,8 +373,9 @@ class DetectionRange:
         their first sight."""
         posed = self._posed(t)
         pose = (self._pos[1], self._pos[2], self._yaw[1]) if posed else None
+        tol = self.p.first_tolerance_m + self._speed * self._period(i)
         frame = Frame(t, i, None, list(scan.hits), [(x, y) if posed else None for x, y, _, _ in placed],
-                      tuple(scan.known), scan.increment or 0.0, self.p.first_tolerance_m + self._speed * self._period(i))
+                      tuple(scan.known), scan.increment or 0.0, tol)
         for c in self._late.follow(frame, lambda c: seen_from(c, pose)).confirmed:
             self._first_seen(t, c)
 

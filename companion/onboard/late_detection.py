@@ -35,8 +35,9 @@ A "consistent place": where the candidate's last sight would be seen now, the ve
 accounted for (its place in the local frame, seen from the vehicle's pose now; its last bearing and range where a
 pose is missing) — in the bin that covers that bearing or the one beside it (a single beam: its one beam), and
 within the late-detection tolerance (which holds one frame's travel) of that range, or where two readings of one
-surface fall further apart by the sensor's range noise alone (a stereo camera's σ is 0.36 m at 6 m), within that. Close to the sensor a bin is
-narrow in metres: a distance in the local frame alone would let returns in bins far apart at short range match.
+surface fall further apart by the sensor's range noise alone (a stereo camera's σ is 0.36 m at 6 m), within that.
+Close to the sensor a bin is narrow in metres: a distance in the local frame alone would let returns in bins far
+apart at short range match.
 """
 
 from __future__ import annotations
