@@ -296,8 +296,9 @@ class Supervisor:
         self.contract = self.configured = contract  # `contract`: the one in force this cycle
         self.fallback = fallback if contract == "avoid" else None
         self._planned_round: tuple = ()  # (discs, walls) guidance was given to swerve round under the stop contract
-        self._frames: tuple = ((), (), ())  # (the hits of the sensors' last frame, the discs of the frame before it,
-        # those of the last frame: `_seen_again`)
+        self._frame_hits: tuple = ()  # the hits of the sensors' last frame (`_seen_again`) ...
+        self._frame_discs: tuple = ()  # ... the discs seen in it ...
+        self._before_discs: tuple = ()  # ... and those of the frame before it
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -567,11 +568,10 @@ class Supervisor:
         """Of the swerve's discs, those an earlier frame of the sensors saw too (`new_obstacles`): a stereo camera's
         range noise draws a pole out of a wall now and then, never twice at one place; one frame's disc is planned
         round from the next frame, its hit points kept out of meanwhile (`wall_discs`) and judged by the Hold."""
-        if hits != self._frames[0]:  # a new frame: this cycle's discs are the next one's earlier frame
-            self._frames = (hits, self._frames[2], tuple(discs))
-        else:
-            self._frames = (hits, self._frames[1], tuple(discs))
-        return tuple(d for d in discs if not new_obstacles([d], self._frames[1]))
+        if hits != self._frame_hits:  # a new frame: the last frame's discs are now the earlier frame's
+            self._frame_hits, self._before_discs = hits, self._frame_discs
+        self._frame_discs = tuple(discs)
+        return tuple(d for d in discs if not new_obstacles([d], self._before_discs))
 
     def _decide(self, i: Inputs) -> _Draft:
         """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still
