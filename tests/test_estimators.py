@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from companion.onboard.config import ContractConfig, SensorConfig, ThrustConfig
-from companion.onboard.estimators import DodEstimator, EtrEstimator, NavHealth, ThrustEstimator
+from companion.onboard.estimators import (SENSOR_LAG_S, SWEPT_MARGIN_M, DodEstimator, EtrEstimator, NavHealth,
+                                         SilenceBudget, ThrustEstimator)
 from companion.onboard.detection_range import RangeNoise
 from companion.onboard.mavlink_in import bins_scan, range_scan
 from contracts.vehicle import G
@@ -65,6 +66,42 @@ def test_a_weak_reading_is_no_reading_its_return_an_obstacle_and_its_sensor_cove
         add_range(e, 0, 1.05 + 0.05 * k, 1.2, 0.1, 10.0, 10)
     budget = e.sensors[0].budget
     assert budget < 0.95 and e.estimate(1.05 + 0.95, 0.0).d_od == 0.0
+
+
+@pytest.mark.parametrize("weak", [True, False], ids=["weak_readings", "silent"])
+def test_a_sensor_reading_only_weak_returns_keeps_what_it_saw_free_a_silent_one_nothing(weak):
+    """Flying +x at 2 m/s with a single beam at 20 Hz: 1 s of trusted frames seeing nothing within its 10 m, then only
+    weak ones (a fog's return at 1.2 m, quality 10, below min_quality 50). Past the silence budget D_od is what the
+    trusted frames saw free, less the travel since (the obstacles are static), and said so — not 0 — until the
+    swept coverage's 2 s have passed. The weak return is still an obstacle. Control: the sensor silent instead
+    (no frames at all): dead past its budget (three periods, as the daemon's default), D_od 0."""
+    e = DodEstimator([FWD], CC, stale_s=0.5, silence=SilenceBudget(3.0, 0.1, 0.5))
+    t = 0.0
+    for k in range(20):
+        t = 0.05 * k
+        e.add_position(t, 2.0 * t, 0.0)
+        e.add_heading(t, 0.0)
+        add_range(e, 0, t, 10.0, 0.1, 10.0, 100)
+    last = t
+    d = {}
+    for k in range(1, 50):
+        t = last + 0.05 * k
+        e.add_position(t, 2.0 * t, 0.0)
+        e.add_heading(t, 0.0)
+        if weak:
+            add_range(e, 0, t, 1.2, 0.1, 10.0, 10)
+        d[k] = e.estimate(t, 0.0)
+    assert e.sensors[0].budget < 0.5
+    if not weak:
+        assert d[10].d_od == 0.0 and d[10].silent
+        return
+    def free(since_s):  # the 10 m seen free, less the travel since it was taken (up to SENSOR_LAG_S before it)
+        return 10.0 - 2.0 * (since_s + SENSOR_LAG_S) - SWEPT_MARGIN_M
+
+    assert d[10].d_od == pytest.approx(free(0.5), abs=0.02)  # 0.5 s after the last trusted frame
+    assert "min_quality" in d[10].reason and not d[10].swept and d[10].obstacle_m == 1.2
+    assert d[30].d_od == pytest.approx(free(1.5), abs=0.02)
+    assert d[45].d_od == 0.0  # nothing trusted in the last 2 s
 
 
 def test_dod_follows_the_direction_of_travel_across_sensors():

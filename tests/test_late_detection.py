@@ -142,10 +142,10 @@ def beam(confirm=2):
     return DodEstimator([BEAM], ContractConfig(late_detection_confirm_frames=confirm), stale_s=0.5)
 
 
-def frame(e, t, r, x=None):
+def frame(e, t, r, x=None, quality=0):
     e.add_position(t, SPEED * t if x is None else x, 0.0)
     e.add_heading(t, 0.0)
-    e.add_scan(range_scan(t, 0, 0.0, r, 0.1, 12.0, 0))
+    e.add_scan(range_scan(t, 0, 0.0, r, 0.1, 12.0, quality))
     return e.estimate(t, 0.0)
 
 
@@ -171,6 +171,35 @@ def test_a_column_first_seen_late_by_the_camera_is_declared_although_its_reading
 
     assert declared(RangeNoise(0.0, 0.0, DEPTH_CAMERA["noise_quad_per_m"])) == 12
     assert declared(RangeNoise(0.0, 0.0)) < 12  # negative control
+
+
+@pytest.mark.parametrize("quality,declared", [(10, False), (100, True)], ids=["weak", "strong_control"])
+def test_weak_returns_in_a_row_at_one_place_are_no_surface(quality, declared):
+    """A fog's own returns come near the sensor and weak (quality 2–10, below min_quality 50): three in a row at one
+    place (each a frame's travel nearer) where the frames before saw 12 m free are neither declared nor, within the
+    beam's 1.5 m clutter, an obstacle — a weak frame is no reading, it neither confirms a candidate nor ends one.
+    Control: the same returns strong are a surface, declared on the third frame."""
+    e = DodEstimator([BEAM.model_copy(update={"clutter_m": 1.5})], ContractConfig(), stale_s=0.5)
+    t = clear_run(e)
+    ests = [frame(e, t + 0.01 * k, 0.9 - SPEED * 0.01 * k, quality=quality) for k in range(3)]
+    assert (ests[2].late is not None) == declared
+    assert ests[2].lowered == declared and (ests[2].obstacle_m < 1.0) == declared
+
+
+@pytest.mark.parametrize("between,declared", [(10, True), (100, False)], ids=["weak", "strong_control"])
+def test_a_weak_frame_between_does_not_end_a_real_late_surface(between, declared):
+    """A column first seen 4 m ahead (strong), then one frame whose nearest return is the fog's, weak, at 0.8 m, then
+    the column again in two frames: declared where it was first seen — the weak frame hid it, it did not look past
+    it. Control: the frame between strong (a trusted reading of something nearer) ends the candidate."""
+    e = beam()
+    t = clear_run(e)
+    frame(e, t, 4.0)
+    frame(e, t + 0.01, 0.8, quality=between)
+    ests = [frame(e, t + 0.01 * k, 4.0 - SPEED * 0.01 * k) for k in (2, 3)]
+    late = next((est.late for est in ests if est.late is not None), None)
+    assert (late is not None) == declared
+    if declared:
+        assert late.range_m == 4.0 and late.t == t
 
 
 def test_one_frame_return_is_an_obstacle_then_gone_and_nothing_is_lowered():

@@ -107,6 +107,11 @@ class SensorConfig(_Strict):
     # fog's backscatter comes at the same ranges and is counted beyond them (detection_range.py). At most 0.1
     spurious_rate: Annotated[float, Field(ge=0, le=0.1, allow_inf_nan=False)] = 0.0
 
+    def trusts(self, quality: int) -> bool:
+        """Whether a reading of MAVLink signal_quality `quality` is trusted: unknown (0) is, invalid (1) never is, and
+        2–100 from `min_quality` up."""
+        return quality == 0 or quality >= max(self.min_quality, 2)
+
     @field_validator("address")
     @classmethod
     def _address(cls, text: str | None) -> str | None:

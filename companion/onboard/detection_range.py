@@ -374,8 +374,9 @@ class DetectionRange:
         posed = self._posed(t)
         pose = (self._pos[1], self._pos[2], self._yaw[1]) if posed else None
         tol = self.p.first_tolerance_m + self._speed * self._period(i)
+        trusted = self.sensors[i].trusts(scan.quality) if i < len(self.sensors) else True
         frame = Frame(t, i, None, list(scan.hits), [(x, y) if posed else None for x, y, _, _ in placed],
-                      tuple(scan.known), scan.increment or 0.0, tol)
+                      tuple(scan.known), scan.increment or 0.0, tol, trusted)
         for c in self._late.follow(frame, lambda c: seen_from(c, pose)).confirmed:
             self._first_seen(t, c)
 

@@ -160,7 +160,9 @@ class DodEstimate:
     obstacle_m: float  # nearest obstacle hit near the path [m] (inf: none)
     late: LateDetection | None  # a late first detection in this update, if any
     reason: str  # why d_od is what it is
-    swept: bool = False  # d_od is the swept coverage: the direction of travel is outside every field of view
+    # d_od is the swept coverage because the direction of travel is outside every field of view (not because the
+    # sensor looking along it reads only weak returns now: the reason says that)
+    swept: bool = False
     lowered: bool = False  # d_od is below the sensors' claim: a late first detection, or the evidence (a violation)
     stated_m: float = math.nan  # the D_od the sensors' claim gives (before any lowering)
     # [s] the longest silence budget of the sensors D_od rests on: the dead time the contracts take for it
@@ -279,7 +281,7 @@ class DodEstimator:
             s.budget = self.silence.of(s.gaps)
         # samples delivered in a burst were still taken one interval apart
         tolerance = self.contract.late_detection_tolerance_m + self._speed * max(gap, s.period if fresh else 0.0)
-        trusted = quality == 0 or quality >= max(s.cfg.min_quality, 2)  # 0 unknown, 1 invalid
+        trusted = s.cfg.trusts(quality)
         claim = max(max_m, 0.0)
         s.sources[source] = (t, seen, claim, trusted)
         s.t = t
@@ -296,7 +298,7 @@ class DodEstimator:
         view = s.merged(seen)
         placed = self._placed(i, t, seen)
         self._sweep(i, t, view)  # free only short of every fresh source's hits, withheld ones too
-        followed = self._confirm.follow(Frame(t, i, source, seen, placed, s.known, s.increment, tolerance),
+        followed = self._confirm.follow(Frame(t, i, source, seen, placed, s.known, s.increment, tolerance, trusted),
                                         lambda c: self._seen_from_here(t, c))
         track = [p for c in followed.confirmed for p in self._declare(t, c)]  # (`_declare` says the late ones)
         # a candidate this frame ended was no obstacle: a hit in its bin now is not "the same as before"
@@ -381,15 +383,17 @@ class DodEstimator:
                              s.known, s.increment, s.max_m, seen))
 
     def _swept(self, t: float, theta: float) -> float:
-        """The distance along absolute direction `theta` from the vehicle through the space the fresh, trusted
-        sensors saw free in the last `COVERAGE_S` (contracts.coverage), each wedge no farther than its sensor
-        claims now and within the navigation margin, less `SWEPT_MARGIN_M` (position noise)."""
+        """The distance along absolute direction `theta` from the vehicle through the space the sensors still heard
+        (none silent longer than its budget) saw free in their trusted samples of the last `COVERAGE_S`
+        (contracts.coverage), each wedge no farther than its sensor claims now and within the navigation margin, less
+        `SWEPT_MARGIN_M` (position noise). A sensor whose readings are all weak now (below `min_quality`) still
+        counts for what it saw free before: the obstacles are static."""
         if self._pos is None or t - self._pos[0] > self.stale_s:
             return 0.0
         rows, shifts = [], []
         trust = 1.0 - self.contract.nav_margin
         for s in self.sensors:
-            if t - s.t_trusted > s.budget:
+            if t - s.t > s.budget:  # silent: dead. Heard, however weak its readings: what it saw free stays free
                 continue
             for seen in s.swept:
                 if seen.t >= t - COVERAGE_S:
@@ -490,7 +494,7 @@ class DodEstimator:
             self.r_obst = r_obst
         covered, d, reason = [], 0.0, "no fresh, trusted sensor covers the direction of travel"
         obstacle = math.inf
-        beams = []
+        beams, heard, weak = [], [], []  # the fresh, trusted sensors' beams; every heard sensor's; weak ones
         silence, silent = 0.0, []
         for i, s in enumerate(self.sensors):
             if t - s.t > s.budget:
@@ -502,9 +506,13 @@ class DodEstimator:
             for b, r in s.hits:
                 if not bins or abs(r * math.sin(wrap(b - beta))) <= corridor_m:
                     obstacle = min(obstacle, r)
+            beam = Beam(s.cfg.orientation_deg, s.cfg.h_fov_deg, s.max_m)
+            heard.append(beam)
             if t - s.t_trusted > s.budget:
+                if self._covers(s, beta):
+                    weak.append(i)
                 continue
-            beams.append(Beam(s.cfg.orientation_deg, s.cfg.h_fov_deg, s.max_m))
+            beams.append(beam)
             if not self._covers(s, beta):
                 continue
             covered.append(i)
@@ -526,10 +534,12 @@ class DodEstimator:
         if (not covered or short) and self._yaw_hist:  # what was seen free on the way
             swept = self._swept(t, self._yaw_hist[-1][1] + beta)
             if swept > 0.0 and w is not None:  # no more than the beams can cover of the corridor along any axis
-                swept = min(swept, max((covered_d_od(beams, w, math.radians(b.orientation_deg), grid=True)
-                                        for b in beams), default=0.0))
+                swept = min(swept, max((covered_d_od(heard, w, math.radians(b.orientation_deg), grid=True)
+                                        for b in heard), default=0.0))
             if swept > d:
-                where = "outside the field of view" if not covered else "at the fields of view's edge"
+                where = ("at the fields of view's edge" if covered else
+                         f"seen only in readings below min_quality (sensor {', '.join(map(str, weak))})" if weak else
+                         "outside the field of view")
                 d, reason = swept, (f"direction of travel {where}: {swept:.2f} m of it seen free in the last "
                                     f"{COVERAGE_S:g} s")
             else:
@@ -544,8 +554,8 @@ class DodEstimator:
         self._last_d_od = d
         late = self._pending[0] if self._pending else None
         self._pending.clear()
-        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0, lowered, stated, silence,
-                           tuple(silent), self._withheld)
+        return DodEstimate(d, tuple(covered), obstacle, late, reason, swept > 0.0 and not weak, lowered, stated,
+                           silence, tuple(silent), self._withheld)
 
 
 # ============================================================================ E_tr

@@ -17,7 +17,10 @@ inside the assumed `D_od` says two things, and they need different evidence:
 So a candidate is declared only once the sensor (the same source of it) has seen a return at a consistent place in
 `frames` following frames (`ContractConfig.late_detection_confirm_frames`). A frame that looks at the candidate's
 place and sees nothing consistent there ends it; a frame that does not look there (a bin that reported nothing, the
-place outside the field of view) neither confirms nor ends it, until the sensor's time-out. The rule delays the
+place outside the field of view) neither confirms nor ends it, until the sensor's time-out; nor does a frame below
+its sensor's `min_quality`, which is no reading (a fog's weak return in front of a surface hides it in that frame, and
+the medium's returns, weak and near, come anew in every frame: three of them in a row at one place confirmed each
+other as a surface in fog, where the sensor's stronger frames see none). The rule delays the
 *declaration* by `frames` frames (at 20 Hz and 2 frames, 0.1 s) and cannot hide a real late detection: a static
 surface inside `D_od` and in the field of view is in each following frame, and the declaration keeps the range and
 time of its first sight. With `frames` 0 every first sight is declared at once.
@@ -78,7 +81,7 @@ class Candidate:
 class Frame:
     """One sample of one sensor, as the confirmation reads it: its hits (body bearing, range) and where each is
     placed (None: no pose), the bins it reported (None: a single beam) and their width, and the tolerance of a
-    first sight (the late-detection tolerance plus one frame's travel)."""
+    first sight (the late-detection tolerance plus one frame's travel), and whether its quality is trusted."""
 
     t: float
     sensor: int
@@ -88,6 +91,7 @@ class Frame:
     known: tuple[float, ...] | None
     increment: float
     tolerance: float
+    trusted: bool = True  # its signal quality at least its sensor's min_quality
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,7 +145,7 @@ class Confirmations:
         bearing and range at which this frame would see the candidate's place."""
         confirmed, used, ended, keep, waiting = [], set(), [], [], set()
         for c in self._open:
-            if c.first.sensor != f.sensor or c.source != f.source:
+            if c.first.sensor != f.sensor or c.source != f.source or not f.trusted:
                 if f.t - c.t_last <= self.stale_s:
                     keep.append(c)
                 continue
