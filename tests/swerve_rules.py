@@ -1,7 +1,10 @@
 """The swerve's rules turned off one by one, for negative controls: the swerve under the stop contract as it was flown
 before each."""
 
+import math
+
 from companion.onboard.estimators import DodEstimator
+from companion.onboard.guidance import Route
 from companion.onboard.supervisor import Supervisor
 
 
@@ -13,3 +16,9 @@ def seen_once(monkeypatch) -> None:
 def outline_unread(monkeypatch) -> None:
     """Every run of bins a disc, whatever the bins beside it saw."""
     monkeypatch.setattr(DodEstimator, "hit_ends", lambda self, t: [])
+
+
+def threats_on_the_leg_line(monkeypatch) -> None:
+    """A disc is in the way where it is near the line from the vehicle along the leg it is on, however far on (past
+    the route's turn too)."""
+    monkeypatch.setattr(Route, "straight_left", lambda self, s: math.inf)

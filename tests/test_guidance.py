@@ -524,3 +524,19 @@ def test_a_run_whose_sides_the_bins_did_not_see_past_gets_no_swerve_disc():
                           measured_beyond=4.0, ends=[(1.0, 0.0), (0.0, 1.0)])[0]
     assert len(near) == 1  # within the reach: planned round
     assert len(_pole_run(None)) == 1  # negative control
+
+
+def test_a_disc_beyond_the_route_s_turn_is_in_the_way_only_near_the_route_after_it():
+    """The vehicle 1.4 m right of a corridor's first leg, 6 m before the left turn (an arc from 16.7 m): a disc
+    beyond the turn's outside corner, 1.7 m off the vehicle's line but 3.8 m from the route where it turns away, is
+    not in the way; one on the route after the turn is, and so is one on the vehicle's line before the turn. Control:
+    measured against the leg's line however far on, the corner's disc is in the way (a swerve planned straight on
+    went through the side wall)."""
+    g = OffboardGuidance(Route([[0, 0], [19.1, 0], [19.1, 20]], 2.0))
+    p, v = np.array([13.2, -1.4]), np.array([1.4, 0.0])
+    corner, after, before = Disc(19.5, -3.1, 1.4), Disc(19.3, 6.0, 1.0), Disc(15.0, -1.9, 1.0)
+    assert g.route.straight_left(g.route.project(p)) == pytest.approx(16.7 - 13.2, abs=0.05)
+    assert g._threats(p, v, [corner, after, before]) == [after, before]
+    leg_line = OffboardGuidance(Route([[0, 0], [19.1, 0], [19.1, 20]], 2.0))
+    leg_line.route.straight_left = lambda s: math.inf  # negative control: the leg's line however far on
+    assert corner in leg_line._threats(p, v, [corner, after, before])

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tests.swerve_rules import outline_unread, seen_once
+from tests.swerve_rules import outline_unread, seen_once, threats_on_the_leg_line
 
 from companion.onboard.ahead import swept_obstacle_m
 from companion.onboard.contract_in_force import (
@@ -282,6 +282,21 @@ def test_a_pass_before_a_corridor_s_turn_leaves_it_for_the_turn(scenario, monkey
     assert old_rig.log.named("dead_end")
 
 
+def test_a_wall_piece_beyond_a_corridor_s_turn_is_no_reason_to_swerve(monkeypatch):
+    """Scenario 9 (the 450–500 mm quad on PX4, a 6.8 m corridor turning left, a column inside): past the column the
+    vehicle rejoins from 1.4 m right of the route; the bin at the field of view's edge sees a piece of the right
+    wall's far end beyond the turn, a run the swerve takes for a pole. Beyond the turn it is not in the way (the
+    route turns away from it): no swerve round it, the route is completed. Control: judged against the leg's line
+    however far on, the swerve round it is planned straight on past the turn, through the side wall — a dead end."""
+    s, row, _ = _clutter(9)
+    assert s["world_family"] == "corridor"
+    assert not row["collided"] and row["route_completed"]
+    threats_on_the_leg_line(monkeypatch)
+    _, old, old_rig = _clutter(9)
+    assert not old["collided"] and not old["route_completed"]  # the control must fail
+    assert old_rig.log.named("dead_end")
+
+
 def test_a_wall_across_the_route_is_still_a_dead_end_stopped_short_and_said():
     """Scenario 16 (the Mambo on ArduPilot, a wall across the route: no route exists): the stop contract's braking
     stop short of the wall, then Hold, said as a dead end (event and STATUSTEXT over MAVLink)."""
@@ -309,17 +324,20 @@ def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
     assert at(2.0, 9.0).contract == "avoid"
 
 
-@pytest.mark.parametrize("seed,control", [(2, outline_unread), (11, seen_once)])
-def test_a_camera_s_corridor_is_flown_without_planning_round_pieces_of_its_walls(seed, control, monkeypatch):
+@pytest.mark.parametrize("seed,controls", [(2, (outline_unread, threats_on_the_leg_line)), (11, (seen_once,))])
+def test_a_camera_s_corridor_is_flown_without_planning_round_pieces_of_its_walls(seed, controls, monkeypatch):
     """Clear air, a corridor 5–6 m wide turning 90°, the depth camera (its range noise 0.8 m at 9 m, 2 % of bins
     dropped): the far wall's pieces the claim cuts off, the side walls' runs that dropped bins split, and the
     column one frame's noise draws out of a wall are no poles to plan round — the route is completed without
-    contact. Controls: every run a pole's disc whatever the bins beside it saw (seed 2), or a disc planned round from
-    the frame it is first seen in (seed 11) — a pass round a piece of wall runs into the side wall, a dead end."""
+    contact. Controls: every run a pole's disc whatever the bins beside it saw and a disc in the way wherever it is
+    near the leg's line (seed 2: its far wall's piece lies beyond the turn, either rule alone keeps the swerve from
+    it), or a disc planned round from the frame it is first seen in (seed 11) — a pass round a piece of wall runs into
+    the side wall, a dead end."""
     from companion.ground.false_alarms import fly
 
     row = fly("offboard", "depth_camera", "corridor", seed)
     assert row["arrived"] and row["collisions"] == 0
-    control(monkeypatch)
+    for control in controls:
+        control(monkeypatch)
     old = fly("offboard", "depth_camera", "corridor", seed)
     assert not old["arrived"] and old["collisions"] == 0  # the control must fail

@@ -181,6 +181,12 @@ class Route:
         e, _ = self._at(s)
         return math.copysign(1.0 / e[8], e[10]) if e[8] > 0 else 0.0
 
+    def straight_left(self, s: float) -> float:
+        """How far the straight leg at s goes on from s, to where the route turns (an arc, a sharp corner) or ends; inf
+        on an arc."""
+        e, ds = self._at(s)
+        return float(e[1] - ds) if e[8] <= 0 else math.inf
+
     def next_stop(self, s: float) -> float:
         """Along-track position of the first stop (sharp corner or the route end) after s."""
         return float(self._stops[np.searchsorted(self._stops, s, side="right")]) if s < self._length else self._length
@@ -638,16 +644,31 @@ class OffboardGuidance:
 
     # ---------------------------------------------------------------- avoiding
     def _threats(self, p, v, discs) -> list[Disc]:
-        """Discs the route ahead (or the current motion) would run into."""
+        """Discs the route ahead (or the current motion) would run into: within 0.5 m of the line from the vehicle
+        along the leg it is on, as far as that leg goes straight; beyond the leg's turn, within 0.5 m of the route
+        there widened by the vehicle's offset from the route now (the reference turns with the route: a disc beyond
+        the turn on the leg's line is not in the way — a swerve round the far wall of a corridor's turn, planned
+        straight on, went through the side wall)."""
         if not discs:
             return []
-        _, u = self.route.point(self.route.project(p))
+        route = self.route
+        s = route.project(p)
+        base, u = route.point(s)
+        off = abs(float((p - base) @ np.array([-u[1], u[0]])))
+        straight = route.straight_left(s)
         out = []
         for d in discs:
-            rel = np.array([d.x, d.y]) - p
+            c = np.array([d.x, d.y])
+            rel = c - p
             along = float(rel @ u)
-            lateral = abs(float(rel[0] * u[1] - rel[1] * u[0]))
-            if along > -d.r and lateral < d.r + 0.5:
+            if along <= -d.r:
+                continue
+            if along - d.r <= straight:
+                near = abs(float(rel[0] * u[1] - rel[1] * u[0])) < d.r + 0.5
+            else:
+                q, _ = route.point(route.project(c, lo=s))
+                near = float(np.hypot(*(c - q))) < d.r + 0.5 + off
+            if near:
                 out.append(d)
         return out
 
