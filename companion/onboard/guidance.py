@@ -647,8 +647,8 @@ class OffboardGuidance:
         """Discs the route ahead (or the current motion) would run into: within 0.5 m of the line from the vehicle
         along the leg it is on, as far as that leg goes straight; beyond the leg's turn, within 0.5 m of the route
         there widened by the vehicle's offset from the route now (the reference turns with the route: a disc beyond
-        the turn on the leg's line is not in the way — a swerve round the far wall of a corridor's turn, planned
-        straight on, went through the side wall)."""
+        the turn on the leg's line, a piece of a corridor's far wall, is not in the way, and a swerve round it planned
+        straight on would go through the side wall)."""
         if not discs:
             return []
         route = self.route

@@ -19,11 +19,11 @@ So a candidate is declared only once the sensor (the same source of it) has seen
 place and sees nothing consistent there ends it; a frame that does not look there (a bin that reported nothing, the
 place outside the field of view) neither confirms nor ends it, until the sensor's time-out; nor does a frame below
 its sensor's `min_quality`, which is no reading (a fog's weak return in front of a surface hides it in that frame, and
-the medium's returns, weak and near, come anew in every frame: three of them in a row at one place confirmed each
-other as a surface in fog, where the sensor's stronger frames see none). The rule delays the
-*declaration* by `frames` frames (at 20 Hz and 2 frames, 0.1 s) and cannot hide a real late detection: a static
-surface inside `D_od` and in the field of view is in each following frame, and the declaration keeps the range and
-time of its first sight. With `frames` 0 every first sight is declared at once.
+the medium's returns, weak and near, come anew in every frame: in fog a single beam's nearest return is the medium's in
+about half its frames, and three of them in a row at one place would confirm each other as a surface). The rule
+delays the *declaration* by `frames` frames (at 20 Hz and 2 frames, 0.1 s) and cannot hide a real late detection: a
+static surface inside `D_od` and in the field of view is in each following frame, and the declaration keeps the range
+and time of its first sight. With `frames` 0 every first sight is declared at once.
 
 **Within a sensor's clutter** (`sensors[k].clutter_m`: the reach of its own spurious returns) a return that is a
 late first detection, or that comes where one of the sensor's recent frames looked past (no static surface can be
