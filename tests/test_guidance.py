@@ -10,7 +10,7 @@ from companion.onboard.contract_in_force import WIDE_TOL_M
 from companion.onboard.ahead import TRAVEL_SPEED_M_S
 from companion.onboard.guidance import (A_LAT, HEADING_TOL, SIDE_SLOW, TURN_FIRST_SPEED, YAW_RATE_ARC, YAW_SPEED,
                                         OffboardGuidance, Route, ThreadedPlanning, obstacle_discs)
-from contracts.online_planner import AvoidancePlanner, Disc, Plan
+from contracts.online_planner import AvoidancePlanner, Disc, Plan, dense_path
 
 
 def test_bins_give_the_obstacle_position_and_width():
@@ -540,3 +540,24 @@ def test_a_disc_beyond_the_route_s_turn_is_in_the_way_only_near_the_route_after_
     leg_line = OffboardGuidance(Route([[0, 0], [19.1, 0], [19.1, 20]], 2.0))
     leg_line.route.straight_left = lambda s: math.inf  # negative control: the leg's line however far on
     assert corner in leg_line._threats(p, v, [corner, after, before])
+
+
+def test_a_pass_round_the_disc_in_the_way_keeps_out_of_the_disc_beside_the_route():
+    """A pole on the route 10 m ahead and, 3.8 m beside it, a pole of a stand that is not in the way; the vehicle at
+    7.8 m/s swerving at V_max 1.45 m/s. The pass round the pole in the way keeps out of the one beside it too. Control:
+    planned round the pole in the way alone, the pass goes through the other (a stand of poles beside the route:
+    the Hold stopped the flight at once, a dead end)."""
+    g = OffboardGuidance(Route([[0, 0], [50, 0]], 2.0))
+    on, beside = Disc(24.7, 0.0, 2.31, 1.4), Disc(22.7, 3.8, 2.41, 1.5)
+    p, v = np.array([14.6, 0.04]), np.array([7.8, 0.0])
+    assert g._threats(p, v, [on, beside]) == [on]
+    g.step(0.0, 0.02, p, v, 1.45, 4.0, [on, beside], yaw=0.0, walls=())
+    plan = g.plan
+    assert plan.kind == "pass" and plan.ok
+
+    def entered(plan, d):
+        pts = dense_path(plan.p, plan.v, plan.a, plan.t[1] - plan.t[0])
+        return float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y))) < d.r - 1e-3
+    assert not entered(plan, on) and not entered(plan, beside)
+    alone = AvoidancePlanner().plan(p, v, (1.0, 0.0), [on], v_max=1.45, a_max=4.0, along=False)
+    assert alone.ok and entered(alone, beside)  # negative control

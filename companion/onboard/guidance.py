@@ -543,12 +543,16 @@ class OffboardGuidance:
         """One cycle: the setpoint for now (t), given the vehicle's state (`yaw`: its measured heading,
         if known) and Ω = (v_max, a_max). `walls`: keep-out discs a plan round `discs` must also keep out of,
         which are never a reason to plan (the hit points of what is wider than R_obst), given while offboard swerves
-        under the stop contract (None: the avoid contract's plans, round `discs` only)."""
-        self._swerving, self._walls = walls is not None, tuple(walls or ())
+        under the stop contract (None: the avoid contract's plans). A plan goes round the discs in the way
+        (`_threats`) and keeps out of every other disc and wall."""
         p, v = np.asarray(p, float), np.asarray(v, float)
         self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
         z = -self.route.altitude_m
         ahead = self._threats(p, v, discs)
+        # a plan round what is in the way keeps out of the other discs too: a pole beside the route is no reason to
+        # swerve, but a swerve round its neighbour on the route must not go through it
+        self._swerving = walls is not None
+        self._walls = (*(walls or ()), *(d for d in discs if d not in ahead))
         if ahead:
             return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z, yaw)
         self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
