@@ -4,7 +4,7 @@ before each."""
 import math
 
 from companion.onboard.estimators import DodEstimator
-from companion.onboard.guidance import Route
+from companion.onboard.guidance import OffboardGuidance, Route
 from companion.onboard.supervisor import Supervisor
 
 
@@ -22,3 +22,9 @@ def threats_on_the_leg_line(monkeypatch) -> None:
     """A disc is in the way where it is near the line from the vehicle along the leg it is on, however far on (past
     the route's turn too)."""
     monkeypatch.setattr(Route, "straight_left", lambda self, s: math.inf)
+
+
+def others_passed_through(monkeypatch) -> None:
+    """A plan round the discs in the way keeps out of the walls' points only, not of the other discs (a pole beside the
+    route)."""
+    monkeypatch.setattr(OffboardGuidance, "_others", staticmethod(lambda discs, ahead: ()))

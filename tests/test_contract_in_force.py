@@ -23,6 +23,7 @@ from companion.onboard.contract_in_force import (
 )
 from contracts.table import load_for_vehicle
 from tests.lockstep import Rig, engage_and_fly
+from tests.swerve_rules import others_passed_through
 
 TABLE = load_for_vehicle("mambo")
 LAG = math.radians(LAG_BUDGET_DEG)
@@ -299,7 +300,8 @@ def test_offboard_in_a_stand_of_poles_falls_back_and_collides_no_more(monkeypatc
     """examples/campaign-clutter.yaml flight 1981 (offboard, the 450–500 mm quad on ArduPilot, a stand of poles beside
     the route and one on it): several poles in view at once break the avoid contract's one obstacle at a time — said
     (an environment violation), the stop contract in force, no collision. Control: the beams made to tell only one
-    obstacle apart (the rule blind) — the swerve round the pole on the route meets the stand, a collision."""
+    obstacle apart (the rule blind) and the swerve keeping out of the disc in the way alone — the swerve round the
+    pole on the route meets the stand, a collision."""
     from pathlib import Path
 
     from companion.ground.campaign import flight_of, fly, load_spec
@@ -318,5 +320,6 @@ def test_offboard_in_a_stand_of_poles_falls_back_and_collides_no_more(monkeypatc
         return discs, width, min(len(discs), 1)
 
     monkeypatch.setattr(cycle, "obstacle_discs", one_apart)
+    others_passed_through(monkeypatch)
     old = fly(spec, 1981)
     assert old["collided"]  # the control must fail

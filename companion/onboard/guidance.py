@@ -549,10 +549,8 @@ class OffboardGuidance:
         self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
         z = -self.route.altitude_m
         ahead = self._threats(p, v, discs)
-        # a plan round what is in the way keeps out of the other discs too: a pole beside the route is no reason to
-        # swerve, but a swerve round its neighbour on the route must not go through it
         self._swerving = walls is not None
-        self._walls = (*(walls or ()), *(d for d in discs if d not in ahead))
+        self._walls = (*(walls or ()), *self._others(discs, ahead))
         if ahead:
             return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z, yaw)
         self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
@@ -675,6 +673,13 @@ class OffboardGuidance:
             if near:
                 out.append(d)
         return out
+
+    @staticmethod
+    def _others(discs, ahead) -> tuple[Disc, ...]:
+        """The discs a plan round those in the way (`ahead`) keeps out of as well: every other one (a pole of a stand
+        beside the route is no reason to swerve, but the swerve round its neighbour on the route must not go through
+        it)."""
+        return tuple(d for d in discs if d not in ahead)
 
     def _avoid(self, t, dt, p, v, limits, discs, z, heading=None) -> Setpoint:
         """Replan when an obstacle appears (no plan), every REPLAN_S, and — at most every REPLAN_MIN_S —
