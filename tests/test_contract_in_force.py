@@ -20,7 +20,11 @@ from companion.onboard.contract_in_force import (
     fallback_omega,
     forward_half_fov,
     pass_bearing,
+    swerve_discs,
+    uncovered,
+    unplanned,
 )
+from companion.onboard.guidance import new_obstacles
 from contracts.table import load_for_vehicle
 from tests.lockstep import Rig, engage_and_fly
 from tests.swerve_rules import others_passed_through
@@ -323,3 +327,21 @@ def test_offboard_in_a_stand_of_poles_falls_back_and_collides_no_more(monkeypatc
     others_passed_through(monkeypatch)
     old = fly(spec, 1981)
     assert old["collided"]  # the control must fail
+
+
+def test_more_of_an_obstacle_come_into_view_past_its_disc_is_judged_from_the_next_cycle():
+    """The Hold judges the hits inside what guidance was given to plan round or keep out of the cycle before; a bin
+    more of a column's outline (farther: its edge), past the disc guidance was given, it is given now and plans round
+    at once: judged from the next cycle, though the column's disc, grown, is the same obstacle. Nothing given before
+    (the first cycle of a swerve): nothing judged yet. Control: judged at once, were only new obstacles spared."""
+    h = math.radians(2.5)
+    column = ((0.0, 4.0, h, True), (2 * h, 4.0, h, True))
+    more = (4 * h, 4.5, h, True)
+    before = SimpleNamespace(hits=column, pose=(0.0, 0.0, 0.0), hit_ends=[], r_obst=1.0)
+    given = swerve_discs(before, 2.0)
+    i = SimpleNamespace(hits=(*column, more), pose=(0.0, 0.0, 0.0), hit_ends=[], r_obst=1.0)
+    grown = swerve_discs(i, 2.0)
+    assert len(given) == len(grown) == 1 and not new_obstacles(grown, given)  # the same obstacle
+    assert unplanned(i, (given, ()), 2.0) == column
+    assert unplanned(i, (), 2.0) == ()
+    assert uncovered(i.hits, i.pose, new_obstacles(grown, given)) == i.hits  # negative control

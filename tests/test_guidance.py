@@ -561,3 +561,25 @@ def test_a_pass_round_the_disc_in_the_way_keeps_out_of_the_disc_beside_the_route
     assert not entered(plan, on) and not entered(plan, beside)
     alone = AvoidancePlanner().plan(p, v, (1.0, 0.0), [on], v_max=1.45, a_max=4.0, along=False)
     assert alone.ok and entered(alone, beside)  # negative control
+
+
+def test_a_swerve_is_planned_again_at_once_when_its_pass_goes_into_a_disc_grown_since():
+    """Swerving, a pass round a pole's disc; the next cycle the disc has grown (a bin more of the pole's outline come
+    into view: the same obstacle, its centre where it was) and the pass goes into it: planned again in that cycle, round
+    the grown disc (the Hold judges the new plan from the next cycle). Control: without that check the pass in force is
+    kept until the next timed replan."""
+    def fly(check: bool):
+        g = OffboardGuidance(Route([[0, 0], [40, 0]], 2.0))
+        if not check:
+            g._enters = lambda t, p, keep_out: False
+        p, v = np.array([0.0, 0.0]), np.array([2.0, 0.0])
+        g.step(0.0, 0.02, p, v, 2.0, 4.0, [Disc(10.0, 0.3, 1.5)], yaw=0.0, walls=())
+        first = g.plan
+        grown = Disc(10.0, 0.3, 1.9)
+        g.step(0.02, 0.02, p + 0.02 * v, v, 2.0, 4.0, [grown], yaw=0.0, walls=())
+        pts = dense_path(g.plan.p, g.plan.v, g.plan.a, g.plan.t[1] - g.plan.t[0])
+        return first, g.plan, float(np.min(np.hypot(pts[:, 0] - grown.x, pts[:, 1] - grown.y))) - grown.r
+    first, plan, clear = fly(True)
+    assert first.kind == "pass" and plan is not first and plan.kind == "pass" and plan.ok and clear >= 0.0
+    first, plan, clear = fly(False)
+    assert plan is first and clear < 0.0  # negative control

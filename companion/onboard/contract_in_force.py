@@ -33,9 +33,10 @@ braking stop started now stops short of anything seen at D_od along the directio
 inside that guarantee: the OBSTACLE hold judges every hit, walls included, against the path the vehicle will fly
 (`path_obstacle_m`: the plan in force, else the route ahead) instead of the straight line, and stops where anything
 lies within r_body + E_tr of it inside the stopping distance — a wall across the route, a closing corridor, is still a
-dead end. What guidance is given for the first time it plans round in the same cycle (`unplanned`): the hold judges
-that plan from the next. Where the field-of-view rule is broken the swerve would leave the view: guidance plans round
-nothing and the hold judges the straight line (`swept_obstacle_m`).
+dead end. What guidance is given for the first time — a new obstacle, or more of one come into view past its disc — it
+plans round in the same cycle (`unplanned`): the hold judges that plan from the next. Where the field-of-view rule is
+broken the swerve would leave the view: guidance plans round nothing and the hold judges the straight line
+(`swept_obstacle_m`).
 """
 
 from __future__ import annotations
@@ -316,13 +317,16 @@ def wall_discs(i, discs) -> tuple[Disc, ...]:
 
 
 def unplanned(i, known: tuple, reach_m: float) -> tuple:
-    """The hits guidance plans round or keeps out of for the first time this cycle (`swerve_discs` at `reach_m`,
-    `wall_discs` not among `known`, the (discs, walls) it was given the cycle before, companion/onboard/guidance.py
-    `new_obstacles`): its plan is judged against them from the next cycle on; the rest of `i.hits` now."""
-    discs = swerve_discs(i, reach_m)
+    """The hits the Hold judges this cycle: those inside what guidance was given to plan round or keep out of the cycle
+    before (`known`: those (discs, walls)), less those of a swerve disc (`swerve_discs` at `reach_m`) not among them —
+    an obstacle planned round once an earlier frame saw it too, its hit points kept out of meanwhile. The rest guidance
+    is given for the first time now — a new obstacle, or more of one come into view past the disc it was given (a bin
+    more of a column's outline) — and plans round at once (companion/onboard/guidance.py `OffboardGuidance._avoid`):
+    its plan is judged against them from the next cycle."""
     old_discs, old_walls = known if known else ((), ())
-    new = [*new_obstacles(discs, old_discs), *new_obstacles(wall_discs(i, discs), old_walls)]
-    return uncovered(i.hits, i.pose, new) if new else i.hits
+    unplanned_discs = new_obstacles(swerve_discs(i, reach_m), old_discs)
+    return tuple(hit for hit in uncovered(i.hits, i.pose, unplanned_discs)
+                 if not uncovered((hit,), i.pose, (*old_discs, *old_walls)))
 
 
 def swerve_discs(i, reach_m: float) -> tuple[Disc, ...]:

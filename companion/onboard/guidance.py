@@ -36,6 +36,7 @@ PATH_AHEAD_M = 40.0  # [m] the path ahead (`path_ahead`) reaches this far along 
 PATH_STEP_M = 0.5  # [m] … in steps of this (a corner's arc)
 REPLAN_MIN_S = 0.1  # a new Ω, drift from the plan or braking asks for a replan at most this often
 DRIFT_M = 0.5  # drift from the plan that asks for a replan
+ENTER_TOL_M = 0.02  # [m] a plan that goes this far into a keep-out disc is planned again at once while swerving
 PLAN_BUDGET_S = 0.15  # [s] a threaded replan starts no further attempt after this (its plan goes stale)
 WORKER_START_S = 60.0  # [s] the planning process's start-up waited for before the loop runs, at most
 PLAN_LEAD_S = (0.3, 1.0)  # [s] the lead a plan asked for while braking starts at: at least, at most (its answer's
@@ -703,10 +704,11 @@ class OffboardGuidance:
         else:
             drift = float(np.hypot(*(self.plan.sample(self._tau(t))[0] - p)))
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
-        # swerving under the stop contract, something the plan was not asked to keep out of: at once (the hold judges
-        # the plan's path against it from the next cycle)
+        # swerving under the stop contract, something the plan was not asked to keep out of, or a keep-out the plan now
+        # goes into (more of an obstacle come into view): at once (the hold judges the plan's path from the next cycle)
+        keep_out = [*discs, *self._walls]
         unknown = self._swerving and bool(new_obstacles(discs, self._asked_discs) or
-                                          new_obstacles(self._walls, self._asked_walls))
+                                          new_obstacles(self._walls, self._asked_walls) or self._enters(t, p, keep_out))
         if (since > REPLAN_S or urgent and since > REPLAN_MIN_S or unknown) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
@@ -723,6 +725,18 @@ class OffboardGuidance:
                                  warm=warm, elapsed=self._tau(t), budget_s=self.planning.budget_s)
             self._take(t, self.planning.poll())
         return self._follow(t, dt, z, v_max, a_max, heading)
+
+    def _enters(self, t: float, p, keep_out) -> bool:
+        """Whether the pass or stop in force goes, from now on, more than ENTER_TOL_M into one of the keep-out discs (one
+        grown or moved since it was planned); a disc the vehicle is in (its E_tr allowance, where a plan may start) does
+        not count."""
+        plan = self.plan
+        if plan is None or plan.kind not in ("pass", "stop"):
+            return False
+        ahead = plan.p[plan.t > self._tau(t)]
+        return any(math.hypot(p[0] - d.x, p[1] - d.y) >= d.r and
+                   float(np.min(np.hypot(ahead[:, 0] - d.x, ahead[:, 1] - d.y))) < d.r - ENTER_TOL_M
+                   for d in keep_out) if len(ahead) else False
 
     def _plan_direction(self, p, discs) -> np.ndarray:
         """The direction a pass from p round `discs` is planned along: the route's where the vehicle is, or on a

@@ -906,7 +906,7 @@ class Supervisor:
         half_width = self.table.vehicle.r_body_m + max(i.e_tr_measured, om.e_tr)
         if not self.swerves:
             return stop_obstacle_m(i.hits, i.beta, i.ground_speed, half_width)
-        # an obstacle guidance is given for the first time it plans round this cycle: the next judges that plan
+        # what guidance is given for the first time it plans round this cycle: the next judges that plan
         hits = unplanned(i, self._planned_round, self._hold_reach(i))
         if i.path:
             return path_obstacle_m(hits, i.pose, i.path, half_width)
