@@ -3,8 +3,10 @@ before each."""
 
 import math
 
+from companion.onboard import supervisor
+from companion.onboard.contract_in_force import swerve_discs, uncovered, wall_discs
 from companion.onboard.estimators import DodEstimator
-from companion.onboard.guidance import OffboardGuidance, Route
+from companion.onboard.guidance import OffboardGuidance, Route, new_obstacles
 from companion.onboard.supervisor import Supervisor
 
 
@@ -28,3 +30,15 @@ def others_passed_through(monkeypatch) -> None:
     """A plan round the discs in the way keeps out of the walls' points only, not of the other discs (a pole beside the
     route)."""
     monkeypatch.setattr(OffboardGuidance, "_others", staticmethod(lambda discs, ahead: ()))
+
+
+def grown_judged_at_once(monkeypatch) -> None:
+    """More of an obstacle come into view past its disc is no reason to plan again, and the Hold judges it at once
+    against the plan in force (only the hits of new discs and walls are spared for a cycle)."""
+    def only_new_spared(i, known, reach_m):
+        discs = swerve_discs(i, reach_m)
+        old_discs, old_walls = known if known else ((), ())
+        new = [*new_obstacles(discs, old_discs), *new_obstacles(wall_discs(i, discs), old_walls)]
+        return uncovered(i.hits, i.pose, new) if new else i.hits
+    monkeypatch.setattr(supervisor, "unplanned", only_new_spared)
+    monkeypatch.setattr(OffboardGuidance, "_enters", lambda self, t, p, keep_out: False)
