@@ -727,9 +727,9 @@ class OffboardGuidance:
         return self._follow(t, dt, z, v_max, a_max, heading)
 
     def _enters(self, t: float, p, keep_out) -> bool:
-        """Whether the pass or stop in force goes, from now on, more than ENTER_TOL_M into one of the keep-out discs (one
-        grown or moved since it was planned); a disc the vehicle is in (its E_tr allowance, where a plan may start) does
-        not count."""
+        """Whether the pass or stop in force goes, from now on, more than ENTER_TOL_M into one of the keep-out discs
+        (one grown or moved since it was planned); a disc the vehicle is in (its E_tr allowance, where a plan may
+        start) does not count."""
         plan = self.plan
         if plan is None or plan.kind not in ("pass", "stop"):
             return False
