@@ -706,9 +706,9 @@ class OffboardGuidance:
             urgent = self.plan.kind in ("brake", "await") or omega != self.plan_omega or drift > DRIFT_M
         # swerving under the stop contract, something the plan was not asked to keep out of, or a keep-out the plan now
         # goes into (more of an obstacle come into view): at once (the hold judges the plan's path from the next cycle)
-        keep_out = [*discs, *self._walls]
         unknown = self._swerving and bool(new_obstacles(discs, self._asked_discs) or
-                                          new_obstacles(self._walls, self._asked_walls) or self._enters(t, p, keep_out))
+                                          new_obstacles(self._walls, self._asked_walls) or
+                                          self._enters(t, p, [*discs, *self._walls]))
         if (since > REPLAN_S or urgent and since > REPLAN_MIN_S or unknown) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
