@@ -98,6 +98,18 @@ def between_sides(local: list[Disc], one_side: bool = False) -> np.ndarray | Non
     return np.array([-1.0 if d.y > 0.0 else 1.0 for d in local])
 
 
+def side_attempts(local: list[Disc], v0, a_max: float, along: bool | None) -> list:
+    """The sides of the pass attempts (`pass_sides`' order), each one side for every disc or one per disc. Among walls
+    (`along`) a pass goes round what lies across the route line on either side, but round what lies beside the line on
+    the line's side (a wall's hit points are discs: going round one on its far side is going through the wall between
+    the points seen, or behind it where the sensor saw none); with nothing across the line, no such attempt."""
+    if not along:
+        return list(pass_sides(local, v0, a_max))
+    across = [d for d in local if abs(d.y) < d.r]
+    return [np.array([side if abs(d.y) < d.r else -1.0 if d.y > 0.0 else 1.0 for d in local])
+            for side in pass_sides(across, v0, a_max)] if across else []
+
+
 def _side_name(side) -> str:
     """A pass attempt's side in the planner's notes: +, -, between (one side per disc) or none."""
     if np.ndim(side):
@@ -495,7 +507,8 @@ class AvoidancePlanner:
         attempt starts once this much time is spent (the first always runs; braking is always ready).
         `along` (None: not tried): first try passing every disc on the route line's side — through the gap between
         what lies either side of it, and (True) beside what lies on one side of it only (among walls, whose hit
-        points are discs: a pass round their far side goes through the wall between the points seen).
+        points are discs: a pass round their far side goes through the wall between the points seen); among walls
+        the other passes too go round what lies beside the line on its side (`side_attempts`).
         """
         t0 = time.perf_counter()
         bad = [d for d in discs if not all(math.isfinite(x) for x in (d.x, d.y, d.r))]
@@ -523,10 +536,10 @@ class AvoidancePlanner:
         total = 0
         rejected = 0
         notes = []
-        attempts = [("pass", side, None) for side in pass_sides(local, vr0, a_max)] + [("stop", 0.0, None)]
-        sides = between_sides(local, one_side=along) if along is not None else None
-        if sides is not None:  # a gap between what lies either side of the route line: through it first
-            attempts.insert(0, ("pass", sides, None))
+        attempts = [("pass", side, None) for side in side_attempts(local, vr0, a_max, along)] + [("stop", 0.0, None)]
+        between = between_sides(local, one_side=along) if along is not None else None
+        if between is not None:  # a gap between what lies either side of the route line: through it first
+            attempts.insert(0, ("pass", between, None))
         if warm is not None and warm.kind in ("pass", "stop"):
             h[warm.kind] = max(h[warm.kind], warm.t[-1] - elapsed)
             tw = h[warm.kind] / self.n

@@ -3,6 +3,8 @@ before each."""
 
 import math
 
+from contracts import online_planner
+
 from companion.onboard import supervisor
 from companion.onboard.contract_in_force import swerve_discs, uncovered, wall_discs
 from companion.onboard.estimators import DodEstimator
@@ -41,4 +43,11 @@ def grown_judged_at_once(monkeypatch) -> None:
         new = [*new_obstacles(discs, old_discs), *new_obstacles(wall_discs(i, discs), old_walls)]
         return uncovered(i.hits, i.pose, new) if new else i.hits
     monkeypatch.setattr(supervisor, "unplanned", only_new_spared)
-    monkeypatch.setattr(OffboardGuidance, "_enters", lambda self, t, p, keep_out: False)
+    monkeypatch.setattr(OffboardGuidance, "_entered", lambda self, t, p, keep_out: [])
+
+
+def far_side_passed(monkeypatch) -> None:
+    """Among walls, a pass goes round every disc on one side, round a wall's hit points beside the route line on their
+    far side too (through the wall between the points seen, or behind it)."""
+    monkeypatch.setattr(online_planner, "side_attempts",
+                        lambda local, v0, a_max, along: list(online_planner.pass_sides(local, v0, a_max)))

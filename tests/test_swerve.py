@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tests.swerve_rules import outline_unread, seen_once, threats_on_the_leg_line
+from tests.swerve_rules import far_side_passed, outline_unread, seen_once, threats_on_the_leg_line
 
 from companion.onboard.ahead import swept_obstacle_m
 from companion.onboard.contract_in_force import (
@@ -27,7 +27,7 @@ from companion.onboard.contract_in_force import (
     wall_discs,
 )
 from companion.onboard.guidance import obstacle_discs
-from contracts.online_planner import AvoidancePlanner, Disc, between_sides, exact_check
+from contracts.online_planner import AvoidancePlanner, Disc, between_sides, dense_path, exact_check
 from contracts.table import load_for_vehicle
 
 TABLE = load_for_vehicle("mambo")
@@ -148,6 +148,32 @@ def test_the_planner_goes_through_the_gap_between_two_discs_either_side_of_the_r
 
     assert across(False) < 1.0  # through the doorway
     assert across(None) > 3.0  # control: the avoid contract's planner passes all discs on one side: round the outside
+
+
+def _corridor_pass(right_wall_y: float):
+    """A pass among walls round a pole on the route line (its keep-out 1.8 m), the corridor's walls' hit points seen
+    either side (keep-outs of 1 m) every 0.5 m: the plan, and whether any point of it is beyond a wall's line."""
+    pole = Disc(8.0, 0.4, 1.8, 1.3)
+    walls = [Disc(x, y, 1.0, 0.4) for x in np.arange(3.0, 14.0, 0.5) for y in (3.0, right_wall_y)]
+    plan = AvoidancePlanner().plan((0.0, 0.0), (1.9, 0.0), (1.0, 0.0), [pole, *walls], v_max=1.9, a_max=4.0,
+                                   along=True)
+    pts = dense_path(plan.p, plan.v, plan.a, plan.t[1] - plan.t[0])
+    return plan, bool(np.any(pts[:, 1] > 3.0) or np.any(pts[:, 1] < right_wall_y))
+
+
+def test_among_walls_a_pass_keeps_to_the_near_side_of_every_wall_point(monkeypatch):
+    """A wall's hit points are discs to the planner: a pass round one on its far side goes through the wall between
+    the points seen, or behind it where none was seen (the Hold then stops it as the wall comes into view). Among walls
+    a pass goes round what lies across the route line on either side and round what lies beside it on the line's side:
+    in a corridor too narrow beside the pole, no pass (the stop); in one wide enough, the pass inside it. Control: every
+    disc passed on one side, a pass round the outside of a wall."""
+    plan, behind = _corridor_pass(-2.6)
+    assert not behind and plan.kind == "stop"
+    plan, behind = _corridor_pass(-4.5)
+    assert plan.kind == "pass" and plan.ok and not behind
+    far_side_passed(monkeypatch)
+    plan, behind = _corridor_pass(-2.6)
+    assert plan.kind == "pass" and plan.ok and behind  # negative control
 
 
 # ----------------------------------------------------------------------------- when it swerves, and how fast
@@ -287,11 +313,13 @@ def test_a_wall_piece_beyond_a_corridor_s_turn_is_no_reason_to_swerve(monkeypatc
     vehicle rejoins from 1.4 m right of the route; the bin at the field of view's edge sees a piece of the right
     wall's far end beyond the turn, a run the swerve takes for a pole. Beyond the turn it is not in the way (the
     route turns away from it): no swerve round it, the route is completed. Control: judged against the leg's line
-    however far on, the swerve round it is planned straight on past the turn, through the side wall — a dead end."""
+    however far on, and a wall's points passed on their far side too, the swerve round it is planned straight on past
+    the turn, through the side wall — a dead end."""
     s, row, _ = _clutter(9)
     assert s["world_family"] == "corridor"
     assert not row["collided"] and row["route_completed"]
     threats_on_the_leg_line(monkeypatch)
+    far_side_passed(monkeypatch)
     _, old, old_rig = _clutter(9)
     assert not old["collided"] and not old["route_completed"]  # the control must fail
     assert old_rig.log.named("dead_end")
@@ -324,15 +352,16 @@ def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
     assert at(2.0, 9.0).contract == "avoid"
 
 
-@pytest.mark.parametrize("seed,controls", [(2, (outline_unread, threats_on_the_leg_line)), (11, (seen_once,))])
+@pytest.mark.parametrize("seed,controls", [(2, (outline_unread, threats_on_the_leg_line, far_side_passed)),
+                                           (11, (seen_once, far_side_passed))])
 def test_a_camera_s_corridor_is_flown_without_planning_round_pieces_of_its_walls(seed, controls, monkeypatch):
     """Clear air, a corridor 5–6 m wide turning 90°, the depth camera (its range noise 0.8 m at 9 m, 2 % of bins
     dropped): the far wall's pieces the claim cuts off, the side walls' runs that dropped bins split, and the
     column one frame's noise draws out of a wall are no poles to plan round — the route is completed without
     contact. Controls: every run a pole's disc whatever the bins beside it saw and a disc in the way wherever it is
     near the leg's line (seed 2: its far wall's piece lies beyond the turn, either rule alone keeps the swerve from
-    it), or a disc planned round from the frame it is first seen in (seed 11) — a pass round a piece of wall runs into
-    the side wall, a dead end."""
+    it), or a disc planned round from the frame it is first seen in (seed 11), each with a wall's points passed on
+    their far side too — a pass round a piece of wall runs into the side wall, a dead end."""
     from companion.ground.false_alarms import fly
 
     row = fly("offboard", "depth_camera", "corridor", seed)

@@ -549,8 +549,10 @@ class OffboardGuidance:
         p, v = np.asarray(p, float), np.asarray(v, float)
         self._v_meas = v if np.all(np.isfinite(v)) else np.zeros(2)
         z = -self.route.altitude_m
-        ahead = self._threats(p, v, discs)
         self._swerving = walls is not None
+        # a disc the pass in force goes into is in the way too, wherever it is (more of a corner come into view beside
+        # the route): planned round at once, not judged against the pass by the hold
+        ahead = self._threats(p, v, discs) or (self._entered(t, p, discs) if self._swerving else [])
         self._walls = (*(walls or ()), *self._others(discs, ahead))
         if ahead:
             return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z, yaw)
@@ -708,7 +710,7 @@ class OffboardGuidance:
         # goes into (more of an obstacle come into view): at once (the hold judges the plan's path from the next cycle)
         unknown = self._swerving and bool(new_obstacles(discs, self._asked_discs) or
                                           new_obstacles(self._walls, self._asked_walls) or
-                                          self._enters(t, p, [*discs, *self._walls]))
+                                          self._entered(t, p, [*discs, *self._walls]))
         if (since > REPLAN_S or urgent and since > REPLAN_MIN_S or unknown) and not self.planning.busy:
             t_req, p_req, v_req = t, np.array(p, float), np.array(v, float)
             if self.plan.kind in ("brake", "await") and self.planning.deferred:
@@ -726,17 +728,16 @@ class OffboardGuidance:
             self._take(t, self.planning.poll())
         return self._follow(t, dt, z, v_max, a_max, heading)
 
-    def _enters(self, t: float, p, keep_out) -> bool:
-        """Whether the pass or stop in force goes, from now on, more than ENTER_TOL_M into one of the keep-out discs
-        (one grown or moved since it was planned); a disc the vehicle is in (its E_tr allowance, where a plan may
-        start) does not count."""
+    def _entered(self, t: float, p, keep_out) -> list[Disc]:
+        """The keep-out discs the pass or stop in force goes, from now on, more than ENTER_TOL_M into (one grown or
+        moved since it was planned); a disc the vehicle is in (its E_tr allowance, where a plan may start) does not
+        count."""
         plan = self.plan
         if plan is None or plan.kind not in ("pass", "stop"):
-            return False
+            return []
         ahead = plan.p[plan.t > self._tau(t)]
-        return any(math.hypot(p[0] - d.x, p[1] - d.y) >= d.r and
-                   float(np.min(np.hypot(ahead[:, 0] - d.x, ahead[:, 1] - d.y))) < d.r - ENTER_TOL_M
-                   for d in keep_out) if len(ahead) else False
+        return [d for d in keep_out if math.hypot(p[0] - d.x, p[1] - d.y) >= d.r and
+                float(np.min(np.hypot(ahead[:, 0] - d.x, ahead[:, 1] - d.y))) < d.r - ENTER_TOL_M] if len(ahead) else []
 
     def _plan_direction(self, p, discs) -> np.ndarray:
         """The direction a pass from p round `discs` is planned along: the route's where the vehicle is, or on a
