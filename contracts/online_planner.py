@@ -110,6 +110,23 @@ def side_attempts(local: list[Disc], v0, a_max: float, along: bool | None) -> li
             for side in pass_sides(across, v0, a_max)] if across else []
 
 
+def round_far_side(p, local: list[Disc], sides) -> bool:
+    """Whether the path `p` (route frame) goes round a disc beside the route line on the side `sides` does not give it
+    (within the disc's span along the route): the SCP may drift there from the side it was started on."""
+    for d, side in zip(local, sides):
+        if abs(d.y) >= d.r:
+            near = np.abs(p[:, 0] - d.x) <= d.r
+            if np.any((p[near, 1] - d.y) * side < 0.0):
+                return True
+    return False
+
+
+def pass_horizon(far: float, speed0: float, v_cruise: float, a_max: float) -> float:
+    """[s] A pass's horizon: the time to get twice as far as the farthest keep-out's edge (`far` ahead) at the cruise
+    speed, and to reach that speed from the speed now (at least 1.5 s)."""
+    return max(1.5, 2.0 * far / max(v_cruise, 0.3) + max(v_cruise - speed0, 0.0) / max(a_max, 1e-3))
+
+
 def _side_name(side) -> str:
     """A pass attempt's side in the planner's notes: +, -, between (one side per disc) or none."""
     if np.ndim(side):
@@ -526,10 +543,11 @@ class AvoidancePlanner:
         local = [Disc(*(rot @ (np.array([d.x, d.y]) - p0)), d.r, d.r_min) for d in discs]
         v_cruise = v_max if v_cruise is None else min(v_cruise, v_max)
         speed0 = float(np.hypot(*vr0))
-        # horizons: passing needs the time to get beyond the obstacle (with room to slow down), stopping
+        # horizons: passing needs the time to get beyond the obstacle (`pass_horizon`; one of 2·far over a slow speed now
+        # ran to tens of seconds, and the pass wandered back and round through what the sensor had not seen), stopping
         # the time to brake; an explicit horizon overrides both
         far = max((d.x + d.r for d in local), default=0.0)
-        h = {"pass": max(1.5, 2.0 * far / max(min(v_cruise, speed0) if speed0 > 0.1 else v_cruise, 0.3)),
+        h = {"pass": pass_horizon(far, speed0, v_cruise, a_max),
              "stop": max(1.5, 1.5 * speed0 / max(a_max, 1e-3))}
         if horizon_s is not None:
             h = {"pass": horizon_s, "stop": horizon_s}
@@ -560,6 +578,8 @@ class AvoidancePlanner:
                 notes.append(f"{kind}{_side_name(side)}: {res[1]}")
                 continue
             p, v, a, why, ok, clear = res[:6]
+            if ok and np.ndim(side) and round_far_side(p, local, side):
+                ok, why = False, "round a disc beside the route line on its far side"
             if ok:
                 return self._world(kind, p, v, a, ts, rot, p0, True, clear, t0, total, rejected, notes)
             rejected += 1

@@ -48,6 +48,15 @@ def grown_judged_at_once(monkeypatch) -> None:
 
 def far_side_passed(monkeypatch) -> None:
     """Among walls, a pass goes round every disc on one side, round a wall's hit points beside the route line on their
-    far side too (through the wall between the points seen, or behind it)."""
+    far side too (through the wall between the points seen, or behind it), and one the optimiser let drift round such
+    a point is flown."""
     monkeypatch.setattr(online_planner, "side_attempts",
                         lambda local, v0, a_max, along: list(online_planner.pass_sides(local, v0, a_max)))
+    monkeypatch.setattr(online_planner, "round_far_side", lambda p, local, sides: False)
+
+
+def horizon_over_speed_now(monkeypatch) -> None:
+    """A pass's horizon twice the way over the speed now where that is below the cruise speed (tens of seconds when
+    slow)."""
+    monkeypatch.setattr(online_planner, "pass_horizon",
+                        lambda far, v0, v_c, a: max(1.5, 2.0 * far / max(min(v_c, v0) if v0 > 0.1 else v_c, 0.3)))

@@ -563,47 +563,37 @@ def test_a_pass_round_the_disc_in_the_way_keeps_out_of_the_disc_beside_the_route
     assert alone.ok and entered(alone, beside)  # negative control
 
 
-def test_a_swerve_is_planned_again_at_once_when_its_pass_goes_into_a_disc_grown_since():
-    """Swerving, a pass round a pole's disc; the next cycle the disc has grown (a bin more of the pole's outline come
-    into view: the same obstacle, its centre where it was) and the pass goes into it: planned again in that cycle, round
-    the grown disc (the Hold judges the new plan from the next cycle). Control: without that check the pass in force is
-    kept until the next timed replan."""
-    def fly(check: bool):
-        g = OffboardGuidance(Route([[0, 0], [40, 0]], 2.0))
-        if not check:
-            g._entered = lambda t, p, keep_out: []
-        p, v = np.array([0.0, 0.0]), np.array([2.0, 0.0])
-        g.step(0.0, 0.02, p, v, 2.0, 4.0, [Disc(10.0, 0.3, 1.5)], yaw=0.0, walls=())
-        first = g.plan
-        grown = Disc(10.0, 0.3, 1.9)
-        g.step(0.02, 0.02, p + 0.02 * v, v, 2.0, 4.0, [grown], yaw=0.0, walls=())
-        pts = dense_path(g.plan.p, g.plan.v, g.plan.a, g.plan.t[1] - g.plan.t[0])
-        return first, g.plan, float(np.min(np.hypot(pts[:, 0] - grown.x, pts[:, 1] - grown.y))) - grown.r
-    first, plan, clear = fly(True)
+def _swerve_then(second, check: bool):
+    """Swerving, a pass round a pole on the route; the next cycle only the disc `second(first plan)` is seen: the
+    first plan, the plan then in force and how far that one keeps outside the disc [m] (`check` False: the pass in
+    force is not checked against the discs)."""
+    g = OffboardGuidance(Route([[0, 0], [40, 0]], 2.0))
+    if not check:
+        g._entered = lambda t, p, keep_out: []
+    p, v = np.array([0.0, 0.0]), np.array([2.0, 0.0])
+    g.step(0.0, 0.02, p, v, 2.0, 4.0, [Disc(10.0, 0.3, 1.5)], yaw=0.0, walls=())
+    first = g.plan
+    d = second(first)
+    g.step(0.02, 0.02, p + 0.02 * v, v, 2.0, 4.0, [d], yaw=0.0, walls=())
+    pts = dense_path(g.plan.p, g.plan.v, g.plan.a, g.plan.t[1] - g.plan.t[0])
+    return first, g.plan, float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y))) - d.r
+
+
+def _beside(first) -> Disc:
+    """A disc beside the route, farther out than a reason to swerve, 0.3 m into the pass's widest point."""
+    q = first.p[np.argmax(np.abs(first.p[:, 1]))]
+    d = Disc(float(q[0]), float(q[1] + 0.5 * np.sign(q[1])), 0.8)
+    assert abs(d.y) > d.r + 0.5
+    return d
+
+
+@pytest.mark.parametrize("second", [lambda first: Disc(10.0, 0.3, 1.9), _beside], ids=["grown", "beside"])
+def test_a_swerve_is_planned_again_at_once_when_its_pass_goes_into_a_disc(second):
+    """The pole's disc grown (a bin more of its outline come into view: the same obstacle, its centre where it was), or
+    a disc beside the route where the pass goes (a corridor's corner come into view, nothing in the way any more): the
+    pass goes into it, planned again in that cycle, round it (the Hold judges the new plan from the next cycle).
+    Control: without that check the pass in force is kept until the next timed replan, into the disc."""
+    first, plan, clear = _swerve_then(second, True)
     assert first.kind == "pass" and plan is not first and plan.kind == "pass" and plan.ok and clear >= 0.0
-    first, plan, clear = fly(False)
-    assert plan is first and clear < 0.0  # negative control
-
-
-def test_a_swerve_is_planned_again_when_its_pass_goes_into_a_disc_beside_the_route():
-    """Swerving, a pass round a pole on the route; the next cycle the pole is out of the discs (nothing in the way) and
-    a disc beside the route, farther out than a reason to swerve, lies where the pass goes (a corridor's corner come
-    into view): the disc the pass goes into is in the way, planned round in that cycle. Control: without that check
-    the pass in force is flown into it."""
-    def fly(check: bool):
-        g = OffboardGuidance(Route([[0, 0], [40, 0]], 2.0))
-        if not check:
-            g._entered = lambda t, p, keep_out: []
-        p, v = np.array([0.0, 0.0]), np.array([2.0, 0.0])
-        g.step(0.0, 0.02, p, v, 2.0, 4.0, [Disc(10.0, 0.3, 1.5)], yaw=0.0, walls=())
-        first = g.plan
-        q = first.p[np.argmax(np.abs(first.p[:, 1]))]  # the pass's widest point
-        beside = Disc(float(q[0]), float(q[1] + 0.5 * np.sign(q[1])), 0.8)
-        assert abs(beside.y) > beside.r + 0.5  # beside the route: no reason to swerve of itself
-        g.step(0.02, 0.02, p + 0.02 * v, v, 2.0, 4.0, [beside], yaw=0.0, walls=())
-        pts = dense_path(g.plan.p, g.plan.v, g.plan.a, g.plan.t[1] - g.plan.t[0])
-        return first, g.plan, float(np.min(np.hypot(pts[:, 0] - beside.x, pts[:, 1] - beside.y))) - beside.r
-    first, plan, clear = fly(True)
-    assert first.kind == "pass" and plan is not first and plan.ok and clear >= 0.0
-    first, plan, clear = fly(False)
+    first, plan, clear = _swerve_then(second, False)
     assert plan is first and clear < 0.0  # negative control

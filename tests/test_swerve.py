@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tests.swerve_rules import far_side_passed, outline_unread, seen_once, threats_on_the_leg_line
+from tests.swerve_rules import far_side_passed, horizon_over_speed_now, outline_unread, seen_once, threats_on_the_leg_line
 
 from companion.onboard.ahead import swept_obstacle_m
 from companion.onboard.contract_in_force import (
@@ -27,6 +27,7 @@ from companion.onboard.contract_in_force import (
     wall_discs,
 )
 from companion.onboard.guidance import obstacle_discs
+from contracts import online_planner
 from contracts.online_planner import AvoidancePlanner, Disc, between_sides, dense_path, exact_check
 from contracts.table import load_for_vehicle
 
@@ -176,6 +177,45 @@ def test_among_walls_a_pass_keeps_to_the_near_side_of_every_wall_point(monkeypat
     assert plan.kind == "pass" and plan.ok and behind  # negative control
 
 
+# examples/campaign-clutter.yaml flight 52 (the X500 swerving in a 5.9 m corridor): the column ahead and the walls' hit
+# points either side, seen from (9.59, -0.16), its Ω then (V_max 1.45 m/s, a_max 6.87 m/s²)
+CORRIDOR_52 = [Disc(14.21, 0.43, 1.82, 1.36), Disc(14.50, -2.73, 1.13, 0.67), Disc(15.67, -2.69, 1.17, 0.72),
+               Disc(17.32, -2.61, 1.24, 0.78), Disc(18.33, 2.58, 1.28, 0.83), Disc(16.37, 2.64, 1.21, 0.75),
+               Disc(15.05, 2.68, 1.15, 0.70)]
+
+
+def _plan_52(speed: float):
+    return AvoidancePlanner().plan((9.59, -0.16), (speed, 0.0), (1.0, 0.0), CORRIDOR_52, v_max=1.45, a_max=6.87,
+                                   v_cruise=1.45, along=True)
+
+
+def test_a_pass_never_ends_round_a_wall_point_on_its_far_side(monkeypatch):
+    """The SCP starts each wall point on the route line's side but may drift round it: a pass that ends on the far side
+    of a point beside the line is rejected (here from near rest: the stop). Control: unchecked, the pass runs 2 m
+    behind the right wall's points."""
+    plan = _plan_52(0.05)
+    assert plan.p[:, 1].min() > -2.6
+    monkeypatch.setattr(online_planner, "round_far_side", lambda p, local, sides: False)
+    plan = _plan_52(0.05)
+    assert plan.kind == "pass" and plan.p[:, 1].min() < -4.0  # negative control
+
+
+@pytest.mark.parametrize("speed", [0.6, 1.0])
+def test_a_pass_from_below_the_cruise_speed_is_planned_over_the_time_it_takes(speed, monkeypatch):
+    """Slowed below the cruise speed in the corridor, a pass between the column and the right wall, forward, inside the
+    corridor: its horizon is the way at the cruise speed and the time to reach it. Control: a horizon of twice the way
+    over the speed now (tens of seconds) leaves no pass (the stop), and from 0.32 m/s, unchecked, one 60 s long that
+    runs 19 m out of the corridor."""
+    plan = _plan_52(speed)
+    assert plan.kind == "pass" and plan.ok
+    assert plan.p[:, 0].min() >= 9.59 - 1e-6 and -2.6 < plan.p[:, 1].min() and plan.p[:, 1].max() < 2.5
+    horizon_over_speed_now(monkeypatch)
+    assert _plan_52(speed).kind == "stop"  # negative control
+    monkeypatch.setattr(online_planner, "round_far_side", lambda p, local, sides: False)
+    plan = _plan_52(0.32)
+    assert plan.t[-1] > 30.0 and plan.p[:, 1].min() < -10.0
+
+
 # ----------------------------------------------------------------------------- when it swerves, and how fast
 
 def _judged(width=0.0, obstacles=0, d_od=9.0, fov=60.0):
@@ -278,8 +318,9 @@ def test_a_column_inside_a_corridor_is_passed_round_what_was_seen_of_it(scenario
     """A corridor with a turn and a column inside: the swerve plans round the column as seen (beyond the hold's
     reach), passes it without contact and completes the route. Control: R_obst's disc at every range (and, as the
     swerve was then, round every run of bins from its first frame), which with the walls' keep-out closes the
-    passage either side of the column — the route is not completed (a dead end, or no safe speed from a pass that
-    swung the direction of travel out of view)."""
+    passage either side of the column, with a pass's horizon and its sides among walls as they were then too — the
+    route is not completed (a dead end, or no safe speed from a pass that swung the direction of travel out of
+    view)."""
     from companion.onboard.supervisor import Supervisor
 
     s, row, rig = _clutter(scenario)
@@ -289,6 +330,8 @@ def test_a_column_inside_a_corridor_is_passed_round_what_was_seen_of_it(scenario
     monkeypatch.setattr(Supervisor, "_hold_reach", lambda self, i: math.inf)
     outline_unread(monkeypatch)
     seen_once(monkeypatch)
+    far_side_passed(monkeypatch)
+    horizon_over_speed_now(monkeypatch)
     _, old, _ = _clutter(scenario)
     assert not old["collided"] and not old["route_completed"]  # the control must fail
 
@@ -313,13 +356,14 @@ def test_a_wall_piece_beyond_a_corridor_s_turn_is_no_reason_to_swerve(monkeypatc
     vehicle rejoins from 1.4 m right of the route; the bin at the field of view's edge sees a piece of the right
     wall's far end beyond the turn, a run the swerve takes for a pole. Beyond the turn it is not in the way (the
     route turns away from it): no swerve round it, the route is completed. Control: judged against the leg's line
-    however far on, and a wall's points passed on their far side too, the swerve round it is planned straight on past
-    the turn, through the side wall — a dead end."""
+    however far on, a wall's points passed on their far side too and a pass's horizon as it was then, the swerve round
+    it is planned straight on past the turn, through the side wall — a dead end."""
     s, row, _ = _clutter(9)
     assert s["world_family"] == "corridor"
     assert not row["collided"] and row["route_completed"]
     threats_on_the_leg_line(monkeypatch)
     far_side_passed(monkeypatch)
+    horizon_over_speed_now(monkeypatch)
     _, old, old_rig = _clutter(9)
     assert not old["collided"] and not old["route_completed"]  # the control must fail
     assert old_rig.log.named("dead_end")
