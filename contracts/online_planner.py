@@ -543,9 +543,8 @@ class AvoidancePlanner:
         local = [Disc(*(rot @ (np.array([d.x, d.y]) - p0)), d.r, d.r_min) for d in discs]
         v_cruise = v_max if v_cruise is None else min(v_cruise, v_max)
         speed0 = float(np.hypot(*vr0))
-        # horizons: passing needs the time to get beyond the obstacle (`pass_horizon`; one of 2·far over a slow speed now
-        # ran to tens of seconds, and the pass wandered back and round through what the sensor had not seen), stopping
-        # the time to brake; an explicit horizon overrides both
+        # horizons: passing needs the time to get beyond the obstacle at the cruise speed (`pass_horizon`), stopping the
+        # time to brake; an explicit horizon overrides both
         far = max((d.x + d.r for d in local), default=0.0)
         h = {"pass": pass_horizon(far, speed0, v_cruise, a_max),
              "stop": max(1.5, 1.5 * speed0 / max(a_max, 1e-3))}
