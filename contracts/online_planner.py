@@ -85,6 +85,16 @@ def pass_sides(local: list[Disc], v0, a_max: float) -> tuple[float, float]:
     return (1.0, -1.0) if abs(up - drift) <= abs(down - drift) else (-1.0, 1.0)
 
 
+def _line_side(d: Disc) -> float:
+    """The side of the route line a disc beside it is passed on: the line's (+1: the route frame's +y)."""
+    return -1.0 if d.y > 0.0 else 1.0
+
+
+def _across(d: Disc) -> bool:
+    """Whether the route line (the frame's x axis) goes through the disc."""
+    return abs(d.y) < d.r
+
+
 def between_sides(local: list[Disc], one_side: bool = False) -> np.ndarray | None:
     """Per disc, the side to pass it on (+1: the route frame's +y) to go through the gap between the discs either
     side of the route line (each passed on the route line's side), or None where there is no such gap: discs on one
@@ -95,7 +105,7 @@ def between_sides(local: list[Disc], one_side: bool = False) -> np.ndarray | Non
     if not (left or right) or not one_side and not (left and right) or len(left) + len(right) < len(local) \
             or min(left, default=math.inf) <= max(right, default=-math.inf):
         return None
-    return np.array([-1.0 if d.y > 0.0 else 1.0 for d in local])
+    return np.array([_line_side(d) for d in local])
 
 
 def side_attempts(local: list[Disc], v0, a_max: float, along: bool | None) -> list:
@@ -105,8 +115,8 @@ def side_attempts(local: list[Disc], v0, a_max: float, along: bool | None) -> li
     the points seen, or behind it where the sensor saw none); with nothing across the line, no such attempt."""
     if not along:
         return list(pass_sides(local, v0, a_max))
-    across = [d for d in local if abs(d.y) < d.r]
-    return [np.array([side if abs(d.y) < d.r else -1.0 if d.y > 0.0 else 1.0 for d in local])
+    across = [d for d in local if _across(d)]
+    return [np.array([side if _across(d) else _line_side(d) for d in local])
             for side in pass_sides(across, v0, a_max)] if across else []
 
 
@@ -114,7 +124,7 @@ def round_far_side(p, local: list[Disc], sides) -> bool:
     """Whether the path `p` (route frame) goes round a disc beside the route line on the side `sides` does not give it
     (within the disc's span along the route): the SCP may drift there from the side it was started on."""
     for d, side in zip(local, sides):
-        if abs(d.y) >= d.r:
+        if not _across(d):
             near = np.abs(p[:, 0] - d.x) <= d.r
             if np.any((p[near, 1] - d.y) * side < 0.0):
                 return True

@@ -325,8 +325,8 @@ def unplanned(i, known: tuple, reach_m: float) -> tuple:
     its plan is judged against them from the next cycle."""
     old_discs, old_walls = known if known else ((), ())
     unplanned_discs = new_obstacles(swerve_discs(i, reach_m), old_discs)
-    return tuple(hit for hit in uncovered(i.hits, i.pose, unplanned_discs)
-                 if not uncovered((hit,), i.pose, (*old_discs, *old_walls)))
+    unknown = set(uncovered(i.hits, i.pose, (*old_discs, *old_walls)))
+    return tuple(hit for hit in uncovered(i.hits, i.pose, unplanned_discs) if hit not in unknown)
 
 
 def swerve_discs(i, reach_m: float) -> tuple[Disc, ...]:
