@@ -380,6 +380,31 @@ def test_a_wall_across_the_route_is_still_a_dead_end_stopped_short_and_said():
     assert any("no path the contract can prove" in t for t in rig.daemon_texts())
 
 
+def test_a_stop_short_of_a_column_with_no_pass_is_a_dead_end_said_and_held(monkeypatch):
+    """Scenario 117 (the 450–500 mm quad, a corridor with a column in it): the planner proves no pass between the
+    column's keep-out and the walls' hit points from where the vehicle stopped, so it rests on the stop; after 3 s at
+    rest that is said as a dead end (event, STATUSTEXT over MAVLink), Hold asked and latched as such; no contact.
+    Control: without the rule the vehicle hovers on the stop and says nothing."""
+    from companion.onboard import offboard
+
+    s, row, rig = _clutter(117)
+    assert s["world_family"] == "corridor"
+    assert not row["collided"] and row["stopped_short"] and not row["route_completed"]
+    (dead,) = rig.log.named("dead_end")
+    assert dead["reason"] == "no path the contract can prove: stopped" and dead["obstacle_m"] > 0.5
+    held = [e for e in rig.log.named("offboard") if e["to"] == "held"]
+    assert held and held[0]["t"] == dead["t"] and "dead end" in held[0]["reason"]
+    assert any(e["to"] == "holding" and "dead end" in e["reason"] for e in rig.log.named("state_change"))
+    assert any("no path the contract can prove" in t for t in rig.daemon_texts())
+    rested = [st for st in rig.log.states if dead["t"] - offboard.DEAD_END_S <= st["t"] <= dead["t"]]
+    assert rested and max(st["ground_speed"] for st in rested) < 0.3
+
+    monkeypatch.setattr(offboard, "DEAD_END_S", math.inf)
+    _, old, old_rig = _clutter(117)
+    assert not old["collided"] and not old["route_completed"]  # the control must fail: a silent hover
+    assert not old["stopped_short"] and not old_rig.log.named("dead_end")
+
+
 def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
     """The stop contract in force because the pass would leave the view, then the view holds again: during the dwell
     before the avoid contract returns it stays straight (the swerve is for a breach of the world only)."""

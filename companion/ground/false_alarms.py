@@ -20,8 +20,9 @@ The observer's questions, one per kind of event (`judge`):
   run; a wall whose middle bins returned nothing is two): is a surface wider than R_obst (a wall, a polygon, a box,
   or a column of radius above R_obst), or more than one obstacle, really within the stated range?
 - **no safe speed**: founded unless it rests on a D_od lowered by an unfounded navigation violation;
-- **no avoiding plan**: was a true surface within the stated range in the corridor ahead (something to plan
-  round)? If the corridor was truly clear, the planner stopped on a phantom;
+- **no avoiding plan**, and offboard's **dead end** (at rest on a stop, no pass found; one said with the stop
+  contract's Hold is that Hold's): was a true surface within the stated range in the corridor ahead (something to
+  plan round)? If the corridor was truly clear, the planner stopped on a phantom;
 - the rest (the controller's contour error, measured on the SITL's true position; command delivery; the daemon's
   own lateness; a silent sensor, which really sent nothing) are measurements of the truth itself: founded.
 
@@ -280,9 +281,9 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
         return "no safe speed", founded, {"input": e.get("input"), "why": e.get("why")}
     if name == "failsafe":
         return f"failsafe ({e.get('cause')})", True, {}
-    if name == "no_avoiding_plan":
+    if name in ("no_avoiding_plan", "dead_end"):  # (a dead end said with the Hold's trigger is that Hold's)
         ahead = obs.nearest_in_corridor(tr, corridor)
-        return "no avoiding plan", ahead <= stated, {"obstacle_true_m": ahead, "notes": e.get("notes")}
+        return name.replace("_", " "), ahead <= stated, {"obstacle_true_m": ahead, "notes": e.get("notes")}
     if name == "violation_start":
         sub = e["subsystem"]
         g = e.get("guarantee", "")
@@ -317,8 +318,8 @@ def judge(rig: Rig, obs: Observer, e: dict, nav_verdicts: list) -> tuple[str, bo
 FIRST_SEEN = re.compile(r"a target first seen at ([0-9.]+) m")  # the evidence's first detection (detection_range.py)
 OBSTACLE = "obstacle inside the stop distance"  # the stop contract's hold (companion/onboard/states.py Cause)
 AFTER_STOP_S = 3.0  # a flight ends this long after the daemon's first Hold or braking stop (the pilot takes over)
-JUDGED = ("hold_trigger", "failsafe", "no_avoiding_plan", "violation_start")
-STOPS = ("hold_trigger", "failsafe", "no_avoiding_plan")
+JUDGED = ("hold_trigger", "failsafe", "no_avoiding_plan", "dead_end", "violation_start")
+STOPS = ("hold_trigger", "failsafe", "no_avoiding_plan", "dead_end")
 
 
 def fly(mode: str, model: str, family: str, seed: int, seconds: float | None = None, rig_kw: dict | None = None,
@@ -366,7 +367,9 @@ def judged_events(rig: Rig, obs: Observer) -> list[dict]:
     """Every event of `JUDGED` the daemon logged, in time order, with its verdict (`judge`), the truth behind it and,
     when unfounded, its likely cause (one resting on an earlier unfounded lowering of D_od: that one's)."""
     events, nav = [], []
-    for e in sorted((e for e in rig.log.events if e["event"] in JUDGED), key=lambda e: e["t"]):
+    held_at = {e["t"] for e in rig.log.events if e["event"] == "hold_trigger"}
+    for e in sorted((e for e in rig.log.events if e["event"] in JUDGED and
+                     not (e["event"] == "dead_end" and e["t"] in held_at)), key=lambda e: e["t"]):
         kind, founded, why = judge(rig, obs, e, nav)
         inherited = kind == "no safe speed" or "after a late first detection" in why.get("action", "")
         if not founded and inherited:  # it rests on an earlier unfounded lowering of D_od: that one's cause

@@ -22,6 +22,7 @@ from .turn import Part, Turn
 
 ENTRY = "offboard"  # the mode the flying actors ask for (OFFBOARD / GUIDED: the adapter's name)
 FAILSAFE_LATCH = "fail-safe stop: held until the pilot or CG_ENGAGE decides"
+DEAD_END_LATCH = "dead end: held until the pilot or CG_ENGAGE decides"
 BRAKE_LATCH = "recovery brake: held until the pilot or the ground station changes the mode"
 NOT_COVERED = "the table carries no E_tr_pred for the brake's own stop (contract-guard table etr --brake)"
 
@@ -83,8 +84,8 @@ class Flying:
         ended, self._was_streaming = not streaming and self._was_streaming, streaming
         requests = ((ModeRequest(HOLD, Requester.OFFBOARD_STOP),) if acts.hold else ()) + \
             ((ModeRequest(ENTRY, Requester.OFFBOARD_ENTRY, self.within_s),) if acts.enter else ())
-        return Part(requests=requests, events=tuple(acts.events), setpoint=acts.setpoint, end_stream=ended,
-                    braking=braking, **kw)
+        return Part(requests=requests, events=tuple(acts.events), texts=tuple(acts.texts), setpoint=acts.setpoint,
+                    end_stream=ended, braking=braking, **kw)
 
     def close(self) -> None:
         self.controller.close()
@@ -125,7 +126,8 @@ class OffboardFlight(Flying):
             failsafe=d.state == State.HOLDING, track_jerk=stop_jerk(veh)))
         # entering the fail-safe hold latches it until someone else's mode change or CG_ENGAGE clears it
         held = any(name == "offboard" and f["to"] == OffboardState.HELD for name, f in acts.events)
-        return self._part(acts, braking, latch=FAILSAFE_LATCH if held else None)
+        dead_end = any(name == "dead_end" for name, _ in acts.events)
+        return self._part(acts, braking, latch=(DEAD_END_LATCH if dead_end else FAILSAFE_LATCH) if held else None)
 
 
 class RecoveryBrake(Flying):

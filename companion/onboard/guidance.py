@@ -500,6 +500,7 @@ class OffboardGuidance:
     _asked_t: float = 0.0
     _asked_discs: tuple = ()  # the discs the last plan asked for goes round
     _walls: tuple = ()  # this cycle's discs a plan keeps out of too (`step`)
+    _in_way: tuple = ()  # this cycle's discs in the way (`step`)
     _swerving: bool = False  # offboard swerves under the stop contract (`step`'s walls given)
     _asked_walls: tuple = ()  # those the last plan asked for keeps out of
     _v_meas: np.ndarray = field(default_factory=lambda: np.zeros(2))  # the measured velocity this cycle
@@ -554,6 +555,7 @@ class OffboardGuidance:
         # the route): planned round at once, not judged against the pass by the hold
         ahead = self._threats(p, v, discs) or (self._entered(t, p, discs) if self._swerving else [])
         self._walls = (*(walls or ()), *self._others(discs, ahead))
+        self._in_way = tuple(ahead)
         if ahead:
             return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z, yaw)
         self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
@@ -738,6 +740,13 @@ class OffboardGuidance:
         ahead = plan.p[plan.t > self._tau(t)]
         return [d for d in keep_out if math.hypot(p[0] - d.x, p[1] - d.y) >= d.r and
                 float(np.min(np.hypot(ahead[:, 0] - d.x, ahead[:, 1] - d.y))) < d.r - ENTER_TOL_M] if len(ahead) else []
+
+    def stopped_short(self, p) -> float | None:
+        """While the plan in force stops the vehicle short of what is in the way (the planner's stop: no pass it could
+        prove; or braking with no plan): the room left before the body touches the nearest of it [m]; else None."""
+        if not self._in_way or self.plan is None or self.plan.kind == "pass":
+            return None
+        return min(math.hypot(p[0] - d.x, p[1] - d.y) - (d.r if d.r_min is None else d.r_min) for d in self._in_way)
 
     def _plan_direction(self, p, discs) -> np.ndarray:
         """The direction a pass from p round `discs` is planned along: the route's where the vehicle is, or on a

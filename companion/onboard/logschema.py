@@ -128,9 +128,11 @@ EVENTS = {
                                "are not there (something wider than R_obst in view or still within reach, or a swerve "
                                "the sensors' field of view would not keep in view at this D_od), `avoid` again once "
                                "they have held for the dwell"),
-    "dead_end": Event(("reason", "obstacle_m"), "supervisor",
-                      "offboard under the stop contract: something in the swept corridor within the stopping distance "
-                      "(obstacle_m ahead): a braking stop, then Hold — no path the contract can prove"),
+    "dead_end": Event(("reason", "obstacle_m"), "supervisor, offboard",
+                      "no path the contract can prove: offboard under the stop contract, something in the swept "
+                      "corridor within the stopping distance (obstacle_m ahead: a braking stop, then Hold; the "
+                      "supervisor's), or at rest for 3 s on a stop short of what is in the way, the planner finding no "
+                      "pass (obstacle_m: the room left before the body touches it; Hold, the offboard controller's)"),
     "state_change": Event(("from", "to", "reason"), "supervisor", "supervisor state changed"),
     "mode_change": Event(("from", "to", "by"), "supervisor", "autopilot mode changed (by: daemon | other)"),
     "failsafe": Event(("cause", "action", *_NO_SPEED), "supervisor", "a failsafe cause made the daemon hold (a "

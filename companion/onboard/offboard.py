@@ -5,6 +5,7 @@
         entering ──heartbeat shows it──▶ flying (guidance setpoints every cycle, ≥ 20 Hz)
         flying ──mode changed by someone else──▶ stood_down (stop streaming; never re-enter by itself)
         flying ──route flown──▶ done (Hold)        done / stood_down ──disengaged──▶ off
+        flying ──at rest on a stop short of what is in the way for DEAD_END_S (no pass)──▶ held (Hold: a dead end)
         flying ──fail-safe the daemon can fly out itself (no safe speed, limit not in force)──▶ braking
         braking (stream the best stop at the tilt's full deceleration from the measured state, its
                  acceleration turned from the last setpoint's at the attitude-rate limit: straight, or a
@@ -36,6 +37,7 @@ import numpy as np
 from contracts.online_planner import Plan, best_stop
 from contracts.stop import stop_path_budget
 
+from .contract_in_force import DEAD_END
 from .guidance import OffboardGuidance, Setpoint
 from .states import AT_REST_M_S, FINISHED, STREAMING, SetpointKind
 from .states import OffboardState as S
@@ -53,6 +55,11 @@ SETTLE_S = 0.5
 # on another 0.45 m into the column; held at the end point, the integrator bleeds off); at most END_WAIT_S
 AT_END_M = 0.2
 END_WAIT_S = 10.0
+# [s] at rest this long on a stop short of what is in the way (the planner proves no pass from where the vehicle sees
+# it): a dead end, said and handed to Hold — a vehicle hovering on, replanning the same stop, tells no one why
+DEAD_END_S = 3.0
+DEAD_END_HELD = "dead end: no pass the contract can prove round what is in the way; held until the pilot or the " \
+                "ground station decides (CG_ENGAGE off and on to resume)"
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,6 +99,7 @@ class OffboardActions:
     enter: bool = False  # ask the autopilot for OFFBOARD / GUIDED now
     hold: bool = False  # ask the autopilot for Hold now (the route is complete, or the braking stop is over)
     events: list[tuple[str, dict]] = field(default_factory=list)
+    texts: list[tuple[int, str]] = field(default_factory=list)  # STATUSTEXTs (severity, text)
 
 
 @dataclass
@@ -106,6 +114,7 @@ class OffboardController:
     _braking: bool = False
     _seen: tuple | None = None  # (t, the keep-out discs last seen)
     _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
+    _rest_since: float | None = None  # flying: since when the vehicle rests on a stop short of what is in the way
     _a_last: np.ndarray | None = None  # the acceleration of the last setpoint streamed while flying
     _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
     _switch: bool = False  # the recovery brake awaits its switch to offboard
@@ -173,7 +182,23 @@ class OffboardController:
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
             self._braking = acts.setpoint.mode == SetpointKind.BRAKE
             self._a_last = np.asarray(acts.setpoint.a, float)
+            self._dead_end(t, p, v, acts)
         return acts
+
+    def _dead_end(self, t, p, v, acts: OffboardActions) -> None:
+        """A dead end: at rest for DEAD_END_S on a stop short of what is in the way — said (`dead_end`, STATUSTEXT)
+        and handed to Hold, held until the pilot or the ground station decides."""
+        room = self.guidance.stopped_short(p)
+        if room is None or float(np.hypot(*v)) >= AT_REST_M_S:
+            self._rest_since = None
+            return
+        if self._rest_since is None:
+            self._rest_since = t
+        if t - self._rest_since >= DEAD_END_S:
+            acts.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": round(room, 3)}))
+            acts.texts.append((2, f"CG: {DEAD_END}"))
+            acts.hold = True
+            self._go(t, S.HELD, DEAD_END_HELD, acts)
 
     def _entered(self, ask: Ask, acts: OffboardActions) -> bool:
         """Entering: a setpoint where the vehicle was when engaged, OFFBOARD / GUIDED asked every cycle from
@@ -182,7 +207,7 @@ class OffboardController:
         t = ask.t
         if ask.mode == "offboard" and ask.by_daemon:
             self.guidance.start(ask.p, ask.v)
-            self._done_at = None
+            self._done_at = self._rest_since = None
             self._go(t, S.FLYING, "autopilot in offboard", acts)
             return True
         acts.setpoint = Setpoint(self._hold_here, np.zeros(2), np.zeros(2), self._hold_z, self._hold_yaw,
