@@ -56,6 +56,7 @@ REPLAN_S = 0.5  # [s] the offboard guidance refreshes an active plan this often 
 SUB_STEPS = 20  # dense re-simulation per interval for the exact check
 MARGIN_M = 0.01  # kept from the discs in the QP, so solver tolerance never fails the exact check
 SLACK_COST = 1e2  # per metre of keep-out violation in the first SCP iteration (×10 per iteration)
+GUESS_CRUISE = 0.9  # a pass's first linearisation flies this fraction of the cruise speed (`_cold_guess`)
 QP_TIGHTEN = 1e-3  # the QP's speed and acceleration polygons are shrunk by this fraction, so a solution within
 # OSQP's tolerance still satisfies the exact limits (most failures near V_safe were a converged-to-ε
 # brake-and-swerve sitting just outside the tilt limit)
@@ -650,8 +651,7 @@ class AvoidancePlanner:
         # the disc's front (stop)
         warm = guess is not None
         if not warm:
-            tk = np.arange(n + 1) * ts
-            guess = p0[None, :] + v0[None, :] * tk[:, None]
+            guess = _cold_guess(kind, p0, v0, v_cruise, a_max, ts, n)
         centres = np.array([[d.x, d.y] for d in discs]).reshape(-1, 2)
         radii = np.array([d.r for d in discs])
         lift = np.reshape(side * (radii + inflate), (-1, 1)) if kind == "pass" else np.zeros((len(discs), 1))
@@ -698,6 +698,21 @@ class AvoidancePlanner:
             guess = p
             turn = _vertex_turns(a, v[1:])
         return p, v, a, why, False, clear, solves
+
+
+def _cold_guess(kind: str, p0, v0, v_cruise: float, a_max: float, ts: float, n: int) -> np.ndarray:
+    """The first linearisation's path (route frame): straight on at the current velocity, and for a pass slower than
+    GUESS_CRUISE of the cruise speed, speeding up along the route at half a_max to that. A pass guessed at the speed now
+    went nowhere from rest: every segment at the start, every half-plane faced the discs' fronts, beside-line ones too,
+    and the QP's slack took the path through a wall. (Guessed up to the cruise speed itself — V_max, on the QP's speed
+    polygon — the QP's unconverged iterates ran 0.02–0.6 % above V_max.)"""
+    tk = np.arange(n + 1) * ts
+    guess = p0[None, :] + v0[None, :] * tk[:, None]
+    u0, u1, a = float(v0[0]), GUESS_CRUISE * v_cruise, 0.5 * a_max
+    if kind == "pass" and u0 < u1:
+        tr = np.minimum(tk, (u1 - u0) / a)
+        guess[:, 0] = p0[0] + u0 * tr + 0.5 * a * tr * tr + u1 * (tk - tr)
+    return guess
 
 
 def _vertex_turns(a, v):

@@ -3,6 +3,8 @@ before each."""
 
 import math
 
+import numpy as np
+
 from contracts import online_planner
 
 from companion.onboard import supervisor
@@ -60,3 +62,12 @@ def horizon_over_speed_now(monkeypatch) -> None:
     slow)."""
     monkeypatch.setattr(online_planner, "pass_horizon",
                         lambda far, v0, v_c, a: max(1.5, 2.0 * far / max(min(v_c, v0) if v0 > 0.1 else v_c, 0.3)))
+
+
+def guessed_at_speed_now(monkeypatch) -> None:
+    """A pass's first linearisation the path straight on at the speed now (from rest: every point where the vehicle
+    is)."""
+    def at_speed_now(kind, p0, v0, v_cruise, a_max, ts, n):
+        tk = np.arange(n + 1) * ts
+        return p0[None, :] + v0[None, :] * tk[:, None]
+    monkeypatch.setattr(online_planner, "_cold_guess", at_speed_now)

@@ -13,7 +13,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tests.swerve_rules import far_side_passed, horizon_over_speed_now, outline_unread, seen_once, threats_on_the_leg_line
+from tests.swerve_rules import (
+    far_side_passed,
+    guessed_at_speed_now,
+    horizon_over_speed_now,
+    outline_unread,
+    seen_once,
+    threats_on_the_leg_line,
+)
 
 from companion.onboard.ahead import swept_obstacle_m
 from companion.onboard.contract_in_force import (
@@ -191,10 +198,12 @@ def _plan_52(speed: float):
 
 def test_a_pass_never_ends_round_a_wall_point_on_its_far_side(monkeypatch):
     """The SCP starts each wall point on the route line's side but may drift round it: a pass that ends on the far side
-    of a point beside the line is rejected (here from near rest: the stop). Control: unchecked, the pass runs 2 m
-    behind the right wall's points."""
+    of a point beside the line is rejected. Control: unchecked, and linearised first about a path at the speed now
+    (near rest: where the vehicle is), the pass runs 2 m behind the right wall's points."""
     plan = _plan_52(0.05)
     assert plan.p[:, 1].min() > -2.6
+    guessed_at_speed_now(monkeypatch)
+    assert _plan_52(0.05).p[:, 1].min() > -2.6
     monkeypatch.setattr(online_planner, "round_far_side", lambda p, local, sides: False)
     plan = _plan_52(0.05)
     assert plan.kind == "pass" and plan.p[:, 1].min() < -4.0  # negative control
@@ -204,16 +213,41 @@ def test_a_pass_never_ends_round_a_wall_point_on_its_far_side(monkeypatch):
 def test_a_pass_from_below_the_cruise_speed_is_planned_over_the_time_it_takes(speed, monkeypatch):
     """Slowed below the cruise speed in the corridor, a pass between the column and the right wall, forward, inside the
     corridor: its horizon is the way at the cruise speed and the time to reach it. Control: a horizon of twice the way
-    over the speed now (tens of seconds) leaves no pass (the stop), and from 0.32 m/s, unchecked, one 60 s long that
-    runs 19 m out of the corridor."""
+    over the speed now (tens of seconds) leaves no pass (the stop), and from 0.32 m/s, unchecked and linearised first
+    about the path at the speed now, one 60 s long that runs 19 m out of the corridor."""
     plan = _plan_52(speed)
     assert plan.kind == "pass" and plan.ok
     assert plan.p[:, 0].min() >= 9.59 - 1e-6 and -2.6 < plan.p[:, 1].min() and plan.p[:, 1].max() < 2.5
     horizon_over_speed_now(monkeypatch)
     assert _plan_52(speed).kind == "stop"  # negative control
+    guessed_at_speed_now(monkeypatch)
     monkeypatch.setattr(online_planner, "round_far_side", lambda p, local, sides: False)
     plan = _plan_52(0.32)
     assert plan.t[-1] > 30.0 and plan.p[:, 1].min() < -10.0
+
+
+# examples/campaign-clutter.yaml flight 117 (the X500 in a 5.4 m corridor, a 0.34 m column 0.35 m right of the route):
+# the column's disc and the walls' hit points seen from (6.75, 0.04) at rest, its Ω then (V_max 1.45 m/s, a_max 6.87)
+CORRIDOR_117 = [Disc(11.28, -0.36, 1.47, 1.01), Disc(11.59, -2.48, 1.12, 0.67), Disc(12.76, -2.45, 1.17, 0.71),
+                Disc(14.38, -2.37, 1.23, 0.78), Disc(14.03, 2.34, 1.22, 0.76), Disc(12.6, 2.47, 1.16, 0.71),
+                Disc(11.43, 2.48, 1.12, 0.66)]
+
+
+def test_a_pass_from_rest_threads_the_room_between_a_column_and_a_wall(monkeypatch):
+    """At rest before the column, 0.2 m of room left between its keep-out and the left wall's points: the pass goes
+    forward through it, inside the corridor. Its first linearisation is a path along the route at the cruise speed,
+    so each half-plane faces the side of its disc where the path passes it. Control: linearised first about the
+    path at the speed now — every point where the vehicle rests, every half-plane facing a disc's front — the SCP's
+    passes go through the walls and the exact check leaves only the stop (the vehicle hovered there)."""
+    def plan():
+        return AvoidancePlanner().plan((6.75, 0.04), (0.034, 0.006), (1.0, 0.0), CORRIDOR_117, v_max=1.45,
+                                       a_max=6.87, v_cruise=1.45, along=True)
+
+    p = plan()
+    assert p.kind == "pass" and p.ok
+    assert p.p[:, 0].min() >= 6.75 - 1e-6 and p.p[-1, 0] > 14.0 and -1.3 < p.p[:, 1].min() and p.p[:, 1].max() < 1.4
+    guessed_at_speed_now(monkeypatch)
+    assert plan().kind == "stop"  # negative control
 
 
 # ----------------------------------------------------------------------------- when it swerves, and how fast
