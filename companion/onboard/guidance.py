@@ -324,6 +324,13 @@ def _apart(discs: list[Disc]) -> int:
     return list(groups.values())
 
 
+def _to_segment(c, a, b) -> float:
+    """The distance from point c to the segment from a to b."""
+    ab = b - a
+    k = min(max(float((c - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0), 1.0)
+    return float(np.hypot(*(c - a - k * ab)))
+
+
 def new_obstacles(discs, known) -> list[Disc]:
     """The discs of obstacles not among `known`: whose centre lies within no known disc (a disc that moved as its
     obstacle was seen better is the same obstacle)."""
@@ -655,7 +662,9 @@ class OffboardGuidance:
         along the leg it is on, as far as that leg goes straight; beyond the leg's turn, within 0.5 m of the route
         there widened by the vehicle's offset from the route now (the reference turns with the route: a disc beyond
         the turn on the leg's line, a piece of a corridor's far wall, is not in the way, and a swerve round it planned
-        straight on would go through the side wall)."""
+        straight on would go through the side wall). On the route's last leg, within 0.5 m of the way from the vehicle
+        to the route's end, where it rests (a corridor's corner beyond the end is not in the way: a pass round it,
+        its cruise speed beyond the end 0, ran 50 m out through the wall)."""
         if not discs:
             return []
         route = self.route
@@ -663,6 +672,7 @@ class OffboardGuidance:
         base, u = route.point(s)
         off = abs(float((p - base) @ np.array([-u[1], u[0]])))
         straight = route.straight_left(s)
+        end = route.point(route.length)[0] if math.isfinite(straight) and s + straight >= route.length - 1e-9 else None
         out = []
         for d in discs:
             c = np.array([d.x, d.y])
@@ -670,7 +680,9 @@ class OffboardGuidance:
             along = float(rel @ u)
             if along <= -d.r:
                 continue
-            if along - d.r <= straight:
+            if end is not None:
+                near = _to_segment(c, p, end) < d.r + 0.5
+            elif along - d.r <= straight:
                 near = abs(float(rel[0] * u[1] - rel[1] * u[0])) < d.r + 0.5
             else:
                 q, _ = route.point(route.project(c, lo=s))
