@@ -71,3 +71,8 @@ def guessed_at_speed_now(monkeypatch) -> None:
         tk = np.arange(n + 1) * ts
         return p0[None, :] + v0[None, :] * tk[:, None]
     monkeypatch.setattr(online_planner, "_cold_guess", at_speed_now)
+
+
+def threats_past_the_route_end(monkeypatch) -> None:
+    """On the route's last leg a disc is in the way near the leg's line as on any other, beyond the route's end too."""
+    monkeypatch.setattr(Route, "end_ahead", lambda self, s: None)

@@ -17,8 +17,14 @@ from companion.ground.worlds import column, turning_corridor
 from companion.onboard import ahead
 from companion.onboard.ahead import CREEP_SPEED_M_S, TRAVEL_SPEED_M_S, Creep, stop_obstacle_m, swept_obstacle_m
 from companion.onboard.supervisor import Supervisor
-from tests.swerve_rules import (grown_judged_at_once, others_passed_through, outline_unread, seen_once,
-                                threats_on_the_leg_line)
+from tests.swerve_rules import (
+    grown_judged_at_once,
+    guessed_at_speed_now,
+    others_passed_through,
+    outline_unread,
+    seen_once,
+    threats_on_the_leg_line,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = math.radians(5.0)
@@ -167,7 +173,8 @@ def _old_guidance(monkeypatch):
     and as it flew swerves before: R_obst's disc round a pole at any range and round every run of bins whatever the
     bins beside it saw, from its first frame, a disc in the way wherever it is near the leg's line, the other discs not
     kept out of, more of an obstacle past its disc judged at once, a pass flown to its end past the route's turn,
-    planned along the route where the vehicle is, not waiting for the heading, a sideways speed clipped at once."""
+    planned along the route where the vehicle is, linearised first about the path at the speed now, not waiting for
+    the heading, a sideways speed clipped at once."""
     from companion.onboard import guidance
     from companion.onboard.guidance import OffboardGuidance
     from companion.onboard.supervisor import Supervisor
@@ -177,6 +184,7 @@ def _old_guidance(monkeypatch):
     threats_on_the_leg_line(monkeypatch)
     others_passed_through(monkeypatch)
     grown_judged_at_once(monkeypatch)
+    guessed_at_speed_now(monkeypatch)
 
     monkeypatch.setattr(guidance, "slow_aim", lambda heading, want: (None, False))
     monkeypatch.setattr(guidance, "A_SIDE", math.inf)

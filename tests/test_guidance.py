@@ -603,14 +603,14 @@ def test_a_corner_beyond_the_route_s_end_is_not_in_the_way(monkeypatch):
     """examples/campaign-clutter.yaml flight 472 (the X500 on a corridor's last leg, 0.8 m right of the route, 2.8 m
     before its end): a piece of the corridor's corner beyond the end, taken for a pole, lies 1.9 m beside the leg's line
     and 2.6 m from the way to the end, where the vehicle rests: not in the way. What lies on that way still is. Control:
-    judged against the leg's line however far on, the corner is in the way (the pass round it, its cruise speed beyond
-    the route's end 0, ran 50 m out through the wall)."""
-    from tests.swerve_rules import threats_on_the_leg_line
+    judged against the leg's line as on any other leg, the corner is in the way (the pass round it, its cruise speed
+    beyond the route's end 0, ran 50 m out through the wall)."""
+    from tests.swerve_rules import threats_past_the_route_end
 
     g = OffboardGuidance(Route([[0, 0], [20.35, 0], [20.35, -17.75]], 2.0))
     p, v = np.array([21.15, -14.92]), np.array([-0.05, -1.33])
     corner, on_the_way = Disc(23.07, -19.48, 1.93, 1.47), Disc(21.4, -16.8, 0.9, 0.45)
     assert g._threats(p, v, [corner]) == []
     assert g._threats(p, v, [corner, on_the_way]) == [on_the_way]
-    threats_on_the_leg_line(monkeypatch)
+    threats_past_the_route_end(monkeypatch)
     assert g._threats(p, v, [corner]) == [corner]  # negative control

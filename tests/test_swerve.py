@@ -415,14 +415,15 @@ def test_a_wall_across_the_route_is_still_a_dead_end_stopped_short_and_said():
 
 
 def test_a_stop_short_of_a_column_with_no_pass_is_a_dead_end_said_and_held(monkeypatch):
-    """Scenario 117 (the 450–500 mm quad, a corridor with a column in it): the planner proves no pass between the
-    column's keep-out and the walls' hit points from where the vehicle stopped, so it rests on the stop; after 3 s at
-    rest that is said as a dead end (event, STATUSTEXT over MAVLink), Hold asked and latched as such; no contact.
-    Control: without the rule the vehicle hovers on the stop and says nothing."""
+    """Scenario 156 (the 450–500 mm quad on ArduPilot, a 5.1 m corridor, a 0.4 m column 0.26 m left of the route: 1.8 m
+    and 2.3 m between it and the walls): the column's keep-out and the walls' points, each grown by r_body + E_tr and
+    the bins' width, leave the planner no pass, so the vehicle rests on its stop; after 3 s at rest that is said as a
+    dead end (event, STATUSTEXT over MAVLink), Hold asked and latched as such; no contact. Control: without the rule the
+    vehicle hovers on the stop and says nothing."""
     from companion.onboard import offboard
 
-    s, row, rig = _clutter(117)
-    assert s["world_family"] == "corridor"
+    s, row, rig = _clutter(156)
+    assert s["world_family"] == "corridor" and row["route_exists"]
     assert not row["collided"] and row["stopped_short"] and not row["route_completed"]
     (dead,) = rig.log.named("dead_end")
     assert dead["reason"] == "no path the contract can prove: stopped" and dead["obstacle_m"] > 0.5
@@ -434,7 +435,7 @@ def test_a_stop_short_of_a_column_with_no_pass_is_a_dead_end_said_and_held(monke
     assert rested and max(st["ground_speed"] for st in rested) < 0.3
 
     monkeypatch.setattr(offboard, "DEAD_END_S", math.inf)
-    _, old, old_rig = _clutter(117)
+    _, old, old_rig = _clutter(156)
     assert not old["collided"] and not old["route_completed"]  # the control must fail: a silent hover
     assert not old["stopped_short"] and not old_rig.log.named("dead_end")
 

@@ -188,6 +188,11 @@ class Route:
         e, ds = self._at(s)
         return float(e[1] - ds) if e[8] <= 0 else math.inf
 
+    def end_ahead(self, s: float):
+        """The route's end point where the leg at s runs straight on to it (the last leg), else None."""
+        straight = self.straight_left(s)
+        return self.point(self.length)[0] if math.isfinite(straight) and s + straight >= self.length - 1e-9 else None
+
     def next_stop(self, s: float) -> float:
         """Along-track position of the first stop (sharp corner or the route end) after s."""
         return float(self._stops[np.searchsorted(self._stops, s, side="right")]) if s < self._length else self._length
@@ -672,7 +677,7 @@ class OffboardGuidance:
         base, u = route.point(s)
         off = abs(float((p - base) @ np.array([-u[1], u[0]])))
         straight = route.straight_left(s)
-        end = route.point(route.length)[0] if math.isfinite(straight) and s + straight >= route.length - 1e-9 else None
+        end = route.end_ahead(s)
         out = []
         for d in discs:
             c = np.array([d.x, d.y])
