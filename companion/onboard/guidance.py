@@ -23,6 +23,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from contracts.contour import distance_to_polyline
 from contracts.geometry import wrap
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan, load_solver
 
@@ -327,13 +328,6 @@ def _apart(discs: list[Disc]) -> int:
     for k in range(len(discs)):
         groups.setdefault(find(k), []).append(k)
     return list(groups.values())
-
-
-def _to_segment(c, a, b) -> float:
-    """The distance from point c to the segment from a to b."""
-    ab = b - a
-    k = min(max(float((c - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0), 1.0)
-    return float(np.hypot(*(c - a - k * ab)))
 
 
 def new_obstacles(discs, known) -> list[Disc]:
@@ -686,7 +680,7 @@ class OffboardGuidance:
             if along <= -d.r:
                 continue
             if end is not None:
-                near = _to_segment(c, p, end) < d.r + 0.5
+                near = distance_to_polyline(c, np.array([p, end])) < d.r + 0.5
             elif along - d.r <= straight:
                 near = abs(float(rel[0] * u[1] - rel[1] * u[0])) < d.r + 0.5
             else:
