@@ -57,6 +57,7 @@ SUB_STEPS = 20  # dense re-simulation per interval for the exact check
 MARGIN_M = 0.01  # kept from the discs in the QP, so solver tolerance never fails the exact check
 SLACK_COST = 1e2  # per metre of keep-out violation in the first SCP iteration (×10 per iteration)
 GUESS_CRUISE = 0.9  # a pass's first linearisation flies this fraction of the cruise speed (`_cold_guess`)
+STOP_CREEP_M_S = 0.1  # a stop planned from slower than this may reach it (`_speed_caps`)
 QP_TIGHTEN = 1e-3  # the QP's speed and acceleration polygons are shrunk by this fraction, so a solution within
 # OSQP's tolerance still satisfies the exact limits (most failures near V_safe were a converged-to-ε
 # brake-and-swerve sitting just outside the tilt limit)
@@ -614,11 +615,15 @@ class AvoidancePlanner:
         return Plan(kind, np.arange(len(p)) * ts, p @ back.T + p0, v @ back.T, a @ back.T, ok, clear,
                     time.perf_counter() - t0, solves, rejected, notes)
 
-    def _speed_caps(self, v0, v_max, a_max, ts):
+    def _speed_caps(self, kind, v0, v_max, a_max, ts):
         """Speed bound at k = 1…N: V_max, or — flying faster after the limit dropped — the current
-        speed less what braking at 70 % of a_max removes by then."""
+        speed less what braking at 70 % of a_max removes by then. A stop never flies faster than it starts (from
+        rest: STOP_CREEP_M_S): an iterate OSQP had not converged on, safe by the exact check, backed a vehicle at
+        rest 1 m away from a column at 1.1 m/s, out of its sensor's view."""
         k = np.arange(1, self.n + 1)
-        return np.maximum(v_max, float(np.hypot(*v0)) - 0.7 * a_max * ts * k)
+        speed0 = float(np.hypot(*v0))
+        caps = np.maximum(v_max, speed0 - 0.7 * a_max * ts * k)
+        return np.minimum(caps, max(speed0, STOP_CREEP_M_S)) if kind == "stop" else caps
 
     def _scp(self, kind, side, p0, v0, discs, v_max, a_max, v_cruise, ts, guess=None):
         n, nq, nz = self._index()
@@ -634,7 +639,7 @@ class AvoidancePlanner:
         r = 4 + 4 * n
         lo[r : r + 2 * N_POLY * n] = -np.inf
         hi[r : r + N_POLY * n] = np.tile(self.poly_b * (a_max * (1.0 - QP_TIGHTEN)), n)
-        hi[r + N_POLY * n : r + 2 * N_POLY * n] = np.outer(self._speed_caps(v0, v_max, a_max, ts) * (1.0 - QP_TIGHTEN),
+        hi[r + N_POLY * n : r + 2 * N_POLY * n] = np.outer(self._speed_caps(kind, v0, v_max, a_max, ts) * (1.0 - QP_TIGHTEN),
                                                            self.poly_b).ravel()
         r = r_hp + 2 * n * len(discs)
         hi[r_hp:r] = np.inf
@@ -692,7 +697,7 @@ class AvoidancePlanner:
             # an unconverged iterate is still a candidate: the exact check below is the only judge
             sol = out.x
             p, v, a = rollout(p0, v0, sol[nq : nq + 2 * n].reshape(n, 2), ts, a_max)
-            ok, clear, why = exact_check(p, v, a, ts, discs, self._speed_caps(v0, v_max, a_max, ts), a_max)
+            ok, clear, why = exact_check(p, v, a, ts, discs, self._speed_caps(kind, v0, v_max, a_max, ts), a_max)
             if ok:
                 return p, v, a, why, ok, clear, solves
             guess = p

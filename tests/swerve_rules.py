@@ -76,3 +76,10 @@ def guessed_at_speed_now(monkeypatch) -> None:
 def threats_past_the_route_end(monkeypatch) -> None:
     """On the route's last leg a disc is in the way near the leg's line as on any other, beyond the route's end too."""
     monkeypatch.setattr(Route, "end_ahead", lambda self, s: None)
+
+
+def stops_bounded_by_v_max(monkeypatch) -> None:
+    """A stop's speed bounded as a pass's (V_max, or the braking profile above it), not by the speed it starts at."""
+    caps = online_planner.AvoidancePlanner._speed_caps
+    monkeypatch.setattr(online_planner.AvoidancePlanner, "_speed_caps",
+                        lambda self, kind, v0, v_max, a_max, ts: caps(self, "pass", v0, v_max, a_max, ts))

@@ -19,6 +19,7 @@ from tests.swerve_rules import (
     horizon_over_speed_now,
     outline_unread,
     seen_once,
+    stops_bounded_by_v_max,
     threats_on_the_leg_line,
 )
 
@@ -304,6 +305,7 @@ def _clutter(scenario: int, keep_rig: bool = True):
     from companion.ground.campaign import flight_of, fly, load_spec
 
     spec = load_spec(SPEC)
+    spec = spec.model_copy(update={"scenarios": max(spec.scenarios, scenario + 1)})  # a scenario is (seed, k) alone
     i = scenario * len(spec.arms) + spec.arms.index("offboard")
     s, arm = flight_of(spec, i)
     assert arm == "offboard"
@@ -438,6 +440,22 @@ def test_a_stop_short_of_a_column_with_no_pass_is_a_dead_end_said_and_held(monke
     _, old, old_rig = _clutter(156)
     assert not old["collided"] and not old["route_completed"]  # the control must fail: a silent hover
     assert not old["stopped_short"] and not old_rig.log.named("dead_end")
+
+
+def test_a_stop_at_rest_before_a_column_stays_at_rest(monkeypatch):
+    """Scenario 703 (the 450–500 mm quad on PX4, a corridor, a column on the route): the vehicle comes to rest before the
+    column on the planner's stop, and each replan of that stop is a stop from rest — never faster than it starts. No
+    Hold a perfect observer calls unfounded, no contact. Control: a stop bounded by V_max only — an iterate OSQP had not
+    converged on, safe by the exact check, backs the vehicle away at over 1 m/s, the direction of travel behind the
+    sensor's view: "no safe speed", a Hold with nothing behind it."""
+    s, row, rig = _clutter(703)
+    assert s["world_family"] == "corridor" and s["vehicle"] == "x500"
+    assert not row["collided"] and not row["unfounded_alarms"] and not rig.log.named("hold_trigger")
+
+    stops_bounded_by_v_max(monkeypatch)
+    _, old, old_rig = _clutter(703)
+    assert not old["collided"]
+    assert old["unfounded_alarms"] and old_rig.log.named("hold_trigger")  # the control must fail
 
 
 def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
