@@ -83,3 +83,11 @@ def stops_bounded_by_v_max(monkeypatch) -> None:
     caps = online_planner.AvoidancePlanner._speed_caps
     monkeypatch.setattr(online_planner.AvoidancePlanner, "_speed_caps",
                         lambda self, kind, v0, v_max, a_max, ts: caps(self, "pass", v0, v_max, a_max, ts))
+
+
+def passed_obstacles_forgotten(monkeypatch) -> None:
+    """Only the obstacles in view in one frame count for the avoid contract's one at a time (a pole seen before, out
+    of view and not yet passed, does not)."""
+    from companion.onboard.contract_in_force import ContractInForce
+
+    monkeypatch.setattr(ContractInForce, "_not_passed", lambda self, i, d_od: 0)

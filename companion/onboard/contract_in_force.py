@@ -57,6 +57,7 @@ from .guidance import new_obstacles, obstacle_discs
 # 12° and more, half of which is less than asin(ρ) at any D_od), and a 60° sensor keeps the swerve round a column
 # in view (R_obst 1 m, E_tr 0.3 m, the Mambo) from D_od ≈ 2.7 m with it, ≈ 8 m with the worst lag
 LAG_BUDGET_DEG = 8.0
+SEEN_FRAMES = 3  # an obstacle out of view counts with the one in view once this many frames saw it (`_not_passed`)
 WIDE_TOL_M = 0.05  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
 MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)
 AVOID, STOP = "avoid", "stop"
@@ -142,6 +143,7 @@ class ContractInForce:
         self._breach: tuple[float, float, str] | None = None  # (odometer, D_od, what) at the last sighting of a breach
         self._clear_since: float | None = None  # the avoid contract's assumptions have held since
         self._dead_end_said = False  # the dead end of this stretch under the stop contract has been said
+        self._seen: list[tuple[Disc, int]] = []  # obstacles seen under way, not yet passed, and in how many frames
 
     def judge(self, i, avoid: Omega, r_body: float) -> InForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
@@ -173,9 +175,13 @@ class ContractInForce:
         if i.obstacle_width > i.r_obst + WIDE_TOL_M:
             self._breach = (self._odo, d_od, "an obstacle wider than R_obst")
             return f"an obstacle {i.obstacle_width:.2f} m wide (half-width) in view, wider than R_obst {i.r_obst:g} m"
-        if i.obstacles > 1:
+        before = self._not_passed(i, d_od)
+        if i.obstacles > 1 or i.obstacles and before:
             self._breach = (self._odo, d_od, "several obstacles")
-            return f"{i.obstacles} obstacles in view at once: the avoid contract goes round one at a time"
+            if i.obstacles > 1:
+                return f"{i.obstacles} obstacles in view at once: the avoid contract goes round one at a time"
+            return (f"an obstacle in view and {before} seen before, not yet passed: the avoid contract goes round one "
+                    "at a time")
         if self._breach is not None:
             flown = self._odo - self._breach[0]
             if flown < self._breach[1]:
@@ -183,6 +189,24 @@ class ContractInForce:
                         "sighting")
             self._breach = None
         return self._in_view(i, r_k, swerves)
+
+    def _not_passed(self, i, d_od: float) -> int:
+        """How many obstacles seen before, out of view now, are not yet passed: their centre ahead of the vehicle along
+        its direction of travel and within D_od + their radius of it (a pass round the one in view may meet them: a
+        stand of poles seen one pole at a time). An obstacle is remembered once SEEN_FRAMES frames under way (above
+        1 m/s) saw it at one place (a medium's near returns move with the vehicle; a frame's spurious return is one)."""
+        x, y, yaw = i.pose
+        u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
+        now = list(i.discs)
+        self._seen = [(d, k) for d, k in self._seen if (d.x - x) * u[0] + (d.y - y) * u[1] >= 0.0
+                      and math.hypot(d.x - x, d.y - y) <= d_od + d.r]
+        before = sum(1 for d, k in self._seen if k >= SEEN_FRAMES and not _same(d, now))
+        if i.ground_speed > 1.0:
+            for o in now:
+                match = [m for m, (d, _) in enumerate(self._seen) if _same(d, [o])]
+                k = 1 + max((self._seen[m][1] for m in match), default=0)
+                self._seen = [e for m, e in enumerate(self._seen) if m not in match] + [(o, k)]
+        return before
 
     def _in_view(self, i, r_k: float, swerves: bool) -> str | None:
         """Why the pass round the keep-out disc r_k would leave the field of view at this D_od (None: it stays in
@@ -207,6 +231,12 @@ class ContractInForce:
             self._dead_end_said = False
         self.now = replace(new, changed=changed)
         return self.now
+
+
+def _same(d: Disc, discs) -> bool:
+    """Whether one of `discs` is the obstacle of `d`: either's centre within the other (a disc moves and grows as more
+    of its obstacle is seen)."""
+    return any(math.hypot(d.x - o.x, d.y - o.y) <= max(d.r, o.r) for o in discs)
 
 
 def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: float) -> Omega:
