@@ -639,8 +639,8 @@ class AvoidancePlanner:
         r = 4 + 4 * n
         lo[r : r + 2 * N_POLY * n] = -np.inf
         hi[r : r + N_POLY * n] = np.tile(self.poly_b * (a_max * (1.0 - QP_TIGHTEN)), n)
-        hi[r + N_POLY * n : r + 2 * N_POLY * n] = np.outer(self._speed_caps(kind, v0, v_max, a_max, ts) * (1.0 - QP_TIGHTEN),
-                                                           self.poly_b).ravel()
+        caps = self._speed_caps(kind, v0, v_max, a_max, ts)
+        hi[r + N_POLY * n : r + 2 * N_POLY * n] = np.outer(caps * (1.0 - QP_TIGHTEN), self.poly_b).ravel()
         r = r_hp + 2 * n * len(discs)
         hi[r_hp:r] = np.inf
         lo[r : r + n * len(discs)], hi[r : r + n * len(discs)] = 0.0, np.inf
@@ -697,7 +697,7 @@ class AvoidancePlanner:
             # an unconverged iterate is still a candidate: the exact check below is the only judge
             sol = out.x
             p, v, a = rollout(p0, v0, sol[nq : nq + 2 * n].reshape(n, 2), ts, a_max)
-            ok, clear, why = exact_check(p, v, a, ts, discs, self._speed_caps(kind, v0, v_max, a_max, ts), a_max)
+            ok, clear, why = exact_check(p, v, a, ts, discs, caps, a_max)
             if ok:
                 return p, v, a, why, ok, clear, solves
             guess = p

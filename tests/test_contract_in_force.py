@@ -116,7 +116,7 @@ def test_several_obstacles_in_view_keep_the_stop_contract_until_flown_past():
 
 
 def test_an_obstacle_seen_before_and_not_yet_passed_counts_with_the_one_in_view():
-    """A stand of poles seen one pole at a time: a pole seen beside the route in three frames, out of view now but still
+    """A stand of poles seen one pole at a time: a pole seen beside the route in three cycles, out of view now but still
     ahead, and a pole in view on the route are two obstacles within reach — stop. Controls: once the first is passed
     (behind the vehicle), the next one in view is the only one; a return seen in one frame is not remembered."""
     def stand(f):

@@ -57,7 +57,7 @@ from .guidance import new_obstacles, obstacle_discs
 # 12° and more, half of which is less than asin(ρ) at any D_od), and a 60° sensor keeps the swerve round a column
 # in view (R_obst 1 m, E_tr 0.3 m, the Mambo) from D_od ≈ 2.7 m with it, ≈ 8 m with the worst lag
 LAG_BUDGET_DEG = 8.0
-SEEN_FRAMES = 3  # an obstacle out of view counts with the one in view once this many frames saw it (`_not_passed`)
+SEEN_CYCLES = 3  # an obstacle out of view counts with the one in view once this many cycles saw it (`_not_passed`)
 WIDE_TOL_M = 0.05  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
 MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)
 AVOID, STOP = "avoid", "stop"
@@ -143,7 +143,7 @@ class ContractInForce:
         self._breach: tuple[float, float, str] | None = None  # (odometer, D_od, what) at the last sighting of a breach
         self._clear_since: float | None = None  # the avoid contract's assumptions have held since
         self._dead_end_said = False  # the dead end of this stretch under the stop contract has been said
-        self._seen: list[tuple[Disc, int]] = []  # obstacles seen under way, not yet passed, and in how many frames
+        self._seen: list[tuple[Disc, int]] = []  # obstacles seen under way, not yet passed, and in how many cycles
 
     def judge(self, i, avoid: Omega, r_body: float) -> InForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
@@ -193,14 +193,14 @@ class ContractInForce:
     def _not_passed(self, i, d_od: float) -> int:
         """How many obstacles seen before, out of view now, are not yet passed: their centre ahead of the vehicle along
         its direction of travel and within D_od + their radius of it (a pass round the one in view may meet them: a
-        stand of poles seen one pole at a time). An obstacle is remembered once SEEN_FRAMES frames under way (above
+        stand of poles seen one pole at a time). An obstacle is remembered once SEEN_CYCLES cycles under way (above
         1 m/s) saw it at one place (a medium's near returns move with the vehicle; a frame's spurious return is one)."""
         x, y, yaw = i.pose
         u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
         now = list(i.discs)
         self._seen = [(d, k) for d, k in self._seen if (d.x - x) * u[0] + (d.y - y) * u[1] >= 0.0
                       and math.hypot(d.x - x, d.y - y) <= d_od + d.r]
-        before = sum(1 for d, k in self._seen if k >= SEEN_FRAMES and not _same(d, now))
+        before = sum(1 for d, k in self._seen if k >= SEEN_CYCLES and not _same(d, now))
         if i.ground_speed > 1.0:
             for o in now:
                 match = [m for m, (d, _) in enumerate(self._seen) if _same(d, [o])]
