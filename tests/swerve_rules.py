@@ -91,3 +91,17 @@ def passed_obstacles_forgotten(monkeypatch) -> None:
     from companion.onboard.contract_in_force import ContractInForce
 
     monkeypatch.setattr(ContractInForce, "_not_passed", lambda self, i, d_od: 0)
+
+
+def pass_left_beside_its_obstacle(monkeypatch) -> None:
+    """A pass flying faster than the route's profile is left for the rejoin wherever its obstacle is, beside the vehicle
+    too."""
+    past = OffboardGuidance._past_the_profile
+
+    def regardless(self, t, p, v_max, a_max):
+        asked, self._asked_discs = self._asked_discs, ()
+        try:
+            return past(self, t, p, v_max, a_max)
+        finally:
+            self._asked_discs = asked
+    monkeypatch.setattr(OffboardGuidance, "_past_the_profile", regardless)

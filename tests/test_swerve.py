@@ -18,6 +18,7 @@ from tests.swerve_rules import (
     guessed_at_speed_now,
     horizon_over_speed_now,
     outline_unread,
+    pass_left_beside_its_obstacle,
     seen_once,
     stops_bounded_by_v_max,
     threats_on_the_leg_line,
@@ -301,12 +302,14 @@ def _no_swerve(monkeypatch):
     monkeypatch.setattr(Supervisor, "swerves", property(lambda self: False))
 
 
-def _clutter(scenario: int, keep_rig: bool = True):
-    """examples/campaign-clutter.yaml's offboard flight of this scenario (the spec's arms: governor, offboard, …)."""
+def _clutter(scenario: int, keep_rig: bool = True, seed: int | None = None):
+    """examples/campaign-clutter.yaml's offboard flight of this scenario (the spec's arms: governor, offboard, …), with
+    another seed if given."""
     from companion.ground.campaign import flight_of, fly, load_spec
 
     spec = load_spec(SPEC)
-    spec = spec.model_copy(update={"scenarios": max(spec.scenarios, scenario + 1)})  # a scenario is (seed, k) alone
+    spec = spec.model_copy(update={"scenarios": max(spec.scenarios, scenario + 1),  # a scenario is (seed, k) alone
+                                   "seed": spec.seed if seed is None else seed})
     i = scenario * len(spec.arms) + spec.arms.index("offboard")
     s, arm = flight_of(spec, i)
     assert arm == "offboard"
@@ -444,19 +447,36 @@ def test_a_stop_short_of_a_column_with_no_pass_is_a_dead_end_said_and_held(monke
 
 
 def test_a_stop_at_rest_before_a_column_stays_at_rest(monkeypatch):
-    """Scenario 703 (the 450–500 mm quad on PX4, a corridor, a column on the route): the vehicle comes to rest before the
-    column on the planner's stop, and each replan of that stop is a stop from rest — never faster than it starts. No
-    Hold a perfect observer calls unfounded, no contact. Control: a stop bounded by V_max only — an iterate OSQP had not
-    converged on, safe by the exact check, backs the vehicle away at over 1 m/s, the direction of travel behind the
-    sensor's view: "no safe speed", a Hold with nothing behind it."""
-    s, row, rig = _clutter(703)
+    """Seed 46, scenario 332 (the 450–500 mm quad on PX4, a corridor, a column on the route): the vehicle comes to rest
+    before the column on the planner's stop, and each replan of that stop is a stop from rest — never faster than it
+    starts — until a pass is found: no Hold a perfect observer calls unfounded, no contact, the route completed.
+    Control: a stop bounded by V_max only — an iterate OSQP had not converged on, safe by the exact check, backs the
+    vehicle away at over 1 m/s, the direction of travel behind the sensor's view: "no safe speed", a Hold with nothing
+    behind it."""
+    s, row, rig = _clutter(332, seed=46)
     assert s["world_family"] == "corridor" and s["vehicle"] == "x500"
     assert not row["collided"] and not row["unfounded_alarms"] and not rig.log.named("hold_trigger")
+    assert row["route_completed"]
 
     stops_bounded_by_v_max(monkeypatch)
-    _, old, old_rig = _clutter(703)
+    _, old, old_rig = _clutter(332, seed=46)
     assert not old["collided"]
     assert old["unfounded_alarms"] and old_rig.log.named("hold_trigger")  # the control must fail
+
+
+def test_a_pass_is_finished_beside_a_pole_gone_out_of_view(monkeypatch):
+    """Seed 46, scenario 844 (the 450–500 mm quad on PX4 in a stand of poles, a 0.18 m pole on the route): swerving
+    round the pole at the stop contract's 1.5 m/s, the pole leaves the sensor's view 2.5 m before the vehicle is beside
+    it. The pass flies a little faster than the route's profile (V_max), but its pole is not yet behind: the pass is
+    finished, no rejoin across its keep-out; the route completed. Control: the pass left for the rejoin wherever its pole
+    is — back to the route past the pole, 0.02 m from contact."""
+    s, row, _ = _clutter(844, seed=46)
+    assert s["world_family"] == "cluster" and s["vehicle"] == "x500"
+    assert not row["collided"] and row["route_completed"] and row["min_clearance_m"] > 0.5
+
+    pass_left_beside_its_obstacle(monkeypatch)
+    _, old, _ = _clutter(844, seed=46)
+    assert old["min_clearance_m"] < 0.1  # the control must fail
 
 
 def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():

@@ -566,7 +566,7 @@ class OffboardGuidance:
             return self._avoid(t, dt, p, v, (v_max, a_max), ahead, z, yaw)
         self.epoch += 1  # a plan still being computed for an obstacle no longer ahead is not flown
         if self.plan is not None and self.plan.kind == "pass" and self._tau(t) < self.plan.t[-1] \
-                and not self._past_the_profile(t, v_max, a_max) and not self._past_the_leg(t):
+                and not self._past_the_profile(t, p, v_max, a_max) and not self._past_the_leg(t):
             return self._follow(t, dt, z, v_max, a_max, yaw)  # finish going round the obstacle before rejoining
         if self.plan is not None:  # done with it: rejoin the route smoothly from where the plan ends
             end_p, end_v, _ = self.plan.sample(self._tau(t))
@@ -785,10 +785,14 @@ class OffboardGuidance:
             done, self._pending = self._pending, None
         self._adopt(done)
 
-    def _past_the_profile(self, t: float, v_max: float, a_max: float) -> bool:
-        """Whether the pass being finished (its obstacle behind) flies faster than the route's speed profile
-        at half its braking allows — then the vehicle rejoins now and slows for what is ahead (the route's end,
-        a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it."""
+    def _past_the_profile(self, t: float, p, v_max: float, a_max: float) -> bool:
+        """Whether the pass being finished, its obstacle behind the vehicle along the route, flies faster than the
+        route's speed profile at half its braking allows — then the vehicle rejoins now and slows for what is ahead
+        (the route's end, a corner). Finishing a 3.5 s pass at 6 m/s 2 m before the end overshot it; a pass left
+        beside a pole that had gone out of view, the rejoin cut back across its keep-out (0.02 m from contact)."""
+        s_here = self.route.project(p)
+        if any(self.route.project((d.x, d.y)) + d.r > s_here for d in self._asked_discs):
+            return False
         pos, vel, _ = self.plan.sample(self._tau(t))
         return float(np.hypot(*vel)) > float(self.route.speed_limit(self.route.project(pos), v_max, 0.5 * a_max))
 
