@@ -302,7 +302,7 @@ def _no_swerve(monkeypatch):
     monkeypatch.setattr(Supervisor, "swerves", property(lambda self: False))
 
 
-def _clutter(scenario: int, keep_rig: bool = True, seed: int | None = None):
+def _clutter(scenario: int, seed: int | None = None):
     """examples/campaign-clutter.yaml's offboard flight of this scenario (the spec's arms: governor, offboard, …), with
     another seed if given."""
     from companion.ground.campaign import flight_of, fly, load_spec

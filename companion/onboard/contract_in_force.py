@@ -200,10 +200,10 @@ class ContractInForce:
         now = list(i.discs)
         self._seen = [(d, k) for d, k in self._seen if (d.x - x) * u[0] + (d.y - y) * u[1] >= 0.0
                       and math.hypot(d.x - x, d.y - y) <= d_od + d.r]
-        before = sum(1 for d, k in self._seen if k >= SEEN_CYCLES and not _same(d, now))
+        before = sum(1 for d, k in self._seen if k >= SEEN_CYCLES and new_obstacles([d], now))
         if i.ground_speed > 1.0:
             for o in now:
-                match = [m for m, (d, _) in enumerate(self._seen) if _same(d, [o])]
+                match = [m for m, (d, _) in enumerate(self._seen) if not new_obstacles([d], [o])]
                 k = 1 + max((self._seen[m][1] for m in match), default=0)
                 self._seen = [e for m, e in enumerate(self._seen) if m not in match] + [(o, k)]
         return before
@@ -231,12 +231,6 @@ class ContractInForce:
             self._dead_end_said = False
         self.now = replace(new, changed=changed)
         return self.now
-
-
-def _same(d: Disc, discs) -> bool:
-    """Whether one of `discs` is the obstacle of `d`: either's centre within the other (a disc moves and grows as more
-    of its obstacle is seen)."""
-    return any(math.hypot(d.x - o.x, d.y - o.y) <= max(d.r, o.r) for o in discs)
 
 
 def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: float) -> Omega:
