@@ -385,6 +385,55 @@ def _smooth_stop(p0, v0, s, a_max, th, n, a0, jerk):
     return p, v, a, ts
 
 
+# A stop that ended inside a keep-out disc backs off along the path flown before Hold (ArduPilot's AC_Avoid backs
+# away from what is closer than its margin too, at AVOID_BACKUP_SPD, 0.75 m/s by default)
+BACK_OFF_M_S = 0.5  # [m/s] the back-off's speed (blind: the sensors face the way the vehicle flew)
+BACK_OFF_ACC = 0.5  # [m/s²] its acceleration
+BACK_OFF_MAX_M = 3.0  # [m] never further back than this along the path flown
+BACK_OFF_STEP_M = 0.05  # [m] the path flown is searched at this spacing
+BACK_OFF_MARGIN_M = 0.05  # [m] the back-off ends this far outside every keep-out disc
+
+
+def back_off(track, discs, ts: float = 0.05) -> Plan | None:
+    """The way out of a keep-out disc for a vehicle at rest inside one: a straight line, at BACK_OFF_M_S and
+    BACK_OFF_ACC, to the newest point of `track` (the positions flown, oldest first, the last where it rests; its
+    body swept them clear of static obstacles) that lies BACK_OFF_MARGIN_M outside every disc, within
+    BACK_OFF_MAX_M back along the track, and along which the line never goes deeper into a disc than the vehicle
+    is now. The hold that follows then starts from a reference with the controller's whole allowance E_tr round it
+    (eq. 27's keep-out), not from where the allowance was already used. None: at rest outside every disc, or no
+    such point."""
+    discs = [d for d in discs if all(math.isfinite(x) for x in (d.x, d.y, d.r))]
+    pts = np.asarray(track, float)[::-1]
+    if not discs or len(pts) == 0:
+        return None
+
+    def clearance(q):
+        return np.min([np.hypot(q[:, 0] - d.x, q[:, 1] - d.y) - d.r for d in discs], axis=0)
+
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    s_q = np.arange(0.0, min(s[-1], BACK_OFF_MAX_M) + 1e-9, BACK_OFF_STEP_M)
+    q = np.stack([np.interp(s_q, s, pts[:, 0]), np.interp(s_q, s, pts[:, 1])], axis=1)
+    clear = clearance(q)
+    if clear[0] >= 0.0:
+        return None
+    u = np.linspace(0.0, 1.0, SUB_STEPS)[:, None]
+    for k in np.flatnonzero(clear >= BACK_OFF_MARGIN_M):
+        if float(np.min(clearance(q[0] + u * (q[k] - q[0])))) >= clear[0]:
+            break
+    else:
+        return None
+    length = float(np.hypot(*(q[k] - q[0])))
+    v_top = min(BACK_OFF_M_S, math.sqrt(BACK_OFF_ACC * length))  # a trapezoid, or a triangle when short
+    t_end = length / v_top + v_top / BACK_OFF_ACC
+    t = np.arange(0.0, t_end + ts, ts)
+    speed = np.minimum.reduce([BACK_OFF_ACC * t, np.full_like(t, v_top), BACK_OFF_ACC * np.maximum(t_end - t, 0.0)])
+    along = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * ts)])
+    along = np.minimum(along * length / along[-1], length)
+    e = (q[k] - q[0]) / length
+    p, v = q[0] + along[:, None] * e, speed[:, None] * e
+    return Plan("back_off", t, p, v, np.diff(v, axis=0) / ts, True, float(clear[0]))  # (its clearance: the start's)
+
+
 class AvoidancePlanner:
     """OSQP avoidance planner with a fixed horizon of `n` intervals; solvers are cached per shape."""
 

@@ -94,6 +94,8 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
         return NOTICE, f"offboard {f['from']} → {f['to']} ({f['reason']})"
     if name == "no_avoiding_plan":
         return WARNING, "no avoiding plan: braking"
+    if name == "back_off":
+        return WARNING, f"stopped {_fmt(f['inside_m'])} m inside a keep-out: backing off {_fmt(f['path_m'])} m the way it came"
     if name == "dead_end":
         return WARNING, f"dead end: {f['reason']} ({_fmt(f['obstacle_m'])} m)"
     if name == "mission" and f["status"] in ("ready", "refused"):

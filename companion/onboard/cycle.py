@@ -171,7 +171,8 @@ class Cycle:
         off = self.offboard
         engaged = (g.engage and g.startup_ok is not False and self.first_seen_in_air is False and g.route_ready
                    and not (off is not None and off.state in (OffboardState.DONE, OffboardState.STOOD_DOWN)))
-        applies = self.adapter.limit_applies(mode) or (off is not None and mode == "offboard")
+        applies = (self.adapter.limit_applies(mode) or (off is not None and mode == "offboard")) and \
+            not (off is not None and off.backing_off)
         v_mission = self.calibration.mission_speed(tel.mission_seq) if self.calibration is not None else math.nan
         return Inputs(t=t, link_ok=link_ok, telemetry_ok=telemetry_ok, nav_ok=s.nav.healthy(t), armed=tel.armed,
                       in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=view.by_daemon,

@@ -201,6 +201,9 @@ EVENTS = {
                            "commands no longer reach the autopilot; `why`: the autopilot accelerated harder than it "
                            "allows, also the autopilot's violation_start)"),
     "no_avoiding_plan": Event(("notes",), "offboard", "no avoiding plan: braking"),
+    "back_off": Event(("inside_m", "path_m"), "offboard",
+                      "a braking stop came to rest `inside_m` inside a keep-out disc (the controller's E_tr allowance "
+                      "round an obstacle): the daemon backs off `path_m` along the path it flew before Hold"),
     "calibration_hold": Event(("status", "leg", "seq", "leg_speed_m_s", "speed_m_s", "distance_m", "hold_before_m",
                                "rest_s", "at_rest", "reason"), "daemon",
                               "a calibration plan's hold leg (config calibration.legs, governor mode): commanded "

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from contracts.online_planner import Plan, best_stop
+from contracts.online_planner import BACK_OFF_MAX_M, BACK_OFF_STEP_M, Plan, back_off, best_stop
 from contracts.stop import stop_path_budget
 
 from .contract_in_force import DEAD_END
@@ -121,6 +121,9 @@ class OffboardController:
     refused: str | None = None  # why the recovery brake's switch was refused (it is then unavailable)
     proven: bool = False  # the recovery brake's switch was shown within its contract's budget in this flight
     held: str = HELD  # what the Hold at the end of the braking stop waits for
+    _track: list = field(default_factory=list)  # the positions flown in offboard, BACK_OFF_STEP_M apart (newest last)
+    _stop_known: list = field(default_factory=list)  # the keep-out discs the braking stop was planned round
+    _backed: bool = False  # the braking stop has backed off out of a keep-out disc
 
     def _go(self, t, new, why, acts):
         acts.events.append(("offboard", {"from": self.state, "to": new, "reason": why}))
@@ -134,6 +137,7 @@ class OffboardController:
         acts, t, p, v = OffboardActions(), ask.t, ask.p, ask.v
         dt = 0.02 if self._t_last is None else min(max(t - self._t_last, 1e-3), 0.2)
         self._t_last = t
+        self._flown(p)
         if self.state == S.BRAKING:
             return self._brake(ask, ask.stop and not ask.brake_stop, acts)
         if ask.discs:
@@ -207,6 +211,7 @@ class OffboardController:
         t = ask.t
         if ask.mode == "offboard" and ask.by_daemon:
             self.guidance.start(ask.p, ask.v)
+            self._track = [np.asarray(ask.p, float)]
             self._done_at = self._rest_since = None
             self._go(t, S.FLYING, "autopilot in offboard", acts)
             return True
@@ -227,6 +232,15 @@ class OffboardController:
                                        max_path_m=budget, a0=a0, jerk=ask.track_jerk)
         self._stop_plan = Plan("brake", np.arange(len(bp)) * bts, bp, bv, ba, True, -np.inf)
         self._stop_z, self._stop_yaw, self._slow_since = ask.z, ask.yaw, None
+        self._stop_known, self._backed = list(known), False
+
+    def _flown(self, p) -> None:
+        """Keep the path flown (for `back_off`): a point each BACK_OFF_STEP_M, twice BACK_OFF_MAX_M of it."""
+        if self.state not in (S.FLYING, S.BRAKING) or not all(math.isfinite(x) for x in p):
+            return
+        if not self._track or math.dist(self._track[-1], p) >= BACK_OFF_STEP_M:
+            self._track.append(np.asarray(p, float))
+            del self._track[:-int(2 * BACK_OFF_MAX_M / BACK_OFF_STEP_M)]
 
     def recover(self, ask: Ask) -> OffboardActions:
         """Governor mode's recovery brake (ASTM F3269's recovery function, the stop contract its
@@ -326,6 +340,16 @@ class OffboardController:
         near = float(np.hypot(*(np.asarray(p, float) - plan.p[-1]))) <= AT_END_M
         slow = tau >= plan.t[-1] and float(np.hypot(*v)) < AT_REST_M_S and near
         self._slow_since = (self._slow_since if self._slow_since is not None else t) if slow else None
+        if slow and t - self._slow_since >= SETTLE_S and not self._backed:
+            self._backed = True
+            back = back_off([*self._track, np.asarray(p, float)], [*self._stop_known, *ask.discs, *(ask.walls or ())])
+            if back is not None:  # at rest inside a keep-out disc: back out along the path flown, then Hold
+                path_m = float(np.sum(np.hypot(*np.diff(back.p, axis=0).T)))
+                acts.events.append(("back_off", {"inside_m": round(-back.min_clearance, 3), "path_m": round(path_m, 3)}))
+                self._stop_plan, self._t_state, self._slow_since, plan, tau = back, t, None, back, 0.0
+                pos, vel, acc = plan.sample(tau)
+                acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, SetpointKind.BRAKE)
+                return acts
         if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
             acts.hold = True
             self._go(t, S.HELD, "stopped: " + self.held, acts)
@@ -333,6 +357,11 @@ class OffboardController:
         pos, vel, acc = plan.sample(tau)
         acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, SetpointKind.BRAKE)
         return acts
+
+    @property
+    def backing_off(self) -> bool:
+        """Backing off out of a keep-out disc (`back_off`): the daemon's own slow setpoints, not bound by the limit."""
+        return self.state == S.BRAKING and self._stop_plan.kind == "back_off"
 
     @property
     def streaming(self) -> bool:
