@@ -264,3 +264,26 @@ def test_the_failsafe_stop_turns_from_the_vehicles_acceleration_at_the_jerk_limi
     # without a jerk limit the acceleration steps (the old stop)
     _, _, a_step, ts_step, _ = best_stop(MID_P, MID_V, MID_A, discs, 40, max_path_m=MID_BUDGET)
     assert np.hypot(*(a_step[0] - MID_A0)) > 3 * jerk * ts_step
+
+
+def test_a_stop_at_rest_inside_a_keep_out_backs_off_along_the_path_flown():
+    """At rest 0.3 m inside a keep-out disc, having come in on a 90° turn: the way out is a straight line to a point
+    of the path flown outside the disc, at the back-off's speed and acceleration, never deeper in than at its start,
+    ending at rest. Outside every disc, or with no such point, there is none."""
+    from contracts.online_planner import (BACK_OFF_ACC, BACK_OFF_M_S, BACK_OFF_MARGIN_M, Disc, back_off,
+                                          dense_path)
+
+    disc = Disc(3.0, 0.0, 1.0)
+    # flown along y = -2 to x = 2.3, then turned up along x = 2.3 to rest at (2.3, 0.0): 0.3 m inside the disc
+    track = [(x, -2.0) for x in np.arange(0.0, 2.3, 0.05)] + [(2.3, y) for y in np.arange(-2.0, 0.001, 0.05)]
+    plan = back_off(track, [disc])
+    assert plan is not None and plan.min_clearance == pytest.approx(-0.3, abs=1e-6)
+    pts = dense_path(plan.p, plan.v, plan.a, plan.t[1] - plan.t[0])
+    clear = np.hypot(pts[:, 0] - disc.x, pts[:, 1] - disc.y) - disc.r
+    assert clear[0] == pytest.approx(-0.3, abs=1e-3) and np.min(clear) >= -0.3 - 1e-3
+    assert clear[-1] >= BACK_OFF_MARGIN_M - 1e-3 and clear[-1] < BACK_OFF_MARGIN_M + 0.1  # no further than needed
+    assert np.max(np.hypot(*plan.v.T)) <= BACK_OFF_M_S + 1e-9
+    assert np.max(np.hypot(*plan.a.T)) <= BACK_OFF_ACC * 1.05
+    assert np.allclose(plan.v[[0, -1]], 0.0)
+    assert back_off(track[:-25], [disc]) is None  # at rest outside (1.25 m back along the turn): stay
+    assert back_off([(2.3, 0.0)], [disc]) is None  # no path flown to back along

@@ -514,3 +514,25 @@ def test_a_camera_s_corridor_is_flown_without_planning_round_pieces_of_its_walls
         control(monkeypatch)
     old = fly("offboard", "depth_camera", "corridor", seed)
     assert not old["arrived"] and old["collisions"] == 0  # the control must fail
+
+
+def test_a_failsafe_stop_at_rest_inside_a_keep_out_backs_off_before_hold(monkeypatch):
+    """Seed 47, scenario 86 (the Mambo on ArduPilot, wind 0.49 of its design, a stand of poles beside the route and a
+    0.29 m pole on it): a 90° turn at the pole's keep-out, the vehicle 0.33 m past its reference, the supervisor's Hold,
+    and the fail-safe stop, planned from the state measured, comes to rest inside the pole's keep-out — where the
+    controller's allowance E_tr is already used. It backs off along the path it flew before Hold: no contact, no
+    delivery violation for the back-off's own speed. Control: handed over to Hold where it rests, ArduPilot's Loiter
+    holds it downwind of its reference, into the pole."""
+    from companion.onboard import offboard
+
+    s, row, rig = _clutter(86, seed=47)
+    assert s["world_family"] == "cluster" and s["vehicle"] == "mambo" and s["personality"] == "ardupilot"
+    backs = rig.log.named("back_off")
+    assert len(backs) == 1 and backs[0]["inside_m"] > 0.0
+    assert not row["collided"] and row["min_clearance_m"] > 0.05
+    assert not any(v["subsystem"] == "delivery" for v in row["violations"])
+    assert rig.daemon.cycle.offboard.state.value == "held"
+
+    monkeypatch.setattr(offboard, "back_off", lambda track, discs: None)
+    _, old, _ = _clutter(86, seed=47)
+    assert old["collided"]  # the control must fail
