@@ -197,7 +197,7 @@ def test_negative_control_without_the_claim_rules_the_fog_lift_is_a_late_detecti
     column; the claim of the frame now, not the smaller of it and the last frame's): "first seen at 4.4 m"."""
     from companion.onboard import detection_range as dr
 
-    monkeypatch.setattr(dr._View, "saw_through", lambda v, x, y, tol: True)
+    monkeypatch.setattr(dr._View, "saw_through", lambda v, places, tol: True)
     first = dr.DetectionRange._first_detections
     monkeypatch.setattr(dr.DetectionRange, "_first_detections",
                         lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))
@@ -353,7 +353,7 @@ def test_a_fog_lifting_in_flight_is_no_evidence_of_a_shorter_detection_range():
 def test_negative_control_without_the_claim_rules_a_fog_lifting_in_flight_is_a_violation(monkeypatch):
     from companion.onboard import detection_range as dr
 
-    monkeypatch.setattr(dr._View, "saw_through", lambda v, x, y, tol: True)
+    monkeypatch.setattr(dr._View, "saw_through", lambda v, places, tol: True)
     first = dr.DetectionRange._first_detections
     monkeypatch.setattr(dr.DetectionRange, "_first_detections",
                         lambda self, t, i, scan, placed, stated: first(self, t, i, scan, placed, scan.max_m))

@@ -82,6 +82,20 @@ def test_the_path_measure_is_the_swept_corridor_laid_along_the_path():
     assert path_obstacle_m(wall, (*at, yaw), moved, 0.5) == pytest.approx(d, abs=1e-9)
 
 
+def test_the_nearest_on_the_path_is_found_whatever_order_the_hits_come_in():
+    """A hit straight ahead at 1.5 m enters the path's band (0.6 m) 0.9 m on; one 1.0 m away at 34° (0.56 m off the
+    line) enters it 0.61 m on: the nearest on the path, in either order — a hit farther than the nearest so far may
+    still be reached sooner along the path, by up to the band's half-width."""
+    pose, straight = (0.0, 0.0, 0.0), ((20.0, 0.0),)
+    ahead = (0.0, 1.5, 1e-4, True)
+    th = math.radians(34.0)
+    beside = (th, 1.0, 1e-4, True)
+    enter = math.cos(th) - math.sqrt(0.6**2 - math.sin(th) ** 2)
+    assert path_obstacle_m([ahead], pose, straight, 0.6) == pytest.approx(0.9, abs=1e-3)
+    assert path_obstacle_m([ahead, beside], pose, straight, 0.6) == pytest.approx(enter, abs=1e-3)
+    assert path_obstacle_m([beside, ahead], pose, straight, 0.6) == pytest.approx(enter, abs=1e-3)
+
+
 def test_a_hit_in_a_disc_the_plan_goes_round_is_covered_and_a_wall_beside_it_is_not():
     discs = [Disc(9.0, 0.0, 1.3)]
     pole = (0.0, 8.0, H, True)
@@ -536,3 +550,36 @@ def test_a_failsafe_stop_at_rest_inside_a_keep_out_backs_off_before_hold(monkeyp
     monkeypatch.setattr(offboard, "back_off", lambda track, discs: None)
     _, old, _ = _clutter(86, seed=47)
     assert old["collided"]  # the control must fail
+
+
+def test_a_failsafe_stop_is_one_hold_however_its_cause_comes_and_goes():
+    """Seed 47, scenario 940 (the Mambo on PX4 in a stand of poles, wind 0.8 of its design): the supervisor's Hold
+    fires on a pole near the swerve's path and the daemon brakes. While it brakes the pole leaves the Hold's reach (the
+    vehicle slows) and comes back: the same stop, said once — the Hold is latched from the braking on, not only once
+    the vehicle rests — and the observer finds no alarm without cause."""
+    s, row, rig = _clutter(940, seed=47)
+    assert s["world_family"] == "cluster" and s["vehicle"] == "mambo"
+    holds = rig.log.named("hold_trigger")
+    assert len(holds) == 1 and holds[0]["action"] == "hold"
+    states = [e["to"] for e in rig.log.named("state_change")]
+    assert states[-1] == "holding" and "active" not in states[states.index("holding"):]
+    assert not row["collided"] and not row["unfounded_alarms"]
+
+
+def test_a_pole_first_seen_from_behind_another_is_no_evidence_of_a_shorter_range(monkeypatch):
+    """Seed 46, scenario 542 (the Mambo on ArduPilot in a stand of poles): a 0.17 m pole first seen at 5.2 m, inside
+    the stated 8.5 m. A frame 0.15 s before had seen past the centre of the bin it was first seen in — but the pole's
+    side of that bin was behind a nearer pole in the frame before (a neighbouring bin, 2.7 m). A return may come from
+    anywhere across its bin: only a frame that saw past all of it is evidence. No navigation violation, no alarm the
+    observer calls unfounded. Control: the bin's centre alone judged — "a target first seen at 5.2 m"."""
+    from companion.onboard import detection_range as dr
+
+    s, row, rig = _clutter(542, seed=46)
+    assert s["world_family"] == "cluster"
+    nav = [e for e in rig.log.named("violation_start") if e["subsystem"] == "navigation"]
+    assert not nav and not row["unfounded_alarms"] and not row["collided"]
+
+    whole = dr._View.saw_through
+    monkeypatch.setattr(dr._View, "saw_through", lambda v, places, tol: whole(v, places[1:2], tol))
+    _, old, rig = _clutter(542, seed=46)
+    assert any("first seen at 5.2" in e.get("action", "") for e in rig.log.named("violation_start"))  # the control

@@ -300,19 +300,19 @@ def path_obstacle_m(hits, pose, path, half_width_m: float) -> float:
     s0 = np.concatenate([[0.0], np.cumsum(ends)[:-1]])
     nearest = math.inf
     for b, r, h, bins in hits:
-        if r >= nearest:
-            continue
         if not bins:
-            nearest = r
+            nearest = min(nearest, r)
             continue
         n = max(2, math.ceil(2 * h * r / 0.1) + 1)
         reach = 2 * r * math.sin(h / (2 * (n - 1)))  # the farthest a point of the arc is from its nearest sample
+        w = half_width_m + reach
+        if r - w >= nearest:  # the path reaches its band no sooner than r − w along (a path is no shorter than a line)
+            continue
         ang = yaw + np.linspace(b - h, b + h, n)
         q = np.column_stack([x + r * np.cos(ang), y + r * np.sin(ang)])  # (n, 2) the sector's possible hit points
         rel = q[:, None, :] - a[None, :, :]  # (n, m)
         along = np.einsum("nmk,mk->nm", rel, u)
         perp2 = np.einsum("nmk,nmk->nm", rel, rel) - along * along
-        w = half_width_m + reach
         inside = perp2 <= w * w
         half_chord = np.sqrt(np.maximum(w * w - perp2, 0.0))
         enter, leave = along - half_chord, along + half_chord

@@ -32,8 +32,9 @@ of evidence and turns each into an upper bound on the range at which the referen
 3. first detections — a static target (placed in the local frame from position and heading) first seen
    inside the stated range by more than its range noise allows (`NOISE_SIGMAS` σ of the configured noise),
    away from the field of view's edges, where one of the sensor's frames of the last
-   `look_back_s` saw through its place (the bin looking at it from where that frame was taken reported free,
-   or a return beyond it, and that frame's stated range reached it), was not detectable farther: D_od ≤ that
+   `look_back_s` saw through its place — all of its bin's arc at its range — (the bins looking at it from where
+   that frame was taken reported free, or a return beyond it, and that frame's stated range reached it), was not
+   detectable farther: D_od ≤ that
    distance. A place no recent frame saw through is no evidence: a target behind a nearer one (occluded), outside
    the field of view then (a turn, a wall's end, a doorway's side), in a bin that reported nothing, beyond the
    claim of the frame (a fog lifting: the stated range just grew), or in the sensor's first frame. Such a sight
@@ -180,11 +181,11 @@ class _View:
     increment: float
     stated: float
 
-    def saw_through(self, x: float, y: float, tol: float) -> bool:
-        """Whether this frame looked at (x, y) from an inner bin, within its claim, and saw more than `tol` past it
-        (`sight.looked_past`)."""
+    def saw_through(self, places, tol: float) -> bool:
+        """Whether this frame looked at every one of `places` (local x, y) from an inner bin, within its claim, and
+        saw more than `tol` past it (`sight.looked_past`)."""
         return looked_past((self.x, self.y), self.yaw, self.bearings, self.increment, self.hits, self.stated,
-                           [(x, y)], tol, interior=True)
+                           places, tol, interior=True)
 
 
 @dataclass
@@ -336,9 +337,9 @@ class DetectionRange:
         views.append(_View(t, self._pos[1], self._pos[2], self._yaw[1], tuple(scan.known), tuple(scan.hits),
                            scan.increment or 0.0, stated))
 
-    def _seen_through(self, i: int, x: float, y: float, tol: float) -> bool:
-        """Whether one of the sensor's recent frames saw through (x, y) (`_View.saw_through`)."""
-        return any(v.saw_through(x, y, tol) for v in self._views.get(i, ()))
+    def _seen_through(self, i: int, places, tol: float) -> bool:
+        """Whether one of the sensor's recent frames saw through every one of `places` (`_View.saw_through`)."""
+        return any(v.saw_through(places, tol) for v in self._views.get(i, ()))
 
     def _period(self, i: int) -> float:
         """Sensor i's frame interval: its last two frames' (1/20 s before it has two)."""
@@ -362,7 +363,9 @@ class DetectionRange:
             edge = min(abs(wrap(b - lo)), abs(wrap(b - hi))) <= inc * 1.01
             # a target at the stated range reads up to NOISE_SIGMAS σ(stated) short of it by noise alone
             tol = p.first_tolerance_m + self._speed * period + p.range_noise.short_m(stated)
-            if not known and not edge and r < stated - tol and self._seen_through(i, x, y, tol):
+            # the return may come from anywhere across its bin: its place is the bin's arc at r, all of it seen through
+            arc = [self._place(t, b + k * inc / 2, r) for k in (-1, 0, 1)]
+            if not known and not edge and r < stated - tol and self._seen_through(i, arc, tol):
                 c = self._late.offer(LateDetection(t, i, b, r, stated), None, (x, y) if self._posed(t) else None)
                 if c is not None:
                     self._first_seen(t, c)

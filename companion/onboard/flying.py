@@ -124,8 +124,10 @@ class OffboardFlight(Flying):
             walls=d.walls, stop=stop, brake_stop=brake_stop, a_stop=a_stop, stop_decel=stop_decel,
             jerk=veh.braking.jerk_max_m_s3,
             failsafe=d.state == State.HOLDING, track_jerk=stop_jerk(veh)))
-        # entering the fail-safe hold latches it until someone else's mode change or CG_ENGAGE clears it
-        held = any(name == "offboard" and f["to"] == OffboardState.HELD for name, f in acts.events)
+        # a fail-safe stop latches its Hold from the braking on, until someone else's mode change or CG_ENGAGE clears
+        # it: a cause that clears while the vehicle brakes (an obstacle out of the Hold's reach as it slows) and comes
+        # back is the same stop, not a second one
+        held = any(name == "offboard" and f["to"] in (OffboardState.HELD, OffboardState.BRAKING) for name, f in acts.events)
         dead_end = any(name == "dead_end" for name, _ in acts.events)
         return self._part(acts, braking, latch=(DEAD_END_LATCH if dead_end else FAILSAFE_LATCH) if held else None)
 
