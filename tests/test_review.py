@@ -167,6 +167,26 @@ def test_the_returns_withheld_within_a_sensors_clutter_are_said_with_the_flights
                         if name == "some" else [])
 
 
+def test_a_back_off_is_said_with_how_deep_and_how_far(tmp_path):
+    """A braking stop at rest inside a keep-out that backed off before Hold: the review says when, how far inside and
+    how far back (the speed above V_safe while it flies blind is the daemon's own, and the review's other lines judge
+    it as any); a flight without one says nothing of it."""
+    for name, back in (("backed", True), ("none", False)):
+        log = EventLog(tmp_path / name)
+        for i in range(100):
+            put(log, i)
+        if back:
+            log.event(4.2, "back_off", inside_m=0.394, path_m=0.61)
+        log.close()
+        rep = review(tmp_path / name / "events.jsonl")
+        said = [line for line in format_report(rep).splitlines() if "backed off" in line]
+        if back:
+            assert rep["back_offs"] == [{"t": 4.2, "inside_m": 0.394, "path_m": 0.61}]
+            assert len(said) == 1 and "4.20 s" in said[0] and "0.394 m inside" in said[0] and "0.61 m back" in said[0]
+        else:
+            assert rep["back_offs"] == [] and said == []
+
+
 def test_gaps_and_lost_records_are_findings():
     recs = [{"kind": "state", "t": t, "seq": s, "boot": "a", "gamma": None if s == 8 else -1.0,
              "ground_speed": 1.0, "v_max": 2.0} for s, t in zip([0, 1, 2, 8, 9, 10], [0.0, 0.1, 0.2, 0.3, 0.4, 3.0])]

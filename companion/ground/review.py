@@ -178,7 +178,7 @@ class _Summary:
         self.failsafes: list[dict] = []
         self.thrust_starts: list[dict] = []  # `thrust_start`: the thrust ratio taken before the estimate settled
         self.lists = {k: [] for k in ("mode_changes", "state_changes", "link", "startup_checks", "commands_failed",
-                                      "log_gaps", "starts", "stops")}
+                                      "log_gaps", "starts", "stops", "back_offs")}
         self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0}
         self.link_down_at = None
         self.link_down_s = 0.0
@@ -346,6 +346,8 @@ class _Summary:
                 self.open_fs.remove(fs)
         elif name == "mode_change":
             self._keep(self.lists["mode_changes"], {"t": t, "from": g("from"), "to": g("to"), "by": g("by")})
+        elif name == "back_off":
+            self._keep(self.lists["back_offs"], {"t": t, "inside_m": _num(g("inside_m")), "path_m": _num(g("path_m"))})
         elif name == "state_change":
             self._keep(self.lists["state_changes"], {"t": t, "from": g("from"), "to": g("to"), "reason": g("reason")})
             to, why = g("to"), g("reason")
@@ -545,6 +547,7 @@ class _Summary:
             "route": self.route,
             "tables": self.tables,
             "mode_changes": self.lists["mode_changes"],
+            "back_offs": self.lists["back_offs"],
             "state_changes": self.lists["state_changes"],
             # of_the_log: a replay's link is the log's recording (its losses are the log's gaps, `LOG_LINK`)
             "link": {"events": self.lists["link"], "down_s": self.link_down_s, "of_the_log": self.replayed},
@@ -1044,6 +1047,9 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
         lines.append(f"    {_fmt_t(fs['t'])}  {fs['cause']} → {fs['action']}{cleared}")
         if fs.get("why"):  # a no safe speed: the input that caused it, and how the flight resumes
             lines.append(f"      {fs['why']}; resume: {fs.get('resume', '?')}")
+    for b in rep.get("back_offs", []):  # offboard: a braking stop at rest inside a keep-out, backed out blind
+        lines.append(f"  backed off at {_fmt_t(b['t'])}: at rest {fmt_value(b['inside_m'], ' m')} inside a keep-out, "
+                     f"{fmt_value(b['path_m'], ' m')} back the way it came (sensors facing away: above V_safe there)")
     for ts in rep.get("thrust_starts", []):
         lines.append(f"  thrust ratio before the estimate settled (t = {_fmt_t(ts['t'])}): {ts['reason']}")
     lines.append(f"  mode changes: {len(rep['mode_changes'])}")
