@@ -400,8 +400,8 @@ def back_off(track, discs, ts: float = 0.05) -> Plan | None:
     body swept them clear of static obstacles) that lies BACK_OFF_MARGIN_M outside every disc, within
     BACK_OFF_MAX_M back along the track, and along which the line never goes deeper into a disc than the vehicle
     is now. The hold that follows then starts from a reference with the controller's whole allowance E_tr round it
-    (eq. 27's keep-out), not from where the allowance was already used. None: at rest outside every disc, or no
-    such point."""
+    (the virtual obstacle of Figure 13), not from where the allowance was already used. None: at rest outside every
+    disc, or no such point."""
     discs = [d for d in discs if all(math.isfinite(x) for x in (d.x, d.y, d.r))]
     pts = np.asarray(track, float)[::-1]
     if not discs or len(pts) == 0:

@@ -11,6 +11,8 @@
                  acceleration turned from the last setpoint's at the attitude-rate limit: straight, or a
                  braking swerve off the keep-out discs last seen when straight would enter one)
                 ──at rest at its end point──▶ held (Hold)         braking ──mode changed by someone else──▶ stood_down
+                (at rest inside a keep-out disc it first backs off, in a straight line, to a point of the path flown
+                 outside every disc: `back_off`)
         entering / flying ──a fail-safe Hold (the supervisor holds)──▶ held (ask for Hold, stop streaming)
         entering / flying ──stop asked otherwise (not engaged, Ctrl-C)──▶ off
         held ──CG_ENGAGE off and on (`Cycle.engage_requested`)──▶ off
@@ -343,7 +345,7 @@ class OffboardController:
         if slow and t - self._slow_since >= SETTLE_S and not self._backed:
             self._backed = True
             back = back_off([*self._track, np.asarray(p, float)], [*self._stop_known, *ask.discs, *(ask.walls or ())])
-            if back is not None:  # at rest inside a keep-out disc: back out along the path flown, then Hold
+            if back is not None:  # at rest inside a keep-out disc: back out to a point of the path flown, then Hold
                 path_m = float(np.sum(np.hypot(*np.diff(back.p, axis=0).T)))
                 acts.events.append(("back_off", {"inside_m": round(-back.min_clearance, 3), "path_m": round(path_m, 3)}))
                 self._stop_plan, self._t_state, self._slow_since, plan, tau = back, t, None, back, 0.0
