@@ -228,12 +228,16 @@ def rollout(p0, v0, w, ts, a_max):
     return p, v, w
 
 
+def disc_clearance(pts, discs) -> np.ndarray:
+    """Each point's distance to the nearest disc's edge (negative inside one; inf with no disc)."""
+    pts = np.asarray(pts, float).reshape(-1, 2)
+    return np.min([np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y) - d.r for d in discs], axis=0) if discs else \
+        np.full(len(pts), math.inf)
+
+
 def exact_check(p, v, a, ts, discs, v_max, a_max, tol=1e-6):
     """The true constraints, densely: (ok, min clearance, why not)."""
-    pts = dense_path(p, v, a, ts)
-    clear = math.inf
-    for d in discs:
-        clear = min(clear, float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y)) - d.r))
+    clear = float(np.min(disc_clearance(dense_path(p, v, a, ts), discs)))
     speeds = np.hypot(v[:, 0], v[:, 1])  # |v| is convex along an arc: the ends bound it
     accs = np.hypot(a[:, 0], a[:, 1])
     if clear < -tol:
@@ -288,7 +292,7 @@ def best_stop(p0, v0, a_max, discs=(), n=40, max_path_m: float = math.inf, a0=No
         if deg != 0.0 and (float(np.sum(np.hypot(*np.diff(pts, axis=0).T))) > max_path_m
                            or float(np.max(np.hypot(*cand[1].T))) > s * (1.0 + 1e-6)):
             continue  # too long for the stop contract, or faster than the start
-        clear = min((float(np.min(np.hypot(pts[:, 0] - d.x, pts[:, 1] - d.y))) - d.r for d in discs), default=math.inf)
+        clear = float(np.min(disc_clearance(pts, discs)))
         out = (*cand, clear)
         if clear >= 0.0:
             return out
@@ -407,18 +411,15 @@ def back_off(track, discs, ts: float = 0.05) -> Plan | None:
     if not discs or len(pts) == 0:
         return None
 
-    def clearance(q):
-        return np.min([np.hypot(q[:, 0] - d.x, q[:, 1] - d.y) - d.r for d in discs], axis=0)
-
     s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
     s_q = np.arange(0.0, min(s[-1], BACK_OFF_MAX_M) + 1e-9, BACK_OFF_STEP_M)
     q = np.stack([np.interp(s_q, s, pts[:, 0]), np.interp(s_q, s, pts[:, 1])], axis=1)
-    clear = clearance(q)
+    clear = disc_clearance(q, discs)
     if clear[0] >= 0.0:
         return None
     u = np.linspace(0.0, 1.0, SUB_STEPS)[:, None]
     for k in np.flatnonzero(clear >= BACK_OFF_MARGIN_M):
-        if float(np.min(clearance(q[0] + u * (q[k] - q[0])))) >= clear[0]:
+        if float(np.min(disc_clearance(q[0] + u * (q[k] - q[0]), discs))) >= clear[0]:
             break
     else:
         return None

@@ -346,12 +346,10 @@ class OffboardController:
             self._backed = True
             back = back_off([*self._track, np.asarray(p, float)], [*self._stop_known, *ask.discs, *(ask.walls or ())])
             if back is not None:  # at rest inside a keep-out disc: back out to a point of the path flown, then Hold
-                path_m = float(np.sum(np.hypot(*np.diff(back.p, axis=0).T)))
-                acts.events.append(("back_off", {"inside_m": round(-back.min_clearance, 3), "path_m": round(path_m, 3)}))
-                self._stop_plan, self._t_state, self._slow_since, plan, tau = back, t, None, back, 0.0
-                pos, vel, acc = plan.sample(tau)
-                acts.setpoint = Setpoint(pos, vel, acc, self._stop_z, self._stop_yaw, SetpointKind.BRAKE)
-                return acts
+                acts.events.append(("back_off", {"inside_m": round(-back.min_clearance, 3),
+                                                 "path_m": round(math.dist(back.p[0], back.p[-1]), 3)}))
+                self._stop_plan, self._t_state, self._slow_since = back, t, None
+                plan, tau, slow = back, 0.0, False
         if (slow and t - self._slow_since >= SETTLE_S) or tau > plan.t[-1] + END_WAIT_S:
             acts.hold = True
             self._go(t, S.HELD, "stopped: " + self.held, acts)
