@@ -108,6 +108,7 @@ def test_demo_flies_the_in_flight_scenario_safely(tmp_path):
                               else "REVIEW NEEDED")
     assert json.loads((tmp_path / "demo" / "review" / "review.json").read_text())["ok"] is out["review_ok"]
     assert out["collisions"] == 0 and out["min_clearance_m"] > 0
+    assert out["planning"]["answers"] > 0  # the daemon's account of its planning, from its event log
     assert (tmp_path / "demo" / "log" / "events.jsonl").exists() and (tmp_path / "demo" / "review" / "review.png").exists()
 
 

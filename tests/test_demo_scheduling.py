@@ -35,3 +35,7 @@ def test_the_console_says_how_the_demo_ran():
          "event_log": "log/events.jsonl", "review_ok": True, "review": "review.json", "review_findings": [],
          "verdict": "SAFE", "safe": True}
     assert "  scheduling: SITL and daemon at SCHED_FIFO 50" in demo.format_summary(r)
+    assert "planning" not in demo.format_summary(r)  # governor mode, or no obstacle: no plan was waited for
+    r["planning"] = {"answers": 12, "first_s": 0.04, "median_s": 0.02, "max_s": 0.2}
+    assert ("  planning: 12 plans waited for; the first 0.04 s after it was asked, median 0.02 s, slowest 0.20 s "
+            "(vehicle time)") in demo.format_summary(r)

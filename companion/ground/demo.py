@@ -308,6 +308,8 @@ def summarise_flight(sc, records: list[dict], sitl_summary: dict, rep: dict, out
         "sitl_behind_ms": {k: round(float(sitl_summary[f"jitter_ms_{k}"]), 1) for k in ("p99", "max")
                            if sitl_summary.get(f"jitter_ms_{k}") is not None},
         "setpoints": _stream_figures(records), "scheduling": scheduling,
+        "planning": next(({k: r.get(k) for k in ("answers", "first_s", "median_s", "max_s")} for r in records
+                          if r.get("event") == "planning"), None),
         "event_log": str(out / "log" / LOG_FILE), "autopilot_log": sitl_summary.get("flight_log"), "plot": (rep.get("outputs") or {}).get("png"),
         "plot_note": (rep.get("outputs") or {}).get("png_skipped"),
         "safe": collisions == 0 and clear > 0,
@@ -344,6 +346,10 @@ def format_summary(r: dict) -> str:
     sp = r.get("setpoints") or {}
     if sp.get("sent"):
         lines.append(f"  setpoints: {sp['sent']} sent, longest gap {1e3 * sp['gap_max_s']:.0f} ms (vehicle time)")
+    pl = r.get("planning") or {}
+    if pl.get("answers"):
+        lines.append(f"  planning: {pl['answers']} plans waited for; the first {pl['first_s']:.2f} s after it was "
+                     f"asked, median {pl['median_s']:.2f} s, slowest {pl['max_s']:.2f} s (vehicle time)")
     lines += ["  V_max steps (event-log time):"]
     lines += [f"    t {s['t']:6.1f} s  V_max {s['v_max']:5.2f} m/s  (D_od {s['d_od']:.1f} m, thrust "
               f"{s['thrust_ratio']:.2f}, E_tr {s['e_tr']:.2f} m, R_obst {s['r_obst']:.2f} m)"

@@ -105,6 +105,10 @@ EVENTS = {
                          "how the real-time loop kept its schedule: a cycle's wake-up lateness (the host woke it "
                          "late) and its own work (poll, step, the commit of its events), largest, cycles over "
                          "10/20/40 ms, the worst five; the event log's slowest fsync (one commit a cycle)"),
+    "planning": Event(("answers", "first_s", "median_s", "max_s", "replans", "kept", "rejected"), "daemon",
+                      "offboard's avoidance planning at the loop's end: answers waited for and how late they came "
+                      "(request to poll, vehicle time; first_s: the first obstacle's), plans flown, failed replans "
+                      "that kept the plan in force, plans the exact check rejected"),
     "log_open": Event(("pid", "torn_tail"), "eventlog", "log opened (torn_tail: the previous run's last line was cut)"),
     "log_failing": Event(("error",), "daemon", "the event log cannot write (said by STATUSTEXT and on the console)"),
     "log_writing": Event(("error",), "daemon", "the event log writes again"),

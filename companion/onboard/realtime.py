@@ -90,3 +90,6 @@ def run(daemon, should_stop, notifier=None) -> None:
     fsync = getattr(daemon.log, "max_fsync_s", None)  # the event log's slowest fsync (a commit, or a rotation)
     daemon.event(daemon.clock(), "loop_timing", **timing.summary(),
                  event_log_max_fsync_ms=None if fsync is None else round(1e3 * fsync, 2))
+    offboard = getattr(daemon.cycle, "offboard", None)
+    if offboard is not None and offboard.guidance is not None:
+        daemon.event(daemon.clock(), "planning", **offboard.guidance.planning_summary())
