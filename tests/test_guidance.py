@@ -168,7 +168,7 @@ def test_threaded_planning_brakes_until_the_plan_is_due_then_flies_it_from_where
     p_due, v_due, _ = braking.sample(lead)
     assert np.allclose(g.plan.p[0], p_due) and np.allclose(g.plan.v[0], v_due)  # where the braking leaves it
     assert np.hypot(*v_due) < 5.0 - 0.5  # (slower than when it was asked: the braking's lost speed)
-    assert g.replans == 1 and g.latency and g.latency[0] > 0.0
+    assert g.replans == 1 and g.latencies and g.latencies[0] > 0.0
 
 
 def test_a_planner_error_is_noted_and_the_vehicle_brakes(gated):

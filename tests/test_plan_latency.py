@@ -28,7 +28,7 @@ def test_a_plan_asked_for_while_braking_is_flown_from_where_the_braking_left_the
     rig, controller, route = late_plans
     assert not rig.truth["collisions"]
     assert route > 260.0  # the whole route (270 m), not stopped on the way
-    assert rig.daemon.cycle.offboard.guidance.latency  # the latency was measured in the guidance's own time
+    assert rig.daemon.cycle.offboard.guidance.latencies  # the latency was measured in the guidance's own time
     said = rig.daemon.cycle.offboard.guidance.planning_summary()  # the `planning` event's account: every answer late
     assert said["answers"] >= said["replans"] > 0
     assert 0.4 <= said["first_s"] <= said["median_s"] <= said["max_s"] < 0.4 + 0.05

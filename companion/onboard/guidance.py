@@ -507,8 +507,7 @@ class OffboardGuidance:
     last_notes: list = field(default_factory=list)
     epoch: int = 0  # bumped whenever the obstacle situation ends: older planning jobs are not flown
     planner_failed: bool = False  # the last job raised: braking is not "awaiting" but the answer
-    latency: list = field(default_factory=list)  # how long the last 5 answers took, request to poll [s]
-    latencies: list = field(default_factory=list)  # … and every answer of the flight (`planning_summary`)
+    latencies: list = field(default_factory=list)  # how long each answer of the flight took, request to poll [s]
     lead_s: tuple[float, float] = PLAN_LEAD_S  # (0, 0): plans start at the state measured at the request
     _pending: tuple | None = None  # an answer that starts later than now (asked for while braking)
     _asked_t: float = 0.0
@@ -780,12 +779,11 @@ class OffboardGuidance:
         """How far ahead a plan asked for while braking starts: the slowest of the last answers' latencies,
         within PLAN_LEAD_S (an answer later than its start is flown from its start: the vehicle then lags it
         by the braking since, as before)."""
-        return min(max([self.lead_s[0], *self.latency]), self.lead_s[1])
+        return min(max([self.lead_s[0], *self.latencies[-5:]]), self.lead_s[1])
 
     def _take(self, t: float, done) -> None:
         """An answer from the planning, or the one held until its start time has come."""
         if done is not None and done[0] == self.epoch and self.planning.deferred:
-            self.latency = [*self.latency[-4:], t - self._asked_t]
             self.latencies.append(t - self._asked_t)
         if done is not None and done[1] > t:
             self._pending = done  # asked for while braking: fly it from where the braking leaves the vehicle
