@@ -148,6 +148,40 @@ def test_the_field_of_view_rule_is_judged_where_the_avoid_contract_would_swerve(
     assert idle.judge(_inputs(0.0, d_od=0.0), _avoid(0.0), 0.1).contract == "avoid"
 
 
+def test_the_rule_judges_the_disc_the_planner_goes_round():
+    """The keep-out disc of the field-of-view rule carries the avoid Ω's E_tr (E_tr_pred at its speed: the virtual
+    obstacle the planner plans round) where it is larger than the measured one."""
+    f = ContractInForce(math.radians(30), dwell_s=1.0)
+    e_max = f.e_tr_in_view(3.0, 1.0, 0.1)  # D_od 3 m, R_obst 1 m, r_body 0.1 m: 4·sin 22° − 1.1
+    assert e_max == pytest.approx(4.0 * math.sin(math.radians(22.0)) - 1.1)
+    assert f.judge(_inputs(0.0, d_od=3.0), SimpleNamespace(v_max=1.5, e_tr=e_max - 0.01), 0.1).contract == "avoid"
+    wide = ContractInForce(math.radians(30), dwell_s=1.0)
+    assert wide.judge(_inputs(0.0, d_od=3.0), SimpleNamespace(v_max=3.1, e_tr=e_max + 0.01), 0.1).contract == "stop"
+    assert ContractInForce(math.radians(4.0), dwell_s=1.0).e_tr_in_view(9.0, 1.0, 0.1) == -math.inf  # below the lag
+
+
+def test_the_avoid_contract_is_flown_no_faster_than_keeps_its_pass_in_view():
+    """The supervisor's avoid Ω at a short D_od: V_max lowered to the speed whose E_tr_pred keeps the pass round the
+    planner's disc in view; at a long D_od, or where no speed would, the table's Ω as it is."""
+    from companion.onboard.supervisor import MIN_SPEED_CMD, VIEW_SPEED_TOL_M_S, Supervisor
+
+    table = load_for_vehicle("mambo")
+    sup = Supervisor.__new__(Supervisor)  # only what `_in_view_speed` reads
+    sup.table, sup.e_surface = table, "avoid"  # offboard's E_tr_pred surface
+    sup.fallback = ContractInForce(math.radians(30), dwell_s=1.0)
+    i = _inputs(0.0, d_od=3.0)
+    om = table.omega(3.0, 1.0, 0.3, 1.0, contract="avoid")
+    pred = lambda v: table.e_tr_pred(v, om.tilt, 1.0, sup.e_surface)  # noqa: E731
+    e_max = sup.fallback.e_tr_in_view(3.0, 1.0, table.vehicle.r_body_m)
+    assert pred(om.v_max) > e_max  # the table's own speed takes the pass out of view here
+    slow = sup._in_view_speed(om, 3.0, i)
+    assert MIN_SPEED_CMD <= slow.v_max < om.v_max and pred(slow.v_max) <= e_max < pred(slow.v_max + VIEW_SPEED_TOL_M_S)
+    assert slow.e_tr <= e_max and slow.v_safe == om.v_safe and "in view" in slow.reason
+    far = table.omega(7.0, 1.0, 0.3, 1.0, contract="avoid")
+    assert sup._in_view_speed(far, 7.0, _inputs(0.0, d_od=7.0)) is far
+    assert sup._in_view_speed(om, 0.5, _inputs(0.0, d_od=0.5)) is om  # no speed would: the rule stops it
+
+
 @pytest.mark.parametrize("d_od", [2.0, 4.0, 6.0, 9.0, 12.0])
 def test_the_fallbacks_omega_is_never_above_either_contract(d_od):
     """Ω under the fallback: the table's stop contract with the braking stop offboard flies (the recovery brake's, its

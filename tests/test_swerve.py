@@ -273,7 +273,7 @@ def _judged(width=0.0, obstacles=0, d_od=9.0, fov=60.0):
     i = SimpleNamespace(t=0.0, ground_speed=3.0, obstacle_width=width, r_obst=1.0, e_tr_measured=0.3,
                         thrust_ratio=1.0, obstacles=obstacles, dod=SimpleNamespace(d_od=d_od, silence_s=0.0),
                         discs=(), pose=(0.0, 0.0, 0.0), beta=0.0)
-    return rule.judge(i, SimpleNamespace(v_max=5.0), 0.1)
+    return rule.judge(i, SimpleNamespace(v_max=5.0, e_tr=0.3), 0.1)
 
 
 def test_it_swerves_where_the_world_broke_the_avoid_contract_not_where_the_view_did():
@@ -502,7 +502,7 @@ def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
         i = SimpleNamespace(t=t, ground_speed=1.0, obstacle_width=0.0, r_obst=1.0, e_tr_measured=0.3,
                             thrust_ratio=1.0, obstacles=0, dod=SimpleNamespace(d_od=d_od, silence_s=0.0),
                             discs=(), pose=(0.0, 0.0, 0.0), beta=0.0)
-        return rule.judge(i, SimpleNamespace(v_max=2.0), 0.1)
+        return rule.judge(i, SimpleNamespace(v_max=2.0, e_tr=0.3), 0.1)
 
     assert at(0.0, 1.0).contract == "stop" and not rule.now.swerve  # the view broken at D_od 1 m
     dwell = at(0.5, 9.0)

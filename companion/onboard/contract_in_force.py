@@ -13,7 +13,9 @@ The avoid contract (the paper's numerical construction, DESIGN.md §1) assumes
      ahead leaves along a bearing at least asin(ρ) off the line to the obstacle, ρ = r_k / c (the table's own reduced
      axis, DESIGN.md §2), and the vehicle's heading — the sensors' axis — lags behind its track. The pass is seen
      only where asin(ρ) + lag ≤ the half-width of the forward field of view (on the narrower side: the pass may go
-     either way).
+     either way). E_tr is that of the disc the planner goes round: the controller contract's E_tr_pred at the speed
+     flown (Figure 13's virtual obstacle), or the measured error if larger; the avoid contract is flown no faster
+     than the speed whose E_tr_pred keeps the pass in view at the D_od (the supervisor's `_in_view_speed`).
 
 Where either fails the stop contract is in force: Ω is the table's stop contract with the braking stop offboard
 flies (`fallback_omega`), something in the swept corridor within stopping distance is a braking stop then Hold at
@@ -115,8 +117,9 @@ def banner_line(sensors, r_k: float, r_obst: float, top_m: float) -> str:
             f"against the pass bearing asin(r_k / (D_od + R_obst)), r_k {r_k:.2f} m")
     if d is None or d >= top_m:
         return f"avoid contract in view: {what}: at no D_od within {top_m:g} m: stop contract only"
-    return (f"avoid contract in view: {what}: from D_od {d:.2f} m (to {top_m:g} m); below it, or among things "
-            f"wider than R_obst, offboard flies the stop contract")
+    return (f"avoid contract in view: {what}: from D_od {d:.2f} m (to {top_m:g} m), flown no faster than keeps r_k "
+            f"with E_tr_pred at its speed in view; below it, or among things wider than R_obst, offboard flies the stop "
+            f"contract")
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,14 +151,15 @@ class ContractInForce:
     def judge(self, i, avoid: Omega, r_body: float) -> InForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
         D_od, the measured E_tr) and the avoid contract's Ω at them (`avoid`: the speed it would fly; `r_body` the
-        vehicle's radius). The keep-out disc of the rule is r_k = R_obst + E_tr + r_body with the measured E_tr (its
-        floor at least), as the table's ρ axis is read. Where the avoid contract has no speed to fly there is no swerve
+        vehicle's radius). The keep-out disc of the rule is r_k = R_obst + E_tr + r_body with the E_tr of the disc the
+        planner goes round: the avoid Ω's (E_tr_pred at its speed), or the measured E_tr if larger. Where the avoid contract has no speed to fly there is no swerve
         to keep in view: the field-of-view rule is not judged (either contract holds the vehicle there)."""
         speed = i.ground_speed if math.isfinite(i.ground_speed) else 0.0
         if self._t is not None:
             self._odo += speed * max(i.t - self._t, 0.0)
         self._t = i.t
         e_tr = i.e_tr_measured if math.isfinite(i.e_tr_measured) else math.inf
+        e_tr = max(e_tr, avoid.e_tr) if math.isfinite(avoid.e_tr) else e_tr  # the disc the planner goes round
         r_k, swerves = e_tr + r_body + i.r_obst, avoid.v_max >= MIN_SPEED_M_S
         why = self._broken(i, r_k, swerves)
         in_view = self._in_view(i, r_k, swerves) is None
@@ -207,6 +211,14 @@ class ContractInForce:
                 k = 1 + max((self._seen[m][1] for m in match), default=0)
                 self._seen = [e for m, e in enumerate(self._seen) if m not in match] + [(o, k)]
         return before
+
+    def e_tr_in_view(self, d_od: float, r_obst: float, r_body: float) -> float:
+        """[m] the largest E_tr whose keep-out disc r_k = R_obst + E_tr + r_body a pass at this D_od goes round in
+        view (rule (ii): asin(r_k / (D_od + R_obst)) + lag ≤ the half field of view); below 0: none."""
+        room = self.half_fov - self.lag
+        if room <= 0.0 or not d_od + r_obst > 0.0:
+            return -math.inf
+        return (d_od + r_obst) * math.sin(min(room, math.pi / 2)) - r_obst - r_body
 
     def _in_view(self, i, r_k: float, swerves: bool) -> str | None:
         """Why the pass round the keep-out disc r_k would leave the field of view at this D_od (None: it stays in

@@ -60,6 +60,7 @@ from .states import (  # noqa: F401 (re-exported)
 
 STOP_MODES = ("hold", "land")  # the daemon's Hold, and its fallback where Hold is refused (companion/onboard/authority.py)
 MIN_SPEED_CMD = 0.2  # below this a speed command is pointless: Hold instead (never send ≤ 0)
+VIEW_SPEED_TOL_M_S = 0.01  # [m/s] the avoid contract's speed that keeps its pass in view is found to within this
 # the approach ramp (`ApproachRamp`): a ramp command standing this far above speed + ramp is lowered at once …
 RAMP_SLACK_M_S = 0.05
 RAMP_A_TOL = 0.3  # [m/s²] … and the stop contract's Hold-start acceleration allows this beside `ramp_accel`, for the
@@ -523,10 +524,31 @@ class Supervisor:
                 om = fallback_omega(self.table, d_od, i, self.t_cmd, self.loop_dt)
                 om = self._omega_at[key] = swerve_omega(self.table, om, i) if self.swerves else om
             else:
-                om = self._omega_at[key] = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt,
-                                                            a0_max=a0_max, t_cmd=self.t_cmd, t_silent=i.dod.silence_s,
-                                                            e_brake=self.e_surface == "brake")
+                om = self.table.omega(*key[:4], contract=self.contract, recovery_dt=recovery_dt, a0_max=a0_max,
+                                      t_cmd=self.t_cmd, t_silent=i.dod.silence_s, e_brake=self.e_surface == "brake")
+                om = self._omega_at[key] = self._in_view_speed(om, d_od, i) if self.fallback is not None else om
         return om
+
+    def _in_view_speed(self, om: Omega, d_od: float, i: Inputs) -> Omega:
+        """The avoid contract's Ω flown no faster than keeps its pass in view (contract_in_force rule (ii)) round the
+        keep-out disc the planner goes round — R_obst + E_tr + r_body with E_tr = E_tr_pred at the speed flown
+        (Figure 13's virtual obstacle), not only the measured error: where E_tr_pred(V_max) is larger than the rule
+        allows at this D_od, V_max is lowered to the speed whose E_tr_pred it allows (E_tr_pred grows with speed).
+        Where not even MIN_SPEED_CMD's does, Ω is kept and the rule puts the stop contract in force."""
+        e_max = self.fallback.e_tr_in_view(d_od, i.r_obst, self.table.vehicle.r_body_m)
+
+        def fits(v: float) -> bool:
+            return self.table.e_tr_pred(v, om.tilt, i.thrust_ratio, self.e_surface) <= e_max
+
+        if om.v_max < MIN_SPEED_CMD or fits(om.v_max) or not fits(MIN_SPEED_CMD):
+            return om
+        lo, hi = MIN_SPEED_CMD, om.v_max
+        while hi - lo > VIEW_SPEED_TOL_M_S:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if fits(mid) else (lo, mid)
+        e_tr = max(i.e_tr_measured, self.table.e_tr_pred(lo, om.tilt, i.thrust_ratio, self.e_surface))
+        return replace(om, v_max=lo, e_tr=e_tr, gamma=lo - om.v_safe,
+                       reason=f"{om.reason} (lowered: the pass round E_tr_pred {e_tr:.2f} m in view at D_od {d_od:.1f} m)")
 
     # ------------------------------------------------------------------ the cycle
     def e_tr_virtual(self, i: Inputs, d: _Draft) -> float:
