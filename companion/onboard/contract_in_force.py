@@ -152,8 +152,9 @@ class ContractInForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
         D_od, the measured E_tr) and the avoid contract's Ω at them (`avoid`: the speed it would fly; `r_body` the
         vehicle's radius). The keep-out disc of the rule is r_k = R_obst + E_tr + r_body with the E_tr of the disc the
-        planner goes round: the avoid Ω's (E_tr_pred at its speed), or the measured E_tr if larger. Where the avoid contract has no speed to fly there is no swerve
-        to keep in view: the field-of-view rule is not judged (either contract holds the vehicle there)."""
+        planner goes round: the avoid Ω's (E_tr_pred at its speed), or the measured E_tr if larger. Where the avoid
+        contract has no speed to fly there is no swerve to keep in view: the field-of-view rule is not judged (either
+        contract holds the vehicle there)."""
         speed = i.ground_speed if math.isfinite(i.ground_speed) else 0.0
         if self._t is not None:
             self._odo += speed * max(i.t - self._t, 0.0)
