@@ -111,9 +111,11 @@ def test_a_campaign_resumes_and_a_flight_refies_to_its_row(tmp_path, capsys):
     assert [r["index"] for r in more] == [0, 1, 2, 3] and more[:3] == rows
 
 
-def test_an_interrupted_campaign_says_what_it_kept_in_one_line(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("flags", [["--no-progress"], []])
+def test_an_interrupted_campaign_says_what_it_kept_in_one_line(tmp_path, capsys, monkeypatch, flags):
     """Ctrl-C (or SIGTERM, which the CLI turns into it) during a flight: exit 130, one line naming the flights
-    kept and how to continue; every row written before it stays (the next run resumes from them)."""
+    kept and how to continue; every row written before it stays (the next run resumes from them). Off a terminal
+    (a log file, a pipe) there is no progress bar either way: that one line is all of stderr."""
     def ninth_interrupted(args):
         if args[1] == 8:
             raise KeyboardInterrupt
@@ -123,7 +125,7 @@ def test_an_interrupted_campaign_says_what_it_kept_in_one_line(tmp_path, capsys,
     spec_file = tmp_path / "spec.yaml"
     spec_file.write_text(json.dumps({**SMALL, "scenarios": 6}))  # 18 flights
     out = tmp_path / "c"
-    assert main(["campaign", str(spec_file), "--out", str(out), "--no-progress"]) == 130
+    assert main(["campaign", str(spec_file), "--out", str(out), *flags]) == 130
     err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
     assert [r["index"] for r in cg.read_rows(out)] == list(range(8)) and len(err) == 1, err
     assert err[0] == (f"contract-guard: interrupted after 8 of 18 flights, kept in {out / 'results.jsonl'}: run the "

@@ -442,12 +442,14 @@ def cmd_campaign(args) -> int:
         return 0
     if args.out is None:
         raise ContractError("campaign: --out DIR is required (results.jsonl and the report go there)")
+    from contracts.runner import show_progress
+
     from .campaign_report import format_summary, write_report
 
     if not args.report_only:
         with _interruptible():
             rows = cg.run(spec, args.out, workers=args.workers, scheduler=args.scheduler,
-                          progress=not args.no_progress and not args.json, spec_path=str(args.spec), limit=args.limit)
+                          progress=show_progress(not args.no_progress and not args.json), spec_path=str(args.spec), limit=args.limit)
     else:
         rows = cg.read_rows(args.out)
     summary = write_report(rows, args.out, spec_path=str(args.spec))
