@@ -83,6 +83,24 @@ def test_the_range_the_swerve_is_in_view():
     assert "stop contract only" in banner_line([_sensor(fov=12)], R_K, 1.0, 10.0)
 
 
+@pytest.mark.parametrize("fov_deg", [20.0, 60.0, 120.0, 360.0])
+def test_the_banner_s_least_d_od_and_the_rule_s_largest_e_tr_are_one_rule(fov_deg):
+    """At the least D_od the banner names, the largest E_tr the rule keeps in view is the E_tr of the banner's r_k:
+    one inequality read both ways, whatever the field of view (a 360° sensor too: the disc must not reach the
+    vehicle); and the cycle's judgement agrees on either side of it."""
+    r_body, e_tr = 0.1, 0.3
+    r_k = 1.0 + e_tr + r_body
+    f = ContractInForce(math.radians(fov_deg / 2), dwell_s=1.0)
+    d = avoid_d_od_from(f.half_fov, r_k, 1.0, f.lag)
+    if d is None:
+        assert f.e_tr_in_view(50.0, 1.0, r_body) < 0.0
+        return
+    assert f.e_tr_in_view(d, 1.0, r_body) == pytest.approx(e_tr)
+    above, below = (ContractInForce(math.radians(fov_deg / 2), dwell_s=1.0) for _ in range(2))
+    assert above.judge(_inputs(0.0, d_od=d + 0.05), SimpleNamespace(v_max=1.5, e_tr=e_tr), r_body).contract == "avoid"
+    assert below.judge(_inputs(0.0, d_od=d - 0.05), SimpleNamespace(v_max=1.5, e_tr=e_tr), r_body).contract == "stop"
+
+
 def test_a_wide_obstacle_keeps_the_stop_contract_until_flown_past_within_its_reach():
     """Something wider than R_obst: stop at once; still stop while the vehicle has flown less than the D_od of the last
     sighting past it; avoid again only after the assumptions have held for the dwell. The negative control: a column

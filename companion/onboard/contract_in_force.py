@@ -97,15 +97,18 @@ def forward_half_fov(sensors) -> float:
     return min(hi, -lo, math.pi)
 
 
+def in_view_share(half_fov: float, lag: float) -> float:
+    """The field-of-view rule as a share of the distance: a pass round a keep-out disc of radius r_k centred c ahead
+    stays in view where r_k ≤ c·sin(half_fov − lag) (asin(r_k / c) + lag ≤ half_fov); 0 where the lag leaves no
+    room, 1 from a room of 90° (the disc must still not reach the vehicle)."""
+    return math.sin(min(max(half_fov - lag, 0.0), math.pi / 2))
+
+
 def avoid_d_od_from(half_fov: float, r_k: float, r_obst: float, lag: float) -> float | None:
-    """[m] the least D_od at which the field-of-view rule holds (asin(r_k / (D_od + R_obst)) + lag ≤ half_fov), None
-    where it holds at no range."""
-    room = half_fov - lag
-    if room <= 0.0:
-        return None
-    if room >= math.pi / 2:
-        return 0.0
-    return max(r_k / math.sin(room) - r_obst, 0.0)
+    """[m] the least D_od at which the field-of-view rule holds (r_k ≤ (D_od + R_obst)·`in_view_share`), None where it
+    holds at no range."""
+    share = in_view_share(half_fov, lag)
+    return max(r_k / share - r_obst, 0.0) if share > 0.0 else None
 
 
 def banner_line(sensors, r_k: float, r_obst: float, top_m: float) -> str:
@@ -215,18 +218,18 @@ class ContractInForce:
 
     def e_tr_in_view(self, d_od: float, r_obst: float, r_body: float) -> float:
         """[m] the largest E_tr whose keep-out disc r_k = R_obst + E_tr + r_body a pass at this D_od goes round in
-        view (rule (ii): asin(r_k / (D_od + R_obst)) + lag ≤ the half field of view); below 0: none."""
-        room = self.half_fov - self.lag
-        if room <= 0.0 or not d_od + r_obst > 0.0:
+        view (rule (ii), `in_view_share`); below 0: none."""
+        share = in_view_share(self.half_fov, self.lag)
+        if share <= 0.0 or not d_od + r_obst > 0.0:
             return -math.inf
-        return (d_od + r_obst) * math.sin(min(room, math.pi / 2)) - r_obst - r_body
+        return (d_od + r_obst) * share - r_obst - r_body
 
     def _in_view(self, i, r_k: float, swerves: bool) -> str | None:
         """Why the pass round the keep-out disc r_k would leave the field of view at this D_od (None: it stays in
         view, or there is no swerve to judge)."""
         d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
-        bearing = pass_bearing(r_k, d_od + i.r_obst)
-        if swerves and bearing + self.lag > self.half_fov:
+        if swerves and r_k > (d_od + i.r_obst) * in_view_share(self.half_fov, self.lag):
+            bearing = pass_bearing(r_k, d_od + i.r_obst)
             return (f"the pass at D_od {d_od:.2f} m leaves {math.degrees(bearing):.1f}° off the obstacle, with the "
                     f"heading's lag {math.degrees(self.lag):g}° beyond the field of view ±"
                     f"{math.degrees(self.half_fov):.1f}°")
