@@ -105,3 +105,9 @@ def pass_left_beside_its_obstacle(monkeypatch) -> None:
         finally:
             self._asked_discs = asked
     monkeypatch.setattr(OffboardGuidance, "_past_the_profile", regardless)
+
+
+def pass_at_its_own_speed(monkeypatch) -> None:
+    """A pass kept in force flies at the speed it was planned at, whatever V_max has fallen to since (the stop contract
+    come in mid-pass)."""
+    monkeypatch.setattr("companion.onboard.guidance.PASS_OVER_VMAX_M_S", math.inf)

@@ -18,6 +18,7 @@ from tests.swerve_rules import (
     guessed_at_speed_now,
     horizon_over_speed_now,
     outline_unread,
+    pass_at_its_own_speed,
     pass_left_beside_its_obstacle,
     seen_once,
     stops_bounded_by_v_max,
@@ -367,6 +368,25 @@ def test_a_column_inside_a_corridor_is_passed_without_contact(monkeypatch):
     assert not old["collided"] and not old["route_completed"] and old_rig.log.named("dead_end")
 
 
+def test_a_pass_planned_at_the_avoid_contract_s_speed_slows_when_the_stop_contract_comes_in(monkeypatch):
+    """Seed 48's scenario 88 (the Mambo on PX4, a doorway): a pass through the doorway planned at the avoid contract's
+    7.4 m/s; a cycle later both of the door's edges are in view and the stop contract comes in with V_max 1.94 m/s; no
+    pass at that speed is found from 7.3 m/s, so the pass in force is kept — flown on along its path, slowed to
+    V_max at the braking Ω allows: the speed limit flown within its slow-down, above V_safe for under half a second,
+    the route completed. Control: the pass flown at its own speed — 7 m/s for 1.7 s under a limit of 1.94 m/s, the
+    delivery judge's Hold, the route not completed."""
+    s, row, rig = _clutter(88, seed=48)
+    assert s["world_family"] == "doorway" and not row["collided"]
+    assert any(e["contract"] == "stop" for e in rig.log.named("contract_in_force"))
+    assert not [v for v in row["violations"] if v["subsystem"] == "delivery"]
+    assert row["route_completed"] and row["gamma_flown_over_s"] < 0.6
+
+    pass_at_its_own_speed(monkeypatch)
+    _, old, _ = _clutter(88, seed=48)
+    assert [v for v in old["violations"] if v["subsystem"] == "delivery"] and not old["route_completed"]
+    assert old["gamma_flown_over_s"] > 1.0
+
+
 @pytest.mark.parametrize("scenario", [96, 42])  # the Mambo on PX4, the X500 on ArduPilot
 def test_a_column_inside_a_corridor_is_passed_round_what_was_seen_of_it(scenario, monkeypatch):
     """A corridor with a turn and a column inside: the swerve plans round the column as seen (beyond the hold's
@@ -483,11 +503,13 @@ def test_a_pass_is_finished_beside_a_pole_gone_out_of_view(monkeypatch):
     round the pole at the stop contract's 1.5 m/s, the pole leaves the sensor's view 2.5 m before the vehicle is beside
     it. The pass flies a little faster than the route's profile (V_max), but its pole is not yet behind: the pass is
     finished, no rejoin across its keep-out; the route completed. Control: the pass left for the rejoin wherever its pole
-    is — back to the route past the pole, 0.02 m from contact."""
+    is — back to the route past the pole, 0.02 m from contact (flown, as then, with passes at their planned speed
+    whatever V_max: slowed to V_max, that pass no longer comes near the pole)."""
     s, row, _ = _clutter(844, seed=46)
     assert s["world_family"] == "cluster" and s["vehicle"] == "x500"
     assert not row["collided"] and row["route_completed"] and row["min_clearance_m"] > 0.5
 
+    pass_at_its_own_speed(monkeypatch)
     pass_left_beside_its_obstacle(monkeypatch)
     _, old, _ = _clutter(844, seed=46)
     assert old["min_clearance_m"] < 0.1  # the control must fail
@@ -536,11 +558,17 @@ def test_a_failsafe_stop_at_rest_inside_a_keep_out_backs_off_before_hold(monkeyp
     and the fail-safe stop, planned from the state measured, comes to rest inside the pole's keep-out — where the
     controller's allowance E_tr is already used. It backs off along the path it flew before Hold: no contact, no
     delivery violation for the back-off's own speed. Control: handed over to Hold where it rests, ArduPilot's Loiter
-    holds it downwind of its reference, into the pole."""
+    holds it downwind of its reference, into the pole. (The stop no longer comes in this flight: its pass, planned at
+    the avoid contract's speed before the stop contract came in, is now slowed to V_max; the back-off is tested on the
+    flight as it was, its pass at its planned speed.)"""
     from companion.onboard import offboard
 
-    s, row, rig = _clutter(86, seed=47)
+    s, row, rig = _clutter(86, seed=47)  # today: the pass slowed to V_max, no Hold, the route completed
     assert s["world_family"] == "cluster" and s["vehicle"] == "mambo" and s["personality"] == "ardupilot"
+    assert not row["collided"] and row["route_completed"] and not rig.log.named("hold_trigger")
+
+    pass_at_its_own_speed(monkeypatch)  # the stop as it came then: a pass flown at its planned speed
+    s, row, rig = _clutter(86, seed=47)
     backs = rig.log.named("back_off")
     assert len(backs) == 1 and backs[0]["inside_m"] > 0.0
     assert not row["collided"] and row["min_clearance_m"] > 0.05
@@ -571,7 +599,8 @@ def test_a_pole_first_seen_from_behind_another_is_no_evidence_of_a_shorter_range
     the stated 8.5 m. A frame 0.15 s before had seen past the centre of the bin it was first seen in — but the pole's
     side of that bin was behind a nearer pole in the frame before (a neighbouring bin, 2.7 m). A return may come from
     anywhere across its bin: only a frame that saw past all of it is evidence. No navigation violation, no alarm the
-    observer calls unfounded. Control: the bin's centre alone judged — "a target first seen at 5.2 m"."""
+    observer calls unfounded. Control: the bin's centre alone judged — "a target first seen at 5.2 m" (on the flight
+    as it was then, its passes at their planned speed whatever V_max)."""
     from companion.onboard import detection_range as dr
 
     s, row, rig = _clutter(542, seed=46)
@@ -581,5 +610,6 @@ def test_a_pole_first_seen_from_behind_another_is_no_evidence_of_a_shorter_range
 
     whole = dr._View.saw_through
     monkeypatch.setattr(dr._View, "saw_through", lambda v, places, tol: whole(v, places[1:2], tol))
+    pass_at_its_own_speed(monkeypatch)  # the flight as it was flown then: a pass at its planned speed
     _, old, rig = _clutter(542, seed=46)
     assert any("first seen at 5.2" in e.get("action", "") for e in rig.log.named("violation_start"))  # the control

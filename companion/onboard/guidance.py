@@ -64,6 +64,7 @@ TURN_FIRST_SPEED = 0.5 * CREEP_SPEED_M_S
 # excess, a pass's clock slows by the excess over its speed (at most PASS_SLOW_MAX); 0 and 0: the reference alone
 GIVE_BACK = 1.0
 PASS_SLOW_MAX = 0.5
+PASS_OVER_VMAX_M_S = 0.1  # [m/s] a pass's reference above V_max by more than this is slowed to it (`_follow`)
 LEG_TURN_DEG = 5.0  # [deg] the route's direction this far from a pass's: the pass has reached the route's turn
 
 
@@ -884,8 +885,11 @@ class OffboardGuidance:
             slow = min(self._excess(speed, v_max) / max(speed, 0.1), PASS_SLOW_MAX)
             turning = self._swerving and heading is not None and aim is not None \
                 and abs(wrap(heading - aim)) > HEADING_TOL
-            want = TURN_FIRST_SPEED / speed if turning else 1.0
-            step = 0.5 * a_max * dt / max(speed, 0.1)
+            # a pass planned at a higher V_max than the one now in force (the stop contract come in mid-pass, no
+            # replan found at the new one) is flown on along its path at V_max, slowed at the braking Ω allows
+            cap = v_max / speed if speed > v_max + PASS_OVER_VMAX_M_S else 1.0
+            want = min(TURN_FIRST_SPEED / speed if turning else 1.0, cap)
+            step = (a_max if cap < 1.0 else 0.5 * a_max) * dt / max(speed, 0.1)
             self._rate = float(np.clip(want, self._rate - step, self._rate + step))
             slow = max(slow, 1.0 - self._rate)
             self.plan_held += slow * dt
