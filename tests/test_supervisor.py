@@ -251,14 +251,15 @@ def _controller_started(d) -> bool:
 
 
 def test_the_worst_error_of_a_window_is_judged_against_the_fastest_prediction_of_that_window():
-    """E_tr measured is the worst of its window (2 s): an error flown at a high V_max is judged against E_tr_pred at
-    that speed while it is in the window, not against the lower one a shorter D_od sets a moment later (a false
-    controller violation in the demo's fog); past the window the lower prediction is the one."""
+    """E_tr measured is the worst of its window (2 s), each error measured against the path commanded over the span
+    (2 s) before it: an error flown at a high V_max is judged against E_tr_pred at that speed while it is in those
+    4 s, not against the lower one a shorter D_od sets a moment later (a false controller violation in the demo's fog);
+    past them the lower prediction is the one."""
     s = sup("offboard")
     fast = replace(BASE, mode="offboard", ground_speed=5.0, dod=dod(7.0), e_tr_measured=0.3)
     d_fast = s.step(fast)
     e_fast = TABLE.e_tr_pred(d_fast.v_cmd, d_fast.omega.tilt, 1.0)
-    slow = replace(fast, dod=dod(3.0))
+    slow = replace(fast, dod=dod(3.0), ground_speed=1.0)  # the vehicle slowed below the lower limit
     d_slow = s.step(replace(slow, t=0.02))
     e_slow = TABLE.e_tr_pred(d_slow.v_cmd, d_fast.omega.tilt, 1.0)
     assert d_slow.v_cmd < d_fast.v_cmd - 1.0 and e_slow + 0.1 < e_fast  # the prediction fell with the speed
@@ -268,7 +269,25 @@ def test_the_worst_error_of_a_window_is_judged_against_the_fastest_prediction_of
     s2 = sup("offboard")
     s2.step(fast)
     s2.step(replace(slow, t=0.02))
-    assert _controller_started(s2.step(replace(slow, t=2.5, e_tr_measured=e_meas)))  # the fast speed left the window
+    assert not _controller_started(s2.step(replace(slow, t=3.5, e_tr_measured=e_meas)))  # within the path span
+    assert _controller_started(s2.step(replace(slow, t=4.5, e_tr_measured=e_meas)))  # the fast speed left both
+
+
+def test_an_error_flown_above_a_limit_that_just_fell_is_judged_at_the_speed_flown():
+    """The limit falls under the vehicle (a shorter D_od): while it still flies faster, slowing, its tracking is that
+    of the speed it flies — E_tr_pred at the ground speed, not at the lower limit. Control: the same error with the
+    vehicle at the limit breaks the controller contract."""
+    def first(ground_speed):
+        s = sup("offboard")
+        i = replace(BASE, mode="offboard", ground_speed=ground_speed, dod=dod(3.0), e_tr_measured=0.3)
+        d = s.step(i)
+        e_cmd = TABLE.e_tr_pred(d.v_cmd, d.omega.tilt, 1.0)
+        e_flown = TABLE.e_tr_pred(5.0, d.omega.tilt, 1.0)
+        assert d.v_cmd < 4.0 and e_cmd + 0.1 < e_flown
+        return s.step(replace(i, t=0.02, e_tr_measured=0.5 * (e_cmd + e_flown) + 0.025))
+
+    assert not _controller_started(first(5.0))
+    assert _controller_started(first(1.0))  # the control must fail
 
 
 def test_a_prediction_below_the_measurements_floor_is_judged_at_the_floor():

@@ -331,7 +331,9 @@ class Supervisor:
         self._would: tuple[Cause, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple | None = None  # (v, tilt, thrust, surface, E_tr_pred)
-        self._e_pred_window = WindowMax(e_tr_window_s)  # E_tr_pred at the speeds commanded over E_tr's window
+        # E_tr_pred at the speeds flown over E_tr's window and the path span before it: the error measured at a time
+        # is the distance to the path commanded over the span before that (estimators.EtrEstimator: both e_tr_window_s)
+        self._e_pred_window = WindowMax(2.0 * e_tr_window_s)
         self.e_tr_floor = e_tr_floor_m
         self._omega_at: dict[tuple, Omega] = {}  # (d_od, r_obst, e_tr measured, thrust, brake, ramp) → Ω
         self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
@@ -559,7 +561,7 @@ class Supervisor:
         if not self.policy.inflate_e_tr:
             return 0.0
         if self.table.e_pred is not None and d.v_cmd:
-            e = max(i.e_tr_measured, self.e_tr_pred_flown(d.v_cmd, d.omega.tilt, i.thrust_ratio))
+            e = max(i.e_tr_measured, self.e_tr_pred_flown(_speed_flown(d.v_cmd, i), d.omega.tilt, i.thrust_ratio))
             if math.isfinite(e):
                 return e
             # no answer in the grid (tilt or thrust outside it): the largest error the contract knows —
@@ -746,7 +748,7 @@ class Supervisor:
             # the measured error is the worst of a window, so it is judged against the prediction at the fastest
             # speed commanded in that window (a shorter D_od a moment later does not make the error a violation),
             # and never below the floor the measurement reads at least (a vehicle at rest cannot break it)
-            self._e_pred_window.add(i.t, self.e_tr_pred_flown(d.v_cmd, om.tilt, i.thrust_ratio))
+            self._e_pred_window.add(i.t, self.e_tr_pred_flown(_speed_flown(d.v_cmd, i), om.tilt, i.thrust_ratio))
             e_pred = max(self._e_pred_window.max, self.e_tr_floor)
             self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
                             subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
@@ -945,6 +947,12 @@ class Supervisor:
             d.events.append(("would_hold", {"causes": list(causes)}))
             self._would = causes
         return d
+
+
+def _speed_flown(v_cmd: float, i: Inputs) -> float:
+    """[m/s] the speed the controller contract's E_tr_pred is taken at: the limit commanded, or the ground speed where
+    the vehicle still flies faster (slowing to a limit that just fell: its tracking is that of the speed it flies)."""
+    return max(v_cmd, i.ground_speed) if math.isfinite(i.ground_speed) else v_cmd
 
 
 def _finite_inputs(i: Inputs) -> bool:
