@@ -875,7 +875,8 @@ class OffboardGuidance:
         under the stop contract, it slows too while the measured heading is more than HEADING_TOL off the pass's
         direction, to TURN_FIRST_SPEED (changing speed at half a_max), the yaw on that direction: the pass turns
         the velocity faster than the heading follows, and the direction of travel left the sensor's view (D_od 0,
-        no safe speed, at a corridor's turn and beside a column)."""
+        no safe speed, at a corridor's turn and beside a column). A pass faster than the V_max now in force slows on
+        the same path to V_max at a_max."""
         pos, vel, acc = self.plan.sample(self._tau(t))
         speed = float(np.hypot(*vel))
         aim = math.atan2(vel[1], vel[0]) if speed > TURN_FIRST_SPEED else None
