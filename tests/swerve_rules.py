@@ -109,5 +109,8 @@ def pass_left_beside_its_obstacle(monkeypatch) -> None:
 
 def pass_at_its_own_speed(monkeypatch) -> None:
     """A pass kept in force flies at the speed it was planned at, whatever V_max has fallen to since (the stop contract
-    come in mid-pass)."""
+    come in mid-pass); the controller contract's E_tr_pred taken at the limit, not at a faster speed flown, over E_tr's
+    window alone."""
     monkeypatch.setattr("companion.onboard.guidance.PASS_OVER_VMAX_M_S", math.inf)
+    monkeypatch.setattr(supervisor, "_speed_flown", lambda v_cmd, i: v_cmd)
+    monkeypatch.setattr(supervisor, "PRED_WINDOWS", 1.0)

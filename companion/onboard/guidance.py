@@ -876,7 +876,7 @@ class OffboardGuidance:
         direction, to TURN_FIRST_SPEED (changing speed at half a_max), the yaw on that direction: the pass turns
         the velocity faster than the heading follows, and the direction of travel left the sensor's view (D_od 0,
         no safe speed, at a corridor's turn and beside a column). A pass faster than the V_max now in force slows on
-        the same path to V_max at a_max."""
+        the same path to V_max, at half a_max too."""
         pos, vel, acc = self.plan.sample(self._tau(t))
         speed = float(np.hypot(*vel))
         aim = math.atan2(vel[1], vel[0]) if speed > TURN_FIRST_SPEED else None
@@ -887,10 +887,11 @@ class OffboardGuidance:
             turning = self._swerving and heading is not None and aim is not None \
                 and abs(wrap(heading - aim)) > HEADING_TOL
             # a pass planned at a higher V_max than the one now in force (the stop contract come in mid-pass, no
-            # replan found at the new one) is flown on along its path at V_max, slowed at the braking Ω allows
+            # replan found at the new one) is flown on along its path at V_max: slowed at half a_max, as for the turn
+            # (the path is curved: braking along it at the whole a_max adds to the turn's acceleration)
             cap = v_max / speed if speed > v_max + PASS_OVER_VMAX_M_S else 1.0
             want = min(TURN_FIRST_SPEED / speed if turning else 1.0, cap)
-            step = (a_max if cap < 1.0 else 0.5 * a_max) * dt / max(speed, 0.1)
+            step = 0.5 * a_max * dt / max(speed, 0.1)
             self._rate = float(np.clip(want, self._rate - step, self._rate + step))
             slow = max(slow, 1.0 - self._rate)
             self.plan_held += slow * dt

@@ -72,6 +72,9 @@ RAMP_REARM_S = 3.0  # [s] the ramp followed this long (measured) before its boun
 SLOWDOWN_LAG_S = 0.6
 SLOWDOWN_NEAR_M_S = 0.3  # [m/s] flying within this of the old limit's tolerance when a lower one comes: complying
 LIMIT_FLOWN = "a speed limit is flown within the autopilot's slow-down"  # the delivery subsystem's guarantee
+# E_tr_pred is judged at the speeds flown over E_tr's window and the path span before it, in windows: the error
+# measured at a time is the distance to the path commanded over the span before that (estimators.EtrEstimator)
+PRED_WINDOWS = 2.0
 # the autopilot's guarantee the stop contract budgets (companion/onboard/overshoot.py): the limit sent is V_max − δ_v
 SPEED_OVERSHOOT = "the ground speed stays within δ_v of the speed limit sent"
 # the navigation subsystem's guarantee of each obstacle sensor: it reports within its silence budget, which the stop and
@@ -331,9 +334,7 @@ class Supervisor:
         self._would: tuple[Cause, ...] = ()
         self._tilt_in_force: float | None = None  # the tilt of the last Ω with a speed to fly
         self._e_pred_at: tuple | None = None  # (v, tilt, thrust, surface, E_tr_pred)
-        # E_tr_pred at the speeds flown over E_tr's window and the path span before it: the error measured at a time
-        # is the distance to the path commanded over the span before that (estimators.EtrEstimator: both e_tr_window_s)
-        self._e_pred_window = WindowMax(2.0 * e_tr_window_s)
+        self._e_pred_window = WindowMax(PRED_WINDOWS * e_tr_window_s)
         self.e_tr_floor = e_tr_floor_m
         self._omega_at: dict[tuple, Omega] = {}  # (d_od, r_obst, e_tr measured, thrust, brake, ramp) → Ω
         self._decel_at: tuple[float, float] | None = None  # (thrust ratio, braking deceleration)
