@@ -54,10 +54,11 @@ def fly(delay: float) -> dict:
         if not near:
             columns.append({"column": c.name, "flown": False})
             continue
+        track = [(math.atan2(vy, vx), yaw, math.hypot(vx, vy)) for _, _, vx, vy, yaw in near]
         columns.append({"column": c.name, "flown": True,
-                        "track_heading_deg": round(max(_angle(math.atan2(vy, vx) - yaw) for _, _, vx, vy, yaw in near), 1),
-                        "track_off_route_deg": round(max(_angle(math.atan2(vy, vx)) for _, _, vx, vy, _ in near), 1),
-                        "speed_max_m_s": round(max(math.hypot(vx, vy) for _, _, vx, vy, _ in near), 2)})
+                        "track_heading_deg": round(max(_angle(a - yaw) for a, yaw, _ in track), 1),
+                        "track_off_route_deg": round(max(_angle(a) for a, _, _ in track), 1),
+                        "speed_max_m_s": round(max(v for _, _, v in track), 2)})
     events = [(round(e["t"], 1), e["event"], e.get("contract") or e.get("subsystem")) for e in rig.log.events
               if e["event"] in ("violation_start", "hold_trigger")
               or e["event"] == "contract_in_force" and e["contract"] == "stop"]

@@ -251,7 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
     cg.add_argument("--fly", type=int, metavar="INDEX", help="re-fly one flight (with --out: its event log too)")
     cg.add_argument("--limit", type=int, help="fly at most this many more flights, then report")
     cg.add_argument("--report-only", action="store_true", help="report the results already in --out")
-    cg.add_argument("--no-progress", action="store_true", help="no progress bar on stderr (there is none unless stderr is a terminal)")
+    cg.add_argument("--no-progress", action="store_true",
+                    help="no progress bar on stderr (there is none unless stderr is a terminal)")
     cg.add_argument("--json", action="store_true", help=JSON)
 
     ca = _command(sub, "calibrate", help="calibrate the controller contract and braking from flight logs "

@@ -449,7 +449,8 @@ def cmd_campaign(args) -> int:
     if not args.report_only:
         with _interruptible():
             rows = cg.run(spec, args.out, workers=args.workers, scheduler=args.scheduler,
-                          progress=show_progress(not args.no_progress and not args.json), spec_path=str(args.spec), limit=args.limit)
+                          progress=show_progress(not args.no_progress and not args.json), spec_path=str(args.spec),
+                          limit=args.limit)
     else:
         rows = cg.read_rows(args.out)
     summary = write_report(rows, args.out, spec_path=str(args.spec))

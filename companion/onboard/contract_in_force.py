@@ -105,8 +105,8 @@ def in_view_share(half_fov: float, lag: float) -> float:
 
 
 def avoid_d_od_from(half_fov: float, r_k: float, r_obst: float, lag: float) -> float | None:
-    """[m] the least D_od at which the field-of-view rule holds (r_k ≤ (D_od + R_obst)·`in_view_share`), None where it
-    holds at no range."""
+    """[m] the least D_od at which the field-of-view rule holds (r_k ≤ (D_od + R_obst)·`in_view_share`), None where
+    it holds at no range."""
     share = in_view_share(half_fov, lag)
     return max(r_k / share - r_obst, 0.0) if share > 0.0 else None
 

@@ -747,8 +747,9 @@ class Supervisor:
             self._tilt_in_force = om.tilt
         if self.table.e_pred is not None and d.v_cmd and self._tilt_in_force is not None:
             # the measured error is the worst of a window, so it is judged against the prediction at the fastest
-            # speed commanded in that window (a shorter D_od a moment later does not make the error a violation),
-            # and never below the floor the measurement reads at least (a vehicle at rest cannot break it)
+            # speed flown in that window and the path span before it (a shorter D_od a moment later does not make
+            # the error a violation), and never below the floor the measurement reads at least (a vehicle at rest
+            # cannot break it)
             self._e_pred_window.add(i.t, self.e_tr_pred_flown(_speed_flown(d.v_cmd, i), om.tilt, i.thrust_ratio))
             e_pred = max(self._e_pred_window.max, self.e_tr_floor)
             self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
