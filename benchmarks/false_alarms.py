@@ -14,10 +14,11 @@ its share of `--hours` or `--max-flights` flights.
 
     python benchmarks/false_alarms.py [--hours 0.2] [--max-flights 12] [--modes governor offboard]
         [--models sector depth_camera single_beam] [--worlds plain columns doorway cluster corridor]
-        [--spurious-rate R] [--workers 1]
+        [--spurious-rate R] [--first-seed 1] [--workers 1]
 
 `--spurious-rate`: the depth camera's and the single beam's spurious close returns per bin and frame (their
 defaults: 0.002 and 0.0005, sitl_harness/sensor_models.py), to measure the alarms that are theirs alone.
+`--first-seed`: the seed each cell starts from, so that more hours add flights unlike those flown already.
 Per cell and per (mode, model): flights, hours, routes completed (`arrived`), flights the daemon guarded at all
 (`guarded`: it left standby; a set-up whose sensors cannot cover the swept corridor is refused at start-up and only
 watches), events per hour by kind, unfounded per hour, and the 95 % upper bound of the unfounded rate (Poisson:
@@ -83,16 +84,18 @@ def main() -> None:
     ap.add_argument("--models", nargs="+", choices=MODELS, default=list(MODELS))
     ap.add_argument("--worlds", nargs="+", choices=WORLDS, default=list(WORLDS))
     ap.add_argument("--spurious-rate", type=float, default=None)
+    ap.add_argument("--first-seed", type=int, default=1, help="the seed each cell starts from")
     ap.add_argument("--workers", type=int, default=1)
     a = ap.parse_args()
-    if not a.hours > 0 or a.max_flights < 1 or a.workers < 1 or \
+    if not a.hours > 0 or a.max_flights < 1 or a.workers < 1 or a.first_seed < 1 or \
             (a.spurious_rate is not None and not 0.0 <= a.spurious_rate <= 1.0):
-        ap.exit(2, "false_alarms.py: --hours must be > 0, --max-flights and --workers ≥ 1, --spurious-rate in [0, 1]\n")
+        ap.exit(2, "false_alarms.py: --hours must be > 0, --max-flights, --workers and --first-seed ≥ 1, "
+                   "--spurious-rate in [0, 1]\n")
     cells = [(m, s, w) for m in a.modes for s in a.models for w in a.worlds]
     share_s = a.hours * 3600.0 / len(cells)
     t0 = time.time()
     rows: dict[tuple, list[dict]] = {c: [] for c in cells}
-    seed = 0
+    seed = a.first_seed - 1
     with ProcessPoolExecutor(a.workers) if a.workers > 1 else _Inline() as pool:
         while True:
             seed += 1
@@ -105,7 +108,8 @@ def main() -> None:
                       f"{sum(not e['founded'] for e in row['events'])} unfounded", file=sys.stderr, flush=True)
     every = [r for c in cells for r in rows[c]]
     out = {"benchmark": "false_alarms", "hours_asked": a.hours, "max_flights": a.max_flights,
-           "spurious_rate": a.spurious_rate, "wall_s": round(time.time() - t0, 1), "all": summarise(every),
+           "first_seed": a.first_seed, "spurious_rate": a.spurious_rate, "wall_s": round(time.time() - t0, 1),
+           "all": summarise(every),
            "per_mode": {m: summarise([r for r in every if r["mode"] == m]) for m in a.modes},
            "per_mode_model": {f"{m}/{s}": summarise([r for r in every if r["mode"] == m and r["model"] == s])
                               for m in a.modes for s in a.models},

@@ -753,7 +753,7 @@ class Supervisor:
             self._e_pred_window.add(i.t, self.e_tr_pred_flown(_speed_flown(d.v_cmd, i), om.tilt, i.thrust_ratio))
             e_pred = max(self._e_pred_window.max, self.e_tr_floor)
             self._violation(d, Subsystem.CONTROLLER, i.e_tr_measured > e_pred + 0.05, lambda: dict(
-                            subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(V_max)",
+                            subsystem=Subsystem.CONTROLLER, guarantee="contour error <= E_tr_pred(speed flown)",
                             assumed=e_pred, observed=i.e_tr_measured, action="E_tr raised to the measured value"))
         late_cmd = i.delivery_late  # a mode command past its budget (the mode authority's judgement)
         self._violation(d, Subsystem.DELIVERY, late_cmd is not None, lambda: dict(
