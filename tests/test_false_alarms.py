@@ -496,3 +496,37 @@ def test_a_hold_on_the_path_the_swerve_flies_is_judged_on_that_path(monkeypatch)
     monkeypatch.setattr(fa.Observer, "path_judged", lambda self, t: None)
     old = fly(spec, 597)
     assert any(a["kind"] == "hold (obstacle)" for a in old["unfounded_alarms"])
+
+
+def test_the_benchmark_keeps_each_flight_as_it_lands_and_resumes_from_them(tmp_path):
+    """A run stopped part-way keeps its flights: each is appended to `--rows` as it lands, a run on the same file
+    flies only what is missing, and a last line cut short by a kill is flown again rather than read."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    rows = tmp_path / "rows.jsonl"
+
+    def run(*args):
+        out = subprocess.run([sys.executable, str(root / "benchmarks" / "false_alarms.py"), *args],
+                             capture_output=True, text=True, cwd=root, timeout=600)
+        assert out.returncode == 0, out.stderr
+        return json.loads(out.stdout), out.stderr
+
+    common = ["--hours", "0.001", "--modes", "governor", "--models", "sector", "--worlds", "plain", "columns",
+              "--rows", str(rows)]
+    first, _ = run(*common, "--max-flights", "1")
+    lines = rows.read_text().splitlines()
+    assert [(json.loads(x)["world"], json.loads(x)["seed"]) for x in lines] == [("plain", 1), ("columns", 1)]
+    rows.write_text(lines[0] + "\n" + lines[1][: len(lines[1]) // 2])  # killed while writing the second flight
+    again, _ = run(*common, "--max-flights", "1")
+    kept = [json.loads(x) for x in rows.read_text().splitlines()[:1]] + \
+           [json.loads(x) for x in rows.read_text().splitlines()[2:]]
+    assert [(r["world"], r["seed"]) for r in kept] == [("plain", 1), ("columns", 1)]  # only the cut one flown again
+    assert again["all"]["flights"] == first["all"]["flights"] == 2
+    assert again["all"]["hours"] == first["all"]["hours"]
+    alone, _ = run("--report-only", str(rows))
+    assert alone["all"]["flights"] == 2 and alone["all"]["hours"] == first["all"]["hours"]
+    assert [c["world"] for c in alone["cells"]] == ["plain", "columns"]
