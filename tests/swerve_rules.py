@@ -85,6 +85,15 @@ def stops_bounded_by_v_max(monkeypatch) -> None:
                         lambda self, kind, v0, v_max, a_max, ts: caps(self, "pass", v0, v_max, a_max, ts))
 
 
+def stops_flown_unturned(monkeypatch) -> None:
+    """A stop's reference flown as planned whatever the heading (a back-off out of a keep-out disc too)."""
+    def unturned(self, vel, acc, speed, turning, a_max, dt):
+        self._rate = 1.0
+        return vel, acc
+
+    monkeypatch.setattr(OffboardGuidance, "_stop_turning_first", unturned)
+
+
 def passed_obstacles_forgotten(monkeypatch) -> None:
     """Only the obstacles in view in one frame count for the avoid contract's one at a time (a pole seen before, out
     of view and not yet passed, does not)."""

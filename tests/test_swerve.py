@@ -22,6 +22,7 @@ from tests.swerve_rules import (
     pass_left_beside_its_obstacle,
     seen_once,
     stops_bounded_by_v_max,
+    stops_flown_unturned,
     threats_on_the_leg_line,
 )
 
@@ -484,18 +485,34 @@ def test_a_stop_at_rest_before_a_column_stays_at_rest(monkeypatch):
     """Seed 46, scenario 332 (the 450–500 mm quad on PX4, a corridor, a column on the route): the vehicle comes to rest
     before the column on the planner's stop, and each replan of that stop is a stop from rest — never faster than it
     starts — until a pass is found: no Hold a perfect observer calls unfounded, no contact, the route completed.
-    Control: a stop bounded by V_max only — an iterate OSQP had not converged on, safe by the exact check, backs the
-    vehicle away at over 1 m/s, the direction of travel behind the sensor's view: "no safe speed", a Hold with nothing
-    behind it."""
+    Control: a stop bounded by V_max only, and flown without turning first — an iterate OSQP had not converged on, safe
+    by the exact check, backs the vehicle away at over 1 m/s, the direction of travel behind the sensor's view: "no safe
+    speed", a Hold with nothing behind it."""
     s, row, rig = _clutter(332, seed=46)
     assert s["world_family"] == "corridor" and s["vehicle"] == "x500"
     assert not row["collided"] and not row["unfounded_alarms"] and not rig.log.named("hold_trigger")
     assert row["route_completed"]
 
     stops_bounded_by_v_max(monkeypatch)
+    stops_flown_unturned(monkeypatch)
     _, old, old_rig = _clutter(332, seed=46)
     assert not old["collided"]
     assert old["unfounded_alarms"] and old_rig.log.named("hold_trigger")  # the control must fail
+
+
+def test_a_stop_leading_away_from_the_heading_turns_to_it_first(monkeypatch):
+    """Seed 50, scenario 763 (the Mambo on PX4, a corridor): past the corridor's column, inside its keep-out disc, the
+    planner's stop leads back out of it, 150° off the heading. Flown slowly on its path while the heading turns to it,
+    the sensor looks where the vehicle goes: no alarm a perfect observer calls unfounded. Control: the stop flown as
+    planned — backing away at 0.85 m/s out of the sensor's view, "no safe speed", then a Hold for the column 0.8 m off,
+    nowhere along the way the vehicle was going."""
+    s, row, _ = _clutter(763, seed=50)
+    assert s["world_family"] == "corridor" and s["vehicle"] == "mambo"
+    assert not row["collided"] and not row["unfounded_alarms"]
+
+    stops_flown_unturned(monkeypatch)
+    _, old, _ = _clutter(763, seed=50)
+    assert not old["collided"] and old["unfounded_alarms"]  # the control must fail
 
 
 def test_a_pass_is_finished_beside_a_pole_gone_out_of_view(monkeypatch):

@@ -868,6 +868,17 @@ class OffboardGuidance:
         """Where in the plan being flown the reference is at time t (its own clock)."""
         return t - self.plan_t - self.plan_held
 
+    def _stop_turning_first(self, vel, acc, speed, turning, a_max, dt):
+        """A stop's reference (the planner's; from rest it may lead back out of a keep-out disc, away from the heading)
+        slowed on its path to TURN_FIRST_SPEED while the measured heading is more than HEADING_TOL off its direction,
+        changing speed at half a_max, the yaw on that direction (`_follow`): the sensor looks where the vehicle is to go
+        before it goes. Backed away unturned, the direction of travel left the view: "no safe speed", a Hold with
+        nothing in the way."""
+        want = TURN_FIRST_SPEED / speed if turning else 1.0
+        self._rate = float(np.clip(want, self._rate - 0.5 * a_max * dt / max(speed, 0.1), 1.0))
+        self.plan_held += (1.0 - self._rate) * dt
+        return vel * self._rate, acc * self._rate ** 2
+
     def _follow(self, t, dt, z, v_max, a_max, heading=None) -> Setpoint:
         """The plan's reference now. A pass's clock slows while the vehicle flies above V_max (catching up with a
         reference it lags, it overshoots the plan's speed): by the excess over the reference's speed, so the path
@@ -880,12 +891,14 @@ class OffboardGuidance:
         pos, vel, acc = self.plan.sample(self._tau(t))
         speed = float(np.hypot(*vel))
         aim = math.atan2(vel[1], vel[0]) if speed > TURN_FIRST_SPEED else None
-        if self.plan.kind != "pass":
+        turning = self._swerving and heading is not None and aim is not None \
+            and abs(wrap(heading - aim)) > HEADING_TOL
+        if self.plan.kind == "stop" and dt > 0:
+            vel, acc = self._stop_turning_first(vel, acc, speed, turning, a_max, dt)
+        elif self.plan.kind != "pass":
             self._rate = 1.0
         elif dt > 0:
             slow = min(self._excess(speed, v_max) / max(speed, 0.1), PASS_SLOW_MAX)
-            turning = self._swerving and heading is not None and aim is not None \
-                and abs(wrap(heading - aim)) > HEADING_TOL
             # a pass planned at a higher V_max than the one now in force (the stop contract come in mid-pass, no
             # replan found at the new one) is flown on along its path at V_max: slowed at half a_max, as for the turn
             # (the path is curved: braking along it at the whole a_max adds to the turn's acceleration)
