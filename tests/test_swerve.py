@@ -455,6 +455,35 @@ def test_a_wall_across_the_route_is_still_a_dead_end_stopped_short_and_said():
     assert any("no path the contract can prove" in t for t in rig.daemon_texts())
 
 
+def test_a_dead_end_hands_over_to_hold_from_a_setpoint_at_rest():
+    """PX4's Hold restarts from the last setpoint's velocity and acceleration (FlightTaskAuto::activate). At a dead end
+    the planner's stop may have begun to lead the vehicle back out of a keep-out disc (its setpoint accelerating away
+    while the vehicle still rests): the daemon first streams a setpoint at rest where the vehicle is for SETTLE_S, and
+    only then says the dead end and asks for Hold. Handed over from the moving setpoint, the vehicle flew on backwards
+    under Hold at up to 5.9 m/s, out of its sensor's view."""
+    from types import SimpleNamespace
+
+    from companion.onboard import offboard
+    from companion.onboard.guidance import Setpoint
+    from companion.onboard.states import OffboardState, SetpointKind
+
+    away = Setpoint(np.array([4.9, 0.0]), np.array([-0.2, 0.0]), np.array([-3.0, 0.0]), -2.0, 0.0, SetpointKind.AVOID)
+    guidance = SimpleNamespace(step=lambda *a, **k: away, stopped_short=lambda p: 0.6, last_notes=[])
+    ctl = offboard.OffboardController(guidance, state=OffboardState.FLYING)
+    dt, out = 0.02, []
+    for k in range(int((offboard.DEAD_END_S + 2 * offboard.SETTLE_S) / dt) + 2):
+        ask = offboard.Ask(t=k * dt, mode="offboard", p=(5.0, 0.0), v=(0.05, 0.0), z=-2.0, yaw=0.0, by_daemon=True,
+                           engaged=True, flying=True, v_max=2.0, a_max=3.0)
+        out.append((ask.t, ctl.step(ask)))
+    (t_hold,) = [t for t, a in out if a.hold]
+    said = [t for t, a in out if any(name == "dead_end" for name, _ in a.events)]
+    assert said == [t_hold] and ctl.state == OffboardState.HELD
+    still = [a.setpoint for t, a in out if t_hold - offboard.SETTLE_S <= t <= t_hold]
+    assert still and all(np.allclose(sp.v, 0.0) and np.allclose(sp.a, 0.0) and np.allclose(sp.p, (5.0, 0.0))
+                         for sp in still)
+    assert t_hold >= offboard.DEAD_END_S + offboard.SETTLE_S - dt
+
+
 def test_a_stop_short_of_a_column_with_no_pass_is_a_dead_end_said_and_held(monkeypatch):
     """Scenario 156 (the 450–500 mm quad on ArduPilot, a 5.1 m corridor, a 0.4 m column 0.26 m left of the route: 1.8 m
     and 2.3 m between it and the walls): the column's keep-out and the walls' points, each grown by r_body + E_tr and

@@ -5,7 +5,8 @@
         entering ──heartbeat shows it──▶ flying (guidance setpoints every cycle, ≥ 20 Hz)
         flying ──mode changed by someone else──▶ stood_down (stop streaming; never re-enter by itself)
         flying ──route flown──▶ done (Hold)        done / stood_down ──disengaged──▶ off
-        flying ──at rest on a stop short of what is in the way for DEAD_END_S (no pass)──▶ held (Hold: a dead end)
+        flying ──at rest on a stop short of what is in the way for DEAD_END_S (no pass), held still SETTLE_S──▶ held
+                                                                                         (Hold: a dead end)
         flying ──fail-safe the daemon can fly out itself (no safe speed, limit not in force)──▶ braking
         braking (stream the best stop at the tilt's full deceleration from the measured state, its
                  acceleration turned from the last setpoint's at the attitude-rate limit: straight, or a
@@ -118,7 +119,9 @@ class OffboardController:
     _slow_since: float | None = None  # braking: since when the vehicle is below 0.3 m/s at the stop's end
     _rest_since: float | None = None  # flying: since when the vehicle rests on a stop short of what is in the way
     _a_last: np.ndarray | None = None  # the acceleration of the last setpoint streamed while flying
-    _done_at: tuple | None = None  # route flown: (since when, where) the daemon holds the vehicle before Hold
+    # the route flown, or a dead end: (since when, where, z, yaw, the dead end's room or None) the daemon holds the
+    # vehicle before Hold
+    _done_at: tuple | None = None
     _switch: bool = False  # the recovery brake awaits its switch to offboard
     refused: str | None = None  # why the recovery brake's switch was refused (it is then unavailable)
     proven: bool = False  # the recovery brake's switch was shown within its contract's budget in this flight
@@ -182,29 +185,30 @@ class OffboardController:
                 # the route is flown: hold the vehicle where it is for SETTLE_S, then hand over to Hold, so
                 # that the last setpoint is where it rests (PX4's Hold restarts from the last setpoint: handed
                 # over 1.5 m past it, the vehicle flew back there, 1.3 m/s backwards, unseen by its sensors)
-                self._done_at = (t, np.asarray(p, float).copy(), ask.z, ask.yaw)
+                self._done_at = (t, np.asarray(p, float).copy(), ask.z, ask.yaw, None)
                 return self._finish(t, acts)
             if acts.setpoint.mode == SetpointKind.BRAKE and not self._braking:
                 acts.events.append(("no_avoiding_plan", {"notes": self.guidance.last_notes[:3]}))
             self._braking = acts.setpoint.mode == SetpointKind.BRAKE
             self._a_last = np.asarray(acts.setpoint.a, float)
-            self._dead_end(t, p, v, acts)
+            return self._dead_end(ask, acts)
         return acts
 
-    def _dead_end(self, t, p, v, acts: OffboardActions) -> None:
-        """A dead end: at rest for DEAD_END_S on a stop short of what is in the way — said (`dead_end`, STATUSTEXT)
-        and handed to Hold, held until the pilot or the ground station decides."""
-        room = self.guidance.stopped_short(p)
-        if room is None or float(np.hypot(*v)) >= AT_REST_M_S:
+    def _dead_end(self, ask: Ask, acts: OffboardActions) -> OffboardActions:
+        """A dead end: at rest for DEAD_END_S on a stop short of what is in the way — held where it rests for
+        SETTLE_S (`_finish`), then said (`dead_end`, STATUSTEXT) and handed to Hold, held until the pilot or the
+        ground station decides."""
+        t = ask.t
+        room = self.guidance.stopped_short(ask.p)
+        if room is None or float(np.hypot(*ask.v)) >= AT_REST_M_S:
             self._rest_since = None
-            return
+            return acts
         if self._rest_since is None:
             self._rest_since = t
         if t - self._rest_since >= DEAD_END_S:
-            acts.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": round(room, 3)}))
-            acts.texts.append((2, f"CG: {DEAD_END}"))
-            acts.hold = True
-            self._go(t, S.HELD, DEAD_END_HELD, acts)
+            self._done_at = (t, np.asarray(ask.p, float).copy(), ask.z, ask.yaw, room)
+            return self._finish(t, acts)
+        return acts
 
     def _entered(self, ask: Ask, acts: OffboardActions) -> bool:
         """Entering: a setpoint where the vehicle was when engaged, OFFBOARD / GUIDED asked every cycle from
@@ -316,12 +320,21 @@ class OffboardController:
         return True
 
     def _finish(self, t, acts) -> OffboardActions:
-        """The route's end: a setpoint at rest where the vehicle stopped, then Hold after SETTLE_S."""
-        since, here, z, yaw = self._done_at
+        """The route's end, or a dead end: a setpoint at rest where the vehicle stopped, then Hold after SETTLE_S.
+        PX4's Hold restarts its smoothing from the last setpoint, its velocity and acceleration as well
+        (FlightTaskAuto::activate): handed over on a stop that had begun to lead back out of a keep-out disc, the
+        vehicle flew on backwards under Hold at up to 5.9 m/s, out of its sensor's view."""
+        since, here, z, yaw, room = self._done_at
         acts.setpoint = Setpoint(here, np.zeros(2), np.zeros(2), z, yaw, SetpointKind.HOLD)
-        if t - since >= SETTLE_S:
-            acts.hold = True
+        if t - since < SETTLE_S:
+            return acts
+        acts.hold = True
+        if room is None:
             self._go(t, S.DONE, "route complete", acts)
+        else:
+            acts.events.append(("dead_end", {"reason": DEAD_END, "obstacle_m": round(room, 3)}))
+            acts.texts.append((2, f"CG: {DEAD_END}"))
+            self._go(t, S.HELD, DEAD_END_HELD, acts)
         return acts
 
     def _brake(self, ask: Ask, abort: bool, acts) -> OffboardActions:
