@@ -870,10 +870,10 @@ class OffboardGuidance:
 
     def _stop_turning_first(self, vel, acc, speed, turning, a_max, dt):
         """A stop's reference (the planner's; from rest it may lead back out of a keep-out disc, away from the heading)
-        slowed on its path to TURN_FIRST_SPEED while the measured heading is more than HEADING_TOL off its direction,
-        changing speed at half a_max, the yaw on that direction (`_follow`): the sensor looks where the vehicle is to go
-        before it goes. Backed away unturned, the direction of travel left the view: "no safe speed", a Hold with
-        nothing in the way."""
+        slowed on its path to TURN_FIRST_SPEED (at half a_max) while the measured heading is more than HEADING_TOL off
+        its direction, the yaw on that direction (`_follow`), and back at the plan's own speed once the heading is on
+        it: the sensor looks where the vehicle is to go before it goes. Backed away unturned, the direction of travel
+        left the view: "no safe speed", a Hold with nothing in the way."""
         want = TURN_FIRST_SPEED / speed if turning else 1.0
         self._rate = float(np.clip(want, self._rate - 0.5 * a_max * dt / max(speed, 0.1), 1.0))
         self.plan_held += (1.0 - self._rate) * dt
