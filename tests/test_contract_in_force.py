@@ -7,6 +7,7 @@ disabled: the old behaviour)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -15,6 +16,7 @@ import pytest
 from companion.ground.false_alarms import config_of, scenario_of
 from companion.onboard.contract_in_force import (
     LAG_BUDGET_DEG,
+    Apart,
     ContractInForce,
     avoid_d_od_from,
     banner_line,
@@ -25,7 +27,7 @@ from companion.onboard.contract_in_force import (
     uncovered,
     unplanned,
 )
-from companion.onboard.guidance import new_obstacles
+from companion.onboard.guidance import new_obstacles, seen_obstacles
 from contracts.online_planner import Disc
 from contracts.table import load_for_vehicle
 from tests.lockstep import Rig, engage_and_fly
@@ -152,6 +154,40 @@ def test_an_obstacle_seen_before_and_not_yet_passed_counts_with_the_one_in_view(
     h.judge(_inputs(0.0, discs=(Disc(8.0, 3.0, 1.0),)), _avoid(), 0.1)
     once = h.judge(_inputs(0.1, discs=(Disc(9.0, 0.0, 1.0),), pose=(0.5, 0.0, 0.0)), _avoid(), 0.1)
     assert once.contract == "avoid"  # one frame's return is not an obstacle seen
+
+
+CAMERA_BIN = math.radians(2.5)  # a depth camera's 5° bin: ± half of it
+
+
+def _camera_frame(*readings, r_obst=0.23):
+    """One frame of a camera's bins (bearing [deg], range [m]) seen from the origin heading north, as the supervisor's
+    inputs have it: the hits and the places of the obstacles they tell apart."""
+    hits = tuple((math.radians(b), r, CAMERA_BIN, True) for b, r in readings)
+    places = seen_obstacles(hits, (0.0, 0.0), 0.0, r_obst).obstacles
+    i = _inputs(0.0, r_obst=r_obst, obstacles=len(places))
+    return SimpleNamespace(**{**vars(i), "hits": hits, "places": places})
+
+
+def _counted(apart, frame, v_ref=3.0):
+    return apart.count(frame, v_ref, lambda d: fallback_omega(TABLE, d, frame, 0.1, 0.02).v_max, 0.15 + 0.02)
+
+
+def test_a_column_split_by_range_noise_in_one_frame_is_one_obstacle_a_second_one_counts_from_the_next():
+    """A column 9.6 m off in two bins; in one frame the nearer bin reads 2.4 m short (2.5 σ of a stereo camera there):
+    two runs apart by more than a run's break, two places. The new one is far enough for the stop contract to stop
+    short of it a frame later: one obstacle. Seen again at its place in the next frame, it is a second obstacle. The
+    controls: the same split near (stop contract or never) counts at once, and the count in a frame without a split."""
+    apart = Apart()
+    assert _counted(apart, _camera_frame((35.0, 9.5), (40.0, 9.9))) == 1
+    split = _camera_frame((35.0, 7.19), (40.0, 9.95))
+    assert split.obstacles == 2 and _counted(apart, split) == 1
+    assert _counted(apart, split) == 1  # (the same frame in the next cycle: still the same frame)
+    assert _counted(apart, _camera_frame((35.0, 7.15), (40.0, 9.9))) == 2  # there again: a second pole
+    assert _counted(apart, _camera_frame((35.0, 9.45), (40.0, 9.9))) == 1
+    near = Apart()
+    _counted(near, _camera_frame((5.0, 2.5), (10.0, 2.6)))
+    assert _counted(near, _camera_frame((5.0, 1.2), (10.0, 2.6))) == 2  # 1.2 m off at 3 m/s: no waiting for it
+    assert _counted(Apart(), _camera_frame((35.0, 7.19), (40.0, 9.95))) == 1  # both new: one at least
 
 
 def test_the_field_of_view_rule_is_judged_where_the_avoid_contract_would_swerve():
@@ -395,10 +431,10 @@ def test_offboard_in_a_stand_of_poles_falls_back_and_collides_no_more(monkeypatc
     assert any(v.get("guarantee") == "one obstacle in view at a time" for v in rig.log.named("violation_start"))
 
     def one_apart(*a, **k):
-        discs, width, _ = guidance.obstacle_discs(*a, **k)
-        return discs, width, min(len(discs), 1)
+        seen = guidance.seen_obstacles(*a, **k)
+        return replace(seen, obstacles=seen.obstacles[:1])
 
-    monkeypatch.setattr(cycle, "obstacle_discs", one_apart)
+    monkeypatch.setattr(cycle, "seen_obstacles", one_apart)
     others_passed_through(monkeypatch)
     passed_obstacles_forgotten(monkeypatch)
     old = fly(spec, 1981)

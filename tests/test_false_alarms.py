@@ -415,6 +415,22 @@ def test_two_poles_seen_as_one_wide_run_break_the_environment_assumption_truly(m
                for a in old["unfounded_alarms"])
 
 
+def test_a_column_the_cameras_range_noise_splits_for_one_frame_is_one_obstacle(monkeypatch):
+    """Offboard with the depth camera, a cluster (seed 1192): at 5.3 s the nearest column is 9.6 m off, in two bins; one
+    reads 7.2 m (2.5 σ short), and the step to the other is more than a run's break: two runs, one obstacle. The
+    next frame does not split it, and the stop contract could still stop short of the short reading a frame later:
+    no fallback, no violation. Control: counted from the frame it is seen in, the split is an environment violation
+    ("one obstacle in view at a time") the observer calls unfounded."""
+    from companion.onboard.contract_in_force import Apart
+
+    def split(row):
+        return [e for e in unfounded(row) if e["kind"] == "violation (environment)"]
+
+    assert split(fly_clear("offboard", "depth_camera", "cluster", 1192, seconds=6.5)) == []
+    monkeypatch.setattr(Apart, "count", lambda self, i, *a: len(i.places))
+    assert split(fly_clear("offboard", "depth_camera", "cluster", 1192, seconds=6.5))
+
+
 DARK_COLUMN = {"columns": [{"x_m": 30.0, "y_m": 0.4, "radius_m": 0.3, "reflectivity": 0.02, "name": "dark column"}]}
 
 

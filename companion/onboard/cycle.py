@@ -24,7 +24,7 @@ from .calibration_holds import CalibrationHolds, read_legs
 from .contract_in_force import fallback_for
 from .config import Config
 from .flying import OffboardFlight, RecoveryBrake
-from .guidance import OffboardGuidance, Route, obstacle_discs
+from .guidance import OffboardGuidance, Route, seen_obstacles
 from .holds import Recheck, Shutdown
 from .mission import Home
 from .no_speed import diagnose
@@ -163,7 +163,7 @@ class Cycle:
         else:  # along the velocity; its magnitude from near rest (any direction is "ahead" then)
             accel_along = float(accel @ (tel.vx, tel.vy)) / speed if speed > 0.5 else float(math.hypot(*accel))
         hits = tuple(s.dod.fresh_hits(t))
-        discs, width, apart = obstacle_discs(hits, (tel.x, tel.y), tel.yaw, g.r_obst)
+        seen = seen_obstacles(hits, (tel.x, tel.y), tel.yaw, g.r_obst)
         mode = self.adapter.mode_name(tel.base_mode, tel.custom_mode) if link_ok else "other"
         self.view = view = self.authority.observe(t, mode, link_ok)
         if self.first_seen_in_air is None and tel.landed_state:
@@ -178,7 +178,8 @@ class Cycle:
                       in_air=tel.in_air, mode=mode, limit_applies=applies, mode_by_daemon=view.by_daemon,
                       mode_changed=view.event is not None, taken_over=view.taken_over,
                       ground_speed=speed, dod=dod, e_tr_measured=e_tr, thrust_ratio=thrust_ratio, r_obst=g.r_obst,
-                      engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=width, obstacles=apart, discs=tuple(discs),
+                      engaged=engaged, mission_seq=tel.mission_seq, obstacle_width=seen.width,
+                      obstacles=len(seen.obstacles), places=seen.obstacles, discs=tuple(seen.discs),
                       hits=hits, hit_ends=tuple(s.dod.hit_ends(t)), beta=beta,
                       pose=(tel.x, tel.y, tel.yaw),
                       path=off.path_ahead(t) if off is not None else (),

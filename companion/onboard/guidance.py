@@ -218,8 +218,26 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
     return tuple(np.linspace(lo, hi, n).tolist())
 
 
+@dataclass(frozen=True, slots=True)
+class Seen:
+    """What the beams of one cycle show (`seen_obstacles`)."""
+
+    discs: list[Disc]  # the keep-out discs
+    width: float  # the widest obstacle half-width measured (0 if none measurable)
+    # each obstacle the beams tell apart, as the discs of its place: its runs' discs (before `widest` drops any), or
+    # the arc of a single beam's discs
+    obstacles: tuple[tuple[Disc, ...], ...]
+
+
 def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf,
                    measured_beyond: float = math.inf, ends=None) -> tuple[list[Disc], float, int]:
+    """`seen_obstacles`' discs, widest half-width and how many obstacles the beams tell apart."""
+    seen = seen_obstacles(hits, p, yaw, r_obst, inflate, widest, measured_beyond, ends)
+    return seen.discs, seen.width, len(seen.obstacles)
+
+
+def seen_obstacles(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf,
+                   measured_beyond: float = math.inf, ends=None) -> Seen:
     """Keep-out discs (radius R_obst + inflate) from hits (body bearing, range, ± uncertainty, from bins).
 
     Beams from a bin sensor that see one obstacle (adjacent bins) give its chord: the disc of radius
@@ -236,12 +254,12 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
     its middle (the silhouette of a column is as wide as the column), holding every bin's sector at its range, and
     SWERVE_MARGIN_M more — for a swerve whose guarantee is the stop contract's hold on the path flown, which counts
     those sectors, not the disc (R_obst's disc beside a pole closed a 5–7 m corridor's passage either side).
-    Returns the discs, the widest obstacle radius observed (0 if none measurable) and how many obstacles the beams
-    tell apart (one per run of adjacent bins, one per single beam's hit). `widest`: a run whose measured half-width,
+    The obstacles the beams tell apart: one per run of adjacent bins (runs whose discs overlap are one), one per single
+    beam's hit. `widest`: a run whose measured half-width,
     or depth, is above it gets no disc (its width and count are still returned).
     """
     if not hits:  # nothing seen (most cycles): no disc
-        return [], 0.0, 0
+        return Seen([], 0.0, ())
     p = np.asarray(p, float)
     discs: list[Disc] = []
     seen = 0.0  # the widest half-width measured
@@ -290,21 +308,24 @@ def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
         closed = past[k] > 0.0 and (r_near <= measured_beyond or past[k] >= brk)  # (`ends`)
         narrow.append((len(cl) == 1 or max(w2 - pad, depth) <= widest) and closed)
     px, py = float(p[0]), float(p[1])
+    arcs = []
     for b, r, h in singles:
         n = max(2, int(math.ceil(2 * h * r / max(r_obst, 0.05))) + 1)
         reach = 2 * r * math.sin(h / (2 * (n - 1)))  # farthest any arc point is from its nearest sample
-        for a in _arc(b - h, b + h, n):  # each hit point p + r·(cos, sin)(yaw + a), in floats
-            # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
-            discs.append(Disc(px + r * math.cos(yaw + a), py + r * math.sin(yaw + a), 2 * r_obst + reach + inflate))
+        # every hit point of the arc is within `reach` of a sample, every obstacle within 2·R_obst of it
+        arcs.append(tuple(Disc(px + r * math.cos(yaw + a), py + r * math.sin(yaw + a), 2 * r_obst + reach + inflate)
+                          for a in _arc(b - h, b + h, n)))  # each hit point p + r·(cos, sin)(yaw + a), in floats
+        discs.extend(arcs[-1])
     groups = _apart(discs[:len(clusters)])
     for g in groups:
         if len(g) > 1:  # one obstacle seen as several runs: as wide as all their hits
             pts = np.vstack([faces[k][0] for k in g])
             spread = max(float(np.max(np.hypot(*(pts - q).T))) for q in pts)
             seen = max(seen, spread / 2 - max(faces[k][1] for k in g))
+    places = tuple(tuple(discs[k] for k in g) for g in groups) + tuple(arcs)
     if not all(narrow):
         discs = [d for k, d in enumerate(discs) if k >= len(narrow) or narrow[k]]
-    return discs, seen, len(groups) + len(singles)
+    return Seen(discs, seen, places)
 
 
 def _holding(centre, radius: float, pts) -> float:

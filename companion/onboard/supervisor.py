@@ -32,6 +32,8 @@ from .authority import GUARANTEE_ANSWERED, Late
 from .ahead import stop_obstacle_m
 from .contract_in_force import (
     DEAD_END,
+    Apart,
+    LastFrame,
     WIDE_TOL_M,
     ContractInForce,
     InForce,
@@ -107,6 +109,7 @@ class Inputs:
     v_mission: float = math.nan  # the speed the mission's own speed items set at this item, NaN: not known
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
     obstacles: int = 0  # how many obstacles the beams tell apart now
+    places: tuple = ()  # each of them as the discs of its place (`guidance.Seen.obstacles`)
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
     hit_ends: tuple = ()  # for each hit, how far past it the bins beside it saw [m] (`DodEstimator.hit_ends`)
@@ -300,9 +303,8 @@ class Supervisor:
         self.contract = self.configured = contract  # `contract`: the one in force this cycle
         self.fallback = fallback if contract == "avoid" else None
         self._planned_round: tuple = ()  # (discs, walls) guidance was given to swerve round under the stop contract
-        self._frame_hits: tuple = ()  # the hits of the sensors' last frame (`_seen_again`) ...
-        self._frame_discs: tuple = ()  # ... the discs seen in it ...
-        self._before_discs: tuple = ()  # ... and those of the frame before it
+        self._swerve_frames = LastFrame()  # the swerve's discs of the frame before (`_seen_again`)
+        self._apart = Apart()  # how many obstacles in view the avoid contract counts
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -510,11 +512,25 @@ class Supervisor:
         # V ≤ V_safe(d_od − V·late_s − V·t_react), with V·late_s taken at the speed flown (measured or commanded,
         # the larger) — and again at Ω's own speed when that is higher: a shorter D_od never gives a higher V_max,
         # so that answer is safe at its own speed
-        v_ref = max(i.ground_speed if math.isfinite(i.ground_speed) else 0.0, self.limit.value or 0.0)
+        v_ref = self._v_ref(i)
         om = self._omega(i.dod.d_od - v_ref * i.late_s, i, recovery_dt, a0_max)
         if om.v_max > v_ref:
             om = self._omega(i.dod.d_od - om.v_max * i.late_s, i, recovery_dt, a0_max)
         return om
+
+    def _v_ref(self, i: Inputs) -> float:
+        """[m/s] the speed flown or commanded, the larger."""
+        return max(i.ground_speed if math.isfinite(i.ground_speed) else 0.0, self.limit.value or 0.0)
+
+    def _counted(self, i: Inputs) -> Inputs:
+        """The inputs with the obstacles in view the avoid contract counts (`Apart`: one split off a run by the range
+        noise waits for the next frame while the stop contract could still stop short of it)."""
+        if self.configured != "avoid":
+            return i
+        n = self._apart.count(i, self._v_ref(i), lambda d: fallback_omega(self.table, d, i, self.t_cmd,
+                                                                         self.loop_dt).v_max,
+                              i.dod.silence_s + self.loop_dt)
+        return i if n == i.obstacles else replace(i, obstacles=n)
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
         key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s, self.e_surface,
@@ -573,6 +589,7 @@ class Supervisor:
     def step(self, i: Inputs) -> Decision:
         """One cycle's decision, with the keep-out discs guidance plans round (the obstacles grown by the
         virtual obstacle's E_tr and the vehicle's radius)."""
+        i = self._counted(i)
         d = self._decide(i)
         e_tr_virtual = self.e_tr_virtual(i, d)
         # under the stop contract guidance plans round what is no wider than R_obst where the swerve stays in view,
@@ -593,10 +610,8 @@ class Supervisor:
         """Of the swerve's discs, those an earlier frame of the sensors saw too (`new_obstacles`): a stereo camera's
         range noise draws a pole out of a wall now and then, never twice at one place; one frame's disc is planned
         round from the next frame, its hit points kept out of meanwhile (`wall_discs`) and judged by the Hold."""
-        if hits != self._frame_hits:  # a new frame: the last frame's discs are now the earlier frame's
-            self._frame_hits, self._before_discs = hits, self._frame_discs
-        self._frame_discs = tuple(discs)
-        return tuple(d for d in discs if not new_obstacles([d], self._before_discs))
+        before = self._swerve_frames.see(hits, discs)
+        return tuple(d for d in discs if not new_obstacles([d], before))
 
     def _decide(self, i: Inputs) -> _Draft:
         """The cycle's decision: the guarantees judged (every mode), then the failsafes in order of what can still
