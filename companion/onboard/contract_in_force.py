@@ -20,7 +20,9 @@ The avoid contract (the paper's numerical construction, DESIGN.md §1) assumes
 Where either fails the stop contract is in force: Ω is the table's stop contract with the braking stop offboard
 flies (`fallback_omega`), something in the swept corridor within stopping distance is a braking stop then Hold at
 rest (the supervisor's OBSTACLE hold cause, as in governor mode), and guidance plans round nothing: it cruises the
-route. A thing wider than R_obst, or several things in view, keep the stop contract in force until the vehicle has
+route (several things in view as `Apart` counts them: one first seen in this frame beside another counts from the
+next frame that sees it there, while the stop contract could still stop short of it). A thing wider than R_obst, or
+several things in view, keep the stop contract in force until the vehicle has
 flown the detection range they were seen within (D_od at the last sighting) past the last sighting: until then they
 may still be within reach. The
 avoid contract comes back only once its assumptions have held for `dwell_s` (limits move one way fast).
