@@ -174,9 +174,10 @@ def _counted(apart, frame, v_ref=3.0):
 
 def test_a_column_split_by_range_noise_in_one_frame_is_one_obstacle_a_second_one_counts_from_the_next():
     """A column 9.6 m off in two bins; in one frame the nearer bin reads 2.4 m short (2.5 σ of a stereo camera there):
-    two runs apart by more than a run's break, two places. The new one is far enough for the stop contract to stop
-    short of it a frame later: one obstacle. Seen again at its place in the next frame, it is a second obstacle. The
-    controls: the same split near (stop contract or never) counts at once, and the count in a frame without a split."""
+    two runs apart by more than a run's break, two places, where the frame before had one. Both far enough for the
+    stop contract to stop short of them a frame later: one obstacle. Told apart in the next frame too, they are two.
+    The controls: the same split near (stop contract now or never) counts at once, and so do two obstacles apart in
+    bearing (a doorway's sides); a frame without a split is one."""
     apart = Apart()
     assert _counted(apart, _camera_frame((35.0, 9.5), (40.0, 9.9))) == 1
     split = _camera_frame((35.0, 7.19), (40.0, 9.95))
@@ -188,6 +189,9 @@ def test_a_column_split_by_range_noise_in_one_frame_is_one_obstacle_a_second_one
     _counted(near, _camera_frame((5.0, 2.5), (10.0, 2.6)))
     assert _counted(near, _camera_frame((5.0, 1.2), (10.0, 2.6))) == 2  # 1.2 m off at 3 m/s: no waiting for it
     assert _counted(Apart(), _camera_frame((35.0, 7.19), (40.0, 9.95))) == 1  # both new: one at least
+    door = Apart()  # a doorway's two sides come into view: apart in bearing, no range noise
+    _counted(door, _camera_frame((20.0, 9.5), (25.0, 9.5)))
+    assert _counted(door, _camera_frame((20.0, 9.5), (25.0, 9.5), (-20.0, 9.0), (-15.0, 9.0))) == 2
 
 
 def test_the_field_of_view_rule_is_judged_where_the_avoid_contract_would_swerve():

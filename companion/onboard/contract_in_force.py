@@ -20,8 +20,9 @@ The avoid contract (the paper's numerical construction, DESIGN.md §1) assumes
 Where either fails the stop contract is in force: Ω is the table's stop contract with the braking stop offboard
 flies (`fallback_omega`), something in the swept corridor within stopping distance is a braking stop then Hold at
 rest (the supervisor's OBSTACLE hold cause, as in governor mode), and guidance plans round nothing: it cruises the
-route (several things in view as `Apart` counts them: one first seen in this frame beside another counts from the
-next frame that sees it there, while the stop contract could still stop short of it). A thing wider than R_obst, or
+route (several things in view as `Apart` counts them: where the frame before told one apart, a run parted from
+another by a range step alone counts from the next frame that tells them apart too, unless the stop contract needs
+it now). A thing wider than R_obst, or
 several things in view, keep the stop contract in force until the vehicle has
 flown the detection range they were seen within (D_od at the last sighting) past the last sighting: until then they
 may still be within reach. The
@@ -50,6 +51,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from contracts.geometry import wrap
 from contracts.online_planner import Disc
 from contracts.table import ContractTable, Omega
 
@@ -252,32 +254,33 @@ class ContractInForce:
 
 
 class LastFrame:
-    """The discs seen in the sensors' frame before this one. A frame is told by the fresh hits: a cycle's hits stay
+    """What was seen in the sensors' frame before this one. A frame is told by the fresh hits: a cycle's hits stay
     those of the last frame until a sensor sends its next (with several sensors, any one's next frame is a frame)."""
 
     def __init__(self) -> None:
-        self._hits: tuple | None = None  # the frame the discs below were seen in
-        self._now: tuple[Disc, ...] = ()
-        self._before: tuple[Disc, ...] = ()
+        self._hits: tuple | None = None  # the frame the things below were seen in
+        self._now: tuple = ()
+        self._before: tuple = ()
 
-    def see(self, hits: tuple, discs) -> tuple[Disc, ...]:
-        """This cycle's `hits` and the `discs` seen in them; returns those of the frame before."""
-        if hits != self._hits:  # a new frame: the last one's discs are now the frame before's
+    def see(self, hits: tuple, things) -> tuple:
+        """This cycle's `hits` and the `things` (discs, places) seen in them; returns those of the frame before."""
+        if hits != self._hits:  # a new frame: the last one's are now the frame before's
             self._hits, self._before = hits, self._now
-        self._now = tuple(discs)
+        self._now = tuple(things)
         return self._before
 
 
 class Apart:
-    """How many obstacles in view rule (i) counts: each the beams tell apart (`Inputs.places`), except one first seen
-    in this frame — no disc of it where the frame before had one — while the stop contract, put in force within `tau_s`
-    (a sensor's silence budget and a loop period: until the next frame is judged), still stops short of it. A stereo
-    camera's range noise splits a column far off into two runs now and then (one bin 2.5 σ short: 2.4 m at 9.6 m),
-    never twice at one place; a second obstacle is in the next frame too, at its place, and counts from then, or from
-    the cycle the stop contract needs it. Meanwhile guidance plans round every disc the beams see, and at every cycle
-    a waiting one leaves the stop contract its full guarantee: v_ref ≤ V_stop(d − v_ref·τ), d the distance to its
-    nearest disc's edge (no farther than its nearest return), v_ref the fastest the vehicle flies until then. At least
-    one is counted where any is seen (the run a split one is part of)."""
+    """How many obstacles in view rule (i) counts: each the beams tell apart (`Inputs.places`), but where the frame
+    before told at most one apart, obstacles that lie side by side in bearing with another (a run of bins parted by
+    a range step alone) count as one while the stop contract could stop short of them were it put in force within
+    `tau_s` (a sensor's silence budget and a loop period: until the next frame is judged). A stereo camera's range
+    noise splits a column far off into two runs now and then (one bin 2.5 σ short: 2.4 m at 9.6 m), in one frame; two
+    obstacles are two in the next frame too, and count from then, or from the cycle the stop contract needs them.
+    Meanwhile guidance plans round every disc the beams see, and at every cycle an obstacle not counted leaves the stop
+    contract its full guarantee: v_ref ≤ V_stop(d − v_ref·τ), d the distance to its nearest disc's edge (no farther
+    than its nearest return), v_ref the fastest the vehicle flies until then. Obstacles apart in bearing (a doorway's
+    two sides, a stand's poles) are no range noise: they count at once."""
 
     def __init__(self) -> None:
         self._frames = LastFrame()
@@ -285,18 +288,19 @@ class Apart:
     def count(self, i, v_ref: float, v_stop, tau_s: float) -> int:
         """`i`: the supervisor's inputs (their `places`, `hits`, `pose`); `v_stop(d)`: the stop contract's V_max at an
         obstacle d away (offboard's, `fallback_omega`)."""
-        before = self._frames.see(i.hits, (d for place in i.places for d in place))
-        if len(i.places) < 2:
+        before = self._frames.see(i.hits, i.places)
+        if len(i.places) < 2 or len(before) >= 2:
             return len(i.places)
         x, y = i.pose[0], i.pose[1]
-        counted = 0
-        for place in i.places:
-            if len(new_obstacles(place, before)) < len(place):  # the frame before saw it here
-                counted += 1
-                continue
-            d = min(math.hypot(c.x - x, c.y - y) - c.r for c in place)
-            counted += v_ref > v_stop(d - v_ref * tau_s)
-        return max(counted, 1)
+        arcs = [[(math.atan2(c.y - y, c.x - x), math.hypot(c.x - x, c.y - y), c.r) for c in place]
+                for place in i.places]
+
+        def waits(k: int) -> bool:
+            beside = any(abs(wrap(a - b)) <= math.asin(min(ra / da, 1.0)) + math.asin(min(rb / db, 1.0))
+                         for m, other in enumerate(arcs) if m != k for a, da, ra in arcs[k] for b, db, rb in other)
+            return beside and v_ref <= v_stop(min(d - r for _, d, r in arcs[k]) - v_ref * tau_s)
+
+        return max(len(i.places) - sum(waits(k) for k in range(len(arcs))), 1)
 
 
 def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: float) -> Omega:

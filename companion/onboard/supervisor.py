@@ -523,14 +523,15 @@ class Supervisor:
         return max(i.ground_speed if math.isfinite(i.ground_speed) else 0.0, self.limit.value or 0.0)
 
     def _counted(self, i: Inputs) -> Inputs:
-        """The inputs with the obstacles in view the avoid contract counts (`Apart`: one split off a run by the range
-        noise waits for the next frame while the stop contract could still stop short of it)."""
+        """The inputs with the obstacles in view the avoid contract, in force since the last cycle, counts (`Apart`: a
+        run the range noise splits off a column in one frame is one obstacle while the stop contract could still stop
+        short of both); under the stop contract every one the beams tell apart counts (it holds on to the sighting)."""
         if self.configured != "avoid":
             return i
         n = self._apart.count(i, self._v_ref(i), lambda d: fallback_omega(self.table, d, i, self.t_cmd,
                                                                          self.loop_dt).v_max,
                               i.dod.silence_s + self.loop_dt)
-        return i if n == i.obstacles else replace(i, obstacles=n)
+        return i if n == i.obstacles or self.fallen_back else replace(i, obstacles=n)
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
         key = (d_od, i.r_obst, i.e_tr_measured, i.thrust_ratio, recovery_dt, a0_max, i.dod.silence_s, self.e_surface,
