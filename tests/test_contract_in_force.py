@@ -176,8 +176,8 @@ def test_a_column_split_by_range_noise_in_one_frame_is_one_obstacle_a_second_one
     """A column 9.6 m off in two bins; in one frame the nearer bin reads 2.4 m short (2.5 σ of a stereo camera there):
     two runs apart by more than a run's break, two places, where the frame before had one. Both far enough for the
     stop contract to stop short of them a frame later: one obstacle. Told apart in the next frame too, they are two.
-    The controls: the same split near (stop contract now or never) counts at once, and so do two obstacles apart in
-    bearing (a doorway's sides); a frame without a split is one."""
+    The controls: the same split near (stop contract now or never) counts at once, and so do two obstacles with a
+    bin between them (a doorway's sides, two poles of a stand); a frame without a split is one."""
     apart = Apart()
     assert _counted(apart, _camera_frame((35.0, 9.5), (40.0, 9.9))) == 1
     split = _camera_frame((35.0, 7.19), (40.0, 9.95))
@@ -192,6 +192,9 @@ def test_a_column_split_by_range_noise_in_one_frame_is_one_obstacle_a_second_one
     door = Apart()  # a doorway's two sides come into view: apart in bearing, no range noise
     _counted(door, _camera_frame((20.0, 9.5), (25.0, 9.5)))
     assert _counted(door, _camera_frame((20.0, 9.5), (25.0, 9.5), (-20.0, 9.0), (-15.0, 9.0))) == 2
+    stand = Apart()  # two poles of a stand two bins apart, whose R_obst discs overlap in bearing
+    _counted(stand, _camera_frame((-40.0, 6.0), r_obst=1.0))
+    assert _counted(stand, _camera_frame((-40.0, 6.03), (-25.0, 8.88), r_obst=1.0)) == 2
 
 
 def test_the_field_of_view_rule_is_judged_where_the_avoid_contract_would_swerve():

@@ -20,9 +20,9 @@ The avoid contract (the paper's numerical construction, DESIGN.md §1) assumes
 Where either fails the stop contract is in force: Ω is the table's stop contract with the braking stop offboard
 flies (`fallback_omega`), something in the swept corridor within stopping distance is a braking stop then Hold at
 rest (the supervisor's OBSTACLE hold cause, as in governor mode), and guidance plans round nothing: it cruises the
-route (several things in view as `Apart` counts them: where the frame before told one apart, a run parted from
-another by a range step alone counts from the next frame that tells them apart too, unless the stop contract needs
-it now). A thing wider than R_obst, or
+route (several things in view as `Apart` counts them: where the frame before told one apart, a run parted from the
+run in the bin beside it by a range step alone counts from the next frame that tells them apart too, unless the stop
+contract needs it now). A thing wider than R_obst, or
 several things in view, keep the stop contract in force until the vehicle has
 flown the detection range they were seen within (D_od at the last sighting) past the last sighting: until then they
 may still be within reach. The
@@ -51,7 +51,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from contracts.geometry import wrap
 from contracts.online_planner import Disc
 from contracts.table import ContractTable, Omega
 
@@ -272,15 +271,15 @@ class LastFrame:
 
 class Apart:
     """How many obstacles in view rule (i) counts: each the beams tell apart (`Inputs.places`), but where the frame
-    before told at most one apart, obstacles that lie side by side in bearing with another (a run of bins parted by
-    a range step alone) count as one while the stop contract could stop short of them were it put in force within
-    `tau_s` (a sensor's silence budget and a loop period: until the next frame is judged). A stereo camera's range
-    noise splits a column far off into two runs now and then (one bin 2.5 σ short: 2.4 m at 9.6 m), in one frame; two
-    obstacles are two in the next frame too, and count from then, or from the cycle the stop contract needs them.
-    Meanwhile guidance plans round every disc the beams see, and at every cycle an obstacle not counted leaves the stop
-    contract its full guarantee: v_ref ≤ V_stop(d − v_ref·τ), d the distance to its nearest disc's edge (no farther
-    than its nearest return), v_ref the fastest the vehicle flies until then. Obstacles apart in bearing (a doorway's
-    two sides, a stand's poles) are no range noise: they count at once."""
+    before told at most one apart, runs of bins next to each other (in bins side by side, parted by a range step
+    alone) count as one while the stop contract could stop short of them were it put in force within `tau_s` (a
+    sensor's silence budget and a loop period: until the next frame is judged). A stereo camera's range noise splits
+    a column far off into two runs now and then (one bin 2.5 σ short: 2.4 m at 9.6 m), in one frame; two obstacles
+    are two in the next frame too, and count from then, or from the cycle the stop contract needs them. Meanwhile
+    guidance plans round every disc the beams see, and at every cycle an obstacle not counted leaves the stop contract
+    its full guarantee: v_ref ≤ V_stop(d − v_ref·τ), d the distance to its nearest disc's edge (no farther than its
+    nearest return), v_ref the fastest the vehicle flies until then. Obstacles with a bin between them (a doorway's
+    two sides, a stand's poles) and a single beam's hits are no such split: they count at once."""
 
     def __init__(self) -> None:
         self._frames = LastFrame()
@@ -292,15 +291,17 @@ class Apart:
         if len(i.places) < 2 or len(before) >= 2:
             return len(i.places)
         x, y = i.pose[0], i.pose[1]
-        arcs = [[(math.atan2(c.y - y, c.x - x), math.hypot(c.x - x, c.y - y), c.r) for c in place]
-                for place in i.places]
 
         def waits(k: int) -> bool:
-            beside = any(abs(wrap(a - b)) <= math.asin(min(ra / da, 1.0)) + math.asin(min(rb / db, 1.0))
-                         for m, other in enumerate(arcs) if m != k for a, da, ra in arcs[k] for b, db, rb in other)
-            return beside and v_ref <= v_stop(min(d - r for _, d, r in arcs[k]) - v_ref * tau_s)
+            a = i.places[k].bins
+            # next to another run: their nearest bins' centres a bin apart (the run rule of `seen_obstacles`)
+            beside = a is not None and any(
+                b is not None and max(b[0] - a[1], a[0] - b[1]) <= 1.25 * (a[2] + b[2]) + 1e-9
+                for m, b in enumerate(p.bins for p in i.places) if m != k)
+            d = min(math.hypot(c.x - x, c.y - y) - c.r for c in i.places[k].discs)
+            return beside and v_ref <= v_stop(d - v_ref * tau_s)
 
-        return max(len(i.places) - sum(waits(k) for k in range(len(arcs))), 1)
+        return max(len(i.places) - sum(waits(k) for k in range(len(i.places))), 1)
 
 
 def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: float) -> Omega:

@@ -219,14 +219,22 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
 
 
 @dataclass(frozen=True, slots=True)
+class Place:
+    """One obstacle the beams tell apart: the discs of its place — its runs' discs (before `widest` drops any), or the
+    arc of a single beam's discs — and, for runs of bins, the body bearings of its outermost bins and a bin's
+    half-width (None for a single beam)."""
+
+    discs: tuple[Disc, ...]
+    bins: tuple[float, float, float] | None = None  # (lowest, highest, ±half-width) [rad]
+
+
+@dataclass(frozen=True, slots=True)
 class Seen:
     """What the beams of one cycle show (`seen_obstacles`)."""
 
     discs: list[Disc]  # the keep-out discs
     width: float  # the widest obstacle half-width measured (0 if none measurable)
-    # each obstacle the beams tell apart, as the discs of its place: its runs' discs (before `widest` drops any), or
-    # the arc of a single beam's discs
-    obstacles: tuple[tuple[Disc, ...], ...]
+    obstacles: tuple[Place, ...]  # each obstacle the beams tell apart
 
 
 def obstacle_discs(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: float = math.inf,
@@ -322,7 +330,9 @@ def seen_obstacles(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
             pts = np.vstack([faces[k][0] for k in g])
             spread = max(float(np.max(np.hypot(*(pts - q).T))) for q in pts)
             seen = max(seen, spread / 2 - max(faces[k][1] for k in g))
-    places = tuple(tuple(discs[k] for k in g) for g in groups) + tuple(arcs)
+    places = tuple(Place(tuple(discs[k] for k in g), (min(clusters[k][0][0] for k in g),
+                                                     max(clusters[k][-1][0] for k in g), clusters[g[0]][0][2]))
+                   for g in groups) + tuple(Place(arc) for arc in arcs)
     if not all(narrow):
         discs = [d for k, d in enumerate(discs) if k >= len(narrow) or narrow[k]]
     return Seen(discs, seen, places)

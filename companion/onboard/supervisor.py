@@ -109,7 +109,7 @@ class Inputs:
     v_mission: float = math.nan  # the speed the mission's own speed items set at this item, NaN: not known
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
     obstacles: int = 0  # how many obstacles the beams tell apart now
-    places: tuple = ()  # each of them as the discs of its place (`guidance.Seen.obstacles`)
+    places: tuple = ()  # each of them, where it is and which bins saw it (`guidance.Place`)
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
     hit_ends: tuple = ()  # for each hit, how far past it the bins beside it saw [m] (`DodEstimator.hit_ends`)
