@@ -271,15 +271,15 @@ class LastFrame:
 
 class Apart:
     """How many obstacles in view rule (i) counts: each the beams tell apart (`Inputs.places`), but where the frame
-    before told at most one apart, runs of bins next to each other (in bins side by side, parted by a range step
-    alone) count as one while the stop contract could stop short of them were it put in force within `tau_s` (a
-    sensor's silence budget and a loop period: until the next frame is judged). A stereo camera's range noise splits
-    a column far off into two runs now and then (one bin 2.5 σ short: 2.4 m at 9.6 m), in one frame; two obstacles
-    are two in the next frame too, and count from then, or from the cycle the stop contract needs them. Meanwhile
-    guidance plans round every disc the beams see, and at every cycle an obstacle not counted leaves the stop contract
-    its full guarantee: v_ref ≤ V_stop(d − v_ref·τ), d the distance to its nearest disc's edge (no farther than its
-    nearest return), v_ref the fastest the vehicle flies until then. Obstacles with a bin between them (a doorway's
-    two sides, a stand's poles) and a single beam's hits are no such split: they count at once."""
+    before told at most one apart, two runs in neighbouring bins (one run parted by a range step alone) count as one
+    while the stop contract could stop short of them were it put in force within `tau_s` (a sensor's silence budget
+    and a loop period: until the next frame is judged). A stereo camera's range noise splits a column far off into
+    two runs now and then (one bin 2.5 σ short: 2.4 m at 9.6 m), in one frame; two obstacles are two in the next
+    frame too, and count from then, or from the cycle the stop contract needs them. Meanwhile guidance plans round
+    every disc the beams see, and at every cycle an obstacle not counted leaves the stop contract its full guarantee:
+    v_ref ≤ V_stop(d − v_ref·τ), d the distance to its nearest disc's edge (no farther than its nearest return),
+    v_ref the fastest the vehicle flies until then. Obstacles with a bin between them (a doorway's two sides, a
+    stand's poles) and a single beam's hits are no such split: they count at once."""
 
     def __init__(self) -> None:
         self._frames = LastFrame()
