@@ -22,11 +22,10 @@ flies (`fallback_omega`), something in the swept corridor within stopping distan
 rest (the supervisor's OBSTACLE hold cause, as in governor mode), and guidance plans round nothing: it cruises the
 route (several things in view as `Apart` counts them: where the frame before told one apart, a run parted from the
 run in the bin beside it by a range step alone counts from the next frame that tells them apart too, unless the stop
-contract needs it now). A thing wider than R_obst, or
-several things in view, keep the stop contract in force until the vehicle has
-flown the detection range they were seen within (D_od at the last sighting) past the last sighting: until then they
-may still be within reach. The
-avoid contract comes back only once its assumptions have held for `dwell_s` (limits move one way fast).
+contract needs it now). A thing wider than R_obst, or several things in view, keep the stop contract in force until
+the vehicle has flown the detection range they were seen within (D_od at the last sighting) past the last sighting:
+until then they may still be within reach. The avoid contract comes back only once its assumptions have held for
+`dwell_s` (limits move one way fast).
 
 Where the stop contract is in force because of the world (something wider than R_obst, several obstacles) while the
 field-of-view rule (ii) holds, offboard still swerves (`InForce.swerve`): guidance plans round the obstacles no wider

@@ -108,7 +108,7 @@ class Inputs:
     v_cruise: float = math.nan  # the autopilot's own auto-mode cruise speed (its parameter), NaN: not heard
     v_mission: float = math.nan  # the speed the mission's own speed items set at this item, NaN: not known
     obstacle_width: float = 0.0  # widest obstacle half-width the beams measured now [m] (0: none)
-    obstacles: int = 0  # how many obstacles the beams tell apart now
+    obstacles: int = 0  # how many obstacles the beams tell apart now (as the avoid contract counts them: `Apart`)
     places: tuple = ()  # each of them, where it is and which bins saw it (`guidance.Place`)
     discs: tuple[Disc, ...] = ()  # the obstacles the beams see now, as discs of radius ≥ R_obst (not inflated)
     hits: tuple = ()  # the fresh sensors' hits: (body bearing, range, bearing uncertainty ±, from bins)
