@@ -11,6 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from companion.ground.false_alarms import config_of, scenario_of
@@ -42,10 +43,14 @@ def _sensor(orientation=0.0, fov=60.0, rng=10.0):
     return SimpleNamespace(orientation_deg=orientation, h_fov_deg=fov, max_range_m=rng)
 
 
-def _inputs(t, d_od=9.0, width=0.0, speed=5.0, e_tr=0.3, r_obst=1.0, obstacles=0, discs=(), pose=(0.0, 0.0, 0.0)):
+def _inputs(t, d_od=9.0, width=0.0, speed=5.0, e_tr=0.3, r_obst=1.0, obstacles=0, discs=(), pose=(0.0, 0.0, 0.0),
+            frame=None):
+    """The supervisor's inputs at time t; each call a new sensor frame unless `frame` names the one it shows."""
     dod = SimpleNamespace(d_od=d_od, silence_s=0.0)
+    hits = (("frame", t if frame is None else frame),)
     return SimpleNamespace(t=t, ground_speed=speed, obstacle_width=width, r_obst=r_obst, dod=dod, e_tr_measured=e_tr,
-                           thrust_ratio=1.0, obstacles=obstacles or len(discs), discs=discs, pose=pose, beta=0.0)
+                           thrust_ratio=1.0, obstacles=obstacles or len(discs), discs=discs, pose=pose, beta=0.0,
+                           hits=hits)
 
 
 def _avoid(v=5.0):
@@ -154,6 +159,48 @@ def test_an_obstacle_seen_before_and_not_yet_passed_counts_with_the_one_in_view(
     h.judge(_inputs(0.0, discs=(Disc(8.0, 3.0, 1.0),)), _avoid(), 0.1)
     once = h.judge(_inputs(0.1, discs=(Disc(9.0, 0.0, 1.0),), pose=(0.5, 0.0, 0.0)), _avoid(), 0.1)
     assert once.contract == "avoid"  # one frame's return is not an obstacle seen
+
+
+def _sightings(sensor_hz: float, seconds: float, loop_hz: float = 50.0):
+    """(t, frame, discs) of each loop cycle: a pole beside the route, in view from the sensor's frame at 0.2 s on, out
+    of view from 0.5 s (the sensor turned away), then a pole on the route."""
+    out, beside, ahead = [], (Disc(8.0, 3.0, 1.0),), (Disc(9.0, 0.0, 1.0),)
+    for c in range(round(seconds * loop_hz)):
+        t = c / loop_hz
+        frame = math.floor(t * sensor_hz + 1e-9) / sensor_hz  # the frame this cycle shows: its time
+        out.append((t, frame, beside if 0.2 <= frame < 0.5 else ahead if frame >= 0.5 else ()))
+    return out
+
+
+def _decisions(sightings, monkeypatch, seen_frames: int) -> list[str]:
+    from companion.onboard import contract_in_force
+
+    monkeypatch.setattr(contract_in_force, "SEEN_FRAMES", seen_frames)
+    f = ContractInForce(math.radians(30), dwell_s=1.0)
+    return [f.judge(_inputs(t, discs=d, pose=(0.1 * t, 0.0, 0.0), frame=fr), _avoid(), 0.1).contract
+            for t, fr, d in sightings]
+
+
+def test_one_frame_of_a_slow_sensor_is_not_remembered_however_many_cycles_show_it(monkeypatch):
+    """A camera at 10 Hz shows each frame for five cycles of the 50 Hz loop. A pole beside the route in one frame only
+    (a column the range noise split for a frame: the split-off piece) is not an obstacle seen before when the pole on
+    the route comes into view. The control counts cycles alone (SEEN_FRAMES 1): the five cycles of that one frame
+    remember it and the avoid contract falls back without cause. Seen in three frames it is remembered either way; and
+    from a sensor at 25 or 30 Hz, where a frame lasts at most two cycles, the frames change no decision, whichever of
+    its frames show the pole beside the route."""
+    one_frame = [(t, fr, d if fr != 0.3 and fr != 0.4 else ()) for t, fr, d in _sightings(10.0, 1.0)]
+    assert set(_decisions(one_frame, monkeypatch, seen_frames=2)) == {"avoid"}
+    assert "stop" in _decisions(one_frame, monkeypatch, seen_frames=1)  # the control must fail
+    three_frames = _sightings(10.0, 1.0)
+    assert "stop" in _decisions(three_frames, monkeypatch, seen_frames=2)
+    rng, stops = np.random.default_rng(7), 0
+    for hz in (25.0, 30.0) * 20:
+        shown = {fr: rng.random() < 0.2 for _, fr, _ in _sightings(hz, 1.0)}
+        fast = [(t, fr, d if fr >= 0.5 or shown[fr] else ()) for t, fr, d in _sightings(hz, 1.0)]
+        now = _decisions(fast, monkeypatch, seen_frames=2)
+        assert now == _decisions(fast, monkeypatch, seen_frames=1)
+        stops += "stop" in now
+    assert 0 < stops < 40  # the draws both remember the pole and miss it
 
 
 CAMERA_BIN = math.radians(2.5)  # a depth camera's 5° bin: ± half of it

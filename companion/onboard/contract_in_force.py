@@ -61,7 +61,11 @@ from .guidance import new_obstacles, obstacle_discs
 # 12° and more, half of which is less than asin(ρ) at any D_od), and a 60° sensor keeps the swerve round a column
 # in view (R_obst 1 m, E_tr 0.3 m, the Mambo) from D_od ≈ 2.7 m with it, ≈ 8 m with the worst lag
 LAG_BUDGET_DEG = 8.0
-SEEN_CYCLES = 3  # an obstacle out of view counts with the one in view once this many cycles saw it (`_not_passed`)
+# an obstacle out of view counts with the one in view once this many cycles, in this many sensor frames, saw it
+# (`_not_passed`): a frame lasts at most two cycles of the 50 Hz loop from a sensor at 25 Hz or faster, so there the
+# frames add nothing to the cycles; from a slower one (a camera at 10 Hz: five cycles a frame) they keep one frame's
+# return from being remembered
+SEEN_CYCLES, SEEN_FRAMES = 3, 2
 WIDE_TOL_M = 0.05  # an obstacle is wider than R_obst where its measured half-width exceeds R_obst by this
 MIN_SPEED_M_S = 0.2  # below this the avoid contract flies nothing (the supervisor's MIN_SPEED_CMD: a Hold instead)
 AVOID, STOP = "avoid", "stop"
@@ -151,7 +155,9 @@ class ContractInForce:
         self._breach: tuple[float, float, str] | None = None  # (odometer, D_od, what) at the last sighting of a breach
         self._clear_since: float | None = None  # the avoid contract's assumptions have held since
         self._dead_end_said = False  # the dead end of this stretch under the stop contract has been said
-        self._seen: list[tuple[Disc, int]] = []  # obstacles seen under way, not yet passed, and in how many cycles
+        # obstacles seen under way, not yet passed: (disc, in how many cycles, in how many frames, the last frame)
+        self._seen: list[tuple[Disc, int, int, int]] = []
+        self._hits, self._frame = None, 0  # this cycle's frame and its number (`LastFrame`: told by the fresh hits)
 
     def judge(self, i, avoid: Omega, r_body: float) -> InForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
@@ -204,18 +210,23 @@ class ContractInForce:
         """How many obstacles seen before, out of view now, are not yet passed: their centre ahead of the vehicle along
         its direction of travel and within D_od + their radius of it (a pass round the one in view may meet them: a
         stand of poles seen one pole at a time). An obstacle is remembered once SEEN_CYCLES cycles under way (above
-        1 m/s) saw it at one place (a medium's near returns move with the vehicle; a frame's spurious return is one)."""
+        1 m/s), in SEEN_FRAMES of the sensors' frames, saw it at one place (a medium's near returns move with the
+        vehicle; a frame's spurious return, or a column the range noise splits, is one frame's)."""
         x, y, yaw = i.pose
         u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
         now = list(i.discs)
-        self._seen = [(d, k) for d, k in self._seen if (d.x - x) * u[0] + (d.y - y) * u[1] >= 0.0
-                      and math.hypot(d.x - x, d.y - y) <= d_od + d.r]
-        before = sum(1 for d, k in self._seen if k >= SEEN_CYCLES and new_obstacles([d], now))
+        self._frame += i.hits != self._hits
+        self._hits = i.hits
+        self._seen = [e for e in self._seen if (e[0].x - x) * u[0] + (e[0].y - y) * u[1] >= 0.0
+                      and math.hypot(e[0].x - x, e[0].y - y) <= d_od + e[0].r]
+        before = sum(1 for d, k, f, _ in self._seen
+                     if k >= SEEN_CYCLES and f >= SEEN_FRAMES and new_obstacles([d], now))
         if i.ground_speed > 1.0:
             for o in now:
-                match = [m for m, (d, _) in enumerate(self._seen) if not new_obstacles([d], [o])]
+                match = [m for m, e in enumerate(self._seen) if not new_obstacles([e[0]], [o])]
                 k = 1 + max((self._seen[m][1] for m in match), default=0)
-                self._seen = [e for m, e in enumerate(self._seen) if m not in match] + [(o, k)]
+                f = max((self._seen[m][2] + (self._seen[m][3] != self._frame) for m in match), default=1)
+                self._seen = [e for m, e in enumerate(self._seen) if m not in match] + [(o, k, f, self._frame)]
         return before
 
     def e_tr_in_view(self, d_od: float, r_obst: float, r_body: float) -> float:
