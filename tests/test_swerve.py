@@ -274,7 +274,7 @@ def _judged(width=0.0, obstacles=0, d_od=9.0, fov=60.0):
     rule = ContractInForce(math.radians(fov) / 2, dwell_s=1.0)
     i = SimpleNamespace(t=0.0, ground_speed=3.0, obstacle_width=width, r_obst=1.0, e_tr_measured=0.3,
                         thrust_ratio=1.0, obstacles=obstacles, dod=SimpleNamespace(d_od=d_od, silence_s=0.0),
-                        discs=(), pose=(0.0, 0.0, 0.0), beta=0.0)
+                        discs=(), pose=(0.0, 0.0, 0.0), beta=0.0, hits=())
     return rule.judge(i, SimpleNamespace(v_max=5.0, e_tr=0.3), 0.1)
 
 
@@ -569,7 +569,7 @@ def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
     def at(t, d_od):
         i = SimpleNamespace(t=t, ground_speed=1.0, obstacle_width=0.0, r_obst=1.0, e_tr_measured=0.3,
                             thrust_ratio=1.0, obstacles=0, dod=SimpleNamespace(d_od=d_od, silence_s=0.0),
-                            discs=(), pose=(0.0, 0.0, 0.0), beta=0.0)
+                            discs=(), pose=(0.0, 0.0, 0.0), beta=0.0, hits=())
         return rule.judge(i, SimpleNamespace(v_max=2.0, e_tr=0.3), 0.1)
 
     assert at(0.0, 1.0).contract == "stop" and not rule.now.swerve  # the view broken at D_od 1 m
