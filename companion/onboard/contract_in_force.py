@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -143,6 +144,16 @@ class InForce:
     swerve: bool = False
 
 
+class Sighting(NamedTuple):
+    """An obstacle seen under way (`ContractInForce._not_passed`): its disc, in how many cycles and in how many of the
+    sensors' frames it was seen, and the last frame's number."""
+
+    disc: Disc
+    cycles: int
+    frames: int
+    last_frame: int
+
+
 class ContractInForce:
     """Judges, each cycle, which contract offboard flies (the module's docstring: the rule, and how long a sighting
     holds)."""
@@ -155,9 +166,8 @@ class ContractInForce:
         self._breach: tuple[float, float, str] | None = None  # (odometer, D_od, what) at the last sighting of a breach
         self._clear_since: float | None = None  # the avoid contract's assumptions have held since
         self._dead_end_said = False  # the dead end of this stretch under the stop contract has been said
-        # obstacles seen under way, not yet passed: (disc, in how many cycles, in how many frames, the last frame)
-        self._seen: list[tuple[Disc, int, int, int]] = []
-        self._hits, self._frame = None, 0  # this cycle's frame and its number (`LastFrame`: told by the fresh hits)
+        self._seen: list[Sighting] = []  # obstacles seen under way, not yet passed
+        self._frames = LastFrame()  # the sensors' frames, numbered
 
     def judge(self, i, avoid: Omega, r_body: float) -> InForce:
         """This cycle's contract from the supervisor's inputs `i` (time, ground speed, widest obstacle seen, R_obst,
@@ -215,18 +225,19 @@ class ContractInForce:
         x, y, yaw = i.pose
         u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
         now = list(i.discs)
-        self._frame += i.hits != self._hits
-        self._hits = i.hits
-        self._seen = [e for e in self._seen if (e[0].x - x) * u[0] + (e[0].y - y) * u[1] >= 0.0
-                      and math.hypot(e[0].x - x, e[0].y - y) <= d_od + e[0].r]
-        before = sum(1 for d, k, f, _ in self._seen
-                     if k >= SEEN_CYCLES and f >= SEEN_FRAMES and new_obstacles([d], now))
+        self._frames.see(i.hits, ())
+        frame = self._frames.number
+        self._seen = [s for s in self._seen if (s.disc.x - x) * u[0] + (s.disc.y - y) * u[1] >= 0.0
+                      and math.hypot(s.disc.x - x, s.disc.y - y) <= d_od + s.disc.r]
+        before = sum(1 for s in self._seen
+                     if s.cycles >= SEEN_CYCLES and s.frames >= SEEN_FRAMES and new_obstacles([s.disc], now))
         if i.ground_speed > 1.0:
             for o in now:
-                match = [m for m, e in enumerate(self._seen) if not new_obstacles([e[0]], [o])]
-                k = 1 + max((self._seen[m][1] for m in match), default=0)
-                f = max((self._seen[m][2] + (self._seen[m][3] != self._frame) for m in match), default=1)
-                self._seen = [e for m, e in enumerate(self._seen) if m not in match] + [(o, k, f, self._frame)]
+                match = [s for s in self._seen if not new_obstacles([s.disc], [o])]
+                cycles = 1 + max((s.cycles for s in match), default=0)
+                frames = max((s.frames + (s.last_frame != frame) for s in match), default=1)
+                self._seen = [s for s in self._seen if all(s is not m for m in match)] + \
+                    [Sighting(o, cycles, frames, frame)]
         return before
 
     def e_tr_in_view(self, d_od: float, r_obst: float, r_body: float) -> float:
@@ -267,6 +278,7 @@ class LastFrame:
     those of the last frame until a sensor sends its next (with several sensors, any one's next frame is a frame)."""
 
     def __init__(self) -> None:
+        self.number = 0  # the frames seen so far
         self._hits: tuple | None = None  # the frame the things below were seen in
         self._now: tuple = ()
         self._before: tuple = ()
@@ -275,6 +287,7 @@ class LastFrame:
         """This cycle's `hits` and the `things` (discs, places) seen in them; returns those of the frame before."""
         if hits != self._hits:  # a new frame: the last one's are now the frame before's
             self._hits, self._before = hits, self._now
+            self.number += 1
         self._now = tuple(things)
         return self._before
 
