@@ -54,7 +54,7 @@ import numpy as np
 from contracts.online_planner import Disc
 from contracts.table import ContractTable, Omega
 
-from .guidance import new_obstacles, obstacle_discs
+from .guidance import neighbouring, new_obstacles, obstacle_discs
 
 # [deg] the heading's lag behind the track the field-of-view rule budgets: the median measured in the SITL (true heading
 # against true track above 1 m/s over 20 offboard flights: median 8°, 17–21° at speed). Not the worst: the rule
@@ -317,10 +317,9 @@ class Apart:
 
         def waits(k: int) -> bool:
             a = i.places[k].bins
-            # next to another run: their nearest bins' centres a bin apart (the run rule of `seen_obstacles`)
-            beside = a is not None and any(
-                b is not None and max(b[0] - a[1], a[0] - b[1]) <= 1.25 * (a[2] + b[2]) + 1e-9
-                for m, b in enumerate(p.bins for p in i.places) if m != k)
+            # next to another run: their nearest bins are neighbours (the run rule of `seen_obstacles`)
+            beside = a is not None and any(b is not None and neighbouring(max(b[0] - a[1], a[0] - b[1]), a[2], b[2])
+                                           for m, b in enumerate(p.bins for p in i.places) if m != k)
             d = min(math.hypot(c.x - x, c.y - y) - c.r for c in i.places[k].discs)
             return beside and v_ref <= v_stop(d - v_ref * tau_s)
 

@@ -218,6 +218,12 @@ def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
     return tuple(np.linspace(lo, hi, n).tolist())
 
 
+def neighbouring(gap: float, h_a: float, h_b: float) -> bool:
+    """Two bins whose centres are `gap` [rad] apart, of half-widths h_a and h_b, are neighbours (one run may hold
+    both): at most a bin and a quarter apart."""
+    return gap <= 1.25 * (h_a + h_b) + 1e-9
+
+
 @dataclass(frozen=True, slots=True)
 class Place:
     """One obstacle the beams tell apart: the discs of its place — its runs' discs (before `widest` drops any), or the
@@ -280,7 +286,7 @@ def seen_obstacles(hits, p, yaw, r_obst: float, inflate: float = 0.0, widest: fl
     clusters: list[list] = []
     faces: list[tuple[np.ndarray, float]] = []  # each run's hit points and how far off a point may be
     for b, r, h, e in bins:
-        if clusters and abs(b - clusters[-1][-1][0]) <= 2.5 * h + 1e-9 and abs(r - clusters[-1][-1][1]) < brk:
+        if clusters and neighbouring(abs(b - clusters[-1][-1][0]), h, h) and abs(r - clusters[-1][-1][1]) < brk:
             clusters[-1].append((b, r, h, e))
         else:
             clusters.append([(b, r, h, e)])
