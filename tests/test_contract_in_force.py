@@ -17,6 +17,8 @@ import pytest
 from companion.ground.false_alarms import config_of, scenario_of
 from companion.onboard.contract_in_force import (
     LAG_BUDGET_DEG,
+    SEVERAL,
+    WIDE,
     Apart,
     ContractInForce,
     avoid_d_od_from,
@@ -226,15 +228,21 @@ def test_a_column_split_by_range_noise_in_one_frame_is_one_obstacle_a_second_one
     The controls: the same split near (stop contract now or never) counts at once, and so do two obstacles with a
     bin between them (a doorway's sides, two poles of a stand); a frame without a split is one."""
     apart = Apart()
-    assert _counted(apart, _camera_frame((35.0, 9.5), (40.0, 9.9))) == 1
+    assert _counted(apart, _camera_frame((35.0, 9.5), (40.0, 9.9))) == 1 and apart.split is None
     split = _camera_frame((35.0, 7.19), (40.0, 9.95))
     assert split.obstacles == 2 and _counted(apart, split) == 1
+    said = apart.split  # the wait, said: the nearest waiting run and the speeds that let it wait
+    assert (said.told, said.counted, said.v_ref) == (2, 1, 3.0) and 3.0 <= said.v_stop
+    assert said.nearest_m == pytest.approx(min(math.hypot(c.x, c.y) - c.r for p in split.places for c in p.discs))
     assert _counted(apart, split) == 1  # (the same frame in the next cycle: still the same frame)
+    assert apart.split is None  # said once a frame
     assert _counted(apart, _camera_frame((35.0, 7.15), (40.0, 9.9))) == 2  # there again: a second pole
+    assert apart.split is None
     assert _counted(apart, _camera_frame((35.0, 9.45), (40.0, 9.9))) == 1
     near = Apart()
     _counted(near, _camera_frame((5.0, 2.5), (10.0, 2.6)))
     assert _counted(near, _camera_frame((5.0, 1.2), (10.0, 2.6))) == 2  # 1.2 m off at 3 m/s: no waiting for it
+    assert near.split is None
     assert _counted(Apart(), _camera_frame((35.0, 7.19), (40.0, 9.95))) == 1  # both new: one at least
     door = Apart()  # a doorway's two sides come into view: apart in bearing, no range noise
     _counted(door, _camera_frame((20.0, 9.5), (25.0, 9.5)))
@@ -242,6 +250,24 @@ def test_a_column_split_by_range_noise_in_one_frame_is_one_obstacle_a_second_one
     stand = Apart()  # two poles of a stand two bins apart, whose R_obst discs overlap in bearing
     _counted(stand, _camera_frame((-40.0, 6.0), r_obst=1.0))
     assert _counted(stand, _camera_frame((-40.0, 6.03), (-25.0, 8.88), r_obst=1.0)) == 2
+
+
+def test_each_breach_of_the_world_is_held_for_its_own_reach():
+    """A wall seen at D_od 10 m, then two poles seen in fog at D_od 2 m: the stop contract stays in force until the
+    vehicle has flown the wall's 10 m past its sighting, not only the poles' 2 m past theirs, the later sighting; and
+    `within_reach` says which breach is still held (the environment violations last as long)."""
+    f = ContractInForce(math.radians(30), dwell_s=0.0)
+    f.judge(_inputs(0.0, width=3.0, d_od=10.0), _avoid(), 0.1)
+    assert f.within_reach(WIDE) and not f.within_reach(SEVERAL)
+    poles = (Disc(3.0, 1.0, 0.3), Disc(3.0, -1.0, 0.3))
+    assert f.judge(_inputs(0.1, d_od=2.0, discs=poles), _avoid(), 0.1).contract == "stop"
+    assert f.within_reach(WIDE) and f.within_reach(SEVERAL)
+    flown = [f.judge(_inputs(0.1 * k), _avoid(), 0.1) for k in range(2, 23)]  # 5 m/s: 0.5 m a cycle, nothing in view
+    at_5m = flown[8 - 2]
+    assert at_5m.contract == "stop" and at_5m.reason.startswith("an obstacle wider than R_obst seen 4.0 m ago")
+    assert f.within_reach(WIDE) is False and flown[-1].contract == "avoid"
+    released = 0.1 * (2 + [s.contract for s in flown].index("avoid"))
+    assert released == pytest.approx(2.0, abs=0.11)  # the wall's 10 m flown at 5 m/s (the poles': at 0.5 s)
 
 
 def test_the_field_of_view_rule_is_judged_where_the_avoid_contract_would_swerve():
@@ -382,6 +408,61 @@ def test_a_closing_corridor_ends_in_a_stop_without_contact_said_as_a_dead_end(mo
     assert [e["cause"] for e in old.log.named("failsafe")][:1] == ["no safe speed"]
     env = [e for e in old.log.named("violation_start") if e["subsystem"] == "environment"]
     assert env and env[0]["action"] in ("planning round the observed width", "planning round all of them")
+
+
+def test_a_wall_that_comes_and_goes_in_the_cameras_view_is_one_violation_as_long_as_it_is_within_reach(monkeypatch):
+    """A corridor with a turn flown offboard with the depth camera in clear air: the walls come and go in the camera's
+    view, the fallback holds on to them while they may be within reach, and so do the environment violations: each
+    said once, at its first sighting, founded. Control: a violation that ends as soon as the breach is out of view
+    says the same breach over and over (the first sightings are the same)."""
+    from companion.ground.false_alarms import fly as fly_clear
+
+    def env(row):
+        return [(e["t"], e["guarantee"]) for e in row["events"] if e["kind"] == "violation (environment)"]
+
+    row = fly_clear("offboard", "depth_camera", "corridor", 1001)
+    assert row["arrived"] and not row["collisions"] and all(e["founded"] for e in row["events"])
+    said = env(row)
+    assert {g for _, g in said} == {"no obstacle wider than R_obst", "one obstacle in view at a time"} and len(said) <= 3
+    monkeypatch.setattr("companion.onboard.supervisor.Supervisor._lasting", lambda self, key, what: False)
+    flicker = fly_clear("offboard", "depth_camera", "corridor", 1001)
+    assert len(env(flicker)) >= 10 and set(said) <= set(env(flicker))
+    assert (flicker["arrived"], flicker["flown_s"]) == (row["arrived"], row["flown_s"])  # a record, not a decision
+
+
+def test_two_poles_one_frame_told_apart_are_counted_as_one_said_and_reviewed(tmp_path, monkeypatch):
+    """A stand of poles flown offboard with the depth camera: two poles in neighbouring bins, 5.4 and 8.3 m off, told
+    apart in one frame only — as a column the range noise splits — count as one while the stop contract would stop
+    short of them. The daemon says so (`one_frame_split`) and the review lists it; no environment violation then.
+    Control: counted at once, the same frame is the violation "one obstacle in view at a time" and no split is said."""
+    from companion.ground.review import format_report, review
+    from companion.onboard.eventlog import EventLog, read_events
+    from companion.onboard.logschema import LOG_FILE
+
+    def fly(name):
+        sc = scenario_of("offboard", "depth_camera", "cluster", 1251)
+        log = EventLog(tmp_path / name)
+        rig = Rig(sc, "px4", config=config_of("offboard", sc["route"]["waypoints"], "depth_camera"), log=log)
+        engage_and_fly(rig, 12.0)
+        log.close()
+        assert not rig.truth["collisions"]
+        events = [r for r in read_events(tmp_path / name / LOG_FILE) if r["kind"] == "event"]
+        return ([e for e in events if e["event"] == "one_frame_split"],
+                [e for e in events if e.get("guarantee") == "one obstacle in view at a time"])
+
+    splits, several = fly("waited")
+    (split,) = splits
+    assert (split["told"], split["counted"]) == (2, 1) and split["v_ref"] <= split["v_stop"]
+    assert not several
+    lines = format_report(review(tmp_path / "waited" / LOG_FILE)).splitlines()
+    (head,) = [k for k, line in enumerate(lines) if "one sensor frame told apart" in line]
+    assert lines[head].endswith(": 1") and f"{split['t']:.2f} s" in lines[head + 1]
+    assert "2 told apart, counted as 1" in lines[head + 1]
+
+    monkeypatch.setattr(Apart, "count", lambda self, i, v_ref, v_stop, tau_s: len(i.places))
+    splits, several = fly("at_once")
+    assert not splits
+    assert several and abs(several[0]["t"] - split["t"]) < 0.1
 
 
 @pytest.mark.slow

@@ -178,7 +178,7 @@ class _Summary:
         self.failsafes: list[dict] = []
         self.thrust_starts: list[dict] = []  # `thrust_start`: the thrust ratio taken before the estimate settled
         self.lists = {k: [] for k in ("mode_changes", "state_changes", "link", "startup_checks", "commands_failed",
-                                      "log_gaps", "starts", "stops", "back_offs")}
+                                      "log_gaps", "starts", "stops", "back_offs", "one_frame_splits")}
         self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0}
         self.link_down_at = None
         self.link_down_s = 0.0
@@ -348,6 +348,9 @@ class _Summary:
             self._keep(self.lists["mode_changes"], {"t": t, "from": g("from"), "to": g("to"), "by": g("by")})
         elif name == "back_off":
             self._keep(self.lists["back_offs"], {"t": t, "inside_m": _num(g("inside_m")), "path_m": _num(g("path_m"))})
+        elif name == "one_frame_split":
+            self._keep(self.lists["one_frame_splits"], {"t": t, **{k: _num(g(k)) for k in
+                                                                  ("told", "counted", "nearest_m", "v_ref", "v_stop")}})
         elif name == "state_change":
             self._keep(self.lists["state_changes"], {"t": t, "from": g("from"), "to": g("to"), "reason": g("reason")})
             to, why = g("to"), g("reason")
@@ -548,6 +551,8 @@ class _Summary:
             "tables": self.tables,
             "mode_changes": self.lists["mode_changes"],
             "back_offs": self.lists["back_offs"],
+            # offboard: obstacles one frame told apart, counted as one while the stop contract stopped short of them
+            "one_frame_splits": self.lists["one_frame_splits"],
             "state_changes": self.lists["state_changes"],
             # of_the_log: a replay's link is the log's recording (its losses are the log's gaps, `LOG_LINK`)
             "link": {"events": self.lists["link"], "down_s": self.link_down_s, "of_the_log": self.replayed},
@@ -1006,6 +1011,15 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
                      f"{fb['count']} span(s)")
         for sp in fb["spans"]:
             lines.append(f"    {_fmt_t(sp['start_t'])} … {_fmt_t(sp['end_t'])}")
+    splits = rep.get("one_frame_splits") or []
+    if splits:
+        lines.append(f"  obstacles one sensor frame told apart, counted as one until a second frame did (offboard): "
+                     f"{len(splits)}")
+        for sp in splits:
+            lines.append(f"    {_fmt_t(sp['t'])}  {fmt_value(sp['told'])} told apart, counted as "
+                         f"{fmt_value(sp['counted'])}: the stop contract stops short of them (the nearest waiting "
+                         f"{fmt_value(sp['nearest_m'], ' m')} away, {fmt_value(sp['v_ref'], ' m/s')} flown, "
+                         f"{fmt_value(sp['v_stop'], ' m/s')} its speed there)")
     if rep.get("would_hold") is not None and (rep["would_hold"] or commanded_nothing):
         lines.append(f"  would have held (shadow mode): {rep['would_hold_count']}")
         for wh in rep["would_hold"]:

@@ -23,8 +23,9 @@ rest (the supervisor's OBSTACLE hold cause, as in governor mode), and guidance p
 route (several things in view as `Apart` counts them: where the frame before told one apart, a run parted from the
 run in the bin beside it by a range step alone counts from the next frame that tells them apart too, unless the stop
 contract needs it now). A thing wider than R_obst, or several things in view, keep the stop contract in force until
-the vehicle has flown the detection range they were seen within (D_od at the last sighting) past the last sighting:
-until then they may still be within reach. The avoid contract comes back only once its assumptions have held for
+the vehicle has flown the detection range they were seen within (D_od at the last sighting) past the last sighting,
+each breach its own: until then they may still be within reach (`within_reach`; the environment violations last as
+long). The avoid contract comes back only once its assumptions have held for
 `dwell_s` (limits move one way fast).
 
 Where the stop contract is in force because of the world (something wider than R_obst, several obstacles) while the
@@ -73,6 +74,7 @@ AVOID, STOP = "avoid", "stop"
 E_SWERVE_M = 0.5  # [m] the tracking error the swerve under the stop contract is flown at (`swerve_omega`) …
 SWERVE_MIN_M_S = 1.0  # [m/s] … but not slower than this for it
 DEAD_END = "no path the contract can prove: stopped"
+WIDE, SEVERAL = "an obstacle wider than R_obst", "several obstacles"  # the world's breaches of the avoid contract
 
 
 def pass_bearing(r_k: float, c: float) -> float:
@@ -163,7 +165,7 @@ class ContractInForce:
         self.now = InForce(AVOID, "its assumptions hold")
         self._odo = 0.0  # [m] flown, from the ground speed
         self._t: float | None = None
-        self._breach: tuple[float, float, str] | None = None  # (odometer, D_od, what) at the last sighting of a breach
+        self._breach: dict[str, tuple[float, float]] = {}  # WIDE, SEVERAL: (odometer, D_od) at its last sighting
         self._clear_since: float | None = None  # the avoid contract's assumptions have held since
         self._dead_end_said = False  # the dead end of this stretch under the stop contract has been said
         self._seen: list[Sighting] = []  # obstacles seen under way, not yet passed
@@ -199,21 +201,19 @@ class ContractInForce:
         """Which assumption of the avoid contract does not hold now (None: both hold)."""
         d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
         if i.obstacle_width > i.r_obst + WIDE_TOL_M:
-            self._breach = (self._odo, d_od, "an obstacle wider than R_obst")
+            self._breach[WIDE] = (self._odo, d_od)
             return f"an obstacle {i.obstacle_width:.2f} m wide (half-width) in view, wider than R_obst {i.r_obst:g} m"
         before = self._not_passed(i, d_od)
         if i.obstacles > 1 or i.obstacles and before:
-            self._breach = (self._odo, d_od, "several obstacles")
+            self._breach[SEVERAL] = (self._odo, d_od)
             if i.obstacles > 1:
                 return f"{i.obstacles} obstacles in view at once: the avoid contract goes round one at a time"
             return (f"an obstacle in view and {before} seen before, not yet passed: the avoid contract goes round one "
                     "at a time")
-        if self._breach is not None:
-            flown = self._odo - self._breach[0]
-            if flown < self._breach[1]:
-                return (f"{self._breach[2]} seen {flown:.1f} m ago, within reach until {self._breach[1]:.1f} m past the "
-                        "sighting")
-            self._breach = None
+        self._breach = {what: b for what, b in self._breach.items() if self.within_reach(what)}
+        if self._breach:
+            what, (odo, reach) = max(self._breach.items(), key=lambda wb: wb[1][0])  # the last sighting
+            return f"{what} seen {self._odo - odo:.1f} m ago, within reach until {reach:.1f} m past the sighting"
         return self._in_view(i, r_k, swerves)
 
     def _not_passed(self, i, d_od: float) -> int:
@@ -239,6 +239,12 @@ class ContractInForce:
                 self._seen = [s for s in self._seen if all(s is not m for m in match)] + \
                     [Sighting(o, cycles, frames, frame)]
         return before
+
+    def within_reach(self, what: str) -> bool:
+        """Whether a breach of the world (WIDE, SEVERAL) is seen now or may still be within reach: the vehicle has not
+        yet flown the D_od of its last sighting past it."""
+        b = self._breach.get(what)
+        return b is not None and self._odo - b[0] < b[1]
 
     def e_tr_in_view(self, d_od: float, r_obst: float, r_body: float) -> float:
         """[m] the largest E_tr whose keep-out disc r_k = R_obst + E_tr + r_body a pass at this D_od goes round in
@@ -306,24 +312,48 @@ class Apart:
 
     def __init__(self) -> None:
         self._frames = LastFrame()
+        self._said = 0  # the last frame whose wait was said
+        self.split: Split | None = None  # this frame's wait, the first cycle it is judged (said once a frame)
 
     def count(self, i, v_ref: float, v_stop, tau_s: float) -> int:
         """`i`: the supervisor's inputs (their `places`, `hits`, `pose`); `v_stop(d)`: the stop contract's V_max at an
-        obstacle d away (offboard's, `fallback_omega`)."""
+        obstacle d away (offboard's, `fallback_omega`). Where runs wait, `split` says so the first time in a frame."""
         before = self._frames.see(i.hits, i.places)
+        self.split = None
         if len(i.places) < 2 or len(before) >= 2:
             return len(i.places)
         x, y = i.pose[0], i.pose[1]
 
-        def waits(k: int) -> bool:
+        def waiting(k: int) -> tuple[float, float] | None:
+            """(d, V_stop) of a run that waits: beside another, the stop contract stopping short of it; else None."""
             a = i.places[k].bins
             # next to another run: their nearest bins are neighbours (the run rule of `seen_obstacles`)
             beside = a is not None and any(b is not None and neighbouring(max(b[0] - a[1], a[0] - b[1]), a[2], b[2])
                                            for m, b in enumerate(p.bins for p in i.places) if m != k)
+            if not beside:
+                return None
             d = min(math.hypot(c.x - x, c.y - y) - c.r for c in i.places[k].discs)
-            return beside and v_ref <= v_stop(d - v_ref * tau_s)
+            v = v_stop(d - v_ref * tau_s)
+            return (d, v) if v_ref <= v else None
 
-        return max(len(i.places) - sum(waits(k) for k in range(len(i.places))), 1)
+        waits = [w for w in map(waiting, range(len(i.places))) if w is not None]
+        n = max(len(i.places) - len(waits), 1)
+        if waits and self._said != self._frames.number:
+            self._said = self._frames.number
+            d, v = min(waits)
+            self.split = Split(len(i.places), n, d, v_ref, v)
+        return n
+
+
+class Split(NamedTuple):
+    """A frame's runs counted as fewer obstacles than the beams told apart (`Apart`): how many were told apart, how
+    many counted, the nearest waiting run's distance [m] and the speeds that let it wait, v_ref ≤ V_stop [m/s]."""
+
+    told: int
+    counted: int
+    nearest_m: float
+    v_ref: float
+    v_stop: float
 
 
 def fallback_omega(table: ContractTable, d_od: float, i, t_cmd: float, loop_dt: float) -> Omega:

@@ -132,6 +132,11 @@ EVENTS = {
                                "are not there (something wider than R_obst in view or still within reach, or a swerve "
                                "the sensors' field of view would not keep in view at this D_od), `avoid` again once "
                                "they have held for the dwell"),
+    "one_frame_split": Event(("told", "counted", "nearest_m", "v_ref", "v_stop"), "supervisor, offboard",
+                             "under the avoid contract, a frame told `told` obstacles apart where the frame before "
+                             "told at most one: runs in neighbouring bins (as a column the range noise splits) counted "
+                             "as `counted` until the next frame tells them apart too, the stop contract stopping short "
+                             "of the nearest waiting run, nearest_m away (v_ref ≤ v_stop [m/s]); said once a frame"),
     "dead_end": Event(("reason", "obstacle_m"), "supervisor, offboard",
                       "no path the contract can prove: offboard under the stop contract, something in the swept "
                       "corridor within the stopping distance (obstacle_m ahead: a braking stop, then Hold; the "

@@ -32,8 +32,11 @@ from .authority import GUARANTEE_ANSWERED, Late
 from .ahead import stop_obstacle_m
 from .contract_in_force import (
     DEAD_END,
+    SEVERAL,
+    WIDE,
     Apart,
     LastFrame,
+    Split,
     WIDE_TOL_M,
     ContractInForce,
     InForce,
@@ -305,6 +308,7 @@ class Supervisor:
         self._planned_round: tuple = ()  # (discs, walls) guidance was given to swerve round under the stop contract
         self._swerve_frames = LastFrame()  # the swerve's discs of the frame before (`_seen_again`)
         self._apart = Apart()  # how many obstacles in view the avoid contract counts
+        self._split: Split | None = None  # this frame's runs counted as one while the stop contract stops short
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
         # (and never faster than the E_tr sweep flew those plans: the table records that cap)
         self.cap = offboard_cap(table.etr_offboard_cap) if self.contract == "avoid" else 1.0
@@ -438,6 +442,11 @@ class Supervisor:
             info0 = self._violations.pop(key)
             d.events.append(("violation_end", {k: info0[k] for k in ("subsystem", "guarantee")}))
 
+    def _lasting(self, key, what: str) -> bool:
+        """A violation of the world already said goes on while the fallback holds on to `what` it says (WIDE,
+        SEVERAL: `ContractInForce.within_reach`)."""
+        return key in self._violations and self.fallback is not None and self.fallback.within_reach(what)
+
     @property
     def _limit_dead_time(self) -> float:
         """[s] from a speed command sent to the vehicle's speed following the autopilot's slow-down: reaction, the
@@ -531,6 +540,7 @@ class Supervisor:
         n = self._apart.count(i, self._v_ref(i), lambda d: fallback_omega(self.table, d, i, self.t_cmd,
                                                                          self.loop_dt).v_max,
                               i.dod.silence_s + self.loop_dt)
+        self._split = None if self.fallen_back else self._apart.split  # said by `_judge_guarantees`
         return i if n == i.obstacles or self.fallen_back else replace(i, obstacles=n)
 
     def _omega(self, d_od: float, i: Inputs, recovery_dt: float | None, a0_max: float | None) -> Omega:
@@ -731,17 +741,22 @@ class Supervisor:
                         observed=i.thrust_ratio, action="no safe speed: hold"))
         # R_obst is the avoid contract's assumption (the swerve round one column of it); the stop contract stops
         # short of whatever is within D_od, whatever its width: under it a wall or a wide box breaks nothing
-        wide = self.configured == "avoid" and i.obstacle_width > i.r_obst + WIDE_TOL_M
+        # a breach said lasts while the fallback holds on to it (seen, or still within reach: out of view for a moment
+        # is not gone), so a wall that comes and goes in the sensors' view is one violation
+        wide = self.configured == "avoid" and (i.obstacle_width > i.r_obst + WIDE_TOL_M or
+                                              self._lasting(Subsystem.ENVIRONMENT, WIDE))
         self._violation(d, Subsystem.ENVIRONMENT, wide, lambda: dict(
                         subsystem=Subsystem.ENVIRONMENT, guarantee="no obstacle wider than R_obst", assumed=i.r_obst,
                         observed=i.obstacle_width, action="falling back to the stop contract" if self.fallback else
                         "planning round the observed width"))
         # the avoid contract's swerve goes round one obstacle at a time (DESIGN.md §1): several in view at once (a
         # stand of poles) may put one in the path of the swerve round another
-        several = self.configured == "avoid" and i.obstacles > 1
+        several = self.configured == "avoid" and (i.obstacles > 1 or self._lasting("one_at_a_time", SEVERAL))
         self._violation(d, "one_at_a_time", several, lambda: dict(
                         subsystem=Subsystem.ENVIRONMENT, guarantee=ONE_AT_A_TIME, assumed=1, observed=i.obstacles,
                         action="falling back to the stop contract" if self.fallback else "planning round all of them"))
+        if self._split is not None:  # not a breach seen: runs one frame told apart, waiting for the next (`Apart`)
+            d.events.append(("one_frame_split", self._split._asdict()))
         if i.dod.swept != self._dod_swept:  # D_od's basis: said when the swept coverage starts and ends
             self._dod_swept = i.dod.swept
             basis = "swept" if i.dod.swept else ("field of view" if i.dod.covered_by else "none")
