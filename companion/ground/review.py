@@ -179,7 +179,7 @@ class _Summary:
         self.thrust_starts: list[dict] = []  # `thrust_start`: the thrust ratio taken before the estimate settled
         self.lists = {k: [] for k in ("mode_changes", "state_changes", "link", "startup_checks", "commands_failed",
                                       "log_gaps", "starts", "stops", "back_offs", "one_frame_splits")}
-        self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0}
+        self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0, "one_frame_splits": 0}
         self.link_down_at = None
         self.link_down_s = 0.0
         # marks for the plots: spans {start_t, end_t, what} and points {t, what}
@@ -349,6 +349,7 @@ class _Summary:
         elif name == "back_off":
             self._keep(self.lists["back_offs"], {"t": t, "inside_m": _num(g("inside_m")), "path_m": _num(g("path_m"))})
         elif name == "one_frame_split":
+            self.counts["one_frame_splits"] += 1
             self._keep(self.lists["one_frame_splits"], {"t": t, **{k: _num(g(k)) for k in
                                                                   ("told", "counted", "nearest_m", "v_ref", "v_stop")}})
         elif name == "state_change":
@@ -553,6 +554,7 @@ class _Summary:
             "back_offs": self.lists["back_offs"],
             # offboard: obstacles one frame told apart, counted as one while the stop contract stopped short of them
             "one_frame_splits": self.lists["one_frame_splits"],
+            "one_frame_split_count": self.counts["one_frame_splits"],  # all of them, the list kept up to MAX_LISTED
             "state_changes": self.lists["state_changes"],
             # of_the_log: a replay's link is the log's recording (its losses are the log's gaps, `LOG_LINK`)
             "link": {"events": self.lists["link"], "down_s": self.link_down_s, "of_the_log": self.replayed},
@@ -1014,7 +1016,7 @@ def format_report(rep: dict, origin: Origin | None = None) -> str:
     splits = rep.get("one_frame_splits") or []
     if splits:
         lines.append(f"  obstacles one sensor frame told apart, counted as one until a second frame did (offboard): "
-                     f"{len(splits)}")
+                     f"{rep.get('one_frame_split_count', len(splits))}")
         for sp in splits:
             lines.append(f"    {_fmt_t(sp['t'])}  {fmt_value(sp['told'])} told apart, counted as "
                          f"{fmt_value(sp['counted'])}: the stop contract stops short of them (the nearest waiting "
