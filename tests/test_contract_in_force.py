@@ -21,6 +21,7 @@ from companion.onboard.contract_in_force import (
     WIDE,
     Apart,
     ContractInForce,
+    OutOfView,
     avoid_d_od_from,
     banner_line,
     fallback_omega,
@@ -46,13 +47,13 @@ def _sensor(orientation=0.0, fov=60.0, rng=10.0):
 
 
 def _inputs(t, d_od=9.0, width=0.0, speed=5.0, e_tr=0.3, r_obst=1.0, obstacles=0, discs=(), pose=(0.0, 0.0, 0.0),
-            frame=None):
+            frame=None, path=()):
     """The supervisor's inputs at time t; each call a new sensor frame unless `frame` names the one it shows."""
     dod = SimpleNamespace(d_od=d_od, silence_s=0.0)
     hits = (("frame", t if frame is None else frame),)
     return SimpleNamespace(t=t, ground_speed=speed, obstacle_width=width, r_obst=r_obst, dod=dod, e_tr_measured=e_tr,
                            thrust_ratio=1.0, obstacles=obstacles or len(discs), discs=discs, pose=pose, beta=0.0,
-                           hits=hits)
+                           hits=hits, path=path)
 
 
 def _avoid(v=5.0):
@@ -268,6 +269,32 @@ def test_each_breach_of_the_world_is_held_for_its_own_reach():
     assert f.within_reach(WIDE) is False and flown[-1].contract == "avoid"
     released = 0.1 * (2 + [s.contract for s in flown].index("avoid"))
     assert released == pytest.approx(2.0, abs=0.11)  # the wall's 10 m flown at 5 m/s (the poles': at 0.5 s)
+
+
+def test_the_swerve_plans_round_what_it_saw_of_a_disc_out_of_view_that_the_path_ahead_flies_into():
+    """`OutOfView`: a pole seen 3 m ahead, 1 m left (R_obst's disc planned round, the disc of its sectors 0.2 m), then
+    out of view. The path ahead along the line passes 1 m from it, inside its 0.2 m and r_body + E_tr (1 m): what was
+    seen of it is planned round, and stays so while the plan keeps clear of it; back in view it is the disc seen;
+    behind the vehicle by more than 1.2 m it is dropped, and so is one farther than D_od. A path that keeps 2 m off
+    never has it planned round."""
+    pole, seen, half = Disc(3.0, 1.0, 0.2), Disc(3.5, 1.0, 1.0), 1.0
+    line = tuple((x, 0.0) for x in range(2, 12))
+    clear = tuple((x, -1.0) for x in range(2, 12))
+    keep = OutOfView()
+    assert keep.keep(_inputs(0.0, path=line), (seen,), (pole,), half) == ()  # in view: no need to keep it
+    assert keep.keep(_inputs(0.1, pose=(1.0, 0.0, 0.0), path=line), (), (), half) == (pole,)  # out of view, flown into
+    assert keep.keep(_inputs(0.2, pose=(2.0, 0.0, 0.0), path=clear), (), (), half) == (pole,)  # planned round: kept
+    moved = Disc(3.05, 1.0, 0.2)
+    assert keep.keep(_inputs(0.3, pose=(3.0, 0.0, 0.0), path=line), (seen,), (moved,), half) == ()  # in view again
+    assert keep.keep(_inputs(0.4, pose=(3.5, 0.0, 0.0), path=line), (), (), half) == (moved,)
+    assert keep.keep(_inputs(0.5, pose=(4.3, 0.0, 0.0), path=line), (), (), half) == ()  # 1.25 m behind: passed
+
+    beside = OutOfView()
+    beside.keep(_inputs(0.0, path=clear), (seen,), (pole,), half)
+    assert beside.keep(_inputs(0.1, pose=(1.0, -1.0, 0.0), path=clear), (), (), half) == ()  # the path keeps 2 m off
+    far = OutOfView()
+    far.keep(_inputs(0.0, path=line), (seen,), (pole,), half)
+    assert far.keep(_inputs(0.1, d_od=2.0, path=line), (), (), half) == ()  # 3.2 m off, beyond D_od 2 m and 0.2 m
 
 
 def test_the_field_of_view_rule_is_judged_where_the_avoid_contract_would_swerve():

@@ -561,6 +561,23 @@ def test_a_pass_is_finished_beside_a_pole_gone_out_of_view(monkeypatch):
     assert old["min_clearance_m"] < 0.1  # the control must fail
 
 
+def test_a_pole_gone_out_of_view_on_the_swerve_is_still_planned_round(monkeypatch):
+    """Scenario 1459 (the 450–500 mm quad on ArduPilot in a stand of poles, a 0.16 m pole on the route): two poles in
+    view at 6.8 m/s, the stop contract in force with its swerve, which turns right; the pole on the route leaves the
+    60° sensor's view 3.3 m off while the way back to the route still passes it. Planned round again once the path
+    ahead flies into it (`OutOfView`), it is passed with room. Control: planned round only while in view, the vehicle
+    passes it blind, 0.035 m from contact."""
+    from companion.onboard.contract_in_force import OutOfView
+
+    s, row, _ = _clutter(1459)
+    assert s["world_family"] == "cluster" and s["vehicle"] == "x500"
+    assert not row["collided"] and row["route_completed"] and row["min_clearance_m"] > 1.0
+
+    monkeypatch.setattr(OutOfView, "keep", lambda self, i, seen, measured, half_width: ())
+    _, old, _ = _clutter(1459)
+    assert old["min_clearance_m"] < 0.1  # the control must fail
+
+
 def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
     """The stop contract in force because the pass would leave the view, then the view holds again: during the dwell
     before the avoid contract returns it stays straight (the swerve is for a breach of the world only)."""

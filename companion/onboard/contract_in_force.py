@@ -52,10 +52,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from contracts.contour import distance_to_polyline
 from contracts.online_planner import Disc
 from contracts.table import ContractTable, Omega
 
-from .guidance import neighbouring, new_obstacles, obstacle_discs
+from .guidance import ENTER_TOL_M, neighbouring, new_obstacles, obstacle_discs
 
 # [deg] the heading's lag behind the track the field-of-view rule budgets: the median measured in the SITL (true heading
 # against true track above 1 m/s over 20 offboard flights: median 8°, 17–21° at speed). Not the worst: the rule
@@ -487,6 +488,36 @@ def swerve_discs(i, reach_m: float) -> tuple[Disc, ...]:
     discs, _, _ = obstacle_discs(i.hits, (x, y), yaw, i.r_obst, widest=i.r_obst + WIDE_TOL_M, measured_beyond=reach_m,
                                  ends=i.hit_ends)
     return tuple(discs)
+
+
+class OutOfView:
+    """What the swerve saw of its discs, out of view now, that the path ahead flies into. A turn of the swerve takes a
+    pole out of the sensors' view while the way back to the route still passes it: planned round only while in view,
+    it is flown past blind. What was seen of such a disc — the disc of its sectors (`swerve_discs` measured at any
+    range), not R_obst's, which off a wall's end seen at a doorway fills the doorway — is planned round again once the
+    path ahead (`Inputs.path`, from where the vehicle is) comes within its radius and r_body + E_tr of it (by more than
+    `ENTER_TOL_M`), and stays so until it is passed — behind the vehicle along its direction of travel by more than its
+    radius and r_body + E_tr — or farther than D_od. One the path keeps clear of is left out."""
+
+    def __init__(self) -> None:
+        self._out: list[Disc] = []  # seen before, not seen now, not yet passed
+        self._kept: list[Disc] = []  # of them, planned round again
+
+    def keep(self, i, seen: tuple, measured: tuple, half_width: float) -> tuple[Disc, ...]:
+        """The discs to plan round besides this cycle's `seen` (the swerve's discs, seen in two frames). `measured`:
+        this cycle's discs of what was seen (`swerve_discs` at reach 0); `i`: the supervisor's inputs (pose, beta,
+        path, D_od); `half_width`: r_body + E_tr."""
+        x, y, yaw = i.pose
+        u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
+        d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
+        out = [k for k in self._out if new_obstacles([k], seen)
+               and (k.x - x) * u[0] + (k.y - y) * u[1] >= -(k.r + half_width)
+               and math.hypot(k.x - x, k.y - y) <= d_od + k.r]
+        path = np.array([(x, y), *i.path], float)
+        self._kept = [k for k in out if k in self._kept
+                      or distance_to_polyline((k.x, k.y), path) < k.r + half_width - ENTER_TOL_M]
+        self._out = [*(d for d in measured if not new_obstacles([d], seen)), *out]
+        return tuple(self._kept)
 
 
 def fallback_for(cfg, contract: str) -> ContractInForce | None:

@@ -36,6 +36,7 @@ from .contract_in_force import (
     WIDE,
     Apart,
     LastFrame,
+    OutOfView,
     Split,
     WIDE_TOL_M,
     ContractInForce,
@@ -307,6 +308,7 @@ class Supervisor:
         self.fallback = fallback if contract == "avoid" else None
         self._planned_round: tuple = ()  # (discs, walls) guidance was given to swerve round under the stop contract
         self._swerve_frames = LastFrame()  # the swerve's discs of the frame before (`_seen_again`)
+        self._out_of_view = OutOfView()  # the swerve's discs seen before, out of view now, on the path ahead
         self._apart = Apart()  # how many obstacles in view the avoid contract counts
         self._split: Split | None = None  # this frame's runs counted as one while the stop contract stops short
         # offboard flies the avoid contract only as fast as its own planner is shown to achieve it
@@ -608,8 +610,14 @@ class Supervisor:
         if not self.fallen_back:
             discs = i.discs
             self._seen_again(i.hits, discs)  # (what the frames saw before a fallback counts as seen before it)
+        elif self.swerves:
+            seen = self._seen_again(i.hits, swerve_discs(i, self._hold_reach(i)))
+            half_width = self.table.vehicle.r_body_m + e_tr_virtual
+            discs = seen + self._out_of_view.keep(i, seen, swerve_discs(i, 0.0), half_width)
         else:
-            discs = self._seen_again(i.hits, swerve_discs(i, self._hold_reach(i))) if self.swerves else ()
+            discs = ()
+        if not self.swerves:
+            self._out_of_view = OutOfView()
         walls = wall_discs(i, discs) if self.swerves else None
         self._planned_round = (tuple(discs), walls) if self.swerves else ()
         r_body = self.table.vehicle.r_body_m
