@@ -123,3 +123,11 @@ def pass_at_its_own_speed(monkeypatch) -> None:
     monkeypatch.setattr("companion.onboard.guidance.PASS_OVER_VMAX_M_S", math.inf)
     monkeypatch.setattr(supervisor, "_speed_flown", lambda v_cmd, i: v_cmd)
     monkeypatch.setattr(supervisor, "PRED_WINDOWS", 1.0)
+
+
+def out_of_view_forgotten(monkeypatch) -> None:
+    """The swerve plans round what is in view and was seen a frame before only: what it saw of a disc now out of view
+    is not planned round again, whatever the path ahead flies into."""
+    from companion.onboard.contract_in_force import OutOfView
+
+    monkeypatch.setattr(OutOfView, "keep", lambda self, i, seen, measured, half_width: ())

@@ -21,6 +21,7 @@ from tests.swerve_rules import (
     grown_judged_at_once,
     guessed_at_speed_now,
     others_passed_through,
+    out_of_view_forgotten,
     outline_unread,
     pass_left_beside_its_obstacle,
     seen_once,
@@ -176,7 +177,8 @@ def _old_guidance(monkeypatch):
     bins beside it saw, from its first frame, a disc in the way wherever it is near the leg's line, the other discs not
     kept out of, more of an obstacle past its disc judged at once, a pass flown to its end past the route's turn,
     planned along the route where the vehicle is, linearised first about the path at the speed now, not waiting for
-    the heading, a sideways speed clipped at once, a stop as fast as V_max allows, a pass left beside its obstacle."""
+    the heading, a sideways speed clipped at once, a stop as fast as V_max allows, a pass left beside its obstacle,
+    nothing planned round once out of view."""
     from companion.onboard import guidance
     from companion.onboard.guidance import OffboardGuidance
     from companion.onboard.supervisor import Supervisor
@@ -189,6 +191,7 @@ def _old_guidance(monkeypatch):
     guessed_at_speed_now(monkeypatch)
     stops_bounded_by_v_max(monkeypatch)
     pass_left_beside_its_obstacle(monkeypatch)
+    out_of_view_forgotten(monkeypatch)
 
     monkeypatch.setattr(guidance, "slow_aim", lambda heading, want: (None, False))
     monkeypatch.setattr(guidance, "A_SIDE", math.inf)

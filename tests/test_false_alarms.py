@@ -19,6 +19,7 @@ from tests.swerve_rules import (
     grown_judged_at_once,
     guessed_at_speed_now,
     horizon_over_speed_now,
+    out_of_view_forgotten,
     outline_unread,
     seen_once,
     threats_past_the_route_end,
@@ -487,7 +488,7 @@ def test_a_hold_on_the_path_the_swerve_flies_is_judged_on_that_path(monkeypatch)
     """examples/campaign-clutter.yaml flight 597 (offboard, a corridor with a turn and a column inside), its swerve
     planned round every run of bins from its first frame, more of the column past its disc judged at once, a wall's
     points passed on their far side too, a pass's horizon and first linearisation as they were, a disc beyond the
-    route's end in the way (as it was flown when this flight held; now it
+    route's end in the way, nothing planned round once out of view (as it was flown when this flight held; now it
     flies on without a Hold): under the stop contract offboard swerves, and its
     Hold judges the path the plan flies (contract_in_force.path_obstacle_m); the observer finds the true surface on
     that path. Control: an observer that judges the line of travel calls the Hold unfounded."""
@@ -503,6 +504,7 @@ def test_a_hold_on_the_path_the_swerve_flies_is_judged_on_that_path(monkeypatch)
     horizon_over_speed_now(monkeypatch)
     guessed_at_speed_now(monkeypatch)
     threats_past_the_route_end(monkeypatch)
+    out_of_view_forgotten(monkeypatch)
 
     spec = load_spec(Path(__file__).resolve().parents[1] / "examples" / "campaign-clutter.yaml")
     row, rig = fly(spec, 597, keep_rig=True)

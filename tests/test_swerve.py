@@ -17,6 +17,7 @@ from tests.swerve_rules import (
     far_side_passed,
     guessed_at_speed_now,
     horizon_over_speed_now,
+    out_of_view_forgotten,
     outline_unread,
     pass_at_its_own_speed,
     pass_left_beside_its_obstacle,
@@ -395,7 +396,7 @@ def test_a_column_inside_a_corridor_is_passed_round_what_was_seen_of_it(scenario
     swerve was then, round every run of bins from its first frame), which with the walls' keep-out closes the
     passage either side of the column, with a pass's horizon and its sides among walls as they were then too — the
     route is not completed (a dead end, or no safe speed from a pass that swung the direction of travel out of
-    view)."""
+    view); and nothing planned round once out of view, as then."""
     from companion.onboard.supervisor import Supervisor
 
     s, row, rig = _clutter(scenario)
@@ -407,6 +408,7 @@ def test_a_column_inside_a_corridor_is_passed_round_what_was_seen_of_it(scenario
     seen_once(monkeypatch)
     far_side_passed(monkeypatch)
     horizon_over_speed_now(monkeypatch)
+    out_of_view_forgotten(monkeypatch)
     _, old, _ = _clutter(scenario)
     assert not old["collided"] and not old["route_completed"]  # the control must fail
 
@@ -516,7 +518,7 @@ def test_a_stop_at_rest_before_a_column_stays_at_rest(monkeypatch):
     starts — until a pass is found: no Hold a perfect observer calls unfounded, no contact, the route completed.
     Control: a stop bounded by V_max only, and flown without turning first — an iterate OSQP had not converged on, safe
     by the exact check, backs the vehicle away at over 1 m/s, the direction of travel behind the sensor's view: "no safe
-    speed", a Hold with nothing behind it."""
+    speed", a Hold with nothing behind it (nothing planned round once out of view, as then)."""
     s, row, rig = _clutter(332, seed=46)
     assert s["world_family"] == "corridor" and s["vehicle"] == "x500"
     assert not row["collided"] and not row["unfounded_alarms"] and not rig.log.named("hold_trigger")
@@ -524,6 +526,7 @@ def test_a_stop_at_rest_before_a_column_stays_at_rest(monkeypatch):
 
     stops_bounded_by_v_max(monkeypatch)
     stops_flown_unturned(monkeypatch)
+    out_of_view_forgotten(monkeypatch)
     _, old, old_rig = _clutter(332, seed=46)
     assert not old["collided"]
     assert old["unfounded_alarms"] and old_rig.log.named("hold_trigger")  # the control must fail
@@ -534,12 +537,13 @@ def test_a_stop_leading_away_from_the_heading_turns_to_it_first(monkeypatch):
     planner's stop leads back out of it, 150° off the heading. Flown slowly on its path while the heading turns to it,
     the sensor looks where the vehicle goes: no alarm a perfect observer calls unfounded. Control: the stop flown as
     planned — backing away at 0.85 m/s out of the sensor's view, "no safe speed", then a Hold for the column 0.8 m off,
-    nowhere along the way the vehicle was going."""
+    nowhere along the way the vehicle was going (nothing planned round once out of view, as then)."""
     s, row, _ = _clutter(763, seed=50)
     assert s["world_family"] == "corridor" and s["vehicle"] == "mambo"
     assert not row["collided"] and not row["unfounded_alarms"]
 
     stops_flown_unturned(monkeypatch)
+    out_of_view_forgotten(monkeypatch)
     _, old, _ = _clutter(763, seed=50)
     assert not old["collided"] and old["unfounded_alarms"]  # the control must fail
 
@@ -550,13 +554,15 @@ def test_a_pass_is_finished_beside_a_pole_gone_out_of_view(monkeypatch):
     it. The pass flies a little faster than the route's profile (V_max), but its pole is not yet behind: the pass is
     finished, no rejoin across its keep-out; the route completed. Control: the pass left for the rejoin wherever its pole
     is — back to the route past the pole, 0.02 m from contact (flown, as then, with passes at their planned speed
-    whatever V_max: slowed to V_max, that pass no longer comes near the pole)."""
+    whatever V_max: slowed to V_max, that pass no longer comes near the pole; and with nothing planned round once out
+    of view: the swerve's memory of what it saw keeps that pass clear of the pole too)."""
     s, row, _ = _clutter(844, seed=46)
     assert s["world_family"] == "cluster" and s["vehicle"] == "x500"
     assert not row["collided"] and row["route_completed"] and row["min_clearance_m"] > 0.5
 
     pass_at_its_own_speed(monkeypatch)
     pass_left_beside_its_obstacle(monkeypatch)
+    out_of_view_forgotten(monkeypatch)
     _, old, _ = _clutter(844, seed=46)
     assert old["min_clearance_m"] < 0.1  # the control must fail
 
@@ -567,13 +573,11 @@ def test_a_pole_gone_out_of_view_on_the_swerve_is_still_planned_round(monkeypatc
     60° sensor's view 3.3 m off while the way back to the route still passes it. Planned round again once the path
     ahead flies into it (`OutOfView`), it is passed with room. Control: planned round only while in view, the vehicle
     passes it blind, 0.035 m from contact."""
-    from companion.onboard.contract_in_force import OutOfView
-
     s, row, _ = _clutter(1459)
     assert s["world_family"] == "cluster" and s["vehicle"] == "x500"
     assert not row["collided"] and row["route_completed"] and row["min_clearance_m"] > 1.0
 
-    monkeypatch.setattr(OutOfView, "keep", lambda self, i, seen, measured, half_width: ())
+    out_of_view_forgotten(monkeypatch)
     _, old, _ = _clutter(1459)
     assert old["min_clearance_m"] < 0.1  # the control must fail
 
@@ -643,11 +647,13 @@ def test_a_failsafe_stop_at_rest_inside_a_keep_out_backs_off_before_hold(monkeyp
     assert old["collided"]  # the control must fail
 
 
-def test_a_failsafe_stop_is_one_hold_however_its_cause_comes_and_goes():
+def test_a_failsafe_stop_is_one_hold_however_its_cause_comes_and_goes(monkeypatch):
     """Seed 47, scenario 940 (the Mambo on PX4 in a stand of poles, wind 0.8 of its design): the supervisor's Hold
     fires on a pole near the swerve's path and the daemon brakes. While it brakes the pole leaves the Hold's reach (the
     vehicle slows) and comes back: the same stop, said once — the Hold is latched from the braking on, not only once
-    the vehicle rests — and the observer finds no alarm without cause."""
+    the vehicle rests — and the observer finds no alarm without cause. (Flown without the swerve's memory of what it saw
+    out of view: with it the swerve keeps clear of that pole and no Hold fires.)"""
+    out_of_view_forgotten(monkeypatch)
     s, row, rig = _clutter(940, seed=47)
     assert s["world_family"] == "cluster" and s["vehicle"] == "mambo"
     holds = rig.log.named("hold_trigger")
