@@ -490,23 +490,37 @@ def swerve_discs(i, reach_m: float) -> tuple[Disc, ...]:
     return tuple(discs)
 
 
+def enclosing(a: Disc, b: Disc) -> Disc:
+    """The smallest disc holding discs a and b."""
+    d = math.hypot(b.x - a.x, b.y - a.y)
+    if d + b.r <= a.r:
+        return a
+    if d + a.r <= b.r:
+        return b
+    r = 0.5 * (d + a.r + b.r)
+    f = (r - a.r) / d
+    return Disc(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), r)
+
+
 class OutOfView:
     """What the swerve saw of its discs, out of view now, that the path ahead flies into. A turn of the swerve takes a
     pole out of the sensors' view while the way back to the route still passes it: planned round only while in view,
-    it is flown past blind. What was seen of such a disc — the disc of its sectors (`swerve_discs` measured at any
-    range), not R_obst's, which off a wall's end seen at a doorway fills the doorway — is planned round again once the
-    path ahead (`Inputs.path`, from where the vehicle is) comes within its radius and r_body + E_tr of it (by more than
-    `ENTER_TOL_M`), and stays so until it is passed — behind the vehicle along its direction of travel by more than its
-    radius and r_body + E_tr — or farther than D_od. One the path keeps clear of is left out."""
+    it is flown past blind. What was seen of such a disc is planned round again once the path ahead (`Inputs.path`,
+    from where the vehicle is) comes within its radius and r_body + E_tr of it (by more than `ENTER_TOL_M`), and stays
+    so until it is passed — behind the vehicle along its direction of travel by more than its radius and r_body + E_tr —
+    or farther than D_od. One the path keeps clear of is left out. What was seen: the smallest disc holding the discs of
+    its sectors (`swerve_discs` measured at any range) in the frames that saw it, while that is no wider than R_obst —
+    the last frames before a pole leaves the view see only its side; not R_obst's disc, which off a wall's end seen at a
+    doorway fills the doorway."""
 
     def __init__(self) -> None:
-        self._out: list[Disc] = []  # seen before, not seen now, not yet passed
-        self._kept: list[Disc] = []  # of them, planned round again
+        self._out: list[Disc] = []  # what was seen of the discs seen before, not yet passed
+        self._kept: list[Disc] = []  # of them, out of view and planned round again
 
     def keep(self, i, seen: tuple, measured: tuple, half_width: float) -> tuple[Disc, ...]:
         """The discs to plan round besides this cycle's `seen` (the swerve's discs, seen in two frames). `measured`:
         this cycle's discs of what was seen (`swerve_discs` at reach 0); `i`: the supervisor's inputs (pose, beta,
-        path, D_od); `half_width`: r_body + E_tr."""
+        path, D_od, R_obst); `half_width`: r_body + E_tr."""
         x, y, yaw = i.pose
         u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
         d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
@@ -516,8 +530,15 @@ class OutOfView:
         path = np.array([(x, y), *i.path], float)
         self._kept = [k for k in out if k in self._kept
                       or distance_to_polyline((k.x, k.y), path) < k.r + half_width - ENTER_TOL_M]
-        self._out = [*(d for d in measured if not new_obstacles([d], seen)), *out]
+        self._out = [*(self._so_far(d, i.r_obst) for d in measured if not new_obstacles([d], seen)), *out]
         return tuple(self._kept)
+
+    def _so_far(self, d: Disc, r_obst: float) -> Disc:
+        """What the frames saw of the obstacle `d` is this frame's sight of: `d` grown to hold their discs of it."""
+        for k in self._out:
+            if not new_obstacles([d], [k]) and (grown := enclosing(k, d)).r <= r_obst + WIDE_TOL_M:
+                d = grown
+        return d
 
 
 def fallback_for(cfg, contract: str) -> ContractInForce | None:
