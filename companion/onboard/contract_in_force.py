@@ -223,13 +223,10 @@ class ContractInForce:
         stand of poles seen one pole at a time). An obstacle is remembered once SEEN_CYCLES cycles under way (above
         1 m/s), in SEEN_FRAMES of the sensors' frames, saw it at one place (a medium's near returns move with the
         vehicle; a frame's spurious return, or a column the range noise splits, is one frame's)."""
-        x, y, yaw = i.pose
-        u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
         now = list(i.discs)
         self._frames.see(i.hits, ())
         frame = self._frames.number
-        self._seen = [s for s in self._seen if (s.disc.x - x) * u[0] + (s.disc.y - y) * u[1] >= 0.0
-                      and math.hypot(s.disc.x - x, s.disc.y - y) <= d_od + s.disc.r]
+        self._seen = [s for s in self._seen if not_passed(i, s.disc, d_od)]
         before = sum(1 for s in self._seen
                      if s.cycles >= SEEN_CYCLES and s.frames >= SEEN_FRAMES and new_obstacles([s.disc], now))
         if i.ground_speed > 1.0:
@@ -490,6 +487,14 @@ def swerve_discs(i, reach_m: float) -> tuple[Disc, ...]:
     return tuple(discs)
 
 
+def not_passed(i, d: Disc, d_od: float, behind: float = 0.0) -> bool:
+    """Whether the vehicle (`i`: the supervisor's inputs, pose and beta) has not yet passed disc d: its centre no more
+    than `behind` behind the vehicle along its direction of travel, and within D_od + its radius of it."""
+    x, y, yaw = i.pose
+    along = (d.x - x) * math.cos(yaw + i.beta) + (d.y - y) * math.sin(yaw + i.beta)
+    return along >= -behind and math.hypot(d.x - x, d.y - y) <= d_od + d.r
+
+
 def enclosing(a: Disc, b: Disc) -> Disc:
     """The smallest disc holding discs a and b."""
     d = math.hypot(b.x - a.x, b.y - a.y)
@@ -521,13 +526,9 @@ class OutOfView:
         """The discs to plan round besides this cycle's `seen` (the swerve's discs, seen in two frames). `measured`:
         this cycle's discs of what was seen (`swerve_discs` at reach 0); `i`: the supervisor's inputs (pose, beta,
         path, D_od, R_obst); `half_width`: r_body + E_tr."""
-        x, y, yaw = i.pose
-        u = (math.cos(yaw + i.beta), math.sin(yaw + i.beta))
         d_od = i.dod.d_od if math.isfinite(i.dod.d_od) else 0.0
-        out = [k for k in self._out if new_obstacles([k], seen)
-               and (k.x - x) * u[0] + (k.y - y) * u[1] >= -(k.r + half_width)
-               and math.hypot(k.x - x, k.y - y) <= d_od + k.r]
-        path = np.array([(x, y), *i.path], float)
+        out = [k for k in self._out if new_obstacles([k], seen) and not_passed(i, k, d_od, k.r + half_width)]
+        path = np.array([i.pose[:2], *i.path], float)
         self._kept = [k for k in out if k in self._kept
                       or distance_to_polyline((k.x, k.y), path) < k.r + half_width - ENTER_TOL_M]
         self._out = [*(self._so_far(d, i.r_obst) for d in measured if not new_obstacles([d], seen)), *out]
