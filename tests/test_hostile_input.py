@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
+from companion.onboard.console import event_line
 from companion.onboard.config import ContractConfig, SensorConfig, config_from_dict
 from companion.onboard.estimators import DodEstimator
 from companion.onboard.mavlink_in import MavlinkIn, range_scan
+from companion.onboard.states import CYCLE_COMPLETES
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
 
@@ -64,8 +66,18 @@ def test_an_exception_inside_the_cycle_ends_in_hold_and_is_logged(monkeypatch):
     def broken(i):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr(rig.daemon.cycle.sup, "step", broken)
-    rig.run(2.5)
+    with monkeypatch.context() as m:
+        m.setattr(rig.daemon.cycle.sup, "step", broken)
+        rig.run(2.5)
+    rig.run(0.2)
+    # the daemon's own guarantee broken from the first failed cycle to the next that completed
+    (start,) = [e for e in rig.log.named("violation_start") if e["subsystem"] == "guidance"]
+    (end,) = [e for e in rig.log.named("violation_end") if e["subsystem"] == "guidance"]
+    assert start["guarantee"] == end["guarantee"] == CYCLE_COMPLETES and start["t"] - t0 < 0.05
+    assert end["observed"] == rig.daemon.counters.loop_errors and end["t"] == pytest.approx(t0 + 2.5, abs=0.05)
+    assert event_line("violation_start", start)[1].startswith("VIOLATION guidance: every cycle decides")
+    assert event_line("violation_end", end)[1] == (f"violation over: guidance (cycles complete again after "
+                                                   f"{rig.daemon.counters.loop_errors} that failed)")
     errs = [e for e in rig.log.named("loop_error") if e["t"] >= t0]
     assert errs and errs[0]["action"] == "hold" and "ZeroDivisionError" in errs[0]["error"]
     holds = [e for e in rig.log.named("command") if e["cmd"] == "hold" and e["t"] >= t0]

@@ -8,6 +8,7 @@ import pytest
 from companion.ground import review_checks
 from companion.ground.commands import review_log
 from companion.onboard.eventlog import EventLog
+from companion.onboard.states import CYCLE_COMPLETES
 from companion.ground.review import format_report, review, run_facts, summarise
 from companion.ground.review_html import verdict
 from tests import golden
@@ -210,6 +211,22 @@ def test_a_delivery_violation_logged_by_the_daemon_is_named_in_the_verdict(tmp_p
     assert rep["violations_by_subsystem"]["delivery"]["count"] == 1
     assert "delivery ×1" in said(rep)
     assert verdict(rep) == "REVIEW NEEDED: a command was refused or not taken in time"
+
+
+def test_a_cycle_of_the_daemon_that_ended_in_an_internal_error_is_named_in_the_verdict(tmp_path):
+    """As the daemon logs 25 failed cycles in a row (tests/test_hostile_input.py): the loop errors it logged (the
+    1st and the 10th), and guidance's violation from the first to the next cycle that completed."""
+    samples = [sample(i * DT, i * DT, 1.0, obstacle_m=float("inf")) for i in range(50)]
+    broke = {"subsystem": "guidance", "guarantee": CYCLE_COMPLETES}
+    events = [(2.0, "violation_start", {**broke, "assumed": 0, "observed": 1, "action": "hold"}),
+              (2.0, "loop_error", {"error": "ZeroDivisionError: a bug", "consecutive": 1, "action": "hold"}),
+              (2.2, "loop_error", {"error": "ZeroDivisionError: a bug", "consecutive": 10, "action": "hold"}),
+              (2.5, "violation_end", {**broke, "observed": 25})]
+    rep = review(write(tmp_path, samples, events))
+    assert not rep["ok"] and verdict(rep) == "REVIEW NEEDED: the daemon's own cycle failed"
+    assert ("the daemon's cycle ended in an internal error (up to 10 in a row), first at t = 2.00 s: "
+            "ZeroDivisionError: a bug; action: hold") in said(rep)
+    assert "guidance ×1 (0.5 s)" in said(rep) and "ms apart" not in said(rep)  # a count, not a cycle's lateness
 
 
 # ----------------------------------------------------------------------------- speed limits

@@ -36,6 +36,7 @@ from typing import Iterable
 from companion.onboard.eventlog import file_set, finite_copy, read_events
 from companion.onboard.logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
 from companion.onboard.modes import MODES
+from companion.onboard.states import CYCLE_COMPLETES
 from contracts import csvfile
 from contracts.errors import ContractError
 
@@ -178,7 +179,8 @@ class _Summary:
         self.failsafes: list[dict] = []
         self.thrust_starts: list[dict] = []  # `thrust_start`: the thrust ratio taken before the estimate settled
         self.lists = {k: [] for k in ("mode_changes", "state_changes", "link", "startup_checks", "commands_failed",
-                                      "log_gaps", "starts", "stops", "back_offs", "one_frame_splits")}
+                                      "log_gaps", "starts", "stops", "back_offs", "one_frame_splits",
+                                      "loop_errors")}
         self.counts = {"limit_changes": 0, "commands": 0, "failsafes": 0, "one_frame_splits": 0}
         self.link_down_at = None
         self.link_down_s = 0.0
@@ -346,6 +348,10 @@ class _Summary:
                 self.open_fs.remove(fs)
         elif name == "mode_change":
             self._keep(self.lists["mode_changes"], {"t": t, "from": g("from"), "to": g("to"), "by": g("by")})
+        elif name == "loop_error":
+            self._keep(self.lists["loop_errors"], {"t": t, "error": str(g("error")),
+                                                   "consecutive": _num(g("consecutive")),
+                                                   "action": str(g("action"))})
         elif name == "back_off":
             self._keep(self.lists["back_offs"], {"t": t, "inside_m": _num(g("inside_m")), "path_m": _num(g("path_m"))})
         elif name == "one_frame_split":
@@ -436,8 +442,8 @@ class _Summary:
         s = self.by_sub.setdefault(str(v["subsystem"]), {"count": 0, "total_s": 0.0})
         s["count"] += 1
         s["total_s"] += v["duration_s"] or 0.0
-        observed = _num(v.get("observed"))
-        if observed is not None and math.isfinite(observed):
+        observed = _num(v.get("observed"))  # (a failed cycle's is a count, said by `loop_errors`)
+        if observed is not None and math.isfinite(observed) and v.get("guarantee") != CYCLE_COMPLETES:
             s["worst_observed"] = max(s.get("worst_observed", -math.inf), observed)
         self._keep(self.violations, v)
 
@@ -552,6 +558,7 @@ class _Summary:
             "tables": self.tables,
             "mode_changes": self.lists["mode_changes"],
             "back_offs": self.lists["back_offs"],
+            "loop_errors": self.lists["loop_errors"],  # the daemon's cycles that raised (logged 1st, 10th, 100th…)
             # offboard: obstacles one frame told apart, counted as one while the stop contract stopped short of them
             "one_frame_splits": self.lists["one_frame_splits"],
             "one_frame_split_count": self.counts["one_frame_splits"],  # all of them, the list kept up to MAX_LISTED
@@ -643,6 +650,12 @@ def findings(rep: dict) -> list[str]:
         causes = sorted({c for wh in rep["would_hold"] for c in wh["causes"]})
         out.append(f"shadow mode: the daemon would have held {rep['would_hold_count']}× "
                    f"(first at t = {_fmt_t(rep['would_hold'][0]['start_t'])}; {'; '.join(causes)})")
+    errs = rep.get("loop_errors") or []
+    if errs:
+        e, most = errs[0], max(x["consecutive"] or 1 for x in errs)
+        out.append(f"the daemon's cycle ended in an internal error (up to {most:.0f} in a row), first at t = "
+                   f"{_fmt_t(e['t'])}: {e['error']}; action: {e['action']} — no decision in those cycles, what the "
+                   "contract flown assumes (guidance's guarantee)")
     cols = (rep.get("marks") or {}).get("collisions")
     if cols:
         out.append(f"{len(cols)} collision(s) (simulator truth), first at t = {_fmt_t(cols[0]['t'])}")

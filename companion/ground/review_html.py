@@ -34,8 +34,9 @@ AUTOPILOT_BROKE = {BRAKE_SWITCH: REFUSED, RAMP_FOLLOWED: RAMP_BROKEN}
 def verdict(rep: dict) -> str:
     """A review report's verdict in a few words, naming what must not be missed: a collision or the keep-out disc
     entered, a command refused or not taken in time (the review's own checks, or a `delivery` violation the
-    daemon logged), and the autopilot breaking an assumption a faster governor limit rests on (refusing the
-    recovery brake above the Hold's limit, accelerating harder than the approach ramp allows)."""
+    daemon logged), the daemon's own cycle ending in an internal error, and the autopilot breaking an assumption a
+    faster governor limit rests on (refusing the recovery brake above the Hold's limit, accelerating harder than the
+    approach ramp allows)."""
     if rep["ok"]:
         return "contract kept (no findings)"
     ko, dl = rep.get("keep_out") or {}, rep.get("delivery") or {}
@@ -47,6 +48,8 @@ def verdict(rep: dict) -> str:
     if (dl.get("modes_not_taken") or dl.get("limits_not_flown") or (rep.get("commands") or {}).get("failed")
             or "delivery" in rep["violations_by_subsystem"]):
         said.append("a command was refused or not taken in time")
+    if rep.get("loop_errors"):
+        said.append("the daemon's own cycle failed")
     if "autopilot" in rep["violations_by_subsystem"]:
         broke = "the autopilot broke an assumption the limit rests on"
         said += list(dict.fromkeys(AUTOPILOT_BROKE.get(v.get("guarantee"), broke) for v in rep["violations"]

@@ -20,7 +20,7 @@ from contracts.lookup import kernel_name
 
 from .estimators import LATE_WINDOW_S
 from .mavlink_in import refusal_text
-from .states import BRAKE_SWITCH
+from .states import BRAKE_SWITCH, CYCLE_COMPLETES
 
 CRIT, ERR, WARNING, NOTICE, INFO = 2, 3, 4, 5, 6
 
@@ -61,6 +61,8 @@ def event_line(name: str, f: dict) -> tuple[int, str] | None:
     if name == "violation_start":
         return ERR, (f"VIOLATION {f['subsystem']}: {f['guarantee']} (assumed {_fmt(f.get('assumed'))}, observed "
                      f"{_fmt(f.get('observed'))}); {f['action']}")
+    if name == "violation_end" and f["guarantee"] == CYCLE_COMPLETES:
+        return NOTICE, f"violation over: guidance (cycles complete again after {f.get('observed')} that failed)"
     if name == "violation_end":  # the daemon's own lateness: one late cycle, its aftermath is `reaction_time`'s
         return None if f["subsystem"] == "guidance" else (NOTICE, f"violation over: {f['subsystem']}")
     if name == "reaction_time":

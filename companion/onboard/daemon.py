@@ -28,6 +28,7 @@ from .mission import home_request
 from .outbox import EMPTY, Outbox
 from .protocols import Protocols
 from .sensing import CYCLE_SAMPLES
+from .states import CYCLE_COMPLETES, Subsystem
 from .supervisor import Decision
 
 MAX_MESSAGES_PER_POLL = 2000  # messages taken per cycle at most (a 50 Hz autopilot sends ~400/s)
@@ -183,12 +184,17 @@ class Daemon:
         except Exception as err:  # a fault of ours, in any stage, must still end in the safe action
             self.cycle_failed(t, err)
             return None
+        if self._bad_cycles:
+            self.event(t, "violation_end", subsystem=Subsystem.GUIDANCE, guarantee=CYCLE_COMPLETES,
+                       observed=self._bad_cycles)
         self._bad_cycles = 0
         return d
 
     def cycle_failed(self, t: float, err: Exception) -> None:
         """A cycle that raised: Hold (unless in shadow mode or on the ground), delivered by the mode authority; the
-        heartbeat says CRITICAL; logged at the 1st, 10th, 100th and every 1000th failure in a row."""
+        heartbeat says CRITICAL; logged at the 1st, 10th, 100th and every 1000th failure in a row. It breaks the
+        daemon's own guarantee, guidance's: a violation from the first failed cycle to the next that completes (what
+        the contracts fly assumes a decision every cycle; the avoid contract's speed, its swerves)."""
         self._bad_cycles += 1
         self.counters.loop_errors += 1
         flying = self.tel.armed and self.tel.in_air
@@ -196,6 +202,10 @@ class Daemon:
                   else "none (not flying)")
         # the Hold asked every failed cycle: the mode authority delivers it (re-sent until answered)
         box = self.cycle.failed_hold(t) if action == "hold" else EMPTY
+        if self._bad_cycles == 1:
+            box = box.then(Outbox(events=(("violation_start", {
+                "subsystem": Subsystem.GUIDANCE, "guarantee": CYCLE_COMPLETES, "assumed": 0, "observed": 1,
+                "action": action}),)))
         if sparse(self._bad_cycles):
             box = box.then(Outbox(
                 events=(("loop_error", {"error": f"{type(err).__name__}: {err}"[:200],

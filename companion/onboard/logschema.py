@@ -116,7 +116,8 @@ EVENTS = {
                            "writes succeed again after a failure (records dropped meanwhile)"),
     "violation_start": Event(("subsystem", "guarantee", "assumed", "observed", "action", "sensor"), "supervisor",
                              "a subsystem broke its guarantee (subsystem ∈ SUBSYSTEMS; sensor: the obstacle sensor "
-                             "silent longer than its budget, its index in `sensors`)"),
+                             "silent longer than its budget, its index in `sensors`; the daemon's: a cycle that "
+                             "ended in an internal error, guidance's)"),
     "reaction_time": Event(("late_s", "t_react_s"), "supervisor",
                            "the daemon's own lateness counted as reaction time changed (a late cycle, or 10 s on "
                            "time since): Ω flies V ≤ V_safe(d_od − V·(t_react + late_s)); 0 when on time"),
@@ -126,7 +127,9 @@ EVENTS = {
     "dod_coverage": Event(("basis", "d_od", "reason"), "supervisor",
                           "D_od's basis changed to or from `swept`: the direction of travel outside every field of "
                           "view, D_od the distance along it seen free recently (else `field of view` or `none`: 0)"),
-    "violation_end": Event(("subsystem", "guarantee"), "supervisor", "that guarantee holds again"),
+    "violation_end": Event(("subsystem", "guarantee", "observed"), "supervisor",
+                           "that guarantee holds again (observed, of the daemon's own cycles: how many failed in a "
+                           "row)"),
     "contract_in_force": Event(("contract", "reason"), "supervisor",
                                "offboard: the contract in force changed — `stop` where the avoid contract's assumptions "
                                "are not there (something wider than R_obst in view or still within reach, or a swerve "

@@ -81,4 +81,5 @@ class Subsystem(StrEnum):
 
 # the autopilot's guarantees the governor's faster limits rest on (violation_start.guarantee of Subsystem.AUTOPILOT)
 BRAKE_SWITCH = "accepts the recovery brake's switch"
+CYCLE_COMPLETES = "every cycle decides (none ends in an internal error)"  # the daemon's own, guidance's
 RAMP_FOLLOWED = "follows the governor's approach ramp"
