@@ -8,7 +8,7 @@ import pytest
 from contracts.geometry import wrap
 from companion.onboard.contract_in_force import WIDE_TOL_M
 from companion.onboard.ahead import TRAVEL_SPEED_M_S
-from companion.onboard.guidance import (A_LAT, HEADING_TOL, SIDE_SLOW, TURN_FIRST_SPEED, YAW_RATE_ARC, YAW_SPEED,
+from companion.onboard.guidance import (A_LAT, HEADING_TOL, ON_ROUTE_M, SIDE_SLOW, TURN_FIRST_SPEED, YAW_RATE_ARC, YAW_SPEED,
                                         OffboardGuidance, Route, ThreadedPlanning, obstacle_discs)
 from contracts.online_planner import AvoidancePlanner, Disc, Plan, dense_path
 
@@ -356,6 +356,28 @@ def test_a_slow_rejoin_turns_first_then_goes_sideways():
     control = _rejoin_at_the_end(turn=False)
     heading_fixed = [math.hypot(*sp.v) for _, sp in control if abs(wrap(math.atan2(sp.v[1], sp.v[0]))) > HEADING_TOL]
     assert max(heading_fixed) == pytest.approx(SIDE_SLOW, abs=0.01)  # the control: sideways, fast, off the route
+
+
+def test_a_pass_that_ends_past_the_route_s_end_is_flown_back_from_where_the_vehicle_is():
+    """A pass round a pole by the destination that hands over 3 m past the route's end, 0.5 m beside it, still moving
+    on at 1 m/s: the cruise reference starts where the vehicle is and flies it back to the end, slowing within
+    a_max, no faster than a rejoin, and arrives. (Put on the route's nearest point, the end, the reference was 3 m
+    from the vehicle, which the autopilot flew to at the whole a_max, out of the sensors' view.)"""
+    route = Route([[0, 0], [10, 0]], 2.0)
+    g = OffboardGuidance(route)
+    g.start([13.0, 0.5], [1.0, 0.0])
+    p, v, rows = np.array([13.0, 0.5]), np.array([1.0, 0.0]), []
+    for k in range(3000):
+        sp = g.step(k * 0.02, 0.02, p, v, 5.0, 4.0, [])
+        rows.append(sp)
+        p, v = sp.p, sp.v
+        if sp.mode == "done":
+            break
+    assert math.dist(rows[0].p, (13.0, 0.5)) < 0.05 and rows[0].v == pytest.approx([1.0, 0.0], abs=0.05)
+    assert max(float(np.hypot(*sp.a)) for sp in rows) <= 4.0 + 1e-9
+    assert max(float(np.hypot(*sp.v)) for sp in rows[1:]) <= 1.0 + 1e-9
+    assert max(sp.p[0] for sp in rows) < 13.5  # slowed from 1 m/s, then back
+    assert rows[-1].mode == "done" and math.dist(rows[-1].p, (10.0, 0.0)) <= 2 * ON_ROUTE_M
 
 
 def test_the_reference_turns_first_then_speeds_up():

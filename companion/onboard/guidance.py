@@ -537,6 +537,9 @@ class OffboardGuidance:
     v_ref: float = 0.0  # speed of the cruise reference
     y_off: float = 0.0  # lateral offset of the cruise reference from the route (rejoining after a pass)
     vy_off: float = 0.0
+    # the rest of its offset, which neither s_ref nor y_off can take: beyond the route's ends, outside a sharp corner
+    off: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    v_off: np.ndarray = field(default_factory=lambda: np.zeros(2))
     replans: int = 0
     kept: int = 0  # replans that failed while a verified plan was still being flown
     plan_t_try: float = -1e9
@@ -585,11 +588,21 @@ class OffboardGuidance:
                      (self.route.point(s)[0] for s in (*np.arange(s0, s1, PATH_STEP_M), s1)))
 
     def _rejoin_from(self, p, v) -> None:
-        """Start the cruise reference where the vehicle is, beside the route if it is beside it."""
-        base, u = self.route.point(self.route.project(p))
+        """Start the cruise reference where the vehicle is: beside the route if it is beside it, and before its start,
+        past its end or outside a sharp corner (a pass that ends there) where it is too, not on the route's nearest
+        point (a reference metres off the vehicle is flown to at the whole a_max, out of the sensors' view)."""
+        s = self.route.project(p)
+        base, u = self.route.point(s)
         n = np.array([-u[1], u[0]])
-        self.y_off, self.vy_off = float((np.asarray(p) - base) @ n), float(np.asarray(v) @ n)
-        self.v_ref = max(float(np.asarray(v) @ u), 0.0)
+        d, v = np.asarray(p, float) - base, np.asarray(v, float)
+        self.y_off, self.vy_off = float(d @ n), float(v @ n)
+        along = float(d @ u)
+        if abs(along) <= ON_ROUTE_M:  # on the route (at its start, as engaged there)
+            along = 0.0
+        beyond = s >= self.route.length - 1e-9 and along > 0.0  # past the end: its speed along is the offset's too
+        self.off = u * along
+        self.v_off = u * max(float(v @ u), 0.0) if beyond else np.zeros(2)
+        self.v_ref = 0.0 if beyond else max(float(v @ u), 0.0)
 
     def step(self, t: float, dt: float, p, v, v_max: float, a_max: float, discs: list[Disc],
              yaw: float | None = None, walls: tuple[Disc, ...] | None = None) -> Setpoint:
@@ -640,11 +653,13 @@ class OffboardGuidance:
         n = np.array([-u[1], u[0]])
         # rejoining from beside the route below walking pace: the yaw on the way the reference goes; with the heading
         # off it, turn first, creeping
-        rejoin = abs(self.y_off) > ON_ROUTE_M
-        aim, turning = slow_aim(heading, u * self.v_ref + n * vy) if rejoin else (None, False)
+        want_off = self.v_off - (2.0 * self._w_off(a_max) * self.v_off + self._w_off(a_max) ** 2 * self.off) * dt
+        rejoin = abs(self.y_off) > ON_ROUTE_M or float(np.hypot(*self.off)) > ON_ROUTE_M
+        aim, turning = slow_aim(heading, u * self.v_ref + n * vy + want_off) if rejoin else (None, False)
         if turning:
             cap = max(self.v_ref * math.tan(math.radians(SIDE_DEG)),
                       math.sqrt(max(TURN_FIRST_SPEED ** 2 - self.v_ref ** 2, 0.0)))
+        a_off = self._close_off(want_off, dt, a_max, min(TURN_FIRST_SPEED if turning else SIDE_SLOW, v_max))
         # a sideways speed above the cap (a pass handed over sideways) slows at A_SIDE·a_max, as the offset is flown
         # (clipped at once, the setpoint's acceleration would be the whole step in one cycle, tens of m/s²)
         step = A_SIDE * a_max * dt
@@ -681,11 +696,33 @@ class OffboardGuidance:
         vel = u * self.v_ref * stretch + n * self.vy_off
         # exact acceleration of the offset point: tangential, Coriolis-like, centripetal (v²/R) and lateral
         a_vec = u * (stretch * acc - 2 * k * self.vy_off * self.v_ref) + n * (stretch * k * self.v_ref ** 2 + ay)
-        arrived = self.s_ref >= route.length - 1e-9 and abs(self.y_off) <= ON_ROUTE_M  # at rest, on the route
+        vel, a_vec = vel + self.v_off, a_vec + a_off
+        arrived = self.s_ref >= route.length - 1e-9 and abs(self.y_off) <= ON_ROUTE_M \
+            and float(np.hypot(*self.off)) <= ON_ROUTE_M  # at rest, on the route
         if rejoin and not turning:  # (while turning: where the reference is to go, not its creep)
             aim, _ = slow_aim(None, vel)
         yaw = self._yaw(vel, u) if aim is None else aim
-        return Setpoint(pos + n * self.y_off, vel, a_vec, z, yaw, "done" if arrived else "cruise")
+        return Setpoint(pos + n * self.y_off + self.off, vel, a_vec, z, yaw, "done" if arrived else "cruise")
+
+    def _w_off(self, a_max: float) -> float:
+        """The rate the offset the route cannot take closes at: critically damped as the lateral offset."""
+        return math.sqrt(0.5 * a_max / max(float(np.hypot(*self.off)), 0.2))
+
+    def _close_off(self, want, dt: float, a_max: float, cap: float) -> np.ndarray:
+        """That offset flown back to the route at the velocity `want` (its damped law's), no faster than `cap`, the
+        velocity changing at A_SIDE·a_max; its acceleration."""
+        if not (self.off.any() or self.v_off.any()) or dt <= 0:
+            return np.zeros(2)
+        speed = float(np.hypot(*want))
+        want = want * (cap / speed) if speed > cap else want
+        dv = want - self.v_off
+        step, size = A_SIDE * a_max * dt, float(np.hypot(*dv))
+        dv = dv * (step / size) if size > step else dv
+        self.v_off = self.v_off + dv
+        self.off = self.off + self.v_off * dt
+        if float(np.hypot(*self.off)) < 1e-3 and float(np.hypot(*self.v_off)) < 1e-2:
+            self.off, self.v_off = np.zeros(2), np.zeros(2)
+        return dv / dt
 
     def _yaw(self, vel, u) -> float:
         """The heading to fly: along the commanded velocity, plus — when that is slow — the measured one
