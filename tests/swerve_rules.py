@@ -131,3 +131,17 @@ def out_of_view_forgotten(monkeypatch) -> None:
     from companion.onboard.contract_in_force import OutOfView
 
     monkeypatch.setattr(OutOfView, "keep", lambda self, i, seen, measured, half_width: ())
+
+
+def rejoined_on_the_route(monkeypatch) -> None:
+    """The cruise reference started on the route's nearest point (beside it at most): a pass that ended past the route's
+    end was pulled back to its end at once."""
+    rejoin = OffboardGuidance._rejoin_from
+
+    def on_the_route(self, p, v):
+        rejoin(self, p, v)
+        _, u = self.route.point(self.route.project(p))
+        self.off, self.v_off = np.zeros(2), np.zeros(2)
+        self.v_ref = max(float(np.asarray(v, float) @ u), 0.0)
+
+    monkeypatch.setattr(OffboardGuidance, "_rejoin_from", on_the_route)

@@ -21,6 +21,7 @@ from tests.swerve_rules import (
     outline_unread,
     pass_at_its_own_speed,
     pass_left_beside_its_obstacle,
+    rejoined_on_the_route,
     seen_once,
     stops_bounded_by_v_max,
     stops_flown_unturned,
@@ -580,6 +581,22 @@ def test_a_pole_gone_out_of_view_on_the_swerve_is_still_planned_round(monkeypatc
     out_of_view_forgotten(monkeypatch)
     _, old, _ = _clutter(1459)
     assert old["min_clearance_m"] < 0.1  # the control must fail
+
+
+def test_a_pass_that_ends_past_the_corridor_route_s_end_is_flown_back_from_where_the_vehicle_is(monkeypatch):
+    """Scenario 57 (the 450–500 mm quad on PX4 in a corridor): the swerve's last pass, crept at walking pace with the
+    heading turning, hands over 5.7 m past the route's end. The cruise reference starts there and flies back to the
+    end: the route completed, every speed limit flown. Control: the reference put on the route's end at once, 5.7 m
+    off, the vehicle is flown at it at the whole a_max, sideways out of the sensor's view — a "no safe speed" stop
+    short of the destination and the limit not flown (a delivery violation, said of the autopilot, that was ours)."""
+    s, row, _ = _clutter(57)
+    assert s["world_family"] == "corridor" and s["vehicle"] == "x500"
+    assert not row["collided"] and row["route_completed"]
+    assert not [v for v in row["violations"] if v["subsystem"] == "delivery"]
+
+    rejoined_on_the_route(monkeypatch)
+    _, old, _ = _clutter(57)
+    assert not old["route_completed"] and [v for v in old["violations"] if v["subsystem"] == "delivery"]
 
 
 def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
