@@ -1,6 +1,7 @@
 import math
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -9,7 +10,8 @@ from contracts.geometry import wrap
 from companion.onboard.contract_in_force import WIDE_TOL_M
 from companion.onboard.ahead import TRAVEL_SPEED_M_S
 from companion.onboard.guidance import (A_LAT, HEADING_TOL, ON_ROUTE_M, SIDE_SLOW, TURN_FIRST_SPEED, YAW_RATE_ARC, YAW_SPEED,
-                                        OffboardGuidance, Route, ThreadedPlanning, obstacle_discs)
+                                        OffboardGuidance, Route, Setpoint, ThreadedPlanning, obstacle_discs,
+                                        reference_jump)
 from contracts.online_planner import AvoidancePlanner, Disc, Plan, dense_path
 
 
@@ -378,6 +380,15 @@ def test_a_pass_that_ends_past_the_route_s_end_is_flown_back_from_where_the_vehi
     assert max(float(np.hypot(*sp.v)) for sp in rows[1:]) <= 1.0 + 1e-9
     assert max(sp.p[0] for sp in rows) < 13.5  # slowed from 1 m/s, then back
     assert rows[-1].mode == "done" and math.dist(rows[-1].p, (10.0, 0.0)) <= 2 * ON_ROUTE_M
+
+
+def test_a_reference_jump_is_how_much_farther_from_the_vehicle_it_is_than_the_last_one_flown_on():
+    last = Setpoint(np.array([0.0, 0.0]), np.array([2.0, 0.0]), np.array([0.0, 0.0]), -2.0, 0.0, "cruise")
+    on = Setpoint(np.array([0.04, 0.0]), np.array([2.0, 0.0]), np.zeros(2), -2.0, 0.0, "cruise")
+    assert reference_jump(last, 0.02, on, (-0.3, 0.0)) == pytest.approx(0.0)  # flown on: the vehicle 0.3 m behind
+    away = replace(on, p=np.array([0.04, 3.0]))
+    assert reference_jump(last, 0.02, away, (-0.3, 0.0)) == pytest.approx(math.hypot(0.34, 3.0) - 0.34)
+    assert reference_jump(last, 0.02, replace(on, p=np.array([-0.3, 0.0])), (-0.3, 0.0)) == 0.0  # onto the vehicle
 
 
 def test_the_reference_turns_first_then_speeds_up():

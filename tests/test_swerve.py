@@ -40,6 +40,7 @@ from companion.onboard.contract_in_force import (
     wall_discs,
 )
 from companion.onboard.guidance import obstacle_discs
+from companion.onboard.states import REFERENCE_ON
 from contracts import online_planner
 from contracts.online_planner import AvoidancePlanner, Disc, between_sides, dense_path, exact_check
 from contracts.table import load_for_vehicle
@@ -588,15 +589,19 @@ def test_a_pass_that_ends_past_the_corridor_route_s_end_is_flown_back_from_where
     heading turning, hands over 5.7 m past the route's end. The cruise reference starts there and flies back to the
     end: the route completed, every speed limit flown. Control: the reference put on the route's end at once, 5.7 m
     off, the vehicle is flown at it at the whole a_max, sideways out of the sensor's view — a "no safe speed" stop
-    short of the destination and the limit not flown (a delivery violation, said of the autopilot, that was ours)."""
+    short of the destination and the limit not flown (a delivery violation, said of the autopilot); the reference's
+    jump, guidance's own violation, is said too."""
     s, row, _ = _clutter(57)
     assert s["world_family"] == "corridor" and s["vehicle"] == "x500"
     assert not row["collided"] and row["route_completed"]
-    assert not [v for v in row["violations"] if v["subsystem"] == "delivery"]
+    assert not [v for v in row["violations"] if v["subsystem"] in ("delivery", "guidance")]
 
     rejoined_on_the_route(monkeypatch)
-    _, old, _ = _clutter(57)
+    _, old, rig = _clutter(57)
     assert not old["route_completed"] and [v for v in old["violations"] if v["subsystem"] == "delivery"]
+    # and guidance's own guarantee is said broken, by the reference's 5.7 m jump
+    (jump,) = [e for e in rig.log.named("violation_start") if e["guarantee"] == REFERENCE_ON]
+    assert jump["subsystem"] == "guidance" and 5.0 < jump["observed"] < 6.5
 
 
 def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():

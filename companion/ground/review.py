@@ -36,7 +36,7 @@ from typing import Iterable
 from companion.onboard.eventlog import file_set, finite_copy, read_events
 from companion.onboard.logschema import LINK_COUNTERS, LOG_FILE, STATE_FIELDS, SUBSYSTEMS
 from companion.onboard.modes import MODES
-from companion.onboard.states import CYCLE_COMPLETES
+from companion.onboard.states import CYCLE_COMPLETES, REFERENCE_ON
 from contracts import csvfile
 from contracts.errors import ContractError
 
@@ -57,6 +57,7 @@ MAX_LISTED = 1000  # longest list kept per kind of event in the report (the rest
 # the daemon's failsafe reason for the autopilot's heartbeat lost (`supervisor`): in a replay, the log fell silent
 LOG_LINK = "autopilot heartbeat lost"
 NOT_REPORTED = "autopilot did not report "  # a start-up check's reason for a parameter not answered (`startup`)
+NOT_LATENESS = (CYCLE_COMPLETES, REFERENCE_ON)  # guidance's guarantees whose `observed` is not a cycle's gap
 
 
 def _num(x) -> float | None:
@@ -442,8 +443,8 @@ class _Summary:
         s = self.by_sub.setdefault(str(v["subsystem"]), {"count": 0, "total_s": 0.0})
         s["count"] += 1
         s["total_s"] += v["duration_s"] or 0.0
-        observed = _num(v.get("observed"))  # (a failed cycle's is a count, said by `loop_errors`)
-        if observed is not None and math.isfinite(observed) and v.get("guarantee") != CYCLE_COMPLETES:
+        observed = _num(v.get("observed"))  # (guidance's: its cycles' lateness [s], not its failed cycles or jumps [m])
+        if observed is not None and math.isfinite(observed) and v.get("guarantee") not in NOT_LATENESS:
             s["worst_observed"] = max(s.get("worst_observed", -math.inf), observed)
         self._keep(self.violations, v)
 

@@ -9,21 +9,23 @@ stop from the measured state, then Hold at rest; a cause they cannot fly out hol
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from contracts.flat import horizontal_accel_limit
 from contracts.stop import braking_decel, recovery_brake_stop, stop_jerk
 from contracts.vehicle import Vehicle
 
 from .authority import HOLD, ModeRequest, Requester
-from .guidance import OffboardGuidance
+from .guidance import OffboardGuidance, Setpoint, reference_jump
 from .offboard import Ask, OffboardController
-from .states import BRAKE_STOP_CAUSES, FINISHED, OffboardState, State
+from .states import BRAKE_STOP_CAUSES, FINISHED, REFERENCE_ON, OffboardState, State, Subsystem
 from .turn import Part, Turn
 
 ENTRY = "offboard"  # the mode the flying actors ask for (OFFBOARD / GUIDED: the adapter's name)
 FAILSAFE_LATCH = "fail-safe stop: held until the pilot or CG_ENGAGE decides"
 DEAD_END_LATCH = "dead end: held until the pilot or CG_ENGAGE decides"
 BRAKE_LATCH = "recovery brake: held until the pilot or the ground station changes the mode"
+REFERENCE_JUMP_M = 0.5  # [m] a setpoint this much farther from the vehicle than the last one flown on breaks REFERENCE_ON
 NOT_COVERED = "the table carries no E_tr_pred for the brake's own stop (contract-guard table etr --brake)"
 
 
@@ -53,6 +55,8 @@ class Flying:
     def __init__(self, controller: OffboardController, vehicle: Vehicle):
         self.controller, self.vehicle = controller, vehicle
         self._was_streaming = False
+        self._last: tuple[float, Setpoint] | None = None  # the last setpoint streamed, and when
+        self._jumped = False  # that setpoint broke `REFERENCE_ON`
 
     @property
     def streaming(self) -> bool:
@@ -66,7 +70,23 @@ class Flying:
             self._settled(turn)
         if not turn.i.link_ok:
             return Part()
-        return self._fly(turn)
+        return self._judge_reference(turn, self._fly(turn))
+
+    def _judge_reference(self, turn: Turn, part: Part) -> Part:
+        """Guidance's own guarantee, judged on the setpoints streamed: each goes on from where the last was. One farther
+        from the vehicle than the last one flown on would be, by more than REFERENCE_JUMP_M (`reference_jump`), breaks
+        it — a violation from that setpoint to the next that does not."""
+        sp, last = part.setpoint, self._last
+        self._last = None if sp is None else (turn.t, sp)
+        jump = 0.0 if sp is None or last is None else \
+            reference_jump(last[1], turn.t - last[0], sp, (turn.tel.x, turn.tel.y))
+        if (jump > REFERENCE_JUMP_M) == self._jumped:
+            return part
+        self._jumped = not self._jumped
+        said = ("violation_start", {"subsystem": Subsystem.GUIDANCE, "guarantee": REFERENCE_ON,
+                                    "assumed": REFERENCE_JUMP_M, "observed": round(jump, 3), "action": "flown"}) \
+            if self._jumped else ("violation_end", {"subsystem": Subsystem.GUIDANCE, "guarantee": REFERENCE_ON})
+        return replace(part, events=(*part.events, said))
 
     def _settled(self, turn: Turn) -> None:
         """The switch was shown (the mode authority's delivery settled)."""

@@ -403,6 +403,14 @@ class Setpoint:
     mode: str  # "cruise", "avoid", "brake", "planning" (braking for the first plan), "hold", "done"
 
 
+def reference_jump(prev: Setpoint, dt: float, sp: Setpoint, p) -> float:
+    """How much farther from the vehicle (at p) the reference `sp` is than the previous one, `prev`, flown on for dt
+    at its velocity and acceleration would be [m]: 0 for a reference that flies on from where it was, or jumps towards
+    the vehicle (a stop planned from the measured state, the cruise rejoining where the vehicle is)."""
+    on = np.asarray(prev.p, float) + np.asarray(prev.v, float) * dt + 0.5 * np.asarray(prev.a, float) * dt * dt
+    return max(math.dist(sp.p, p) - math.dist(on, p), 0.0)
+
+
 def plan_job(planner, epoch, t_req, omega, *args, **kw):
     """One planning job, whoever runs it: (epoch, t_req, Ω, the plan — or the exception, which means brake)."""
     try:

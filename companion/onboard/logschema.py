@@ -116,8 +116,8 @@ EVENTS = {
                            "writes succeed again after a failure (records dropped meanwhile)"),
     "violation_start": Event(("subsystem", "guarantee", "assumed", "observed", "action", "sensor"), "supervisor",
                              "a subsystem broke its guarantee (subsystem ∈ SUBSYSTEMS; sensor: the obstacle sensor "
-                             "silent longer than its budget, its index in `sensors`; the daemon's: a cycle that "
-                             "ended in an internal error, guidance's)"),
+                             "silent longer than its budget, its index in `sensors`; guidance's own: a cycle that "
+                             "ended in an internal error, a setpoint put away from the vehicle)"),
     "reaction_time": Event(("late_s", "t_react_s"), "supervisor",
                            "the daemon's own lateness counted as reaction time changed (a late cycle, or 10 s on "
                            "time since): Ω flies V ≤ V_safe(d_od − V·(t_react + late_s)); 0 when on time"),

@@ -82,4 +82,7 @@ class Subsystem(StrEnum):
 # the autopilot's guarantees the governor's faster limits rest on (violation_start.guarantee of Subsystem.AUTOPILOT)
 BRAKE_SWITCH = "accepts the recovery brake's switch"
 CYCLE_COMPLETES = "every cycle decides (none ends in an internal error)"  # the daemon's own, guidance's
+# guidance's too: its reference goes on from where it was; one put metres off the vehicle is flown to at the whole
+# acceleration the autopilot allows, wherever that goes (the sensors' view, the speed limit)
+REFERENCE_ON = "the reference flies on from where it was (no jump away from the vehicle)"
 RAMP_FOLLOWED = "follows the governor's approach ramp"
