@@ -17,7 +17,7 @@ from companion.onboard.autopilots import adapter_for
 from companion.onboard.config import Config, SensorConfig, config_from_dict
 from companion.onboard.cycle import Cycle
 from companion.onboard.detection_range import (DetectionRange, DetectionRangeEstimate, DetectionRangeParams, RangeNoise,
-                                               evidence_line, per_shot_rate)
+                                               evidence_line, per_shot_rate, surface_bins)
 from companion.onboard.guidance import InlinePlanning
 from companion.onboard.mavlink_in import UINT16_MAX, bins_scan, range_scan
 from companion.onboard.samples import Heading, Position, Scan
@@ -351,12 +351,34 @@ def test_the_medium_returns_are_counted_and_a_close_surface_is_told_from_them():
         if k >= 3:  # the post from its 4th frame on; a fog return right beside it is taken for it
             post = [j for j, (b, _) in enumerate(scan.hits) if b == bearings[6]]
             assert post and post[0] not in medium
+            run = surface_bins(scan.hits, math.radians(5), 2.0, 3, 0.2)  # fog returns in a row with it: a surface
             for j, (b, r) in enumerate(scan.hits):
-                if j not in medium:
+                if j not in medium and j not in run:
                     assert math.hypot(r * math.cos(b) - wall[0], r * math.sin(b) - wall[1]) < 0.45
     assert counted > 60  # most of the fog's ~140 returns
     assert est.add_scan(range_scan(2.0, 1, 0.0, 0.6, 0.1, R_MAX, 5, R_MAX)) == (0,)  # 0.6 m from the post
     assert est.estimate(2.0, R_MAX).alpha > 0.0  # and they are the medium's evidence
+
+
+@pytest.mark.parametrize("run", [3, 99])
+def test_a_wall_swept_into_view_by_a_turn_is_no_evidence_of_a_medium(run):
+    """Clear air, the vehicle turning at 240°/s beside a wall 1.7 m off: each frame sees a new piece of it in three
+    adjacent bins, never in the same place twice (no `confirm_frames` can tell it from the medium's returns). A run
+    of adjacent bins at a surface's ranges is a surface: no α, D_od the stated range. Control (`surface_run` 99): the
+    wall's pieces read as a fog."""
+    est = DetectionRange([BINS], params=DetectionRangeParams(surface_run=run))
+    bearings = np.radians(np.arange(-27.5, 30.0, 5.0))
+    for k in range(12):
+        t = k / RATE_HZ
+        est.add_position(t, 0.1 * k, 0.0)
+        est.add_heading(t, math.radians(12.0 * k))
+        ranges = np.full(12, np.inf)
+        if k < 6:
+            ranges[[9, 10, 11]] = (1.75, 1.71, 1.72)  # coming into view at the field's edge, swept on by the turn
+        medium = est.add_scan(bins_scan(t, 0, bearings, ranges, R_MAX, math.radians(5), R_MAX))
+        assert (medium == ()) == (run == 3 or k >= 6)
+    e = est.estimate(11 / RATE_HZ, R_MAX)
+    assert (e.alpha == 0.0 and e.d_od == R_MAX) if run == 3 else (e.alpha > 0.0 and e.d_od < R_MAX)
 
 
 def governor_cycle(sensors=(BINS, BEAM)):

@@ -295,13 +295,21 @@ def test_a_level_camera_pitching_with_the_mambo_sees_the_ground_and_says_nothing
     assert row["arrived"] and unfounded(row) == []
 
 
-def test_negative_control_a_camera_not_known_to_pitch_reads_the_ground_as_an_obstacle(monkeypatch):
+@pytest.mark.parametrize("runs_seen", [True, False])
+def test_negative_control_a_camera_not_known_to_pitch_reads_the_ground_as_a_fog_unless_it_reads_surfaces(
+        monkeypatch, runs_seen):
+    """Not told its vertical field of view, the camera's claim does not stop short of the ground: the ground's close
+    returns are read, and the medium's evidence takes them for a fog's backscatter — unless it tells a surface by its
+    run of adjacent bins (`detection_range.surface_bins`), which the ground's returns are."""
     from companion.ground.flights import Rig
+    from companion.onboard import detection_range
 
     entry = Rig._scenario_sensor
     monkeypatch.setattr(Rig, "_scenario_sensor", lambda self, sc: {**entry(self, sc), "v_fov_deg": None})
+    if not runs_seen:
+        monkeypatch.setattr(detection_range, "surface_bins", lambda *args: set())
     row = fly_clear("governor", "depth_camera", "plain", 2)
-    assert any(e["cause"] == "ground in view" for e in unfounded(row))
+    assert any(e["cause"] == "ground in view" for e in unfounded(row)) is not runs_seen
 
 
 def test_offboard_with_a_single_beam_has_no_late_detection_from_a_spurious_return():
