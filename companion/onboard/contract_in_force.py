@@ -495,27 +495,16 @@ def not_passed(i, d: Disc, d_od: float, behind: float = 0.0) -> bool:
     return along >= -behind and math.hypot(d.x - x, d.y - y) <= d_od + d.r
 
 
-def enclosing(a: Disc, b: Disc) -> Disc:
-    """The smallest disc holding discs a and b."""
-    d = math.hypot(b.x - a.x, b.y - a.y)
-    if d + b.r <= a.r:
-        return a
-    if d + a.r <= b.r:
-        return b
-    r = 0.5 * (d + a.r + b.r)
-    f = (r - a.r) / d
-    return Disc(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), r)
-
-
 class OutOfView:
     """What the swerve saw of its discs, out of view now, that the path ahead flies into. A turn of the swerve takes a
     pole out of the sensors' view while the way back to the route still passes it: planned round only while in view,
     it is flown past blind. What was seen of such a disc is planned round again once the path ahead (`Inputs.path`,
     from where the vehicle is) comes within its radius and r_body + E_tr of it (by more than `ENTER_TOL_M`), and stays
     so until it is passed — behind the vehicle along its direction of travel by more than its radius and r_body + E_tr —
-    or farther than D_od. One the path keeps clear of is left out. What was seen: the smallest disc holding the discs of
-    its sectors (`swerve_discs` measured at any range) in the frames that saw it, while that is no wider than R_obst —
-    the last frames before a pole leaves the view see only its side; not R_obst's disc, which off a wall's end seen at a
+    or farther than D_od. One the path keeps clear of is left out. What was seen: the widest disc of its sectors
+    (`swerve_discs` measured at any range) that one frame saw, no wider than R_obst — the last frames before a pole
+    leaves the view see only its side; not the union of the frames' discs, whose far sightings' centres wander with the
+    range noise and grow a pole's disc until it closes a corridor; not R_obst's disc, which off a wall's end seen at a
     doorway fills the doorway."""
 
     def __init__(self) -> None:
@@ -535,10 +524,11 @@ class OutOfView:
         return tuple(self._kept)
 
     def _so_far(self, d: Disc, r_obst: float) -> Disc:
-        """What the frames saw of the obstacle `d` is this frame's sight of: `d` grown to hold their discs of it."""
+        """What the frames saw of the obstacle `d` is this frame's sight of: the widest of their discs of it no wider
+        than R_obst."""
         for k in self._out:
-            if not new_obstacles([d], [k]) and (grown := enclosing(k, d)).r <= r_obst + WIDE_TOL_M:
-                d = grown
+            if not new_obstacles([d], [k]) and d.r < k.r <= r_obst + WIDE_TOL_M:
+                d = k
         return d
 
 
