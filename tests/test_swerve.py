@@ -604,6 +604,23 @@ def test_a_pass_that_ends_past_the_corridor_route_s_end_is_flown_back_from_where
     assert jump["subsystem"] == "guidance" and 5.0 < jump["observed"] < 6.5
 
 
+def test_a_corridor_wall_a_fast_turn_sweeps_into_view_is_no_fog(monkeypatch):
+    """Scenario 365 (the Mambo in a corridor, clear air): dithering between passes by the corridor's wall, the heading
+    turning at 200°/s, the sensor sweeps the wall into view 1.7 m off — a new piece of it in three or four adjacent
+    bins each frame, never twice in one place. Read as a run of adjacent bins, it is a surface: no navigation
+    violation. Control (runs not read): 8 of 240 shots in a second taken for a fog's backscatter, D_od lowered to
+    6.8 m, a violation the perfect observer finds unfounded."""
+    from companion.onboard import detection_range
+
+    s, row, _ = _clutter(365)
+    assert s["world_family"] == "corridor" and s["vehicle"] == "mambo"
+    assert row["unfounded_alarms"] == [] and not [v for v in row["violations"] if v["subsystem"] == "navigation"]
+
+    monkeypatch.setattr(detection_range, "surface_bins", lambda *args: set())
+    _, old, _ = _clutter(365)
+    assert [a["kind"] for a in old["unfounded_alarms"]] == ["violation (navigation)"]
+
+
 def test_the_dwell_after_the_view_broke_keeps_the_flight_straight():
     """The stop contract in force because the pass would leave the view, then the view holds again: during the dwell
     before the avoid contract returns it stays straight (the swerve is for a breach of the world only)."""
