@@ -661,7 +661,8 @@ class OffboardGuidance:
         n = np.array([-u[1], u[0]])
         # rejoining from beside the route below walking pace: the yaw on the way the reference goes; with the heading
         # off it, turn first, creeping
-        want_off = self.v_off - (2.0 * self._w_off(a_max) * self.v_off + self._w_off(a_max) ** 2 * self.off) * dt
+        w_off = self._w_off(a_max)
+        want_off = self.v_off - (2.0 * w_off * self.v_off + w_off ** 2 * self.off) * dt
         rejoin = abs(self.y_off) > ON_ROUTE_M or float(np.hypot(*self.off)) > ON_ROUTE_M
         aim, turning = slow_aim(heading, u * self.v_ref + n * vy + want_off) if rejoin else (None, False)
         if turning:
