@@ -133,15 +133,26 @@ def out_of_view_forgotten(monkeypatch) -> None:
     monkeypatch.setattr(OutOfView, "keep", lambda self, i, seen, measured, half_width: ())
 
 
-def rejoined_on_the_route(monkeypatch) -> None:
-    """The cruise reference started on the route's nearest point (beside it at most): a pass that ended past the route's
-    end was pulled back to its end at once."""
-    rejoin = OffboardGuidance._rejoin_from
 
-    def on_the_route(self, p, v):
-        rejoin(self, p, v)
-        _, u = self.route.point(self.route.project(p))
-        self.off, self.v_off = np.zeros(2), np.zeros(2)
-        self.v_ref = max(float(np.asarray(v, float) @ u), 0.0)
+def out_of_view_as_union(monkeypatch) -> None:
+    """What the swerve saw of a disc now out of view held as the smallest disc holding every frame's sight of it (no
+    wider than R_obst), not its widest single sight."""
+    from companion.onboard.contract_in_force import WIDE_TOL_M, OutOfView
 
-    monkeypatch.setattr(OffboardGuidance, "_rejoin_from", on_the_route)
+    Disc = online_planner.Disc
+
+    def enclosing(a, b):
+        d = math.hypot(b.x - a.x, b.y - a.y)
+        if d + b.r <= a.r or d + a.r <= b.r:
+            return a if a.r >= b.r else b
+        r = 0.5 * (d + a.r + b.r)
+        f = (r - a.r) / d
+        return Disc(a.x + f * (b.x - a.x), a.y + f * (b.y - a.y), r)
+
+    def so_far(self, d, r_obst):
+        for k in self._out:
+            if not new_obstacles([d], [k]) and (grown := enclosing(k, d)).r <= r_obst + WIDE_TOL_M:
+                d = grown
+        return d
+
+    monkeypatch.setattr(OutOfView, "_so_far", so_far)

@@ -390,7 +390,11 @@ def governor_cycle(sensors=(BINS, BEAM)):
 def hide_the_medium(cycle) -> None:
     """A negative control only: the returns `add_scan` counts as the medium's withheld from the obstacle logic
     (a surface first seen close by reaches it once `confirm_frames` frames confirm it), and a single beam's
-    quality then unknown."""
+    quality then unknown. Runs of adjacent bins are not read as surfaces here (`surface_run`): a dense fog's own
+    runs are withheld too, as the medium's."""
+    truth = cycle.sensing.truth
+    truth.p = replace(truth.p, surface_run=10 ** 6)
+
     def scan(s):
         medium = cycle.sensing.truth.add_scan(s)
         if medium:

@@ -3,18 +3,23 @@ log tells, or a command did not take effect on time (companion/ground/review_che
 written through the real EventLog, each beside a clean twin that stays kept; then the column flight in
 lock-step with the daemon's first mode command lost on the link."""
 
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
 from companion.ground import review_checks
 from companion.ground.commands import review_log
 from companion.onboard.eventlog import EventLog
-from companion.onboard.states import CYCLE_COMPLETES
+from companion.onboard.guidance import OffboardGuidance
+from companion.onboard.states import CYCLE_COMPLETES, REFERENCE_ON
 from companion.ground.review import format_report, review, run_facts, summarise
 from companion.ground.review_html import verdict
 from tests import golden
 from tests.lockstep import Rig
 from tests.test_daemon_lockstep import column_scenario, fly
 from tests.test_delivery_lockstep import ResendAfterOneSecond
+from tests.test_offboard_lockstep import engage_and_fly, offboard_config, offboard_scenario
 
 DT = 0.1
 X_COL, R_COL = 20.0, 0.5  # a column ahead on the route (its surface at 19.5 m)
@@ -227,6 +232,31 @@ def test_a_cycle_of_the_daemon_that_ended_in_an_internal_error_is_named_in_the_v
     assert ("the daemon's cycle ended in an internal error (up to 10 in a row), first at t = 2.00 s: "
             "ZeroDivisionError: a bug; action: hold") in said(rep)
     assert "guidance ×1 (0.5 s)" in said(rep) and "ms apart" not in said(rep)  # a count, not a cycle's lateness
+
+
+def test_a_setpoint_put_metres_off_the_vehicle_is_guidance_s_violation_said_and_reviewed(tmp_path, monkeypatch):
+    """A fault of guidance's own, injected in the offboard flight (PX4, nothing in the way): from 8 s on every cruise
+    setpoint is put 3 m to the side of where it should be — one jump, then on from there. The daemon says guidance's
+    guarantee broken at that setpoint, by about 3 m, and kept again at the next; the review names it. Before the
+    fault: nothing."""
+    def shifted(self, *args, **kw):
+        sp = cruise(self, *args, **kw)
+        return replace(sp, p=sp.p + np.array([0.0, 3.0])) if on else sp
+
+    cruise, on = OffboardGuidance._cruise, False
+    monkeypatch.setattr(OffboardGuidance, "_cruise", shifted)
+    log = EventLog(tmp_path / "log")
+    rig = Rig(offboard_scenario(1, x_col=400.0), "px4", log=log, config=offboard_config(x_end=120.0))
+    log.event(None, "start", mode=rig.cfg.mode, vehicle=rig.daemon.table.vehicle.name, table=str(rig.daemon.table.path))
+    engage_and_fly(rig, 8.0)
+    on, t0 = True, rig.sim.time_s
+    rig.run(2.0)
+    log.close()
+    rep, _ = review_log(tmp_path / "log")
+    (v,) = [v for v in rep["violations"] if v["subsystem"] == "guidance"]
+    assert v["guarantee"] == REFERENCE_ON and 2.5 < v["observed"] < 3.5 and v["ended_by"] == "violation_end"
+    assert 0.0 <= v["start_t"] - t0 < 0.1 and 0.0 < v["end_t"] - v["start_t"] < 0.1
+    assert not rep["ok"] and "guidance ×1" in said(rep) and "ms apart" not in said(rep)
 
 
 # ----------------------------------------------------------------------------- speed limits
