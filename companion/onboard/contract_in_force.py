@@ -56,7 +56,8 @@ from contracts.contour import distance_to_polyline
 from contracts.online_planner import Disc
 from contracts.table import ContractTable, Omega
 
-from .guidance import ENTER_TOL_M, neighbouring, new_obstacles, obstacle_discs
+from .guidance import ENTER_TOL_M, new_obstacles, obstacle_discs
+from .sight import neighbouring
 
 # [deg] the heading's lag behind the track the field-of-view rule budgets: the median measured in the SITL (true heading
 # against true track above 1 m/s over 20 offboard flights: median 8°, 17–21° at speed). Not the worst: the rule

@@ -83,7 +83,7 @@ from contracts.window import WindowMax
 from .config import SensorConfig
 from .late_detection import Candidate, Confirmations, Frame, LateDetection, seen_from
 from .samples import Scan
-from .sight import looked_past
+from .sight import looked_past, neighbouring
 
 NOISE_SIGMAS = 3.0  # a first sighting this many σ of range noise short of the stated range is still on time
 
@@ -99,7 +99,7 @@ def surface_bins(hits, increment: float | None, near_m: float, run: int, step_m:
     near = sorted((b, r, k) for k, (b, r) in enumerate(hits) if r < near_m)
     out, cur = set(), []
     for b, r, k in near:
-        if cur and abs(b - cur[-1][0] - increment) <= 0.01 * increment and abs(r - cur[-1][1]) <= step_m:
+        if cur and neighbouring(b - cur[-1][0], increment / 2, increment / 2) and abs(r - cur[-1][1]) <= step_m:
             cur.append((b, r, k))
         else:
             out |= {c[2] for c in cur} if len(cur) >= run else set()

@@ -28,6 +28,7 @@ from contracts.geometry import wrap
 from contracts.online_planner import REPLAN_S, AvoidancePlanner, Disc, Plan, best_stop, keeps_plan, load_solver
 
 from .ahead import CREEP_SPEED_M_S, TRAVEL_SPEED_M_S
+from .sight import neighbouring
 
 RANGE_TOL_M = 0.1  # [m] a bin's range is good to this (3 σ of the range noise the sensors are flown with)
 # [m] a swerve's plan keeps this much farther from a run's sectors than the hold on its path (r_body + E_tr): a plan on
@@ -216,12 +217,6 @@ class Route:
 def _arc(lo: float, hi: float, n: int) -> tuple[float, ...]:
     """`np.linspace(lo, hi, n)` as floats, once per arc (a single beam's field of view: the same every cycle)."""
     return tuple(np.linspace(lo, hi, n).tolist())
-
-
-def neighbouring(gap: float, h_a: float, h_b: float) -> bool:
-    """Two bins whose centres are `gap` [rad] apart, of half-widths h_a and h_b, are neighbours (one run may hold
-    both): at most a bin and a quarter apart."""
-    return gap <= 1.25 * (h_a + h_b) + 1e-9
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,8 +1,9 @@
 """Whether one frame of a sensor looked past a place: the question both the evidence of a late first detection
 (detection_range.py) and the clutter rule (estimators.py) ask of the frames before a new return — in a world of
 static obstacles, a surface at a place an earlier frame looked past was not there, so what is seen there now is
-either no surface or a broken guarantee. Pure maths on one frame: where it was taken from, its bins and hits, its
-claim."""
+either no surface or a broken guarantee; and which of a frame's bins are neighbours, one run of an obstacle or a
+surface (guidance.py, detection_range.py). Pure maths on one frame: where it was taken from, its bins and hits,
+its claim."""
 
 from __future__ import annotations
 
@@ -10,6 +11,12 @@ import math
 from collections.abc import Iterable, Sequence
 
 from contracts.geometry import wrap
+
+
+def neighbouring(gap: float, h_a: float, h_b: float) -> bool:
+    """Two bins whose centres are `gap` [rad] apart, of half-widths h_a and h_b, are neighbours (one run may hold
+    both): at most a bin and a quarter apart."""
+    return gap <= 1.25 * (h_a + h_b) + 1e-9
 
 
 def looked_past(apex: tuple[float, float], yaw: float, bins: Sequence[float] | None, increment: float,
