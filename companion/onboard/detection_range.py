@@ -143,7 +143,7 @@ class DetectionRangeParams:
     confirm_m: float = 0.08  # a short return within this (+ its bin's width) of one in each of the last frames...
     confirm_frames: int = 4  # ... of this many in a row: a surface
     surface_run: int = 3  # short returns in this many adjacent bins or more, each within surface_step_m of the next...
-    surface_step_m: float = 0.2  # ...: a surface (the medium's come one per bin, at ranges of their own: `surface_bins`)
+    surface_step_m: float = 0.2  # ...: a surface (the medium's come one per bin, at ranges of their own)
     min_reports: int = 20  # reports in the window before the backscatter rate counts (a single beam at 20 Hz: 1 s)
     min_spurious: int = 3  # spurious short returns in the window before the rate counts
     backscatter_length_m: float = BACKSCATTER_LENGTH_M  # the sensor's L_bs (contracts/lidar.py)
@@ -301,9 +301,7 @@ class DetectionRange:
                 tr.t_last = t
             elif len(hist) == hist.maxlen and all(any(math.hypot(x - a, y - b) <= reach for a, b in pts) for pts in hist):
                 self._tracks.append(_Track(x, y, t, t, 2.0 * reach))  # a surface close by, seen frame after frame
-            elif k in surface:
-                pass  # a surface across adjacent bins (a wall swept into view by a turn is new in every frame)
-            else:
+            elif k not in surface:  # (a surface across adjacent bins: a wall a turn sweeps into view is new each frame)
                 near.append((x, y))
                 medium.append(k)
         hist.append(now)
